@@ -1,0 +1,1 @@
+"""qsls.cli: the ``qsls`` command (Typer). Thin: parse, call one pipeline function, print."""

@@ -1,0 +1,117 @@
+"""What every command shares: one-line errors, progress bars, summary tables, overrides."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, TypeVar
+
+import typer
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def cli_errors(fn: F) -> F:
+    """Turn the pipeline's user errors into ``error: ...`` on stderr and their exit code."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from qsls.pipeline.errors import QslsError
+
+        try:
+            return fn(*args, **kwargs)
+        except QslsError as exc:
+            msg = " ".join(str(exc).split("\n"))
+            typer.echo(f"error: {msg}", err=True)
+            raise typer.Exit(exc.exit_code) from None
+        except KeyboardInterrupt:
+            typer.echo("error: interrupted; no partial output was kept", err=True)
+            raise typer.Exit(130) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+def overrides(**kwargs: Any) -> dict[str, Any]:
+    """The options given on the command line (``None`` means not given)."""
+    return {k: v for k, v in kwargs.items() if v is not None}
+
+
+class RichProgress:
+    """A :class:`qsls.pipeline.progress.Progress` drawn with rich on stderr."""
+
+    def __init__(self) -> None:
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self._progress = Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=Console(stderr=True),
+            transient=False,
+            disable=not sys.stderr.isatty(),
+        )
+        self._task: Any = None
+
+    def __enter__(self) -> RichProgress:
+        self._progress.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._progress.stop()
+
+    def start(self, label: str, total: float | None = None) -> None:
+        self._task = self._progress.add_task(label, total=total)
+
+    def advance(self, amount: float = 1.0) -> None:
+        if self._task is not None:
+            self._progress.advance(self._task, amount)
+
+    def finish(self) -> None:
+        if self._task is not None:
+            task = self._progress.tasks[-1]
+            if task.total is not None:
+                self._progress.update(self._task, completed=task.total)
+            self._task = None
+
+
+def print_summary(title: str, rows: Iterable[tuple[str, Any]] | Mapping[str, Any]) -> None:
+    """A two-column table on stdout."""
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, show_header=False, title_justify="left")
+    table.add_column(style="bold")
+    table.add_column()
+    items = rows.items() if isinstance(rows, Mapping) else rows
+    for key, value in items:
+        table.add_row(str(key), _fmt(value))
+    Console().print(table)
+
+
+def print_table(title: str, columns: list[str], rows: Iterable[Iterable[Any]]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, title_justify="left")
+    for c in columns:
+        table.add_column(c)
+    for r in rows:
+        table.add_row(*(_fmt(v) for v in r))
+    Console().print(table)
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)

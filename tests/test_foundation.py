@@ -1,0 +1,107 @@
+"""The foundation: atomic stage folders, manifests, config validation, the CLI's surface."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from qsls.cli.main import app
+from qsls.pipeline import artifacts
+from qsls.pipeline.config import Options, load_options
+from qsls.pipeline.errors import ConfigError, OutputExistsError
+from qsls.pipeline.model import quadrotor_model
+
+
+class _Inner(Options):
+    gain: float = 1.0
+
+
+class _Opts(Options):
+    dt: float = 0.1
+    align: str = "4dof"
+    inner: _Inner = _Inner()
+
+
+def test_unknown_key_suggests_nearest(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("dtt: 0.2\n")
+    with pytest.raises(ConfigError, match="unknown option 'dtt'; did you mean 'dt'"):
+        load_options(_Opts, cfg)
+    cfg.write_text("inner:\n  gian: 2\n")
+    with pytest.raises(ConfigError, match="did you mean 'gain'"):
+        load_options(_Opts, cfg)
+
+
+def test_command_line_wins_over_file(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("dt: 0.2\nalign: se3\n")
+    opts = load_options(_Opts, cfg, {"dt": 0.05, "align": None})
+    assert opts.dt == 0.05 and opts.align == "se3"
+
+
+def test_malformed_yaml_is_one_clear_error(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("dt: [0.1\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_options(_Opts, cfg)
+
+
+def test_stage_writer_is_atomic_and_refuses_overwrite(tmp_path):
+    out = tmp_path / "stage"
+    src = tmp_path / "input.txt"
+    src.write_text("hello")
+    df = pd.DataFrame({"a": np.arange(5), "b": np.linspace(0, 1, 5)})
+    with artifacts.StageWriter(out, "demo", options={"k": 1}, inputs=[src]) as w:
+        w.write_parquet("t.parquet", df)
+        w.results["n"] = 5
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["inputs"][0]["sha256"] == artifacts.sha256_file(src)
+    assert manifest["results"]["n"] == 5
+    assert manifest["files"]["t.parquet"] == artifacts.sha256_file(out / "t.parquet")
+    first = (out / "t.parquet").read_bytes()
+
+    with pytest.raises(OutputExistsError):
+        artifacts.StageWriter(out, "demo").__enter__()
+
+    # A stage that fails mid-way leaves the old output untouched and no temp folder.
+    with pytest.raises(RuntimeError), artifacts.StageWriter(out, "demo", force=True) as w:
+        w.write_text("partial.txt", "x")
+        raise RuntimeError("killed")
+    assert not (out / "partial.txt").exists()
+    assert (out / "t.parquet").read_bytes() == first
+    assert not list(tmp_path.glob(".stage.tmp-*"))
+
+    # Same data, same bytes.
+    with artifacts.StageWriter(out, "demo", force=True) as w:
+        w.write_parquet("t.parquet", df)
+    assert (out / "t.parquet").read_bytes() == first
+
+
+def test_npz_is_deterministic():
+    a = {"x": np.arange(6.0).reshape(2, 3), "y": np.eye(2)}
+    assert artifacts.npz_bytes(a) == artifacts.npz_bytes(dict(reversed(list(a.items()))))
+
+
+def test_zoh_model_matches_closed_form():
+    m = quadrotor_model(dt=0.1, mass=0.256)
+    dt, g = 0.1, 9.81
+    assert np.allclose(m.A[:3, 3:], dt * np.eye(3))
+    assert m.B[3, 0] == pytest.approx(-g * dt)
+    assert m.B[0, 0] == pytest.approx(-g * dt**2 / 2)
+    assert m.B[5, 2] == pytest.approx(dt / 0.256)
+
+
+def test_cli_version_and_help():
+    runner = CliRunner()
+    res = runner.invoke(app, ["--version"])
+    assert res.exit_code == 0 and res.stdout.startswith("qsls ")
+    proc = subprocess.run(
+        [sys.executable, "-m", "qsls.cli.main", "--help"], capture_output=True, text=True
+    )
+    assert proc.returncode == 0 and "Usage" in proc.stdout
