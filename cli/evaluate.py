@@ -1,0 +1,102 @@
+"""Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from qsls.cli.common import RichProgress, cli_errors, overrides, print_summary, print_table
+
+
+@cli_errors
+def command(
+    model: Path = typer.Option(
+        ...,
+        "--model",
+        help="Error model: error_model.yaml or the 'qsls fit' folder holding it "
+        "(its training_states.parquet gives the distance to the training data).",
+    ),
+    controller: list[Path] = typer.Option(
+        ...,
+        "--controller",
+        help="Controller folder written by 'qsls synth' (holds "
+        "certificate.yaml), or a synth output folder for all its controllers. Repeatable.",
+    ),
+    flights: list[Path] = typer.Option(
+        None,
+        "--flights",
+        help="Held-out flight folder written by 'qsls ingest'. Repeatable. "
+        "Not used with --fly (the flights are flown).",
+    ),
+    out: Path = typer.Option(
+        ..., "--out", help="Output folder (evaluation.json, .parquet, figures)."
+    ),
+    fly: bool = typer.Option(
+        False,
+        "--fly",
+        help="Fly every controller plus SE3 on the simulator with the VIO "
+        "emulator in the loop, ingest each flight, check bounds and compare with the paper.",
+    ),
+    config: Path = typer.Option(
+        None, "--config", help="YAML file of options (the command line wins)."
+    ),
+    smooth_s: float = typer.Option(
+        None,
+        "--smooth-s",
+        help="Time constant (s) of the average drawn over ||e|| in figures (0: none; default 1).",
+    ),
+    no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
+    seeds: str = typer.Option(
+        None, "--seeds", help="--fly: comma-separated seeds (default 0,1,2)."
+    ),
+    duration: float = typer.Option(
+        None, "--duration", help="--fly: seconds per flight (default 30)."
+    ),
+    conditions: str = typer.Option(
+        None,
+        "--conditions",
+        help="--fly: comma-separated perception conditions (default regular,degraded).",
+    ),
+    jobs: int = typer.Option(None, "--jobs", help="--fly: parallel flights (default: all cores)."),
+    force: bool = typer.Option(
+        False,
+        "--force",
+        help="Overwrite --out, and check a controller certified against a "
+        "different error model anyway (with a warning).",
+    ),
+) -> None:
+    """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
+    from qsls.pipeline.config import load_options
+
+    ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None)
+    if fly:
+        from qsls.pipeline.fly import FlyOptions, fly_evaluate
+
+        ov.update(
+            overrides(
+                seeds=[int(s) for s in seeds.split(",") if s.strip()] if seeds else None,
+                duration=duration,
+                conditions=[c.strip() for c in conditions.split(",") if c.strip()]
+                if conditions
+                else None,
+                jobs=jobs,
+            )
+        )
+        options = load_options(FlyOptions, config, ov, section="evaluate")
+        with RichProgress() as progress:
+            result = fly_evaluate(model, controller, options, out, force=force, progress=progress)
+        print_summary("qsls evaluate --fly", result.summary())
+        cols, rows = result.comparison_rows()
+        print_table("Against the paper's findings", cols, rows)
+        return
+    from qsls.pipeline.evaluate import EvaluateOptions, evaluate
+
+    options = load_options(EvaluateOptions, config, ov, section="evaluate")
+    with RichProgress() as progress:
+        result = evaluate(
+            flights or [], model, controller, options, out, force=force, progress=progress
+        )
+    for w in result.warnings:
+        typer.echo(f"warning: {w}", err=True)
+    print_summary("qsls evaluate", result.summary())

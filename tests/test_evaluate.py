@@ -1,0 +1,236 @@
+"""The bound check on held-out flights (qsls evaluate), on inputs with known answers."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from qsls.cli.main import app
+from qsls.pipeline.artifacts import StageWriter, sha256_file
+from qsls.pipeline.evaluate import (
+    EvaluateOptions,
+    TrainingData,
+    evaluate,
+    fir_inf_norm,
+    load_controller_bound,
+    smooth,
+)
+from qsls.pipeline.flight import X_COLS, make_flight_frame
+
+DT = 0.1
+
+
+def circle_states(n: int, z: float = 1.0, radius: float = 1.0, period: float = 5.0) -> np.ndarray:
+    t = np.arange(n) * DT
+    w = 2 * np.pi / period
+    x = np.zeros((n, 6))
+    x[:, 0] = radius * np.cos(w * t)
+    x[:, 1] = radius * np.sin(w * t)
+    x[:, 2] = z
+    x[:, 3] = -radius * w * np.sin(w * t)
+    x[:, 4] = radius * w * np.cos(w * t)
+    return x
+
+
+def write_fit(folder, x_train, e_train, *, eps_e=0.05, s_max=3.0, radius=0.5):
+    model = {
+        "eps_e": eps_e,
+        "radius": radius,
+        "state_scale": [1.0] * 6,
+        "s_slope": {"max": s_max, "percentiles": {"p95": 0.2}},
+        "R0": eps_e,
+        "delta": 0.0,
+        "n_samples": len(x_train),
+        "n_pairs": 10,
+    }
+    df = pd.DataFrame(x_train, columns=list(X_COLS))
+    df.insert(0, "t", np.arange(len(x_train)) * DT)
+    df.insert(0, "flight", "train")
+    with StageWriter(folder, "fit") as w:
+        w.write_yaml("error_model.yaml", model)
+        w.write_parquet("training_states.parquet", df)
+    return folder / "error_model.yaml"
+
+
+def write_controller(folder, model_file, **over):
+    cert = {
+        "status": "certified",
+        "robust": True,
+        "S": 0.2,
+        "eps_e": 0.05,
+        "eps_w": 0.01,
+        "norm_phi_xx": 2.0,
+        "norm_phi_xy": 2.5,
+        "radius": 0.5,
+        "delta": 0.0,
+        "gamma": 0.1,
+        "gamma_strict": 0.1,
+        "error_model_sha256": sha256_file(model_file),
+    }
+    cert.update(over)
+    with StageWriter(folder, "synth") as w:
+        w.write_yaml("certificate.yaml", cert)
+    return folder
+
+
+def write_flight(folder, x, e):
+    stamps = (np.arange(len(x)) * DT * 1e9).astype(np.int64)
+    with StageWriter(folder, "ingest") as w:
+        w.write_parquet("flight.parquet", make_flight_frame(stamps, x, x + e))
+    return folder
+
+
+@pytest.fixture()
+def setup(tmp_path):
+    rng = np.random.default_rng(0)
+    x_train = circle_states(400)
+    e_train = rng.uniform(-0.04, 0.04, (400, 6))
+    model = write_fit(tmp_path / "fit", x_train, e_train)
+    ctrl = write_controller(tmp_path / "l1_robust", model)
+    # Held out: the same circle 0.1 m higher (distance exactly 0.1 to the training states),
+    # errors 0.03 except a planted spike of 0.2 at sample 37.
+    x = circle_states(200, z=1.1)
+    e = np.full((200, 6), 0.03)
+    e[37, 3] = 0.2
+    flight = write_flight(tmp_path / "held_out", x, e)
+    return tmp_path, model, ctrl, flight
+
+
+def test_bounds_match_hand_computation(setup):
+    tmp, model, ctrl, flight = setup
+    res = evaluate([flight], model, [ctrl], EvaluateOptions(figures=False), tmp / "ev")
+    row = res.table.iloc[0]
+    denom = 1 - 0.2 * 2.5
+    gamma_strict = 0.05 / denom
+    gamma = (0.05 + 0.2 * (0.01 * 2.0 + 0.1)) / denom
+    assert row["gamma_strict"] == pytest.approx(gamma_strict, rel=1e-12)
+    assert row["gamma"] == pytest.approx(gamma, rel=1e-9)
+    assert row["max_distance_to_training"] == pytest.approx(0.1, abs=1e-9)
+    assert row["max_error_norm"] == pytest.approx(0.2)
+    assert row["max_ratio_t"] == pytest.approx(3.7)
+    assert row["max_ratio"] == pytest.approx(0.2 / gamma, rel=1e-9)
+    # Only the spike exceeds the bounds: one sample of 200.
+    assert row["frac_under_gamma"] == pytest.approx(199 / 200)
+    assert row["frac_under_gamma_strict"] == pytest.approx(199 / 200)
+    assert not row["bound_holds"]
+    # 0.2 > eps_e + S d = 0.07: the assumption is what failed, and the verdict says so.
+    assert not row["assumption_holds"]
+    assert "assumption violated" in row["verdict"] and row["verdict"].startswith("FAILS")
+    doc = json.loads((tmp / "ev" / "evaluation.json").read_text())
+    assert doc["controllers"][0]["max_ratio"] == pytest.approx(row["max_ratio"])
+    cols = pd.read_parquet(tmp / "ev" / "evaluation.parquet").columns
+    for c in (
+        "flight",
+        "controller",
+        "gamma",
+        "gamma_strict",
+        "max_error_norm",
+        "frac_under_gamma",
+        "frac_under_gamma_strict",
+        "max_ratio",
+        "max_ratio_t",
+        "max_distance_to_training",
+    ):
+        assert c in cols
+
+
+def test_bound_holds_when_errors_small(setup):
+    tmp, model, ctrl, _ = setup
+    x = circle_states(100, z=1.05)
+    flight = write_flight(tmp / "quiet", x, np.full((100, 6), 0.02))
+    res = evaluate([flight], model, [ctrl], EvaluateOptions(), tmp / "ev2")
+    row = res.table.iloc[0]
+    assert row["bound_holds"] and row["assumption_holds"] and row["verdict"] == "holds"
+    assert row["frac_under_gamma"] == 1.0
+    assert (tmp / "ev2" / "perception_error.png").stat().st_size > 1000
+    assert (tmp / "ev2" / "distance_to_training.png").is_file()
+
+
+def test_no_guarantee_when_s_phi_at_least_one(setup):
+    tmp, model, _, flight = setup
+    pd_dir = write_controller(
+        tmp / "pd", model, S=0.5, norm_phi_xy=4.0, status="reference", robust=False
+    )
+    b = load_controller_bound(pd_dir)
+    assert not b.has_guarantee and math.isinf(b.gamma_strict)
+    res = evaluate([flight], model, [pd_dir], EvaluateOptions(figures=False), tmp / "ev3")
+    assert res.table.iloc[0]["verdict"].startswith("no guarantee")
+
+
+def test_nearest_distance_matches_brute_force():
+    rng = np.random.default_rng(3)
+    train = rng.normal(size=(500, 6))
+    query = rng.normal(size=(50, 6))
+    scale = np.array([1, 1, 2, 0.5, 0.5, 1.0])
+    d, i = TrainingData.build(train, scale).nearest(query)
+    brute = np.abs((query[:, None, :] - train[None]) * scale).max(axis=2)
+    np.testing.assert_allclose(d, brute.min(axis=1), rtol=1e-12)
+    np.testing.assert_array_equal(i, brute.argmin(axis=1))
+
+
+def test_fir_norm_and_smoothing():
+    taps = np.zeros((3, 2, 2))
+    taps[1] = [[1, -2], [0, 1]]
+    taps[2] = [[0.5, 0], [-3, 0]]
+    assert fir_inf_norm(taps) == pytest.approx(4.0)  # row 1: 0 + 1 + 3 + 0
+    y = smooth(np.ones(50), 0.1, 1.0)
+    np.testing.assert_allclose(y, 1.0)
+    step = smooth(np.r_[np.zeros(1), np.ones(10)], 0.1, 1.0)
+    assert step[10] == pytest.approx(1 - math.exp(-1.0), rel=1e-9)
+
+
+# --------------------------------------------------------------------------- bad input (CLI)
+def _run(args):
+    return CliRunner().invoke(app, ["evaluate", *map(str, args)])
+
+
+def test_flight_without_columns_is_one_line_error(setup):
+    tmp, model, ctrl, _ = setup
+    bad = tmp / "bad_flight"
+    with StageWriter(bad, "ingest") as w:
+        w.write_parquet("flight.parquet", pd.DataFrame({"t": [0.0, 0.1], "x_px": [0.0, 1.0]}))
+    r = _run(["--model", model, "--controller", ctrl, "--flights", bad, "--out", tmp / "o1"])
+    assert r.exit_code == 2
+    assert "missing columns" in r.output and len(r.output.strip().splitlines()) == 1
+    assert not (tmp / "o1").exists()
+
+
+def test_controller_without_certificate(setup):
+    tmp, model, _, flight = setup
+    empty = tmp / "empty_ctrl"
+    empty.mkdir()
+    r = _run(["--model", model, "--controller", empty, "--flights", flight, "--out", tmp / "o2"])
+    assert r.exit_code == 2 and "certificate.yaml" in r.output
+    assert len(r.output.strip().splitlines()) == 1
+    assert not (tmp / "o2").exists()
+
+
+def test_model_hash_mismatch_refused_then_warned(setup):
+    tmp, model, _, flight = setup
+    other = write_controller(tmp / "other", model, error_model_sha256="0" * 64)
+    r = _run(["--model", model, "--controller", other, "--flights", flight, "--out", tmp / "o3"])
+    assert r.exit_code == 2 and "certified against error model" in r.output
+    assert "--force" in r.output and not (tmp / "o3").exists()
+    r = _run(
+        [
+            "--model",
+            model.parent,
+            "--controller",
+            other,
+            "--flights",
+            flight,
+            "--out",
+            tmp / "o3",
+            "--force",
+            "--no-figures",
+        ]
+    )
+    assert r.exit_code == 0, r.output
+    assert "warning:" in r.output and "certified against error model" in r.output
+    doc = json.loads((tmp / "o3" / "evaluation.json").read_text())
+    assert any("certified against" in w for w in doc["warnings"])
