@@ -1,0 +1,336 @@
+"""VIO emulator: the error a visual-inertial odometry estimate makes, ``y = x + e``.
+
+State ``x = [px, py, pz, vx, vy, vz]`` (world = motion-capture frame, z up). The error is
+the sum of four parts, each with its own switch in :class:`VioParams`::
+
+    e_k = g * b(x_k)          smooth spatial bias field (known Lipschitz constant)
+        + d_k                 drift that grows with the distance travelled
+        + sigma(p_k) * n_k    white noise, larger where texture or light is poor
+        + o_k                 occasional velocity outliers
+
+**Bias field.** ``b(x) = sum_r A_r tanh((n_r . p - c_r) / w_r)          (ridges)
+                     + sum_q A_q sin(k_q . p + phi_q)                   (ripples)
+                     + [0, 0, 0, kappa * v]                             (velocity scale error)``
+with ``n_r = (cos theta_r, sin theta_r, 0)`` a horizontal unit normal, ``A`` six amplitudes
+(one per error component), ``k_q = (kx, ky)`` a horizontal wave vector. It is scaled by
+``g = 1 + bias_light_gain * (1 - light)`` (VIO is worse in poor light).
+
+**Lipschitz constant (infinity norm, closed form).** For each component ``i``,
+``|b_i(x) - b_i(x')| <= sum_j sup|d b_i / d x_j| |x_j - x'_j| <= (sum_j sup|d b_i/d x_j|)
+||x - x'||_inf``, and ``sup |d/dp_j tanh((n.p - c)/w)| = |n_j| / w``,
+``sup |d/dp_j sin(k.p + phi)| = |k_j|``. Hence::
+
+    L = g * max_i [ sum_r |A_ri| (|cos theta_r| + |sin theta_r|) / w_r
+                  + sum_q |A_qi| (|kx_q| + |ky_q|) + |kappa_i| ]
+
+so that ``||b(x) - b(x')||_inf <= L ||x - x'||_inf`` on the whole 6-D state. The default
+ridges cross the default circle (radius 1 m about the origin), where one ridge dominates
+its row, so a slope estimator on circle flights sees most of ``L``.
+
+**Drift.** ``d_{k+1} = d_k + drift_fraction * u * ds_k + drift_walk * sqrt(ds_k) * N(0, I)``
+on position only, ``ds_k = ||p_{k+1} - p_k||_2``, ``u`` a unit direction drawn per seed
+(vertical part scaled by ``drift_vertical``).
+
+**Noise.** ``sigma(p) = sigma_0 * (1 + noise_gain * (1 - light * texture(p)))`` with the floor
+texture ``texture(p) = texture_level * clip(0.65 + 0.35 sin(2 pi px / lambda) cos(2 pi py /
+lambda) - patch_depth * exp(-||p_xy - patch_center||^2 / (2 patch_radius^2)), 0.05, 1)``.
+
+**Outliers.** With probability ``outlier_prob * (1 + noise_gain * (1 - light))`` per sample, one
+velocity axis gets a spike of random sign and magnitude in ``[outlier_min, outlier_max]``.
+
+``perception: degraded`` replaces ``light`` and ``texture_level`` by the ``degraded`` preset.
+Random parts come from independent streams of ``numpy.random.SeedSequence(seed)``, so
+switching one part off leaves the others' values unchanged; the same seed gives the same
+errors.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, field_validator
+
+from qsls.pipeline.config import Options
+
+Six = tuple[float, float, float, float, float, float]
+
+
+class Ridge(Options):
+    """A smooth step ``A tanh((n . p - offset) / width)`` across the floor."""
+
+    normal_deg: float = 0.0
+    """Direction of the ridge's normal in the horizontal plane (degrees from +x)."""
+    offset: float = 0.0
+    """Signed distance of the ridge's centre line from the origin along the normal (m)."""
+    width: float = Field(0.2, gt=0)
+    """Half-width of the steep part (m); the largest slope is amplitude / width."""
+    amplitude: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    """Step half-height per error component ``e_px .. e_vz`` (m, m/s)."""
+
+
+class Ripple(Options):
+    """A gentle undulation ``A sin(kx px + ky py + phase)``."""
+
+    wavevector: tuple[float, float] = (2.0, 1.0)
+    """``(kx, ky)`` in rad/m."""
+    phase: float = 0.0
+    amplitude: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+class PerceptionLevel(Options):
+    """Light level and texture richness, each in (0, 1] (1 = ideal)."""
+
+    light: float = Field(1.0, gt=0, le=1)
+    texture: float = Field(1.0, gt=0, le=1)
+
+
+def _default_ridges() -> list[Ridge]:
+    return [
+        # x = 0.35 m: crossed twice per lap; dominates e_px (slope 0.2) and feeds e_vy.
+        Ridge(normal_deg=0.0, offset=0.35, width=0.2, amplitude=(0.04, 0, 0, 0, 0.02, 0)),
+        # y = -0.3 m: dominates e_py and e_vx.
+        Ridge(normal_deg=90.0, offset=-0.3, width=0.25, amplitude=(0, 0.04, 0, 0.03, 0, 0)),
+        # diagonal: height and vertical-velocity error.
+        Ridge(normal_deg=45.0, offset=0.6, width=0.3, amplitude=(0, 0, 0.015, 0, 0, 0.015)),
+    ]
+
+
+def _default_ripples() -> list[Ripple]:
+    return [
+        Ripple(wavevector=(2.0, 1.0), phase=0.3, amplitude=(0.004, 0.004, 0.002, 0.0, 0.0, 0.0)),
+        Ripple(wavevector=(-1.0, 2.5), phase=1.1, amplitude=(0.0, 0.0, 0.0, 0.004, 0.004, 0.003)),
+    ]
+
+
+class VioParams(Options):
+    """Every parameter of the VIO emulator (all in the config; see the module docstring)."""
+
+    # switches
+    bias: bool = True
+    drift: bool = True
+    noise: bool = True
+    outliers: bool = True
+    perception: Literal["regular", "degraded"] = "regular"
+
+    rate_hz: float = Field(100.0, ge=30.0, le=200.0)
+    """VIO output rate (Hz), 30 to 200 like real VIO pipelines."""
+
+    # perception presets
+    regular: PerceptionLevel = PerceptionLevel(light=1.0, texture=1.0)
+    degraded: PerceptionLevel = PerceptionLevel(light=0.35, texture=0.45)
+
+    # bias field
+    ridges: list[Ridge] = Field(default_factory=_default_ridges)
+    ripples: list[Ripple] = Field(default_factory=_default_ripples)
+    velocity_scale: tuple[float, float, float] = (0.02, 0.02, 0.01)
+    """Velocity scale-factor error ``kappa`` per axis (fraction)."""
+    bias_light_gain: float = Field(1.0, ge=0)
+    """Bias grows by ``1 + bias_light_gain (1 - light)`` in poor light."""
+
+    # drift
+    drift_fraction: float = Field(0.002, ge=0)
+    """Systematic position drift per metre travelled (m/m)."""
+    drift_walk: float = Field(0.002, ge=0)
+    """Random-walk drift density (m per sqrt(m) travelled)."""
+    drift_vertical: float = Field(0.3, ge=0)
+    """Scale of the vertical component of the drift direction."""
+
+    # noise
+    noise_position: float = Field(0.004, ge=0)
+    """Position noise std (m) with ideal texture and light."""
+    noise_velocity: float = Field(0.015, ge=0)
+    """Velocity noise std (m/s) with ideal texture and light."""
+    noise_gain: float = Field(4.0, ge=0)
+    """Noise grows by ``1 + noise_gain (1 - light * texture(p))``."""
+    texture_wavelength: float = Field(1.5, gt=0)
+    """Wavelength of the floor's texture pattern (m)."""
+    texture_patch_center: tuple[float, float] = (-0.6, 0.6)
+    """Centre of a poorly textured patch on the floor (m); the circle passes over it."""
+    texture_patch_radius: float = Field(0.35, gt=0)
+    texture_patch_depth: float = Field(0.5, ge=0, le=1)
+
+    # outliers
+    outlier_prob: float = Field(0.003, ge=0, le=1)
+    """Per-sample probability of a velocity outlier in ideal conditions."""
+    outlier_min: float = Field(0.3, ge=0)
+    outlier_max: float = Field(1.0, ge=0)
+
+    @field_validator("outlier_max")
+    @classmethod
+    def _max_ge_min(cls, v: float, info) -> float:  # type: ignore[no-untyped-def]
+        lo = info.data.get("outlier_min")
+        if lo is not None and v < lo:
+            raise ValueError(f"outlier_max ({v}) must be >= outlier_min ({lo})")
+        return v
+
+    @property
+    def level(self) -> PerceptionLevel:
+        """The active perception level (``regular`` or ``degraded`` preset)."""
+        return self.degraded if self.perception == "degraded" else self.regular
+
+
+def _dot2(p: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """``p @ n.T`` for 2-vectors, row by row (no BLAS: the same bits for any batch size)."""
+    return p[:, 0:1] * n[None, :, 0] + p[:, 1:2] * n[None, :, 1]
+
+
+# Stream indices of the SeedSequence children (fixed: adding a stream appends).
+_STREAM_NOISE, _STREAM_DRIFT, _STREAM_OUTLIER, _STREAM_DIRECTION = range(4)
+
+
+class VioEmulator:
+    """The VIO error model of the module docstring, seeded and deterministic.
+
+    Stateless parts: :meth:`bias`, :meth:`texture`, :meth:`noise_std`. Stateful per-sample
+    model: :meth:`reset`, then :meth:`sample` once per VIO sample in time order (drift
+    integrates the distance between consecutive samples), or :meth:`errors` on a whole
+    trajectory at once (identical values).
+    """
+
+    def __init__(self, params: VioParams, seed: int) -> None:
+        self.params = params
+        self.seed = int(seed)
+        level = params.level
+        self.light = float(level.light)
+        self.texture_level = float(level.texture)
+        self.bias_gain = 1.0 + params.bias_light_gain * (1.0 - self.light)
+        self._ridge_n = np.array(
+            [
+                [np.cos(np.radians(r.normal_deg)), np.sin(np.radians(r.normal_deg))]
+                for r in params.ridges
+            ]
+        ).reshape(-1, 2)
+        self._ridge_c = np.array([r.offset for r in params.ridges], dtype=float)
+        self._ridge_w = np.array([r.width for r in params.ridges], dtype=float)
+        self._ridge_a = np.array([r.amplitude for r in params.ridges], dtype=float).reshape(-1, 6)
+        self._rip_k = np.array([q.wavevector for q in params.ripples], dtype=float).reshape(-1, 2)
+        self._rip_phi = np.array([q.phase for q in params.ripples], dtype=float)
+        self._rip_a = np.array([q.amplitude for q in params.ripples], dtype=float).reshape(-1, 6)
+        self._kappa = np.asarray(params.velocity_scale, dtype=float)
+        self._sigma0 = np.array([params.noise_position] * 3 + [params.noise_velocity] * 3)
+        self.outlier_prob = min(
+            1.0, params.outlier_prob * (1.0 + params.noise_gain * (1.0 - self.light))
+        )
+        self.lipschitz = self._lipschitz()
+        self.reset()
+
+    # ------------------------------------------------------------------ bias field
+    def _lipschitz(self) -> float:
+        """``L`` of the module docstring (0 when the bias is switched off)."""
+        if not self.params.bias:
+            return 0.0
+        rows = np.zeros(6)
+        if len(self._ridge_w):
+            per = np.abs(self._ridge_n).sum(axis=1) / self._ridge_w  # (R,)
+            rows += (np.abs(self._ridge_a) * per[:, None]).sum(axis=0)
+        if len(self._rip_phi):
+            per = np.abs(self._rip_k).sum(axis=1)
+            rows += (np.abs(self._rip_a) * per[:, None]).sum(axis=0)
+        rows[3:] += np.abs(self._kappa)
+        return float(self.bias_gain * rows.max())
+
+    def bias(self, x: np.ndarray) -> np.ndarray:
+        """``g b(x)``: (n, 6) states to (n, 6) bias (zeros when the bias is off)."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        out = np.zeros((x.shape[0], 6))
+        if not self.params.bias:
+            return out
+        pxy = x[:, :2]
+        if len(self._ridge_w):
+            s = np.tanh((_dot2(pxy, self._ridge_n) - self._ridge_c) / self._ridge_w)  # (n, R)
+            out += (s[:, :, None] * self._ridge_a[None]).sum(axis=1)
+        if len(self._rip_phi):
+            s = np.sin(_dot2(pxy, self._rip_k) + self._rip_phi)
+            out += (s[:, :, None] * self._rip_a[None]).sum(axis=1)
+        out[:, 3:] += x[:, 3:6] * self._kappa
+        return self.bias_gain * out
+
+    # ------------------------------------------------------------------ texture and noise
+    def texture(self, p: np.ndarray) -> np.ndarray:
+        """Floor texture richness in [0.05, 1] times the level, at positions (n, >=2)."""
+        p = np.atleast_2d(np.asarray(p, dtype=float))
+        prm = self.params
+        k = 2.0 * np.pi / prm.texture_wavelength
+        base = 0.65 + 0.35 * np.sin(k * p[:, 0]) * np.cos(k * p[:, 1])
+        d2 = ((p[:, :2] - np.asarray(prm.texture_patch_center)) ** 2).sum(axis=1)
+        base -= prm.texture_patch_depth * np.exp(-d2 / (2.0 * prm.texture_patch_radius**2))
+        return self.texture_level * np.clip(base, 0.05, 1.0)
+
+    def noise_std(self, p: np.ndarray) -> np.ndarray:
+        """Per-component noise std (n, 6) at positions (n, >=2)."""
+        quality = self.light * self.texture(p)
+        scale = 1.0 + self.params.noise_gain * (1.0 - quality)
+        return scale[:, None] * self._sigma0[None, :]
+
+    # ------------------------------------------------------------------ stateful model
+    def reset(self) -> None:
+        """Start a new flight: zero drift, fresh random streams for this seed."""
+        ss = np.random.SeedSequence(self.seed).spawn(4)
+        self._rng_noise = np.random.default_rng(ss[_STREAM_NOISE])
+        self._rng_drift = np.random.default_rng(ss[_STREAM_DRIFT])
+        self._rng_out = np.random.default_rng(ss[_STREAM_OUTLIER])
+        u = np.random.default_rng(ss[_STREAM_DIRECTION]).standard_normal(3)
+        u[2] *= self.params.drift_vertical
+        self.drift_direction = u / max(np.linalg.norm(u), 1e-12)
+        self._drift = np.zeros(3)
+        self._last_p: np.ndarray | None = None
+        self.distance = 0.0
+
+    def sample(self, x: np.ndarray) -> np.ndarray:
+        """The error ``e`` (6,) of the next VIO sample at true state ``x`` (6,)."""
+        return self.errors(np.asarray(x, dtype=float).reshape(1, 6))[0]
+
+    def errors(self, xs: np.ndarray) -> np.ndarray:
+        """Errors (n, 6) of the next ``n`` VIO samples at true states ``xs`` (n, 6), in order.
+
+        Continues the drift from previous calls; ``errors(xs)`` equals stacking
+        ``sample(x)`` over the rows.
+        """
+        xs = np.atleast_2d(np.asarray(xs, dtype=float))
+        n = xs.shape[0]
+        prm = self.params
+        # Random draws are made whether or not a part is on, so the streams stay aligned.
+        z_noise = self._rng_noise.standard_normal((n, 6))
+        z_drift = self._rng_drift.standard_normal((n, 3))
+        u_out = self._rng_out.random((n, 3))  # [happens?, axis, magnitude]
+        e = self.bias(xs)
+        # drift
+        p = xs[:, :3]
+        prev = p[:1] if self._last_p is None else self._last_p[None, :]
+        ds = np.linalg.norm(np.diff(np.vstack([prev, p]), axis=0), axis=1)
+        steps = (
+            prm.drift_fraction * ds[:, None] * self.drift_direction[None, :]
+            + prm.drift_walk * np.sqrt(ds)[:, None] * z_drift
+        )
+        # cumsum from the previous value: the same additions, in the same order, as sample()
+        drift = np.cumsum(np.vstack([self._drift[None, :], steps]), axis=0)[1:]
+        self._drift = drift[-1].copy()
+        self._last_p = p[-1].copy()
+        self.distance += float(ds.sum())
+        if prm.drift:
+            e[:, :3] += drift
+        if prm.noise:
+            e += self.noise_std(p) * z_noise
+        if prm.outliers:
+            hit = u_out[:, 0] < self.outlier_prob
+            axis = np.minimum((u_out[:, 1] * 3).astype(int), 2)
+            # magnitude and sign from one uniform: [0, .5) negative, [.5, 1) positive
+            w = u_out[:, 2]
+            sign = np.where(w < 0.5, -1.0, 1.0)
+            frac = np.where(w < 0.5, w * 2.0, (w - 0.5) * 2.0)
+            mag = prm.outlier_min + frac * (prm.outlier_max - prm.outlier_min)
+            rows = np.nonzero(hit)[0]
+            e[rows, 3 + axis[rows]] += sign[rows] * mag[rows]
+        return e
+
+    def describe(self) -> dict[str, float]:
+        """Derived constants worth recording beside a flight (for ``truth.json``)."""
+        return {
+            "lipschitz": self.lipschitz,
+            "bias_gain": self.bias_gain,
+            "light": self.light,
+            "texture_level": self.texture_level,
+            "outlier_prob": self.outlier_prob,
+            "drift_direction": [float(v) for v in self.drift_direction],
+        }

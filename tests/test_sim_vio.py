@@ -1,0 +1,118 @@
+"""The VIO emulator: closed-form Lipschitz constant, steep parts on the circle, switches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from qsls.pipeline.config import validate
+from qsls.pipeline.errors import ConfigError
+from qsls.pipeline.sim.vio import VioEmulator, VioParams
+
+BIAS_ONLY = {"drift": False, "noise": False, "outliers": False}
+
+
+def circle_states(dt: float, seconds: float = 15.0, radius: float = 1.0, hz: float = 0.2):
+    t = np.arange(0.0, seconds, dt)
+    w = 2 * np.pi * hz
+    return np.c_[
+        radius * np.cos(w * t),
+        radius * np.sin(w * t),
+        np.ones_like(t),
+        -radius * w * np.sin(w * t),
+        radius * w * np.cos(w * t),
+        np.zeros_like(t),
+    ]
+
+
+def max_pair_slope(x: np.ndarray, e: np.ndarray, r: float) -> float:
+    pairs = cKDTree(x).query_pairs(r, p=np.inf, output_type="ndarray")
+    dx = np.abs(x[pairs[:, 0]] - x[pairs[:, 1]]).max(axis=1)
+    de = np.abs(e[pairs[:, 0]] - e[pairs[:, 1]]).max(axis=1)
+    keep = dx > 1e-12
+    return float((de[keep] / dx[keep]).max())
+
+
+@pytest.mark.parametrize("perception", ["regular", "degraded"])
+def test_lipschitz_bounds_random_pairs_and_is_nearly_attained_on_circle(perception):
+    em = VioEmulator(VioParams(perception=perception), seed=0)
+    lip = em.lipschitz
+    assert lip > 0
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-2, 2, (50_000, 6))
+    for scale in (1e-4, 1e-2, 0.5):
+        d = rng.normal(0, scale, x.shape)
+        slope = np.abs(em.bias(x + d) - em.bias(x)).max(1) / np.abs(d).max(1)
+        assert slope.max() <= lip * (1 + 1e-9)
+    # the default circle crosses the steep parts: a slope estimator sees >= 0.5 L
+    for dt in (0.01, 0.1):
+        xc = circle_states(dt)
+        assert max_pair_slope(xc, em.bias(xc), r=0.5) >= 0.5 * lip
+
+
+def test_degraded_raises_bias_noise_and_outliers():
+    reg = VioEmulator(VioParams(), seed=0)
+    deg = VioEmulator(VioParams(perception="degraded"), seed=0)
+    x = circle_states(0.01)
+    assert deg.lipschitz > reg.lipschitz
+    assert np.all(deg.noise_std(x) > reg.noise_std(x))
+    assert deg.outlier_prob > reg.outlier_prob
+    # noise is larger over the low-texture patch than away from it
+    s = reg.noise_std(np.array([[-0.6, 0.6], [0.375, 0.0]]))
+    assert s[0, 0] > 2.5 * s[1, 0]
+
+
+def test_sample_equals_errors_and_seed_determinism():
+    x = circle_states(0.01, seconds=10)
+    a = VioEmulator(VioParams(), seed=7).errors(x)
+    em = VioEmulator(VioParams(), seed=7)
+    b = np.array([em.sample(xi) for xi in x])
+    assert np.array_equal(a, b)
+    em.reset()
+    assert np.array_equal(em.errors(x[:300]), a[:300])
+    c = VioEmulator(VioParams(), seed=8).errors(x)
+    assert not np.array_equal(a, c)
+
+
+def test_switches_isolate_parts():
+    x = circle_states(0.01, seconds=30)
+    bias_only = VioEmulator(VioParams(**BIAS_ONLY), seed=3)
+    assert np.array_equal(bias_only.errors(x), bias_only.bias(x))
+    nothing = VioEmulator(VioParams(bias=False, **BIAS_ONLY), seed=3)
+    assert nothing.lipschitz == 0.0
+    assert not nothing.errors(x).any()
+    # drift only: grows with distance travelled (~ drift_fraction * distance), position only
+    prm = VioParams(bias=False, noise=False, outliers=False, drift_walk=0.0)
+    em = VioEmulator(prm, seed=3)
+    e = em.errors(x)
+    assert not e[:, 3:].any()
+    dist = em.distance
+    assert dist == pytest.approx(2 * np.pi * 1.0 * 0.2 * 30, rel=0.01)
+    assert np.linalg.norm(e[-1, :3]) == pytest.approx(prm.drift_fraction * dist, rel=1e-6)
+    # outliers only: velocity spikes within [min, max], rare
+    prm = VioParams(bias=False, drift=False, noise=False, outlier_prob=0.05)
+    o = VioEmulator(prm, seed=3).errors(x)
+    assert not o[:, :3].any()
+    mags = np.abs(o[:, 3:][o[:, 3:] != 0])
+    assert 0.01 * len(x) < len(mags) < 0.1 * len(x)
+    assert mags.min() >= prm.outlier_min and mags.max() <= prm.outlier_max
+    # switching noise off leaves the other parts' values unchanged
+    full = VioEmulator(VioParams(), seed=3).errors(x)
+    no_noise = VioEmulator(VioParams(noise=False), seed=3).errors(x)
+    z = (full - no_noise) / VioEmulator(VioParams(), seed=3).noise_std(x)
+    assert np.abs(z).max() < 6 and 0.8 < z.std() < 1.2
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"rate_hz": 10},
+        {"noise_position": -1},
+        {"outlier_min": 2.0, "outlier_max": 1.0},
+        {"bias_typo": 1},
+    ],
+)
+def test_bad_params(bad):
+    with pytest.raises(ConfigError):
+        validate(VioParams, bad)
