@@ -1,0 +1,112 @@
+"""``qsls synth``: robust SLS controllers from an error model, each with a certificate."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from qsls.cli.common import cli_errors, overrides, print_summary
+
+
+def number_or_name(value: str | None) -> float | str | None:
+    """A command-line value that is a number or an error-model name (``max``, ``p95``)."""
+    if value is None:
+        return None
+    try:
+        return float(value)
+    except ValueError:
+        return value.strip()
+
+
+def diag_list(value: str | None, what: str) -> list[float] | None:
+    """``"10,10,10,1,1,1"`` -> a list of diagonal entries."""
+    if value is None:
+        return None
+    from qsls.pipeline.errors import ConfigError
+
+    try:
+        return [float(v) for v in value.replace(" ", "").split(",") if v]
+    except ValueError:
+        raise ConfigError(f"--{what}: expected comma-separated numbers, got '{value}'") from None
+
+
+@cli_errors
+def command(
+    model: Path | None = typer.Option(
+        None, "--model", "-m", help="error_model.yaml or the fit folder holding it (qsls fit)."
+    ),
+    config: Path | None = typer.Option(None, "--config", "-c", help="YAML file of synth options."),
+    out: Path | None = typer.Option(
+        None, "--out", "-o", help="Output folder (one sub-folder per controller)."
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
+    horizon: int | None = typer.Option(
+        None, "--T", "-T", help="FIR horizon T (taps 0..T), at least 2."
+    ),
+    norm: str | None = typer.Option(None, "--norm", help="l1, h2 or both (the H2 variants too)."),
+    controllers: str | None = typer.Option(
+        None, "--controllers", help="paper (pd + nominal, robust, robust imitation) or single."
+    ),
+    cost: str | None = typer.Option(None, "--cost", help="qr or imitation (controllers: single)."),
+    robust: bool | None = typer.Option(
+        None, "--robust/--no-robust", help="Impose the robustness constraint (controllers: single)."
+    ),
+    strictly_proper: bool | None = typer.Option(
+        None,
+        "--strictly-proper/--not-strictly-proper",
+        help="u[k] from y up to k-1 only (Phi_uy(0) = 0).",
+    ),
+    s: str | None = typer.Option(
+        None, "--S", help="S-slope: a number or an error-model name (max, p95, local_p99)."
+    ),
+    eps_e: str | None = typer.Option(
+        None, "--eps-e", help="Error bound: a number or a name (max, p99, R0)."
+    ),
+    radius: float | None = typer.Option(
+        None, "--radius", "-r", help="Radius r (default: the error model's)."
+    ),
+    delta: float | None = typer.Option(None, "--delta", help="Delta (default: the error model's)."),
+    eps_w: float | None = typer.Option(None, "--eps-w", help="Process noise bound eps_w."),
+    q: str | None = typer.Option(None, "--Q", help="State weight diagonal, e.g. 10,10,10,1,1,1."),
+    r: str | None = typer.Option(None, "--R", help="Input weight diagonal, e.g. 1,1,0.1."),
+    mass: float | None = typer.Option(None, "--mass", help="Vehicle mass in kg."),
+    dt: float | None = typer.Option(None, "--dt", help="Controller period in s."),
+    imitate: str | None = typer.Option(
+        None,
+        "--imitate",
+        help="Imitation target: pd, l1_nominal, h2_nominal or a controller folder.",
+    ),
+    solver: str | None = typer.Option(
+        None, "--solver", help="cvxpy solver name (default CLARABEL)."
+    ),
+    max_feasible_s: bool = typer.Option(
+        False,
+        "--max-feasible-s",
+        help="Only compute the largest feasible S for this setting and print it.",
+    ),
+) -> None:
+    """Robust SLS controllers from an error model, each with a certificate."""
+    from qsls.cli.common import RichProgress
+    from qsls.pipeline.config import load_options
+    from qsls.pipeline.errors import ConfigError
+    from qsls.pipeline.synth import SynthOptions, synth
+    from qsls.pipeline.synth import max_feasible_s as compute_max_s
+
+    given: dict[str, Any] = overrides(
+        T=horizon, norm=norm, controllers=controllers, cost=cost, robust=robust,
+        strictly_proper=strictly_proper, S=number_or_name(s), eps_e=number_or_name(eps_e),
+        radius=radius, delta=delta, eps_w=eps_w, Q=diag_list(q, "Q"), R=diag_list(r, "R"),
+        mass=mass, dt=dt, imitate=imitate, solver=solver,
+    )  # fmt: skip
+    opts = load_options(SynthOptions, config, given)
+    if max_feasible_s:
+        res = compute_max_s(model, opts)
+        print_summary("largest feasible S", res.summary())
+        return
+    if out is None:
+        raise ConfigError("--out is required (the folder to write the controllers to)")
+    with RichProgress() as progress:
+        result = synth(model, opts, out, force=force, progress=progress)
+    print_summary("synth", result.summary())
