@@ -1,0 +1,115 @@
+"""``qsls ingest``: flight logs (ROS1, ROS2, MCAP, TUM, EuRoC) onto one clock and one frame."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from qsls.cli.common import cli_errors, overrides
+
+
+@cli_errors
+def command(
+    sources: list[Path] = typer.Argument(
+        None,
+        help="Bags: ROS1 .bag, rosbag2 folder (or its .db3/.mcap), plain .mcap. VIO and truth "
+        "may be in one bag or two.",
+        show_default=False,
+    ),
+    out: Path = typer.Option(
+        ..., "--out", "-o", help="Output folder (flight.parquet, manifest.json)."
+    ),
+    vio_topic: str = typer.Option(
+        None, help="VIO topic (nav_msgs/Odometry). Default: chosen when unambiguous."
+    ),
+    truth_topic: str = typer.Option(
+        None,
+        help="Ground-truth topic (PoseStamped, PoseWithCovarianceStamped, TransformStamped, "
+        "Odometry, or a TF topic with --truth-frame). Default: chosen when unambiguous.",
+    ),
+    vio: Path = typer.Option(None, help="File with the VIO stream: a bag, or a TUM trajectory."),
+    truth: Path = typer.Option(
+        None, help="File with the truth stream: a bag, a TUM file or a EuRoC csv."
+    ),
+    dt: float = typer.Option(None, help="Resampling period in seconds. [default: 0.1]"),
+    align: str = typer.Option(
+        None,
+        help="Frame alignment of the VIO to the truth: 4dof (yaw + translation), se3, none. [default: 4dof]",
+    ),
+    time_offset: str = typer.Option(
+        None,
+        help="Seconds added to truth stamps to put them on the VIO clock, or 'auto' to "
+        "estimate it. [default: auto]",
+    ),
+    vio_velocity_frame: str = typer.Option(
+        None,
+        help="Frame of the Odometry twist: body (ROS convention) or world (VINS-style). [default: body]",
+    ),
+    stamp: str = typer.Option(
+        None, help="Time of a message: header stamp or bag log time. [default: header]"
+    ),
+    max_gap: float = typer.Option(
+        None, help="Never interpolate across a gap longer than this, in seconds. [default: 0.25]"
+    ),
+    truth_frame: str = typer.Option(None, help="PARENT/CHILD transform to use from a TF topic."),
+    export_tum: bool = typer.Option(
+        None, "--export-tum", help="Also write both aligned trajectories as TUM files (for evo)."
+    ),
+    max_time_offset: float = typer.Option(
+        None, help="Search range of --time-offset auto, in seconds. [default: 2.0]"
+    ),
+    min_overlap: float = typer.Option(
+        None, help="Least common time of the two streams, in seconds. [default: 3.0]"
+    ),
+    velocity_window: float = typer.Option(
+        None, help="Window of the smoothing differentiator, in seconds. [default: 0.1]"
+    ),
+    drop_nonfinite: bool = typer.Option(
+        None, "--drop-nonfinite", help="Skip messages with NaN/inf values instead of stopping."
+    ),
+    config: Path = typer.Option(
+        None, "--config", "-c", help="YAML file with any of these options."
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
+) -> None:
+    """Put VIO estimates and ground truth on one clock, one frame and one dt grid."""
+    from qsls.cli.common import RichProgress, print_summary
+    from qsls.pipeline.config import load_options
+    from qsls.pipeline.ingest import IngestOptions, ingest
+
+    given = overrides(
+        vio_topic=vio_topic,
+        truth_topic=truth_topic,
+        vio=vio,
+        truth=truth,
+        dt=dt,
+        align=align,
+        time_offset=_offset(time_offset),
+        vio_velocity_frame=vio_velocity_frame,
+        stamp=stamp,
+        max_gap=max_gap,
+        truth_frame=truth_frame,
+        export_tum=export_tum,
+        max_time_offset=max_time_offset,
+        min_overlap=min_overlap,
+        velocity_window=velocity_window,
+        drop_nonfinite=drop_nonfinite,
+    )
+    options = load_options(IngestOptions, config, given, section="ingest")
+    with RichProgress() as progress:
+        result = ingest(list(sources or []), options, out, force=force, progress=progress)
+    print_summary("qsls ingest", result.summary())
+
+
+def _offset(value: str | None) -> str | float | None:
+    if value is None or value.strip().lower() == "auto":
+        return None if value is None else "auto"
+    try:
+        return float(value)
+    except ValueError:
+        from qsls.pipeline.errors import ConfigError
+
+        raise ConfigError(
+            f"--time-offset: expected 'auto' or a number of seconds, got {value!r}"
+        ) from None

@@ -1,0 +1,153 @@
+"""Frame alignment and the smoothing differentiator.
+
+Alignment puts the VIO trajectory into the truth (motion-capture) frame:
+``p_aligned = R p_vio + t``, chosen to minimize ``sum_i ||R p_vio_i + t - p_truth_i||^2``
+over time-matched pairs.
+
+- ``se3``: the full rigid transform, Umeyama's closed form without scale (Umeyama 1991;
+  what ``evo_ape --align`` computes): with centred point sets ``a_i = p_vio_i - mean``,
+  ``b_i = p_truth_i - mean`` and ``W = sum_i b_i a_i^T = U S V^T``,
+  ``R = U diag(1, 1, det(U V^T)) V^T``, ``t = mean_truth - R mean_vio``.
+- ``4dof``: a rotation about z only (yaw ``psi``) and a translation, the gauge freedom of
+  visual-inertial odometry (gravity fixes roll and pitch):
+  ``psi = atan2(sum (a_x b_y - a_y b_x), sum (a_x b_x + a_y b_y))`` over the centred
+  points, ``t = mean_truth - R_z(psi) mean_vio``.
+- ``none``: ``R = I``, ``t = 0``.
+
+The smoothing differentiator (velocity from positions) is a Savitzky-Golay filter: a
+least-squares quadratic fitted to a sliding window of ``window_s`` seconds (at least 5
+samples), whose slope at the window's centre is the velocity. A quadratic fit
+differentiates polynomials up to degree 3 exactly at the centre; white position noise of
+standard deviation ``sigma`` gives velocity noise ``sigma sqrt(12 / (m (m^2 - 1))) / h``
+(m samples, spacing h). Stamps that are not uniform are resampled linearly to their
+median spacing first; stretches separated by gaps longer than ``max_gap`` are
+differentiated separately so that a gap never smears into its neighbours.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+METHODS = ("4dof", "se3", "none")
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """``p_aligned = rotation @ p + translation``."""
+
+    method: str
+    rotation: np.ndarray  # (3, 3)
+    translation: np.ndarray  # (3,)
+
+    @property
+    def yaw_rad(self) -> float:
+        return float(np.arctan2(self.rotation[1, 0], self.rotation[0, 0]))
+
+    def apply(self, p: np.ndarray) -> np.ndarray:
+        return p @ self.rotation.T + self.translation
+
+    def rotate(self, v: np.ndarray) -> np.ndarray:
+        return v @ self.rotation.T
+
+    def as_dict(self) -> dict:
+        return {
+            "method": self.method,
+            "rotation": self.rotation.tolist(),
+            "translation": self.translation.tolist(),
+            "yaw_rad": self.yaw_rad,
+        }
+
+
+def rot_z(psi: float) -> np.ndarray:
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def fit_alignment(src: np.ndarray, dst: np.ndarray, method: str) -> Alignment:
+    """The transform of ``method`` that maps ``src`` (VIO) best onto ``dst`` (truth)."""
+    src = np.asarray(src, dtype=float)
+    dst = np.asarray(dst, dtype=float)
+    if method == "none":
+        return Alignment("none", np.eye(3), np.zeros(3))
+    mu_s = src.mean(axis=0)
+    mu_d = dst.mean(axis=0)
+    a = src - mu_s
+    b = dst - mu_d
+    if method == "4dof":
+        num = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+        den = float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+        r = rot_z(np.arctan2(num, den))
+    elif method == "se3":
+        u, _, vt = np.linalg.svd(b.T @ a)
+        d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
+        r = u @ d @ vt
+    else:
+        raise ValueError(f"unknown alignment {method!r}; use one of {', '.join(METHODS)}")
+    return Alignment(method, r, mu_d - r @ mu_s)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(n, 3, 3)`` of quaternions ``(n, 4)`` ``x y z w`` (normalized here)."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x, y, z, w = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+
+
+def matrix_to_quat(m: np.ndarray) -> np.ndarray:
+    """Quaternions ``(n, 4)`` ``x y z w`` (w >= 0) of rotation matrices ``(n, 3, 3)``."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(np.asarray(m, dtype=float)).as_quat()
+    return np.where(q[:, 3:4] < 0, -q, q)
+
+
+def body_to_world(q: np.ndarray, v_body: np.ndarray) -> np.ndarray:
+    """``R(q) v`` per sample: a child-frame (body) vector in the parent (world) frame."""
+    return np.einsum("nij,nj->ni", quat_to_matrix(q), v_body)
+
+
+def segments(t_ns: np.ndarray, max_gap_ns: int) -> list[slice]:
+    """Index ranges of ``t_ns`` (sorted) split where consecutive stamps differ > max_gap."""
+    cut = np.flatnonzero(np.diff(t_ns) > max_gap_ns) + 1
+    edges = [0, *cut.tolist(), len(t_ns)]
+    return [slice(a, b) for a, b in itertools.pairwise(edges) if b > a]
+
+
+def differentiate(
+    t_ns: np.ndarray, p: np.ndarray, window_s: float = 0.1, max_gap_ns: int | None = None
+) -> np.ndarray:
+    """Velocity ``(n, 3)`` of positions ``p`` at sorted unique stamps ``t_ns`` (module doc)."""
+    from scipy.signal import savgol_filter
+
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    p = np.asarray(p, dtype=float)
+    out = np.zeros_like(p)
+    parts = segments(t_ns, max_gap_ns) if max_gap_ns is not None else [slice(0, len(t_ns))]
+    for sl in parts:
+        t = (t_ns[sl] - t_ns[sl][0]) * 1e-9
+        x = p[sl]
+        n = len(t)
+        if n < 2:
+            continue
+        h = float(np.median(np.diff(t)))
+        m = max(5, round(window_s / h) | 1)
+        grid_n = round(t[-1] / h) + 1
+        if grid_n < m:
+            out[sl] = np.gradient(x, t, axis=0) if n > 2 else (x[1] - x[0]) / (t[1] - t[0])
+            continue
+        tg = np.arange(grid_n) * h
+        xg = np.column_stack([np.interp(tg, t, x[:, k]) for k in range(x.shape[1])])
+        vg = savgol_filter(xg, m, 2, deriv=1, delta=h, axis=0, mode="interp")
+        out[sl] = np.column_stack([np.interp(t, tg, vg[:, k]) for k in range(x.shape[1])])
+    return out
