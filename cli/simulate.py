@@ -1,0 +1,69 @@
+"""Simulate a quadrotor flight with a VIO emulator and write it as a ROS1/ROS2/MCAP bag."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from qsls.cli.common import RichProgress, cli_errors, overrides, print_summary
+
+
+@cli_errors
+def command(
+    out: Path = typer.Option(
+        ...,
+        "--out",
+        help="Output folder: the bag (flight.bag, flight/ or flight.mcap), truth.json, "
+        "errors.parquet, trajectory.parquet, control.parquet, manifest.json.",
+    ),
+    config: Path = typer.Option(
+        None,
+        "--config",
+        help="YAML file of options (see configs/simulate.yaml; a 'simulate:' section is "
+        "used when present). The command line wins.",
+    ),
+    seed: int = typer.Option(None, "--seed", help="Random seed of the VIO emulator and logs."),
+    duration: float = typer.Option(
+        None,
+        "--duration",
+        help="Flight length in seconds (default: the reference's laps, 3 laps of 5 s).",
+    ),
+    perception: str = typer.Option(
+        None,
+        "--perception",
+        help="VIO conditions: 'regular' or 'degraded' (less light and texture).",
+    ),
+    controller: str = typer.Option(
+        None,
+        "--controller",
+        help="'se3' (RotorPy's SE3, default), 'pd', or a controller folder from 'qsls synth'.",
+    ),
+    fmt: str = typer.Option(
+        None,
+        "--format",
+        help="Bag format: ros1 (default), ros2-sqlite, ros2-mcap or mcap.",
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+) -> None:
+    """Simulate a quadrotor flight with a VIO emulator and write it as a ROS1/ROS2/MCAP bag."""
+    from qsls.pipeline.config import load_options
+    from qsls.pipeline.sim.simulate import SimOptions, simulate
+
+    ov = overrides(
+        seed=seed,
+        duration=duration,
+        vio=overrides(perception=perception) or None,
+        controller=overrides(kind=controller) or None,
+        log=overrides(format=fmt) or None,
+    )
+    options = load_options(SimOptions, config, ov, section="simulate")
+    with RichProgress() as progress:
+        result = simulate(options, out, force=force, progress=progress)
+    if result.flight.crashed:
+        typer.echo(
+            f"warning: the flight crashed ({result.flight.crash_reason}); "
+            "the log ends there and truth.json has crashed: true",
+            err=True,
+        )
+    print_summary("qsls simulate", result.summary())

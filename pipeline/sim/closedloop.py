@@ -1,0 +1,290 @@
+"""The closed loop: vehicle, VIO emulator and controller, flown over a reference.
+
+:func:`fly` is the one function that flies a controller; ``qsls simulate`` and the evaluate
+stage both use it. Timing, all on integer nanoseconds of simulation time:
+
+- physics steps of ``h = 1 / vehicle.physics_hz`` (RK4, attitude loop held over the step);
+- the controller every ``dt`` (a whole number of physics steps), its command held until the
+  next tick (zero-order hold, as in the paper's discrete model);
+- VIO samples every ``1 / vio.rate_hz``; the true state at a sample time between two physics
+  steps is interpolated (cubic Hermite position from the end velocities, linear velocity,
+  normalized linear quaternion). The controller uses the newest sample at its tick:
+  ``y = x + e`` with ``e`` from :class:`~qsls.pipeline.sim.vio.VioEmulator`.
+
+A crash (position below ``crash.floor_z``, farther than ``crash.max_deviation`` from the
+reference in any axis, tilt beyond ``crash.max_tilt_deg``, or a non-finite state) ends the
+flight: the log holds everything up to it and says why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from qsls.pipeline.config import Options
+from qsls.pipeline.errors import ConfigError
+from qsls.pipeline.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.sim.controllers import Controller, ControllerOptions, make_controller
+from qsls.pipeline.sim.references import Reference, ReferenceOptions, RefSample
+from qsls.pipeline.sim.vehicle import Vehicle, VehicleOptions
+from qsls.pipeline.sim.vio import VioEmulator, VioParams
+
+NS = 1_000_000_000
+
+
+class CrashOptions(Options):
+    """When a flight counts as crashed (and ends)."""
+
+    floor_z: float = 0.05
+    """Ground contact: true height below this (m)."""
+    max_deviation: float = Field(3.0, gt=0)
+    """Divergence: any position axis farther than this from the reference (m)."""
+    max_tilt_deg: float = Field(80.0, gt=0, le=180)
+    """Loss of control: tilt of the body z axis beyond this (degrees)."""
+
+
+class FlightOptions(Options):
+    """Everything that shapes one simulated flight."""
+
+    seed: int = Field(0, ge=0)
+    duration: float | None = Field(None, gt=0)
+    """Flight length (s); default: the reference's ramp / 2 + laps * period."""
+    vehicle: VehicleOptions = VehicleOptions()
+    reference: ReferenceOptions = ReferenceOptions()
+    controller: ControllerOptions = ControllerOptions()
+    vio: VioParams = VioParams()
+    crash: CrashOptions = CrashOptions()
+
+    def flight_duration(self) -> float:
+        return (
+            float(self.duration) if self.duration is not None else self.reference.natural_duration()
+        )
+
+
+@dataclass(frozen=True)
+class FlightLog:
+    """Arrays of one flight (simulation time in ns from 0; world = motion-capture frame)."""
+
+    controller: str
+    dt: float
+    mass: float
+    t_ns: np.ndarray  # (n,) physics steps
+    x: np.ndarray  # (n, 6) true [p, v]
+    q: np.ndarray  # (n, 4) true attitude xyzw
+    w: np.ndarray  # (n, 3) true body rates
+    ref: np.ndarray  # (n, 6) reference state at the physics steps
+    vio_t_ns: np.ndarray  # (m,) VIO sample times
+    vio_x: np.ndarray  # (m, 6) true state at the VIO samples
+    vio_e: np.ndarray  # (m, 6) emulator error: y = x + e
+    vio_q: np.ndarray  # (m, 4) attitude at the VIO samples
+    vio_w: np.ndarray  # (m, 3) body rates at the VIO samples
+    ctrl_t_ns: np.ndarray  # (k,) controller ticks
+    ctrl_y: np.ndarray  # (k, 6) what the controller saw
+    ctrl_ref: np.ndarray  # (k, 6) reference state
+    ctrl_u: np.ndarray  # (k, 3) absolute [pitch, roll, thrust], paper signs
+    crashed: bool = False
+    crash_reason: str | None = None
+    crash_time_s: float | None = None
+    lipschitz: float = 0.0
+    emulator: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def vio_y(self) -> np.ndarray:
+        """The VIO estimate ``y = x + e`` (m, 6) in the world frame."""
+        return self.vio_x + self.vio_e
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_ns[-1]) / NS if len(self.t_ns) else 0.0
+
+    def metrics(self) -> dict[str, Any]:
+        """Tracking (true position vs reference, 2-norm) and perception error (inf norm)."""
+        dp = np.linalg.norm(self.x[:, :3] - self.ref[:, :3], axis=1)
+        en = np.abs(self.vio_e).max(axis=1) if len(self.vio_e) else np.zeros(1)
+        du = np.diff(self.ctrl_u, axis=0) if len(self.ctrl_u) > 1 else np.zeros((1, 3))
+        hover = np.array([0.0, 0.0, self.mass * 9.81])
+        return {
+            "duration_s": self.duration_s,
+            "tracking_rms_m": float(np.sqrt(np.mean(dp**2))),
+            "tracking_max_m": float(dp.max()),
+            "perception_error_rms": float(np.sqrt(np.mean(en**2))),
+            "perception_error_max": float(en.max()),
+            "position_error_rms_m": float(np.sqrt(np.mean(self.vio_e[:, :3] ** 2)))
+            if len(self.vio_e)
+            else 0.0,
+            "control_effort_rms": float(np.sqrt(np.mean((self.ctrl_u - hover) ** 2))),
+            "control_smoothness_rms": float(np.sqrt(np.mean(du**2))),
+            "crashed": self.crashed,
+            "crash_reason": self.crash_reason,
+        }
+
+
+def _interp(s0: np.ndarray, s1: np.ndarray, a: float, h: float) -> tuple[np.ndarray, ...]:
+    """State between two physics steps at fraction ``a``: (p, v) Hermite/linear, q nlerp, w."""
+    if a >= 1.0:
+        return s1[0:6].copy(), s1[6:10].copy(), s1[10:13].copy()
+    a2, a3 = a * a, a * a * a
+    h00, h10, h01, h11 = 2 * a3 - 3 * a2 + 1, a3 - 2 * a2 + a, -2 * a3 + 3 * a2, a3 - a2
+    p = h00 * s0[0:3] + h10 * h * s0[3:6] + h01 * s1[0:3] + h11 * h * s1[3:6]
+    v = s0[3:6] + a * (s1[3:6] - s0[3:6])
+    q1 = s1[6:10] if s0[6:10] @ s1[6:10] >= 0 else -s1[6:10]
+    q = s0[6:10] + a * (q1 - s0[6:10])
+    q /= np.sqrt(q @ q)
+    w = s0[10:13] + a * (s1[10:13] - s0[10:13])
+    return np.concatenate([p, v]), q, w
+
+
+def _ticks(period_s: float, h_ns: int, what: str) -> int:
+    """Physics steps per period; the period must be a whole number of steps."""
+    n = period_s * NS / h_ns
+    k = round(n)
+    if k < 1 or abs(n - k) > 1e-6:
+        raise ConfigError(
+            f"{what} period {period_s:g} s is not a whole number of physics steps "
+            f"({h_ns / NS:g} s); choose vehicle.physics_hz as a multiple of the control rate"
+        )
+    return int(k)
+
+
+def fly(
+    options: FlightOptions,
+    controller: Controller | None = None,
+    seed: int | None = None,
+    *,
+    vehicle: Vehicle | None = None,
+    progress: Progress = NULL_PROGRESS,
+) -> FlightLog:
+    """Fly ``controller`` (default: ``options.controller``) over the reference; see module doc."""
+    seed = options.seed if seed is None else int(seed)
+    veh = vehicle or Vehicle(options.vehicle)
+    ctrl = controller or make_controller(options.controller, veh.mass)
+    ref = Reference(options.reference)
+    vio = VioEmulator(options.vio, seed)
+    crash = options.crash
+    truth_feedback = options.controller.feedback == "truth"
+
+    h_ns = round(NS / options.vehicle.physics_hz)
+    h = h_ns / NS
+    n_sub = _ticks(ctrl.dt, h_ns, "control")
+    duration = options.flight_duration()
+    n_ctrl = int(np.floor(duration / ctrl.dt + 1e-9))
+    if n_ctrl < 1:
+        raise ConfigError(
+            f"duration {duration:g} s is shorter than one control period ({ctrl.dt:g} s)"
+        )
+    n_steps = n_ctrl * n_sub
+    vio_ns = round(NS / options.vio.rate_hz)
+    n_vio_max = n_steps * h_ns // vio_ns + 1
+
+    # storage
+    t_ns = np.arange(n_steps + 1, dtype=np.int64) * h_ns
+    S = np.empty((n_steps + 1, 20))
+    vio_t = np.empty(n_vio_max, dtype=np.int64)
+    vio_x = np.empty((n_vio_max, 6))
+    vio_q = np.empty((n_vio_max, 4))
+    vio_w = np.empty((n_vio_max, 3))
+    c_t = np.empty(n_ctrl, dtype=np.int64)
+    c_y = np.empty((n_ctrl, 6))
+    c_r = np.empty((n_ctrl, 6))
+    c_u = np.empty((n_ctrl, 3))
+    vio_e = np.empty((n_vio_max, 6))
+
+    ref_p, ref_v, ref_a = ref.arrays(t_ns / NS)
+    s = veh.hover_state(ref_p[0], ref_v[0])
+    S[0] = s
+    ctrl.reset()
+    vio.reset()
+    cos_tilt = np.cos(np.radians(crash.max_tilt_deg))
+
+    # first VIO sample at t = 0
+    m = 0
+    vio_t[0], vio_x[0], vio_q[0], vio_w[0] = 0, s[0:6], s[6:10], s[10:13]
+    vio_e[0] = vio.sample(s[0:6])
+    m = 1
+    next_vio = vio_ns
+    y_latest = vio_x[0] + vio_e[0]
+
+    crashed, reason, crash_t = False, None, None
+    thrust, cmd_q = 0.0, np.array([0.0, 0.0, 0.0, 1.0])
+    k = 0
+    last_step = n_steps
+    progress.start("flying", total=n_ctrl)
+    for i in range(n_steps):
+        if i % n_sub == 0:
+            t = i * h
+            r = RefSample(p=ref_p[i], v=ref_v[i], a=ref_a[i])
+            y = s[0:6].copy() if truth_feedback else y_latest
+            u = np.asarray(ctrl.command(t, y, s[6:10], r), dtype=float)
+            if not np.all(np.isfinite(u)):
+                crashed, reason, crash_t = True, "controller output is not finite", t
+                last_step = i
+                break
+            thrust, cmd_q = veh.command(u)
+            c_t[k], c_y[k], c_r[k], c_u[k] = i * h_ns, y, r.state, u
+            k += 1
+            progress.advance(1)
+        s_next = veh.step(s, thrust, cmd_q, h)
+        S[i + 1] = s_next
+        t1 = (i + 1) * h_ns
+        while next_vio <= t1 and m < n_vio_max:
+            a = (next_vio - i * h_ns) / h_ns
+            xv, qv, wv = _interp(s, s_next, a, h)
+            vio_t[m], vio_x[m], vio_q[m], vio_w[m] = next_vio, xv, qv, wv
+            vio_e[m] = vio.sample(xv)
+            y_latest = xv + vio_e[m]
+            m += 1
+            next_vio += vio_ns
+        s = s_next
+        why = _crash_reason(s, ref_p[i + 1], (i + 1) * h, crash, cos_tilt)
+        if why is not None:
+            crashed, reason, crash_t = True, why, (i + 1) * h
+            last_step = i + 1
+            break
+    progress.finish()
+
+    n = last_step + 1
+    S = S[:n]
+    ref_states = np.hstack([ref_p[:n], ref_v[:n]])
+    return FlightLog(
+        controller=ctrl.name,
+        dt=float(ctrl.dt),
+        mass=veh.mass,
+        t_ns=t_ns[:n],
+        x=S[:, 0:6].copy(),
+        q=S[:, 6:10].copy(),
+        w=S[:, 10:13].copy(),
+        ref=ref_states,
+        vio_t_ns=vio_t[:m].copy(),
+        vio_x=vio_x[:m].copy(),
+        vio_e=vio_e[:m].copy(),
+        vio_q=vio_q[:m].copy(),
+        vio_w=vio_w[:m].copy(),
+        ctrl_t_ns=c_t[:k].copy(),
+        ctrl_y=c_y[:k].copy(),
+        ctrl_ref=c_r[:k].copy(),
+        ctrl_u=c_u[:k].copy(),
+        crashed=crashed,
+        crash_reason=reason,
+        crash_time_s=crash_t,
+        lipschitz=vio.lipschitz,
+        emulator=vio.describe(),
+    )
+
+
+def _crash_reason(
+    s: np.ndarray, p_ref: np.ndarray, t: float, crash: CrashOptions, cos_tilt: float
+) -> str | None:
+    if not np.all(np.isfinite(s)):
+        return "the vehicle state became non-finite (divergence)"
+    if s[2] < crash.floor_z:
+        return f"ground contact at t = {t:.2f} s (height {s[2]:.3f} m)"
+    bz = 1.0 - 2.0 * (s[6] * s[6] + s[7] * s[7])  # R[2, 2]: cosine of the tilt
+    if bz < cos_tilt:
+        return f"lost attitude at t = {t:.2f} s (tilt {np.degrees(np.arccos(np.clip(bz, -1, 1))):.0f} deg)"
+    dev = float(np.abs(s[0:3] - p_ref).max())
+    if dev > crash.max_deviation:
+        return f"diverged at t = {t:.2f} s ({dev:.2f} m from the reference)"
+    return None

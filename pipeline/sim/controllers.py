@@ -1,0 +1,183 @@
+"""Position controllers behind one small interface, in the paper's input convention.
+
+A :class:`Controller` is called every ``dt`` with the state estimate ``y = [p, v]`` (the VIO
+estimate on the vehicle, never the truth, unless a test asks for truth feedback), the
+estimated attitude and the reference, and returns the ABSOLUTE input
+``[pitch, roll, thrust]`` in the paper's signs (``vx' = -g pitch``, ``vy' = +g roll``,
+thrust in newtons). The vehicle interface (:func:`qsls.pipeline.sim.vehicle.paper_to_ctatt`)
+converts it once for RotorPy's ``cmd_ctatt``.
+
+Hover input ``[0, 0, m g]``; the reference's feedforward maps its acceleration ``a_r``
+through the paper's ``B``: ``u_ff = [-a_x / g, a_y / g, m a_z]``.
+
+- :class:`SE3Controller`: RotorPy's ``SE3Control`` (Lee et al. 2010; the geometric
+  controller that records the training flights, as the paper's SO(3) controller did). Its
+  commanded attitude and thrust are read back as pitch and roll
+  (:func:`~qsls.pipeline.sim.vehicle.ctatt_to_paper`, yaw 0).
+- :class:`PDController`: ``u = hover + u_ff + K (y - r)`` with ``K`` from
+  :func:`qsls.pipeline.pd.pd_gain`.
+- :class:`LinearController`: a synthesized controller from
+  :func:`qsls.pipeline.realize.load_controller` (``.dt``, ``.reset()``, ``.step(y - r)`` ->
+  deviation from hover + feedforward).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal, Protocol
+
+import numpy as np
+from pydantic import Field
+
+from qsls.pipeline.config import Options
+from qsls.pipeline.errors import InputError
+from qsls.pipeline.model import GRAVITY, PAPER_DT_S
+from qsls.pipeline.pd import PDGains, pd_gain
+from qsls.pipeline.sim.references import RefSample
+from qsls.pipeline.sim.vehicle import ctatt_to_paper, quad_params
+
+SE3_HZ = 100.0
+
+
+class ControllerOptions(Options):
+    """Which controller flies, how fast, and on what feedback."""
+
+    kind: str = "se3"
+    """``se3``, ``pd``, or the path of a synthesized controller folder (``controller.npz``)."""
+    rate_hz: float | None = Field(None, gt=0)
+    """Control rate; default: SE3 100 Hz, PD and synthesized controllers 1 / their dt (10 Hz)."""
+    feedback: Literal["vio", "truth"] = "vio"
+    """What the controller sees: the VIO estimate (as on the real vehicle) or the true state."""
+    pd: PDGains = PDGains()
+    se3_kp: tuple[float, float, float] = (6.5, 6.5, 15.0)
+    """SE3 position gains (RotorPy's defaults)."""
+    se3_kd: tuple[float, float, float] = (4.0, 4.0, 9.0)
+
+
+class Controller(Protocol):
+    """What the closed loop calls every ``dt``."""
+
+    name: str
+    dt: float
+
+    def reset(self) -> None: ...
+
+    def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample) -> np.ndarray:
+        """Absolute ``[pitch, roll, thrust]`` (paper signs) from estimate ``y``, attitude ``q``."""
+        ...
+
+
+def hover_input(mass: float, g: float = GRAVITY) -> np.ndarray:
+    return np.array([0.0, 0.0, mass * g])
+
+
+def feedforward(ref: RefSample, mass: float, g: float = GRAVITY) -> np.ndarray:
+    """``[-a_x / g, a_y / g, m a_z]``: the reference acceleration through the paper's ``B``."""
+    return np.array([-ref.a[0] / g, ref.a[1] / g, mass * ref.a[2]])
+
+
+class SE3Controller:
+    """RotorPy's ``SE3Control`` read back as the paper's ``[pitch, roll, thrust]``."""
+
+    name = "se3"
+
+    def __init__(self, params: dict[str, Any], dt: float, kp=None, kd=None) -> None:  # type: ignore[no-untyped-def]
+        from rotorpy.controllers.quadrotor_control import SE3Control
+
+        self.dt = float(dt)
+        self._se3 = SE3Control(params)
+        if kp is not None:
+            self._se3.kp_pos = np.asarray(kp, dtype=float)
+        if kd is not None:
+            self._se3.kd_pos = np.asarray(kd, dtype=float)
+        self._zero3 = np.zeros(3)
+
+    def reset(self) -> None:
+        pass
+
+    def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample) -> np.ndarray:
+        state = {"x": y[:3], "v": y[3:6], "q": q, "w": self._zero3}
+        flat = {
+            "x": ref.p,
+            "x_dot": ref.v,
+            "x_ddot": ref.a,
+            "x_dddot": self._zero3,
+            "x_ddddot": self._zero3,
+            "yaw": 0.0,
+            "yaw_dot": 0.0,
+        }
+        out = self._se3.update(t, state, flat)
+        return ctatt_to_paper(out["cmd_thrust"], out["cmd_q"])
+
+
+class PDController:
+    """``u = [0, 0, m g] + u_ff + K (y - r)`` (qsls.pipeline.pd)."""
+
+    name = "pd"
+
+    def __init__(self, gains: PDGains, mass: float, dt: float) -> None:
+        self.dt = float(dt)
+        self.mass = float(mass)
+        self.K = pd_gain(gains, mass)
+
+    def reset(self) -> None:
+        pass
+
+    def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample) -> np.ndarray:
+        u = self.K @ (y - ref.state)
+        return hover_input(self.mass) + feedforward(ref, self.mass) + u
+
+
+class LinearController:
+    """A synthesized controller: ``u = hover + u_ff + K.step(y - r)``, ``K`` from realize."""
+
+    def __init__(self, runtime: Any, mass: float, name: str, dt: float | None = None) -> None:
+        self.runtime = runtime
+        self.mass = float(mass)
+        self.name = name
+        self.dt = float(dt if dt is not None else runtime.dt)
+
+    def reset(self) -> None:
+        self.runtime.reset()
+
+    def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample) -> np.ndarray:
+        u = np.asarray(self.runtime.step(np.asarray(y - ref.state, dtype=float)), dtype=float)
+        return hover_input(self.mass) + feedforward(ref, self.mass) + u.reshape(3)
+
+
+def controller_folder(spec: str | Path) -> Path:
+    """The folder of a synthesized controller given as a folder or its ``controller.npz``."""
+    path = Path(spec)
+    if path.is_file() and path.suffix == ".npz":
+        path = path.parent
+    if not path.is_dir():
+        raise InputError(
+            f"controller '{spec}': expected 'se3', 'pd' or a synthesized controller folder "
+            "(one holding controller.npz, written by qsls synth)"
+        )
+    if not (path / "controller.npz").is_file():
+        raise InputError(f"{path}: no controller.npz here; pass a folder written by qsls synth")
+    return path
+
+
+def make_controller(options: ControllerOptions, mass: float) -> Controller:
+    """Build the controller named by ``options.kind``."""
+    kind = options.kind
+    rate_dt = None if options.rate_hz is None else 1.0 / options.rate_hz
+    if kind == "se3":
+        params = quad_params()
+        params["mass"] = float(mass)
+        return SE3Controller(params, rate_dt or 1.0 / SE3_HZ, options.se3_kp, options.se3_kd)
+    if kind == "pd":
+        return PDController(options.pd, mass, rate_dt or PAPER_DT_S)
+    folder = controller_folder(kind)
+    from qsls.pipeline.realize import load_controller
+
+    runtime = load_controller(folder)
+    name = str(getattr(runtime, "name", None) or folder.name)
+    if rate_dt is not None and abs(rate_dt - runtime.dt) > 1e-9:
+        raise InputError(
+            f"controller {folder}: synthesized for dt = {runtime.dt} s, "
+            f"cannot run at rate_hz = {options.rate_hz}"
+        )
+    return LinearController(runtime, mass, name)

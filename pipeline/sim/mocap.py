@@ -1,0 +1,105 @@
+"""Motion capture: the true pose at 100-200 Hz with millimetre noise.
+
+The noise model is RotorPy's ``MotionCapture`` (``rotorpy/sensors/external_mocap.py``):
+additive Gaussian position noise and an attitude perturbation ``q (+) exp(delta_phi)`` with
+``delta_phi`` Gaussian, here given as standard deviations per sample and drawn from a seeded
+generator (RotorPy's sensor uses the global ``np.random``), vectorized over the whole flight.
+The pose at a sample time between two physics steps is interpolated like the VIO samples
+(cubic Hermite position, normalized linear quaternion).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import Field
+
+from qsls.pipeline.config import Options
+
+NS = 1_000_000_000
+
+
+class MocapOptions(Options):
+    """The motion-capture system (ground truth)."""
+
+    rate_hz: float = Field(120.0, ge=100.0, le=200.0)
+    """Sample rate (Hz), 100 to 200 like Vicon/OptiTrack setups."""
+    position_noise: float = Field(0.001, ge=0)
+    """Position noise std per axis (m)."""
+    attitude_noise: float = Field(0.002, ge=0)
+    """Attitude noise std per axis (rad)."""
+
+
+@dataclass(frozen=True)
+class MocapSamples:
+    t_ns: np.ndarray  # (n,) simulation time
+    position: np.ndarray  # (n, 3)
+    orientation: np.ndarray  # (n, 4) xyzw
+    true_position: np.ndarray  # (n, 3)
+
+
+def interpolate_truth(
+    t_ns: np.ndarray, x: np.ndarray, q: np.ndarray, query_ns: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """True ``(p, v, q)`` at ``query_ns`` from states on a uniform physics grid ``t_ns``."""
+    h_ns = int(t_ns[1] - t_ns[0]) if len(t_ns) > 1 else 1
+    h = h_ns / NS
+    rel = np.asarray(query_ns, dtype=np.int64) - int(t_ns[0])
+    i = np.clip(rel // h_ns, 0, len(t_ns) - 2)
+    a = ((rel - i * h_ns) / h_ns)[:, None]
+    p0, v0, p1, v1 = x[i, :3], x[i, 3:], x[i + 1, :3], x[i + 1, 3:]
+    a2, a3 = a * a, a * a * a
+    p = (
+        (2 * a3 - 3 * a2 + 1) * p0
+        + (a3 - 2 * a2 + a) * h * v0
+        + (-2 * a3 + 3 * a2) * p1
+        + (a3 - a2) * h * v1
+    )
+    v = v0 + a * (v1 - v0)
+    q0, q1 = q[i], q[i + 1]
+    q1 = np.where(((q0 * q1).sum(axis=1) < 0)[:, None], -q1, q1)
+    qq = q0 + a * (q1 - q0)
+    qq /= np.linalg.norm(qq, axis=1, keepdims=True)
+    return p, v, qq
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of ``[x, y, z, w]`` quaternions, row by row."""
+    ax, ay, az, aw = a.T
+    bx, by, bz, bw = b.T
+    return np.stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ],
+        axis=1,
+    )
+
+
+def rotvec_quat(phi: np.ndarray) -> np.ndarray:
+    """Quaternions ``exp(phi / 2)`` of rotation vectors (n, 3)."""
+    ang = np.linalg.norm(phi, axis=1, keepdims=True)
+    half = 0.5 * ang
+    k = np.where(ang > 1e-12, np.sin(half) / np.where(ang > 1e-12, ang, 1.0), 0.5)
+    return np.hstack([phi * k, np.cos(half)])
+
+
+def sample_mocap(
+    options: MocapOptions,
+    t_ns: np.ndarray,
+    x: np.ndarray,
+    q: np.ndarray,
+    rng: np.random.Generator,
+) -> MocapSamples:
+    """Noisy poses every ``1 / rate_hz`` over the flight (truth on the physics grid)."""
+    period = round(NS / options.rate_hz)
+    times = np.arange(0, int(t_ns[-1]) + 1, period, dtype=np.int64)
+    p, _, qq = interpolate_truth(t_ns, x, q, times)
+    n = len(times)
+    noise_p = rng.standard_normal((n, 3)) * options.position_noise
+    noise_q = rng.standard_normal((n, 3)) * options.attitude_noise
+    q_meas = quat_mul(qq, rotvec_quat(noise_q))
+    return MocapSamples(t_ns=times, position=p + noise_p, orientation=q_meas, true_position=p)

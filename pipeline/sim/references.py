@@ -1,0 +1,118 @@
+"""Reference trajectories: the paper's circle at constant height, hover, a figure-eight.
+
+Every reference starts at rest and speeds up smoothly: the phase is
+``theta(t) = omega T_r S(t / T_r)`` for ``t < T_r`` with ``S(u) = 2.5 u^4 - 3 u^5 + u^6`` (the
+integral of the quintic smoothstep, so the angular rate ``omega s(t/T_r)`` and its derivative
+are continuous), then ``theta(t) = omega (t - T_r / 2)``; ``omega = 2 pi / period``.
+
+- circle: ``p = c + radius (cos theta, sin theta, 0) + (0, 0, height)`` (starts at ``+x``).
+- figure8 (lemniscate of Gerono): ``p = c + radius (sin theta, sin(2 theta) / 2, 0) + height``.
+- hover: ``p = c + (0, 0, height)``.
+
+:meth:`Reference.sample` returns position, velocity, acceleration (for feedforward) and the
+reference state ``r = [p, v]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from qsls.pipeline.config import Options
+
+
+class ReferenceOptions(Options):
+    """The trajectory to fly (the paper's experiment: a circle at constant height)."""
+
+    kind: Literal["circle", "hover", "figure8"] = "circle"
+    radius: float = Field(1.0, gt=0)
+    """Circle radius / figure-eight half-width (m)."""
+    period: float = Field(5.0, gt=0)
+    """Seconds per lap (0.2 Hz by default)."""
+    height: float = Field(1.0, gt=0)
+    """Flight height above the floor (m)."""
+    center: tuple[float, float] = (0.0, 0.0)
+    """Horizontal centre (m)."""
+    laps: float = Field(3.0, gt=0)
+    """Laps to fly when the duration is not given (the paper's simulation flew three)."""
+    ramp_s: float = Field(2.0, ge=0)
+    """Smooth speed-up from rest (s)."""
+
+    def natural_duration(self) -> float:
+        """``ramp_s / 2 + laps * period`` (hover: ``laps * period``)."""
+        extra = 0.5 * self.ramp_s if self.kind != "hover" else 0.0
+        return extra + self.laps * self.period
+
+
+@dataclass(frozen=True)
+class RefSample:
+    """Reference at one time: position, velocity, acceleration (world, z up)."""
+
+    p: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+
+    @property
+    def state(self) -> np.ndarray:
+        """``r = [p, v]`` (6,)."""
+        return np.concatenate([self.p, self.v])
+
+
+class Reference:
+    """A reference trajectory built from :class:`ReferenceOptions`."""
+
+    def __init__(self, options: ReferenceOptions | None = None) -> None:
+        self.options = options or ReferenceOptions()
+        o = self.options
+        self.omega = 2.0 * np.pi / o.period
+        self.origin = np.array([o.center[0], o.center[1], o.height], dtype=float)
+
+    def phase(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``theta, theta', theta''`` at times ``t`` (s)."""
+        t = np.asarray(t, dtype=float)
+        w, tr = self.omega, self.options.ramp_s
+        if tr <= 0:
+            return w * t, np.full_like(t, w), np.zeros_like(t)
+        u = np.clip(t / tr, 0.0, 1.0)
+        ramp = t < tr
+        th = np.where(ramp, w * tr * (2.5 * u**4 - 3 * u**5 + u**6), w * (t - 0.5 * tr))
+        thd = np.where(ramp, w * (10 * u**3 - 15 * u**4 + 6 * u**5), w)
+        thdd = np.where(ramp, (w / tr) * (30 * u**2 - 60 * u**3 + 30 * u**4), 0.0)
+        return th, thd, thdd
+
+    def arrays(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, acceleration (n, 3) at times ``t`` (n,)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        n = t.shape[0]
+        p = np.tile(self.origin, (n, 1))
+        v = np.zeros((n, 3))
+        a = np.zeros((n, 3))
+        kind, rad = self.options.kind, self.options.radius
+        if kind == "hover":
+            return p, v, a
+        th, thd, thdd = self.phase(t)
+        if kind == "circle":
+            # f = (cos, sin): f' = (-sin, cos), f'' = -(cos, sin)
+            f = np.c_[np.cos(th), np.sin(th)]
+            f1 = np.c_[-np.sin(th), np.cos(th)]
+            f2 = -f
+        else:  # figure8: f = (sin th, sin 2th / 2)
+            f = np.c_[np.sin(th), 0.5 * np.sin(2 * th)]
+            f1 = np.c_[np.cos(th), np.cos(2 * th)]
+            f2 = np.c_[-np.sin(th), -2.0 * np.sin(2 * th)]
+        p[:, :2] += rad * f
+        v[:, :2] = rad * f1 * thd[:, None]
+        a[:, :2] = rad * (f2 * thd[:, None] ** 2 + f1 * thdd[:, None])
+        return p, v, a
+
+    def sample(self, t: float) -> RefSample:
+        p, v, a = self.arrays(np.array([t]))
+        return RefSample(p=p[0], v=v[0], a=a[0])
+
+    def states(self, t: np.ndarray) -> np.ndarray:
+        """Reference states ``[p, v]`` (n, 6)."""
+        p, v, _ = self.arrays(t)
+        return np.hstack([p, v])

@@ -1,0 +1,304 @@
+"""``qsls simulate``: fly the vehicle and write its logs the way real ones arrive.
+
+Output folder (stage ``simulate``, written through :class:`StageWriter`):
+
+- the bag: ``flight.bag`` (ros1), ``flight/`` (rosbag2 folder: ros2-sqlite, ros2-mcap) or
+  ``flight.mcap`` (plain MCAP); its name is in ``SimResult.bag`` and in the manifest's
+  ``results.bag``. Topics: VIO ``nav_msgs/Odometry`` (twist in the body frame, ROS
+  convention) and motion capture ``geometry_msgs/PoseStamped`` or ``TransformStamped``;
+- ``truth.json``: ``time_offset_s``, ``vio_frame`` (``yaw_rad``, ``translation``),
+  ``lipschitz``, the emulator's parameters, ``crashed`` and the flight's metrics;
+- ``errors.parquet``: the emulator's error at every VIO sample, in the motion-capture
+  (world) frame before the VIO frame's transform: ``stamp_ns`` (VIO clock), ``e_px`` ..
+  ``e_vz``, and the true state ``x_px`` .. ``x_vz`` there;
+- ``trajectory.parquet`` (truth and reference at the physics rate, VIO clock) and
+  ``control.parquet`` (what the controller saw and commanded at each tick).
+
+Clocks (DESIGN.md convention): ``time_offset_s`` is added to motion-capture stamps to put
+them on the VIO clock, so ``mocap_stamp = vio_clock(t) - time_offset_s``. The bag's log time
+is the recorder's clock, here the VIO computer's: ``log = (stamp on the VIO clock) +
+transport delay + jitter``.
+
+Frames: the VIO world frame is yawed by ``vio_frame_yaw_deg`` and shifted by
+``vio_frame_translation`` in the motion-capture frame: ``p_mocap = R_z(yaw) p_vio + t``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field
+
+from qsls.pipeline.artifacts import StageWriter
+from qsls.pipeline.config import Options
+from qsls.pipeline.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.sim.closedloop import NS, FlightLog, FlightOptions, fly
+from qsls.pipeline.sim.controllers import Controller
+from qsls.pipeline.sim.mocap import MocapOptions, quat_mul, sample_mocap
+
+STAGE = "simulate"
+FORMATS = ("ros1", "ros2-sqlite", "ros2-mcap", "mcap")
+STATE = ("px", "py", "pz", "vx", "vy", "vz")
+# SeedSequence stream for the logger (mocap noise, delay jitter); the VIO uses its own.
+_LOG_STREAM = 1000
+
+
+class LogOptions(Options):
+    """How the flight is recorded: format, topics, clocks, frames, transport delays."""
+
+    format: Literal["ros1", "ros2-sqlite", "ros2-mcap", "mcap"] = "ros1"
+    compression: str | None = None
+    """Bag compression (ros1: lz4, bz2; rosbag2: zstd; mcap: zstd, lz4); none by default."""
+    vio_topic: str = "/vio/odometry"
+    vio_frame_id: str = "odom"
+    vio_child_frame_id: str = "base_link"
+    mocap_topic: str = "/vicon/quad/pose"
+    mocap_msgtype: Literal["PoseStamped", "TransformStamped"] = "PoseStamped"
+    mocap_frame_id: str = "world"
+    mocap_child_frame_id: str = "quad"
+    time_offset_s: float = Field(-0.137, ge=-5.0, le=5.0)
+    """Added to motion-capture stamps to put them on the VIO clock (DESIGN.md)."""
+    vio_clock_start_s: float = Field(1_700_000_000.0, ge=0)
+    """VIO clock reading at the start of the flight (s)."""
+    vio_delay_s: float = Field(0.020, ge=0)
+    """Transport delay from VIO stamp to log time (s)."""
+    mocap_delay_s: float = Field(0.005, ge=0)
+    delay_jitter_s: float = Field(0.002, ge=0)
+    """Uniform extra delay in [0, jitter] per message (seeded)."""
+    vio_frame_yaw_deg: float = 35.0
+    """Yaw of the VIO world frame in the motion-capture frame (degrees)."""
+    vio_frame_translation: tuple[float, float, float] = (0.8, -0.4, 0.05)
+    """Origin of the VIO world frame in the motion-capture frame (m)."""
+
+
+class SimOptions(FlightOptions):
+    """``qsls simulate``: the flight (vehicle, reference, controller, VIO) and its logs."""
+
+    mocap: MocapOptions = MocapOptions()
+    log: LogOptions = LogOptions()
+
+
+@dataclass(frozen=True)
+class SimResult:
+    out: Path
+    bag: Path
+    flight: FlightLog
+    metrics: dict[str, Any]
+    truth: dict[str, Any]
+
+    def summary(self) -> dict[str, Any]:
+        m = self.metrics
+        out = {
+            "output": str(self.out),
+            "bag": str(self.bag),
+            "format": self.truth["format"],
+            "controller": self.flight.controller,
+            "duration (s)": round(m["duration_s"], 3),
+            "tracking RMS (m)": m["tracking_rms_m"],
+            "tracking max (m)": m["tracking_max_m"],
+            "perception error RMS (inf-norm)": m["perception_error_rms"],
+            "perception error max (inf-norm)": m["perception_error_max"],
+            "bias Lipschitz L": self.truth["lipschitz"],
+            "crashed": self.flight.crashed,
+        }
+        if self.flight.crashed:
+            out["crash"] = self.flight.crash_reason
+        return out
+
+
+def bag_name(fmt: str) -> str:
+    """The bag's name inside the output folder for a format."""
+    return {"ros1": "flight.bag", "mcap": "flight.mcap"}.get(fmt, "flight")
+
+
+def _rz(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _quat_z(yaw: float, n: int) -> np.ndarray:
+    return np.tile([0.0, 0.0, np.sin(0.5 * yaw), np.cos(0.5 * yaw)], (n, 1))
+
+
+def _rotate_by_conj(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``R(q)^T v`` row by row (world vector into the body frame)."""
+    x, y, z, w = q.T
+    r = np.empty((len(q), 3, 3))
+    r[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    r[:, 0, 1] = 2 * (x * y - z * w)
+    r[:, 0, 2] = 2 * (x * z + y * w)
+    r[:, 1, 0] = 2 * (x * y + z * w)
+    r[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    r[:, 1, 2] = 2 * (y * z - x * w)
+    r[:, 2, 0] = 2 * (x * z - y * w)
+    r[:, 2, 1] = 2 * (y * z + x * w)
+    r[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return np.einsum("nji,nj->ni", r, v)
+
+
+def log_streams(
+    flight: FlightLog, options: SimOptions, seed: int
+) -> tuple[list[Any], dict[str, Any]]:
+    """The bag's streams (VIO odometry, motion capture) and the clock/frame truth."""
+    from qsls.pipeline.sources.write import OdometryStream, PoseStream
+
+    lo = options.log
+    rng = np.random.default_rng(np.random.SeedSequence([seed, _LOG_STREAM]))
+    start_ns = round(lo.vio_clock_start_s * NS)
+    offset_ns = round(lo.time_offset_s * NS)
+    yaw = np.radians(lo.vio_frame_yaw_deg)
+    trans = np.asarray(lo.vio_frame_translation, dtype=float)
+    rz = _rz(yaw)
+
+    # VIO: y = x + e in the mocap frame, then expressed in the VIO frame
+    y = flight.vio_y
+    n = len(y)
+    p_vio = (y[:, :3] - trans) @ rz  # rows: R_z^T (p - t)
+    q_vio = quat_mul(_quat_z(-yaw, n), flight.vio_q)
+    twist = _rotate_by_conj(flight.vio_q, y[:, 3:])  # R_body^T v_world (= in VIO frame too)
+    vio_stamp = start_ns + flight.vio_t_ns
+    jit = rng.uniform(0.0, lo.delay_jitter_s, n)
+    vio_log = np.maximum.accumulate(
+        vio_stamp + np.round((lo.vio_delay_s + jit) * NS).astype(np.int64)
+    )
+    vio = OdometryStream(
+        topic=lo.vio_topic,
+        header_ns=vio_stamp.astype(np.int64),
+        log_ns=vio_log.astype(np.int64),
+        position=p_vio,
+        orientation=q_vio,
+        linear_velocity=twist,
+        angular_velocity=flight.vio_w,
+        frame_id=lo.vio_frame_id,
+        child_frame_id=lo.vio_child_frame_id,
+    )
+
+    # motion capture: its own clock, the world frame
+    mc = sample_mocap(options.mocap, flight.t_ns, flight.x, flight.q, rng)
+    on_vio_clock = start_ns + mc.t_ns
+    mocap_stamp = on_vio_clock - offset_ns
+    jit = rng.uniform(0.0, lo.delay_jitter_s, len(mc.t_ns))
+    mocap_log = np.maximum.accumulate(
+        on_vio_clock + np.round((lo.mocap_delay_s + jit) * NS).astype(np.int64)
+    )
+    mocap = PoseStream(
+        topic=lo.mocap_topic,
+        header_ns=mocap_stamp.astype(np.int64),
+        log_ns=mocap_log.astype(np.int64),
+        position=mc.position,
+        orientation=mc.orientation,
+        msgtype=f"geometry_msgs/msg/{lo.mocap_msgtype}",
+        frame_id=lo.mocap_frame_id,
+        child_frame_id=lo.mocap_child_frame_id,
+    )
+    truth = {
+        "time_offset_s": lo.time_offset_s,
+        "vio_frame": {"yaw_rad": float(yaw), "translation": [float(v) for v in trans]},
+        "vio_clock_start_ns": int(start_ns),
+        "vio_topic": lo.vio_topic,
+        "mocap_topic": lo.mocap_topic,
+        "mocap_msgtype": mocap.msgtype,
+        "vio_rate_hz": options.vio.rate_hz,
+        "mocap_rate_hz": options.mocap.rate_hz,
+        "vio_messages": n,
+        "mocap_messages": len(mc.t_ns),
+    }
+    return [vio, mocap], truth
+
+
+def _frames(flight: FlightLog, start_ns: int) -> dict[str, Any]:
+    import pandas as pd
+
+    def cols(prefix: str, a: np.ndarray) -> dict[str, np.ndarray]:
+        return {f"{prefix}_{s}": a[:, i] for i, s in enumerate(STATE)}
+
+    errors = pd.DataFrame(
+        {
+            "stamp_ns": start_ns + flight.vio_t_ns,
+            **cols("e", flight.vio_e),
+            **cols("x", flight.vio_x),
+        }
+    )
+    traj = pd.DataFrame(
+        {
+            "stamp_ns": start_ns + flight.t_ns,
+            "t": flight.t_ns / NS,
+            **cols("x", flight.x),
+            **cols("r", flight.ref),
+            **{f"q_{c}": flight.q[:, i] for i, c in enumerate("xyzw")},
+        }
+    )
+    control = pd.DataFrame(
+        {
+            "stamp_ns": start_ns + flight.ctrl_t_ns,
+            "t": flight.ctrl_t_ns / NS,
+            **cols("y", flight.ctrl_y),
+            **cols("r", flight.ctrl_ref),
+            "u_pitch": flight.ctrl_u[:, 0],
+            "u_roll": flight.ctrl_u[:, 1],
+            "u_thrust": flight.ctrl_u[:, 2],
+        }
+    )
+    return {"errors.parquet": errors, "trajectory.parquet": traj, "control.parquet": control}
+
+
+def simulate(
+    options: SimOptions,
+    out: Path,
+    *,
+    force: bool = False,
+    progress: Progress = NULL_PROGRESS,
+    controller: Controller | None = None,
+    inputs: list[Path] | None = None,
+) -> SimResult:
+    """Fly ``options`` (or the given ``controller``) and write the stage folder ``out``."""
+    from qsls.pipeline.sources.write import write_bag
+
+    out = Path(out)
+    ctrl_inputs = list(inputs or [])
+    if controller is None and options.controller.kind not in ("se3", "pd"):
+        from qsls.pipeline.sim.controllers import controller_folder
+
+        ctrl_inputs.append(controller_folder(options.controller.kind))
+    with StageWriter(out, STAGE, options=options, inputs=ctrl_inputs, force=force) as w:
+        flight = fly(options, controller, progress=progress)
+        progress.start("writing the bag", total=None)
+        streams, clocks = log_streams(flight, options, options.seed)
+        name = bag_name(options.log.format)
+        write_bag(w.path(name), streams, options.log.format, compression=options.log.compression)
+        progress.finish()
+        metrics = flight.metrics()
+        truth = {
+            **clocks,
+            "format": options.log.format,
+            "bag": name,
+            "seed": options.seed,
+            "controller": flight.controller,
+            "controller_dt": flight.dt,
+            "feedback": options.controller.feedback,
+            "lipschitz": flight.lipschitz,
+            "emulator": {"params": options.vio.model_dump(mode="json"), **flight.emulator},
+            "crashed": flight.crashed,
+            "crash_reason": flight.crash_reason,
+            "crash_time_s": flight.crash_time_s,
+            "metrics": metrics,
+            "mass": flight.mass,
+        }
+        w.write_json("truth.json", truth)
+        for fname, df in _frames(flight, clocks["vio_clock_start_ns"]).items():
+            w.write_parquet(fname, df)
+        w.results.update(
+            {
+                "bag": name,
+                "format": options.log.format,
+                "crashed": flight.crashed,
+                "crash_reason": flight.crash_reason,
+                "lipschitz": flight.lipschitz,
+                "time_offset_s": options.log.time_offset_s,
+                **{k: v for k, v in metrics.items() if k not in ("crashed", "crash_reason")},
+            }
+        )
+    return SimResult(out=out, bag=out / name, flight=flight, metrics=metrics, truth=truth)

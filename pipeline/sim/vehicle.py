@@ -1,0 +1,355 @@
+"""The vehicle: RotorPy's ``Multirotor`` with the ``cmd_ctatt`` abstraction, a fast integrator.
+
+**Parameters** (:data:`QUAD_256G`): a small quadrotor like the paper's (Section V-B: "a
+0.16 m diameter, 256 g quadrotor" built on a Qualcomm Snapdragon Flight). Where they come
+from:
+
+- ``mass`` 0.256 kg: the paper. Arm length ``d`` = 0.08 m: half the 0.16 m diameter.
+- Inertia: RotorPy's AscTec Hummingbird (``hummingbird_params.py``: 0.5 kg, d = 0.17 m,
+  ``Ixx`` 3.65e-3) scaled by ``m d^2`` (a geometrically similar frame):
+  ``Ixx = Iyy = 4.14e-4``, ``Izz = 7.97e-4`` kg m^2.
+- Rotors: ``rotor_speed_max`` 3000 rad/s with a thrust-to-weight ratio of 2.2 gives
+  ``k_eta = 2.2 m g / (4 * 3000^2) = 1.535e-7`` N/(rad/s)^2 (hover at ~2020 rad/s);
+  ``k_m`` keeps the Hummingbird's torque-to-thrust ratio (0.0244 m). Motor time constant
+  ``tau_m`` 0.02 s, between the Hummingbird (0.005 s) and the Crazyflie (0.072 s).
+- Aerodynamics: parasitic drag scaled from the Hummingbird by frontal area (``d^2``); rotor
+  drag ``k_d``, ``k_z`` chosen so the linear drag per unit mass at hover matches RotorPy's
+  Crazyflie (``4 k_d omega_hover / m`` = 0.245 1/s; ``k_z / k_d`` as the Crazyflie's);
+  translational lift ``k_h`` with the Hummingbird's ratio to the hover thrust.
+- Attitude loop (``cmd_ctatt``): the Hummingbird's gains ``kp_att`` 544, ``kd_att`` 46.64
+  (an angular-acceleration PD: natural frequency 23 rad/s, damping 1), run at the physics
+  rate as RotorPy does (its attitude loop is evaluated once per ``Multirotor.step``).
+
+**Signs** (DESIGN.md, Model): the paper's ``B`` has ``vx' = -g pitch``, ``vy' = +g roll``; in
+RotorPy's z-up body frame a right-handed rotation ``theta`` about body y gives
+``x'' = +g theta`` and ``phi`` about x gives ``y'' = -g phi``. The conversion happens once,
+in :func:`paper_to_ctatt`: ``theta = -pitch``, ``phi = -roll``, attitude
+``R = R_z(0) R_y(theta) R_x(phi)``, collective thrust unchanged.
+
+**Integration.** RotorPy's ``Multirotor.step`` holds the motor command over a step and calls
+``scipy.integrate.solve_ivp`` (RK45) every step: ~3.6 ms per step here. :class:`Vehicle`
+keeps exactly that model (same state vector, same equations: :meth:`Vehicle.derivative`
+reproduces ``Multirotor._s_dot_fn`` and :meth:`Vehicle.motor_command`
+``Multirotor.get_cmd_motor_speeds``, both checked against RotorPy in the tests) but
+evaluates it with plain array code and integrates each step with fixed-step classical
+Runge-Kutta 4 (``substeps`` per step), renormalizing the quaternion after the step as
+RotorPy does.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from qsls.pipeline.config import Options
+from qsls.pipeline.model import GRAVITY
+
+_D = 0.08  # arm length (m)
+_S2 = 0.70710678118
+
+QUAD_256G: dict[str, Any] = {
+    "mass": 0.256,
+    "Ixx": 4.14e-4,
+    "Iyy": 4.14e-4,
+    "Izz": 7.97e-4,
+    "Ixy": 0.0,
+    "Iyz": 0.0,
+    "Ixz": 0.0,
+    "num_rotors": 4,
+    "rotor_radius": 0.035,
+    "rotor_pos": {
+        "r1": _D * np.array([_S2, _S2, 0]),
+        "r2": _D * np.array([_S2, -_S2, 0]),
+        "r3": _D * np.array([-_S2, -_S2, 0]),
+        "r4": _D * np.array([-_S2, _S2, 0]),
+    },
+    "rotor_directions": np.array([1, -1, 1, -1]),
+    "rI": np.array([0, 0, 0]),
+    "c_Dx": 1.1e-3,
+    "c_Dy": 1.1e-3,
+    "c_Dz": 2.2e-3,
+    "k_eta": 1.535e-7,
+    "k_m": 3.75e-9,
+    "k_d": 7.75e-6,
+    "k_z": 5.7e-6,
+    "k_h": 1.74e-3,
+    "k_flap": 0.0,
+    "tau_m": 0.02,
+    "rotor_speed_min": 0.0,
+    "rotor_speed_max": 3000.0,
+    "motor_noise_std": 0.0,
+    "k_w": 1,
+    "k_v": 10,
+    "kp_att": 544.0,
+    "kd_att": 46.64,
+}
+
+
+class VehicleOptions(Options):
+    """The simulated vehicle and its integrator."""
+
+    mass: float = Field(0.256, gt=0)
+    """Mass (kg); the paper's vehicle weighs 256 g. Other parameters stay those of QUAD_256G."""
+    aero: bool = True
+    """RotorPy's aerodynamic wrenches (parasitic drag, rotor drag, translational lift)."""
+    physics_hz: float = Field(200.0, gt=0)
+    """Integration step rate; the attitude loop also runs at this rate."""
+    substeps: int = Field(1, ge=1, le=50)
+    """RK4 substeps per physics step (the motor command is held over the step)."""
+    max_tilt_deg: float = Field(35.0, gt=0, lt=90)
+    """Commanded pitch and roll are clipped to this angle."""
+
+
+def quad_params(options: VehicleOptions | None = None) -> dict[str, Any]:
+    """RotorPy's parameter dict for the vehicle (QUAD_256G with the options' mass)."""
+    params = dict(QUAD_256G)
+    if options is not None:
+        params["mass"] = float(options.mass)
+    return params
+
+
+def paper_to_ctatt(u: np.ndarray) -> tuple[float, np.ndarray]:
+    """Absolute paper input ``[pitch, roll, thrust]`` -> RotorPy ``(cmd_thrust, cmd_q)``.
+
+    ``theta = -pitch`` about body y, ``phi = -roll`` about body x, yaw 0;
+    ``q = q_y(theta) * q_x(phi)`` as ``[x, y, z, w]``.
+    """
+    th = -0.5 * float(u[0])
+    ph = -0.5 * float(u[1])
+    ct, st, cp, sp = np.cos(th), np.sin(th), np.cos(ph), np.sin(ph)
+    q = np.array([ct * sp, st * cp, -st * sp, ct * cp])
+    return float(u[2]), q
+
+
+def ctatt_to_paper(thrust: float, q: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`paper_to_ctatt` (yaw dropped): RotorPy command -> paper input."""
+    x, y, z, w = (float(v) for v in q)
+    # R = Rz(psi) Ry(theta) Rx(phi): theta = asin(-R[2,0]), phi = atan2(R[2,1], R[2,2])
+    r20 = 2.0 * (x * z - w * y)
+    r21 = 2.0 * (y * z + w * x)
+    r22 = 1.0 - 2.0 * (x * x + y * y)
+    theta = np.arcsin(np.clip(-r20, -1.0, 1.0))
+    phi = np.arctan2(r21, r22)
+    return np.array([-theta, -phi, float(thrust)])
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the quaternion ``[x, y, z, w]`` (normalized first, like scipy)."""
+    x, y, z, w = q / np.sqrt(q @ q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _hat(s: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -s[2], s[1]], [s[2], 0.0, -s[0]], [-s[1], s[0], 0.0]])
+
+
+class Vehicle:
+    """RotorPy's ``Multirotor`` (``cmd_ctatt``) with a fast fixed-step RK4 integrator.
+
+    State: RotorPy's 20-vector ``s = [x(3), v(3), q(4) xyzw, w(3) body rates, wind(3),
+    rotor_speeds(4)]``.
+    """
+
+    def __init__(self, options: VehicleOptions | None = None) -> None:
+        from rotorpy.vehicles.multirotor import Multirotor
+
+        self.options = options or VehicleOptions()
+        self.params = quad_params(self.options)
+        self.multirotor = Multirotor(
+            self.params,
+            control_abstraction="cmd_ctatt",
+            aero=self.options.aero,
+            enable_ground=False,
+        )
+        mr = self.multirotor
+        self.mass = float(mr.mass)
+        self.g = float(mr.g)
+        self.inertia = np.asarray(mr.inertia, dtype=float)
+        self.inv_inertia = np.asarray(mr.inv_inertia, dtype=float)
+        self.geometry = np.asarray(mr.rotor_geometry, dtype=float)  # (4, 3)
+        self._gx, self._gy, self._gz = (self.geometry[:, i].copy() for i in range(3))
+        self.k_eta = float(mr.k_eta)
+        self.k_m = float(mr.k_m)
+        self.k_h = float(mr.k_h)
+        self.k_flap = float(mr.k_flap)
+        self.tau_m = float(mr.tau_m)
+        self.drag = np.diag(mr.drag_matrix).astype(float)
+        self.rotor_drag = np.diag(mr.rotor_drag_matrix).astype(float)
+        self.rotor_dir = np.asarray(mr.rotor_dir, dtype=float)
+        self.TM_to_f = np.asarray(mr.TM_to_f, dtype=float)
+        self.kp_att = float(mr.kp_att)
+        self.kd_att = float(mr.kd_att)
+        self.speed_min = float(mr.rotor_speed_min)
+        self.speed_max = float(mr.rotor_speed_max)
+        self.aero = bool(mr.aero)
+        self.max_tilt = np.radians(self.options.max_tilt_deg)
+        self.hover_speed = float(np.sqrt(self.mass * self.g / (4 * self.k_eta)))
+
+    # ---------------------------------------------------------------- states and commands
+    def hover_state(self, position: np.ndarray, velocity: np.ndarray | None = None) -> np.ndarray:
+        """Level attitude at ``position`` with the rotors at hover speed."""
+        s = np.zeros(20)
+        s[0:3] = position
+        if velocity is not None:
+            s[3:6] = velocity
+        s[9] = 1.0
+        s[16:20] = self.hover_speed
+        return s
+
+    def command(self, u: np.ndarray) -> tuple[float, np.ndarray]:
+        """Absolute paper input -> ``(cmd_thrust, cmd_q)``, tilt and thrust clipped."""
+        pitch = float(np.clip(u[0], -self.max_tilt, self.max_tilt))
+        roll = float(np.clip(u[1], -self.max_tilt, self.max_tilt))
+        thrust = float(np.clip(u[2], 0.0, 4 * self.k_eta * self.speed_max**2))
+        return paper_to_ctatt(np.array([pitch, roll, thrust]))
+
+    def motor_command(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray) -> np.ndarray:
+        """``Multirotor.get_cmd_motor_speeds`` for ``cmd_ctatt``, clipped as in ``step``."""
+        r = quat_to_matrix(s[6:10])
+        r_des = quat_to_matrix(cmd_q)
+        s_err = 0.5 * (r_des.T @ r - r.T @ r_des)
+        att_err = np.array([-s_err[1, 2], s_err[0, 2], -s_err[0, 1]])
+        w = s[10:13]
+        iw = self.inertia @ w
+        moment = self.inertia @ (-self.kp_att * att_err - self.kd_att * w)
+        moment[0] += w[1] * iw[2] - w[2] * iw[1]
+        moment[1] += w[2] * iw[0] - w[0] * iw[2]
+        moment[2] += w[0] * iw[1] - w[1] * iw[0]
+        f = self.TM_to_f @ np.array([thrust, moment[0], moment[1], moment[2]])
+        speeds = f / self.k_eta
+        speeds = np.sign(speeds) * np.sqrt(np.abs(speeds))
+        return np.clip(speeds, self.speed_min, self.speed_max)
+
+    def derivative(self, s: np.ndarray, cmd_speeds: np.ndarray) -> np.ndarray:
+        """``ds/dt`` of ``Multirotor._s_dot_fn`` (RotorPy's equations) for held ``cmd_speeds``.
+
+        Written out component by component (small-array numpy calls cost more than the math).
+        """
+        vx, vy, vz = s[3], s[4], s[5]
+        x, y, z, qw = s[6], s[7], s[8], s[9]
+        wx, wy, wz = s[10], s[11], s[12]
+        omega = s[16:20]
+        nq = 1.0 / np.sqrt(x * x + y * y + z * z + qw * qw)
+        a, b, c, d = x * nq, y * nq, z * nq, qw * nq
+        r00, r01, r02 = 1 - 2 * (b * b + c * c), 2 * (a * b - c * d), 2 * (a * c + b * d)
+        r10, r11, r12 = 2 * (a * b + c * d), 1 - 2 * (a * a + c * c), 2 * (b * c - a * d)
+        r20, r21, r22 = 2 * (a * c - b * d), 2 * (b * c + a * d), 1 - 2 * (a * a + b * b)
+        ux, uy, uz = vx - s[13], vy - s[14], vz - s[15]
+        # body airspeed R^T (v - wind)
+        bx = r00 * ux + r10 * uy + r20 * uz
+        by = r01 * ux + r11 * uy + r21 * uz
+        bz = r02 * ux + r12 * uy + r22 * uz
+        gx, gy, gz = self._gx, self._gy, self._gz
+        thrust = self.k_eta * omega * omega  # (4,)
+        if self.aero:
+            # local airspeed at each hub: airspeed + w x r_k
+            lx = bx + (wy * gz - wz * gy)
+            ly = by + (wz * gx - wx * gz)
+            lz = bz + (wx * gy - wy * gx)
+            speed = np.sqrt(bx * bx + by * by + bz * bz)
+            dx, dy, dz = (
+                -speed * self.drag[0] * bx,
+                -speed * self.drag[1] * by,
+                -speed * self.drag[2] * bz,
+            )
+            hx = -omega * self.rotor_drag[0] * lx
+            hy = -omega * self.rotor_drag[1] * ly
+            fz = thrust + self.k_h * (lx * lx + ly * ly) - omega * self.rotor_drag[2] * lz
+            mfx = float((-self.k_flap * omega * ly).sum()) if self.k_flap else 0.0
+            mfy = float((self.k_flap * omega * lx).sum()) if self.k_flap else 0.0
+            fbx = float(hx.sum()) + dx
+            fby = float(hy.sum()) + dy
+            fbz = float(fz.sum()) + dz
+            # sum_k r_k x F_k
+            mx = float((gy * fz - gz * hy).sum()) + mfx
+            my = float((gz * hx - gx * fz).sum()) + mfy
+            mz = float((gx * hy - gy * hx).sum())
+        else:
+            fbx = fby = 0.0
+            fbz = float(thrust.sum())
+            mx = float((gy * thrust).sum())
+            my = float((-gx * thrust).sum())
+            mz = 0.0
+        mz += float((self.rotor_dir * omega * omega).sum()) * self.k_m
+        out = np.empty(20)
+        out[0] = vx
+        out[1] = vy
+        out[2] = vz
+        im = 1.0 / self.mass
+        out[3] = (r00 * fbx + r01 * fby + r02 * fbz) * im
+        out[4] = (r10 * fbx + r11 * fby + r12 * fbz) * im
+        out[5] = (r20 * fbx + r21 * fby + r22 * fbz) * im - self.g
+        out[6] = 0.5 * (qw * wx - z * wy + y * wz)
+        out[7] = 0.5 * (z * wx + qw * wy - x * wz)
+        out[8] = 0.5 * (-y * wx + x * wy + qw * wz)
+        out[9] = 0.5 * (-x * wx - y * wy - z * wz)
+        ii = self.inertia
+        iwx = ii[0, 0] * wx + ii[0, 1] * wy + ii[0, 2] * wz
+        iwy = ii[1, 0] * wx + ii[1, 1] * wy + ii[1, 2] * wz
+        iwz = ii[2, 0] * wx + ii[2, 1] * wy + ii[2, 2] * wz
+        tx = mx - (wy * iwz - wz * iwy)
+        ty = my - (wz * iwx - wx * iwz)
+        tz = mz - (wx * iwy - wy * iwx)
+        inv = self.inv_inertia
+        out[10] = inv[0, 0] * tx + inv[0, 1] * ty + inv[0, 2] * tz
+        out[11] = inv[1, 0] * tx + inv[1, 1] * ty + inv[1, 2] * tz
+        out[12] = inv[2, 0] * tx + inv[2, 1] * ty + inv[2, 2] * tz
+        out[13:16] = 0.0
+        out[16:20] = (cmd_speeds - omega) * (1.0 / self.tau_m)
+        return out
+
+    # ---------------------------------------------------------------- integration
+    def step(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
+        """One step of length ``h``: motor command held, RK4 (``substeps``), quaternion renormalized."""
+        cmd = self.motor_command(s, thrust, cmd_q)
+        n = self.options.substeps
+        dt = h / n
+        f = self.derivative
+        for _ in range(n):
+            k1 = f(s, cmd)
+            k2 = f(s + 0.5 * dt * k1, cmd)
+            k3 = f(s + 0.5 * dt * k2, cmd)
+            k4 = f(s + dt * k3, cmd)
+            s = s + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        s[6:10] /= np.sqrt(s[6:10] @ s[6:10])
+        return s
+
+    def step_rotorpy(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
+        """The stock ``Multirotor.step`` (``solve_ivp`` every step), for validation and benchmarks."""
+        from rotorpy.vehicles.multirotor import Multirotor
+
+        state = {k: np.array(v, dtype=float) for k, v in Multirotor._unpack_state(s).items()}
+        out = self.multirotor.step(state, {"cmd_thrust": thrust, "cmd_q": cmd_q}, h)
+        return Multirotor._pack_state(out)
+
+    @staticmethod
+    def as_dict(s: np.ndarray) -> dict[str, np.ndarray]:
+        """RotorPy's state dict view of ``s``."""
+        return {
+            "x": s[0:3],
+            "v": s[3:6],
+            "q": s[6:10],
+            "w": s[10:13],
+            "wind": s[13:16],
+            "rotor_speeds": s[16:20],
+        }
+
+
+__all__ = [
+    "GRAVITY",
+    "QUAD_256G",
+    "Vehicle",
+    "VehicleOptions",
+    "ctatt_to_paper",
+    "paper_to_ctatt",
+    "quad_params",
+    "quat_to_matrix",
+]
