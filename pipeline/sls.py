@@ -247,6 +247,15 @@ class SLSProblem:
         if s.T < 2:
             raise ValueError(f"horizon T must be at least 2, got {s.T}")
         self.model, self.structure = model, s
+        # With C = I the Phi_xy equations follow from the others: Phi_xy(k) = Phi_xx(k+1) -
+        # Phi_xx(k) A and Phi_uy(k) = Phi_ux(k+1) - Phi_ux(k) A (right equations), and then
+        # A Phi_xy(k) + B Phi_uy(k) = [A Phi_xx(k+1) + B Phi_ux(k+1)] - [A Phi_xx(k) + B
+        # Phi_ux(k)] A = Phi_xx(k+2) - Phi_xx(k+1) A = Phi_xy(k+1) (left equation). Left
+        # in, these redundant rows stall the interior-point method's primal residual near
+        # its tolerance; the certificate still checks every equation.
+        self.drops_redundant = model.C.shape == model.A.shape and np.array_equal(
+            model.C, np.eye(model.nx)
+        )
         a, b, c, h = model.A, model.B, model.C, model.H
         nx, nu, ny, T = model.nx, model.nu, model.ny, s.T
         self.X = cp.Variable((nx, T * nx), name="Phi_xx")  # taps 1..T
@@ -264,11 +273,11 @@ class SLSProblem:
             X[:, :nx] == np.eye(nx),
             X @ zx - a @ X - b @ U == 0,
             X @ zx - X @ ia - Y @ ic == 0,
-            Y[:, :ny] == b @ W0,
-            Y @ zy - a @ Y - b @ W1 == 0,
             U[:, :nx] == W0 @ c,
             U @ zx - U @ ia - W1 @ ic == 0,
         ]
+        if not self.drops_redundant:
+            cons += [Y[:, :ny] == b @ W0, Y @ zy - a @ Y - b @ W1 == 0]
         if s.strictly_proper:
             cons.append(W0 == 0)
         XH = X @ ih

@@ -1,0 +1,146 @@
+"""The FIR SLS problem against independent references (LQG, transfer functions, limits)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from qsls.pipeline import certify, sls
+from qsls.pipeline.model import quadrotor_model
+from qsls.pipeline.nominal import pd_responses
+from qsls.pipeline.pd import PDGains
+from qsls.pipeline.realize import RealizedController, filter_bank
+from tests.lqg_reference import lqg_h2_squared
+
+Q = np.diag([10.0, 10, 10, 1, 1, 1])
+R = np.diag([1.0, 1, 0.1])
+MODEL = quadrotor_model()
+
+
+@pytest.mark.parametrize(("strictly_proper", "design_value"), [(False, 152.1087), (True, 189.1760)])
+def test_h2_without_robustness_equals_lqg(strictly_proper, design_value):
+    """H2 synthesis at T = 60 == the Riccati/Lyapunov LQG cost (current-estimate form when
+    Phi_uy(0) is free, predictor form when strictly proper), and DESIGN.md's figures."""
+    m = MODEL
+    ref = lqg_h2_squared(m.A, m.B, m.C, m.H, Q, R, 1.0, 0.5, strictly_proper=strictly_proper)
+    sol = sls.solve(
+        m,
+        sls.Structure(60, "h2", "qr", False, strictly_proper),
+        sls.Values(Q=Q, R=R, eps_w=1.0, eps_e=0.5),
+    )
+    assert sol.status == "optimal"
+    # the optimum, and the H2 cost recomputed from the taps
+    assert sol.objective == pytest.approx(ref, rel=1e-6)
+    recomputed = sls.cost_value("h2", sol.taps, m, np.sqrt(Q), np.sqrt(R), 1.0, 0.5) ** 2
+    assert recomputed == pytest.approx(ref, rel=1e-6)
+    assert ref == pytest.approx(design_value, abs=1e-4)
+    if strictly_proper:
+        assert np.abs(sol.taps.Phi_uy[0]).max() < 1e-9
+    else:
+        assert np.abs(sol.taps.Phi_uy[0]).max() > 0.1  # the current estimate uses y[k]
+
+
+def test_min_phi_xy_at_least_one_and_design_figures():
+    got = {T: sls.min_phi_xy(MODEL, T) for T in (10, 20)}
+    assert got[10] == pytest.approx(3.4, abs=0.05)
+    assert got[20] == pytest.approx(2.16, abs=0.01)
+    assert got[20] >= 1.0 and got[10] > got[20]
+    # independent of the mass (DESIGN.md)
+    assert sls.min_phi_xy(quadrotor_model(mass=1.3), 20) == pytest.approx(got[20], rel=1e-6)
+
+
+def test_position_block_dc_gain_is_minus_identity():
+    """Why ||Phi_xy|| >= 1: at z = 1 the position block of any achievable Phi_xy is -I."""
+    sol = sls.solve(MODEL, sls.Structure(15, "l1", "qr", False), sls.Values(eps_w=0.01, eps_e=0.05))
+    dc = sol.taps.Phi_xy.sum(axis=0)[:3, :3]
+    np.testing.assert_allclose(dc, -np.eye(3), atol=1e-8)
+    assert sls.l1_norm(sol.taps.Phi_xy) >= 1.0
+
+
+def _tf(taps: np.ndarray, z: complex, offset: int = 0) -> np.ndarray:
+    return sum(t * z ** (-(k + offset)) for k, t in enumerate(taps))
+
+
+@pytest.mark.parametrize("strictly_proper", [False, True])
+def test_filter_bank_equals_sls_controller_transfer_function(strictly_proper):
+    """The realization's transfer function equals K = Phi_uy - Phi_ux Phi_xx^-1 Phi_xy
+    (paper), evaluated at points on and off the unit circle."""
+    sol = sls.solve(
+        MODEL,
+        sls.Structure(12, "l1", "qr", True, strictly_proper),
+        sls.Values(eps_w=0.01, eps_e=0.05, S=0.15, radius=1.0, delta=0.05),
+    )
+    t = sol.taps
+    bank = filter_bank(t)
+    nx, T = 6, t.T
+    kb = bank.K_bb.reshape(nx, T - 1, nx).transpose(1, 0, 2)
+    kby = bank.K_by.reshape(nx, T, 6).transpose(1, 0, 2)
+    kub = bank.K_ub.reshape(3, T, nx).transpose(1, 0, 2)
+    kuy = bank.K_uy.reshape(3, T + 1, 6).transpose(1, 0, 2)
+    for z in (np.exp(0.3j), np.exp(2.0j), 1.7 + 0.4j):
+        k_sls = _tf(t.Phi_uy, z) - _tf(t.Phi_ux, z) @ np.linalg.solve(
+            _tf(t.Phi_xx, z), _tf(t.Phi_xy, z)
+        )
+        beta = np.linalg.solve(z * np.eye(nx) - _tf(kb, z), _tf(kby, z))
+        k_bank = _tf(kub, z) @ beta + _tf(kuy, z)
+        np.testing.assert_allclose(k_bank, k_sls, atol=1e-7 * max(1, np.abs(k_sls).max()))
+
+
+def test_max_feasible_s_is_feasible_and_one_percent_more_is_not():
+    kw = {"eps_e": 0.05, "radius": 1.0, "eps_w": 0.01, "delta": 0.05}
+    ms = sls.max_feasible_s(MODEL, 12, **kw)
+    st = sls.Structure(12, "l1", "qr", True)
+    ok = sls.solve(MODEL, st, sls.Values(S=ms.s_max, **kw))
+    assert ok.status == "optimal"
+    lhs = sls.robustness_lhs(
+        sls.l1_norm(ok.taps.Phi_xy), sls.l1_norm(ok.taps.Phi_xx), ms.s_max, **kw
+    )
+    assert lhs < 1.0
+    assert sls.solve(MODEL, st, sls.Values(S=1.01 * ms.s_max, **kw)).status == "infeasible"
+    # no Delta, no process noise: S_max = 1 / min ||Phi_xy|| - eps_e / r
+    ms0 = sls.max_feasible_s(MODEL, 12, eps_e=0.05, radius=1.0)
+    assert ms0.s_max == pytest.approx(1 / sls.min_phi_xy(MODEL, 12) - 0.05, rel=1e-5)
+
+
+def test_pd_responses_match_a_simulated_pd_loop():
+    """The PD's truncated responses = the closed loop simulated step by step."""
+    K, taps = pd_responses(MODEL, PDGains(), 25)
+    xs, us = certify.closed_loop_impulses(MODEL, _StaticBank(K), 26)
+    np.testing.assert_allclose(xs, np.concatenate([taps.Phi_xx, taps.Phi_xy], axis=2), atol=1e-12)
+    np.testing.assert_allclose(us, np.concatenate([taps.Phi_ux, taps.Phi_uy], axis=2), atol=1e-12)
+
+
+class _StaticBank:
+    """A static gain dressed as a filter bank of horizon 2 (K_uy tap 0 only)."""
+
+    def __init__(self, K):
+        self.K_bb = np.zeros((6, 6))
+        self.K_by = np.zeros((6, 12))
+        self.K_ub = np.zeros((3, 12))
+        self.K_uy = np.hstack([K, np.zeros((3, 12))])
+        self.nx, self.nu, self.ny, self.T = 6, 3, 6, 2
+
+
+def test_realized_controller_single_and_batch_steps_agree():
+    sol = sls.solve(MODEL, sls.Structure(10, "l1", "qr", False), sls.Values(eps_w=0.01, eps_e=0.05))
+    bank = filter_bank(sol.taps)
+    rng = np.random.default_rng(1)
+    ys = rng.normal(size=(30, 6, 3))
+    batch = RealizedController(bank, 0.1)
+    batch.reset(3)
+    out_b = np.stack([batch.step(y) for y in ys])
+    for j in range(3):
+        c = RealizedController(bank, 0.1)
+        out = np.stack([c.step(y[:, j]) for y in ys])
+        np.testing.assert_allclose(out, out_b[:, :, j], atol=1e-12)
+    # the impulse response of the controller alone is the convolution of its taps: u[0] = Phi_uy(0) y[0]
+    c = RealizedController(bank, 0.1)
+    y0 = rng.normal(size=6)
+    np.testing.assert_allclose(c.step(y0), sol.taps.Phi_uy[0] @ y0, atol=1e-12)
+
+
+def test_bad_horizon_and_weights():
+    with pytest.raises(ValueError, match="at least 2"):
+        sls.SLSProblem(MODEL, sls.Structure(1))
+    with pytest.raises(ValueError, match="positive definite"):
+        sls.psd_sqrt(np.diag([1.0, 0.0, 1.0]), "R")
