@@ -41,7 +41,7 @@ def lqg_h2_squared(
     Lc = Sig @ C.T @ G  # measurement update (current estimate)
     Lp = A @ Sig @ C.T @ G  # predictor gain
     qh, rh = np.real(sqrtm(Q)), np.real(sqrtm(R))
-    I = np.eye(nx)
+    eye = np.eye(nx)
     Z = np.zeros
     if strictly_proper:
         Acl = np.block([[A, -B @ K], [Lp @ C, A - B @ K - Lp @ C]])
@@ -51,10 +51,10 @@ def lqg_h2_squared(
     else:
         F = A - B @ K
         Acl = np.block(
-            [[A - B @ K @ Lc @ C, -B @ K @ (I - Lc @ C)], [F @ Lc @ C, F @ (I - Lc @ C)]]
+            [[A - B @ K @ Lc @ C, -B @ K @ (eye - Lc @ C)], [F @ Lc @ C, F @ (eye - Lc @ C)]]
         )
         Bcl = np.block([[H * eps_w, -B @ K @ Lc * eps_e], [Z((nx, H.shape[1])), F @ Lc * eps_e]])
-        Ccl = np.block([[qh, Z((nx, nx))], [-rh @ K @ Lc @ C, -rh @ K @ (I - Lc @ C)]])
+        Ccl = np.block([[qh, Z((nx, nx))], [-rh @ K @ Lc @ C, -rh @ K @ (eye - Lc @ C)]])
         Dcl = np.block(
             [
                 [Z((nx, H.shape[1])), Z((nx, ny))],
