@@ -85,7 +85,7 @@ def objects_to_arrays(
         if msgtype == TF:
             if not truth_frame:
                 raise InputError(tf_frames_message(name, msgs))
-            parent, want = (norm_frame(x) for x in truth_frame.split("/", 1))
+            parent, want = (norm_frame(x) for x in truth_frame.strip().lstrip("/").split("/", 1))
         for msg, log in zip(msgs, logs, strict=True):
             transforms = msg.transforms if msgtype == TF else [msg]
             for tr in transforms:
