@@ -362,11 +362,14 @@ class SLSProblem:
             t = from_side_by_side(np.asarray(val), cols)
             return np.concatenate([np.zeros((1, *t.shape[1:])), t])
 
+        uy = from_side_by_side(np.asarray(self.W.value), ny).reshape(-1, nu, ny)
+        if self.structure.strictly_proper:
+            uy[0] = 0.0  # structurally zero (the solver returns ~1e-19)
         return Taps(
             Phi_xx=with_zero(self.X.value, nx),
             Phi_ux=with_zero(self.U.value, nx),
             Phi_xy=with_zero(self.Y.value, ny),
-            Phi_uy=from_side_by_side(np.asarray(self.W.value), ny).reshape(-1, nu, ny),
+            Phi_uy=uy,
         )
 
     def solve(
@@ -379,7 +382,11 @@ class SLSProblem:
         compiled = not self._compiled
         t0 = time.perf_counter()
         try:
-            self.problem.solve(solver=solver, **(solver_options or {}))
+            # warm_start=False: cvxpy would otherwise update the previous solver object in
+            # place, and the answer (these LPs have many optimal points) would depend on
+            # which instance this process solved before; cold solves are reproducible.
+            opts = {"warm_start": False, **(solver_options or {})}
+            self.problem.solve(solver=solver, **opts)
             solver_status = str(self.problem.status)
         except cp.error.SolverError as exc:
             solver_status = f"solver_error: {str(exc).splitlines()[0] if str(exc) else exc!r}"

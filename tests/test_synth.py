@@ -1,0 +1,237 @@
+"""`qsls synth`: controllers, certificates, infeasibility, bad input (through the CLI)."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from qsls.cli.main import app
+from qsls.pipeline import sls
+from qsls.pipeline.artifacts import dump_yaml, sha256_file
+from qsls.pipeline.errormodel import ErrorModel, SlopeStats
+from qsls.pipeline.model import quadrotor_model
+from qsls.pipeline.pd import PDGains, pd_gain
+from qsls.pipeline.realize import load_controller
+from qsls.pipeline.synth import SynthOptions, max_feasible_s
+
+RUN = CliRunner()
+T = 12
+
+
+@pytest.fixture
+def error_model(tmp_path):
+    em = ErrorModel(
+        eps_e=0.05,
+        eps_e_percentiles={"p95": 0.04},
+        radius=1.0,
+        s_slope=SlopeStats(max=11.7, percentiles={"p50": 0.13, "p95": 0.4}),
+        R0=0.05,
+        delta=0.05,
+        n_samples=100,
+        n_pairs=1000,
+    )
+    f = tmp_path / "fit" / "error_model.yaml"
+    f.parent.mkdir()
+    f.write_text(dump_yaml(em))
+    return f
+
+
+def _synth(*args):
+    return RUN.invoke(app, ["synth", *map(str, args)])
+
+
+def _reference_norms(folder):
+    with np.load(folder / "controller.npz") as d:
+        xy, xx, h = d["Phi_xy"], d["Phi_xx"], d["H"]
+    # independent of sls.l1_norm: the largest absolute row sum over all taps side by side
+    rows_xy = np.concatenate(list(xy), axis=1)
+    rows_xx = np.concatenate([t @ h for t in xx], axis=1)
+    return np.abs(rows_xy).sum(axis=1).max(), np.abs(rows_xx).sum(axis=1).max()
+
+
+def test_paper_controllers_with_certificates(tmp_path, error_model):
+    out = tmp_path / "synth"
+    res = _synth("--model", error_model.parent, "-T", T, "--S", "p50", "--out", out)
+    assert res.exit_code == 0, res.output
+    names = ["pd", "l1_nominal", "l1_robust", "l1_robust_imitation"]
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == sorted(names)
+    manifest = yaml.safe_load((out / "manifest.json").read_text())
+    assert manifest["stage"] == "synth"
+    sha = sha256_file(error_model)
+    certs = {n: yaml.safe_load((out / n / "certificate.yaml").read_text()) for n in names}
+    for n in names[1:]:
+        c = certs[n]
+        # the nominal ignores the constraint: verified, but no guarantee at this S
+        want = "uncertified" if n == "l1_nominal" else "certified"
+        assert c["status"] == want, (n, c["checks"])
+        assert all(v["passed"] for k, v in c["checks"].items() if k != "robustness")
+        assert c["error_model_sha256"] == sha
+        assert c["achievability_residual"] <= 1e-7 and c["realization_error"] <= 1e-8
+        # norms recomputed from the stored taps reproduce the certificate
+        nxy, nxx = _reference_norms(out / n)
+        assert nxy == pytest.approx(c["norm_phi_xy"], rel=1e-12)
+        assert nxx == pytest.approx(c["norm_phi_xx"], rel=1e-12)
+        lhs = (c["S"] + c["eps_e"] / c["radius"]) * nxy + (c["eps_w"] * nxx + c["delta"]) / c[
+            "radius"
+        ]
+        assert lhs == pytest.approx(c["robustness_lhs"], rel=1e-12)
+        assert (lhs < 1) == (want == "certified")
+        a = c["eps_w"] * nxx + c["delta"]
+        assert c["gamma"] == pytest.approx(
+            (c["eps_e"] + c["S"] * a) / (1 - c["S"] * nxy), rel=1e-12
+        )
+        assert c["gamma_strict"] == pytest.approx(c["R0"] / (1 - c["S"] * nxy), rel=1e-12)
+        for key in ("build_time_s", "solve_time_s", "T", "eps_w", "margin", "cost"):
+            assert key in c
+    assert certs["l1_nominal"]["robust"] is False and certs["l1_robust"]["robust"] is True
+    assert certs["l1_robust"]["S"] == 0.13 and certs["l1_robust"]["eps_e"] == 0.05
+    # S = 0.13 makes the constraint active: the nominal violates it, the robust one sits on it
+    assert certs["l1_nominal"]["robustness_lhs"] > 1
+    assert 0 < certs["l1_robust"]["margin"] < 1e-4
+    assert certs["pd"]["status"] == "reference"
+
+
+def test_realized_controllers_fly_the_impulse_responses(tmp_path, error_model):
+    out = tmp_path / "synth"
+    assert _synth("-m", error_model, "-T", T, "--S", "0.13", "-o", out).exit_code == 0
+    m = quadrotor_model()
+    for name in ("l1_robust", "l1_robust_imitation"):
+        ctrl = load_controller(out / name)
+        assert ctrl.dt == 0.1 and ctrl.strictly_proper is False
+        assert ctrl.certificate["controller"] == name
+        with np.load(out / name / "controller.npz") as d:
+            xy, uy = d["Phi_xy"], d["Phi_uy"]
+        # an error impulse e[0] = unit vector 3 (vx): x and u follow column 3 of Phi_xy, Phi_uy
+        ctrl.reset()
+        x = np.zeros(6)
+        for k in range(2 * T):
+            e = np.eye(6)[3] if k == 0 else np.zeros(6)
+            u = ctrl.step(m.C @ x + e)
+            want_x = xy[k][:, 3] if k <= T else np.zeros(6)
+            want_u = uy[k][:, 3] if k <= T else np.zeros(3)
+            np.testing.assert_allclose(x, want_x, atol=1e-9)
+            np.testing.assert_allclose(u, want_u, atol=1e-9)
+            x = m.A @ x + m.B @ u
+    pd = load_controller(out / "pd")
+    y = np.arange(6.0)
+    np.testing.assert_allclose(pd.step(y), pd_gain(PDGains(), 0.256) @ y)
+
+
+def test_strictly_proper_h2_single(tmp_path, error_model):
+    out = tmp_path / "s"
+    res = _synth(
+        "-m", error_model, "-T", T, "--S", "0.1", "--norm", "h2", "--controllers", "single",
+        "--strictly-proper", "-o", out,
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["h2_robust", "pd"]
+    ctrl = load_controller(out / "h2_robust")
+    assert ctrl.strictly_proper and ctrl.certificate["status"] == "certified"
+    with np.load(out / "h2_robust" / "controller.npz") as d:
+        assert np.abs(d["Phi_uy"][0]).max() == 0
+
+
+def test_controller_files_are_deterministic(tmp_path, error_model):
+    for o in ("a", "b"):
+        assert _synth("-m", error_model, "-T", 8, "--S", "0.1", "-o", tmp_path / o).exit_code == 0
+    for n in ("pd", "l1_robust", "l1_robust_imitation"):
+        assert sha256_file(tmp_path / "a" / n / "controller.npz") == sha256_file(
+            tmp_path / "b" / n / "controller.npz"
+        )
+
+
+def test_infeasible_is_exit_3_with_diagnosis(tmp_path, error_model):
+    out = tmp_path / "inf"
+    res = _synth("-m", error_model, "-T", T, "-o", out)  # S = max = 11.7
+    assert res.exit_code == 3
+    assert "necessary condition S + eps_e/r < 1" in res.output
+    found = re.search(r"smallest achievable \|\|Phi_xy\|\| at T=12 is ([0-9.]+)", res.output)
+    assert float(found.group(1)) == pytest.approx(sls.min_phi_xy(quadrotor_model(), 12), rel=1e-3)
+    assert "largest feasible S for this setting is" in res.output
+    assert not out.exists()
+    # the necessary condition holds but ||Phi_xy|| >= 2.x makes S = 0.45 infeasible
+    res = _synth("-m", error_model, "-T", T, "--S", "0.45", "-o", out)
+    assert res.exit_code == 3 and "condition S + eps_e/r < 1 holds" in res.output
+    assert not out.exists()
+
+
+def test_max_feasible_s_is_feasible_and_one_percent_above_is_not(tmp_path, error_model):
+    res = _synth("-m", error_model, "-T", T, "--max-feasible-s")
+    assert res.exit_code == 0, res.output
+    printed = float(re.search(r"largest feasible S\s*│\s*([0-9.e-]+)", res.output).group(1))
+    s_max = max_feasible_s(error_model, SynthOptions(T=T)).s_max
+    assert printed == pytest.approx(s_max, rel=1e-5)
+    single = ["--controllers", "single", "-m", error_model, "-T", T]
+    ok = _synth(*single, "--S", repr(s_max), "-o", tmp_path / "ok")
+    assert ok.exit_code == 0, ok.output
+    cert = yaml.safe_load((tmp_path / "ok" / "l1_robust" / "certificate.yaml").read_text())
+    assert cert["status"] == "certified" and cert["margin"] > 0
+    bad = _synth(*single, "--S", repr(1.01 * s_max), "-o", tmp_path / "bad")
+    assert bad.exit_code == 3 and not (tmp_path / "bad").exists()
+    # the bound is tight: the certified controller at S_max has ||Phi_xy|| where the
+    # constraint is active
+    assert cert["margin"] < 1e-4
+
+
+def _bad_model_file(tmp_path, text):
+    f = tmp_path / "bad.yaml"
+    f.write_text(text)
+    return f
+
+
+@pytest.mark.parametrize(
+    ("case", "pattern"),
+    [
+        ("missing", r"no error_model\.yaml"),
+        ("not_yaml", r"not valid YAML"),
+        ("malformed", r"malformed error model"),
+        ("T1", r"'T'.*greater than or equal to 2"),
+        ("Q", r"'Q'.*positive definite"),
+        ("R", r"'R'.*positive definite"),
+        ("name", r"'p77' is not in the error model"),
+        ("eps_name", r"'p12' is not in the error model's eps_e_percentiles"),
+    ],
+)
+def test_bad_input_is_one_clear_error(tmp_path, error_model, case, pattern):
+    args = ["-m", error_model, "-T", T, "--S", "0.1"]
+    if case == "missing":
+        args[1] = tmp_path / "nowhere"
+    elif case == "not_yaml":
+        args[1] = _bad_model_file(tmp_path, "eps_e: [0.1\n")
+    elif case == "malformed":
+        args[1] = _bad_model_file(tmp_path, "eps_e: 0.1\nradius: fast\n")
+    elif case == "T1":
+        args[3] = 1
+    elif case == "Q":
+        args += ["--Q", "10,10,10,1,1,0"]
+    elif case == "R":
+        args += ["--R", "1,-1,0.1"]
+    elif case == "name":
+        args[5] = "p77"
+    elif case == "eps_name":
+        args += ["--eps-e", "p12"]
+    out = tmp_path / "out"
+    res = _synth(*args, "-o", out)
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.strip().splitlines() if ln]
+    assert len(lines) == 1 and lines[0].startswith("error: "), res.output
+    assert re.search(pattern, lines[0]), lines[0]
+    assert "Traceback" not in res.output
+    assert not out.exists()
+
+
+def test_number_names_need_an_error_model(tmp_path):
+    res = _synth("-T", T, "--S", "p95", "--eps-e", "0.05", "--radius", "1", "-o", tmp_path / "o")
+    assert res.exit_code == 2 and "none was given" in res.output
+    # all numbers: no error model needed
+    res = _synth("-T", 6, "--S", "0.1", "--eps-e", "0.05", "--radius", "1", "-o", tmp_path / "o")
+    assert res.exit_code == 0, res.output
+    cert = yaml.safe_load((tmp_path / "o" / "l1_robust" / "certificate.yaml").read_text())
+    assert cert["error_model_sha256"] is None and cert["status"] == "certified"
+    assert (
+        sls.l1_norm(np.asarray(load_controller(tmp_path / "o" / "l1_robust").bank.K_by)[None]) > 0
+    )
