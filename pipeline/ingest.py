@@ -399,6 +399,14 @@ def ingest(
                 f"the clock offset estimate hit the edge of the search range (+-{est.search_s:.2f} s); "
                 "raise --max-time-offset or give --time-offset SECONDS"
             )
+        spread = float(np.sqrt(np.mean(np.sum((truth.position - truth.position.mean(0)) ** 2, 1))))
+        if est.rms_m > 0.5 * spread:
+            raise InputError(
+                f"the streams do not match at any clock offset within +-{est.search_s:.2f} s "
+                f"(best aligned position RMS {est.rms_m:.3g} m against a trajectory spread of "
+                f"{spread:.3g} m); check the topics and --stamp, raise --max-time-offset, "
+                "or give --time-offset SECONDS"
+            )
         tau = est.offset_s
         offset_info = {
             "method": f"auto: aligned ({o.align}) position RMS minimized over the offset",

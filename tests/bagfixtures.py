@@ -78,10 +78,8 @@ def make_flight(
     rb = quat_to_matrix(q)
     q_vio = matrix_to_quat(r0.T[None] @ rb)
     v_world_vio = v @ r0  # R0^T v
-    if velocity_frame == "body":
-        v_msg = np.einsum("nji,nj->ni", rb, v)  # R_b^T v (frame-independent)
-    else:
-        v_msg = v_world_vio
+    # body: R_b^T v (the same in every world frame); world: the VIO world frame's
+    v_msg = np.einsum("nji,nj->ni", rb, v) if velocity_frame == "body" else v_world_vio
     v_msg = v_msg + rng.normal(scale=noise_mps, size=v.shape)
     vio_ns = T0_NS + np.round(tv * 1e9).astype(np.int64)
     vio = OdometryStream(

@@ -102,9 +102,13 @@ def _text_kind(path: Path) -> str:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise InputError(not_text) from None
+    words = False
     for line in text.splitlines():
         line = line.strip()
-        if not line or line.startswith("#") or line[0].isalpha():
+        if not line or line.startswith("#"):
+            continue
+        if line[0].isalpha():  # a csv header line; more than a few of them: not a trajectory
+            words = True
             continue
         parts = line.split(",") if "," in line else line.split()
         try:
@@ -119,4 +123,6 @@ def _text_kind(path: Path) -> str:
             f"{path}: a text line with {len(parts)} fields is neither TUM "
             "('t x y z qx qy qz qw') nor EuRoC csv ('t_ns, px, py, pz, qw, qx, qy, qz, ...')"
         )
+    if words:
+        raise InputError(not_text)
     raise InputError(f"{path}: no data lines; the trajectory file is empty")

@@ -1,0 +1,183 @@
+"""Bad input: one-line error that says what to do, non-zero exit, no output left behind."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from qsls.cli.main import app
+from qsls.pipeline.sources.write import ImageStream, OdometryStream, PoseStream, write_bag
+from tests.bagfixtures import make_flight
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def flight():
+    return make_flight(duration=12.0, dropouts=())
+
+
+@pytest.fixture(scope="module")
+def good_bag(tmp_path_factory: pytest.TempPathFactory, flight) -> Path:
+    d = tmp_path_factory.mktemp("good")
+    cam = ImageStream("/cam/image", flight.vio.header_ns[::50], flight.vio.log_ns[::50], 8, 8)
+    return write_bag(d / "good.bag", [flight.vio, flight.truth, cam], "ros1")
+
+
+def _fails(tmp_path: Path, args: list[str], *expect: str) -> str:
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["ingest", *args, "--out", str(out)])
+    text = res.output.strip()
+    assert res.exit_code != 0, text
+    assert text.startswith("error: ") and "\n" not in text, text
+    assert "Traceback" not in text
+    for e in expect:
+        assert e in text, text
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+    return text
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    _fails(tmp_path, [str(tmp_path / "nope.bag")], "no such file")
+
+
+def test_no_input_at_all(tmp_path: Path) -> None:
+    _fails(tmp_path, [], "no input")
+
+
+def test_empty_file(tmp_path: Path) -> None:
+    (tmp_path / "e.bag").write_bytes(b"")
+    _fails(tmp_path, [str(tmp_path / "e.bag")], "empty")
+    (tmp_path / "e.txt").write_text("# only a comment\n")
+    _fails(
+        tmp_path, ["--vio", str(tmp_path / "e.txt"), "--truth", str(tmp_path / "e.txt")], "empty"
+    )
+
+
+def test_not_a_bag(tmp_path: Path) -> None:
+    (tmp_path / "x.bag").write_bytes(np.random.default_rng(0).bytes(5000))
+    _fails(tmp_path, [str(tmp_path / "x.bag")], "not a bag")
+    (tmp_path / "notes.txt").write_text("hello world\nthis is not a trajectory\n")
+    _fails(tmp_path, [str(tmp_path / "notes.txt")], "not a bag")
+    (tmp_path / "folder").mkdir()
+    _fails(tmp_path, [str(tmp_path / "folder")], "metadata.yaml")
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "mcap", "ros2-sqlite"])
+def test_truncated_bag(tmp_path: Path, flight, fmt: str) -> None:
+    bag = write_bag(
+        tmp_path / {"ros1": "t.bag", "mcap": "t.mcap"}.get(fmt, "t"),
+        [flight.vio, flight.truth],
+        fmt,
+    )
+    f = bag if bag.is_file() else next(bag.glob("*.db3"))
+    data = f.read_bytes()
+    f.write_bytes(data[: len(data) // 2])
+    _fails(tmp_path, [str(bag)], "truncated or damaged")
+
+
+def test_topic_not_there(tmp_path: Path, good_bag: Path) -> None:
+    msg = _fails(
+        tmp_path,
+        [str(good_bag), "--vio-topic", "/odom"],
+        "no topic /odom",
+        "/vio/odom (nav_msgs/msg/Odometry, 600 msgs)",
+        "/mocap/pose",
+    )
+    assert "/cam/image (sensor_msgs/msg/Image" in msg
+
+
+def test_topic_of_wrong_type(tmp_path: Path, good_bag: Path) -> None:
+    _fails(
+        tmp_path,
+        [str(good_bag), "--truth-topic", "/cam/image"],
+        "/cam/image is sensor_msgs/msg/Image",
+    )
+    _fails(tmp_path, [str(good_bag), "--vio-topic", "/cam/image"], "not a vio message type")
+
+
+def test_ambiguous_topics_list_candidates(tmp_path: Path, flight) -> None:
+    other = replace(flight.vio, topic="/vins/odometry")
+    bag = write_bag(tmp_path / "amb.bag", [flight.vio, other, flight.truth], "ros1")
+    _fails(
+        tmp_path,
+        [str(bag)],
+        "cannot choose the VIO topic",
+        "/vins/odometry (nav_msgs/msg/Odometry, 600 msgs)",
+        "--vio-topic",
+    )
+
+
+def test_tf_without_frame_lists_pairs(tmp_path: Path, flight) -> None:
+    t = flight.truth
+    tf = PoseStream(
+        "/tf",
+        t.header_ns,
+        t.log_ns,
+        t.position,
+        t.orientation,
+        msgtype="tf2_msgs/msg/TFMessage",
+        frame_id="map",
+        child_frame_id="quad",
+    )
+    bag = write_bag(tmp_path / "tf.mcap", [flight.vio, tf], "mcap")
+    _fails(tmp_path, [str(bag), "--truth-topic", "/tf"], "--truth-frame")
+    _fails(
+        tmp_path,
+        [str(bag), "--truth-topic", "/tf", "--truth-frame", "map/imu"],
+        "no transform map/imu",
+        "map/quad (",
+    )
+
+
+def test_streams_that_do_not_overlap(tmp_path: Path, flight) -> None:
+    late = replace(flight.truth, header_ns=flight.truth.header_ns + 1000 * 10**9)
+    bag = write_bag(tmp_path / "far.bag", [flight.vio, late], "ros1")
+    _fails(tmp_path, [str(bag)], "do not overlap", "--time-offset")
+    # overlapping only 2 s
+    short = replace(flight.truth, header_ns=flight.truth.header_ns + 11 * 10**9)
+    bag2 = write_bag(tmp_path / "short.bag", [flight.vio, short], "ros1")
+    _fails(tmp_path, [str(bag2)], "overlap only")
+    # an offset beyond the search range is not silently accepted
+    off = replace(flight.truth, header_ns=flight.truth.header_ns + 3 * 10**9)
+    bag3 = write_bag(tmp_path / "off.bag", [flight.vio, off], "ros1")
+    _fails(tmp_path, [str(bag3)], "do not match at any clock offset", "--max-time-offset")
+    res = runner.invoke(
+        app, ["ingest", str(bag3), "--out", str(tmp_path / "ok"), "--max-time-offset", "4"]
+    )
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "ok" / "manifest.json").read_text())["results"]
+    assert abs(m["time_offset_s"] - (flight.offset_s - 3.0)) < 0.005
+
+
+def test_nan_and_inf_values(tmp_path: Path, flight) -> None:
+    p = flight.vio.position.copy()
+    p[[40, 41], 0] = np.nan
+    v = flight.vio.linear_velocity.copy()
+    v[77, 2] = np.inf
+    vio = OdometryStream(
+        flight.vio.topic, flight.vio.header_ns, flight.vio.log_ns, p, flight.vio.orientation, v
+    )
+    bag = write_bag(tmp_path / "nan.bag", [vio, flight.truth], "ros1")
+    _fails(tmp_path, [str(bag)], "3 of 600 messages", "--drop-nonfinite")
+    res = runner.invoke(
+        app, ["ingest", str(bag), "--out", str(tmp_path / "ok"), "--drop-nonfinite"]
+    )
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "ok" / "manifest.json").read_text())["results"]
+    assert m["nonfinite_dropped"] == {"vio": 3, "truth": 0}
+
+
+def test_bad_options(tmp_path: Path, good_bag: Path) -> None:
+    _fails(tmp_path, [str(good_bag), "--time-offset", "soon"], "--time-offset")
+    _fails(tmp_path, [str(good_bag), "--align", "sim3"], "align")
+    _fails(tmp_path, [str(good_bag), "--truth-frame", "world"], "PARENT/CHILD")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("max_gapp: 1\n")
+    _fails(tmp_path, [str(good_bag), "--config", str(cfg)], "did you mean 'max_gap'")
