@@ -41,10 +41,13 @@ class SlopeStats(_Frozen):
     local_max_percentiles: dict[str, float] = Field(default_factory=dict)
     percentile_rel_error: float = 0.0
     """Upper bound on the relative error of ``percentiles`` (0 when exact)."""
+    n_samples_with_partners: int | None = None
+    """Samples with at least one counted pair (the population of ``local_max_percentiles``)."""
 
 
 class WorstPair(_Frozen):
     flight: str
+    """Flight of sample i (``flight_j``: of sample j, when the pair spans two flights)."""
     t_i: float
     t_j: float
     x_i: list[float]
@@ -53,6 +56,7 @@ class WorstPair(_Frozen):
     e_j: list[float]
     distance: float
     slope: float
+    flight_j: str | None = None
 
 
 class ErrorModel(_Frozen):
@@ -63,13 +67,22 @@ class ErrorModel(_Frozen):
     per_axis: dict[str, AxisStats] = Field(default_factory=dict)
     radius: float
     min_separation: float = 0.0
+    min_separation_rule: str | None = None
+    """How ``min_separation`` was chosen (``auto``: a multiple of the noise floor)."""
+    noise_floor: dict[str, float] = Field(default_factory=dict)
+    """Per-axis white-noise std of ``e`` estimated from the data."""
     state_scale: list[float] = Field(default_factory=lambda: [1.0] * 6)
     s_slope: SlopeStats
     R0: float
     delta: float = 0.0
+    delta_reference: str | None = None
+    """The reference ``delta`` was computed for (None: no reference given, delta = 0)."""
     n_samples: int
     n_pairs: int
+    n_pairs_below_min_separation: int = 0
     n_excluded: int = 0
+    exclusions: dict[str, int] = Field(default_factory=dict)
+    """Excluded samples by reason (nonfinite, skip_start, outliers)."""
     worst_pairs: list[WorstPair] = Field(default_factory=list)
     bootstrap: dict[str, Any] | None = None
     flights: list[str] = Field(default_factory=list)

@@ -1,0 +1,150 @@
+"""``qsls fit``: the perception error model (eps_e, S-slope, delta) of ingested flights."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from qsls.cli.common import cli_errors, overrides
+
+
+@cli_errors
+def command(
+    flights: list[Path] = typer.Argument(
+        None,
+        help="Flight folders written by 'qsls ingest' (the training data).",
+        show_default=False,
+    ),
+    out: Path = typer.Option(
+        ..., "--out", "-o", help="Output folder (error_model.yaml, training_states.parquet, PNGs)."
+    ),
+    radius: float = typer.Option(
+        None,
+        "--radius",
+        "-r",
+        help="S-slope radius r: pairs with ||W(x_i - x_j)||_inf < r count (m, m/s). [default: 0.5]",
+    ),
+    percentiles: str = typer.Option(
+        None,
+        "--percentiles",
+        help="Comma-separated percentiles of ||e||, pair slopes and per-sample largest slopes. "
+        "[default: 50,90,95,99]",
+    ),
+    min_separation: str = typer.Option(
+        None,
+        "--min-separation",
+        help="Leave out pairs closer than this (a number, or 'auto' = 3 x the noise floor of e "
+        "estimated from the data): below the measurement noise, slopes are noise / distance and "
+        "blow up. 0 keeps every pair at a positive distance. [default: auto]",
+    ),
+    state_scale: str = typer.Option(
+        None,
+        "--state-scale",
+        help="Six comma-separated weights of px,py,pz,vx,vy,vz in the state distance. "
+        "[default: 1,1,1,1,1,1]",
+    ),
+    exclude_outliers: bool = typer.Option(
+        None,
+        "--exclude-outliers/--keep-outliers",
+        help="Leave out samples whose robust z-score of e (median/MAD) exceeds --outlier-z on "
+        "some axis; the count is reported. [default: keep]",
+    ),
+    outlier_z: float = typer.Option(None, "--outlier-z", help="Robust z threshold. [default: 3.5]"),
+    skip_start: float = typer.Option(
+        None, "--skip-start", help="Seconds left out at the start of every flight. [default: 0]"
+    ),
+    reference: str = typer.Option(
+        None,
+        "--reference",
+        help="Reference for delta (max distance from its states to the nearest training state): "
+        "'circle:radius=1,height=1,period=5' (the simulator's reference options: kind circle, "
+        "hover or figure8; radius, height, period, laps, ramp_s, center=X;Y) or a flight folder. "
+        "[default: none, delta = 0]",
+    ),
+    r0: str = typer.Option(
+        None, "--r0", help="R0 of the guarantee: max (= eps_e), pNN or a number. [default: max]"
+    ),
+    bootstrap: int = typer.Option(
+        None,
+        "--bootstrap",
+        help="Bootstrap replicates for confidence intervals (moving blocks within each flight; "
+        "costs about N times the pair pass). [default: 0]",
+    ),
+    bootstrap_block: int = typer.Option(
+        None, "--bootstrap-block", help="Bootstrap block length in samples. [default: 10]"
+    ),
+    seed: int = typer.Option(None, "--seed", help="Seed of the bootstrap. [default: 0]"),
+    no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
+    config: Path = typer.Option(
+        None,
+        "--config",
+        "-c",
+        help="YAML file with any of these options (section 'fit' or top level).",
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
+) -> None:
+    """Estimate the perception error model (eps_e, S-slope, delta) from ingested flights."""
+    from qsls.cli.common import RichProgress, print_summary, print_table
+    from qsls.pipeline.config import load_options
+    from qsls.pipeline.fit import FitOptions, fit
+
+    given = overrides(
+        radius=radius,
+        percentiles=_floats(percentiles, "--percentiles"),
+        min_separation=_minsep(min_separation),
+        state_scale=_floats(state_scale, "--state-scale"),
+        exclude_outliers=exclude_outliers,
+        outlier_z=outlier_z,
+        skip_start=skip_start,
+        reference=reference,
+        r0=r0,
+        bootstrap=bootstrap,
+        bootstrap_block=bootstrap_block,
+        seed=seed,
+        figures=False if no_figures else None,
+    )
+    options = load_options(FitOptions, config, given, section="fit")
+    with RichProgress() as progress:
+        result = fit(list(flights or []), options, out, force=force, progress=progress)
+    print_summary("qsls fit", result.summary())
+    wp = result.model.worst_pairs[:5]
+    if wp:
+        print_table(
+            "Largest slopes (the pairs that set S)",
+            ["slope", "distance", "flight i", "t_i", "flight j", "t_j", "||e_i - e_j||"],
+            [
+                (
+                    w.slope,
+                    w.distance,
+                    w.flight,
+                    round(w.t_i, 3),
+                    w.flight_j or w.flight,
+                    round(w.t_j, 3),
+                    max(abs(a - b) for a, b in zip(w.e_i, w.e_j, strict=True)),
+                )
+                for w in wp
+            ],
+        )
+
+
+def _floats(text: str | None, name: str) -> list[float] | None:
+    if text is None:
+        return None
+    try:
+        return [float(v) for v in text.replace(" ", "").split(",") if v]
+    except ValueError:
+        from qsls.pipeline.errors import ConfigError
+
+        raise ConfigError(f"{name}: expected comma-separated numbers, got {text!r}") from None
+
+
+def _minsep(text: str | None) -> float | str | None:
+    if text is None or text.strip().lower() == "auto":
+        return None if text is None else "auto"
+    try:
+        return float(text)
+    except ValueError:
+        from qsls.pipeline.errors import ConfigError
+
+        raise ConfigError(f"--min-separation: expected 'auto' or a number, got {text!r}") from None
