@@ -580,41 +580,11 @@ def write_evaluation(
     inputs: Sequence[Path],
     model: ErrorModel,
     force: bool,
-    extra_json: dict[str, Any] | None = None,
-    extra: Any = None,
 ) -> EvaluateResult:
-    """Write ``evaluation.parquet``, ``evaluation.json``, ``samples.parquet`` and figures.
-    ``extra(writer)`` may add files (the flying evaluation's)."""
-    totals = controller_totals(table)
+    """Write the stage folder: ``evaluation.parquet``, ``evaluation.json``,
+    ``samples.parquet`` and figures."""
     with StageWriter(out, "evaluate", options=options, inputs=inputs, force=force) as w:
-        w.write_parquet("evaluation.parquet", table)
-        w.write_parquet("samples.parquet", samples)
-        doc = {
-            "error_model": {
-                "eps_e": model.eps_e,
-                "R0": model.R0,
-                "S_max": model.s_slope.max,
-                "radius": model.radius,
-                "state_scale": list(model.state_scale),
-            },
-            "controllers": totals,
-            "rows": table.to_dict(orient="records"),
-            "warnings": list(warnings),
-        }
-        if extra_json:
-            doc.update(extra_json)
-        w.write_json("evaluation.json", doc)
-        if options.figures:
-            from qsls.pipeline import evaluate_plots as plots
-
-            names = list(dict.fromkeys(table["flight"]))[: options.max_figure_flights]
-            sub = samples[samples["flight"].isin(names)]
-            w.write_figure(
-                "perception_error.png", plots.perception_error_figure(sub, options.smooth_s)
-            )
-            w.write_figure("distance_to_training.png", plots.distance_figure(sub, model.radius))
-        if extra is not None:
-            extra(w)
+        totals = write_tables(w, table, samples, warnings, model, options)
         w.results.update(
             {
                 "flights": int(table["flight"].nunique()),
@@ -623,3 +593,49 @@ def write_evaluation(
             }
         )
     return EvaluateResult(out=Path(out), table=table, warnings=tuple(warnings))
+
+
+def write_tables(
+    w: StageWriter,
+    table: pd.DataFrame,
+    samples: pd.DataFrame,
+    warnings: Sequence[str],
+    model: ErrorModel,
+    options: EvaluateOptions,
+    extra_json: dict[str, Any] | None = None,
+    *,
+    own_only: bool = False,
+) -> list[dict[str, Any]]:
+    """The bound check's files inside an open writer; returns the per-controller totals.
+    ``own_only``: figures show each flight against the controller that flew it only."""
+    totals = controller_totals(table) if len(table) else []
+    w.write_parquet("evaluation.parquet", table)
+    w.write_parquet("samples.parquet", samples)
+    doc = {
+        "error_model": {
+            "eps_e": model.eps_e,
+            "R0": model.R0,
+            "S_max": model.s_slope.max,
+            "radius": model.radius,
+            "state_scale": list(model.state_scale),
+        },
+        "controllers": totals,
+        "rows": table.to_dict(orient="records"),
+        "warnings": list(warnings),
+        **(extra_json or {}),
+    }
+    w.write_json("evaluation.json", doc)
+    if options.figures and len(samples):
+        from qsls.pipeline import evaluate_plots as plots
+
+        sub = samples
+        if own_only and "flown_by" in samples.columns:
+            sub = samples[samples["controller"] == samples["flown_by"]]
+        names = list(dict.fromkeys(sub["flight"]))[: options.max_figure_flights]
+        sub = sub[sub["flight"].isin(names)]
+        if not own_only:
+            w.write_figure(
+                "perception_error.png", plots.perception_error_figure(sub, options.smooth_s)
+            )
+        w.write_figure("distance_to_training.png", plots.distance_figure(sub, model.radius))
+    return totals

@@ -1,0 +1,575 @@
+"""``qsls evaluate --fly``: the paper's four controllers and SE3 flown side by side.
+
+Every controller (PD, nominal L1, L1 robust, L1 robust imitation from a synth folder, plus
+RotorPy's SE3 controller of the training flights) is flown on the simulator's RotorPy
+vehicle with the VIO emulator in the loop (:func:`qsls.pipeline.sim.closedloop.fly` through
+:func:`qsls.pipeline.sim.simulate.simulate`), on the circle, in each perception condition
+and for each seed. Synthesized controllers act on ``y - r`` and add the reference's
+feedforward (:class:`qsls.pipeline.sim.controllers.LinearController`).
+
+Each flight is written as a bag like a real log and goes through ``ingest`` exactly as a
+real flight does; the ingested ``flight.parquet`` is what the bound check
+(:mod:`qsls.pipeline.evaluate`) reads. Flights run in parallel on a process pool.
+
+Metrics per flight (true state against the reference; emulator error at the VIO rate):
+tracking RMS/max of ``||p - p_ref||_2``, perception error RMS/max of ``||e||_inf``, control
+effort (RMS of ``u - hover``), smoothness (RMS of ``u[k+1] - u[k]``), a crash flag with the
+simulator's reason. Then per controller and condition the mean over seeds, the paper's
+figures, and a table that holds the results against the paper's three findings
+(paper, Results):
+
+1. regular perception: every controller tracks, and PD tracks best;
+2. degraded perception: the robust ``qr``-cost controller (``l1_robust``) has the lowest
+   perception error;
+3. every controller's perception error stays below the bound.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+from pydantic import Field
+
+from qsls.pipeline.errors import InputError, QslsError
+from qsls.pipeline.evaluate import (
+    ControllerBound,
+    EvaluateOptions,
+    EvaluateResult,
+    bound_check,
+    check_model_hash,
+    expand_controllers,
+    load_controller_bound,
+    load_training,
+    resolve_model,
+    write_tables,
+)
+from qsls.pipeline.flight import read_flight
+from qsls.pipeline.ingest import IngestOptions
+from qsls.pipeline.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.sim.simulate import SimOptions
+
+PAPER_CONTROLLERS = ("pd", "l1_nominal", "l1_robust", "l1_robust_imitation")
+ROBUST_QR = "l1_robust"
+NS = 1_000_000_000
+
+
+class FlyOptions(EvaluateOptions):
+    """Options of ``qsls evaluate --fly`` (and those of the bound check)."""
+
+    seeds: list[int] = Field(default_factory=lambda: [0, 1, 2], min_length=1)
+    """Seeds of the VIO emulator (and of the log's noise); one flight per seed."""
+    duration: float = Field(30.0, gt=0)
+    """Seconds per flight."""
+    conditions: list[Literal["regular", "degraded"]] = Field(
+        default_factory=lambda: ["regular", "degraded"], min_length=1
+    )
+    """Perception conditions (the emulator's presets)."""
+    controllers: list[str] | None = None
+    """Controller folder names to fly; default: the paper's four where given, else all."""
+    se3: bool = True
+    """Also fly RotorPy's SE3 controller (the training flights' controller)."""
+    jobs: int = Field(0, ge=0)
+    """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
+    sim: SimOptions = SimOptions()
+    """Vehicle, reference, VIO emulator, crash limits and the log's format (seed, duration,
+    controller and perception are set per flight)."""
+    ingest: IngestOptions = IngestOptions()
+    """How each flight's bag is ingested (as a real one)."""
+    track_threshold_m: float = Field(0.3, gt=0)
+    """A controller 'tracks' when it does not crash and its tracking RMS is below this (m)."""
+    keep_bags: bool = False
+    """Keep every flight's simulate folder (bag, truth.json) under ``sims/``."""
+
+
+# --------------------------------------------------------------------------- one flight
+@dataclass(frozen=True)
+class FlyJob:
+    name: str
+    controller: str
+    spec: str  # "se3" or a controller folder
+    condition: str
+    seed: int
+    sim: dict[str, Any]
+    ingest: dict[str, Any]
+    sim_dir: str
+    flight_dir: str
+
+
+@dataclass
+class FlyOutcome:
+    name: str
+    controller: str
+    condition: str
+    seed: int
+    metrics: dict[str, Any]
+    ingest_error: str | None
+    t_ctrl: np.ndarray  # (k,) s
+    x_ctrl: np.ndarray  # (k, 6) truth at the controller ticks
+    ref_ctrl: np.ndarray  # (k, 6)
+    y_ctrl: np.ndarray  # (k, 6) what the controller saw
+    u_ctrl: np.ndarray  # (k, 3) absolute input, paper signs
+    t_vio: np.ndarray  # (m,) s
+    e_norm: np.ndarray  # (m,) ||e||_inf of the emulator
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def run_job(job: FlyJob) -> FlyOutcome:
+    """Fly one controller (simulate: closed loop + bag), then ingest the bag."""
+    from qsls.pipeline.config import merge
+    from qsls.pipeline.ingest import ingest
+    from qsls.pipeline.sim.simulate import simulate
+
+    data = merge(
+        job.sim,
+        {
+            "seed": job.seed,
+            "controller": {"kind": job.spec},
+            "vio": {"perception": job.condition},
+        },
+    )
+    opts = SimOptions.model_validate(data)
+    res = simulate(opts, Path(job.sim_dir), force=True)
+    f = res.flight
+    ingest_error = None
+    try:
+        ingest(
+            [res.bag], IngestOptions.model_validate(job.ingest), Path(job.flight_dir), force=True
+        )
+    except QslsError as exc:
+        ingest_error = str(exc)
+    n_sub = max(1, round(f.dt * NS / (f.t_ns[1] - f.t_ns[0]))) if len(f.t_ns) > 1 else 1
+    idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
+    return FlyOutcome(
+        name=job.name,
+        controller=job.controller,
+        condition=job.condition,
+        seed=job.seed,
+        metrics=f.metrics(),
+        ingest_error=ingest_error,
+        t_ctrl=f.ctrl_t_ns / NS,
+        x_ctrl=f.x[idx],
+        ref_ctrl=f.ctrl_ref,
+        y_ctrl=f.ctrl_y,
+        u_ctrl=f.ctrl_u,
+        t_vio=f.vio_t_ns / NS,
+        e_norm=np.abs(f.vio_e).max(axis=1),
+        extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass},
+    )
+
+
+def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[FlyOutcome]:
+    """All flights, on a process pool of ``workers`` (in order of ``jobs``)."""
+    progress.start("flying", total=len(jobs))
+    results: list[FlyOutcome | None] = [None] * len(jobs)
+    if workers <= 1 or len(jobs) <= 1:
+        for i, j in enumerate(jobs):
+            results[i] = run_job(j)
+            progress.advance()
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        # fork: workers inherit the imported simulator (spawn would re-import it per worker)
+        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            futs = {pool.submit(run_job, j): i for i, j in enumerate(jobs)}
+            for fut in as_completed(futs):
+                results[futs[fut]] = fut.result()
+                progress.advance()
+    progress.finish()
+    return [r for r in results if r is not None]
+
+
+# --------------------------------------------------------------------------- result
+@dataclass(frozen=True)
+class FlyResult(EvaluateResult):
+    flights: pd.DataFrame = field(default_factory=pd.DataFrame)
+    per_controller: pd.DataFrame = field(default_factory=pd.DataFrame)
+    comparison: list[dict[str, Any]] = field(default_factory=list)
+    wall_time_s: float = 0.0
+
+    def summary(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "output": self.out.as_posix(),
+            "flights": len(self.flights),
+            "crashed": int(self.flights["crashed"].sum()) if len(self.flights) else 0,
+            "wall time (s)": round(self.wall_time_s, 1),
+        }
+        for _, r in self.per_controller.iterrows():
+            out[f"{r['condition']}/{r['controller']}"] = (
+                f"tracking RMS {r['tracking_rms_m']:.3f} m, ||e|| RMS {r['perception_error_rms']:.3f}, "
+                f"max {r['perception_error_max']:.3f}, crashed {int(r['crashed'])}"
+            )
+        if self.warnings:
+            out["warnings"] = "; ".join(self.warnings)
+        return out
+
+    def comparison_rows(self) -> tuple[list[str], list[list[Any]]]:
+        cols = ["finding (paper)", "qsls", "agrees"]
+        return cols, [[c["finding"], c["qsls"], c["agrees"]] for c in self.comparison]
+
+
+# --------------------------------------------------------------------------- analysis
+def flight_table(outcomes: Sequence[FlyOutcome], hover_mass: float | None = None) -> pd.DataFrame:
+    rows = []
+    for o in outcomes:
+        m = o.metrics
+        rows.append(
+            {
+                "flight": o.name,
+                "controller": o.controller,
+                "condition": o.condition,
+                "seed": o.seed,
+                "duration_s": m["duration_s"],
+                "tracking_rms_m": m["tracking_rms_m"],
+                "tracking_max_m": m["tracking_max_m"],
+                "perception_error_rms": m["perception_error_rms"],
+                "perception_error_max": m["perception_error_max"],
+                "control_effort_rms": m["control_effort_rms"],
+                "control_smoothness_rms": m["control_smoothness_rms"],
+                "crashed": bool(m["crashed"]),
+                "crash_reason": m["crash_reason"] or "",
+                "ingest_error": o.ingest_error or "",
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def per_controller_table(flights: pd.DataFrame) -> pd.DataFrame:
+    """Mean over seeds per controller and condition (max for the maxima, sum of crashes)."""
+    agg = {
+        "tracking_rms_m": "mean",
+        "tracking_max_m": "max",
+        "perception_error_rms": "mean",
+        "perception_error_max": "max",
+        "control_effort_rms": "mean",
+        "control_smoothness_rms": "mean",
+        "crashed": "sum",
+        "seed": "count",
+    }
+    g = flights.groupby(["condition", "controller"], sort=False).agg(agg).reset_index()
+    return g.rename(columns={"seed": "flights"})
+
+
+def _bound_columns(per: pd.DataFrame, checks: pd.DataFrame, flights: pd.DataFrame) -> pd.DataFrame:
+    """Add each controller's own bound check (if it has a certificate) to ``per``."""
+    if checks.empty:
+        return per
+    own = checks[checks["controller"] == checks["flown_by"]].merge(
+        flights[["flight", "condition"]], on="flight"
+    )
+    g = (
+        own.groupby(["condition", "controller"], sort=False)
+        .agg(
+            gamma_strict=("gamma_strict", "first"),
+            gamma_max=("gamma", "max"),
+            frac_under_gamma=("frac_under_gamma", "mean"),
+            frac_under_gamma_strict=("frac_under_gamma_strict", "mean"),
+            max_ratio=("max_ratio", "max"),
+        )
+        .reset_index()
+    )
+    return per.merge(g, on=["condition", "controller"], how="left")
+
+
+def compare_with_paper(
+    per: pd.DataFrame, checks: pd.DataFrame, threshold: float, ref_bound: ControllerBound | None
+) -> list[dict[str, Any]]:
+    """The three findings, each with what qsls measured and whether it agrees."""
+    out = []
+    paper4 = [c for c in PAPER_CONTROLLERS if c in set(per["controller"])]
+
+    # (1) regular: all track, PD best
+    reg = per[(per["condition"] == "regular") & per["controller"].isin(paper4)]
+    if len(reg):
+        tracks = {
+            r.controller: (r.crashed == 0 and r.tracking_rms_m < threshold)
+            for r in reg.itertuples()
+        }
+        best = reg.loc[reg["tracking_rms_m"].idxmin(), "controller"]
+        nums = ", ".join(
+            f"{r.controller} {r.tracking_rms_m:.3f} m"
+            + (f" ({int(r.crashed)} crashed)" if r.crashed else "")
+            for r in reg.sort_values("tracking_rms_m").itertuples()
+        )
+        all_track = all(tracks.values())
+        pd_best = best == "pd"
+        agrees = "yes" if all_track and pd_best else ("partly" if all_track or pd_best else "no")
+        detail = (
+            f"tracking RMS (mean over seeds): {nums}; "
+            + (
+                "all track"
+                if all_track
+                else f"not tracking (crash or RMS >= {threshold} m): "
+                + ", ".join(c for c, ok in tracks.items() if not ok)
+            )
+            + f"; best: {best}"
+        )
+        out.append(
+            {
+                "finding": "1. regular perception: all controllers track, PD tracks best",
+                "qsls": detail,
+                "agrees": agrees,
+            }
+        )
+
+    # (2) degraded: l1_robust lowest perception error
+    deg = per[(per["condition"] == "degraded") & per["controller"].isin(paper4)]
+    if len(deg):
+        order = deg.sort_values("perception_error_rms")
+        best = order.iloc[0]["controller"]
+        nums = ", ".join(f"{r.controller} {r.perception_error_rms:.4f}" for r in order.itertuples())
+        if ROBUST_QR not in set(deg["controller"]):
+            agrees = "n/a (l1_robust not flown)"
+        elif best == ROBUST_QR:
+            agrees = "yes"
+        else:
+            lo = float(order.iloc[0]["perception_error_rms"])
+            mine = float(deg.loc[deg["controller"] == ROBUST_QR, "perception_error_rms"].iloc[0])
+            agrees = "no" if mine > 1.05 * lo else "partly (within 5% of the lowest)"
+        out.append(
+            {
+                "finding": "2. degraded perception: the robust qr-cost controller has the lowest perception error",
+                "qsls": f"||e||_inf RMS (mean over seeds): {nums}; lowest: {best}",
+                "agrees": agrees,
+            }
+        )
+
+    # (3) every controller's perception error below the bound
+    if not checks.empty and ref_bound is not None:
+        ref = checks[checks["controller"] == ref_bound.name]
+        worst = ref.groupby("flown_by", sort=False)["max_ratio_strict"].max()
+        under = ref.groupby("flown_by", sort=False)["frac_under_gamma_strict"].min()
+        all_under = bool((ref["frac_under_gamma_strict"] >= 1.0).all())
+        own = checks[(checks["controller"] == checks["flown_by"]) & checks["has_guarantee"]]
+        own_ok = bool(own["bound_holds"].all()) if len(own) else True
+        nums = ", ".join(
+            f"{c} max ||e||/bound {worst[c]:.3g} (min frac under {under[c]:.3f})"
+            for c in worst.index
+        )
+        detail = (
+            f"against {ref_bound.name}'s gamma_strict = {ref_bound.gamma_strict:.4g}: {nums}; "
+            f"each controller against its own certified gamma(d): "
+            + (
+                "all hold"
+                if own_ok
+                else "fails on " + ", ".join(sorted(set(own.loc[~own["bound_holds"], "flight"])))
+            )
+        )
+        if not ref_bound.has_guarantee:
+            detail = f"{ref_bound.name} has no guarantee (S ||Phi_xy|| >= 1); " + detail
+        out.append(
+            {
+                "finding": "3. every controller's perception error stays below the bound",
+                "qsls": detail,
+                "agrees": "yes" if all_under and own_ok else "no",
+            }
+        )
+    return out
+
+
+# --------------------------------------------------------------------------- stage
+def _select(folders: list[Path], names: list[str] | None) -> list[Path]:
+    by_name = {f.name: f for f in folders}
+    if names is None:
+        chosen = [by_name[n] for n in PAPER_CONTROLLERS if n in by_name]
+        return chosen or folders
+    missing = [n for n in names if n not in by_name]
+    if missing:
+        raise InputError(
+            f"controllers {', '.join(missing)} not among the given folders "
+            f"(have: {', '.join(sorted(by_name))})"
+        )
+    return [by_name[n] for n in names]
+
+
+def fly_evaluate(
+    error_model: Path,
+    controllers: Sequence[Path],
+    options: FlyOptions,
+    out: Path,
+    *,
+    force: bool = False,
+    progress: Progress = NULL_PROGRESS,
+) -> FlyResult:
+    """Fly, ingest, bound-check and compare (module docstring); writes the stage ``out``."""
+    import time
+
+    from qsls.pipeline.artifacts import StageWriter, check_output
+    from qsls.pipeline.errormodel import load_error_model
+
+    t0 = time.perf_counter()
+    check_output(Path(out), force)
+    model_file, fit_dir = resolve_model(error_model)
+    model = load_error_model(model_file)
+    folders = _select(expand_controllers(controllers), options.controllers)
+    bounds = [load_controller_bound(f) for f in folders]
+    warnings = [w for b in bounds if (w := check_model_hash(b, model_file, force=force))]
+    training = load_training(fit_dir, model, options.state_scale)
+
+    specs: list[tuple[str, str]] = [(b.name, str(b.folder.resolve())) for b in bounds]
+    if options.se3:
+        specs.append(("se3", "se3"))
+    sim_base = options.sim.model_dump(mode="json")
+    sim_base["duration"] = options.duration
+    ingest_opts = options.ingest.model_dump(mode="json")
+    workers = options.jobs or os.cpu_count() or 1
+
+    tmp_root = Path(tempfile.mkdtemp(prefix="qsls-fly-"))
+    try:
+        with StageWriter(
+            out, "evaluate", options=options, inputs=[model_file, *folders], force=force
+        ) as w:
+            jobs = []
+            for cond in options.conditions:
+                for seed in options.seeds:
+                    for cname, spec in specs:
+                        name = f"{cond}_s{seed}_{cname}"
+                        sim_dir = (w.path("sims") / name) if options.keep_bags else tmp_root / name
+                        jobs.append(
+                            FlyJob(
+                                name,
+                                cname,
+                                spec,
+                                cond,
+                                int(seed),
+                                sim_base,
+                                ingest_opts,
+                                str(sim_dir),
+                                str(w.path("flights") / name),
+                            )
+                        )
+            outcomes = run_jobs(jobs, min(workers, len(jobs)), progress)
+            flights = flight_table(outcomes)
+            for o in outcomes:
+                if o.metrics["crashed"]:
+                    warnings.append(
+                        f"{o.name}: crashed, flight ended safely ({o.metrics['crash_reason']})"
+                    )
+                if o.ingest_error:
+                    warnings.append(
+                        f"{o.name}: not bound-checked, ingest failed ({o.ingest_error})"
+                    )
+
+            # bound check: each flight against its own certificate and against the robust bound
+            held = [
+                (o.name, read_flight(Path(j.flight_dir)))
+                for o, j in zip(outcomes, jobs, strict=True)
+                if not o.ingest_error
+            ]
+            index = {b.name: i for i, b in enumerate(bounds)}
+            ref_j = index.get(ROBUST_QR)
+            if ref_j is None:
+                ref_j = next((i for i, b in enumerate(bounds) if b.has_guarantee), None)
+            flown = dict(zip(flights["flight"], flights["controller"], strict=True))
+            pairs = []
+            for i, (name, _) in enumerate(held):
+                own = index.get(flown[name])
+                for j in dict.fromkeys(x for x in (own, ref_j) if x is not None):
+                    pairs.append((i, j))
+            if pairs:
+                checks, samples = bound_check(held, bounds, training, pairs=pairs)
+                checks.insert(2, "flown_by", checks["flight"].map(flown))
+                samples.insert(1, "flown_by", samples["flight"].map(flown))
+            else:
+                checks, samples = pd.DataFrame(), pd.DataFrame()
+            per = _bound_columns(per_controller_table(flights), checks, flights)
+            ref_bound = bounds[ref_j] if ref_j is not None else None
+            comparison = compare_with_paper(per, checks, options.track_threshold_m, ref_bound)
+
+            w.write_parquet("flights.parquet", flights)
+            w.write_parquet("per_controller.parquet", per)
+            if options.figures:
+                _write_fly_figures(w, outcomes, bounds, options, ref_bound)
+            wall = time.perf_counter() - t0
+            extra_json = {
+                "mode": "fly",
+                "flights_table": flights.to_dict(orient="records"),
+                "per_controller": per.to_dict(orient="records"),
+                "comparison": comparison,
+                "wall_time_s": wall,
+            }
+            totals = write_tables(
+                w, checks, samples, warnings, model, options, extra_json, own_only=True
+            )
+            w.results.update(
+                {
+                    "mode": "fly",
+                    "flights": len(flights),
+                    "crashed": int(flights["crashed"].sum()),
+                    "agrees_with_paper": {
+                        c["finding"][:2].strip(". "): c["agrees"] for c in comparison
+                    },
+                    "controllers": totals,
+                    "warnings": len(warnings),
+                }
+            )
+    finally:
+        shutil.rmtree(tmp_root, ignore_errors=True)
+    return FlyResult(
+        out=Path(out),
+        table=checks,
+        warnings=tuple(warnings),
+        flights=flights,
+        per_controller=per,
+        comparison=comparison,
+        wall_time_s=time.perf_counter() - t0,
+    )
+
+
+def _write_fly_figures(w, outcomes, bounds, options, ref_bound) -> None:  # type: ignore[no-untyped-def]
+    from qsls.pipeline import evaluate_plots as plots
+    from qsls.pipeline.pd import pd_gain
+    from qsls.pipeline.sim.controllers import feedforward, hover_input
+    from qsls.pipeline.sim.references import Reference, RefSample
+
+    seed0 = options.seeds[0]
+    first = {(o.condition, o.controller): o for o in outcomes if o.seed == seed0}
+    for cond in options.conditions:
+        traces = {c: (o.t_ctrl, o.x_ctrl) for (k, c), o in first.items() if k == cond}
+        if traces:
+            ref = next(o.ref_ctrl for (k, _), o in first.items() if k == cond)
+            w.write_figure(
+                f"tracking_{cond}.png",
+                plots.tracking_figure(traces, ref, f"{cond} perception, seed {seed0}"),
+            )
+    # the robust controller's input against PD's from the same estimate
+    robust = next(
+        (c for c in ("l1_robust_imitation", ROBUST_QR) if (options.conditions[0], c) in first), None
+    )
+    if robust is not None:
+        o = first[(options.conditions[0], robust)]
+        mass = o.extra["mass"]
+        K = pd_gain(options.sim.controller.pd, mass)
+        refm = Reference(options.sim.reference)
+        _, _, acc = refm.arrays(o.t_ctrl)
+        u_pd = np.array(
+            [
+                hover_input(mass)
+                + feedforward(RefSample(p=r[:3], v=r[3:], a=a), mass)
+                + K @ (y - r)
+                for y, r, a in zip(o.y_ctrl, o.ref_ctrl, acc, strict=True)
+            ]
+        )
+        w.write_figure(
+            f"input_{robust}_vs_pd.png", plots.input_figure(o.t_ctrl, o.u_ctrl, u_pd, robust)
+        )
+    traces_e = {f"{o.condition}/{o.controller}": (o.t_vio, o.e_norm) for o in first.values()}
+    gs = {b.name: b.gamma_strict for b in bounds}
+    if ref_bound is not None:
+        gs.setdefault("se3", ref_bound.gamma_strict)
+    w.write_figure(
+        "perception_error.png",
+        plots.error_per_controller_figure(traces_e, gs, options.conditions, options.smooth_s),
+    )
+
+
+__all__ = ["PAPER_CONTROLLERS", "FlyOptions", "FlyResult", "fly_evaluate"]
