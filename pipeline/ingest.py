@@ -188,15 +188,17 @@ def _read_streams(
         fast = o.decoder == "fast"
         out: dict[str, Any] = dict(texts)
         where = {r: str(texts[r].name) for r in texts}
+        wanted: dict[Path, list[tuple[str, str, str | None]]] = {}
         for role, info in (("vio", vio_info), ("truth", truth_info)):
             if info is None:
                 where[role] = str(o.vio if role == "vio" else o.truth)
                 continue
             frame = o.truth_frame if role == "truth" else None
-            out[role] = bags[info.source].read(
-                info.topic, truth_frame=frame, fast=fast, progress=progress
-            )
+            wanted.setdefault(info.source, []).append((role, info.topic, frame))
             where[role] = str(info.source)
+        for source, reqs in wanted.items():  # one pass per bag for both streams
+            got = bags[source].read_many([(t, f) for _, t, f in reqs], fast=fast, progress=progress)
+            out.update({role: g for (role, _, _), g in zip(reqs, got, strict=True)})
         return out["vio"], out["truth"], where
     finally:
         for b in bags.values():

@@ -28,6 +28,8 @@ import shutil
 import sqlite3
 import tempfile
 from collections.abc import Iterator
+from dataclasses import dataclass
+from itertools import chain
 from pathlib import Path
 from typing import Any
 
@@ -167,46 +169,43 @@ def _trajectory(
 
 
 # --------------------------------------------------------------------------- ROS1 fast path
-def ros1_slices(
-    reader1: Any, conn_ids: set[int]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Locate the data of every message of ``conn_ids`` from rosbags' ROS1 index.
+_BATCH_BYTES = 64 << 20  # decompressed bytes decoded at once (bounds memory on big bags)
 
-    Returns ``(buf, starts, ends, log_ns)`` in index (time) order: message ``i`` is
-    ``buf[starts[i]:ends[i]]``. Raises :class:`layout.LayoutError` when a record is not
-    where the index says (the caller then uses rosbags' reader).
+
+@dataclass(frozen=True)
+class Batch:
+    """Messages located in one buffer: message ``i`` is ``buf[starts[i]:ends[i]]``."""
+
+    buf: np.ndarray
+    starts: np.ndarray
+    ends: np.ndarray
+    log_ns: np.ndarray
+    conn: np.ndarray
+
+
+def _index(reader1: Any, conn_ids: set[int]) -> np.ndarray:
+    """rows ``(time, chunk_pos, offset, conn)`` of rosbags' index, in time order."""
+    parts = []
+    for c in sorted(conn_ids):
+        entries = reader1.indexes[c]
+        a = np.fromiter(chain.from_iterable(entries), dtype=np.int64, count=3 * len(entries))
+        a = a.reshape(-1, 3)
+        parts.append(np.column_stack([a, np.full(len(a), c, dtype=np.int64)]))
+    idx = np.concatenate(parts) if parts else np.zeros((0, 4), np.int64)
+    return idx[np.lexsort((idx[:, 2], idx[:, 1], idx[:, 0]))]
+
+
+def _records(
+    buf: np.ndarray, rec: np.ndarray, times: np.ndarray, conns: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends) of the message data of the records at ``rec``, checked against the index.
+
+    A record is ``uint32 header_len``, header fields (``uint32 len`` + ``name=value``),
+    ``uint32 data_len``, data. The op code (2: message data), connection id and time in
+    every header must equal what the index says.
     """
-    from rosbags.rosbag1.reader import decompressors
-
-    parts = [np.array(reader1.indexes[c], dtype=np.int64).reshape(-1, 3) for c in sorted(conn_ids)]
-    idx = np.concatenate(parts) if parts else np.zeros((0, 3), np.int64)
-    order = np.lexsort((idx[:, 2], idx[:, 1], idx[:, 0]))
-    idx = idx[order]
-    times, chunk_pos, offsets = idx[:, 0], idx[:, 1], idx[:, 2]
-    if len(idx) == 0:
-        return np.zeros(0, np.uint8), np.zeros(0, np.int64), np.zeros(0, np.int64), times
-    chunks = reader1.chunks
-    uniq = np.unique(chunk_pos)
-    plain = all(chunks[int(c)].decompressor is decompressors["none"] for c in uniq)
-    if plain:
-        buf = np.memmap(reader1.path, dtype=np.uint8, mode="r")
-        base = {int(c): chunks[int(c)].datapos for c in uniq}
-    else:
-        blobs = []
-        base = {}
-        at = 0
-        with open(reader1.path, "rb") as fh:
-            for c in uniq.tolist():
-                ch = chunks[c]
-                fh.seek(ch.datapos)
-                raw = ch.decompressor(fh.read(ch.datasize))
-                blobs.append(raw)
-                base[c] = at
-                at += len(raw)
-        buf = np.frombuffer(b"".join(blobs), dtype=np.uint8)
-    bases = np.array([base[c] for c in uniq.tolist()], dtype=np.int64)
-    rec = bases[np.searchsorted(uniq, chunk_pos)] + offsets
-    # record: uint32 header_len, header fields (uint32 len, "name=value"), uint32 data_len, data
+    if len(rec) == 0:
+        return rec, rec
     hlen = layout._u32(buf, rec)
     if np.any(hlen != hlen[0]):
         raise layout.LayoutError("record headers of different lengths")
@@ -214,21 +213,88 @@ def ros1_slices(
     fields = _header_fields(bytes(buf[int(rec[0]) + 4 : int(rec[0]) + 4 + h0]))
     if not {"op", "conn", "time"} <= set(fields):
         raise layout.LayoutError("record header without op/conn/time")
-    op_at, conn_at, time_at = (fields[k] for k in ("op", "conn", "time"))
-    if not np.all(buf[rec + 4 + op_at] == 2):
+    if not np.all(buf[rec + 4 + fields["op"]] == 2):
         raise layout.LayoutError("index points at a record that is not message data")
-    conns = layout._u32(buf, rec + 4 + conn_at)
-    if not np.all(np.isin(conns, list(conn_ids))):
-        raise layout.LayoutError("record of another connection")
-    t = layout._gather(buf, rec + 4 + time_at, 8).view("<u4")
+    if not np.array_equal(layout._u32(buf, rec + 4 + fields["conn"]), conns):
+        raise layout.LayoutError("record of another connection than the index says")
+    t = layout._gather(buf, rec + 4 + fields["time"], 8).view("<u4")
     if not np.array_equal(t[:, 0].astype(np.int64) * 1_000_000_000 + t[:, 1], times):
         raise layout.LayoutError("record time differs from the index")
-    dlen = layout._u32(buf, rec + 4 + h0)
     starts = rec + 8 + h0
-    ends = starts + dlen
+    ends = starts + layout._u32(buf, rec + 4 + h0)
     if ends.max() > len(buf):
         raise layout.LayoutError("message data beyond the chunk")
-    return buf, starts, ends, times
+    return starts, ends
+
+
+def ros1_batches(reader1: Any, conn_ids: set[int]) -> Iterator[Batch]:
+    """The messages of ``conn_ids``, located through rosbags' ROS1 index (module docstring).
+
+    Uncompressed bags give one batch over a memory map of the file; compressed chunks are
+    decompressed once each and grouped into batches of about 64 MB. Raises
+    :class:`layout.LayoutError` when a record is not where the index says.
+    """
+    from rosbags.rosbag1.reader import decompressors
+
+    idx = _index(reader1, conn_ids)
+    if len(idx) == 0:
+        return
+    chunks = reader1.chunks
+    uniq = np.unique(idx[:, 1])
+    if all(chunks[int(c)].decompressor is decompressors["none"] for c in uniq):
+        buf = np.memmap(reader1.path, dtype=np.uint8, mode="r")
+        datapos = np.array([chunks[int(c)].datapos for c in uniq], dtype=np.int64)
+        rec = datapos[np.searchsorted(uniq, idx[:, 1])] + idx[:, 2]
+        starts, ends = _records(buf, rec, idx[:, 0], idx[:, 3])
+        yield Batch(buf, starts, ends, idx[:, 0], idx[:, 3])
+        return
+    # messages grouped by chunk (stable: time order within a chunk), chunks in file order
+    by_chunk = np.argsort(idx[:, 1], kind="stable")
+    sidx = idx[by_chunk]
+    bounds = np.searchsorted(sidx[:, 1], uniq)
+    bounds = np.append(bounds, len(sidx))
+    blobs: list[bytes] = []
+    base: list[int] = []
+    rows: list[np.ndarray] = []
+    size = 0
+
+    def flush() -> Batch:
+        buf = np.frombuffer(b"".join(blobs), dtype=np.uint8)
+        part = np.concatenate(rows)
+        rec = np.repeat(np.array(base), [len(r) for r in rows]) + part[:, 2]
+        starts, ends = _records(buf, rec, part[:, 0], part[:, 3])
+        return Batch(buf, starts, ends, part[:, 0], part[:, 3])
+
+    with open(reader1.path, "rb") as fh:
+        for k, c in enumerate(uniq.tolist()):
+            ch = chunks[c]
+            fh.seek(ch.datapos)
+            raw = ch.decompressor(fh.read(ch.datasize))
+            blobs.append(raw)
+            base.append(size)
+            rows.append(sidx[bounds[k] : bounds[k + 1]])
+            size += len(raw)
+            if size >= _BATCH_BYTES:
+                yield flush()
+                blobs, base, rows, size = [], [], [], 0
+    if rows:
+        yield flush()
+
+
+def ros1_slices(
+    reader1: Any, conn_ids: set[int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All messages of ``conn_ids`` in one buffer, in time order: ``(buf, starts, ends, log_ns)``.
+
+    For tests and small bags (it copies every message); readers use :func:`ros1_batches`.
+    """
+    pieces: list[tuple[int, bytes]] = []
+    for b in ros1_batches(reader1, conn_ids):
+        for s, e, t in zip(b.starts.tolist(), b.ends.tolist(), b.log_ns.tolist(), strict=True):
+            pieces.append((t, bytes(b.buf[s:e])))
+    pieces.sort(key=lambda x: x[0])
+    buf, starts, ends = layout.concat([p for _, p in pieces])
+    return buf, starts, ends, np.array([t for t, _ in pieces], dtype=np.int64)
 
 
 def _header_fields(raw: bytes) -> dict[str, int]:
@@ -396,101 +462,143 @@ class BagSource:
         fast: bool = True,
         progress: Progress = NULL_PROGRESS,
     ) -> Trajectory:
-        info = {t.topic: t for t in self.topics()}.get(topic)
-        if info is None:
-            raise InputError(f"{self.path}: no topic {topic}")
-        progress.start(f"reading {topic}", total=info.count or None)
+        """One topic as a :class:`Trajectory` (``truth_frame`` picks a TF transform)."""
+        return self.read_many([(topic, truth_frame)], fast=fast, progress=progress)[0]
+
+    def read_many(
+        self,
+        requests: list[tuple[str, str | None]],
+        *,
+        fast: bool = True,
+        progress: Progress = NULL_PROGRESS,
+    ) -> list[Trajectory]:
+        """Several topics in one pass over the bag: ``[(topic, truth_frame or None), ...]``."""
+        known = {t.topic: t for t in self.topics()}
+        infos = []
+        for topic, _ in requests:
+            if topic not in known:
+                raise InputError(f"{self.path}: no topic {topic}")
+            infos.append(known[topic])
+        names = ", ".join(dict.fromkeys(i.topic for i in infos))
+        progress.start(f"reading {names}", total=sum(i.count for i in infos) or None)
         try:
-            if self._mcap is not None:
-                return self._read_mcap(info, truth_frame, fast, progress)
-            return self._read_rosbags(info, truth_frame, fast, progress)
+            found: dict[str, Trajectory] = {}
+            if self._mcap is None and not self._reader.is2 and fast:
+                fixed = [i for i in infos if i.msgtype in layout.FIXED_TYPES]
+                found = self._ros1_fast(list({i.topic: i for i in fixed}.values()), progress)
+            rest = list({i.topic: i for i in infos if i.topic not in found}.values())
+            raws = self._raw_pass(rest, progress) if rest else {}
+            return [
+                found[t] if t in found else self._decode(known[t], raws[t], frame, fast)
+                for t, frame in requests
+            ]
         except (InputError, layout.LayoutError):
             raise
         except Exception as exc:
             msg = " ".join(str(exc).split()) or exc.__class__.__name__
             raise InputError(
-                f"{self.path}: error while reading {topic} ({msg}); {_DAMAGED}"
+                f"{self.path}: error while reading {names} ({msg}); {_DAMAGED}"
             ) from None
         finally:
             progress.finish()
 
-    def _read_rosbags(
-        self, info: TopicInfo, truth_frame: str | None, fast: bool, progress: Progress
-    ) -> Trajectory:
+    def _ros1_fast(self, infos: list[TopicInfo], progress: Progress) -> dict[str, Trajectory]:
+        """Fixed-layout topics of a ROS1 bag through the index (empty dict: fall back)."""
+        if not infos:
+            return {}
         r = self._reader
-        conns = [c for c in r.connections if c.topic == info.topic]
-        mt = info.msgtype
-        if fast and mt in layout.FIXED_TYPES and not r.is2:
-            try:
-                buf, starts, ends, logs = ros1_slices(r.readers[0], {c.id for c in conns})
-                d = layout.decode(buf, starts, ends, mt, "ros1")
-                progress.advance(len(starts))
-                return _trajectory(
-                    info.topic, mt, d.header_ns, logs, d.pose, d.twist, d.frame_id,
-                    d.child_frame_id, "numpy",
-                )  # fmt: skip
-            except layout.LayoutError:
-                pass  # fall back to rosbags' reader below
-        raws: list[bytes] = []
-        logs_l: list[int] = []
-        for i, (_c, log, raw) in enumerate(r.messages(connections=conns)):
-            raws.append(raw)
-            logs_l.append(log)
-            if i % 4096 == 4095:
-                progress.advance(4096)
-        progress.advance(len(raws) % 4096)
-        if fast and mt in layout.FIXED_TYPES:
-            try:
-                buf, starts, ends = layout.concat(raws)
-                d = layout.decode(buf, starts, ends, mt, "cdr" if r.is2 else "ros1")
-                return _trajectory(
-                    info.topic, mt, d.header_ns, np.array(logs_l, np.int64), d.pose, d.twist,
-                    d.frame_id, d.child_frame_id, "numpy",
-                )  # fmt: skip
-            except layout.LayoutError:
-                pass
-        msgs = [r.deserialize(raw, mt) for raw in raws]
-        arrays = objects_to_arrays(msgs, logs_l, mt, truth_frame, info.topic)
-        return _trajectory(info.topic, mt, *arrays, "deserializer")
+        ids = {info.topic: {c.id for c in r.connections if c.topic == info.topic} for info in infos}
+        parts: dict[str, list[tuple[layout.Decoded, np.ndarray]]] = {t: [] for t in ids}
+        try:
+            for batch in ros1_batches(r.readers[0], set().union(*ids.values())):
+                for info in infos:
+                    m = np.isin(batch.conn, list(ids[info.topic]))
+                    if m.any():
+                        d = layout.decode(
+                            batch.buf, batch.starts[m], batch.ends[m], info.msgtype, "ros1"
+                        )
+                        parts[info.topic].append((d, batch.log_ns[m]))
+                progress.advance(len(batch.starts))
+        except layout.LayoutError:
+            return {}
+        out = {}
+        for info in infos:
+            ds = parts[info.topic]
+            if not ds:
+                continue
+            header = np.concatenate([d.header_ns for d, _ in ds])
+            logs = np.concatenate([lg for _, lg in ds])
+            pose = np.concatenate([d.pose for d, _ in ds])
+            twist = np.concatenate([d.twist for d, _ in ds]) if ds[0][0].twist is not None else None
+            order = np.argsort(logs, kind="stable")  # batches come in chunk order
+            out[info.topic] = _trajectory(
+                info.topic, info.msgtype, header[order], logs[order], pose[order],
+                None if twist is None else twist[order], ds[0][0].frame_id,
+                ds[0][0].child_frame_id, "numpy",
+            )  # fmt: skip
+        return out
 
-    def _read_mcap(
-        self, info: TopicInfo, truth_frame: str | None, fast: bool, progress: Progress
+    def _raw_pass(self, infos: list[TopicInfo], progress: Progress) -> dict[str, tuple]:
+        """``{topic: (raw messages, log stamps, schema)}`` in one pass over the bag."""
+        out: dict[str, tuple[list[bytes], list[int], Any]] = {
+            i.topic: ([], [], None) for i in infos
+        }
+        n = 0
+        if self._mcap is not None:
+            for schema, channel, message in self._mcap.iter_messages(topics=list(out)):
+                if channel.message_encoding != "cdr":
+                    raise InputError(
+                        f"{self.path}: topic {channel.topic} is encoded as "
+                        f"{channel.message_encoding!r}; qsls reads ROS2 messages (cdr encoding)"
+                    )
+                raws, logs, _ = out[channel.topic]
+                if out[channel.topic][2] is None:
+                    out[channel.topic] = (raws, logs, schema)
+                raws.append(bytes(message.data))
+                logs.append(int(message.log_time))
+                n += 1
+                if n % 4096 == 0:
+                    progress.advance(4096)
+        else:
+            r = self._reader
+            conns = [c for c in r.connections if c.topic in out]
+            for c, log, raw in r.messages(connections=conns):
+                raws, logs, _ = out[c.topic]
+                raws.append(raw)
+                logs.append(log)
+                n += 1
+                if n % 4096 == 0:
+                    progress.advance(4096)
+        progress.advance(n % 4096)
+        return out
+
+    def _decode(
+        self, info: TopicInfo, raw: tuple, truth_frame: str | None, fast: bool
     ) -> Trajectory:
-        raws: list[bytes] = []
-        logs: list[int] = []
-        schema = channel = None
-        for i, (schema, channel, message) in enumerate(  # noqa: B007
-            self._mcap.iter_messages(topics=[info.topic])
-        ):
-            raws.append(bytes(message.data))
-            logs.append(int(message.log_time))
-            if i % 4096 == 4095:
-                progress.advance(4096)
-        progress.advance(len(raws) % 4096)
+        raws, logs, schema = raw
         mt = info.msgtype
-        if channel is not None and channel.message_encoding != "cdr":
-            raise InputError(
-                f"{self.path}: topic {info.topic} is encoded as {channel.message_encoding!r}; "
-                "qsls reads ROS2 messages (cdr encoding)"
-            )
+        cdr = self._mcap is not None or self._reader.is2
         if fast and mt in layout.FIXED_TYPES:
             try:
                 buf, starts, ends = layout.concat(raws)
-                d = layout.decode(buf, starts, ends, mt, "cdr")
+                d = layout.decode(buf, starts, ends, mt, "cdr" if cdr else "ros1")
                 return _trajectory(
                     info.topic, mt, d.header_ns, np.array(logs, np.int64), d.pose, d.twist,
                     d.frame_id, d.child_frame_id, "numpy",
                 )  # fmt: skip
             except layout.LayoutError:
-                pass
-        msgs: list[Any] = []
-        if raws:
-            from mcap_ros2.decoder import DecoderFactory
+                pass  # the deserializer below
+        if self._mcap is not None:
+            msgs: list[Any] = []
+            if raws:
+                from mcap_ros2.decoder import DecoderFactory
 
-            dec = DecoderFactory().decoder_for("cdr", schema)
-            if dec is None:
-                raise InputError(f"{self.path}: cannot decode topic {info.topic} ({mt})")
-            msgs = [dec(raw) for raw in raws]
+                dec = DecoderFactory().decoder_for("cdr", schema)
+                if dec is None:
+                    raise InputError(f"{self.path}: cannot decode topic {info.topic} ({mt})")
+                msgs = [dec(x) for x in raws]
+        else:
+            msgs = [self._reader.deserialize(x, mt) for x in raws]
         arrays = objects_to_arrays(msgs, logs, mt, truth_frame, info.topic)
         return _trajectory(info.topic, mt, *arrays, "deserializer")
 

@@ -1,0 +1,144 @@
+"""Ingest benchmark: the numpy fast path against rosbags' per-message deserializer.
+
+Bags (written once under benchmarks/_work/, reused afterwards):
+  (a) ROS1, 100k nav_msgs/Odometry (VIO, 200 Hz) + 100k geometry_msgs/PoseStamped
+      (motion capture, 200 Hz) = 200k messages over 500 s;
+  (b) the same with 640x480 mono8 camera images interleaved (>= 500 MB), uncompressed;
+  (c) (b) with LZ4 chunk compression.
+
+For each bag, in the same run:
+  - ``qsls ingest`` end to end (read both topics, offset, alignment, resampling,
+    flight.parquet) with the fast decoder and with ``decoder="deserializer"`` (every
+    message through rosbags' per-message deserializer, what evo does);
+  - reading the two topics only, both ways, and rosbags' raw message iteration (the floor
+    of any reader that goes through ``messages()``).
+
+Run: python benchmarks/bench_ingest.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+WORK = ROOT / "benchmarks" / "_work"
+sys.path.insert(0, str(ROOT))
+
+from qsls.pipeline.ingest import IngestOptions, ingest  # noqa: E402
+from qsls.pipeline.sources.bags import BagSource  # noqa: E402
+from qsls.pipeline.sources.write import ImageStream, write_bag  # noqa: E402
+from tests.bagfixtures import make_flight  # noqa: E402
+
+
+def build(n_pose: int, image_mb: float, compression: str | None, name: str) -> Path:
+    path = WORK / name
+    if path.exists():
+        return path
+    hz = 200.0
+    f = make_flight(duration=n_pose / hz, vio_hz=hz, truth_hz=hz, dropouts=())
+    truth = f.truth
+    # the truth fixture runs 1 s longer at both ends: keep n_pose messages
+    keep = slice(0, n_pose)
+    truth = type(truth)(
+        truth.topic, truth.header_ns[keep], truth.log_ns[keep], truth.position[keep],
+        truth.orientation[keep], truth.msgtype,
+    )  # fmt: skip
+    streams: list = [f.vio, truth]
+    if image_mb:
+        n_img = int(np.ceil(image_mb * 1e6 / (640 * 480)))
+        ts = np.linspace(f.vio.log_ns[0], f.vio.log_ns[-1], n_img).astype(np.int64)
+        streams.append(ImageStream("/cam0/image_raw", ts, ts, 480, 640))
+    t0 = time.perf_counter()
+    write_bag(path, streams, "ros1", compression=compression)
+    print(f"  wrote {name}: {path.stat().st_size / 1e6:.0f} MB in {time.perf_counter() - t0:.1f} s")
+    return path
+
+
+def timed(fn, repeat: int = 1) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def run_ingest(bag: Path, decoder: str) -> float:
+    out = WORK / f"out_{bag.stem}_{decoder}"
+    o = IngestOptions(vio_topic="/vio/odom", truth_topic="/mocap/pose", decoder=decoder)
+
+    def go() -> None:
+        ingest([bag], o, out, force=True)
+
+    t = timed(go)
+    shutil.rmtree(out, ignore_errors=True)
+    return t
+
+
+def read_both(bag: Path, fast: bool) -> int:
+    with BagSource(bag) as s:
+        return len(s.read("/vio/odom", fast=fast)) + len(s.read("/mocap/pose", fast=fast))
+
+
+def raw_iteration(bag: Path) -> int:
+    from rosbags.highlevel import AnyReader
+
+    n = 0
+    with AnyReader([bag]) as r:
+        conns = [c for c in r.connections if c.topic in ("/vio/odom", "/mocap/pose")]
+        for _ in r.messages(connections=conns):
+            n += 1
+    return n
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="20k messages and 50 MB of images")
+    args = ap.parse_args()
+    n_pose, mb = (10_000, 50.0) if args.quick else (100_000, 520.0)
+    WORK.mkdir(parents=True, exist_ok=True)
+    tag = "quick" if args.quick else "full"
+    bags = {
+        "(a) poses only": build(n_pose, 0, None, f"a_{tag}.bag"),
+        "(b) + images, uncompressed": build(n_pose, mb, None, f"b_{tag}.bag"),
+        "(b) + images, LZ4": build(n_pose, mb, "lz4", f"b_lz4_{tag}.bag"),
+    }
+    n_msgs = 2 * n_pose
+    run_ingest(bags["(a) poses only"], "fast")  # warm-up: imports (scipy, pyarrow) once
+    rows = []
+    for label, bag in bags.items():
+        size = bag.stat().st_size / 1e6
+        ingest_fast = run_ingest(bag, "fast")
+        ingest_slow = run_ingest(bag, "deserializer")
+        read_fast = timed(lambda bag=bag: read_both(bag, True))
+        read_slow = timed(lambda bag=bag: read_both(bag, False))
+        raw = timed(lambda bag=bag: raw_iteration(bag))
+        rows.append((label, size, ingest_fast, ingest_slow, read_fast, read_slow, raw))
+    print(f"\n{n_msgs} Odometry+PoseStamped messages per bag; seconds (messages/s)\n")
+    head = (
+        f"{'bag':30s} {'MB':>6s} | {'ingest fast':>18s} {'ingest deser.':>18s} {'speed-up':>8s}"
+        f" | {'read fast':>9s} {'read deser.':>11s} {'raw iter':>8s}"
+    )
+    print(head)
+    print("-" * len(head))
+    for label, size, f_, s_, rf, rs, raw in rows:
+        print(
+            f"{label:30s} {size:6.0f} | {f_:7.2f} ({n_msgs / f_:8.0f}) {s_:7.2f} ({n_msgs / s_:8.0f}) "
+            f"{s_ / f_:7.1f}x | {rf:9.2f} {rs:11.2f} {raw:8.2f}"
+        )
+    a_fast = rows[0][2]
+    b_fast = rows[1][2]
+    print(f"\n(b) uncompressed / (a), fast ingest: {b_fast / a_fast:.2f}x (target <= 1.3x)")
+    print(
+        f"(a) end-to-end speed-up over the deserializer path: {rows[0][3] / a_fast:.1f}x (target >= 3x)"
+    )
+
+
+if __name__ == "__main__":
+    main()
