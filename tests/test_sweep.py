@@ -1,0 +1,237 @@
+"""`qsls sweep`: grid, local pool, a real Dask cluster on loopback, the CI expectation."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from qsls.cli.main import app
+from qsls.pipeline import sls
+from qsls.pipeline.artifacts import dump_yaml
+from qsls.pipeline.errormodel import ErrorModel, SlopeStats
+from qsls.pipeline.model import quadrotor_model
+
+RUN = CliRunner()
+REPO = Path(__file__).resolve().parents[1]
+TIMING = ["build_time_s", "solve_time_s"]
+
+SMALL = """
+eps_e: 0.05
+radius: 1.0
+delta: 0.05
+eps_w: 0.01
+grid:
+  S: [0.05, 0.14, 0.24, 1.5]
+  T: [6, 10]
+  norm: [l1, h2]
+"""
+
+
+def _sweep(*args):
+    return RUN.invoke(app, ["sweep", *map(str, args)])
+
+
+def _table(out: Path) -> pd.DataFrame:
+    return pd.read_parquet(out / "sweep.parquet")
+
+
+def test_local_sweep_table_and_feasibility(tmp_path):
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text(SMALL)
+    out = tmp_path / "sw"
+    res = _sweep("-c", cfg, "-o", out, "--jobs", "2")
+    assert res.exit_code == 0, res.output
+    t = _table(out)
+    assert len(t) == 16 and list(t["index"]) == list(range(16))
+    for col in (
+        "S",
+        "T",
+        "norm",
+        "status",
+        "feasible",
+        "cost_value",
+        "norm_phi_xy",
+        "gamma",
+        "margin",
+        *TIMING,
+    ):
+        assert col in t.columns
+    pd.testing.assert_frame_equal(
+        pd.read_csv(out / "sweep.csv"), t, check_dtype=False, atol=0, rtol=1e-15
+    )
+    for name in ("feasibility.png", "s_max_vs_T.png", "s_max.csv", "manifest.json"):
+        assert (out / name).is_file()
+    # feasibility against the largest feasible S computed separately for each T (the
+    # robustness constraint does not involve the cost, so both norms agree)
+    model = quadrotor_model()
+    s_max = {
+        T: sls.max_feasible_s(model, T, eps_e=0.05, radius=1.0, eps_w=0.01, delta=0.05).s_max
+        for T in (6, 10)
+    }
+    for _, row in t.iterrows():
+        assert row["feasible"] == (row["S"] <= s_max[row["T"]]), row.to_dict()
+        if row["feasible"]:
+            assert row["status"] == "certified" and row["margin"] > 0
+            assert row["norm_phi_xy"] >= 1 and row["gamma"] > 0
+    assert set(t.loc[t["S"] == 1.5, "status"]) == {"infeasible"}  # S + eps_e/r >= 1, not solved
+    assert (t.loc[t["S"] == 1.5, "solve_time_s"] == 0).all()
+    smax = pd.read_csv(out / "s_max.csv")
+    assert dict(zip(smax["T"], smax["s_max"], strict=True)) == pytest.approx(s_max, rel=1e-6)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for_port(port: int, timeout: float = 30.0) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.2)
+    raise RuntimeError(f"nothing listens on 127.0.0.1:{port}")
+
+
+def _wait_for_workers(address: str, n: int, timeout: float = 60.0) -> None:
+    from distributed import Client
+
+    with Client(address, timeout="20s", set_as_default=False) as client:
+        client.wait_for_workers(n, timeout=timeout)
+
+
+def test_dask_cluster_gives_the_local_table(tmp_path):
+    """A real `dask scheduler` and two `dask worker` processes on loopback."""
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text(SMALL)
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+    worker = [sys.executable, "-m", "distributed.cli.dask_worker"]
+    procs: list[subprocess.Popen] = []
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    try:
+        procs.append(
+            subprocess.Popen(
+                [*dask, "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                stdout=subprocess.DEVNULL,
+                stderr=open(logs / "scheduler.log", "w"),
+                cwd=tmp_path,
+            )  # fmt: skip
+        )
+        _wait_for_port(port)
+        for i in range(2):
+            procs.append(
+                subprocess.Popen(
+                    [
+                        *worker,
+                        address,
+                        "--nthreads",
+                        "1",
+                        "--no-dashboard",
+                        "--host",
+                        "127.0.0.1",
+                        "--worker-port",
+                        str(_free_port()),
+                        "--nanny-port",
+                        str(_free_port()),
+                    ],
+                    stdout=subprocess.DEVNULL,
+                    stderr=open(logs / f"worker{i}.log", "w"),
+                    cwd=tmp_path,
+                )  # fmt: skip
+            )
+        _wait_for_workers(address, 2)
+        res = _sweep("-c", cfg, "-o", tmp_path / "dask", "--scheduler", address)
+        assert res.exit_code == 0, res.output
+        assert "dask" in res.output
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+    res = _sweep("-c", cfg, "-o", tmp_path / "local", "--jobs", "1")
+    assert res.exit_code == 0, res.output
+    a = _table(tmp_path / "dask").drop(columns=TIMING)
+    b = _table(tmp_path / "local").drop(columns=TIMING)
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    sa = pd.read_parquet(tmp_path / "dask" / "s_max.parquet")
+    sb = pd.read_parquet(tmp_path / "local" / "s_max.parquet")
+    pd.testing.assert_frame_equal(sa, sb, check_exact=True)
+
+
+def test_ci_sweep_matches_committed_expectation(tmp_path):
+    out = tmp_path / "ci"
+    res = _sweep("-c", REPO / "configs" / "ci_sweep.yaml", "-o", out, "--jobs", "2")
+    assert res.exit_code == 0, res.output
+    got = pd.read_csv(out / "sweep.csv")
+    want = pd.read_csv(REPO / "configs" / "ci_sweep_expected.csv")
+    assert 24 <= len(want) <= 48
+    keys = [c for c in want.columns if c != "feasible"]
+    merged = want.merge(
+        got[[*keys, "feasible"]], on=keys, suffixes=("_want", "_got"), validate="1:1"
+    )
+    assert len(merged) == len(want)
+    assert (merged["feasible_want"] == merged["feasible_got"]).all(), merged
+
+
+def test_error_model_names_resolve(tmp_path):
+    em = ErrorModel(
+        eps_e=0.05, radius=1.0, s_slope=SlopeStats(max=11.7, percentiles={"p50": 0.1}), R0=0.05,
+        delta=0.05, n_samples=10, n_pairs=10,
+    )  # fmt: skip
+    f = tmp_path / "error_model.yaml"
+    f.write_text(dump_yaml(em))
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text("eps_e: max\ngrid:\n  S: [p50, max]\n  T: [6]\n")
+    out = tmp_path / "o"
+    res = _sweep("-c", cfg, "-m", f, "-o", out, "--jobs", "1")
+    assert res.exit_code == 0, res.output
+    t = _table(out)
+    assert list(t["S"]) == ["p50", "max"] and list(t["S_value"]) == [0.1, 11.7]
+    # T = 6, the model's eps_e, r and Delta: the largest feasible S is 0.103
+    assert list(t["feasible"]) == [True, False]
+    assert t["radius_value"].tolist() == [1.0, 1.0] and t["delta_value"].tolist() == [0.05, 0.05]
+    # numbers and names on one axis: the column holds text
+    cfg.write_text("eps_e: max\ngrid:\n  S: [0.02, p50]\n  T: [6]\n")
+    res = _sweep("-c", cfg, "-m", f, "-o", tmp_path / "o2", "--jobs", "1")
+    assert res.exit_code == 0, res.output
+    assert list(_table(tmp_path / "o2")["S"]) == ["0.02", "p50"]
+
+
+@pytest.mark.parametrize(
+    ("text", "pattern"),
+    [
+        ("grid:\n  SS: [0.1]\n", r"unknown grid axis 'SS'; did you mean 'S'"),
+        ("grid:\n  T: [1]\n", r"'T'.*greater than or equal to 2"),
+        ("radius: 1\neps_e: 0.05\ngrid:\n  S: [p95]\n", r"none was given"),
+        ("grid:\n  S: []\n", r"non-empty list"),
+    ],
+)
+def test_bad_sweep_config_is_one_clear_error(tmp_path, text, pattern):
+    import re
+
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text(text)
+    out = tmp_path / "o"
+    res = _sweep("-c", cfg, "-o", out, "--jobs", "1")
+    assert res.exit_code == 2, res.output
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and re.search(pattern, lines[0]), (
+        res.output
+    )
+    assert not out.exists()
