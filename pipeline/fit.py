@@ -80,6 +80,8 @@ class FitOptions(Options):
     reference."""
     reference_dt: float = Field(0.01, gt=0)
     """Sampling step of a parametric reference (s)."""
+    reference_lead_in: bool = False
+    """Include a parametric reference's take-off and approach (before its pattern) in delta."""
     r0: float | str = "max"
     """``R0``: ``max`` (= eps_e), ``pNN`` (a percentile of ``||e||``) or a number."""
     bootstrap: int = Field(0, ge=0)
@@ -286,7 +288,8 @@ def reference_states(options: FitOptions) -> tuple[np.ndarray | None, str | None
     from qsls.pipeline.sim.references import Reference
 
     dur = ref.natural_duration()
-    t = np.arange(0.0, dur + 0.5 * options.reference_dt, options.reference_dt)
+    t0 = 0.0 if options.reference_lead_in else float(getattr(ref, "start_s", 0.0))
+    t = t0 + np.arange(0.0, dur - t0 + 0.5 * options.reference_dt, options.reference_dt)
     desc = ref.kind + ":" + ",".join(f"{k}={v}" for k, v in ref.model_dump().items() if k != "kind")
     return Reference(ref).states(t), desc
 
