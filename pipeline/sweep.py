@@ -123,7 +123,7 @@ def grid_points(options: SweepOptions, em: Any) -> list[dict[str, Any]]:
                 "imitate": opts.imitate,
                 "solver": opts.solver,
                 "certify": options.certify,
-            }  # fmt: skip
+            }
         )
     return points
 
@@ -240,7 +240,7 @@ def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
     keys = ("T", "eps_e", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass")
     seen: dict[tuple, dict[str, Any]] = {}
     for p in points:
-        k = tuple(p[x] for x in keys) + (str(p["H"]),)
+        k = (*(p[x] for x in keys), str(p["H"]))
         if k not in seen:
             seen[k] = {**{x: p[x] for x in keys}, "H": p["H"], "solver": p["solver"]}
     return sorted(seen.values(), key=lambda s: tuple(s[x] for x in keys))

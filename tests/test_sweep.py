@@ -115,42 +115,27 @@ def test_dask_cluster_gives_the_local_table(tmp_path):
     cfg.write_text(SMALL)
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
-    dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
-    worker = [sys.executable, "-m", "distributed.cli.dask_worker"]
+    dask = [sys.executable, "-m", "dask", "scheduler"]  # `dask scheduler` of this Python
+    worker = [sys.executable, "-m", "dask", "worker"]
     procs: list[subprocess.Popen] = []
-    logs = tmp_path / "logs"
-    logs.mkdir()
+    log = open(tmp_path / "dask.log", "w")  # noqa: SIM115 - closed in the finally below
     try:
-        procs.append(
-            subprocess.Popen(
-                [*dask, "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
-                stdout=subprocess.DEVNULL,
-                stderr=open(logs / "scheduler.log", "w"),
-                cwd=tmp_path,
-            )  # fmt: skip
-        )
+        sched = [*dask, "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"]
+        procs.append(subprocess.Popen(sched, stdout=log, stderr=log, cwd=tmp_path))
         _wait_for_port(port)
-        for i in range(2):
-            procs.append(
-                subprocess.Popen(
-                    [
-                        *worker,
-                        address,
-                        "--nthreads",
-                        "1",
-                        "--no-dashboard",
-                        "--host",
-                        "127.0.0.1",
-                        "--worker-port",
-                        str(_free_port()),
-                        "--nanny-port",
-                        str(_free_port()),
-                    ],
-                    stdout=subprocess.DEVNULL,
-                    stderr=open(logs / f"worker{i}.log", "w"),
-                    cwd=tmp_path,
-                )  # fmt: skip
-            )
+        for _ in range(2):
+            ports = ["--worker-port", str(_free_port()), "--nanny-port", str(_free_port())]
+            cmd = [
+                *worker,
+                address,
+                "--nthreads",
+                "1",
+                "--no-dashboard",
+                "--host",
+                "127.0.0.1",
+                *ports,
+            ]
+            procs.append(subprocess.Popen(cmd, stdout=log, stderr=log, cwd=tmp_path))
         _wait_for_workers(address, 2)
         res = _sweep("-c", cfg, "-o", tmp_path / "dask", "--scheduler", address)
         assert res.exit_code == 0, res.output
@@ -164,6 +149,7 @@ def test_dask_cluster_gives_the_local_table(tmp_path):
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+        log.close()
     res = _sweep("-c", cfg, "-o", tmp_path / "local", "--jobs", "1")
     assert res.exit_code == 0, res.output
     a = _table(tmp_path / "dask").drop(columns=TIMING)
