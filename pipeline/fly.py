@@ -489,13 +489,11 @@ def fly_evaluate(
             w.write_parquet("per_controller.parquet", per)
             if options.figures:
                 _write_fly_figures(w, outcomes, bounds, options, ref_bound)
-            wall = time.perf_counter() - t0
             extra_json = {
                 "mode": "fly",
                 "flights_table": flights.to_dict(orient="records"),
                 "per_controller": per.to_dict(orient="records"),
                 "comparison": comparison,
-                "wall_time_s": wall,
             }
             totals = write_tables(
                 w, checks, samples, warnings, model, options, extra_json, own_only=True
