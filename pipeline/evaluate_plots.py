@@ -38,7 +38,7 @@ def perception_error_figure(samples: pd.DataFrame, smooth_s: float = 1.0) -> Any
     from qsls.pipeline.evaluate import smooth
 
     flights = list(dict.fromkeys(samples["flight"]))
-    fig, axes = _grid(len(flights))
+    fig, axes = _grid(len(flights), width=11.0)
     for ax, name in zip(axes, flights, strict=False):
         s = samples[samples["flight"] == name]
         first = s[s["controller"] == s["controller"].iloc[0]]
@@ -61,10 +61,15 @@ def perception_error_figure(samples: pd.DataFrame, smooth_s: float = 1.0) -> Any
             gk = g["gamma"].to_numpy()
             if np.all(np.isfinite(gk)):
                 ax.plot(g["t"], gk, color=col, ls=":", lw=1, label=f"{c} gamma(d)")
+            over = g["error_norm"].to_numpy() > gk
+            if np.any(over):
+                ax.plot(
+                    g["t"].to_numpy()[over], g["error_norm"].to_numpy()[over], "x", color=col, ms=4
+                )
         ax.set_yscale("log")
-        ax.set_title(str(name), fontsize=9)
+        ax.set_title(f"{name} (x: above gamma(d))", fontsize=9)
         ax.set_ylabel("||e|| (inf)")
-        ax.legend(fontsize=6, ncol=3, loc="upper right")
+        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     axes[-1].set_xlabel("t (s)")
     fig.tight_layout()
     return fig
@@ -130,7 +135,7 @@ def error_per_controller_figure(
     to its ``gamma_strict``."""
     from qsls.pipeline.evaluate import smooth
 
-    fig, axes = _grid(len(conditions), height=3.0)
+    fig, axes = _grid(len(conditions), width=10.5, height=3.0)
     for ax, cond in zip(axes, conditions, strict=False):
         names = [k.split("/", 1)[1] for k in traces if k.split("/", 1)[0] == cond]
         for i, c in enumerate(names):

@@ -166,3 +166,34 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
                  "input_l1_robust_vs_pd.png", "distance_to_training.png"):  # fmt: skip
         assert (out / name).stat().st_size > 1000, name
     assert "Against the paper" in r.output
+
+
+def test_crash_ends_flight_safely_and_is_flagged(trained, tmp_path):
+    root, _ = trained
+    sim = SimOptions.model_validate({"crash": {"max_deviation": 0.01}})
+    opts = FlyOptions(
+        seeds=[1], duration=6.0, conditions=["degraded"], controllers=["l1_robust"],
+        se3=False, jobs=1, sim=sim,
+    )  # fmt: skip
+    res = fly_evaluate(root / "fit", [root / "synth"], opts, tmp_path / "ev")
+    row = res.flights.iloc[0]
+    assert row["crashed"] and "diverged" in row["crash_reason"]
+    assert row["duration_s"] < 6.0
+    assert any("crashed, flight ended safely" in w for w in res.warnings)
+    doc = json.loads((tmp_path / "ev" / "evaluation.json").read_text())
+    assert doc["flights_table"][0]["crashed"] is True
+
+
+def test_model_hash_mismatch_with_real_stages(trained, tmp_path):
+    root, _ = trained
+    fit([root / "train"], FitOptions(radius=1.5, figures=False), tmp_path / "fit2")
+    args = ["evaluate", "--model", tmp_path / "fit2", "--controller", root / "synth" / "l1_robust",
+            "--flights", root / "train", "--out", tmp_path / "ev"]  # fmt: skip
+    r = CliRunner().invoke(app, [str(a) for a in args])
+    assert r.exit_code == 2 and "certified against error model" in r.output
+    assert not (tmp_path / "ev").exists()
+    r = CliRunner().invoke(app, [str(a) for a in [*args, "--force", "--no-figures"]])
+    assert r.exit_code == 0 and "warning:" in r.output
+    # the training flight itself: distance 0 to the training states, the bound holds there
+    ev = pd.read_parquet(tmp_path / "ev" / "evaluation.parquet")
+    assert ev["max_distance_to_training"].iloc[0] == pytest.approx(0.0, abs=1e-12)
