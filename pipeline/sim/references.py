@@ -1,6 +1,15 @@
 """Reference trajectories: the paper's circle at constant height, hover, a figure-eight.
 
-Every reference starts at rest and speeds up smoothly: the phase is
+Every flight starts like a real one: ``hold_s`` seconds at rest at ``takeoff_height`` above
+the pattern's centre, a climb of ``takeoff_s`` seconds to ``height``, then a straight flight
+of ``approach_s`` seconds from the centre to the pattern's first point (each move a quintic
+smoothstep ``s5(u) = 10 u^3 - 15 u^4 + 6 u^5``, at rest at both ends). Besides being what
+real logs show, the take-off and the approach pin the clock offset and the frame yaw that
+``ingest`` recovers: on a circle alone they are not separable (shifting a circle in time is
+rotating it about its centre).
+
+Then the pattern starts at rest and speeds up smoothly (``t`` counted from its start): the
+phase is
 ``theta(t) = omega T_r S(t / T_r)`` for ``t < T_r`` with ``S(u) = 2.5 u^4 - 3 u^5 + u^6`` (the
 integral of the quintic smoothstep, so the angular rate ``omega s(t/T_r)`` and its derivative
 are continuous), then ``theta(t) = omega (t - T_r / 2)``; ``omega = 2 pi / period``.
@@ -40,11 +49,24 @@ class ReferenceOptions(Options):
     """Laps to fly when the duration is not given (the paper's simulation flew three)."""
     ramp_s: float = Field(2.0, ge=0)
     """Smooth speed-up from rest (s)."""
+    takeoff_height: float = Field(0.3, gt=0)
+    """Height at which the flight (and the log) starts (m)."""
+    hold_s: float = Field(1.0, ge=0)
+    """Seconds at rest at the take-off height before climbing."""
+    takeoff_s: float = Field(2.0, ge=0)
+    """Duration of the climb to ``height`` (s); 0 starts at ``height``."""
+    approach_s: float = Field(2.0, ge=0)
+    """Duration of the straight flight from the centre to the pattern's first point (s)."""
+
+    @property
+    def start_s(self) -> float:
+        """When the pattern starts (after hold, climb and approach)."""
+        return self.hold_s + self.takeoff_s + self.approach_s
 
     def natural_duration(self) -> float:
-        """``ramp_s / 2 + laps * period`` (hover: ``laps * period``)."""
+        """Take-off, then ``ramp_s / 2 + laps * period`` (hover: ``laps * period``)."""
         extra = 0.5 * self.ramp_s if self.kind != "hover" else 0.0
-        return extra + self.laps * self.period
+        return self.start_s + extra + self.laps * self.period
 
 
 @dataclass(frozen=True)
@@ -59,6 +81,23 @@ class RefSample:
     def state(self) -> np.ndarray:
         """``r = [p, v]`` (6,)."""
         return np.concatenate([self.p, self.v])
+
+
+def _move(
+    p: np.ndarray, v: np.ndarray, a: np.ndarray, t: np.ndarray, dur: float, d: np.ndarray
+) -> None:
+    """Add a rest-to-rest move by ``d`` over ``dur`` seconds starting at ``t = 0`` (in place)."""
+    if dur <= 0:
+        p += d  # instantaneous: already there
+        return
+    u = np.clip(t / dur, 0.0, 1.0)
+    s5 = 10 * u**3 - 15 * u**4 + 6 * u**5
+    inside = (t > 0) & (t < dur)
+    s5d = np.where(inside, (30 * u**2 - 60 * u**3 + 30 * u**4) / dur, 0.0)
+    s5dd = np.where(inside, (60 * u - 180 * u**2 + 120 * u**3) / dur**2, 0.0)
+    p += s5[:, None] * d
+    v += s5d[:, None] * d
+    a += s5dd[:, None] * d
 
 
 class Reference:
@@ -86,6 +125,28 @@ class Reference:
     def arrays(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position, velocity, acceleration (n, 3) at times ``t`` (n,)."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
+        o = self.options
+        p, v, a = self._pattern(t - o.start_s)
+        early = t < o.start_s
+        if not early.any():
+            return p, v, a
+        te = t[early]
+        first, _, _ = self._pattern(np.zeros(1))
+        pe = np.tile(self.origin, (len(te), 1))
+        pe[:, 2] = o.takeoff_height
+        ve = np.zeros_like(pe)
+        ae = np.zeros_like(pe)
+        # climb: z from takeoff_height to height
+        _move(pe, ve, ae, te - o.hold_s, o.takeoff_s, np.array([0, 0, o.height - o.takeoff_height]))
+        # approach: centre to the pattern's first point
+        d = first[0] - self.origin
+        _move(pe, ve, ae, te - o.hold_s - o.takeoff_s, o.approach_s, d)
+        p[early], v[early], a[early] = pe, ve, ae
+        return p, v, a
+
+    def _pattern(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pattern at its own time ``t`` (at rest at its start for ``t <= 0``)."""
+        t = np.maximum(t, 0.0)
         n = t.shape[0]
         p = np.tile(self.origin, (n, 1))
         v = np.zeros((n, 3))

@@ -86,10 +86,15 @@ class PerceptionLevel(Options):
 
 
 def _default_ridges() -> list[Ridge]:
+    # Each ridge feeds the position error along its own normal and the velocity error across
+    # it, so that on the default circle the tangential position error and the radial
+    # velocity error average out over a lap: the bias does not look like a rotation of the
+    # frame or a clock shift (both of which ingest must recover).
     return [
-        # x = 0.35 m: crossed twice per lap; dominates e_px (slope 0.2) and feeds e_vy.
-        Ridge(normal_deg=0.0, offset=0.35, width=0.2, amplitude=(0.04, 0, 0, 0, 0.02, 0)),
-        # y = -0.3 m: dominates e_py and e_vx.
+        # x = -0.35 m, crossed twice per lap (not by the approach from the centre to the
+        # circle's first point): dominates e_px (slope 0.2) and feeds e_vy.
+        Ridge(normal_deg=0.0, offset=-0.35, width=0.2, amplitude=(0.04, 0, 0, 0, 0.025, 0)),
+        # y = -0.3 m: dominates e_py and feeds e_vx.
         Ridge(normal_deg=90.0, offset=-0.3, width=0.25, amplitude=(0, 0.04, 0, 0.03, 0, 0)),
         # diagonal: height and vertical-velocity error.
         Ridge(normal_deg=45.0, offset=0.6, width=0.3, amplitude=(0, 0, 0.015, 0, 0, 0.015)),
@@ -98,8 +103,8 @@ def _default_ridges() -> list[Ridge]:
 
 def _default_ripples() -> list[Ripple]:
     return [
-        Ripple(wavevector=(2.0, 1.0), phase=0.3, amplitude=(0.004, 0.004, 0.002, 0.0, 0.0, 0.0)),
-        Ripple(wavevector=(-1.0, 2.5), phase=1.1, amplitude=(0.0, 0.0, 0.0, 0.004, 0.004, 0.003)),
+        Ripple(wavevector=(2.0, 1.0), phase=0.3, amplitude=(0.003, 0.003, 0.002, 0.0, 0.0, 0.0)),
+        Ripple(wavevector=(-1.0, 2.5), phase=1.1, amplitude=(0.0, 0.0, 0.0, 0.003, 0.003, 0.003)),
     ]
 
 
