@@ -75,6 +75,9 @@ def command(
         None, "--bootstrap-block", help="Bootstrap block length in samples. [default: 10]"
     ),
     seed: int = typer.Option(None, "--seed", help="Seed of the bootstrap. [default: 0]"),
+    jobs: int = typer.Option(
+        None, "--jobs", "-j", help="Threads for the pair pass (same result for any). [default: 1]"
+    ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     config: Path = typer.Option(
         None,
@@ -102,6 +105,7 @@ def command(
         bootstrap=bootstrap,
         bootstrap_block=bootstrap_block,
         seed=seed,
+        jobs=jobs,
         figures=False if no_figures else None,
     )
     options = load_options(FitOptions, config, given, section="fit")

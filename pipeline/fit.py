@@ -94,6 +94,8 @@ class FitOptions(Options):
     top_pairs: int = Field(20, ge=1, le=1000)
     """Number of worst pairs reported."""
     figures: bool = True
+    jobs: int = Field(1, ge=1, le=64)
+    """Threads for the pair pass (the result does not depend on it)."""
 
     @field_validator("percentiles")
     @classmethod
@@ -422,6 +424,7 @@ def fit(
         percentiles=options.percentiles,
         top_k=options.top_pairs,
         bootstrap_weights=W,
+        jobs=options.jobs,
         progress=progress,
     )
     if ps.n_pairs == 0:

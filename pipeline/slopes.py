@@ -34,6 +34,7 @@ Statistics and their accuracy:
 from __future__ import annotations
 
 import itertools
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -386,6 +387,29 @@ class _Acc:
         if len(self.ws) >= k:
             self.thr = float(self.ws[-1])
 
+    def merge(self, o: _Acc) -> None:
+        """Fold another accumulator over the same samples into this one (order-independent)."""
+        self.hist.merge(o.hist)
+        np.maximum(self.local, o.local, out=self.local)
+        if self.exact is not None and o.exact is not None:
+            self.n_exact += o.n_exact
+            self.exact = self.exact + o.exact if self.n_exact <= self.exact_limit else None
+        else:
+            self.exact = None
+        self.n_pairs += o.n_pairs
+        self.n_in_radius += o.n_in_radius
+        self.n_coincident += o.n_coincident
+        self.n_cand += o.n_cand
+        ws, wi = np.r_[self.ws, o.ws], np.r_[self.wi, o.wi]
+        wj, wd = np.r_[self.wj, o.wj], np.r_[self.wd, o.wd]
+        keep = np.lexsort((wj, wi, -ws))[: self.top_k]
+        self.ws, self.wi, self.wj, self.wd = ws[keep], wi[keep], wj[keep], wd[keep]
+        if self.W is not None:
+            for h, oh in zip(self.bhist, o.bhist, strict=True):
+                h.merge(oh)
+            np.maximum(self.bmax, o.bmax, out=self.bmax)
+            np.maximum(self.blocal, o.blocal, out=self.blocal)
+
     def _boot(self, S, m, keys, r0, r1, cols) -> None:
         """Add the block's pairs to every bootstrap replicate (a pair counts w_i w_j times)."""
         W = self.W
@@ -404,6 +428,34 @@ class _Acc:
                 self.blocal[b, cols] = np.maximum(self.blocal[b, cols], cm)
 
 
+def _run_blocks(accs: list[_Acc], blocks, progress: Progress) -> None:
+    """Feed the blocks to the accumulators, one thread each (one: in this thread)."""
+    lock = threading.Lock()
+    done = [0]
+
+    def worker(acc: _Acc) -> None:
+        while True:
+            with lock:
+                item = next(blocks, None)
+            if item is None:
+                return
+            r0, r1, cols = item
+            acc.block(r0, r1, cols)
+            with lock:
+                if r1 > done[0]:
+                    progress.advance(r1 - done[0])
+                    done[0] = r1
+
+    if len(accs) == 1:
+        worker(accs[0])
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(len(accs)) as pool:
+        for f in [pool.submit(worker, a) for a in accs]:
+            f.result()
+
+
 def pair_slopes(
     x: np.ndarray,
     e: np.ndarray,
@@ -416,9 +468,13 @@ def pair_slopes(
     exact_limit: int = DEFAULT_EXACT_LIMIT,
     block_elems: int = DEFAULT_BLOCK,
     bootstrap_weights: np.ndarray | None = None,
+    jobs: int = 1,
     progress: Progress = NULL_PROGRESS,
 ) -> PairSlopes:
     """S-slope statistics of samples ``x`` (n, d) with errors ``e`` (n, k); see the module doc.
+
+    ``jobs`` threads share the blocks (numpy releases the GIL in its loops); every statistic
+    is merged order-independently, so the result does not depend on ``jobs``.
 
     ``bootstrap_weights`` (B, n) of non-negative integers (multiplicities of each sample in B
     resampled data sets) adds per-replicate statistics: a pair counts ``w_i w_j`` times.
@@ -450,7 +506,7 @@ def pair_slopes(
         xs = x[:, scale > 0] * scale[scale > 0]
         g = _grid(xs, float(radius))
         order = g.order
-        acc = _Acc(
+        args = (
             np.ascontiguousarray(xs[order].T),
             np.ascontiguousarray(e[order].T),
             order,
@@ -461,13 +517,12 @@ def pair_slopes(
             None if W is None else W[:, order],
         )
         progress.start("pair slopes", total=n)
-        done = 0
-        for r0, r1, cols in _blocks(g, block_elems):
-            acc.block(r0, r1, cols)
-            if r1 > done:
-                progress.advance(r1 - done)
-                done = r1
+        accs = [_Acc(*args) for _ in range(max(1, int(jobs)))]
+        _run_blocks(accs, _blocks(g, block_elems), progress)
         progress.finish()
+        acc = accs[0]
+        for other in accs[1:]:
+            acc.merge(other)
 
     loc = np.full(n, np.nan)
     if acc is not None:

@@ -112,7 +112,7 @@ def test_repeated_laps_against_chunked_brute_force():
     kw = {"min_separation": 0.02, "state_scale": scale}
     allv, mx, cnt = brute_force_slopes(x, e, 0.3, **kw)
     exact = pair_slopes(x, e, 0.3, **kw, percentiles=QS)
-    hist = pair_slopes(x, e, 0.3, **kw, percentiles=QS, exact_limit=1000, block_elems=5000)
+    hist = pair_slopes(x, e, 0.3, **kw, percentiles=QS, exact_limit=1000, block_elems=5000, jobs=2)
     assert cnt > 100_000
     assert exact.n_pairs == hist.n_pairs == cnt
     assert exact.max == hist.max == mx
@@ -121,7 +121,7 @@ def test_repeated_laps_against_chunked_brute_force():
     got = np.array(list(hist.percentiles.values()))
     assert hist.percentile_rel_error > 0
     assert np.all(np.abs(got - want) <= HIST_REL_ERROR * want)
-    # block size changes nothing else either
+    # block size and threads change nothing else either
     assert [(w.slope, w.i, w.j) for w in exact.worst] == [(w.slope, w.i, w.j) for w in hist.worst]
     np.testing.assert_array_equal(exact.local_max, hist.local_max)
     np.testing.assert_array_equal(exact.histogram.counts, hist.histogram.counts)
