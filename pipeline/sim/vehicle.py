@@ -38,7 +38,7 @@ RotorPy does.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -96,6 +96,10 @@ class VehicleOptions(Options):
     """RotorPy's aerodynamic wrenches (parasitic drag, rotor drag, translational lift)."""
     physics_hz: float = Field(200.0, gt=0)
     """Integration step rate; the attitude loop also runs at this rate."""
+    integrator: Literal["rk4", "solve_ivp"] = "rk4"
+    """``rk4``: the fast fixed-step loop; ``solve_ivp``: RotorPy's stock ``Multirotor.step``."""
+    ivp_rtol: float | None = Field(None, gt=0)
+    """``solve_ivp`` only: relative tolerance (None: RotorPy's default RK45 settings)."""
     substeps: int = Field(1, ge=1, le=50)
     """RK4 substeps per physics step (the motor command is held over the step)."""
     max_tilt_deg: float = Field(35.0, gt=0, lt=90)
@@ -168,6 +172,13 @@ class Vehicle:
             control_abstraction="cmd_ctatt",
             aero=self.options.aero,
             enable_ground=False,
+            integrator_kwargs=None
+            if self.options.ivp_rtol is None
+            else {
+                "method": "RK45",
+                "rtol": self.options.ivp_rtol,
+                "atol": 1e-3 * self.options.ivp_rtol,
+            },
         )
         mr = self.multirotor
         self.mass = float(mr.mass)
@@ -309,6 +320,8 @@ class Vehicle:
     # ---------------------------------------------------------------- integration
     def step(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
         """One step of length ``h``: motor command held, RK4 (``substeps``), quaternion renormalized."""
+        if self.options.integrator == "solve_ivp":
+            return self.step_rotorpy(s, thrust, cmd_q, h)
         cmd = self.motor_command(s, thrust, cmd_q)
         n = self.options.substeps
         dt = h / n
