@@ -23,36 +23,36 @@ def command(
         None,
         "--radius",
         "-r",
-        help="S-slope radius r: pairs with ||W(x_i - x_j)||_inf < r count (m, m/s). [default: 0.5]",
+        help="S-slope radius r: pairs with ||W(x_i - x_j)||_inf < r count (m, m/s). (default: 0.5)",
     ),
     percentiles: str = typer.Option(
         None,
         "--percentiles",
         help="Comma-separated percentiles of ||e||, pair slopes and per-sample largest slopes. "
-        "[default: 50,90,95,99]",
+        "(default: 50,90,95,99)",
     ),
     min_separation: str = typer.Option(
         None,
         "--min-separation",
         help="Leave out pairs closer than this (a number, or 'auto' = 3 x the noise floor of e "
         "estimated from the data): below the measurement noise, slopes are noise / distance and "
-        "blow up. 0 keeps every pair at a positive distance. [default: auto]",
+        "blow up. 0 keeps every pair at a positive distance. (default: auto)",
     ),
     state_scale: str = typer.Option(
         None,
         "--state-scale",
         help="Six comma-separated weights of px,py,pz,vx,vy,vz in the state distance. "
-        "[default: 1,1,1,1,1,1]",
+        "(default: 1,1,1,1,1,1)",
     ),
     exclude_outliers: bool = typer.Option(
         None,
         "--exclude-outliers/--keep-outliers",
         help="Leave out samples whose robust z-score of e (median/MAD) exceeds --outlier-z on "
-        "some axis; the count is reported. [default: keep]",
+        "some axis; the count is reported. (default: keep)",
     ),
-    outlier_z: float = typer.Option(None, "--outlier-z", help="Robust z threshold. [default: 3.5]"),
+    outlier_z: float = typer.Option(None, "--outlier-z", help="Robust z threshold. (default: 3.5)"),
     skip_start: float = typer.Option(
-        None, "--skip-start", help="Seconds left out at the start of every flight. [default: 0]"
+        None, "--skip-start", help="Seconds left out at the start of every flight. (default: 0)"
     ),
     reference: str = typer.Option(
         None,
@@ -60,23 +60,23 @@ def command(
         help="Reference for delta (max distance from its states to the nearest training state): "
         "'circle:radius=1,height=1,period=5' (the simulator's reference options: kind circle, "
         "hover or figure8; radius, height, period, laps, ramp_s, center=X;Y) or a flight folder. "
-        "[default: none, delta = 0]",
+        "(default: none, delta = 0)",
     ),
     r0: str = typer.Option(
-        None, "--r0", help="R0 of the guarantee: max (= eps_e), pNN or a number. [default: max]"
+        None, "--r0", help="R0 of the guarantee: max (= eps_e), pNN or a number. (default: max)"
     ),
     bootstrap: int = typer.Option(
         None,
         "--bootstrap",
         help="Bootstrap replicates for confidence intervals (moving blocks within each flight; "
-        "costs about N times the pair pass). [default: 0]",
+        "costs about N times the pair pass). (default: 0)",
     ),
     bootstrap_block: int = typer.Option(
-        None, "--bootstrap-block", help="Bootstrap block length in samples. [default: 10]"
+        None, "--bootstrap-block", help="Bootstrap block length in samples. (default: 10)"
     ),
-    seed: int = typer.Option(None, "--seed", help="Seed of the bootstrap. [default: 0]"),
+    seed: int = typer.Option(None, "--seed", help="Seed of the bootstrap. (default: 0)"),
     jobs: int = typer.Option(
-        None, "--jobs", "-j", help="Threads for the pair pass (same result for any). [default: 1]"
+        None, "--jobs", "-j", help="Threads for the pair pass (same result for any). (default: 1)"
     ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     config: Path = typer.Option(
