@@ -183,3 +183,16 @@ def test_bad_arguments_are_clear():
         pair_slopes(x, x, 1.0, min_separation=2.0)
     with pytest.raises(InputError, match="finite"):
         pair_slopes(np.full((3, 6), np.nan), x, 1.0)
+
+
+def test_wide_state_range_coarsens_the_grid_and_stays_exact():
+    # a range of 1e6 radii per axis does not fit a 62-bit cell key: wide axes get coarser cells
+    rng = np.random.default_rng(11)
+    centres = rng.uniform(-1e5, 1e5, size=(30, 6))
+    x = np.repeat(centres, 8, axis=0) + rng.normal(0, 0.05, size=(240, 6))
+    e = rng.normal(0, 0.1, size=x.shape)
+    res = pair_slopes(x, e, 0.2, percentiles=QS)
+    s = _all_pairs(x, e, 0.2)[0]
+    assert res.n_pairs == len(s) > 100
+    assert res.max == s.max()
+    np.testing.assert_array_equal(list(res.percentiles.values()), np.percentile(s, QS))
