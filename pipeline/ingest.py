@@ -347,6 +347,35 @@ def ingest(
     progress: Progress = NULL_PROGRESS,
 ) -> IngestResult:
     """Read, synchronize, align and resample one flight into ``out`` (module docstring)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from qsls.pipeline.artifacts import check_output, prime_hashes
+
+    o = options
+    out = Path(out)
+    check_output(out, force)  # fail before the (possibly long) reading
+    inputs = [
+        Path(p)
+        for p in dict.fromkeys([*map(str, sources), *[str(x) for x in (o.vio, o.truth) if x]])
+    ]
+    # hash the inputs for the manifest while the bags are read (hashlib releases the GIL)
+    hasher = ThreadPoolExecutor(max_workers=1)
+    hashed = hasher.submit(prime_hashes, [p for p in inputs if p.exists()])
+    try:
+        return _ingest([Path(p) for p in sources], inputs, o, out, force, progress, hashed)
+    finally:
+        hasher.shutdown(wait=True)
+
+
+def _ingest(
+    sources: list[Path],
+    inputs: list[Path],
+    o: IngestOptions,
+    out: Path,
+    force: bool,
+    progress: Progress,
+    hashed: Any,
+) -> IngestResult:
     from qsls.pipeline.align import (
         body_to_world,
         differentiate,
@@ -354,14 +383,11 @@ def ingest(
         matrix_to_quat,
         quat_to_matrix,
     )
-    from qsls.pipeline.artifacts import StageWriter, check_output
+    from qsls.pipeline.artifacts import StageWriter
     from qsls.pipeline.flight import FLIGHT_FILE, make_flight_frame
     from qsls.pipeline.timesync import estimate_offset
 
-    o = options
-    out = Path(out)
-    check_output(out, force)  # fail before the (possibly long) reading
-    vio_t, truth_t, where = _read_streams(list(sources), o, progress)
+    vio_t, truth_t, where = _read_streams(sources, o, progress)
     vio = prepare(vio_t, "vio", where["vio"], o)
     truth = prepare(truth_t, "truth", where["truth"], o)
     gap_ns = round(o.max_gap * 1e9)
@@ -489,10 +515,7 @@ def ingest(
         "gaps": gaps,
         "streams": streams,
     }
-    inputs = [
-        Path(p)
-        for p in dict.fromkeys([*map(str, sources), *[str(x) for x in (o.vio, o.truth) if x]])
-    ]
+    hashed.result()
     with StageWriter(out, STAGE, options=o, inputs=inputs, force=force) as w:
         w.write_parquet(FLIGHT_FILE, df)
         if o.export_tum:
