@@ -24,6 +24,7 @@ Steps (DESIGN.md names):
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -187,7 +188,7 @@ def _read_streams(
             )
         fast = o.decoder == "fast"
         out: dict[str, Any] = dict(texts)
-        where = {r: str(texts[r].name) for r in texts}
+        where: dict[str, str] = {}
         wanted: dict[Path, list[tuple[str, str, str | None]]] = {}
         for role, info in (("vio", vio_info), ("truth", truth_info)):
             if info is None:
@@ -493,10 +494,10 @@ def _ingest(
     err = yv[valid] - xv[valid]
     rms_p = float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
     rms_v = float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1))))
-    gaps = _gaps(vio, lo, hi, gap_ns, int(stamps[0])) + [
-        {**g, "start_ns": g["start_ns"], "end_ns": g["end_ns"]}
-        for g in _gaps(Prepared(**{**truth.__dict__, "t_ns": tt}), lo, hi, gap_ns, int(stamps[0]))
-    ]
+    truth_vio_clock = dataclasses.replace(truth, t_ns=tt)
+    gaps = _gaps(vio, lo, hi, gap_ns, int(stamps[0])) + _gaps(
+        truth_vio_clock, lo, hi, gap_ns, int(stamps[0])
+    )
     streams = {"vio": vio.describe(), "truth": truth.describe()}
     streams["vio"]["stamp"] = streams["truth"]["stamp"] = o.stamp
     results: dict[str, Any] = {

@@ -218,3 +218,28 @@ def test_text_inputs_without_velocity(tmp_path: Path) -> None:
     assert "differentiator" in m["velocity_source"]["vio"]
     assert abs(m["time_offset_s"] - f.offset_s) < 0.005
     assert m["rms_velocity_mps"] < 0.05
+
+
+def test_truth_gap_listed_on_vio_clock(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    f = make_flight(duration=15.0, dropouts=())
+    t = f.truth
+    tt = (t.header_ns - T0_NS) * 1e-9 + f.offset_s  # true time
+    keep = (tt < 6.0) | (tt > 6.5)
+    truth = replace(
+        t,
+        header_ns=t.header_ns[keep],
+        log_ns=t.log_ns[keep],
+        position=t.position[keep],
+        orientation=t.orientation[keep],
+    )
+    bag = write_bag(tmp_path / "g.bag", [f.vio, truth], "ros1")
+    r = ingest([bag], IngestOptions(max_gap=0.3), tmp_path / "out")
+    (gap,) = r.gaps
+    assert gap["stream"] == "truth"
+    assert abs((gap["start_ns"] - T0_NS) * 1e-9 - 6.0) < 0.011
+    assert abs(gap["duration_s"] - 0.51) < 0.011
+    st = (read_flight(tmp_path / "out")["stamp_ns"].to_numpy() - T0_NS) * 1e-9
+    assert not np.any((st > 6.01) & (st < 6.49))
+    assert np.any(np.isclose(st, 5.9)) and np.any(np.isclose(st, 6.6))
