@@ -58,7 +58,7 @@ class SweepOptions(ProblemOptions):
     )
     certify: bool = True
     s_max_curve: bool = True
-    chunks_per_job: int = Field(2, ge=1)
+    chunks_per_job: int = Field(4, ge=1)
 
     @field_validator("grid")
     @classmethod
@@ -141,12 +141,30 @@ def structure_key(p: dict[str, Any]) -> tuple:
     )
 
 
+def point_cost(p: dict[str, Any]) -> float:
+    """Rough relative solve time of a point (interior-point work grows like T^1.5 here;
+    points that fail the necessary condition are not solved)."""
+    if p["robust"] and p["S"] + p["eps_e"] / p["radius"] >= 1.0:
+        return 0.01
+    return float(p["T"]) ** 1.5
+
+
 def make_chunks(points: list[dict[str, Any]], n_chunks: int) -> list[list[dict[str, Any]]]:
-    """Contiguous chunks of points sorted by structure (a chunk rarely spans two)."""
+    """Chunks of about equal estimated cost, contiguous in structure order (a chunk rarely
+    spans two structures, so a worker compiles few problems), largest first (so the pool
+    does not finish on one long chunk)."""
     ordered = sorted(points, key=lambda p: (structure_key(p), p["index"]))
     n_chunks = max(1, min(n_chunks, len(ordered)))
-    bounds = np.linspace(0, len(ordered), n_chunks + 1).round().astype(int)
-    return [ordered[a:b] for a, b in itertools.pairwise(bounds) if b > a]
+    total = sum(point_cost(p) for p in ordered)
+    chunks: list[list[dict[str, Any]]] = [[]]
+    acc = 0.0
+    for p in ordered:
+        if chunks[-1] and acc >= total / n_chunks * len(chunks) and len(chunks) < n_chunks:
+            chunks.append([])
+        chunks[-1].append(p)
+        acc += point_cost(p)
+    chunks.sort(key=lambda c: -sum(point_cost(p) for p in c))
+    return chunks
 
 
 # --------------------------------------------------------------------------- worker

@@ -1,0 +1,172 @@
+"""Benchmark of the synthesis stage (issue 5): ``python benchmarks/bench_synth.py``.
+
+1. T = 50 L1 robust synthesis (c_QR, robustness constraint), built two ways:
+   - vectorized: one variable per response (taps side by side), block-shift matrices, cvxpy
+     Parameters (DPP), as in :mod:`qsls.pipeline.sls`; measured on the first solve
+     (expression tree + compile + solve) and on a re-solve with new Parameter values
+     (what a sweep does);
+   - naive: one variable per tap and per response, constraints and norms written tap by
+     tap in Python loops, numbers as constants (the style of existing SLS code);
+   build (expression tree + cvxpy compile) and solve times separately, against Clarabel's
+   own solve time.
+2. A 48-point sweep on 2 processes against the same points one after another.
+Targets: build + solve <= 1.2x Clarabel's solve time at T = 50; sweep >= 1.8x faster.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from qsls.pipeline import sls
+from qsls.pipeline.model import quadrotor_model
+
+SETTING = {"eps_w": 0.01, "eps_e": 0.05, "S": 0.2, "radius": 1.0, "delta": 0.05}
+Q = np.diag([10.0, 10, 10, 1, 1, 1])
+R = np.diag([1.0, 1, 0.1])
+
+
+def naive_problem(model, T: int, S: float, eps_e: float, radius: float, eps_w: float, delta: float):
+    """The same problem, tap by tap (no Parameters)."""
+    import cvxpy as cp
+
+    a, b, c, h = model.A, model.B, model.C, model.H
+    nx, nu, ny = model.nx, model.nu, model.ny
+    xx = [cp.Variable((nx, nx)) for _ in range(T + 1)]
+    ux = [cp.Variable((nu, nx)) for _ in range(T + 1)]
+    xy = [cp.Variable((nx, ny)) for _ in range(T + 1)]
+    uy = [cp.Variable((nu, ny)) for _ in range(T + 1)]
+    cons = [xx[0] == 0, ux[0] == 0, xy[0] == 0, xx[1] == np.eye(nx)]
+    cons += [xy[1] == b @ uy[0], ux[1] == uy[0] @ c]
+    for k in range(1, T):
+        cons += [
+            xx[k + 1] == a @ xx[k] + b @ ux[k],
+            xx[k + 1] == xx[k] @ a + xy[k] @ c,
+            xy[k + 1] == a @ xy[k] + b @ uy[k],
+            ux[k + 1] == ux[k] @ a + uy[k] @ c,
+        ]
+    cons += [
+        a @ xx[T] + b @ ux[T] == 0,
+        a @ xy[T] + b @ uy[T] == 0,
+        xx[T] @ a + xy[T] @ c == 0,
+        ux[T] @ a + uy[T] @ c == 0,
+    ]
+    qh, rh = np.sqrt(Q), np.sqrt(R)
+
+    def l1(blocks):  # largest absolute row sum over the taps side by side
+        rows = []
+        for i in range(blocks[0].shape[0]):
+            rows.append(sum(cp.sum(cp.abs(blk[i, :])) for blk in blocks))
+        return cp.max(cp.hstack(rows))
+
+    n_xy = l1(xy[1:])
+    n_xx = l1([p @ h for p in xx[1:]])
+    cons.append(
+        (S + eps_e / radius) * n_xy + (eps_w * n_xx + delta) / radius <= 1 - sls.ROBUST_BACKOFF
+    )
+    rows = []
+    for i in range(nx):
+        rows.append(
+            sum(cp.sum(cp.abs((qh @ p @ h)[i, :])) * eps_w for p in xx)
+            + sum(cp.sum(cp.abs((qh @ p)[i, :])) * eps_e for p in xy)
+        )
+    for i in range(nu):
+        rows.append(
+            sum(cp.sum(cp.abs((rh @ p @ h)[i, :])) * eps_w for p in ux)
+            + sum(cp.sum(cp.abs((rh @ p)[i, :])) * eps_e for p in uy)
+        )
+    return cp.Problem(cp.Minimize(cp.max(cp.hstack(rows))), cons)
+
+
+def timed_solve(problem):
+    t0 = time.perf_counter()
+    problem.solve(solver="CLARABEL", warm_start=False)
+    wall = time.perf_counter() - t0
+    comp = problem.compilation_time or 0.0
+    return comp, wall - comp, float(problem.solver_stats.solve_time), float(problem.value)
+
+
+def bench_build(T: int, repeats: int) -> list[tuple]:
+    import cvxpy  # noqa: F401  (import time is not part of any measurement)
+
+    model = quadrotor_model()
+    rows = []
+    values = sls.Values(Q=Q, R=R, **SETTING)
+    for rep in range(repeats):
+        sls._CACHE.clear()
+        t0 = time.perf_counter()
+        prob = sls.SLSProblem(model, sls.Structure(T, "l1", "qr", True))
+        tree = time.perf_counter() - t0
+        prob.set_values(values)
+        comp, solve, own, obj = timed_solve(prob.problem)
+        rows.append(("vectorized+DPP, first solve", rep, tree, comp, solve, own, obj))
+        prob.set_values(sls.Values(Q=Q, R=R, **{**SETTING, "S": 0.19}))
+        prob.set_values(values)
+        comp, solve, own, obj = timed_solve(prob.problem)
+        rows.append(("vectorized+DPP, re-solve", rep, 0.0, comp, solve, own, obj))
+        t0 = time.perf_counter()
+        naive = naive_problem(model, T, **SETTING)
+        tree = time.perf_counter() - t0
+        comp, solve, own, obj = timed_solve(naive)
+        rows.append(("naive tap-by-tap loops", rep, tree, comp, solve, own, obj))
+    return rows
+
+
+def sweep_options():
+    from qsls.pipeline.sweep import SweepOptions
+
+    return SweepOptions(
+        eps_e=0.05, radius=1.0, delta=0.05, eps_w=0.01, s_max_curve=False,
+        grid={"S": [0.02, 0.05, 0.08, 0.11, 0.14, 0.17, 0.2, 0.25], "T": [10, 20, 30], "cost": ["qr", "imitation"]},
+    )  # fmt: skip
+
+
+def _cpu() -> float:
+    import resource
+
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def bench_sweep(jobs: int) -> tuple[float, float, int, int]:
+    """Wall and CPU seconds (this process and its finished children) of the sweep."""
+    from qsls.pipeline.sweep import compute
+
+    sls._CACHE.clear()
+    c0, t0 = _cpu(), time.perf_counter()
+    table, _, _ = compute(sweep_options(), jobs=jobs)
+    return time.perf_counter() - t0, _cpu() - c0, len(table), int(table["feasible"].sum())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--T", type=int, default=50)
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--skip-build", action="store_true", help="only the sweep part")
+    args = ap.parse_args()
+    rows = [] if args.skip_build else bench_build(args.T, args.repeats)
+    print(f"\nT = {args.T} L1 robust synthesis (c_QR + robustness constraint), times in s")
+    hdr = f"{'formulation':32s} {'rep':>3s} {'tree':>7s} {'compile':>8s} {'solve':>7s} {'clarabel':>8s} {'(build+solve)/clarabel':>23s} {'objective':>10s}"
+    print(hdr)
+    print("-" * len(hdr))
+    for name, rep, tree, comp, solve, own, obj in rows:
+        ratio = (tree + comp + solve) / own
+        print(
+            f"{name:32s} {rep:3d} {tree:7.3f} {comp:8.3f} {solve:7.3f} {own:8.3f} {ratio:23.2f} {obj:10.6f}"
+        )
+    seq = bench_sweep(1)
+    par = bench_sweep(2)
+    print(f"\n{seq[2]}-point sweep (S x T in 10/20/30 x cost qr/imitation), {seq[3]} feasible")
+    print(f"{'executor':16s} {'wall s':>8s} {'cpu s':>8s}")
+    print(f"{'sequential':16s} {seq[0]:8.2f} {seq[1]:8.2f}")
+    print(f"{'2 processes':16s} {par[0]:8.2f} {par[1]:8.2f}")
+    print(f"speed-up: {seq[0] / par[0]:.2f}x (target >= 1.8x)")
+    print(f"load average after the run: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+
+
+if __name__ == "__main__":
+    main()
