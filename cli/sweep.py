@@ -42,14 +42,7 @@ def command(
     if jobs is not None and scheduler is not None:
         raise ConfigError("give --jobs or --scheduler, not both")
     opts = load_options(SweepOptions, config, {})
+    where = {"jobs": jobs, "scheduler": scheduler}
     with RichProgress() as progress:
-        result = sweep(
-            opts,
-            out,
-            error_model=model,
-            jobs=jobs,
-            scheduler=scheduler,
-            force=force,
-            progress=progress,
-        )
+        result = sweep(opts, out, error_model=model, force=force, progress=progress, **where)
     print_summary("sweep", result.summary())

@@ -40,6 +40,7 @@ certificate recomputed from the stored taps still has ``lhs < 1``.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -406,7 +407,9 @@ class SLSProblem:
             # place, and the answer (these LPs have many optimal points) would depend on
             # which instance this process solved before; cold solves are reproducible.
             opts = {"warm_start": False, **(solver_options or {})}
-            self.problem.solve(solver=solver, **opts)
+            with warnings.catch_warnings():  # the status says it; the library never prints
+                warnings.simplefilter("ignore", UserWarning)
+                self.problem.solve(solver=solver, **opts)
             solver_status = str(self.problem.status)
         except cp.error.SolverError as exc:
             solver_status = f"solver_error: {str(exc).splitlines()[0] if str(exc) else exc!r}"

@@ -144,3 +144,38 @@ def test_bad_horizon_and_weights():
         sls.SLSProblem(MODEL, sls.Structure(1))
     with pytest.raises(ValueError, match="positive definite"):
         sls.psd_sqrt(np.diag([1.0, 0.0, 1.0]), "R")
+
+
+@pytest.mark.parametrize("full_q", [False, True])
+def test_l1_cost_optimum_matches_the_cost_recomputed_from_taps(full_q):
+    """The solver's optimum is c_QR (L1) of its taps, computed here from the definition:
+    the largest absolute row sum of diag(Q^1/2, R^1/2) [Phi] diag(eps_w H, eps_e I)."""
+    from scipy.linalg import sqrtm
+
+    q = Q.copy()
+    if full_q:
+        q[0, 3] = q[3, 0] = 1.5  # still positive definite
+    v = sls.Values(Q=q, R=R, eps_w=0.02, eps_e=0.05, S=0.1, radius=1.0, delta=0.05)
+    sol = sls.solve(MODEL, sls.Structure(8, "l1", "qr", True), v)
+    assert sol.status == "optimal"
+    t = sol.taps
+    qh, rh = np.real(sqrtm(q)), np.real(sqrtm(R))
+    top = np.hstack(
+        [qh @ t.Phi_xx[k] * 0.02 for k in range(9)] + [qh @ t.Phi_xy[k] * 0.05 for k in range(9)]
+    )
+    bot = np.hstack(
+        [rh @ t.Phi_ux[k] * 0.02 for k in range(9)] + [rh @ t.Phi_uy[k] * 0.05 for k in range(9)]
+    )
+    want = np.abs(np.vstack([top, bot])).sum(axis=1).max()
+    assert sol.objective == pytest.approx(want, rel=1e-7)
+
+
+def test_solver_trouble_is_never_certified():
+    v = sls.Values(eps_w=0.01, eps_e=0.05, S=0.1, radius=1.0, delta=0.05)
+    prob = sls.SLSProblem(MODEL, sls.Structure(10, "l1", "qr", True))
+    sol = prob.solve(v, solver_options={"max_iter": 3})
+    assert sol.status in ("inaccurate", "error")
+    if sol.taps is not None:
+        setting = certify.Setting(0.1, 0.05, 1.0, 0.01, 0.05, 0.05)
+        status, fields = certify.certify(sol.taps, MODEL, setting, solver_status=sol.status)
+        assert status != "certified" and not fields["checks"]["solver"]["passed"]

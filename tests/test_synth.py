@@ -235,3 +235,13 @@ def test_number_names_need_an_error_model(tmp_path):
     assert (
         sls.l1_norm(np.asarray(load_controller(tmp_path / "o" / "l1_robust").bank.K_by)[None]) > 0
     )
+
+
+def test_shipped_config_is_valid():
+    from pathlib import Path
+
+    from qsls.pipeline.config import load_options
+
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "synth.yaml"
+    opts = load_options(SynthOptions, cfg)
+    assert opts.T == 20 and opts.norm == "l1" and opts.S == "p90"
