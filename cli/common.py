@@ -70,6 +70,11 @@ class RichProgress:
     def __exit__(self, *exc: Any) -> None:
         self._progress.stop()
 
+    @property
+    def console(self) -> Any:
+        """The console the bars draw on (print through it so lines and bars do not mix)."""
+        return self._progress.console
+
     def start(self, label: str, total: float | None = None) -> None:
         self._task = self._progress.add_task(label, total=total)
 

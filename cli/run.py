@@ -1,0 +1,47 @@
+"""``qsls run``: the whole pipeline from one YAML config, cached stage by stage."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from qsls.cli.common import RichProgress, cli_errors, print_summary
+
+
+@cli_errors
+def command(
+    config: Path = typer.Argument(..., help="Run config (YAML), e.g. configs/quickstart.yaml."),
+    out: Path | None = typer.Option(
+        None, "--out", "-o", help="Run folder. Default: the config's 'out', or runs/<name>."
+    ),
+    force: bool = typer.Option(False, "--force", help="Redo every stage, even those up to date."),
+    from_stage: str | None = typer.Option(
+        None,
+        "--from",
+        help="Redo from this stage on: simulate, ingest, fit, sweep, synth, evaluate or report.",
+    ),
+) -> None:
+    """Run the pipeline a config names (simulate, ingest, fit, sweep, synth, evaluate, report)."""
+    import time
+
+    from qsls.pipeline.run import run
+
+    t0 = time.perf_counter()
+
+    def on_stage(stage_id: str, status: str, i: int, n: int) -> None:
+        elapsed = time.perf_counter() - t0
+        mark = {"running": "…", "ran": "done", "skipped": "up to date"}.get(status, status)
+        if status != "running":
+            progress.console.print(f"[{i + 1}/{n}] {stage_id:<24} {mark:<11} ({elapsed:6.1f} s)")
+
+    with RichProgress() as progress:
+        result = run(
+            config,
+            out=out,
+            force=force,
+            from_stage=from_stage,
+            progress=progress,
+            on_stage=on_stage,
+        )
+    print_summary("qsls run", result.summary())
