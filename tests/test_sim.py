@@ -184,3 +184,20 @@ def test_divergent_controller_ends_the_flight_with_a_reason():
     assert log.crash_time_s < opts.flight_duration()
     assert log.t_ns[-1] / 1e9 == pytest.approx(log.crash_time_s)
     assert log.metrics()["crashed"]
+
+
+def test_fast_se3_equals_rotorpy_se3control():
+    from qsls.pipeline.sim.controllers import SE3Controller
+    from qsls.pipeline.sim.references import RefSample
+    from qsls.pipeline.sim.vehicle import quad_params
+
+    fast = SE3Controller(quad_params(), 0.01)
+    stock = SE3Controller(quad_params(), 0.01, backend="rotorpy")
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        y = rng.normal(0, 0.5, 6)
+        q = rng.normal(size=4) * 0.2 + np.array([0, 0, 0, 1.0])
+        r = RefSample(p=rng.normal(0, 0.5, 3), v=rng.normal(0, 0.5, 3), a=rng.normal(0, 1, 3))
+        np.testing.assert_allclose(
+            fast.command(0.0, y, q, r), stock.command(0.0, y, q, r), atol=1e-12
+        )

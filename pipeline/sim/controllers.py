@@ -52,6 +52,8 @@ class ControllerOptions(Options):
     se3_kp: tuple[float, float, float] = (6.5, 6.5, 15.0)
     """SE3 position gains (RotorPy's defaults)."""
     se3_kd: tuple[float, float, float] = (4.0, 4.0, 9.0)
+    se3_backend: Literal["fast", "rotorpy"] = "fast"
+    """``rotorpy`` calls ``SE3Control.update``; ``fast`` evaluates the same law (same output)."""
 
 
 class Controller(Protocol):
@@ -77,25 +79,66 @@ def feedforward(ref: RefSample, mass: float, g: float = GRAVITY) -> np.ndarray:
 
 
 class SE3Controller:
-    """RotorPy's ``SE3Control`` read back as the paper's ``[pitch, roll, thrust]``."""
+    """RotorPy's ``SE3Control`` read back as the paper's ``[pitch, roll, thrust]``.
+
+    ``backend="rotorpy"`` calls ``SE3Control.update`` itself; ``"fast"`` (default) evaluates
+    the same law in scalar arithmetic (its thrust and attitude only, which is all that
+    ``cmd_ctatt`` uses; checked against ``SE3Control.update`` in the tests)::
+
+        F = m (-kp (p - p_r) - kd (v - v_r) + a_r + g e3),  thrust = F . R(q) e3,
+        b3 = F / |F|,  b2 = b3 x c1 / |b3 x c1| (c1 = e1: yaw 0),  b1 = b2 x b3.
+    """
 
     name = "se3"
 
-    def __init__(self, params: dict[str, Any], dt: float, kp=None, kd=None) -> None:  # type: ignore[no-untyped-def]
+    def __init__(  # type: ignore[no-untyped-def]
+        self, params: dict[str, Any], dt: float, kp=None, kd=None, backend: str = "fast"
+    ) -> None:
         from rotorpy.controllers.quadrotor_control import SE3Control
 
         self.dt = float(dt)
+        self.backend = backend
         self._se3 = SE3Control(params)
         if kp is not None:
             self._se3.kp_pos = np.asarray(kp, dtype=float)
         if kd is not None:
             self._se3.kd_pos = np.asarray(kd, dtype=float)
+        self._kp = [float(v) for v in self._se3.kp_pos]
+        self._kd = [float(v) for v in self._se3.kd_pos]
+        self._m = float(self._se3.mass)
+        self._g = float(self._se3.g)
         self._zero3 = np.zeros(3)
 
     def reset(self) -> None:
         pass
 
     def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample) -> np.ndarray:
+        if self.backend == "rotorpy":
+            return self._command_rotorpy(t, y, q, ref)
+        yy, pr, vr, ar = y.tolist(), ref.p.tolist(), ref.v.tolist(), ref.a.tolist()
+        kp, kd, m = self._kp, self._kd, self._m
+        f = [m * (-kp[i] * (yy[i] - pr[i]) - kd[i] * (yy[3 + i] - vr[i]) + ar[i]) for i in range(3)]
+        f[2] += m * self._g
+        qx, qy, qz, qw = q.tolist()
+        n2 = qx * qx + qy * qy + qz * qz + qw * qw
+        # R e3 (q normalized as scipy does)
+        b3x = 2 * (qx * qz + qy * qw) / n2
+        b3y = 2 * (qy * qz - qx * qw) / n2
+        b3z = 1 - 2 * (qx * qx + qy * qy) / n2
+        thrust = f[0] * b3x + f[1] * b3y + f[2] * b3z
+        nf = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) ** 0.5
+        dx, dy, dz = f[0] / nf, f[1] / nf, f[2] / nf
+        # b2 = b3 x e1 / |.| = (0, dz, -dy) / |.|, b1 = b2 x b3: R_des[2, 0] = b1_z, R_des[2, 1] = b2_z
+        nb = (dz * dz + dy * dy) ** 0.5
+        b2y, b2z = dz / nb, -dy / nb
+        b1z = -b2y * dx  # b1 = b2 x b3, z component: b2x*b3y - b2y*b3x with b2x = 0
+        theta = np.arcsin(min(1.0, max(-1.0, -b1z)))
+        phi = np.arctan2(b2z, dz)
+        return np.array([-theta, -phi, thrust])
+
+    def _command_rotorpy(
+        self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample
+    ) -> np.ndarray:
         state = {"x": y[:3], "v": y[3:6], "q": q, "w": self._zero3}
         flat = {
             "x": ref.p,
@@ -167,7 +210,9 @@ def make_controller(options: ControllerOptions, mass: float) -> Controller:
     if kind == "se3":
         params = quad_params()
         params["mass"] = float(mass)
-        return SE3Controller(params, rate_dt or 1.0 / SE3_HZ, options.se3_kp, options.se3_kd)
+        return SE3Controller(
+            params, rate_dt or 1.0 / SE3_HZ, options.se3_kp, options.se3_kd, options.se3_backend
+        )
     if kind == "pd":
         return PDController(options.pd, mass, rate_dt or PAPER_DT_S)
     folder = controller_folder(kind)

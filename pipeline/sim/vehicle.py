@@ -186,7 +186,7 @@ class Vehicle:
         self.inertia = np.asarray(mr.inertia, dtype=float)
         self.inv_inertia = np.asarray(mr.inv_inertia, dtype=float)
         self.geometry = np.asarray(mr.rotor_geometry, dtype=float)  # (4, 3)
-        self._gx, self._gy, self._gz = (self.geometry[:, i].copy() for i in range(3))
+        self._geom = [tuple(float(v) for v in row) for row in self.geometry]
         self.k_eta = float(mr.k_eta)
         self.k_m = float(mr.k_m)
         self.k_h = float(mr.k_h)
@@ -202,6 +202,12 @@ class Vehicle:
         self.speed_max = float(mr.rotor_speed_max)
         self.aero = bool(mr.aero)
         self.max_tilt = np.radians(self.options.max_tilt_deg)
+        # plain-float copies for the scalar derivative
+        self._rotor_drag = tuple(float(v) for v in self.rotor_drag)
+        self._drag = tuple(float(v) for v in self.drag)
+        self._yaw_coef = [float(d) * self.k_m for d in self.rotor_dir]
+        self._inertia = [tuple(float(v) for v in row) for row in self.inertia]
+        self._inv_inertia = [tuple(float(v) for v in row) for row in self.inv_inertia]
         self.hover_speed = float(np.sqrt(self.mass * self.g / (4 * self.k_eta)))
 
     # ---------------------------------------------------------------- states and commands
@@ -242,13 +248,17 @@ class Vehicle:
     def derivative(self, s: np.ndarray, cmd_speeds: np.ndarray) -> np.ndarray:
         """``ds/dt`` of ``Multirotor._s_dot_fn`` (RotorPy's equations) for held ``cmd_speeds``.
 
-        Written out component by component (small-array numpy calls cost more than the math).
+        Written out in scalar arithmetic, rotor by rotor: on 3- and 4-element arrays numpy's
+        per-call overhead costs far more than the math.
         """
+        return np.array(self._derivative(s.tolist(), cmd_speeds.tolist()))
+
+    def _derivative(self, s: list[float], cmd: list[float]) -> list[float]:
         vx, vy, vz = s[3], s[4], s[5]
         x, y, z, qw = s[6], s[7], s[8], s[9]
         wx, wy, wz = s[10], s[11], s[12]
-        omega = s[16:20]
-        nq = 1.0 / np.sqrt(x * x + y * y + z * z + qw * qw)
+        om = s[16:20]
+        nq = 1.0 / (x * x + y * y + z * z + qw * qw) ** 0.5
         a, b, c, d = x * nq, y * nq, z * nq, qw * nq
         r00, r01, r02 = 1 - 2 * (b * b + c * c), 2 * (a * b - c * d), 2 * (a * c + b * d)
         r10, r11, r12 = 2 * (a * b + c * d), 1 - 2 * (a * a + c * c), 2 * (b * c - a * d)
@@ -258,64 +268,77 @@ class Vehicle:
         bx = r00 * ux + r10 * uy + r20 * uz
         by = r01 * ux + r11 * uy + r21 * uz
         bz = r02 * ux + r12 * uy + r22 * uz
-        gx, gy, gz = self._gx, self._gy, self._gz
-        thrust = self.k_eta * omega * omega  # (4,)
-        if self.aero:
-            # local airspeed at each hub: airspeed + w x r_k
-            lx = bx + (wy * gz - wz * gy)
-            ly = by + (wz * gx - wx * gz)
-            lz = bz + (wx * gy - wy * gx)
-            speed = np.sqrt(bx * bx + by * by + bz * bz)
-            dx, dy, dz = (
-                -speed * self.drag[0] * bx,
-                -speed * self.drag[1] * by,
-                -speed * self.drag[2] * bz,
-            )
-            hx = -omega * self.rotor_drag[0] * lx
-            hy = -omega * self.rotor_drag[1] * ly
-            fz = thrust + self.k_h * (lx * lx + ly * ly) - omega * self.rotor_drag[2] * lz
-            mfx = float((-self.k_flap * omega * ly).sum()) if self.k_flap else 0.0
-            mfy = float((self.k_flap * omega * lx).sum()) if self.k_flap else 0.0
-            fbx = float(hx.sum()) + dx
-            fby = float(hy.sum()) + dy
-            fbz = float(fz.sum()) + dz
-            # sum_k r_k x F_k
-            mx = float((gy * fz - gz * hy).sum()) + mfx
-            my = float((gz * hx - gx * fz).sum()) + mfy
-            mz = float((gx * hy - gy * hx).sum())
-        else:
-            fbx = fby = 0.0
-            fbz = float(thrust.sum())
-            mx = float((gy * thrust).sum())
-            my = float((-gx * thrust).sum())
-            mz = 0.0
-        mz += float((self.rotor_dir * omega * omega).sum()) * self.k_m
-        out = np.empty(20)
-        out[0] = vx
-        out[1] = vy
-        out[2] = vz
+        k_eta, k_h, k_flap = self.k_eta, self.k_h, self.k_flap
+        kdx, kdy, kdz = self._rotor_drag
+        fbx = fby = fbz = 0.0
+        mx = my = mz = 0.0
+        mfx = mfy = 0.0
+        aero = self.aero
+        for k in range(4):
+            gx, gy, gz = self._geom[k]
+            o = om[k]
+            t = k_eta * o * o
+            if aero:
+                # local airspeed at the hub: airspeed + w x r_k
+                lx = bx + (wy * gz - wz * gy)
+                ly = by + (wz * gx - wx * gz)
+                lz = bz + (wx * gy - wy * gx)
+                hx = -o * kdx * lx
+                hy = -o * kdy * ly
+                fz = t + k_h * (lx * lx + ly * ly) - o * kdz * lz
+                if k_flap:
+                    mfx -= k_flap * o * ly
+                    mfy += k_flap * o * lx
+            else:
+                hx = hy = 0.0
+                fz = t
+            fbx += hx
+            fby += hy
+            fbz += fz
+            # r_k x F_k
+            mx += gy * fz - gz * hy
+            my += gz * hx - gx * fz
+            mz += gx * hy - gy * hx + self._yaw_coef[k] * o * o
+        if aero:
+            speed = (bx * bx + by * by + bz * bz) ** 0.5
+            cdx, cdy, cdz = self._drag
+            fbx -= speed * cdx * bx
+            fby -= speed * cdy * by
+            fbz -= speed * cdz * bz
+        mx += mfx
+        my += mfy
         im = 1.0 / self.mass
-        out[3] = (r00 * fbx + r01 * fby + r02 * fbz) * im
-        out[4] = (r10 * fbx + r11 * fby + r12 * fbz) * im
-        out[5] = (r20 * fbx + r21 * fby + r22 * fbz) * im - self.g
-        out[6] = 0.5 * (qw * wx - z * wy + y * wz)
-        out[7] = 0.5 * (z * wx + qw * wy - x * wz)
-        out[8] = 0.5 * (-y * wx + x * wy + qw * wz)
-        out[9] = 0.5 * (-x * wx - y * wy - z * wz)
-        ii = self.inertia
-        iwx = ii[0, 0] * wx + ii[0, 1] * wy + ii[0, 2] * wz
-        iwy = ii[1, 0] * wx + ii[1, 1] * wy + ii[1, 2] * wz
-        iwz = ii[2, 0] * wx + ii[2, 1] * wy + ii[2, 2] * wz
+        (i00, i01, i02), (i10, i11, i12), (i20, i21, i22) = self._inertia
+        iwx = i00 * wx + i01 * wy + i02 * wz
+        iwy = i10 * wx + i11 * wy + i12 * wz
+        iwz = i20 * wx + i21 * wy + i22 * wz
         tx = mx - (wy * iwz - wz * iwy)
         ty = my - (wz * iwx - wx * iwz)
         tz = mz - (wx * iwy - wy * iwx)
-        inv = self.inv_inertia
-        out[10] = inv[0, 0] * tx + inv[0, 1] * ty + inv[0, 2] * tz
-        out[11] = inv[1, 0] * tx + inv[1, 1] * ty + inv[1, 2] * tz
-        out[12] = inv[2, 0] * tx + inv[2, 1] * ty + inv[2, 2] * tz
-        out[13:16] = 0.0
-        out[16:20] = (cmd_speeds - omega) * (1.0 / self.tau_m)
-        return out
+        (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = self._inv_inertia
+        itau = 1.0 / self.tau_m
+        return [
+            vx,
+            vy,
+            vz,
+            (r00 * fbx + r01 * fby + r02 * fbz) * im,
+            (r10 * fbx + r11 * fby + r12 * fbz) * im,
+            (r20 * fbx + r21 * fby + r22 * fbz) * im - self.g,
+            0.5 * (qw * wx - z * wy + y * wz),
+            0.5 * (z * wx + qw * wy - x * wz),
+            0.5 * (-y * wx + x * wy + qw * wz),
+            0.5 * (-x * wx - y * wy - z * wz),
+            j00 * tx + j01 * ty + j02 * tz,
+            j10 * tx + j11 * ty + j12 * tz,
+            j20 * tx + j21 * ty + j22 * tz,
+            0.0,
+            0.0,
+            0.0,
+            (cmd[0] - om[0]) * itau,
+            (cmd[1] - om[1]) * itau,
+            (cmd[2] - om[2]) * itau,
+            (cmd[3] - om[3]) * itau,
+        ]
 
     # ---------------------------------------------------------------- integration
     def step(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
