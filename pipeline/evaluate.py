@@ -86,26 +86,33 @@ class ControllerBound:
     delta: float
     gamma_certificate: float
     model_sha256: str | None
+    robustness_lhs: float | None = None
     certificate: dict[str, Any] = field(repr=False, default_factory=dict)
 
     @property
     def denominator(self) -> float:
-        """``1 - S ||Phi_xy||``; a guarantee exists only when positive."""
+        """``1 - S ||Phi_xy||``; the bound's formula is finite only when positive."""
         return 1.0 - self.S * self.norm_phi_xy
 
     @property
-    def has_guarantee(self) -> bool:
+    def finite(self) -> bool:
         return self.denominator > 0
 
     @property
+    def has_guarantee(self) -> bool:
+        """The theorem applies: finite bound and the robustness condition met (lhs < 1, the
+        certificate's ``robustness_lhs``); a nominal or PD controller usually misses it."""
+        return self.finite and (self.robustness_lhs is None or self.robustness_lhs < 1.0)
+
+    @property
     def gamma_strict(self) -> float:
-        """``R0 / (1 - S ||Phi_xy||)`` (inf without a guarantee)."""
-        return self.R0 / self.denominator if self.has_guarantee else math.inf
+        """``R0 / (1 - S ||Phi_xy||)`` (inf when ``S ||Phi_xy|| >= 1``)."""
+        return self.R0 / self.denominator if self.finite else math.inf
 
     def gamma_at(self, distance: np.ndarray) -> np.ndarray:
         """``gamma_k = (eps_e + S (eps_w ||Phi_xx H|| + d_k)) / (1 - S ||Phi_xy||)``."""
         d = np.asarray(distance, dtype=float)
-        if not self.has_guarantee:
+        if not self.finite:
             return np.full(d.shape, math.inf)
         a = self.eps_w * self.norm_phi_xx_h + d
         return (self.eps_e + self.S * a) / self.denominator
@@ -183,6 +190,9 @@ def load_controller_bound(folder: Path) -> ControllerBound:
         delta=_float(cert, "delta", folder, 0.0),
         gamma_certificate=_float(cert, "gamma", folder, math.inf),
         model_sha256=model_hash,
+        robustness_lhs=_float(cert, "robustness_lhs", folder, math.nan)
+        if cert.get("robustness_lhs") is not None
+        else None,
         certificate=cert,
     )
 
@@ -308,7 +318,7 @@ def check_flight(
         if np.any(sep & inside):
             sl = np.abs(e - training.e[idx]).max(axis=1)[sep & inside] / d[sep & inside]
             max_slope = float(sl.max())
-    bound_holds = bool(np.all(e_norm <= gamma_k)) if bound.has_guarantee else False
+    bound_holds = bool(np.all(e_norm <= gamma_k)) if bound.finite else False
     strict_holds = bool(np.all(e_norm <= gamma_strict))
     premise_holds = bool(np.all(premise_ratio <= 1.0))
     within_radius = bool(np.all(inside))
@@ -386,12 +396,17 @@ def _verdict(
     premise_t: float,
     max_slope: float,
 ) -> str:
-    if not bound.has_guarantee:
+    if not bound.finite:
         return (
-            f"no guarantee: S*||Phi_xy|| = {bound.S * bound.norm_phi_xy:.3g} >= 1 "
+            f"no bound: S*||Phi_xy|| = {bound.S * bound.norm_phi_xy:.3g} >= 1 "
             "(not certified for this S)"
         )
     problems = []
+    if not bound.has_guarantee:
+        problems.append(
+            f"no guarantee: robustness condition not met (lhs {bound.robustness_lhs:.3g} >= 1), "
+            "the formula's value is shown for comparison"
+        )
     if not premise_holds:
         slope = f", held-out slope to training {max_slope:.3g} > S" if max_slope > bound.S else ""
         problems.append(

@@ -159,7 +159,14 @@ def test_no_guarantee_when_s_phi_at_least_one(setup):
     b = load_controller_bound(pd_dir)
     assert not b.has_guarantee and math.isinf(b.gamma_strict)
     res = evaluate([flight], model, [pd_dir], EvaluateOptions(figures=False), tmp / "ev3")
-    assert res.table.iloc[0]["verdict"].startswith("no guarantee")
+    assert res.table.iloc[0]["verdict"].startswith("no bound")
+    # finite formula but robustness condition not met: no guarantee, said so
+    nom = write_controller(tmp / "nom", model, robustness_lhs=1.4, status="uncertified")
+    b = load_controller_bound(nom)
+    assert b.finite and not b.has_guarantee
+    res = evaluate([flight], model, [nom], EvaluateOptions(figures=False), tmp / "ev4")
+    assert "no guarantee: robustness condition not met" in res.table.iloc[0]["verdict"]
+    assert not res.table.iloc[0]["has_guarantee"]
 
 
 def test_nearest_distance_matches_brute_force():
