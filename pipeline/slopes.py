@@ -239,33 +239,46 @@ def _grid(xs: np.ndarray, radius: float) -> _Grid:
     return _Grid(order=order, start=start, count=count, nb_ptr=ptr, nb_cell=b)
 
 
-def _blocks(g: _Grid, block_elems: int):
-    """Yield (row_start, row_stop, column sorted positions) covering every pair once."""
+def _blocks(g: _Grid, block_elems: int, min_block: int = 8192, inflation: int = 4):
+    """Yield (row_start, row_stop, column sorted positions) covering every pair once.
+
+    Consecutive cells are grouped (fewer, larger numpy calls) while the block's candidate
+    count stays within ``inflation`` times the cells' own candidate count (or ``min_block``)
+    and ``block_elems``. Columns before the block's first row are dropped (they cannot be
+    partners: a pair counts once, at its lower sorted position).
+    """
     ncells = len(g.start)
     owner = np.repeat(np.arange(ncells), np.diff(g.nb_ptr))
     own_cols = g.count + np.bincount(owner, weights=g.count[g.nb_cell], minlength=ncells).astype(
         np.int64
     )
+    count, oc = g.count.tolist(), own_cols.tolist()
     a = 0
     while a < ncells:
-        rows = int(g.count[a])
-        cols_upper = int(own_cols[a])
+        rows, cols_u, work = count[a], oc[a], count[a] * oc[a]
         b = a + 1
-        # group consecutive small cells while the block stays under the budget
-        while b < ncells and (rows + g.count[b]) * (cols_upper + own_cols[b]) <= block_elems:
-            rows += int(g.count[b])
-            cols_upper += int(own_cols[b])
+        while b < ncells:
+            nr, nc, nw = rows + count[b], cols_u + oc[b], work + count[b] * oc[b]
+            if nr * nc > min(block_elems, max(min_block, inflation * nw)):
+                break
+            rows, cols_u, work = nr, nc, nw
             b += 1
         cells = np.unique(np.concatenate([np.arange(a, b), g.nb_cell[g.nb_ptr[a] : g.nb_ptr[b]]]))
         cols = _ranges(g.start[cells], g.count[cells])
         r0, r1 = int(g.start[a]), int(g.start[b - 1] + g.count[b - 1])
-        # split wide blocks: columns first (rarely needed), then rows
-        col_step = max(1, min(len(cols), block_elems))
-        for c0 in range(0, len(cols), col_step):
-            cpart = cols[c0 : c0 + col_step]
-            row_step = max(1, block_elems // max(1, len(cpart)))
-            for s in range(r0, r1, row_step):
-                yield s, min(r1, s + row_step), cpart
+        s = r0
+        while s < r1:
+            live = cols[np.searchsorted(cols, s, side="right") :]
+            if len(live) == 0:
+                break
+            if len(live) > block_elems:  # a huge neighbourhood: one row, columns in pieces
+                for c0 in range(0, len(live), block_elems):
+                    yield s, s + 1, live[c0 : c0 + block_elems]
+                s += 1
+                continue
+            stop = min(r1, s + max(1, block_elems // len(live)))
+            yield s, stop, live
+            s = stop
         a = b
 
 
