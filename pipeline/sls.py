@@ -39,6 +39,7 @@ certificate recomputed from the stored taps still has ``lhs < 1``.
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -531,6 +532,10 @@ def max_feasible_s(
         nxy = l1_norm(sol.taps.Phi_xy)
         nxx = l1_norm(sol.taps.Phi_xx, model.H)
         new = (c0 - eps_w / radius * nxx) / nxy
+        if it == 1 and new <= 0:
+            # lam = 0 minimized ||Phi_xx H||: even then (eps_w ||Phi_xx H|| + Delta) / r
+            # leaves nothing for S: no S >= 0 is feasible
+            return MaxS(-math.inf, new, nxy, nxx, it, total)
         if it > 1 and new - lam <= tol * max(1.0, abs(lam)):
             lam = max(lam, new)
             break

@@ -157,6 +157,10 @@ def test_infeasible_is_exit_3_with_diagnosis(tmp_path, error_model):
     res = _synth("-m", error_model, "-T", T, "--S", "0.45", "-o", out)
     assert res.exit_code == 3 and "condition S + eps_e/r < 1 holds" in res.output
     assert not out.exists()
+    # Delta / r >= 1: no S at all
+    res = _synth("-m", error_model, "-T", T, "--S", "0.01", "--delta", "1.2", "-o", out)
+    assert res.exit_code == 3 and "no S >= 0 is feasible" in res.output, res.output
+    assert not out.exists()
 
 
 def test_max_feasible_s_is_feasible_and_one_percent_above_is_not(tmp_path, error_model):
