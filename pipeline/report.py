@@ -170,9 +170,13 @@ def render_markdown(title: str, sections: Sequence[Section]) -> tuple[str, dict[
 def _stage_dirs(run_dir: Path) -> dict[str, list[Path]]:
     """Stage kind -> folders holding a manifest of that stage, sorted by path."""
     found: dict[str, list[Path]] = {}
-    for m in sorted(run_dir.rglob(MANIFEST)):
+    manifests = sorted(run_dir.rglob(MANIFEST))
+    folders = {m.parent for m in manifests}
+    for m in manifests:
         if any(part.startswith(".") for part in m.relative_to(run_dir).parts):
             continue
+        if any(p in folders for p in m.parent.parents):
+            continue  # a stage's own sub-stage (e.g. the flights that fly ingests)
         try:
             stage = json.loads(m.read_text()).get("stage", "?")
         except json.JSONDecodeError:
