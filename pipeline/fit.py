@@ -107,6 +107,16 @@ class FitOptions(Options):
             raise ValueError(f"percentiles must be in [0, 100], got {bad}")
         return sorted({float(q) for q in v})
 
+    @field_validator("state_scale", mode="before")
+    @classmethod
+    def _scale(cls, v: Any) -> Any:
+        if isinstance(v, list | tuple):
+            if len(v) != 6:
+                raise ValueError(f"give 6 weights (px,py,pz,vx,vy,vz), got {len(v)}")
+            if any(not isinstance(w, int | float) or not w > 0 for w in v):
+                raise ValueError(f"weights must be positive numbers, got {list(v)}")
+        return v
+
     @field_validator("min_separation")
     @classmethod
     def _minsep(cls, v: float | str) -> float | str:

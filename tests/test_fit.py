@@ -212,6 +212,7 @@ def test_cli_fit_and_bad_input(tmp_path):
             "samples were excluded (skip_start",
         ),
         "bad reference": ([str(flights[0]), "--reference", "square:a=1"], "neither a flight"),
+        "scale length": ([str(flights[0]), "--state-scale", "1,2"], "give 6 weights"),
         "min sep >= r": ([str(flights[0]), "--min-separation", "1"], "smaller than the radius"),
     }
     for name, (args, msg) in cases.items():
