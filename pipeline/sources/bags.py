@@ -253,13 +253,15 @@ def ros1_batches(reader1: Any, conn_ids: set[int]) -> Iterator[Batch]:
     sidx = idx[by_chunk]
     bounds = np.searchsorted(sidx[:, 1], uniq)
     bounds = np.append(bounds, len(sidx))
-    blobs: list[bytes] = []
+    # decompressed chunks are copied into one reused buffer (fresh memory for every batch
+    # would cost more in page faults than the decompression itself)
+    work = np.empty(_BATCH_BYTES + max(chunks[int(c)].datasize for c in uniq) * 4, np.uint8)
     base: list[int] = []
     rows: list[np.ndarray] = []
     size = 0
 
     def flush() -> Batch:
-        buf = np.frombuffer(b"".join(blobs), dtype=np.uint8)
+        buf = work[:size]
         part = np.concatenate(rows)
         rec = np.repeat(np.array(base), [len(r) for r in rows]) + part[:, 2]
         starts, ends = _records(buf, rec, part[:, 0], part[:, 3])
@@ -270,13 +272,16 @@ def ros1_batches(reader1: Any, conn_ids: set[int]) -> Iterator[Batch]:
             ch = chunks[c]
             fh.seek(ch.datapos)
             raw = ch.decompressor(fh.read(ch.datasize))
-            blobs.append(raw)
+            if size + len(raw) > len(work):
+                if rows:
+                    yield flush()
+                base, rows, size = [], [], 0
+                if len(raw) > len(work):
+                    work = np.empty(len(raw), np.uint8)
+            work[size : size + len(raw)] = np.frombuffer(raw, np.uint8)
             base.append(size)
             rows.append(sidx[bounds[k] : bounds[k + 1]])
             size += len(raw)
-            if size >= _BATCH_BYTES:
-                yield flush()
-                blobs, base, rows, size = [], [], [], 0
     if rows:
         yield flush()
 
