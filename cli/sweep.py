@@ -6,14 +6,56 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, print_summary
+from qsls.cli.common import cli_errors, overrides, print_summary
+from qsls.cli.synth import number_or_name
+
+
+def grid_axis(text: str) -> tuple[str, list]:
+    """``"S=0.1,0.2,p95"`` -> ``("S", [0.1, 0.2, "p95"])`` (``T`` values as integers,
+    ``true``/``false`` as booleans)."""
+    from qsls.pipeline.errors import ConfigError
+
+    if "=" not in text:
+        raise ConfigError(f"--grid '{text}': expected AXIS=V1,V2,... (e.g. S=0.05,0.1,p95)")
+    axis, _, values = text.partition("=")
+    out: list = []
+    for v in (x.strip() for x in values.split(",") if x.strip()):
+        if v.lower() in ("true", "false"):
+            out.append(v.lower() == "true")
+        elif axis.strip() == "T":
+            try:
+                out.append(int(v))
+            except ValueError:
+                raise ConfigError(f"--grid T: '{v}' is not an integer") from None
+        else:
+            out.append(number_or_name(v))
+    return axis.strip(), out
 
 
 @cli_errors
 def command(
     config: Path | None = typer.Option(
-        None, "--config", "-c", help="YAML file: base synth options plus 'grid' (axis: [values])."
+        None,
+        "--config",
+        "-c",
+        help="YAML file: base synth options plus 'grid' (axis: list of values).",
     ),
+    grid: list[str] | None = typer.Option(
+        None,
+        "--grid",
+        "-g",
+        help="A grid axis, AXIS=V1,V2,.. (repeatable; replaces that axis of the config).",
+    ),
+    horizon: int | None = typer.Option(
+        None, "--T", "-T", help="Base horizon T (when T is not a grid axis)."
+    ),
+    norm: str | None = typer.Option(None, "--norm", help="Base norm: l1 or h2."),
+    cost: str | None = typer.Option(None, "--cost", help="Base cost: qr or imitation."),
+    s: str | None = typer.Option(None, "--S", help="Base S: a number or an error-model name."),
+    eps_e: str | None = typer.Option(None, "--eps-e", help="Base eps_e: a number or a name."),
+    radius: float | None = typer.Option(None, "--radius", "-r", help="Base radius r."),
+    delta: float | None = typer.Option(None, "--delta", help="Base Delta."),
+    eps_w: float | None = typer.Option(None, "--eps-w", help="Base process noise bound eps_w."),
     out: Path = typer.Option(
         ..., "--out", "-o", help="Output folder (sweep.parquet, sweep.csv, figures)."
     ),
@@ -41,7 +83,12 @@ def command(
 
     if jobs is not None and scheduler is not None:
         raise ConfigError("give --jobs or --scheduler, not both")
-    opts = load_options(SweepOptions, config, {})
+    axes = dict(grid_axis(g) for g in grid or [])
+    given = overrides(
+        T=horizon, norm=norm, cost=cost, S=number_or_name(s), eps_e=number_or_name(eps_e),
+        radius=radius, delta=delta, eps_w=eps_w, grid=axes or None,
+    )  # fmt: skip
+    opts = load_options(SweepOptions, config, given)
     where = {"jobs": jobs, "scheduler": scheduler}
     with RichProgress() as progress:
         result = sweep(opts, out, error_model=model, force=force, progress=progress, **where)

@@ -221,3 +221,17 @@ def test_bad_sweep_config_is_one_clear_error(tmp_path, text, pattern):
         res.output
     )
     assert not out.exists()
+
+
+def test_grid_and_base_from_the_command_line(tmp_path):
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text("eps_e: 0.05\nradius: 1.0\ngrid:\n  S: [0.5]\n  T: [6]\n")
+    out = tmp_path / "o"
+    # --grid replaces the config's S axis and keeps its T; --delta sets the base
+    res = _sweep("-c", cfg, "-g", "S=0.05,0.3", "--delta", "0.0", "-o", out, "-j", "1")
+    assert res.exit_code == 0, res.output
+    t = _table(out)
+    assert list(t["S"]) == [0.05, 0.3] and list(t["T"]) == [6, 6]
+    assert list(t["delta_value"]) == [0.0, 0.0] and list(t["feasible"]) == [True, False]
+    bad = _sweep("-c", cfg, "-g", "S0.05", "-o", tmp_path / "b", "-j", "1")
+    assert bad.exit_code == 2 and "expected AXIS=V1,V2" in bad.output
