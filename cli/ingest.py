@@ -32,38 +32,38 @@ def command(
     truth: Path = typer.Option(
         None, help="File with the truth stream: a bag, a TUM file or a EuRoC csv."
     ),
-    dt: float = typer.Option(None, help="Resampling period in seconds. [default: 0.1]"),
+    dt: float = typer.Option(None, help="Resampling period in seconds. (default: 0.1)"),
     align: str = typer.Option(
         None,
-        help="Frame alignment of the VIO to the truth: 4dof (yaw + translation), se3, none. [default: 4dof]",
+        help="Frame alignment of the VIO to the truth: 4dof (yaw + translation), se3, none. (default: 4dof)",
     ),
     time_offset: str = typer.Option(
         None,
         help="Seconds added to truth stamps to put them on the VIO clock, or 'auto' to "
-        "estimate it. [default: auto]",
+        "estimate it. (default: auto)",
     ),
     vio_velocity_frame: str = typer.Option(
         None,
-        help="Frame of the Odometry twist: body (ROS convention) or world (VINS-style). [default: body]",
+        help="Frame of the Odometry twist: body (ROS convention) or world (VINS-style). (default: body)",
     ),
     stamp: str = typer.Option(
-        None, help="Time of a message: header stamp or bag log time. [default: header]"
+        None, help="Time of a message: header stamp or bag log time. (default: header)"
     ),
     max_gap: float = typer.Option(
-        None, help="Never interpolate across a gap longer than this, in seconds. [default: 0.25]"
+        None, help="Never interpolate across a gap longer than this, in seconds. (default: 0.25)"
     ),
     truth_frame: str = typer.Option(None, help="PARENT/CHILD transform to use from a TF topic."),
     export_tum: bool = typer.Option(
         None, "--export-tum", help="Also write both aligned trajectories as TUM files (for evo)."
     ),
     max_time_offset: float = typer.Option(
-        None, help="Search range of --time-offset auto, in seconds. [default: 2.0]"
+        None, help="Search range of --time-offset auto, in seconds. (default: 2.0)"
     ),
     min_overlap: float = typer.Option(
-        None, help="Least common time of the two streams, in seconds. [default: 3.0]"
+        None, help="Least common time of the two streams, in seconds. (default: 3.0)"
     ),
     velocity_window: float = typer.Option(
-        None, help="Window of the smoothing differentiator, in seconds. [default: 0.1]"
+        None, help="Window of the smoothing differentiator, in seconds. (default: 0.1)"
     ),
     drop_nonfinite: bool = typer.Option(
         None, "--drop-nonfinite", help="Skip messages with NaN/inf values instead of stopping."
