@@ -71,7 +71,11 @@ def command(
 
     ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None)
     if fly:
+        from qsls.pipeline.errors import InputError
         from qsls.pipeline.fly import FlyOptions, fly_evaluate
+
+        if flights:
+            raise InputError("--flights is not used with --fly (the flights are flown); drop one")
 
         ov.update(
             overrides(

@@ -408,6 +408,36 @@ def compare_with_paper(
     return out
 
 
+def comparison_markdown(comparison: Sequence[dict[str, Any]], per: pd.DataFrame) -> str:
+    """The findings table and the per-controller metrics as Markdown."""
+    lines = [
+        "# qsls against the paper's findings",
+        "",
+        "| finding (paper) | qsls | agrees |",
+        "|---|---|---|",
+    ]
+
+    def cell(v: Any) -> str:
+        return str(v).replace("|", "\\|")
+
+    lines += [
+        f"| {cell(c['finding'])} | {cell(c['qsls'])} | {cell(c['agrees'])} |" for c in comparison
+    ]
+    cols = [
+        "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
+        "perception_error_rms", "perception_error_max", "control_effort_rms",
+        "control_smoothness_rms", "gamma_strict", "frac_under_gamma", "max_ratio",
+    ]  # fmt: skip
+    cols = [c for c in cols if c in per.columns]
+    lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]
+    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in per[cols].itertuples(index=False):
+        lines.append(
+            "| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 # --------------------------------------------------------------------------- stage
 def _select(folders: list[Path], names: list[str] | None) -> list[Path]:
     by_name = {f.name: f for f in folders}
@@ -521,6 +551,7 @@ def fly_evaluate(
 
             w.write_parquet("flights.parquet", flights)
             w.write_parquet("per_controller.parquet", per)
+            w.write_text("comparison.md", comparison_markdown(comparison, per))
             if options.figures:
                 _write_fly_figures(w, outcomes, bounds, options, ref_bound)
             extra_json = {
@@ -537,9 +568,7 @@ def fly_evaluate(
                     "mode": "fly",
                     "flights": len(flights),
                     "crashed": int(flights["crashed"].sum()),
-                    "agrees_with_paper": {
-                        c["finding"][:2].strip(". "): c["agrees"] for c in comparison
-                    },
+                    **{f"finding_{c['finding'][0]}_agrees": c["agrees"] for c in comparison},
                     "controllers": totals,
                     "warnings": len(warnings),
                 }
