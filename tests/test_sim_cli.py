@@ -166,3 +166,12 @@ def test_bad_input_is_one_line_and_leaves_nothing(tmp_path: Path, config, args, 
     assert needle in lines[0]
     assert not out.exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+
+def test_example_config_is_the_defaults_and_runs_as_a_section(tmp_path: Path) -> None:
+    from qsls.pipeline.config import load_options
+
+    repo = Path(__file__).resolve().parents[1]
+    opts = load_options(SimOptions, repo / "configs" / "simulate.yaml", section="simulate")
+    assert opts == SimOptions()
+    assert SimOptions().flight_duration() == pytest.approx(23.0)

@@ -6,7 +6,9 @@ of ``approach_s`` seconds from the centre to the pattern's first point (each mov
 smoothstep ``s5(u) = 10 u^3 - 15 u^4 + 6 u^5``, at rest at both ends). Besides being what
 real logs show, the take-off and the approach pin the clock offset and the frame yaw that
 ``ingest`` recovers: on a circle alone they are not separable (shifting a circle in time is
-rotating it about its centre).
+rotating it about its centre). The 3 s hold keeps the climb clear of the first seconds
+that an offset search drops (``ingest`` uses only VIO samples that stay inside the truth's
+time range for every candidate offset, up to 2 s).
 
 Then the pattern starts at rest and speeds up smoothly (``t`` counted from its start): the
 phase is
@@ -51,8 +53,8 @@ class ReferenceOptions(Options):
     """Smooth speed-up from rest (s)."""
     takeoff_height: float = Field(0.3, gt=0)
     """Height at which the flight (and the log) starts (m)."""
-    hold_s: float = Field(1.0, ge=0)
-    """Seconds at rest at the take-off height before climbing."""
+    hold_s: float = Field(3.0, ge=0)
+    """Seconds at rest at the take-off height before climbing (3 s: see the module doc)."""
     takeoff_s: float = Field(2.0, ge=0)
     """Duration of the climb to ``height`` (s); 0 starts at ``height``."""
     approach_s: float = Field(2.0, ge=0)
