@@ -166,6 +166,14 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
                  "input_l1_robust_vs_pd.png", "distance_to_training.png"):  # fmt: skip
         assert (out / name).stat().st_size > 1000, name
     assert "Against the paper" in r.output
+    md = (out / "comparison.md").read_text()
+    assert md.count("\n| 1. ") + md.count("\n| 2. ") + md.count("\n| 3. ") == 3
+    # --flights makes no sense with --fly: one-line error, nothing written
+    r = CliRunner().invoke(
+        app, [str(a) for a in [*args[:-4], "--flights", root / "train", "--out", tmp_path / "x"]]
+    )
+    assert r.exit_code == 2 and "--flights is not used with --fly" in r.output
+    assert not (tmp_path / "x").exists()
 
 
 def test_crash_ends_flight_safely_and_is_flagged(trained, tmp_path):
