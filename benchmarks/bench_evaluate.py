@@ -1,0 +1,99 @@
+"""Benchmark of qsls evaluate: the bound check's nearest-training-state distances, and flying.
+
+Run: ``python benchmarks/bench_evaluate.py [--fit FITDIR --synth SYNTHDIR]``.
+
+1. Distance of every held-out state to the nearest training state: KD-tree (infinity norm,
+   what ``evaluate`` uses) against chunked brute force numpy, same answer checked.
+2. With ``--fit`` and ``--synth`` (outputs of ``qsls fit`` / ``qsls synth``): the default fly
+   evaluation (four controllers + SE3, two conditions, three seeds, 30 s flights) on a process
+   pool of 2 against the same flights one after another (``--quick``: one seed, 10 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def brute_nearest(train: np.ndarray, query: np.ndarray, chunk: int = 256) -> np.ndarray:
+    out = np.empty(len(query))
+    for a in range(0, len(query), chunk):
+        q = query[a : a + chunk]
+        out[a : a + chunk] = np.abs(q[:, None, :] - train[None]).max(axis=2).min(axis=1)
+    return out
+
+
+def bench_distance() -> list[tuple[str, float, str]]:
+    from qsls.pipeline.evaluate import TrainingData
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for n_train, n_query in ((20_000, 3_000), (100_000, 10_000)):
+        t = np.linspace(0, 200, n_train)
+        train = np.c_[np.cos(t), np.sin(t), 1 + 0.05 * np.sin(7 * t), -np.sin(t), np.cos(t), 0 * t]
+        train += rng.normal(scale=0.02, size=train.shape)
+        query = train[rng.integers(0, n_train, n_query)] + rng.normal(scale=0.1, size=(n_query, 6))
+        t0 = time.perf_counter()
+        d, _ = TrainingData.build(train, np.ones(6)).nearest(query)
+        t_tree = time.perf_counter() - t0
+        if n_train <= 20_000:
+            t0 = time.perf_counter()
+            ref = brute_nearest(train, query)
+            t_brute = time.perf_counter() - t0
+            assert np.allclose(d, ref)
+            rows.append((f"nearest {n_train} x {n_query}: brute numpy", t_brute, ""))
+        rows.append(
+            (
+                f"nearest {n_train} x {n_query}: KD-tree",
+                t_tree,
+                f"{t_brute / t_tree:.0f}x faster" if n_train <= 20_000 else "",
+            )
+        )
+    return rows
+
+
+def bench_fly(fit: Path, synth: Path, quick: bool) -> list[tuple[str, float, str]]:
+    from qsls.pipeline.fly import FlyOptions, fly_evaluate
+
+    kw = {"seeds": [0], "duration": 10.0} if quick else {}
+    rows = []
+    tmp = Path(tempfile.mkdtemp(prefix="bench-eval-"))
+    try:
+        times = {}
+        for jobs in (2, 1):
+            t0 = time.perf_counter()
+            res = fly_evaluate(
+                fit, [synth], FlyOptions(jobs=jobs, figures=True, **kw), tmp / f"j{jobs}"
+            )
+            times[jobs] = time.perf_counter() - t0
+            rows.append(
+                (f"fly evaluation, {len(res.flights)} flights, jobs={jobs}", times[jobs], "")
+            )
+        rows[0] = (rows[0][0], rows[0][1], f"{times[1] / times[2]:.2f}x vs sequential")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--fit", type=Path)
+    ap.add_argument("--synth", type=Path)
+    ap.add_argument("--quick", action="store_true")
+    a = ap.parse_args()
+    rows = bench_distance()
+    if a.fit and a.synth:
+        rows += bench_fly(a.fit, a.synth, a.quick)
+    w = max(len(r[0]) for r in rows)
+    print(f"{'case':<{w}}  {'seconds':>9}  note")
+    for name, sec, note in rows:
+        print(f"{name:<{w}}  {sec:9.3f}  {note}")
+
+
+if __name__ == "__main__":
+    main()
