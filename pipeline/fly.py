@@ -184,9 +184,13 @@ def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[F
         ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
         with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
             futs = {pool.submit(run_job, j): i for i, j in enumerate(jobs)}
-            for fut in as_completed(futs):
-                results[futs[fut]] = fut.result()
-                progress.advance()
+            try:
+                for fut in as_completed(futs):
+                    results[futs[fut]] = fut.result()
+                    progress.advance()
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
     progress.finish()
     return [r for r in results if r is not None]
 
