@@ -62,6 +62,12 @@ def command(
         "hover or figure8; radius, height, period, laps, ramp_s, center=X;Y) or a flight folder. "
         "(default: none, delta = 0)",
     ),
+    reference_lead_in: bool = typer.Option(
+        None,
+        "--reference-lead-in/--reference-pattern-only",
+        help="Include a parametric reference's take-off and approach in delta, or only its "
+        "pattern. (default: pattern only)",
+    ),
     r0: str = typer.Option(
         None, "--r0", help="R0 of the guarantee: max (= eps_e), pNN or a number. (default: max)"
     ),
@@ -101,6 +107,7 @@ def command(
         outlier_z=outlier_z,
         skip_start=skip_start,
         reference=reference,
+        reference_lead_in=reference_lead_in,
         r0=r0,
         bootstrap=bootstrap,
         bootstrap_block=bootstrap_block,

@@ -263,3 +263,16 @@ def test_real_euroc_flights_fit_and_render(real_data, tmp_path):
     for name in FIGURES:
         data = (tmp_path / "fit" / name).read_bytes()
         assert data[:8] == PNG and len(data) > 20_000
+
+
+def test_exclusions_are_counted_by_reason(tmp_path):
+    t, x = circle_states(4, laps=2)
+    e = VioEmulator(VioParams(drift=False, outliers=False), 4).errors(x)
+    y = x + e
+    y[[20, 21, 50]] = np.nan  # a VIO dropout
+    f = write_flight(tmp_path / "f", t, x, y)
+    m = fit([f], FitOptions(radius=0.5, skip_start=1.0, figures=False), tmp_path / "out").model
+    assert m.exclusions == {"nonfinite": 3, "skip_start": 10}
+    assert m.n_excluded == 13 and m.n_samples == len(t) - 13
+    df = pd.read_parquet(tmp_path / "out" / TRAINING_FILE)
+    assert df["t"].min() >= 1.0 and np.isfinite(df.loc[:, list(E_COLS)].to_numpy()).all()
