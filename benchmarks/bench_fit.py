@@ -8,7 +8,8 @@ Cases (each in its own process, so the peak memory is its own):
 - ``brute 20k``: the chunked brute-force numpy computation (all pairs i < j, 256 rows at a time,
   slopes kept for exact percentiles) on the same samples; the table checks both agree
   (pair count, exact max, percentiles);
-- ``engine 100k``: 100k samples (1000 laps) with more than 10^8 pairs inside the radius;
+- ``engine 100k``: 100k samples (1000 laps) with more than 10^8 pairs inside the radius
+  (``engine_x2``: the same with two threads);
 - ``fit 100k``: the whole ``fit`` stage on the same samples as 10 flight folders (error model,
   training states; no figures).
 
@@ -48,10 +49,10 @@ def case(name: str, n: int) -> dict:
     x, e = samples(n)
     t0 = time.perf_counter()
     out: dict = {"case": name, "n": n}
-    if name == "engine":
+    if name.startswith("engine"):
         from qsls.pipeline.slopes import pair_slopes
 
-        r = pair_slopes(x, e, RADIUS)
+        r = pair_slopes(x, e, RADIUS, jobs=2 if name.endswith("x2") else 1)
         out |= {
             "pairs": r.n_pairs,
             "candidates": r.n_candidates,
@@ -117,15 +118,21 @@ def main() -> None:
         return
     quick = "--quick" in sys.argv
     small, big = (5_000, 20_000) if quick else (20_000, 100_000)
-    rows = [run("engine", small), run("brute", small), run("engine", big), run("fit", big)]
+    rows = [
+        run("engine", small),
+        run("brute", small),
+        run("engine", big),
+        run("engine_x2", big),
+        run("fit", big),
+    ]
     print(f"radius {RADIUS}, infinity norm, no minimum separation; circle laps with VIO errors")
-    hdr = f"{'case':<8}{'samples':>9}{'pairs':>13}{'candidates':>15}{'time s':>9}{'peak MB':>9}  max / p50 / p99"
+    hdr = f"{'case':<10}{'samples':>9}{'pairs':>13}{'candidates':>15}{'time s':>9}{'peak MB':>9}  max / p50 / p99"
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
         p = r["percentiles"]
         print(
-            f"{r['case']:<8}{r['n']:>9,}{r['pairs']:>13,}{r['candidates']:>15,}"
+            f"{r['case']:<10}{r['n']:>9,}{r['pairs']:>13,}{r['candidates']:>15,}"
             f"{r['seconds']:>9.2f}{r['peak_mb']:>9.0f}  {r['max']:.6g} / {p['p50']:.6g} / {p['p99']:.6g}"
         )
     eng, bru = rows[0], rows[1]
