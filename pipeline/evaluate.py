@@ -293,9 +293,11 @@ def check_flight(
     x = flight.loc[:, list(X_COLS)].to_numpy(float)
     e = flight.loc[:, list(E_COLS)].to_numpy(float)
     t = flight["t"].to_numpy(float)
-    if len(t) == 0:
-        raise InputError(f"flight {name}: no samples")
-    d, idx = nearest if nearest is not None else training.nearest(x)
+    ok = np.isfinite(x).all(axis=1) & np.isfinite(e).all(axis=1)
+    if not ok.any():
+        raise InputError(f"flight {name}: no samples with finite states and errors")
+    d, idx = nearest if nearest is not None else training.nearest(x[ok])
+    x, e, t, n_dropped = x[ok], e[ok], t[ok], int((~ok).sum())
     e_norm = np.abs(e).max(axis=1)
     gamma_k = bound.gamma_at(d)
     gamma_strict = bound.gamma_strict
@@ -350,6 +352,8 @@ def check_flight(
         "max_error_norm": float(e_norm[k_err]),
         "max_error_norm_t": float(t[k_err]),
         "rms_error_norm": float(np.sqrt(np.mean(e_norm**2))),
+        "n_samples": len(t),
+        "n_nonfinite_dropped": n_dropped,
         "frac_under_gamma": float(np.mean(e_norm <= gamma_k)),
         "frac_under_gamma_strict": float(np.mean(e_norm <= gamma_strict)),
         "max_ratio": float(ratio[k_ratio]),
@@ -517,7 +521,13 @@ def bound_check(
     for i, j in pairs:
         name, df = flights[i]
         if i not in nearest:
-            nearest[i] = training.nearest(df.loc[:, list(X_COLS)].to_numpy(float))
+            x = df.loc[:, list(X_COLS)].to_numpy(float)
+            ok = np.isfinite(x).all(axis=1) & np.isfinite(
+                df.loc[:, list(E_COLS)].to_numpy(float)
+            ).all(axis=1)
+            if not ok.any():
+                raise InputError(f"flight {name}: no samples with finite states and errors")
+            nearest[i] = training.nearest(x[ok])
         row, s = check_flight(name, df, bounds[j], training, nearest[i])
         rows.append(row)
         samples.append(s)

@@ -241,3 +241,16 @@ def test_model_hash_mismatch_refused_then_warned(setup):
     assert "warning:" in r.output and "certified against error model" in r.output
     doc = json.loads((tmp / "o3" / "evaluation.json").read_text())
     assert any("certified against" in w for w in doc["warnings"])
+
+
+def test_nonfinite_samples_are_dropped_and_counted(setup):
+    tmp, model, ctrl, _ = setup
+    x = circle_states(100, z=1.05)
+    e = np.full((100, 6), 0.02)
+    x[10:15] = np.nan
+    flight = write_flight(tmp / "gappy", x, e)
+    row = evaluate([flight], model, [ctrl], EvaluateOptions(figures=False), tmp / "ev5").table.iloc[
+        0
+    ]
+    assert row["n_samples"] == 95 and row["n_nonfinite_dropped"] == 5
+    assert row["frac_under_gamma"] == 1.0 and row["bound_holds"]
