@@ -1,6 +1,6 @@
 """Benchmark of qsls evaluate: the bound check's nearest-training-state distances, and flying.
 
-Run: ``python benchmarks/bench_evaluate.py [--fit FITDIR --synth SYNTHDIR]``.
+Run: ``python benchmarks/bench_evaluate.py [--fit FITDIR --synth SYNTHDIR | --prepare DIR]``.
 
 1. Distance of every held-out state to the nearest training state: KD-tree (infinity norm,
    what ``evaluate`` uses) against chunked brute force numpy, same answer checked.
@@ -80,13 +80,34 @@ def bench_fly(fit: Path, synth: Path, quick: bool) -> list[tuple[str, float, str
     return rows
 
 
+def prepare(root: Path) -> tuple[Path, Path]:
+    """Training flights (SE3, regular, 2 x 30 s) -> ingest -> fit -> synth (paper's four)."""
+    from qsls.pipeline.fit import FitOptions, fit
+    from qsls.pipeline.ingest import IngestOptions, ingest
+    from qsls.pipeline.sim.simulate import SimOptions, simulate
+    from qsls.pipeline.synth import SynthOptions, synth
+
+    flights = []
+    for seed in (100, 101):
+        res = simulate(SimOptions(seed=seed, duration=30.0), root / f"sim{seed}", force=True)
+        ingest([res.bag], IngestOptions(), root / f"train{seed}", force=True)
+        flights.append(root / f"train{seed}")
+    fit(flights, FitOptions(radius=1.0), root / "fit", force=True)
+    synth(root / "fit", SynthOptions(T=20, S="p50", eps_e="p99"), root / "synth", force=True)
+    return root / "fit", root / "synth"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fit", type=Path)
     ap.add_argument("--synth", type=Path)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--prepare", type=Path, help="build --fit/--synth here first (simulate..synth)")
+    ap.add_argument("--skip-distance", action="store_true")
     a = ap.parse_args()
-    rows = bench_distance()
+    if a.prepare:
+        a.fit, a.synth = prepare(a.prepare)
+    rows = [] if a.skip_distance else bench_distance()
     if a.fit and a.synth:
         rows += bench_fly(a.fit, a.synth, a.quick)
     w = max(len(r[0]) for r in rows)
