@@ -106,7 +106,7 @@ def error_norm(model: ErrorModel, tr: Any):
                 label="worst-pair samples" if k == 0 or panels > 1 else None,
             )
         if panels > 1 or k == 0:
-            ax.axhline(model.eps_e, color="tab:red", lw=1, label=f"eps_e = {model.eps_e:.3g}")
+            ax.axhline(model.eps_e, color="k", lw=1.2, label=f"eps_e = {model.eps_e:.3g}")
             for q, v in model.eps_e_percentiles.items():
                 ax.axhline(v, color="0.3", ls=":", lw=0.8)
                 ax.annotate(
