@@ -201,3 +201,30 @@ def test_fast_se3_equals_rotorpy_se3control():
         np.testing.assert_allclose(
             fast.command(0.0, y, q, r), stock.command(0.0, y, q, r), atol=1e-12
         )
+
+
+def test_state_interpolation_between_physics_steps():
+    """VIO and mocap samples off the physics grid: Hermite position, linear velocity."""
+    from qsls.pipeline.sim.closedloop import _interp
+    from qsls.pipeline.sim.mocap import interpolate_truth
+
+    w = 2 * np.pi * 0.2
+    t_ns = np.arange(0, 2_000_000_001, 5_000_000, dtype=np.int64)
+    t = t_ns / 1e9
+    x = np.c_[np.cos(w * t), np.sin(w * t), 1 + 0 * t, -w * np.sin(w * t), w * np.cos(w * t), 0 * t]
+    yaw = 0.3 * t
+    q = np.c_[0 * t, 0 * t, np.sin(yaw / 2), np.cos(yaw / 2)]
+    query = np.arange(0, 2_000_000_000, 33_333_333, dtype=np.int64)
+    p, v, qq = interpolate_truth(t_ns, x, q, query)
+    tq = query / 1e9
+    assert np.abs(p[:, 0] - np.cos(w * tq)).max() < 1e-8
+    assert np.abs(v[:, 1] - w * np.cos(w * tq)).max() < 1e-4
+    assert np.abs(qq[:, 2] - np.sin(0.15 * tq)).max() < 1e-6
+    # the closed loop's scalar version agrees
+    s = np.zeros((len(t), 20))
+    s[:, :6], s[:, 6:10] = x, q
+    i, a = 7, 0.37
+    xi, qi, _ = _interp(s[i], s[i + 1], a, 0.005)
+    pv, vv, qv = interpolate_truth(t_ns, x, q, np.array([t_ns[i] + round(a * 5_000_000)]))
+    np.testing.assert_allclose(xi, np.r_[pv[0], vv[0]], atol=1e-12)
+    np.testing.assert_allclose(qi, qv[0], atol=1e-12)

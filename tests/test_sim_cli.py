@@ -37,9 +37,21 @@ def _rot(q: np.ndarray) -> np.ndarray:
     return r
 
 
+# per format, also another VIO rate (off the physics grid) and mocap message type
+VARIANTS = {
+    "ros1": {},
+    "ros2-sqlite": {"vio": {"rate_hz": 30.0}, "mocap": {"rate_hz": 200.0}},
+    "ros2-mcap": {"log": {"mocap_msgtype": "TransformStamped"}},
+    "mcap": {"vio": {"rate_hz": 200.0}, "log": {"mocap_msgtype": "TransformStamped"}},
+}
+
+
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_formats_clocks_and_frames_round_trip(tmp_path: Path, fmt: str) -> None:
-    opts = SimOptions.model_validate({**SHORT, "log": {"format": fmt}, "seed": 5})
+    from qsls.pipeline.config import merge
+
+    data = merge({**SHORT, "log": {"format": fmt}, "seed": 5}, VARIANTS[fmt])
+    opts = SimOptions.model_validate(data)
     res = simulate(opts, tmp_path / "sim")
     assert res.bag == tmp_path / "sim" / bag_name(fmt) and res.bag.exists()
     truth = json.loads((tmp_path / "sim" / "truth.json").read_text())
@@ -51,6 +63,10 @@ def test_formats_clocks_and_frames_round_trip(tmp_path: Path, fmt: str) -> None:
     assert len(vio) == truth["vio_messages"] == len(errors)
     assert len(mocap) == truth["mocap_messages"]
     assert vio.msgtype == "nav_msgs/msg/Odometry"
+    assert mocap.msgtype == f"geometry_msgs/msg/{opts.log.mocap_msgtype}"
+    vio_rate = 1e9 / np.median(np.diff(vio.header_ns))
+    assert vio_rate == pytest.approx(opts.vio.rate_hz, rel=1e-3)
+    assert len(vio) == pytest.approx(opts.vio.rate_hz * SHORT["duration"] + 1, abs=1)
     # VIO stamps are the errors' stamps (VIO clock), log time = stamp + delay
     np.testing.assert_array_equal(vio.header_ns, errors["stamp_ns"].to_numpy())
     lag = (vio.log_ns - vio.header_ns) / 1e9
