@@ -14,6 +14,7 @@ def command(
     out: Path = typer.Option(
         ...,
         "--out",
+        "-o",
         help="Output folder: the bag (flight.bag, flight/ or flight.mcap), truth.json, "
         "errors.parquet, trajectory.parquet, control.parquet, manifest.json.",
     ),
@@ -27,7 +28,8 @@ def command(
     duration: float = typer.Option(
         None,
         "--duration",
-        help="Flight length in seconds (default: the reference's laps, 3 laps of 5 s).",
+        help="Flight length in seconds (default: take-off, approach and the reference's "
+        "laps: 23 s for 3 laps of the 5 s circle).",
     ),
     perception: str = typer.Option(
         None,
