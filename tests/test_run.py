@@ -1,0 +1,176 @@
+"""qsls run: the quickstart end to end, caching by inputs, interrupted runs."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+QUICKSTART = REPO / "configs" / "quickstart.yaml"
+
+
+def _qsls(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "qsls.cli.main", *args], cwd=cwd, capture_output=True, text=True
+    )
+
+
+def _statuses(stderr: str) -> dict[str, str]:
+    out = {}
+    for line in stderr.splitlines():
+        parts = line.split()
+        if len(parts) >= 3 and parts[0].startswith("[") and "/" in parts[0]:
+            out[parts[1]] = "skipped" if "up to date" in line else "ran"
+    return out
+
+
+@pytest.fixture(scope="module")
+def quickstart(tmp_path_factory):
+    """The README's main job, run once from a clean folder."""
+    work = tmp_path_factory.mktemp("qs")
+    cfg = work / "quickstart.yaml"
+    cfg.write_text(QUICKSTART.read_text())
+    t0 = time.perf_counter()
+    proc = _qsls("run", str(cfg), cwd=work)
+    elapsed = time.perf_counter() - t0
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return work, cfg, proc, elapsed
+
+
+def test_quickstart_end_to_end(quickstart):
+    work, _, proc, elapsed = quickstart
+    run_dir = work / "runs" / "quickstart"
+    statuses = _statuses(proc.stderr)
+    assert set(statuses.values()) == {"ran"}
+    assert {"fit", "sweep", "synth", "evaluate", "fly"} <= set(statuses)
+    certs = {
+        p.parent.name: yaml.safe_load(p.read_text())
+        for p in (run_dir / "synth").glob("*/certificate.yaml")
+    }
+    assert {"pd", "l1_nominal", "l1_robust", "l1_robust_imitation"} <= set(certs)
+    assert certs["l1_robust"]["status"] == "certified"
+    assert certs["l1_robust"]["robustness_lhs"] <= 1.0 + 1e-9
+    for stage in statuses:
+        assert (run_dir / stage / "manifest.json").is_file(), stage
+    page = (work / "reports" / "quickstart" / "index.html").read_text()
+    assert "Controllers and certificates" in page and "data:image/png;base64," in page
+    assert elapsed < 300, f"the quickstart took {elapsed:.0f} s (target: 5 minutes)"
+
+
+def test_rerun_skips_everything_and_a_change_reruns_downstream_only(quickstart):
+    work, cfg, _, _ = quickstart
+    again = _qsls("run", str(cfg), cwd=work)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert set(_statuses(again.stderr).values()) == {"skipped"}
+
+    data = yaml.safe_load(cfg.read_text())
+    data["sweep"]["grid"]["T"] = [10, 15]
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    changed = _qsls("run", str(cfg), cwd=work)
+    assert changed.returncode == 0, changed.stderr[-2000:]
+    ran = {k for k, v in _statuses(changed.stderr).items() if v == "ran"}
+    assert ran == {"sweep"}
+
+    data["flights"][2]["simulate"]["seed"] = 4  # the held-out flight only
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    changed = _qsls("run", str(cfg), cwd=work)
+    assert changed.returncode == 0, changed.stderr[-2000:]
+    ran = {k for k, v in _statuses(changed.stderr).items() if v == "ran"}
+    assert ran == {"simulate/heldout_1", "ingest/heldout_1", "evaluate"}
+
+
+def test_run_report_is_reproducible(quickstart):
+    work, _, _, _ = quickstart
+    proc = _qsls("report", "runs/quickstart", "--out", "again", cwd=work)
+    assert proc.returncode == 0, proc.stderr
+    first, second = work / "reports" / "quickstart", work / "again"
+    assert (first / "index.html").read_bytes() == (second / "index.html").read_bytes()
+
+
+def test_bad_run_config_is_one_clear_error(tmp_path):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text(
+        QUICKSTART.read_text().replace("radius: 1.0\n  percentiles", "radios: 1.0\n  percentiles")
+    )
+    proc = _qsls("run", str(cfg), cwd=tmp_path)
+    assert proc.returncode == 2
+    assert "did you mean 'radius'" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "runs" / "quickstart" / "simulate").exists()
+
+
+def test_killed_run_leaves_no_half_written_stage_and_resumes(tmp_path):
+    data = yaml.safe_load(QUICKSTART.read_text())
+    data["stages"] = ["simulate", "ingest"]
+    data["simulate"]["duration"] = 8
+    cfg = tmp_path / "small.yaml"
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    run_dir = tmp_path / "runs" / "quickstart"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "qsls.cli.main", "run", str(cfg)],
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not (run_dir / "ingest" / "train_1" / "manifest.json").is_file():
+            assert proc.poll() is None, "the run ended before it could be interrupted"
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        time.sleep(0.3)  # inside the next simulation
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    for kind in ("simulate", "ingest"):
+        for folder in (run_dir / kind).iterdir():
+            if not folder.name.startswith("."):
+                assert (folder / "manifest.json").is_file(), f"half-written {folder}"
+    done_before = json.loads((run_dir / "run_state.json").read_text())["stages"]
+    resumed = _qsls("run", str(cfg), cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    statuses = _statuses(resumed.stderr)
+    assert all(statuses[s] == "skipped" for s in done_before)
+    assert any(v == "ran" for v in statuses.values())
+    leftovers = [p for p in run_dir.rglob(".*tmp-*")]
+    assert leftovers == []
+
+
+def test_euroc_config_on_the_real_flights(real_data, tmp_path):
+    """configs/euroc.yaml: real EuRoC flights ingested, fitted and swept (skips without them)."""
+    import pandas as pd
+
+    cfg_text = (REPO / "configs" / "euroc.yaml").read_text()
+    cfg = tmp_path / "configs" / "euroc.yaml"
+    cfg.parent.mkdir()
+    cfg.write_text(cfg_text.replace("../../shared/data/real", str(real_data)))
+    proc = _qsls("run", str(cfg), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    run_dir = tmp_path / "runs" / "euroc"
+    for name, expected in (("v102", 0.007), ("v102_rpg", 0.050), ("mh04_rpg", 0.034)):
+        offset = json.loads((run_dir / "ingest" / name / "manifest.json").read_text())["results"][
+            "time_offset_s"
+        ]
+        assert abs(offset - expected) < 0.03, (name, offset)
+    em = yaml.safe_load((run_dir / "fit" / "error_model.yaml").read_text())
+    assert (
+        em["s_slope"]["max"]
+        >= em["s_slope"]["percentiles"]["p99"]
+        > em["s_slope"]["percentiles"]["p50"]
+        > 0
+    )
+    table = pd.read_csv(run_dir / "sweep" / "sweep.csv")
+    assert len(table) == 12 and set(table["status"]) <= {"certified", "infeasible"}
+    # The max S-slope is infeasible, as in the paper.
+    assert not table.loc[table["S"] == "max", "feasible"].any()
+    assert (tmp_path / "reports" / "euroc" / "index.html").is_file()
