@@ -76,7 +76,7 @@ def run_ingest(bag: Path, decoder: str) -> float:
     def go() -> None:
         ingest([bag], o, out, force=True)
 
-    t = timed(go)
+    t = timed(go, repeat=2)
     shutil.rmtree(out, ignore_errors=True)
     return t
 
@@ -116,7 +116,7 @@ def main() -> None:
         size = bag.stat().st_size / 1e6
         ingest_fast = run_ingest(bag, "fast")
         ingest_slow = run_ingest(bag, "deserializer")
-        read_fast = timed(lambda bag=bag: read_both(bag, True))
+        read_fast = timed(lambda bag=bag: read_both(bag, True), repeat=2)
         read_slow = timed(lambda bag=bag: read_both(bag, False))
         raw = timed(lambda bag=bag: raw_iteration(bag))
         rows.append((label, size, ingest_fast, ingest_slow, read_fast, read_slow, raw))

@@ -217,7 +217,7 @@ def _records(
         raise layout.LayoutError("index points at a record that is not message data")
     if not np.array_equal(layout._u32(buf, rec + 4 + fields["conn"]), conns):
         raise layout.LayoutError("record of another connection than the index says")
-    t = layout._gather(buf, rec + 4 + fields["time"], 8).view("<u4")
+    t = layout._words(buf, rec + 4 + fields["time"], 2, "<u4")
     if not np.array_equal(t[:, 0].astype(np.int64) * 1_000_000_000 + t[:, 1], times):
         raise layout.LayoutError("record time differs from the index")
     starts = rec + 8 + h0

@@ -66,12 +66,32 @@ class Decoded:
 
 
 def _gather(buf: np.ndarray, pos: np.ndarray, nbytes: int) -> np.ndarray:
+    """Bytes ``buf[pos[i] : pos[i] + nbytes]`` of every ``i`` as an ``(n, nbytes)`` array."""
     idx = pos[:, None] + np.arange(nbytes, dtype=np.int64)[None, :]
     return np.ascontiguousarray(buf[idx])
 
 
+def _words(buf: np.ndarray, pos: np.ndarray, count: int, dtype: str) -> np.ndarray:
+    """``count`` little-endian words of ``dtype`` starting at byte ``pos[i]``: ``(n, count)``.
+
+    Gathers whole words through ``itemsize`` shifted views of the buffer (one per
+    ``pos % itemsize``) instead of single bytes: ``itemsize`` times fewer indices.
+    """
+    dt = np.dtype(dtype)
+    size = dt.itemsize
+    out = np.empty((len(pos), count), dtype=dt)
+    residue = pos % size
+    cols = np.arange(count, dtype=np.int64)[None, :]
+    for r in np.unique(residue).tolist():
+        m = residue == r
+        usable = (len(buf) - r) // size
+        view = buf[r : r + usable * size].view(dt)
+        out[m] = view[((pos[m] - r) // size)[:, None] + cols]
+    return out
+
+
 def _u32(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    return _gather(buf, pos, 4).view("<u4")[:, 0].astype(np.int64)
+    return _words(buf, pos, 1, "<u4")[:, 0].astype(np.int64)
 
 
 def _string0(buf: np.ndarray, pos: int, length: int, cdr: bool) -> str:
@@ -121,9 +141,9 @@ def decode(
         if op[0] == "time":
             if cdr:
                 pos = base + ((pos - base + 3) & ~3)
-            t = _gather(buf, pos, 8)
-            sec = t[:, :4].copy().view("<i4" if cdr else "<u4")[:, 0].astype(np.int64)
-            nsec = t[:, 4:].copy().view("<u4")[:, 0].astype(np.int64)
+            t = _words(buf, pos, 2, "<u4").astype(np.int64)
+            sec = t[:, 0] - ((t[:, 0] >> 31) << 32) if cdr else t[:, 0]  # int32 in CDR
+            nsec = t[:, 1]
             header_ns = sec * 1_000_000_000 + nsec
             pos = pos + 8
         elif op[0] == "str":
@@ -143,7 +163,7 @@ def decode(
             if np.any(pos + 8 * count > ends):
                 raise LayoutError("float block beyond the end of a message")
             if op[1] is not None:
-                out[op[1]] = _gather(buf, pos, 8 * count).view("<f8").reshape(n, count)
+                out[op[1]] = _words(buf, pos, count, "<f8")
             pos = pos + 8 * count
     slack = ends - pos
     if slack.min() < 0 or slack.max() > (3 if cdr else 0):
