@@ -121,7 +121,41 @@ class FlyOutcome:
     u_ctrl: np.ndarray  # (k, 3) absolute input, paper signs
     t_vio: np.ndarray  # (m,) s
     e_norm: np.ndarray  # (m,) ||e||_inf of the emulator
+    u_pd: np.ndarray  # (k, 3) what PD would command from the same estimate
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+def pd_on_same_estimate(
+    opts: SimOptions, mass: float, t: np.ndarray, y: np.ndarray, ref: np.ndarray
+) -> np.ndarray:
+    """``u_PD = hover + u_ff + K (y - r)`` (k, 3): what the PD controller would command from
+    the estimate another controller saw (the paper's input figure)."""
+    from qsls.pipeline.model import GRAVITY
+    from qsls.pipeline.pd import pd_gain
+    from qsls.pipeline.sim.references import Reference
+
+    if len(t) == 0:
+        return np.zeros((0, 3))
+    _, _, acc = Reference(opts.reference).arrays(t)
+    ff = np.c_[-acc[:, 0] / GRAVITY, acc[:, 1] / GRAVITY, mass * acc[:, 2]]
+    hover = np.array([0.0, 0.0, mass * GRAVITY])
+    return hover + ff + (y - ref) @ pd_gain(opts.controller.pd, mass).T
+
+
+def input_comparison(u: np.ndarray, u_pd: np.ndarray) -> dict[str, float]:
+    """Attitude commands (pitch, roll) against PD's from the same estimate: RMS step change
+    of each (smoothness, rad per tick), their ratio, and the RMS difference (rad)."""
+    if len(u) < 2:
+        return {"attitude_smoothness": math.nan, "pd_attitude_smoothness": math.nan,
+                "smoothness_vs_pd": math.nan, "attitude_diff_from_pd_rms": math.nan}  # fmt: skip
+    a = float(np.sqrt(np.mean(np.diff(u[:, :2], axis=0) ** 2)))
+    b = float(np.sqrt(np.mean(np.diff(u_pd[:, :2], axis=0) ** 2)))
+    return {
+        "attitude_smoothness": a,
+        "pd_attitude_smoothness": b,
+        "smoothness_vs_pd": a / b if b > 0 else math.nan,
+        "attitude_diff_from_pd_rms": float(np.sqrt(np.mean((u[:, :2] - u_pd[:, :2]) ** 2))),
+    }
 
 
 def run_job(job: FlyJob) -> FlyOutcome:
@@ -148,6 +182,8 @@ def run_job(job: FlyJob) -> FlyOutcome:
         )
     except QslsError as exc:
         ingest_error = str(exc)
+    t_ctrl = f.ctrl_t_ns / NS
+    u_pd = pd_on_same_estimate(opts, f.mass, t_ctrl, f.ctrl_y, f.ctrl_ref)
     n_sub = max(1, round(f.dt * NS / (f.t_ns[1] - f.t_ns[0]))) if len(f.t_ns) > 1 else 1
     idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
     return FlyOutcome(
@@ -155,15 +191,16 @@ def run_job(job: FlyJob) -> FlyOutcome:
         controller=job.controller,
         condition=job.condition,
         seed=job.seed,
-        metrics=f.metrics(),
+        metrics={**f.metrics(), **input_comparison(f.ctrl_u, u_pd)},
         ingest_error=ingest_error,
-        t_ctrl=f.ctrl_t_ns / NS,
+        t_ctrl=t_ctrl,
         x_ctrl=f.x[idx],
         ref_ctrl=f.ctrl_ref,
         y_ctrl=f.ctrl_y,
         u_ctrl=f.ctrl_u,
         t_vio=f.vio_t_ns / NS,
         e_norm=np.abs(f.vio_e).max(axis=1),
+        u_pd=u_pd,
         extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass},
     )
 
@@ -242,6 +279,9 @@ def flight_table(outcomes: Sequence[FlyOutcome], hover_mass: float | None = None
                 "perception_error_max": m["perception_error_max"],
                 "control_effort_rms": m["control_effort_rms"],
                 "control_smoothness_rms": m["control_smoothness_rms"],
+                "attitude_smoothness": m["attitude_smoothness"],
+                "smoothness_vs_pd": m["smoothness_vs_pd"],
+                "attitude_diff_from_pd_rms": m["attitude_diff_from_pd_rms"],
                 "crashed": bool(m["crashed"]),
                 "crash_reason": m["crash_reason"] or "",
                 "ingest_error": o.ingest_error or "",
@@ -259,6 +299,8 @@ def per_controller_table(flights: pd.DataFrame) -> pd.DataFrame:
         "perception_error_max": "max",
         "control_effort_rms": "mean",
         "control_smoothness_rms": "mean",
+        "smoothness_vs_pd": "mean",
+        "attitude_diff_from_pd_rms": "mean",
         "crashed": "sum",
         "seed": "count",
     }
@@ -409,6 +451,23 @@ def compare_with_paper(
                 "agrees": agrees,
             }
         )
+    # (4) qualitative (paper, Fig. u_L1_pd): the robust controllers are softer than PD
+    rob = per[per["controller"].isin(["l1_robust", "l1_robust_imitation"])]
+    if len(rob) and "smoothness_vs_pd" in rob.columns:
+        ratios = rob["smoothness_vs_pd"].to_numpy(float)
+        nums = ", ".join(
+            f"{r.controller} ({r.condition}) {r.smoothness_vs_pd:.2f}" for r in rob.itertuples()
+        )
+        agrees = "yes" if np.all(ratios < 1) else "no" if np.all(ratios >= 1) else "partly"
+        out.append(
+            {
+                "finding": "4. (qualitative) the robust controllers react more softly than PD "
+                "would on the same estimate",
+                "qsls": f"RMS step change of the attitude command relative to PD's on the same "
+                f"estimate (< 1: softer): {nums}",
+                "agrees": agrees,
+            }
+        )
     return out
 
 
@@ -430,7 +489,8 @@ def comparison_markdown(comparison: Sequence[dict[str, Any]], per: pd.DataFrame)
     cols = [
         "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
         "perception_error_rms", "perception_error_max", "control_effort_rms",
-        "control_smoothness_rms", "gamma_strict", "frac_under_gamma", "max_ratio",
+        "control_smoothness_rms", "smoothness_vs_pd", "gamma_strict", "frac_under_gamma",
+        "max_ratio",
     ]  # fmt: skip
     cols = [c for c in cols if c in per.columns]
     lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]
@@ -592,9 +652,6 @@ def fly_evaluate(
 
 def _write_fly_figures(w, outcomes, bounds, options, ref_bound) -> None:  # type: ignore[no-untyped-def]
     from qsls.pipeline import evaluate_plots as plots
-    from qsls.pipeline.pd import pd_gain
-    from qsls.pipeline.sim.controllers import feedforward, hover_input
-    from qsls.pipeline.sim.references import Reference, RefSample
 
     seed0 = options.seeds[0]
     first = {(o.condition, o.controller): o for o in outcomes if o.seed == seed0}
@@ -612,18 +669,7 @@ def _write_fly_figures(w, outcomes, bounds, options, ref_bound) -> None:  # type
     )
     if robust is not None:
         o = first[(options.conditions[0], robust)]
-        mass = o.extra["mass"]
-        K = pd_gain(options.sim.controller.pd, mass)
-        refm = Reference(options.sim.reference)
-        _, _, acc = refm.arrays(o.t_ctrl)
-        u_pd = np.array(
-            [
-                hover_input(mass)
-                + feedforward(RefSample(p=r[:3], v=r[3:], a=a), mass)
-                + K @ (y - r)
-                for y, r, a in zip(o.y_ctrl, o.ref_ctrl, acc, strict=True)
-            ]
-        )
+        u_pd = o.u_pd
         w.write_figure(
             f"input_{robust}_vs_pd.png", plots.input_figure(o.t_ctrl, o.u_ctrl, u_pd, robust)
         )
