@@ -157,7 +157,11 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
     piv = flights.pivot(index="controller", columns="condition", values="perception_error_rms")
     assert (piv["degraded"] > piv["regular"]).all()
     doc = json.loads((out / "evaluation.json").read_text())
-    assert [c["finding"][:2] for c in doc["comparison"]] == ["1.", "2.", "3."]
+    assert [c["finding"][:2] for c in doc["comparison"]] == ["1.", "2.", "3.", "4."]
+    # PD on its own estimate is exactly itself: its softness ratio is 1
+    pd_rows = flights[flights["controller"] == "pd"]
+    np.testing.assert_allclose(pd_rows["smoothness_vs_pd"], 1.0, rtol=1e-9)
+    np.testing.assert_allclose(pd_rows["attitude_diff_from_pd_rms"], 0.0, atol=1e-12)
     ev = pd.read_parquet(out / "evaluation.parquet")
     assert {"flown_by", "gamma", "gamma_strict", "max_ratio", "max_distance_to_training"} <= set(
         ev.columns
@@ -167,7 +171,7 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
         assert (out / name).stat().st_size > 1000, name
     assert "Against the paper" in r.output
     md = (out / "comparison.md").read_text()
-    assert md.count("\n| 1. ") + md.count("\n| 2. ") + md.count("\n| 3. ") == 3
+    assert sum(md.count(f"\n| {i}. ") for i in (1, 2, 3)) == 3
     # --flights makes no sense with --fly: one-line error, nothing written
     r = CliRunner().invoke(
         app, [str(a) for a in [*args[:-4], "--flights", root / "train", "--out", tmp_path / "x"]]
