@@ -253,7 +253,12 @@ class FlyResult(EvaluateResult):
                 f"max {r['perception_error_max']:.3f}, crashed {int(r['crashed'])}"
             )
         if self.warnings:
-            out["warnings"] = "; ".join(self.warnings)
+            more = (
+                f" (+{len(self.warnings) - 3} more in evaluation.json)"
+                if len(self.warnings) > 3
+                else ""
+            )
+            out["warnings"] = "; ".join(self.warnings[:3]) + more
         return out
 
     def comparison_rows(self) -> tuple[list[str], list[list[Any]]]:
