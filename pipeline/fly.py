@@ -104,6 +104,7 @@ class FlyJob:
     ingest: dict[str, Any]
     sim_dir: str
     flight_dir: str
+    pd_gain: tuple[tuple[float, ...], ...] | None = None  # K of the flown PD, if any
 
 
 @dataclass
@@ -126,10 +127,16 @@ class FlyOutcome:
 
 
 def pd_on_same_estimate(
-    opts: SimOptions, mass: float, t: np.ndarray, y: np.ndarray, ref: np.ndarray
+    opts: SimOptions,
+    mass: float,
+    t: np.ndarray,
+    y: np.ndarray,
+    ref: np.ndarray,
+    K: np.ndarray | None = None,
 ) -> np.ndarray:
     """``u_PD = hover + u_ff + K (y - r)`` (k, 3): what the PD controller would command from
-    the estimate another controller saw (the paper's input figure)."""
+    the estimate another controller saw (the paper's input figure). ``K``: the flown PD's
+    gain (from the synth folder's ``pd``); default: the simulator's PD gains."""
     from qsls.pipeline.model import GRAVITY
     from qsls.pipeline.pd import pd_gain
     from qsls.pipeline.sim.references import Reference
@@ -139,7 +146,8 @@ def pd_on_same_estimate(
     _, _, acc = Reference(opts.reference).arrays(t)
     ff = np.c_[-acc[:, 0] / GRAVITY, acc[:, 1] / GRAVITY, mass * acc[:, 2]]
     hover = np.array([0.0, 0.0, mass * GRAVITY])
-    return hover + ff + (y - ref) @ pd_gain(opts.controller.pd, mass).T
+    gain = pd_gain(opts.controller.pd, mass) if K is None else np.asarray(K, dtype=float)
+    return hover + ff + (y - ref) @ gain.T
 
 
 def input_comparison(u: np.ndarray, u_pd: np.ndarray) -> dict[str, float]:
@@ -183,7 +191,7 @@ def run_job(job: FlyJob) -> FlyOutcome:
     except QslsError as exc:
         ingest_error = str(exc)
     t_ctrl = f.ctrl_t_ns / NS
-    u_pd = pd_on_same_estimate(opts, f.mass, t_ctrl, f.ctrl_y, f.ctrl_ref)
+    u_pd = pd_on_same_estimate(opts, f.mass, t_ctrl, f.ctrl_y, f.ctrl_ref, job.pd_gain)
     n_sub = max(1, round(f.dt * NS / (f.t_ns[1] - f.t_ns[0]))) if len(f.t_ns) > 1 else 1
     idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
     return FlyOutcome(
@@ -522,6 +530,17 @@ def _select(folders: list[Path], names: list[str] | None) -> list[Path]:
     return [by_name[n] for n in names]
 
 
+def _pd_gain_of(folders: Sequence[Path]) -> tuple[tuple[float, ...], ...] | None:
+    """``K`` of a static-gain ``pd`` controller among the folders (synth's PD), if any."""
+    for f in folders:
+        npz = f / "controller.npz"
+        if f.name == "pd" and npz.is_file():
+            with np.load(npz, allow_pickle=False) as z:
+                if "K" in z.files:
+                    return tuple(tuple(float(v) for v in row) for row in z["K"])
+    return None
+
+
 def fly_evaluate(
     error_model: Path,
     controllers: Sequence[Path],
@@ -553,6 +572,7 @@ def fly_evaluate(
     sim_base["duration"] = options.duration
     ingest_opts = options.ingest.model_dump(mode="json")
     workers = options.jobs or os.cpu_count() or 1
+    pd_k = _pd_gain_of(folders)
 
     tmp_root = Path(tempfile.mkdtemp(prefix="qsls-fly-"))
     try:
@@ -576,6 +596,7 @@ def fly_evaluate(
                                 ingest_opts,
                                 str(sim_dir),
                                 str(w.path("flights") / name),
+                                pd_k,
                             )
                         )
             outcomes = run_jobs(jobs, min(workers, len(jobs)), progress)
