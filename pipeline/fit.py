@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 from pydantic import Field, field_validator
 
-from qsls.pipeline.artifacts import StageWriter, require_stage
+from qsls.pipeline.artifacts import StageWriter, check_output, require_stage
 from qsls.pipeline.config import Options
 from qsls.pipeline.errormodel import (
     ERROR_MODEL_FILE,
@@ -395,6 +395,9 @@ def fit(
 ) -> FitResult:
     """Estimate the error model of ``flights`` and write ``out`` (see the module doc)."""
     flights = [Path(f) for f in flights]
+    check_output(Path(out), force)  # before the work, not after it
+    names = {pct_name(q) for q in options.percentiles}
+    _resolve_r0(options.r0, 0.0, dict.fromkeys(names, 0.0))  # a clear error now, not later
     tr = _load(flights, options)
     ref_x, ref_desc = reference_states(options)
     idx = np.flatnonzero(tr.keep)

@@ -198,6 +198,8 @@ def test_cli_fit_and_bad_input(tmp_path):
     model = load_error_model(out / "error_model.yaml")
     assert model.min_separation == 0.05 and model.min_separation_rule == "given"
     assert "S max" in r.output
+    r = runner.invoke(app, ["fit", str(flights[0]), "--out", str(out)])
+    assert r.exit_code == 2 and "already exists" in r.output
 
     other = tmp_path / "other"
     with StageWriter(other, "simulate") as w:
@@ -212,6 +214,7 @@ def test_cli_fit_and_bad_input(tmp_path):
             "samples were excluded (skip_start",
         ),
         "bad reference": ([str(flights[0]), "--reference", "square:a=1"], "neither a flight"),
+        "bad r0": ([str(flights[0]), "--r0", "p42"], "r0 'p42'"),
         "scale length": ([str(flights[0]), "--state-scale", "1,2"], "give 6 weights"),
         "min sep >= r": ([str(flights[0]), "--min-separation", "1"], "smaller than the radius"),
     }
