@@ -88,6 +88,9 @@ class FlyOptions(EvaluateOptions):
     """A controller 'tracks' when it does not crash and its tracking RMS is below this (m)."""
     tie_rel: float = Field(0.02, ge=0)
     """Relative difference below which two controllers' numbers count as a tie (findings)."""
+    pd_z_control: bool = False
+    """Fly the synthesized controllers with the PD's height (thrust) channel, as the paper
+    did in simulation and on hardware "for safety"; pitch and roll stay theirs."""
     keep_bags: bool = False
     """Keep every flight's simulate folder (bag, truth.json) under ``sims/``."""
 
@@ -105,6 +108,7 @@ class FlyJob:
     sim_dir: str
     flight_dir: str
     pd_gain: tuple[tuple[float, ...], ...] | None = None  # K of the flown PD, if any
+    pd_z: bool = False  # thrust from PD (paper's setup), for synthesized controllers
 
 
 @dataclass
@@ -166,6 +170,37 @@ def input_comparison(u: np.ndarray, u_pd: np.ndarray) -> dict[str, float]:
     }
 
 
+class PdHeightController:
+    """A synthesized controller's pitch and roll with the PD's thrust (paper, Controllers:
+    "the z control of the PD controller was used instead")."""
+
+    def __init__(self, inner: Any, pd: Any) -> None:
+        self.inner, self.pd = inner, pd
+        self.name = f"{inner.name}+pd_z"
+        self.dt = inner.dt
+
+    @classmethod
+    def build(cls, opts: SimOptions, K: Any = None) -> PdHeightController:
+        from qsls.pipeline.sim.controllers import PDController, make_controller
+        from qsls.pipeline.sim.vehicle import Vehicle
+
+        mass = Vehicle(opts.vehicle).mass
+        inner = make_controller(opts.controller, mass)
+        pd = PDController(opts.controller.pd, mass, inner.dt)
+        if K is not None:
+            pd.K = np.asarray(K, dtype=float)
+        return cls(inner, pd)
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.pd.reset()
+
+    def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: Any) -> np.ndarray:
+        u = np.array(self.inner.command(t, y, q, ref), dtype=float)
+        u[2] = self.pd.command(t, y, q, ref)[2]
+        return u
+
+
 def run_job(job: FlyJob) -> FlyOutcome:
     """Fly one controller (simulate: closed loop + bag), then ingest the bag."""
     from qsls.pipeline.config import merge
@@ -181,7 +216,10 @@ def run_job(job: FlyJob) -> FlyOutcome:
         },
     )
     opts = SimOptions.model_validate(data)
-    res = simulate(opts, Path(job.sim_dir), force=True)
+    ctrl = None
+    if job.pd_z and job.spec not in ("se3", "pd") and job.controller != "pd":
+        ctrl = PdHeightController.build(opts, job.pd_gain)
+    res = simulate(opts, Path(job.sim_dir), force=True, controller=ctrl)
     f = res.flight
     ingest_error = None
     try:
@@ -597,6 +635,7 @@ def fly_evaluate(
                                 str(sim_dir),
                                 str(w.path("flights") / name),
                                 pd_k,
+                                options.pd_z_control,
                             )
                         )
             outcomes = run_jobs(jobs, min(workers, len(jobs)), progress)

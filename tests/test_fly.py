@@ -209,3 +209,20 @@ def test_model_hash_mismatch_with_real_stages(trained, tmp_path):
     # the training flight itself: distance 0 to the training states, the bound holds there
     ev = pd.read_parquet(tmp_path / "ev" / "evaluation.parquet")
     assert ev["max_distance_to_training"].iloc[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_pd_height_channel_option(trained, tmp_path):
+    """pd_z_control (the paper's setup): thrust from PD on the same estimate, attitude not."""
+    from qsls.pipeline.fly import FlyJob, run_job
+
+    root, _ = trained
+    sim = SimOptions().model_dump(mode="json")
+    sim["duration"] = 4.0
+    job = FlyJob(
+        "z", "l1_robust", str(root / "synth" / "l1_robust"), "regular", 0, sim,
+        IngestOptions().model_dump(mode="json"), str(tmp_path / "sim"), str(tmp_path / "fl"),
+        pd_z=True,
+    )  # fmt: skip
+    o = run_job(job)
+    np.testing.assert_allclose(o.u_ctrl[:, 2], o.u_pd[:, 2], rtol=1e-12)
+    assert np.abs(o.u_ctrl[:, :2] - o.u_pd[:, :2]).max() > 1e-3
