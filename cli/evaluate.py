@@ -67,19 +67,32 @@ def command(
     ),
 ) -> None:
     """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
-    from qsls.pipeline.config import load_options
+    from qsls.pipeline.config import merge, read_yaml, validate
+    from qsls.pipeline.errors import ConfigError, InputError
 
+    # The config's 'evaluate' section (or the whole file); its 'fly' mapping (as in a
+    # 'qsls run' config) adds the flying options.
+    section: dict = {}
+    if config is not None:
+        raw = read_yaml(config)
+        raw = raw.get("evaluate", raw) or {}
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{config}: section 'evaluate' must be a mapping")
+        section = dict(raw)
+    fly_cfg = section.pop("fly", None)
     ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None)
     if fly:
-        from qsls.pipeline.errors import InputError
         from qsls.pipeline.fly import FlyOptions, fly_evaluate
 
         if flights:
             raise InputError("--flights is not used with --fly (the flights are flown); drop one")
-
+        try:
+            seed_list = [int(s) for s in seeds.split(",") if s.strip()] if seeds else None
+        except ValueError:
+            raise InputError(f"--seeds: expected comma-separated integers, got '{seeds}'") from None
         ov.update(
             overrides(
-                seeds=[int(s) for s in seeds.split(",") if s.strip()] if seeds else None,
+                seeds=seed_list,
                 duration=duration,
                 conditions=[c.strip() for c in conditions.split(",") if c.strip()]
                 if conditions
@@ -87,7 +100,8 @@ def command(
                 jobs=jobs,
             )
         )
-        options = load_options(FlyOptions, config, ov, section="evaluate")
+        base = merge(section, fly_cfg) if isinstance(fly_cfg, dict) else section
+        options = validate(FlyOptions, merge(base, ov), str(config or "options"))
         with RichProgress() as progress:
             result = fly_evaluate(model, controller, options, out, force=force, progress=progress)
         print_summary("qsls evaluate --fly", result.summary())
@@ -96,7 +110,7 @@ def command(
         return
     from qsls.pipeline.evaluate import EvaluateOptions, evaluate
 
-    options = load_options(EvaluateOptions, config, ov, section="evaluate")
+    options = validate(EvaluateOptions, merge(section, ov), str(config or "options"))
     with RichProgress() as progress:
         result = evaluate(
             flights or [], model, controller, options, out, force=force, progress=progress

@@ -141,7 +141,14 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
     root, _ = trained
     cfg = tmp_path / "fly.yaml"
     cfg.write_text(
-        yaml.safe_dump({"evaluate": {"controllers": ["pd", "l1_robust"], "duration": 8.0}})
+        yaml.safe_dump(
+            {
+                "evaluate": {
+                    "smooth_s": 0.5,
+                    "fly": {"controllers": ["pd", "l1_robust"], "duration": 8.0},
+                }
+            }
+        )
     )
     out = tmp_path / "ev"
     args = ["evaluate", "--fly", "--model", root / "fit", "--controller", root / "synth",
