@@ -30,6 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 WORK = ROOT / "benchmarks" / "_work"
 sys.path.insert(0, str(ROOT))
 
+from qsls.pipeline.artifacts import _hash_file  # noqa: E402
 from qsls.pipeline.ingest import IngestOptions, ingest  # noqa: E402
 from qsls.pipeline.sources.bags import BagSource  # noqa: E402
 from qsls.pipeline.sources.write import ImageStream, write_bag  # noqa: E402
@@ -119,18 +120,19 @@ def main() -> None:
         read_fast = timed(lambda bag=bag: read_both(bag, True), repeat=2)
         read_slow = timed(lambda bag=bag: read_both(bag, False))
         raw = timed(lambda bag=bag: raw_iteration(bag))
-        rows.append((label, size, ingest_fast, ingest_slow, read_fast, read_slow, raw))
+        sha = timed(lambda bag=bag: _hash_file(bag))
+        rows.append((label, size, ingest_fast, ingest_slow, read_fast, read_slow, raw, sha))
     print(f"\n{n_msgs} Odometry+PoseStamped messages per bag; seconds (messages/s)\n")
     head = (
         f"{'bag':30s} {'MB':>6s} | {'ingest fast':>18s} {'ingest deser.':>18s} {'speed-up':>8s}"
-        f" | {'read fast':>9s} {'read deser.':>11s} {'raw iter':>8s}"
+        f" | {'read fast':>9s} {'read deser.':>11s} {'raw iter':>8s} {'sha256':>6s}"
     )
     print(head)
     print("-" * len(head))
-    for label, size, f_, s_, rf, rs, raw in rows:
+    for label, size, f_, s_, rf, rs, raw, sha in rows:
         print(
             f"{label:30s} {size:6.0f} | {f_:7.2f} ({n_msgs / f_:8.0f}) {s_:7.2f} ({n_msgs / s_:8.0f}) "
-            f"{s_ / f_:7.1f}x | {rf:9.2f} {rs:11.2f} {raw:8.2f}"
+            f"{s_ / f_:7.1f}x | {rf:9.2f} {rs:11.2f} {raw:8.2f} {sha:6.2f}"
         )
     a_fast = rows[0][2]
     b_fast = rows[1][2]
