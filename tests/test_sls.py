@@ -179,3 +179,23 @@ def test_solver_trouble_is_never_certified():
         setting = certify.Setting(0.1, 0.05, 1.0, 0.01, 0.05, 0.05)
         status, fields = certify.certify(sol.taps, MODEL, setting, solver_status=sol.status)
         assert status != "certified" and not fields["checks"]["solver"]["passed"]
+
+
+def test_certificate_checks_catch_a_wrong_response():
+    """Perturb one tap of an achievable response: achievability, realization and status fail."""
+    from dataclasses import replace
+
+    sol = sls.solve(
+        MODEL,
+        sls.Structure(10, "l1", "qr", True),
+        sls.Values(eps_w=0.01, eps_e=0.05, S=0.1, delta=0.05),
+    )
+    setting = certify.Setting(0.1, 0.05, 1.0, 0.01, 0.05, 0.05)
+    status, f = certify.certify(sol.taps, MODEL, setting)
+    assert status == "certified" and f["realization_error"] < 1e-12
+    bad_uy = sol.taps.Phi_uy.copy()
+    bad_uy[4, 0, 0] += 1e-5
+    status, f = certify.certify(replace(sol.taps, Phi_uy=bad_uy), MODEL, setting)
+    assert status == "failed"
+    assert f["achievability_residual"] > 1e-7 and not f["checks"]["achievability"]["passed"]
+    assert f["realization_error"] > 1e-8 and not f["checks"]["realization"]["passed"]
