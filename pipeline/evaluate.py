@@ -197,6 +197,20 @@ def load_controller_bound(folder: Path) -> ControllerBound:
     )
 
 
+def load_bounds(folders: Sequence[Path]) -> list[ControllerBound]:
+    """Every folder's bound, names made unique (``<synth folder>-<controller>`` on a clash,
+    e.g. two synth outputs that both hold ``l1_robust``)."""
+    from collections import Counter
+    from dataclasses import replace
+
+    bounds = [load_controller_bound(f) for f in folders]
+    counts = Counter(b.name for b in bounds)
+    return [
+        replace(b, name=f"{b.folder.parent.name}-{b.name}") if counts[b.name] > 1 else b
+        for b in bounds
+    ]
+
+
 def check_model_hash(bound: ControllerBound, model_file: Path, *, force: bool) -> str | None:
     """Compare the controller's recorded error-model hash with ``model_file``'s.
 
@@ -573,7 +587,7 @@ def evaluate(
     folders = expand_controllers(controllers)
     if not folders:
         raise InputError("no controllers given; pass at least one --controller folder")
-    bounds = [load_controller_bound(f) for f in folders]
+    bounds = load_bounds(folders)
     warnings = [w for b in bounds if (w := check_model_hash(b, model_file, force=force))]
     training = load_training(fit_dir, model, options.state_scale)
     held_out = load_flights(flights)

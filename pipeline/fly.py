@@ -47,7 +47,7 @@ from qsls.pipeline.evaluate import (
     bound_check,
     check_model_hash,
     expand_controllers,
-    load_controller_bound,
+    load_bounds,
     load_training,
     resolve_model,
     write_tables,
@@ -599,7 +599,7 @@ def fly_evaluate(
     model_file, fit_dir = resolve_model(error_model)
     model = load_error_model(model_file)
     folders = _select(expand_controllers(controllers), options.controllers)
-    bounds = [load_controller_bound(f) for f in folders]
+    bounds = load_bounds(folders)
     warnings = [w for b in bounds if (w := check_model_hash(b, model_file, force=force))]
     training = load_training(fit_dir, model, options.state_scale)
 

@@ -254,3 +254,12 @@ def test_nonfinite_samples_are_dropped_and_counted(setup):
     ]
     assert row["n_samples"] == 95 and row["n_nonfinite_dropped"] == 5
     assert row["frac_under_gamma"] == 1.0 and row["bound_holds"]
+
+
+def test_same_controller_name_from_two_synth_folders(setup):
+    tmp, model, _, flight = setup
+    a = write_controller(tmp / "synthA" / "l1_robust", model)
+    b = write_controller(tmp / "synthB" / "l1_robust", model, S=0.1)
+    res = evaluate([flight], model, [a, b], EvaluateOptions(figures=False), tmp / "ev6")
+    assert list(res.table["controller"]) == ["synthA-l1_robust", "synthB-l1_robust"]
+    assert res.table["gamma_strict"].nunique() == 2
