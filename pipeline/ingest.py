@@ -421,13 +421,9 @@ def _ingest(
     else:
         est = estimate_offset(
             vio.t_ns, vio.position, truth.t_ns, truth.position,
+            vio_q=vio.orientation, truth_q=truth.orientation,
             method=o.align, max_offset_s=o.max_time_offset, min_overlap_s=o.min_overlap,
         )  # fmt: skip
-        if est.at_edge:
-            raise InputError(
-                f"the clock offset estimate hit the edge of the search range (+-{est.search_s:.2f} s); "
-                "raise --max-time-offset or give --time-offset SECONDS"
-            )
         spread = float(np.sqrt(np.mean(np.sum((truth.position - truth.position.mean(0)) ** 2, 1))))
         if est.rms_m > 0.5 * spread:
             raise InputError(
@@ -436,10 +432,21 @@ def _ingest(
                 f"{spread:.3g} m); check the topics and --stamp, raise --max-time-offset, "
                 "or give --time-offset SECONDS"
             )
+        if est.at_edge:
+            raise InputError(
+                f"the clock offset estimate hit the edge of the search range (+-{est.search_s:.2f} s); "
+                "raise --max-time-offset or give --time-offset SECONDS"
+            )
         tau = est.offset_s
         offset_info = {
-            "method": f"auto: aligned ({o.align}) position RMS minimized over the offset",
+            "method": (
+                f"auto: log of the aligned ({o.align}) position mean square plus log of the "
+                "body-frame gravity direction mismatch, minimized over the offset"
+                if est.uses_attitude
+                else f"auto: aligned ({o.align}) position RMS minimized over the offset"
+            ),
             "rms_m": est.rms_m,
+            **({"tilt_rms": est.tilt_rms} if est.uses_attitude else {}),
             "samples": est.samples,
             "search_s": est.search_s,
         }
