@@ -233,9 +233,64 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+_BLAS_SETTERS = (
+    "scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+    "openblas_set_num_threads64_", "openblas_set_num_threads",
+)  # fmt: skip
+_BLAS_GETTERS = (
+    "scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads",
+    "openblas_get_num_threads64_", "openblas_get_num_threads",
+)  # fmt: skip
+
+
+def _openblas() -> list[tuple[Any, Any]]:
+    """``(set, get)`` num-threads functions of every OpenBLAS loaded in this process."""
+    import ctypes
+
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = sorted({ln.split()[-1] for ln in fh if "openblas" in ln.lower() and "/" in ln})
+    except OSError:
+        return []
+    out = []
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        setter = next((getattr(lib, n) for n in _BLAS_SETTERS if hasattr(lib, n)), None)
+        getter = next((getattr(lib, n) for n in _BLAS_GETTERS if hasattr(lib, n)), None)
+        if setter is not None and getter is not None:
+            out.append((setter, getter))
+    return out
+
+
+class single_threaded_blas:
+    """Run OpenBLAS on one thread inside the block (restored after). Each sweep worker
+    is one process per core; OpenBLAS's own threads only spin against the other worker
+    (measured: 9.8 CPU s instead of 5.5 for the same sweep, no faster)."""
+
+    def __enter__(self) -> single_threaded_blas:
+        import ctypes
+
+        self._saved = []
+        for setter, getter in _openblas():
+            getter.restype = ctypes.c_int
+            self._saved.append((setter, int(getter())))
+            setter(ctypes.c_int(1))
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        import ctypes
+
+        for setter, n in self._saved:
+            setter(ctypes.c_int(n))
+
+
 def run_chunk(chunk: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Run a chunk of points in this process (the unit of work for the pool and Dask)."""
-    return [run_point(p) for p in chunk]
+    with single_threaded_blas():
+        return [run_point(p) for p in chunk]
 
 
 def s_max_task(spec: dict[str, Any]) -> dict[str, Any]:
