@@ -240,10 +240,17 @@ class TrainingData:
     e: np.ndarray | None
     scale: np.ndarray
     tree: Any
+    min_separation: float = 0.0
+    """Slopes to the nearest training state only count beyond this distance (the error
+    model's noise floor: closer pairs make slopes of noise over almost nothing)."""
 
     @classmethod
     def build(
-        cls, x: np.ndarray, scale: Sequence[float], e: np.ndarray | None = None
+        cls,
+        x: np.ndarray,
+        scale: Sequence[float],
+        e: np.ndarray | None = None,
+        min_separation: float = 0.0,
     ) -> TrainingData:
         from scipy.spatial import cKDTree
 
@@ -253,7 +260,10 @@ class TrainingData:
         x = np.asarray(x, dtype=float)
         if x.ndim != 2 or x.shape[1] != 6 or len(x) == 0:
             raise InputError("training states: expected a non-empty (n, 6) array")
-        return cls(x=x, e=e, scale=scale_arr, tree=cKDTree(x * scale_arr))
+        return cls(
+            x=x, e=e, scale=scale_arr, tree=cKDTree(x * scale_arr),
+            min_separation=float(min_separation),
+        )  # fmt: skip
 
     def nearest(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(d_k, i_k)``: infinity-norm distance in the scaled state to the nearest training
@@ -278,7 +288,10 @@ def load_training(fit_dir: Path, model: ErrorModel, scale: Sequence[float] | Non
         )
     e = df.loc[:, list(E_COLS)].to_numpy(float) if all(c in df.columns for c in E_COLS) else None
     return TrainingData.build(
-        df.loc[:, list(X_COLS)].to_numpy(float), scale or model.state_scale, e
+        df.loc[:, list(X_COLS)].to_numpy(float),
+        scale or model.state_scale,
+        e,
+        model.min_separation,
     )
 
 
@@ -330,13 +343,14 @@ def check_flight(
     # The slope to the nearest training state, where the model records training errors.
     max_slope = math.nan
     if training.e is not None:
-        sep = d > 1e-9
+        sep = d > max(training.min_separation, 1e-9)
         if np.any(sep & inside):
             sl = np.abs(e - training.e[idx]).max(axis=1)[sep & inside] / d[sep & inside]
             max_slope = float(sl.max())
     bound_holds = bool(np.all(e_norm <= gamma_k)) if bound.finite else False
     strict_holds = bool(np.all(e_norm <= gamma_strict))
     premise_holds = bool(np.all(premise_ratio <= 1.0))
+    frac_premise = float(np.mean(premise_ratio <= 1.0))
     within_radius = bool(np.all(inside))
     verdict = _verdict(
         bound,
@@ -347,6 +361,7 @@ def check_flight(
         float(premise_ratio[k_prem]),
         float(t[k_prem]),
         max_slope,
+        frac_premise,
     )
     row = {
         "flight": name,
@@ -381,6 +396,7 @@ def check_flight(
         "mean_distance_to_training": float(d.mean()),
         "radius": bound.radius,
         "frac_within_radius": float(np.mean(inside)),
+        "frac_premise_holds": frac_premise,
         "max_premise_ratio": float(premise_ratio[k_prem]),
         "max_premise_ratio_t": float(t[k_prem]),
         "max_slope_to_training": max_slope,
@@ -413,6 +429,7 @@ def _verdict(
     premise_ratio: float,
     premise_t: float,
     max_slope: float,
+    frac_premise: float = 0.0,
 ) -> str:
     if not bound.finite:
         return (
@@ -428,8 +445,9 @@ def _verdict(
     if not premise_holds:
         slope = f", held-out slope to training {max_slope:.3g} > S" if max_slope > bound.S else ""
         problems.append(
-            f"assumption violated: ||e|| reaches {premise_ratio:.3g}x eps_e + S*d at t={premise_t:.2f}s "
-            f"(certified S={bound.S:.3g}, eps_e={bound.eps_e:.3g} are too small for this flight{slope})"
+            f"assumption violated at {100 * (1 - frac_premise):.1f}% of samples: ||e|| reaches "
+            f"{premise_ratio:.3g}x eps_e + S*d at t={premise_t:.2f}s (certified S={bound.S:.3g}, "
+            f"eps_e={bound.eps_e:.3g} are too small for this flight{slope})"
         )
     if not within_radius:
         problems.append(f"flight leaves the radius r={bound.radius:.3g} around the training states")

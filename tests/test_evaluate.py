@@ -120,7 +120,9 @@ def test_bounds_match_hand_computation(setup):
     assert not row["bound_holds"]
     # 0.2 > eps_e + S d = 0.07: the assumption is what failed, and the verdict says so.
     assert not row["assumption_holds"]
-    assert "assumption violated" in row["verdict"] and row["verdict"].startswith("FAILS")
+    assert "assumption violated at 0.5% of samples" in row["verdict"]
+    assert row["verdict"].startswith("FAILS")
+    assert row["frac_premise_holds"] == pytest.approx(199 / 200)
     doc = json.loads((tmp / "ev" / "evaluation.json").read_text())
     assert doc["controllers"][0]["max_ratio"] == pytest.approx(row["max_ratio"])
     cols = pd.read_parquet(tmp / "ev" / "evaluation.parquet").columns
