@@ -99,10 +99,22 @@ class ControllerBound:
         return self.denominator > 0
 
     @property
+    def no_guarantee_reason(self) -> str | None:
+        """Why the theorem does not apply to this controller (``None``: it does)."""
+        if not self.finite:
+            return f"S*||Phi_xy|| = {self.S * self.norm_phi_xy:.3g} >= 1"
+        if self.status in ("failed", "solver_inaccurate"):
+            return f"certificate status '{self.status}'"
+        if self.robustness_lhs is not None and self.robustness_lhs >= 1.0:
+            return f"robustness condition not met (lhs {self.robustness_lhs:.3g} >= 1)"
+        return None
+
+    @property
     def has_guarantee(self) -> bool:
-        """The theorem applies: finite bound and the robustness condition met (lhs < 1, the
-        certificate's ``robustness_lhs``); a nominal or PD controller usually misses it."""
-        return self.finite and (self.robustness_lhs is None or self.robustness_lhs < 1.0)
+        """The theorem applies: finite bound, a verified controller, and the robustness
+        condition met (lhs < 1, the certificate's ``robustness_lhs``); a nominal or PD
+        controller usually misses the last."""
+        return self.no_guarantee_reason is None
 
     @property
     def gamma_strict(self) -> float:
@@ -439,8 +451,7 @@ def _verdict(
     problems = []
     if not bound.has_guarantee:
         problems.append(
-            f"no guarantee: robustness condition not met (lhs {bound.robustness_lhs:.3g} >= 1), "
-            "the formula's value is shown for comparison"
+            f"no guarantee: {bound.no_guarantee_reason}, the formula's value is shown for comparison"
         )
     if not premise_holds:
         slope = f", held-out slope to training {max_slope:.3g} > S" if max_slope > bound.S else ""

@@ -169,6 +169,9 @@ def test_no_guarantee_when_s_phi_at_least_one(setup):
     res = evaluate([flight], model, [nom], EvaluateOptions(figures=False), tmp / "ev4")
     assert "no guarantee: robustness condition not met" in res.table.iloc[0]["verdict"]
     assert not res.table.iloc[0]["has_guarantee"]
+    # a controller whose verification failed is never a guarantee
+    bad = write_controller(tmp / "bad", model, status="failed")
+    assert load_controller_bound(bad).no_guarantee_reason == "certificate status 'failed'"
 
 
 def test_nearest_distance_matches_brute_force():
