@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from qsls.pipeline.align import matrix_to_quat, quat_to_matrix, rot_z
-from qsls.pipeline.sources.write import OdometryStream, PoseStream, write_bag
+from qsls.pipeline.sources.write import TF, OdometryStream, PoseStream, write_bag
 
 T0_NS = 1_700_000_000_000_000_000
 
@@ -100,3 +100,28 @@ def write_flight(path: Path, fmt: str, flight: Flight | None = None, **kw) -> Pa
 
 def bag_name(fmt: str, stem: str = "flight") -> str:
     return {"ros1": f"{stem}.bag", "mcap": f"{stem}.mcap"}.get(fmt, f"{stem}_{fmt}")
+
+
+def tf_streams(truth: PoseStream, other_child: str, other_position: np.ndarray, log_shift_ns: int):
+    """A ``/tf`` topic with two transforms: ``world -> quad`` (the truth) and ``quad -> other``."""
+    main = PoseStream(
+        "/tf",
+        truth.header_ns,
+        truth.log_ns,
+        truth.position,
+        truth.orientation,
+        msgtype=TF,
+        frame_id="world",
+        child_frame_id="quad",
+    )
+    other = PoseStream(
+        "/tf",
+        truth.header_ns,
+        truth.log_ns + log_shift_ns,
+        other_position,
+        truth.orientation,
+        msgtype=TF,
+        frame_id="quad",
+        child_frame_id=other_child,
+    )
+    return main, other

@@ -13,8 +13,8 @@ from qsls.cli.main import app
 from qsls.pipeline.flight import read_flight
 from qsls.pipeline.ingest import IngestOptions, ingest
 from qsls.pipeline.sources.text import read_tum
-from qsls.pipeline.sources.write import FORMATS, POSE_COV, TF, TRANSFORM, PoseStream, write_bag
-from tests.bagfixtures import T0_NS, bag_name, make_flight, truth_state, write_flight
+from qsls.pipeline.sources.write import FORMATS, POSE_COV, TRANSFORM, write_bag
+from tests.bagfixtures import T0_NS, bag_name, make_flight, tf_streams, truth_state, write_flight
 
 runner = CliRunner()
 
@@ -98,26 +98,7 @@ def test_truth_message_types(tmp_path: Path, msgtype: str, fmt: str) -> None:
 def test_tf_truth_and_cli(tmp_path: Path) -> None:
     f = make_flight(duration=15.0, dropouts=())
     t = f.truth
-    tf1 = PoseStream(
-        "/tf",
-        t.header_ns,
-        t.log_ns,
-        t.position,
-        t.orientation,
-        msgtype=TF,
-        frame_id="world",
-        child_frame_id="quad",
-    )
-    tf2 = PoseStream(
-        "/tf",
-        t.header_ns,
-        t.log_ns + 5,
-        t.position * 0,
-        t.orientation,
-        msgtype=TF,
-        frame_id="quad",
-        child_frame_id="imu",
-    )
+    tf1, tf2 = tf_streams(t, "imu", t.position * 0, 5)
     bag = write_bag(tmp_path / "tf.bag", [f.vio, tf1, tf2], "ros1")
     out = tmp_path / "out"
     res = runner.invoke(

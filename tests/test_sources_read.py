@@ -15,13 +15,12 @@ from qsls.pipeline.sources.write import (
     ODOMETRY,
     POSE_COV,
     POSE_STAMPED,
-    TF,
     TRANSFORM,
     ImageStream,
     PoseStream,
     write_bag,
 )
-from tests.bagfixtures import T0_NS, make_flight
+from tests.bagfixtures import T0_NS, make_flight, tf_streams
 
 TYPES = (POSE_STAMPED, POSE_COV, TRANSFORM, ODOMETRY)
 
@@ -118,26 +117,7 @@ def test_ros1_index_slices_are_rosbags_bytes(
 def test_tf_topic_needs_frame(tmp_path: Path) -> None:
     f = make_flight(duration=2.0, dropouts=())
     t = f.truth
-    a = PoseStream(
-        "/tf",
-        t.header_ns,
-        t.log_ns,
-        t.position,
-        t.orientation,
-        msgtype=TF,
-        frame_id="world",
-        child_frame_id="quad",
-    )
-    b = PoseStream(
-        "/tf",
-        t.header_ns,
-        t.log_ns + 1,
-        t.position + 5,
-        t.orientation,
-        msgtype=TF,
-        frame_id="quad",
-        child_frame_id="cam",
-    )
+    a, b = tf_streams(t, "cam", t.position + 5, 1)
     for fmt in ("ros1", "mcap"):
         bag = write_bag(tmp_path / f"tf.{'bag' if fmt == 'ros1' else 'mcap'}", [a, b], fmt)
         with BagSource(bag) as src:
