@@ -13,6 +13,8 @@ from __future__ import annotations
 import base64
 import html
 import json
+import os
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +25,6 @@ from qsls.pipeline.artifacts import (
     check_output,
     clean_stale,
     dump_yaml,
-    figure_bytes,
     publish,
     read_manifest,
     to_plain,
@@ -295,8 +296,6 @@ def report(
     progress: Progress = NULL_PROGRESS,
 ) -> ReportResult:
     """Write ``index.html``, ``report.md`` and the PNGs into ``out`` (default ``reports/<name>``)."""
-    import os
-
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise InputError(f"{run_dir}: no such run folder")
@@ -319,18 +318,5 @@ def report(
         publish(tmp, out)
     finally:
         if tmp.exists():
-            import shutil
-
             shutil.rmtree(tmp, ignore_errors=True)
     return ReportResult(out=out, n_sections=len(sections), n_figures=len(files))
-
-
-__all__ = [
-    "ReportResult",
-    "Section",
-    "build_sections",
-    "figure_bytes",
-    "render_html",
-    "render_markdown",
-    "report",
-]

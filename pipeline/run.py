@@ -13,9 +13,8 @@ Relative paths in the config are relative to the config file's folder.
 
 from __future__ import annotations
 
-import json
 import subprocess
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -27,10 +26,10 @@ from qsls.pipeline.artifacts import atomic_write_bytes, dump_json, sha256_file, 
 from qsls.pipeline.config import Options, read_yaml, validate
 from qsls.pipeline.errors import ConfigError
 from qsls.pipeline.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.report import RUN_FILE
 from qsls.pipeline.stagegraph import Stage, StageGraph, StageOutcome
 
 STAGE_ORDER = ("simulate", "ingest", "fit", "sweep", "synth", "evaluate", "report")
-RUN_FILE = "run.json"
 
 
 class FlightSpec(Options):
@@ -169,8 +168,3 @@ def run(
             on_stage("report", "running", len(outcomes), len(outcomes) + 1)
         report(root, report_dir, force=True)
     return RunResult(root=root, outcomes=tuple(outcomes), report=report_dir)
-
-
-def describe(root: Path) -> Mapping[str, Any]:
-    p = Path(root) / RUN_FILE
-    return json.loads(p.read_text()) if p.is_file() else {}

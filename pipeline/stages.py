@@ -179,15 +179,11 @@ def _ingest_exec(
     opts: Any, sources: list[Path], sim_deps: tuple[str, ...], progress: Progress
 ) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        from qsls.pipeline.artifacts import read_manifest
         from qsls.pipeline.ingest import ingest
-        from qsls.pipeline.sim.simulate import bag_name
 
-        srcs = list(sources)
-        for d in sim_deps:
-            from qsls.pipeline.artifacts import read_manifest
-
-            fmt = read_manifest(deps[d]).get("options", {}).get("log", {}).get("format", "ros1")
-            srcs.append(deps[d] / bag_name(fmt))
+        # a simulated flight's bag, by the name its simulate stage recorded
+        srcs = [*sources, *(deps[d] / read_manifest(deps[d])["results"]["bag"] for d in sim_deps)]
         return ingest(srcs, opts, out, force=True, progress=progress)
 
     return execute
