@@ -29,7 +29,7 @@ def brute_nearest(train: np.ndarray, query: np.ndarray, chunk: int = 256) -> np.
 
 
 def bench_distance() -> list[tuple[str, float, str]]:
-    from qsls.pipeline.evaluate import TrainingData
+    from qsls.pipeline.evaluate.bound import TrainingData
 
     rng = np.random.default_rng(0)
     rows = []
@@ -58,7 +58,7 @@ def bench_distance() -> list[tuple[str, float, str]]:
 
 
 def bench_fly(fit: Path, synth: Path, quick: bool) -> list[tuple[str, float, str]]:
-    from qsls.pipeline.fly import FlyOptions, fly_evaluate
+    from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
 
     kw = {"seeds": [0], "duration": 10.0} if quick else {}
     rows = []
@@ -82,10 +82,10 @@ def bench_fly(fit: Path, synth: Path, quick: bool) -> list[tuple[str, float, str
 
 def prepare(root: Path) -> tuple[Path, Path]:
     """Training flights (SE3, regular, 2 x 30 s) -> ingest -> fit -> synth (paper's four)."""
-    from qsls.pipeline.fit import FitOptions, fit
-    from qsls.pipeline.ingest import IngestOptions, ingest
+    from qsls.pipeline.control.synth import SynthOptions, synth
+    from qsls.pipeline.errormodel.fit import FitOptions, fit
+    from qsls.pipeline.ingest.stage import IngestOptions, ingest
     from qsls.pipeline.sim.simulate import SimOptions, simulate
-    from qsls.pipeline.synth import SynthOptions, synth
 
     flights = []
     for seed in (100, 101):

@@ -4,7 +4,7 @@
     python benchmarks/bench_fit.py --quick    # smaller sizes
 
 Cases (each in its own process, so the peak memory is its own):
-- ``engine 20k``: :func:`qsls.pipeline.slopes.pair_slopes` on 20k samples of repeated circle laps;
+- ``engine 20k``: :func:`qsls.pipeline.errormodel.slopes.pair_slopes` on 20k samples of repeated circle laps;
 - ``brute 20k``: the chunked brute-force numpy computation (all pairs i < j, 256 rows at a time,
   slopes kept for exact percentiles) on the same samples; the table checks both agree
   (pair count, exact max, percentiles);
@@ -53,7 +53,7 @@ def case(name: str, n: int) -> dict:
     c0 = os.times()
     out: dict = {"case": name, "n": n}
     if name.startswith("engine"):
-        from qsls.pipeline.slopes import pair_slopes
+        from qsls.pipeline.errormodel.slopes import pair_slopes
 
         r = pair_slopes(x, e, RADIUS, jobs=2 if name.endswith("x2") else 1)
         out |= {
@@ -64,7 +64,7 @@ def case(name: str, n: int) -> dict:
             "rel_error": r.percentile_rel_error,
         }
     elif name == "brute":
-        from qsls.pipeline.slopes import brute_force_slopes
+        from qsls.pipeline.errormodel.slopes import brute_force_slopes
 
         allv, mx, cnt = brute_force_slopes(x, e, RADIUS, chunk=256)
         pct = np.percentile(allv, [50, 90, 95, 99])
@@ -76,9 +76,9 @@ def case(name: str, n: int) -> dict:
             "rel_error": 0.0,
         }
     elif name == "fit":
-        from qsls.pipeline.artifacts import StageWriter
-        from qsls.pipeline.fit import FitOptions, fit
-        from qsls.pipeline.flight import make_flight_frame
+        from qsls.pipeline.core.artifacts import StageWriter
+        from qsls.pipeline.errormodel.fit import FitOptions, fit
+        from qsls.pipeline.ingest.flight import make_flight_frame
 
         with tempfile.TemporaryDirectory() as tmp:
             folders = []

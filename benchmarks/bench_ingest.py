@@ -30,10 +30,10 @@ ROOT = Path(__file__).resolve().parents[1]
 WORK = ROOT / "benchmarks" / "_work"
 sys.path.insert(0, str(ROOT))
 
-from qsls.pipeline.artifacts import _hash_file  # noqa: E402
-from qsls.pipeline.ingest import IngestOptions, ingest  # noqa: E402
-from qsls.pipeline.sources.bags import BagSource  # noqa: E402
-from qsls.pipeline.sources.write import ImageStream, write_bag  # noqa: E402
+from qsls.pipeline.core.artifacts import _hash_file  # noqa: E402
+from qsls.pipeline.ingest.sources.bags import BagSource  # noqa: E402
+from qsls.pipeline.ingest.sources.write import ImageStream, write_bag  # noqa: E402
+from qsls.pipeline.ingest.stage import IngestOptions, ingest  # noqa: E402
 from tests.bagfixtures import make_flight  # noqa: E402
 
 

@@ -2,7 +2,7 @@
 
 1. T = 50 L1 robust synthesis (c_QR, robustness constraint), built two ways:
    - vectorized: one variable per response (taps side by side), block-shift matrices, cvxpy
-     Parameters (DPP), as in :mod:`qsls.pipeline.sls`; measured on the first solve
+     Parameters (DPP), as in :mod:`qsls.pipeline.control.sls`; measured on the first solve
      (expression tree + compile + solve) and on a re-solve with new Parameter values
      (what a sweep does);
    - naive: one variable per tap and per response, constraints and norms written tap by
@@ -21,8 +21,8 @@ import time
 
 import numpy as np
 
-from qsls.pipeline import sls
-from qsls.pipeline.model import quadrotor_model
+from qsls.pipeline.control import sls
+from qsls.pipeline.control.plant import quadrotor_model
 
 SETTING = {"eps_w": 0.01, "eps_e": 0.05, "S": 0.2, "radius": 1.0, "delta": 0.05}
 Q = np.diag([10.0, 10, 10, 1, 1, 1])
@@ -116,7 +116,7 @@ def bench_build(T: int, repeats: int) -> list[tuple]:
 
 
 def sweep_options():
-    from qsls.pipeline.sweep import SweepOptions
+    from qsls.pipeline.control.sweep import SweepOptions
 
     return SweepOptions(
         eps_e=0.05, radius=1.0, delta=0.05, eps_w=0.01, s_max_curve=False,
@@ -134,7 +134,7 @@ def _cpu() -> float:
 
 def bench_sweep(jobs: int) -> tuple[float, float, int, int]:
     """Wall and CPU seconds (this process and its finished children) of the sweep."""
-    from qsls.pipeline.sweep import compute
+    from qsls.pipeline.control.sweep import compute
 
     sls._CACHE.clear()
     c0, t0 = _cpu(), time.perf_counter()
@@ -145,7 +145,7 @@ def bench_sweep(jobs: int) -> tuple[float, float, int, int]:
 def _timed_chunk(chunk):
     import resource
 
-    from qsls.pipeline.sweep import run_chunk
+    from qsls.pipeline.control.sweep import run_chunk
 
     c0 = resource.getrusage(resource.RUSAGE_SELF)
     run_chunk(chunk)
@@ -161,7 +161,7 @@ def cpu_balance(jobs: int = 2) -> tuple[float, float]:
     from collections import defaultdict
     from concurrent.futures import ProcessPoolExecutor
 
-    from qsls.pipeline.sweep import grid_points, make_chunks
+    from qsls.pipeline.control.sweep import grid_points, make_chunks
 
     opts = sweep_options()
     chunks = make_chunks(grid_points(opts, None), jobs * opts.chunks_per_job)

@@ -17,7 +17,7 @@ def cli_errors(fn: F) -> F:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from qsls.pipeline.errors import QslsError
+        from qsls.pipeline.core.errors import QslsError
 
         try:
             return fn(*args, **kwargs)
@@ -38,7 +38,7 @@ def overrides(**kwargs: Any) -> dict[str, Any]:
 
 
 class RichProgress:
-    """A :class:`qsls.pipeline.progress.Progress` drawn with rich on stderr."""
+    """A :class:`qsls.pipeline.core.progress.Progress` drawn with rich on stderr."""
 
     def __init__(self) -> None:
         from rich.console import Console

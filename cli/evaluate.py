@@ -67,8 +67,8 @@ def command(
     ),
 ) -> None:
     """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
-    from qsls.pipeline.config import merge, read_yaml, validate
-    from qsls.pipeline.errors import ConfigError, InputError
+    from qsls.pipeline.core.config import merge, read_yaml, validate
+    from qsls.pipeline.core.errors import ConfigError, InputError
 
     # The config's 'evaluate' section (or the whole file); its 'fly' mapping (as in a
     # 'qsls run' config) adds the flying options.
@@ -82,7 +82,7 @@ def command(
     fly_cfg = section.pop("fly", None)
     ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None)
     if fly:
-        from qsls.pipeline.fly import FlyOptions, fly_evaluate
+        from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
 
         if flights:
             raise InputError("--flights is not used with --fly (the flights are flown); drop one")
@@ -108,7 +108,7 @@ def command(
         cols, rows = result.comparison_rows()
         print_table("Against the paper's findings", cols, rows)
         return
-    from qsls.pipeline.evaluate import EvaluateOptions, evaluate
+    from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
 
     options = validate(EvaluateOptions, merge(section, ov), str(config or "options"))
     with RichProgress() as progress:

@@ -95,8 +95,8 @@ def command(
 ) -> None:
     """Estimate the perception error model (eps_e, S-slope, delta) from ingested flights."""
     from qsls.cli.common import RichProgress, print_summary, print_table
-    from qsls.pipeline.config import load_options
-    from qsls.pipeline.fit import FitOptions, fit
+    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.errormodel.fit import FitOptions, fit
 
     given = overrides(
         radius=radius,
@@ -145,7 +145,7 @@ def _floats(text: str | None, name: str) -> list[float] | None:
     try:
         return [float(v) for v in text.replace(" ", "").split(",") if v]
     except ValueError:
-        from qsls.pipeline.errors import ConfigError
+        from qsls.pipeline.core.errors import ConfigError
 
         raise ConfigError(f"{name}: expected comma-separated numbers, got {text!r}") from None
 
@@ -156,6 +156,6 @@ def _minsep(text: str | None) -> float | str | None:
     try:
         return float(text)
     except ValueError:
-        from qsls.pipeline.errors import ConfigError
+        from qsls.pipeline.core.errors import ConfigError
 
         raise ConfigError(f"--min-separation: expected 'auto' or a number, got {text!r}") from None

@@ -75,8 +75,8 @@ def command(
 ) -> None:
     """Put VIO estimates and ground truth on one clock, one frame and one dt grid."""
     from qsls.cli.common import RichProgress, print_summary
-    from qsls.pipeline.config import load_options
-    from qsls.pipeline.ingest import IngestOptions, ingest
+    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.ingest.stage import IngestOptions, ingest
 
     given = overrides(
         vio_topic=vio_topic,
@@ -108,7 +108,7 @@ def _offset(value: str | None) -> str | float | None:
     try:
         return float(value)
     except ValueError:
-        from qsls.pipeline.errors import ConfigError
+        from qsls.pipeline.core.errors import ConfigError
 
         raise ConfigError(
             f"--time-offset: expected 'auto' or a number of seconds, got {value!r}"

@@ -18,7 +18,7 @@ def command(
     force: bool = typer.Option(False, "--force", help="Overwrite an existing report folder."),
 ) -> None:
     """Write a self-contained HTML report and report.md from a run folder."""
-    from qsls.pipeline.report import report
+    from qsls.pipeline.report.stage import report
 
     with RichProgress() as progress:
         result = report(run_dir, out, force=force, progress=progress)

@@ -25,7 +25,7 @@ def command(
     """Run the pipeline a config names (simulate, ingest, fit, sweep, synth, evaluate, report)."""
     import time
 
-    from qsls.pipeline.run import run
+    from qsls.pipeline.run.runner import run
 
     t0 = time.perf_counter()
 

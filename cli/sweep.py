@@ -13,7 +13,7 @@ from qsls.cli.synth import number_or_name
 def grid_axis(text: str) -> tuple[str, list]:
     """``"S=0.1,0.2,p95"`` -> ``("S", [0.1, 0.2, "p95"])`` (``T`` values as integers,
     ``true``/``false`` as booleans)."""
-    from qsls.pipeline.errors import ConfigError
+    from qsls.pipeline.core.errors import ConfigError
 
     if "=" not in text:
         raise ConfigError(f"--grid '{text}': expected AXIS=V1,V2,... (e.g. S=0.05,0.1,p95)")
@@ -77,9 +77,9 @@ def command(
 ) -> None:
     """A grid of robust syntheses (feasibility map), locally or on a Dask cluster."""
     from qsls.cli.common import RichProgress
-    from qsls.pipeline.config import load_options
-    from qsls.pipeline.errors import ConfigError
-    from qsls.pipeline.sweep import SweepOptions, sweep
+    from qsls.pipeline.control.sweep import SweepOptions, sweep
+    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.core.errors import ConfigError
 
     if jobs is not None and scheduler is not None:
         raise ConfigError("give --jobs or --scheduler, not both")

@@ -24,7 +24,7 @@ def diag_list(value: str | None, what: str) -> list[float] | None:
     """``"10,10,10,1,1,1"`` -> a list of diagonal entries."""
     if value is None:
         return None
-    from qsls.pipeline.errors import ConfigError
+    from qsls.pipeline.core.errors import ConfigError
 
     try:
         return [float(v) for v in value.replace(" ", "").split(",") if v]
@@ -89,10 +89,10 @@ def command(
 ) -> None:
     """Robust SLS controllers from an error model, each with a certificate."""
     from qsls.cli.common import RichProgress
-    from qsls.pipeline.config import load_options
-    from qsls.pipeline.errors import ConfigError
-    from qsls.pipeline.synth import SynthOptions, synth
-    from qsls.pipeline.synth import max_feasible_s as compute_max_s
+    from qsls.pipeline.control.synth import SynthOptions, synth
+    from qsls.pipeline.control.synth import max_feasible_s as compute_max_s
+    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.core.errors import ConfigError
 
     given: dict[str, Any] = overrides(
         T=horizon, norm=norm, controllers=controllers, cost=cost, robust=robust,

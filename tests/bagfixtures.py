@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from qsls.pipeline.align import matrix_to_quat, quat_to_matrix, rot_z
-from qsls.pipeline.sources.write import TF, OdometryStream, PoseStream, write_bag
+from qsls.pipeline.ingest.align import matrix_to_quat, quat_to_matrix, rot_z
+from qsls.pipeline.ingest.sources.write import TF, OdometryStream, PoseStream, write_bag
 
 T0_NS = 1_700_000_000_000_000_000
 

@@ -1,4 +1,4 @@
-"""An independent LQG reference for the synthesis tests (no qsls.pipeline.sls code).
+"""An independent LQG reference for the synthesis tests (no qsls.pipeline.control.sls code).
 
 LQR and Kalman gains from the discrete algebraic Riccati equations
 (``scipy.linalg.solve_discrete_are``), the closed loop of plant and LQG controller written

@@ -11,16 +11,16 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline.artifacts import StageWriter, sha256_file
-from qsls.pipeline.evaluate import (
+from qsls.pipeline.core.artifacts import StageWriter, sha256_file
+from qsls.pipeline.evaluate.bound import (
     EvaluateOptions,
     TrainingData,
     evaluate,
     fir_inf_norm,
     load_controller_bound,
-    smooth,
 )
-from qsls.pipeline.flight import X_COLS, make_flight_frame
+from qsls.pipeline.evaluate.figures import smooth
+from qsls.pipeline.ingest.flight import X_COLS, make_flight_frame
 
 DT = 0.1
 

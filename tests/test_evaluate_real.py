@@ -10,11 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qsls.pipeline.evaluate import EvaluateOptions, evaluate
-from qsls.pipeline.fit import FitOptions, fit
-from qsls.pipeline.flight import X_COLS, read_flight
-from qsls.pipeline.ingest import IngestOptions, ingest
-from qsls.pipeline.synth import SynthOptions, synth
+from qsls.pipeline.control.synth import SynthOptions, synth
+from qsls.pipeline.errormodel.fit import FitOptions, fit
+from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
+from qsls.pipeline.ingest.flight import X_COLS, read_flight
+from qsls.pipeline.ingest.stage import IngestOptions, ingest
 
 
 @pytest.mark.real

@@ -11,11 +11,11 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline.artifacts import StageWriter
-from qsls.pipeline.errormodel import load_error_model
-from qsls.pipeline.errors import InputError
-from qsls.pipeline.fit import FIGURES, TRAINING_FILE, FitOptions, fit
-from qsls.pipeline.flight import E_COLS, X_COLS, make_flight_frame
+from qsls.pipeline.core.artifacts import StageWriter
+from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.errormodel.fit import FIGURES, TRAINING_FILE, FitOptions, fit
+from qsls.pipeline.errormodel.model import load_error_model
+from qsls.pipeline.ingest.flight import E_COLS, X_COLS, make_flight_frame
 from qsls.pipeline.sim.references import Reference, ReferenceOptions
 from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
@@ -241,7 +241,7 @@ def test_no_pairs_within_radius_is_a_clear_error(tmp_path):
 
 # --------------------------------------------------------------------------- real flights
 def test_real_euroc_flights_fit_and_render(real_data, tmp_path):
-    from qsls.pipeline.ingest import IngestOptions, ingest
+    from qsls.pipeline.ingest.stage import IngestOptions, ingest
 
     flights = []
     for name in ("euroc_v102_rpg", "euroc_mh04_rpg"):

@@ -15,13 +15,13 @@ import yaml
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline.fit import FitOptions, fit
-from qsls.pipeline.fly import FlyOptions, fly_evaluate
-from qsls.pipeline.ingest import IngestOptions, ingest
-from qsls.pipeline.model import quadrotor_model
-from qsls.pipeline.realize import load_controller
+from qsls.pipeline.control.plant import quadrotor_model
+from qsls.pipeline.control.realize import load_controller
+from qsls.pipeline.control.synth import SynthOptions, synth
+from qsls.pipeline.errormodel.fit import FitOptions, fit
+from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
+from qsls.pipeline.ingest.stage import IngestOptions, ingest
 from qsls.pipeline.sim.simulate import SimOptions, simulate
-from qsls.pipeline.synth import SynthOptions, synth
 
 # A steep ridge across x = 0.35 m: slope 0.2 / 0.2 = 1 in e_px, so L >= 1. The training
 # circle (centre (-1.2, 1.2), radius 0.4) stays where the field is flat; the default circle
@@ -220,7 +220,7 @@ def test_model_hash_mismatch_with_real_stages(trained, tmp_path):
 
 def test_pd_height_channel_option(trained, tmp_path):
     """pd_z_control (the paper's setup): thrust from PD on the same estimate, attitude not."""
-    from qsls.pipeline.fly import FlyJob, run_job
+    from qsls.pipeline.evaluate.fly import FlyJob, run_job
 
     root, _ = trained
     sim = SimOptions().model_dump(mode="json")

@@ -10,10 +10,10 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline.flight import read_flight
-from qsls.pipeline.ingest import IngestOptions, ingest
-from qsls.pipeline.sources.text import read_tum
-from qsls.pipeline.sources.write import FORMATS, POSE_COV, TRANSFORM, write_bag
+from qsls.pipeline.ingest.flight import read_flight
+from qsls.pipeline.ingest.sources.text import read_tum
+from qsls.pipeline.ingest.sources.write import FORMATS, POSE_COV, TRANSFORM, write_bag
+from qsls.pipeline.ingest.stage import IngestOptions, ingest
 from tests.bagfixtures import T0_NS, bag_name, make_flight, tf_streams, truth_state, write_flight
 
 runner = CliRunner()

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qsls.pipeline.align import differentiate, fit_alignment
-from qsls.pipeline.flight import read_flight
-from qsls.pipeline.ingest import IngestOptions, ingest
-from qsls.pipeline.sources.base import Trajectory
-from qsls.pipeline.sources.text import read_euroc, read_tum
-from qsls.pipeline.sources.write import PoseStream, write_bag
+from qsls.pipeline.ingest.align import differentiate, fit_alignment
+from qsls.pipeline.ingest.flight import read_flight
+from qsls.pipeline.ingest.sources.base import Trajectory
+from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
+from qsls.pipeline.ingest.sources.write import PoseStream, write_bag
+from qsls.pipeline.ingest.stage import IngestOptions, ingest
 
 PAIRS = {
     "euroc_v102": ("groundtruth.csv", "ros1"),
@@ -110,7 +110,7 @@ def test_truth_velocity_against_euroc(real_data: Path, tmp_path: Path) -> None:
 @pytest.mark.real
 def test_real_bags_read(real_data: Path, tmp_path: Path) -> None:
     """The published real-world bags: ROS1 PoseStamped, ROS2 MCAP Odometry, TF in ROS1 and ROS2."""
-    from qsls.pipeline.sources.bags import BagSource
+    from qsls.pipeline.ingest.sources.bags import BagSource
 
     bags = real_data / "bags"
     with BagSource(bags / "ROS_example.bag") as s:

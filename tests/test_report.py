@@ -7,8 +7,8 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline.artifacts import StageWriter
-from qsls.pipeline.flight import make_flight_frame
+from qsls.pipeline.core.artifacts import StageWriter
+from qsls.pipeline.ingest.flight import make_flight_frame
 
 from .browser import find_chromium, visit
 

@@ -7,7 +7,7 @@ import pytest
 from rotorpy.vehicles.multirotor import Multirotor
 from scipy.spatial.transform import Rotation
 
-from qsls.pipeline.model import GRAVITY, quadrotor_model
+from qsls.pipeline.control.plant import GRAVITY, quadrotor_model
 from qsls.pipeline.sim.closedloop import FlightOptions, fly
 from qsls.pipeline.sim.controllers import LinearController, PDController, make_controller
 from qsls.pipeline.sim.references import Reference, ReferenceOptions
@@ -160,8 +160,8 @@ def test_linear_controller_adds_hover_and_feedforward_like_pd():
 
 def test_synthesized_controller_from_folder_flies(tmp_path):
     """A controller folder as qsls synth writes it, loaded with realize.load_controller."""
-    from qsls.pipeline import realize
-    from qsls.pipeline.pd import PDGains, pd_gain
+    from qsls.pipeline.control import realize
+    from qsls.pipeline.control.pdgain import PDGains, pd_gain
 
     folder = tmp_path / "pd"
     folder.mkdir()

@@ -11,9 +11,9 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
+from qsls.pipeline.ingest.sources.bags import BagSource
+from qsls.pipeline.ingest.sources.write import FORMATS
 from qsls.pipeline.sim.simulate import SimOptions, bag_name, simulate
-from qsls.pipeline.sources.bags import BagSource
-from qsls.pipeline.sources.write import FORMATS
 
 runner = CliRunner()
 E_COLS = [f"e_{s}" for s in ("px", "py", "pz", "vx", "vy", "vz")]
@@ -48,7 +48,7 @@ VARIANTS = {
 
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_formats_clocks_and_frames_round_trip(tmp_path: Path, fmt: str) -> None:
-    from qsls.pipeline.config import merge
+    from qsls.pipeline.core.config import merge
 
     data = merge({**SHORT, "log": {"format": fmt}, "seed": 5}, VARIANTS[fmt])
     opts = SimOptions.model_validate(data)
@@ -185,7 +185,7 @@ def test_bad_input_is_one_line_and_leaves_nothing(tmp_path: Path, config, args, 
 
 
 def test_example_config_is_the_defaults_and_runs_as_a_section(tmp_path: Path) -> None:
-    from qsls.pipeline.config import load_options
+    from qsls.pipeline.core.config import load_options
 
     repo = Path(__file__).resolve().parents[1]
     opts = load_options(SimOptions, repo / "configs" / "simulate.yaml", section="simulate")

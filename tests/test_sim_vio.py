@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from qsls.pipeline.config import validate
-from qsls.pipeline.errors import ConfigError
+from qsls.pipeline.core.config import validate
+from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
 BIAS_ONLY = {"drift": False, "noise": False, "outliers": False}

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from qsls.pipeline.errors import InputError
-from qsls.pipeline.slopes import (
+from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.errormodel.slopes import (
     HIST_REL_ERROR,
     brute_force_slopes,
     nearest_distance,

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qsls.pipeline import certify, sls
-from qsls.pipeline.model import quadrotor_model
-from qsls.pipeline.nominal import pd_responses
-from qsls.pipeline.pd import PDGains
-from qsls.pipeline.realize import RealizedController, filter_bank
+from qsls.pipeline.control import certify, sls
+from qsls.pipeline.control.nominal import pd_responses
+from qsls.pipeline.control.pdgain import PDGains
+from qsls.pipeline.control.plant import quadrotor_model
+from qsls.pipeline.control.realize import RealizedController, filter_bank
 from tests.lqg_reference import lqg_h2_squared
 
 Q = np.diag([10.0, 10, 10, 1, 1, 1])

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qsls.pipeline.sources.bags import BagSource, ros1_slices
-from qsls.pipeline.sources.base import detect
-from qsls.pipeline.sources.text import read_euroc, read_tum
-from qsls.pipeline.sources.write import (
+from qsls.pipeline.ingest.sources.bags import BagSource, ros1_slices
+from qsls.pipeline.ingest.sources.base import detect
+from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
+from qsls.pipeline.ingest.sources.write import (
     FORMATS,
     ODOMETRY,
     POSE_COV,
@@ -87,7 +87,7 @@ def test_ros1_index_slices_are_rosbags_bytes(
     """The chunk slicing at rosbags' index offsets gives rosbags' raw messages, byte for byte."""
     from rosbags.rosbag1 import Reader
 
-    from qsls.pipeline.sources import bags as bagmod
+    from qsls.pipeline.ingest.sources import bags as bagmod
 
     if batch:  # many small batches through the reused decompression buffer
         monkeypatch.setattr(bagmod, "_BATCH_BYTES", batch)
@@ -124,7 +124,7 @@ def test_tf_topic_needs_frame(tmp_path: Path) -> None:
             got = src.read("/tf", truth_frame="/world/quad")
             np.testing.assert_array_equal(got.position, t.position)
             np.testing.assert_array_equal(got.header_ns, t.header_ns)
-            from qsls.pipeline.errors import InputError
+            from qsls.pipeline.core.errors import InputError
 
             with pytest.raises(InputError, match=r"quad/cam \(400\)"):
                 src.read("/tf")

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qsls.pipeline.sources.write import (
+from qsls.pipeline.ingest.sources.write import (
     FORMATS,
     TF,
     TRANSFORM,

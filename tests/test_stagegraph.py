@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from qsls.pipeline.artifacts import StageWriter
-from qsls.pipeline.stagegraph import Stage, StageGraph
+from qsls.pipeline.core.artifacts import StageWriter
+from qsls.pipeline.run.graph import Stage, StageGraph
 
 
 def _graph(root, calls, opts):

@@ -13,10 +13,10 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline import sls
-from qsls.pipeline.artifacts import dump_yaml
-from qsls.pipeline.errormodel import ErrorModel, SlopeStats
-from qsls.pipeline.model import quadrotor_model
+from qsls.pipeline.control import sls
+from qsls.pipeline.control.plant import quadrotor_model
+from qsls.pipeline.core.artifacts import dump_yaml
+from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
 
 RUN = CliRunner()
 REPO = Path(__file__).resolve().parents[1]

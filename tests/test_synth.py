@@ -10,13 +10,13 @@ import yaml
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline import sls
-from qsls.pipeline.artifacts import dump_yaml, sha256_file
-from qsls.pipeline.errormodel import ErrorModel, SlopeStats
-from qsls.pipeline.model import quadrotor_model
-from qsls.pipeline.pd import PDGains, pd_gain
-from qsls.pipeline.realize import load_controller
-from qsls.pipeline.synth import SynthOptions, max_feasible_s
+from qsls.pipeline.control import sls
+from qsls.pipeline.control.pdgain import PDGains, pd_gain
+from qsls.pipeline.control.plant import quadrotor_model
+from qsls.pipeline.control.realize import load_controller
+from qsls.pipeline.control.synth import SynthOptions, max_feasible_s
+from qsls.pipeline.core.artifacts import dump_yaml, sha256_file
+from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
 
 RUN = CliRunner()
 T = 12
@@ -244,7 +244,7 @@ def test_number_names_need_an_error_model(tmp_path):
 def test_shipped_config_is_valid():
     from pathlib import Path
 
-    from qsls.pipeline.config import load_options
+    from qsls.pipeline.core.config import load_options
 
     cfg = Path(__file__).resolve().parents[1] / "configs" / "synth.yaml"
     opts = load_options(SynthOptions, cfg)

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qsls.pipeline.ingest import IngestOptions, ingest
+from qsls.pipeline.ingest.sources.write import write_bag
+from qsls.pipeline.ingest.stage import IngestOptions, ingest
+from qsls.pipeline.ingest.timesync import estimate_offset, gravity_in_body
 from qsls.pipeline.sim.mocap import quat_mul
 from qsls.pipeline.sim.simulate import SimOptions, SimResult, log_streams, simulate
-from qsls.pipeline.sources.write import write_bag
-from qsls.pipeline.timesync import estimate_offset, gravity_in_body
 
 SEEDS = range(8)
 TILT_SEEDS = (3, 4, 7)  # those the tilt pulled furthest without the mean removal

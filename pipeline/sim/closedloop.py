@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from qsls.pipeline.config import Options
-from qsls.pipeline.errors import ConfigError
-from qsls.pipeline.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.sim.controllers import Controller, ControllerOptions, make_controller
 from qsls.pipeline.sim.references import Reference, ReferenceOptions, RefSample
 from qsls.pipeline.sim.vehicle import Vehicle, VehicleOptions

@@ -15,9 +15,9 @@ through the paper's ``B``: ``u_ff = [-a_x / g, a_y / g, m a_z]``.
   commanded attitude and thrust are read back as pitch and roll
   (:func:`~qsls.pipeline.sim.vehicle.ctatt_to_paper`, yaw 0).
 - :class:`PDController`: ``u = hover + u_ff + K (y - r)`` with ``K`` from
-  :func:`qsls.pipeline.pd.pd_gain`.
+  :func:`qsls.pipeline.control.pdgain.pd_gain`.
 - :class:`LinearController`: a synthesized controller from
-  :func:`qsls.pipeline.realize.load_controller` (``.dt``, ``.reset()``, ``.step(y - r)`` ->
+  :func:`qsls.pipeline.control.realize.load_controller` (``.dt``, ``.reset()``, ``.step(y - r)`` ->
   deviation from hover + feedforward).
 """
 
@@ -29,10 +29,10 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from pydantic import Field
 
-from qsls.pipeline.config import Options
-from qsls.pipeline.errors import InputError
-from qsls.pipeline.model import GRAVITY, PAPER_DT_S
-from qsls.pipeline.pd import PDGains, pd_gain
+from qsls.pipeline.control.pdgain import PDGains, pd_gain
+from qsls.pipeline.control.plant import GRAVITY, PAPER_DT_S
+from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.sim.references import RefSample
 from qsls.pipeline.sim.vehicle import ctatt_to_paper, quad_params
 
@@ -154,7 +154,7 @@ class SE3Controller:
 
 
 class PDController:
-    """``u = [0, 0, m g] + u_ff + K (y - r)`` (qsls.pipeline.pd)."""
+    """``u = [0, 0, m g] + u_ff + K (y - r)`` (qsls.pipeline.control.pdgain)."""
 
     name = "pd"
 
@@ -216,7 +216,7 @@ def make_controller(options: ControllerOptions, mass: float) -> Controller:
     if kind == "pd":
         return PDController(options.pd, mass, rate_dt or PAPER_DT_S)
     folder = controller_folder(kind)
-    from qsls.pipeline.realize import load_controller
+    from qsls.pipeline.control.realize import load_controller
 
     runtime = load_controller(folder)
     name = str(getattr(runtime, "name", None) or folder.name)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import Field
 
-from qsls.pipeline.config import Options
+from qsls.pipeline.core.config import Options
 
 NS = 1_000_000_000
 

@@ -32,7 +32,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from qsls.pipeline.config import Options
+from qsls.pipeline.core.config import Options
 
 
 class ReferenceOptions(Options):

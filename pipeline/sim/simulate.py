@@ -32,9 +32,9 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field
 
-from qsls.pipeline.artifacts import StageWriter
-from qsls.pipeline.config import Options
-from qsls.pipeline.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.artifacts import StageWriter
+from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.sim.closedloop import NS, FlightLog, FlightOptions, fly
 from qsls.pipeline.sim.controllers import Controller
 from qsls.pipeline.sim.mocap import MocapOptions, quat_mul, sample_mocap
@@ -143,7 +143,7 @@ def log_streams(
     flight: FlightLog, options: SimOptions, seed: int
 ) -> tuple[list[Any], dict[str, Any]]:
     """The bag's streams (VIO odometry, motion capture) and the clock/frame truth."""
-    from qsls.pipeline.sources.write import OdometryStream, PoseStream
+    from qsls.pipeline.ingest.sources.write import OdometryStream, PoseStream
 
     lo = options.log
     rng = np.random.default_rng(np.random.SeedSequence([seed, _LOG_STREAM]))
@@ -255,7 +255,7 @@ def simulate(
     inputs: list[Path] | None = None,
 ) -> SimResult:
     """Fly ``options`` (or the given ``controller``) and write the stage folder ``out``."""
-    from qsls.pipeline.sources.write import write_bag
+    from qsls.pipeline.ingest.sources.write import write_bag
 
     out = Path(out)
     ctrl_inputs = list(inputs or [])

@@ -43,8 +43,8 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field
 
-from qsls.pipeline.config import Options
-from qsls.pipeline.model import GRAVITY
+from qsls.pipeline.control.plant import GRAVITY
+from qsls.pipeline.core.config import Options
 
 _D = 0.08  # arm length (m)
 _S2 = 0.70710678118

@@ -51,7 +51,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, field_validator
 
-from qsls.pipeline.config import Options
+from qsls.pipeline.core.config import Options
 
 Six = tuple[float, float, float, float, float, float]
 

@@ -1,0 +1,549 @@
+"""The FIR output-feedback SLS problem (DESIGN.md, Robust synthesis).
+
+Taps ``k = 0..T`` of the four closed-loop responses (paper: ``Phi_xw, Phi_uw, Phi_xe,
+Phi_ue``)::
+
+    x = Phi_xx (H w) + Phi_xy e,     u = Phi_ux (H w) + Phi_uy e
+
+with ``x[k] = sum_t Phi_xx(t) H w[k-t] + Phi_xy(t) e[k-t]``. Achievability (paper eq.
+sls_constraints), tap by tap::
+
+    Phi_xx(1) = I,  Phi_xy(1) = B Phi_uy(0),  Phi_ux(1) = Phi_uy(0) C
+    Phi_xx(k+1) = A Phi_xx(k) + B Phi_ux(k) = Phi_xx(k) A + Phi_xy(k) C     (k = 1..T)
+    Phi_xy(k+1) = A Phi_xy(k) + B Phi_uy(k),  Phi_ux(k+1) = Phi_ux(k) A + Phi_uy(k) C
+    with Phi(T+1) = 0 (FIR).
+
+Vectorized: each response is one cvxpy variable holding its taps side by side
+(``X = [Phi_xx(1) .. Phi_xx(T)]``), a shift by one tap is a right product with the
+block-shift matrix ``Z = kron(eye(T, k=-1), I)`` and a right product with ``A`` is one with
+``kron(I_T, A)``, so the whole constraint set is a handful of sparse matrix products
+whatever ``T`` is. Every number that a sweep varies (weights, ``S``, ``eps_e``, ``r``,
+``eps_w``, ``Delta``, the imitation target) is a cvxpy Parameter: a problem structure
+(``T``, norm, cost, robust, timing) is compiled once (DPP) and then only re-solved.
+
+Norms: the induced inf-to-inf norm of an FIR operator is the largest row sum of absolute
+values over all its taps side by side (:func:`l1_norm`); H2 is the Frobenius norm over all
+taps (:func:`h2_norm`). Costs (paper eqs. qrcost and immitationcost, the input weights
+block-diagonal, ``diag(eps_w H, eps_e I)``)::
+
+    c_QR = || diag(Q^1/2, R^1/2) [Phi_xx Phi_xy; Phi_ux Phi_uy] diag(eps_w H, eps_e I) ||
+    c_im = || diag(Q^1/2, R^1/2) [Phi - Phi_nominal] ||
+
+Robustness constraint (convex form of the paper's)::
+
+    (S + eps_e / r) ||Phi_xy|| + (eps_w ||Phi_xx H|| + Delta) / r <= 1 - backoff
+
+``backoff`` (1e-6) keeps the constraint strict after the solver's tolerance, so a
+certificate recomputed from the stored taps still has ``lhs < 1``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+import scipy.sparse as sp
+
+from qsls.pipeline.control.plant import LinearModel
+
+Norm = Literal["l1", "h2"]
+Cost = Literal["qr", "imitation", "min_phi_xy", "ratio", "none"]
+ROBUST_BACKOFF = 1e-6
+RESPONSES = ("Phi_xx", "Phi_ux", "Phi_xy", "Phi_uy")
+
+
+# --------------------------------------------------------------------------- taps
+@dataclass(frozen=True)
+class Taps:
+    """The four responses, each ``(T+1, rows, cols)`` with tap ``k`` at index ``k``."""
+
+    Phi_xx: np.ndarray
+    Phi_ux: np.ndarray
+    Phi_xy: np.ndarray
+    Phi_uy: np.ndarray
+
+    @property
+    def T(self) -> int:
+        return self.Phi_xx.shape[0] - 1
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {name: getattr(self, name) for name in RESPONSES}
+
+    def truncated(self, T: int) -> Taps:
+        """The first ``T+1`` taps (zero-padded when shorter)."""
+        out = {}
+        for name, a in self.arrays().items():
+            b = np.zeros((T + 1, *a.shape[1:]))
+            n = min(T + 1, a.shape[0])
+            b[:n] = a[:n]
+            out[name] = b
+        return Taps(**out)
+
+
+def side_by_side(taps: np.ndarray) -> np.ndarray:
+    """``(K, r, c)`` taps -> ``(r, K c)``: ``[Phi(0) Phi(1) ... ]``."""
+    k, r, c = taps.shape
+    return np.transpose(taps, (1, 0, 2)).reshape(r, k * c)
+
+
+def from_side_by_side(mat: np.ndarray, cols: int) -> np.ndarray:
+    """Inverse of :func:`side_by_side`."""
+    r = mat.shape[0]
+    return np.transpose(mat.reshape(r, -1, cols), (1, 0, 2))
+
+
+def l1_norm(taps: np.ndarray, right: np.ndarray | None = None) -> float:
+    """Induced inf-to-inf norm of an FIR operator: the largest absolute row sum over all
+    taps side by side (of ``Phi(k) @ right`` when ``right`` is given)."""
+    t = taps if right is None else taps @ right
+    return float(np.abs(t).sum(axis=(0, 2)).max())
+
+
+def h2_norm(taps: np.ndarray) -> float:
+    """H2 norm of an FIR operator: the Frobenius norm over all taps."""
+    return float(np.sqrt(np.sum(taps * taps)))
+
+
+def cost_blocks(
+    taps: Taps,
+    model: LinearModel,
+    q_half: np.ndarray,
+    r_half: np.ndarray,
+    eps_w: float,
+    eps_e: float,
+    nominal: Taps | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The weighted operator of the cost, as ``(state rows, input rows)`` tap arrays
+    ``(T+1, rows, nx + ny)``: ``c_QR``'s when ``nominal`` is None, else ``c_im``'s."""
+    if nominal is None:
+        xx, xy = taps.Phi_xx @ model.H * eps_w, taps.Phi_xy * eps_e
+        ux, uy = taps.Phi_ux @ model.H * eps_w, taps.Phi_uy * eps_e
+    else:
+        n = nominal.truncated(taps.T)
+        xx, xy = taps.Phi_xx - n.Phi_xx, taps.Phi_xy - n.Phi_xy
+        ux, uy = taps.Phi_ux - n.Phi_ux, taps.Phi_uy - n.Phi_uy
+    top = q_half @ np.concatenate([xx, xy], axis=2)
+    bottom = r_half @ np.concatenate([ux, uy], axis=2)
+    return top, bottom
+
+
+def cost_value(
+    norm: Norm,
+    taps: Taps,
+    model: LinearModel,
+    q_half: np.ndarray,
+    r_half: np.ndarray,
+    eps_w: float,
+    eps_e: float,
+    nominal: Taps | None = None,
+) -> float:
+    """``c_QR`` or ``c_im`` in the L1 (induced inf-to-inf) or H2 norm, from taps."""
+    top, bottom = cost_blocks(taps, model, q_half, r_half, eps_w, eps_e, nominal)
+    full = np.concatenate([top, bottom], axis=1)
+    return l1_norm(full) if norm == "l1" else h2_norm(full)
+
+
+def achievability_residuals(taps: Taps, model: LinearModel) -> dict[str, float]:
+    """Max absolute residual of each group of achievability equations (all taps, FIR end
+    included, the fixed zeros at tap 0 too)."""
+    a, b, c = model.A, model.B, model.C
+    xx, ux, xy, uy = taps.Phi_xx, taps.Phi_ux, taps.Phi_xy, taps.Phi_uy
+    nx = a.shape[0]
+
+    def nxt(p: np.ndarray) -> np.ndarray:  # Phi(k+1) for k = 0..T, Phi(T+1) = 0
+        return np.concatenate([p[1:], np.zeros((1, *p.shape[1:]))])
+
+    ident = np.zeros_like(xx)
+    ident[0] = np.eye(nx)
+    res = {
+        "zero_taps": max(np.abs(xx[0]).max(), np.abs(ux[0]).max(), np.abs(xy[0]).max()),
+        "left_x": np.abs(nxt(xx) - a @ xx - b @ ux - ident).max(),
+        "left_y": np.abs(nxt(xy) - a @ xy - b @ uy).max(),
+        "right_x": np.abs(nxt(xx) - xx @ a - xy @ c - ident).max(),
+        "right_u": np.abs(nxt(ux) - ux @ a - uy @ c).max(),
+    }
+    return {k: float(v) for k, v in res.items()}
+
+
+def achievability_residual(taps: Taps, model: LinearModel) -> float:
+    """Max absolute residual over all achievability equations."""
+    return max(achievability_residuals(taps, model).values())
+
+
+def robustness_lhs(
+    norm_xy: float,
+    norm_xx_h: float,
+    S: float,
+    eps_e: float,
+    radius: float,
+    eps_w: float,
+    delta: float,
+) -> float:
+    """``(S + eps_e / r) ||Phi_xy|| + (eps_w ||Phi_xx H|| + Delta) / r``."""
+    return (S + eps_e / radius) * norm_xy + (eps_w * norm_xx_h + delta) / radius
+
+
+def psd_sqrt(m: np.ndarray, what: str = "matrix") -> np.ndarray:
+    """Symmetric square root of a symmetric positive-definite matrix; ValueError otherwise."""
+    m = np.atleast_2d(np.asarray(m, dtype=float))
+    if m.shape[0] != m.shape[1] or not np.allclose(m, m.T, atol=1e-12 * max(1.0, np.abs(m).max())):
+        raise ValueError(f"{what} must be a symmetric square matrix")
+    w, v = np.linalg.eigh(m)
+    if w.min() <= 0:
+        raise ValueError(f"{what} must be positive definite (smallest eigenvalue {w.min():.3g})")
+    return (v * np.sqrt(w)) @ v.T
+
+
+# --------------------------------------------------------------------------- problem
+@dataclass(frozen=True)
+class Structure:
+    """What fixes a compiled problem: the model, the horizon, norm, cost, timing."""
+
+    T: int
+    norm: Norm = "l1"
+    cost: Cost = "qr"
+    robust: bool = True
+    strictly_proper: bool = False
+    # Q and R diagonal: the weights are Parameter vectors (diag(l) @ Phi keeps the
+    # problem data as sparse as the taps; a full Parameter matrix makes every weighted
+    # row depend on every row, which doubled Clarabel's time at T = 50). :func:`solve`
+    # picks this from the values.
+    diagonal_weights: bool = True
+
+
+def is_diagonal(m: np.ndarray) -> bool:
+    m = np.asarray(m)
+    return bool(np.array_equal(m, np.diag(np.diag(m))))
+
+
+@dataclass(frozen=True)
+class Values:
+    """The numbers of one problem instance (the cvxpy Parameters' values)."""
+
+    Q: np.ndarray = field(default_factory=lambda: np.diag([10.0, 10, 10, 1, 1, 1]))
+    R: np.ndarray = field(default_factory=lambda: np.diag([1.0, 1, 0.1]))
+    eps_w: float = 0.0
+    eps_e: float = 0.0
+    S: float = 0.0
+    radius: float = 1.0
+    delta: float = 0.0
+    nominal: Taps | None = None
+    ratio_lambda: float = 0.0  # Dinkelbach's lambda (cost 'ratio' only)
+
+
+@dataclass(frozen=True)
+class Solution:
+    """One solve: cvxpy's status mapped to ``optimal | infeasible | inaccurate | error``."""
+
+    status: str
+    solver_status: str
+    taps: Taps | None
+    objective: float
+    build_time_s: float
+    solve_time_s: float
+    compiled: bool  # this call compiled the problem (first solve of the structure)
+
+
+class SLSProblem:
+    """One compiled FIR SLS problem; :meth:`solve` sets the Parameters and re-solves."""
+
+    def __init__(self, model: LinearModel, structure: Structure) -> None:
+        import cvxpy as cp
+
+        t0 = time.perf_counter()
+        s = structure
+        if s.T < 2:
+            raise ValueError(f"horizon T must be at least 2, got {s.T}")
+        self.model, self.structure = model, s
+        # With C = I the Phi_xy equations follow from the others: Phi_xy(k) = Phi_xx(k+1) -
+        # Phi_xx(k) A and Phi_uy(k) = Phi_ux(k+1) - Phi_ux(k) A (right equations), and then
+        # A Phi_xy(k) + B Phi_uy(k) = [A Phi_xx(k+1) + B Phi_ux(k+1)] - [A Phi_xx(k) + B
+        # Phi_ux(k)] A = Phi_xx(k+2) - Phi_xx(k+1) A = Phi_xy(k+1) (left equation). Left
+        # in, these redundant rows stall the interior-point method's primal residual near
+        # its tolerance; the certificate still checks every equation.
+        self.drops_redundant = model.C.shape == model.A.shape and np.array_equal(
+            model.C, np.eye(model.nx)
+        )
+        a, b, c, h = model.A, model.B, model.C, model.H
+        nx, nu, ny, T = model.nx, model.nu, model.ny, s.T
+        self.X = cp.Variable((nx, T * nx), name="Phi_xx")  # taps 1..T
+        self.U = cp.Variable((nu, T * nx), name="Phi_ux")  # taps 1..T
+        self.Y = cp.Variable((nx, T * ny), name="Phi_xy")  # taps 1..T
+        self.W = cp.Variable((nu, (T + 1) * ny), name="Phi_uy")  # taps 0..T
+        X, U, Y, W = self.X, self.U, self.Y, self.W
+        zx = sp.kron(sp.eye(T, k=-1), sp.eye(nx), format="csc")  # (M Z) tap k = M tap k+1
+        zy = sp.kron(sp.eye(T, k=-1), sp.eye(ny), format="csc")
+        ia = sp.kron(sp.eye(T), sp.csc_matrix(a), format="csc")
+        ic = sp.kron(sp.eye(T), sp.csc_matrix(c), format="csc")
+        ih = sp.kron(sp.eye(T), sp.csc_matrix(h), format="csc")
+        W0, W1 = W[:, :ny], W[:, ny:]
+        cons = [
+            X[:, :nx] == np.eye(nx),
+            X @ zx - a @ X - b @ U == 0,
+            X @ zx - X @ ia - Y @ ic == 0,
+            U[:, :nx] == W0 @ c,
+            U @ zx - U @ ia - W1 @ ic == 0,
+        ]
+        if not self.drops_redundant:
+            cons += [Y[:, :ny] == b @ W0, Y @ zy - a @ Y - b @ W1 == 0]
+        if s.strictly_proper:
+            cons.append(W0 == 0)
+        XH = X @ ih
+        n_xy = cp.max(cp.sum(cp.abs(Y), axis=1))
+        n_xx = cp.max(cp.sum(cp.abs(XH), axis=1))
+        p: dict[str, Any] = {}
+        if s.robust:
+            p["c_xy"] = cp.Parameter(nonneg=True, name="S_plus_eps_e_over_r")
+            p["c_xx"] = cp.Parameter(nonneg=True, name="eps_w_over_r")
+            p["c_rhs"] = cp.Parameter(name="one_minus_delta_over_r")
+            cons.append(p["c_xy"] * n_xy + p["c_xx"] * n_xx <= p["c_rhs"])
+        if s.cost in ("qr", "imitation"):
+            blocks = {}
+            for name, var, rows, right in (
+                ("xx", X, nx, ih),
+                ("xy", Y, nx, None),
+                ("ux", U, nu, ih),
+                ("uy", W, nu, None),
+            ):
+                if s.diagonal_weights:
+                    p["L" + name] = cp.Parameter(rows, name="L" + name)
+                    weight = cp.diag(p["L" + name])
+                else:
+                    p["L" + name] = cp.Parameter((rows, rows), name="L" + name)
+                    weight = p["L" + name]
+                if s.cost == "qr":
+                    v = var if right is None else var @ right
+                    blocks[name] = weight @ v
+                else:
+                    p["N" + name] = cp.Parameter(var.shape, name="N" + name)
+                    blocks[name] = weight @ var - p["N" + name]
+            if s.norm == "l1":
+                rows_x = cp.sum(cp.abs(blocks["xx"]), axis=1) + cp.sum(cp.abs(blocks["xy"]), axis=1)
+                rows_u = cp.sum(cp.abs(blocks["ux"]), axis=1) + cp.sum(cp.abs(blocks["uy"]), axis=1)
+                objective = cp.max(cp.hstack([rows_x, rows_u]))
+            else:
+                objective = sum(cp.sum_squares(v) for v in blocks.values())
+        elif s.cost == "min_phi_xy":
+            objective = n_xy
+        elif s.cost == "ratio":  # Dinkelbach: min lambda ||Phi_xy|| + (eps_w / r) ||Phi_xx H||
+            p["lam"] = cp.Parameter(nonneg=True, name="lambda")
+            p["c_xx_ratio"] = cp.Parameter(nonneg=True, name="eps_w_over_r_ratio")
+            objective = p["lam"] * n_xy + p["c_xx_ratio"] * n_xx
+        elif s.cost == "none":
+            objective = cp.Constant(0.0)
+        else:
+            raise ValueError(f"unknown cost {s.cost!r}")
+        self.params = p
+        self.problem = cp.Problem(cp.Minimize(objective), cons)
+        self.construct_time_s = time.perf_counter() - t0
+        self._compiled = False
+
+    # ---- parameters
+    def set_values(self, v: Values) -> None:
+        s, p, m = self.structure, self.params, self.model
+        if s.robust:
+            p["c_xy"].value = float(v.S + v.eps_e / v.radius)
+            p["c_xx"].value = float(v.eps_w / v.radius)
+            p["c_rhs"].value = float(1.0 - v.delta / v.radius - ROBUST_BACKOFF)
+        if s.cost in ("qr", "imitation"):
+            qh = psd_sqrt(v.Q, "Q")
+            rh = psd_sqrt(v.R, "R")
+            if s.cost == "qr":
+                w = {"xx": v.eps_w, "xy": v.eps_e, "ux": v.eps_w, "uy": v.eps_e}
+            else:
+                w = dict.fromkeys(("xx", "xy", "ux", "uy"), 1.0)
+            for name, half in (("xx", qh), ("xy", qh), ("ux", rh), ("uy", rh)):
+                if s.diagonal_weights:
+                    if not (is_diagonal(v.Q) and is_diagonal(v.R)):
+                        raise ValueError("this problem was built for diagonal Q and R")
+                    p["L" + name].value = w[name] * np.diag(half)
+                else:
+                    p["L" + name].value = w[name] * half
+            if s.cost == "imitation":
+                if v.nominal is None:
+                    raise ValueError("the imitation cost needs nominal responses")
+                n = v.nominal.truncated(s.T)
+                p["Nxx"].value = qh @ side_by_side(n.Phi_xx[1:])
+                p["Nxy"].value = qh @ side_by_side(n.Phi_xy[1:])
+                p["Nux"].value = rh @ side_by_side(n.Phi_ux[1:])
+                p["Nuy"].value = rh @ side_by_side(n.Phi_uy)
+        if s.cost == "ratio":
+            p["lam"].value = float(v.ratio_lambda)
+            p["c_xx_ratio"].value = float(v.eps_w / v.radius)
+        del m
+
+    def taps(self) -> Taps:
+        m = self.model
+        nx, nu, ny = m.nx, m.nu, m.ny
+
+        def with_zero(val: np.ndarray, cols: int) -> np.ndarray:
+            t = from_side_by_side(np.asarray(val), cols)
+            return np.concatenate([np.zeros((1, *t.shape[1:])), t])
+
+        uy = from_side_by_side(np.asarray(self.W.value), ny).reshape(-1, nu, ny)
+        if self.structure.strictly_proper:
+            uy[0] = 0.0  # structurally zero (the solver returns ~1e-19)
+        return Taps(
+            Phi_xx=with_zero(self.X.value, nx),
+            Phi_ux=with_zero(self.U.value, nx),
+            Phi_xy=with_zero(self.Y.value, ny),
+            Phi_uy=uy,
+        )
+
+    def solve(
+        self, values: Values, *, solver: str = "CLARABEL", solver_options: dict | None = None
+    ) -> Solution:
+        """Set the Parameters from ``values`` and solve; never raises on solver trouble."""
+        import cvxpy as cp
+
+        self.set_values(values)
+        compiled = not self._compiled
+        t0 = time.perf_counter()
+        try:
+            # warm_start=False: cvxpy would otherwise update the previous solver object in
+            # place, and the answer (these LPs have many optimal points) would depend on
+            # which instance this process solved before; cold solves are reproducible.
+            opts = {"warm_start": False, **(solver_options or {})}
+            with warnings.catch_warnings():  # the status says it; the library never prints
+                warnings.simplefilter("ignore", UserWarning)
+                self.problem.solve(solver=solver, **opts)
+            solver_status = str(self.problem.status)
+        except cp.error.SolverError as exc:
+            solver_status = f"solver_error: {str(exc).splitlines()[0] if str(exc) else exc!r}"
+        wall = time.perf_counter() - t0
+        self._compiled = True
+        # build: cvxpy's compile (applying the Parameters on a re-solve), plus building the
+        # expression tree on the first call; solve: the rest of the call (the solver).
+        comp = self.problem.compilation_time or 0.0
+        solve_t = max(wall - comp, 0.0)
+        build_t = comp + (self.construct_time_s if compiled else 0.0)
+        if solver_status == cp.OPTIMAL:
+            status = "optimal"
+        elif solver_status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+            status = "infeasible"
+        elif solver_status == cp.OPTIMAL_INACCURATE:
+            status = "inaccurate"
+        else:
+            status = "error"
+        taps = self.taps() if status in ("optimal", "inaccurate") else None
+        obj = float(self.problem.value) if taps is not None else float("nan")
+        return Solution(status, solver_status, taps, obj, build_t, solve_t, compiled)
+
+
+# --------------------------------------------------------------------------- cache
+_CACHE: dict[tuple, SLSProblem] = {}
+_CACHE_MAX = 16
+
+
+def _model_key(model: LinearModel) -> tuple:
+    return tuple(
+        np.asarray(m, dtype=float).round(15).tobytes() for m in (model.A, model.B, model.C, model.H)
+    )
+
+
+def get_problem(model: LinearModel, structure: Structure) -> SLSProblem:
+    """The compiled problem for ``structure`` (built once per process, then re-solved)."""
+    key = (_model_key(model), structure)
+    prob = _CACHE.get(key)
+    if prob is None:
+        if len(_CACHE) >= _CACHE_MAX:
+            _CACHE.pop(next(iter(_CACHE)))
+        prob = _CACHE[key] = SLSProblem(model, structure)
+    return prob
+
+
+def solve(
+    model: LinearModel,
+    structure: Structure,
+    values: Values,
+    *,
+    solver: str = "CLARABEL",
+    solver_options: dict | None = None,
+) -> Solution:
+    """Solve one instance, re-using this process's compiled problem for the structure."""
+    diag = is_diagonal(values.Q) and is_diagonal(values.R)
+    if structure.diagonal_weights != diag:
+        structure = replace(structure, diagonal_weights=diag)
+    return get_problem(model, structure).solve(values, solver=solver, solver_options=solver_options)
+
+
+# --------------------------------------------------------------------------- feasibility
+def min_phi_xy(
+    model: LinearModel, T: int, *, strictly_proper: bool = False, solver: str = "CLARABEL"
+) -> float:
+    """The smallest achievable ``||Phi_xy||`` (induced inf-to-inf) at horizon ``T``."""
+    sol = solve(
+        model, Structure(T, "l1", "min_phi_xy", False, strictly_proper), Values(), solver=solver
+    )
+    if sol.taps is None:
+        raise RuntimeError(f"min ||Phi_xy|| problem failed: {sol.solver_status}")
+    return l1_norm(sol.taps.Phi_xy)
+
+
+@dataclass(frozen=True)
+class MaxS:
+    """Largest S for which the robustness constraint is satisfiable (``s_max``), with the
+    norms of the response that attains it and the Dinkelbach iterations used."""
+
+    s_max: float
+    ratio: float  # max over achievable Phi of (1 - Delta/r - eps_w ||Phi_xx H|| / r) / ||Phi_xy||
+    norm_phi_xy: float
+    norm_phi_xx: float
+    iterations: int
+    solve_time_s: float
+
+
+def max_feasible_s(
+    model: LinearModel,
+    T: int,
+    *,
+    eps_e: float,
+    radius: float,
+    eps_w: float = 0.0,
+    delta: float = 0.0,
+    strictly_proper: bool = False,
+    solver: str = "CLARABEL",
+    tol: float = 1e-9,
+    max_iter: int = 50,
+) -> MaxS:
+    """Largest ``S`` with ``(S + eps_e/r)||Phi_xy|| + (eps_w ||Phi_xx H|| + Delta)/r <= 1 -
+    backoff`` satisfiable, by Dinkelbach's method on the ratio
+    ``rho(Phi) = (1 - backoff - Delta/r - (eps_w/r) ||Phi_xx H||) / ||Phi_xy||``:
+    ``S_max = max rho - eps_e / r``. Each step solves ``min lam ||Phi_xy|| + (eps_w/r)
+    ||Phi_xx H||`` (an LP re-solved through Parameters) and sets ``lam = rho(Phi)``; the
+    iteration increases ``lam`` monotonically and converges superlinearly. The answer is
+    rounded down by a relative ``1e-7`` so that ``S_max`` itself solves as feasible.
+    """
+    structure = Structure(T, "l1", "ratio", False, strictly_proper)
+    c0 = 1.0 - ROBUST_BACKOFF - delta / radius
+    lam, total, it = 0.0, 0.0, 0
+    nxy = nxx = float("nan")
+    for it in range(1, max_iter + 1):
+        sol = solve(
+            model, structure, Values(eps_w=eps_w, radius=radius, ratio_lambda=lam), solver=solver
+        )
+        total += sol.solve_time_s
+        if sol.taps is None:
+            raise RuntimeError(f"max-S subproblem failed: {sol.solver_status}")
+        nxy = l1_norm(sol.taps.Phi_xy)
+        nxx = l1_norm(sol.taps.Phi_xx, model.H)
+        new = (c0 - eps_w / radius * nxx) / nxy
+        if it == 1 and new <= 0:
+            # lam = 0 minimized ||Phi_xx H||: even then (eps_w ||Phi_xx H|| + Delta) / r
+            # leaves nothing for S: no S >= 0 is feasible
+            return MaxS(-math.inf, new, nxy, nxx, it, total)
+        if it > 1 and new - lam <= tol * max(1.0, abs(lam)):
+            lam = max(lam, new)
+            break
+        lam = new if it == 1 else max(lam, new)
+    s_max = lam - eps_e / radius
+    s_max -= 1e-7 * max(abs(s_max), 1e-3)
+    return MaxS(s_max, lam, nxy, nxx, it, total)
+
+
+def replace_values(v: Values, **kw: Any) -> Values:
+    return replace(v, **kw)

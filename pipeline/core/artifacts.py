@@ -1,0 +1,399 @@
+"""Stage folders: atomic writes, ``manifest.json``, hashing, deterministic file formats.
+
+Every stage writes through :class:`StageWriter`: files go into a hidden temporary folder
+beside the output, ``manifest.json`` is written last, and the folder is renamed into place
+only when the stage finished. An interrupted stage therefore leaves no half-written output
+(at most a ``.NAME.tmp-*`` folder, which the next run removes), and an existing output is
+replaced only with ``force=True``.
+
+Data files are deterministic: the same inputs and options give byte-identical parquet,
+YAML, JSON, NPZ and PNG files. Only ``manifest.json`` records the wall time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import shutil
+import time
+import zipfile
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from qsls.pipeline import __version__
+from qsls.pipeline.core.errors import InputError, OutputExistsError
+
+MANIFEST = "manifest.json"
+_TMP_MARK = ".tmp-"
+_OLD_MARK = ".old-"
+_CHUNK = 1 << 20
+
+# Packages whose versions go into every manifest (the ones that shape the numbers).
+_PACKAGES = (
+    "numpy",
+    "scipy",
+    "pandas",
+    "pyarrow",
+    "cvxpy",
+    "clarabel",
+    "rosbags",
+    "mcap",
+    "rotorpy",
+    "matplotlib",
+    "pydantic",
+)
+
+
+# --------------------------------------------------------------------------- hashing
+_PRIMED: dict[tuple[str, int, int], str] = {}
+
+
+def _file_key(path: Path) -> tuple[str, int, int]:
+    st = os.stat(path)
+    return (os.path.realpath(path), st.st_size, st.st_mtime_ns)
+
+
+def _hash_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_CHUNK):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def sha256_file(path: Path) -> str:
+    """Hex sha256 of one file's bytes (a hash primed by :func:`prime_hashes` is used once)."""
+    primed = _PRIMED.pop(_file_key(path), None) if _PRIMED else None
+    return primed if primed is not None else _hash_file(path)
+
+
+def prime_hashes(paths: Iterable[Path]) -> None:
+    """Hash the files (and folders' files) of ``paths`` now, for the next :func:`sha256_file`.
+
+    A stage can run this in a background thread while it reads big inputs, so that
+    StageWriter finds their hashes ready. Each primed hash is used once, and only while the
+    file keeps its size and modification time.
+    """
+    for p in paths:
+        p = Path(p)
+        files = [p] if p.is_file() else sorted(f for f in p.rglob("*") if f.is_file())
+        for f in files:
+            key = _file_key(f)
+            _PRIMED[key] = _hash_file(f)
+
+
+def sha256_path(path: Path) -> str:
+    """Hex sha256 of a file, or of a folder: its files' relative paths and hashes, sorted.
+
+    A folder's ``manifest.json`` is left out: it holds the wall time, which changes on
+    every run although the data does not.
+    """
+    path = Path(path)
+    if path.is_file():
+        return sha256_file(path)
+    if not path.is_dir():
+        raise InputError(f"{path}: no such file or folder")
+    h = hashlib.sha256()
+    for f in sorted(p for p in path.rglob("*") if p.is_file()):
+        rel = f.relative_to(path).as_posix()
+        if rel == MANIFEST or any(part.startswith(".") for part in f.relative_to(path).parts):
+            continue
+        h.update(rel.encode() + b"\0" + sha256_file(f).encode() + b"\n")
+    return h.hexdigest()
+
+
+def sha256_json(obj: Any) -> str:
+    """Hex sha256 of an object's canonical JSON (sorted keys): the hash of a set of options."""
+    return hashlib.sha256(canonical_json(obj).encode()).hexdigest()
+
+
+# --------------------------------------------------------------------------- plain values
+def to_plain(obj: Any) -> Any:
+    """Convert numpy scalars/arrays, paths, tuples and pydantic models to JSON/YAML types."""
+    if hasattr(obj, "model_dump"):
+        return to_plain(obj.model_dump(mode="json"))
+    if isinstance(obj, Mapping):
+        return {str(k): to_plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [to_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_plain(obj.tolist())
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating):
+        return float(obj)
+    if isinstance(obj, Path):
+        return obj.as_posix()
+    return obj
+
+
+def canonical_json(obj: Any) -> str:
+    return json.dumps(to_plain(obj), sort_keys=True, separators=(",", ":"), allow_nan=True)
+
+
+# --------------------------------------------------------------------------- atomic files
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same folder and a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}{_TMP_MARK}{os.getpid()}")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def dump_yaml(obj: Any) -> str:
+    import yaml
+
+    return yaml.safe_dump(to_plain(obj), sort_keys=False, default_flow_style=None, width=100)
+
+
+def dump_json(obj: Any) -> str:
+    return json.dumps(to_plain(obj), indent=2, sort_keys=False, allow_nan=True) + "\n"
+
+
+def parquet_bytes(df: Any) -> bytes:
+    """Deterministic parquet bytes of a pandas DataFrame (no index, zstd, fixed writer)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    buf = io.BytesIO()
+    pq.write_table(table, buf, compression="zstd", compression_level=3)
+    return buf.getvalue()
+
+
+def npz_bytes(arrays: Mapping[str, np.ndarray]) -> bytes:
+    """Deterministic NPZ bytes: fixed member order and zip timestamps (np.savez stamps now)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name in sorted(arrays):
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.asarray(arrays[name]), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, member.getvalue())
+    return buf.getvalue()
+
+
+def figure_bytes(fig: Any, fmt: str = "png", dpi: int = 110) -> bytes:
+    """Deterministic image bytes of a matplotlib figure (no software/date metadata)."""
+    import matplotlib
+
+    buf = io.BytesIO()
+    meta: dict[str, Any]
+    if fmt == "png":
+        meta = {"Software": None}
+    elif fmt == "svg":
+        matplotlib.rcParams["svg.hashsalt"] = "qsls"
+        meta = {"Date": None, "Creator": None}
+    else:
+        meta = {"CreationDate": None, "Creator": None, "Producer": None}
+    fig.savefig(buf, format=fmt, dpi=dpi, metadata=meta)
+    return buf.getvalue()
+
+
+# --------------------------------------------------------------------------- manifests
+def package_versions() -> dict[str, str]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for name in _PACKAGES:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "not installed"
+    import platform
+
+    out["python"] = platform.python_version()
+    return out
+
+
+def describe_inputs(inputs: Iterable[Path]) -> list[dict[str, Any]]:
+    """``[{path, sha256, bytes}]`` for every input file or folder, in the order given."""
+    out = []
+    for p in inputs:
+        p = Path(p)
+        size = (
+            p.stat().st_size
+            if p.is_file()
+            else sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
+        )
+        out.append({"path": p.as_posix(), "sha256": sha256_path(p), "bytes": int(size)})
+    return out
+
+
+def read_manifest(folder: Path) -> dict[str, Any]:
+    """The manifest of a stage folder; a clear error when the folder is not one."""
+    path = Path(folder) / MANIFEST
+    if not path.is_file():
+        raise InputError(
+            f"{folder}: not a qsls stage folder (no {MANIFEST}); "
+            "pass a folder written by a qsls command"
+        )
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: manifest is not valid JSON ({exc.msg})") from None
+
+
+def require_stage(folder: Path, stage: str) -> dict[str, Any]:
+    """Read a folder's manifest and check it was written by ``stage``."""
+    manifest = read_manifest(folder)
+    if manifest.get("stage") != stage:
+        raise InputError(
+            f"{folder}: written by stage '{manifest.get('stage')}', expected a '{stage}' folder"
+        )
+    return manifest
+
+
+# --------------------------------------------------------------------------- stage writer
+@dataclass
+class StageWriter:
+    """Write one stage's output folder atomically.
+
+    Use as a context manager::
+
+        with StageWriter(out, "ingest", options=cfg, inputs=[bag], force=force) as w:
+            w.write_parquet("flight.parquet", df)
+            w.results["time_offset_s"] = offset
+
+    On success the folder appears at ``out`` with ``manifest.json``; on any exception the
+    temporary folder is removed and ``out`` is untouched.
+    """
+
+    out: Path
+    stage: str
+    options: Any = None
+    inputs: Sequence[Path] = ()
+    force: bool = False
+    results: dict[str, Any] = field(default_factory=dict)
+    tmp: Path = field(init=False)
+    _t0: float = field(init=False, default=0.0)
+
+    def __post_init__(self) -> None:
+        self.out = Path(self.out)
+
+    def __enter__(self) -> StageWriter:
+        check_output(self.out, self.force)
+        self._t0 = time.perf_counter()
+        self.out.parent.mkdir(parents=True, exist_ok=True)
+        clean_stale(self.out)
+        self.tmp = self.out.with_name(f".{self.out.name}{_TMP_MARK}{os.getpid()}")
+        if self.tmp.exists():
+            shutil.rmtree(self.tmp)
+        self.tmp.mkdir()
+        self._inputs = describe_inputs(self.inputs)
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is not None:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+            return
+        try:
+            self._write_manifest()
+            publish(self.tmp, self.out)
+        finally:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+
+    # ---- files
+    def path(self, name: str) -> Path:
+        """Path of ``name`` inside the temporary folder (for writers that need a path)."""
+        p = self.tmp / name
+        p.parent.mkdir(parents=True, exist_ok=True)
+        return p
+
+    def write_bytes(self, name: str, data: bytes) -> Path:
+        p = self.path(name)
+        p.write_bytes(data)
+        return p
+
+    def write_text(self, name: str, text: str) -> Path:
+        return self.write_bytes(name, text.encode())
+
+    def write_parquet(self, name: str, df: Any) -> Path:
+        return self.write_bytes(name, parquet_bytes(df))
+
+    def write_yaml(self, name: str, obj: Any) -> Path:
+        return self.write_text(name, dump_yaml(obj))
+
+    def write_json(self, name: str, obj: Any) -> Path:
+        return self.write_text(name, dump_json(obj))
+
+    def write_npz(self, name: str, arrays: Mapping[str, np.ndarray]) -> Path:
+        return self.write_bytes(name, npz_bytes(arrays))
+
+    def write_figure(self, name: str, fig: Any, dpi: int = 110) -> Path:
+        import matplotlib.pyplot as plt
+
+        fmt = Path(name).suffix.lstrip(".") or "png"
+        try:
+            return self.write_bytes(name, figure_bytes(fig, fmt, dpi))
+        finally:
+            plt.close(fig)
+
+    # ---- manifest
+    def _write_manifest(self) -> None:
+        options = to_plain(self.options) if self.options is not None else {}
+        manifest = {
+            "stage": self.stage,
+            "qsls_version": __version__,
+            "inputs": self._inputs,
+            "options": options,
+            "input_hash": sha256_json({"inputs": self._inputs, "options": options}),
+            "results": to_plain(self.results),
+            "files": {
+                f.relative_to(self.tmp).as_posix(): sha256_file(f)
+                for f in sorted(self.tmp.rglob("*"))
+                if f.is_file()
+            },
+            "packages": package_versions(),
+            "wall_time_s": round(time.perf_counter() - self._t0, 3),
+        }
+        (self.tmp / MANIFEST).write_text(dump_json(manifest))
+
+
+def check_output(out: Path, force: bool) -> None:
+    """Refuse to touch an existing output unless ``force``."""
+    out = Path(out)
+    if out.exists() and not force:
+        raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
+
+
+def clean_stale(out: Path) -> None:
+    """Remove temporary folders that an interrupted earlier run left beside ``out``."""
+    out = Path(out)
+    if not out.parent.is_dir():
+        return
+    for stale in out.parent.glob(f".{out.name}{_TMP_MARK}*"):
+        shutil.rmtree(stale, ignore_errors=True) if stale.is_dir() else stale.unlink()
+    for stale in out.parent.glob(f".{out.name}{_OLD_MARK}*"):
+        shutil.rmtree(stale, ignore_errors=True)
+
+
+def publish(tmp: Path, out: Path) -> None:
+    """Move a finished temporary folder to ``out``, replacing an old one by renames only."""
+    old = None
+    if out.exists():
+        old = out.with_name(f".{out.name}{_OLD_MARK}{os.getpid()}")
+        os.replace(out, old)
+    os.replace(tmp, out)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

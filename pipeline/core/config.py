@@ -1,0 +1,135 @@
+"""Configuration: pydantic models for every stage's options, loaded from YAML.
+
+Each stage module defines its options as a subclass of :class:`Options` (frozen, unknown
+keys rejected). :func:`load_options` reads an optional YAML file, lays the command line's
+values over it (the command line wins) and validates, turning pydantic's errors into one
+readable :class:`ConfigError` that suggests the nearest valid name for a misspelled key.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from qsls.pipeline.core.errors import ConfigError
+
+T = TypeVar("T", bound="Options")
+
+
+class Options(BaseModel):
+    """Base of every options model: immutable, and unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+def read_yaml(path: Path) -> dict[str, Any]:
+    """A YAML file's top-level mapping; a clear error for a missing or malformed file."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: config file not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{path}: not valid YAML{where}: {problem}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping of option names to values at the top level")
+    return data
+
+
+def merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """Recursive dict merge; values in ``over`` win, ``None`` in ``over`` means 'not given'."""
+    out = dict(base)
+    for key, value in over.items():
+        if value is None:
+            continue
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def load_options(
+    model: type[T],
+    config: Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    *,
+    section: str | None = None,
+) -> T:
+    """Validate ``model`` from a YAML file (optionally one ``section`` of it) and overrides."""
+    data: dict[str, Any] = {}
+    source = "options"
+    if config is not None:
+        data = read_yaml(config)
+        source = str(config)
+        if section is not None:
+            sub = data.get(section, data if section not in data else {})
+            if not isinstance(sub, dict):
+                raise ConfigError(f"{config}: section '{section}' must be a mapping")
+            data = sub
+    data = merge(data, overrides or {})
+    return validate(model, data, source)
+
+
+def validate(model: type[T], data: Mapping[str, Any], source: str = "options") -> T:
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(f"{source}: {describe_validation_error(model, exc)}") from None
+
+
+def describe_validation_error(model: type[BaseModel], exc: ValidationError) -> str:
+    """One line per problem, joined by '; ', with suggestions for unknown keys."""
+    parts = []
+    for err in exc.errors():
+        loc = tuple(err.get("loc", ()))
+        dotted = ".".join(str(p) for p in loc) or "(top level)"
+        if err.get("type") == "extra_forbidden":
+            valid = _field_names(model, loc[:-1])
+            near = difflib.get_close_matches(str(loc[-1]), valid, n=1, cutoff=0.5)
+            hint = f"; did you mean '{near[0]}'?" if near else f"; valid: {', '.join(valid)}"
+            parts.append(f"unknown option '{dotted}'{hint}")
+        elif err.get("type") == "missing":
+            parts.append(f"missing required option '{dotted}'")
+        else:
+            msg = err.get("msg", "invalid value")
+            got = err.get("input")
+            shown = f" (got {got!r})" if got is not None and not isinstance(got, dict) else ""
+            parts.append(f"'{dotted}': {msg}{shown}")
+    return "; ".join(parts)
+
+
+def _field_names(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
+    """Field names of the (nested) model found by following ``loc`` from ``model``."""
+    current: Any = model
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        fields = getattr(current, "model_fields", None)
+        if not fields or part not in fields:
+            return []
+        current = _model_of(fields[part].annotation)
+    fields = getattr(current, "model_fields", None) or {}
+    return sorted(fields)
+
+
+def _model_of(annotation: Any) -> Any:
+    """The BaseModel inside an annotation like ``Model | None`` or ``list[Model]``."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in getattr(annotation, "__args__", ()) or ():
+        found = _model_of(arg)
+        if found is not None:
+            return found
+    return None

@@ -1,0 +1,17 @@
+"""``qsls fit``: the perception error model (DESIGN.md, Error model): ``eps_e``, S-slopes, ``delta``."""
+
+from qsls.pipeline.core.api import lazy_api
+
+__all__, __getattr__ = lazy_api(
+    __name__,
+    {
+        "ErrorModel": "model",
+        "load_error_model": "model",
+        "FitOptions": "fit",
+        "FitResult": "fit",
+        "fit": "fit",
+        "pair_slopes": "slopes",
+        "PairSlopes": "slopes",
+        "nearest_distance": "slopes",
+    },
+)

@@ -1,0 +1,541 @@
+"""``qsls fit``: the data-driven perception error model (DESIGN.md, Error model; paper III-C).
+
+Training data: the aligned samples ``(x_i, e_i)`` of ingested flights, ``e = y - x``.
+
+- ``eps_e = max_i ||e_i||`` (infinity norm) and percentiles of ``||e_i||``; per-axis statistics.
+- The S-slope with radius ``r``: the pair slopes ``s_ij = ||e_i - e_j|| / ||W (x_i - x_j)||``
+  over pairs ``min_separation <= ||W (x_i - x_j)|| < r`` (``W = diag(state_scale)``), from
+  :mod:`qsls.pipeline.errormodel.slopes`: the exact max (the paper's ``S_hat``), percentiles over pairs,
+  percentiles of each sample's largest slope, and the pairs that set the largest slopes.
+- ``R0``: the error bound of the guarantee (``eps_e`` unless ``r0`` names another).
+- ``delta = max_k min_i ||W (r_k - x_i)||``: how far the reference states ``r_k`` stray from
+  the training states.
+
+**Minimum separation (the noise floor).** A pair closer than the measurement noise has
+``||e_i - e_j||`` made of noise, not of the state dependence, and ``s_ij ~ noise / d`` grows
+without bound as ``d -> 0`` (two laps passing within a millimetre give slopes in the
+hundreds). By default (``min_separation: auto``) pairs closer than
+``min_separation_factor`` (3) times the noise floor are left out of the S-slope statistics.
+The noise floor is estimated from the data: per axis, the white-noise standard deviation of
+``e`` from second differences along each flight, ``sigma_a = 1.4826 median|D^2 e_a| / sqrt 6``
+(robust to outliers; smooth bias and drift cancel to second order), weighted by the state
+scale, and the largest over axes (the infinity norm). The value used and the number of pairs
+it left out are in the output; ``min_separation: 0`` keeps every pair at a positive distance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+from pydantic import Field, field_validator
+
+from qsls.pipeline.core.artifacts import StageWriter, check_output, require_stage
+from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.errormodel.model import (
+    ERROR_MODEL_FILE,
+    AxisStats,
+    ErrorModel,
+    SlopeStats,
+    WorstPair,
+)
+from qsls.pipeline.errormodel.slopes import PairSlopes, nearest_distance, pair_slopes, pct_name
+from qsls.pipeline.ingest.flight import AXES, E_COLS, X_COLS, read_flight
+from qsls.pipeline.sim.references import ReferenceOptions
+
+STAGE = "fit"
+TRAINING_FILE = "training_states.parquet"
+FIGURES = ("slope_distribution.png", "error_norm.png", "worst_pairs.png")
+_MAD = 1.4826
+
+
+class FitOptions(Options):
+    """``qsls fit``: how the error model is estimated from the training flights."""
+
+    radius: float = Field(0.5, gt=0)
+    """S-slope radius ``r``: pairs with ``||W (x_i - x_j)|| < r`` (m and m/s, infinity norm)."""
+    percentiles: list[float] = Field(default_factory=lambda: [50.0, 90.0, 95.0, 99.0])
+    """Percentiles reported for ``||e||``, pair slopes and per-sample largest slopes."""
+    min_separation: float | Literal["auto"] = "auto"
+    """Pairs closer than this are left out (noise floor); ``auto``: factor x the noise floor."""
+    min_separation_factor: float = Field(3.0, gt=0)
+    """``auto`` minimum separation = this x the estimated noise floor."""
+    state_scale: tuple[float, float, float, float, float, float] = (1.0,) * 6
+    """Weights ``W`` of ``px py pz vx vy vz`` in the state distance (1 m/s counts as 1 m)."""
+    exclude_outliers: bool = False
+    """Leave out samples whose robust z-score of ``e`` exceeds ``outlier_z`` on some axis."""
+    outlier_z: float = Field(3.5, gt=0)
+    """Robust z-score ``|e - median| / (1.4826 MAD)`` above which a sample is an outlier."""
+    skip_start: float = Field(0.0, ge=0)
+    """Seconds left out at the start of every flight (estimator start-up)."""
+    reference: ReferenceOptions | str | None = None
+    """For ``delta``: a reference (``circle:radius=1,height=1,period=5`` or a mapping of
+    the simulator's reference options) or a flight folder whose truth states are the
+    reference."""
+    reference_dt: float = Field(0.01, gt=0)
+    """Sampling step of a parametric reference (s)."""
+    reference_lead_in: bool = False
+    """Include a parametric reference's take-off and approach (before its pattern) in delta."""
+    r0: float | str = "max"
+    """``R0``: ``max`` (= eps_e), ``pNN`` (a percentile of ``||e||``) or a number."""
+    bootstrap: int = Field(0, ge=0)
+    """Bootstrap replicates for confidence intervals (0: none)."""
+    bootstrap_block: int = Field(10, ge=1)
+    """Block length (samples) of the moving-block bootstrap within each flight."""
+    bootstrap_level: float = Field(0.95, gt=0, lt=1)
+    seed: int = 0
+    """Seed of the bootstrap."""
+    top_pairs: int = Field(20, ge=1, le=1000)
+    """Number of worst pairs reported."""
+    figures: bool = True
+    jobs: int = Field(1, ge=1, le=64)
+    """Threads for the pair pass (the result does not depend on it)."""
+
+    @field_validator("percentiles")
+    @classmethod
+    def _pcts(cls, v: list[float]) -> list[float]:
+        if not v:
+            raise ValueError("give at least one percentile")
+        bad = [q for q in v if not (0 <= q <= 100)]
+        if bad:
+            raise ValueError(f"percentiles must be in [0, 100], got {bad}")
+        return sorted({float(q) for q in v})
+
+    @field_validator("state_scale", mode="before")
+    @classmethod
+    def _scale(cls, v: Any) -> Any:
+        if isinstance(v, list | tuple):
+            if len(v) != 6:
+                raise ValueError(f"give 6 weights (px,py,pz,vx,vy,vz), got {len(v)}")
+            if any(not isinstance(w, int | float) or not w > 0 for w in v):
+                raise ValueError(f"weights must be positive numbers, got {list(v)}")
+        return v
+
+    @field_validator("min_separation")
+    @classmethod
+    def _minsep(cls, v: float | str) -> float | str:
+        if isinstance(v, float | int) and (v < 0 or not math.isfinite(v)):
+            raise ValueError(f"must be >= 0 or 'auto', got {v}")
+        return v
+
+
+@dataclass(frozen=True)
+class FitResult:
+    out: Path
+    model: ErrorModel
+    noise_floor: dict[str, float]
+    n_candidates: int
+
+    def summary(self) -> dict[str, Any]:
+        m = self.model
+        s = m.s_slope
+        out: dict[str, Any] = {
+            "flights": len(m.flights),
+            "samples": m.n_samples,
+            "excluded samples": m.n_excluded,
+            "radius": m.radius,
+            "min separation": m.min_separation,
+            "pairs (counted)": m.n_pairs,
+            "pairs below min separation": m.n_pairs_below_min_separation,
+            "eps_e (max ||e||)": m.eps_e,
+        }
+        for k, v in m.eps_e_percentiles.items():
+            out[f"eps_e {k}"] = v
+        out["S max"] = s.max
+        for k, v in s.percentiles.items():
+            out[f"S {k}"] = v
+        for k, v in s.local_max_percentiles.items():
+            out[f"S local_{k}"] = v
+        out["percentile rel. error"] = s.percentile_rel_error
+        out["R0"] = m.R0
+        out["delta"] = m.delta
+        if m.worst_pairs:
+            w = m.worst_pairs[0]
+            out["worst pair"] = (
+                f"{w.flight} t={w.t_i:.2f}s / {w.flight_j or w.flight} t={w.t_j:.2f}s"
+            )
+        out["output"] = str(self.out)
+        return out
+
+
+# --------------------------------------------------------------------------- inputs
+@dataclass(frozen=True)
+class _Training:
+    names: list[str]
+    flight_idx: np.ndarray  # (n,) index into names
+    t: np.ndarray
+    x: np.ndarray
+    e: np.ndarray
+    keep: np.ndarray  # (n,) bool: used for the model
+    exclusions: dict[str, int]
+
+
+def _flight_names(flights: list[Path]) -> list[str]:
+    names, seen = [], {}
+    for f in flights:
+        base = Path(f).resolve().name or str(f)
+        k = seen.get(base, 0)
+        seen[base] = k + 1
+        names.append(base if k == 0 else f"{base}_{k + 1}")
+    return names
+
+
+def _load(flights: list[Path], options: FitOptions) -> _Training:
+    if not flights:
+        raise InputError("no flights given; pass one or more folders written by 'qsls ingest'")
+    tables = []
+    for f in flights:
+        f = Path(f)
+        if not f.is_dir():
+            raise InputError(f"{f}: not a folder; pass flight folders written by 'qsls ingest'")
+        require_stage(f, "ingest")
+        tables.append(read_flight(f))
+    names = _flight_names(flights)
+    fi = np.concatenate([np.full(len(df), k) for k, df in enumerate(tables)])
+    t = np.concatenate([df["t"].to_numpy(float) for df in tables])
+    x = np.concatenate([df.loc[:, list(X_COLS)].to_numpy(float) for df in tables])
+    e = np.concatenate([df.loc[:, list(E_COLS)].to_numpy(float) for df in tables])
+    if len(t) == 0:
+        raise InputError("the flights hold no samples")
+    finite = np.isfinite(x).all(axis=1) & np.isfinite(e).all(axis=1)
+    keep = finite.copy()
+    ex = {"nonfinite": int((~finite).sum())}
+    late = t >= options.skip_start
+    ex["skip_start"] = int((keep & ~late).sum())
+    keep &= late
+    if options.exclude_outliers and keep.any():
+        z = robust_z(e[keep])
+        out = np.zeros(len(keep), dtype=bool)
+        out[np.flatnonzero(keep)] = (z > options.outlier_z).any(axis=1)
+        ex["outliers"] = int(out.sum())
+        keep &= ~out
+    if not keep.any():
+        raise InputError(
+            f"all {len(keep)} samples were excluded ("
+            + ", ".join(f"{k}: {v}" for k, v in ex.items() if v)
+            + "); relax --skip-start / --exclude-outliers"
+        )
+    return _Training(names, fi, t, x, e, keep, ex)
+
+
+def robust_z(e: np.ndarray) -> np.ndarray:
+    """``|e - median| / (1.4826 MAD)`` per axis (0 on an axis whose MAD is 0)."""
+    med = np.median(e, axis=0)
+    mad = _MAD * np.median(np.abs(e - med), axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.abs(e - med) / mad
+    z[:, mad <= 0] = 0.0
+    return z
+
+
+def noise_floor(tr: _Training) -> np.ndarray:
+    """Per-axis white-noise std of ``e`` from second differences along each flight (6,)."""
+    d2 = []
+    for k in range(len(tr.names)):
+        sel = (tr.flight_idx == k) & tr.keep
+        idx = np.flatnonzero(sel)
+        if len(idx) < 3:
+            continue
+        # only runs of consecutive kept samples
+        ok = (idx[2:] - idx[:-2]) == 2
+        e = tr.e[idx]
+        dd = e[2:] - 2 * e[1:-1] + e[:-2]
+        d2.append(dd[ok])
+    if not d2 or sum(len(a) for a in d2) == 0:
+        return np.zeros(6)
+    allv = np.concatenate(d2)
+    return _MAD * np.median(np.abs(allv), axis=0) / math.sqrt(6.0)
+
+
+# --------------------------------------------------------------------------- reference
+def parse_reference(spec: str) -> ReferenceOptions:
+    """``circle:radius=1,height=1,period=5`` (any ReferenceOptions field) to options."""
+    from qsls.pipeline.core.config import validate
+
+    kind, _, rest = spec.partition(":")
+    data: dict[str, Any] = {"kind": kind.strip()}
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        key, eq, val = item.partition("=")
+        if not eq:
+            raise InputError(f"reference '{spec}': expected key=value, got '{item}'")
+        key = key.strip()
+        if key == "center":
+            data[key] = tuple(float(v) for v in val.replace(";", " ").split())
+        else:
+            try:
+                data[key] = float(val)
+            except ValueError:
+                data[key] = val.strip()
+    return validate(ReferenceOptions, data, f"reference '{spec}'")
+
+
+def reference_states(options: FitOptions) -> tuple[np.ndarray | None, str | None]:
+    """The reference states ``r_k`` (m, 6) and a description, or (None, None)."""
+    ref = options.reference
+    if ref is None:
+        return None, None
+    if isinstance(ref, str):
+        p = Path(ref)
+        if p.is_dir():
+            require_stage(p, "ingest")
+            df = read_flight(p)
+            xr = df.loc[:, list(X_COLS)].to_numpy(float)
+            xr = xr[np.isfinite(xr).all(axis=1)]
+            if len(xr) == 0:
+                raise InputError(f"{p}: the reference flight has no finite states")
+            return xr, f"flight {p.as_posix()}"
+        kinds = ("circle", "hover", "figure8")
+        if ref.partition(":")[0].strip() not in kinds:
+            raise InputError(
+                f"reference '{ref}' is neither a flight folder nor a reference like "
+                "'circle:radius=1,height=1,period=5' (kinds: circle, hover, figure8)"
+            )
+        ref = parse_reference(ref)
+    from qsls.pipeline.sim.references import Reference
+
+    dur = ref.natural_duration()
+    t0 = 0.0 if options.reference_lead_in else float(getattr(ref, "start_s", 0.0))
+    t = t0 + np.arange(0.0, dur - t0 + 0.5 * options.reference_dt, options.reference_dt)
+    desc = ref.kind + ":" + ",".join(f"{k}={v}" for k, v in ref.model_dump().items() if k != "kind")
+    return Reference(ref).states(t), desc
+
+
+# --------------------------------------------------------------------------- bootstrap
+def bootstrap_weights(flight_idx: np.ndarray, n_rep: int, block: int, seed: int) -> np.ndarray:
+    """(B, n) multiplicities of a moving-block bootstrap within each flight (seeded)."""
+    rng = np.random.default_rng(seed)
+    n = len(flight_idx)
+    W = np.zeros((n_rep, n))
+    groups = [np.flatnonzero(flight_idx == k) for k in np.unique(flight_idx)]
+    for b in range(n_rep):
+        for idx in groups:
+            m = len(idx)
+            L = min(block, m)
+            nblk = -(-m // L)
+            starts = rng.integers(0, m - L + 1, size=nblk)
+            pick = (starts[:, None] + np.arange(L)[None, :]).ravel()[:m]
+            W[b] += np.bincount(idx[pick], minlength=n)
+    return W
+
+
+def _interval(values: np.ndarray, level: float) -> list[float]:
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if len(v) == 0:
+        return [float("nan"), float("nan")]
+    a = (1 - level) / 2 * 100
+    lo, hi = np.percentile(v, [a, 100 - a])
+    return [float(lo), float(hi)]
+
+
+def _bootstrap_summary(
+    enorm: np.ndarray, W: np.ndarray, ps: PairSlopes, options: FitOptions
+) -> dict[str, Any]:
+    qs = options.percentiles
+    lvl = options.bootstrap_level
+    emax, epct = [], {pct_name(q): [] for q in qs}
+    for w in W:
+        sel = w > 0
+        emax.append(float(enorm[sel].max()))
+        vals = np.repeat(enorm[sel], w[sel].astype(np.int64))
+        for q, v in zip(qs, np.percentile(vals, qs), strict=True):
+            epct[pct_name(q)].append(float(v))
+    bs = ps.bootstrap
+    assert bs is not None
+    s_int: dict[str, list[float]] = {"max": _interval(bs.max, lvl)}
+    for k, v in bs.percentiles.items():
+        s_int[k] = _interval(v, lvl)
+    for k, v in bs.local_max_percentiles.items():
+        s_int[f"local_{k}"] = _interval(v, lvl)
+    return {
+        "replicates": len(W),
+        "seed": options.seed,
+        "block_samples": options.bootstrap_block,
+        "level": lvl,
+        "method": "moving-block bootstrap of the samples within each flight "
+        "(a pair counts w_i w_j times); percentile intervals",
+        "eps_e": {"max": _interval(np.array(emax), lvl)}
+        | {k: _interval(np.array(v), lvl) for k, v in epct.items()},
+        "s_slope": s_int,
+    }
+
+
+# --------------------------------------------------------------------------- the stage
+def _axis_stats(e: np.ndarray) -> dict[str, AxisStats]:
+    out = {}
+    for k, a in enumerate(AXES):
+        v = e[:, k]
+        out[a] = AxisStats(
+            mean=float(v.mean()),
+            std=float(v.std()),
+            rms=float(np.sqrt(np.mean(v * v))),
+            max_abs=float(np.abs(v).max()),
+        )
+    return out
+
+
+def _pct(values: np.ndarray, qs: list[float]) -> dict[str, float]:
+    got = np.percentile(values, qs)
+    return {pct_name(q): float(v) for q, v in zip(qs, got, strict=True)}
+
+
+def fit(
+    flights: list[Path],
+    options: FitOptions,
+    out: Path,
+    *,
+    force: bool = False,
+    progress: Progress = NULL_PROGRESS,
+) -> FitResult:
+    """Estimate the error model of ``flights`` and write ``out`` (see the module doc)."""
+    flights = [Path(f) for f in flights]
+    check_output(Path(out), force)  # before the work, not after it
+    names = {pct_name(q) for q in options.percentiles}
+    _resolve_r0(options.r0, 0.0, dict.fromkeys(names, 0.0))  # a clear error now, not later
+    tr = _load(flights, options)
+    ref_x, ref_desc = reference_states(options)
+    idx = np.flatnonzero(tr.keep)
+    x, e = tr.x[idx], tr.e[idx]
+    scale = np.asarray(options.state_scale, dtype=float)
+    if np.any(scale <= 0):
+        raise InputError(f"state scale must be 6 positive weights, got {list(scale)}")
+    sigma = noise_floor(tr)
+    floor = float(np.max(sigma * scale))
+    if options.min_separation == "auto":
+        min_sep = options.min_separation_factor * floor
+        rule = (
+            f"auto: {options.min_separation_factor:g} x noise floor {floor:.4g} "
+            "(white-noise std of e from second differences, largest scaled axis)"
+        )
+        if min_sep >= 0.5 * options.radius:
+            min_sep = 0.5 * options.radius
+            rule += f"; capped at radius / 2 = {min_sep:.4g}"
+    else:
+        min_sep = float(options.min_separation)
+        rule = "given"
+        if min_sep >= options.radius:
+            raise InputError(
+                f"min separation {min_sep:g} must be smaller than the radius {options.radius:g}"
+            )
+    W = None
+    if options.bootstrap > 0:
+        W = bootstrap_weights(
+            tr.flight_idx[idx], options.bootstrap, options.bootstrap_block, options.seed
+        )
+    ps = pair_slopes(
+        x,
+        e,
+        options.radius,
+        min_separation=min_sep,
+        state_scale=scale,
+        percentiles=options.percentiles,
+        top_k=options.top_pairs,
+        bootstrap_weights=W,
+        jobs=options.jobs,
+        progress=progress,
+    )
+    if ps.n_pairs == 0:
+        raise InputError(
+            f"no pair of samples within radius {options.radius:g} and at least "
+            f"{min_sep:.4g} apart ({ps.n_in_radius} pairs closer than the minimum separation); "
+            "increase --radius or lower --min-separation"
+        )
+    enorm = np.abs(e).max(axis=1)
+    eps_e = float(enorm.max())
+    eps_pct = _pct(enorm, options.percentiles)
+    r0 = _resolve_r0(options.r0, eps_e, eps_pct)
+    delta = 0.0
+    if ref_x is not None:
+        delta = float(nearest_distance(x, ref_x, scale).max())
+    qs = options.percentiles
+    worst = [
+        WorstPair(
+            flight=tr.names[tr.flight_idx[idx[w.i]]],
+            flight_j=tr.names[tr.flight_idx[idx[w.j]]],
+            t_i=float(tr.t[idx[w.i]]),
+            t_j=float(tr.t[idx[w.j]]),
+            x_i=[float(v) for v in x[w.i]],
+            x_j=[float(v) for v in x[w.j]],
+            e_i=[float(v) for v in e[w.i]],
+            e_j=[float(v) for v in e[w.j]],
+            distance=w.distance,
+            slope=w.slope,
+        )
+        for w in ps.worst
+    ]
+    model = ErrorModel(
+        eps_e=eps_e,
+        eps_e_percentiles=eps_pct,
+        per_axis=_axis_stats(e),
+        radius=float(options.radius),
+        min_separation=float(min_sep),
+        min_separation_rule=rule,
+        noise_floor={a: float(s) for a, s in zip(AXES, sigma, strict=True)},
+        state_scale=[float(v) for v in scale],
+        s_slope=SlopeStats(
+            max=ps.max,
+            percentiles=ps.percentiles,
+            local_max_percentiles=ps.local_max_percentiles,
+            percentile_rel_error=ps.percentile_rel_error,
+            n_samples_with_partners=ps.n_with_partners,
+        ),
+        R0=r0,
+        delta=delta,
+        delta_reference=ref_desc,
+        n_samples=len(idx),
+        n_pairs=ps.n_pairs,
+        n_pairs_below_min_separation=ps.n_below_min_separation,
+        n_excluded=int(len(tr.keep) - len(idx)),
+        exclusions=tr.exclusions,
+        worst_pairs=worst,
+        bootstrap=_bootstrap_summary(enorm, W, ps, options) if W is not None else None,
+        flights=tr.names,
+    )
+    training = pd.DataFrame(
+        {"flight": [tr.names[k] for k in tr.flight_idx[idx]], "t": tr.t[idx]}
+        | {c: x[:, k] for k, c in enumerate(X_COLS)}
+        | {c: e[:, k] for k, c in enumerate(E_COLS)}
+    )
+    results = {
+        "eps_e": eps_e,
+        "s_max": ps.max,
+        **{f"s_{k}": v for k, v in ps.percentiles.items()},
+        "n_samples": len(idx),
+        "n_pairs": ps.n_pairs,
+        "delta": delta,
+    }
+    with StageWriter(out, STAGE, options=options, inputs=flights, force=force) as w:
+        w.write_yaml(ERROR_MODEL_FILE, model)
+        w.write_parquet(TRAINING_FILE, training)
+        if options.figures:
+            from qsls.pipeline.errormodel import figures as fit_plots
+
+            figs = fit_plots.make_figures(model, ps, tr, idx, qs)
+            for name, fig in figs.items():
+                w.write_figure(name, fig)
+        w.results.update(results)
+    return FitResult(
+        out=Path(out), model=model, noise_floor=model.noise_floor, n_candidates=ps.n_candidates
+    )
+
+
+def _resolve_r0(r0: float | str, eps_e: float, pcts: dict[str, float]) -> float:
+    if isinstance(r0, int | float):
+        return float(r0)
+    key = str(r0).strip()
+    if key in ("max", "eps_e"):
+        return eps_e
+    if key in pcts:
+        return pcts[key]
+    try:
+        return float(key)
+    except ValueError:
+        raise InputError(
+            f"r0 '{r0}': use max, a number, or one of the percentiles ({', '.join(pcts)})"
+        ) from None

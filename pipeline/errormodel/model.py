@@ -1,0 +1,153 @@
+"""The perception error model artifact, ``error_model.yaml`` (DESIGN.md, Error model).
+
+This module fixes the file's schema and how later stages read it; the estimator that
+writes it lives in :mod:`qsls.pipeline.errormodel.fit`.
+
+Names a later stage may use for a number of the model (``S`` and ``eps_e`` in synth):
+``max``; ``pNN`` (a percentile over pair slopes, or over ``||e_i||``); ``local_pNN``
+(a percentile of each sample's largest slope, S only).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from qsls.pipeline.core.errors import InputError
+
+ERROR_MODEL_FILE = "error_model.yaml"
+_PCT = re.compile(r"^p(\d+(?:\.\d+)?)$")
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class AxisStats(_Frozen):
+    mean: float
+    std: float
+    rms: float
+    max_abs: float
+
+
+class SlopeStats(_Frozen):
+    """S-slope estimates with radius ``r``: ``||e_i - e_j|| / ||x_i - x_j||``, ``||x_i - x_j|| < r``."""
+
+    max: float
+    percentiles: dict[str, float] = Field(default_factory=dict)
+    local_max_percentiles: dict[str, float] = Field(default_factory=dict)
+    percentile_rel_error: float = 0.0
+    """Upper bound on the relative error of ``percentiles`` (0 when exact)."""
+    n_samples_with_partners: int | None = None
+    """Samples with at least one counted pair (the population of ``local_max_percentiles``)."""
+
+
+class WorstPair(_Frozen):
+    flight: str
+    """Flight of sample i (``flight_j``: of sample j, when the pair spans two flights)."""
+    t_i: float
+    t_j: float
+    x_i: list[float]
+    x_j: list[float]
+    e_i: list[float]
+    e_j: list[float]
+    distance: float
+    slope: float
+    flight_j: str | None = None
+
+
+class ErrorModel(_Frozen):
+    """Everything ``qsls fit`` learned about ``e = y - x`` on the training flights."""
+
+    eps_e: float
+    eps_e_percentiles: dict[str, float] = Field(default_factory=dict)
+    per_axis: dict[str, AxisStats] = Field(default_factory=dict)
+    radius: float
+    min_separation: float = 0.0
+    min_separation_rule: str | None = None
+    """How ``min_separation`` was chosen (``auto``: a multiple of the noise floor)."""
+    noise_floor: dict[str, float] = Field(default_factory=dict)
+    """Per-axis white-noise std of ``e`` estimated from the data."""
+    state_scale: list[float] = Field(default_factory=lambda: [1.0] * 6)
+    s_slope: SlopeStats
+    R0: float
+    delta: float = 0.0
+    delta_reference: str | None = None
+    """The reference ``delta`` was computed for (None: no reference given, delta = 0)."""
+    n_samples: int
+    n_pairs: int
+    n_pairs_below_min_separation: int = 0
+    n_excluded: int = 0
+    exclusions: dict[str, int] = Field(default_factory=dict)
+    """Excluded samples by reason (nonfinite, skip_start, outliers)."""
+    worst_pairs: list[WorstPair] = Field(default_factory=list)
+    bootstrap: dict[str, Any] | None = None
+    flights: list[str] = Field(default_factory=list)
+
+    def resolve_s(self, name: str | float) -> float:
+        """The S-slope called ``name`` (``max``, ``p95``, ``local_p99``) or a number."""
+        if isinstance(name, int | float):
+            return float(name)
+        key = str(name).strip()
+        if key == "max":
+            return self.s_slope.max
+        table, what = self.s_slope.percentiles, "s_slope.percentiles"
+        if key.startswith("local_"):
+            table, what, key = (
+                self.s_slope.local_max_percentiles,
+                "s_slope.local_max_percentiles",
+                key[6:],
+            )
+        return _lookup(table, key, what, name)
+
+    def resolve_eps_e(self, name: str | float) -> float:
+        """The error bound called ``name`` (``max``, ``p99``, ``R0``) or a number."""
+        if isinstance(name, int | float):
+            return float(name)
+        key = str(name).strip()
+        if key == "max":
+            return self.eps_e
+        if key == "R0":
+            return self.R0
+        return _lookup(self.eps_e_percentiles, key, "eps_e_percentiles", name)
+
+
+def _lookup(table: dict[str, float], key: str, what: str, name: Any) -> float:
+    if not _PCT.match(key):
+        raise InputError(f"'{name}' is not a name in the error model (use max, pNN or local_pNN)")
+    if key not in table:
+        have = ", ".join(sorted(table)) or "none"
+        raise InputError(
+            f"'{name}' is not in the error model's {what} (it has: {have}); refit with --percentiles"
+        )
+    return float(table[key])
+
+
+def load_error_model(path: Path) -> ErrorModel:
+    """Read ``error_model.yaml`` (or a fit folder holding it); clear errors when malformed."""
+    import yaml
+    from pydantic import ValidationError
+
+    p = Path(path)
+    f = p / ERROR_MODEL_FILE if p.is_dir() else p
+    if not f.is_file():
+        raise InputError(f"{p}: no {ERROR_MODEL_FILE}; pass the output of 'qsls fit'")
+    try:
+        data = yaml.safe_load(f.read_text())
+    except yaml.YAMLError:
+        raise InputError(f"{f}: not valid YAML; regenerate it with 'qsls fit'") from None
+    if not isinstance(data, dict):
+        raise InputError(
+            f"{f}: not an error model (expected a mapping); regenerate it with 'qsls fit'"
+        )
+    try:
+        return ErrorModel.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        loc = ".".join(str(x) for x in first.get("loc", ()))
+        raise InputError(
+            f"{f}: malformed error model ('{loc}': {first.get('msg')}); regenerate it with 'qsls fit'"
+        ) from None

@@ -1,0 +1,13 @@
+"""``qsls evaluate``: the guarantee checked on held-out flights, and controllers flown in simulation."""
+
+from qsls.pipeline.core.api import lazy_api
+
+__all__, __getattr__ = lazy_api(
+    __name__,
+    {
+        "EvaluateOptions": "bound",
+        "evaluate": "bound",
+        "FlyOptions": "fly",
+        "fly_evaluate": "fly",
+    },
+)

@@ -1,0 +1,165 @@
+"""Figures of the evaluation (paper, Figures pos_tracking, u_L1_pd and est_err).
+
+Each function takes tables or arrays and returns a matplotlib figure; the stage writes it
+through :class:`qsls.pipeline.core.artifacts.StageWriter` (deterministic PNG). Agg backend only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+
+def smooth(signal: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """First-order average with time constant ``tau`` (the paper's figure): ``s_k = s_{k-1} +
+    alpha (x_k - s_{k-1})``, ``alpha = 1 - exp(-dt / tau)``, started at ``x_0``."""
+    from scipy.signal import lfilter
+
+    x = np.asarray(signal, dtype=float)
+    if tau <= 0 or len(x) == 0:
+        return x.copy()
+    alpha = 1.0 - math.exp(-dt / tau)
+    out, _ = lfilter([alpha], [1.0, alpha - 1.0], x, zi=[(1.0 - alpha) * x[0]])
+    return out
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _grid(n: int, width: float = 9.0, height: float = 2.4) -> tuple[Any, list[Any]]:
+    plt = _plt()
+    fig, axes = plt.subplots(max(n, 1), 1, figsize=(width, height * max(n, 1)), squeeze=False)
+    return fig, [a for a in axes[:, 0]]
+
+
+def _dt(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t))) if len(t) > 1 else 0.1
+
+
+def perception_error_figure(samples: pd.DataFrame, smooth_s: float = 1.0) -> Any:
+    """``||e_k||`` over time per flight, smoothed with a ``smooth_s`` time constant, with each
+    controller's ``gamma_strict`` (dashed) and data-driven ``gamma_k`` (dotted)."""
+    flights = list(dict.fromkeys(samples["flight"]))
+    fig, axes = _grid(len(flights), width=11.0)
+    for ax, name in zip(axes, flights, strict=False):
+        s = samples[samples["flight"] == name]
+        first = s[s["controller"] == s["controller"].iloc[0]]
+        t = first["t"].to_numpy()
+        e = first["error_norm"].to_numpy()
+        ax.plot(t, e, color="0.75", lw=0.6, label="||e||")
+        if smooth_s > 0:
+            ax.plot(
+                t,
+                smooth(e, _dt(t), smooth_s),
+                color="k",
+                lw=1.2,
+                label=f"||e|| ({smooth_s:g} s avg)",
+            )
+        for i, (c, g) in enumerate(s.groupby("controller", sort=False)):
+            col = f"C{i}"
+            gs = g["gamma_strict"].iloc[0]
+            if np.isfinite(gs):
+                ax.axhline(gs, color=col, ls="--", lw=1, label=f"{c} gamma_strict")
+            gk = g["gamma"].to_numpy()
+            if np.all(np.isfinite(gk)):
+                ax.plot(g["t"], gk, color=col, ls=":", lw=1, label=f"{c} gamma(d)")
+            over = g["error_norm"].to_numpy() > gk
+            if np.any(over):
+                ax.plot(
+                    g["t"].to_numpy()[over], g["error_norm"].to_numpy()[over], "x", color=col, ms=4
+                )
+        ax.set_yscale("log")
+        ax.set_title(f"{name} (x: above gamma(d))", fontsize=9)
+        ax.set_ylabel("||e|| (inf)")
+        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    axes[-1].set_xlabel("t (s)")
+    fig.tight_layout()
+    return fig
+
+
+def distance_figure(samples: pd.DataFrame, radius: float) -> Any:
+    """Each flight's distance to the nearest training state over time, and the radius."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 3.2))
+    for name, g in samples.groupby("flight", sort=False):
+        g = g[g["controller"] == g["controller"].iloc[0]]
+        ax.plot(g["t"], g["distance"], lw=0.9, label=str(name))
+    if np.isfinite(radius):
+        ax.axhline(radius, color="k", ls="--", lw=1, label=f"radius r = {radius:g}")
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("distance to training (inf, scaled)")
+    ax.legend(fontsize=6, ncol=3)
+    fig.tight_layout()
+    return fig
+
+
+def tracking_figure(
+    traces: Mapping[str, tuple[np.ndarray, np.ndarray]], reference: np.ndarray, title: str
+) -> Any:
+    """Top view: each controller's true path ``(t, x (n, 6))`` against the reference."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    ax.plot(reference[:, 0], reference[:, 1], "k--", lw=1.2, label="reference")
+    for i, (name, (_, x)) in enumerate(traces.items()):
+        ax.plot(x[:, 0], x[:, 1], color=f"C{i}", lw=0.9, label=name)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def input_figure(t: np.ndarray, u: np.ndarray, u_pd: np.ndarray, name: str) -> Any:
+    """The robust controller's input against what PD commands from the same estimate."""
+    labels = ("pitch (rad)", "roll (rad)", "thrust (N)")
+    fig, axes = _grid(3, height=2.0)
+    for i, ax in enumerate(axes):
+        ax.plot(t, u_pd[:, i], color="C1", lw=0.9, label="PD on the same estimate")
+        ax.plot(t, u[:, i], color="C0", lw=1.1, label=name)
+        ax.set_ylabel(labels[i])
+    axes[0].legend(fontsize=7)
+    axes[-1].set_xlabel("t (s)")
+    fig.tight_layout()
+    return fig
+
+
+def error_per_controller_figure(
+    traces: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    bounds: Mapping[str, float],
+    conditions: Sequence[str],
+    smooth_s: float,
+) -> Any:
+    """``||e||`` (smoothed) per controller, one panel per condition, with the bounds.
+
+    ``traces`` maps ``"condition/controller"`` to ``(t, ||e||)``; ``bounds`` maps a controller
+    to its ``gamma_strict``."""
+    fig, axes = _grid(len(conditions), width=10.5, height=3.0)
+    for ax, cond in zip(axes, conditions, strict=False):
+        names = [k.split("/", 1)[1] for k in traces if k.split("/", 1)[0] == cond]
+        for i, c in enumerate(names):
+            t, e = traces[f"{cond}/{c}"]
+            ax.plot(t, smooth(e, _dt(t), smooth_s), color=f"C{i}", lw=1.1, label=c)
+            b = bounds.get(c, np.inf)
+            if np.isfinite(b):
+                ax.axhline(b, color=f"C{i}", ls="--", lw=0.8)
+        ax.set_yscale("log")
+        ax.set_title(
+            f"{cond} perception ({smooth_s:g} s average; dashed: gamma_strict)", fontsize=9
+        )
+        ax.set_ylabel("||e|| (inf)")
+        ax.legend(fontsize=7, ncol=3)
+    axes[-1].set_xlabel("t (s)")
+    fig.tight_layout()
+    return fig

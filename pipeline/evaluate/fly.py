@@ -1,0 +1,774 @@
+"""``qsls evaluate --fly``: the paper's four controllers and SE3 flown side by side.
+
+Every controller (PD, nominal L1, L1 robust, L1 robust imitation from a synth folder, plus
+RotorPy's SE3 controller of the training flights) is flown on the simulator's RotorPy
+vehicle with the VIO emulator in the loop (:func:`qsls.pipeline.sim.closedloop.fly` through
+:func:`qsls.pipeline.sim.simulate.simulate`), on the circle, in each perception condition
+and for each seed. Synthesized controllers act on ``y - r`` and add the reference's
+feedforward (:class:`qsls.pipeline.sim.controllers.LinearController`).
+
+Each flight is written as a bag like a real log and goes through ``ingest`` exactly as a
+real flight does; the ingested ``flight.parquet`` is what the bound check
+(:mod:`qsls.pipeline.evaluate.bound`) reads. Flights run in parallel on a process pool.
+
+Metrics per flight (true state against the reference; emulator error at the VIO rate):
+tracking RMS/max of ``||p - p_ref||_2``, perception error RMS/max of ``||e||_inf``, control
+effort (RMS of ``u - hover``), smoothness (RMS of ``u[k+1] - u[k]``), a crash flag with the
+simulator's reason. Then per controller and condition the mean over seeds, the paper's
+figures, and a table that holds the results against the paper's three findings
+(paper, Results):
+
+1. regular perception: every controller tracks, and PD tracks best;
+2. degraded perception: the robust ``qr``-cost controller (``l1_robust``) has the lowest
+   perception error;
+3. every controller's perception error stays below the bound.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+from pydantic import Field
+
+from qsls.pipeline.core.errors import InputError, QslsError
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.evaluate.bound import (
+    ControllerBound,
+    EvaluateOptions,
+    EvaluateResult,
+    bound_check,
+    check_model_hash,
+    expand_controllers,
+    load_bounds,
+    load_training,
+    resolve_model,
+    write_tables,
+)
+from qsls.pipeline.ingest.flight import read_flight
+from qsls.pipeline.ingest.stage import IngestOptions
+from qsls.pipeline.sim.simulate import SimOptions
+
+PAPER_CONTROLLERS = ("pd", "l1_nominal", "l1_robust", "l1_robust_imitation")
+ROBUST_QR = "l1_robust"
+NS = 1_000_000_000
+
+
+class FlyOptions(EvaluateOptions):
+    """Options of ``qsls evaluate --fly`` (and those of the bound check)."""
+
+    seeds: list[int] = Field(default_factory=lambda: [0, 1, 2], min_length=1)
+    """Seeds of the VIO emulator (and of the log's noise); one flight per seed."""
+    duration: float = Field(30.0, gt=0)
+    """Seconds per flight."""
+    conditions: list[Literal["regular", "degraded"]] = Field(
+        default_factory=lambda: ["regular", "degraded"], min_length=1
+    )
+    """Perception conditions (the emulator's presets)."""
+    controllers: list[str] | None = None
+    """Controller folder names to fly; default: the paper's four where given, else all."""
+    se3: bool = True
+    """Also fly RotorPy's SE3 controller (the training flights' controller)."""
+    jobs: int = Field(0, ge=0)
+    """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
+    sim: SimOptions = SimOptions()
+    """Vehicle, reference, VIO emulator, crash limits and the log's format (seed, duration,
+    controller and perception are set per flight)."""
+    ingest: IngestOptions = IngestOptions()
+    """How each flight's bag is ingested (as a real one)."""
+    track_threshold_m: float = Field(0.3, gt=0)
+    """A controller 'tracks' when it does not crash and its tracking RMS is below this (m)."""
+    tie_rel: float = Field(0.02, ge=0)
+    """Relative difference below which two controllers' numbers count as a tie (findings)."""
+    pd_z_control: bool = False
+    """Fly the synthesized controllers with the PD's height (thrust) channel, as the paper
+    did in simulation and on hardware "for safety"; pitch and roll stay theirs."""
+    keep_bags: bool = False
+    """Keep every flight's simulate folder (bag, truth.json) under ``sims/``."""
+
+
+# --------------------------------------------------------------------------- one flight
+@dataclass(frozen=True)
+class FlyJob:
+    name: str
+    controller: str
+    spec: str  # "se3" or a controller folder
+    condition: str
+    seed: int
+    sim: dict[str, Any]
+    ingest: dict[str, Any]
+    sim_dir: str
+    flight_dir: str
+    pd_gain: tuple[tuple[float, ...], ...] | None = None  # K of the flown PD, if any
+    pd_z: bool = False  # thrust from PD (paper's setup), for synthesized controllers
+
+
+@dataclass
+class FlyOutcome:
+    name: str
+    controller: str
+    condition: str
+    seed: int
+    metrics: dict[str, Any]
+    ingest_error: str | None
+    t_ctrl: np.ndarray  # (k,) s
+    x_ctrl: np.ndarray  # (k, 6) truth at the controller ticks
+    ref_ctrl: np.ndarray  # (k, 6)
+    y_ctrl: np.ndarray  # (k, 6) what the controller saw
+    u_ctrl: np.ndarray  # (k, 3) absolute input, paper signs
+    t_vio: np.ndarray  # (m,) s
+    e_norm: np.ndarray  # (m,) ||e||_inf of the emulator
+    u_pd: np.ndarray  # (k, 3) what PD would command from the same estimate
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def pd_on_same_estimate(
+    opts: SimOptions,
+    mass: float,
+    t: np.ndarray,
+    y: np.ndarray,
+    ref: np.ndarray,
+    K: np.ndarray | None = None,
+) -> np.ndarray:
+    """``u_PD = hover + u_ff + K (y - r)`` (k, 3): what the PD controller would command from
+    the estimate another controller saw (the paper's input figure). ``K``: the flown PD's
+    gain (from the synth folder's ``pd``); default: the simulator's PD gains."""
+    from qsls.pipeline.control.pdgain import pd_gain
+    from qsls.pipeline.control.plant import GRAVITY
+    from qsls.pipeline.sim.references import Reference
+
+    if len(t) == 0:
+        return np.zeros((0, 3))
+    _, _, acc = Reference(opts.reference).arrays(t)
+    ff = np.c_[-acc[:, 0] / GRAVITY, acc[:, 1] / GRAVITY, mass * acc[:, 2]]
+    hover = np.array([0.0, 0.0, mass * GRAVITY])
+    gain = pd_gain(opts.controller.pd, mass) if K is None else np.asarray(K, dtype=float)
+    return hover + ff + (y - ref) @ gain.T
+
+
+def input_comparison(u: np.ndarray, u_pd: np.ndarray) -> dict[str, float]:
+    """Attitude commands (pitch, roll) against PD's from the same estimate: RMS step change
+    of each (smoothness, rad per tick), their ratio, and the RMS difference (rad)."""
+    if len(u) < 2:
+        return {"attitude_smoothness": math.nan, "pd_attitude_smoothness": math.nan,
+                "smoothness_vs_pd": math.nan, "attitude_diff_from_pd_rms": math.nan}  # fmt: skip
+    a = float(np.sqrt(np.mean(np.diff(u[:, :2], axis=0) ** 2)))
+    b = float(np.sqrt(np.mean(np.diff(u_pd[:, :2], axis=0) ** 2)))
+    return {
+        "attitude_smoothness": a,
+        "pd_attitude_smoothness": b,
+        "smoothness_vs_pd": a / b if b > 0 else math.nan,
+        "attitude_diff_from_pd_rms": float(np.sqrt(np.mean((u[:, :2] - u_pd[:, :2]) ** 2))),
+    }
+
+
+class PdHeightController:
+    """A synthesized controller's pitch and roll with the PD's thrust (paper, Controllers:
+    "the z control of the PD controller was used instead")."""
+
+    def __init__(self, inner: Any, pd: Any) -> None:
+        self.inner, self.pd = inner, pd
+        self.name = f"{inner.name}+pd_z"
+        self.dt = inner.dt
+
+    @classmethod
+    def build(cls, opts: SimOptions, K: Any = None) -> PdHeightController:
+        from qsls.pipeline.sim.controllers import PDController, make_controller
+        from qsls.pipeline.sim.vehicle import Vehicle
+
+        mass = Vehicle(opts.vehicle).mass
+        inner = make_controller(opts.controller, mass)
+        pd = PDController(opts.controller.pd, mass, inner.dt)
+        if K is not None:
+            pd.K = np.asarray(K, dtype=float)
+        return cls(inner, pd)
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.pd.reset()
+
+    def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: Any) -> np.ndarray:
+        u = np.array(self.inner.command(t, y, q, ref), dtype=float)
+        u[2] = self.pd.command(t, y, q, ref)[2]
+        return u
+
+
+def run_job(job: FlyJob) -> FlyOutcome:
+    """Fly one controller (simulate: closed loop + bag), then ingest the bag."""
+    from qsls.pipeline.core.config import merge
+    from qsls.pipeline.ingest.stage import ingest
+    from qsls.pipeline.sim.simulate import simulate
+
+    data = merge(
+        job.sim,
+        {
+            "seed": job.seed,
+            "controller": {"kind": job.spec},
+            "vio": {"perception": job.condition},
+        },
+    )
+    opts = SimOptions.model_validate(data)
+    ctrl = None
+    if job.pd_z and job.spec not in ("se3", "pd") and job.controller != "pd":
+        ctrl = PdHeightController.build(opts, job.pd_gain)
+    res = simulate(opts, Path(job.sim_dir), force=True, controller=ctrl)
+    f = res.flight
+    ingest_error = None
+    try:
+        ingest(
+            [res.bag], IngestOptions.model_validate(job.ingest), Path(job.flight_dir), force=True
+        )
+    except QslsError as exc:
+        ingest_error = str(exc)
+    t_ctrl = f.ctrl_t_ns / NS
+    u_pd = pd_on_same_estimate(opts, f.mass, t_ctrl, f.ctrl_y, f.ctrl_ref, job.pd_gain)
+    n_sub = max(1, round(f.dt * NS / (f.t_ns[1] - f.t_ns[0]))) if len(f.t_ns) > 1 else 1
+    idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
+    return FlyOutcome(
+        name=job.name,
+        controller=job.controller,
+        condition=job.condition,
+        seed=job.seed,
+        metrics={**f.metrics(), **input_comparison(f.ctrl_u, u_pd)},
+        ingest_error=ingest_error,
+        t_ctrl=t_ctrl,
+        x_ctrl=f.x[idx],
+        ref_ctrl=f.ctrl_ref,
+        y_ctrl=f.ctrl_y,
+        u_ctrl=f.ctrl_u,
+        t_vio=f.vio_t_ns / NS,
+        e_norm=np.abs(f.vio_e).max(axis=1),
+        u_pd=u_pd,
+        extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass},
+    )
+
+
+def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[FlyOutcome]:
+    """All flights, on a process pool of ``workers`` (in order of ``jobs``)."""
+    progress.start("flying", total=len(jobs))
+    results: list[FlyOutcome | None] = [None] * len(jobs)
+    if workers <= 1 or len(jobs) <= 1:
+        for i, j in enumerate(jobs):
+            results[i] = run_job(j)
+            progress.advance()
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        # fork: workers inherit the imported simulator (spawn would re-import it per worker)
+        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            futs = {pool.submit(run_job, j): i for i, j in enumerate(jobs)}
+            try:
+                for fut in as_completed(futs):
+                    results[futs[fut]] = fut.result()
+                    progress.advance()
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+    progress.finish()
+    return [r for r in results if r is not None]
+
+
+# --------------------------------------------------------------------------- result
+@dataclass(frozen=True)
+class FlyResult(EvaluateResult):
+    flights: pd.DataFrame = field(default_factory=pd.DataFrame)
+    per_controller: pd.DataFrame = field(default_factory=pd.DataFrame)
+    comparison: list[dict[str, Any]] = field(default_factory=list)
+    wall_time_s: float = 0.0
+
+    def summary(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "output": self.out.as_posix(),
+            "flights": len(self.flights),
+            "crashed": int(self.flights["crashed"].sum()) if len(self.flights) else 0,
+            "wall time (s)": round(self.wall_time_s, 1),
+        }
+        for _, r in self.per_controller.iterrows():
+            out[f"{r['condition']}/{r['controller']}"] = (
+                f"tracking RMS {r['tracking_rms_m']:.3f} m, ||e|| RMS {r['perception_error_rms']:.3f}, "
+                f"max {r['perception_error_max']:.3f}, crashed {int(r['crashed'])}"
+            )
+        if self.warnings:
+            more = (
+                f" (+{len(self.warnings) - 3} more in evaluation.json)"
+                if len(self.warnings) > 3
+                else ""
+            )
+            out["warnings"] = "; ".join(self.warnings[:3]) + more
+        return out
+
+    def comparison_rows(self) -> tuple[list[str], list[list[Any]]]:
+        cols = ["finding (paper)", "qsls", "agrees"]
+        return cols, [[c["finding"], c["qsls"], c["agrees"]] for c in self.comparison]
+
+
+# --------------------------------------------------------------------------- analysis
+def flight_table(outcomes: Sequence[FlyOutcome], hover_mass: float | None = None) -> pd.DataFrame:
+    rows = []
+    for o in outcomes:
+        m = o.metrics
+        rows.append(
+            {
+                "flight": o.name,
+                "controller": o.controller,
+                "condition": o.condition,
+                "seed": o.seed,
+                "duration_s": m["duration_s"],
+                "tracking_rms_m": m["tracking_rms_m"],
+                "tracking_max_m": m["tracking_max_m"],
+                "perception_error_rms": m["perception_error_rms"],
+                "perception_error_max": m["perception_error_max"],
+                "control_effort_rms": m["control_effort_rms"],
+                "control_smoothness_rms": m["control_smoothness_rms"],
+                "attitude_smoothness": m["attitude_smoothness"],
+                "smoothness_vs_pd": m["smoothness_vs_pd"],
+                "attitude_diff_from_pd_rms": m["attitude_diff_from_pd_rms"],
+                "crashed": bool(m["crashed"]),
+                "crash_reason": m["crash_reason"] or "",
+                "ingest_error": o.ingest_error or "",
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def per_controller_table(flights: pd.DataFrame) -> pd.DataFrame:
+    """Mean over seeds per controller and condition (max for the maxima, sum of crashes)."""
+    agg = {
+        "tracking_rms_m": "mean",
+        "tracking_max_m": "max",
+        "perception_error_rms": "mean",
+        "perception_error_max": "max",
+        "control_effort_rms": "mean",
+        "control_smoothness_rms": "mean",
+        "smoothness_vs_pd": "mean",
+        "attitude_diff_from_pd_rms": "mean",
+        "crashed": "sum",
+        "seed": "count",
+    }
+    g = flights.groupby(["condition", "controller"], sort=False).agg(agg).reset_index()
+    return g.rename(columns={"seed": "flights"})
+
+
+def _bound_columns(per: pd.DataFrame, checks: pd.DataFrame) -> pd.DataFrame:
+    """Add each controller's own bound check (if it has a certificate) to ``per``."""
+    if checks.empty:
+        return per
+    own = checks[checks["controller"] == checks["flown_by"]]
+    g = (
+        own.groupby(["condition", "controller"], sort=False)
+        .agg(
+            gamma_strict=("gamma_strict", "first"),
+            gamma_max=("gamma", "max"),
+            frac_under_gamma=("frac_under_gamma", "mean"),
+            frac_under_gamma_strict=("frac_under_gamma_strict", "mean"),
+            max_ratio=("max_ratio", "max"),
+        )
+        .reset_index()
+    )
+    return per.merge(g, on=["condition", "controller"], how="left")
+
+
+def compare_with_paper(
+    per: pd.DataFrame,
+    checks: pd.DataFrame,
+    threshold: float,
+    ref_bound: ControllerBound | None,
+    tie_rel: float = 0.02,
+    true_lipschitz: dict[str, float] | None = None,
+) -> list[dict[str, Any]]:
+    """The paper's three findings, each with what qsls measured and whether it agrees.
+
+    Differences between controllers smaller than ``tie_rel`` (relative to the lowest value)
+    count as a tie: qsls then does not reproduce a claimed ranking."""
+    out = []
+    paper4 = [c for c in PAPER_CONTROLLERS if c in set(per["controller"])]
+
+    # (1) regular perception: every controller tracks, PD tracks best
+    reg = per[(per["condition"] == "regular") & per["controller"].isin(paper4)]
+    if len(reg):
+        tracks = {
+            r.controller: bool(r.crashed == 0 and r.tracking_rms_m < threshold)
+            for r in reg.itertuples()
+        }
+        order = reg.sort_values("tracking_rms_m")
+        best, lo = order.iloc[0]["controller"], float(order.iloc[0]["tracking_rms_m"])
+        nums = ", ".join(
+            f"{r.controller} {r.tracking_rms_m:.3f} m"
+            + (f" ({int(r.crashed)} crashed)" if r.crashed else "")
+            for r in order.itertuples()
+        )
+        all_track = all(tracks.values())
+        if "pd" not in tracks:
+            pd_best, rank = False, "PD not flown"
+        else:
+            pd_rms = float(reg.loc[reg["controller"] == "pd", "tracking_rms_m"].iloc[0])
+            pd_best = pd_rms <= lo * (1 + tie_rel)
+            rank = (
+                "PD best" if best == "pd" else
+                f"PD within {100 * tie_rel:g}% of the best ({best})" if pd_best else
+                f"best: {best}, PD {100 * (pd_rms / lo - 1):.0f}% worse"
+            )  # fmt: skip
+        not_tracking = [c for c, ok in tracks.items() if not ok]
+        detail = (
+            f"tracking RMS, mean over seeds: {nums}; "
+            + ("all track" if all_track else
+               f"not tracking (crash or RMS >= {threshold:g} m): {', '.join(not_tracking)}")
+            + f"; {rank}"
+        )  # fmt: skip
+        agrees = "yes" if all_track and pd_best else "partly" if all_track or pd_best else "no"
+        out.append(
+            {
+                "finding": "1. regular perception: all controllers track, PD tracks best",
+                "qsls": detail,
+                "agrees": agrees,
+            }
+        )
+
+    # (2) degraded perception: the robust qr-cost controller has the lowest perception error
+    deg = per[(per["condition"] == "degraded") & per["controller"].isin(paper4)]
+    if len(deg):
+        order = deg.sort_values("perception_error_rms")
+        best = order.iloc[0]["controller"]
+        lo, hi = (
+            float(order.iloc[0]["perception_error_rms"]),
+            float(order.iloc[-1]["perception_error_rms"]),
+        )
+        spread = hi / lo - 1 if lo > 0 else math.inf
+        nums = ", ".join(f"{r.controller} {r.perception_error_rms:.4f}" for r in order.itertuples())
+        if ROBUST_QR not in set(deg["controller"]):
+            agrees = "n/a (l1_robust not flown)"
+        elif spread < tie_rel:
+            agrees = "no (tie)"
+        elif best == ROBUST_QR:
+            agrees = "yes"
+        else:
+            agrees = "no"
+        detail = (
+            f"||e||_inf RMS, mean over seeds: {nums}; lowest: {best}; "
+            f"spread {100 * spread:.2f}% (a tie below {100 * tie_rel:g}%)"
+        )
+        out.append(
+            {
+                "finding": "2. degraded perception: the robust qr-cost controller has the "
+                "lowest perception error",
+                "qsls": detail,
+                "agrees": agrees,
+            }
+        )
+
+    # (3) every controller's perception error stays below the bound
+    if not checks.empty and ref_bound is not None:
+        ref = checks[checks["controller"] == ref_bound.name]
+        worst = ref.groupby("flown_by", sort=False)["max_ratio_strict"].max()
+        all_under = bool((ref["frac_under_gamma_strict"] >= 1.0).all())
+        nums = ", ".join(f"{c} {worst[c]:.3g}" for c in worst.index)
+        own = checks[(checks["controller"] == checks["flown_by"]) & checks["has_guarantee"]]
+        own_fail = own[~own["bound_holds"]]
+        own_txt = (
+            f"each certified controller against its own data-driven gamma(d): holds on "
+            f"{len(own) - len(own_fail)} of {len(own)} flights"
+        )
+        if len(own_fail):
+            n_ass = int((~own_fail["assumption_holds"]).sum())
+            own_txt += (
+                f"; fails on {', '.join(own_fail['flight'])} "
+                f"({n_ass} of them with the S-slope/eps_e premise violated: "
+                f"||e|| above eps_e + S d)"
+            )
+        detail = (
+            f"max ||e|| / gamma_strict of {ref_bound.name} ({ref_bound.gamma_strict:.4g}, the "
+            f"paper's comparison) per controller flown: {nums}; {own_txt}"
+        )
+        if true_lipschitz and "condition" in ref.columns:
+            # the paper computed its bound (1.602) with the true S-slope; the emulator's is known
+            parts = []
+            for cond, lip in true_lipschitz.items():
+                den = 1.0 - lip * ref_bound.norm_phi_xy
+                g = ref_bound.R0 / den if den > 0 else math.inf
+                m = float(ref.loc[ref["condition"] == cond, "max_error_norm"].max())
+                parts.append(
+                    f"{cond}: L = {lip:.3g}, bound {g:.4g}"
+                    + (
+                        f", max ||e|| / bound {m / g:.3g}"
+                        if math.isfinite(g)
+                        else " (none: L ||Phi_xy|| >= 1)"
+                    )
+                )
+            detail += (
+                "; with the emulator's true Lipschitz constant as S (the paper's choice): "
+                + ", ".join(parts)
+            )
+        if not ref_bound.has_guarantee:
+            detail = f"{ref_bound.name} has no guarantee; " + detail
+        agrees = "yes" if all_under and own_fail.empty else (
+            "partly (strict bound yes, data-driven gamma(d) no)" if all_under else "no"
+        )  # fmt: skip
+        out.append(
+            {
+                "finding": "3. every controller's perception error stays below the bound",
+                "qsls": detail,
+                "agrees": agrees,
+            }
+        )
+    # (4) qualitative (paper, Fig. u_L1_pd): the robust controllers are softer than PD
+    rob = per[per["controller"].isin(["l1_robust", "l1_robust_imitation"])]
+    if len(rob) and "smoothness_vs_pd" in rob.columns:
+        ratios = rob["smoothness_vs_pd"].to_numpy(float)
+        nums = ", ".join(
+            f"{r.controller} ({r.condition}) {r.smoothness_vs_pd:.2f}" for r in rob.itertuples()
+        )
+        agrees = "yes" if np.all(ratios < 1) else "no" if np.all(ratios >= 1) else "partly"
+        out.append(
+            {
+                "finding": "4. (qualitative) the robust controllers react more softly than PD "
+                "would on the same estimate",
+                "qsls": f"RMS step change of the attitude command relative to PD's on the same "
+                f"estimate (< 1: softer): {nums}",
+                "agrees": agrees,
+            }
+        )
+    return out
+
+
+def comparison_markdown(comparison: Sequence[dict[str, Any]], per: pd.DataFrame) -> str:
+    """The findings table and the per-controller metrics as Markdown."""
+    lines = [
+        "# qsls against the paper's findings",
+        "",
+        "| finding (paper) | qsls | agrees |",
+        "|---|---|---|",
+    ]
+
+    def cell(v: Any) -> str:
+        return str(v).replace("|", "\\|")
+
+    lines += [
+        f"| {cell(c['finding'])} | {cell(c['qsls'])} | {cell(c['agrees'])} |" for c in comparison
+    ]
+    cols = [
+        "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
+        "perception_error_rms", "perception_error_max", "control_effort_rms",
+        "control_smoothness_rms", "smoothness_vs_pd", "gamma_strict", "frac_under_gamma",
+        "max_ratio",
+    ]  # fmt: skip
+    cols = [c for c in cols if c in per.columns]
+    lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]
+    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in per[cols].itertuples(index=False):
+        lines.append(
+            "| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- stage
+def _select(folders: list[Path], names: list[str] | None) -> list[Path]:
+    by_name = {f.name: f for f in folders}
+    if names is None:
+        chosen = [by_name[n] for n in PAPER_CONTROLLERS if n in by_name]
+        return chosen or folders
+    missing = [n for n in names if n not in by_name]
+    if missing:
+        raise InputError(
+            f"controllers {', '.join(missing)} not among the given folders "
+            f"(have: {', '.join(sorted(by_name))})"
+        )
+    return [by_name[n] for n in names]
+
+
+def _pd_gain_of(folders: Sequence[Path]) -> tuple[tuple[float, ...], ...] | None:
+    """``K`` of a static-gain ``pd`` controller among the folders (synth's PD), if any."""
+    for f in folders:
+        npz = f / "controller.npz"
+        if f.name == "pd" and npz.is_file():
+            with np.load(npz, allow_pickle=False) as z:
+                if "K" in z.files:
+                    return tuple(tuple(float(v) for v in row) for row in z["K"])
+    return None
+
+
+def fly_evaluate(
+    error_model: Path,
+    controllers: Sequence[Path],
+    options: FlyOptions,
+    out: Path,
+    *,
+    force: bool = False,
+    progress: Progress = NULL_PROGRESS,
+) -> FlyResult:
+    """Fly, ingest, bound-check and compare (module docstring); writes the stage ``out``."""
+    import time
+
+    from qsls.pipeline.core.artifacts import StageWriter, check_output
+    from qsls.pipeline.errormodel.model import load_error_model
+
+    t0 = time.perf_counter()
+    check_output(Path(out), force)
+    model_file, fit_dir = resolve_model(error_model)
+    model = load_error_model(model_file)
+    folders = _select(expand_controllers(controllers), options.controllers)
+    bounds = load_bounds(folders)
+    warnings = [w for b in bounds if (w := check_model_hash(b, model_file, force=force))]
+    training = load_training(fit_dir, model, options.state_scale)
+
+    specs: list[tuple[str, str]] = [(b.name, str(b.folder.resolve())) for b in bounds]
+    if options.se3:
+        specs.append(("se3", "se3"))
+    sim_base = options.sim.model_dump(mode="json")
+    sim_base["duration"] = options.duration
+    ingest_opts = options.ingest.model_dump(mode="json")
+    workers = options.jobs or os.cpu_count() or 1
+    pd_k = _pd_gain_of(folders)
+
+    tmp_root = Path(tempfile.mkdtemp(prefix="qsls-fly-"))
+    try:
+        with StageWriter(
+            out, "evaluate", options=options, inputs=[model_file, *folders], force=force
+        ) as w:
+            jobs = []
+            for cond in options.conditions:
+                for seed in options.seeds:
+                    for cname, spec in specs:
+                        name = f"{cond}_s{seed}_{cname}"
+                        sim_dir = (w.path("sims") / name) if options.keep_bags else tmp_root / name
+                        jobs.append(
+                            FlyJob(
+                                name,
+                                cname,
+                                spec,
+                                cond,
+                                int(seed),
+                                sim_base,
+                                ingest_opts,
+                                str(sim_dir),
+                                str(w.path("flights") / name),
+                                pd_k,
+                                options.pd_z_control,
+                            )
+                        )
+            outcomes = run_jobs(jobs, min(workers, len(jobs)), progress)
+            flights = flight_table(outcomes)
+            for o in outcomes:
+                if o.metrics["crashed"]:
+                    warnings.append(
+                        f"{o.name}: crashed, flight ended safely ({o.metrics['crash_reason']})"
+                    )
+                if o.ingest_error:
+                    warnings.append(
+                        f"{o.name}: not bound-checked, ingest failed ({o.ingest_error})"
+                    )
+
+            # bound check: each flight against its own certificate and against the robust bound
+            held = [
+                (o.name, read_flight(Path(j.flight_dir)))
+                for o, j in zip(outcomes, jobs, strict=True)
+                if not o.ingest_error
+            ]
+            index = {b.name: i for i, b in enumerate(bounds)}
+            ref_j = index.get(ROBUST_QR)
+            if ref_j is None:
+                ref_j = next((i for i, b in enumerate(bounds) if b.has_guarantee), None)
+            flown = dict(zip(flights["flight"], flights["controller"], strict=True))
+            pairs = []
+            for i, (name, _) in enumerate(held):
+                own = index.get(flown[name])
+                for j in dict.fromkeys(x for x in (own, ref_j) if x is not None):
+                    pairs.append((i, j))
+            if pairs:
+                checks, samples = bound_check(held, bounds, training, pairs=pairs)
+                checks.insert(2, "flown_by", checks["flight"].map(flown))
+                cond_of = dict(zip(flights["flight"], flights["condition"], strict=True))
+                checks.insert(3, "condition", checks["flight"].map(cond_of))
+                samples.insert(1, "flown_by", samples["flight"].map(flown))
+            else:
+                checks, samples = pd.DataFrame(), pd.DataFrame()
+            per = _bound_columns(per_controller_table(flights), checks)
+            ref_bound = bounds[ref_j] if ref_j is not None else None
+            true_l: dict[str, float] = {}
+            for o in outcomes:
+                true_l[o.condition] = max(true_l.get(o.condition, 0.0), float(o.extra["lipschitz"]))
+            comparison = compare_with_paper(
+                per, checks, options.track_threshold_m, ref_bound, options.tie_rel, true_l
+            )
+
+            w.write_parquet("flights.parquet", flights)
+            w.write_parquet("per_controller.parquet", per)
+            w.write_text("comparison.md", comparison_markdown(comparison, per))
+            if options.figures:
+                _write_fly_figures(w, outcomes, bounds, options, ref_bound)
+            extra_json = {
+                "mode": "fly",
+                "flights_table": flights.to_dict(orient="records"),
+                "per_controller": per.to_dict(orient="records"),
+                "comparison": comparison,
+            }
+            totals = write_tables(
+                w, checks, samples, warnings, model, options, extra_json, own_only=True
+            )
+            w.results.update(
+                {
+                    "mode": "fly",
+                    "flights": len(flights),
+                    "crashed": int(flights["crashed"].sum()),
+                    **{f"finding_{c['finding'][0]}_agrees": c["agrees"] for c in comparison},
+                    "controllers": totals,
+                    "warnings": len(warnings),
+                }
+            )
+    finally:
+        shutil.rmtree(tmp_root, ignore_errors=True)
+    return FlyResult(
+        out=Path(out),
+        table=checks,
+        warnings=tuple(warnings),
+        flights=flights,
+        per_controller=per,
+        comparison=comparison,
+        wall_time_s=time.perf_counter() - t0,
+    )
+
+
+def _write_fly_figures(w, outcomes, bounds, options, ref_bound) -> None:  # type: ignore[no-untyped-def]
+    from qsls.pipeline.evaluate import figures as plots
+
+    seed0 = options.seeds[0]
+    first = {(o.condition, o.controller): o for o in outcomes if o.seed == seed0}
+    for cond in options.conditions:
+        traces = {c: (o.t_ctrl, o.x_ctrl) for (k, c), o in first.items() if k == cond}
+        if traces:
+            ref = next(o.ref_ctrl for (k, _), o in first.items() if k == cond)
+            w.write_figure(
+                f"tracking_{cond}.png",
+                plots.tracking_figure(traces, ref, f"{cond} perception, seed {seed0}"),
+            )
+    # the robust controller's input against PD's from the same estimate
+    robust = next(
+        (c for c in ("l1_robust_imitation", ROBUST_QR) if (options.conditions[0], c) in first), None
+    )
+    if robust is not None:
+        o = first[(options.conditions[0], robust)]
+        u_pd = o.u_pd
+        w.write_figure(
+            f"input_{robust}_vs_pd.png", plots.input_figure(o.t_ctrl, o.u_ctrl, u_pd, robust)
+        )
+    traces_e = {f"{o.condition}/{o.controller}": (o.t_vio, o.e_norm) for o in first.values()}
+    gs = {b.name: b.gamma_strict for b in bounds}
+    if ref_bound is not None:
+        gs.setdefault("se3", ref_bound.gamma_strict)
+    w.write_figure(
+        "perception_error.png",
+        plots.error_per_controller_figure(traces_e, gs, options.conditions, options.smooth_s),
+    )
+
+
+__all__ = ["PAPER_CONTROLLERS", "FlyOptions", "FlyResult", "fly_evaluate"]

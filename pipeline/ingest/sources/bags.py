@@ -1,0 +1,614 @@
+"""Read one pose topic of a bag into a :class:`Trajectory`.
+
+Bags are opened with rosbags (``AnyReader``: ROS1 ``.bag`` and rosbag2 folders with
+sqlite3 or MCAP storage) and plain MCAP files with the ``mcap`` package; bag formats are
+never parsed by hand, with one exception, the ROS1 fast path below.
+
+Decoding, fastest first:
+
+1. ROS1, fixed-layout types (:mod:`qsls.pipeline.ingest.sources.layout`): rosbags' own index
+   (``Reader.indexes``: time, chunk position and offset of every message, ``Reader.chunks``:
+   where each chunk's data starts and how it is compressed) gives every message record's
+   place. Uncompressed chunks are memory-mapped, so only the pages holding the wanted
+   records are read (camera images in the same chunks are skipped); compressed chunks
+   that hold wanted messages are decompressed once each. The record headers are checked
+   (op code, connection id and time equal what the index says) and the message data
+   decoded for the whole topic at once. A test checks the sliced bytes against rosbags'
+   ``messages()`` byte for byte.
+2. ROS2 and MCAP, fixed-layout types: raw messages from the reader, decoded at once.
+3. Anything else (``tf2_msgs/msg/TFMessage``, big-endian CDR, unexpected layouts):
+   rosbags' (or mcap_ros2's) per-message deserializer.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import sqlite3
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from itertools import chain
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.ingest.sources import layout
+from qsls.pipeline.ingest.sources.base import BAG_HINT, TopicInfo, Trajectory, bag_root, detect
+from qsls.pipeline.ingest.sources.write import ODOMETRY, TF, typestore
+
+_DAMAGED = (
+    "it looks truncated or damaged; if the recording was cut off, repair it "
+    "('rosbag reindex' for ROS1, 'ros2 bag reindex' for rosbag2) and try again"
+)
+
+
+def normalize_type(name: str) -> str:
+    """``pkg/Type`` -> ``pkg/msg/Type`` (ROS2 naming, as rosbags uses)."""
+    parts = name.strip("/").split("/")
+    if len(parts) == 2:
+        return f"{parts[0]}/msg/{parts[1]}"
+    return "/".join(parts)
+
+
+def norm_frame(name: str) -> str:
+    return name.strip().lstrip("/")
+
+
+# --------------------------------------------------------------------------- field extraction
+def _pose_of(msg: Any, msgtype: str) -> tuple[Any, Any]:
+    """(header, geometry_msgs/Pose-like object with position/orientation) of a message."""
+    if msgtype == ODOMETRY or msgtype.endswith("PoseWithCovarianceStamped"):
+        return msg.header, msg.pose.pose
+    if msgtype.endswith("PoseStamped"):
+        return msg.header, msg.pose
+    raise ValueError(msgtype)
+
+
+def _stamp(header: Any) -> int:
+    st = header.stamp
+    return int(st.sec) * 1_000_000_000 + int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
+
+
+def objects_to_arrays(
+    msgs: list[Any], logs: list[int], msgtype: str, truth_frame: str | None, name: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, str, str]:
+    """(header_ns, log_ns, pose (n,7), twist (n,6)|None, frame, child) from message objects."""
+    rows: list[tuple[float, ...]] = []
+    stamps: list[int] = []
+    out_logs: list[int] = []
+    twists: list[tuple[float, ...]] = []
+    frame = child = ""
+    if msgtype == TF or msgtype.endswith("TransformStamped"):
+        if msgtype == TF:
+            if not truth_frame:
+                raise InputError(tf_frames_message(name, msgs))
+            parent, want = (norm_frame(x) for x in truth_frame.strip().lstrip("/").split("/", 1))
+        for msg, log in zip(msgs, logs, strict=True):
+            transforms = msg.transforms if msgtype == TF else [msg]
+            for tr in transforms:
+                if msgtype == TF and (
+                    norm_frame(tr.header.frame_id) != parent
+                    or norm_frame(tr.child_frame_id) != want
+                ):
+                    continue
+                t, r = tr.transform.translation, tr.transform.rotation
+                rows.append((t.x, t.y, t.z, r.x, r.y, r.z, r.w))
+                stamps.append(_stamp(tr.header))
+                out_logs.append(log)
+                frame, child = tr.header.frame_id, tr.child_frame_id
+        if msgtype == TF and not rows:
+            raise InputError(tf_frames_message(name, msgs, truth_frame))
+    else:
+        for msg, log in zip(msgs, logs, strict=True):
+            header, pose = _pose_of(msg, msgtype)
+            p, q = pose.position, pose.orientation
+            rows.append((p.x, p.y, p.z, q.x, q.y, q.z, q.w))
+            stamps.append(_stamp(header))
+            out_logs.append(log)
+            if msgtype == ODOMETRY:
+                lin, ang = msg.twist.twist.linear, msg.twist.twist.angular
+                twists.append((lin.x, lin.y, lin.z, ang.x, ang.y, ang.z))
+        if msgs:
+            frame = msgs[0].header.frame_id
+            child = getattr(msgs[0], "child_frame_id", "")
+    pose = np.array(rows, dtype=float).reshape(-1, 7)
+    twist = np.array(twists, dtype=float).reshape(-1, 6) if msgtype == ODOMETRY else None
+    return (
+        np.array(stamps, dtype=np.int64),
+        np.array(out_logs, dtype=np.int64),
+        pose,
+        twist,
+        frame,
+        child,
+    )
+
+
+def tf_frames_message(name: str, msgs: list[Any], asked: str | None = None) -> str:
+    counts: dict[str, int] = {}
+    for msg in msgs:
+        for tr in msg.transforms:
+            key = f"{norm_frame(tr.header.frame_id)}/{norm_frame(tr.child_frame_id)}"
+            counts[key] = counts.get(key, 0) + 1
+    pairs = ", ".join(f"{k} ({v})" for k, v in sorted(counts.items())) or "none"
+    head = (
+        f"topic {name} has no transform {asked}"
+        if asked
+        else f"topic {name} is a tf2_msgs/msg/TFMessage topic"
+    )
+    return f"{head}; pass --truth-frame PARENT/CHILD, one of: {pairs}"
+
+
+def _trajectory(
+    name: str,
+    msgtype: str,
+    header_ns: np.ndarray,
+    log_ns: np.ndarray,
+    pose: np.ndarray,
+    twist: np.ndarray | None,
+    frame: str,
+    child: str,
+    decoder: str,
+) -> Trajectory:
+    return Trajectory(
+        name=name,
+        msgtype=msgtype,
+        header_ns=np.asarray(header_ns, dtype=np.int64),
+        log_ns=np.asarray(log_ns, dtype=np.int64),
+        position=np.ascontiguousarray(pose[:, :3], dtype=float),
+        orientation=np.ascontiguousarray(pose[:, 3:7], dtype=float),
+        velocity=None if twist is None else np.ascontiguousarray(twist[:, :3], dtype=float),
+        frame_id=frame,
+        child_frame_id=child,
+        decoder=decoder,
+    )
+
+
+# --------------------------------------------------------------------------- ROS1 fast path
+_BATCH_BYTES = 64 << 20  # decompressed bytes decoded at once (bounds memory on big bags)
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Messages located in one buffer: message ``i`` is ``buf[starts[i]:ends[i]]``."""
+
+    buf: np.ndarray
+    starts: np.ndarray
+    ends: np.ndarray
+    log_ns: np.ndarray
+    conn: np.ndarray
+
+
+def _index(reader1: Any, conn_ids: set[int]) -> np.ndarray:
+    """rows ``(time, chunk_pos, offset, conn)`` of rosbags' index, in time order."""
+    parts = []
+    for c in sorted(conn_ids):
+        entries = reader1.indexes[c]
+        a = np.fromiter(chain.from_iterable(entries), dtype=np.int64, count=3 * len(entries))
+        a = a.reshape(-1, 3)
+        parts.append(np.column_stack([a, np.full(len(a), c, dtype=np.int64)]))
+    idx = np.concatenate(parts) if parts else np.zeros((0, 4), np.int64)
+    return idx[np.lexsort((idx[:, 2], idx[:, 1], idx[:, 0]))]
+
+
+def _records(
+    buf: np.ndarray, rec: np.ndarray, times: np.ndarray, conns: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends) of the message data of the records at ``rec``, checked against the index.
+
+    A record is ``uint32 header_len``, header fields (``uint32 len`` + ``name=value``),
+    ``uint32 data_len``, data. The op code (2: message data), connection id and time in
+    every header must equal what the index says.
+    """
+    if len(rec) == 0:
+        return rec, rec
+    hlen = layout._u32(buf, rec)
+    if np.any(hlen != hlen[0]):
+        raise layout.LayoutError("record headers of different lengths")
+    h0 = int(hlen[0])
+    fields = _header_fields(bytes(buf[int(rec[0]) + 4 : int(rec[0]) + 4 + h0]))
+    if not {"op", "conn", "time"} <= set(fields):
+        raise layout.LayoutError("record header without op/conn/time")
+    if not np.all(buf[rec + 4 + fields["op"]] == 2):
+        raise layout.LayoutError("index points at a record that is not message data")
+    if not np.array_equal(layout._u32(buf, rec + 4 + fields["conn"]), conns):
+        raise layout.LayoutError("record of another connection than the index says")
+    t = layout._words(buf, rec + 4 + fields["time"], 2, "<u4")
+    if not np.array_equal(t[:, 0].astype(np.int64) * 1_000_000_000 + t[:, 1], times):
+        raise layout.LayoutError("record time differs from the index")
+    starts = rec + 8 + h0
+    ends = starts + layout._u32(buf, rec + 4 + h0)
+    if ends.max() > len(buf):
+        raise layout.LayoutError("message data beyond the chunk")
+    return starts, ends
+
+
+def ros1_batches(reader1: Any, conn_ids: set[int]) -> Iterator[Batch]:
+    """The messages of ``conn_ids``, located through rosbags' ROS1 index (module docstring).
+
+    Uncompressed bags give one batch over a memory map of the file; compressed chunks are
+    decompressed once each and grouped into batches of about 64 MB. Raises
+    :class:`layout.LayoutError` when a record is not where the index says.
+    """
+    from rosbags.rosbag1.reader import decompressors
+
+    idx = _index(reader1, conn_ids)
+    if len(idx) == 0:
+        return
+    chunks = reader1.chunks
+    uniq = np.unique(idx[:, 1])
+    if all(chunks[int(c)].decompressor is decompressors["none"] for c in uniq):
+        buf = np.memmap(reader1.path, dtype=np.uint8, mode="r")
+        datapos = np.array([chunks[int(c)].datapos for c in uniq], dtype=np.int64)
+        rec = datapos[np.searchsorted(uniq, idx[:, 1])] + idx[:, 2]
+        starts, ends = _records(buf, rec, idx[:, 0], idx[:, 3])
+        yield Batch(buf, starts, ends, idx[:, 0], idx[:, 3])
+        return
+    # messages grouped by chunk (stable: time order within a chunk), chunks in file order
+    by_chunk = np.argsort(idx[:, 1], kind="stable")
+    sidx = idx[by_chunk]
+    bounds = np.searchsorted(sidx[:, 1], uniq)
+    bounds = np.append(bounds, len(sidx))
+    # decompressed chunks are copied into one reused buffer (fresh memory for every batch
+    # would cost more in page faults than the decompression itself)
+    work = np.empty(_BATCH_BYTES + max(chunks[int(c)].datasize for c in uniq) * 4, np.uint8)
+    base: list[int] = []
+    rows: list[np.ndarray] = []
+    size = 0
+
+    def flush() -> Batch:
+        buf = work[:size]
+        part = np.concatenate(rows)
+        rec = np.repeat(np.array(base), [len(r) for r in rows]) + part[:, 2]
+        starts, ends = _records(buf, rec, part[:, 0], part[:, 3])
+        return Batch(buf, starts, ends, part[:, 0], part[:, 3])
+
+    with open(reader1.path, "rb") as fh:
+        for k, c in enumerate(uniq.tolist()):
+            ch = chunks[c]
+            fh.seek(ch.datapos)
+            raw = ch.decompressor(fh.read(ch.datasize))
+            if size + len(raw) > len(work):
+                if rows:
+                    yield flush()
+                base, rows, size = [], [], 0
+                if len(raw) > len(work):
+                    work = np.empty(len(raw), np.uint8)
+            work[size : size + len(raw)] = np.frombuffer(raw, np.uint8)
+            base.append(size)
+            rows.append(sidx[bounds[k] : bounds[k + 1]])
+            size += len(raw)
+    if rows:
+        yield flush()
+
+
+def ros1_slices(
+    reader1: Any, conn_ids: set[int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All messages of ``conn_ids`` in one buffer, in time order: ``(buf, starts, ends, log_ns)``.
+
+    For tests and small bags (it copies every message); readers use :func:`ros1_batches`.
+    """
+    pieces: list[tuple[int, bytes]] = []
+    for b in ros1_batches(reader1, conn_ids):
+        for s, e, t in zip(b.starts.tolist(), b.ends.tolist(), b.log_ns.tolist(), strict=True):
+            pieces.append((t, bytes(b.buf[s:e])))
+    pieces.sort(key=lambda x: x[0])
+    buf, starts, ends = layout.concat([p for _, p in pieces])
+    return buf, starts, ends, np.array([t for t, _ in pieces], dtype=np.int64)
+
+
+def _header_fields(raw: bytes) -> dict[str, int]:
+    """Offsets (within the header) of each field's value."""
+    out = {}
+    i = 0
+    while i + 4 <= len(raw):
+        n = int.from_bytes(raw[i : i + 4], "little")
+        field = raw[i + 4 : i + 4 + n]
+        name, _, _ = field.partition(b"=")
+        out[name.decode(errors="replace")] = i + 4 + len(name) + 1
+        i += 4 + n
+    return out
+
+
+# --------------------------------------------------------------------------- sources
+class BagSource:
+    """An open bag (ROS1, rosbag2 folder or file, plain MCAP)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.kind = detect(self.path)
+        if self.kind in ("tum", "euroc"):
+            raise InputError(
+                f"{self.path}: a text trajectory, not a bag; pass it with --vio/--truth"
+            )
+        self._tmp: str | None = None
+        self._reader: Any = None
+        self._mcap: Any = None
+        self._fh: Any = None
+        try:
+            self._open()
+        except InputError:
+            self.close()
+            raise
+        except Exception as exc:
+            self.close()
+            msg = " ".join(str(exc).split()) or exc.__class__.__name__
+            raise InputError(f"{self.path}: cannot read the bag ({msg}); {_DAMAGED}") from None
+
+    # ---- opening
+    def _open(self) -> None:
+        if self.kind == "mcap":
+            from mcap.reader import make_reader
+
+            self._fh = open(self.path, "rb")  # noqa: SIM115 (closed in close())
+            self._mcap = make_reader(self._fh)
+            summary = self._mcap.get_summary()
+            if summary is None:
+                raise InputError(f"{self.path}: MCAP file without a summary section; {_DAMAGED}")
+            self._summary = summary
+            return
+        from rosbags.highlevel import AnyReader
+
+        target = self.path
+        if self.kind == "ros1" and self.path.suffix != ".bag":
+            target = self._link(self.path, self.path.name + ".bag")
+        elif self.kind == "rosbag2":
+            target = bag_root(self.path)
+        elif self.kind == "db3":
+            target = self._db3_folder(self.path)
+        self._reader = AnyReader([target], default_typestore=typestore(ros1=False))
+        self._reader.open()
+
+    def _link(self, src: Path, name: str) -> Path:
+        self._tmp = tempfile.mkdtemp(prefix="qsls-bag-")
+        dst = Path(self._tmp) / name
+        os.symlink(src.resolve(), dst)
+        return dst
+
+    def _db3_folder(self, db: Path) -> Path:
+        """A rosbag2 folder for a lone ``.db3``: a link to it and metadata from its tables."""
+        import yaml
+
+        try:
+            con = sqlite3.connect(f"file:{db.resolve()}?mode=ro", uri=True)
+            try:
+                topics = con.execute(
+                    "SELECT id, name, type, serialization_format FROM topics"
+                ).fetchall()
+                stats = {
+                    r[0]: r[1:]
+                    for r in con.execute(
+                        "SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) "
+                        "FROM messages GROUP BY topic_id"
+                    )
+                }
+            finally:
+                con.close()
+        except sqlite3.Error as exc:
+            raise InputError(
+                f"{db}: not a readable rosbag2 sqlite3 file ({exc}); {BAG_HINT}"
+            ) from None
+        folder = self._link(db, db.name).parent
+        starts = [s[1] for s in stats.values()] or [0]
+        stops = [s[2] for s in stats.values()] or [0]
+        meta = {
+            "rosbag2_bagfile_information": {
+                "version": 5,
+                "storage_identifier": "sqlite3",
+                "relative_file_paths": [db.name],
+                "duration": {"nanoseconds": int(max(stops) - min(starts))},
+                "starting_time": {"nanoseconds_since_epoch": int(min(starts))},
+                "message_count": int(sum(s[0] for s in stats.values())),
+                "topics_with_message_count": [
+                    {
+                        "topic_metadata": {
+                            "name": name,
+                            "type": typ,
+                            "serialization_format": fmt,
+                            "offered_qos_profiles": "",
+                        },
+                        "message_count": int(stats.get(tid, (0,))[0]),
+                    }
+                    for tid, name, typ, fmt in topics
+                ],
+                "compression_format": "",
+                "compression_mode": "",
+            }
+        }
+        (folder / "metadata.yaml").write_text(yaml.safe_dump(meta))
+        return folder
+
+    def close(self) -> None:
+        if self._reader is not None:
+            with contextlib.suppress(Exception):
+                self._reader.close()
+            self._reader = None
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+        if self._tmp is not None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+    def __enter__(self) -> BagSource:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # ---- topics
+    def topics(self) -> list[TopicInfo]:
+        out: dict[str, TopicInfo] = {}
+        if self._mcap is not None:
+            s = self._summary
+            counts = s.statistics.channel_message_counts if s.statistics else {}
+            for cid, ch in s.channels.items():
+                schema = s.schemas.get(ch.schema_id)
+                mt = normalize_type(schema.name) if schema else "?"
+                prev = out.get(ch.topic)
+                n = int(counts.get(cid, 0)) + (prev.count if prev else 0)
+                out[ch.topic] = TopicInfo(ch.topic, mt, n, self.path)
+        else:
+            for topic, info in self._reader.topics.items():
+                out[topic] = TopicInfo(topic, info.msgtype or "?", int(info.msgcount), self.path)
+        return [out[k] for k in sorted(out)]
+
+    # ---- reading
+    def read(
+        self,
+        topic: str,
+        *,
+        truth_frame: str | None = None,
+        fast: bool = True,
+        progress: Progress = NULL_PROGRESS,
+    ) -> Trajectory:
+        """One topic as a :class:`Trajectory` (``truth_frame`` picks a TF transform)."""
+        return self.read_many([(topic, truth_frame)], fast=fast, progress=progress)[0]
+
+    def read_many(
+        self,
+        requests: list[tuple[str, str | None]],
+        *,
+        fast: bool = True,
+        progress: Progress = NULL_PROGRESS,
+    ) -> list[Trajectory]:
+        """Several topics in one pass over the bag: ``[(topic, truth_frame or None), ...]``."""
+        known = {t.topic: t for t in self.topics()}
+        infos = []
+        for topic, _ in requests:
+            if topic not in known:
+                raise InputError(f"{self.path}: no topic {topic}")
+            infos.append(known[topic])
+        names = ", ".join(dict.fromkeys(i.topic for i in infos))
+        progress.start(f"reading {names}", total=sum(i.count for i in infos) or None)
+        try:
+            found: dict[str, Trajectory] = {}
+            if self._mcap is None and not self._reader.is2 and fast:
+                fixed = [i for i in infos if i.msgtype in layout.FIXED_TYPES]
+                found = self._ros1_fast(list({i.topic: i for i in fixed}.values()), progress)
+            rest = list({i.topic: i for i in infos if i.topic not in found}.values())
+            raws = self._raw_pass(rest, progress) if rest else {}
+            return [
+                found[t] if t in found else self._decode(known[t], raws[t], frame, fast)
+                for t, frame in requests
+            ]
+        except (InputError, layout.LayoutError):
+            raise
+        except Exception as exc:
+            msg = " ".join(str(exc).split()) or exc.__class__.__name__
+            raise InputError(
+                f"{self.path}: error while reading {names} ({msg}); {_DAMAGED}"
+            ) from None
+        finally:
+            progress.finish()
+
+    def _ros1_fast(self, infos: list[TopicInfo], progress: Progress) -> dict[str, Trajectory]:
+        """Fixed-layout topics of a ROS1 bag through the index (empty dict: fall back)."""
+        if not infos:
+            return {}
+        r = self._reader
+        ids = {info.topic: {c.id for c in r.connections if c.topic == info.topic} for info in infos}
+        parts: dict[str, list[tuple[layout.Decoded, np.ndarray]]] = {t: [] for t in ids}
+        try:
+            for batch in ros1_batches(r.readers[0], set().union(*ids.values())):
+                for info in infos:
+                    m = np.isin(batch.conn, list(ids[info.topic]))
+                    if m.any():
+                        d = layout.decode(
+                            batch.buf, batch.starts[m], batch.ends[m], info.msgtype, "ros1"
+                        )
+                        parts[info.topic].append((d, batch.log_ns[m]))
+                progress.advance(len(batch.starts))
+        except layout.LayoutError:
+            return {}
+        out = {}
+        for info in infos:
+            ds = parts[info.topic]
+            if not ds:
+                continue
+            header = np.concatenate([d.header_ns for d, _ in ds])
+            logs = np.concatenate([lg for _, lg in ds])
+            pose = np.concatenate([d.pose for d, _ in ds])
+            twist = np.concatenate([d.twist for d, _ in ds]) if ds[0][0].twist is not None else None
+            order = np.argsort(logs, kind="stable")  # batches come in chunk order
+            out[info.topic] = _trajectory(
+                info.topic, info.msgtype, header[order], logs[order], pose[order],
+                None if twist is None else twist[order], ds[0][0].frame_id,
+                ds[0][0].child_frame_id, "numpy",
+            )  # fmt: skip
+        return out
+
+    def _raw_pass(self, infos: list[TopicInfo], progress: Progress) -> dict[str, tuple]:
+        """``{topic: (raw messages, log stamps, schema)}`` in one pass over the bag."""
+        out: dict[str, tuple[list[bytes], list[int], Any]] = {
+            i.topic: ([], [], None) for i in infos
+        }
+        n = 0
+        if self._mcap is not None:
+            for schema, channel, message in self._mcap.iter_messages(topics=list(out)):
+                if channel.message_encoding != "cdr":
+                    raise InputError(
+                        f"{self.path}: topic {channel.topic} is encoded as "
+                        f"{channel.message_encoding!r}; qsls reads ROS2 messages (cdr encoding)"
+                    )
+                raws, logs, _ = out[channel.topic]
+                if out[channel.topic][2] is None:
+                    out[channel.topic] = (raws, logs, schema)
+                raws.append(bytes(message.data))
+                logs.append(int(message.log_time))
+                n += 1
+                if n % 4096 == 0:
+                    progress.advance(4096)
+        else:
+            r = self._reader
+            conns = [c for c in r.connections if c.topic in out]
+            for c, log, raw in r.messages(connections=conns):
+                raws, logs, _ = out[c.topic]
+                raws.append(raw)
+                logs.append(log)
+                n += 1
+                if n % 4096 == 0:
+                    progress.advance(4096)
+        progress.advance(n % 4096)
+        return out
+
+    def _decode(
+        self, info: TopicInfo, raw: tuple, truth_frame: str | None, fast: bool
+    ) -> Trajectory:
+        raws, logs, schema = raw
+        mt = info.msgtype
+        cdr = self._mcap is not None or self._reader.is2
+        if fast and mt in layout.FIXED_TYPES:
+            try:
+                buf, starts, ends = layout.concat(raws)
+                d = layout.decode(buf, starts, ends, mt, "cdr" if cdr else "ros1")
+                return _trajectory(
+                    info.topic, mt, d.header_ns, np.array(logs, np.int64), d.pose, d.twist,
+                    d.frame_id, d.child_frame_id, "numpy",
+                )  # fmt: skip
+            except layout.LayoutError:
+                pass  # the deserializer below
+        if self._mcap is not None:
+            msgs: list[Any] = []
+            if raws:
+                from mcap_ros2.decoder import DecoderFactory
+
+                dec = DecoderFactory().decoder_for("cdr", schema)
+                if dec is None:
+                    raise InputError(f"{self.path}: cannot decode topic {info.topic} ({mt})")
+                msgs = [dec(x) for x in raws]
+        else:
+            msgs = [self._reader.deserialize(x, mt) for x in raws]
+        arrays = objects_to_arrays(msgs, logs, mt, truth_frame, info.topic)
+        return _trajectory(info.topic, mt, *arrays, "deserializer")
+
+
+def iter_topics(paths: list[Path]) -> Iterator[TopicInfo]:
+    for p in paths:
+        with BagSource(p) as src:
+            yield from src.topics()

@@ -1,0 +1,212 @@
+"""Estimate the constant clock offset between the VIO and the truth streams.
+
+Convention (DESIGN.md): ``tau = time_offset_s`` is added to truth stamps to put them on
+the VIO clock; the truth position at VIO time ``t`` is ``p_truth(t - tau)``.
+
+Position term. For a candidate ``tau`` the truth positions are interpolated at
+``t_i - tau`` for the VIO stamps ``t_i``, the VIO positions are aligned to them with the
+requested alignment (:func:`qsls.pipeline.ingest.align.fit_alignment`: ``4dof``, ``se3``, or
+``none``), and ``P(tau)`` is the mean square of the residual
+``||R p_vio_i + t - p_truth(t_i - tau)||``.
+
+Attitude (gravity) term. On a circle flown at constant yaw a clock shift moves every truth
+point along the circle by the same angle, i.e. it is a rotation about the circle's centre,
+which the ``4dof`` alignment (yaw + translation) absorbs: ``P`` is nearly flat in ``tau``
+and slowly varying VIO errors decide where its minimum lands (2.5-13 ms off on the
+default ``qsls simulate`` circle). The attitude breaks the symmetry. Under a 4-DOF gauge
+(the two world frames differ by a yaw and a translation, z gravity-aligned in both) the
+gravity direction in the body frame ``g_b(t) = R_wb(t)^T e_z`` (the third row of
+``R_wb``) is the same in both streams; on a circle it turns in the body x-y plane with the
+circle's period, so it pins the time. ``G(tau)`` is the mean square of
+``d_i - mean(d)`` with ``d_i = g_b,vio(t_i) - g_b,truth(t_i - tau)``: removing the mean
+difference absorbs a constant small tilt between the two body frames (a motion-capture
+rigid body is rarely aligned with the IMU): a tilt ``theta`` about a body x/y axis shifts
+``g_b`` by a nearly constant ``theta`` (the rest, ``theta`` times the tilt amplitude, is
+in z and second order in the time shift).
+
+Combined cost. With both terms the estimate minimizes ``log P(tau) + log G(tau)``: the
+profile likelihood of Gaussian residuals with an unknown variance per term (the variances
+estimated at each ``tau``). Near the minimum this is ``P/P_min + G/G_min``, each term
+normalized by its own scale, so the result is the two terms' minima weighted by their
+relative sharpness: on the circle the sharp ``G`` dominates the flat ``P``; in hover,
+where ``g_b`` is constant and ``G`` flat, ``P`` decides; on a figure-eight both agree.
+Neither term needs a weight or a unit conversion. Why not ``G`` alone: it carries no
+information when the vehicle barely tilts, and the position term keeps the estimate
+consistent with the alignment fitted afterwards. The attitude term is used when both
+streams carry orientations that move (``g_b`` varies by more than ``min_tilt_rad`` RMS
+in each) and the alignment is ``4dof`` or ``none``; with ``se3`` the VIO world z need
+not be vertical, ``g_b`` is not comparable, and the estimate is position only (``P``),
+unchanged.
+
+Limitation: a constant misalignment of the two body frames about the body z axis turns
+``g_b``'s horizontal part like a time shift does on a constant-yaw circle (both are a
+rotation about body z), so it biases the estimate by ``psi / omega`` (``omega`` the
+circle's angular rate); nothing in positions and attitudes separates the two there (the
+position term damps it: 2 degrees about body z moved the estimate 6-7.6 ms on the default
+``qsls simulate`` circle, seeds 0-7, against 22 ms from ``psi / omega``). Tilts about body
+x/y (tested at 2 degrees) move it less than 0.1 ms.
+
+Search: coarse-to-fine: the cost on a grid of ``step_s`` (20 ms) over
+``[-max_offset_s, max_offset_s]`` using at most 1000 evenly spaced samples, then Brent's
+bounded minimization (to 1 us) on all samples within one grid step either side of the
+best grid point. Both terms are smooth and single-minimum over far more than one grid step
+(position and attitude change slowly compared with 20 ms), so the grid only has to land in
+the right basin.
+
+Why this and not velocity-magnitude cross-correlation (which is also frame-invariant): the
+position residual uses the whole signal (low frequencies included), needs no
+differentiation of noisy positions, is what the alignment afterwards minimizes anyway
+(so offset and alignment are consistent), and its minimum is sharp whenever the vehicle
+moves (other than along a circle, see above); speed correlation is weak in hover and
+biased by velocity noise. Alignment inside the cost makes it frame-invariant too.
+
+The same VIO samples enter every candidate: those whose stamps stay inside the truth's
+time range for every offset searched (otherwise the cost would change with the sample set,
+favouring offsets with less overlap). At most ``max_samples`` evenly spaced VIO samples
+are used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.ingest.align import fit_alignment
+
+
+@dataclass(frozen=True)
+class OffsetEstimate:
+    offset_s: float
+    rms_m: float  # position RMS after alignment at the offset
+    samples: int  # VIO samples used
+    search_s: float  # half-width of the search range actually used
+    at_edge: bool  # best grid point on the edge of the search range
+    tilt_rms: float | None = None  # RMS of the g_b mismatch (mean removed) at the offset
+    uses_attitude: bool = False  # the cost includes the gravity-direction term
+
+
+def gravity_in_body(q: np.ndarray) -> np.ndarray:
+    """``g_b = R_wb^T e_z`` (the third row of ``R_wb``) per quaternion ``x y z w``."""
+    q = np.asarray(q, dtype=float)
+    x, y, z, w = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
+    return np.column_stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)])
+
+
+def _interp(q: np.ndarray, tt: np.ndarray, a: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.interp(q, tt, a[:, k]) for k in range(a.shape[1])])
+
+
+def _terms(
+    tau_s: float,
+    tv: np.ndarray,
+    pv: np.ndarray,
+    gv: np.ndarray | None,
+    tt: np.ndarray,
+    pt: np.ndarray,
+    gt: np.ndarray | None,
+    method: str,
+) -> tuple[float, float | None]:
+    """``P(tau)`` (m^2) and ``G(tau)`` (None without attitudes), module docstring."""
+    q = tv - tau_s
+    truth = _interp(q, tt, pt)
+    al = fit_alignment(pv, truth, method)
+    r = al.apply(pv) - truth
+    pos = float(np.mean(np.sum(r * r, axis=1)))
+    if gv is None or gt is None:
+        return pos, None
+    d = gv - _interp(q, tt, gt)
+    d -= d.mean(axis=0)
+    return pos, float(np.mean(np.sum(d * d, axis=1)))
+
+
+def _cost(tau_s: float, *data: Any) -> float:
+    """RMS position residual, or ``log P + log G`` with attitudes (module docstring);
+    ``data`` as :func:`_terms` takes it."""
+    pos, tilt = _terms(tau_s, *data)
+    if tilt is None:
+        return float(np.sqrt(pos))
+    return float(np.log(pos + 1e-18) + np.log(tilt + 1e-18))
+
+
+def estimate_offset(
+    vio_ns: np.ndarray,
+    vio_p: np.ndarray,
+    truth_ns: np.ndarray,
+    truth_p: np.ndarray,
+    *,
+    vio_q: np.ndarray | None = None,
+    truth_q: np.ndarray | None = None,
+    method: str = "4dof",
+    max_offset_s: float = 2.0,
+    step_s: float = 0.02,
+    min_overlap_s: float = 3.0,
+    max_samples: int = 4000,
+    coarse_samples: int = 1000,
+    min_tilt_rad: float = 0.005,
+) -> OffsetEstimate:
+    """The offset ``tau`` (s) minimizing the aligned position RMS, with the gravity
+    direction in the body frame when both orientations ``vio_q``, ``truth_q`` (``x y z w``)
+    are given, move, and ``method`` is ``4dof`` or ``none`` (module docstring)."""
+    # work in seconds relative to a common origin (float64 keeps sub-microsecond precision)
+    t0 = int(min(vio_ns[0], truth_ns[0]))
+    tv_all = (np.asarray(vio_ns, np.int64) - t0) * 1e-9
+    tt = (np.asarray(truth_ns, np.int64) - t0) * 1e-9
+    pt = np.asarray(truth_p, float)
+    overlap = min(tv_all[-1], tt[-1]) - max(tv_all[0], tt[0])
+    search = float(max_offset_s)
+    # keep at least half the overlap (and min_overlap) usable for every offset searched
+    if overlap > 0:
+        search = min(search, max((overlap - min_overlap_s) / 2, overlap / 4))
+    keep = (tv_all >= tt[0] + search) & (tv_all <= tt[-1] - search)
+    if overlap <= 0 or keep.sum() < 10:
+        raise InputError(
+            "the VIO and truth streams overlap too little in time to estimate the clock "
+            f"offset ({max(overlap, 0):.2f} s); give --time-offset SECONDS"
+        )
+    idx = np.flatnonzero(keep)
+    if len(idx) > max_samples:
+        idx = idx[np.linspace(0, len(idx) - 1, max_samples).round().astype(int)]
+    tv = tv_all[idx]
+    pv = np.asarray(vio_p, float)[idx]
+    gv = gt = None
+    if vio_q is not None and truth_q is not None and method in ("4dof", "none"):
+        gv = gravity_in_body(np.asarray(vio_q)[idx])
+        gt = gravity_in_body(truth_q)
+        moving = min(float(np.sqrt(np.mean(np.sum((g - g.mean(0)) ** 2, 1)))) for g in (gv, gt))
+        if not moving > min_tilt_rad:  # level (or identity) attitudes: nothing to compare
+            gv = gt = None
+    args = (gv, tt, pt, gt, method)
+    # coarse: a grid of step_s on at most coarse_samples of the samples
+    sub = np.linspace(0, len(tv) - 1, min(len(tv), coarse_samples)).round().astype(int)
+    gsub = None if gv is None else gv[sub]
+    n_grid = max(1, int(np.floor(search / step_s)))
+    grid = np.arange(-n_grid, n_grid + 1) * step_s
+    costs = np.array([_cost(g, tv[sub], pv[sub], gsub, *args[1:]) for g in grid])
+    k = int(np.argmin(costs))
+    at_edge = k in (0, len(grid) - 1) and len(grid) > 1
+    # fine: Brent's method on all samples within one grid step either side
+    from scipy.optimize import minimize_scalar
+
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    best = float(grid[k])
+    cost = _cost(best, tv, pv, *args)
+    if hi > lo:
+        res = minimize_scalar(
+            _cost, bounds=(lo, hi), args=(tv, pv, *args), method="bounded",
+            options={"xatol": 1e-6},
+        )  # fmt: skip
+        if float(res.fun) <= cost:
+            best = float(res.x)
+    pos, tilt = _terms(best, tv, pv, *args)
+    return OffsetEstimate(
+        best,
+        float(np.sqrt(pos)),
+        len(tv),
+        search,
+        at_edge,
+        tilt_rms=None if tilt is None else float(np.sqrt(tilt)),
+        uses_attitude=tilt is not None,
+    )

@@ -1,0 +1,170 @@
+"""``qsls run CONFIG``: the whole pipeline from one YAML file.
+
+A run config names flights (simulated, or real logs to ingest) and the options of every
+stage. :func:`plan` turns it into a :class:`StageGraph`::
+
+    simulate/<flight>  ->  ingest/<flight>  ->  fit  ->  sweep
+                                                     ->  synth  ->  evaluate  ->  report
+
+and :func:`run` executes it under ``RUN_DIR`` (default ``runs/<name>``), skipping every
+stage whose options and inputs did not change (see :mod:`qsls.pipeline.run.graph`).
+Relative paths in the config are relative to the config file's folder.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field, field_validator
+
+from qsls.pipeline import __version__
+from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_json, sha256_file, to_plain
+from qsls.pipeline.core.config import Options, read_yaml, validate
+from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.report.stage import RUN_FILE
+from qsls.pipeline.run.graph import Stage, StageGraph, StageOutcome
+
+STAGE_ORDER = ("simulate", "ingest", "fit", "sweep", "synth", "evaluate", "report")
+
+
+class FlightSpec(Options):
+    """One flight: simulated (``simulate`` options) or a real log (``sources`` / ``vio``+``truth``)."""
+
+    name: str
+    role: Literal["train", "heldout"] = "train"
+    simulate: dict[str, Any] | None = None
+    sources: list[str] = Field(default_factory=list)
+    vio: str | None = None
+    truth: str | None = None
+    ingest: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("name")
+    @classmethod
+    def _safe_name(cls, v: str) -> str:
+        if not v or any(c in v for c in "/\\") or v.startswith("."):
+            raise ValueError("a flight name must be a plain folder name")
+        return v
+
+
+class RunConfig(Options):
+    """The run: flights plus each stage's options (the stage's own option names)."""
+
+    name: str
+    seed: int = 0
+    out: str | None = None
+    stages: (
+        list[Literal["simulate", "ingest", "fit", "sweep", "synth", "evaluate", "report"]] | None
+    ) = None
+    simulate: dict[str, Any] = Field(default_factory=dict)
+    flights: list[FlightSpec]
+    ingest: dict[str, Any] = Field(default_factory=dict)
+    fit: dict[str, Any] = Field(default_factory=dict)
+    sweep: dict[str, Any] | None = None
+    synth: dict[str, Any] | None = None
+    evaluate: dict[str, Any] | None = None
+    report: bool = True
+
+
+@dataclass(frozen=True)
+class RunResult:
+    root: Path
+    outcomes: tuple[StageOutcome, ...]
+    report: Path | None
+
+    def summary(self) -> dict[str, Any]:
+        ran = [o.id for o in self.outcomes if o.status == "ran"]
+        skipped = [o.id for o in self.outcomes if o.status == "skipped"]
+        out = {
+            "run folder": str(self.root),
+            "stages run": len(ran),
+            "stages up to date (skipped)": len(skipped),
+        }
+        if self.report is not None:
+            out["report"] = str(self.report / "index.html")
+        return out
+
+
+def load_run_config(path: Path) -> RunConfig:
+    return validate(RunConfig, read_yaml(path), str(path))
+
+
+def _resolve(base: Path, p: str) -> Path:
+    q = Path(p).expanduser()
+    return q if q.is_absolute() else (base / q)
+
+
+def _git_commit() -> str:
+    src = Path(__file__).resolve().parent
+    try:
+        out = subprocess.run(
+            ["git", "-C", str(src), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return "unknown"
+    return out.stdout.strip() if out.returncode == 0 else "unknown"
+
+
+def plan(
+    cfg: RunConfig, config_path: Path, root: Path, progress: Progress = NULL_PROGRESS
+) -> StageGraph:
+    """The stage graph of a run config (options validated here, before anything runs)."""
+    from qsls.pipeline.run.stages import build_graph
+
+    return build_graph(cfg, Path(config_path).resolve().parent, root, progress)
+
+
+def run(
+    config_path: Path,
+    *,
+    out: Path | None = None,
+    force: bool = False,
+    from_stage: str | None = None,
+    progress: Progress = NULL_PROGRESS,
+    on_stage: Callable[[str, str, int, int], None] | None = None,
+) -> RunResult:
+    """Run the stages a config names, in order, caching each by the hash of its inputs."""
+    config_path = Path(config_path)
+    cfg = load_run_config(config_path)
+    root = Path(out) if out is not None else _resolve(Path.cwd(), cfg.out or f"runs/{cfg.name}")
+    if from_stage is not None and from_stage not in STAGE_ORDER:
+        raise ConfigError(
+            f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)})"
+        )
+    root.mkdir(parents=True, exist_ok=True)
+    graph = plan(cfg, config_path, root, progress)
+    info = {
+        "name": cfg.name,
+        "seed": cfg.seed,
+        "qsls_version": __version__,
+        "git_commit": _git_commit(),
+        "config_path": config_path.as_posix(),
+        "config_sha256": sha256_file(config_path),
+        "config": to_plain(cfg),
+        "stages": graph.ids,
+    }
+    atomic_write_bytes(root / RUN_FILE, dump_json(info).encode())
+
+    def started(stage: Stage, i: int, n: int) -> None:
+        if on_stage:
+            on_stage(stage.id, "running", i, n)
+
+    def done(oc: StageOutcome, i: int, n: int) -> None:
+        if on_stage:
+            on_stage(oc.id, oc.status, i, n)
+
+    outcomes = graph.run(force=force, from_kind=from_stage, on_start=started, on_done=done)
+    report_dir = None
+    wanted = set(cfg.stages or STAGE_ORDER)
+    if cfg.report and "report" in wanted:
+        from qsls.pipeline.report.stage import report
+
+        report_dir = Path("reports") / cfg.name
+        if on_stage:
+            on_stage("report", "running", len(outcomes), len(outcomes) + 1)
+        report(root, report_dir, force=True)
+    return RunResult(root=root, outcomes=tuple(outcomes), report=report_dir)

@@ -1,0 +1,245 @@
+"""The stages of ``qsls run``: a run config turned into a :class:`StageGraph`.
+
+Folder layout under the run folder (one stage folder each, with its manifest)::
+
+    simulate/<flight>/   (simulated flights only)
+    ingest/<flight>/     flight.parquet
+    fit/                 error_model.yaml (train flights)
+    sweep/               sweep.parquet
+    synth/<controller>/  controller.npz, certificate.yaml
+    evaluate/            bound check on the held-out flights
+    fly/                 the controllers flown (evaluate --fly)
+
+Every stage's options are validated here, before anything runs, with the stage's own model,
+so a misspelled option is reported with the config's section and the nearest valid name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from qsls.pipeline.core.config import merge, validate
+from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.run.graph import Stage, StageGraph
+
+
+def _abs(base: Path, p: str | Path) -> Path:
+    q = Path(p).expanduser()
+    return (q if q.is_absolute() else base / q).resolve()
+
+
+def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROGRESS) -> StageGraph:
+    """Stages for ``cfg`` (a :class:`qsls.pipeline.run.runner.RunConfig`); paths relative to ``base``."""
+    from qsls.pipeline.ingest.stage import IngestOptions
+
+    wanted = set(cfg.stages or ("simulate", "ingest", "fit", "sweep", "synth", "evaluate"))
+    graph = StageGraph(root)
+    src = lambda section: f"{base}: {section}"  # noqa: E731
+    if not cfg.flights:
+        raise ConfigError(f"{src('flights')}: a run needs at least one flight")
+
+    ingest_ids: dict[str, list[str]] = {"train": [], "heldout": []}
+    for i, fl in enumerate(cfg.flights):
+        sources: list[Path] = []
+        deps: tuple[str, ...] = ()
+        ingest_opts: dict[str, Any] = merge(cfg.ingest, fl.ingest)
+        if fl.simulate is not None:
+            if "simulate" not in wanted and not (root / "simulate" / fl.name).is_dir():
+                raise ConfigError(
+                    f"flight '{fl.name}' is simulated but the run's stages leave out simulate"
+                )
+            sim_id = _simulate_stage(graph, cfg, fl, i, src, progress)
+            deps = (sim_id,)
+        else:
+            sources = [_abs(base, s) for s in fl.sources]
+            for key in ("vio", "truth"):
+                value = getattr(fl, key)
+                if value is not None:
+                    ingest_opts[key] = str(_abs(base, value))
+            if not sources and fl.vio is None:
+                raise ConfigError(
+                    f"flight '{fl.name}': give 'simulate', 'sources' or 'vio' and 'truth'"
+                )
+            missing = [
+                p
+                for p in [
+                    *sources,
+                    *(Path(ingest_opts[k]) for k in ("vio", "truth") if k in ingest_opts),
+                ]
+                if not p.exists()
+            ]
+            if missing:
+                raise ConfigError(f"flight '{fl.name}': {missing[0]} does not exist")
+        opts = validate(IngestOptions, ingest_opts, src(f"ingest (flight '{fl.name}')"))
+        external = tuple(sources) + tuple(Path(p) for p in (opts.vio, opts.truth) if p is not None)
+        stage_id = f"ingest/{fl.name}"
+        graph.add(
+            Stage(
+                stage_id,
+                "ingest",
+                {"options": opts, "sources": [s.name for s in sources]},
+                _ingest_exec(opts, sources, deps, progress),
+                deps=deps,
+                external=external,
+            )
+        )
+        ingest_ids[fl.role].append(stage_id)
+
+    if "fit" not in wanted:
+        return graph
+    if not ingest_ids["train"]:
+        raise ConfigError(f"{src('flights')}: the fit needs at least one flight with role 'train'")
+    from qsls.pipeline.errormodel.fit import FitOptions
+
+    fit_opts = validate(FitOptions, cfg.fit, src("fit"))
+    graph.add(
+        Stage(
+            "fit",
+            "fit",
+            fit_opts,
+            _fit_exec(fit_opts, ingest_ids["train"], progress),
+            deps=tuple(ingest_ids["train"]),
+        )
+    )
+
+    if cfg.sweep is not None and "sweep" in wanted:
+        from qsls.pipeline.control.sweep import SweepOptions
+
+        sweep_cfg = dict(cfg.sweep)
+        jobs = sweep_cfg.pop("jobs", None)
+        scheduler = sweep_cfg.pop("scheduler", None)
+        sweep_opts = validate(SweepOptions, sweep_cfg, src("sweep"))
+        graph.add(
+            Stage(
+                "sweep",
+                "sweep",
+                sweep_opts,
+                _sweep_exec(sweep_opts, jobs, scheduler, progress),
+                deps=("fit",),
+            )
+        )
+
+    if cfg.synth is None or "synth" not in wanted:
+        return graph
+    from qsls.pipeline.control.synth import SynthOptions
+
+    synth_opts = validate(SynthOptions, cfg.synth, src("synth"))
+    graph.add(Stage("synth", "synth", synth_opts, _synth_exec(synth_opts, progress), deps=("fit",)))
+
+    if cfg.evaluate is None or "evaluate" not in wanted:
+        return graph
+    from qsls.pipeline.evaluate.bound import EvaluateOptions
+
+    eval_cfg = dict(cfg.evaluate)
+    fly_cfg = eval_cfg.pop("fly", None)
+    eval_opts = validate(EvaluateOptions, eval_cfg, src("evaluate"))
+    if ingest_ids["heldout"]:
+        graph.add(
+            Stage(
+                "evaluate",
+                "evaluate",
+                eval_opts,
+                _evaluate_exec(eval_opts, ingest_ids["heldout"], progress),
+                deps=("fit", "synth", *ingest_ids["heldout"]),
+            )
+        )
+    if fly_cfg is not None:
+        from qsls.pipeline.evaluate.fly import FlyOptions
+
+        fly_opts = validate(FlyOptions, merge(eval_cfg, fly_cfg), src("evaluate.fly"))
+        graph.add(
+            Stage("fly", "evaluate", fly_opts, _fly_exec(fly_opts, progress), deps=("fit", "synth"))
+        )
+    return graph
+
+
+def _simulate_stage(
+    graph: StageGraph, cfg: Any, fl: Any, i: int, src: Any, progress: Progress
+) -> str:
+    from qsls.pipeline.sim.simulate import SimOptions
+
+    data = merge(cfg.simulate, fl.simulate or {})
+    data.setdefault("seed", cfg.seed + i)
+    opts = validate(SimOptions, data, src(f"simulate (flight '{fl.name}')"))
+    stage_id = f"simulate/{fl.name}"
+
+    def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        from qsls.pipeline.sim.simulate import simulate
+
+        return simulate(opts, out, force=True, progress=progress)
+
+    graph.add(Stage(stage_id, "simulate", opts, execute))
+    return stage_id
+
+
+def _ingest_exec(
+    opts: Any, sources: list[Path], sim_deps: tuple[str, ...], progress: Progress
+) -> Any:
+    def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        from qsls.pipeline.core.artifacts import read_manifest
+        from qsls.pipeline.ingest.stage import ingest
+
+        # a simulated flight's bag, by the name its simulate stage recorded
+        srcs = [*sources, *(deps[d] / read_manifest(deps[d])["results"]["bag"] for d in sim_deps)]
+        return ingest(srcs, opts, out, force=True, progress=progress)
+
+    return execute
+
+
+def _fit_exec(opts: Any, train: list[str], progress: Progress) -> Any:
+    def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        from qsls.pipeline.errormodel.fit import fit
+
+        return fit([deps[d] for d in train], opts, out, force=True, progress=progress)
+
+    return execute
+
+
+def _sweep_exec(opts: Any, jobs: int | None, scheduler: str | None, progress: Progress) -> Any:
+    def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        from qsls.pipeline.control.sweep import sweep
+
+        return sweep(
+            opts,
+            out,
+            error_model=deps["fit"],
+            jobs=jobs,
+            scheduler=scheduler,
+            force=True,
+            progress=progress,
+        )
+
+    return execute
+
+
+def _synth_exec(opts: Any, progress: Progress) -> Any:
+    def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        from qsls.pipeline.control.synth import synth
+
+        return synth(deps["fit"], opts, out, force=True, progress=progress)
+
+    return execute
+
+
+def _evaluate_exec(opts: Any, heldout: list[str], progress: Progress) -> Any:
+    def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        from qsls.pipeline.evaluate.bound import evaluate
+
+        flights = [deps[d] for d in heldout]
+        return evaluate(
+            flights, deps["fit"], [deps["synth"]], opts, out, force=True, progress=progress
+        )
+
+    return execute
+
+
+def _fly_exec(opts: Any, progress: Progress) -> Any:
+    def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        from qsls.pipeline.evaluate.fly import fly_evaluate
+
+        return fly_evaluate(deps["fit"], [deps["synth"]], opts, out, force=True, progress=progress)
+
+    return execute
