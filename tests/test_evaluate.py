@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -11,12 +12,20 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
+from qsls.pipeline.control.artifacts import (
+    CERTIFICATE_FILE,
+    CONTROLLER_FILE,
+    Certificate,
+    Controller,
+)
+from qsls.pipeline.control.plant import quadrotor_model
+from qsls.pipeline.control.sls import Taps
+from qsls.pipeline.control.sls import l1_norm as fir_inf_norm
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.evaluate.bound import (
     EvaluateOptions,
     TrainingData,
     evaluate,
-    fir_inf_norm,
     load_controller_bound,
 )
 from qsls.pipeline.evaluate.figures import smooth
@@ -58,23 +67,50 @@ def write_fit(folder, x_train, e_train, *, eps_e=0.05, s_max=3.0, radius=0.5):
 
 
 def write_controller(folder, model_file, **over):
+    """A controller folder whose responses have the given norms: ``Phi_xy(1) = ||Phi_xy|| I``,
+    ``Phi_xx(1) = ||Phi_xx|| I`` (a static gain K = 0, which the bound check never runs)."""
     cert = {
+        "controller": Path(folder).name,
         "status": "certified",
         "robust": True,
+        "strictly_proper": False,
+        "T": 1,
         "S": 0.2,
         "eps_e": 0.05,
+        "R0": 0.05,
         "eps_w": 0.01,
-        "norm_phi_xx": 2.0,
+        "norm_phi_xx_h": 2.0,
         "norm_phi_xy": 2.5,
+        "norm_phi_ux": 0.0,
+        "norm_phi_uy": 0.0,
         "radius": 0.5,
         "delta": 0.0,
+        "robustness_lhs": 0.5,
+        "margin": 0.5,
+        "s_times_norm_phi_xy": 0.5,
+        "a": 0.02,
         "gamma": 0.1,
         "gamma_strict": 0.1,
+        "achievability_residual": 0.0,
+        "dt": DT,
+        "mass": 0.256,
         "error_model_sha256": sha256_file(model_file),
     }
     cert.update(over)
+    eye = np.eye(6)
+    taps = Taps(
+        Phi_xx=np.stack([0 * eye, cert["norm_phi_xx_h"] * eye]),
+        Phi_ux=np.zeros((2, 3, 6)),
+        Phi_xy=np.stack([0 * eye, cert["norm_phi_xy"] * eye]),
+        Phi_uy=np.zeros((2, 3, 6)),
+    )
+    ctrl = Controller(taps, quadrotor_model(), "static_gain", np.zeros((3, 6)))
     with StageWriter(folder, "synth") as w:
-        w.write_yaml("certificate.yaml", cert)
+        w.write_bytes(CONTROLLER_FILE, ctrl.to_bytes())
+        w.write_text(
+            CERTIFICATE_FILE,
+            Certificate(**cert, controller_sha256=ctrl.sha256()).to_yaml(),
+        )
     return folder
 
 
@@ -268,3 +304,51 @@ def test_same_controller_name_from_two_synth_folders(setup):
     res = evaluate([flight], model, [a, b], EvaluateOptions(figures=False), tmp / "ev6")
     assert list(res.table["controller"]) == ["synthA-l1_robust", "synthB-l1_robust"]
     assert res.table["gamma_strict"].nunique() == 2
+
+
+def _filter_bank_controller(folder, model_file):
+    """A real filter-bank controller (the PD's truncated responses realized), certified file pair."""
+    from qsls.pipeline.control.nominal import pd_responses
+    from qsls.pipeline.control.pdgain import PDGains
+
+    _, taps = pd_responses(quadrotor_model(), PDGains(), 10)
+    ctrl = Controller(taps, quadrotor_model())
+    write_controller(folder, model_file)  # the certificate's numbers; the npz is replaced below
+    (folder / CONTROLLER_FILE).write_bytes(ctrl.to_bytes())
+    cert = Certificate.load(folder).model_copy(update={"controller_sha256": ctrl.sha256()})
+    cert.save(folder)
+    return folder, ctrl
+
+
+def test_tampered_or_foreign_controller_is_refused(setup):
+    """A gain changed by 1e-4 (hash updated to match) and a certificate from another controller:
+    one line, exit 2, nothing written."""
+    tmp, model, _, flight = setup
+    good, ctrl = _filter_bank_controller(tmp / "fb", model)
+    r = _run(["--model", model, "--controller", good, "--flights", flight, "--out", tmp / "ok"])
+    assert r.exit_code == 0, r.output
+    # one gain off by 1e-4, the certificate's hash made to match: the gains/taps check catches it
+    arrays = ctrl.arrays()
+    arrays["K_by"] = arrays["K_by"].copy()
+    arrays["K_by"][0, 0] += 1e-4
+    from qsls.pipeline.core.artifacts import npz_bytes
+
+    bad = tmp / "tampered"
+    bad.mkdir()
+    (bad / CONTROLLER_FILE).write_bytes(npz_bytes(arrays))
+    cert = Certificate.load(good).model_copy(
+        update={"controller_sha256": sha256_file(bad / CONTROLLER_FILE)}
+    )
+    cert.save(bad)
+    r = _run(["--model", model, "--controller", bad, "--flights", flight, "--out", tmp / "o1"])
+    assert r.exit_code == 2 and "K_by does not match" in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1 and not (tmp / "o1").exists()
+    # the certificate of another controller beside this controller.npz
+    foreign = tmp / "foreign"
+    foreign.mkdir()
+    (foreign / CONTROLLER_FILE).write_bytes(ctrl.to_bytes())
+    write_controller(tmp / "other", model).joinpath(CERTIFICATE_FILE)
+    (foreign / CERTIFICATE_FILE).write_bytes((tmp / "other" / CERTIFICATE_FILE).read_bytes())
+    r = _run(["--model", model, "--controller", foreign, "--flights", flight, "--out", tmp / "o2"])
+    assert r.exit_code == 2 and "is not the controller its certificate.yaml certifies" in r.output
+    assert not (tmp / "o2").exists()

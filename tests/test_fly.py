@@ -15,8 +15,8 @@ import yaml
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
+from qsls.pipeline.control.artifacts import load_runtime as load_controller
 from qsls.pipeline.control.plant import quadrotor_model
-from qsls.pipeline.control.realize import load_controller
 from qsls.pipeline.control.synth import SynthOptions, synth
 from qsls.pipeline.errormodel.fit import FitOptions, fit
 from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate

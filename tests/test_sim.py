@@ -159,16 +159,17 @@ def test_linear_controller_adds_hover_and_feedforward_like_pd():
 
 
 def test_synthesized_controller_from_folder_flies(tmp_path):
-    """A controller folder as qsls synth writes it, loaded with realize.load_controller."""
-    from qsls.pipeline.control import realize
-    from qsls.pipeline.control.pdgain import PDGains, pd_gain
+    """A controller folder as qsls synth writes it, loaded with artifacts.load_runtime."""
+    from qsls.pipeline.control.artifacts import load_runtime
+    from qsls.pipeline.control.pdgain import PDGains
+    from qsls.pipeline.control.synth import SynthOptions, pd_controller, resolve
 
     folder = tmp_path / "pd"
     folder.mkdir()
-    k = pd_gain(PDGains(), 0.256)
-    np.savez(folder / "controller.npz", K=k, dt=np.array(0.1), kind=np.array("static_gain"))
-    (folder / "certificate.yaml").write_text("status: reference\ndt: 0.1\n")
-    runtime = realize.load_controller(folder)
+    built = pd_controller(resolve(SynthOptions(S=0.0, eps_e=0.05, radius=1.0), None), PDGains(), 20, {})
+    built.controller.save(folder)
+    built.certificate.save(folder)
+    runtime = load_runtime(folder)
     assert runtime.dt == pytest.approx(0.1)
     ctrl = make_controller(_flight(controller={"kind": str(folder)}).controller, 0.256)
     log = fly(_flight(duration=6.0), ctrl)

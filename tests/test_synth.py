@@ -11,9 +11,9 @@ from typer.testing import CliRunner
 
 from qsls.cli.main import app
 from qsls.pipeline.control import sls
+from qsls.pipeline.control.artifacts import load_runtime as load_controller
 from qsls.pipeline.control.pdgain import PDGains, pd_gain
 from qsls.pipeline.control.plant import quadrotor_model
-from qsls.pipeline.control.realize import load_controller
 from qsls.pipeline.control.synth import SynthOptions, max_feasible_s
 from qsls.pipeline.core.artifacts import dump_yaml, sha256_file
 from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
@@ -74,7 +74,7 @@ def test_paper_controllers_with_certificates(tmp_path, error_model):
         # norms recomputed from the stored taps reproduce the certificate
         nxy, nxx = _reference_norms(out / n)
         assert nxy == pytest.approx(c["norm_phi_xy"], rel=1e-12)
-        assert nxx == pytest.approx(c["norm_phi_xx"], rel=1e-12)
+        assert nxx == pytest.approx(c["norm_phi_xx_h"], rel=1e-12)
         lhs = (c["S"] + c["eps_e"] / c["radius"]) * nxy + (c["eps_w"] * nxx + c["delta"]) / c[
             "radius"
         ]
@@ -85,8 +85,10 @@ def test_paper_controllers_with_certificates(tmp_path, error_model):
             (c["eps_e"] + c["S"] * a) / (1 - c["S"] * nxy), rel=1e-12
         )
         assert c["gamma_strict"] == pytest.approx(c["R0"] / (1 - c["S"] * nxy), rel=1e-12)
-        for key in ("build_time_s", "solve_time_s", "T", "eps_w", "margin", "cost"):
+        for key in ("T", "eps_w", "margin", "cost", "controller_sha256"):
             assert key in c
+        assert not {"build_time_s", "solve_time_s"} & set(c)  # timings: manifest only
+        assert set(manifest["results"]["timings"][n]) == {"build_time_s", "solve_time_s"}
     assert certs["l1_nominal"]["robust"] is False and certs["l1_robust"]["robust"] is True
     assert certs["l1_robust"]["S"] == 0.13 and certs["l1_robust"]["eps_e"] == 0.05
     # S = 0.13 makes the constraint active: the nominal violates it, the robust one sits on it

@@ -155,8 +155,7 @@ def certify(
     n_xx = sls.l1_norm(taps.Phi_xx, model.H)
     g = guarantee(n_xy, n_xx, setting)
     fields: dict[str, Any] = {
-        "norm_phi_xx": n_xx,  # ||Phi_xx H|| (H = I by default)
-        "norm_phi_xx_h": n_xx,
+        "norm_phi_xx_h": n_xx,  # ||Phi_xx H|| (H = I by default)
         "norm_phi_xy": n_xy,
         "norm_phi_ux": sls.l1_norm(taps.Phi_ux, model.H),
         "norm_phi_uy": sls.l1_norm(taps.Phi_uy),

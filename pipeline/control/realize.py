@@ -22,16 +22,11 @@ Units and signs (contracts.md): ``y`` is the measurement minus the reference sta
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from qsls.pipeline.control.sls import Taps
-from qsls.pipeline.core.errors import InputError
-
-CONTROLLER_FILE = "controller.npz"
-CERTIFICATE_FILE = "certificate.yaml"
+from qsls.pipeline.control.sls import Taps, side_by_side
 
 
 @dataclass(frozen=True)
@@ -69,18 +64,13 @@ class FilterBank:
         return {"K_bb": self.K_bb, "K_by": self.K_by, "K_ub": self.K_ub, "K_uy": self.K_uy}
 
 
-def _side(taps: np.ndarray) -> np.ndarray:
-    k, r, c = taps.shape
-    return np.transpose(taps, (1, 0, 2)).reshape(r, k * c)
-
-
 def filter_bank(taps: Taps) -> FilterBank:
     """The realization's matrices from the responses (see the module docstring)."""
     return FilterBank(
-        K_bb=-_side(taps.Phi_xx[2:]),
-        K_by=-_side(taps.Phi_xy[1:]),
-        K_ub=_side(taps.Phi_ux[1:]),
-        K_uy=_side(taps.Phi_uy),
+        K_bb=-side_by_side(taps.Phi_xx[2:]),
+        K_by=-side_by_side(taps.Phi_xy[1:]),
+        K_ub=side_by_side(taps.Phi_ux[1:]),
+        K_uy=side_by_side(taps.Phi_uy),
     )
 
 
@@ -151,41 +141,3 @@ class StaticGainController:
 
     def step(self, y: np.ndarray) -> np.ndarray:
         return self.K @ np.asarray(y, dtype=float)
-
-
-def taps_from_npz(data: Any) -> Taps:
-    return Taps(
-        **{n: np.asarray(data[n], dtype=float) for n in ("Phi_xx", "Phi_ux", "Phi_xy", "Phi_uy")}
-    )
-
-
-def load_controller(folder: Path) -> RealizedController | StaticGainController:
-    """The controller stored in ``folder`` (``controller.npz`` + ``certificate.yaml``)."""
-    import yaml
-
-    folder = Path(folder)
-    f = folder / CONTROLLER_FILE
-    if not f.is_file():
-        raise InputError(
-            f"{folder}: no {CONTROLLER_FILE}; pass a controller folder written by 'qsls synth'"
-        )
-    try:
-        with np.load(f, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{f}: not a readable controller file ({exc})") from None
-    cert: dict[str, Any] = {}
-    cf = folder / CERTIFICATE_FILE
-    if cf.is_file():
-        cert = yaml.safe_load(cf.read_text()) or {}
-    kind = str(arrays.get("kind", np.array("filter_bank")))
-    dt = float(arrays["dt"]) if "dt" in arrays else float(cert.get("dt", 0.1))
-    name = folder.name
-    if kind == "static_gain":
-        return StaticGainController(arrays["K"], dt, certificate=cert, name=name)
-    try:
-        bank = FilterBank(**{k: arrays[k] for k in ("K_bb", "K_by", "K_ub", "K_uy")})
-    except KeyError as exc:
-        raise InputError(f"{f}: missing array {exc}; regenerate it with 'qsls synth'") from None
-    sp = cert.get("strictly_proper")
-    return RealizedController(bank, dt, certificate=cert, strictly_proper=sp, name=name)

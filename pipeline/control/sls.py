@@ -49,6 +49,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from qsls.pipeline.control.plant import LinearModel
+from qsls.pipeline.core.errors import SolverError
 
 Norm = Literal["l1", "h2"]
 Cost = Literal["qr", "imitation", "min_phi_xy", "ratio", "none"]
@@ -480,7 +481,7 @@ def min_phi_xy(
         model, Structure(T, "l1", "min_phi_xy", False, strictly_proper), Values(), solver=solver
     )
     if sol.taps is None:
-        raise RuntimeError(f"min ||Phi_xy|| problem failed: {sol.solver_status}")
+        raise SolverError(f"the smallest-||Phi_xy|| problem failed ({sol.solver_status})")
     return l1_norm(sol.taps.Phi_xy)
 
 
@@ -528,7 +529,7 @@ def max_feasible_s(
         )
         total += sol.solve_time_s
         if sol.taps is None:
-            raise RuntimeError(f"max-S subproblem failed: {sol.solver_status}")
+            raise SolverError(f"the largest-feasible-S subproblem failed ({sol.solver_status})")
         nxy = l1_norm(sol.taps.Phi_xy)
         nxx = l1_norm(sol.taps.Phi_xx, model.H)
         new = (c0 - eps_w / radius * nxx) / nxy

@@ -29,6 +29,12 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.control import sls
+from qsls.pipeline.control.artifacts import (
+    CERTIFICATE_FILE,
+    CONTROLLER_FILE,
+    Certificate,
+    Controller,
+)
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.plant import (
     NU,
@@ -42,7 +48,7 @@ from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.errormodel.model import ERROR_MODEL_FILE, ErrorModel, load_error_model
+from qsls.pipeline.errormodel.model import ErrorModel, error_model_file, load_error_model
 
 Number = float | str
 
@@ -212,10 +218,8 @@ def read_model(path: Path | None) -> tuple[ErrorModel | None, str | None, Path |
     """``(error model, sha256 of error_model.yaml, file)``; all None without a path."""
     if path is None:
         return None, None, None
-    em = load_error_model(path)
-    p = Path(path)
-    f = p / ERROR_MODEL_FILE if p.is_dir() else p
-    return em, sha256_file(f), f
+    f = error_model_file(path)
+    return load_error_model(f), sha256_file(f), f
 
 
 # --------------------------------------------------------------------------- diagnosis
@@ -263,18 +267,21 @@ def diagnosis_message(d: dict[str, Any]) -> str:
 
 # --------------------------------------------------------------------------- one controller
 @dataclass(frozen=True)
-class Controller:
-    """One synthesized (or reference) controller: taps, certificate and npz arrays."""
+class Built:
+    """One synthesized (or reference) controller with its certificate, ready to write."""
 
     name: str
-    status: str
-    taps: sls.Taps
-    certificate: dict[str, Any]
-    arrays: dict[str, np.ndarray]
+    controller: Controller
+    certificate: Certificate
+    timings: dict[str, float] = field(default_factory=dict)
 
+    @property
+    def status(self) -> str:
+        return self.certificate.status
 
-def model_arrays(m: LinearModel) -> dict[str, np.ndarray]:
-    return {"A": m.A, "B": m.B, "C": m.C, "H": m.H, "dt": np.array(m.dt), "mass": np.array(m.mass)}
+    @property
+    def taps(self) -> sls.Taps:
+        return self.controller.taps
 
 
 def solve_one(
@@ -288,6 +295,11 @@ def solve_one(
     return sls.solve(r.model, structure, r.values(nominal), solver=solver)
 
 
+def _built(name: str, ctrl: Controller, cert: dict[str, Any], timings: dict[str, float]) -> Built:
+    cert = {**cert, "controller_sha256": ctrl.sha256()}
+    return Built(name, ctrl, Certificate.model_validate(cert), timings)
+
+
 def certified_controller(
     name: str,
     sol: sls.Solution,
@@ -295,15 +307,14 @@ def certified_controller(
     structure: sls.Structure,
     *,
     extra: dict[str, Any] | None = None,
-) -> Controller:
-    """Certify a solution and assemble its certificate and arrays."""
+    nominal: sls.Taps | None = None,
+) -> Built:
+    """Certify a solution and assemble its certificate and controller."""
     from qsls.pipeline.control.certify import certify
-    from qsls.pipeline.control.realize import filter_bank
 
     assert sol.taps is not None
     status, fields = certify(sol.taps, r.model, r.setting(), solver_status=sol.status)
     q_half, r_half = sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R)
-    nominal = (extra or {}).get("_nominal_taps")
     cost = sls.cost_value(
         structure.norm, sol.taps, r.model, q_half, r_half, r.eps_w, r.eps_e,
         nominal if structure.cost == "imitation" else None,
@@ -320,26 +331,18 @@ def certified_controller(
         "T": structure.T,
         **r.record(),
         **fields,
-        "build_time_s": sol.build_time_s,
-        "solve_time_s": sol.solve_time_s,
         "solver_status": sol.solver_status,
         "dt": r.model.dt,
         "mass": r.model.mass,
-        "Q": r.Q,
-        "R": r.R,
+        "Q": r.Q.tolist(),
+        "R": r.R.tolist(),
+        **(extra or {}),
     }
-    cert.update({k: v for k, v in (extra or {}).items() if not k.startswith("_")})
-    bank = filter_bank(sol.taps)
-    arrays = {
-        **sol.taps.arrays(),
-        **model_arrays(r.model),
-        **bank.arrays(),
-        "kind": np.array("filter_bank"),
-    }
-    return Controller(name, status, sol.taps, cert, arrays)
+    timings = {"build_time_s": sol.build_time_s, "solve_time_s": sol.solve_time_s}
+    return _built(name, Controller(sol.taps, r.model), cert, timings)
 
 
-def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) -> Controller:
+def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) -> Built:
     from qsls.pipeline.control.certify import certify
     from qsls.pipeline.control.nominal import pd_responses, spectral_radius
 
@@ -362,20 +365,16 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
         "mass": r.model.mass,
         **extra,
     }
-    arrays = {**taps.arrays(), **model_arrays(r.model), "K": K, "kind": np.array("static_gain")}
-    return Controller("pd", status, taps, cert, arrays)
+    return _built("pd", Controller(taps, r.model, "static_gain", K), cert, {})
 
 
 def nominal_from_folder(path: Path, T: int) -> sls.Taps:
-    from qsls.pipeline.control.realize import CONTROLLER_FILE, taps_from_npz
-
-    f = Path(path) / CONTROLLER_FILE
-    if not f.is_file():
+    """The responses of the controller in ``path``, truncated (or padded) to ``T`` taps."""
+    if not (Path(path) / CONTROLLER_FILE).is_file():
         raise InputError(
             f"imitate: {path} has no {CONTROLLER_FILE}; give pd, l1_nominal or a controller folder"
         )
-    with np.load(f, allow_pickle=False) as data:
-        return taps_from_npz(data).truncated(T)
+    return Controller.load(Path(path)).taps.truncated(T)
 
 
 # --------------------------------------------------------------------------- synth
@@ -438,7 +437,7 @@ def synth(
         d = diagnose(r, options.T, options.strictly_proper, options.solver)
         raise InfeasibleError(diagnosis_message(d), d)
     progress.start("synth", total=len(plan) + 1)
-    ctrls: dict[str, Controller] = {}
+    ctrls: dict[str, Built] = {}
     pd = pd_controller(r, options.pd, options.T, base_extra)
     ctrls["pd"] = pd
     progress.advance()
@@ -456,7 +455,6 @@ def synth(
             else:
                 nominal = nominal_from_folder(Path(target), options.T)
             extra["imitate"] = target
-            extra["_nominal_taps"] = nominal
         sol = solve_one(r, st, nominal=nominal, solver=options.solver)
         if sol.status == "infeasible":
             d = diagnose(r, options.T, options.strictly_proper, options.solver)
@@ -466,21 +464,22 @@ def synth(
             raise SolverError(
                 f"{name}: the solver failed ({sol.solver_status}); nothing was certified"
             )
-        ctrls[name] = certified_controller(name, sol, r, st, extra=extra)
+        ctrls[name] = certified_controller(name, sol, r, st, extra=extra, nominal=nominal)
         progress.advance()
     progress.finish()
     with StageWriter(
         out, "synth", options=options, inputs=[em_file] if em_file else [], force=force
     ) as w:
         for name, c in ctrls.items():
-            w.write_npz(f"{name}/controller.npz", c.arrays)
-            w.write_yaml(f"{name}/certificate.yaml", c.certificate)
+            w.write_bytes(f"{name}/{CONTROLLER_FILE}", c.controller.to_bytes())
+            w.write_text(f"{name}/{CERTIFICATE_FILE}", c.certificate.to_yaml())
         w.results["controllers"] = {n: c.status for n, c in ctrls.items()}
+        w.results["timings"] = {n: c.timings for n, c in ctrls.items() if c.timings}
         w.results["error_model_sha256"] = sha
     return SynthResult(
         Path(out),
         {n: c.status for n, c in ctrls.items()},
-        {n: c.certificate for n, c in ctrls.items()},
+        {n: c.certificate.model_dump() for n, c in ctrls.items()},
     )
 
 

@@ -40,6 +40,7 @@ from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import (
     ERROR_MODEL_FILE,
+    TRAINING_FILE,
     AxisStats,
     ErrorModel,
     SlopeStats,
@@ -50,7 +51,6 @@ from qsls.pipeline.ingest.flight import AXES, E_COLS, X_COLS, read_flight
 from qsls.pipeline.sim.references import ReferenceOptions
 
 STAGE = "fit"
-TRAINING_FILE = "training_states.parquet"
 FIGURES = ("slope_distribution.png", "error_norm.png", "worst_pairs.png")
 _MAD = 1.4826
 

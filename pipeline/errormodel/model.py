@@ -12,13 +12,17 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from qsls.pipeline.core.errors import InputError
 
+if TYPE_CHECKING:
+    import pandas as pd
+
 ERROR_MODEL_FILE = "error_model.yaml"
+TRAINING_FILE = "training_states.parquet"
 _PCT = re.compile(r"^p(\d+(?:\.\d+)?)$")
 
 
@@ -126,15 +130,21 @@ def _lookup(table: dict[str, float], key: str, what: str, name: Any) -> float:
     return float(table[key])
 
 
+def error_model_file(path: Path) -> Path:
+    """``error_model.yaml`` given either the file or the ``qsls fit`` folder that holds it."""
+    p = Path(path)
+    f = p / ERROR_MODEL_FILE if p.is_dir() else p
+    if not f.is_file():
+        raise InputError(f"{p}: no {ERROR_MODEL_FILE}; pass the output of 'qsls fit'")
+    return f
+
+
 def load_error_model(path: Path) -> ErrorModel:
     """Read ``error_model.yaml`` (or a fit folder holding it); clear errors when malformed."""
     import yaml
     from pydantic import ValidationError
 
-    p = Path(path)
-    f = p / ERROR_MODEL_FILE if p.is_dir() else p
-    if not f.is_file():
-        raise InputError(f"{p}: no {ERROR_MODEL_FILE}; pass the output of 'qsls fit'")
+    f = error_model_file(path)
     try:
         data = yaml.safe_load(f.read_text())
     except yaml.YAMLError:
@@ -151,3 +161,16 @@ def load_error_model(path: Path) -> ErrorModel:
         raise InputError(
             f"{f}: malformed error model ('{loc}': {first.get('msg')}); regenerate it with 'qsls fit'"
         ) from None
+
+
+def load_training_states(fit_dir: Path) -> pd.DataFrame:
+    """``FITDIR/training_states.parquet``: the states (``x_*``, with ``e_*``) the model was fitted on."""
+    import pandas as pd
+
+    path = Path(fit_dir) / TRAINING_FILE
+    if not path.is_file():
+        raise InputError(
+            f"{fit_dir}: no {TRAINING_FILE} beside {ERROR_MODEL_FILE}; pass the folder written "
+            "by 'qsls fit'"
+        )
+    return pd.read_parquet(path)

@@ -39,18 +39,20 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
+from qsls.pipeline.control.sls import l1_norm
 from qsls.pipeline.core.artifacts import StageWriter, require_stage, sha256_file, sha256_path
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.errormodel.model import ERROR_MODEL_FILE, ErrorModel, load_error_model
+from qsls.pipeline.errormodel.model import (
+    TRAINING_FILE,
+    ErrorModel,
+    error_model_file,
+    load_error_model,
+    load_training_states,
+)
 from qsls.pipeline.ingest.flight import E_COLS, X_COLS, read_flight
-
-CERTIFICATE_FILE = "certificate.yaml"
-CONTROLLER_FILE = "controller.npz"
-TRAINING_FILE = "training_states.parquet"
-# Certificate keys under which synth may record the error model's sha256.
-_HASH_KEYS = ("error_model_sha256", "model_sha256", "error_model_hash", "sha256_error_model")
 
 
 class EvaluateOptions(Options):
@@ -134,78 +136,29 @@ class ControllerBound:
         return self.eps_e + self.S * np.asarray(distance, dtype=float)
 
 
-def fir_inf_norm(taps: np.ndarray) -> float:
-    """Induced inf-to-inf norm of an FIR operator ``(T+1, rows, cols)``: the largest row sum
-    of absolute values over all taps side by side."""
-    taps = np.asarray(taps, dtype=float)
-    return float(np.abs(taps).sum(axis=(0, 2)).max()) if taps.size else 0.0
-
-
-def _float(cert: dict[str, Any], key: str, folder: Path, default: float | None = None) -> float:
-    value = cert.get(key, default)
-    if value is None:
-        raise InputError(
-            f"{folder / CERTIFICATE_FILE}: no '{key}'; regenerate the controller with 'qsls synth'"
-        )
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        raise InputError(
-            f"{folder / CERTIFICATE_FILE}: '{key}' is not a number ({value!r})"
-        ) from None
-
-
 def load_controller_bound(folder: Path) -> ControllerBound:
-    """Read a controller folder's ``certificate.yaml`` (and its ``controller.npz`` when present,
-    whose responses give the norms independently of the certificate)."""
-    import yaml
-
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError(f"{folder}: no such controller folder")
-    cpath = folder / CERTIFICATE_FILE
-    if not cpath.is_file():
-        raise InputError(
-            f"{folder}: no {CERTIFICATE_FILE}; pass a controller folder written by 'qsls synth' "
-            "(one folder per controller inside the synth output)"
-        )
-    try:
-        cert = yaml.safe_load(cpath.read_text())
-    except yaml.YAMLError:
-        raise InputError(f"{cpath}: not valid YAML; regenerate it with 'qsls synth'") from None
-    if not isinstance(cert, dict):
-        raise InputError(f"{cpath}: not a certificate (expected a mapping)")
-    norm_xy = _float(cert, "norm_phi_xy", folder)
-    norm_xx = _float(cert, "norm_phi_xx_h", folder, cert.get("norm_phi_xx"))
-    npz = folder / CONTROLLER_FILE
-    if npz.is_file():
-        with np.load(npz) as z:
-            if "Phi_xy" in z.files:
-                norm_xy = fir_inf_norm(z["Phi_xy"])
-            if "Phi_xx" in z.files:
-                h = z["H"] if "H" in z.files else np.eye(z["Phi_xx"].shape[2])
-                norm_xx = fir_inf_norm(z["Phi_xx"] @ h)
-    eps_e = _float(cert, "eps_e", folder)
-    model_hash = next((str(cert[k]) for k in _HASH_KEYS if cert.get(k)), None)
+    """The bound's numbers from a verified controller folder (:func:`load_controller_dir`):
+    the setting from its certificate, the norms ``||Phi_xy||`` and ``||Phi_xx H||`` recomputed
+    from its responses."""
+    d = load_controller_dir(folder)
+    c, taps = d.certificate, d.controller.taps
     return ControllerBound(
-        name=str(cert.get("name") or folder.name),
-        folder=folder,
-        status=str(cert.get("status", "unknown")),
-        robust=bool(cert.get("robust", False)),
-        S=_float(cert, "S", folder),
-        eps_e=eps_e,
-        R0=_float(cert, "R0", folder, eps_e),
-        eps_w=_float(cert, "eps_w", folder, 0.0),
-        norm_phi_xx_h=norm_xx,
-        norm_phi_xy=norm_xy,
-        radius=_float(cert, "radius", folder, math.inf),
-        delta=_float(cert, "delta", folder, 0.0),
-        gamma_certificate=_float(cert, "gamma", folder, math.inf),
-        model_sha256=model_hash,
-        robustness_lhs=_float(cert, "robustness_lhs", folder, math.nan)
-        if cert.get("robustness_lhs") is not None
-        else None,
-        certificate=cert,
+        name=d.name,
+        folder=d.folder,
+        status=c.status,
+        robust=c.robust,
+        S=c.S,
+        eps_e=c.eps_e,
+        R0=c.R0,
+        eps_w=c.eps_w,
+        norm_phi_xx_h=l1_norm(taps.Phi_xx, d.controller.model.H),
+        norm_phi_xy=l1_norm(taps.Phi_xy),
+        radius=c.radius,
+        delta=c.delta,
+        gamma_certificate=c.gamma,
+        model_sha256=c.error_model_sha256,
+        robustness_lhs=c.robustness_lhs,
+        certificate=c.model_dump(),
     )
 
 
@@ -286,13 +239,8 @@ class TrainingData:
 
 def load_training(fit_dir: Path, model: ErrorModel, scale: Sequence[float] | None) -> TrainingData:
     """``FITDIR/training_states.parquet`` (columns ``x_px .. x_vz``, optionally ``e_*``)."""
+    df = load_training_states(fit_dir)
     path = Path(fit_dir) / TRAINING_FILE
-    if not path.is_file():
-        raise InputError(
-            f"{fit_dir}: no {TRAINING_FILE} beside {ERROR_MODEL_FILE}; pass the folder written "
-            "by 'qsls fit' (evaluate needs the training states for the distance to them)"
-        )
-    df = pd.read_parquet(path)
     missing = [c for c in X_COLS if c not in df.columns]
     if missing:
         raise InputError(
@@ -490,10 +438,7 @@ class EvaluateResult:
 
 def resolve_model(path: Path) -> tuple[Path, Path]:
     """``(error_model.yaml, fit folder)`` from either."""
-    p = Path(path)
-    f = p / ERROR_MODEL_FILE if p.is_dir() else p
-    if not f.is_file():
-        raise InputError(f"{p}: no {ERROR_MODEL_FILE}; pass the output of 'qsls fit'")
+    f = error_model_file(path)
     return f, f.parent
 
 

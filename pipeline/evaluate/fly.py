@@ -588,12 +588,13 @@ def _select(folders: list[Path], names: list[str] | None) -> list[Path]:
 
 def _pd_gain_of(folders: Sequence[Path]) -> tuple[tuple[float, ...], ...] | None:
     """``K`` of a static-gain ``pd`` controller among the folders (synth's PD), if any."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+
     for f in folders:
-        npz = f / "controller.npz"
-        if f.name == "pd" and npz.is_file():
-            with np.load(npz, allow_pickle=False) as z:
-                if "K" in z.files:
-                    return tuple(tuple(float(v) for v in row) for row in z["K"])
+        if f.name == "pd":
+            K = load_controller_dir(f).controller.K
+            if K is not None:
+                return tuple(tuple(float(v) for v in row) for row in K)
     return None
 
 

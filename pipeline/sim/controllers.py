@@ -17,7 +17,7 @@ through the paper's ``B``: ``u_ff = [-a_x / g, a_y / g, m a_z]``.
 - :class:`PDController`: ``u = hover + u_ff + K (y - r)`` with ``K`` from
   :func:`qsls.pipeline.control.pdgain.pd_gain`.
 - :class:`LinearController`: a synthesized controller from
-  :func:`qsls.pipeline.control.realize.load_controller` (``.dt``, ``.reset()``, ``.step(y - r)`` ->
+  :func:`qsls.pipeline.control.artifacts.load_runtime` (``.dt``, ``.reset()``, ``.step(y - r)`` ->
   deviation from hover + feedforward).
 """
 
@@ -198,8 +198,6 @@ def controller_folder(spec: str | Path) -> Path:
             f"controller '{spec}': expected 'se3', 'pd' or a synthesized controller folder "
             "(one holding controller.npz, written by qsls synth)"
         )
-    if not (path / "controller.npz").is_file():
-        raise InputError(f"{path}: no controller.npz here; pass a folder written by qsls synth")
     return path
 
 
@@ -216,9 +214,9 @@ def make_controller(options: ControllerOptions, mass: float) -> Controller:
     if kind == "pd":
         return PDController(options.pd, mass, rate_dt or PAPER_DT_S)
     folder = controller_folder(kind)
-    from qsls.pipeline.control.realize import load_controller
+    from qsls.pipeline.control.artifacts import load_runtime
 
-    runtime = load_controller(folder)
+    runtime = load_runtime(folder)
     name = str(getattr(runtime, "name", None) or folder.name)
     if rate_dt is not None and abs(rate_dt - runtime.dt) > 1e-9:
         raise InputError(

@@ -1,0 +1,299 @@
+"""The files of a controller folder, each read and written here and nowhere else.
+
+A controller folder (one per controller inside a ``qsls synth`` output) holds:
+
+- ``controller.npz`` (:class:`Controller`): the FIR responses ``Phi_xx, Phi_ux, Phi_xy,
+  Phi_uy`` (taps ``0..T``), the plant ``A, B, C, H``, ``dt``, ``mass``, ``kind``; for a
+  filter bank the realization gains ``K_bb, K_by, K_ub, K_uy`` (DESIGN.md, Realization), for
+  a static gain (the PD reference) its ``K``. The gains are redundant with the taps: on load
+  they are recomputed from the taps and a file whose stored gains differ is refused.
+- ``certificate.yaml`` (:class:`Certificate`): the setting, norms, guarantee and checks, and
+  the sha256 of the ``controller.npz`` it certifies. :func:`load_controller_dir` refuses a
+  pair whose hashes do not match.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from qsls.pipeline.control.plant import LinearModel
+from qsls.pipeline.control.realize import (
+    FilterBank,
+    RealizedController,
+    StaticGainController,
+    filter_bank,
+)
+from qsls.pipeline.control.sls import RESPONSES, Taps
+from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_yaml, npz_bytes
+from qsls.pipeline.core.errors import InputError
+
+CONTROLLER_FILE = "controller.npz"
+CERTIFICATE_FILE = "certificate.yaml"
+
+Kind = Literal["filter_bank", "static_gain"]
+
+GAIN_TOL = 1e-12
+"""Largest relative difference between stored and recomputed realization gains."""
+
+
+def _plant_arrays(m: LinearModel) -> dict[str, np.ndarray]:
+    return {"A": m.A, "B": m.B, "C": m.C, "H": m.H, "dt": np.array(m.dt), "mass": np.array(m.mass)}
+
+
+@dataclass(frozen=True)
+class Controller:
+    """``controller.npz``: a controller's responses and plant (the gains follow from them)."""
+
+    taps: Taps
+    model: LinearModel
+    kind: Kind = "filter_bank"
+    K: np.ndarray | None = None
+    """The static gain ``u = K y`` of a ``static_gain`` controller (the PD reference)."""
+
+    @property
+    def T(self) -> int:
+        return self.taps.T
+
+    @property
+    def dt(self) -> float:
+        return float(self.model.dt)
+
+    @property
+    def mass(self) -> float:
+        return float(self.model.mass)
+
+    @property
+    def strictly_proper(self) -> bool:
+        """``Phi_uy(0) = 0``: ``u[k]`` uses ``y`` up to ``k-1`` only."""
+        return self.kind == "filter_bank" and not np.any(self.taps.Phi_uy[0])
+
+    @property
+    def bank(self) -> FilterBank:
+        """The realization gains, derived from the taps (:func:`realize.filter_bank`)."""
+        return filter_bank(self.taps)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every array stored in ``controller.npz``."""
+        out = {**self.taps.arrays(), **_plant_arrays(self.model), "kind": np.array(self.kind)}
+        if self.kind == "static_gain":
+            if self.K is None:
+                raise ValueError("a static_gain controller needs K")
+            out["K"] = np.asarray(self.K, dtype=float)
+        else:
+            out.update(self.bank.arrays())
+        return out
+
+    def to_bytes(self) -> bytes:
+        """The deterministic bytes of ``controller.npz``."""
+        return npz_bytes(self.arrays())
+
+    def sha256(self) -> str:
+        return hashlib.sha256(self.to_bytes()).hexdigest()
+
+    def save(self, path: Path) -> Path:
+        """Write ``path`` (a folder: ``path/controller.npz``) atomically."""
+        f = _file(Path(path), CONTROLLER_FILE)
+        atomic_write_bytes(f, self.to_bytes())
+        return f
+
+    @classmethod
+    def load(cls, path: Path) -> Controller:
+        """Read ``controller.npz`` (or a folder holding it); refuse gains that do not match the taps."""
+        f = _file(Path(path), CONTROLLER_FILE)
+        if not f.is_file():
+            raise InputError(
+                f"{f.parent}: no {CONTROLLER_FILE}; pass a controller folder written by 'qsls synth'"
+            )
+        try:
+            with np.load(f, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{f}: not a readable controller file ({exc})") from None
+        missing = [k for k in (*RESPONSES, "A", "B", "C", "H", "dt", "mass") if k not in arrays]
+        if missing:
+            raise InputError(
+                f"{f}: missing {', '.join(missing)}; regenerate the controller with 'qsls synth'"
+            )
+        taps = Taps(**{n: np.asarray(arrays[n], dtype=float) for n in RESPONSES})
+        model = LinearModel(
+            A=arrays["A"], B=arrays["B"], C=arrays["C"], H=arrays["H"],
+            dt=float(arrays["dt"]), mass=float(arrays["mass"]),
+        )  # fmt: skip
+        kind = str(arrays.get("kind", np.array("filter_bank")))
+        if kind == "static_gain":
+            if "K" not in arrays:
+                raise InputError(f"{f}: a static_gain controller without K")
+            return cls(taps, model, "static_gain", np.asarray(arrays["K"], dtype=float))
+        if kind != "filter_bank":
+            raise InputError(f"{f}: unknown controller kind '{kind}'")
+        ctrl = cls(taps, model, "filter_bank")
+        _check_gains(f, arrays, ctrl.bank)
+        return ctrl
+
+
+def _check_gains(f: Path, arrays: dict[str, np.ndarray], bank: FilterBank) -> None:
+    for name, derived in bank.arrays().items():
+        stored = arrays.get(name)
+        if stored is None:
+            raise InputError(f"{f}: missing {name}; regenerate the controller with 'qsls synth'")
+        scale = max(1.0, float(np.abs(derived).max(initial=0.0)))
+        if stored.shape != derived.shape or np.abs(stored - derived).max() > GAIN_TOL * scale:
+            raise InputError(
+                f"{f}: gain {name} does not match the controller's taps (file altered?); "
+                "refusing to use it: regenerate it with 'qsls synth'"
+            )
+
+
+class Certificate(BaseModel):
+    """``certificate.yaml``: what was certified, against which setting, and the checks.
+
+    The guarantee (DESIGN.md, Robust synthesis): ``||e|| <= gamma = (eps_e + S a) /
+    (1 - S ||Phi_xy||)``, ``a = eps_w ||Phi_xx H|| + Delta``; ``gamma_strict = R0 / (1 - S
+    ||Phi_xy||)``; the robustness condition ``robustness_lhs = (S + eps_e / r) ||Phi_xy|| +
+    (eps_w ||Phi_xx H|| + Delta) / r < 1``.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    controller: str
+    status: str
+    robust: bool
+    norm: str | None = None
+    cost: str | None = None
+    cost_value: float | None = None
+    objective: float | None = None
+    strictly_proper: bool
+    T: int
+    S: float
+    eps_e: float
+    radius: float
+    delta: float
+    eps_w: float
+    R0: float
+    norm_phi_xx_h: float
+    norm_phi_xy: float
+    norm_phi_ux: float
+    norm_phi_uy: float
+    robustness_lhs: float
+    margin: float
+    s_times_norm_phi_xy: float
+    a: float
+    gamma: float
+    gamma_strict: float
+    achievability_residual: float
+    truncation_residual: float | None = None
+    realization_error: float | None = None
+    perturbation_peak: float | None = None
+    perturbation_final: float | None = None
+    checks: dict[str, dict[str, Any]] | None = None
+    solver_status: str | None = None
+    solver: str | None = None
+    dt: float
+    mass: float
+    Q: list[list[float]] | None = None
+    R: list[list[float]] | None = None
+    closed_loop_spectral_radius: float | None = None
+    kp: list[float] | None = None
+    kd: list[float] | None = None
+    imitate: str | None = None
+    error_model: str | None = None
+    error_model_sha256: str | None = None
+    controller_sha256: str
+    """sha256 of the ``controller.npz`` this certificate is about."""
+
+    def to_yaml(self) -> str:
+        return dump_yaml(self.model_dump())
+
+    def save(self, path: Path) -> Path:
+        """Write ``path`` (a folder: ``path/certificate.yaml``) atomically."""
+        f = _file(Path(path), CERTIFICATE_FILE)
+        atomic_write_bytes(f, self.to_yaml().encode())
+        return f
+
+    @classmethod
+    def load(cls, path: Path) -> Certificate:
+        """Read ``certificate.yaml`` (or a folder holding it)."""
+        import yaml
+        from pydantic import ValidationError
+
+        f = _file(Path(path), CERTIFICATE_FILE)
+        if not f.is_file():
+            raise InputError(
+                f"{f.parent}: no {CERTIFICATE_FILE}; pass a controller folder written by "
+                "'qsls synth' (one folder per controller inside the synth output)"
+            )
+        try:
+            data = yaml.safe_load(f.read_text())
+        except yaml.YAMLError:
+            raise InputError(f"{f}: not valid YAML; regenerate it with 'qsls synth'") from None
+        if not isinstance(data, dict):
+            raise InputError(f"{f}: not a certificate (expected a mapping)")
+        try:
+            return cls.model_validate(data)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"])
+            raise InputError(
+                f"{f}: not a certificate of this qsls version ({where}: {first['msg']}); "
+                "regenerate it with 'qsls synth'"
+            ) from None
+
+
+@dataclass(frozen=True)
+class ControllerDir:
+    """A controller folder: its controller, its certificate, verified to belong together."""
+
+    folder: Path
+    controller: Controller
+    certificate: Certificate
+
+    @property
+    def name(self) -> str:
+        return self.folder.name
+
+
+def is_controller_dir(folder: Path) -> bool:
+    return (Path(folder) / CERTIFICATE_FILE).is_file()
+
+
+def load_controller_dir(folder: Path) -> ControllerDir:
+    """Both files of ``folder`` (a ``controller.npz`` path is taken as its folder); refuses a
+    controller whose sha256 is not the one its certificate records, or whose gains do not
+    match its taps."""
+    folder = Path(folder)
+    if folder.is_file() and folder.name == CONTROLLER_FILE:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise InputError(f"{folder}: no such controller folder")
+    cert = Certificate.load(folder)
+    ctrl = Controller.load(folder)
+    actual = hashlib.sha256((folder / CONTROLLER_FILE).read_bytes()).hexdigest()
+    if actual != cert.controller_sha256:
+        raise InputError(
+            f"{folder}: {CONTROLLER_FILE} (sha256 {actual[:12]}) is not the controller its "
+            f"{CERTIFICATE_FILE} certifies ({cert.controller_sha256[:12]}); refusing to use it"
+        )
+    return ControllerDir(folder, ctrl, cert)
+
+
+def _file(path: Path, name: str) -> Path:
+    return path if path.name == name or path.suffix in (".npz", ".yaml") else path / name
+
+
+def load_runtime(folder: Path) -> RealizedController | StaticGainController:
+    """The verified controller of ``folder`` as a runtime (``reset()``, ``step(y) -> u``)."""
+    d = load_controller_dir(folder)
+    cert = d.certificate.model_dump()
+    c = d.controller
+    if c.kind == "static_gain":
+        assert c.K is not None
+        return StaticGainController(c.K, c.dt, certificate=cert, name=d.name)
+    return RealizedController(
+        c.bank, c.dt, certificate=cert, strictly_proper=c.strictly_proper, name=d.name
+    )
