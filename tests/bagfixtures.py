@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qsls.pipeline.ingest.align import matrix_to_quat, quat_to_matrix, rot_z
+from qsls.pipeline.core.rotations import matrix_to_quat, quat_to_matrix, rot_z
 from qsls.pipeline.ingest.sources.write import TF, OdometryStream, PoseStream, write_bag
 
 T0_NS = 1_700_000_000_000_000_000

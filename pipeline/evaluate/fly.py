@@ -41,6 +41,7 @@ from pydantic import Field
 
 from qsls.pipeline.core.errors import InputError, QslsError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.units import NS
 from qsls.pipeline.evaluate.bound import (
     ControllerBound,
     EvaluateOptions,
@@ -59,7 +60,6 @@ from qsls.pipeline.sim.simulate import SimOptions
 
 PAPER_CONTROLLERS = ("pd", "l1_nominal", "l1_robust", "l1_robust_imitation")
 ROBUST_QR = "l1_robust"
-NS = 1_000_000_000
 
 
 class FlyOptions(EvaluateOptions):

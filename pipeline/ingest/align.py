@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qsls.pipeline.core.rotations import rot_z
+
 METHODS = ("4dof", "se3", "none")
 
 
@@ -61,11 +63,6 @@ class Alignment:
         }
 
 
-def rot_z(psi: float) -> np.ndarray:
-    c, s = np.cos(psi), np.sin(psi)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def fit_alignment(src: np.ndarray, dst: np.ndarray, method: str) -> Alignment:
     """The transform of ``method`` that maps ``src`` (VIO) best onto ``dst`` (truth)."""
     src = np.asarray(src, dtype=float)
@@ -87,34 +84,6 @@ def fit_alignment(src: np.ndarray, dst: np.ndarray, method: str) -> Alignment:
     else:
         raise ValueError(f"unknown alignment {method!r}; use one of {', '.join(METHODS)}")
     return Alignment(method, r, mu_d - r @ mu_s)
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(n, 3, 3)`` of quaternions ``(n, 4)`` ``x y z w`` (normalized here)."""
-    q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    x, y, z, w = q.T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=1,
-    )
-
-
-def matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """Quaternions ``(n, 4)`` ``x y z w`` (w >= 0) of rotation matrices ``(n, 3, 3)``."""
-    from scipy.spatial.transform import Rotation
-
-    q = Rotation.from_matrix(np.asarray(m, dtype=float)).as_quat()
-    return np.where(q[:, 3:4] < 0, -q, q)
-
-
-def body_to_world(q: np.ndarray, v_body: np.ndarray) -> np.ndarray:
-    """``R(q) v`` per sample: a child-frame (body) vector in the parent (world) frame."""
-    return np.einsum("nij,nj->ni", quat_to_matrix(q), v_body)
 
 
 def segments(t_ns: np.ndarray, max_gap_ns: int) -> list[slice]:

@@ -378,13 +378,8 @@ def _ingest(
     hashed: Any,
 ) -> IngestResult:
     from qsls.pipeline.core.artifacts import StageWriter
-    from qsls.pipeline.ingest.align import (
-        body_to_world,
-        differentiate,
-        fit_alignment,
-        matrix_to_quat,
-        quat_to_matrix,
-    )
+    from qsls.pipeline.core.rotations import body_to_world, matrix_to_quat, quat_to_matrix
+    from qsls.pipeline.ingest.align import differentiate, fit_alignment
     from qsls.pipeline.ingest.flight import FLIGHT_FILE, make_flight_frame
     from qsls.pipeline.ingest.timesync import estimate_offset
 

@@ -74,6 +74,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.rotations import gravity_in_body
 from qsls.pipeline.ingest.align import fit_alignment
 
 
@@ -86,13 +87,6 @@ class OffsetEstimate:
     at_edge: bool  # best grid point on the edge of the search range
     tilt_rms: float | None = None  # RMS of the g_b mismatch (mean removed) at the offset
     uses_attitude: bool = False  # the cost includes the gravity-direction term
-
-
-def gravity_in_body(q: np.ndarray) -> np.ndarray:
-    """``g_b = R_wb^T e_z`` (the third row of ``R_wb``) per quaternion ``x y z w``."""
-    q = np.asarray(q, dtype=float)
-    x, y, z, w = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
-    return np.column_stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)])
 
 
 def _interp(q: np.ndarray, tt: np.ndarray, a: np.ndarray) -> np.ndarray:

@@ -16,8 +16,8 @@ import numpy as np
 from pydantic import Field
 
 from qsls.pipeline.core.config import Options
-
-NS = 1_000_000_000
+from qsls.pipeline.core.rotations import quat_mul, rotvec_quat
+from qsls.pipeline.core.units import NS
 
 
 class MocapOptions(Options):
@@ -62,29 +62,6 @@ def interpolate_truth(
     qq = q0 + a * (q1 - q0)
     qq /= np.linalg.norm(qq, axis=1, keepdims=True)
     return p, v, qq
-
-
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of ``[x, y, z, w]`` quaternions, row by row."""
-    ax, ay, az, aw = a.T
-    bx, by, bz, bw = b.T
-    return np.stack(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ],
-        axis=1,
-    )
-
-
-def rotvec_quat(phi: np.ndarray) -> np.ndarray:
-    """Quaternions ``exp(phi / 2)`` of rotation vectors (n, 3)."""
-    ang = np.linalg.norm(phi, axis=1, keepdims=True)
-    half = 0.5 * ang
-    k = np.where(ang > 1e-12, np.sin(half) / np.where(ang > 1e-12, ang, 1.0), 0.5)
-    return np.hstack([phi * k, np.cos(half)])
 
 
 def sample_mocap(

@@ -35,9 +35,10 @@ from pydantic import Field
 from qsls.pipeline.core.artifacts import StageWriter
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.rotations import quat_mul
 from qsls.pipeline.sim.closedloop import NS, FlightLog, FlightOptions, fly
 from qsls.pipeline.sim.controllers import Controller
-from qsls.pipeline.sim.mocap import MocapOptions, quat_mul, sample_mocap
+from qsls.pipeline.sim.mocap import MocapOptions, sample_mocap
 
 STAGE = "simulate"
 FORMATS = ("ros1", "ros2-sqlite", "ros2-mcap", "mcap")

@@ -45,6 +45,7 @@ from pydantic import Field
 
 from qsls.pipeline.control.plant import GRAVITY
 from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.rotations import quat_to_matrix
 
 _D = 0.08  # arm length (m)
 _S2 = 0.70710678118
@@ -137,22 +138,6 @@ def ctatt_to_paper(thrust: float, q: np.ndarray) -> np.ndarray:
     theta = np.arcsin(np.clip(-r20, -1.0, 1.0))
     phi = np.arctan2(r21, r22)
     return np.array([-theta, -phi, float(thrust)])
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix of the quaternion ``[x, y, z, w]`` (normalized first, like scipy)."""
-    x, y, z, w = q / np.sqrt(q @ q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def _hat(s: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -s[2], s[1]], [s[2], 0.0, -s[0]], [-s[1], s[0], 0.0]])
 
 
 class Vehicle:
@@ -387,5 +372,4 @@ __all__ = [
     "ctatt_to_paper",
     "paper_to_ctatt",
     "quad_params",
-    "quat_to_matrix",
 ]
