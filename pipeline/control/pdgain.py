@@ -12,8 +12,6 @@ and the simulator flies it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 
 from qsls.pipeline.control.plant import GRAVITY
@@ -34,8 +32,3 @@ def pd_gain(gains: PDGains, mass: float, g: float = GRAVITY) -> np.ndarray:
     accel = -np.hstack([np.diag(kp), np.diag(kd)])  # a = accel @ (y - r)
     to_input = np.diag([-1.0 / g, 1.0 / g, mass])
     return to_input @ accel
-
-
-def pd_command(k: np.ndarray, y: Sequence[float], r: Sequence[float]) -> np.ndarray:
-    """``u = K (y - r)``."""
-    return k @ (np.asarray(y, dtype=float) - np.asarray(r, dtype=float))

@@ -170,11 +170,6 @@ def achievability_residuals(taps: Taps, model: LinearModel) -> dict[str, float]:
     return {k: float(v) for k, v in res.items()}
 
 
-def achievability_residual(taps: Taps, model: LinearModel) -> float:
-    """Max absolute residual over all achievability equations."""
-    return max(achievability_residuals(taps, model).values())
-
-
 def robustness_lhs(
     norm_xy: float,
     norm_xx_h: float,
@@ -544,7 +539,3 @@ def max_feasible_s(
     s_max = lam - eps_e / radius
     s_max -= 1e-7 * max(abs(s_max), 1e-3)
     return MaxS(s_max, lam, nxy, nxx, it, total)
-
-
-def replace_values(v: Values, **kw: Any) -> Values:
-    return replace(v, **kw)

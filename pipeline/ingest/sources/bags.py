@@ -606,9 +606,3 @@ class BagSource:
             msgs = [self._reader.deserialize(x, mt) for x in raws]
         arrays = objects_to_arrays(msgs, logs, mt, truth_frame, info.topic)
         return _trajectory(info.topic, mt, *arrays, "deserializer")
-
-
-def iter_topics(paths: list[Path]) -> Iterator[TopicInfo]:
-    for p in paths:
-        with BagSource(p) as src:
-            yield from src.topics()
