@@ -46,8 +46,14 @@ from qsls.pipeline.errormodel.model import (
     SlopeStats,
     WorstPair,
 )
-from qsls.pipeline.errormodel.slopes import PairSlopes, nearest_distance, pair_slopes, pct_name
-from qsls.pipeline.ingest.flight import AXES, E_COLS, X_COLS, read_flight
+from qsls.pipeline.errormodel.slopes import (
+    PairSlopes,
+    nearest_distance,
+    pair_slopes,
+    pct_name,
+    percentile_table,
+)
+from qsls.pipeline.ingest.flight import AXES, E_COLS, X_COLS, errors, read_flight, states
 from qsls.pipeline.sim.references import ReferenceOptions
 
 STAGE = "fit"
@@ -199,8 +205,8 @@ def _load(flights: list[Path], options: FitOptions) -> _Training:
     names = _flight_names(flights)
     fi = np.concatenate([np.full(len(df), k) for k, df in enumerate(tables)])
     t = np.concatenate([df["t"].to_numpy(float) for df in tables])
-    x = np.concatenate([df.loc[:, list(X_COLS)].to_numpy(float) for df in tables])
-    e = np.concatenate([df.loc[:, list(E_COLS)].to_numpy(float) for df in tables])
+    x = np.concatenate([states(df) for df in tables])
+    e = np.concatenate([errors(df) for df in tables])
     if len(t) == 0:
         raise InputError("the flights hold no samples")
     finite = np.isfinite(x).all(axis=1) & np.isfinite(e).all(axis=1)
@@ -285,7 +291,7 @@ def reference_states(options: FitOptions) -> tuple[np.ndarray | None, str | None
         if p.is_dir():
             require_stage(p, "ingest")
             df = read_flight(p)
-            xr = df.loc[:, list(X_COLS)].to_numpy(float)
+            xr = states(df)
             xr = xr[np.isfinite(xr).all(axis=1)]
             if len(xr) == 0:
                 raise InputError(f"{p}: the reference flight has no finite states")
@@ -380,11 +386,6 @@ def _axis_stats(e: np.ndarray) -> dict[str, AxisStats]:
     return out
 
 
-def _pct(values: np.ndarray, qs: list[float]) -> dict[str, float]:
-    got = np.percentile(values, qs)
-    return {pct_name(q): float(v) for q, v in zip(qs, got, strict=True)}
-
-
 def fit(
     flights: list[Path],
     options: FitOptions,
@@ -448,7 +449,7 @@ def fit(
         )
     enorm = np.abs(e).max(axis=1)
     eps_e = float(enorm.max())
-    eps_pct = _pct(enorm, options.percentiles)
+    eps_pct = percentile_table(enorm, options.percentiles)
     r0 = _resolve_r0(options.r0, eps_e, eps_pct)
     delta = 0.0
     if ref_x is not None:

@@ -57,7 +57,8 @@ def pct_name(q: float) -> str:
     return f"p{float(q):g}"
 
 
-def _percentiles(values: np.ndarray, qs: Sequence[float]) -> dict[str, float]:
+def percentile_table(values: np.ndarray, qs: Sequence[float]) -> dict[str, float]:
+    """``{pNN: value}`` of ``values`` at the percentiles ``qs`` (NaN when empty)."""
     if len(values) == 0:
         return {pct_name(q): float("nan") for q in qs}
     got = np.percentile(values, list(qs))
@@ -543,11 +544,11 @@ def pair_slopes(
     has = np.isfinite(loc)
     n_pairs = acc.n_pairs if acc else 0
     if acc is not None and acc.exact is not None and n_pairs > 0:
-        pcts, rel = _percentiles(np.concatenate(acc.exact), qs), 0.0
+        pcts, rel = percentile_table(np.concatenate(acc.exact), qs), 0.0
     elif acc is not None:
         pcts, rel = acc.hist.percentiles(qs), (HIST_REL_ERROR if n_pairs > 0 else 0.0)
     else:
-        pcts, rel = _percentiles(np.zeros(0), qs), 0.0
+        pcts, rel = percentile_table(np.zeros(0), qs), 0.0
     worst = []
     if acc is not None:
         worst = [
@@ -568,7 +569,7 @@ def pair_slopes(
         percentiles=pcts,
         percentile_rel_error=rel,
         local_max=loc,
-        local_max_percentiles=_percentiles(loc[has], qs),
+        local_max_percentiles=percentile_table(loc[has], qs),
         n_with_partners=int(has.sum()),
         worst=worst,
         histogram=acc.hist if acc else SlopeHistogram(),
@@ -590,7 +591,7 @@ def _boot_finish(acc: _Acc, W: np.ndarray, qs: Sequence[float]) -> BootstrapSlop
             pct[k][b] = v
         has = (acc.blocal[b] >= 0) & (Ws[b] > 0)
         vals = np.repeat(acc.blocal[b][has], Ws[b][has].astype(np.int64))
-        for k, v in _percentiles(vals, qs).items():
+        for k, v in percentile_table(vals, qs).items():
             lpct[k][b] = v
     mx = np.where(acc.bmax >= 0, acc.bmax, np.nan)
     return BootstrapSlopes(max=mx, percentiles=pct, local_max_percentiles=lpct)

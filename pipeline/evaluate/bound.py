@@ -52,7 +52,7 @@ from qsls.pipeline.errormodel.model import (
     load_error_model,
     load_training_states,
 )
-from qsls.pipeline.ingest.flight import E_COLS, X_COLS, read_flight
+from qsls.pipeline.ingest.flight import E_COLS, X_COLS, errors, read_flight, states
 
 
 class EvaluateOptions(Options):
@@ -246,9 +246,9 @@ def load_training(fit_dir: Path, model: ErrorModel, scale: Sequence[float] | Non
         raise InputError(
             f"{path}: missing columns {', '.join(missing)}; regenerate with 'qsls fit'"
         )
-    e = df.loc[:, list(E_COLS)].to_numpy(float) if all(c in df.columns for c in E_COLS) else None
+    e = errors(df) if all(c in df.columns for c in E_COLS) else None
     return TrainingData.build(
-        df.loc[:, list(X_COLS)].to_numpy(float),
+        states(df),
         scale or model.state_scale,
         e,
         model.min_separation,
@@ -264,8 +264,8 @@ def check_flight(
     nearest: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[dict[str, Any], pd.DataFrame]:
     """One flight against one controller's bounds: the table row and the per-sample frame."""
-    x = flight.loc[:, list(X_COLS)].to_numpy(float)
-    e = flight.loc[:, list(E_COLS)].to_numpy(float)
+    x = states(flight)
+    e = errors(flight)
     t = flight["t"].to_numpy(float)
     ok = np.isfinite(x).all(axis=1) & np.isfinite(e).all(axis=1)
     if not ok.any():
@@ -496,9 +496,9 @@ def bound_check(
     for i, j in pairs:
         name, df = flights[i]
         if i not in nearest:
-            x = df.loc[:, list(X_COLS)].to_numpy(float)
+            x = states(df)
             ok = np.isfinite(x).all(axis=1) & np.isfinite(
-                df.loc[:, list(E_COLS)].to_numpy(float)
+                errors(df)
             ).all(axis=1)
             if not ok.any():
                 raise InputError(f"flight {name}: no samples with finite states and errors")

@@ -7,7 +7,9 @@ measurement ``y_px .. y_vz`` and perception error ``e_* = y_* - x_*``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -74,3 +76,48 @@ def measurements(df: pd.DataFrame) -> np.ndarray:
 
 def errors(df: pd.DataFrame) -> np.ndarray:
     return df.loc[:, list(E_COLS)].to_numpy(dtype=float)
+
+
+@dataclass(frozen=True)
+class Flight:
+    """A flight folder written by ``qsls ingest``: ``flight.parquet`` and what ingest recorded
+    about it (its manifest's ``results``: clock offset, alignment, gaps, ``dt``)."""
+
+    folder: Path
+    frame: pd.DataFrame = field(repr=False)
+    results: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def name(self) -> str:
+        return self.folder.name
+
+    @property
+    def dt(self) -> float:
+        """The sample period (s): the manifest's ``dt``, else the median step of ``t``."""
+        if "dt" in self.results:
+            return float(self.results["dt"])
+        t = self.frame["t"].to_numpy(dtype=float)
+        return float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+
+    def states(self) -> np.ndarray:
+        return states(self.frame)
+
+    def measurements(self) -> np.ndarray:
+        return measurements(self.frame)
+
+    def errors(self) -> np.ndarray:
+        return errors(self.frame)
+
+    @classmethod
+    def load(cls, folder: Path) -> Flight:
+        """Read a flight folder (or its ``flight.parquet``) and its manifest's results."""
+        from qsls.pipeline.core.artifacts import read_manifest
+
+        p = Path(folder)
+        frame = read_flight(p)
+        folder = p if p.is_dir() else p.parent
+        try:
+            results = dict(read_manifest(folder).get("results") or {})
+        except InputError:
+            results = {}  # a flight table without manifest (written by hand): data only
+        return cls(folder, frame, results)
