@@ -53,7 +53,7 @@ from qsls.pipeline.errormodel.model import ErrorModel, error_model_file, load_er
 Number = float | str
 
 
-def _matrix(value: Any, n: int, what: str, pd: bool) -> list[list[float]]:
+def _matrix(value: Any, n: int, what: str, psd: bool) -> list[list[float]]:
     """A list of ``n`` numbers (diagonal) or an ``n x n`` nested list -> nested list."""
     a = np.asarray(value, dtype=float)
     if a.ndim == 1:
@@ -66,7 +66,7 @@ def _matrix(value: Any, n: int, what: str, pd: bool) -> list[list[float]]:
         raise ValueError(f"{what} must be {n}x{n}, got shape {a.shape}")
     if not np.all(np.isfinite(a)):
         raise ValueError(f"{what} has non-finite entries")
-    if pd:
+    if psd:
         sls.psd_sqrt(a, what)
     return a.tolist()
 
@@ -438,8 +438,8 @@ def synth(
         raise InfeasibleError(diagnosis_message(d), d)
     progress.start("synth", total=len(plan) + 1)
     ctrls: dict[str, Built] = {}
-    pd = pd_controller(r, options.pd, options.T, base_extra)
-    ctrls["pd"] = pd
+    reference = pd_controller(r, options.pd, options.T, base_extra)
+    ctrls["pd"] = reference
     progress.advance()
     for name, st in plan:
         nominal = None
@@ -447,7 +447,7 @@ def synth(
         if st.cost == "imitation":
             target = options.imitate
             if target == "pd":
-                nominal = pd.taps
+                nominal = reference.taps
             elif target in ctrls:
                 nominal = ctrls[target].taps.truncated(options.T)
             elif target in ("l1_nominal", "h2_nominal"):
