@@ -1,12 +1,15 @@
 """Open a local HTML file in headless Chromium over the DevTools protocol, network off.
 
 Uses tornado's websocket client (installed with dask.distributed), so no browser driver
-package is needed. Returns what a reader would see: each image's natural size, every
-request the page made, console errors and exceptions, and a screenshot.
+package is needed. Returns what a reader would see at a 1280x900 window: each image's
+natural and drawn size, the page's layout (document width and height, every table row's
+drawn height, where the summary and its cards sit), every request the page made, console
+errors and exceptions, and a screenshot of the first screen.
 """
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import json
 import shutil
@@ -17,6 +20,34 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome")
+WIDTH, HEIGHT = 1280, 900
+
+# Runs in the page once it has loaded: the layout as measured by the browser itself.
+_PROBE = """JSON.stringify((() => {
+  const de = document.documentElement;
+  const box = e => e.getBoundingClientRect();
+  const rows = Array.from(document.querySelectorAll('tr')).map(r => ({
+    height: box(r).height, text: r.innerText.slice(0, 120)}));
+  const figures = Array.from(document.querySelectorAll('figure img')).map(i => ({
+    width: box(i).width, height: box(i).height, alt: i.alt}));
+  const s = document.getElementById('summary');
+  const cards = s ? Array.from(s.querySelectorAll('.card')).map(c => ({
+    top: box(c).top + window.scrollY, bottom: box(c).bottom + window.scrollY,
+    text: c.innerText})) : [];
+  return {
+    scrollWidth: de.scrollWidth, clientWidth: de.clientWidth,
+    innerWidth: window.innerWidth, innerHeight: window.innerHeight,
+    scrollHeight: de.scrollHeight, rows: rows, figures: figures,
+    summaryTop: s ? box(s).top + window.scrollY : null,
+    summaryText: s ? s.innerText : '', cards: cards,
+    firstSection: (document.querySelector('section') || {}).id || null,
+    overflow: Array.from(document.querySelectorAll('body *')).filter(e =>
+      box(e).right > window.innerWidth + 0.5 && !e.closest('.tablewrap')).slice(0, 5).map(e =>
+      e.tagName + '.' + e.className + ' ' + Math.round(box(e).right) + ' ' +
+      (e.innerText || '').slice(0, 60)),
+    links: Array.from(document.querySelectorAll('a[href^="#"]')).map(a => a.getAttribute('href')),
+    ids: Array.from(document.querySelectorAll('[id]')).map(e => e.id)};
+})())"""
 
 
 def find_chromium() -> str | None:
@@ -34,6 +65,7 @@ class PageVisit:
     console_errors: list[str] = field(default_factory=list)
     screenshot: bytes = b""
     title: str = ""
+    layout: dict = field(default_factory=dict)
 
 
 def visit(html_file: Path, screenshot: Path, timeout: float = 60.0) -> PageVisit:
@@ -57,7 +89,7 @@ def visit(html_file: Path, screenshot: Path, timeout: float = 60.0) -> PageVisit
         "--disable-extensions",
         "--proxy-server=127.0.0.1:9",  # network off: any http(s) request would fail
         "--host-resolver-rules=MAP * ~NOTFOUND",
-        "--window-size=1200,900",
+        f"--window-size={WIDTH},{HEIGHT}",
         f"--user-data-dir={profile}",
         "--remote-debugging-port=0",
         "about:blank",
@@ -116,6 +148,11 @@ async def _drive(ws_url: str, page_url: str, screenshot: Path) -> PageVisit:
     sid = attached["sessionId"]
     for domain in ("Page", "Runtime", "Network", "Log"):
         await call(f"{domain}.enable", session=sid)
+    await call(
+        "Emulation.setDeviceMetricsOverride",
+        {"width": WIDTH, "height": HEIGHT, "deviceScaleFactor": 1, "mobile": False},
+        session=sid,
+    )
     await call("Page.navigate", {"url": page_url}, session=sid)
     loaded = False
     for _ in range(200):
@@ -127,7 +164,6 @@ async def _drive(ws_url: str, page_url: str, screenshot: Path) -> PageVisit:
         if res.get("result", {}).get("value"):
             loaded = True
             break
-        import asyncio
 
         await asyncio.sleep(0.05)
     if not loaded:
@@ -145,6 +181,10 @@ async def _drive(ws_url: str, page_url: str, screenshot: Path) -> PageVisit:
         "Runtime.evaluate", {"expression": "document.title", "returnByValue": True}, session=sid
     )
     visit_.title = title["result"]["value"]
+    layout = await call(
+        "Runtime.evaluate", {"expression": _PROBE, "returnByValue": True}, session=sid
+    )
+    visit_.layout = json.loads(layout["result"]["value"])
     shot = await call("Page.captureScreenshot", {"format": "png"}, session=sid)
     visit_.screenshot = base64.b64decode(shot["data"])
     screenshot.write_bytes(visit_.screenshot)

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field, field_validator
 
+from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
 from qsls.pipeline.control.synth import ProblemOptions, read_model, resolve
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
@@ -472,94 +473,3 @@ def sweep(
     return SweepResult(
         Path(out), len(table), dict(counts), int(table["feasible"].sum()), executor, table, smax
     )
-
-
-# --------------------------------------------------------------------------- figures
-def _axis_values(table: Any, axis: str) -> tuple[str, list[Any]]:
-    col = f"{axis}_value" if f"{axis}_value" in table.columns else axis
-    vals = sorted(table[col].unique(), key=lambda v: (str(type(v)), v))
-    return col, vals
-
-
-def feasibility_figure(table: Any, options: SweepOptions, smax: Any) -> Any:
-    """Fraction of feasible points over two grid axes (S and T when both vary), with the
-    largest-feasible-S curve on top when the axes are S and T."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    varying = [a for a, v in options.grid.items() if len(v) > 1] or list(options.grid)
-    xa = "S" if "S" in varying else varying[0]
-    rest = [a for a in varying if a != xa]
-    ya = "T" if "T" in rest else (rest[0] if rest else None)
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    xcol, xs = _axis_values(table, xa)
-    if ya is None:
-        frac = [table.loc[table[xcol] == x, "feasible"].mean() for x in xs]
-        ax.bar(range(len(xs)), frac, color="tab:green")
-        ax.set_ylabel("fraction feasible")
-    else:
-        ycol, ys = _axis_values(table, ya)
-        grid = np.full((len(ys), len(xs)), np.nan)
-        for i, y in enumerate(ys):
-            for j, x in enumerate(xs):
-                sel = table[(table[xcol] == x) & (table[ycol] == y)]
-                if len(sel):
-                    grid[i, j] = sel["feasible"].mean()
-        ax.imshow(grid, origin="lower", cmap="RdYlGn", vmin=0, vmax=1, aspect="auto")
-        for i in range(len(ys)):
-            for j in range(len(xs)):
-                if np.isfinite(grid[i, j]):
-                    ax.text(j, i, f"{grid[i, j]:.2g}", ha="center", va="center", fontsize=7)
-        ax.set_yticks(range(len(ys)), [f"{y:.3g}" if isinstance(y, float) else str(y) for y in ys])
-        ax.set_ylabel(ya)
-        if xa == "S" and ya == "T" and smax is not None and len(smax):
-            # position of s_max on the categorical S axis by interpolation
-            xv = np.asarray(xs, dtype=float)
-            curve = smax.groupby("T")["s_max"].min()
-            pts = [
-                (np.interp(s, xv, np.arange(len(xv))), ys.index(t))
-                for t, s in curve.items()
-                if t in ys
-            ]
-            if pts:
-                px, py = zip(*pts, strict=True)
-                ax.plot(px, py, "k--", marker="o", label="largest feasible S")
-                ax.legend(loc="upper right", fontsize=7)
-    ax.set_xticks(
-        range(len(xs)), [f"{x:.3g}" if isinstance(x, float) else str(x) for x in xs], rotation=45
-    )
-    ax.set_xlabel(xa)
-    ax.set_title("feasible fraction of the sweep")
-    fig.tight_layout()
-    return fig
-
-
-def s_max_figure(smax: Any) -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    keys = [
-        k for k in ("eps_e", "radius", "eps_w", "delta", "strictly_proper") if smax[k].nunique() > 1
-    ]
-    groups = smax.groupby(keys) if keys else [((), smax)]
-    for n, (name, g) in enumerate(groups):
-        if n >= 10:
-            break
-        g = g.sort_values("T")
-        label = ", ".join(
-            f"{k}={v}"
-            for k, v in zip(keys, name if isinstance(name, tuple) else (name,), strict=True)
-        )
-        ax.plot(g["T"], g["s_max"], marker="o", label=label or "largest feasible S")
-    ax.set_xlabel("horizon T")
-    ax.set_ylabel("largest feasible S")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    ax.set_title("largest feasible S against T")
-    fig.tight_layout()
-    return fig

@@ -11,12 +11,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 
+from qsls.pipeline.core import style
 from qsls.pipeline.errormodel.model import ErrorModel
 from qsls.pipeline.errormodel.slopes import PairSlopes
 
@@ -34,7 +31,8 @@ def make_figures(model: ErrorModel, ps: PairSlopes, tr: Any, idx: np.ndarray, qs
 
 def slope_distribution(model: ErrorModel, ps: PairSlopes):
     """Histogram of pair slopes (log x) with percentiles and the max marked."""
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, axes = style.subplots(width=style.WIDTH_IN, height=4.6)
+    ax = axes[0, 0]
     h = ps.histogram
     lo, hi = h.edges()
     counts = h.counts
@@ -47,30 +45,37 @@ def slope_distribution(model: ErrorModel, ps: PairSlopes):
             a, b = a - 0.5, b + 0.5
         edges = np.logspace(a - 0.02, b + 0.02, 81)
         hc, _ = np.histogram(mids, bins=edges, weights=counts[pos])
-        ax.stairs(hc / max(h.total, 1), edges, fill=True, alpha=0.45, label="pairs")
+        ax.stairs(
+            hc / max(h.total, 1), edges, fill=True, alpha=0.5, color=style.CYCLE[0], label="pairs"
+        )
         loc = ps.local_max[np.isfinite(ps.local_max) & (ps.local_max > 0)]
         if len(loc):
             lc, _ = np.histogram(np.clip(loc, edges[0], edges[-1]), bins=edges)
             ax.stairs(
-                lc / len(loc), edges, color="tab:green", lw=1.2, label="largest slope per sample"
+                lc / len(loc),
+                edges,
+                color=style.OKABE_ITO["bluish_green"],
+                lw=1.4,
+                label="largest slope per sample",
             )
         ax.set_xscale("log")
-    colors = plt.cm.viridis(np.linspace(0.2, 0.9, max(1, len(model.s_slope.percentiles))))
-    for (k, v), c in zip(model.s_slope.percentiles.items(), colors, strict=False):
+    dashes = ("--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
+    for i, (k, v) in enumerate(model.s_slope.percentiles.items()):
         if np.isfinite(v) and v > 0:
-            ax.axvline(v, color=c, ls="--", lw=1.2, label=f"{k} = {v:.3g}")
-    ax.axvline(model.s_slope.max, color="tab:red", lw=1.8, label=f"max = {model.s_slope.max:.3g}")
+            ax.axvline(
+                v, color=style.NEUTRAL, ls=dashes[i % len(dashes)], lw=1.3, label=f"{k} = {v:.3g}"
+            )
+    ax.axvline(model.s_slope.max, color=style.ALERT, lw=2.0, label=f"max = {model.s_slope.max:.3g}")
     ax.set_xlabel("slope ||e_i - e_j|| / ||x_i - x_j||  (infinity norms)")
     ax.set_ylabel("fraction")
     extra = f", {int(n_zero)} zero slopes" if n_zero else ""
     ax.set_title(
         f"S-slope: {model.n_pairs:,} pairs, radius {model.radius:g}, "
         f"min separation {model.min_separation:.3g}{extra}",
-        fontsize=10,
+        loc="left",
     )
-    ax.legend(fontsize=8, loc="upper left")
+    style.legend_right(ax)
     ax.grid(True, which="both", alpha=0.25)
-    fig.tight_layout()
     return fig
 
 
@@ -78,7 +83,7 @@ def error_norm(model: ErrorModel, tr: Any):
     """``||e||_inf`` over time per flight."""
     names = tr.names
     panels = len(names) if len(names) <= _MAX_PANELS else 1
-    fig, axes = plt.subplots(panels, 1, figsize=(9, 1.0 + 1.9 * panels), squeeze=False)
+    fig, axes = style.subplots(panels, 1, width=style.WIDTH_IN, height=1.0 + 2.0 * panels)
     enorm = np.abs(tr.e).max(axis=1)
     worst_t: dict[str, list[float]] = {}
     for w in model.worst_pairs:
@@ -88,10 +93,18 @@ def error_norm(model: ErrorModel, tr: Any):
         ax = axes[k if panels > 1 else 0, 0]
         sel = tr.flight_idx == k
         t, en, keep = tr.t[sel], enorm[sel], tr.keep[sel]
-        ax.plot(t, np.where(keep, en, np.nan), lw=0.8, label=name if panels == 1 else None)
+        col = style.CYCLE[k % len(style.CYCLE)] if panels == 1 else style.NEUTRAL
+        ax.plot(
+            t, np.where(keep, en, np.nan), color=col, lw=0.9, label=name if panels == 1 else None
+        )
         if (~keep).any():
             ax.plot(
-                t[~keep], en[~keep], "x", color="0.5", ms=3, label="excluded" if k == 0 else None
+                t[~keep],
+                en[~keep],
+                "x",
+                color=style.LIGHT,
+                ms=4,
+                label="excluded" if k == 0 else None,
             )
         if name in worst_t:
             tw = np.asarray(worst_t[name])
@@ -101,62 +114,65 @@ def error_norm(model: ErrorModel, tr: Any):
                 yw,
                 "o",
                 mfc="none",
-                color="tab:red",
-                ms=5,
+                color=style.ALERT,
+                ms=6,
                 label="worst-pair samples" if k == 0 or panels > 1 else None,
             )
         if panels > 1 or k == 0:
-            ax.axhline(model.eps_e, color="k", lw=1.2, label=f"eps_e = {model.eps_e:.3g}")
+            ax.axhline(
+                model.eps_e, color=style.BOUND, lw=1.3, label=f"eps_e (max) = {model.eps_e:.3g}"
+            )
             for q, v in model.eps_e_percentiles.items():
-                ax.axhline(v, color="0.3", ls=":", lw=0.8)
+                ax.axhline(v, color=style.NEUTRAL, ls=":", lw=0.9)
                 ax.annotate(
                     q,
-                    (1.0, v),
+                    (1.005, v),
                     xycoords=("axes fraction", "data"),
-                    fontsize=7,
+                    fontsize=8.5,
                     va="center",
                     ha="left",
                 )
         if panels > 1:
-            ax.set_title(name, fontsize=9, loc="left")
-        ax.set_ylabel("||e|| (inf)")
-        ax.grid(True, alpha=0.25)
+            ax.set_title(name, loc="left")
+        ax.set_ylabel("||e||_inf")
     axes[-1, 0].set_xlabel("t (s)")
-    axes[0, 0].legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
+    style.legend_below(fig, ncol=4)
     return fig
 
 
 def worst_pairs(model: ErrorModel, tr: Any, idx: np.ndarray):
     """The worst pairs on the trajectory: position (px, py) and velocity (vx, vy)."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    fig, grid = style.subplots(1, 2, width=style.WIDTH_IN, height=5.0)
+    axes = grid[0]
     x = tr.x[idx]
     n = len(x)
     step = max(1, n // 50000)
     pairs = model.worst_pairs
-    cmap = plt.cm.autumn
+    import matplotlib
+
+    cmap = matplotlib.colormaps["cividis"]
     for ax, (a, b), lab in zip(axes, [(0, 1), (3, 4)], ["p", "v"], strict=True):
-        ax.plot(x[::step, a], x[::step, b], ".", color="0.75", ms=1.5, label="training states")
+        ax.plot(x[::step, a], x[::step, b], ".", color=style.LIGHT, ms=1.5, label="training states")
         for r, w in reversed(list(enumerate(pairs))):
-            c = cmap(r / max(1, len(pairs) - 1))
+            c = cmap(0.85 * r / max(1, len(pairs) - 1))
             ax.plot([w.x_i[a], w.x_j[a]], [w.x_i[b], w.x_j[b]], "-o", color=c, ms=3.5, lw=1.5)
             if r < 5:
                 ax.annotate(
                     str(r + 1),
                     (w.x_i[a], w.x_i[b]),
-                    fontsize=8,
+                    fontsize=9,
                     xytext=(3, 3),
                     textcoords="offset points",
                 )
-        ax.set_xlabel(f"{lab}x")
-        ax.set_ylabel(f"{lab}y")
+        unit = "m" if lab == "p" else "m/s"
+        ax.set_xlabel(f"{lab}x ({unit})")
+        ax.set_ylabel(f"{lab}y ({unit})")
         ax.set_aspect("equal", adjustable="datalim")
-        ax.grid(True, alpha=0.25)
     if pairs:
         axes[0].set_title(
-            f"{len(pairs)} worst pairs (1 = largest slope {pairs[0].slope:.3g})", fontsize=10
+            f"position: {len(pairs)} worst pairs (1 = largest slope {pairs[0].slope:.3g})",
+            loc="left",
         )
-    axes[1].set_title("velocity", fontsize=10)
-    axes[0].legend(fontsize=8, loc="upper right")
-    fig.tight_layout()
+    axes[1].set_title("velocity", loc="left")
+    style.legend_below(fig, ncol=2)
     return fig

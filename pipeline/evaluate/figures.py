@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from qsls.pipeline.core import style
+
 
 def smooth(signal: np.ndarray, dt: float, tau: float) -> np.ndarray:
     """First-order average with time constant ``tau`` (the paper's figure): ``s_k = s_{k-1} +
@@ -27,18 +29,8 @@ def smooth(signal: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return out
 
 
-def _plt() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _grid(n: int, width: float = 9.0, height: float = 2.4) -> tuple[Any, list[Any]]:
-    plt = _plt()
-    fig, axes = plt.subplots(max(n, 1), 1, figsize=(width, height * max(n, 1)), squeeze=False)
+def _grid(n: int, width: float = style.WIDTH_IN, height: float = 2.6) -> tuple[Any, list[Any]]:
+    fig, axes = style.subplots(max(n, 1), 1, width=width, height=0.6 + height * max(n, 1))
     return fig, [a for a in axes[:, 0]]
 
 
@@ -50,23 +42,23 @@ def perception_error_figure(samples: pd.DataFrame, smooth_s: float = 1.0) -> Any
     """``||e_k||`` over time per flight, smoothed with a ``smooth_s`` time constant, with each
     controller's ``gamma_strict`` (dashed) and data-driven ``gamma_k`` (dotted)."""
     flights = list(dict.fromkeys(samples["flight"]))
-    fig, axes = _grid(len(flights), width=11.0)
+    fig, axes = _grid(len(flights))
     for ax, name in zip(axes, flights, strict=False):
         s = samples[samples["flight"] == name]
         first = s[s["controller"] == s["controller"].iloc[0]]
         t = first["t"].to_numpy()
         e = first["error_norm"].to_numpy()
-        ax.plot(t, e, color="0.75", lw=0.6, label="||e||")
+        ax.plot(t, e, color=style.LIGHT, lw=0.7, label="||e||")
         if smooth_s > 0:
             ax.plot(
                 t,
                 smooth(e, _dt(t), smooth_s),
-                color="k",
-                lw=1.2,
+                color=style.NEUTRAL,
+                lw=1.3,
                 label=f"||e|| ({smooth_s:g} s avg)",
             )
-        for i, (c, g) in enumerate(s.groupby("controller", sort=False)):
-            col = f"C{i}"
+        for c, g in s.groupby("controller", sort=False):
+            col = style.controller_colour(str(c))
             gs = g["gamma_strict"].iloc[0]
             if np.isfinite(gs):
                 ax.axhline(gs, color=col, ls="--", lw=1, label=f"{c} gamma_strict")
@@ -76,30 +68,32 @@ def perception_error_figure(samples: pd.DataFrame, smooth_s: float = 1.0) -> Any
             over = g["error_norm"].to_numpy() > gk
             if np.any(over):
                 ax.plot(
-                    g["t"].to_numpy()[over], g["error_norm"].to_numpy()[over], "x", color=col, ms=4
+                    g["t"].to_numpy()[over], g["error_norm"].to_numpy()[over], "x", color=col, ms=5
                 )
         ax.set_yscale("log")
-        ax.set_title(f"{name} (x: above gamma(d))", fontsize=9)
-        ax.set_ylabel("||e|| (inf)")
-        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        ax.set_title(f"{name} (x: above gamma(d))", loc="left")
+        ax.set_ylabel("||e||_inf")
+        style.legend_right(ax)
     axes[-1].set_xlabel("t (s)")
-    fig.tight_layout()
     return fig
 
 
 def distance_figure(samples: pd.DataFrame, radius: float) -> Any:
     """Each flight's distance to the nearest training state over time, and the radius."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(9, 3.2))
-    for name, g in samples.groupby("flight", sort=False):
+    fig, axes = style.subplots(width=style.WIDTH_IN, height=3.6)
+    ax = axes[0, 0]
+    dashes = ("-", "--", ":", "-.")
+    for i, (name, g) in enumerate(samples.groupby("flight", sort=False)):
         g = g[g["controller"] == g["controller"].iloc[0]]
-        ax.plot(g["t"], g["distance"], lw=0.9, label=str(name))
+        by = g["flown_by"].iloc[0] if "flown_by" in g else None
+        col = style.controller_colour(str(by)) if by else style.CYCLE[i % len(style.CYCLE)]
+        ax.plot(g["t"], g["distance"], color=col, ls=dashes[(i // 8) % 4], lw=1.1, label=str(name))
     if np.isfinite(radius):
-        ax.axhline(radius, color="k", ls="--", lw=1, label=f"radius r = {radius:g}")
+        ax.axhline(radius, color=style.BOUND, ls="--", lw=1, label=f"radius r = {radius:g}")
     ax.set_xlabel("t (s)")
-    ax.set_ylabel("distance to training (inf, scaled)")
-    ax.legend(fontsize=6, ncol=3)
-    fig.tight_layout()
+    ax.set_ylabel("distance to training (inf norm)")
+    ax.set_title("Distance of the flown state to the nearest training state", loc="left")
+    style.legend_right(ax)
     return fig
 
 
@@ -107,17 +101,16 @@ def tracking_figure(
     traces: Mapping[str, tuple[np.ndarray, np.ndarray]], reference: np.ndarray, title: str
 ) -> Any:
     """Top view: each controller's true path ``(t, x (n, 6))`` against the reference."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.5, 5.5))
-    ax.plot(reference[:, 0], reference[:, 1], "k--", lw=1.2, label="reference")
-    for i, (name, (_, x)) in enumerate(traces.items()):
-        ax.plot(x[:, 0], x[:, 1], color=f"C{i}", lw=0.9, label=name)
-    ax.set_aspect("equal")
+    fig, axes = style.subplots(width=style.HALF_WIDTH_IN, height=5.9)
+    ax = axes[0, 0]
+    ax.plot(reference[:, 0], reference[:, 1], color=style.BOUND, ls="--", lw=1.3, label="reference")
+    for name, (_, x) in traces.items():
+        ax.plot(x[:, 0], x[:, 1], color=style.controller_colour(name), lw=1.2, label=name)
+    ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
+    ax.set_title(title, loc="left")
+    style.legend_below(fig, ncol=2)
     return fig
 
 
@@ -126,12 +119,13 @@ def input_figure(t: np.ndarray, u: np.ndarray, u_pd: np.ndarray, name: str) -> A
     labels = ("pitch (rad)", "roll (rad)", "thrust (N)")
     fig, axes = _grid(3, height=2.0)
     for i, ax in enumerate(axes):
-        ax.plot(t, u_pd[:, i], color="C1", lw=0.9, label="PD on the same estimate")
-        ax.plot(t, u[:, i], color="C0", lw=1.1, label=name)
+        pd_col = style.controller_colour("pd")
+        ax.plot(t, u_pd[:, i], color=pd_col, lw=1.0, label="PD on the same estimate")
+        ax.plot(t, u[:, i], color=style.controller_colour(name), lw=1.3, label=name)
         ax.set_ylabel(labels[i])
-    axes[0].legend(fontsize=7)
+    axes[0].set_title(f"Input of {name} against PD's on the same estimate", loc="left")
     axes[-1].set_xlabel("t (s)")
-    fig.tight_layout()
+    style.legend_below(fig, ncol=2)
     return fig
 
 
@@ -145,21 +139,21 @@ def error_per_controller_figure(
 
     ``traces`` maps ``"condition/controller"`` to ``(t, ||e||)``; ``bounds`` maps a controller
     to its ``gamma_strict``."""
-    fig, axes = _grid(len(conditions), width=10.5, height=3.0)
+    fig, axes = _grid(len(conditions), height=3.0)
     for ax, cond in zip(axes, conditions, strict=False):
         names = [k.split("/", 1)[1] for k in traces if k.split("/", 1)[0] == cond]
-        for i, c in enumerate(names):
+        for c in names:
             t, e = traces[f"{cond}/{c}"]
-            ax.plot(t, smooth(e, _dt(t), smooth_s), color=f"C{i}", lw=1.1, label=c)
+            col = style.controller_colour(c)
+            ax.plot(t, smooth(e, _dt(t), smooth_s), color=col, lw=1.3, label=c)
             b = bounds.get(c, np.inf)
             if np.isfinite(b):
-                ax.axhline(b, color=f"C{i}", ls="--", lw=0.8)
+                ax.axhline(b, color=col, ls="--", lw=1.0)
         ax.set_yscale("log")
         ax.set_title(
-            f"{cond} perception ({smooth_s:g} s average; dashed: gamma_strict)", fontsize=9
+            f"{cond} perception: ||e|| ({smooth_s:g} s average); dashed: gamma_strict", loc="left"
         )
-        ax.set_ylabel("||e|| (inf)")
-        ax.legend(fontsize=7, ncol=3)
+        ax.set_ylabel("||e||_inf")
     axes[-1].set_xlabel("t (s)")
-    fig.tight_layout()
+    style.legend_below(fig, ncol=5)
     return fig

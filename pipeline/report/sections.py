@@ -1,290 +1,428 @@
-"""Stage-specific report sections: tables and figures drawn from each stage's files.
+"""The evidence behind the summary, one section per question, each a few narrow tables
+(at most about 8 columns, long texts as notes, full data as CSV beside the report) and the
+figures that go with it.
 
-Each ``section_<stage>(title, run_dir, folders, counter)`` returns a :class:`Section`, or
-``None`` to fall back to the generic one (manifest results and every PNG in the folder).
+Order: the paper's figures, certificates, the bound check on held-out flights, the flown
+comparison and the paper's findings; then the error model, the sweep, the flights.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from qsls.pipeline.core.artifacts import figure_bytes, read_manifest
-from qsls.pipeline.report.document import Section, add_figures
-
-
-def _fig(sec: Section, counter: list[int], stem: str, fig: Any, caption: str) -> None:
-    import matplotlib.pyplot as plt
-
-    counter[0] += 1
-    try:
-        sec.figure(f"fig{counter[0]:02d}_{stem}.png", figure_bytes(fig, "png", 100), caption)
-    finally:
-        plt.close(fig)
+from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
+from qsls.pipeline.report.facts import Facts, findings_list, first, g4, status_words
+from qsls.pipeline.report.summary import premise_entry, status_badge
 
 
-def section_ingest(title: str, run_dir: Path, folders: list[Path], counter: list[int]) -> Section:
-    """Per flight: samples, offset, alignment, RMS errors; trajectories and ||e|| over time."""
-    import matplotlib
+def _csv(sec: Section, name: str, df: Any) -> str:
+    return sec.attach(name, df.to_csv(index=False, float_format="%.6g").encode())
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from qsls.pipeline.ingest.flight import errors, measurements, read_flight, states
+def _slug(rel: str) -> str:
+    return rel.replace("/", "_")
 
-    sec = Section(title)
-    rows = []
-    fig_xy, ax_xy = plt.subplots(figsize=(6.5, 5))
-    fig_e, ax_e = plt.subplots(figsize=(8, 3.2))
-    for folder in folders:
-        name = folder.relative_to(run_dir).as_posix()
-        res = read_manifest(folder).get("results", {})
-        df = read_flight(folder)
-        x, y, e = states(df), measurements(df), errors(df)
-        en = np.abs(e).max(axis=1)
+
+def _stage_figures(
+    f: Facts, folder: str, counter: list[int], captions: dict[str, str], skip: tuple[str, ...] = ()
+) -> list[Figure]:
+    """Every PNG of a stage folder (those named in ``captions`` first, in that order)."""
+    root = f.run_dir / folder
+    pngs = [p for p in stage_pngs(root) if p.name not in skip]
+    order = {name: i for i, name in enumerate(captions)}
+    pngs.sort(key=lambda p: (order.get(p.name, len(order)), p.relative_to(root).as_posix()))
+    return [
+        figure_of(f.run_dir, p, captions.get(p.name, f"{folder}/{p.name}"), counter) for p in pngs
+    ]
+
+
+# --------------------------------------------------------------------------- paper figures
+PAPER_FIGURES = {
+    "tracking_regular.png": "Tracking (paper, Fig. pos_tracking): regular perception, top view",
+    "tracking_degraded.png": "Tracking: degraded perception, top view",
+    "perception_error.png": "Perception error ||e|| against each controller's bound "
+    "(paper, Fig. est_err), per condition",
+}
+
+
+def _paper_files(root: Any) -> tuple[str, ...]:
+    return (*PAPER_FIGURES, *sorted(p.name for p in root.glob("input_*_vs_pd.png")))
+
+
+def section_paper_figures(f: Facts, counter: list[int]) -> Section | None:
+    if not f.fly_folder:
+        return None
+    root = f.run_dir / f.fly_folder
+    sec = Section("The paper's figures", id="figures")
+    names = [n for n in PAPER_FIGURES if (root / n).is_file()]
+    inputs = sorted(p.name for p in root.glob("input_*_vs_pd.png"))
+    caps = dict(PAPER_FIGURES)
+    for n in inputs:
+        caps[n] = "Input (paper, Fig. u_L1_pd): the robust controller's command against what PD "
+        caps[n] += "commands from the same estimate"
+    order = names[:2] + inputs + names[2:]
+    sec.figures([figure_of(f.run_dir, root / n, caps[n], counter) for n in order])
+    sec.text(
+        f"Flown by qsls in simulation ({f.fly_folder}); one colour per controller in every "
+        "figure. Diagnostic figures follow the sections they belong to."
+    )
+    return sec
+
+
+# --------------------------------------------------------------------------- certificates
+_STATUS_NOTES = {
+    "certified": "certified: every check passed (solver, achievability <= 1e-7, realization "
+    "<= 1e-8, internal stability, robustness lhs <= 1) on the premise shown.",
+    "relaxed": "certified, relaxed premise: the checks passed, but eps_e or S is a percentile "
+    "of the training data, so part of that data lies outside the premise (shares below); the "
+    "guarantee holds only where the premise does.",
+    "uncertified": "no guarantee: a nominal controller whose robustness lhs exceeds 1; gamma "
+    "is the formula's value, shown for comparison only.",
+    "reference": "reference, no guarantee: PD given as a closed loop, compared with the "
+    "synthesized controllers; its norms are FIR-truncated.",
+}
+
+
+def section_controllers(f: Facts, counter: list[int]) -> Section | None:
+    if not f.controllers:
+        return None
+    em = f.error_model
+    sec = Section("Controllers and certificates", id="controllers")
+    rows, checks, premise = [], [], []
+    for c in f.controllers:
+        d = c.cert
         rows.append(
             [
-                name,
-                len(df),
-                res.get("time_offset_s", float("nan")),
-                (res.get("alignment") or {}).get("yaw_rad", float("nan")),
-                float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))),
-                float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1)))),
-                float(en.max()),
+                c.name,
+                status_badge(c, em)[0],
+                d.get("T"),
+                d.get("S"),
+                d.get("eps_e"),
+                d.get("norm_phi_xy"),
+                d.get("robustness_lhs"),
+                d.get("gamma"),
             ]
         )
-        (line,) = ax_xy.plot(x[:, 0], x[:, 1], lw=1.2, label=f"{name} truth")
-        ax_xy.plot(y[:, 0], y[:, 1], lw=0.8, ls="--", color=line.get_color(), label=f"{name} VIO")
-        ax_e.plot(df["t"].to_numpy(), en, lw=0.9, label=name)
+        checks.append(
+            [
+                c.name,
+                d.get("a"),
+                d.get("R0"),
+                d.get("gamma_strict"),
+                d.get("achievability_residual"),
+                d.get("realization_error"),
+                first(d, "solver_status", default="-"),
+            ]
+        )
+        pe, pe_share, _ = premise_entry(c, em, "eps_e")
+        ps, ps_share, _ = premise_entry(c, em, "S")
+        premise.append(
+            [
+                c.name,
+                pe or "-",
+                pe_share,
+                ps or "-",
+                ps_share,
+                d.get("radius"),
+                d.get("delta"),
+                d.get("eps_w"),
+            ]
+        )
+    seen = sorted({status_badge(c, em)[0] for c in f.controllers})
+    notes = [
+        n
+        for key, n in _STATUS_NOTES.items()
+        if any(status_words(key)[0] == s or (key == "relaxed" and "relaxed" in s) for s in seen)
+    ]
     sec.table(
         [
-            "flight",
-            "samples",
-            "time offset (s)",
-            "yaw (rad)",
-            "pos RMS (m)",
-            "vel RMS (m/s)",
-            "max ||e||",
+            "controller",
+            "status",
+            "T (steps)",
+            "S",
+            "eps_e",
+            "||Phi_xy||",
+            "robustness lhs (<= 1)",
+            "gamma",
         ],
         rows,
-        "Ingested flights (VIO clock; errors after alignment)",
+        "Certificates: the guarantee ||e|| <= gamma = (eps_e + S a) / (1 - S ||Phi_xy||)",
+        notes=notes,
+        text_cols=[1],
     )
-    ax_xy.set_xlabel("x (m)")
-    ax_xy.set_ylabel("y (m)")
-    ax_xy.set_aspect("equal", adjustable="datalim")
-    ax_xy.legend(fontsize=6, ncol=2)
-    ax_xy.set_title("Trajectories: truth (solid) and VIO (dashed)")
-    fig_xy.tight_layout()
-    _fig(sec, counter, "flights_xy", fig_xy, "Trajectories of every ingested flight")
-    ax_e.set_xlabel("t (s)")
-    ax_e.set_ylabel("||e||_inf")
-    ax_e.legend(fontsize=6, ncol=3)
-    ax_e.set_title("Perception error over time")
-    fig_e.tight_layout()
-    _fig(
-        sec, counter, "flights_error", fig_e, "Perception error ||e_k|| (infinity norm) per flight"
+    sec.table(
+        [
+            "controller",
+            "a = eps_w ||Phi_xx H|| + Delta",
+            "R0",
+            "gamma_strict = R0/(1 - S ||Phi_xy||)",
+            "achievability residual",
+            "realization error",
+            "solver",
+        ],
+        checks,
+        "The a-priori distance, the paper's stricter comparison and the numerical checks",
+        text_cols=[6],
     )
-    for folder in folders:
-        add_figures(sec, run_dir, folder, counter)
+    sec.table(
+        [
+            "controller",
+            "eps_e chosen",
+            "samples outside",
+            "S chosen",
+            "pairs outside",
+            "r",
+            "Delta",
+            "eps_w",
+        ],
+        premise,
+        "The premise each guarantee rests on (shares of the training data violating it)",
+        notes=[
+            "Without a premise record in the certificate, a share is inferred from the "
+            "percentile: pXX leaves about 1 - XX/100 of the training data outside."
+        ]
+        if any("premise" not in c.cert for c in f.controllers)
+        else [],
+    )
     return sec
 
 
-def _yaml(path: Path) -> dict[str, Any]:
-    import yaml
+# --------------------------------------------------------------------------- bound check
+def _note_index(notes: list[str], text: str) -> int:
+    if text not in notes:
+        notes.append(text)
+    return notes.index(text) + 1
 
-    return yaml.safe_load(path.read_text()) if path.is_file() else {}
 
-
-def section_fit(title: str, run_dir: Path, folders: list[Path], counter: list[int]) -> Section:
-    """eps_e and S-slope statistics, the pairs that set the largest slopes, the fit's figures."""
-    sec = Section(title)
-    for folder in folders:
-        em = _yaml(folder / "error_model.yaml")
-        if not em:
+def section_heldout(f: Facts, counter: list[int]) -> Section | None:
+    if not f.evaluations:
+        return None
+    sec = Section("Bound check on held-out flights", id="heldout")
+    for ev in f.evaluations:
+        t = ev.table
+        if not len(t):
             continue
-        slope = em.get("s_slope", {})
-        rows = [["max", em.get("eps_e"), slope.get("max"), ""]]
-        for key in sorted(slope.get("percentiles", {}), key=lambda k: float(k[1:])):
+        theorem = "gamma_nominal" in t
+        gcol = "gamma_nominal" if theorem else "gamma"
+        rows, notes = [], []
+        for _, r in t.iterrows():
+            text = str(r.get("verdict", ""))
+            word = text.split(";")[0].strip() or "-"
+            if "bound_holds" in r and r.get("has_guarantee", True) is False:
+                word = f"{word} (no guarantee)"
+            if ev.kind == "evaluate" or ("flown_by" in r and r["flown_by"] != r["controller"]):
+                word = "premise only" if theorem else word
+            n = _note_index(notes, text) if text else 0
+            ratio = r["max_error_norm"] / r[gcol] if theorem else r.get("max_ratio")
             rows.append(
                 [
-                    key,
-                    em.get("eps_e_percentiles", {}).get(key, ""),
-                    slope["percentiles"][key],
-                    slope.get("local_max_percentiles", {}).get(key, ""),
+                    r["flight"],
+                    r["controller"],
+                    r.get("flown_by", "(recorded)"),
+                    r.get("max_error_norm"),
+                    r.get(gcol),
+                    ratio,
+                    r.get("frac_premise_holds"),
+                    f"{word} [{n}]" if n else word,
                 ]
             )
-        sec.table(
-            ["statistic", "eps_e = ||e||", "S over pairs", "S, per-sample max"],
-            rows,
-            f"Error model ({folder.relative_to(run_dir).as_posix()}): radius r = "
-            f"{em.get('radius')}, R0 = {_short(em.get('R0'))}, Delta = {_short(em.get('delta'))}, "
-            f"{em.get('n_samples')} samples, {em.get('n_pairs')} pairs",
+        what = "gamma_nominal (the theorem on the flight)" if theorem else "gamma(d) per sample"
+        csv = _csv(sec, f"bound_check_{_slug(ev.folder)}.csv", t)
+        scope = (
+            "flights flown by the controllers" if ev.kind == "fly" else "recorded held-out flights"
         )
-        worst = em.get("worst_pairs", [])[:10]
-        if worst:
-            sec.table(
-                ["slope", "distance", "flight", "t_i (s)", "t_j (s)", "||e_i||", "||e_j||"],
+        sec.table(
+            [
+                "flight",
+                "controller",
+                "flown by",
+                "max ||e||",
+                "gamma" if not theorem else "gamma_nominal",
+                "max ||e|| / gamma",
+                "premise holds (share)",
+                "verdict [note]",
+            ],
+            rows,
+            f"{ev.folder}: {scope}, ||e|| against {what}",
+            notes=notes,
+            csv=csv,
+            text_cols=[1, 2, 7],
+        )
+        if not theorem:
+            sec.text(
+                "The per-sample check compares ||e_k|| with gamma evaluated at the flown state's "
+                "distance to the training data; it holds wherever the premise holds, so it tests "
+                "the error model rather than the controller. The theorem applies to a flight "
+                "flown by the certified controller itself."
+            )
+        figs = _stage_figures(
+            f,
+            ev.folder,
+            counter,
+            {
+                "perception_error.png": f"{ev.folder}: ||e|| per flight against each bound",
+                "distance_to_training.png": f"{ev.folder}: distance of the flown state to the "
+                "training data (diagnostic)",
+            },
+            skip=_paper_files(f.run_dir / ev.folder) if ev.kind == "fly" else (),
+        )
+        sec.figures(figs)
+    return sec
+
+
+# --------------------------------------------------------------------------- flown
+def section_flown(f: Facts, counter: list[int]) -> Section | None:
+    pc = f.per_controller
+    items = findings_list(f)
+    if pc is None and not items:
+        return None
+    sec = Section("Flown comparison and the paper's findings", id="findings")
+    if items:
+        rows, notes = [], []
+        for it in items:
+            ci = it.get("ci")
+            eff = g4(it["effect"]) if it.get("effect") is not None else "-"
+            if isinstance(ci, list | tuple) and len(ci) == 2:
+                eff += f" [{g4(ci[0])}, {g4(ci[1])}]"
+            n = _note_index(notes, it["detail"]) if it["detail"] else 0
+            rows.append([it["id"], it["claim"], it["verdict"], eff, f"[{n}]" if n else "-"])
+        sec.table(
+            ["#", "the paper's finding", "verdict", "effect [95% CI]", "qsls"],
+            rows,
+            "Against the paper's findings (details in the notes)",
+            notes=notes,
+            wrap_cols=[1],
+            text_cols=[2],
+        )
+    if pc is not None and len(pc):
+        cols = [
+            ("condition", "condition"),
+            ("controller", "controller"),
+            ("tracking_rms_m", "tracking RMS (m)"),
+            ("tracking_max_m", "tracking max (m)"),
+            ("perception_error_rms", "||e|| RMS"),
+            ("perception_error_max", "||e|| max"),
+            ("smoothness_vs_pd", "input roughness vs PD (1 = PD)"),
+            ("crashed", "crashed"),
+        ]
+        cols = [(k, h) for k, h in cols if k in pc]
+        csv = _csv(sec, f"per_controller_{_slug(f.fly_folder)}.csv", pc)
+        sec.table(
+            [h for _, h in cols],
+            pc[[k for k, _ in cols]].to_numpy().tolist(),
+            "How the controllers flew (mean over seeds; ||e|| in the state's units, inf norm)",
+            csv=csv,
+            text_cols=[0, 1],
+        )
+    return sec
+
+
+# --------------------------------------------------------------------------- error model
+def section_error_model(f: Facts, counter: list[int]) -> Section | None:
+    em = f.error_model
+    if not em:
+        return None
+    sec = Section("Error model", id="error-model")
+    slope = em.get("s_slope") or {}
+    rows = [["max", em.get("eps_e"), slope.get("max"), "-"]]
+    for key in sorted(slope.get("percentiles") or {}, key=lambda k: float(k[1:])):
+        rows.append(
+            [
+                key,
+                (em.get("eps_e_percentiles") or {}).get(key),
+                slope["percentiles"][key],
+                (slope.get("local_max_percentiles") or {}).get(key),
+            ]
+        )
+    sec.table(
+        ["statistic", "eps_e = ||e||_inf", "S over pairs", "S, largest per sample"],
+        rows,
+        f"{f.error_model_folder}: {em.get('n_samples')} samples, {em.get('n_pairs')} pairs within "
+        f"radius r = {g4(em.get('radius'))}; R0 {g4(em.get('R0'))}, Delta {g4(em.get('delta'))}",
+        text_cols=[0],
+    )
+    if rule := em.get("min_separation_rule"):
+        sec.text(f"Pairs closer than {g4(em.get('min_separation'))} are left out ({rule}).")
+    worst = (em.get("worst_pairs") or [])[:10]
+    if worst:
+        sec.table(
+            ["slope", "distance", "flight", "t_i (s)", "t_j (s)", "||e_i||", "||e_j||"],
+            [
                 [
-                    [
-                        w["slope"],
-                        w["distance"],
-                        w["flight"],
-                        w["t_i"],
-                        w["t_j"],
-                        max(abs(v) for v in w["e_i"]),
-                        max(abs(v) for v in w["e_j"]),
-                    ]
-                    for w in worst
-                ],
-                "The pairs that set the largest S-slopes (where the measurements are at fault)",
-            )
-        add_figures(sec, run_dir, folder, counter)
+                    w.get("slope"),
+                    w.get("distance"),
+                    w.get("flight"),
+                    w.get("t_i"),
+                    w.get("t_j"),
+                    max(abs(v) for v in w.get("e_i") or [0]),
+                    max(abs(v) for v in w.get("e_j") or [0]),
+                ]
+                for w in worst
+            ],
+            "The pairs that set the largest S-slopes (where the measurements are at fault)",
+            text_cols=[2],
+        )
+    sec.figures(
+        _stage_figures(
+            f,
+            f.error_model_folder,
+            counter,
+            {
+                "slope_distribution.png": "Distribution of the S-slopes over pairs",
+                "error_norm.png": "||e|| over time per training flight, with eps_e",
+                "worst_pairs.png": "The worst pairs on the trajectory",
+            },
+        )
+    )
     return sec
 
 
-def _short(v: Any) -> str:
-    return f"{v:.4g}" if isinstance(v, float) else str(v)
-
-
-def section_sweep(title: str, run_dir: Path, folders: list[Path], counter: list[int]) -> Section:
-    """How many grid points are feasible, the largest feasible S against T, the figures."""
-    import pandas as pd
-
-    sec = Section(title)
-    for folder in folders:
-        if (folder / "sweep.parquet").is_file():
-            df = pd.read_parquet(folder / "sweep.parquet")
-            counts = df["status"].value_counts().sort_index()
-            sec.table(
-                ["status", "points"],
-                [[k, int(v)] for k, v in counts.items()],
-                f"{len(df)} grid points ({folder.relative_to(run_dir).as_posix()})",
-            )
-        if (folder / "s_max.parquet").is_file():
-            sm = pd.read_parquet(folder / "s_max.parquet")
-            cols = [
-                c for c in ("T", "eps_e", "radius", "delta", "s_max", "min_norm_phi_xy") if c in sm
-            ]
-            sec.table(
-                cols, sm[cols].to_numpy().tolist(), "Largest feasible S (bisection) against T"
-            )
-        add_figures(sec, run_dir, folder, counter)
-    return sec
-
-
-_CERT_COLS = (
-    "status",
-    "robust",
-    "norm",
-    "cost",
-    "T",
-    "S",
-    "eps_e",
-    "norm_phi_xx",
-    "norm_phi_xy",
-    "robustness_lhs",
-    "margin",
-    "gamma",
-    "gamma_strict",
-    "achievability_residual",
-    "realization_error",
-    "solve_time_s",
-)
-
-
-def section_synth(title: str, run_dir: Path, folders: list[Path], counter: list[int]) -> Section:
-    """Each controller's certificate, side by side."""
-    sec = Section(title)
-    for folder in folders:
-        rows = []
-        for cert_file in sorted(folder.glob("*/certificate.yaml")):
-            cert = _yaml(cert_file)
-            rows.append([cert_file.parent.name, *(cert.get(c, "") for c in _CERT_COLS)])
-        if rows:
-            sec.table(
-                ["controller", *_CERT_COLS],
-                rows,
-                "Certificates: 'certified' only when every check passed (achievability <= 1e-7, "
-                "the realized controller reproduces its responses to 1e-8, internal stability, "
-                "the robustness constraint)",
-            )
-        add_figures(sec, run_dir, folder, counter)
-    return sec
-
-
-_EVAL_COLS = (
-    "flight",
-    "controller",
-    "gamma",
-    "gamma_strict",
-    "max_error_norm",
-    "frac_under_gamma",
-    "frac_under_gamma_strict",
-    "max_ratio",
-    "max_ratio_t",
-    "max_distance_to_training",
-    "verdict",
-)
-
-
-def section_evaluate(title: str, run_dir: Path, folders: list[Path], counter: list[int]) -> Section:
-    """The bound check per flight and controller; the flown comparison against the paper."""
-    import json
-
-    import pandas as pd
-
-    sec = Section(title)
-    for folder in folders:
-        name = folder.relative_to(run_dir).as_posix()
-        if (folder / "per_controller.parquet").is_file():
-            pc = pd.read_parquet(folder / "per_controller.parquet")
-            cols = [
-                c
-                for c in (
-                    "condition",
-                    "controller",
-                    "tracking_rms_m",
-                    "tracking_max_m",
-                    "perception_error_rms",
-                    "perception_error_max",
-                    "control_effort_rms",
-                    "control_smoothness_rms",
-                    "crashed",
-                )
-                if c in pc
-            ]
-            sec.table(cols, pc[cols].to_numpy().tolist(), f"Controllers flown ({name})")
-        ev_json = folder / "evaluation.json"
-        if ev_json.is_file():
-            comparison = json.loads(ev_json.read_text()).get("comparison") or []
-            if comparison:
-                sec.table(
-                    ["the paper's finding", "qsls", "agrees"],
-                    [[c.get("finding"), c.get("qsls"), c.get("agrees")] for c in comparison],
-                    "Against the paper's findings",
-                )
-        if (folder / "evaluation.parquet").is_file():
-            ev = pd.read_parquet(folder / "evaluation.parquet")
-            cols = [c for c in _EVAL_COLS if c in ev]
-            sec.table(
-                cols, ev[cols].to_numpy().tolist(), f"Bound check: ||e_k|| against gamma ({name})"
-            )
-        add_figures(sec, run_dir, folder, counter)
-    return sec
-
-
-def section_simulate(title: str, run_dir: Path, folders: list[Path], counter: list[int]) -> Section:
-    """One row per simulated flight: what the simulator knows (the truth behind the logs)."""
-    sec = Section(title)
-    rows, keys = [], []
-    for folder in folders:
-        res = read_manifest(folder).get("results", {})
-        flat = {k: v for k, v in res.items() if not isinstance(v, dict | list)}
-        keys = keys or [k for k in flat if k != "crash_reason"]
-        rows.append([folder.relative_to(run_dir).as_posix(), *(flat.get(k, "") for k in keys)])
-    sec.table(["flight", *keys], rows, "Simulated flights (truth.json beside each bag)")
-    for folder in folders:
-        add_figures(sec, run_dir, folder, counter)
+# --------------------------------------------------------------------------- sweep
+def section_sweep(f: Facts, counter: list[int]) -> Section | None:
+    folders = f.stages.get("sweep", [])
+    if not folders:
+        return None
+    sec = Section("Feasibility sweep", id="sweep")
+    sw, sm = f.sweep, f.s_max
+    if sm is not None and len(sm):
+        cols = [("T", "T (steps)"), ("eps_e", "eps_e"), ("radius", "r"), ("delta", "Delta"),
+                ("eps_w", "eps_w"), ("s_max", "largest feasible S"),
+                ("min_norm_phi_xy", "min ||Phi_xy||")]  # fmt: skip
+        cols = [(k, h) for k, h in cols if k in sm]
+        sec.table(
+            [h for _, h in cols],
+            sm[[k for k, _ in cols]].to_numpy().tolist(),
+            "Largest feasible S against T (bisection); S + eps_e/r <= 1/min ||Phi_xy|| is "
+            "necessary",
+        )
+    if sw is not None and len(sw):
+        s_col = "S_value" if "S_value" in sw else "S"
+        keys = [k for k in ("S", s_col, "T") if k in sw]
+        keys = list(dict.fromkeys(keys))
+        grouped = sw.groupby(keys, sort=True)
+        rows = [
+            [*(k if isinstance(k, tuple) else (k,)), int(g["feasible"].sum()), len(g),
+             g["gamma"].min() if "gamma" in g else None]
+            for k, g in grouped
+        ]  # fmt: skip
+        heads = {"S": "S", "S_value": "S value", "T": "T (steps)"}
+        csv = _csv(sec, f"sweep_{_slug(f.rel(folders[0]))}.csv", sw)
+        sec.table(
+            [*(heads[k] for k in keys), "feasible", "points", "smallest gamma"],
+            rows,
+            f"{len(sw)} grid points, {int(sw['feasible'].sum())} feasible",
+            csv=csv,
+            text_cols=[0],
+        )
+    sec.figures(
+        _stage_figures(
+            f,
+            f.rel(folders[0]),
+            counter,
+            {
+                "s_max_vs_T.png": "Largest feasible S against the horizon T",
+                "feasibility.png": "Feasible fraction over the grid",
+            },
+        )
+    )
     return sec

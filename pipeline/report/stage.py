@@ -4,8 +4,11 @@ The report reads only the run folder (stage folders, their manifests, ``run.json
 same run folder gives byte-identical output: figures are rendered with fixed metadata, the
 only times shown are those the run recorded, and sections come in a fixed order.
 
-``reports/<name>/index.html`` embeds every figure as a base64 PNG (no network, no external
-file); ``report.md`` links the same PNG files written beside it.
+``reports/<name>/index.html`` opens with the summary (one card per controller: status,
+premise, guarantee, held-out verdict), then the paper's figures, the evidence section by
+section, and the provenance collapsed at the end. It embeds every figure as a base64 PNG (no
+network, no external file); ``report.md`` has the same structure and links the same PNG
+files written beside it, with the wide tables as CSV files.
 """
 
 from __future__ import annotations
@@ -27,9 +30,16 @@ from qsls.pipeline.core.artifacts import (
 )
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.report.document import Section, add_figures, render_html, render_markdown
+from qsls.pipeline.report.document import (
+    Section,
+    figure_of,
+    render_html,
+    render_markdown,
+    stage_pngs,
+)
+from qsls.pipeline.report.facts import RUN_FILE, Facts, read_facts
+from qsls.pipeline.report.summary import summary_section
 
-RUN_FILE = "run.json"
 
 @dataclass(frozen=True)
 class ReportResult:
@@ -64,90 +74,102 @@ def _stage_dirs(run_dir: Path) -> dict[str, list[Path]]:
     return found
 
 
-def _run_section(run_dir: Path, stages: dict[str, list[Path]]) -> Section:
-    sec = Section("What was run")
-    run_json = run_dir / RUN_FILE
-    info: dict[str, Any] = json.loads(run_json.read_text()) if run_json.is_file() else {}
+def _provenance_section(f: Facts) -> Section:
+    """Config, input hashes, package versions and git commit: the appendix, collapsed."""
+    sec = Section("Provenance: config, inputs, versions", id="provenance", collapsed=True)
+    info = f.info
     sec.kv(
         {
-            "run": info.get("name", run_dir.name),
+            "run": f.name,
             "qsls version": info.get("qsls_version", "?"),
             "git commit": info.get("git_commit", "unknown"),
             "seed": info.get("seed", "?"),
             "config file": info.get("config_path", "?"),
             "config sha256": info.get("config_sha256", "?"),
-        }
+        },
+        "The run",
     )
     if info.get("config"):
+        sec.heading("Config")
         sec.code(dump_yaml(info["config"]))
     rows = []
     packages: dict[str, str] = {}
-    for kind in sorted(stages):
-        for folder in stages[kind]:
+    for kind in sorted(f.stages):
+        for folder in f.stages[kind]:
             m = read_manifest(folder)
             packages = m.get("packages", packages)
             for inp in m.get("inputs", []):
-                rows.append(
-                    [
-                        folder.relative_to(run_dir).as_posix(),
-                        Path(inp["path"]).name,
-                        inp["sha256"][:16],
-                    ]
-                )
+                rows.append([f.rel(folder), Path(inp["path"]).name, inp["sha256"][:16]])
             if not m.get("inputs"):
-                rows.append(
-                    [folder.relative_to(run_dir).as_posix(), "(none)", m.get("input_hash", "")[:16]]
-                )
+                rows.append([f.rel(folder), "(none)", m.get("input_hash", "")[:16]])
     if rows:
-        sec.table(["stage folder", "input", "sha256 (16)"], rows, "Inputs of every stage")
+        sec.table(
+            ["stage folder", "input", "sha256 (first 16)"],
+            rows,
+            "Inputs of every stage",
+            text_cols=[1, 2],
+        )
     if packages:
         sec.kv(packages, "Package versions")
     return sec
 
 
-def _manifest_results_section(
-    title: str, run_dir: Path, folders: list[Path], counter: list[int]
-) -> Section:
-    sec = Section(title)
-    for folder in folders:
-        m = read_manifest(folder)
-        results = {
-            k: v for k, v in (m.get("results") or {}).items() if not isinstance(v, dict | list)
-        }
-        if results:
-            sec.kv(results, folder.relative_to(run_dir).as_posix())
-        add_figures(sec, run_dir, folder, counter)
+def _other_section(f: Facts, kind: str, counter: list[int]) -> Section:
+    """A stage the report has no section for: its scalar results and its figures."""
+    sec = Section(f"Stage: {kind}", id=f"stage-{kind}")
+    for folder in f.stages[kind]:
+        res = read_manifest(folder).get("results") or {}
+        scalars = {k: v for k, v in res.items() if not isinstance(v, dict | list)}
+        if scalars:
+            sec.kv(scalars, f.rel(folder))
+        sec.figures([figure_of(f.run_dir, p, f.rel(p), counter) for p in stage_pngs(folder)])
     return sec
 
 
-_TITLES = (
-    ("simulate", "Simulated flights"),
-    ("ingest", "Flights"),
-    ("fit", "Error model"),
-    ("sweep", "Feasibility sweep"),
-    ("synth", "Controllers and certificates"),
-    ("evaluate", "Bound check and flown comparison"),
-)
+_KNOWN = {"simulate", "ingest", "fit", "sweep", "synth", "evaluate"}
 
 
 def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Section]:
+    """Summary first, the paper's figures, the evidence, the appendix last."""
+    from qsls.pipeline.report import flights as fl
+    from qsls.pipeline.report import sections as rs
+
     stages = _stage_dirs(run_dir)
     if not stages:
         raise InputError(f"{run_dir}: no stage folders found; pass the folder of a 'qsls run'")
+    f = read_facts(run_dir, stages)
     counter = [0]
-    sections = [_run_section(run_dir, stages)]
-    progress.start("report", total=len(_TITLES))
-    from qsls.pipeline.report import sections as rs
-
-    for kind, title in _TITLES:
-        folders = stages.get(kind, [])
-        if folders:
-            builder = getattr(rs, f"section_{kind}", None)
-            sec = builder(title, run_dir, folders, counter) if builder else None
-            sections.append(sec or _manifest_results_section(title, run_dir, folders, counter))
+    builders = [
+        rs.section_paper_figures,
+        rs.section_controllers,
+        rs.section_heldout,
+        rs.section_flown,
+        rs.section_error_model,
+        rs.section_sweep,
+        fl.section_flights,
+        fl.section_simulated,
+    ]
+    progress.start("report", total=len(builders) + 2)
+    sections = [summary_section(f)]
+    progress.advance()
+    for build in builders:
+        sec = build(f, counter)
+        if sec is not None:
+            sections.append(sec)
         progress.advance()
+    sections += [_other_section(f, k, counter) for k in sorted(set(stages) - _KNOWN)]
+    sections.append(_provenance_section(f))
+    progress.advance()
     progress.finish()
     return sections
+
+
+def _subtitle(info: dict[str, Any], name: str) -> str:
+    commit = str(info.get("git_commit") or "unknown")[:10]
+    return (
+        f"Run {name} from {info.get('config_path', '?')} · qsls {info.get('qsls_version', '?')} "
+        f"· commit {commit} · seed {info.get('seed', '?')} · [provenance](#provenance)"
+    )
 
 
 def report(
@@ -167,8 +189,9 @@ def report(
     check_output(out, force)
     sections = build_sections(run_dir, progress)
     title = f"qsls report: {name}"
-    page = render_html(title, sections)
-    md, files = render_markdown(title, sections)
+    subtitle = _subtitle(info, name)
+    page = render_html(title, subtitle, sections)
+    md, files = render_markdown(title, subtitle, sections)
     clean_stale(out)
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
     tmp.mkdir(parents=True, exist_ok=False)

@@ -1,0 +1,291 @@
+"""What the report says, read once from a run folder, tolerant of missing or older keys.
+
+Every stage's files are read here (certificates, error model, sweep tables, the bound
+check, the flown comparison and its findings); the summary and the sections only format.
+Newer keys are preferred where they exist (a certificate's ``premise``, ``bound_holds``
+against ``gamma_nominal``, ``fly/findings.json``) and today's keys are used otherwise, so a
+run folder written by any qsls version renders.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from qsls.pipeline.core.artifacts import read_manifest
+
+RUN_FILE = "run.json"
+
+
+def first(d: Any, *keys: str, default: Any = None) -> Any:
+    """The first of ``keys`` present in mapping ``d`` with a value other than None."""
+    if not isinstance(d, dict):
+        return default
+    for k in keys:
+        if d.get(k) is not None:
+            return d[k]
+    return default
+
+
+def num(v: Any) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def g4(v: Any) -> str:
+    """A number to 3-4 significant digits for prose ('-' when missing)."""
+    x = num(v)
+    if math.isnan(x):
+        return "-"
+    if math.isinf(x):
+        return "inf"
+    return f"{x:.3g}"
+
+
+def pct(v: Any) -> str:
+    x = num(v)
+    if math.isnan(x):
+        return "-"
+    return f"{100 * x:.1f}%" if 0 < x < 0.01 else f"{100 * x:.0f}%"
+
+
+def _yaml(path: Path) -> dict[str, Any]:
+    import yaml
+
+    if not path.is_file():
+        return {}
+    doc = yaml.safe_load(path.read_text())
+    return doc if isinstance(doc, dict) else {}
+
+
+def _json(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        return {}
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError:
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def _parquet(path: Path) -> Any:
+    import pandas as pd
+
+    return pd.read_parquet(path) if path.is_file() else None
+
+
+# --------------------------------------------------------------------------- status words
+STATUS_WORDS = {
+    "certified": ("certified", "ok"),
+    "certified_relaxed": ("certified, relaxed premise", "warn"),
+    "relaxed": ("certified, relaxed premise", "warn"),
+    "uncertified": ("no guarantee", "muted"),
+    "reference": ("reference, no guarantee", "muted"),
+    "infeasible": ("infeasible", "bad"),
+}
+
+
+def status_words(status: Any) -> tuple[str, str]:
+    """A certificate's status in plain words and its badge kind (ok/warn/bad/muted)."""
+    s = str(status or "unknown")
+    if s in STATUS_WORDS:
+        return STATUS_WORDS[s]
+    if s.startswith("certified_"):
+        return (f"certified ({s.split('_', 1)[1].replace('_', ' ')})", "warn")
+    return (s.replace("_", " "), "bad")
+
+
+# --------------------------------------------------------------------------- the facts
+@dataclass(frozen=True)
+class Controller:
+    name: str
+    folder: str  # synth folder, relative to the run
+    cert: dict[str, Any]
+
+    @property
+    def status(self) -> str:
+        return str(self.cert.get("status", "unknown"))
+
+    @property
+    def certified(self) -> bool:
+        return self.status.startswith("certified")
+
+    def premise(self, key: str) -> dict[str, Any]:
+        """``premise[key]`` as a mapping (value, how chosen, violated share), or empty."""
+        p = first(self.cert, "premise", default={})
+        entry = p.get(key) if isinstance(p, dict) else None
+        if isinstance(entry, dict):
+            return entry
+        return {"value": entry} if entry is not None else {}
+
+
+@dataclass(frozen=True)
+class EvalTable:
+    folder: str  # relative to the run
+    kind: str  # "evaluate" (recorded held-out flights) or "fly" (flown by the controllers)
+    table: Any  # pandas DataFrame
+    warnings: list[str]
+
+
+@dataclass
+class Facts:
+    run_dir: Path
+    info: dict[str, Any]
+    stages: dict[str, list[Path]]
+    error_model: dict[str, Any] = field(default_factory=dict)
+    error_model_folder: str = ""
+    controllers: list[Controller] = field(default_factory=list)
+    sweep: Any = None
+    s_max: Any = None
+    sweep_options: dict[str, Any] = field(default_factory=dict)
+    evaluations: list[EvalTable] = field(default_factory=list)
+    per_controller: Any = None
+    comparison: list[dict[str, Any]] = field(default_factory=list)
+    findings: dict[str, Any] = field(default_factory=dict)
+    fly_folder: str = ""
+
+    @property
+    def name(self) -> str:
+        return str(self.info.get("name", self.run_dir.name))
+
+    def rel(self, folder: Path) -> str:
+        return folder.relative_to(self.run_dir).as_posix()
+
+
+def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
+    info = _json(run_dir / RUN_FILE)
+    f = Facts(run_dir=run_dir, info=info, stages=stages)
+    for folder in stages.get("fit", []):
+        em = _yaml(folder / "error_model.yaml")
+        if em and not f.error_model:
+            f.error_model, f.error_model_folder = em, f.rel(folder)
+    for folder in stages.get("synth", []):
+        for cert_file in sorted(folder.glob("*/certificate.yaml")):
+            cert = _yaml(cert_file)
+            name = str(cert.get("controller") or cert_file.parent.name)
+            f.controllers.append(Controller(name, f.rel(folder), cert))
+    for folder in stages.get("sweep", []):
+        if f.sweep is None:
+            f.sweep = _parquet(folder / "sweep.parquet")
+            f.s_max = _parquet(folder / "s_max.parquet")
+            f.sweep_options = read_manifest(folder).get("options") or {}
+    for folder in stages.get("evaluate", []):
+        _read_evaluation(f, folder)
+    return f
+
+
+def _read_evaluation(f: Facts, folder: Path) -> None:
+    doc = _json(folder / "evaluation.json")
+    table = _parquet(folder / "evaluation.parquet")
+    fly = doc.get("mode") == "fly" or (folder / "per_controller.parquet").is_file()
+    if table is not None:
+        warnings = [str(w) for w in doc.get("warnings") or []]
+        f.evaluations.append(
+            EvalTable(f.rel(folder), "fly" if fly else "evaluate", table, warnings)
+        )
+    if fly:
+        f.fly_folder = f.fly_folder or f.rel(folder)
+        if f.per_controller is None:
+            f.per_controller = _parquet(folder / "per_controller.parquet")
+        f.comparison = f.comparison or list(doc.get("comparison") or [])
+        f.findings = f.findings or _json(folder / "findings.json")
+
+
+# --------------------------------------------------------------------------- verdicts
+@dataclass(frozen=True)
+class Verdict:
+    text: str
+    kind: str  # ok | warn | bad | muted
+    n_flights: int = 0
+    n_hold: int = 0
+    worst_ratio: float = math.nan
+    theorem: bool = False  # checked against gamma_nominal (the theorem on the flight)
+
+
+def own_rows(f: Facts, name: str) -> tuple[Any, bool]:
+    """The bound-check rows of flights flown by controller ``name`` and whether they carry
+    the theorem-level columns (``gamma_nominal``)."""
+    for ev in f.evaluations:
+        t = ev.table
+        if ev.kind == "fly" and "flown_by" in t and "controller" in t:
+            rows = t[(t["controller"] == name) & (t["flown_by"] == name)]
+            if len(rows):
+                return rows, "gamma_nominal" in t
+    return None, False
+
+
+def heldout_verdict(f: Facts, c: Controller) -> Verdict:
+    """Did the guarantee hold on the flights this controller flew itself?"""
+    rows, theorem = own_rows(f, c.name)
+    if rows is None:
+        if any(ev.kind == "fly" for ev in f.evaluations):
+            return Verdict("not flown", "muted")
+        return Verdict("not flown (the theorem applies to its own flights only)", "muted")
+    n = len(rows)
+    if theorem:
+        gamma = rows["gamma_nominal"].astype(float)
+        ratio = (rows["max_error_norm"].astype(float) / gamma).max()
+    else:
+        ratio = float(rows["max_ratio"].max()) if "max_ratio" in rows else math.nan
+    holds = (
+        int(rows["bound_holds"].fillna(False).astype(bool).sum()) if "bound_holds" in rows else 0
+    )
+    guaranteed = bool(rows["has_guarantee"].all()) if "has_guarantee" in rows else c.certified
+    what = "max ||e|| / gamma_nominal" if theorem else "max ||e|| / gamma(d)"
+    if not guaranteed:
+        return Verdict(
+            f"no guarantee to check; {what} = {g4(ratio)} on {n} flight{'s' * (n > 1)}",
+            "muted",
+            n,
+            holds,
+            float(ratio),
+            theorem,
+        )
+    kind = "ok" if holds == n else "bad"
+    scope = "" if theorem else " (per-sample check)"
+    return Verdict(
+        f"bound held on {holds} of {n} own flights{scope}; worst {what} = {g4(ratio)}",
+        kind,
+        n,
+        holds,
+        float(ratio),
+        theorem,
+    )
+
+
+def findings_list(f: Facts) -> list[dict[str, Any]]:
+    """The paper's findings as ``{id, claim, verdict, effect, ci, detail}`` from
+    ``findings.json`` (issue 13's schema) or, failing that, the comparison table."""
+    out = []
+    for item in f.findings.get("findings") or []:
+        out.append(
+            {
+                "id": item.get("id", len(out) + 1),
+                "claim": str(item.get("claim", "")),
+                "verdict": str(item.get("verdict", "")),
+                "effect": item.get("effect"),
+                "ci": item.get("ci"),
+                "detail": str(first(item, "mechanism", "detail", "qsls", default="")),
+            }
+        )
+    if out:
+        return out
+    for i, c in enumerate(f.comparison, 1):
+        claim = str(c.get("finding", ""))
+        head, _, rest = claim.partition(". ")
+        out.append(
+            {
+                "id": int(head) if head.isdigit() else i,
+                "claim": rest if head.isdigit() else claim,
+                "verdict": str(c.get("agrees", "")),
+                "effect": None,
+                "ci": None,
+                "detail": str(c.get("qsls", "")),
+            }
+        )
+    return out
