@@ -68,8 +68,14 @@ class PageVisit:
     layout: dict = field(default_factory=dict)
 
 
-def visit(html_file: Path, screenshot: Path, timeout: float = 60.0) -> PageVisit:
-    """Load ``html_file`` and collect what the page did."""
+def visit(
+    html_file: Path,
+    screenshot: Path,
+    timeout: float = 60.0,
+    scrolled: dict[str, Path] | None = None,
+) -> PageVisit:
+    """Load ``html_file`` and collect what the page did; ``screenshot`` is the first screen,
+    ``scrolled`` maps a CSS selector to a screenshot taken with that element at the top."""
     from tornado.ioloop import IOLoop
 
     exe = find_chromium()
@@ -105,7 +111,8 @@ def visit(html_file: Path, screenshot: Path, timeout: float = 60.0) -> PageVisit
         port, path = port_file.read_text().splitlines()[:2]
         url = f"ws://127.0.0.1:{port}{path}"
         return IOLoop.current().run_sync(
-            lambda: _drive(url, Path(html_file).resolve().as_uri(), screenshot), timeout=timeout
+            lambda: _drive(url, Path(html_file).resolve().as_uri(), screenshot, scrolled or {}),
+            timeout=timeout,
         )
     finally:
         proc.terminate()
@@ -116,7 +123,9 @@ def visit(html_file: Path, screenshot: Path, timeout: float = 60.0) -> PageVisit
         shutil.rmtree(profile, ignore_errors=True)
 
 
-async def _drive(ws_url: str, page_url: str, screenshot: Path) -> PageVisit:
+async def _drive(
+    ws_url: str, page_url: str, screenshot: Path, scrolled: dict[str, Path]
+) -> PageVisit:
     from tornado.websocket import websocket_connect
 
     conn = await websocket_connect(ws_url, max_message_size=256 * 1024 * 1024)
@@ -188,6 +197,12 @@ async def _drive(ws_url: str, page_url: str, screenshot: Path) -> PageVisit:
     shot = await call("Page.captureScreenshot", {"format": "png"}, session=sid)
     visit_.screenshot = base64.b64decode(shot["data"])
     screenshot.write_bytes(visit_.screenshot)
+    for selector, path in scrolled.items():
+        js = f"document.querySelector({json.dumps(selector)}).scrollIntoView()"
+        await call("Runtime.evaluate", {"expression": js}, session=sid)
+        await asyncio.sleep(0.1)
+        shot = await call("Page.captureScreenshot", {"format": "png"}, session=sid)
+        path.write_bytes(base64.b64decode(shot["data"]))
     for ev in events:
         method, params = ev.get("method"), ev.get("params", {})
         if method == "Network.requestWillBeSent":

@@ -1,16 +1,33 @@
-"""qsls report: deterministic bytes, and the page as a reader sees it in headless Chromium."""
+"""qsls report: deterministic bytes, and the page as a reader sees it in headless Chromium.
+
+The layout is measured by the browser at 1280x900 (document width, table rows, figure
+widths, where the summary sits); the summary's numbers are checked against the stage files
+read independently here. Screenshots of the first screen are kept in reports/test-artifacts/.
+"""
 
 from __future__ import annotations
 
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
+import pandas as pd
 import pytest
+import yaml
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
 from qsls.pipeline.core.artifacts import StageWriter
 from qsls.pipeline.ingest.flight import make_flight_frame
 
-from .browser import find_chromium, visit
+from .browser import HEIGHT, WIDTH, find_chromium, visit
+
+REPO = Path(__file__).resolve().parents[1]
+ARTIFACTS = REPO / "reports" / "test-artifacts"
+needs_chromium = pytest.mark.skipif(find_chromium() is None, reason="chromium is not installed")
 
 
 def _fake_run(root):
@@ -54,7 +71,7 @@ def test_report_on_a_folder_that_is_not_a_run(tmp_path):
     assert not (tmp_path / "r").exists()
 
 
-@pytest.mark.skipif(find_chromium() is None, reason="chromium is not installed")
+@needs_chromium
 def test_report_renders_in_chromium_offline(report_dir):
     _, out = report_dir
     shot = out.parent / "screenshot.png"
@@ -66,3 +83,172 @@ def test_report_renders_in_chromium_offline(report_dir):
     assert left == [], f"requests left the file: {left}"
     assert page.console_errors == []
     assert shot.stat().st_size > 10_000 and shot.read_bytes()[:4] == b"\x89PNG"
+    _check_layout(page, shot, "flights_only")
+    assert "No controller in this run" in page.layout["summaryText"]
+
+
+# --------------------------------------------------------------------------- layout checks
+def _check_layout(page, shot: Path, name: str) -> dict:
+    """What every report must satisfy at 1280x900; returns the measured layout."""
+    lay = page.layout
+    assert (lay["innerWidth"], lay["innerHeight"]) == (WIDTH, HEIGHT)
+    assert lay["scrollWidth"] <= lay["innerWidth"], ("page wider than the window", lay["overflow"])
+    tall = [r for r in lay["rows"] if r["height"] > 80]
+    assert tall == [], f"table rows taller than 80 px: {tall[:3]}"
+    narrow = [f for f in lay["figures"] if f["width"] < 480]
+    assert narrow == [], f"figures narrower than 480 px: {narrow}"
+    assert lay["firstSection"] == "summary"
+    assert lay["summaryTop"] is not None and lay["summaryTop"] < 0.3 * HEIGHT
+    assert page.console_errors == []
+    left = [u for u in page.requests if not u.startswith(("file:", "data:"))]
+    assert left == [], f"requests left the file: {left}"
+    dangling = {h[1:] for h in lay["links"]} - set(lay["ids"])
+    assert dangling == set(), f"links to missing sections: {dangling}"
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(shot, ARTIFACTS / f"report_first_screen_{name}.png")
+    return lay
+
+
+def _visit(out: Path):
+    shot = out.parent / f"{out.name}_first_screen.png"
+    page = visit(out / "index.html", shot)
+    assert shot.read_bytes()[:4] == b"\x89PNG"
+    return page, shot
+
+
+def _md_sections(md: str) -> list[str]:
+    return re.findall(r'^<a id="([^"]+)"></a>$', md, flags=re.M)
+
+
+def _html_sections(page: str) -> list[str]:
+    return re.findall(r'<section id="([^"]+)"', page)
+
+
+def _check_tables_and_files(out: Path) -> None:
+    """At most 8 columns per table; the Markdown twin has the same sections in the same
+    order; every file either links exists beside the report."""
+    page = (out / "index.html").read_text()
+    md = (out / "report.md").read_text()
+    for head in re.findall(r"<thead><tr>(.*?)</tr></thead>", page):
+        assert head.count("<th") <= 8, head
+    assert _md_sections(md) == _html_sections(page)
+    assert _html_sections(page)[0] == "summary" and _html_sections(page)[-1] == "provenance"
+    assert re.search(r'<section id="provenance"><details>', page)
+    linked = set(re.findall(r'href="([^"#][^"]*)"', page)) | set(
+        re.findall(r"\]\(([^)#][^)]*)\)", md)
+    )
+    for name in linked:
+        assert (out / name).is_file(), name
+
+
+# --------------------------------------------------------------------------- quickstart
+def _run(config: Path, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "qsls.cli.main", "run", str(config)],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+    )
+
+
+@pytest.fixture(scope="module")
+def quickstart(tmp_path_factory):
+    work = tmp_path_factory.mktemp("qs")
+    cfg = work / "quickstart.yaml"
+    cfg.write_text((REPO / "configs" / "quickstart.yaml").read_text())
+    proc = _run(cfg, work)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return work / "runs" / "quickstart", work / "reports" / "quickstart"
+
+
+def _cards(page: str) -> dict[str, str]:
+    """Controller name -> the card's text (tags stripped)."""
+    summary = page.split('<section id="summary">', 1)[1].split("</section>", 1)[0]
+    out = {}
+    for card in re.findall(r'<div class="card".*?</div>', summary, flags=re.S):
+        name = re.search(r"<h3>(.*?)</h3>", card).group(1)
+        out[name] = re.sub(r"<[^>]+>", " ", card)
+    return out
+
+
+@pytest.mark.slow
+def test_quickstart_summary_states_each_controller_and_its_verdict(quickstart):
+    run_dir, out = quickstart
+    page = (out / "index.html").read_text()
+    cards = _cards(page)
+    em = yaml.safe_load((run_dir / "fit" / "error_model.yaml").read_text())
+    ev = pd.read_parquet(run_dir / "fly" / "evaluation.parquet")
+    certs = {
+        p.parent.name: yaml.safe_load(p.read_text())
+        for p in sorted((run_dir / "synth").glob("*/certificate.yaml"))
+    }
+    assert set(cards) == set(certs)
+    for name, cert in certs.items():
+        text = cards[name]
+        assert f"{cert['gamma']:.3g}" in text and f"{cert['S']:.3g}" in text
+        # a percentile premise is never shown as plainly "certified"
+        if cert["status"].startswith("certified"):
+            at_max = (
+                abs(cert["S"] - em["s_slope"]["max"]) < 1e-12
+                and abs(cert["eps_e"] - em["eps_e"]) < 1e-12
+            )
+            assert ("relaxed" in text) == (not at_max), text
+        own = ev[(ev["controller"] == name) & (ev["flown_by"] == name)]
+        assert "Held-out:" in text
+        if len(own) and bool(own["has_guarantee"].all()):
+            held = int(own["bound_holds"].sum())
+            assert f"held on {held} of {len(own)} own flights" in text, text
+            col = "gamma_nominal" if "gamma_nominal" in ev else None
+            worst = (own["max_error_norm"] / own[col]).max() if col else own["max_ratio"].max()
+            assert f"{worst:.3g}" in text, (worst, text)
+
+
+@pytest.mark.slow
+def test_quickstart_report_tables_files_and_bytes(quickstart, tmp_path):
+    run_dir, out = quickstart
+    _check_tables_and_files(out)
+    assert (out / "report.md").read_text().splitlines()[0] == "# qsls report: quickstart"
+    again = tmp_path / "again"
+    assert CliRunner().invoke(app, ["report", str(run_dir), "--out", str(again)]).exit_code == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(p.name for p in again.iterdir())
+    for name in names:
+        assert (out / name).read_bytes() == (again / name).read_bytes(), name
+
+
+@pytest.mark.slow
+@needs_chromium
+def test_quickstart_report_in_chromium_at_1280(quickstart):
+    run_dir, out = quickstart
+    lay = _check_layout(*_visit(out), "quickstart")
+    names = sorted(p.parent.name for p in (run_dir / "synth").glob("*/certificate.yaml"))
+    assert {c["text"].splitlines()[0] for c in lay["cards"]} == set(names)
+    for card in lay["cards"]:
+        assert card["top"] < HEIGHT, card["text"][:40]  # on the first screen
+        assert "Held-out:" in card["text"]
+    assert len(lay["figures"]) >= 8
+
+
+# --------------------------------------------------------------------------- euroc
+@pytest.mark.slow
+@needs_chromium
+def test_euroc_report_says_why_nothing_is_feasible(real_data, tmp_path):
+    cfg = tmp_path / "configs" / "euroc.yaml"
+    cfg.parent.mkdir()
+    text = (REPO / "configs" / "euroc.yaml").read_text()
+    cfg.write_text(text.replace("../../shared/data/real", str(real_data)))
+    proc = _run(cfg, tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    run_dir, out = tmp_path / "runs" / "euroc", tmp_path / "reports" / "euroc"
+    sweep = pd.read_parquet(run_dir / "sweep" / "sweep.parquet")
+    smax = pd.read_parquet(run_dir / "sweep" / "s_max.parquet").sort_values("T")
+    assert not sweep["feasible"].any()
+    lay = _check_layout(*_visit(out), "euroc")
+    summary = lay["summaryText"]
+    assert "No setting is feasible" in summary and "S + eps_e/r < 1" in summary
+    assert f"none of the {len(sweep)} points" in summary
+    for _, r in smax.iterrows():  # the numbers behind the why and the what
+        assert f"{r['min_norm_phi_xy']:.3g} at T = {int(r['T'])}" in summary
+        assert f"{r['s_max']:.3g} at T = {int(r['T'])}" in summary
+    assert "larger radius" in summary
+    _check_tables_and_files(out)

@@ -51,11 +51,11 @@ padding:.5rem .7rem;font-size:.87rem}
 .badge.muted{background:#ececef}
 .tablewrap{overflow-x:auto;max-width:100%;margin:.5rem 0}
 table{border-collapse:collapse;font-size:.86rem;font-variant-numeric:tabular-nums}
-caption{caption-side:top;text-align:left;font-weight:600;padding:.2rem 0 .3rem}
+p.cap{font-weight:600;margin:.9rem 0 .2rem}
 th,td{padding:.22rem .6rem;border-bottom:1px solid var(--line);text-align:right;white-space:nowrap}
 th{background:#f3f3f5;font-weight:600;vertical-align:bottom;white-space:normal;min-width:4.5em}
 td:first-child,th:first-child{text-align:left}
-td.t{text-align:left}td.w{text-align:left;white-space:normal;min-width:16em;max-width:38em}
+td.t,th.t{text-align:left}td.w{text-align:left;white-space:normal;min-width:16em;max-width:38em}
 ol.notes{font-size:.84rem;color:#333;margin:.2rem 0 .8rem;padding-left:1.6rem;max-width:75em}
 .csv{font-size:.84rem}
 .figs{display:grid;grid-template-columns:repeat(auto-fit,minmax(490px,1fr));gap:14px;margin:.6rem 0}
@@ -220,9 +220,12 @@ def _inline(s: str) -> str:
 
 
 def _html_table(t: Table) -> str:
-    cap = f"<caption>{_inline(t.caption)}</caption>" if t.caption else ""
-    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in t.columns)
+    cap = f'<p class="cap">{_inline(t.caption)}</p>' if t.caption else ""
     cls = {j: ' class="t"' for j in t.text_cols} | {j: ' class="w"' for j in t.wrap_cols}
+    head = "".join(
+        f"<th{' class=t' if j in cls else ''}>{html.escape(str(c))}</th>"
+        for j, c in enumerate(t.columns)
+    )
     body = "".join(
         "<tr>"
         + "".join(f"<td{cls.get(j, '')}>{_inline(fmt(v))}</td>" for j, v in enumerate(r))
@@ -230,7 +233,7 @@ def _html_table(t: Table) -> str:
         for r in t.rows
     )
     out = [
-        f'<div class="tablewrap"><table>{cap}<thead><tr>{head}</tr></thead>'
+        f'{cap}<div class="tablewrap"><table><thead><tr>{head}</tr></thead>'
         f"<tbody>{body}</tbody></table></div>"
     ]
     if t.notes:

@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
-from qsls.pipeline.report.facts import Facts, findings_list, first, g4, status_words
+from qsls.pipeline.report.facts import Facts, findings_list, first, g4, pct, status_words
 from qsls.pipeline.report.summary import premise_entry, status_badge
 
 
@@ -114,15 +114,15 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
                 first(d, "solver_status", default="-"),
             ]
         )
-        pe, pe_share, _ = premise_entry(c, em, "eps_e")
-        ps, ps_share, _ = premise_entry(c, em, "S")
+        pe, pe_share, pe_inf = premise_entry(c, em, "eps_e")
+        ps, ps_share, ps_inf = premise_entry(c, em, "S")
         premise.append(
             [
                 c.name,
                 pe or "-",
-                pe_share,
+                "~" * pe_inf + pct(pe_share),
                 ps or "-",
-                ps_share,
+                "~" * ps_inf + pct(ps_share),
                 d.get("radius"),
                 d.get("delta"),
                 d.get("eps_w"),
@@ -197,7 +197,7 @@ def _note_index(notes: list[str], text: str) -> int:
 def section_heldout(f: Facts, counter: list[int]) -> Section | None:
     if not f.evaluations:
         return None
-    sec = Section("Bound check on held-out flights", id="heldout")
+    sec = Section("Bound check", id="heldout")
     for ev in f.evaluations:
         t = ev.table
         if not len(t):
@@ -276,7 +276,7 @@ def section_flown(f: Facts, counter: list[int]) -> Section | None:
     items = findings_list(f)
     if pc is None and not items:
         return None
-    sec = Section("Flown comparison and the paper's findings", id="findings")
+    sec = Section("Findings and flown comparison", id="findings")
     if items:
         rows, notes = [], []
         for it in items:
@@ -382,7 +382,7 @@ def section_sweep(f: Facts, counter: list[int]) -> Section | None:
     folders = f.stages.get("sweep", [])
     if not folders:
         return None
-    sec = Section("Feasibility sweep", id="sweep")
+    sec = Section("Sweep", id="sweep")
     sw, sm = f.sweep, f.s_max
     if sm is not None and len(sm):
         cols = [("T", "T (steps)"), ("eps_e", "eps_e"), ("radius", "r"), ("delta", "Delta"),
@@ -405,6 +405,8 @@ def section_sweep(f: Facts, counter: list[int]) -> Section | None:
              g["gamma"].min() if "gamma" in g else None]
             for k, g in grouped
         ]  # fmt: skip
+        if s_col in keys:
+            rows.sort(key=lambda r: (r[keys.index(s_col)], *r[len(keys) - 1 : len(keys)]))
         heads = {"S": "S", "S_value": "S value", "T": "T (steps)"}
         csv = _csv(sec, f"sweep_{_slug(f.rel(folders[0]))}.csv", sw)
         sec.table(

@@ -76,7 +76,7 @@ def _stage_dirs(run_dir: Path) -> dict[str, list[Path]]:
 
 def _provenance_section(f: Facts) -> Section:
     """Config, input hashes, package versions and git commit: the appendix, collapsed."""
-    sec = Section("Provenance: config, inputs, versions", id="provenance", collapsed=True)
+    sec = Section("Provenance", id="provenance", collapsed=True)
     info = f.info
     sec.kv(
         {
@@ -149,6 +149,9 @@ def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Se
         fl.section_flights,
         fl.section_simulated,
     ]
+    if not f.controllers:  # nothing synthesized: the sweep is the answer, it comes first
+        builders.remove(rs.section_sweep)
+        builders.insert(0, rs.section_sweep)
     progress.start("report", total=len(builders) + 2)
     sections = [summary_section(f)]
     progress.advance()

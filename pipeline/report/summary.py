@@ -193,6 +193,14 @@ def warning_lines(f: Facts) -> list[str]:
                 f"S = {how_s or g4(c.cert.get('S'))}: part of the training data itself lies "
                 "outside that premise, so the guarantee is conditional."
             )
+    sw = f.sweep
+    if sw is not None and len(sw) and "radius_value" in sw and em.get("radius") is not None:
+        radii = sorted({num(v) for v in sw["radius_value"]} - {num(em["radius"])})
+        if radii:
+            out.append(
+                f"The sweep uses r = {', '.join(g4(r) for r in radii)}, but the error model's "
+                f"S-slopes were fitted over pairs within r = {g4(em['radius'])}."
+            )
     for ev in f.evaluations:
         t = ev.table
         if "frac_premise_holds" in t and len(t):
@@ -216,7 +224,10 @@ def infeasible_lines(f: Facts) -> list[str]:
     """Why no setting is feasible and what would be needed, with the run's numbers."""
     sw, sm, em = f.sweep, f.s_max, f.error_model
     if sw is None or not len(sw):
-        return ["No sweep was run, so there is no feasibility evidence in this report."]
+        return [
+            "No controller in this run (no synth stage) and no sweep, so this report has no "
+            "feasibility evidence; it shows the flights and the error model."
+        ]
     eps = num(sw["eps_e_value"].iloc[0]) if "eps_e_value" in sw else num(em.get("eps_e"))
     r = num(sw["radius_value"].iloc[0]) if "radius_value" in sw else num(em.get("radius"))
     s_col = "S_value" if "S_value" in sw else "S"
