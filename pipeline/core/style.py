@@ -54,7 +54,7 @@ ALERT = OKABE_ITO["vermillion"]
 WIDTH_IN = 10.0  # full report column at 110 dpi
 HALF_WIDTH_IN = 5.4  # two figures side by side, each above 480 px
 
-_RC = {
+_RC: dict[str, Any] = {
     "font.size": 10.5,
     "axes.titlesize": 11,
     "axes.labelsize": 10.5,
@@ -88,7 +88,7 @@ def pyplot() -> Any:
     import matplotlib.pyplot as plt
     from cycler import cycler
 
-    matplotlib.rcParams.update(_RC)
+    matplotlib.rcParams.update(_RC)  # type: ignore[arg-type]
     matplotlib.rcParams["axes.prop_cycle"] = cycler(color=list(CYCLE))
     return plt
 

@@ -261,7 +261,7 @@ def heldout_verdict(f: Facts, c: Controller) -> Verdict:
 def findings_list(f: Facts) -> list[dict[str, Any]]:
     """The paper's findings as ``{id, claim, verdict, effect, ci, detail}`` from
     ``findings.json`` (issue 13's schema) or, failing that, the comparison table."""
-    out = []
+    out: list[dict[str, Any]] = []
     for item in f.findings.get("findings") or []:
         out.append(
             {

@@ -204,7 +204,8 @@ def section_heldout(f: Facts, counter: list[int]) -> Section | None:
             continue
         theorem = "gamma_nominal" in t
         gcol = "gamma_nominal" if theorem else "gamma"
-        rows, notes = [], []
+        rows: list[list[Any]] = []
+        notes: list[str] = []
         for _, r in t.iterrows():
             text = str(r.get("verdict", ""))
             word = text.split(";")[0].strip() or "-"
@@ -278,7 +279,8 @@ def section_flown(f: Facts, counter: list[int]) -> Section | None:
         return None
     sec = Section("Findings and flown comparison", id="findings")
     if items:
-        rows, notes = [], []
+        rows: list[list[Any]] = []
+        notes: list[str] = []
         for it in items:
             ci = it.get("ci")
             eff = g4(it["effect"]) if it.get("effect") is not None else "-"
