@@ -346,7 +346,7 @@ def _md_cards(cards: Sequence[Card]) -> list[str]:
             f"**{c.title}**",
             c.badge,
             *(values.get(k, "-") for k, _ in cards[0].items),
-            c.verdict + (f" ({c.note})" if c.note else ""),
+            c.verdict,
         ]
         lines.append("| " + " | ".join(x.replace("|", "\\|") for x in cells) + " |")
     links = sorted({(t, h) for c in cards for t, h in c.links}, key=lambda x: x[1])

@@ -64,7 +64,7 @@ def section_flights(f: Facts, counter: list[int]) -> Section | None:
     sec = Section("Flights", id="flights")
     rows, data = [], []
     for folder in folders:
-        name = f.rel(folder)
+        name = folder.name
         res = read_manifest(folder).get("results", {})
         df = read_flight(folder)
         e = errors(df)
@@ -117,7 +117,7 @@ def section_simulated(f: Facts, counter: list[int]) -> Section | None:
     for folder in folders:
         res = read_manifest(folder).get("results", {})
         flat = {k: v for k, v in res.items() if not isinstance(v, dict | list)}
-        records.append({"flight": f.rel(folder), **flat})
+        records.append({"flight": folder.name, **flat})
     full = pd.DataFrame(records)
     cols = [(k, h) for k, h in _SIM_COLS if k in full]
     csv = sec.attach("simulated_flights.csv", full.to_csv(index=False).encode())

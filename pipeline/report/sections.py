@@ -410,7 +410,7 @@ def section_sweep(f: Facts, counter: list[int]) -> Section | None:
         if s_col in keys:
             rows.sort(key=lambda r: (r[keys.index(s_col)], *r[len(keys) - 1 : len(keys)]))
         heads = {"S": "S", "S_value": "S value", "T": "T (steps)"}
-        csv = _csv(sec, f"sweep_{_slug(f.rel(folders[0]))}.csv", sw)
+        csv = _csv(sec, "sweep.csv", sw)
         sec.table(
             [*(heads[k] for k in keys), "feasible", "points", "smallest gamma"],
             rows,

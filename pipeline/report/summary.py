@@ -91,7 +91,7 @@ def controller_card(f: Facts, c: Controller) -> Card:
         ("gamma", g4(c.cert.get("gamma"))),
     ]
     note = ""
-    if (share_e > 0 or share_s > 0) and c.status != "reference":
+    if (share_e > 0 or share_s > 0) and c.certified:
         approx = "~" if inferred_e or inferred_s else ""
         note = (
             f"Outside the premise: {approx}{pct(share_e)} of training samples (eps_e), "
