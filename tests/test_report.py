@@ -252,3 +252,55 @@ def test_euroc_report_says_why_nothing_is_feasible(real_data, tmp_path):
         assert f"{r['s_max']:.3g} at T = {int(r['T'])}" in summary
     assert "larger radius" in summary
     _check_tables_and_files(out)
+
+
+# --------------------------------------------------------------------------- newer keys
+def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(tmp_path):
+    """Certificates with a ``premise`` and ``certified_relaxed``, evaluation rows with
+    ``gamma_nominal``, and ``findings.json`` (issues 11 and 13) are read as such; the same
+    run without them falls back to today's keys and says the check is per sample."""
+    from qsls.pipeline.report.document import render_html
+    from qsls.pipeline.report.facts import Controller, EvalTable, Facts, heldout_verdict
+    from qsls.pipeline.report.summary import premise_entry, summary_section
+
+    em = {"eps_e": 0.3, "eps_e_percentiles": {"p95": 0.2}, "s_slope": {"max": 2.0,
+          "percentiles": {"p50": 0.1}}, "radius": 1.0}  # fmt: skip
+    premise = {"eps_e": {"value": 0.2, "chosen": "p95", "violated": 0.043},
+               "S": {"value": 0.1, "chosen": "p50", "violated": 0.512}}  # fmt: skip
+    cert = {"status": "certified_relaxed", "T": 20, "S": 0.1, "eps_e": 0.2, "gamma": 0.25,
+            "premise": premise}  # fmt: skip
+    rows = pd.DataFrame(
+        {
+            "flight": ["f1", "f2", "f2"],
+            "controller": ["c", "c", "other"],
+            "flown_by": ["c", "c", "c"],
+            "has_guarantee": [True, True, True],
+            "max_error_norm": [0.1, 0.3, 0.3],
+            "gamma_nominal": [0.2, 0.25, 0.5],
+            "bound_holds": [True, False, True],
+            "max_ratio": [9.0, 9.0, 9.0],
+        }
+    )
+    f = Facts(run_dir=tmp_path, info={"name": "x"}, stages={}, error_model=em)
+    c = Controller("c", "synth", cert)
+    f.controllers = [c]
+    f.evaluations = [EvalTable("fly", "fly", rows, [])]
+    f.findings = {"findings": [{"id": 2, "claim": "robust lowest", "effect": -0.012,
+                                "ci": [-0.02, -0.004], "verdict": "reproduced"}]}  # fmt: skip
+    assert premise_entry(c, em, "S") == ("p50", 0.512, False)
+    v = heldout_verdict(f, c)
+    assert (v.n_flights, v.n_hold, v.theorem) == (2, 1, True)
+    assert abs(v.worst_ratio - 1.2) < 1e-12  # 0.3 / 0.25, not the per-sample 9.0
+    page = render_html("t", "", [summary_section(f)])
+    assert "certified, relaxed premise" in page and "51% of pairs" in page
+    assert "gamma_nominal = 1.2" in page and "reproduced" in page and "-0.02" in page
+
+    # the same without the newer keys: inferred premise, per-sample verdict, no crash
+    old = {k: v for k, v in cert.items() if k != "premise"} | {"status": "certified"}
+    f.controllers = [Controller("c", "synth", old)]
+    f.evaluations = [EvalTable("fly", "fly", rows.drop(columns=["gamma_nominal"]), [])]
+    f.findings = {}
+    assert premise_entry(f.controllers[0], em, "S") == ("p50", 0.5, True)
+    page = render_html("t", "", [summary_section(f)])
+    assert "certified, relaxed premise" in page  # a percentile premise is not rounded up
+    assert "per-sample check" in page and "gamma(d) = 9" in page
