@@ -15,10 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qsls.pipeline.core.rotations import quat_mul
+from qsls.pipeline.core.rotations import gravity_in_body, quat_mul
 from qsls.pipeline.ingest.sources.write import write_bag
 from qsls.pipeline.ingest.stage import IngestOptions, ingest
-from qsls.pipeline.core.rotations import gravity_in_body
 from qsls.pipeline.ingest.timesync import estimate_offset
 from qsls.pipeline.sim.simulate import SimOptions, SimResult, log_streams, simulate
 
