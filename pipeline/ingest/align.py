@@ -93,12 +93,39 @@ def segments(t_ns: np.ndarray, max_gap_ns: int) -> list[slice]:
     return [slice(a, b) for a, b in itertools.pairwise(edges) if b > a]
 
 
+def savgol_derivative(x: np.ndarray, m: int, h: float, order: int = 2) -> np.ndarray:
+    """First derivative of the rows of ``x`` (uniform step ``h``) by Savitzky-Golay smoothing:
+    a least-squares polynomial of ``order`` over each window of ``m`` (odd) samples, its slope
+    at the window's centre; the first and last ``m // 2`` samples take the slope of the
+    polynomial fitted to the first/last window at their own position (scipy's
+    ``savgol_filter(..., deriv=1, mode="interp")``, without importing scipy.signal).
+
+    With the Vandermonde matrix ``V[i, j] = s_i^j`` of offsets ``s = -k..k`` (``k = m // 2``),
+    the fit is ``c = pinv(V) x``, so the centre slope is the convolution with ``pinv(V)[1] / h``.
+    """
+    x = np.asarray(x, dtype=float)
+    k = m // 2
+    s = np.arange(-k, k + 1, dtype=float)
+    pinv = np.linalg.pinv(np.vander(s, order + 1, increasing=True))  # (order+1, m)
+    n = len(x)
+    out = np.empty_like(x)
+    # interior: out[i] = sum_j pinv[1, j] x[i - k + j]
+    win = np.lib.stride_tricks.sliding_window_view(x, m, axis=0)  # (n - m + 1, cols, m)
+    out[k : n - k] = win @ pinv[1] / h
+    # edges: slope d/ds sum_p c_p s^p = sum_p p c_p s^(p-1) at the edge samples' offsets
+    powers = np.arange(1, order + 1)
+    for rows, offsets in ((slice(0, m), s[:k]), (slice(n - m, n), s[k + 1 :])):
+        c = pinv @ x[rows]  # (order+1, cols)
+        d = (powers * offsets[:, None] ** (powers - 1)) @ c[1:]
+        target = slice(0, k) if rows.start == 0 else slice(n - k, n)
+        out[target] = d / h
+    return out
+
+
 def differentiate(
     t_ns: np.ndarray, p: np.ndarray, window_s: float = 0.1, max_gap_ns: int | None = None
 ) -> np.ndarray:
     """Velocity ``(n, 3)`` of positions ``p`` at sorted unique stamps ``t_ns`` (module doc)."""
-    from scipy.signal import savgol_filter
-
     t_ns = np.asarray(t_ns, dtype=np.int64)
     p = np.asarray(p, dtype=float)
     out = np.zeros_like(p)
@@ -117,6 +144,6 @@ def differentiate(
             continue
         tg = np.arange(grid_n) * h
         xg = np.column_stack([np.interp(tg, t, x[:, k]) for k in range(x.shape[1])])
-        vg = savgol_filter(xg, m, 2, deriv=1, delta=h, axis=0, mode="interp")
+        vg = savgol_derivative(xg, m, h)
         out[sl] = np.column_stack([np.interp(t, tg, vg[:, k]) for k in range(x.shape[1])])
     return out

@@ -1,0 +1,73 @@
+"""A fast start: the CLI imports little, ``qsls ingest`` never loads the solver or plotting stacks,
+and the differentiator's numpy Savitzky-Golay equals scipy's."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from qsls.pipeline.ingest.align import savgol_derivative
+from tests.bagfixtures import make_flight
+
+HEAVY = ("cvxpy", "scipy.stats", "scipy.signal", "matplotlib")
+
+
+@pytest.mark.parametrize("m", [5, 7, 21, 41])
+def test_savgol_derivative_equals_scipy(m):
+    from scipy.signal import savgol_filter
+
+    rng = np.random.default_rng(m)
+    x = np.cumsum(rng.normal(size=(300, 3)), axis=0)
+    want = savgol_filter(x, m, 2, deriv=1, delta=0.01, axis=0, mode="interp")
+    got = savgol_derivative(x, m, 0.01)
+    assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
+    # and it differentiates a parabola exactly, edges included
+    t = np.arange(50) * 0.02
+    p = (3 * t**2 - t + 2)[:, None]
+    np.testing.assert_allclose(
+        savgol_derivative(p, m if m < 50 else 5, 0.02)[:, 0], 6 * t - 1, atol=1e-9
+    )
+
+
+def _run(code: str, tmp_path: Path) -> str:
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout
+
+
+def test_cli_import_loads_no_heavy_module(tmp_path):
+    loaded = _run(
+        f"import sys, qsls.cli.main\nprint(sorted(m for m in {HEAVY!r} if m in sys.modules))\n",
+        tmp_path,
+    )
+    assert loaded.strip() == "[]"
+
+
+def test_ingest_loads_neither_solver_nor_plotting(tmp_path):
+    """A real ingest of TUM files (velocity from the differentiator) in a fresh interpreter."""
+    f = make_flight(duration=10.0, dropouts=(), noise_m=0.0005)
+    for name, s in (("est.txt", f.vio), ("gt.txt", f.truth)):
+        (tmp_path / name).write_text(
+            "".join(
+                f"{n // 10**9}.{n % 10**9:09d} {' '.join(f'{x:.12g}' for x in [*a, *b])}\n"
+                for n, a, b in zip(s.header_ns, s.position, s.orientation, strict=True)
+            )
+        )
+    loaded = _run(
+        "import sys\n"
+        "from qsls.cli.main import app\n"
+        "try:\n"
+        "    app(['ingest', '--vio', 'est.txt', '--truth', 'gt.txt', '--out', 'o'])\n"
+        "except SystemExit as e:\n"
+        "    assert not e.code, e.code\n"
+        f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))\n",
+        tmp_path,
+    )
+    assert (tmp_path / "o" / "flight.parquet").is_file()
+    assert loaded.strip().splitlines()[-1] == "[]"
