@@ -165,3 +165,24 @@ def test_text_formats(tmp_path: Path) -> None:
     assert e.header_ns[0] == 1403715523912143104  # exact: not through float
     assert e.orientation[0].tolist() == [0.1, 0.2, 0.3, 0.5]
     assert e.velocity[0].tolist() == [7, 8, 9]
+
+
+def test_sqlite_bulk_rows_are_rosbags_messages(bags: dict[str, Path]) -> None:
+    """The one-query-per-topic read of a sqlite3 rosbag2 gives rosbags' messages, stamp and byte
+    for byte, in order; a compressed bag is left to rosbags."""
+    from rosbags.rosbag2 import Reader
+
+    from qsls.pipeline.ingest.sources.bags import _sqlite_rows
+
+    bag = bags["ros2-sqlite"]
+    (db,) = bag.glob("*.db3")
+    with Reader(bag) as r:
+        for topic in ("/vio/odom", "/p1"):
+            conns = [c for c in r.connections if c.topic == topic]
+            want = [(log, bytes(raw)) for _, log, raw in r.messages(connections=conns)]
+            logs, raws = _sqlite_rows(db, topic)
+            assert len(want) > 100 and list(zip(logs, raws, strict=True)) == want
+    with BagSource(bag) as src:
+        assert src._sqlite_files() == [db]
+    with BagSource(bags["ros2-zstd"]) as src:
+        assert src._sqlite_files() is None

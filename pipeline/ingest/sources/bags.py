@@ -316,6 +316,20 @@ def _header_fields(raw: bytes) -> dict[str, int]:
 
 
 # --------------------------------------------------------------------------- sources
+def _sqlite_rows(db: Path, topic: str) -> tuple[list[int], list[bytes]]:
+    """``(log stamps, raw messages)`` of ``topic`` in a rosbag2 sqlite3 file, in one query."""
+    con = sqlite3.connect(f"file:{Path(db).resolve()}?mode=ro", uri=True)
+    try:
+        rows = con.execute(
+            "SELECT m.timestamp, m.data FROM messages m JOIN topics t ON m.topic_id = t.id "
+            "WHERE t.name = ? ORDER BY m.timestamp, m.id",
+            (topic,),
+        ).fetchall()
+    finally:
+        con.close()
+    return [int(r[0]) for r in rows], [bytes(r[1]) for r in rows]
+
+
 class BagSource:
     """An open bag (ROS1, rosbag2 folder or file, plain MCAP)."""
 
@@ -564,6 +578,13 @@ class BagSource:
                 n += 1
                 if n % 4096 == 0:
                     progress.advance(4096)
+        elif (dbs := self._sqlite_files()) is not None:
+            for topic, (raws, logs, _) in out.items():
+                for db in dbs:
+                    rows = _sqlite_rows(db, topic)
+                    logs.extend(rows[0])
+                    raws.extend(rows[1])
+                n += len(raws)
         else:
             r = self._reader
             conns = [c for c in r.connections if c.topic in out]
@@ -576,6 +597,23 @@ class BagSource:
                     progress.advance(4096)
         progress.advance(n % 4096)
         return out
+
+    def _sqlite_files(self) -> list[Path] | None:
+        """The ``.db3`` files of an uncompressed sqlite3 rosbag2, read directly with one query
+        per topic (rosbags' reader yields one message at a time); None for anything else."""
+        from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
+
+        if self._reader is None or not self._reader.is2:
+            return None
+        files = []
+        for bag in self._reader.readers:
+            storages = getattr(bag.storage, "storages", [bag.storage])  # a folder, or one file
+            if bag.compression_mode or not all(
+                isinstance(s, Sqlite3Reader) and isinstance(s.path, Path) for s in storages
+            ):
+                return None
+            files += [s.path for s in storages]
+        return files
 
     def _decode(
         self, info: TopicInfo, raw: tuple, truth_frame: str | None, fast: bool
