@@ -36,8 +36,12 @@ from qsls.pipeline.ingest.sources.write import ImageStream, write_bag  # noqa: E
 from qsls.pipeline.ingest.stage import IngestOptions, ingest  # noqa: E402
 from tests.bagfixtures import make_flight  # noqa: E402
 
+FORMATS = ("ros1", "ros2-sqlite", "ros2-mcap")
 
-def build(n_pose: int, image_mb: float, compression: str | None, name: str) -> Path:
+
+def build(
+    n_pose: int, image_mb: float, compression: str | None, name: str, fmt: str = "ros1"
+) -> Path:
     path = WORK / name
     if path.exists():
         return path
@@ -56,9 +60,17 @@ def build(n_pose: int, image_mb: float, compression: str | None, name: str) -> P
         ts = np.linspace(f.vio.log_ns[0], f.vio.log_ns[-1], n_img).astype(np.int64)
         streams.append(ImageStream("/cam0/image_raw", ts, ts, 480, 640))
     t0 = time.perf_counter()
-    write_bag(path, streams, "ros1", compression=compression)
-    print(f"  wrote {name}: {path.stat().st_size / 1e6:.0f} MB in {time.perf_counter() - t0:.1f} s")
+    write_bag(path, streams, fmt, compression=compression)
+    print(f"  wrote {name}: {size_mb(path):.0f} MB in {time.perf_counter() - t0:.1f} s")
     return path
+
+
+def size_mb(path: Path) -> float:
+    return sum(f.stat().st_size for f in _files(path)) / 1e6
+
+
+def _files(path: Path) -> list[Path]:
+    return [path] if path.is_file() else sorted(f for f in path.rglob("*") if f.is_file())
 
 
 def timed(fn, repeat: int = 1) -> float:
@@ -105,42 +117,44 @@ def main() -> None:
     n_pose, mb = (10_000, 50.0) if args.quick else (100_000, 520.0)
     WORK.mkdir(parents=True, exist_ok=True)
     tag = "quick" if args.quick else "full"
-    bags = {
-        "(a) poses only": build(n_pose, 0, None, f"a_{tag}.bag"),
-        "(b) + images, uncompressed": build(n_pose, mb, None, f"b_{tag}.bag"),
-        "(b) + images, LZ4": build(n_pose, mb, "lz4", f"b_lz4_{tag}.bag"),
-    }
+    bags = {}
+    for fmt in FORMATS:
+        ext = ".bag" if fmt == "ros1" else ""
+        bags[f"{fmt} (a) poses only"] = build(n_pose, 0, None, f"a_{tag}_{fmt}{ext}", fmt)
+        bags[f"{fmt} (b) + images"] = build(n_pose, mb, None, f"b_{tag}_{fmt}{ext}", fmt)
+    bags["ros1 (b) + images, LZ4"] = build(n_pose, mb, "lz4", f"b_lz4_{tag}.bag")
     n_msgs = 2 * n_pose
-    run_ingest(bags["(a) poses only"], "fast")  # warm-up: imports (scipy, pyarrow) once
+    run_ingest(bags["ros1 (a) poses only"], "fast")  # warm-up: imports (pyarrow) once
     rows = []
     for label, bag in bags.items():
-        size = bag.stat().st_size / 1e6
+        size = size_mb(bag)
         ingest_fast = run_ingest(bag, "fast")
         ingest_slow = run_ingest(bag, "deserializer")
         read_fast = timed(lambda bag=bag: read_both(bag, True), repeat=2)
         read_slow = timed(lambda bag=bag: read_both(bag, False))
         raw = timed(lambda bag=bag: raw_iteration(bag))
-        sha = timed(lambda bag=bag: _hash_file(bag))
+        sha = timed(lambda bag=bag: sum(len(_hash_file(f)) for f in _files(bag)))
         rows.append((label, size, ingest_fast, ingest_slow, read_fast, read_slow, raw, sha))
     print(f"\n{n_msgs} Odometry+PoseStamped messages per bag; seconds (messages/s)\n")
     head = (
-        f"{'bag':30s} {'MB':>6s} | {'ingest fast':>18s} {'ingest deser.':>18s} {'speed-up':>8s}"
+        f"{'bag':34s} {'MB':>6s} | {'ingest fast':>18s} {'ingest deser.':>18s} {'speed-up':>8s}"
         f" | {'read fast':>9s} {'read deser.':>11s} {'raw iter':>8s} {'sha256':>6s}"
     )
     print(head)
     print("-" * len(head))
     for label, size, f_, s_, rf, rs, raw, sha in rows:
         print(
-            f"{label:30s} {size:6.0f} | {f_:7.2f} ({n_msgs / f_:8.0f}) {s_:7.2f} ({n_msgs / s_:8.0f}) "
+            f"{label:34s} {size:6.0f} | {f_:7.2f} ({n_msgs / f_:8.0f}) {s_:7.2f} ({n_msgs / s_:8.0f}) "
             f"{s_ / f_:7.1f}x | {rf:9.2f} {rs:11.2f} {raw:8.2f} {sha:6.2f}"
         )
-    a_fast = rows[0][2]
-    b_fast = rows[1][2]
-    print(f"\n(b) uncompressed / (a), fast ingest: {b_fast / a_fast:.2f}x (target <= 1.3x)")
-    print(
-        f"(a) end-to-end speed-up over the deserializer path: {rows[0][3] / a_fast:.1f}x (target >= 3x)"
-    )
-
+    by = {r[0]: r for r in rows}
+    print()
+    for fmt in FORMATS:
+        a, b = by[f"{fmt} (a) poses only"], by[f"{fmt} (b) + images"]
+        print(
+            f"{fmt:12s} speed-up over the deserializer path {a[3] / a[2]:5.1f}x (target >= 3x); "
+            f"with images / without {b[2] / a[2]:4.2f}x (target <= 1.3x)"
+        )
 
 if __name__ == "__main__":
     main()
