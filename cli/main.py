@@ -16,6 +16,8 @@ COMMANDS: tuple[tuple[str, str], ...] = (
     ("synth", "synth"),
     ("sweep", "sweep"),
     ("evaluate", "evaluate"),
+    ("export", "export"),
+    ("replay", "replay"),
     ("report", "report"),
     ("run", "run"),
 )

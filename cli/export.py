@@ -1,0 +1,47 @@
+"""``qsls export``: a certified controller as C99 (header + source) or a stdlib Python module."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from qsls.cli.common import cli_errors, overrides, print_summary
+
+
+@cli_errors
+def command(
+    controller: Path = typer.Argument(
+        ..., help="Controller folder written by 'qsls synth' (controller.npz + certificate.yaml)."
+    ),
+    target: str = typer.Option(..., "--target", "-t", help="c or python."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder for the generated files."),
+    precision: str | None = typer.Option(
+        None, "--precision", help="C only: double (default) or float (single-precision FPU)."
+    ),
+    prefix: str | None = typer.Option(
+        None, "--prefix", help="C names and file names (default qsls_ctrl)."
+    ),
+    allow_uncertified: bool = typer.Option(
+        False, "--allow-uncertified", help="Export a controller whose status is not 'certified'."
+    ),
+    verify_ticks: int | None = typer.Option(
+        None, "--verify-ticks", help="Random ticks of the check against the Python realization."
+    ),
+    config: Path | None = typer.Option(None, "--config", help="YAML file of export options."),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
+) -> None:
+    """Export a certified controller as C99 or a stdlib Python module, checked against Python."""
+    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.export.stage import ExportOptions, export
+
+    given = overrides(
+        target=target,
+        precision=precision,
+        prefix=prefix,
+        allow_uncertified=allow_uncertified or None,
+        verify_ticks=verify_ticks,
+    )
+    options = load_options(ExportOptions, config, given, section="export")
+    result = export(controller, options, out, force=force)
+    print_summary("qsls export", result.summary())

@@ -1,0 +1,202 @@
+"""What every export target shares: the filter bank's taps in the exported layout, the
+sizes and operation counts, the facts a generated file states, and the certificate gate.
+
+The exported filter bank (DESIGN.md, Realization and Export), with ``T`` taps::
+
+    u[k]      = sum_{t>=1} Phi_ux(t) beta[k+1-t] + sum_{t>=0} Phi_uy(t) y[k-t]
+    beta[k+1] = -sum_{t>=2} Phi_xx(t) beta[k+2-t] - sum_{t>=1} Phi_xy(t) y[k+1-t]
+
+so the state is the last ``T`` values of ``beta`` and the last ``T + 1`` values of ``y``
+(``y[k]`` included). A strictly proper controller has ``Phi_uy(0) = 0``; its tap is left out.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from qsls.pipeline.control.artifacts import Certificate, ControllerDir
+from qsls.pipeline.core.errors import InputError
+
+Precision = Literal["double", "float"]
+REAL_BYTES = {"double": 8, "float": 4}
+INDEX_BYTES = 4
+"""``unsigned int`` ring-buffer heads (two of them)."""
+
+PREFIX_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,40}$")
+
+MCU_RAM_BYTES = 192 * 1024
+MCU_FLASH_BYTES = 1024 * 1024
+LOOP_HZ = 500.0
+"""The budget the benchmark compares against: one tick of a 500 Hz flight-controller loop."""
+
+
+@dataclass(frozen=True)
+class ExportBank:
+    """The taps as the generated code stores them (each ``(taps, rows, cols)``).
+
+    ``uy`` = ``Phi_uy(uy_first..T)``, ``ux`` = ``Phi_ux(1..T)``, ``bb`` = ``-Phi_xx(2..T)``,
+    ``by`` = ``-Phi_xy(1..T)``: ``u = sum_j ux[j] beta[k-j] + sum_j uy[j] y[k-uy_first-j]``,
+    ``beta[k+1] = sum_j bb[j] beta[k-j] + sum_j by[j] y[k-j]``.
+    """
+
+    T: int
+    uy_first: int
+    uy: np.ndarray
+    ux: np.ndarray
+    bb: np.ndarray
+    by: np.ndarray
+
+    @property
+    def nx(self) -> int:
+        return int(self.bb.shape[1])
+
+    @property
+    def ny(self) -> int:
+        return int(self.by.shape[2])
+
+    @property
+    def nu(self) -> int:
+        return int(self.ux.shape[1])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"uy": self.uy, "ux": self.ux, "bb": self.bb, "by": self.by}
+
+    def constants(self) -> int:
+        """Number of stored coefficients."""
+        return int(sum(a.size for a in self.arrays().values()))
+
+    def multiply_adds(self) -> int:
+        """Multiply-adds per tick (dense: every stored coefficient is used once)."""
+        return self.constants()
+
+
+def export_bank(cdir: ControllerDir) -> ExportBank:
+    """The exported layout of a filter-bank controller (refuses a static gain)."""
+    c = cdir.controller
+    if c.kind != "filter_bank":
+        raise InputError(
+            f"{cdir.folder}: '{cdir.name}' is a static gain (the PD reference), not a "
+            "synthesized filter bank; export a synthesized controller"
+        )
+    taps = c.taps
+    for name, a in taps.arrays().items():
+        if not np.all(np.isfinite(a)):
+            raise InputError(f"{cdir.folder}: {name} holds non-finite taps; refusing to export")
+    first = 1 if c.strictly_proper else 0
+    return ExportBank(
+        T=c.T,
+        uy_first=first,
+        uy=np.ascontiguousarray(taps.Phi_uy[first:], dtype=float),
+        ux=np.ascontiguousarray(taps.Phi_ux[1:], dtype=float),
+        bb=np.ascontiguousarray(-taps.Phi_xx[2:], dtype=float),
+        by=np.ascontiguousarray(-taps.Phi_xy[1:], dtype=float),
+    )
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """Memory and work of one exported controller."""
+
+    state_bytes: int
+    const_bytes: int
+    flops_per_tick: int
+    precision: str
+
+    def as_dict(self) -> dict[str, int | str | float]:
+        return {
+            "precision": self.precision,
+            "state_bytes": self.state_bytes,
+            "const_bytes": self.const_bytes,
+            "flops_per_tick": self.flops_per_tick,
+            "state_share_of_192KB_ram": self.state_bytes / MCU_RAM_BYTES,
+            "const_share_of_1MB_flash": self.const_bytes / MCU_FLASH_BYTES,
+        }
+
+
+def sizes(bank: ExportBank, precision: Precision = "double") -> Sizes:
+    """``sizeof`` the C state struct (``T nx + (T+1) ny`` reals and two ring heads, padded
+    to the real's alignment), the ``static const`` taps, and 2 flops per multiply-add."""
+    r = REAL_BYTES[precision]
+    reals = bank.T * bank.nx + (bank.T + 1) * bank.ny
+    state = reals * r + 2 * INDEX_BYTES
+    state += -state % max(r, INDEX_BYTES)
+    return Sizes(state, bank.constants() * r, 2 * bank.multiply_adds(), precision)
+
+
+# --------------------------------------------------------------------------- facts
+@dataclass(frozen=True)
+class Facts:
+    """What a generated file states about its controller."""
+
+    name: str
+    status: str
+    sha256: str
+    dt: float
+    mass: float
+    T: int
+    strictly_proper: bool
+    guarantee: str
+
+
+def guarantee_line(cert: Certificate) -> str:
+    """The guarantee in one line, with its premise (or why there is none)."""
+    if cert.status != "certified":
+        return f"none: status {cert.status} ({status_reason(cert)})"
+    return (
+        f"||e||_inf <= gamma = {cert.gamma:.6g} while ||e_k|| <= eps_e + S d(x_k) holds within "
+        f"r of the training states (eps_e = {cert.eps_e:.6g}, S = {cert.S:.6g}, "
+        f"r = {cert.radius:.6g}, Delta = {cert.delta:.6g}, ||w|| <= eps_w = {cert.eps_w:.6g})"
+    )
+
+
+def facts(cdir: ControllerDir) -> Facts:
+    c, cert = cdir.controller, cdir.certificate
+    return Facts(
+        name=cdir.name,
+        status=cert.status,
+        sha256=cert.controller_sha256,
+        dt=c.dt,
+        mass=c.mass,
+        T=c.T,
+        strictly_proper=c.strictly_proper,
+        guarantee=guarantee_line(cert),
+    )
+
+
+# --------------------------------------------------------------------------- the gate
+def status_reason(cert: Certificate) -> str:
+    """Why a certificate's status is what it is, in a few words."""
+    data = cert.model_dump()
+    failed = [k for k, v in (cert.checks or {}).items() if not v.get("passed", True)]
+    s = cert.status
+    if s == "certified":
+        return f"robustness_lhs = {cert.robustness_lhs:.6g} < 1, all checks passed"
+    if s == "certified_relaxed":
+        notes = [f"{k} = {v}" for k, v in data.items() if "premise" in k and v is not None]
+        return (
+            "the premise is relaxed (eps_e or S set below the training data's maximum, so "
+            "part of the training data lies outside it); this is not plainly certified"
+            + (f": {'; '.join(notes)}" if notes else "")
+        )
+    if s == "reference":
+        return "a reference controller (not synthesized), with no guarantee"
+    if s == "uncertified" or failed == ["robustness"]:
+        return f"robustness condition fails: robustness_lhs = {cert.robustness_lhs:.6g} >= 1"
+    if failed:
+        return "failed checks: " + ", ".join(failed)
+    return "not certified"
+
+
+def check_exportable(cdir: ControllerDir, allow_uncertified: bool) -> None:
+    """Refuse anything but ``certified`` unless ``allow_uncertified`` (exit 2)."""
+    cert = cdir.certificate
+    if cert.status == "certified" or allow_uncertified:
+        return
+    raise InputError(
+        f"{cdir.folder}: status is '{cert.status}' ({status_reason(cert)}); only certified "
+        "controllers are exported, pass --allow-uncertified to export it anyway"
+    )

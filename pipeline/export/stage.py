@@ -1,0 +1,245 @@
+"""``qsls export CONTROLLER_DIR --target c|python --out DIR``.
+
+Reads the controller folder through :func:`~qsls.pipeline.control.artifacts.load_controller_dir`
+(integrity: the sha256 its certificate records, gains that match the taps), refuses anything
+but ``certified`` unless ``allow_uncertified``, writes the generated files with
+:class:`~qsls.pipeline.core.artifacts.StageWriter` (stage ``export``), and checks what it
+wrote against the Python realization (:func:`~qsls.pipeline.control.artifacts.load_runtime`):
+
+- ``python``: the generated module, executed, over ``verify_ticks`` random bounded ``y``;
+- ``c`` (when a C compiler is on PATH): the generated double-precision C, compiled with the
+  strict flags and loaded with ctypes, over the same ticks. With ``precision: float`` the
+  float build is also compared with the double build: over the random ticks (``u``) and in
+  closed loop with the controller's own linear plant ``x[k+1] = A x + B u + H w``,
+  ``y = C x + e`` driven by random ``||w|| <= eps_w``, ``||e|| <= eps_e`` (state, metres).
+
+The manifest's ``results`` hold the sizes (state bytes, constant bytes, flops per tick) and
+these checks; the files themselves are byte-identical for the same controller and options.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from qsls.pipeline.core.config import Options
+from qsls.pipeline.export.bank import (
+    PREFIX_RE,
+    ExportBank,
+    check_exportable,
+    export_bank,
+    facts,
+    sizes,
+)
+
+STAGE = "export"
+Y_BOUND = 1.0
+"""Random test inputs: ``y`` uniform in ``[-Y_BOUND, Y_BOUND]`` (m, m/s)."""
+
+
+class ExportOptions(Options):
+    """Options of ``qsls export``."""
+
+    target: Literal["c", "python"] = "c"
+    precision: Literal["double", "float"] = "double"
+    """``float``: single precision for a microcontroller with a single-precision FPU (C only)."""
+    prefix: str = "qsls_ctrl"
+    """C names: ``PREFIX_t``, ``PREFIX_step`` ..., files ``PREFIX.h``/``PREFIX.c``/``PREFIX.py``."""
+    allow_uncertified: bool = False
+    verify_ticks: int = Field(10_000, ge=0)
+    """Random ticks of the check against the Python realization (0: no check)."""
+    closed_loop_ticks: int = Field(2_000, ge=0)
+    """Ticks of the float-vs-double closed-loop check (``precision: float``)."""
+    seed: int = Field(0, ge=0)
+    compiler: str | None = None
+    """C compiler for the check (default ``$CC``, ``cc``, ``gcc``, ``clang``)."""
+
+    @field_validator("prefix")
+    @classmethod
+    def _prefix(cls, v: str) -> str:
+        if not PREFIX_RE.match(v):
+            raise ValueError(
+                "not a C identifier (letters, digits, '_', not starting with a digit, "
+                "at most 41 characters)"
+            )
+        return v
+
+    @model_validator(mode="after")
+    def _float_is_c(self) -> ExportOptions:
+        if self.precision == "float" and self.target != "c":
+            raise ValueError("precision 'float' applies to --target c (Python floats are doubles)")
+        return self
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    out: Path
+    controller: str
+    status: str
+    files: list[str]
+    results: dict[str, Any] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        r = self.results
+        out: dict[str, Any] = {
+            "output": str(self.out),
+            "controller": f"{self.controller} ({self.status})",
+            "files": ", ".join(self.files),
+            "state (bytes)": r["state_bytes"],
+            "constants (bytes)": r["const_bytes"],
+            "flops per tick": r["flops_per_tick"],
+        }
+        v = r.get("verify", {})
+        if "max_abs_diff" in v:
+            out["max |u - realization|"] = f"{v['max_abs_diff']:.3g} over {v['ticks']} ticks"
+        elif "skipped" in v:
+            out["check against realization"] = f"skipped: {v['skipped']}"
+        f = r.get("float_vs_double")
+        if f:
+            if "skipped" in f:
+                out["float vs double"] = f"skipped: {f['skipped']}"
+            else:
+                out["float vs double, max |du|"] = f["max_abs_du_random"]
+                out["float vs double, closed loop max |dx| (m)"] = f["max_abs_dx_closed_loop"]
+        return out
+
+
+def _random_y(ticks: int, seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-Y_BOUND, Y_BOUND, (ticks, 6))
+
+
+def run_ticks(runtime: Any, ys: np.ndarray) -> np.ndarray:
+    """``u`` (n, 3) of a runtime (``reset``, ``step``) fed ``ys`` (n, 6) from rest."""
+    runtime.reset()
+    return np.array([np.asarray(runtime.step(y), dtype=float) for y in ys]).reshape(-1, 3)
+
+
+def closed_loop(runtime: Any, model: Any, w: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """States (n+1, 6) of ``x[k+1] = A x + B u + H w``, ``u = K(C x + e)`` from ``x = 0``."""
+    runtime.reset()
+    x = np.zeros(model.A.shape[0])
+    xs = [x]
+    for wk, ek in zip(w, e, strict=True):
+        u = np.asarray(runtime.step(model.C @ x + ek), dtype=float)
+        x = model.A @ x + model.B @ u + model.H @ wk
+        xs.append(x)
+    return np.array(xs)
+
+
+def _verify_c(
+    files: dict[str, str], cdir: Any, options: ExportOptions, ys: np.ndarray, ref_u: np.ndarray
+) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """Compile the double (and float) build and compare (module docstring)."""
+    from qsls.pipeline.export.bank import facts as facts_of
+    from qsls.pipeline.export.c import c_files
+    from qsls.pipeline.export.cbuild import CController, compile_shared, find_compiler
+
+    cc = find_compiler(options.compiler)
+    if cc is None:
+        why = "no C compiler on PATH"
+        return {"skipped": why}, ({"skipped": why} if options.precision == "float" else None)
+    c = cdir.controller
+    kw = dict(dt=c.dt, strictly_proper=c.strictly_proper, name=cdir.name)
+    bank, fx = export_bank(cdir), facts_of(cdir)
+    builds: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="qsls-export-") as tmp:
+        for prec in dict.fromkeys(["double", options.precision]):
+            src = (
+                files if prec == options.precision else c_files(bank, fx, options.prefix, "double")
+            )
+            d = Path(tmp) / prec
+            d.mkdir()
+            for name, text in src.items():
+                (d / name).write_text(text)
+            lib = compile_shared(d / f"{options.prefix}.c", d / "lib.so", compiler=cc)
+            builds[prec] = CController(lib, options.prefix, precision=prec, **kw)
+        u_d = run_ticks(builds["double"], ys)
+        verify = {
+            "ticks": len(ys),
+            "compiler": Path(cc).name,
+            "max_abs_diff": float(np.abs(u_d - ref_u).max(initial=0.0)),
+            "max_abs_u": float(np.abs(ref_u).max(initial=0.0)),
+        }
+        if options.precision != "float":
+            return verify, None
+        u_f = run_ticks(builds["float"], ys)
+        cert = cdir.certificate
+        rng = np.random.default_rng(options.seed + 1)
+        n = options.closed_loop_ticks
+        w = rng.uniform(-cert.eps_w, cert.eps_w, (n, c.model.H.shape[1]))
+        e = rng.uniform(-cert.eps_e, cert.eps_e, (n, c.model.C.shape[0]))
+        x_d = closed_loop(builds["double"], c.model, w, e)
+        x_f = closed_loop(builds["float"], c.model, w, e)
+        fvd = {
+            "ticks_random": len(ys),
+            "max_abs_du_random": float(np.abs(u_f - u_d).max(initial=0.0)),
+            "ticks_closed_loop": n,
+            "max_abs_dx_closed_loop": float(np.abs(x_f - x_d)[:, :3].max(initial=0.0)),
+            "max_abs_x_closed_loop": float(np.abs(x_d)[:, :3].max(initial=0.0)),
+        }
+        return verify, fvd
+
+
+def _verify_python(text: str, ys: np.ndarray, ref_u: np.ndarray) -> dict[str, Any]:
+    from qsls.pipeline.export.python import load_module
+
+    mod: Any = load_module(text)
+    u = run_ticks(mod.Controller(), ys)
+    return {
+        "ticks": len(ys),
+        "max_abs_diff": float(np.abs(u - ref_u).max(initial=0.0)),
+        "max_abs_u": float(np.abs(ref_u).max(initial=0.0)),
+    }
+
+
+def generate(bank: ExportBank, cdir: Any, options: ExportOptions) -> dict[str, str]:
+    """The files of the export, by name."""
+    fx = facts(cdir)
+    if options.target == "c":
+        from qsls.pipeline.export.c import c_files
+
+        return c_files(bank, fx, options.prefix, options.precision)
+    from qsls.pipeline.export.python import module
+
+    return {f"{options.prefix}.py": module(bank, fx)}
+
+
+def export(folder: Path, options: ExportOptions, out: Path, *, force: bool = False) -> ExportResult:
+    """Export one controller folder (module docstring)."""
+    from qsls.pipeline.control.artifacts import load_controller_dir, load_runtime
+    from qsls.pipeline.core.artifacts import StageWriter, check_output
+
+    check_output(Path(out), force)
+    cdir = load_controller_dir(folder)
+    check_exportable(cdir, options.allow_uncertified)
+    bank = export_bank(cdir)
+    files = generate(bank, cdir, options)
+    results: dict[str, Any] = {
+        "controller": cdir.name,
+        "status": cdir.certificate.status,
+        "controller_sha256": cdir.certificate.controller_sha256,
+        "target": options.target,
+        "T": bank.T,
+        "strictly_proper": cdir.controller.strictly_proper,
+        **sizes(bank, options.precision).as_dict(),
+    }
+    ys = _random_y(options.verify_ticks, options.seed)
+    ref_u = run_ticks(load_runtime(cdir.folder), ys)
+    if options.target == "python":
+        results["verify"] = _verify_python(next(iter(files.values())), ys, ref_u)
+    else:
+        verify, fvd = _verify_c(files, cdir, options, ys, ref_u)
+        results["verify"] = verify
+        if fvd is not None:
+            results["float_vs_double"] = fvd
+    inputs = [cdir.folder / "controller.npz", cdir.folder / "certificate.yaml"]
+    with StageWriter(Path(out), STAGE, options=options, inputs=inputs, force=force) as w:
+        for name, text in files.items():
+            w.write_text(name, text)
+        w.results.update(results)
+    return ExportResult(Path(out), cdir.name, cdir.certificate.status, sorted(files), results)
