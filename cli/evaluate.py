@@ -59,6 +59,12 @@ def command(
         help="--fly: comma-separated perception conditions (default regular,degraded).",
     ),
     jobs: int = typer.Option(None, "--jobs", help="--fly: parallel flights (default: all cores)."),
+    backend: str = typer.Option(
+        None,
+        "--backend",
+        help="--fly: python (default) or c: fly the synthesized controllers as the C of "
+        "'qsls export' (compiled, through ctypes).",
+    ),
     force: bool = typer.Option(
         False,
         "--force",
@@ -98,6 +104,7 @@ def command(
                 if conditions
                 else None,
                 jobs=jobs,
+                sim={"controller": {"backend": backend}} if backend else None,
             )
         )
         base = merge(section, fly_cfg) if isinstance(fly_cfg, dict) else section

@@ -54,6 +54,9 @@ class ControllerOptions(Options):
     se3_kd: tuple[float, float, float] = (4.0, 4.0, 9.0)
     se3_backend: Literal["fast", "rotorpy"] = "fast"
     """``rotorpy`` calls ``SE3Control.update``; ``fast`` evaluates the same law (same output)."""
+    backend: Literal["python", "c"] = "python"
+    """Synthesized filter banks: ``python`` runs the realization (numpy); ``c`` flies the code of
+    ``qsls export --target c``, compiled and loaded with ctypes (the PD's static gain stays)."""
 
 
 class Controller(Protocol):
@@ -215,8 +218,13 @@ def make_controller(options: ControllerOptions, mass: float) -> Controller:
         return PDController(options.pd, mass, rate_dt or PAPER_DT_S)
     folder = controller_folder(kind)
     from qsls.pipeline.control.artifacts import load_runtime
+    from qsls.pipeline.control.realize import StaticGainController
 
-    runtime = load_runtime(folder)
+    runtime: Any = load_runtime(folder)
+    if options.backend == "c" and not isinstance(runtime, StaticGainController):
+        from qsls.pipeline.export.cbuild import c_runtime
+
+        runtime = c_runtime(folder)
     name = str(getattr(runtime, "name", None) or folder.name)
     if rate_dt is not None and abs(rate_dt - runtime.dt) > 1e-9:
         raise InputError(
