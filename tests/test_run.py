@@ -45,6 +45,7 @@ def quickstart(tmp_path_factory):
     return work, cfg, proc, elapsed
 
 
+@pytest.mark.slow
 def test_quickstart_end_to_end(quickstart):
     work, _, proc, elapsed = quickstart
     run_dir = work / "runs" / "quickstart"
@@ -65,6 +66,7 @@ def test_quickstart_end_to_end(quickstart):
     assert elapsed < 300, f"the quickstart took {elapsed:.0f} s (target: 5 minutes)"
 
 
+@pytest.mark.slow
 def test_rerun_skips_everything_and_a_change_reruns_downstream_only(quickstart):
     work, cfg, _, _ = quickstart
     again = _qsls("run", str(cfg), cwd=work)
@@ -87,6 +89,7 @@ def test_rerun_skips_everything_and_a_change_reruns_downstream_only(quickstart):
     assert ran == {"simulate/heldout_1", "ingest/heldout_1", "evaluate"}
 
 
+@pytest.mark.slow
 def test_run_report_is_reproducible(quickstart):
     work, _, _, _ = quickstart
     proc = _qsls("report", "runs/quickstart", "--out", "again", cwd=work)
@@ -106,6 +109,7 @@ def test_bad_run_config_is_one_clear_error(tmp_path):
     assert not (tmp_path / "runs" / "quickstart" / "simulate").exists()
 
 
+@pytest.mark.slow
 def test_killed_run_leaves_no_half_written_stage_and_resumes(tmp_path):
     data = yaml.safe_load(QUICKSTART.read_text())
     data["stages"] = ["simulate", "ingest"]
@@ -146,6 +150,7 @@ def test_killed_run_leaves_no_half_written_stage_and_resumes(tmp_path):
     assert leftovers == []
 
 
+@pytest.mark.slow
 def test_euroc_config_on_the_real_flights(real_data, tmp_path):
     """configs/euroc.yaml: real EuRoC flights ingested, fitted and swept (skips without them)."""
     import pandas as pd

@@ -109,6 +109,7 @@ def _wait_for_workers(address: str, n: int, timeout: float = 60.0) -> None:
         client.wait_for_workers(n, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_dask_cluster_gives_the_local_table(tmp_path):
     """A real `dask scheduler` and two `dask worker` processes on loopback."""
     cfg = tmp_path / "sweep.yaml"

@@ -37,6 +37,7 @@ def _errors(res, truth: dict) -> tuple[float, float]:
     return dt_ms, yaw_deg
 
 
+@pytest.mark.slow
 def test_circle_offset_and_yaw_every_seed(flights: dict[int, SimResult], tmp_path: Path) -> None:
     errs = {}
     for s, sim in flights.items():
