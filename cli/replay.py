@@ -1,0 +1,84 @@
+"""``qsls replay``: a recorded VIO stream through the exported controller, commands to an MCAP."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from qsls.cli.common import cli_errors, overrides, print_summary
+
+
+@cli_errors
+def command(
+    controller: Path = typer.Argument(..., help="Controller folder written by 'qsls synth'."),
+    source: Path = typer.Argument(
+        ..., help="The recorded VIO: any source 'qsls ingest' reads (bag, MCAP, TUM, EuRoC)."
+    ),
+    out: Path = typer.Option(..., "--out", "-o", help="Output ROS 2 MCAP file (*.mcap)."),
+    vio_topic: str | None = typer.Option(
+        None, "--vio-topic", help="VIO topic (default: the only nav_msgs/Odometry topic)."
+    ),
+    reference: str | None = typer.Option(
+        None,
+        "--reference",
+        help="Reference as KIND[:key=value,...] (circle, hover, figure8 with the simulator's "
+        "options, e.g. circle:radius=1,period=5,height=1) or a YAML file. Default hover.",
+    ),
+    reference_t0: float | None = typer.Option(
+        None, "--reference-t0", help="Reference time (s) at the first tick (default 0)."
+    ),
+    backend: str | None = typer.Option(
+        None, "--backend", help="Exported code that runs: python (default) or c (compiled)."
+    ),
+    max_tilt_deg: float | None = typer.Option(
+        None, "--max-tilt-deg", help="Tilt limit for the report (default 20)."
+    ),
+    thrust_band: str | None = typer.Option(
+        None, "--thrust-band", help="LOW,HIGH thrust band in multiples of hover (default 0.5,1.5)."
+    ),
+    hover_thrust: float | None = typer.Option(
+        None, "--hover-thrust", help="Normalized thrust at hover for AttitudeTarget (default 0.5)."
+    ),
+    max_gap: float | None = typer.Option(
+        None, "--max-gap", help="Never interpolate across a gap longer than this (s, default 0.25)."
+    ),
+    stamp: str | None = typer.Option(None, "--stamp", help="header (default) or log time."),
+    allow_uncertified: bool = typer.Option(
+        False, "--allow-uncertified", help="Replay a controller whose status is not 'certified'."
+    ),
+    config: Path | None = typer.Option(None, "--config", help="YAML file of replay options."),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing output file."),
+) -> None:
+    """Dry-run the exported controller on a recorded VIO stream; commands to a ROS 2 MCAP."""
+    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.core.errors import ConfigError
+    from qsls.pipeline.export.replay import ReplayOptions, replay
+
+    band = None
+    if thrust_band is not None:
+        try:
+            band = [float(v) for v in thrust_band.split(",")]
+        except ValueError:
+            raise ConfigError(f"--thrust-band: expected LOW,HIGH, got '{thrust_band}'") from None
+    given = overrides(
+        vio_topic=vio_topic,
+        reference=reference,
+        reference_t0=reference_t0,
+        backend=backend,
+        max_tilt_deg=max_tilt_deg,
+        thrust_band=band,
+        hover_thrust=hover_thrust,
+        max_gap=max_gap,
+        stamp=stamp,
+        allow_uncertified=allow_uncertified or None,
+    )
+    options = load_options(ReplayOptions, config, given, section="replay")
+    result = replay(controller, source, options, out, force=force)
+    for g in result.report["gaps"]:
+        typer.echo(
+            f"warning: VIO gap of {g['duration_s']:.3f} s at {g['t_start_s']:.3f} s: no commands "
+            "there, controller reset after it",
+            err=True,
+        )
+    print_summary("qsls replay", result.summary())

@@ -1,0 +1,324 @@
+"""``qsls replay CONTROLLER_DIR SOURCE --vio-topic T --reference SPEC --out OUT.mcap``.
+
+A dry run before a real flight: a recorded VIO stream goes through the exported controller
+at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
+(:mod:`qsls.pipeline.export.rosout`).
+
+1. The controller folder is verified and gated as by ``qsls export`` (certified only, unless
+   ``allow_uncertified``); the controller that runs is the exported code itself: the stdlib
+   Python module (``backend: python``) or the C compiled with the system compiler and loaded
+   with ctypes (``backend: c``), ``u`` and the attitude conversion both.
+2. The VIO stream is read by ingest's readers (any source ``qsls ingest`` reads), stamps
+   prepared as ingest does (:func:`qsls.pipeline.ingest.stage.prepare`), velocity rotated to
+   the VIO world frame (``v_w = R(q) v_b``; or differentiated when the stream has none).
+3. Resampled as ingest does: linear interpolation on ``t_k = t_0 + k dt`` (``t_0`` the
+   first multiple of ``dt`` in the stream); ticks between two samples further apart than
+   ``max_gap`` are dropped and the gaps listed. The controller is reset at the start of
+   each gap-free segment (its memory would otherwise hold samples from before the gap).
+4. ``y - r`` with the reference ``r`` (:class:`qsls.pipeline.sim.references.Reference`,
+   given as ``KIND[:key=value,...]`` or a YAML file; its time is 0 at the first tick plus
+   ``reference_t0``; the world frame is the VIO's), ``u = K (y - r)``, and
+   ``pitch, roll, thrust = hover + feedforward + u`` -> thrust and quaternion.
+5. Command limits: largest tilt, thrust range against hover ``m g``, the fraction of ticks
+   with tilt beyond ``max_tilt_deg`` and with thrust outside ``thrust_band`` (times hover).
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.errors import ConfigError, InputError
+from qsls.pipeline.core.units import NS
+from qsls.pipeline.export.rosout import Ticks, Topics
+from qsls.pipeline.sim.references import ReferenceOptions
+
+
+class ReplayOptions(Options):
+    """Options of ``qsls replay``."""
+
+    vio_topic: str | None = None
+    """The VIO topic (``nav_msgs/Odometry`` or a pose type); automatic when there is one."""
+    reference: str = "hover"
+    """``KIND[:key=value,...]`` (kinds and keys of the simulator's references) or a YAML file."""
+    reference_t0: float = 0.0
+    """The reference's time at the first tick (s)."""
+    backend: Literal["python", "c"] = "python"
+    """Which exported code runs: the stdlib Python module or the compiled C (ctypes)."""
+    allow_uncertified: bool = False
+    stamp: Literal["header", "log"] = "header"
+    vio_velocity_frame: Literal["body", "world"] = "body"
+    max_gap: float = Field(0.25, gt=0)
+    """Never interpolate across a gap longer than this (s)."""
+    velocity_window: float = Field(0.1, gt=0)
+    drop_nonfinite: bool = False
+    max_tilt_deg: float = Field(20.0, gt=0, lt=90)
+    thrust_band: tuple[float, float] = (0.5, 1.5)
+    """Thrust band, in multiples of the hover thrust ``m g``."""
+    hover_thrust: float = Field(0.5, gt=0, le=1)
+    """mavros' normalized thrust at hover (PX4's MPC_THR_HOVER): ``thrust = this * T / (m g)``."""
+    command_topic: str = "/mavros/setpoint_raw/attitude"
+    frame_id: str = "map"
+
+    @model_validator(mode="after")
+    def _band(self) -> ReplayOptions:
+        lo, hi = self.thrust_band
+        if not 0 <= lo < hi:
+            raise ValueError(f"thrust_band must be 0 <= low < high, got {self.thrust_band}")
+        return self
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    out: Path
+    report: dict[str, Any] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        r, lim = self.report, self.report["limits"]
+        gaps = r["gaps"]
+        return {
+            "output": str(self.out),
+            "controller": f"{r['controller']} ({r['status']}, {r['backend']})",
+            "VIO": f"{r['vio']['topic']} ({r['vio']['messages']} msgs, {r['vio']['rate_hz']} Hz)",
+            "ticks": f"{r['ticks']} at dt = {r['dt']} s in {r['segments']} segment(s)",
+            "largest tilt (deg)": lim["max_tilt_deg"],
+            "thrust range / hover": f"{lim['thrust_min_ratio']:.3f} .. {lim['thrust_max_ratio']:.3f}",
+            f"ticks with tilt > {lim['tilt_limit_deg']:g} deg": lim["frac_tilt_exceeded"],
+            f"ticks with thrust outside {lim['thrust_band']}x hover": lim["frac_thrust_outside"],
+            "gaps": (
+                "none"
+                if not gaps
+                else "; ".join(f"{g['t_start_s']:.3f} s (+{g['duration_s']:.3f} s)" for g in gaps)
+            ),
+        }
+
+
+# --------------------------------------------------------------------------- inputs
+def parse_reference(spec: str) -> ReferenceOptions:
+    """``circle``, ``circle:radius=1.5,period=6,center=[0.5,0]`` or a YAML file of options."""
+    import yaml
+
+    from qsls.pipeline.core.config import read_yaml, validate
+
+    path = Path(spec)
+    if path.suffix in (".yaml", ".yml") or path.is_file():
+        data = read_yaml(path)
+        return validate(ReferenceOptions, data.get("reference", data), str(path))
+    kind, _, rest = spec.partition(":")
+    data: dict[str, Any] = {"kind": kind.strip()}
+    depth, start = 0, 0
+    parts = []
+    for i, ch in enumerate(rest + ","):
+        depth += (ch in "[(") - (ch in "])")
+        if ch == "," and depth == 0:
+            parts.append(rest[start:i])
+            start = i + 1
+    for part in filter(str.strip, parts):
+        key, eq, value = part.partition("=")
+        if not eq:
+            raise ConfigError(f"--reference '{spec}': expected key=value, got '{part}'")
+        try:
+            data[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ConfigError(f"--reference '{spec}': cannot read the value of '{key}'") from None
+    return validate(ReferenceOptions, data, f"--reference '{spec}'")
+
+
+def read_vio(source: Path, o: ReplayOptions) -> tuple[Any, np.ndarray]:
+    """The prepared VIO stream (ingest's ``Prepared``) and its world-frame velocity (n, 3)."""
+    from qsls.pipeline.core.rotations import body_to_world
+    from qsls.pipeline.ingest.align import differentiate
+    from qsls.pipeline.ingest.sources.bags import BagSource
+    from qsls.pipeline.ingest.sources.base import detect
+    from qsls.pipeline.ingest.sources.select import POSE_TYPES, VIO_TYPES, describe, find_topic
+    from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
+    from qsls.pipeline.ingest.stage import IngestOptions, prepare
+
+    source = Path(source)
+    if not source.exists():
+        raise InputError(f"{source}: no such file or folder")
+    kind = detect(source)
+    frame = o.vio_velocity_frame
+    if kind in ("tum", "euroc"):
+        traj = (read_tum if kind == "tum" else read_euroc)(source)
+        frame = "world"  # EuRoC's velocity is the dataset's own, world frame
+    else:
+        with BagSource(source) as bag:
+            topics = bag.topics()
+            if o.vio_topic:
+                info = find_topic(topics, o.vio_topic, "vio", POSE_TYPES)
+            else:
+                cands = [t for t in topics if t.msgtype in VIO_TYPES]
+                if len(cands) != 1:
+                    raise InputError(
+                        f"cannot choose the VIO topic automatically ({len(cands)} candidates: "
+                        f"{describe(cands)}); pass --vio-topic"
+                    )
+                info = cands[0]
+            (traj,) = bag.read_many([(info.topic, None)])
+    io = IngestOptions(stamp=o.stamp, drop_nonfinite=o.drop_nonfinite, vio_velocity_frame=frame)
+    vio = prepare(traj, "vio", str(source), io)
+    if vio.velocity is None:
+        v = differentiate(vio.t_ns, vio.position, o.velocity_window, round(o.max_gap * NS))
+    elif frame == "body":
+        v = body_to_world(vio.orientation, vio.velocity)
+    else:
+        v = vio.velocity
+    return vio, v
+
+
+def resample(
+    vio: Any, v: np.ndarray, dt: float, max_gap: float
+) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]], list[slice]]:
+    """Ingest's resampling of ``[p, v]`` onto ``t_0 + k dt``: stamps, values, gaps, segments."""
+    from qsls.pipeline.ingest.align import segments
+    from qsls.pipeline.ingest.stage import _gaps, _interp
+
+    dt_ns, gap_ns = round(dt * NS), round(max_gap * NS)
+    lo, hi = int(vio.t_ns[0]), int(vio.t_ns[-1])
+    start = -(-lo // dt_ns) * dt_ns
+    grid = np.arange(start, hi + 1, dt_ns, dtype=np.int64)
+    values, valid = _interp(grid, vio.t_ns, np.hstack([vio.position, v]), gap_ns)
+    if valid.sum() < 2:
+        raise InputError(
+            f"the VIO stream gives only {int(valid.sum())} ticks of dt = {dt:g} s; "
+            "nothing to replay (check the topic and --max-gap)"
+        )
+    stamps = grid[valid]
+    gaps = _gaps(vio, lo, hi, gap_ns, int(stamps[0]))
+    # a run of valid grid points is a segment: consecutive kept stamps exactly dt apart
+    return stamps, values[valid], gaps, segments(stamps, dt_ns)
+
+
+# --------------------------------------------------------------------------- controller
+def exported_runtime(cdir: Any, backend: str, workdir: Path) -> tuple[Any, Any]:
+    """``(controller, attitude)`` of the exported code: ``step(y) -> u``, ``(u, acc) -> (T, q)``."""
+    from qsls.pipeline.export.bank import export_bank, facts
+
+    bank, fx = export_bank(cdir), facts(cdir)
+    if backend == "python":
+        from qsls.pipeline.export.python import load_module, module
+
+        mod: Any = load_module(module(bank, fx))
+        return mod.Controller(), mod.attitude
+    from qsls.pipeline.export.c import c_files
+    from qsls.pipeline.export.cbuild import CController, compile_shared
+
+    for name, text in c_files(bank, fx, "qsls_ctrl", "double").items():
+        (workdir / name).write_text(text)
+    lib = compile_shared(workdir / "qsls_ctrl.c", workdir / "qsls_ctrl.so")
+    c = CController(lib, dt=cdir.controller.dt, name=cdir.name)
+    return c, c.attitude
+
+
+def command_ticks(
+    ctrl: Any,
+    attitude: Any,
+    stamps: np.ndarray,
+    y_dev: np.ndarray,
+    acc: np.ndarray,
+    parts: list[slice],
+    mass: float,
+    hover_thrust: float,
+) -> Ticks:
+    """Run the controller over each segment (reset at its start) and convert to commands."""
+    from qsls.pipeline.control.plant import GRAVITY
+    from qsls.pipeline.export.attitude import absolute_input
+
+    n = len(stamps)
+    u = np.zeros((n, 3))
+    thrust, q = np.zeros(n), np.zeros((n, 4))
+    for sl in parts:
+        ctrl.reset()
+        for k in range(sl.start, sl.stop):
+            u[k] = np.asarray(ctrl.step(y_dev[k].tolist()), dtype=float)
+            th, qq = attitude(u[k].tolist(), acc[k].tolist())
+            thrust[k], q[k] = th, qq
+    u_abs = absolute_input(u, acc, mass)
+    return Ticks(stamps, y_dev, u, u_abs, thrust, q, hover_thrust * thrust / (mass * GRAVITY))
+
+
+def limits(ticks: Ticks, mass: float, o: ReplayOptions) -> dict[str, Any]:
+    """Largest tilt, thrust range against hover, and the shares beyond the limits."""
+    from qsls.pipeline.control.plant import GRAVITY
+    from qsls.pipeline.export.attitude import tilt_rad
+
+    tilt = np.degrees(tilt_rad(ticks.u_abs))
+    ratio = ticks.thrust / (mass * GRAVITY)
+    lo, hi = o.thrust_band
+    k = int(np.argmax(tilt))
+    return {
+        "max_tilt_deg": float(tilt[k]),
+        "max_tilt_t_s": float((ticks.stamp_ns[k] - ticks.stamp_ns[0]) / NS),
+        "tilt_limit_deg": o.max_tilt_deg,
+        "frac_tilt_exceeded": float(np.mean(tilt > o.max_tilt_deg)),
+        "hover_thrust_n": mass * GRAVITY,
+        "thrust_min_n": float(ticks.thrust.min()),
+        "thrust_max_n": float(ticks.thrust.max()),
+        "thrust_min_ratio": float(ratio.min()),
+        "thrust_max_ratio": float(ratio.max()),
+        "thrust_band": [lo, hi],
+        "frac_thrust_outside": float(np.mean((ratio < lo) | (ratio > hi))),
+        "normalized_thrust_max": float(ticks.thrust_normalized.max()),
+    }
+
+
+# --------------------------------------------------------------------------- the command
+def replay(
+    folder: Path, source: Path, options: ReplayOptions, out: Path, *, force: bool = False
+) -> ReplayResult:
+    """The dry run (module docstring); writes ``out`` (an ``.mcap`` file) atomically."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.core.errors import OutputExistsError
+    from qsls.pipeline.export.bank import check_exportable
+    from qsls.pipeline.export.rosout import write_mcap
+    from qsls.pipeline.sim.references import Reference
+
+    out = Path(out)
+    if out.suffix != ".mcap":
+        raise ConfigError(f"--out {out}: the replay is written as an MCAP file; name it *.mcap")
+    if out.exists() and not force:
+        raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
+    if out.is_dir():
+        raise OutputExistsError(f"{out} is a folder; choose another --out")
+    cdir = load_controller_dir(folder)
+    check_exportable(cdir, options.allow_uncertified)
+    ref_opts = parse_reference(options.reference)
+    c = cdir.controller
+    vio, v = read_vio(source, options)
+    stamps, yv, gaps, parts = resample(vio, v, c.dt, options.max_gap)
+    t_ref = (stamps - stamps[0]) / NS + options.reference_t0
+    p_r, v_r, acc = Reference(ref_opts).arrays(t_ref)
+    y_dev = yv - np.hstack([p_r, v_r])
+    with tempfile.TemporaryDirectory(prefix="qsls-replay-") as tmp:
+        ctrl, attitude = exported_runtime(cdir, options.backend, Path(tmp))
+        ticks = command_ticks(
+            ctrl, attitude, stamps, y_dev, acc, parts, c.mass, options.hover_thrust
+        )
+    report: dict[str, Any] = {
+        "controller": cdir.name,
+        "status": cdir.certificate.status,
+        "controller_sha256": cdir.certificate.controller_sha256,
+        "backend": options.backend,
+        "source": str(source),
+        "vio": vio.describe(),
+        "reference": ref_opts.model_dump(mode="json"),
+        "dt": c.dt,
+        "ticks": len(stamps),
+        "segments": len(parts),
+        "first_stamp_ns": int(stamps[0]),
+        "gaps": gaps,
+        "controller_reset_at_ns": [int(stamps[sl.start]) for sl in parts],
+        "limits": limits(ticks, c.mass, options),
+        "topics": {"command": options.command_topic, "deviation": Topics.deviation},
+    }
+    topics = Topics(command=options.command_topic, frame_id=options.frame_id)
+    write_mcap(out, ticks, topics, json.dumps(report, sort_keys=True))
+    return ReplayResult(out, report)
