@@ -109,8 +109,8 @@ def parse_reference(spec: str) -> ReferenceOptions:
 
     path = Path(spec)
     if path.suffix in (".yaml", ".yml") or path.is_file():
-        data = read_yaml(path)
-        return validate(ReferenceOptions, data.get("reference", data), str(path))
+        raw = read_yaml(path)
+        return validate(ReferenceOptions, raw.get("reference", raw), str(path))
     kind, _, rest = spec.partition(":")
     data: dict[str, Any] = {"kind": kind.strip()}
     depth, start = 0, 0
