@@ -117,11 +117,11 @@ def command(
         return
     from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
 
-    options = validate(EvaluateOptions, merge(section, ov), str(config or "options"))
+    bound_options = validate(EvaluateOptions, merge(section, ov), str(config or "options"))
     with RichProgress() as progress:
-        result = evaluate(
-            flights or [], model, controller, options, out, force=force, progress=progress
+        checked = evaluate(
+            flights or [], model, controller, bound_options, out, force=force, progress=progress
         )
-    for w in result.warnings:
+    for w in checked.warnings:
         typer.echo(f"warning: {w}", err=True)
-    print_summary("qsls evaluate", result.summary())
+    print_summary("qsls evaluate", checked.summary())

@@ -89,7 +89,9 @@ def command(
         radius=radius, delta=delta, eps_w=eps_w, grid=axes or None,
     )  # fmt: skip
     opts = load_options(SweepOptions, config, given)
-    where = {"jobs": jobs, "scheduler": scheduler}
     with RichProgress() as progress:
-        result = sweep(opts, out, error_model=model, force=force, progress=progress, **where)
+        result = sweep(
+            opts, out, error_model=model, force=force, progress=progress,
+            jobs=jobs, scheduler=scheduler,
+        )  # fmt: skip
     print_summary("sweep", result.summary())

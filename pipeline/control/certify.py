@@ -170,7 +170,7 @@ def certify(
     fields["realization_error"] = rerr
     fields["perturbation_peak"] = peak
     fields["perturbation_final"] = final
-    checks = {
+    checks: dict[str, dict[str, Any]] = {
         "solver": {"value": solver_status, "passed": solver_status == "optimal"},
         "achievability": {
             "value": resid,

@@ -330,7 +330,7 @@ class SLSProblem:
             p["c_xx_ratio"] = cp.Parameter(nonneg=True, name="eps_w_over_r_ratio")
             objective = p["lam"] * n_xy + p["c_xx_ratio"] * n_xx
         elif s.cost == "none":
-            objective = cp.Constant(0.0)
+            objective = cp.Constant(0.0)  # type: ignore[assignment]
         else:
             raise ValueError(f"unknown cost {s.cost!r}")
         self.params = p
@@ -376,7 +376,7 @@ class SLSProblem:
         m = self.model
         nx, nu, ny = m.nx, m.nu, m.ny
 
-        def with_zero(val: np.ndarray, cols: int) -> np.ndarray:
+        def with_zero(val: Any, cols: int) -> np.ndarray:
             t = from_side_by_side(np.asarray(val), cols)
             return np.concatenate([np.zeros((1, *t.shape[1:])), t])
 

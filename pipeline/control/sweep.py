@@ -55,7 +55,7 @@ class SweepOptions(ProblemOptions):
     """Options of ``qsls sweep``: the base problem plus ``grid`` (axis -> list of values)."""
 
     grid: dict[str, list[Any]] = Field(
-        default_factory=lambda: {"S": [0.05, 0.1, 0.2], "T": [10, 20]}
+        default_factory=lambda: {"S": [0.05, 0.1, 0.2], "T": [10, 20]}  # type: ignore[arg-type]
     )
     certify: bool = True
     s_max_curve: bool = True
@@ -185,7 +185,7 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
 
     row: dict[str, Any] = {"index": p["index"], **p["grid"]}
     row.update({f"{k}_value": p[k] for k in ("S", "eps_e", "radius", "delta", "eps_w")})
-    empty = dict.fromkeys(RESULT_COLUMNS, math.nan)
+    empty: dict[str, Any] = dict.fromkeys(RESULT_COLUMNS, math.nan)
     empty.update(status="", feasible=False, solver_status="", build_time_s=0.0, solve_time_s=0.0)
     row.update(empty)
     model = _model(p)

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from pydantic import Field, field_validator, model_validator
@@ -401,8 +401,8 @@ def controller_plan(opts: SynthOptions) -> list[tuple[str, sls.Structure]]:
     if opts.controllers == "single":
         rob = "robust" if opts.robust else "nominal"
         name = f"{opts.norm}_{rob}" + ("_imitation" if opts.cost == "imitation" else "")
-        return [(name, sls.Structure(T, opts.norm, opts.cost, opts.robust, sp_))]
-    norms = ["l1", "h2"] if opts.norm == "both" else [opts.norm]
+        return [(name, sls.Structure(T, cast(sls.Norm, opts.norm), opts.cost, opts.robust, sp_))]
+    norms: list[sls.Norm] = ["l1", "h2"] if opts.norm == "both" else [opts.norm]
     plan = []
     for n in norms:
         plan += [

@@ -183,7 +183,8 @@ class _Training:
 
 
 def _flight_names(flights: list[Path]) -> list[str]:
-    names, seen = [], {}
+    names: list[str] = []
+    seen: dict[str, int] = {}
     for f in flights:
         base = Path(f).resolve().name or str(f)
         k = seen.get(base, 0)
@@ -345,7 +346,8 @@ def _bootstrap_summary(
 ) -> dict[str, Any]:
     qs = options.percentiles
     lvl = options.bootstrap_level
-    emax, epct = [], {pct_name(q): [] for q in qs}
+    emax: list[float] = []
+    epct: dict[str, list[float]] = {pct_name(q): [] for q in qs}
     for w in W:
         sel = w > 0
         emax.append(float(enorm[sel].max()))

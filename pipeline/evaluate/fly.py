@@ -37,6 +37,7 @@ from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 from pydantic import Field
 
 from qsls.pipeline.core.errors import InputError, QslsError
@@ -70,7 +71,8 @@ class FlyOptions(EvaluateOptions):
     duration: float = Field(30.0, gt=0)
     """Seconds per flight."""
     conditions: list[Literal["regular", "degraded"]] = Field(
-        default_factory=lambda: ["regular", "degraded"], min_length=1
+        default_factory=lambda: ["regular", "degraded"],  # type: ignore[arg-type]
+        min_length=1,
     )
     """Perception conditions (the emulator's presets)."""
     controllers: list[str] | None = None
@@ -136,7 +138,7 @@ def pd_on_same_estimate(
     t: np.ndarray,
     y: np.ndarray,
     ref: np.ndarray,
-    K: np.ndarray | None = None,
+    K: ArrayLike | None = None,
 ) -> np.ndarray:
     """``u_PD = hover + u_ff + K (y - r)`` (k, 3): what the PD controller would command from
     the estimate another controller saw (the paper's input figure). ``K``: the flown PD's
@@ -619,7 +621,7 @@ def fly_evaluate(
     model = load_error_model(model_file)
     folders = _select(expand_controllers(controllers), options.controllers)
     bounds = load_bounds(folders)
-    warnings = [w for b in bounds if (w := check_model_hash(b, model_file, force=force))]
+    warnings = [m for b in bounds if (m := check_model_hash(b, model_file, force=force))]
     training = load_training(fit_dir, model, options.state_scale)
 
     specs: list[tuple[str, str]] = [(b.name, str(b.folder.resolve())) for b in bounds]
@@ -739,7 +741,7 @@ def fly_evaluate(
     )
 
 
-def _write_fly_figures(w, outcomes, bounds, options, ref_bound) -> None:  # type: ignore[no-untyped-def]
+def _write_fly_figures(w, outcomes, bounds, options, ref_bound) -> None:  # type: ignore[no-untyped-def,unused-ignore]
     from qsls.pipeline.evaluate import figures as plots
 
     seed0 = options.seeds[0]

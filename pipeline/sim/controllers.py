@@ -94,8 +94,13 @@ class SE3Controller:
 
     name = "se3"
 
-    def __init__(  # type: ignore[no-untyped-def]
-        self, params: dict[str, Any], dt: float, kp=None, kd=None, backend: str = "fast"
+    def __init__(
+        self,
+        params: dict[str, Any],
+        dt: float,
+        kp: Any = None,
+        kd: Any = None,
+        backend: str = "fast",
     ) -> None:
         from rotorpy.controllers.quadrotor_control import SE3Control
 

@@ -46,7 +46,7 @@ errors.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -163,7 +163,7 @@ class VioParams(Options):
 
     @field_validator("outlier_max")
     @classmethod
-    def _max_ge_min(cls, v: float, info) -> float:  # type: ignore[no-untyped-def]
+    def _max_ge_min(cls, v: float, info: Any) -> float:
         lo = info.data.get("outlier_min")
         if lo is not None and v < lo:
             raise ValueError(f"outlier_max ({v}) must be >= outlier_min ({lo})")
@@ -277,7 +277,7 @@ class VioEmulator:
         self._rng_out = np.random.default_rng(ss[_STREAM_OUTLIER])
         u = np.random.default_rng(ss[_STREAM_DIRECTION]).standard_normal(3)
         u[2] *= self.params.drift_vertical
-        self.drift_direction = u / max(np.linalg.norm(u), 1e-12)
+        self.drift_direction = u / max(float(np.linalg.norm(u)), 1e-12)
         self._drift = np.zeros(3)
         self._last_p: np.ndarray | None = None
         self.distance = 0.0
@@ -329,7 +329,7 @@ class VioEmulator:
             e[rows, 3 + axis[rows]] += sign[rows] * mag[rows]
         return e
 
-    def describe(self) -> dict[str, float]:
+    def describe(self) -> dict[str, Any]:
         """Derived constants worth recording beside a flight (for ``truth.json``)."""
         return {
             "lipschitz": self.lipschitz,
