@@ -1,0 +1,313 @@
+"""`qsls export`: C compiled by the system compiler and the stdlib module in an isolated Python
+give the realization's u; the C flies the simulator like the Python one; bad input is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from qsls.cli.main import app
+from qsls.pipeline.control.artifacts import load_runtime
+from qsls.pipeline.core.artifacts import dump_yaml
+from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
+from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
+
+RUN = CliRunner()
+T = 15
+TICKS = 10_000
+COMPILERS = [c for c in ("gcc", "clang") if shutil.which(c)]
+
+
+def invoke(*args):
+    return RUN.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def controllers(tmp_path_factory):
+    """Real controllers from `qsls synth`: {"proper"|"strict": certified l1_robust, "nominal":
+    the uncertified l1_nominal} (T = 15, the synth tests' error model)."""
+    root = tmp_path_factory.mktemp("export")
+    em = ErrorModel(
+        eps_e=0.05,
+        eps_e_percentiles={"p95": 0.04},
+        radius=1.0,
+        s_slope=SlopeStats(max=11.7, percentiles={"p50": 0.13, "p95": 0.4}),
+        R0=0.05,
+        delta=0.05,
+        n_samples=100,
+        n_pairs=1000,
+    )
+    (root / "fit").mkdir()
+    (root / "fit" / "error_model.yaml").write_text(dump_yaml(em))
+    base = ["synth", "--model", root / "fit", "-T", T, "--S", "p50", "--controllers", "single"]
+    runs = {
+        "proper": ["--not-strictly-proper"],
+        "strict": ["--strictly-proper"],
+        "nominal": ["--no-robust"],
+    }
+    out = {}
+    for key, extra in runs.items():
+        res = invoke(*base, *extra, "--out", root / key)
+        assert res.exit_code == 0, res.output
+        (folder,) = [p for p in (root / key).iterdir() if p.is_dir() and p.name != "pd"]
+        out[key] = folder
+    return out
+
+
+@pytest.fixture(scope="module")
+def compiler():
+    cc = find_compiler()
+    if cc is None:
+        pytest.skip("no C compiler on this machine")
+    return cc
+
+
+def random_y(n=TICKS, seed=7):
+    return np.random.default_rng(seed).uniform(-1.0, 1.0, (n, 6))
+
+
+def python_u(folder, ys):
+    ctrl = load_runtime(folder)
+    ctrl.reset()
+    return np.array([ctrl.step(y) for y in ys])
+
+
+def build(cc, export_dir, prefix="qsls_ctrl", opt="-O2"):
+    """Compile the export with the strict flags into a shared library (the test's own call)."""
+    lib = export_dir.parent / f"{export_dir.name}-{prefix}-{os.path.basename(cc)}.so"
+    cmd = [cc, *STRICT, opt, "-fPIC", "-shared", "-o", lib, export_dir / f"{prefix}.c", "-lm"]
+    res = subprocess.run([str(c) for c in cmd], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert res.stderr == ""  # not even a note
+    return lib
+
+
+@pytest.mark.parametrize("timing", ["proper", "strict"])
+def test_c_equals_python_realization(tmp_path, controllers, compiler, timing):
+    folder = controllers[timing]
+    out = tmp_path / "c"
+    res = invoke("export", folder, "--target", "c", "--out", out)
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "qsls_ctrl.c", "qsls_ctrl.h"]
+    src = (out / "qsls_ctrl.c").read_text() + (out / "qsls_ctrl.h").read_text()
+    includes = {line.split()[1] for line in src.splitlines() if line.startswith("#include")}
+    assert includes == {'"qsls_ctrl.h"', "<stddef.h>", "<string.h>", "<math.h>"}
+    assert "malloc" not in src and "printf" not in src
+    cert = yaml.safe_load((folder / "certificate.yaml").read_text())
+    hdr = (out / "qsls_ctrl.h").read_text()
+    assert cert["controller_sha256"] in hdr and "status certified" in hdr
+    assert f"gamma = {cert['gamma']:.6g}" in hdr and f"T = {T} taps" in hdr
+    assert "dt = 0.1 s, mass = 0.256 kg" in hdr
+    ys = random_y()
+    want = python_u(folder, ys)
+    manifest = json.loads((out / "manifest.json").read_text())["results"]
+    for cc in COMPILERS or [compiler]:
+        lib = build(cc, out)
+        c = CController(lib, dt=0.1)
+        assert c.size == manifest["state_bytes"] == (T * 6 + (T + 1) * 6) * 8 + 8
+        got = np.array([c.step(y) for y in ys])
+        assert np.abs(got - want).max() <= 1e-12, cc
+        assert np.abs(want).max() > 1.0  # the test drives the controller hard
+        c.reset()  # reset really zeroes the memory: the same sequence again
+        np.testing.assert_array_equal(np.array([c.step(y) for y in ys[:50]]), got[:50])
+    if timing == "strict":  # u[k] does not depend on y[k]
+        c = CController(build(compiler, out), dt=0.1)
+        u0 = c.step(np.full(6, 1e3))
+        assert np.all(u0 == 0.0)
+    assert manifest["verify"]["max_abs_diff"] <= 1e-12
+
+
+def test_float_precision_deviation_is_reported_and_small(tmp_path, controllers, compiler):
+    folder = controllers["proper"]
+    res = invoke("export", folder, "-t", "c", "--precision", "float", "--out", tmp_path / "f")
+    assert res.exit_code == 0, res.output
+    assert "float vs double" in res.output
+    r = json.loads((tmp_path / "f" / "manifest.json").read_text())["results"]
+    assert r["state_bytes"] == (T * 6 + (T + 1) * 6) * 4 + 8
+    lib = build(compiler, tmp_path / "f")
+    cf = CController(lib, precision="float", dt=0.1)
+    ys = random_y(2000)
+    u_f = np.array([cf.step(y) for y in ys])
+    u_d = python_u(folder, ys)
+    dev = np.abs(u_f - u_d).max()
+    assert 0 < dev < 1e-4 * np.abs(u_d).max()  # single precision, not double, and close
+    fvd = r["float_vs_double"]
+    assert 0 < fvd["max_abs_du_random"] < 1e-4 * r["verify"]["max_abs_u"]
+    assert 0 < fvd["max_abs_dx_closed_loop"] < 1e-5
+
+
+@pytest.mark.parametrize("timing", ["proper", "strict"])
+def test_stdlib_module_in_isolated_python(tmp_path, controllers, timing):
+    folder = controllers[timing]
+    out = tmp_path / "py"
+    res = invoke("export", folder, "--target", "python", "--out", out, "--prefix", "ctrl_mod")
+    assert res.exit_code == 0, res.output
+    ys = random_y()
+    (tmp_path / "y.json").write_text(json.dumps(ys.tolist()))
+    driver = tmp_path / "drive.py"
+    driver.write_text(
+        textwrap.dedent(
+            f"""
+            import json, sys
+            sys.path.insert(0, {str(out)!r})
+            import ctrl_mod
+            assert "numpy" not in sys.modules
+            c = ctrl_mod.Controller()
+            c.reset()
+            ys = json.load(open({str(tmp_path / "y.json")!r}))
+            us = [c.step(y) for y in ys]
+            print(json.dumps({{"u": us, "dt": ctrl_mod.DT, "status": ctrl_mod.STATUS,
+                              "att": ctrl_mod.attitude([0.1, -0.2, 0.3], [1.0, 0.5, -0.2])}}))
+            """
+        )
+    )
+    proc = subprocess.run(
+        [sys.executable, "-I", "-S", str(driver)], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout)
+    assert got["dt"] == 0.1 and got["status"] == "certified"
+    assert np.abs(np.array(got["u"]) - python_u(folder, ys)).max() <= 1e-12
+    from qsls.pipeline.export.attitude import absolute_input
+    from qsls.pipeline.sim.vehicle import paper_to_ctatt
+
+    thrust, q = paper_to_ctatt(absolute_input([0.1, -0.2, 0.3], [1.0, 0.5, -0.2], 0.256)[0])
+    assert got["att"][0] == pytest.approx(thrust, abs=1e-14)
+    np.testing.assert_allclose(got["att"][1], q, atol=1e-15)
+
+
+def test_attitude_helper_signs(tmp_path, controllers, compiler):
+    """C helper = the simulator's conversion; a positive paper pitch tilts thrust toward -x
+    (vx' = -g pitch), a positive roll toward +y; the hover thrust is m g."""
+    from qsls.pipeline.core.rotations import quat_to_matrix
+    from qsls.pipeline.export.attitude import absolute_input
+    from qsls.pipeline.sim.vehicle import paper_to_ctatt
+
+    out = tmp_path / "c"
+    assert invoke("export", controllers["proper"], "-t", "c", "--out", out).exit_code == 0
+    c = CController(build(compiler, out), dt=0.1)
+    thrust, q = c.attitude([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    assert thrust == pytest.approx(0.256 * 9.81, abs=1e-15)
+    np.testing.assert_allclose(q, [0, 0, 0, 1], atol=0)
+    b3 = quat_to_matrix(c.attitude([0.1, 0.0, 0.0], [0.0, 0.0, 0.0])[1])[:, 2]
+    assert b3[0] < -0.09 and abs(b3[1]) < 1e-15
+    b3 = quat_to_matrix(c.attitude([0.0, 0.1, 0.0], [0.0, 0.0, 0.0])[1])[:, 2]
+    assert b3[1] > 0.09 and abs(b3[0]) < 1e-15
+    # feedforward: a reference accelerating toward +x tilts the thrust toward +x
+    b3 = quat_to_matrix(c.attitude([0.0, 0.0, 0.0], [2.0, 0.0, 0.0])[1])[:, 2]
+    assert b3[0] > 0
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        u, a = rng.uniform(-0.4, 0.4, 3), rng.uniform(-3, 3, 3)
+        th, qq = c.attitude(u, a)
+        t_ref, q_ref = paper_to_ctatt(absolute_input(u, a, 0.256)[0])
+        assert th == pytest.approx(t_ref, abs=1e-14)
+        np.testing.assert_allclose(qq, q_ref, atol=1e-15)
+
+
+@pytest.mark.parametrize("timing", ["proper", "strict"])
+def test_closed_loop_c_flies_like_python(tmp_path, controllers, compiler, timing):
+    """`qsls simulate` with the controller's backend python vs c: same flight within 1e-9 m."""
+    traj = {}
+    for backend in ("python", "c"):
+        cfg = tmp_path / f"{backend}.yaml"
+        cfg.write_text(
+            yaml.safe_dump(
+                {
+                    "duration": 12.0,
+                    "seed": 2,
+                    "controller": {"kind": str(controllers[timing]), "backend": backend},
+                }
+            )
+        )
+        res = invoke("simulate", "--config", cfg, "--out", tmp_path / backend)
+        assert res.exit_code == 0, res.output
+        traj[backend] = pd.read_parquet(tmp_path / backend / "trajectory.parquet")
+    cols = [c for c in traj["python"].columns if c.startswith("x_p")]
+    assert len(cols) == 3 and len(traj["c"]) == len(traj["python"]) > 1000
+    a, b = traj["python"][cols].to_numpy(), traj["c"][cols].to_numpy()
+    assert np.abs(a - b).max() <= 1e-9
+    assert np.ptp(a[:, 0]) > 1.0  # it flew the circle
+
+
+def test_exports_are_deterministic_and_prefix_renames(tmp_path, controllers, compiler):
+    folder = controllers["proper"]
+    for d in ("a", "b"):
+        args = ("export", folder, "-t", "c", "--prefix", "quad7", "--out", tmp_path / d)
+        assert invoke(*args, "--verify-ticks", 10).exit_code == 0
+    for name in ("quad7.c", "quad7.h"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+    text = (tmp_path / "a" / "quad7.h").read_text()
+    assert "void quad7_step(quad7_t *c" in text and "QUAD7_T 15" in text
+    c = CController(build(compiler, tmp_path / "a", prefix="quad7"), "quad7", dt=0.1)
+    ys = random_y(300)
+    assert np.abs(np.array([c.step(y) for y in ys]) - python_u(folder, ys)).max() <= 1e-12
+
+
+def _one_line_error(res, *words):
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), res.output
+    assert "Traceback" not in res.output
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+def test_bad_input(tmp_path, controllers):
+    good = controllers["proper"]
+    nominal = controllers["nominal"]
+    res = invoke("export", nominal, "-t", "c", "--out", tmp_path / "u")
+    _one_line_error(res, "uncertified", "robustness_lhs", "--allow-uncertified")
+    assert not (tmp_path / "u").exists()
+    res = invoke("export", nominal, "-t", "c", "--out", tmp_path / "u", "--allow-uncertified")
+    assert res.exit_code == 0, res.output
+    assert "guarantee: none: status uncertified" in (tmp_path / "u" / "qsls_ctrl.h").read_text()
+    # a relaxed premise is not certified
+    relaxed = tmp_path / "relaxed"
+    shutil.copytree(good, relaxed)
+    cert = yaml.safe_load((relaxed / "certificate.yaml").read_text())
+    cert["status"] = "certified_relaxed"
+    (relaxed / "certificate.yaml").write_text(yaml.safe_dump(cert))
+    res = invoke("export", relaxed, "-t", "python", "--out", tmp_path / "r")
+    _one_line_error(res, "certified_relaxed", "premise is relaxed", "not plainly certified")
+    # tampered: one tap changed (the gains are rewritten to match, the sha256 does not)
+    tampered = tmp_path / "tampered"
+    shutil.copytree(good, tampered)
+    from qsls.pipeline.control.artifacts import Controller
+
+    ctrl = Controller.load(tampered)
+    uy = ctrl.taps.Phi_uy.copy()
+    uy[3, 0, 0] += 1e-6
+    import dataclasses
+
+    dataclasses.replace(ctrl, taps=dataclasses.replace(ctrl.taps, Phi_uy=uy)).save(tampered)
+    res = invoke("export", tampered, "-t", "c", "--out", tmp_path / "t")
+    _one_line_error(res, "is not the controller its certificate.yaml certifies")
+    res = invoke("export", good, "-t", "fortran", "--out", tmp_path / "x")
+    _one_line_error(res, "target", "fortran")
+    res = invoke("export", good, "-t", "python", "--precision", "float", "--out", tmp_path / "x")
+    _one_line_error(res, "float")
+    res = invoke("export", good, "-t", "c", "--prefix", "9lives", "--out", tmp_path / "x")
+    _one_line_error(res, "prefix")
+    (tmp_path / "exists").mkdir()
+    res = invoke("export", good, "-t", "c", "--out", tmp_path / "exists")
+    _one_line_error(res, "already exists", "--force")
+    assert list((tmp_path / "exists").iterdir()) == []
+    res = invoke("export", good, "-t", "c", "--out", tmp_path / "exists", "--force")
+    assert res.exit_code == 0, res.output
+    res = invoke("export", tmp_path / "nope", "-t", "c", "--out", tmp_path / "y")
+    _one_line_error(res, "no such controller folder")
+    pd_folder = good.parent / "pd"
+    res = invoke("export", pd_folder, "-t", "c", "--out", tmp_path / "y", "--allow-uncertified")
+    _one_line_error(res, "static gain")
