@@ -368,28 +368,11 @@ def ingest(
         hasher.shutdown(wait=True)
 
 
-def _ingest(
-    sources: list[Path],
-    inputs: list[Path],
-    o: IngestOptions,
-    out: Path,
-    force: bool,
-    progress: Progress,
-    hashed: Any,
-) -> IngestResult:
-    from qsls.pipeline.core.artifacts import StageWriter
-    from qsls.pipeline.core.rotations import body_to_world, matrix_to_quat, quat_to_matrix
-    from qsls.pipeline.ingest.align import differentiate, fit_alignment
-    from qsls.pipeline.ingest.flight import FLIGHT_FILE, make_flight_frame
+def _clock_offset(vio: Prepared, truth: Prepared, o: IngestOptions) -> tuple[float, dict[str, Any]]:
+    """``time_offset_s`` (added to truth stamps, DESIGN.md Conventions) and how it was found:
+    given, or the minimum over the offset of the aligned mismatch (:mod:`timesync`)."""
     from qsls.pipeline.ingest.timesync import estimate_offset
 
-    vio_t, truth_t, where = _read_streams(sources, o, progress)
-    vio = prepare(vio_t, "vio", where["vio"], o)
-    truth = prepare(truth_t, "truth", where["truth"], o)
-    gap_ns = round(o.max_gap * 1e9)
-    win = o.velocity_window
-
-    # ---- clock offset
     def overlap_s(tau_ns: int) -> float:
         return (
             min(vio.t_ns[-1], truth.t_ns[-1] + tau_ns) - max(vio.t_ns[0], truth.t_ns[0] + tau_ns)
@@ -445,10 +428,20 @@ def _ingest(
             "samples": est.samples,
             "search_s": est.search_s,
         }
-    tau_ns = round(tau * 1e9)
-    tt = truth.t_ns + tau_ns  # truth on the VIO clock
+    return tau, offset_info
 
-    # ---- velocities in each stream's own world frame
+
+def _velocities(
+    vio: Prepared, truth: Prepared, o: IngestOptions
+) -> tuple[np.ndarray, str, np.ndarray, str]:
+    """Velocities in each stream's own world frame, and where each came from: the VIO's
+    message twist (rotated from the body frame if asked) or, lacking one, the smoothing
+    differentiator on positions; the truth's always from the differentiator."""
+    from qsls.pipeline.core.rotations import body_to_world
+    from qsls.pipeline.ingest.align import differentiate
+
+    gap_ns = round(o.max_gap * 1e9)
+    win = o.velocity_window
     if vio.velocity is not None:
         if o.vio_velocity_frame == "body":
             v_vio = body_to_world(vio.orientation, vio.velocity)
@@ -465,6 +458,33 @@ def _ingest(
     truth_vsrc = (
         f"smoothing differentiator (Savitzky-Golay quadratic, {win:g} s window) on positions"
     )
+
+    return v_vio, vio_vsrc, v_truth, truth_vsrc
+
+
+def _ingest(
+    sources: list[Path],
+    inputs: list[Path],
+    o: IngestOptions,
+    out: Path,
+    force: bool,
+    progress: Progress,
+    hashed: Any,
+) -> IngestResult:
+    from qsls.pipeline.core.artifacts import StageWriter
+    from qsls.pipeline.core.rotations import matrix_to_quat, quat_to_matrix
+    from qsls.pipeline.ingest.align import fit_alignment
+    from qsls.pipeline.ingest.flight import FLIGHT_FILE, make_flight_frame
+
+    vio_t, truth_t, where = _read_streams(sources, o, progress)
+    vio = prepare(vio_t, "vio", where["vio"], o)
+    truth = prepare(truth_t, "truth", where["truth"], o)
+    gap_ns = round(o.max_gap * 1e9)
+    tau, offset_info = _clock_offset(vio, truth, o)
+    tau_ns = round(tau * 1e9)
+    tt = truth.t_ns + tau_ns  # truth on the VIO clock
+
+    v_vio, vio_vsrc, v_truth, truth_vsrc = _velocities(vio, truth, o)
 
     # ---- alignment on time-matched pairs (VIO stamps inside the truth's coverage)
     lo, hi = max(vio.t_ns[0], tt[0]), min(vio.t_ns[-1], tt[-1])
