@@ -44,7 +44,6 @@ from qsls.pipeline.core.errors import InputError, QslsError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.evaluate.bound import (
-    ControllerBound,
     EvaluateOptions,
     EvaluateResult,
     bound_check,
@@ -55,12 +54,15 @@ from qsls.pipeline.evaluate.bound import (
     resolve_model,
     write_tables,
 )
+from qsls.pipeline.evaluate.findings import (
+    PAPER_CONTROLLERS,
+    ROBUST_QR,
+    compare_with_paper,
+    comparison_markdown,
+)
 from qsls.pipeline.ingest.flight import read_flight
 from qsls.pipeline.ingest.stage import IngestOptions
 from qsls.pipeline.sim.simulate import SimOptions
-
-PAPER_CONTROLLERS = ("pd", "l1_nominal", "l1_robust", "l1_robust_imitation")
-ROBUST_QR = "l1_robust"
 
 
 class FlyOptions(EvaluateOptions):
@@ -380,200 +382,6 @@ def _bound_columns(per: pd.DataFrame, checks: pd.DataFrame) -> pd.DataFrame:
     return per.merge(g, on=["condition", "controller"], how="left")
 
 
-def compare_with_paper(
-    per: pd.DataFrame,
-    checks: pd.DataFrame,
-    threshold: float,
-    ref_bound: ControllerBound | None,
-    tie_rel: float = 0.02,
-    true_lipschitz: dict[str, float] | None = None,
-) -> list[dict[str, Any]]:
-    """The paper's three findings, each with what qsls measured and whether it agrees.
-
-    Differences between controllers smaller than ``tie_rel`` (relative to the lowest value)
-    count as a tie: qsls then does not reproduce a claimed ranking."""
-    out = []
-    paper4 = [c for c in PAPER_CONTROLLERS if c in set(per["controller"])]
-
-    # (1) regular perception: every controller tracks, PD tracks best
-    reg = per[(per["condition"] == "regular") & per["controller"].isin(paper4)]
-    if len(reg):
-        tracks = {
-            r.controller: bool(r.crashed == 0 and r.tracking_rms_m < threshold)
-            for r in reg.itertuples()
-        }
-        order = reg.sort_values("tracking_rms_m")
-        best, lo = order.iloc[0]["controller"], float(order.iloc[0]["tracking_rms_m"])
-        nums = ", ".join(
-            f"{r.controller} {r.tracking_rms_m:.3f} m"
-            + (f" ({int(r.crashed)} crashed)" if r.crashed else "")
-            for r in order.itertuples()
-        )
-        all_track = all(tracks.values())
-        if "pd" not in tracks:
-            pd_best, rank = False, "PD not flown"
-        else:
-            pd_rms = float(reg.loc[reg["controller"] == "pd", "tracking_rms_m"].iloc[0])
-            pd_best = pd_rms <= lo * (1 + tie_rel)
-            rank = (
-                "PD best" if best == "pd" else
-                f"PD within {100 * tie_rel:g}% of the best ({best})" if pd_best else
-                f"best: {best}, PD {100 * (pd_rms / lo - 1):.0f}% worse"
-            )  # fmt: skip
-        not_tracking = [c for c, ok in tracks.items() if not ok]
-        detail = (
-            f"tracking RMS, mean over seeds: {nums}; "
-            + ("all track" if all_track else
-               f"not tracking (crash or RMS >= {threshold:g} m): {', '.join(not_tracking)}")
-            + f"; {rank}"
-        )  # fmt: skip
-        agrees = "yes" if all_track and pd_best else "partly" if all_track or pd_best else "no"
-        out.append(
-            {
-                "finding": "1. regular perception: all controllers track, PD tracks best",
-                "qsls": detail,
-                "agrees": agrees,
-            }
-        )
-
-    # (2) degraded perception: the robust qr-cost controller has the lowest perception error
-    deg = per[(per["condition"] == "degraded") & per["controller"].isin(paper4)]
-    if len(deg):
-        order = deg.sort_values("perception_error_rms")
-        best = order.iloc[0]["controller"]
-        lo, hi = (
-            float(order.iloc[0]["perception_error_rms"]),
-            float(order.iloc[-1]["perception_error_rms"]),
-        )
-        spread = hi / lo - 1 if lo > 0 else math.inf
-        nums = ", ".join(f"{r.controller} {r.perception_error_rms:.4f}" for r in order.itertuples())
-        if ROBUST_QR not in set(deg["controller"]):
-            agrees = "n/a (l1_robust not flown)"
-        elif spread < tie_rel:
-            agrees = "no (tie)"
-        elif best == ROBUST_QR:
-            agrees = "yes"
-        else:
-            agrees = "no"
-        detail = (
-            f"||e||_inf RMS, mean over seeds: {nums}; lowest: {best}; "
-            f"spread {100 * spread:.2f}% (a tie below {100 * tie_rel:g}%)"
-        )
-        out.append(
-            {
-                "finding": "2. degraded perception: the robust qr-cost controller has the "
-                "lowest perception error",
-                "qsls": detail,
-                "agrees": agrees,
-            }
-        )
-
-    # (3) every controller's perception error stays below the bound
-    if not checks.empty and ref_bound is not None:
-        ref = checks[checks["controller"] == ref_bound.name]
-        worst = ref.groupby("flown_by", sort=False)["max_ratio_strict"].max()
-        all_under = bool((ref["frac_under_gamma_strict"] >= 1.0).all())
-        nums = ", ".join(f"{c} {worst[c]:.3g}" for c in worst.index)
-        own = checks[(checks["controller"] == checks["flown_by"]) & checks["has_guarantee"]]
-        own_fail = own[~own["bound_holds"]]
-        own_txt = (
-            f"each certified controller against its own data-driven gamma(d): holds on "
-            f"{len(own) - len(own_fail)} of {len(own)} flights"
-        )
-        if len(own_fail):
-            n_ass = int((~own_fail["assumption_holds"]).sum())
-            own_txt += (
-                f"; fails on {', '.join(own_fail['flight'])} "
-                f"({n_ass} of them with the S-slope/eps_e premise violated: "
-                f"||e|| above eps_e + S d)"
-            )
-        detail = (
-            f"max ||e|| / gamma_strict of {ref_bound.name} ({ref_bound.gamma_strict:.4g}, the "
-            f"paper's comparison) per controller flown: {nums}; {own_txt}"
-        )
-        if true_lipschitz and "condition" in ref.columns:
-            # the paper computed its bound (1.602) with the true S-slope; the emulator's is known
-            parts = []
-            for cond, lip in true_lipschitz.items():
-                den = 1.0 - lip * ref_bound.norm_phi_xy
-                g = ref_bound.R0 / den if den > 0 else math.inf
-                m = float(ref.loc[ref["condition"] == cond, "max_error_norm"].max())
-                parts.append(
-                    f"{cond}: L = {lip:.3g}, bound {g:.4g}"
-                    + (
-                        f", max ||e|| / bound {m / g:.3g}"
-                        if math.isfinite(g)
-                        else " (none: L ||Phi_xy|| >= 1)"
-                    )
-                )
-            detail += (
-                "; with the emulator's true Lipschitz constant as S (the paper's choice): "
-                + ", ".join(parts)
-            )
-        if not ref_bound.has_guarantee:
-            detail = f"{ref_bound.name} has no guarantee; " + detail
-        agrees = "yes" if all_under and own_fail.empty else (
-            "partly (strict bound yes, data-driven gamma(d) no)" if all_under else "no"
-        )  # fmt: skip
-        out.append(
-            {
-                "finding": "3. every controller's perception error stays below the bound",
-                "qsls": detail,
-                "agrees": agrees,
-            }
-        )
-    # (4) qualitative (paper, Fig. u_L1_pd): the robust controllers are softer than PD
-    rob = per[per["controller"].isin(["l1_robust", "l1_robust_imitation"])]
-    if len(rob) and "smoothness_vs_pd" in rob.columns:
-        ratios = rob["smoothness_vs_pd"].to_numpy(float)
-        nums = ", ".join(
-            f"{r.controller} ({r.condition}) {r.smoothness_vs_pd:.2f}" for r in rob.itertuples()
-        )
-        agrees = "yes" if np.all(ratios < 1) else "no" if np.all(ratios >= 1) else "partly"
-        out.append(
-            {
-                "finding": "4. (qualitative) the robust controllers react more softly than PD "
-                "would on the same estimate",
-                "qsls": f"RMS step change of the attitude command relative to PD's on the same "
-                f"estimate (< 1: softer): {nums}",
-                "agrees": agrees,
-            }
-        )
-    return out
-
-
-def comparison_markdown(comparison: Sequence[dict[str, Any]], per: pd.DataFrame) -> str:
-    """The findings table and the per-controller metrics as Markdown."""
-    lines = [
-        "# qsls against the paper's findings",
-        "",
-        "| finding (paper) | qsls | agrees |",
-        "|---|---|---|",
-    ]
-
-    def cell(v: Any) -> str:
-        return str(v).replace("|", "\\|")
-
-    lines += [
-        f"| {cell(c['finding'])} | {cell(c['qsls'])} | {cell(c['agrees'])} |" for c in comparison
-    ]
-    cols = [
-        "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
-        "perception_error_rms", "perception_error_max", "control_effort_rms",
-        "control_smoothness_rms", "smoothness_vs_pd", "gamma_strict", "frac_under_gamma",
-        "max_ratio",
-    ]  # fmt: skip
-    cols = [c for c in cols if c in per.columns]
-    lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]
-    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for r in per[cols].itertuples(index=False):
-        lines.append(
-            "| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-# --------------------------------------------------------------------------- stage
 def _select(folders: list[Path], names: list[str] | None) -> list[Path]:
     by_name = {f.name: f for f in folders}
     if names is None:
