@@ -44,6 +44,7 @@ from qsls.pipeline.core.errors import InputError, QslsError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.evaluate.bound import (
+    ControllerBound,
     EvaluateOptions,
     EvaluateResult,
     bound_check,
@@ -408,6 +409,75 @@ def _pd_gain_of(folders: Sequence[Path]) -> tuple[tuple[float, ...], ...] | None
     return None
 
 
+def _make_jobs(
+    specs: Sequence[tuple[str, str]],
+    options: FlyOptions,
+    *,
+    sims: Path,
+    flights: Path,
+    pd_gain: tuple[tuple[float, ...], ...] | None,
+) -> list[FlyJob]:
+    """One job per condition, seed and controller (``specs``: ``(name, se3 | folder)``)."""
+    sim = options.sim.model_dump(mode="json")
+    sim["duration"] = options.duration
+    ingest_opts = options.ingest.model_dump(mode="json")
+    jobs = []
+    for cond in options.conditions:
+        for seed in options.seeds:
+            for cname, spec in specs:
+                name = f"{cond}_s{seed}_{cname}"
+                jobs.append(
+                    FlyJob(
+                        name=name,
+                        controller=cname,
+                        spec=spec,
+                        condition=cond,
+                        seed=int(seed),
+                        sim=sim,
+                        ingest=ingest_opts,
+                        sim_dir=str(sims / name),
+                        flight_dir=str(flights / name),
+                        pd_gain=pd_gain,
+                        pd_z=options.pd_z_control,
+                    )
+                )
+    return jobs
+
+
+def _check_flights(
+    outcomes: Sequence[FlyOutcome],
+    jobs: Sequence[FlyJob],
+    flights: pd.DataFrame,
+    bounds: Sequence[ControllerBound],
+    training: Any,
+) -> tuple[pd.DataFrame, pd.DataFrame, int | None]:
+    """Bound check of every ingested flight against its own controller's certificate and the
+    robust reference bound (``l1_robust``, else the first with a guarantee, index returned)."""
+    held = [
+        (o.name, read_flight(Path(j.flight_dir)))
+        for o, j in zip(outcomes, jobs, strict=True)
+        if not o.ingest_error
+    ]
+    index = {b.name: i for i, b in enumerate(bounds)}
+    ref_j = index.get(ROBUST_QR)
+    if ref_j is None:
+        ref_j = next((i for i, b in enumerate(bounds) if b.has_guarantee), None)
+    flown = dict(zip(flights["flight"], flights["controller"], strict=True))
+    pairs = []
+    for i, (name, _) in enumerate(held):
+        own = index.get(flown[name])
+        for j in dict.fromkeys(x for x in (own, ref_j) if x is not None):
+            pairs.append((i, j))
+    if not pairs:
+        return pd.DataFrame(), pd.DataFrame(), ref_j
+    checks, samples = bound_check(held, list(bounds), training, pairs=pairs)
+    checks.insert(2, "flown_by", checks["flight"].map(flown))
+    cond_of = dict(zip(flights["flight"], flights["condition"], strict=True))
+    checks.insert(3, "condition", checks["flight"].map(cond_of))
+    samples.insert(1, "flown_by", samples["flight"].map(flown))
+    return checks, samples, ref_j
+
+
 def fly_evaluate(
     error_model: Path,
     controllers: Sequence[Path],
@@ -435,38 +505,17 @@ def fly_evaluate(
     specs: list[tuple[str, str]] = [(b.name, str(b.folder.resolve())) for b in bounds]
     if options.se3:
         specs.append(("se3", "se3"))
-    sim_base = options.sim.model_dump(mode="json")
-    sim_base["duration"] = options.duration
-    ingest_opts = options.ingest.model_dump(mode="json")
     workers = options.jobs or os.cpu_count() or 1
-    pd_k = _pd_gain_of(folders)
 
     tmp_root = Path(tempfile.mkdtemp(prefix="qsls-fly-"))
     try:
         with StageWriter(
             out, "evaluate", options=options, inputs=[model_file, *folders], force=force
         ) as w:
-            jobs = []
-            for cond in options.conditions:
-                for seed in options.seeds:
-                    for cname, spec in specs:
-                        name = f"{cond}_s{seed}_{cname}"
-                        sim_dir = (w.path("sims") / name) if options.keep_bags else tmp_root / name
-                        jobs.append(
-                            FlyJob(
-                                name,
-                                cname,
-                                spec,
-                                cond,
-                                int(seed),
-                                sim_base,
-                                ingest_opts,
-                                str(sim_dir),
-                                str(w.path("flights") / name),
-                                pd_k,
-                                options.pd_z_control,
-                            )
-                        )
+            jobs = _make_jobs(
+                specs, options, sims=w.path("sims") if options.keep_bags else tmp_root,
+                flights=w.path("flights"), pd_gain=_pd_gain_of(folders),
+            )  # fmt: skip
             outcomes = run_jobs(jobs, min(workers, len(jobs)), progress)
             flights = flight_table(outcomes)
             for o in outcomes:
@@ -479,30 +528,7 @@ def fly_evaluate(
                         f"{o.name}: not bound-checked, ingest failed ({o.ingest_error})"
                     )
 
-            # bound check: each flight against its own certificate and against the robust bound
-            held = [
-                (o.name, read_flight(Path(j.flight_dir)))
-                for o, j in zip(outcomes, jobs, strict=True)
-                if not o.ingest_error
-            ]
-            index = {b.name: i for i, b in enumerate(bounds)}
-            ref_j = index.get(ROBUST_QR)
-            if ref_j is None:
-                ref_j = next((i for i, b in enumerate(bounds) if b.has_guarantee), None)
-            flown = dict(zip(flights["flight"], flights["controller"], strict=True))
-            pairs = []
-            for i, (name, _) in enumerate(held):
-                own = index.get(flown[name])
-                for j in dict.fromkeys(x for x in (own, ref_j) if x is not None):
-                    pairs.append((i, j))
-            if pairs:
-                checks, samples = bound_check(held, bounds, training, pairs=pairs)
-                checks.insert(2, "flown_by", checks["flight"].map(flown))
-                cond_of = dict(zip(flights["flight"], flights["condition"], strict=True))
-                checks.insert(3, "condition", checks["flight"].map(cond_of))
-                samples.insert(1, "flown_by", samples["flight"].map(flown))
-            else:
-                checks, samples = pd.DataFrame(), pd.DataFrame()
+            checks, samples, ref_j = _check_flights(outcomes, jobs, flights, bounds, training)
             per = _bound_columns(per_controller_table(flights), checks)
             ref_bound = bounds[ref_j] if ref_j is not None else None
             true_l: dict[str, float] = {}
