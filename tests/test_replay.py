@@ -1,0 +1,209 @@
+"""`qsls replay` on simulated bags: the commands in the MCAP (read back with rosbags) are what
+the same controller commanded in flight, gaps are listed and restart the controller."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from qsls.pipeline.control.artifacts import load_runtime
+from qsls.pipeline.ingest.sources.bags import BagSource
+from qsls.pipeline.ingest.sources.write import OdometryStream, write_bag
+from qsls.pipeline.sim.vehicle import paper_to_ctatt
+from tests.test_export import _one_line_error, compiler, controllers, invoke  # noqa: F401
+
+STATE = ["px", "py", "pz", "vx", "vy", "vz"]
+MASS_G = 0.256 * 9.81
+
+
+@pytest.fixture(scope="module")
+def flown(tmp_path_factory, controllers):  # noqa: F811
+    """A 12 s circle flown by the certified controller; the VIO frame is the world frame, so
+    the replay (reference = the same circle) must command what the controller commanded."""
+    root = tmp_path_factory.mktemp("replay")
+    cfg = root / "sim.yaml"
+    cfg.write_text(
+        yaml.safe_dump(
+            {
+                "duration": 12.0,
+                "seed": 4,
+                "controller": {"kind": str(controllers["proper"])},
+                "log": {
+                    "format": "ros2-mcap",
+                    "vio_frame_yaw_deg": 0.0,
+                    "vio_frame_translation": [0.0, 0.0, 0.0],
+                },
+            }
+        )
+    )
+    res = invoke("simulate", "--config", cfg, "--out", root / "sim")
+    assert res.exit_code == 0, res.output
+    return root, root / "sim" / "flight", pd.read_parquet(root / "sim" / "control.parquet")
+
+
+def read_mcap(path):
+    """Every message by topic, decoded with types built from the definitions in the file."""
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    out: dict[str, list] = {}
+    with Reader(path) as r:
+        for c in r.connections:
+            ts.register(get_types_from_msg(c.msgdef.data, c.msgtype))
+        types = {c.topic: c.msgtype for c in r.connections}
+        for conn, t, raw in r.messages():
+            out.setdefault(conn.topic, []).append((t, ts.deserialize_cdr(raw, conn.msgtype)))
+    return types, out
+
+
+def report_of(path):
+    """The replay's report: the rosbag2 metadata record's custom_data (read with mcap)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        (meta,) = [m for m in make_reader(fh).iter_metadata() if m.name == "rosbag2"]
+    info = yaml.safe_load(meta.metadata["serialized_metadata"])
+    return json.loads(info["custom_data"]["qsls_replay"])
+
+
+def deviations(msgs):
+    return np.array([t for t, _ in msgs]), np.array([m.data for _, m in msgs])
+
+
+def absolute_at(path, stamp):
+    cmd = read_mcap(path)[1]["/qsls/command"]
+    (m,) = [m for t, m in cmd if t == stamp]
+    return np.array([m.vector.x, m.vector.y, m.vector.z])
+
+
+def test_commands_equal_the_flown_controllers(tmp_path, controllers, flown):  # noqa: F811
+    _, bag, control = flown
+    out = tmp_path / "replay.mcap"
+    res = invoke(
+        "replay", controllers["proper"], bag, "--vio-topic", "/vio/odometry",
+        "--reference", "circle", "--out", out,
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "ticks" in res.output and "largest tilt" in res.output
+    types, msgs = read_mcap(out)
+    assert types == {
+        "/mavros/setpoint_raw/attitude": "mavros_msgs/msg/AttitudeTarget",
+        "/qsls/deviation": "std_msgs/msg/Float64MultiArray",
+        "/qsls/command": "geometry_msgs/msg/Vector3Stamped",
+    }
+    stamps, dev = deviations(msgs["/qsls/deviation"])
+    cs = control["stamp_ns"].to_numpy()
+    common, i, j = np.intersect1d(stamps, cs, return_indices=True)
+    assert len(common) == len(cs) >= 119  # every tick of the flight is a tick of the replay
+    u_flown = control[["u_pitch", "u_roll", "u_thrust"]].to_numpy()[j]
+    absolute = np.array([[m.vector.x, m.vector.y, m.vector.z] for _, m in msgs["/qsls/command"]])
+    np.testing.assert_allclose(absolute[i], u_flown, rtol=0, atol=1e-12)
+    y_minus_r = (
+        control[[f"y_{s}" for s in STATE]].to_numpy()
+        - control[[f"r_{s}" for s in STATE]].to_numpy()
+    )
+    np.testing.assert_allclose(dev[i, :6], y_minus_r[j], rtol=0, atol=1e-12)
+    # the deviation's u is what the verified Python realization gives on these y - r
+    ctrl = load_runtime(controllers["proper"])
+    u_python = np.array([ctrl.step(y) for y in dev[:, :6]])
+    np.testing.assert_allclose(dev[:, 6:], u_python, rtol=0, atol=1e-12)
+    # AttitudeTarget: the simulator's vehicle conversion of the flown command
+    att = msgs["/mavros/setpoint_raw/attitude"]
+    for k, jj in zip(i, j, strict=True):
+        t, m = att[k]
+        assert t == stamps[k] == m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+        thrust, q = paper_to_ctatt(u_flown[list(j).index(jj)])
+        got = [m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w]
+        np.testing.assert_allclose(got, q, rtol=0, atol=1e-12)
+        assert m.type_mask == 7
+        assert m.thrust == pytest.approx(0.5 * thrust / MASS_G, rel=1e-6)
+    # the limits in the report, recomputed from the commands
+    lim = report_of(out)["limits"]
+    tilt = np.degrees(np.arccos(np.cos(absolute[:, 0]) * np.cos(absolute[:, 1])))
+    assert lim["max_tilt_deg"] == pytest.approx(tilt.max(), abs=1e-9)
+    assert lim["frac_tilt_exceeded"] == pytest.approx(np.mean(tilt > 20.0))
+    assert lim["thrust_max_ratio"] == pytest.approx(absolute[:, 2].max() / MASS_G, rel=1e-12)
+    assert lim["thrust_min_ratio"] == pytest.approx(absolute[:, 2].min() / MASS_G, rel=1e-12)
+    assert 0 < tilt.max() < 20 and report_of(out)["gaps"] == []
+
+
+def test_backends_agree_and_output_is_deterministic(tmp_path, controllers, flown, compiler):  # noqa: F811
+    _, bag, _ = flown
+    devs = {}
+    for name, extra in (("a", []), ("b", []), ("c", ["--backend", "c"])):
+        out = tmp_path / f"{name}.mcap"
+        res = invoke(
+            "replay", controllers["proper"], bag, "--reference", "circle", "--out", out, *extra
+        )
+        assert res.exit_code == 0, res.output
+        devs[name] = deviations(read_mcap(out)[1]["/qsls/deviation"])[1]
+    assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
+    assert np.abs(devs["a"] - devs["c"]).max() <= 1e-12
+
+
+def test_gap_is_listed_and_restarts_the_controller(tmp_path, controllers, flown):  # noqa: F811
+    _, bag, control = flown
+    with BagSource(bag) as src:
+        (vio,) = src.read_many([("/vio/odometry", None)])
+    t0 = int(vio.header_ns[0])
+    keep = ~((vio.header_ns >= t0 + 5_000_000_000) & (vio.header_ns < t0 + 5_600_000_000))
+    stream = OdometryStream(
+        topic="/vio/odometry",
+        header_ns=vio.header_ns[keep],
+        log_ns=vio.log_ns[keep],
+        position=vio.position[keep],
+        orientation=vio.orientation[keep],
+        linear_velocity=vio.velocity[keep],
+    )
+    gapped = write_bag(tmp_path / "gapped.mcap", [stream], "mcap")
+    out = tmp_path / "replay.mcap"
+    res = invoke("replay", controllers["proper"], gapped, "--reference", "circle", "--out", out)
+    assert res.exit_code == 0, res.output
+    assert "warning: VIO gap of 0.610 s at 4.990 s" in res.output
+    stamps, dev = deviations(read_mcap(out)[1]["/qsls/deviation"])
+    gap_lo, gap_hi = t0 + 4_990_000_000, t0 + 5_600_000_000
+    assert not np.any((stamps > gap_lo) & (stamps < gap_hi))
+    assert len(stamps) == 121 - 6  # ticks 5.0 .. 5.5 s dropped
+    before, after = stamps < gap_lo, stamps >= gap_hi
+    # before the gap: the flown commands; after it: a controller started afresh
+    u_cols = control[["u_pitch", "u_roll", "u_thrust"]].to_numpy()
+    u_flown = dict(zip(control["stamp_ns"], u_cols, strict=True))
+    ctrl = load_runtime(controllers["proper"])
+    np.testing.assert_allclose(
+        dev[before, 6:], [ctrl.step(y) for y in dev[before, :6]], rtol=0, atol=1e-12
+    )
+    ctrl.reset()
+    np.testing.assert_allclose(
+        dev[after, 6:], [ctrl.step(y) for y in dev[after, :6]], rtol=0, atol=1e-12
+    )
+    first = stamps[after][0]
+    assert np.abs(absolute_at(out, first) - u_flown[first]).max() > 1e-3  # restarted: not as flown
+    rep = report_of(out)
+    assert rep["segments"] == 2 and len(rep["gaps"]) == 1
+    assert rep["controller_reset_at_ns"] == [int(stamps[0]), int(first)]
+    with Reader(out) as r:
+        assert r.message_count == 3 * len(stamps)
+
+
+def test_bad_input(tmp_path, controllers, flown):  # noqa: F811
+    _, bag, _ = flown
+    good, args = controllers["proper"], ["--reference", "circle"]
+    (tmp_path / "old.mcap").write_bytes(b"keep me")
+    res = invoke("replay", good, bag, *args, "--out", tmp_path / "old.mcap")
+    _one_line_error(res, "already exists", "--force")
+    assert (tmp_path / "old.mcap").read_bytes() == b"keep me"
+    res = invoke("replay", controllers["nominal"], bag, *args, "--out", tmp_path / "n.mcap")
+    _one_line_error(res, "uncertified", "--allow-uncertified")
+    res = invoke("replay", good, bag, *args, "--out", tmp_path / "x.bag")
+    _one_line_error(res, "*.mcap")
+    res = invoke("replay", good, bag, "--reference", "spiral", "--out", tmp_path / "x.mcap")
+    _one_line_error(res, "spiral")
+    res = invoke("replay", good, bag, *args, "--vio-topic", "/nope", "--out", tmp_path / "x.mcap")
+    _one_line_error(res, "/nope")
+    res = invoke("replay", good, tmp_path / "none.bag", *args, "--out", tmp_path / "x.mcap")
+    _one_line_error(res, "none.bag")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.mcap"]  # nothing half-written
