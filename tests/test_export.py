@@ -311,3 +311,39 @@ def test_bad_input(tmp_path, controllers):
     pd_folder = good.parent / "pd"
     res = invoke("export", pd_folder, "-t", "c", "--out", tmp_path / "y", "--allow-uncertified")
     _one_line_error(res, "static gain")
+
+
+@pytest.mark.slow
+def test_evaluate_fly_flies_the_exported_c(tmp_path, compiler):
+    """`qsls evaluate --fly --backend c`: the same flights as the Python realization's."""
+    steps = [
+        ("simulate", "--duration", 10, "--seed", 0, "--out", tmp_path / "sim"),
+        ("ingest", tmp_path / "sim" / "flight.bag", "--out", tmp_path / "ing"),
+        ("fit", tmp_path / "ing", "--radius", 2, "--out", tmp_path / "fit"),
+        ("synth", "--model", tmp_path / "fit", "-T", T, "--S", 0.05, "--delta", 0,
+         "--controllers", "single", "--out", tmp_path / "syn"),
+    ]  # fmt: skip
+    for args in steps:
+        res = invoke(*args)
+        assert res.exit_code == 0, res.output
+    (tmp_path / "ev.yaml").write_text("fly:\n  se3: false\n")
+    flights = {}
+    for backend in ("python", "c"):
+        out = tmp_path / f"ev_{backend}"
+        res = invoke(
+            "evaluate", "--fly", "--model", tmp_path / "fit", "--controller", tmp_path / "syn",
+            "--seeds", 0, "--duration", 8, "--conditions", "regular", "--jobs", 1,
+            "--no-figures", "--config", tmp_path / "ev.yaml", "--backend", backend, "--out", out,
+        )  # fmt: skip
+        assert res.exit_code == 0, res.output
+        manifest = json.loads((out / "manifest.json").read_text())
+        assert manifest["options"]["sim"]["controller"]["backend"] == backend
+        flights[backend] = {
+            p.name: pd.read_parquet(p / "flight.parquet") for p in (out / "flights").iterdir()
+        }
+    assert sorted(flights["c"]) == ["regular_s0_l1_robust", "regular_s0_pd"]
+    for name, a in flights["c"].items():
+        b = flights["python"][name]
+        cols = [c for c in a.columns if c.startswith("x_p")]
+        assert len(cols) == 3 and len(a) == len(b) > 50
+        assert np.abs(a[cols].to_numpy() - b[cols].to_numpy()).max() <= 1e-9
