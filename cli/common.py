@@ -32,6 +32,46 @@ def cli_errors(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+def number_or_name(value: str | None) -> float | str | None:
+    """A value that is a number or an error-model name (``max``, ``p95``)."""
+    if value is None:
+        return None
+    try:
+        return float(value)
+    except ValueError:
+        return value.strip()
+
+
+def parse_list(text: str | None, what: str, kind: str = "float") -> list[Any] | None:
+    """The one parser of comma-separated command-line lists: ``"1, 2,3"`` -> ``[1.0, 2.0, 3.0]``.
+
+    ``kind``: ``float``, ``int``, or ``value`` (a number, ``true``/``false``, or an
+    error-model name such as ``p95``). ``None`` (not given) stays ``None``; a bad item is a
+    one-line :class:`ConfigError` naming the option."""
+    if text is None:
+        return None
+    from qsls.pipeline.core.errors import ConfigError
+
+    out: list[Any] = []
+    for item in (x.strip() for x in text.split(",") if x.strip()):
+        try:
+            if kind == "int":
+                out.append(int(item))
+            elif kind == "float":
+                out.append(float(item))
+            elif item.lower() in ("true", "false"):
+                out.append(item.lower() == "true")
+            else:
+                out.append(number_or_name(item))
+        except ValueError:
+            raise ConfigError(
+                f"{what}: '{item}' is not {'an integer' if kind == 'int' else 'a number'} "
+                f"(expected comma-separated {'integers' if kind == 'int' else 'numbers'}, "
+                f"got '{text}')"
+            ) from None
+    return out
+
+
 def overrides(**kwargs: Any) -> dict[str, Any]:
     """The options given on the command line (``None`` means not given)."""
     return {k: v for k, v in kwargs.items() if v is not None}

@@ -6,7 +6,14 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import RichProgress, cli_errors, overrides, print_summary, print_table
+from qsls.cli.common import (
+    RichProgress,
+    cli_errors,
+    overrides,
+    parse_list,
+    print_summary,
+    print_table,
+)
 
 
 @cli_errors
@@ -92,10 +99,7 @@ def command(
 
         if flights:
             raise InputError("--flights is not used with --fly (the flights are flown); drop one")
-        try:
-            seed_list = [int(s) for s in seeds.split(",") if s.strip()] if seeds else None
-        except ValueError:
-            raise InputError(f"--seeds: expected comma-separated integers, got '{seeds}'") from None
+        seed_list = parse_list(seeds, "--seeds", "int") or None
         ov.update(
             overrides(
                 seeds=seed_list,

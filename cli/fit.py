@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, overrides
+from qsls.cli.common import cli_errors, overrides, parse_list
 
 
 @cli_errors
@@ -100,9 +100,9 @@ def command(
 
     given = overrides(
         radius=radius,
-        percentiles=_floats(percentiles, "--percentiles"),
+        percentiles=parse_list(percentiles, "--percentiles"),
         min_separation=_minsep(min_separation),
-        state_scale=_floats(state_scale, "--state-scale"),
+        state_scale=parse_list(state_scale, "--state-scale"),
         exclude_outliers=exclude_outliers,
         outlier_z=outlier_z,
         skip_start=skip_start,
@@ -137,17 +137,6 @@ def command(
                 for w in wp
             ],
         )
-
-
-def _floats(text: str | None, name: str) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        return [float(v) for v in text.replace(" ", "").split(",") if v]
-    except ValueError:
-        from qsls.pipeline.core.errors import ConfigError
-
-        raise ConfigError(f"{name}: expected comma-separated numbers, got {text!r}") from None
 
 
 def _minsep(text: str | None) -> float | str | None:

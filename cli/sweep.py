@@ -6,8 +6,7 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, overrides, print_summary
-from qsls.cli.synth import number_or_name
+from qsls.cli.common import cli_errors, number_or_name, overrides, parse_list, print_summary
 
 
 def grid_axis(text: str) -> tuple[str, list]:
@@ -18,17 +17,8 @@ def grid_axis(text: str) -> tuple[str, list]:
     if "=" not in text:
         raise ConfigError(f"--grid '{text}': expected AXIS=V1,V2,... (e.g. S=0.05,0.1,p95)")
     axis, _, values = text.partition("=")
-    out: list = []
-    for v in (x.strip() for x in values.split(",") if x.strip()):
-        if v.lower() in ("true", "false"):
-            out.append(v.lower() == "true")
-        elif axis.strip() == "T":
-            try:
-                out.append(int(v))
-            except ValueError:
-                raise ConfigError(f"--grid T: '{v}' is not an integer") from None
-        else:
-            out.append(number_or_name(v))
+    axis = axis.strip()
+    out = parse_list(values, f"--grid {axis}", "int" if axis == "T" else "value") or []
     return axis.strip(), out
 
 

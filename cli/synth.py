@@ -7,29 +7,7 @@ from typing import Any
 
 import typer
 
-from qsls.cli.common import cli_errors, overrides, print_summary
-
-
-def number_or_name(value: str | None) -> float | str | None:
-    """A command-line value that is a number or an error-model name (``max``, ``p95``)."""
-    if value is None:
-        return None
-    try:
-        return float(value)
-    except ValueError:
-        return value.strip()
-
-
-def diag_list(value: str | None, what: str) -> list[float] | None:
-    """``"10,10,10,1,1,1"`` -> a list of diagonal entries."""
-    if value is None:
-        return None
-    from qsls.pipeline.core.errors import ConfigError
-
-    try:
-        return [float(v) for v in value.replace(" ", "").split(",") if v]
-    except ValueError:
-        raise ConfigError(f"--{what}: expected comma-separated numbers, got '{value}'") from None
+from qsls.cli.common import cli_errors, number_or_name, overrides, parse_list, print_summary
 
 
 @cli_errors
@@ -97,7 +75,7 @@ def command(
     given: dict[str, Any] = overrides(
         T=horizon, norm=norm, controllers=controllers, cost=cost, robust=robust,
         strictly_proper=strictly_proper, S=number_or_name(s), eps_e=number_or_name(eps_e),
-        radius=radius, delta=delta, eps_w=eps_w, Q=diag_list(q, "Q"), R=diag_list(r, "R"),
+        radius=radius, delta=delta, eps_w=eps_w, Q=parse_list(q, "--Q"), R=parse_list(r, "--R"),
         mass=mass, dt=dt, imitate=imitate, solver=solver,
     )  # fmt: skip
     opts = load_options(SynthOptions, config, given)
