@@ -83,12 +83,12 @@ _STATUS_NOTES = {
 }
 
 
-def section_controllers(f: Facts, counter: list[int]) -> Section | None:
-    if not f.controllers:
-        return None
+def _controller_rows(f: Facts) -> tuple[list[list[Any]], list[list[Any]], list[list[Any]]]:
+    """Per controller: the certificate row, the checks row and the premise row."""
     em = f.error_model
-    sec = Section("Controllers and certificates", id="controllers")
-    rows, checks, premise = [], [], []
+    rows: list[list[Any]] = []
+    checks: list[list[Any]] = []
+    premise: list[list[Any]] = []
     for c in f.controllers:
         d = c.cert
         rows.append(
@@ -128,6 +128,15 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
                 d.get("eps_w"),
             ]
         )
+    return rows, checks, premise
+
+
+def section_controllers(f: Facts, counter: list[int]) -> Section | None:
+    if not f.controllers:
+        return None
+    em = f.error_model
+    sec = Section("Controllers and certificates", id="controllers")
+    rows, checks, premise = _controller_rows(f)
     seen = sorted({status_badge(c, em)[0] for c in f.controllers})
     notes = [
         n
