@@ -125,6 +125,10 @@ def _cost(tau_s: float, *data: Any) -> float:
     return float(np.log(pos + 1e-18) + np.log(tilt + 1e-18))
 
 
+_COARSE = 5
+"""Grid steps between the points of the first, coarser pass of the offset search."""
+
+
 def estimate_offset(
     vio_ns: np.ndarray,
     vio_p: np.ndarray,
@@ -178,8 +182,16 @@ def estimate_offset(
     gsub = None if gv is None else gv[sub]
     n_grid = max(1, int(np.floor(search / step_s)))
     grid = np.arange(-n_grid, n_grid + 1) * step_s
-    costs = np.array([_cost(g, tv[sub], pv[sub], gsub, *args[1:]) for g in grid])
-    k = int(np.argmin(costs))
+
+    def cost_at(j: np.ndarray) -> np.ndarray:
+        return np.array([_cost(grid[i], tv[sub], pv[sub], gsub, *args[1:]) for i in j])
+
+    # every COARSE-th grid point first, then the grid around the best of those: the cost
+    # varies on the time scale of the motion (seconds), far wider than COARSE * step_s
+    coarse = np.unique(np.r_[np.arange(0, len(grid), _COARSE), len(grid) - 1])
+    kc = int(coarse[np.argmin(cost_at(coarse))])
+    near = np.arange(max(kc - _COARSE, 0), min(kc + _COARSE + 1, len(grid)))
+    k = int(near[np.argmin(cost_at(near))])
     at_edge = k in (0, len(grid) - 1) and len(grid) > 1
     # fine: Brent's method on all samples within one grid step either side
     from scipy.optimize import minimize_scalar
