@@ -44,6 +44,12 @@ def command(
         None, "--max-gap", help="Never interpolate across a gap longer than this (s, default 0.25)."
     ),
     stamp: str | None = typer.Option(None, "--stamp", help="header (default) or log time."),
+    vio_velocity_frame: str | None = typer.Option(
+        None, "--vio-velocity-frame", help="Frame of the Odometry twist: body (default) or world."
+    ),
+    drop_nonfinite: bool = typer.Option(
+        False, "--drop-nonfinite", help="Skip messages with NaN/inf values instead of stopping."
+    ),
     allow_uncertified: bool = typer.Option(
         False, "--allow-uncertified", help="Replay a controller whose status is not 'certified'."
     ),
@@ -71,6 +77,8 @@ def command(
         hover_thrust=hover_thrust,
         max_gap=max_gap,
         stamp=stamp,
+        vio_velocity_frame=vio_velocity_frame,
+        drop_nonfinite=drop_nonfinite or None,
         allow_uncertified=allow_uncertified or None,
     )
     options = load_options(ReplayOptions, config, given, section="replay")
