@@ -33,7 +33,6 @@ Statistics and their accuracy:
 
 from __future__ import annotations
 
-import itertools
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -42,6 +41,7 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.errormodel.pairgrid import cell_grid, pair_blocks
 
 HIST_SHIFT = 44
 """Low mantissa bits dropped to form a histogram key (52 - 44 = 8 bits kept: 256 bins/octave)."""
@@ -49,7 +49,6 @@ HIST_REL_ERROR = 2.0 ** -(52 - HIST_SHIFT + 1)
 """Bound on the relative error of a histogram percentile: half a bin's relative width."""
 DEFAULT_BLOCK = 1 << 21
 DEFAULT_EXACT_LIMIT = 1 << 24
-_KEY_BITS = 62
 
 
 def pct_name(q: float) -> str:
@@ -180,116 +179,6 @@ class PairSlopes:
     radius: float = 0.0
     min_separation: float = 0.0
     extra: dict = field(default_factory=dict)
-
-
-# --------------------------------------------------------------------------- the grid
-@dataclass(frozen=True)
-class _Grid:
-    order: np.ndarray  # sorted position -> input row
-    start: np.ndarray  # per cell: first sorted position
-    count: np.ndarray  # per cell: number of samples
-    nb_ptr: np.ndarray  # CSR pointers into nb_cell, per cell
-    nb_cell: np.ndarray  # forward neighbour cells (larger key), per cell
-
-
-def _grid(xs: np.ndarray, radius: float) -> _Grid:
-    dim = xs.shape[1]
-    lo = xs.min(axis=0)
-    span = xs.max(axis=0) - lo
-    # a cell side a hair above r: a pair with |dx| < r is never two cells apart
-    h = np.full(dim, radius * (1.0 + 1e-9))
-    ncell = np.floor(span / h).astype(np.int64) + 1
-    # fit the cell key in 62 bits (with one padding cell each side): coarsen wide dimensions
-    while np.sum(np.log2(ncell + 2.0)) > _KEY_BITS:
-        k = int(np.argmax(ncell))
-        h[k] *= 2.0
-        ncell[k] = int(np.floor(span[k] / h[k])) + 1
-    c = np.floor((xs - lo) / h).astype(np.int64)
-    np.clip(c, 0, ncell - 1, out=c)
-    c += 1
-    size = ncell + 2
-    mult = np.ones(dim, dtype=np.int64)
-    for k in range(dim - 2, -1, -1):
-        mult[k] = mult[k + 1] * size[k + 1]
-    key = c @ mult
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
-    uk, start, count = np.unique(skey, return_index=True, return_counts=True)
-    # forward neighbour offsets, only along dimensions that have more than one cell
-    live = [k for k in range(dim) if ncell[k] > 1]
-    offs = np.zeros((0, dim), dtype=np.int64)
-    if live:
-        prod = np.array(list(itertools.product((-1, 0, 1), repeat=len(live))), dtype=np.int64)
-        offs = np.zeros((len(prod), dim), dtype=np.int64)
-        offs[:, live] = prod
-    okey = offs @ mult
-    okey = okey[okey > 0]
-    ca, cb = [], []
-    for o in okey:
-        target = uk + o
-        pos = np.searchsorted(uk, target)
-        pos[pos >= len(uk)] = 0
-        hit = np.flatnonzero(uk[pos] == target)
-        ca.append(hit)
-        cb.append(pos[hit])
-    a = np.concatenate(ca) if ca else np.zeros(0, dtype=np.int64)
-    b = np.concatenate(cb) if cb else np.zeros(0, dtype=np.int64)
-    srt = np.lexsort((b, a))
-    a, b = a[srt], b[srt]
-    ptr = np.searchsorted(a, np.arange(len(uk) + 1))
-    return _Grid(order=order, start=start, count=count, nb_ptr=ptr, nb_cell=b)
-
-
-def _blocks(g: _Grid, block_elems: int, min_block: int = 8192, inflation: int = 4):
-    """Yield (row_start, row_stop, column sorted positions) covering every pair once.
-
-    Consecutive cells are grouped (fewer, larger numpy calls) while the block's candidate
-    count stays within ``inflation`` times the cells' own candidate count (or ``min_block``)
-    and ``block_elems``. Columns before the block's first row are dropped (they cannot be
-    partners: a pair counts once, at its lower sorted position).
-    """
-    ncells = len(g.start)
-    owner = np.repeat(np.arange(ncells), np.diff(g.nb_ptr))
-    own_cols = g.count + np.bincount(owner, weights=g.count[g.nb_cell], minlength=ncells).astype(
-        np.int64
-    )
-    count, oc = g.count.tolist(), own_cols.tolist()
-    a = 0
-    while a < ncells:
-        rows, cols_u, work = count[a], oc[a], count[a] * oc[a]
-        b = a + 1
-        while b < ncells:
-            nr, nc, nw = rows + count[b], cols_u + oc[b], work + count[b] * oc[b]
-            if nr * nc > min(block_elems, max(min_block, inflation * nw)):
-                break
-            rows, cols_u, work = nr, nc, nw
-            b += 1
-        cells = np.unique(np.concatenate([np.arange(a, b), g.nb_cell[g.nb_ptr[a] : g.nb_ptr[b]]]))
-        cols = _ranges(g.start[cells], g.count[cells])
-        r0, r1 = int(g.start[a]), int(g.start[b - 1] + g.count[b - 1])
-        s = r0
-        while s < r1:
-            live = cols[np.searchsorted(cols, s, side="right") :]
-            if len(live) == 0:
-                break
-            if len(live) > block_elems:  # a huge neighbourhood: one row, columns in pieces
-                for c0 in range(0, len(live), block_elems):
-                    yield s, s + 1, live[c0 : c0 + block_elems]
-                s += 1
-                continue
-            stop = min(r1, s + max(1, block_elems // len(live)))
-            yield s, stop, live
-            s = stop
-        a = b
-
-
-def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Concatenation of ``arange(s, s + c)`` for every (s, c)."""
-    total = int(counts.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.int64)
-    offsets = np.repeat(starts - np.concatenate(([0], np.cumsum(counts)[:-1])), counts)
-    return offsets + np.arange(total, dtype=np.int64)
 
 
 # --------------------------------------------------------------------------- the engine
@@ -518,7 +407,7 @@ def pair_slopes(
     acc = None
     if n >= 2:
         xs = x[:, scale > 0] * scale[scale > 0]
-        g = _grid(xs, float(radius))
+        g = cell_grid(xs, float(radius))
         order = g.order
         args = (
             np.ascontiguousarray(xs[order].T),
@@ -532,7 +421,7 @@ def pair_slopes(
         )
         progress.start("pair slopes", total=n)
         accs = [_Acc(*args) for _ in range(max(1, int(jobs)))]
-        _run_blocks(accs, _blocks(g, block_elems), progress)
+        _run_blocks(accs, pair_blocks(g, block_elems), progress)
         progress.finish()
         acc = accs[0]
         for other in accs[1:]:
