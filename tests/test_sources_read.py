@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qsls.pipeline.ingest.sources.bags import BagSource, ros1_slices
+from qsls.pipeline.ingest.sources.bags import BagSource
 from qsls.pipeline.ingest.sources.base import detect
+from qsls.pipeline.ingest.sources.ros1index import ros1_slices
 from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
 from qsls.pipeline.ingest.sources.write import (
     FORMATS,
@@ -87,7 +88,7 @@ def test_ros1_index_slices_are_rosbags_bytes(
     """The chunk slicing at rosbags' index offsets gives rosbags' raw messages, byte for byte."""
     from rosbags.rosbag1 import Reader
 
-    from qsls.pipeline.ingest.sources import bags as bagmod
+    from qsls.pipeline.ingest.sources import ros1index as bagmod
 
     if batch:  # many small batches through the reused decompression buffer
         monkeypatch.setattr(bagmod, "_BATCH_BYTES", batch)
