@@ -447,7 +447,7 @@ def sweep(
     progress: Progress = NULL_PROGRESS,
 ) -> SweepResult:
     """Run the grid of ``options`` and write the table and figures to ``out``."""
-    check_output(out, force)
+    check_output(out, force, [error_model] if error_model is not None else [])
     table, smax, executor = compute(
         options, error_model=error_model, jobs=jobs, scheduler=scheduler, progress=progress
     )

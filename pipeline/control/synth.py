@@ -424,7 +424,7 @@ def synth(
     """Synthesize, certify and write the controllers of ``options`` (module docstring)."""
     from qsls.pipeline.core.artifacts import check_output
 
-    check_output(out, force)
+    check_output(out, force, [error_model] if error_model is not None else [])
     em, sha, em_file = read_model(error_model)
     r = resolve(options, em)
     plan = controller_plan(options)

@@ -3,8 +3,13 @@
 Every stage writes through :class:`StageWriter`: files go into a hidden temporary folder
 beside the output, ``manifest.json`` is written last, and the folder is renamed into place
 only when the stage finished. An interrupted stage therefore leaves no half-written output
-(at most a ``.NAME.tmp-*`` folder, which the next run removes), and an existing output is
-replaced only with ``force=True``.
+(at most a ``.NAME.tmp-PID`` folder, which the next writer removes once process ``PID`` is
+gone), and an existing output is replaced only with ``force=True``.
+
+Two guards hold whatever ``force`` says: an output folder that is, contains or lies inside
+one of the stage's inputs is refused (resolved paths, symlinks followed), and an output
+folder is written by one process at a time (:class:`FolderLock`, a ``.NAME.lock`` file
+beside it; the kernel drops the lock of a dead process, so a stale lock is taken over).
 
 Data files are deterministic: the same inputs and options give byte-identical parquet,
 YAML, JSON, NPZ and PNG files. Only ``manifest.json`` records the wall time.
@@ -28,10 +33,17 @@ import numpy as np
 
 from qsls.pipeline import __version__
 from qsls.pipeline.core.errors import InputError, OutputExistsError
+from qsls.pipeline.core.locks import (  # clean_stale: re-exported for the report stage
+    OLD_MARK,
+    TMP_MARK,
+    clean_stale,
+    hold_output,
+    release_output,
+)
 
 MANIFEST = "manifest.json"
-_TMP_MARK = ".tmp-"
-_OLD_MARK = ".old-"
+_TMP_MARK = TMP_MARK
+_OLD_MARK = OLD_MARK
 _CHUNK = 1 << 20
 
 # Packages whose versions go into every manifest (the ones that shape the numbers).
@@ -290,9 +302,10 @@ class StageWriter:
         self.out = Path(self.out)
 
     def __enter__(self) -> StageWriter:
-        check_output(self.out, self.force)
+        check_output(self.out, self.force, self.inputs)
         self._t0 = time.perf_counter()
         self.out.parent.mkdir(parents=True, exist_ok=True)
+        hold_output(self.out)
         clean_stale(self.out)
         self.tmp = self.out.with_name(f".{self.out.name}{_TMP_MARK}{os.getpid()}")
         if self.tmp.exists():
@@ -302,14 +315,13 @@ class StageWriter:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is not None:
-            shutil.rmtree(self.tmp, ignore_errors=True)
-            return
         try:
-            self._write_manifest()
-            publish(self.tmp, self.out)
+            if exc_type is None:
+                self._write_manifest()
+                publish(self.tmp, self.out)
         finally:
             shutil.rmtree(self.tmp, ignore_errors=True)
+            release_output(self.out)
 
     # ---- files
     def path(self, name: str) -> Path:
@@ -368,24 +380,37 @@ class StageWriter:
         (self.tmp / MANIFEST).write_text(dump_json(manifest))
 
 
-def check_output(out: Path, force: bool) -> None:
-    """Refuse to touch an existing output unless ``force``."""
+def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
+    """Refuse an output folder that overlaps an input, is another process's, or exists
+    (unless ``force``). Takes the folder's lock (:func:`hold_output`) when its parent exists."""
     out = Path(out)
+    refuse_overlap(out, inputs)
+    if out.parent.is_dir():
+        hold_output(out)
     if out.exists() and not force:
         raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
 
 
-def clean_stale(out: Path) -> None:
-    """Remove temporary folders that an interrupted earlier run left beside ``out``."""
-    out = Path(out)
-    if not out.parent.is_dir():
-        return
-    for stale in out.parent.glob(f".{out.name}{_TMP_MARK}*"):
-        shutil.rmtree(stale, ignore_errors=True) if stale.is_dir() else stale.unlink()
-    for stale in out.parent.glob(f".{out.name}{_OLD_MARK}*"):
-        shutil.rmtree(stale, ignore_errors=True)
+def refuse_overlap(out: Path, inputs: Iterable[Path]) -> None:
+    """An output folder that is, contains or lies inside an input would destroy it on
+    publish: refused with one line, whatever ``--force`` says (resolved, symlinks followed)."""
+    o = Path(out).resolve()
+    for given in inputs:
+        i = Path(given).resolve()
+        if o == i:
+            how = "is"
+        elif o in i.parents:
+            how = "contains"
+        elif i in o.parents:
+            how = "lies inside"
+        else:
+            continue
+        raise InputError(
+            f"output folder {out} {how} the input {given}; writing it would destroy the input "
+            "(even with --force): choose an output folder apart from the inputs"
+        )
 
 
 def publish(tmp: Path, out: Path) -> None:

@@ -25,6 +25,10 @@ class OutputExistsError(QslsError):
     """The output folder exists and ``--force`` was not given."""
 
 
+class BusyError(QslsError):
+    """Another live process is writing the same output or run folder."""
+
+
 class InfeasibleError(QslsError):
     """An optimization problem has no solution; ``diagnosis`` says why."""
 

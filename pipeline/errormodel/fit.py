@@ -398,7 +398,7 @@ def fit(
 ) -> FitResult:
     """Estimate the error model of ``flights`` and write ``out`` (see the module doc)."""
     flights = [Path(f) for f in flights]
-    check_output(Path(out), force)  # before the work, not after it
+    check_output(Path(out), force, flights)  # before the work, not after it
     names = {pct_name(q) for q in options.percentiles}
     _resolve_r0(options.r0, 0.0, dict.fromkeys(names, 0.0))  # a clear error now, not later
     tr = _load(flights, options)

@@ -25,8 +25,10 @@ from qsls.pipeline.core.artifacts import (
     check_output,
     clean_stale,
     dump_yaml,
+    hold_output,
     publish,
     read_manifest,
+    release_output,
 )
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
@@ -189,7 +191,7 @@ def report(
     info = json.loads((run_dir / RUN_FILE).read_text()) if (run_dir / RUN_FILE).is_file() else {}
     name = info.get("name", run_dir.name)
     out = Path(out) if out is not None else Path("reports") / name
-    check_output(out, force)
+    check_output(out, force, [run_dir])
     sections = build_sections(run_dir, progress)
     title = f"qsls report: {name}"
     subtitle = _subtitle(info, name)
@@ -198,6 +200,7 @@ def report(
     clean_stale(out)
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
     tmp.mkdir(parents=True, exist_ok=False)
+    hold_output(out)
     try:
         (tmp / "index.html").write_text(page)
         (tmp / "report.md").write_text(md)
@@ -207,4 +210,5 @@ def report(
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+        release_output(out)
     return ReportResult(out=out, n_sections=len(sections), n_figures=len(files))

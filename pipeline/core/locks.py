@@ -1,0 +1,160 @@
+"""Locks on output and run folders, and the temporaries of dead processes.
+
+A folder is written by one process at a time: :class:`FolderLock` holds an exclusive
+``flock`` on ``.NAME.lock`` beside the folder, with the holder's PID in it. The kernel drops
+the lock when its process dies (SIGKILL included), so a stale lock file is taken over by
+the next process. Temporaries are named ``.NAME.tmp-PID`` / ``.NAME.old-PID``: one whose
+process is gone is removed by the next writer (a live process's are its work in progress).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+from qsls.pipeline.core.errors import BusyError
+
+TMP_MARK = ".tmp-"
+OLD_MARK = ".old-"
+LOCK_SUFFIX = ".lock"
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (on this machine)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def lock_path(target: Path) -> Path:
+    """The lock file of a folder: ``.NAME.lock`` beside it (outside, as the folder itself is
+    replaced by a rename)."""
+    target = Path(target)
+    return target.with_name(f".{target.name}{LOCK_SUFFIX}")
+
+
+class FolderLock:
+    """An exclusive ``flock`` on ``.NAME.lock`` beside a folder, holding this process's PID.
+
+    The kernel releases the lock when its process dies (also on SIGKILL), so a lock file
+    left by a dead process is simply taken over. Refused with one line naming the holder
+    when a live process holds it.
+    """
+
+    def __init__(self, target: Path, what: str = "output folder") -> None:
+        self.target = Path(target)
+        self.path = lock_path(self.target)
+        self.what = what
+        self._fd: int | None = None
+
+    def acquire(self) -> FolderLock:
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                os.close(fd)
+                if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise
+                raise BusyError(self._busy_message()) from None
+            try:  # the file may have been unlinked by its last holder meanwhile: retry
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        with contextlib.suppress(FileNotFoundError):
+            self.path.unlink()
+        os.close(self._fd)
+        self._fd = None
+
+    def __enter__(self) -> FolderLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.release()
+
+    def _busy_message(self) -> str:
+        try:
+            holder = self.path.read_text().strip()
+        except OSError:
+            holder = ""
+        who = f"another qsls process (pid {holder})" if holder else "another qsls process"
+        return (
+            f"{self.target}: {who} is writing this {self.what} right now; wait for it to "
+            "finish, or choose another folder"
+        )
+
+
+_HELD: dict[str, FolderLock] = {}
+
+
+def hold_output(out: Path) -> None:
+    """Lock ``out`` for this process until :func:`release_output` (idempotent)."""
+    key = os.path.realpath(out)
+    if key not in _HELD:
+        _HELD[key] = FolderLock(Path(out)).acquire()
+
+
+def release_output(out: Path) -> None:
+    lock = _HELD.pop(os.path.realpath(out), None)
+    if lock is not None:
+        lock.release()
+
+
+def _mark_pid(name: str) -> int | None:
+    """The PID in a temporary's name ``.NAME.tmp-PID`` / ``.NAME.old-PID`` (None if absent)."""
+    tail = name.rsplit("-", 1)[-1]
+    return int(tail) if tail.isdigit() else None
+
+
+def clean_stale(out: Path) -> None:
+    """Remove the temporaries that dead processes left beside ``out`` (a live process's
+    temporaries are its work in progress and are kept)."""
+    out = Path(out)
+    if not out.parent.is_dir():
+        return
+    for mark in (TMP_MARK, OLD_MARK):
+        for stale in out.parent.glob(f".{out.name}{mark}*"):
+            _remove_if_dead(stale)
+
+
+def clean_dead_temporaries(root: Path) -> list[Path]:
+    """Remove every ``.*.tmp-PID`` / ``.*.old-PID`` under ``root`` whose process is gone."""
+    removed = []
+    for mark in (TMP_MARK, OLD_MARK):
+        for stale in sorted(Path(root).rglob(f".*{mark}*")):
+            if _remove_if_dead(stale):
+                removed.append(stale)
+    return removed
+
+
+def _remove_if_dead(stale: Path) -> bool:
+    pid = _mark_pid(stale.name)
+    if pid is not None and (pid == os.getpid() or pid_alive(pid)):
+        return False
+    if stale.is_dir() and not stale.is_symlink():
+        shutil.rmtree(stale, ignore_errors=True)
+    elif stale.exists() or stale.is_symlink():
+        stale.unlink(missing_ok=True)
+    return True
