@@ -148,6 +148,70 @@ def _ticks(period_s: float, h_ns: int, what: str) -> int:
     return int(k)
 
 
+@dataclass
+class _Record:
+    """What a flight records, allocated once: vehicle states ``S`` (one row per physics step),
+    VIO samples and controller ticks."""
+
+    S: np.ndarray
+    vio_t: np.ndarray
+    vio_x: np.ndarray
+    vio_q: np.ndarray
+    vio_w: np.ndarray
+    vio_e: np.ndarray
+    c_t: np.ndarray
+    c_y: np.ndarray
+    c_r: np.ndarray
+    c_u: np.ndarray
+
+    @classmethod
+    def allocate(cls, n_steps: int, n_vio: int, n_ctrl: int) -> _Record:
+        return cls(
+            S=np.empty((n_steps + 1, 20)),
+            vio_t=np.empty(n_vio, dtype=np.int64),
+            vio_x=np.empty((n_vio, 6)),
+            vio_q=np.empty((n_vio, 4)),
+            vio_w=np.empty((n_vio, 3)),
+            vio_e=np.empty((n_vio, 6)),
+            c_t=np.empty(n_ctrl, dtype=np.int64),
+            c_y=np.empty((n_ctrl, 6)),
+            c_r=np.empty((n_ctrl, 6)),
+            c_u=np.empty((n_ctrl, 3)),
+        )
+
+    def log(
+        self, ctrl: Controller, veh: Vehicle, vio: VioEmulator, t_ns: np.ndarray,
+        ref_states: np.ndarray, n: int, m: int, k: int, *,
+        crashed: bool, reason: str | None, crash_t: float | None,
+    ) -> FlightLog:  # fmt: skip
+        """The first ``n`` physics steps, ``m`` VIO samples and ``k`` controller ticks."""
+        S = self.S[:n]
+        return FlightLog(
+            controller=ctrl.name,
+            dt=float(ctrl.dt),
+            mass=veh.mass,
+            t_ns=t_ns,
+            x=S[:, 0:6].copy(),
+            q=S[:, 6:10].copy(),
+            w=S[:, 10:13].copy(),
+            ref=ref_states,
+            vio_t_ns=self.vio_t[:m].copy(),
+            vio_x=self.vio_x[:m].copy(),
+            vio_e=self.vio_e[:m].copy(),
+            vio_q=self.vio_q[:m].copy(),
+            vio_w=self.vio_w[:m].copy(),
+            ctrl_t_ns=self.c_t[:k].copy(),
+            ctrl_y=self.c_y[:k].copy(),
+            ctrl_ref=self.c_r[:k].copy(),
+            ctrl_u=self.c_u[:k].copy(),
+            crashed=crashed,
+            crash_reason=reason,
+            crash_time_s=crash_t,
+            lipschitz=vio.lipschitz,
+            emulator=vio.describe(),
+        )
+
+
 def fly(
     options: FlightOptions,
     controller: Controller | None = None,
@@ -178,18 +242,17 @@ def fly(
     vio_ns = round(NS / options.vio.rate_hz)
     n_vio_max = n_steps * h_ns // vio_ns + 1
 
-    # storage
     t_ns = np.arange(n_steps + 1, dtype=np.int64) * h_ns
-    S = np.empty((n_steps + 1, 20))
-    vio_t = np.empty(n_vio_max, dtype=np.int64)
-    vio_x = np.empty((n_vio_max, 6))
-    vio_q = np.empty((n_vio_max, 4))
-    vio_w = np.empty((n_vio_max, 3))
-    c_t = np.empty(n_ctrl, dtype=np.int64)
-    c_y = np.empty((n_ctrl, 6))
-    c_r = np.empty((n_ctrl, 6))
-    c_u = np.empty((n_ctrl, 3))
-    vio_e = np.empty((n_vio_max, 6))
+    rec = _Record.allocate(n_steps, n_vio_max, n_ctrl)
+    S, vio_t, vio_x, vio_q, vio_w, vio_e = (
+        rec.S,
+        rec.vio_t,
+        rec.vio_x,
+        rec.vio_q,
+        rec.vio_w,
+        rec.vio_e,
+    )
+    c_t, c_y, c_r, c_u = rec.c_t, rec.c_y, rec.c_r, rec.c_u
 
     ref_p, ref_v, ref_a = ref.arrays(t_ns / NS)
     s = veh.hover_state(ref_p[0], ref_v[0])
@@ -245,32 +308,10 @@ def fly(
     progress.finish()
 
     n = last_step + 1
-    S = S[:n]
-    ref_states = np.hstack([ref_p[:n], ref_v[:n]])
-    return FlightLog(
-        controller=ctrl.name,
-        dt=float(ctrl.dt),
-        mass=veh.mass,
-        t_ns=t_ns[:n],
-        x=S[:, 0:6].copy(),
-        q=S[:, 6:10].copy(),
-        w=S[:, 10:13].copy(),
-        ref=ref_states,
-        vio_t_ns=vio_t[:m].copy(),
-        vio_x=vio_x[:m].copy(),
-        vio_e=vio_e[:m].copy(),
-        vio_q=vio_q[:m].copy(),
-        vio_w=vio_w[:m].copy(),
-        ctrl_t_ns=c_t[:k].copy(),
-        ctrl_y=c_y[:k].copy(),
-        ctrl_ref=c_r[:k].copy(),
-        ctrl_u=c_u[:k].copy(),
-        crashed=crashed,
-        crash_reason=reason,
-        crash_time_s=crash_t,
-        lipschitz=vio.lipschitz,
-        emulator=vio.describe(),
-    )
+    return rec.log(
+        ctrl, veh, vio, t_ns[:n], np.hstack([ref_p[:n], ref_v[:n]]), n, m, k,
+        crashed=crashed, reason=reason, crash_t=crash_t,
+    )  # fmt: skip
 
 
 def _crash_reason(
