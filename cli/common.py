@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import functools
+import os
+import signal
 import sys
+import threading
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any, TypeVar
 
@@ -12,22 +15,79 @@ import typer
 F = TypeVar("F", bound=Callable[..., Any])
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what ``timeout``, SLURM and CI send), unwound like Ctrl-C: every
+    ``StageWriter`` removes its temporary folder on the way out."""
+
+
+_MAIN_PID = 0
+
+
+def _end_children() -> None:
+    """End this process's worker processes (process pools): terminate, then kill."""
+    import multiprocessing
+
+    children = multiprocessing.active_children()
+    for child in children:
+        child.terminate()
+    for child in children:
+        child.join(timeout=3)
+        if child.is_alive():
+            child.kill()
+            child.join(timeout=3)
+
+
+def _die_with_parent() -> None:
+    """In a forked worker: be killed when the qsls process dies, even by SIGKILL (Linux
+    ``PR_SET_PDEATHSIG``), so no worker outlives a killed run."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != _MAIN_PID:  # the parent died before the call above
+        os._exit(1)
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    if os.getpid() != _MAIN_PID:  # a forked worker inherited the handler: die as asked
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+        return
+    _end_children()
+    raise Terminated
+
+
 def cli_errors(fn: F) -> F:
-    """Turn the pipeline's user errors into ``error: ...`` on stderr and their exit code."""
+    """Turn the pipeline's user errors into ``error: ...`` on stderr and their exit code;
+    SIGTERM and Ctrl-C end the worker processes and keep no partial output."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         from qsls.pipeline.core.errors import QslsError
 
+        global _MAIN_PID
+        if not _MAIN_PID and sys.platform.startswith("linux"):
+            os.register_at_fork(after_in_child=_die_with_parent)
+        _MAIN_PID = os.getpid()
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGTERM, _on_sigterm) if main else None
         try:
             return fn(*args, **kwargs)
         except QslsError as exc:
             msg = " ".join(str(exc).split("\n"))
             typer.echo(f"error: {msg}", err=True)
             raise typer.Exit(exc.exit_code) from None
-        except KeyboardInterrupt:
-            typer.echo("error: interrupted; no partial output was kept", err=True)
-            raise typer.Exit(130) from None
+        except KeyboardInterrupt as exc:
+            _end_children()
+            what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+            typer.echo(f"error: {what}; no partial output was kept", err=True)
+            raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
+        finally:
+            if main:
+                signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
     return wrapper  # type: ignore[return-value]
 

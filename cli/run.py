@@ -29,11 +29,15 @@ def command(
 
     t0 = time.perf_counter()
 
-    def on_stage(stage_id: str, status: str, i: int, n: int) -> None:
+    def on_stage(stage_id: str, status: str, i: int, n: int, reason: str) -> None:
         elapsed = time.perf_counter() - t0
         mark = {"running": "…", "ran": "done", "skipped": "up to date"}.get(status, status)
+        why = f"  ran: {reason}" if status == "ran" and reason else ""
         if status != "running":
-            progress.console.print(f"[{i + 1}/{n}] {stage_id:<24} {mark:<11} ({elapsed:6.1f} s)")
+            progress.console.print(
+                f"[{i + 1}/{n}] {stage_id:<24} {mark:<11} ({elapsed:6.1f} s){why}",
+                soft_wrap=True,
+            )
 
     with RichProgress() as progress:
         result = run(

@@ -3,17 +3,12 @@ folders are locked, degenerate input is refused, through the public commands."""
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-import numpy as np
-import pytest
-
 from qsls.pipeline.core.artifacts import sha256_path
-from tests.test_fit import circle_states, vio_flights, write_flight
+from tests.test_fit import vio_flights
 
 REPO = Path(__file__).resolve().parents[1]
 

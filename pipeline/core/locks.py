@@ -9,6 +9,7 @@ process is gone is removed by the next writer (a live process's are its work in 
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import errno
 import fcntl
@@ -57,6 +58,7 @@ class FolderLock:
         self.path = lock_path(self.target)
         self.what = what
         self._fd: int | None = None
+        self._owner = 0
 
     def acquire(self) -> FolderLock:
         while True:
@@ -78,13 +80,15 @@ class FolderLock:
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         self._fd = fd
+        self._owner = os.getpid()
         return self
 
     def release(self) -> None:
         if self._fd is None:
             return
-        with contextlib.suppress(FileNotFoundError):
-            self.path.unlink()
+        if self._owner == os.getpid():  # never from a forked child: the parent holds it
+            with contextlib.suppress(FileNotFoundError):
+                self.path.unlink()
         os.close(self._fd)
         self._fd = None
 
@@ -107,6 +111,13 @@ class FolderLock:
 
 
 _HELD: dict[str, FolderLock] = {}
+
+
+@atexit.register
+def _release_all() -> None:
+    """Locks a failed stage still holds go with the process (no lock file left behind)."""
+    for key in list(_HELD):
+        _HELD.pop(key).release()
 
 
 def hold_output(out: Path) -> None:

@@ -2,26 +2,27 @@
 
 Each :class:`Stage` has a key: the sha256 of its kind, its options, its external input
 files' hashes and the keys of the stages it depends on. After a stage succeeds its key is
-recorded in ``RUN_DIR/run_state.json`` (written atomically). On a rerun a stage whose folder
-exists and whose recorded key equals its current key is skipped; a changed option changes
-that stage's key and therefore every key downstream of it, so exactly those stages rerun.
+recorded in ``RUN_DIR/run_state.json`` (:class:`qsls.pipeline.run.state.RunState`, written
+atomically) together with the sha256, size and mtime of every file of its folder. On a rerun
+a stage is skipped only when its recorded key equals its current key and its folder still
+holds those files (size and mtime first, the hash when they differ); a changed option
+changes that stage's key and therefore every key downstream of it, and a stage that runs
+makes every stage after it run, so exactly those stages rerun.
 
-A stage killed mid-way leaves no folder (stages write through ``StageWriter``) and no key,
-so the next run redoes it and nothing before it.
+A stage killed mid-way leaves no folder (stages write through ``StageWriter``) and no
+record, so the next run redoes it and nothing before it.
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from qsls.pipeline.core.artifacts import atomic_write_bytes, sha256_json, sha256_path, to_plain
+from qsls.pipeline.core.artifacts import sha256_json, sha256_path, to_plain
 from qsls.pipeline.core.errors import ConfigError
-
-STATE_FILE = "run_state.json"
+from qsls.pipeline.run.state import RunState, StageRecord
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,7 @@ class StageOutcome:
     key: str
     folder: Path
     result: Any = None
+    reason: str = ""  # why it ran: "not run yet", "output fit/error_model.yaml is missing", ...
 
 
 @dataclass
@@ -97,57 +99,52 @@ class StageGraph:
         on_start: Callable[[Stage, int, int], None] | None = None,
         on_done: Callable[[StageOutcome, int, int], None] | None = None,
     ) -> list[StageOutcome]:
-        """Run what is out of date; ``force`` reruns all, ``from_kind`` reruns from that kind on."""
+        """Run what is out of date; ``force`` reruns all, ``from_kind`` reruns from that kind on.
+
+        A stage is out of date when its key changed, its recorded outputs are missing or
+        changed (:class:`RunState`), or a stage it depends on ran in this run.
+        """
         keys = self.keys()
-        state = read_state(self.root)
-        redo: set[str] = set()
-        if force:
-            redo = set(self.ids)
-        elif from_kind is not None:
-            kinds = [s.kind for s in self.stages]
-            if from_kind not in kinds:
-                raise ConfigError(
-                    f"--from {from_kind}: this run has no such stage (it has: {', '.join(dict.fromkeys(kinds))})"
-                )
-            first = kinds.index(from_kind)
-            redo = self.downstream([s.id for s in self.stages[first:] if s.kind == from_kind])
-            redo |= {s.id for s in self.stages[first:]}
+        state = RunState.load(self.root)
+        asked = self._redo(force, from_kind)
+        after: dict[str, str] = {}  # stages after one that ran, and which
         outcomes = []
         n = len(self.stages)
         for i, s in enumerate(self.stages):
             out = self.folder(s.id)
-            up_to_date = (
-                s.id not in redo
-                and state.get(s.id) == keys[s.id]
-                and (out / "manifest.json").is_file()
-            )
-            if up_to_date:
+            why = asked.get(s.id) or state.why_stale(s.id, keys[s.id], out) or after.get(s.id)
+            if why is None:
                 oc = StageOutcome(s.id, s.kind, "skipped", keys[s.id], out)
             else:
                 if on_start:
                     on_start(s, i, n)
-                deps = {d: self.folder(d) for d in s.deps}
-                result = s.execute(out, deps)
-                state[s.id] = keys[s.id]
-                write_state(self.root, state)
-                oc = StageOutcome(s.id, s.kind, "ran", keys[s.id], out, result)
+                state = state.without({s.id})
+                state.save(self.root)  # a stage being redone is not up to date until it ends
+                result = s.execute(out, {d: self.folder(d) for d in s.deps})
+                state = state.with_stage(s.id, StageRecord.of_folder(keys[s.id], out))
+                state.save(self.root)
+                for t in self.stages:  # its dependents run, and then theirs
+                    if s.id in t.deps:
+                        after.setdefault(t.id, f"{s.id} ran")
+                oc = StageOutcome(s.id, s.kind, "ran", keys[s.id], out, result, why)
             outcomes.append(oc)
             if on_done:
                 on_done(oc, i, n)
         return outcomes
 
-
-def read_state(root: Path) -> dict[str, str]:
-    p = Path(root) / STATE_FILE
-    if not p.is_file():
-        return {}
-    try:
-        data = json.loads(p.read_text())
-    except json.JSONDecodeError:
-        return {}
-    return dict(data.get("stages", {}))
-
-
-def write_state(root: Path, stages: Mapping[str, str]) -> None:
-    body = json.dumps({"stages": dict(stages)}, indent=2, sort_keys=True) + "\n"
-    atomic_write_bytes(Path(root) / STATE_FILE, body.encode())
+    def _redo(self, force: bool, from_kind: str | None) -> dict[str, str]:
+        """The stages asked to run again, with why."""
+        if force:
+            return dict.fromkeys(self.ids, "--force")
+        if from_kind is None:
+            return {}
+        kinds = [s.kind for s in self.stages]
+        if from_kind not in kinds:
+            raise ConfigError(
+                f"--from {from_kind}: this run has no such stage (it has: {', '.join(dict.fromkeys(kinds))})"
+            )
+        first = kinds.index(from_kind)
+        redo = self.downstream([s.id for s in self.stages[first:] if s.kind == from_kind])
+        return dict.fromkeys(
+            sorted(redo | {s.id for s in self.stages[first:]}), f"--from {from_kind}"
+        )

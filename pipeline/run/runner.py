@@ -25,10 +25,14 @@ from qsls.pipeline import __version__
 from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_json, sha256_file, to_plain
 from qsls.pipeline.core.config import Options, read_yaml, validate
 from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.locks import FolderLock, clean_dead_temporaries
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.report.stage import RUN_FILE
 from qsls.pipeline.run.graph import Stage, StageGraph, StageOutcome
+from qsls.pipeline.run.paths import resolve_path
 
+# (stage id, "running" | "ran" | "skipped", index, count, why it ran)
+OnStage = Callable[[str, str, int, int, str], None]
 STAGE_ORDER = ("simulate", "ingest", "fit", "sweep", "synth", "evaluate", "report")
 
 
@@ -93,11 +97,6 @@ def load_run_config(path: Path) -> RunConfig:
     return validate(RunConfig, read_yaml(path), str(path))
 
 
-def _resolve(base: Path, p: str) -> Path:
-    q = Path(p).expanduser()
-    return q if q.is_absolute() else (base / q)
-
-
 def _git_commit() -> str:
     src = Path(__file__).resolve().parent
     try:
@@ -125,18 +124,32 @@ def run(
     force: bool = False,
     from_stage: str | None = None,
     progress: Progress = NULL_PROGRESS,
-    on_stage: Callable[[str, str, int, int], None] | None = None,
+    on_stage: OnStage | None = None,
 ) -> RunResult:
     """Run the stages a config names, in order, caching each by the hash of its inputs."""
     config_path = Path(config_path)
     cfg = load_run_config(config_path)
-    root = Path(out) if out is not None else _resolve(Path.cwd(), cfg.out or f"runs/{cfg.name}")
+    root = Path(out) if out is not None else resolve_path(Path.cwd(), cfg.out or f"runs/{cfg.name}")
     if from_stage is not None and from_stage not in STAGE_ORDER:
         raise ConfigError(
             f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)})"
         )
+    graph = plan(cfg, config_path, root, progress)  # options checked before anything is written
     root.mkdir(parents=True, exist_ok=True)
-    graph = plan(cfg, config_path, root, progress)
+    with FolderLock(root, "run folder"):
+        clean_dead_temporaries(root)
+        return _run_locked(cfg, config_path, root, graph, force, from_stage, on_stage)
+
+
+def _run_locked(
+    cfg: RunConfig,
+    config_path: Path,
+    root: Path,
+    graph: StageGraph,
+    force: bool,
+    from_stage: str | None,
+    on_stage: OnStage | None,
+) -> RunResult:
     info = {
         "name": cfg.name,
         "seed": cfg.seed,
@@ -151,13 +164,15 @@ def run(
 
     def started(stage: Stage, i: int, n: int) -> None:
         if on_stage:
-            on_stage(stage.id, "running", i, n)
+            on_stage(stage.id, "running", i, n, "")
 
     def done(oc: StageOutcome, i: int, n: int) -> None:
         if on_stage:
-            on_stage(oc.id, oc.status, i, n)
+            on_stage(oc.id, oc.status, i, n, oc.reason)
 
-    outcomes = graph.run(force=force, from_kind=from_stage, on_start=started, on_done=done)
+    # the report is not a cached stage (it always runs), so --from report reruns only it
+    from_kind = None if from_stage == "report" else from_stage
+    outcomes = graph.run(force=force, from_kind=from_kind, on_start=started, on_done=done)
     report_dir = None
     wanted = set(cfg.stages or STAGE_ORDER)
     if cfg.report and "report" in wanted:
@@ -165,6 +180,6 @@ def run(
 
         report_dir = Path("reports") / cfg.name
         if on_stage:
-            on_stage("report", "running", len(outcomes), len(outcomes) + 1)
+            on_stage("report", "running", len(outcomes), len(outcomes) + 1, "")
         report(root, report_dir, force=True)
     return RunResult(root=root, outcomes=tuple(outcomes), report=report_dir)

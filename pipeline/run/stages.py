@@ -16,7 +16,7 @@ so a misspelled option is reported with the config's section and the nearest val
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -24,70 +24,24 @@ from qsls.pipeline.core.config import merge, validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.run.graph import Stage, StageGraph
+from qsls.pipeline.run.paths import resolve_path
 
-
-def _abs(base: Path, p: str | Path) -> Path:
-    q = Path(p).expanduser()
-    return (q if q.is_absolute() else base / q).resolve()
+Src = Callable[[str], str]
 
 
 def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROGRESS) -> StageGraph:
     """Stages for ``cfg`` (a :class:`qsls.pipeline.run.runner.RunConfig`); paths relative to ``base``."""
-    from qsls.pipeline.ingest.stage import IngestOptions
-
     wanted = set(cfg.stages or ("simulate", "ingest", "fit", "sweep", "synth", "evaluate"))
     graph = StageGraph(root)
-    src = lambda section: f"{base}: {section}"  # noqa: E731
+
+    def src(section: str) -> str:
+        return f"{base}: {section}"
+
     if not cfg.flights:
         raise ConfigError(f"{src('flights')}: a run needs at least one flight")
-
     ingest_ids: dict[str, list[str]] = {"train": [], "heldout": []}
     for i, fl in enumerate(cfg.flights):
-        sources: list[Path] = []
-        deps: tuple[str, ...] = ()
-        ingest_opts: dict[str, Any] = merge(cfg.ingest, fl.ingest)
-        if fl.simulate is not None:
-            if "simulate" not in wanted and not (root / "simulate" / fl.name).is_dir():
-                raise ConfigError(
-                    f"flight '{fl.name}' is simulated but the run's stages leave out simulate"
-                )
-            sim_id = _simulate_stage(graph, cfg, fl, i, src, progress)
-            deps = (sim_id,)
-        else:
-            sources = [_abs(base, s) for s in fl.sources]
-            for key in ("vio", "truth"):
-                value = getattr(fl, key)
-                if value is not None:
-                    ingest_opts[key] = str(_abs(base, value))
-            if not sources and fl.vio is None:
-                raise ConfigError(
-                    f"flight '{fl.name}': give 'simulate', 'sources' or 'vio' and 'truth'"
-                )
-            missing = [
-                p
-                for p in [
-                    *sources,
-                    *(Path(ingest_opts[k]) for k in ("vio", "truth") if k in ingest_opts),
-                ]
-                if not p.exists()
-            ]
-            if missing:
-                raise ConfigError(f"flight '{fl.name}': {missing[0]} does not exist")
-        opts = validate(IngestOptions, ingest_opts, src(f"ingest (flight '{fl.name}')"))
-        external = tuple(sources) + tuple(Path(p) for p in (opts.vio, opts.truth) if p is not None)
-        stage_id = f"ingest/{fl.name}"
-        graph.add(
-            Stage(
-                stage_id,
-                "ingest",
-                {"options": opts, "sources": [s.name for s in sources]},
-                _ingest_exec(opts, sources, deps, progress),
-                deps=deps,
-                external=external,
-            )
-        )
-        ingest_ids[fl.role].append(stage_id)
-
+        ingest_ids[fl.role].append(_flight_stages(graph, cfg, fl, i, base, wanted, src, progress))
     if "fit" not in wanted:
         return graph
     if not ingest_ids["train"]:
@@ -95,69 +49,108 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
     from qsls.pipeline.errormodel.fit import FitOptions
 
     fit_opts = validate(FitOptions, cfg.fit, src("fit"))
-    graph.add(
-        Stage(
-            "fit",
-            "fit",
-            fit_opts,
-            _fit_exec(fit_opts, ingest_ids["train"], progress),
-            deps=tuple(ingest_ids["train"]),
-        )
-    )
-
+    train = tuple(ingest_ids["train"])
+    graph.add(Stage("fit", "fit", fit_opts, _fit_exec(fit_opts, list(train), progress), train))
     if cfg.sweep is not None and "sweep" in wanted:
-        from qsls.pipeline.control.sweep import SweepOptions
-
-        sweep_cfg = dict(cfg.sweep)
-        jobs = sweep_cfg.pop("jobs", None)
-        scheduler = sweep_cfg.pop("scheduler", None)
-        sweep_opts = validate(SweepOptions, sweep_cfg, src("sweep"))
-        graph.add(
-            Stage(
-                "sweep",
-                "sweep",
-                sweep_opts,
-                _sweep_exec(sweep_opts, jobs, scheduler, progress),
-                deps=("fit",),
-            )
-        )
-
+        _sweep_stage(graph, cfg.sweep, src, progress)
     if cfg.synth is None or "synth" not in wanted:
         return graph
     from qsls.pipeline.control.synth import SynthOptions
 
     synth_opts = validate(SynthOptions, cfg.synth, src("synth"))
     graph.add(Stage("synth", "synth", synth_opts, _synth_exec(synth_opts, progress), deps=("fit",)))
+    if cfg.evaluate is not None and "evaluate" in wanted:
+        _evaluate_stages(graph, cfg.evaluate, ingest_ids["heldout"], src, progress)
+    return graph
 
-    if cfg.evaluate is None or "evaluate" not in wanted:
-        return graph
+
+def _flight_stages(
+    graph: StageGraph,
+    cfg: Any,
+    fl: Any,
+    i: int,
+    base: Path,
+    wanted: set[str],
+    src: Src,
+    progress: Progress,
+) -> str:
+    """The flight's simulate stage (simulated flights) and its ingest stage; the ingest id."""
+    from qsls.pipeline.ingest.stage import IngestOptions
+
+    sources: list[Path] = []
+    deps: tuple[str, ...] = ()
+    ingest_opts: dict[str, Any] = merge(cfg.ingest, fl.ingest)
+    if fl.simulate is not None:
+        if "simulate" not in wanted and not (graph.root / "simulate" / fl.name).is_dir():
+            raise ConfigError(
+                f"flight '{fl.name}' is simulated but the run's stages leave out simulate"
+            )
+        deps = (_simulate_stage(graph, cfg, fl, i, src, progress),)
+    else:
+        sources = [resolve_path(base, s) for s in fl.sources]
+        for key in ("vio", "truth"):
+            value = getattr(fl, key)
+            if value is not None:
+                ingest_opts[key] = str(resolve_path(base, value))
+        if not sources and fl.vio is None:
+            raise ConfigError(
+                f"flight '{fl.name}': give 'simulate', 'sources' or 'vio' and 'truth'"
+            )
+        given = [*sources, *(Path(ingest_opts[k]) for k in ("vio", "truth") if k in ingest_opts)]
+        missing = [p for p in given if not p.exists()]
+        if missing:
+            raise ConfigError(f"flight '{fl.name}': {missing[0]} does not exist")
+    opts = validate(IngestOptions, ingest_opts, src(f"ingest (flight '{fl.name}')"))
+    external = tuple(sources) + tuple(Path(p) for p in (opts.vio, opts.truth) if p is not None)
+    stage_id = f"ingest/{fl.name}"
+    graph.add(
+        Stage(
+            stage_id,
+            "ingest",
+            {"options": opts, "sources": [s.name for s in sources]},
+            _ingest_exec(opts, sources, deps, progress),
+            deps=deps,
+            external=external,
+        )
+    )
+    return stage_id
+
+
+def _sweep_stage(graph: StageGraph, section: dict[str, Any], src: Src, progress: Progress) -> None:
+    from qsls.pipeline.control.sweep import SweepOptions
+
+    sweep_cfg = dict(section)
+    jobs = sweep_cfg.pop("jobs", None)
+    scheduler = sweep_cfg.pop("scheduler", None)
+    opts = validate(SweepOptions, sweep_cfg, src("sweep"))
+    execute = _sweep_exec(opts, jobs, scheduler, progress)
+    graph.add(Stage("sweep", "sweep", opts, execute, deps=("fit",)))
+
+
+def _evaluate_stages(
+    graph: StageGraph, section: dict[str, Any], heldout: list[str], src: Src, progress: Progress
+) -> None:
+    """The bound check on the held-out flights (when there are some) and the flights flown
+    (when the section has ``fly``)."""
     from qsls.pipeline.evaluate.bound import EvaluateOptions
 
-    eval_cfg = dict(cfg.evaluate)
+    eval_cfg = dict(section)
     fly_cfg = eval_cfg.pop("fly", None)
     eval_opts = validate(EvaluateOptions, eval_cfg, src("evaluate"))
-    if ingest_ids["heldout"]:
-        graph.add(
-            Stage(
-                "evaluate",
-                "evaluate",
-                eval_opts,
-                _evaluate_exec(eval_opts, ingest_ids["heldout"], progress),
-                deps=("fit", "synth", *ingest_ids["heldout"]),
-            )
-        )
+    if heldout:
+        execute = _evaluate_exec(eval_opts, heldout, progress)
+        deps = ("fit", "synth", *heldout)
+        graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps))
     if fly_cfg is not None:
         from qsls.pipeline.evaluate.fly import FlyOptions
 
         fly_opts = validate(FlyOptions, merge(eval_cfg, fly_cfg), src("evaluate.fly"))
-        graph.add(
-            Stage("fly", "evaluate", fly_opts, _fly_exec(fly_opts, progress), deps=("fit", "synth"))
-        )
-    return graph
+        execute = _fly_exec(fly_opts, progress)
+        graph.add(Stage("fly", "evaluate", fly_opts, execute, deps=("fit", "synth")))
 
 
 def _simulate_stage(
-    graph: StageGraph, cfg: Any, fl: Any, i: int, src: Any, progress: Progress
+    graph: StageGraph, cfg: Any, fl: Any, i: int, src: Src, progress: Progress
 ) -> str:
     from qsls.pipeline.sim.simulate import SimOptions
 

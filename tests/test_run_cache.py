@@ -1,0 +1,212 @@
+"""`qsls run` trusts nothing it did not check (issue 16): the run cache verifies each stage's
+outputs, one run at a time per folder, SIGTERM / SIGKILL leave nothing behind, --from report."""
+
+from __future__ import annotations
+
+import glob
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from qsls.pipeline.core.locks import FolderLock
+
+SMALL = {
+    "name": "small",
+    "seed": 0,
+    "simulate": {
+        "duration": 8,
+        "reference": {"kind": "circle", "radius": 1.0, "period": 5.0, "height": 1.0},
+        "controller": {"kind": "se3"},
+    },
+    "flights": [
+        {"name": "train_1", "role": "train", "simulate": {"seed": 1}},
+        {"name": "train_2", "role": "train", "simulate": {"seed": 2}},
+    ],
+    "ingest": {"dt": 0.1},
+    "fit": {"radius": 1.0},
+    "synth": {"T": 5, "S": 0.01, "eps_e": 0.01, "controllers": "single"},
+    "report": False,
+}
+
+
+def _cmd(*args: object) -> list[str]:
+    return [sys.executable, "-m", "qsls.cli.main", *map(str, args)]
+
+
+def _qsls(*args: object, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(_cmd(*args), cwd=cwd, capture_output=True, text=True)
+
+
+def _config(tmp_path: Path, **changes) -> Path:
+    data = {**SMALL, **changes}
+    cfg = tmp_path / f"{data['name']}.yaml"
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    return cfg
+
+
+def _statuses(stderr: str) -> dict[str, str]:
+    out = {}
+    for line in stderr.splitlines():
+        parts = line.split()
+        if len(parts) >= 3 and parts[0].startswith("[") and "/" in parts[0]:
+            out[parts[1]] = "skipped" if "up to date" in line else "ran"
+    return out
+
+
+def _ran(proc: subprocess.CompletedProcess) -> set[str]:
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return {k for k, v in _statuses(proc.stderr).items() if v == "ran"}
+
+
+def _alive(pid: int) -> bool:
+    """Running (a zombie waiting for its reaper is dead)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+    state = next(ln for ln in status.splitlines() if ln.startswith("State:"))
+    return "Z" not in state.split()[1]
+
+
+def _children(pid: int) -> list[int]:
+    out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True)
+    return [int(p) for p in out.stdout.split()]
+
+
+def _wait_for(pattern: str, proc: subprocess.Popen, timeout: float = 120) -> None:
+    deadline = time.monotonic() + timeout
+    while not glob.glob(pattern):
+        assert proc.poll() is None, "the run ended before the moment awaited"
+        assert time.monotonic() < deadline, f"no {pattern} after {timeout} s"
+        time.sleep(0.05)
+
+
+# --------------------------------------------------------------------------- item 3
+@pytest.mark.slow
+def test_a_missing_or_changed_output_reruns_its_stage_and_everything_after(tmp_path):
+    cfg = _config(tmp_path)
+    run = tmp_path / "runs" / "small"
+    assert _ran(_qsls("run", cfg, cwd=tmp_path)) == {
+        "simulate/train_1", "ingest/train_1", "simulate/train_2", "ingest/train_2", "fit",
+        "synth",
+    }  # fmt: skip
+    model = (run / "fit" / "error_model.yaml").read_bytes()
+
+    (run / "fit" / "error_model.yaml").unlink()
+    proc = _qsls("run", cfg, cwd=tmp_path)
+    assert _ran(proc) == {"fit", "synth"}
+    assert "error_model.yaml is missing" in proc.stderr
+    assert (run / "fit" / "error_model.yaml").read_bytes() == model
+
+    with open(run / "ingest" / "train_1" / "flight.parquet", "ab") as fh:
+        fh.write(b"edited")
+    proc = _qsls("run", cfg, cwd=tmp_path)
+    assert _ran(proc) == {"ingest/train_1", "fit", "synth"}
+    assert "flight.parquet changed" in proc.stderr
+
+    # same bytes, new mtime: hashed, found unchanged, skipped
+    os.utime(run / "ingest" / "train_2" / "flight.parquet")
+    assert _ran(_qsls("run", cfg, cwd=tmp_path)) == set()
+
+    # --from report: no stage reruns, the report is written
+    cfg_report = _config(tmp_path, report=True)
+    proc = _qsls("run", cfg_report, "--from", "report", cwd=tmp_path)
+    assert _ran(proc) == set()
+    assert (tmp_path / "reports" / "small" / "index.html").is_file()
+
+
+# --------------------------------------------------------------------------- item 4
+@pytest.mark.slow
+def test_a_second_run_of_one_folder_is_refused_and_a_killed_runs_lock_taken_over(tmp_path):
+    cfg = _config(tmp_path, simulate={**SMALL["simulate"], "duration": 20})  # a longer first run
+    run = tmp_path / "runs" / "small"
+    first = subprocess.Popen(
+        _cmd("run", cfg), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        _wait_for(str(run / "simulate" / "*"), first)
+        second = _qsls("run", cfg, cwd=tmp_path)
+        assert second.returncode == 2, second.stderr
+        assert f"another qsls process (pid {first.pid}) is writing this run folder" in (
+            second.stderr
+        )
+        assert "Traceback" not in second.stderr
+        _, err = first.communicate(timeout=300)
+        assert first.returncode == 0, err[-2000:]
+    finally:
+        if first.poll() is None:
+            first.kill()
+    assert _ran(_qsls("run", cfg, cwd=tmp_path)) == set()
+
+    # a run killed with SIGKILL leaves its lock file; the next run takes it over
+    (run / "fit" / "error_model.yaml").unlink()
+    killed = subprocess.Popen(_cmd("run", cfg), cwd=tmp_path, stderr=subprocess.DEVNULL)
+    _wait_for(str(run.parent / ".small.lock"), killed)
+    killed.send_signal(signal.SIGKILL)
+    killed.wait(30)
+    assert (run.parent / ".small.lock").is_file()
+    assert "fit" in _ran(_qsls("run", cfg, cwd=tmp_path))
+    assert not (run.parent / ".small.lock").exists()
+
+
+def test_a_stage_output_folder_held_by_another_process_is_refused(tmp_path):
+    from tests.test_fit import vio_flights
+
+    flights, _ = vio_flights(tmp_path / "flights", n=1)
+    out = tmp_path / "fit"
+    with FolderLock(out):  # this test process holds it, as another qsls would
+        proc = _qsls("fit", *flights, "--out", out, "--no-figures", cwd=tmp_path)
+    assert proc.returncode == 2
+    assert f"another qsls process (pid {os.getpid()}) is writing this output folder" in (
+        proc.stderr
+    )
+    assert not out.exists()
+    proc = _qsls("fit", *flights, "--out", out, "--no-figures", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert not list(tmp_path.glob(".fit.*"))
+
+
+# --------------------------------------------------------------------------- item 5
+FLY = {"fly": {"seeds": [0, 1, 2, 3], "duration": 30, "conditions": ["regular"], "jobs": 2}}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_a_signal_during_fly_leaves_no_temporary_and_no_worker(tmp_path, sig):
+    cfg = _config(tmp_path, name="fly", flights=SMALL["flights"][:1], evaluate=FLY)
+    run = tmp_path / "runs" / "fly"
+    proc = subprocess.Popen(
+        _cmd("run", cfg), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        _wait_for(str(run / ".fly.tmp-*"), proc)
+        deadline = time.monotonic() + 30
+        while len(workers := _children(proc.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(workers) == 2
+        time.sleep(0.5)  # inside the flights
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    deadline = time.monotonic() + 10
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(w) for w in workers), "a worker outlived the run"
+    if sig == signal.SIGTERM:
+        assert proc.returncode == 143
+        assert "terminated (SIGTERM); no partial output was kept" in err
+        assert not list(run.glob(".*tmp-*")) and not list(run.glob(".*.lock"))
+    else:
+        assert list(run.glob(".fly.tmp-*"))  # SIGKILL cannot be handled: the next run cleans
+    again = _qsls("run", cfg, cwd=tmp_path)
+    assert _ran(again) == {"fly"}  # the killed stage never counts as done
+    assert not list(run.glob(".*tmp-*")) and not list(run.rglob(".*.lock"))
+    assert (run / "fly" / "manifest.json").is_file()
