@@ -182,6 +182,10 @@ class RichProgress:
         if self._task is not None:
             self._progress.advance(self._task, amount)
 
+    def note(self, message: str) -> None:
+        """A line on stderr, shown also when no bar is drawn (not a terminal)."""
+        self._progress.console.print(message, soft_wrap=True, markup=False, highlight=False)
+
     def finish(self) -> None:
         if self._task is not None:
             task = self._progress.tasks[-1]

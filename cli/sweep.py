@@ -63,6 +63,12 @@ def command(
         "--scheduler",
         help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 (instead of --jobs).",
     ),
+    wait_workers: float = typer.Option(
+        60.0,
+        "--wait-workers",
+        help="With --scheduler: seconds to wait for a first worker, and for one to come back "
+        "when all have left, before giving up.",
+    ),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
 ) -> None:
     """A grid of robust syntheses (feasibility map), locally or on a Dask cluster."""
@@ -82,6 +88,6 @@ def command(
     with RichProgress() as progress:
         result = sweep(
             opts, out, error_model=model, force=force, progress=progress,
-            jobs=jobs, scheduler=scheduler,
+            jobs=jobs, scheduler=scheduler, worker_timeout=wait_workers,
         )  # fmt: skip
     print_summary("sweep", result.summary())

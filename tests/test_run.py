@@ -66,6 +66,32 @@ def test_quickstart_end_to_end(quickstart):
     assert elapsed < 300, f"the quickstart took {elapsed:.0f} s (target: 5 minutes)"
 
 
+def _data_files(work: Path) -> dict[str, bytes]:
+    """Every file of the run and its report but the manifests (they hold the wall time) and
+    the run's own bookkeeping (run state: mtimes)."""
+    skip = {"manifest.json", "run_state.json"}
+    return {
+        p.relative_to(work).as_posix(): p.read_bytes()
+        for root in (work / "runs" / "quickstart", work / "reports" / "quickstart")
+        for p in sorted(root.rglob("*"))
+        if p.is_file() and p.name not in skip and not p.name.startswith(".")
+    }
+
+
+@pytest.mark.slow
+def test_two_forced_runs_write_byte_identical_data(quickstart):
+    work, cfg, _, _ = quickstart
+    first = _data_files(work)
+    assert any(k.endswith("sweep.csv") for k in first) and len(first) > 40
+    again = _qsls("run", str(cfg), "--force", cwd=work)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert set(_statuses(again.stderr).values()) == {"ran"}
+    second = _data_files(work)
+    assert sorted(second) == sorted(first)
+    differ = [k for k in first if first[k] != second[k]]
+    assert differ == [], f"files that differ between two forced runs: {differ}"
+
+
 @pytest.mark.slow
 def test_rerun_skips_everything_and_a_change_reruns_downstream_only(quickstart):
     work, cfg, _, _ = quickstart

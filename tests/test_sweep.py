@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import socket
 import subprocess
 import sys
@@ -60,9 +61,9 @@ def test_local_sweep_table_and_feasibility(tmp_path):
         "norm_phi_xy",
         "gamma",
         "margin",
-        *TIMING,
     ):
         assert col in t.columns
+    assert not set(TIMING) & set(t.columns)  # timings: the manifest only (byte-identical data)
     pd.testing.assert_frame_equal(
         pd.read_csv(out / "sweep.csv"), t, check_dtype=False, atol=0, rtol=1e-15
     )
@@ -81,7 +82,10 @@ def test_local_sweep_table_and_feasibility(tmp_path):
             assert row["status"] == "certified" and row["margin"] > 0
             assert row["norm_phi_xy"] >= 1 and row["gamma"] > 0
     assert set(t.loc[t["S"] == 1.5, "status"]) == {"infeasible"}  # S + eps_e/r >= 1, not solved
-    assert (t.loc[t["S"] == 1.5, "solve_time_s"] == 0).all()
+    timings = json.loads((out / "manifest.json").read_text())["results"]["timings"]
+    assert len(timings["points"]) == 16
+    assert all(timings["points"][str(i)] == [0.0, 0.0] for i in t.loc[t["S"] == 1.5, "index"])
+    assert timings["solve_time_s"] > 0
     smax = pd.read_csv(out / "s_max.csv")
     assert dict(zip(smax["T"], smax["s_max"], strict=True)) == pytest.approx(s_max, rel=1e-6)
 
@@ -153,9 +157,8 @@ def test_dask_cluster_gives_the_local_table(tmp_path):
         log.close()
     res = _sweep("-c", cfg, "-o", tmp_path / "local", "--jobs", "1")
     assert res.exit_code == 0, res.output
-    a = _table(tmp_path / "dask").drop(columns=TIMING)
-    b = _table(tmp_path / "local").drop(columns=TIMING)
-    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    for name in ("sweep.parquet", "sweep.csv", "s_max.parquet"):
+        assert (tmp_path / "dask" / name).read_bytes() == (tmp_path / "local" / name).read_bytes()
     sa = pd.read_parquet(tmp_path / "dask" / "s_max.parquet")
     sb = pd.read_parquet(tmp_path / "local" / "s_max.parquet")
     pd.testing.assert_frame_equal(sa, sb, check_exact=True)
@@ -236,3 +239,105 @@ def test_grid_and_base_from_the_command_line(tmp_path):
     assert list(t["delta_value"]) == [0.0, 0.0] and list(t["feasible"]) == [True, False]
     bad = _sweep("-c", cfg, "-g", "S0.05", "-o", tmp_path / "b", "-j", "1")
     assert bad.exit_code == 2 and "expected AXIS=V1,V2" in bad.output
+
+
+# --------------------------------------------------------------------------- Dask failures
+def _qsls_sweep(*args: object) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "qsls.cli.main", "sweep", *map(str, args)]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _one_error_line(stderr: str) -> str:
+    assert "Traceback" not in stderr, stderr
+    errors = [ln for ln in stderr.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1, stderr
+    return errors[0]
+
+
+def test_a_scheduler_address_without_port_is_refused_up_front(tmp_path):
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text(SMALL)
+    t0 = time.monotonic()
+    proc = _qsls_sweep("-c", cfg, "-o", tmp_path / "o", "--scheduler", "tcp://127.0.0.1")
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert "missing port number" in _one_error_line(err) and "tcp://127.0.0.1:8786" in err
+    assert time.monotonic() - t0 < 15  # not the 10 s connection timeout first
+    assert not (tmp_path / "o").exists()
+
+
+class _Cluster:
+    """A real `dask scheduler` (and `dask worker --no-nanny` processes) on loopback."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        self.port = _free_port()
+        self.address = f"tcp://127.0.0.1:{self.port}"
+        self.log = open(tmp_path / "dask.log", "w")  # noqa: SIM115 - closed in stop()
+        self.procs: list[subprocess.Popen] = []
+        sched = [sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1"]
+        self._start([*sched, "--port", str(self.port), "--no-dashboard"])
+        _wait_for_port(self.port)
+
+    def _start(self, cmd: list[str]) -> subprocess.Popen:
+        proc = subprocess.Popen(cmd, stdout=self.log, stderr=self.log)
+        self.procs.append(proc)
+        return proc
+
+    def worker(self) -> subprocess.Popen:
+        cmd = [sys.executable, "-m", "dask", "worker", self.address, "--no-nanny"]
+        return self._start([*cmd, "--nthreads", "1", "--no-dashboard", "--host", "127.0.0.1"])
+
+    def stop(self) -> None:
+        for p in reversed(self.procs):
+            if p.poll() is None:
+                p.kill()
+            p.wait(timeout=20)
+        self.log.close()
+
+
+@pytest.mark.slow
+def test_a_scheduler_without_workers_fails_with_one_line_after_waiting(tmp_path):
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text(SMALL)
+    cluster = _Cluster(tmp_path)
+    try:
+        t0 = time.monotonic()
+        proc = _qsls_sweep(
+            "-c", cfg, "-o", tmp_path / "o", "--scheduler", cluster.address, "--wait-workers", 3
+        )
+        _, err = proc.communicate(timeout=120)
+        elapsed = time.monotonic() - t0
+    finally:
+        cluster.stop()
+    assert proc.returncode == 2, err
+    assert f"waiting for workers at {cluster.address}" in err
+    assert "no Dask worker joined the scheduler" in _one_error_line(err)
+    assert 3 <= elapsed < 60
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_the_only_worker_dying_fails_with_one_line(tmp_path):
+    from distributed import Client
+
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text(SMALL.replace("T: [6, 10]", "T: [20, 30, 40]"))
+    cluster = _Cluster(tmp_path)
+    try:
+        worker = cluster.worker()
+        _wait_for_workers(cluster.address, 1)
+        proc = _qsls_sweep(
+            "-c", cfg, "-o", tmp_path / "o", "--scheduler", cluster.address, "--wait-workers", 3
+        )
+        with Client(cluster.address, timeout="20s", set_as_default=False) as client:
+            deadline = time.monotonic() + 60
+            while not client.processing() or not any(client.processing().values()):
+                assert proc.poll() is None and time.monotonic() < deadline
+                time.sleep(0.05)
+        worker.kill()  # the only worker dies while it solves
+        _, err = proc.communicate(timeout=120)
+    finally:
+        cluster.stop()
+    assert proc.returncode == 2, err
+    assert f"every Dask worker at {cluster.address} left" in _one_error_line(err)
+    assert not (tmp_path / "o").exists()

@@ -14,10 +14,11 @@ values. The same chunk function runs on a local process pool (``jobs``) or on a
 are cold, so a point's answer does not depend on what its worker solved before).
 
 Outputs: ``sweep.parquet`` and ``sweep.csv`` (grid values, resolved numbers, ``status``,
-``feasible``, ``cost``, norms, ``gamma``, ``margin``, residuals, ``build_time_s``,
-``solve_time_s``), ``s_max.parquet`` / ``s_max.csv`` (the largest feasible ``S`` for every
-``T`` and error setting of the grid), ``feasibility.png`` and ``s_max_vs_T.png``.
-The two timing columns are the only values that differ between runs.
+``feasible``, ``cost``, norms, ``gamma``, ``margin``, residuals), ``s_max.parquet`` /
+``s_max.csv`` (the largest feasible ``S`` for every ``T`` and error setting of the grid),
+``feasibility.png`` and ``s_max_vs_T.png``: byte-identical for the same inputs. Each point's
+``build_time_s`` / ``solve_time_s`` go to the manifest's ``results.timings`` (the wall time
+is the only thing that differs between runs)
 """
 
 from __future__ import annotations
@@ -347,11 +348,63 @@ def _run_local(
     return results
 
 
-def _run_dask(
-    tasks: list[tuple[Any, Any]], scheduler: str, progress: Progress, weights: list[int]
-) -> list[Any]:
+DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
+
+
+def check_scheduler(address: str) -> str:
+    """A Dask scheduler address ``SCHEME://HOST:PORT`` (``tcp://`` when no scheme), checked
+    before anything runs: a missing port or an unknown scheme is one line, not a traceback
+    after the connection timeout."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    example = "e.g. tcp://127.0.0.1:8786"
     try:
-        from distributed import Client, as_completed
+        scheme, loc = parse_address(address.strip())
+        host, port = parse_host_port(loc)
+    except ValueError as exc:
+        raise ConfigError(
+            f"--scheduler {address}: {exc}; expected SCHEME://HOST:PORT, {example}"
+        ) from None
+    if scheme not in DASK_SCHEMES:
+        raise ConfigError(
+            f"--scheduler {address}: unknown scheme '{scheme}' (use {', '.join(DASK_SCHEMES)}), {example}"
+        )
+    if not host or not 0 < int(port) < 65536:
+        raise ConfigError(f"--scheduler {address}: expected SCHEME://HOST:PORT, {example}")
+    return f"{scheme}://{host}:{port}"
+
+
+def _n_workers(client: Any) -> int:
+    return len(client.scheduler_info().get("workers", {}))
+
+
+def _await_workers(client: Any, address: str, timeout: float, progress: Progress) -> None:
+    """Return once the scheduler has a worker; one line when none comes within ``timeout``."""
+    if _n_workers(client):
+        return
+    progress.note(f"waiting for workers at {address} (up to {timeout:g} s)")
+    try:
+        client.wait_for_workers(1, timeout=timeout)
+    except TimeoutError:
+        raise InputError(
+            f"no Dask worker joined the scheduler at {address} within {timeout:g} s; "
+            f"start one with 'dask worker {address}' or raise --wait-workers"
+        ) from None
+
+
+def _run_dask(
+    tasks: list[tuple[Any, Any]],
+    scheduler: str,
+    progress: Progress,
+    weights: list[int],
+    worker_timeout: float = 60.0,
+) -> list[Any]:
+    """The tasks on a Dask cluster; one line when the workers never come or all leave (their
+    tasks would wait forever) or a worker dies on a task three times (``KilledWorker``)."""
+    import time
+
+    try:
+        from distributed import Client, KilledWorker, wait
     except ImportError as exc:  # pragma: no cover - dask is a dependency
         raise InputError(f"--scheduler needs dask.distributed ({exc})") from None
     try:
@@ -359,13 +412,36 @@ def _run_dask(
     except (OSError, TimeoutError) as exc:
         raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
     try:
+        _await_workers(client, scheduler, worker_timeout, progress)
         futs = [client.submit(fn, arg, pure=False) for fn, arg in tasks]
         index = {f.key: i for i, f in enumerate(futs)}
         results: list[Any] = [None] * len(tasks)
-        for fut in as_completed(futs, loop=client.loop):
-            i = index[fut.key]
-            results[i] = fut.result()
-            progress.advance(weights[i])
+        pending, alone_since = set(futs), None
+        while pending:
+            try:
+                with client.as_current():  # wait() finds its client there
+                    done, pending = wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                done = set()
+            for fut in done:
+                i = index[fut.key]
+                try:
+                    results[i] = fut.result()
+                except KilledWorker as exc:
+                    raise InputError(
+                        f"Dask workers at {scheduler} died running a task ({exc}); "
+                        "check the workers' memory and logs"
+                    ) from None
+                progress.advance(weights[i])
+            if done or _n_workers(client):
+                alone_since = None
+                continue
+            alone_since = alone_since or time.monotonic()
+            if time.monotonic() - alone_since > worker_timeout:
+                raise InputError(
+                    f"every Dask worker at {scheduler} left ({len(pending)} of {len(tasks)} "
+                    f"tasks unfinished, none back within {worker_timeout:g} s); restart the workers"
+                )
         return results
     finally:
         client.close()
@@ -402,11 +478,14 @@ def compute(
     error_model: Path | None = None,
     jobs: int | None = None,
     scheduler: str | None = None,
+    worker_timeout: float = 60.0,
     progress: Progress = NULL_PROGRESS,
 ) -> tuple[Any, Any, str]:
     """The sweep table, the largest-feasible-S table and the executor's description."""
     import pandas as pd
 
+    if scheduler is not None:
+        scheduler = check_scheduler(scheduler)
     em, _, _ = read_model(error_model)
     points = grid_points(options, em)
     jobs = jobs if jobs is not None else (os.cpu_count() or 1)
@@ -421,7 +500,7 @@ def compute(
     weights += [1] * len(specs)
     progress.start("sweep", total=sum(weights))
     if scheduler is not None:
-        results = _run_dask(tasks, scheduler, progress, weights)
+        results = _run_dask(tasks, scheduler, progress, weights, worker_timeout)
         executor = f"dask {scheduler}"
     else:
         results = _run_local(tasks, jobs, progress, weights)
@@ -436,6 +515,20 @@ def compute(
     return table, smax, executor
 
 
+def _timings(table: Any) -> dict[str, Any]:
+    """Totals and ``{index: [build_time_s, solve_time_s]}`` per point, for the manifest."""
+    return {
+        "build_time_s": float(table["build_time_s"].sum()),
+        "solve_time_s": float(table["solve_time_s"].sum()),
+        "points": {
+            str(int(i)): [float(b), float(s)]
+            for i, b, s in zip(
+                table["index"], table["build_time_s"], table["solve_time_s"], strict=True
+            )
+        },
+    }
+
+
 def sweep(
     options: SweepOptions,
     out: Path,
@@ -443,15 +536,24 @@ def sweep(
     error_model: Path | None = None,
     jobs: int | None = None,
     scheduler: str | None = None,
+    worker_timeout: float = 60.0,
     force: bool = False,
     progress: Progress = NULL_PROGRESS,
 ) -> SweepResult:
-    """Run the grid of ``options`` and write the table and figures to ``out``."""
+    """Run the grid of ``options`` and write the table and figures to ``out``; on a Dask
+    cluster (``scheduler``), wait up to ``worker_timeout`` s for a worker."""
+    if scheduler is not None:
+        scheduler = check_scheduler(scheduler)
+    if worker_timeout <= 0:
+        raise ConfigError(f"--wait-workers must be > 0 s, got {worker_timeout:g}")
     check_output(out, force, [error_model] if error_model is not None else [])
     table, smax, executor = compute(
-        options, error_model=error_model, jobs=jobs, scheduler=scheduler, progress=progress
-    )
+        options, error_model=error_model, jobs=jobs, scheduler=scheduler,
+        worker_timeout=worker_timeout, progress=progress,
+    )  # fmt: skip
     _, _, em_file = read_model(error_model)
+    timings = _timings(table)
+    table = table.drop(columns=list(TIMING))
     with StageWriter(
         out, "sweep", options=options, inputs=[em_file] if em_file else [], force=force
     ) as w:
@@ -469,6 +571,7 @@ def sweep(
             feasible=int(table["feasible"].sum()),
             counts=dict(counts),
             executor=executor,
+            timings=timings,
         )
     return SweepResult(
         Path(out), len(table), dict(counts), int(table["feasible"].sum()), executor, table, smax

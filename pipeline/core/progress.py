@@ -6,13 +6,17 @@ from typing import Protocol
 
 
 class Progress(Protocol):
-    """Receives progress of long work: ``start`` a task, ``advance`` it, ``finish`` it."""
+    """Receives progress of long work: ``start`` a task, ``advance`` it, ``finish`` it;
+    ``note`` a line worth showing meanwhile."""
 
     def start(self, label: str, total: float | None = None) -> None: ...
 
     def advance(self, amount: float = 1.0) -> None: ...
 
     def finish(self) -> None: ...
+
+    def note(self, message: str) -> None:
+        """One line for the user (waiting on something, a size warning), not an error."""
 
 
 class NullProgress:
@@ -25,6 +29,9 @@ class NullProgress:
         pass
 
     def finish(self) -> None:
+        pass
+
+    def note(self, message: str) -> None:
         pass
 
 

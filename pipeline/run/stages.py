@@ -122,8 +122,16 @@ def _sweep_stage(graph: StageGraph, section: dict[str, Any], src: Src, progress:
     sweep_cfg = dict(section)
     jobs = sweep_cfg.pop("jobs", None)
     scheduler = sweep_cfg.pop("scheduler", None)
+    wait_workers = float(sweep_cfg.pop("wait_workers", 60.0))
+    if scheduler is not None:
+        from qsls.pipeline.control.sweep import check_scheduler
+
+        try:
+            scheduler = check_scheduler(str(scheduler))
+        except ConfigError as exc:
+            raise ConfigError(f"{src('sweep')}: {exc}") from None
     opts = validate(SweepOptions, sweep_cfg, src("sweep"))
-    execute = _sweep_exec(opts, jobs, scheduler, progress)
+    execute = _sweep_exec(opts, jobs, scheduler, wait_workers, progress)
     graph.add(Stage("sweep", "sweep", opts, execute, deps=("fit",)))
 
 
@@ -191,7 +199,9 @@ def _fit_exec(opts: Any, train: list[str], progress: Progress) -> Any:
     return execute
 
 
-def _sweep_exec(opts: Any, jobs: int | None, scheduler: str | None, progress: Progress) -> Any:
+def _sweep_exec(
+    opts: Any, jobs: int | None, scheduler: str | None, wait_workers: float, progress: Progress
+) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         from qsls.pipeline.control.sweep import sweep
 
@@ -201,6 +211,7 @@ def _sweep_exec(opts: Any, jobs: int | None, scheduler: str | None, progress: Pr
             error_model=deps["fit"],
             jobs=jobs,
             scheduler=scheduler,
+            worker_timeout=wait_workers,
             force=True,
             progress=progress,
         )
