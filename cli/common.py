@@ -86,6 +86,9 @@ def cli_errors(fn: F) -> F:
             typer.echo(f"error: {what}; no partial output was kept", err=True)
             raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
         finally:
+            from qsls.pipeline.core.locks import release_all
+
+            release_all()
             if main:
                 signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 

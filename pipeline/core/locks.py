@@ -114,8 +114,9 @@ _HELD: dict[str, FolderLock] = {}
 
 
 @atexit.register
-def _release_all() -> None:
-    """Locks a failed stage still holds go with the process (no lock file left behind)."""
+def release_all() -> None:
+    """Release every output lock this process holds (at exit, and when a command ends: a
+    stage that failed before writing leaves no lock file behind)."""
     for key in list(_HELD):
         _HELD.pop(key).release()
 
@@ -125,6 +126,13 @@ def hold_output(out: Path) -> None:
     key = os.path.realpath(out)
     if key not in _HELD:
         _HELD[key] = FolderLock(Path(out)).acquire()
+
+
+def check_unlocked(out: Path) -> None:
+    """Refuse now (before a long computation) when another live process holds ``out``."""
+    if os.path.realpath(out) in _HELD or not lock_path(Path(out)).exists():
+        return
+    FolderLock(Path(out)).acquire().release()
 
 
 def release_output(out: Path) -> None:
