@@ -36,6 +36,7 @@ from qsls.pipeline.core.errors import InputError, OutputExistsError
 from qsls.pipeline.core.locks import (  # clean_stale: re-exported for the report stage
     OLD_MARK,
     TMP_MARK,
+    check_unlocked,
     clean_stale,
     hold_output,
     release_output,
@@ -381,12 +382,12 @@ class StageWriter:
 
 
 def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
-    """Refuse an output folder that overlaps an input, is another process's, or exists
-    (unless ``force``). Takes the folder's lock (:func:`hold_output`) when its parent exists."""
+    """Refuse an output folder that overlaps an input, is being written by another process
+    (its lock, :func:`check_unlocked`; :class:`StageWriter` holds it while it writes), or
+    exists (unless ``force``)."""
     out = Path(out)
     refuse_overlap(out, inputs)
-    if out.parent.is_dir():
-        hold_output(out)
+    check_unlocked(out)
     if out.exists() and not force:
         raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
     if out.exists() and not out.is_dir():

@@ -53,7 +53,15 @@ from qsls.pipeline.errormodel.slopes import (
     pct_name,
     percentile_table,
 )
-from qsls.pipeline.ingest.flight import AXES, E_COLS, X_COLS, errors, read_flight, states
+from qsls.pipeline.ingest.flight import (
+    AXES,
+    E_COLS,
+    X_COLS,
+    Flight,
+    errors,
+    read_flight,
+    states,
+)
 from qsls.pipeline.sim.references import ReferenceOptions
 
 STAGE = "fit"
@@ -180,6 +188,7 @@ class _Training:
     e: np.ndarray
     keep: np.ndarray  # (n,) bool: used for the model
     exclusions: dict[str, int]
+    dt: float = float("nan")  # the flights' common sample period (s)
 
 
 def _flight_names(flights: list[Path]) -> list[str]:
@@ -196,14 +205,16 @@ def _flight_names(flights: list[Path]) -> list[str]:
 def _load(flights: list[Path], options: FitOptions) -> _Training:
     if not flights:
         raise InputError("no flights given; pass one or more folders written by 'qsls ingest'")
-    tables = []
+    loaded = []
     for f in flights:
         f = Path(f)
         if not f.is_dir():
             raise InputError(f"{f}: not a folder; pass flight folders written by 'qsls ingest'")
         require_stage(f, "ingest")
-        tables.append(read_flight(f))
+        loaded.append(Flight.load(f))
     names = _flight_names(flights)
+    dt = _common_dt(loaded, names)
+    tables = [fl.frame for fl in loaded]
     fi = np.concatenate([np.full(len(df), k) for k, df in enumerate(tables)])
     t = np.concatenate([df["t"].to_numpy(float) for df in tables])
     x = np.concatenate([states(df) for df in tables])
@@ -228,7 +239,20 @@ def _load(flights: list[Path], options: FitOptions) -> _Training:
             + ", ".join(f"{k}: {v}" for k, v in ex.items() if v)
             + "); relax --skip-start / --exclude-outliers"
         )
-    return _Training(names, fi, t, x, e, keep, ex)
+    return _Training(names, fi, t, x, e, keep, ex, dt)
+
+
+def _common_dt(flights: list[Flight], names: list[str]) -> float:
+    """The flights' one sample period; flights of different ``dt`` are refused (the pair
+    slopes and the noise floor from second differences assume one grid)."""
+    dts = [fl.dt for fl in flights]
+    if any(abs(d - dts[0]) > 1e-9 * max(abs(dts[0]), 1.0) for d in dts):
+        listed = ", ".join(f"{n} {d:g} s" for n, d in zip(names, dts, strict=True))
+        raise InputError(
+            f"the flights have different dt ({listed}); ingest them with one --dt "
+            "(the error model is for one controller period)"
+        )
+    return float(dts[0])
 
 
 def robust_z(e: np.ndarray) -> np.ndarray:
@@ -405,11 +429,77 @@ def fit(
     ref_x, ref_desc = reference_states(options)
     idx = np.flatnonzero(tr.keep)
     x, e = tr.x[idx], tr.e[idx]
+    _refuse_zero_error(e, tr)
     scale = np.asarray(options.state_scale, dtype=float)
     if np.any(scale <= 0):
         raise InputError(f"state scale must be 6 positive weights, got {list(scale)}")
     sigma = noise_floor(tr)
-    floor = float(np.max(sigma * scale))
+    min_sep, rule = _min_separation(options, float(np.max(sigma * scale)))
+    W = None
+    if options.bootstrap > 0:
+        W = bootstrap_weights(
+            tr.flight_idx[idx], options.bootstrap, options.bootstrap_block, options.seed
+        )
+    ps = pair_slopes(
+        x, e, options.radius, min_separation=min_sep, state_scale=scale,
+        percentiles=options.percentiles, top_k=options.top_pairs, bootstrap_weights=W,
+        jobs=options.jobs, progress=progress,
+    )  # fmt: skip
+    if ps.n_pairs == 0:
+        raise InputError(
+            f"no pair of samples within radius {options.radius:g} and at least "
+            f"{min_sep:.4g} apart ({ps.n_in_radius} pairs closer than the minimum separation); "
+            "increase --radius or lower --min-separation"
+        )
+    enorm = np.abs(e).max(axis=1)
+    eps_pct = percentile_table(enorm, options.percentiles)
+    delta = 0.0 if ref_x is None else float(nearest_distance(x, ref_x, scale).max())
+    model = ErrorModel(
+        eps_e=float(enorm.max()),
+        eps_e_percentiles=eps_pct,
+        per_axis=_axis_stats(e),
+        radius=float(options.radius),
+        min_separation=float(min_sep),
+        min_separation_rule=rule,
+        noise_floor={a: float(v) for a, v in zip(AXES, sigma, strict=True)},
+        state_scale=[float(v) for v in scale],
+        s_slope=SlopeStats(
+            max=ps.max,
+            percentiles=ps.percentiles,
+            local_max_percentiles=ps.local_max_percentiles,
+            percentile_rel_error=ps.percentile_rel_error,
+            n_samples_with_partners=ps.n_with_partners,
+        ),
+        R0=_resolve_r0(options.r0, float(enorm.max()), eps_pct),
+        delta=delta,
+        delta_reference=ref_desc,
+        n_samples=len(idx),
+        n_pairs=ps.n_pairs,
+        n_pairs_below_min_separation=ps.n_below_min_separation,
+        n_excluded=int(len(tr.keep) - len(idx)),
+        exclusions=tr.exclusions,
+        worst_pairs=_worst_pairs(tr, idx, ps),
+        bootstrap=_bootstrap_summary(enorm, W, ps, options) if W is not None else None,
+        flights=tr.names,
+    )
+    _write(Path(out), model, tr, idx, ps, options, flights, force)
+    return FitResult(
+        out=Path(out), model=model, noise_floor=model.noise_floor, n_candidates=ps.n_candidates
+    )
+
+
+def _refuse_zero_error(e: np.ndarray, tr: _Training) -> None:
+    """An error model of zeros (VIO equal to the truth) would certify any controller."""
+    if not np.abs(e).max() > 0:
+        raise InputError(
+            f"every training sample of {', '.join(tr.names)} has zero error (e = y - x = 0): "
+            "the VIO equals the truth, so the model would be eps_e = S = 0 and certify "
+            "anything; ingest the VIO estimate against the ground truth (not one stream twice)"
+        )
+
+
+def _min_separation(options: FitOptions, floor: float) -> tuple[float, str]:
+    """The minimum pair separation and how it was chosen (module doc, noise floor)."""
     if options.min_separation == "auto":
         min_sep = options.min_separation_factor * floor
         rule = (
@@ -419,45 +509,18 @@ def fit(
         if min_sep >= 0.5 * options.radius:
             min_sep = 0.5 * options.radius
             rule += f"; capped at radius / 2 = {min_sep:.4g}"
-    else:
-        min_sep = float(options.min_separation)
-        rule = "given"
-        if min_sep >= options.radius:
-            raise InputError(
-                f"min separation {min_sep:g} must be smaller than the radius {options.radius:g}"
-            )
-    W = None
-    if options.bootstrap > 0:
-        W = bootstrap_weights(
-            tr.flight_idx[idx], options.bootstrap, options.bootstrap_block, options.seed
-        )
-    ps = pair_slopes(
-        x,
-        e,
-        options.radius,
-        min_separation=min_sep,
-        state_scale=scale,
-        percentiles=options.percentiles,
-        top_k=options.top_pairs,
-        bootstrap_weights=W,
-        jobs=options.jobs,
-        progress=progress,
-    )
-    if ps.n_pairs == 0:
+        return min_sep, rule
+    min_sep = float(options.min_separation)
+    if min_sep >= options.radius:
         raise InputError(
-            f"no pair of samples within radius {options.radius:g} and at least "
-            f"{min_sep:.4g} apart ({ps.n_in_radius} pairs closer than the minimum separation); "
-            "increase --radius or lower --min-separation"
+            f"min separation {min_sep:g} must be smaller than the radius {options.radius:g}"
         )
-    enorm = np.abs(e).max(axis=1)
-    eps_e = float(enorm.max())
-    eps_pct = percentile_table(enorm, options.percentiles)
-    r0 = _resolve_r0(options.r0, eps_e, eps_pct)
-    delta = 0.0
-    if ref_x is not None:
-        delta = float(nearest_distance(x, ref_x, scale).max())
-    qs = options.percentiles
-    worst = [
+    return min_sep, "given"
+
+
+def _worst_pairs(tr: _Training, idx: np.ndarray, ps: PairSlopes) -> list[WorstPair]:
+    x, e = tr.x[idx], tr.e[idx]
+    return [
         WorstPair(
             flight=tr.names[tr.flight_idx[idx[w.i]]],
             flight_j=tr.names[tr.flight_idx[idx[w.j]]],
@@ -472,46 +535,33 @@ def fit(
         )
         for w in ps.worst
     ]
-    model = ErrorModel(
-        eps_e=eps_e,
-        eps_e_percentiles=eps_pct,
-        per_axis=_axis_stats(e),
-        radius=float(options.radius),
-        min_separation=float(min_sep),
-        min_separation_rule=rule,
-        noise_floor={a: float(s) for a, s in zip(AXES, sigma, strict=True)},
-        state_scale=[float(v) for v in scale],
-        s_slope=SlopeStats(
-            max=ps.max,
-            percentiles=ps.percentiles,
-            local_max_percentiles=ps.local_max_percentiles,
-            percentile_rel_error=ps.percentile_rel_error,
-            n_samples_with_partners=ps.n_with_partners,
-        ),
-        R0=r0,
-        delta=delta,
-        delta_reference=ref_desc,
-        n_samples=len(idx),
-        n_pairs=ps.n_pairs,
-        n_pairs_below_min_separation=ps.n_below_min_separation,
-        n_excluded=int(len(tr.keep) - len(idx)),
-        exclusions=tr.exclusions,
-        worst_pairs=worst,
-        bootstrap=_bootstrap_summary(enorm, W, ps, options) if W is not None else None,
-        flights=tr.names,
-    )
+
+
+def _write(
+    out: Path,
+    model: ErrorModel,
+    tr: _Training,
+    idx: np.ndarray,
+    ps: PairSlopes,
+    options: FitOptions,
+    flights: list[Path],
+    force: bool,
+) -> None:
+    """The stage folder: error_model.yaml, training_states.parquet, figures, manifest."""
+    x, e = tr.x[idx], tr.e[idx]
     training = pd.DataFrame(
         {"flight": [tr.names[k] for k in tr.flight_idx[idx]], "t": tr.t[idx]}
         | {c: x[:, k] for k, c in enumerate(X_COLS)}
         | {c: e[:, k] for k, c in enumerate(E_COLS)}
     )
     results = {
-        "eps_e": eps_e,
+        "eps_e": model.eps_e,
         "s_max": ps.max,
         **{f"s_{k}": v for k, v in ps.percentiles.items()},
         "n_samples": len(idx),
         "n_pairs": ps.n_pairs,
-        "delta": delta,
+        "delta": model.delta,
+        "dt": tr.dt,
     }
     with StageWriter(out, STAGE, options=options, inputs=flights, force=force) as w:
         w.write_yaml(ERROR_MODEL_FILE, model)
@@ -519,13 +569,10 @@ def fit(
         if options.figures:
             from qsls.pipeline.errormodel import figures as fit_plots
 
-            figs = fit_plots.make_figures(model, ps, tr, idx, qs)
+            figs = fit_plots.make_figures(model, ps, tr, idx, options.percentiles)
             for name, fig in figs.items():
                 w.write_figure(name, fig)
         w.results.update(results)
-    return FitResult(
-        out=Path(out), model=model, noise_floor=model.noise_floor, n_candidates=ps.n_candidates
-    )
 
 
 def _resolve_r0(r0: float | str, eps_e: float, pcts: dict[str, float]) -> float:

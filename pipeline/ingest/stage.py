@@ -131,8 +131,8 @@ class IngestResult:
         return {
             "output": str(self.out),
             "samples": self.samples,
-            "vio": f"{v['topic']} ({v['messages']} msgs, {v['rate_hz']:.1f} Hz)",
-            "truth": f"{t['topic']} ({t['messages']} msgs, {t['rate_hz']:.1f} Hz)",
+            "vio": _describe_stream(v),
+            "truth": _describe_stream(t),
             "time offset (s)": round(self.time_offset_s, 4),
             "alignment": f"{self.alignment['method']}, yaw {np.degrees(self.alignment['yaw_rad']):.2f} deg",
             "RMS position error (m)": round(self.rms_position_m, 4),
@@ -140,6 +140,11 @@ class IngestResult:
             "gaps": len(self.gaps),
             "duplicates dropped": v["duplicates_dropped"] + t["duplicates_dropped"],
         }
+
+
+def _describe_stream(s: dict[str, Any]) -> str:
+    kind = str(s["msgtype"]).rsplit("/", 1)[-1]
+    return f"{s['topic']} ({kind}, {s['messages']} msgs, {s['rate_hz']:.1f} Hz)"
 
 
 # --------------------------------------------------------------------------- reading
@@ -151,6 +156,7 @@ def _read_streams(
     from qsls.pipeline.ingest.sources.base import detect
     from qsls.pipeline.ingest.sources.select import choose
     from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
+    from qsls.pipeline.ingest.sources.write import TF
 
     sources = [Path(s) for s in sources]
     if not sources and (o.vio is None or o.truth is None):
@@ -187,6 +193,9 @@ def _read_streams(
                 vio_topics, truth_topics, o.vio_topic, o.truth_topic, o.truth_frame
             )
         fast = o.decoder == "fast"
+        if truth_info is not None and truth_info.msgtype == TF and not o.truth_frame:
+            # a TF topic alone: read it first, its reader lists the transforms to choose from
+            bags[truth_info.source].read(truth_info.topic, fast=fast, progress=progress)
         out: dict[str, Any] = dict(texts)
         where: dict[str, str] = {}
         wanted: dict[Path, list[tuple[str, str, str | None]]] = {}
@@ -227,17 +236,11 @@ def _pick_truth(topics: list[Any], o: IngestOptions) -> Any:
 
 
 def _pick_vio(topics: list[Any], o: IngestOptions) -> Any:
-    from qsls.pipeline.ingest.sources.select import POSE_TYPES, VIO_TYPES, describe, find_topic
+    from qsls.pipeline.ingest.sources.select import POSE_TYPES, choose_vio, find_topic
 
     if o.vio_topic:
         return find_topic(topics, o.vio_topic, "vio", POSE_TYPES)
-    c = [t for t in topics if t.msgtype in VIO_TYPES]
-    if len(c) != 1:
-        raise InputError(
-            f"cannot choose the VIO topic automatically ({len(c)} candidates: {describe(c)}); "
-            "pass --vio-topic"
-        )
-    return c[0]
+    return choose_vio(topics, set())
 
 
 # --------------------------------------------------------------------------- preparing
@@ -291,6 +294,33 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
         unsorted,
         nonfinite,
     )
+
+
+def check_streams(vio: Prepared, truth: Prepared, o: IngestOptions) -> None:
+    """Refuse what would give a meaningless flight: the same stream as VIO and truth (the
+    same source and topic, or identical samples: ``e = 0`` everywhere, a degenerate error
+    model), or a stream whose own sampling step is longer than ``max_gap`` (no grid point
+    could be interpolated from it)."""
+    same_source = Path(vio.source).resolve() == Path(truth.source).resolve()
+    if same_source and vio.topic == truth.topic:
+        raise InputError(
+            f"the VIO and truth streams are the same ({vio.topic} in {vio.source}); "
+            "the errors would all be 0: give the VIO estimate and the ground truth"
+        )
+    if len(vio.t_ns) == len(truth.t_ns) and np.array_equal(vio.position, truth.position):
+        raise InputError(
+            f"the VIO ({vio.topic}) and truth ({truth.topic}) streams hold identical samples; "
+            "the errors would all be 0: give the VIO estimate and the ground truth"
+        )
+    for s in (vio, truth):
+        step = float(np.median(np.diff(s.t_ns))) * 1e-9
+        if step > o.max_gap:
+            raise InputError(
+                f"the {s.role} stream {s.topic} has one sample every {step:.3g} s "
+                f"({s.rate_hz:.3g} Hz), longer than --max-gap {o.max_gap:g} s, so no point "
+                f"could be interpolated; raise --max-gap above {step:.3g} s (e.g. "
+                f"{2 * step:.2g}) if interpolating across {step:.3g} s is acceptable"
+            )
 
 
 def _interp(
@@ -479,6 +509,7 @@ def _ingest(
     vio_t, truth_t, where = _read_streams(sources, o, progress)
     vio = prepare(vio_t, "vio", where["vio"], o)
     truth = prepare(truth_t, "truth", where["truth"], o)
+    check_streams(vio, truth, o)
     gap_ns = round(o.max_gap * 1e9)
     tau, offset_info = _clock_offset(vio, truth, o)
     tau_ns = round(tau * 1e9)

@@ -1,12 +1,15 @@
 """Which topic is the VIO and which the truth: explicit, or chosen when unambiguous.
 
-VIO candidates are ``nav_msgs/msg/Odometry`` topics; truth candidates are the pose types
-(PoseStamped, PoseWithCovarianceStamped, TransformStamped, Odometry, and TFMessage when
-``--truth-frame`` is given; ``/tf_static`` never). Without flags the choice is made when
-there is exactly one VIO and one (other) truth candidate. When types alone leave several,
-names decide only if exactly one candidate's name says it is ground truth (``truth``,
-``ground``, ``gt``, ``vicon``, ``mocap``, ``optitrack``, ``qualisys``, ``leica``); otherwise
-the command stops and lists the candidates with their types and counts.
+VIO candidates are ``nav_msgs/msg/Odometry`` topics; when a bag has none, the other pose
+topics (PoseStamped, PoseWithCovarianceStamped, TransformStamped) whose names do not say
+ground truth. Truth candidates are the pose types (PoseStamped, PoseWithCovarianceStamped,
+TransformStamped, Odometry, and TFMessage when ``--truth-frame`` is given; ``/tf_static``
+never); when there is none but one TF topic, that topic (its reader then lists the
+transforms to pass with ``--truth-frame``). Without flags the choice is made when there is
+exactly one VIO and one (other) truth candidate. When types alone leave several, names
+decide only if exactly one candidate's name says it is ground truth (``truth``, ``ground``,
+``gt``, ``vicon``, ``mocap``, ``optitrack``, ``qualisys``, ``leica``); otherwise the command
+stops, says which types it considered and lists the candidates with their types and counts.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from qsls.pipeline.ingest.sources.base import TopicInfo
 from qsls.pipeline.ingest.sources.write import ODOMETRY, POSE_COV, POSE_STAMPED, TF, TRANSFORM
 
 VIO_TYPES = (ODOMETRY,)
+POSE_ONLY_TYPES = (POSE_STAMPED, POSE_COV, TRANSFORM)
 POSE_TYPES = (POSE_STAMPED, POSE_COV, TRANSFORM, ODOMETRY)
 TRUTH_TYPES = (*POSE_TYPES, TF)
 _TRUTH_NAME = re.compile(
@@ -77,18 +81,7 @@ def choose(
         return (t.topic, t.source)
 
     if vio is None:
-        taken = {key(truth)} if truth else set()
-        cands = [t for t in vio_topics if t.msgtype in VIO_TYPES and key(t) not in taken]
-        if len(cands) > 1:
-            named = [t for t in cands if not _TRUTH_NAME.search(t.topic)]
-            cands = named if len(named) == 1 else cands
-        if len(cands) != 1:
-            raise InputError(
-                f"cannot choose the VIO topic automatically ({len(cands)} candidates: "
-                f"{describe(cands)}); pass --vio-topic"
-                + ("" if cands else f" (topics: {describe(vio_topics)})")
-            )
-        vio = cands[0]
+        vio = choose_vio(vio_topics, {key(truth)} if truth else set())
     if truth is None:
         allowed = TRUTH_TYPES if truth_frame else POSE_TYPES
         cands = [
@@ -99,6 +92,9 @@ def choose(
         if len(cands) > 1:
             named = [t for t in cands if _TRUTH_NAME.search(t.topic)]
             cands = named if len(named) == 1 else cands
+        tf = [t for t in truth_topics if t.msgtype == TF and t.topic != "/tf_static"]
+        if not cands and len(tf) == 1:
+            return vio, tf[0]  # TF only: its reader lists the transforms for --truth-frame
         if len(cands) != 1:
             raise InputError(
                 f"cannot choose the truth topic automatically ({len(cands)} candidates: "
@@ -107,3 +103,30 @@ def choose(
             )
         truth = cands[0]
     return vio, truth
+
+
+def choose_vio(topics: list[TopicInfo], taken: set[tuple[str, Path]]) -> TopicInfo:
+    """The VIO topic: the one Odometry topic (names decide between several), else the one pose
+    topic whose name does not say ground truth; a line saying what was considered otherwise."""
+    free = [t for t in topics if (t.topic, t.source) not in taken]
+    cands = [t for t in free if t.msgtype in VIO_TYPES]
+    if len(cands) > 1:
+        named = [t for t in cands if not _TRUTH_NAME.search(t.topic)]
+        cands = named if len(named) == 1 else cands
+    if len(cands) == 1:
+        return cands[0]
+    if cands:
+        why = f"{len(cands)} Odometry topics: {describe(cands)}"
+    else:
+        poses = [t for t in free if t.msgtype in POSE_ONLY_TYPES]
+        unnamed = [t for t in poses if not _TRUTH_NAME.search(t.topic)]
+        if len(unnamed) == 1:
+            return unnamed[0]
+        why = "no nav_msgs/msg/Odometry topic, and " + (
+            f"{len(unnamed)} pose topics not named as ground truth: {describe(unnamed)}"
+            if unnamed
+            else f"every pose topic is named as ground truth ({describe(poses)})"
+            if poses
+            else f"no pose topic either (topics: {describe(topics)})"
+        )
+    raise InputError(f"cannot choose the VIO topic automatically ({why}); pass --vio-topic")

@@ -19,22 +19,44 @@ TUM = "text/tum"
 EUROC = "text/euroc-csv"
 
 
-def _rows(path: Path, sep: str | None) -> list[list[str]]:
-    rows = []
-    for line in Path(path).read_text(errors="replace").splitlines():
+# A text trajectory is written in time order; a stamp earlier than one before it by more
+# than this is an error naming its line (re-sorting it silently made a 0.45 m error spike).
+ORDER_TOLERANCE_NS = 100_000_000
+
+
+def _rows(path: Path, sep: str | None) -> tuple[list[list[str]], list[int]]:
+    """The data rows and their 1-based line numbers in the file."""
+    rows, lines = [], []
+    for k, line in enumerate(Path(path).read_text(errors="replace").splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#") or line[0].isalpha():
             continue
         rows.append([p.strip() for p in (line.split(sep) if sep else line.split())])
-    return rows
+        lines.append(k)
+    return rows, lines
+
+
+def check_order(path: Path, ns: np.ndarray, lines: list[int]) -> None:
+    """Refuse a stamp more than :data:`ORDER_TOLERANCE_NS` earlier than the latest before it."""
+    if len(ns) < 2:
+        return
+    back = np.maximum.accumulate(ns)[:-1] - ns[1:]
+    bad = np.flatnonzero(back > ORDER_TOLERANCE_NS)
+    if len(bad):
+        k = int(bad[0]) + 1
+        raise InputError(
+            f"{path}: line {lines[k]}: stamp {ns[k] * 1e-9:.9g} s is {back[k - 1] * 1e-9:.3g} s "
+            f"earlier than a line before it (tolerance {ORDER_TOLERANCE_NS * 1e-9:g} s; "
+            f"{len(bad)} such lines); a trajectory file must be in time order: fix or sort it"
+        )
 
 
 def read_tum(path: Path) -> Trajectory:
-    rows = _rows(path, None)
+    rows, lines = _rows(path, None)
     bad = [i for i, r in enumerate(rows) if len(r) != 8]
     if bad:
         raise InputError(
-            f"{path}: data line {bad[0] + 1} has {len(rows[bad[0]])} fields; TUM needs 8 "
+            f"{path}: line {lines[bad[0]]} has {len(rows[bad[0]])} fields; TUM needs 8 "
             "('t x y z qx qy qz qw')"
         )
     try:
@@ -43,6 +65,7 @@ def read_tum(path: Path) -> Trajectory:
         ns = np.array([_sec_to_ns(r[0]) for r in rows], dtype=np.int64)
     except ValueError as exc:
         raise InputError(f"{path}: a value is not a number ({exc})") from None
+    check_order(path, ns, lines)
     return Trajectory(
         name=Path(path).name,
         msgtype=TUM,
@@ -65,11 +88,11 @@ def _sec_to_ns(s: str) -> int:
 
 
 def read_euroc(path: Path) -> Trajectory:
-    rows = _rows(path, ",")
+    rows, lines = _rows(path, ",")
     bad = [i for i, r in enumerate(rows) if len(r) < 8]
     if bad:
         raise InputError(
-            f"{path}: data line {bad[0] + 1} has {len(rows[bad[0]])} fields; the EuRoC csv "
+            f"{path}: line {lines[bad[0]]} has {len(rows[bad[0]])} fields; the EuRoC csv "
             "needs at least 8 ('t_ns, px, py, pz, qw, qx, qy, qz')"
         )
     width = min(len(r) for r in rows)
@@ -78,6 +101,7 @@ def read_euroc(path: Path) -> Trajectory:
         a = np.array([r[:width] for r in rows], dtype=float)
     except ValueError as exc:
         raise InputError(f"{path}: a value is not a number ({exc})") from None
+    check_order(path, ns, lines)
     return Trajectory(
         name=Path(path).name,
         msgtype=EUROC,
