@@ -39,10 +39,19 @@ from qsls.pipeline.ingest.sources.base import BAG_HINT, TopicInfo, Trajectory, b
 from qsls.pipeline.ingest.sources.ros1index import ros1_batches
 from qsls.pipeline.ingest.sources.write import ODOMETRY, TF, typestore
 
-_DAMAGED = (
-    "it looks truncated or damaged; if the recording was cut off, repair it "
-    "('rosbag reindex' for ROS1, 'ros2 bag reindex' for rosbag2) and try again"
-)
+_REPAIR = {
+    "ros1": "rosbag reindex BAG",
+    "mcap": "mcap recover IN.mcap -o OUT.mcap",  # a plain MCAP: the mcap CLI, no metadata.yaml
+}
+
+
+def damaged_hint(kind: str) -> str:
+    """What to do about a truncated or damaged bag of ``kind`` (detect()'s names)."""
+    tool = _REPAIR.get(kind, "ros2 bag reindex BAG_FOLDER")
+    return (
+        "it looks truncated or damaged; if the recording was cut off, repair it "
+        f"('{tool}') and try again"
+    )
 
 
 def normalize_type(name: str) -> str:
@@ -203,7 +212,9 @@ class BagSource:
         except Exception as exc:
             self.close()
             msg = " ".join(str(exc).split()) or exc.__class__.__name__
-            raise InputError(f"{self.path}: cannot read the bag ({msg}); {_DAMAGED}") from None
+            raise InputError(
+                f"{self.path}: cannot read the bag ({msg}); {damaged_hint(self.kind)}"
+            ) from None
 
     # ---- opening
     def _open(self) -> None:
@@ -214,7 +225,9 @@ class BagSource:
             self._mcap = make_reader(self._fh)
             summary = self._mcap.get_summary()
             if summary is None:
-                raise InputError(f"{self.path}: MCAP file without a summary section; {_DAMAGED}")
+                raise InputError(
+                    f"{self.path}: MCAP file without a summary section; {damaged_hint(self.kind)}"
+                )
             self._summary = summary
             return
         from rosbags.highlevel import AnyReader
@@ -367,7 +380,7 @@ class BagSource:
         except Exception as exc:
             msg = " ".join(str(exc).split()) or exc.__class__.__name__
             raise InputError(
-                f"{self.path}: error while reading {names} ({msg}); {_DAMAGED}"
+                f"{self.path}: error while reading {names} ({msg}); {damaged_hint(self.kind)}"
             ) from None
         finally:
             progress.finish()
