@@ -211,6 +211,15 @@ def print_summary(title: str, rows: Iterable[tuple[str, Any]] | Mapping[str, Any
     Console().print(table)
 
 
+def print_verdicts(title: str, verdicts: Iterable[Any]) -> None:
+    """The answer last: one line per controller, ``holds`` / ``FAILS`` and the worst ratio."""
+    lines = [v.line() for v in verdicts]
+    if lines:
+        typer.echo(f"{title}:")
+        for line in lines:
+            typer.echo(f"  {line}")
+
+
 def print_table(title: str, columns: list[str], rows: Iterable[Iterable[Any]]) -> None:
     from rich.console import Console
     from rich.table import Table

@@ -13,6 +13,7 @@ from qsls.cli.common import (
     parse_list,
     print_summary,
     print_table,
+    print_verdicts,
 )
 
 
@@ -82,6 +83,7 @@ def command(
     """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
     from qsls.pipeline.core.config import merge, read_yaml, validate
     from qsls.pipeline.core.errors import ConfigError, InputError
+    from qsls.pipeline.evaluate.verdict import verdicts
 
     # The config's 'evaluate' section (or the whole file); its 'fly' mapping (as in a
     # 'qsls run' config) adds the flying options.
@@ -118,6 +120,7 @@ def command(
         print_summary("qsls evaluate --fly", result.summary())
         cols, rows = result.comparison_rows()
         print_table("Against the paper's findings", cols, rows)
+        print_verdicts("Certified bound on the flown flights", verdicts(result.table))
         return
     from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
 
@@ -129,3 +132,4 @@ def command(
     for w in checked.warnings:
         typer.echo(f"warning: {w}", err=True)
     print_summary("qsls evaluate", checked.summary())
+    print_verdicts("Certified bound on the held-out flights", verdicts(checked.table))

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import RichProgress, cli_errors, print_summary
+from qsls.cli.common import RichProgress, cli_errors, print_summary, print_verdicts
 
 
 @cli_errors
@@ -49,3 +49,7 @@ def command(
             on_stage=on_stage,
         )
     print_summary("qsls run", result.summary())
+    from qsls.pipeline.evaluate.verdict import read_verdicts
+
+    for stage, title in (("evaluate", "held-out flights"), ("fly", "flown flights")):
+        print_verdicts(f"Certified bound on the {title}", read_verdicts(result.root / stage))

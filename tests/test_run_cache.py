@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import glob
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -208,5 +209,10 @@ def test_a_signal_during_fly_leaves_no_temporary_and_no_worker(tmp_path, sig):
         assert list(run.glob(".fly.tmp-*"))  # SIGKILL cannot be handled: the next run cleans
     again = _qsls("run", cfg, cwd=tmp_path)
     assert _ran(again) == {"fly"}  # the killed stage never counts as done
+    # the run ends with the answer: each controller's verdict on the flown flights
+    tail = again.stdout.strip().splitlines()[-3:]
+    assert tail[0] == "Certified bound on the flown flights:"
+    assert {ln.split(":")[0].strip() for ln in tail[1:]} == {"pd", "l1_robust"}
+    assert all(re.search(r": (holds|FAILS), worst \|\|e\|\|/gamma [0-9.]+ ", ln) for ln in tail[1:])
     assert not list(run.glob(".*tmp-*")) and not list(run.rglob(".*.lock"))
     assert (run / "fly" / "manifest.json").is_file()
