@@ -85,6 +85,8 @@ def test_paper_controllers_with_certificates(tmp_path, error_model):
             (c["eps_e"] + c["S"] * a) / (1 - c["S"] * nxy), rel=1e-12
         )
         assert c["gamma_strict"] == pytest.approx(c["R0"] / (1 - c["S"] * nxy), rel=1e-12)
+        # R0 is the eps_e in use unless set, so the paper's stricter bound never exceeds gamma
+        assert c["R0"] == c["eps_e"] and c["gamma_strict"] <= c["gamma"]
         for key in ("T", "eps_w", "margin", "cost", "controller_sha256"):
             assert key in c
         assert not {"build_time_s", "solve_time_s"} & set(c)  # timings: manifest only

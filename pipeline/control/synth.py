@@ -89,7 +89,7 @@ class ProblemOptions(Options):
     eps_e: Number = "max"
     radius: float | None = Field(None, gt=0, description="default: the error model's radius")
     delta: Number | None = Field(None, description="Delta; default: the error model's delta")
-    R0: Number | None = Field(None, description="R0 for gamma_strict; default: the model's R0")
+    R0: Number | None = Field(None, description="R0 for gamma_strict; default: the eps_e in use (so gamma_strict <= gamma)")
     pd: PDGains = PDGains()
     imitate: str = Field(
         "pd", description="imitation target: pd, l1_nominal, h2_nominal or a folder"
@@ -204,7 +204,7 @@ def resolve(opts: ProblemOptions, em: ErrorModel | None) -> Resolved:
             f"delta = '{opts.delta}': give a number (or omit it to use the error model's)"
         )
     if opts.R0 is None:
-        R0 = float(em.R0) if em is not None else eps_e
+        R0 = eps_e  # the error bound in use, so that gamma_strict <= gamma (DESIGN.md)
     else:
         R0 = _number(opts.R0, em, "R0", "resolve_eps_e")
     H = None if opts.H is None else np.asarray(opts.H)
