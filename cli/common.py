@@ -135,6 +135,42 @@ def parse_list(text: str | None, what: str, kind: str = "float") -> list[Any] | 
     return out
 
 
+def default_text(model: Any, field: str, flags: tuple[str, str] | None = None) -> str:
+    """A model field's default as the command line writes it: ``0.5``, ``l1``, ``max``,
+    ``10,10,10,1,1,1`` for a diagonal matrix, ``none``; for an on/off pair of ``flags``,
+    the flag that is the default."""
+    info = model.model_fields[field]
+    value = info.get_default(call_default_factory=True)
+    if hasattr(value, "model_dump"):
+        value = value.model_dump()
+    if isinstance(value, bool):
+        if flags is not None:
+            return flags[0] if value else flags[1]
+        return "on" if value else "off"
+    if value is None:
+        return "none"
+    if isinstance(value, list | tuple) and value and isinstance(value[0], list | tuple):
+        import numpy as np
+
+        m = np.asarray(value, dtype=float)
+        if m.ndim == 2 and m.shape[0] == m.shape[1] and np.allclose(m, np.diag(np.diag(m))):
+            value = list(np.diag(m))
+    if isinstance(value, dict):  # a sweep grid
+        return "; ".join(f"{k}={','.join(_plain(v) for v in vs)}" for k, vs in value.items())
+    if isinstance(value, list | tuple):
+        return ",".join(_plain(v) for v in value)
+    return _plain(value)
+
+
+def _plain(v: Any) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def model_help(model: Any, field: str, text: str, flags: tuple[str, str] | None = None) -> str:
+    """``text`` plus the model's default: the options model is the one source of defaults."""
+    return f"{text} (default: {default_text(model, field, flags)})"
+
+
 def overrides(**kwargs: Any) -> dict[str, Any]:
     """The options given on the command line (``None`` means not given)."""
     return {k: v for k, v in kwargs.items() if v is not None}

@@ -16,6 +16,8 @@ from qsls.cli.common import (
     print_verdicts,
 )
 
+EXAMPLE = "qsls evaluate --model fit --controller synth --flights flights/f3 --out ev"
+
 
 @cli_errors
 def command(
@@ -52,26 +54,28 @@ def command(
     smooth_s: float = typer.Option(
         None,
         "--smooth-s",
-        help="Time constant (s) of the average drawn over ||e|| in figures (0: none; default 1).",
+        help="Time constant (s) of the average drawn over ||e|| in figures (0: none). (default: 1)",
     ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     seeds: str = typer.Option(
-        None, "--seeds", help="--fly: comma-separated seeds (default 0,1,2)."
+        None, "--seeds", help="--fly: comma-separated seeds. (default: 0,1,2)"
     ),
     duration: float = typer.Option(
-        None, "--duration", help="--fly: seconds per flight (default 30)."
+        None, "--duration", help="--fly: seconds per flight. (default: 30)"
     ),
     conditions: str = typer.Option(
         None,
         "--conditions",
-        help="--fly: comma-separated perception conditions (default regular,degraded).",
+        help="--fly: comma-separated perception conditions. (default: regular,degraded)",
     ),
-    jobs: int = typer.Option(None, "--jobs", help="--fly: parallel flights (default: all cores)."),
+    jobs: int = typer.Option(
+        None, "--jobs", help="--fly: parallel flights, 0 = all cores. (default: 0)"
+    ),
     backend: str = typer.Option(
         None,
         "--backend",
-        help="--fly: python (default) or c: fly the synthesized controllers as the C of "
-        "'qsls export' (compiled, through ctypes).",
+        help="--fly: python or c: fly the synthesized controllers as the C of "
+        "'qsls export' (compiled, through ctypes). (default: python)",
     ),
     force: bool = typer.Option(
         False,

@@ -8,25 +8,33 @@ import typer
 
 from qsls.cli.common import cli_errors, overrides, print_summary
 
+EXAMPLE = "qsls export controllers/l1_robust --target c --out export"
+
 
 @cli_errors
 def command(
     controller: Path = typer.Argument(
         ..., help="Controller folder written by 'qsls synth' (controller.npz + certificate.yaml)."
     ),
-    target: str = typer.Option(..., "--target", "-t", help="c or python."),
+    target: str = typer.Option(..., "--target", "-t", help="c or python. (default: c)"),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder for the generated files."),
     precision: str | None = typer.Option(
-        None, "--precision", help="C only: double (default) or float (single-precision FPU)."
+        None,
+        "--precision",
+        help="C only: double or float (single-precision FPU). (default: double)",
     ),
     prefix: str | None = typer.Option(
-        None, "--prefix", help="C names and file names (default qsls_ctrl)."
+        None, "--prefix", help="C names and file names. (default: qsls_ctrl)"
     ),
     allow_uncertified: bool = typer.Option(
-        False, "--allow-uncertified", help="Export a controller whose status is not 'certified'."
+        False,
+        "--allow-uncertified",
+        help="Export a controller whose status is not 'certified'. (default: off)",
     ),
     verify_ticks: int | None = typer.Option(
-        None, "--verify-ticks", help="Random ticks of the check against the Python realization."
+        None,
+        "--verify-ticks",
+        help="Random ticks of the check against the Python realization. (default: 10000)",
     ),
     config: Path | None = typer.Option(None, "--config", help="YAML file of export options."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),

@@ -8,6 +8,8 @@ import typer
 
 from qsls.cli.common import cli_errors, overrides, parse_list
 
+EXAMPLE = "qsls fit flights/f1 flights/f2 --out fit --radius 1.0"
+
 
 @cli_errors
 def command(
@@ -48,7 +50,7 @@ def command(
         None,
         "--exclude-outliers/--keep-outliers",
         help="Leave out samples whose robust z-score of e (median/MAD) exceeds --outlier-z on "
-        "some axis; the count is reported. (default: keep)",
+        "some axis; the count is reported. (default: --keep-outliers)",
     ),
     outlier_z: float = typer.Option(None, "--outlier-z", help="Robust z threshold. (default: 3.5)"),
     skip_start: float = typer.Option(
@@ -66,7 +68,7 @@ def command(
         None,
         "--reference-lead-in/--reference-pattern-only",
         help="Include a parametric reference's take-off and approach in delta, or only its "
-        "pattern. (default: pattern only)",
+        "pattern. (default: --reference-pattern-only)",
     ),
     r0: str = typer.Option(
         None, "--r0", help="R0 of the guarantee: max (= eps_e), pNN or a number. (default: max)"

@@ -8,6 +8,8 @@ import typer
 
 from qsls.cli.common import cli_errors, overrides
 
+EXAMPLE = "qsls ingest --vio vio.tum --truth data.csv --out flights/f1 --dt 0.1"
+
 
 @cli_errors
 def command(
@@ -21,16 +23,20 @@ def command(
         ..., "--out", "-o", help="Output folder (flight.parquet, manifest.json)."
     ),
     vio_topic: str = typer.Option(
-        None, help="VIO topic (nav_msgs/Odometry). Default: chosen when unambiguous."
+        None,
+        help="VIO topic (nav_msgs/Odometry, or a pose topic). (default: chosen when unambiguous)",
     ),
     truth_topic: str = typer.Option(
         None,
         help="Ground-truth topic (PoseStamped, PoseWithCovarianceStamped, TransformStamped, "
-        "Odometry, or a TF topic with --truth-frame). Default: chosen when unambiguous.",
+        "Odometry, or a TF topic with --truth-frame). (default: chosen when unambiguous)",
     ),
-    vio: Path = typer.Option(None, help="File with the VIO stream: a bag, or a TUM trajectory."),
+    vio: Path = typer.Option(
+        None, help="File with the VIO stream: a bag, or a TUM trajectory. (default: the SOURCES)"
+    ),
     truth: Path = typer.Option(
-        None, help="File with the truth stream: a bag, a TUM file or a EuRoC csv."
+        None,
+        help="File with the truth stream: a bag, a TUM file or a EuRoC csv. (default: the SOURCES)",
     ),
     dt: float = typer.Option(None, help="Resampling period in seconds. (default: 0.1)"),
     align: str = typer.Option(
@@ -52,21 +58,27 @@ def command(
     max_gap: float = typer.Option(
         None, help="Never interpolate across a gap longer than this, in seconds. (default: 0.25)"
     ),
-    truth_frame: str = typer.Option(None, help="PARENT/CHILD transform to use from a TF topic."),
+    truth_frame: str = typer.Option(
+        None, help="PARENT/CHILD transform of a TF topic. (default: none; a TF-only bag lists them)"
+    ),
     export_tum: bool = typer.Option(
-        None, "--export-tum", help="Also write both aligned trajectories as TUM files (for evo)."
+        None,
+        "--export-tum",
+        help="Also write both aligned trajectories as TUM files (for evo). (default: off)",
     ),
     max_time_offset: float = typer.Option(
-        None, help="Search range of --time-offset auto, in seconds. (default: 2.0)"
+        None, help="Search range of --time-offset auto, in seconds. (default: 2)"
     ),
     min_overlap: float = typer.Option(
-        None, help="Least common time of the two streams, in seconds. (default: 3.0)"
+        None, help="Least common time of the two streams, in seconds. (default: 3)"
     ),
     velocity_window: float = typer.Option(
         None, help="Window of the smoothing differentiator, in seconds. (default: 0.1)"
     ),
     drop_nonfinite: bool = typer.Option(
-        None, "--drop-nonfinite", help="Skip messages with NaN/inf values instead of stopping."
+        None,
+        "--drop-nonfinite",
+        help="Skip messages with NaN/inf values instead of stopping. (default: off)",
     ),
     config: Path = typer.Option(
         None, "--config", "-c", help="YAML file with any of these options."

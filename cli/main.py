@@ -28,6 +28,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
@@ -55,7 +56,9 @@ def _register() -> None:
         if importlib.util.find_spec(full) is None:
             continue  # a stage not built yet
         mod = importlib.import_module(full)
-        app.command(name)(mod.command)
+        example = getattr(mod, "EXAMPLE", None)
+        epilog = f"\b\nExample:\n  {example}" if example else None
+        app.command(name, epilog=epilog)(mod.command)
 
 
 _register()

@@ -8,6 +8,8 @@ import typer
 
 from qsls.cli.common import cli_errors, overrides, print_summary
 
+EXAMPLE = "qsls replay controllers/l1_robust flight.bag --out replay"
+
 
 @cli_errors
 def command(

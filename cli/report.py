@@ -8,6 +8,8 @@ import typer
 
 from qsls.cli.common import RichProgress, cli_errors, print_summary
 
+EXAMPLE = "qsls report runs/quickstart --out reports/quickstart"
+
 
 @cli_errors
 def command(

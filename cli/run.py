@@ -8,6 +8,8 @@ import typer
 
 from qsls.cli.common import RichProgress, cli_errors, print_summary, print_verdicts
 
+EXAMPLE = "qsls run configs/quickstart.yaml --from fit"
+
 
 @cli_errors
 def command(

@@ -8,6 +8,8 @@ import typer
 
 from qsls.cli.common import RichProgress, cli_errors, overrides, print_summary
 
+EXAMPLE = "qsls simulate --out flights/sim1 --seed 1 --format mcap"
+
 
 @cli_errors
 def command(
@@ -24,7 +26,9 @@ def command(
         help="YAML file of options (see configs/simulate.yaml; a 'simulate:' section is "
         "used when present). The command line wins.",
     ),
-    seed: int = typer.Option(None, "--seed", help="Random seed of the VIO emulator and logs."),
+    seed: int = typer.Option(
+        None, "--seed", help="Random seed of the VIO emulator and logs. (default: 0)"
+    ),
     duration: float = typer.Option(
         None,
         "--duration",
@@ -34,17 +38,17 @@ def command(
     perception: str = typer.Option(
         None,
         "--perception",
-        help="VIO conditions: 'regular' or 'degraded' (less light and texture).",
+        help="VIO conditions: 'regular' or 'degraded' (less light and texture). (default: regular)",
     ),
     controller: str = typer.Option(
         None,
         "--controller",
-        help="'se3' (RotorPy's SE3, default), 'pd', or a controller folder from 'qsls synth'.",
+        help="'se3' (RotorPy's SE3), 'pd', or a controller folder from 'qsls synth'. (default: se3)",
     ),
     fmt: str = typer.Option(
         None,
         "--format",
-        help="Bag format: ros1 (default), ros2-sqlite, ros2-mcap or mcap.",
+        help="Bag format: ros1, ros2-sqlite, ros2-mcap or mcap. (default: ros1)",
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
 ) -> None:

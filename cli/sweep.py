@@ -22,6 +22,9 @@ def grid_axis(text: str) -> tuple[str, list]:
     return axis.strip(), out
 
 
+EXAMPLE = "qsls sweep --model fit -g S=p50,p90,max -g T=10,20 --out sweep"
+
+
 @cli_errors
 def command(
     config: Path | None = typer.Option(
@@ -34,18 +37,37 @@ def command(
         None,
         "--grid",
         "-g",
-        help="A grid axis, AXIS=V1,V2,.. (repeatable; replaces that axis of the config).",
+        help="A grid axis, AXIS=V1,V2,.. (repeatable; replaces that axis of the config). "
+        "(default: S=0.05,0.1,0.2; T=10,20)",
     ),
     horizon: int | None = typer.Option(
-        None, "--T", "-T", help="Base horizon T (when T is not a grid axis)."
+        None, "--T", "-T", help="Base horizon T (when T is not a grid axis). (default: 20)"
     ),
-    norm: str | None = typer.Option(None, "--norm", help="Base norm: l1 or h2."),
-    cost: str | None = typer.Option(None, "--cost", help="Base cost: qr or imitation."),
-    s: str | None = typer.Option(None, "--S", help="Base S: a number or an error-model name."),
-    eps_e: str | None = typer.Option(None, "--eps-e", help="Base eps_e: a number or a name."),
-    radius: float | None = typer.Option(None, "--radius", "-r", help="Base radius r."),
-    delta: float | None = typer.Option(None, "--delta", help="Base Delta."),
-    eps_w: float | None = typer.Option(None, "--eps-w", help="Base process noise bound eps_w."),
+    norm: str | None = typer.Option(None, "--norm", help="Base norm: l1 or h2. (default: l1)"),
+    cost: str | None = typer.Option(
+        None, "--cost", help="Base cost: qr or imitation. (default: qr)"
+    ),
+    s: str | None = typer.Option(
+        None, "--S", help="Base S: a number or an error-model name. (default: max)"
+    ),
+    eps_e: str | None = typer.Option(
+        None, "--eps-e", help="Base eps_e: a number or a name. (default: max)"
+    ),
+    radius: float | None = typer.Option(
+        None, "--radius", "-r", help="Base radius r. (default: the error model's)"
+    ),
+    delta: float | None = typer.Option(
+        None, "--delta", help="Base Delta. (default: the error model's)"
+    ),
+    eps_w: float | None = typer.Option(
+        None, "--eps-w", help="Base process noise bound eps_w. (default: 0.01)"
+    ),
+    q: str | None = typer.Option(
+        None, "--Q", help="Base state weight diagonal. (default: 10,10,10,1,1,1)"
+    ),
+    r: str | None = typer.Option(
+        None, "--R", help="Base input weight diagonal. (default: 1,1,0.1)"
+    ),
     out: Path = typer.Option(
         ..., "--out", "-o", help="Output folder (sweep.parquet, sweep.csv, figures)."
     ),
@@ -83,6 +105,7 @@ def command(
     given = overrides(
         T=horizon, norm=norm, cost=cost, S=number_or_name(s), eps_e=number_or_name(eps_e),
         radius=radius, delta=delta, eps_w=eps_w, grid=axes or None,
+        Q=parse_list(q, "--Q"), R=parse_list(r, "--R"),
     )  # fmt: skip
     opts = load_options(SweepOptions, config, given)
     with RichProgress() as progress:

@@ -9,6 +9,8 @@ import typer
 
 from qsls.cli.common import cli_errors, number_or_name, overrides, parse_list, print_summary
 
+EXAMPLE = "qsls synth --model fit --out controllers --T 20 --S p50 --eps-e p95"
+
 
 @cli_errors
 def command(
@@ -21,43 +23,57 @@ def command(
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
     horizon: int | None = typer.Option(
-        None, "--T", "-T", help="FIR horizon T (taps 0..T), at least 2."
+        None, "--T", "-T", help="FIR horizon T (taps 0..T), 2 to 500. (default: 20)"
     ),
-    norm: str | None = typer.Option(None, "--norm", help="l1, h2 or both (the H2 variants too)."),
+    norm: str | None = typer.Option(
+        None, "--norm", help="l1, h2 or both (the H2 variants too). (default: l1)"
+    ),
     controllers: str | None = typer.Option(
-        None, "--controllers", help="paper (pd + nominal, robust, robust imitation) or single."
+        None,
+        "--controllers",
+        help="paper (pd + nominal, robust, robust imitation) or single. (default: paper)",
     ),
-    cost: str | None = typer.Option(None, "--cost", help="qr or imitation (controllers: single)."),
+    cost: str | None = typer.Option(
+        None, "--cost", help="qr or imitation (controllers: single). (default: qr)"
+    ),
     robust: bool | None = typer.Option(
-        None, "--robust/--no-robust", help="Impose the robustness constraint (controllers: single)."
+        None,
+        "--robust/--no-robust",
+        help="Impose the robustness constraint (controllers: single). (default: --robust)",
     ),
     strictly_proper: bool | None = typer.Option(
         None,
         "--strictly-proper/--not-strictly-proper",
-        help="u[k] from y up to k-1 only (Phi_uy(0) = 0).",
+        help="u[k] from y up to k-1 only (Phi_uy(0) = 0). (default: --not-strictly-proper)",
     ),
     s: str | None = typer.Option(
-        None, "--S", help="S-slope: a number or an error-model name (max, p95, local_p99)."
+        None,
+        "--S",
+        help="S-slope: a number or an error-model name (max, p95, local_p99). (default: max)",
     ),
     eps_e: str | None = typer.Option(
-        None, "--eps-e", help="Error bound: a number or a name (max, p99, R0)."
+        None, "--eps-e", help="Error bound: a number or a name (max, p99, R0). (default: max)"
     ),
     radius: float | None = typer.Option(
-        None, "--radius", "-r", help="Radius r (default: the error model's)."
+        None, "--radius", "-r", help="Radius r. (default: the error model's)"
     ),
-    delta: float | None = typer.Option(None, "--delta", help="Delta (default: the error model's)."),
-    eps_w: float | None = typer.Option(None, "--eps-w", help="Process noise bound eps_w."),
-    q: str | None = typer.Option(None, "--Q", help="State weight diagonal, e.g. 10,10,10,1,1,1."),
-    r: str | None = typer.Option(None, "--R", help="Input weight diagonal, e.g. 1,1,0.1."),
-    mass: float | None = typer.Option(None, "--mass", help="Vehicle mass in kg."),
-    dt: float | None = typer.Option(None, "--dt", help="Controller period in s."),
+    delta: float | None = typer.Option(None, "--delta", help="Delta. (default: the error model's)"),
+    eps_w: float | None = typer.Option(
+        None, "--eps-w", help="Process noise bound eps_w. (default: 0.01)"
+    ),
+    q: str | None = typer.Option(
+        None, "--Q", help="State weight diagonal. (default: 10,10,10,1,1,1)"
+    ),
+    r: str | None = typer.Option(None, "--R", help="Input weight diagonal. (default: 1,1,0.1)"),
+    mass: float | None = typer.Option(None, "--mass", help="Vehicle mass in kg. (default: 0.256)"),
+    dt: float | None = typer.Option(None, "--dt", help="Controller period in s. (default: 0.1)"),
     imitate: str | None = typer.Option(
         None,
         "--imitate",
-        help="Imitation target: pd, l1_nominal, h2_nominal or a controller folder.",
+        help="Imitation target: pd, l1_nominal, h2_nominal or a controller folder. (default: pd)",
     ),
     solver: str | None = typer.Option(
-        None, "--solver", help="cvxpy solver name (default CLARABEL)."
+        None, "--solver", help="cvxpy solver name. (default: CLARABEL)"
     ),
     max_feasible_s: bool = typer.Option(
         False,

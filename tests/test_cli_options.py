@@ -16,7 +16,11 @@ MODELS = {
     "ingest": ("qsls.pipeline.ingest.stage:IngestOptions", {"--vio", "--truth"}, {}),
     "fit": ("qsls.pipeline.errormodel.fit:FitOptions", set(), {"--no-figures": "figures"}),
     "synth": ("qsls.pipeline.control.synth:SynthOptions", {"--model", "--max-feasible-s"}, {}),
-    "sweep": ("qsls.pipeline.control.sweep:SweepOptions", {"--model", "--jobs", "--scheduler"}, {}),
+    "sweep": (
+        "qsls.pipeline.control.sweep:SweepOptions",
+        {"--model", "--jobs", "--scheduler", "--wait-workers"},
+        {},
+    ),
     "evaluate": (
         "qsls.pipeline.evaluate.fly:FlyOptions",
         {"--model", "--controller", "--flights", "--fly"},

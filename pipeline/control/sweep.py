@@ -58,9 +58,14 @@ class SweepOptions(ProblemOptions):
     grid: dict[str, list[Any]] = Field(
         default_factory=lambda: {"S": [0.05, 0.1, 0.2], "T": [10, 20]}  # type: ignore[arg-type]
     )
+    """Grid axes (S, eps_e, radius, delta, T, q_scale, r_scale, eps_w, norm, cost, robust,
+    strictly_proper) and their values; every point is one synthesis."""
     certify: bool = True
+    """Certify every feasible point (else only solve it)."""
     s_max_curve: bool = True
+    """Also compute the largest feasible S for every T and error setting of the grid."""
     chunks_per_job: int = Field(4, ge=1)
+    """Chunks handed to each worker (more: better balance, more scheduling)."""
 
     @field_validator("grid")
     @classmethod

@@ -23,7 +23,9 @@ T = TypeVar("T", bound="Options")
 class Options(BaseModel):
     """Base of every options model: immutable, and unknown keys are errors."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, validate_default=True, use_attribute_docstrings=True
+    )
 
 
 def read_yaml(path: Path) -> dict[str, Any]:

@@ -103,11 +103,13 @@ class FitOptions(Options):
     bootstrap_block: int = Field(10, ge=1)
     """Block length (samples) of the moving-block bootstrap within each flight."""
     bootstrap_level: float = Field(0.95, gt=0, lt=1)
+    """Confidence level of the bootstrap intervals."""
     seed: int = 0
     """Seed of the bootstrap."""
     top_pairs: int = Field(20, ge=1, le=1000)
     """Number of worst pairs reported."""
     figures: bool = True
+    """Write the PNG figures."""
     jobs: int = Field(1, ge=1, le=64)
     """Threads for the pair pass (the result does not depend on it)."""
 

@@ -42,31 +42,40 @@ STAGE = "ingest"
 class IngestOptions(Options):
     """Options of ``qsls ingest`` (defaults are the built-in defaults)."""
 
-    vio_topic: str | None = Field(
-        None, description="VIO topic (nav_msgs/Odometry); auto if unambiguous"
-    )
-    truth_topic: str | None = Field(None, description="ground-truth topic; auto if unambiguous")
-    vio: Path | None = Field(None, description="file holding the VIO stream (bag, TUM, EuRoC csv)")
-    truth: Path | None = Field(
-        None, description="file holding the truth stream (bag, TUM, EuRoC csv)"
-    )
-    dt: float = Field(0.1, gt=0, description="resampling period [s]")
+    vio_topic: str | None = None
+    """VIO topic (nav_msgs/Odometry, or a pose topic); chosen automatically when unambiguous."""
+    truth_topic: str | None = None
+    """Ground-truth topic; chosen automatically when unambiguous."""
+    vio: Path | None = None
+    """File holding the VIO stream (bag, TUM, EuRoC csv)."""
+    truth: Path | None = None
+    """File holding the truth stream (bag, TUM, EuRoC csv)."""
+    dt: float = Field(0.1, gt=0)
+    """Resampling period (s)."""
     align: Literal["4dof", "se3", "none"] = "4dof"
-    time_offset: Literal["auto"] | float = Field(
-        "auto", description="seconds added to truth stamps to reach the VIO clock, or auto"
-    )
+    """Frame alignment of the VIO to the truth: yaw + translation, full SE(3), or none."""
+    time_offset: Literal["auto"] | float = "auto"
+    """Seconds added to truth stamps to reach the VIO clock, or ``auto`` (estimated)."""
     vio_velocity_frame: Literal["body", "world"] = "body"
+    """Frame of the Odometry twist: body (ROS convention) or world (VINS-style)."""
     stamp: Literal["header", "log"] = "header"
-    max_gap: float = Field(
-        0.25, gt=0, description="never interpolate across a gap longer than this [s]"
-    )
-    truth_frame: str | None = Field(None, description="PARENT/CHILD transform of a TF topic")
+    """Time of a message: its header stamp or the bag's log time."""
+    max_gap: float = Field(0.25, gt=0)
+    """Never interpolate across a gap longer than this (s)."""
+    truth_frame: str | None = None
+    """PARENT/CHILD transform of a TF topic."""
     export_tum: bool = False
-    max_time_offset: float = Field(2.0, gt=0, description="search range of --time-offset auto [s]")
-    min_overlap: float = Field(3.0, gt=0, description="least common time of the two streams [s]")
-    velocity_window: float = Field(0.1, gt=0, description="smoothing differentiator window [s]")
+    """Also write both aligned trajectories as TUM files (for evo)."""
+    max_time_offset: float = Field(2.0, gt=0)
+    """Search range of ``time_offset: auto`` (s)."""
+    min_overlap: float = Field(3.0, gt=0)
+    """Least common time of the two streams (s)."""
+    velocity_window: float = Field(0.1, gt=0)
+    """Window of the smoothing differentiator (s)."""
     drop_nonfinite: bool = False
+    """Skip messages with NaN/inf values instead of stopping."""
     decoder: Literal["fast", "deserializer"] = "fast"
+    """Message decoding: the fast field reader, or rosbags' full deserializer (a check)."""
 
     @field_validator("truth_frame")
     @classmethod

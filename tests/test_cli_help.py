@@ -1,0 +1,183 @@
+"""--help from the options models: every stage option's help states its model's default (the
+model is the one source of defaults; tests/test_cli_options.py checks each option is a field
+that defers to it), the models document their fields one way, flags are shown as flags, each
+command shows an example, and --help fits 80 columns without one word per line."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import subprocess
+import sys
+
+import pytest
+import typer
+
+from qsls.cli.common import default_text
+from qsls.cli.main import COMMANDS, app
+
+# command -> (module:Model, {cli parameter: model field (dotted: nested), or None: not an
+# option of the model (inputs, outputs, switches of the command itself)})
+MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
+    "fit": (
+        "qsls.pipeline.errormodel.fit:FitOptions",
+        {"out": None, "config": None, "force": None, "no_figures": None},
+    ),
+    "synth": (
+        "qsls.pipeline.control.synth:SynthOptions",
+        {
+            "model": None,
+            "config": None,
+            "out": None,
+            "force": None,
+            "max_feasible_s": None,
+            "horizon": "T",
+            "s": "S",
+            "q": "Q",
+            "r": "R",
+        },
+    ),
+    "sweep": (
+        "qsls.pipeline.control.sweep:SweepOptions",
+        {
+            "config": None,
+            "out": None,
+            "model": None,
+            "jobs": None,
+            "scheduler": None,
+            "wait_workers": None,
+            "force": None,
+            "horizon": "T",
+            "s": "S",
+            "q": "Q",
+            "r": "R",
+        },
+    ),
+    "ingest": (
+        "qsls.pipeline.ingest.stage:IngestOptions",
+        {"out": None, "config": None, "force": None},
+    ),
+    "export": (
+        "qsls.pipeline.export.stage:ExportOptions",
+        {"out": None, "config": None, "force": None},
+    ),
+    "simulate": (
+        "qsls.pipeline.sim.simulate:SimOptions",
+        {
+            "out": None,
+            "config": None,
+            "force": None,
+            "perception": "vio.perception",
+            "controller": "controller.kind",
+            "fmt": "log.format",
+        },
+    ),
+    "evaluate": (
+        "qsls.pipeline.evaluate.fly:FlyOptions",
+        {
+            "model": None,
+            "controller": None,
+            "flights": None,
+            "out": None,
+            "fly": None,
+            "config": None,
+            "force": None,
+            "no_figures": None,
+            "backend": "sim.controller.backend",
+        },
+    ),
+}
+
+
+def _model(path: str):
+    module, _, name = path.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def _field(model, dotted: str):
+    """(the model holding the last part, the field name)."""
+    *outer, last = dotted.split(".")
+    for part in outer:
+        model = model.model_fields[part].annotation
+    return model, last
+
+
+def _options(command: str):
+    cmd = typer.main.get_command(app).commands[command]
+    return [p for p in cmd.params if p.param_type_name == "option"]
+
+
+@pytest.mark.parametrize("command", sorted(MODELS))
+def test_every_options_help_states_the_models_default(command):
+    model_path, names = MODELS[command]
+    model = _model(model_path)
+    problems = []
+    for p in _options(command):
+        if p.name == "help":
+            continue
+        dotted = names.get(p.name, p.name)
+        if dotted is None:
+            continue
+        owner, field = _field(model, dotted)
+        if field not in owner.model_fields:
+            problems.append(f"--{p.name}: no field '{dotted}' in {model.__name__}")
+            continue
+        default = owner.model_fields[field].get_default(call_default_factory=True)
+        if p.default is not None and not (p.is_flag and p.default is False and default is False):
+            problems.append(f"--{p.name}: Typer default {p.default!r} (leave it to the model)")
+        flags = (p.opts[0], p.secondary_opts[0]) if p.secondary_opts else None
+        want = (
+            f"(default: {default_text(owner, field, flags)})"
+            if default is not None
+            else "(default:"
+        )
+        if want not in " ".join((p.help or "").split()):
+            problems.append(f"--{p.name}: help {p.help!r} does not say {want}")
+    assert problems == [], "\n".join(problems)
+
+
+DOCUMENTED = (
+    "qsls.pipeline.errormodel.fit:FitOptions",
+    "qsls.pipeline.ingest.stage:IngestOptions",
+    "qsls.pipeline.evaluate.fly:FlyOptions",
+    "qsls.pipeline.evaluate.bound:EvaluateOptions",
+)
+
+
+def test_the_option_models_document_their_fields_one_way():
+    """Fields are documented by attribute docstrings (``use_attribute_docstrings`` on the
+    base model), so ``model_fields[f].description`` is the one lookup for every model."""
+    from qsls.pipeline.control.sweep import SweepOptions
+    from qsls.pipeline.control.synth import ProblemOptions
+
+    for path in DOCUMENTED:
+        model = _model(path)
+        assert model.model_config.get("use_attribute_docstrings"), path
+        missing = [f for f, info in model.model_fields.items() if not info.description]
+        assert missing == [], f"{path}: undocumented {missing}"
+    own = set(SweepOptions.model_fields) - set(ProblemOptions.model_fields)
+    assert all(SweepOptions.model_fields[f].description for f in own)
+
+
+def _help(*args: str) -> str:
+    env = {**os.environ, "COLUMNS": "80", "TERM": "dumb"}
+    out = subprocess.run(
+        [sys.executable, "-m", "qsls.cli.main", *args, "--help"],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    return out.stdout
+
+
+@pytest.mark.parametrize("command", [name for name, _ in COMMANDS])
+def test_help_shows_flags_as_flags_an_example_and_fits_80_columns(command):
+    text = _help(command)
+    lines = text.splitlines()
+    assert max(len(ln) for ln in lines) <= 80
+    run = longest = 0  # consecutive lines holding a single word: text wrapped word by word
+    for ln in lines:
+        run = run + 1 if len(ln.split()) == 1 and not ln.strip().endswith(":") else 0
+        longest = max(longest, run)
+    assert longest < 3, text
+    assert "--force <bool>" not in text and "<bool>" not in text
+    assert "Example:" in text and f"qsls {command}" in text.split("Example:")[1]
