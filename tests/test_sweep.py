@@ -341,3 +341,17 @@ def test_the_only_worker_dying_fails_with_one_line(tmp_path):
     assert proc.returncode == 2, err
     assert f"every Dask worker at {cluster.address} left" in _one_error_line(err)
     assert not (tmp_path / "o").exists()
+
+
+def test_a_large_horizon_is_announced_before_the_solves(tmp_path):
+    cfg = tmp_path / "big.yaml"  # S = 1.5 fails the necessary condition: nothing is solved
+    cfg.write_text("eps_e: 0.05\nradius: 1.0\ndelta: 0.05\ns_max_curve: false\n"
+                   "grid:\n  S: [1.5]\n  T: [200]\n")  # fmt: skip
+    proc = _qsls_sweep("-c", cfg, "-o", tmp_path / "o", "--jobs", "1")
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    # (T + 1) taps of Phi_xx (6x6), Phi_ux (3x6), Phi_xy (6x6), Phi_uy (3x6)
+    assert f"T = 200: about {201 * (36 + 18 + 36 + 18):,} variables per problem" in err
+    small = _qsls_sweep("-c", cfg, "-o", tmp_path / "s", "--jobs", "1", "-g", "T=20")
+    _, err = small.communicate(timeout=120)
+    assert small.returncode == 0 and "variables per problem" not in err

@@ -35,7 +35,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
-from qsls.pipeline.control.synth import ProblemOptions, read_model, resolve
+from qsls.pipeline.control.synth import ProblemOptions, read_model, resolve, warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
@@ -503,6 +503,7 @@ def compute(
     specs = s_max_specs(points) if options.s_max_curve else []
     tasks += [(s_max_task, s) for s in specs]
     weights += [1] * len(specs)
+    warn_size(max(int(p["T"]) for p in points), len(points), progress)
     progress.start("sweep", total=sum(weights))
     if scheduler is not None:
         results = _run_dask(tasks, scheduler, progress, weights, worker_timeout)

@@ -89,7 +89,10 @@ class ProblemOptions(Options):
     eps_e: Number = "max"
     radius: float | None = Field(None, gt=0, description="default: the error model's radius")
     delta: Number | None = Field(None, description="Delta; default: the error model's delta")
-    R0: Number | None = Field(None, description="R0 for gamma_strict; default: the eps_e in use (so gamma_strict <= gamma)")
+    R0: Number | None = Field(
+        None,
+        description="R0 for gamma_strict; default: the eps_e in use (so gamma_strict <= gamma)",
+    )
     pd: PDGains = PDGains()
     imitate: str = Field(
         "pd", description="imitation target: pd, l1_nominal, h2_nominal or a folder"
@@ -413,6 +416,21 @@ def controller_plan(opts: SynthOptions) -> list[tuple[str, sls.Structure]]:
     return plan
 
 
+LARGE_T = 100  # horizons from here on solve in tens of seconds to minutes per problem
+
+
+def warn_size(T: int, problems: int, progress: Progress) -> None:
+    """A line before a long solve: the FIR problem grows like T (its variables) and its
+    interior-point solve faster than that."""
+    if T < LARGE_T:
+        return
+    n_vars = (T + 1) * (NX + NU) * (NX + NX)  # Phi_xx, Phi_ux, Phi_xy, Phi_uy taps
+    progress.note(
+        f"T = {T}: about {n_vars:,} variables per problem, {problems} problem"
+        f"{'s' if problems != 1 else ''}; expect minutes (T = 20 solves in about a second)"
+    )
+
+
 def synth(
     error_model: Path | None,
     options: SynthOptions,
@@ -436,6 +454,7 @@ def synth(
     if any(s.robust for _, s in plan) and r.S + r.eps_e / r.radius >= 1.0:
         d = diagnose(r, options.T, options.strictly_proper, options.solver)
         raise InfeasibleError(diagnosis_message(d), d)
+    warn_size(options.T, len(plan), progress)
     progress.start("synth", total=len(plan) + 1)
     ctrls: dict[str, Built] = {}
     reference = pd_controller(r, options.pd, options.T, base_extra)
@@ -455,6 +474,8 @@ def synth(
             else:
                 nominal = nominal_from_folder(Path(target), options.T)
             extra["imitate"] = target
+        if options.T >= LARGE_T:
+            progress.note(f"solving {name} (T = {options.T}) ...")
         sol = solve_one(r, st, nominal=nominal, solver=options.solver)
         if sol.status == "infeasible":
             d = diagnose(r, options.T, options.strictly_proper, options.solver)
