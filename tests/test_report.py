@@ -66,7 +66,8 @@ def test_report_is_byte_identical_and_refuses_overwrite(report_dir, tmp_path):
 
 
 def test_report_on_a_folder_that_is_not_a_run(tmp_path):
-    res = CliRunner().invoke(app, ["report", str(tmp_path), "--out", str(tmp_path / "r")])
+    (tmp_path / "empty").mkdir()
+    res = CliRunner().invoke(app, ["report", str(tmp_path / "empty"), "--out", str(tmp_path / "r")])
     assert res.exit_code == 2 and "no stage folders" in res.output
     assert not (tmp_path / "r").exists()
 
