@@ -85,19 +85,13 @@ def command(
     ),
 ) -> None:
     """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
-    from qsls.pipeline.core.config import merge, read_yaml, validate
-    from qsls.pipeline.core.errors import ConfigError, InputError
+    from qsls.pipeline.core.config import merge, read_section, validate
+    from qsls.pipeline.core.errors import InputError
     from qsls.pipeline.evaluate.verdict import verdicts
 
-    # The config's 'evaluate' section (or the whole file); its 'fly' mapping (as in a
-    # 'qsls run' config) adds the flying options.
-    section: dict = {}
-    if config is not None:
-        raw = read_yaml(config)
-        raw = raw.get("evaluate", raw) or {}
-        if not isinstance(raw, dict):
-            raise ConfigError(f"{config}: section 'evaluate' must be a mapping")
-        section = dict(raw)
+    # The config's 'evaluate' section (or the whole file), read as every command reads its
+    # section; its 'fly' mapping (as in a 'qsls run' config) adds the flying options.
+    section = read_section(config, "evaluate")
     fly_cfg = section.pop("fly", None)
     ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None)
     if fly:

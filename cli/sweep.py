@@ -107,7 +107,7 @@ def command(
         radius=radius, delta=delta, eps_w=eps_w, grid=axes or None,
         Q=parse_list(q, "--Q"), R=parse_list(r, "--R"),
     )  # fmt: skip
-    opts = load_options(SweepOptions, config, given)
+    opts = load_options(SweepOptions, config, given, section="sweep")
     with RichProgress() as progress:
         result = sweep(
             opts, out, error_model=model, force=force, progress=progress,

@@ -94,7 +94,7 @@ def command(
         radius=radius, delta=delta, eps_w=eps_w, Q=parse_list(q, "--Q"), R=parse_list(r, "--R"),
         mass=mass, dt=dt, imitate=imitate, solver=solver,
     )  # fmt: skip
-    opts = load_options(SynthOptions, config, given)
+    opts = load_options(SynthOptions, config, given, section="synth")
     if max_feasible_s:
         res = compute_max_s(model, opts)
         print_summary("largest feasible S", res.summary())

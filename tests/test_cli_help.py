@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 import subprocess
 import sys
 
@@ -181,3 +182,43 @@ def test_help_shows_flags_as_flags_an_example_and_fits_80_columns(command):
     assert longest < 3, text
     assert "--force <bool>" not in text and "<bool>" not in text
     assert "Example:" in text and f"qsls {command}" in text.split("Example:")[1]
+
+
+def test_every_command_reads_its_section_of_one_config_file(tmp_path):
+    """One YAML with a section per command (as a `qsls run` config): each command takes its
+    own section; a file without the section is read whole."""
+    both = tmp_path / "both.yaml"
+    both.write_text(
+        "name: x\n"
+        "synth: {T: 6, S: 0.1, eps_e: 0.05, radius: 1.0, delta: 0.05}\n"
+        "sweep: {eps_e: 0.05, radius: 1.0, delta: 0.05, s_max_curve: false,\n"
+        "        grid: {S: [0.05, 1.5], T: [6]}}\n"
+        "evaluate: {smooth_s: 0.5, fly: {seeds: [7]}}\n"
+    )
+
+    def run(*args):
+        env = {**os.environ, "COLUMNS": "200"}
+        return subprocess.run(
+            [sys.executable, "-m", "qsls.cli.main", *map(str, args)],
+            capture_output=True, text=True, env=env,
+        )  # fmt: skip
+
+    synth = run("synth", "-c", both, "--max-feasible-s")
+    assert synth.returncode == 0, synth.stderr
+    assert re.search(r"T\s+│ 6 ", synth.stdout) and re.search(r"delta\s+│ 0.05 ", synth.stdout)
+    sweep = run("sweep", "-c", both, "-o", tmp_path / "sw", "-j", "1")
+    assert sweep.returncode == 0, sweep.stderr
+    import pandas as pd
+
+    assert list(pd.read_parquet(tmp_path / "sw" / "sweep.parquet")["S"]) == [0.05, 1.5]
+    # the same options as a plain file (no sections): read whole
+    flat = tmp_path / "flat.yaml"
+    flat.write_text("T: 6\nS: 0.1\neps_e: 0.05\nradius: 1.0\ndelta: 0.05\n")
+    again = run("synth", "-c", flat, "--max-feasible-s")
+    assert again.returncode == 0 and again.stdout == synth.stdout
+    # evaluate's section goes through the same reader: a bad value names the file
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("evaluate: [1, 2]\n")
+    ev = run("evaluate", "--model", tmp_path, "--controller", tmp_path, "--out", tmp_path / "e",
+             "--config", bad)  # fmt: skip
+    assert ev.returncode == 2 and "section 'evaluate' must be a mapping" in ev.stderr

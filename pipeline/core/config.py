@@ -70,18 +70,26 @@ def load_options(
     section: str | None = None,
 ) -> T:
     """Validate ``model`` from a YAML file (optionally one ``section`` of it) and overrides."""
-    data: dict[str, Any] = {}
-    source = "options"
-    if config is not None:
-        data = read_yaml(config)
-        source = str(config)
-        if section is not None:
-            sub = data.get(section, data if section not in data else {})
-            if not isinstance(sub, dict):
-                raise ConfigError(f"{config}: section '{section}' must be a mapping")
-            data = sub
+    data = read_section(config, section)
     data = merge(data, overrides or {})
-    return validate(model, data, source)
+    return validate(model, data, str(config) if config is not None else "options")
+
+
+def read_section(config: Path | None, section: str | None) -> dict[str, Any]:
+    """A command's options in a YAML file, the same way for every command: the file's
+    ``section`` mapping when it has one (a ``qsls run`` config holds every stage's), else
+    the whole file. No file: no options."""
+    if config is None:
+        return {}
+    data = read_yaml(config)
+    if section is None or section not in data:
+        return data
+    sub = data[section]
+    if sub is None:
+        return {}
+    if not isinstance(sub, dict):
+        raise ConfigError(f"{config}: section '{section}' must be a mapping")
+    return dict(sub)
 
 
 def validate(model: type[T], data: Mapping[str, Any], source: str = "options") -> T:
