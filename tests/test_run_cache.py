@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from qsls.pipeline.core.locks import FolderLock
+from tests.test_run import _statuses
 
 SMALL = {
     "name": "small",
@@ -49,15 +50,6 @@ def _config(tmp_path: Path, **changes) -> Path:
     cfg = tmp_path / f"{data['name']}.yaml"
     cfg.write_text(yaml.safe_dump(data, sort_keys=False))
     return cfg
-
-
-def _statuses(stderr: str) -> dict[str, str]:
-    out = {}
-    for line in stderr.splitlines():
-        parts = line.split()
-        if len(parts) >= 3 and parts[0].startswith("[") and "/" in parts[0]:
-            out[parts[1]] = "skipped" if "up to date" in line else "ran"
-    return out
 
 
 def _ran(proc: subprocess.CompletedProcess) -> set[str]:
