@@ -78,10 +78,7 @@ def command(
         "'qsls export' (compiled, through ctypes). (default: python)",
     ),
     force: bool = typer.Option(
-        False,
-        "--force",
-        help="Overwrite --out, and check a controller certified against a "
-        "different error model anyway (with a warning).",
+        False, "--force", help="Overwrite --out; another error model's controller only warns."
     ),
 ) -> None:
     """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
@@ -89,36 +86,26 @@ def command(
     from qsls.pipeline.core.errors import InputError
     from qsls.pipeline.evaluate.verdict import verdicts
 
-    # The config's 'evaluate' section (or the whole file), read as every command reads its
-    # section; its 'fly' mapping (as in a 'qsls run' config) adds the flying options.
-    section = read_section(config, "evaluate")
+    section = read_section(config, "evaluate")  # its 'fly' mapping: the flying options
     fly_cfg = section.pop("fly", None)
     ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None)
     if fly:
-        from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
-
         if flights:
             raise InputError("--flights is not used with --fly (the flights are flown); drop one")
-        seed_list = parse_list(seeds, "--seeds", "int") or None
-        ov.update(
-            overrides(
-                seeds=seed_list,
-                duration=duration,
-                conditions=[c.strip() for c in conditions.split(",") if c.strip()]
-                if conditions
-                else None,
-                jobs=jobs,
-                sim={"controller": {"backend": backend}} if backend else None,
-            )
-        )
+        fly_given = overrides(
+            seeds=parse_list(seeds, "--seeds", "int") or None, duration=duration, jobs=jobs,
+            conditions=parse_list(conditions, "--conditions", "value"),
+            sim={"controller": {"backend": backend}} if backend else None,
+        )  # fmt: skip
         base = merge(section, fly_cfg) if isinstance(fly_cfg, dict) else section
-        options = validate(FlyOptions, merge(base, ov), str(config or "options"))
-        with RichProgress() as progress:
-            result = fly_evaluate(model, controller, options, out, force=force, progress=progress)
-        print_summary("qsls evaluate --fly", result.summary())
-        cols, rows = result.comparison_rows()
-        print_table("Against the paper's findings", cols, rows)
-        print_verdicts("Certified bound on the flown flights", verdicts(result.table))
+        _fly(
+            model,
+            controller,
+            out,
+            merge(base, {**ov, **fly_given}),
+            str(config or "options"),
+            force,
+        )
         return
     from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
 
@@ -131,3 +118,20 @@ def command(
         typer.echo(f"warning: {w}", err=True)
     print_summary("qsls evaluate", checked.summary())
     print_verdicts("Certified bound on the held-out flights", verdicts(checked.table))
+
+
+def _fly(
+    model: Path, controllers: list[Path], out: Path, data: dict, source: str, force: bool
+) -> None:
+    """``evaluate --fly``: fly, then the summary, the paper comparison and the verdicts."""
+    from qsls.pipeline.core.config import validate
+    from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
+    from qsls.pipeline.evaluate.verdict import verdicts
+
+    options = validate(FlyOptions, data, source)
+    with RichProgress() as progress:
+        result = fly_evaluate(model, controllers, options, out, force=force, progress=progress)
+    print_summary("qsls evaluate --fly", result.summary())
+    cols, rows = result.comparison_rows()
+    print_table("Against the paper's findings", cols, rows)
+    print_verdicts("Certified bound on the flown flights", verdicts(result.table))

@@ -88,57 +88,51 @@ def command(
     ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     config: Path = typer.Option(
-        None,
-        "--config",
-        "-c",
-        help="YAML file with any of these options (section 'fit' or top level).",
+        None, "--config", "-c", help="YAML file of these options (its 'fit' section, or all)."
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
 ) -> None:
     """Estimate the perception error model (eps_e, S-slope, delta) from ingested flights."""
-    from qsls.cli.common import RichProgress, print_summary, print_table
+    from qsls.cli.common import RichProgress, print_summary
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.errormodel.fit import FitOptions, fit
 
     given = overrides(
-        radius=radius,
-        percentiles=parse_list(percentiles, "--percentiles"),
-        min_separation=_minsep(min_separation),
-        state_scale=parse_list(state_scale, "--state-scale"),
-        exclude_outliers=exclude_outliers,
-        outlier_z=outlier_z,
-        skip_start=skip_start,
-        reference=reference,
-        reference_lead_in=reference_lead_in,
-        r0=r0,
-        bootstrap=bootstrap,
-        bootstrap_block=bootstrap_block,
-        seed=seed,
-        jobs=jobs,
+        radius=radius, percentiles=parse_list(percentiles, "--percentiles"),
+        min_separation=_minsep(min_separation), state_scale=parse_list(state_scale, "--state-scale"),
+        exclude_outliers=exclude_outliers, outlier_z=outlier_z, skip_start=skip_start,
+        reference=reference, reference_lead_in=reference_lead_in, r0=r0, bootstrap=bootstrap,
+        bootstrap_block=bootstrap_block, seed=seed, jobs=jobs,
         figures=False if no_figures else None,
-    )
+    )  # fmt: skip
     options = load_options(FitOptions, config, given, section="fit")
     with RichProgress() as progress:
         result = fit(list(flights or []), options, out, force=force, progress=progress)
     print_summary("qsls fit", result.summary())
-    wp = result.model.worst_pairs[:5]
-    if wp:
-        print_table(
-            "Largest slopes (the pairs that set S)",
-            ["slope", "distance", "flight i", "t_i", "flight j", "t_j", "||e_i - e_j||"],
-            [
-                (
-                    w.slope,
-                    w.distance,
-                    w.flight,
-                    round(w.t_i, 3),
-                    w.flight_j or w.flight,
-                    round(w.t_j, 3),
-                    max(abs(a - b) for a, b in zip(w.e_i, w.e_j, strict=True)),
-                )
-                for w in wp
-            ],
-        )
+    _print_worst_pairs(result.model.worst_pairs[:5])
+
+
+def _print_worst_pairs(wp: list) -> None:
+    from qsls.cli.common import print_table
+
+    if not wp:
+        return
+    print_table(
+        "Largest slopes (the pairs that set S)",
+        ["slope", "distance", "flight i", "t_i", "flight j", "t_j", "||e_i - e_j||"],
+        [
+            (
+                w.slope,
+                w.distance,
+                w.flight,
+                round(w.t_i, 3),
+                w.flight_j or w.flight,
+                round(w.t_j, 3),
+                max(abs(a - b) for a, b in zip(w.e_i, w.e_j, strict=True)),
+            )
+            for w in wp
+        ],
+    )
 
 
 def _minsep(text: str | None) -> float | str | None:
