@@ -46,13 +46,12 @@ from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import (
-    TRAINING_FILE,
     ErrorModel,
     error_model_file,
     load_error_model,
-    load_training_states,
 )
-from qsls.pipeline.ingest.flight import E_COLS, X_COLS, errors, read_flight, states
+from qsls.pipeline.evaluate.training import TrainingData, load_training
+from qsls.pipeline.ingest.flight import errors, read_flight, states
 
 
 class EvaluateOptions(Options):
@@ -196,65 +195,6 @@ def check_model_hash(bound: ControllerBound, model_file: Path, *, force: bool) -
     return msg + " (checked anyway: --force)"
 
 
-# --------------------------------------------------------------------------- training data
-@dataclass(frozen=True)
-class TrainingData:
-    """The states the error model was fitted on, with a KD-tree for nearest distances."""
-
-    x: np.ndarray
-    e: np.ndarray | None
-    scale: np.ndarray
-    tree: Any
-    min_separation: float = 0.0
-    """Slopes to the nearest training state only count beyond this distance (the error
-    model's noise floor: closer pairs make slopes of noise over almost nothing)."""
-
-    @classmethod
-    def build(
-        cls,
-        x: np.ndarray,
-        scale: Sequence[float],
-        e: np.ndarray | None = None,
-        min_separation: float = 0.0,
-    ) -> TrainingData:
-        from scipy.spatial import cKDTree
-
-        scale_arr = np.asarray(scale, dtype=float)
-        if scale_arr.shape != (6,) or np.any(scale_arr <= 0):
-            raise InputError(f"state_scale must be 6 positive weights, got {list(scale_arr)}")
-        x = np.asarray(x, dtype=float)
-        if x.ndim != 2 or x.shape[1] != 6 or len(x) == 0:
-            raise InputError("training states: expected a non-empty (n, 6) array")
-        return cls(
-            x=x, e=e, scale=scale_arr, tree=cKDTree(x * scale_arr),
-            min_separation=float(min_separation),
-        )  # fmt: skip
-
-    def nearest(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(d_k, i_k)``: infinity-norm distance in the scaled state to the nearest training
-        state, and its index."""
-        d, i = self.tree.query(np.asarray(query, dtype=float) * self.scale, k=1, p=np.inf)
-        return np.asarray(d, dtype=float), np.asarray(i, dtype=np.int64)
-
-
-def load_training(fit_dir: Path, model: ErrorModel, scale: Sequence[float] | None) -> TrainingData:
-    """``FITDIR/training_states.parquet`` (columns ``x_px .. x_vz``, optionally ``e_*``)."""
-    df = load_training_states(fit_dir)
-    path = Path(fit_dir) / TRAINING_FILE
-    missing = [c for c in X_COLS if c not in df.columns]
-    if missing:
-        raise InputError(
-            f"{path}: missing columns {', '.join(missing)}; regenerate with 'qsls fit'"
-        )
-    e = errors(df) if all(c in df.columns for c in E_COLS) else None
-    return TrainingData.build(
-        states(df),
-        scale or model.state_scale,
-        e,
-        model.min_separation,
-    )
-
-
 # --------------------------------------------------------------------------- the check
 def check_flight(
     name: str,
@@ -287,13 +227,7 @@ def check_flight(
     k_err = int(np.argmax(e_norm))
     k_dist = int(np.argmax(d))
     k_prem = int(np.argmax(premise_ratio))
-    # The slope to the nearest training state, where the model records training errors.
-    max_slope = math.nan
-    if training.e is not None:
-        sep = d > max(training.min_separation, 1e-9)
-        if np.any(sep & inside):
-            sl = np.abs(e - training.e[idx]).max(axis=1)[sep & inside] / d[sep & inside]
-            max_slope = float(sl.max())
+    max_slope = _max_slope_to_training(e, d, idx, inside, training)
     bound_holds = bool(np.all(e_norm <= gamma_k)) if bound.finite else False
     strict_holds = bool(np.all(e_norm <= gamma_strict))
     premise_holds = bool(np.all(premise_ratio <= 1.0))
@@ -365,6 +299,19 @@ def check_flight(
         }
     )
     return row, samples
+
+
+def _max_slope_to_training(
+    e: np.ndarray, d: np.ndarray, idx: np.ndarray, inside: np.ndarray, training: TrainingData
+) -> float:
+    """``max_k ||e_k - e_i(k)|| / d_k`` to the nearest training state ``i(k)`` within the
+    radius and beyond the model's minimum separation (NaN without training errors)."""
+    if training.e is None:
+        return math.nan
+    use = (d > max(training.min_separation, 1e-9)) & inside
+    if not np.any(use):
+        return math.nan
+    return float((np.abs(e - training.e[idx]).max(axis=1)[use] / d[use]).max())
 
 
 def _verdict(
@@ -497,9 +444,7 @@ def bound_check(
         name, df = flights[i]
         if i not in nearest:
             x = states(df)
-            ok = np.isfinite(x).all(axis=1) & np.isfinite(
-                errors(df)
-            ).all(axis=1)
+            ok = np.isfinite(x).all(axis=1) & np.isfinite(errors(df)).all(axis=1)
             if not ok.any():
                 raise InputError(f"flight {name}: no samples with finite states and errors")
             nearest[i] = training.nearest(x[ok])
