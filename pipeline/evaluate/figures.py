@@ -157,3 +157,36 @@ def error_per_controller_figure(
     axes[-1].set_xlabel("t (s)")
     style.legend_below(fig, ncol=5)
     return fig
+
+
+def write_fly_figures(w: Any, outcomes: Any, bounds: Any, options: Any, ref_bound: Any) -> None:
+    """The paper's figures of a fly evaluation: tracking per condition, the robust
+    controller's input against PD's on the same estimate, ||e|| against the bound."""
+
+    seed0 = options.seeds[0]
+    first = {(o.condition, o.controller): o for o in outcomes if o.seed == seed0}
+    for cond in options.conditions:
+        traces = {c: (o.t_ctrl, o.x_ctrl) for (k, c), o in first.items() if k == cond}
+        if traces:
+            ref = next(o.ref_ctrl for (k, _), o in first.items() if k == cond)
+            w.write_figure(
+                f"tracking_{cond}.png",
+                tracking_figure(traces, ref, f"{cond} perception, seed {seed0}"),
+            )
+    # the robust controller's input against PD's from the same estimate
+    robust = next(
+        (c for c in ("l1_robust_imitation", "l1_robust") if (options.conditions[0], c) in first),
+        None,
+    )
+    if robust is not None:
+        o = first[(options.conditions[0], robust)]
+        u_pd = o.u_pd
+        w.write_figure(f"input_{robust}_vs_pd.png", input_figure(o.t_ctrl, o.u_ctrl, u_pd, robust))
+    traces_e = {f"{o.condition}/{o.controller}": (o.t_vio, o.e_norm) for o in first.values()}
+    gs = {b.name: b.gamma_strict for b in bounds}
+    if ref_bound is not None:
+        gs.setdefault("se3", ref_bound.gamma_strict)
+    w.write_figure(
+        "perception_error.png",
+        error_per_controller_figure(traces_e, gs, options.conditions, options.smooth_s),
+    )

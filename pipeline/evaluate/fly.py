@@ -55,6 +55,7 @@ from qsls.pipeline.evaluate.bound import (
     resolve_model,
     write_tables,
 )
+from qsls.pipeline.evaluate.figures import write_fly_figures
 from qsls.pipeline.evaluate.findings import (
     PAPER_CONTROLLERS,
     ROBUST_QR,
@@ -542,7 +543,7 @@ def fly_evaluate(
             w.write_parquet("per_controller.parquet", per)
             w.write_text("comparison.md", comparison_markdown(comparison, per))
             if options.figures:
-                _write_fly_figures(w, outcomes, bounds, options, ref_bound)
+                write_fly_figures(w, outcomes, bounds, options, ref_bound)
             extra_json = {
                 "mode": "fly",
                 "flights_table": flights.to_dict(orient="records"),
@@ -572,39 +573,6 @@ def fly_evaluate(
         per_controller=per,
         comparison=comparison,
         wall_time_s=time.perf_counter() - t0,
-    )
-
-
-def _write_fly_figures(w, outcomes, bounds, options, ref_bound) -> None:  # type: ignore[no-untyped-def,unused-ignore]
-    from qsls.pipeline.evaluate import figures as plots
-
-    seed0 = options.seeds[0]
-    first = {(o.condition, o.controller): o for o in outcomes if o.seed == seed0}
-    for cond in options.conditions:
-        traces = {c: (o.t_ctrl, o.x_ctrl) for (k, c), o in first.items() if k == cond}
-        if traces:
-            ref = next(o.ref_ctrl for (k, _), o in first.items() if k == cond)
-            w.write_figure(
-                f"tracking_{cond}.png",
-                plots.tracking_figure(traces, ref, f"{cond} perception, seed {seed0}"),
-            )
-    # the robust controller's input against PD's from the same estimate
-    robust = next(
-        (c for c in ("l1_robust_imitation", ROBUST_QR) if (options.conditions[0], c) in first), None
-    )
-    if robust is not None:
-        o = first[(options.conditions[0], robust)]
-        u_pd = o.u_pd
-        w.write_figure(
-            f"input_{robust}_vs_pd.png", plots.input_figure(o.t_ctrl, o.u_ctrl, u_pd, robust)
-        )
-    traces_e = {f"{o.condition}/{o.controller}": (o.t_vio, o.e_norm) for o in first.values()}
-    gs = {b.name: b.gamma_strict for b in bounds}
-    if ref_bound is not None:
-        gs.setdefault("se3", ref_bound.gamma_strict)
-    w.write_figure(
-        "perception_error.png",
-        plots.error_per_controller_figure(traces_e, gs, options.conditions, options.smooth_s),
     )
 
 
