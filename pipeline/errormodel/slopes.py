@@ -359,6 +359,33 @@ def _run_blocks(accs: list[_Acc], blocks, progress: Progress) -> None:
             f.result()
 
 
+def _checked(
+    x: np.ndarray,
+    e: np.ndarray,
+    radius: float,
+    min_separation: float,
+    state_scale: Sequence[float] | np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(x, e, scale)`` as float arrays, or a clear error for inputs the engine cannot take."""
+    x = np.asarray(x, dtype=np.float64)
+    e = np.asarray(e, dtype=np.float64)
+    if x.ndim != 2 or e.ndim != 2 or len(x) != len(e):
+        raise ValueError(f"x and e must be (n, d) and (n, k), got {x.shape}, {e.shape}")
+    if not np.isfinite(radius) or radius <= 0:
+        raise InputError(f"radius must be > 0, got {radius}")
+    if not (0 <= min_separation < radius):
+        raise InputError(
+            f"min separation must be in [0, radius={radius:g}), got {min_separation:g}"
+        )
+    dim = x.shape[1]
+    scale = np.ones(dim) if state_scale is None else np.asarray(state_scale, dtype=np.float64)
+    if scale.shape != (dim,) or np.any(scale < 0) or not np.any(scale > 0):
+        raise InputError(f"state scale must be {dim} non-negative weights, not all zero")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(e))):
+        raise InputError("states and errors must be finite (drop NaN samples first)")
+    return x, e, scale
+
+
 def pair_slopes(
     x: np.ndarray,
     e: np.ndarray,
@@ -382,22 +409,8 @@ def pair_slopes(
     ``bootstrap_weights`` (B, n) of non-negative integers (multiplicities of each sample in B
     resampled data sets) adds per-replicate statistics: a pair counts ``w_i w_j`` times.
     """
-    x = np.asarray(x, dtype=np.float64)
-    e = np.asarray(e, dtype=np.float64)
-    if x.ndim != 2 or e.ndim != 2 or len(x) != len(e):
-        raise ValueError(f"x and e must be (n, d) and (n, k), got {x.shape}, {e.shape}")
-    if not np.isfinite(radius) or radius <= 0:
-        raise InputError(f"radius must be > 0, got {radius}")
-    if not (0 <= min_separation < radius):
-        raise InputError(
-            f"min separation must be in [0, radius={radius:g}), got {min_separation:g}"
-        )
-    n, dim = x.shape
-    scale = np.ones(dim) if state_scale is None else np.asarray(state_scale, dtype=np.float64)
-    if scale.shape != (dim,) or np.any(scale < 0) or not np.any(scale > 0):
-        raise InputError(f"state scale must be {dim} non-negative weights, not all zero")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(e))):
-        raise InputError("states and errors must be finite (drop NaN samples first)")
+    x, e, scale = _checked(x, e, radius, min_separation, state_scale)
+    n = len(x)
     qs = [float(q) for q in percentiles]
     W = None if bootstrap_weights is None else np.asarray(bootstrap_weights, dtype=np.float64)
     if W is not None and (W.ndim != 2 or W.shape[1] != n):
