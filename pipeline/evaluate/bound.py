@@ -217,12 +217,7 @@ def check_flight(
     gamma_strict = bound.gamma_strict
     premise_k = bound.premise_at(d)
     inside = d < bound.radius
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(np.isfinite(gamma_k), e_norm / gamma_k, 0.0)
-        ratio_strict = (
-            e_norm / gamma_strict if math.isfinite(gamma_strict) else np.zeros_like(e_norm)
-        )
-        premise_ratio = e_norm / premise_k
+    ratio, ratio_strict, premise_ratio = _ratios(e_norm, gamma_k, gamma_strict, premise_k)
     k_ratio = int(np.argmax(ratio))
     k_err = int(np.argmax(e_norm))
     k_dist = int(np.argmax(d))
@@ -299,6 +294,17 @@ def check_flight(
         }
     )
     return row, samples
+
+
+def _ratios(
+    e_norm: np.ndarray, gamma_k: np.ndarray, gamma_strict: float, premise_k: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``||e_k||`` over ``gamma_k``, over ``gamma_strict`` and over the premise ``eps_e + S d_k``
+    (0 where a bound is infinite)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(np.isfinite(gamma_k), e_norm / gamma_k, 0.0)
+        strict = e_norm / gamma_strict if math.isfinite(gamma_strict) else np.zeros_like(e_norm)
+        return ratio, strict, e_norm / premise_k
 
 
 def _max_slope_to_training(
