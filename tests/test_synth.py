@@ -185,6 +185,17 @@ def test_max_feasible_s_is_feasible_and_one_percent_above_is_not(tmp_path, error
     assert cert["margin"] < 1e-4
 
 
+def test_max_feasible_s_when_no_s_is_feasible_says_why(error_model):
+    """eps_e/r so large that even S = 0 is infeasible: the answer is words and exit 3, not -inf."""
+    res = _synth("-m", error_model, "-T", T, "--eps-e", "0.6", "--max-feasible-s")
+    assert res.exit_code == 3, res.output
+    line = res.output.strip()
+    assert "no S >= 0 is feasible" in line and "inf" not in line.replace("infeasible", "")
+    assert len(line.splitlines()) == 1
+    lower = float(line.split("it is at least ")[1].split(";")[0])
+    assert lower >= 1.0  # the stated reason: the S = 0 constraint's lower bound exceeds 1
+
+
 def _bad_model_file(tmp_path, text):
     f = tmp_path / "bad.yaml"
     f.write_text(text)

@@ -206,10 +206,8 @@ def resolve(opts: ProblemOptions, em: ErrorModel | None) -> Resolved:
         raise InputError(
             f"delta = '{opts.delta}': give a number (or omit it to use the error model's)"
         )
-    if opts.R0 is None:
-        R0 = eps_e  # the error bound in use, so that gamma_strict <= gamma (DESIGN.md)
-    else:
-        R0 = _number(opts.R0, em, "R0", "resolve_eps_e")
+    # R0: the error bound in use unless set, so that gamma_strict <= gamma (DESIGN.md)
+    R0 = eps_e if opts.R0 is None else _number(opts.R0, em, "R0", "resolve_eps_e")
     H = None if opts.H is None else np.asarray(opts.H)
     model = quadrotor_model(dt=opts.dt, mass=opts.mass, H=H)
     return Resolved(
@@ -542,6 +540,18 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
     min_xy = sls.min_phi_xy(
         r.model, options.T, strictly_proper=options.strictly_proper, solver=options.solver
     )
+    if not ms.s_max >= 0:
+        # at S = 0 the constraint is (eps_e ||Phi_xy|| + eps_w ||Phi_xx H|| + Delta) / r <= 1,
+        # with ||Phi_xy|| >= its minimum at T and ||Phi_xx H|| >= ||H|| = 1 (Phi_xx(1) = I)
+        lower = (r.eps_e * min_xy + r.eps_w + r.delta) / r.radius
+        raise InfeasibleError(
+            f"no S >= 0 is feasible at T = {options.T}: even S = 0 needs "
+            f"(eps_e ||Phi_xy|| + eps_w ||Phi_xx H|| + Delta) / r < 1, and with eps_e = "
+            f"{r.eps_e:.4g}, the smallest ||Phi_xy|| = {min_xy:.4g} at this T, eps_w = "
+            f"{r.eps_w:.4g}, Delta = {r.delta:.4g} and r = {r.radius:.4g} it is at least "
+            f"{lower:.4g}; lower eps_e (a percentile) or Delta, or raise r or T",
+            {"T": options.T, "min_norm_phi_xy": min_xy, "lower_bound_at_S0": lower},
+        )
     return MaxFeasibleSResult(
         ms.s_max, min_xy, options.T, r.eps_e, r.radius, r.eps_w, r.delta, ms.iterations
     )
