@@ -352,3 +352,31 @@ def test_tampered_or_foreign_controller_is_refused(setup):
     r = _run(["--model", model, "--controller", foreign, "--flights", flight, "--out", tmp / "o2"])
     assert r.exit_code == 2 and "is not the controller its certificate.yaml certifies" in r.output
     assert not (tmp / "o2").exists()
+
+
+def test_silent_mismatches_are_refused_or_warned(setup):
+    """A flight at another dt is refused (one line); a training flight given as held out and a
+    controller folder without certificate inside a synth folder are warned about, visibly."""
+    import shutil
+
+    tmp, model, ctrl, _ = setup
+    slow = tmp / "slow"
+    stamps = (np.arange(100) * 2 * DT * 1e9).astype(np.int64)
+    x = circle_states(100, z=1.1)
+    with StageWriter(slow, "ingest") as w:
+        w.write_parquet("flight.parquet", make_flight_frame(stamps, x, x + 0.03))
+    r = _run(["--model", model, "--controller", ctrl, "--flights", slow, "--out", tmp / "o1"])
+    assert r.exit_code == 2 and "sampled every 0.2 s" in r.output and "dt = 0.1" in r.output
+    assert len(r.output.strip().splitlines()) == 1 and not (tmp / "o1").exists()
+    # the training states flown again, inside a synth folder holding a folder without certificate
+    train = write_flight(tmp / "train_again", circle_states(400), np.full((400, 6), 0.01))
+    synth = tmp / "synth"
+    synth.mkdir()
+    shutil.copytree(ctrl, synth / "l1_robust")
+    (synth / "half_written").mkdir()
+    r = _run(["--model", model, "--controller", synth, "--flights", train, "--out", tmp / "o2"])
+    assert r.exit_code == 0, r.output
+    assert "looks like a training flight" in r.output
+    assert "half_written: no certificate.yaml" in r.output
+    ev = json.loads((tmp / "o2" / "evaluation.json").read_text())
+    assert any("training flight" in w for w in ev["warnings"])

@@ -50,6 +50,7 @@ from qsls.pipeline.errormodel.model import (
     error_model_file,
     load_error_model,
 )
+from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
 from qsls.pipeline.evaluate.training import TrainingData, load_training
 from qsls.pipeline.ingest.flight import errors, read_flight, states
 
@@ -503,6 +504,8 @@ def evaluate(
     warnings = [w for b in bounds if (w := check_model_hash(b, model_file, force=force))]
     training = load_training(fit_dir, model, options.state_scale)
     held_out = load_flights(flights)
+    warnings += skipped_controller_folders(controllers)
+    warnings += flight_mismatches(held_out, bounds, training)
     for f in flights:
         try:
             require_stage(Path(f) if Path(f).is_dir() else Path(f).parent, "ingest")
