@@ -128,7 +128,6 @@ class FlyOutcome:
     t_ctrl: np.ndarray  # (k,) s
     x_ctrl: np.ndarray  # (k, 6) truth at the controller ticks
     ref_ctrl: np.ndarray  # (k, 6)
-    y_ctrl: np.ndarray  # (k, 6) what the controller saw
     u_ctrl: np.ndarray  # (k, 3) absolute input, paper signs
     t_vio: np.ndarray  # (m,) s
     e_norm: np.ndarray  # (m,) ||e||_inf of the emulator
@@ -248,7 +247,6 @@ def run_job(job: FlyJob) -> FlyOutcome:
         t_ctrl=t_ctrl,
         x_ctrl=f.x[idx],
         ref_ctrl=f.ctrl_ref,
-        y_ctrl=f.ctrl_y,
         u_ctrl=f.ctrl_u,
         t_vio=f.vio_t_ns / NS,
         e_norm=np.abs(f.vio_e).max(axis=1),
@@ -319,7 +317,7 @@ class FlyResult(EvaluateResult):
 
 
 # --------------------------------------------------------------------------- analysis
-def flight_table(outcomes: Sequence[FlyOutcome], hover_mass: float | None = None) -> pd.DataFrame:
+def flight_table(outcomes: Sequence[FlyOutcome]) -> pd.DataFrame:
     rows = []
     for o in outcomes:
         m = o.metrics
