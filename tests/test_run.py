@@ -68,10 +68,14 @@ def test_quickstart_end_to_end(quickstart):
 
 def _data_files(work: Path) -> dict[str, bytes]:
     """Every file of the run and its report but the manifests (they hold the wall time) and
-    the run's own bookkeeping (run state: mtimes)."""
+    the run's own bookkeeping (run state: mtimes). The code's git commit (provenance in
+    run.json and the report) reads GIT: others commit to this tree while the test runs."""
     skip = {"manifest.json", "run_state.json"}
+    commit = json.loads((work / "runs" / "quickstart" / "run.json").read_text())["git_commit"]
     return {
         p.relative_to(work).as_posix(): p.read_bytes()
+        .replace(commit.encode(), b"GIT")
+        .replace(commit[:10].encode(), b"GIT")
         for root in (work / "runs" / "quickstart", work / "reports" / "quickstart")
         for p in sorted(root.rglob("*"))
         if p.is_file() and p.name not in skip and not p.name.startswith(".")
