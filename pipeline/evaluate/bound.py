@@ -51,6 +51,7 @@ from qsls.pipeline.errormodel.model import (
     load_error_model,
 )
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
+from qsls.pipeline.evaluate.table import Evaluation
 from qsls.pipeline.evaluate.training import TrainingData, load_training
 from qsls.pipeline.ingest.flight import errors, read_flight, states
 
@@ -563,7 +564,6 @@ def write_tables(
     """The bound check's files inside an open writer; returns the per-controller totals.
     ``own_only``: figures show each flight against the controller that flew it only."""
     totals = controller_totals(table) if len(table) else []
-    w.write_parquet("evaluation.parquet", table)
     w.write_parquet("samples.parquet", samples)
     doc = {
         "error_model": {
@@ -578,7 +578,7 @@ def write_tables(
         "warnings": list(warnings),
         **(extra_json or {}),
     }
-    w.write_json("evaluation.json", doc)
+    Evaluation(table, doc).save(w)
     if options.figures and len(samples):
         from qsls.pipeline.evaluate import figures as plots
 

@@ -14,8 +14,6 @@ from pathlib import Path
 
 import pandas as pd
 
-EVALUATION_TABLE = "evaluation.parquet"
-
 
 @dataclass(frozen=True)
 class Verdict:
@@ -63,5 +61,6 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
 
 def read_verdicts(folder: Path) -> list[Verdict]:
     """The verdicts of an evaluate stage folder (empty when it holds no table)."""
-    f = Path(folder) / EVALUATION_TABLE
-    return verdicts(pd.read_parquet(f)) if f.is_file() else []
+    from qsls.pipeline.evaluate.table import Evaluation
+
+    return verdicts(Evaluation.load(folder).rows) if Evaluation.exists(folder) else []

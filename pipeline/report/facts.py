@@ -180,8 +180,11 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
 
 
 def _read_evaluation(f: Facts, folder: Path) -> None:
-    doc = _json(folder / "evaluation.json")
-    table = _parquet(folder / "evaluation.parquet")
+    from qsls.pipeline.evaluate.table import Evaluation
+
+    ev = Evaluation.load(folder) if Evaluation.exists(folder) else None
+    doc = ev.doc if ev is not None else {}
+    table = ev.rows if ev is not None else None
     fly = doc.get("mode") == "fly" or (folder / "per_controller.parquet").is_file()
     if table is not None:
         warnings = [str(w) for w in doc.get("warnings") or []]
