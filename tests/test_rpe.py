@@ -1,0 +1,73 @@
+"""The RPE-versus-speed statistic on synthetic flights whose answer is known in closed form."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from qsls.pipeline.evaluate.rpe import rpe_vs_speed, rpe_windows, speed_statistic
+
+DT = 0.1
+
+
+def _flight(speeds: np.ndarray, err_step: np.ndarray, seed: int = 0):
+    """Truth straight within each 1 s window at ``speeds[j]`` (heading changing per window),
+    estimate ``q = p + e`` whose error moves by ``err_step[j]`` (m) over window ``j`` in a
+    random direction, on top of a constant offset (which RPE must cancel)."""
+    rng = np.random.default_rng(seed)
+    n_win = len(speeds)
+    per = round(1.0 / DT)
+    t = np.arange(n_win * per + 1) * DT
+    heading = rng.uniform(0, 2 * np.pi, n_win)
+    vel = np.c_[np.cos(heading), np.sin(heading), np.zeros(n_win)] * speeds[:, None]
+    edir = rng.normal(size=(n_win, 3))
+    edir /= np.linalg.norm(edir, axis=1, keepdims=True)
+    erate = edir * err_step[:, None]
+    v = np.repeat(vel, per, axis=0)
+    de = np.repeat(erate, per, axis=0)
+    p0, e0 = np.array([0.3, -0.2, 1.0]), np.array([0.05, 0.02, -0.1])
+    p = p0 + np.vstack([np.zeros(3), np.cumsum(v * DT, axis=0)])
+    e = e0 + np.vstack([np.zeros(3), np.cumsum(de * DT, axis=0)])
+    return t, p, p + e
+
+
+def test_rpe_proportional_to_speed_gives_the_speed_ratio_and_rho_one():
+    rng = np.random.default_rng(1)
+    speeds = rng.permutation(np.linspace(0.2, 1.4, 30))
+    c = 0.04  # RPE = c * speed (m per m travelled)
+    t, p, q = _flight(speeds, c * speeds)
+    t0, sp, rpe = rpe_windows(t, p, q)
+    assert len(t0) == 30
+    np.testing.assert_allclose(sp, speeds, rtol=1e-9)
+    np.testing.assert_allclose(rpe, c * speeds, rtol=1e-9)
+    st = rpe_vs_speed(t, p, q)
+    s = np.sort(speeds)
+    assert st.ratio == pytest.approx(s[-10:].mean() / s[:10].mean(), rel=1e-9)
+    assert st.rho == pytest.approx(1.0)
+    assert st.windows == 30
+
+
+def test_rpe_falling_with_speed_gives_negative_rho_and_ratio_below_one():
+    speeds = np.random.default_rng(2).permutation(np.linspace(0.3, 1.5, 12))
+    t, p, q = _flight(speeds, 0.02 / speeds)
+    st = rpe_vs_speed(t, p, q)
+    s = np.sort(speeds)
+    assert st.ratio == pytest.approx((1 / s[-4:]).mean() / (1 / s[:4]).mean(), rel=1e-9)
+    assert st.rho == pytest.approx(-1.0)
+
+
+def test_a_gap_drops_its_windows_instead_of_stretching_them():
+    speeds = np.linspace(0.2, 1.0, 10)
+    t, p, q = _flight(speeds, 0.05 * speeds)
+    cut = (t > 3.05) & (t < 3.95)  # window [3, 4] loses its interior, ends still there
+    gap = (t > 4.05) & (t < 5.05)  # window [4, 5] loses its end sample at t = 5
+    keep = ~gap
+    t0, sp, rpe = rpe_windows(t[keep & ~cut], p[keep & ~cut], q[keep & ~cut])
+    assert 4.0 not in np.round(t0, 6)
+    assert len(t0) == 8  # windows starting at 4 and 5 need t = 5: both gone
+    np.testing.assert_allclose(rpe, 0.05 * sp, rtol=1e-9)
+
+
+def test_too_few_windows_is_an_error():
+    with pytest.raises(ValueError, match="at least 3"):
+        speed_statistic(np.array([1.0, 2.0]), np.array([0.1, 0.2]))
