@@ -10,7 +10,8 @@ from qsls.pipeline.core.config import validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
-BIAS_ONLY = {"drift": False, "noise": False, "outliers": False}
+MOTION_OFF = {"blur": False, "motion_drift": False, "feature_loss": False}
+BIAS_ONLY = {"drift": False, "noise": False, "outliers": False, **MOTION_OFF}
 
 
 def circle_states(dt: float, seconds: float = 15.0, radius: float = 1.0, hz: float = 0.2):
@@ -83,7 +84,7 @@ def test_switches_isolate_parts():
     assert nothing.lipschitz == 0.0
     assert not nothing.errors(x).any()
     # drift only: grows with distance travelled (~ drift_fraction * distance), position only
-    prm = VioParams(bias=False, noise=False, outliers=False, drift_walk=0.0)
+    prm = VioParams(bias=False, noise=False, outliers=False, drift_walk=0.0, **MOTION_OFF)
     em = VioEmulator(prm, seed=3)
     e = em.errors(x)
     assert not e[:, 3:].any()
@@ -91,7 +92,7 @@ def test_switches_isolate_parts():
     assert dist == pytest.approx(2 * np.pi * 1.0 * 0.2 * 30, rel=0.01)
     assert np.linalg.norm(e[-1, :3]) == pytest.approx(prm.drift_fraction * dist, rel=1e-6)
     # outliers only: velocity spikes within [min, max], rare
-    prm = VioParams(bias=False, drift=False, noise=False, outlier_prob=0.05)
+    prm = VioParams(bias=False, drift=False, noise=False, outlier_prob=0.05, **MOTION_OFF)
     o = VioEmulator(prm, seed=3).errors(x)
     assert not o[:, :3].any()
     mags = np.abs(o[:, 3:][o[:, 3:] != 0])
@@ -116,3 +117,51 @@ def test_switches_isolate_parts():
 def test_bad_params(bad):
     with pytest.raises(ConfigError):
         validate(VioParams, bad)
+
+
+# The last commit before the motion-dependent parts (blur, drift with motion, feature loss).
+BEFORE_MOTION = "7b7af2e"
+
+
+def _emulator_before_motion(tmp_path, monkeypatch):
+    """The VioEmulator class of ``BEFORE_MOTION``'s vio.py, loaded from git."""
+    import importlib.util
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    got = subprocess.run(
+        ["git", "show", f"{BEFORE_MOTION}:pipeline/sim/vio.py"],
+        cwd=root, capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    if got.returncode != 0:
+        pytest.skip(f"git history with {BEFORE_MOTION} not available: {got.stderr.strip()}")
+    path = tmp_path / "vio_before_motion.py"
+    path.write_text(got.stdout)
+    spec = importlib.util.spec_from_file_location("vio_before_motion", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, mod)  # pydantic resolves annotations there
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize(
+    "extra", [{}, {"perception": "degraded"}, {"outlier_prob": 0.05, "drift_walk": 0.01}]
+)
+def test_motion_parts_off_is_bit_identical_to_the_emulator_before_them(
+    tmp_path, monkeypatch, extra
+):
+    old = _emulator_before_motion(tmp_path, monkeypatch)
+    x = circle_states(0.01, seconds=20)
+    rng = np.random.default_rng(5)
+    omega, accel = rng.normal(0, 3, (len(x), 3)), rng.normal(0, 6, (len(x), 3))
+    for seed in (0, 11):
+        want = old.VioEmulator(old.VioParams(**extra), seed).errors(x)
+        new = VioEmulator(VioParams(**MOTION_OFF, **extra), seed)
+        got = new.errors(x, omega, accel)
+        assert got.tobytes() == want.tobytes()
+        new.reset()
+        stepped = np.array([new.sample(x[k], omega[k], accel[k]) for k in range(300)])
+        assert stepped.tobytes() == want[:300].tobytes()

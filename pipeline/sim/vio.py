@@ -39,9 +39,42 @@ lambda) - patch_depth * exp(-||p_xy - patch_center||^2 / (2 patch_radius^2)), 0.
 velocity axis gets a spike of random sign and magnitude in ``[outlier_min, outlier_max]``.
 
 ``perception: degraded`` replaces ``light`` and ``texture_level`` by the ``degraded`` preset.
+
+**Motion-dependent parts** (each with its own switch: ``blur``, ``motion_drift``,
+``feature_loss``). They need the vehicle's true body rate ``omega_k`` (rad/s) and
+acceleration ``a_k`` (m/s^2) at each sample (the closed loop passes them; without them they
+are taken as zero). ``dt_v = 1 / rate_hz`` is the VIO sampling period.
+
+*Motion blur.* The image blurs by ``b_k = t_exp f (||omega_k||_2 + ||v_xy,k||_2 / max(pz_k,
+blur_min_height))`` pixels (rotation, and translation over a downward camera at height
+``pz``), with exposure ``t_exp = min(blur_exposure_s / light, blur_exposure_max_s)`` (longer
+in poor light) and focal length ``f = blur_focal_px``. Feature tracking degrades with it::
+
+    e_k += b_k * sigma_b * nb_k         sigma_b = [blur_noise_position] * 3 + [blur_noise_velocity] * 3
+
+and a velocity outlier (as above) with probability ``min(1, blur_outlier_rate * b_k)``.
+
+*Drift with motion.* A second drift sum ``m_k`` on position, per radian turned and larger
+per metre when fast (``dtheta_k = ||omega_k||_2 dt_v``, ``s_k = ||v_k||_2``)::
+
+    m_{k+1} = m_k + drift_per_radian * u * dtheta_k + drift_walk_radian * sqrt(dtheta_k) * N(0, I)
+                  + drift_speed_gain * s_k * (drift_fraction * u * ds_k + drift_walk * sqrt(ds_k) * N(0, I))
+
+so the per-metre rate is ``drift_fraction (1 + drift_speed_gain s)`` with both sums on.
+
+*Feature loss.* While ``||omega_k||_2 > loss_rate_threshold`` or ``||a_k||_2 >
+loss_accel_threshold``, a burst (a tracking loss and its recovery) starts with probability
+``1 - exp(-loss_rate_hz (1 + loss_texture_gain (1 - light texture(p_k))) dt_v)`` per sample
+(more often in poor texture). It lasts ``L`` samples, ``L dt_v`` uniform in
+``loss_duration_s``, and adds ``A sin(pi (j + 1) / (L + 1))`` at its ``j``-th sample,
+``A = [loss_position] * 3 + [loss_velocity] * 3`` times uniforms in ``[-1, 1]``.
+
+These parts are noise-like: the bias field and its Lipschitz constant ``L`` do not change.
+
 Random parts come from independent streams of ``numpy.random.SeedSequence(seed)``, so
-switching one part off leaves the others' values unchanged; the same seed gives the same
-errors.
+switching one part off leaves the others' values unchanged (and with the three motion parts
+off the errors are bit for bit those of the emulator before they existed); the same seed
+gives the same errors.
 """
 
 from __future__ import annotations
@@ -52,6 +85,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from qsls.pipeline.core.config import Options
+from qsls.pipeline.sim.viomotion import Burst, blur_pixels, burst_errors, velocity_spikes
 
 Six = tuple[float, float, float, float, float, float]
 
@@ -116,6 +150,9 @@ class VioParams(Options):
     drift: bool = True
     noise: bool = True
     outliers: bool = True
+    blur: bool = False
+    motion_drift: bool = False
+    feature_loss: bool = False
     perception: Literal["regular", "degraded"] = "regular"
 
     rate_hz: float = Field(100.0, ge=30.0, le=200.0)
@@ -161,12 +198,59 @@ class VioParams(Options):
     outlier_min: float = Field(0.3, ge=0)
     outlier_max: float = Field(1.0, ge=0)
 
+    # motion blur
+    blur_exposure_s: float = Field(0.005, gt=0)
+    """Camera exposure in ideal light (s); ``/ light`` in poor light."""
+    blur_exposure_max_s: float = Field(0.02, gt=0)
+    """Longest exposure (s)."""
+    blur_focal_px: float = Field(460.0, gt=0)
+    """Focal length (px; EuRoC's cameras: about 460)."""
+    blur_min_height: float = Field(0.3, gt=0)
+    """Height below which the translation blur stops growing (m)."""
+    blur_noise_position: float = Field(0.0015, ge=0)
+    """Extra position noise std per pixel of blur (m/px)."""
+    blur_noise_velocity: float = Field(0.005, ge=0)
+    """Extra velocity noise std per pixel of blur (m/s/px)."""
+    blur_outlier_rate: float = Field(0.002, ge=0)
+    """Extra velocity-outlier probability per sample per pixel of blur."""
+
+    # drift with motion
+    drift_per_radian: float = Field(0.002, ge=0)
+    """Systematic position drift per radian turned (m/rad)."""
+    drift_walk_radian: float = Field(0.002, ge=0)
+    """Random-walk drift density per radian turned (m per sqrt(rad))."""
+    drift_speed_gain: float = Field(1.0, ge=0)
+    """Per-metre drift grows by ``1 + drift_speed_gain * speed`` (per m/s)."""
+
+    # feature loss
+    loss_rate_threshold: float = Field(1.5, gt=0)
+    """Body rate above which tracking can be lost (rad/s)."""
+    loss_accel_threshold: float = Field(4.0, gt=0)
+    """Acceleration above which tracking can be lost (m/s^2)."""
+    loss_rate_hz: float = Field(0.5, ge=0)
+    """Bursts per second spent above a threshold, in ideal texture and light."""
+    loss_texture_gain: float = Field(4.0, ge=0)
+    """Burst rate grows by ``1 + loss_texture_gain (1 - light * texture(p))``."""
+    loss_duration_s: tuple[float, float] = (0.2, 0.6)
+    """Burst length range (s)."""
+    loss_position: float = Field(0.1, ge=0)
+    """Peak position error of a burst (m)."""
+    loss_velocity: float = Field(0.3, ge=0)
+    """Peak velocity error of a burst (m/s)."""
+
     @field_validator("outlier_max")
     @classmethod
     def _max_ge_min(cls, v: float, info: Any) -> float:
         lo = info.data.get("outlier_min")
         if lo is not None and v < lo:
             raise ValueError(f"outlier_max ({v}) must be >= outlier_min ({lo})")
+        return v
+
+    @field_validator("loss_duration_s")
+    @classmethod
+    def _duration_ordered(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0 < v[0] <= v[1]:
+            raise ValueError(f"loss_duration_s {v} must be (min, max) with 0 < min <= max")
         return v
 
     @property
@@ -182,6 +266,8 @@ def _dot2(p: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 # Stream indices of the SeedSequence children (fixed: adding a stream appends).
 _STREAM_NOISE, _STREAM_DRIFT, _STREAM_OUTLIER, _STREAM_DIRECTION = range(4)
+_STREAM_BLUR_NOISE, _STREAM_BLUR_OUTLIER, _STREAM_MOTION_DRIFT, _STREAM_LOSS = range(4, 8)
+_N_STREAMS = 8
 
 
 class VioEmulator:
@@ -218,6 +304,14 @@ class VioEmulator:
             1.0, params.outlier_prob * (1.0 + params.noise_gain * (1.0 - self.light))
         )
         self.lipschitz = self._lipschitz()
+        self.dt_v = 1.0 / params.rate_hz
+        self.exposure_s = min(params.blur_exposure_s / self.light, params.blur_exposure_max_s)
+        self._sigma_blur = np.array(
+            [params.blur_noise_position] * 3 + [params.blur_noise_velocity] * 3
+        )
+        self._loss_peak = np.array([params.loss_position] * 3 + [params.loss_velocity] * 3)
+        lo, hi = params.loss_duration_s
+        self._loss_samples = (max(1, round(lo / self.dt_v)), max(1, round(hi / self.dt_v)))
         self.reset()
 
     # ------------------------------------------------------------------ bias field
@@ -271,10 +365,18 @@ class VioEmulator:
     # ------------------------------------------------------------------ stateful model
     def reset(self) -> None:
         """Start a new flight: zero drift, fresh random streams for this seed."""
-        ss = np.random.SeedSequence(self.seed).spawn(4)
+        # spawn(n) gives child i the same stream for any n >= i + 1: the first four are
+        # the streams of the emulator before the motion parts existed
+        ss = np.random.SeedSequence(self.seed).spawn(_N_STREAMS)
         self._rng_noise = np.random.default_rng(ss[_STREAM_NOISE])
         self._rng_drift = np.random.default_rng(ss[_STREAM_DRIFT])
         self._rng_out = np.random.default_rng(ss[_STREAM_OUTLIER])
+        self._rng_blur = np.random.default_rng(ss[_STREAM_BLUR_NOISE])
+        self._rng_blur_out = np.random.default_rng(ss[_STREAM_BLUR_OUTLIER])
+        self._rng_mdrift = np.random.default_rng(ss[_STREAM_MOTION_DRIFT])
+        self._rng_loss = np.random.default_rng(ss[_STREAM_LOSS])
+        self._mdrift = np.zeros(3)
+        self._burst = Burst()
         u = np.random.default_rng(ss[_STREAM_DIRECTION]).standard_normal(3)
         u[2] *= self.params.drift_vertical
         self.drift_direction = u / max(float(np.linalg.norm(u)), 1e-12)
@@ -282,12 +384,21 @@ class VioEmulator:
         self._last_p: np.ndarray | None = None
         self.distance = 0.0
 
-    def sample(self, x: np.ndarray) -> np.ndarray:
-        """The error ``e`` (6,) of the next VIO sample at true state ``x`` (6,)."""
-        return self.errors(np.asarray(x, dtype=float).reshape(1, 6))[0]
+    def sample(
+        self, x: np.ndarray, omega: np.ndarray | None = None, accel: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The error ``e`` (6,) of the next VIO sample at true state ``x`` (6,), body rate
+        ``omega`` (3,) and acceleration ``accel`` (3,) (zero when not given)."""
+        w = None if omega is None else np.asarray(omega, dtype=float).reshape(1, 3)
+        a = None if accel is None else np.asarray(accel, dtype=float).reshape(1, 3)
+        return self.errors(np.asarray(x, dtype=float).reshape(1, 6), w, a)[0]
 
-    def errors(self, xs: np.ndarray) -> np.ndarray:
-        """Errors (n, 6) of the next ``n`` VIO samples at true states ``xs`` (n, 6), in order.
+    def errors(
+        self, xs: np.ndarray, omega: np.ndarray | None = None, accel: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Errors (n, 6) of the next ``n`` VIO samples at true states ``xs`` (n, 6), body
+        rates ``omega`` (n, 3) and accelerations ``accel`` (n, 3) (zero when not given), in
+        order.
 
         Continues the drift from previous calls; ``errors(xs)`` equals stacking
         ``sample(x)`` over the rows.
@@ -302,6 +413,7 @@ class VioEmulator:
         e = self.bias(xs)
         # drift
         p = xs[:, :3]
+        started = self._last_p is not None
         prev = p[:1] if self._last_p is None else self._last_p[None, :]
         ds = np.linalg.norm(np.diff(np.vstack([prev, p]), axis=0), axis=1)
         steps = (
@@ -318,16 +430,65 @@ class VioEmulator:
         if prm.noise:
             e += self.noise_std(p) * z_noise
         if prm.outliers:
-            hit = u_out[:, 0] < self.outlier_prob
-            axis = np.minimum((u_out[:, 1] * 3).astype(int), 2)
-            # magnitude and sign from one uniform: [0, .5) negative, [.5, 1) positive
-            w = u_out[:, 2]
-            sign = np.where(w < 0.5, -1.0, 1.0)
-            frac = np.where(w < 0.5, w * 2.0, (w - 0.5) * 2.0)
-            mag = prm.outlier_min + frac * (prm.outlier_max - prm.outlier_min)
-            rows = np.nonzero(hit)[0]
-            e[rows, 3 + axis[rows]] += sign[rows] * mag[rows]
+            rows, spikes = velocity_spikes(
+                u_out, u_out[:, 0] < self.outlier_prob, prm.outlier_min, prm.outlier_max
+            )
+            e[rows, 3:] += spikes
+        w = np.zeros((n, 3)) if omega is None else np.asarray(omega, dtype=float).reshape(n, 3)
+        a = np.zeros((n, 3)) if accel is None else np.asarray(accel, dtype=float).reshape(n, 3)
+        self._motion_parts(e, xs, w, a, ds, started)
         return e
+
+    def blur(self, xs: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """Blur ``b_k`` (px) of the module docstring at states (n, 6) and body rates (n, 3)."""
+        prm = self.params
+        return blur_pixels(
+            np.atleast_2d(xs), np.atleast_2d(omega), self.exposure_s, prm.blur_focal_px,
+            prm.blur_min_height,
+        )  # fmt: skip
+
+    def _motion_parts(
+        self, e: np.ndarray, xs: np.ndarray, w: np.ndarray, a: np.ndarray,
+        ds: np.ndarray, started: bool,
+    ) -> None:  # fmt: skip
+        """Add blur, drift with motion and feature loss to ``e`` in place (module docstring)."""
+        prm = self.params
+        n = len(xs)
+        z_blur = self._rng_blur.standard_normal((n, 6))
+        u_blur = self._rng_blur_out.random((n, 3))
+        z_md = self._rng_mdrift.standard_normal((n, 6))
+        u_loss = self._rng_loss.random((n, 8))
+        rate = np.sqrt((w * w).sum(axis=1))
+        if prm.blur:
+            b = self.blur(xs, w)
+            e += b[:, None] * self._sigma_blur[None, :] * z_blur
+            hit = u_blur[:, 0] < np.minimum(1.0, prm.blur_outlier_rate * b)
+            rows, spikes = velocity_spikes(u_blur, hit, prm.outlier_min, prm.outlier_max)
+            e[rows, 3:] += spikes
+        dtheta = rate * self.dt_v
+        if not started:
+            dtheta[0] = 0.0  # the first sample of a flight has turned through nothing yet
+        speed = np.sqrt((xs[:, 3:6] * xs[:, 3:6]).sum(axis=1))
+        u = self.drift_direction[None, :]
+        steps = (
+            prm.drift_per_radian * dtheta[:, None] * u
+            + prm.drift_walk_radian * np.sqrt(dtheta)[:, None] * z_md[:, :3]
+            + (prm.drift_speed_gain * speed)[:, None]
+            * (prm.drift_fraction * ds[:, None] * u + prm.drift_walk * np.sqrt(ds)[:, None] * z_md[:, 3:])
+        )  # fmt: skip
+        mdrift = np.cumsum(np.vstack([self._mdrift[None, :], steps]), axis=0)[1:]
+        self._mdrift = mdrift[-1].copy()
+        if prm.motion_drift:
+            e[:, :3] += mdrift
+        fast = (rate > prm.loss_rate_threshold) | (
+            np.sqrt((a * a).sum(axis=1)) > prm.loss_accel_threshold
+        )
+        quality = self.light * self.texture(xs)
+        hz = prm.loss_rate_hz * (1.0 + prm.loss_texture_gain * (1.0 - quality))
+        start = np.where(fast, -np.expm1(-hz * self.dt_v), 0.0)
+        loss = burst_errors(self._burst, start, u_loss, self._loss_samples, self._loss_peak)
+        if prm.feature_loss:
+            e += loss
 
     def describe(self) -> dict[str, Any]:
         """Derived constants worth recording beside a flight (for ``truth.json``)."""
@@ -338,4 +499,5 @@ class VioEmulator:
             "texture_level": self.texture_level,
             "outlier_prob": self.outlier_prob,
             "drift_direction": [float(v) for v in self.drift_direction],
+            "exposure_s": self.exposure_s,
         }
