@@ -15,8 +15,15 @@ Decoding, fastest first:
    (op code, connection id and time equal what the index says) and the message data
    decoded for the whole topic at once. A test checks the sliced bytes against rosbags'
    ``messages()`` byte for byte.
-2. ROS2 and MCAP, fixed-layout types: raw messages from the reader, decoded at once.
-3. Anything else (``tf2_msgs/msg/TFMessage``, big-endian CDR, unexpected layouts):
+2. MCAP (plain, and rosbag2 MCAP storage without message/file compression), fixed-layout
+   types (:mod:`qsls.pipeline.ingest.sources.mcapchunks`): the summary's chunk indexes and
+   each chunk's message indexes locate every wanted message; uncompressed chunks are
+   memory-mapped, zstd/lz4 chunks decompressed once each with the ``mcap`` package's
+   helpers, the records checked against the index and decoded for the whole topic at once.
+   A test compares them record for record with the ``mcap`` reader.
+3. ROS2 sqlite3, MCAP without a usable index, fixed-layout types: raw messages from one
+   query per topic or from the reader, decoded at once.
+4. Anything else (``tf2_msgs/msg/TFMessage``, big-endian CDR, unexpected layouts):
    rosbags' (or mcap_ros2's) per-message deserializer.
 """
 
@@ -27,6 +34,7 @@ import os
 import shutil
 import sqlite3
 import tempfile
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,9 +42,9 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.ingest.sources import layout
+from qsls.pipeline.ingest.sources import layout, mcapchunks
 from qsls.pipeline.ingest.sources.base import BAG_HINT, TopicInfo, Trajectory, bag_root, detect
-from qsls.pipeline.ingest.sources.ros1index import ros1_batches
+from qsls.pipeline.ingest.sources.ros1index import Batch, ros1_batches
 from qsls.pipeline.ingest.sources.write import ODOMETRY, TF, typestore
 
 _REPAIR = {
@@ -366,9 +374,9 @@ class BagSource:
         progress.start(f"reading {names}", total=sum(i.count for i in infos) or None)
         try:
             found: dict[str, Trajectory] = {}
-            if self._mcap is None and not self._reader.is2 and fast:
+            if fast:
                 fixed = [i for i in infos if i.msgtype in layout.FIXED_TYPES]
-                found = self._ros1_fast(list({i.topic: i for i in fixed}.values()), progress)
+                found = self._indexed_fast(list({i.topic: i for i in fixed}.values()), progress)
             rest = list({i.topic: i for i in infos if i.topic not in found}.values())
             raws = self._raw_pass(rest, progress) if rest else {}
             return [
@@ -385,20 +393,76 @@ class BagSource:
         finally:
             progress.finish()
 
-    def _ros1_fast(self, infos: list[TopicInfo], progress: Progress) -> dict[str, Trajectory]:
-        """Fixed-layout topics of a ROS1 bag through the index (empty dict: fall back)."""
+    def _indexed_fast(self, infos: list[TopicInfo], progress: Progress) -> dict[str, Trajectory]:
+        """Fixed-layout topics through the bag's own index: ROS1 (:mod:`ros1index`) or MCAP
+        chunks, plain or rosbag2 (:mod:`mcapchunks`); an empty dict: fall back."""
         if not infos:
             return {}
         r = self._reader
-        ids = {info.topic: {c.id for c in r.connections if c.topic == info.topic} for info in infos}
+        if self._mcap is None and not r.is2:
+            ids = {i.topic: {c.id for c in r.connections if c.topic == i.topic} for i in infos}
+            conns = set().union(*ids.values())
+            return self._batches_fast(
+                infos, ids, lambda: ros1_batches(r.readers[0], conns), progress
+            )
+        files = self._mcap_files()
+        if not files:
+            return {}
+        ids = {info.topic: {k} for k, info in enumerate(infos)}
+        return self._batches_fast(infos, ids, lambda: self._mcap_batches(files, infos), progress)
+
+    def _mcap_files(self) -> list[Path] | None:
+        """The MCAP files of a plain MCAP or an MCAP rosbag2 without message/file
+        compression (chunk compression is fine); None for anything else."""
+        if self._mcap is not None:
+            return [self.path]
+        from rosbags.rosbag2.storage_mcap import McapReader
+
+        files = []
+        for bag in self._reader.readers:
+            storages = getattr(bag.storage, "storages", [bag.storage])  # a folder, or one file
+            if bag.compression_mode or not all(
+                isinstance(s, McapReader) and isinstance(s.path, Path) for s in storages
+            ):
+                return None
+            files += [s.path for s in storages]
+        return files
+
+    def _mcap_batches(self, files: list[Path], infos: list[TopicInfo]) -> Iterator[Batch]:
+        """The messages of ``infos`` in every MCAP file, labelled by their index in ``infos``;
+        ``LayoutError`` when a channel is not CDR of the topic's type."""
+        label = {info.topic: k for k, info in enumerate(infos)}
+        for f in files:
+            summary = self._summary if self._mcap is not None else mcapchunks.read_summary(f)
+            wanted = {}
+            for cid, ch in summary.channels.items():
+                if ch.topic not in label:
+                    continue
+                schema = summary.schemas.get(ch.schema_id)
+                mt = normalize_type(schema.name) if schema else "?"
+                if ch.message_encoding != "cdr" or mt != infos[label[ch.topic]].msgtype:
+                    raise layout.LayoutError(f"channel {ch.topic} is not cdr {mt}")
+                wanted[cid] = label[ch.topic]
+            yield from mcapchunks.mcap_batches(f, summary, wanted)
+
+    def _batches_fast(
+        self,
+        infos: list[TopicInfo],
+        ids: dict[str, set[int]],
+        batches: Callable[[], Iterable[Batch]],
+        progress: Progress,
+    ) -> dict[str, Trajectory]:
+        """Decode ``batches`` (``Batch.conn`` in ``ids[topic]``) per topic, in log-time order
+        (stable: batches come in chunk order); an empty dict on a ``LayoutError``."""
+        encoding = "ros1" if self._mcap is None and not self._reader.is2 else "cdr"
         parts: dict[str, list[tuple[layout.Decoded, np.ndarray]]] = {t: [] for t in ids}
         try:
-            for batch in ros1_batches(r.readers[0], set().union(*ids.values())):
+            for batch in batches():
                 for info in infos:
                     m = np.isin(batch.conn, list(ids[info.topic]))
                     if m.any():
                         d = layout.decode(
-                            batch.buf, batch.starts[m], batch.ends[m], info.msgtype, "ros1"
+                            batch.buf, batch.starts[m], batch.ends[m], info.msgtype, encoding
                         )
                         parts[info.topic].append((d, batch.log_ns[m]))
                 progress.advance(len(batch.starts))
