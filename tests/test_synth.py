@@ -65,8 +65,9 @@ def test_paper_controllers_with_certificates(tmp_path, error_model):
     certs = {n: yaml.safe_load((out / n / "certificate.yaml").read_text()) for n in names}
     for n in names[1:]:
         c = certs[n]
-        # the nominal ignores the constraint: verified, but no guarantee at this S
-        want = "uncertified" if n == "l1_nominal" else "certified"
+        # the nominal ignores the constraint: verified, but no guarantee at this S; S = p50
+        # leaves training pairs outside the premise: relaxed, never plainly certified
+        want = "uncertified" if n == "l1_nominal" else "certified_relaxed"
         assert c["status"] == want, (n, c["checks"])
         assert all(v["passed"] for k, v in c["checks"].items() if k != "robustness")
         assert c["error_model_sha256"] == sha
@@ -79,7 +80,14 @@ def test_paper_controllers_with_certificates(tmp_path, error_model):
             "radius"
         ]
         assert lhs == pytest.approx(c["robustness_lhs"], rel=1e-12)
-        assert (lhs < 1) == (want == "certified")
+        assert (lhs < 1) == (want == "certified_relaxed")
+        # the premise, stated: p50 below the max (violated, share unknown without the
+        # training states), eps_e = max (violated by none)
+        p = c["premise"]
+        assert (p["S"]["chosen"], p["S"]["value"], p["S"]["violated"]) == ("p50", 0.13, None)
+        assert (p["eps_e"]["chosen"], p["eps_e"]["violated"]) == ("max", 0.0)
+        assert p["r"]["value"] == 1.0 and p["Delta"]["value"] == 0.05 and p["eps_w"]["value"] == 0.01
+        assert "no training_states.parquet" in p["training_data"]
         a = c["eps_w"] * nxx + c["delta"]
         assert c["gamma"] == pytest.approx(
             (c["eps_e"] + c["S"] * a) / (1 - c["S"] * nxy), rel=1e-12
@@ -134,7 +142,7 @@ def test_strictly_proper_h2_single(tmp_path, error_model):
     assert res.exit_code == 0, res.output
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["h2_robust", "pd"]
     ctrl = load_controller(out / "h2_robust")
-    assert ctrl.strictly_proper and ctrl.certificate["status"] == "certified"
+    assert ctrl.strictly_proper and ctrl.certificate["status"] == "certified_relaxed"
     with np.load(out / "h2_robust" / "controller.npz") as d:
         assert np.abs(d["Phi_uy"][0]).max() == 0
 
@@ -177,7 +185,7 @@ def test_max_feasible_s_is_feasible_and_one_percent_above_is_not(tmp_path, error
     ok = _synth(*single, "--S", repr(s_max), "-o", tmp_path / "ok")
     assert ok.exit_code == 0, ok.output
     cert = yaml.safe_load((tmp_path / "ok" / "l1_robust" / "certificate.yaml").read_text())
-    assert cert["status"] == "certified" and cert["margin"] > 0
+    assert cert["status"] == "certified_relaxed" and cert["margin"] > 0  # S < max
     bad = _synth(*single, "--S", repr(1.01 * s_max), "-o", tmp_path / "bad")
     assert bad.exit_code == 3 and not (tmp_path / "bad").exists()
     # the bound is tight: the certified controller at S_max has ||Phi_xy|| where the
@@ -250,7 +258,9 @@ def test_number_names_need_an_error_model(tmp_path):
     res = _synth("-T", 6, "--S", "0.1", "--eps-e", "0.05", "--radius", "1", "-o", tmp_path / "o")
     assert res.exit_code == 0, res.output
     cert = yaml.safe_load((tmp_path / "o" / "l1_robust" / "certificate.yaml").read_text())
+    # no error model: the numbers are the user's premise, no training data contradicts it
     assert cert["error_model_sha256"] is None and cert["status"] == "certified"
+    assert cert["premise"]["training_data"] is None
     assert (
         sls.l1_norm(np.asarray(load_controller(tmp_path / "o" / "l1_robust").bank.K_by)[None]) > 0
     )

@@ -23,6 +23,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from qsls.pipeline.control.plant import LinearModel
+from qsls.pipeline.control.premise import Premise
 from qsls.pipeline.control.realize import (
     FilterBank,
     RealizedController,
@@ -206,6 +207,9 @@ class Certificate(BaseModel):
     error_model_sha256: str | None = None
     controller_sha256: str
     """sha256 of the ``controller.npz`` this certificate is about."""
+    premise: Premise | None = None
+    """The premise the guarantee rests on, with the training data's violated shares
+    (:mod:`qsls.pipeline.control.premise`); ``certified`` needs it to hold on all of it."""
 
     def to_yaml(self) -> str:
         return dump_yaml(self.model_dump())

@@ -140,10 +140,13 @@ def certify(
     *,
     solver_status: str = "optimal",
     reference: bool = False,
+    premise_holds: bool = True,
 ) -> tuple[str, dict[str, Any]]:
     """Run every check on ``taps``; returns ``(status, fields)``.
 
-    ``status``: ``certified`` (all checks passed and ``lhs < 1``), ``uncertified`` (the
+    ``status``: ``certified`` (all checks passed, ``lhs < 1`` and the premise holds on all
+    the training data), ``certified_relaxed`` (the same, but ``premise_holds`` is False: part
+    of the training data violates the premise, :mod:`qsls.pipeline.control.premise`), ``uncertified`` (the
     controller is realized and verified but the robustness condition fails, so there is no
     guarantee), ``solver_inaccurate`` / ``failed`` (never certified), or ``reference`` for
     a controller that was not synthesized (the PD, whose truncated responses are stored).
@@ -196,7 +199,7 @@ def certify(
     elif not verified:
         status = "failed"
     elif checks["robustness"]["passed"] and np.isfinite(g["gamma"]):
-        status = "certified"
+        status = "certified" if premise_holds else "certified_relaxed"
     else:
         status = "uncertified"
     return status, fields

@@ -44,6 +44,7 @@ from qsls.pipeline.control.plant import (
     LinearModel,
     quadrotor_model,
 )
+from qsls.pipeline.control.premise import Premise, premise_of
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
@@ -184,8 +185,23 @@ def _number(value: Number | None, em: ErrorModel | None, what: str, resolver: st
     return out
 
 
+def check_unweighted(em: ErrorModel | None) -> None:
+    """Refuse an error model fitted with a ``state_scale`` W other than ones: its ``S`` and
+    distances are in the weighted norm ``||W x||``, the guarantee then needs ``||W Phi_xy||``
+    while synthesis constrains the unweighted ``||Phi_xy||`` (DESIGN.md, Weighted norms)."""
+    if em is None or all(v == 1.0 for v in em.state_scale):
+        return
+    raise InputError(
+        f"the error model was fitted with state_scale {list(em.state_scale)}, so its S and "
+        "distances are in a weighted norm, but synthesis bounds the unweighted ||Phi_xy|| and "
+        "the two must not be mixed; refit with the default state_scale (all ones) to synthesize"
+    )
+
+
 def resolve(opts: ProblemOptions, em: ErrorModel | None) -> Resolved:
-    """Numbers for every setting; error-model names (``max``, ``p95``...) looked up."""
+    """Numbers for every setting; error-model names (``max``, ``p95``...) looked up; an error
+    model with a weighted state norm refused (:func:`check_unweighted`)."""
+    check_unweighted(em)
     S = _number(opts.S, em, "S", "resolve_s")
     eps_e = _number(opts.eps_e, em, "eps_e", "resolve_eps_e")
     if opts.radius is not None:
@@ -309,12 +325,17 @@ def certified_controller(
     *,
     extra: dict[str, Any] | None = None,
     nominal: sls.Taps | None = None,
+    premise: Premise | None = None,
 ) -> Built:
-    """Certify a solution and assemble its certificate and controller."""
+    """Certify a solution and assemble its certificate and controller; ``certified_relaxed``
+    instead of ``certified`` when the ``premise`` does not hold on all the training data."""
     from qsls.pipeline.control.certify import certify
 
     assert sol.taps is not None
-    status, fields = certify(sol.taps, r.model, r.setting(), solver_status=sol.status)
+    holds = premise is None or premise.holds
+    status, fields = certify(
+        sol.taps, r.model, r.setting(), solver_status=sol.status, premise_holds=holds
+    )
     q_half, r_half = sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R)
     cost = sls.cost_value(
         structure.norm, sol.taps, r.model, q_half, r_half, r.eps_w, r.eps_e,
@@ -338,6 +359,7 @@ def certified_controller(
         "Q": r.Q.tolist(),
         "R": r.R.tolist(),
         **(extra or {}),
+        "premise": premise,
     }
     timings = {"build_time_s": sol.build_time_s, "solve_time_s": sol.solve_time_s}
     return _built(name, Controller(sol.taps, r.model), cert, timings)
@@ -393,6 +415,8 @@ class SynthResult:
                 f"{cert['status']}; ||Phi_xy|| = {cert['norm_phi_xy']:.4g}, "
                 f"margin = {cert['margin']:.3g}, gamma = {g:.4g}"
             )
+            if cert["status"] == "certified_relaxed" and cert.get("premise"):
+                out[name] += "; " + Premise.model_validate(cert["premise"]).shares()
         return out
 
 
@@ -444,6 +468,7 @@ def synth(
     em, sha, em_file = read_model(error_model)
     r = resolve(options, em)
     plan = controller_plan(options)
+    prem = premise_of(options, r.record(), em, em_file)
     base_extra = {
         "error_model": em_file.as_posix() if em_file else None,
         "error_model_sha256": sha,
@@ -455,7 +480,7 @@ def synth(
     warn_size(options.T, len(plan), progress)
     progress.start("synth", total=len(plan) + 1)
     ctrls: dict[str, Built] = {}
-    reference = pd_controller(r, options.pd, options.T, base_extra)
+    reference = pd_controller(r, options.pd, options.T, {**base_extra, "premise": prem})
     ctrls["pd"] = reference
     progress.advance()
     for name, st in plan:
@@ -483,7 +508,9 @@ def synth(
             raise SolverError(
                 f"{name}: the solver failed ({sol.solver_status}); nothing was certified"
             )
-        ctrls[name] = certified_controller(name, sol, r, st, extra=extra, nominal=nominal)
+        ctrls[name] = certified_controller(
+            name, sol, r, st, extra=extra, nominal=nominal, premise=prem
+        )
         progress.advance()
     progress.finish()
     with StageWriter(
