@@ -9,7 +9,9 @@ stage both use it. Timing, all on integer nanoseconds of simulation time:
 - VIO samples every ``1 / vio.rate_hz``; the true state at a sample time between two physics
   steps is interpolated (cubic Hermite position from the end velocities, linear velocity,
   normalized linear quaternion). The controller uses the newest sample at its tick:
-  ``y = x + e`` with ``e`` from :class:`~qsls.pipeline.sim.vio.VioEmulator`.
+  ``y = x + e`` with ``e`` from :class:`~qsls.pipeline.sim.vio.VioEmulator`, which also gets
+  the true body rate there and the physics step's mean acceleration ``(v_{i+1} - v_i) / h``
+  (for its motion-dependent parts: blur, drift with motion, feature loss).
 
 A crash (position below ``crash.floor_z``, farther than ``crash.max_deviation`` from the
 reference in any axis, tilt beyond ``crash.max_tilt_deg``, or a non-finite state) ends the
@@ -264,7 +266,7 @@ def fly(
     # first VIO sample at t = 0
     m = 0
     vio_t[0], vio_x[0], vio_q[0], vio_w[0] = 0, s[0:6], s[6:10], s[10:13]
-    vio_e[0] = vio.sample(s[0:6])
+    vio_e[0] = vio.sample(s[0:6], s[10:13], np.zeros(3))
     m = 1
     next_vio = vio_ns
     y_latest = vio_x[0] + vio_e[0]
@@ -295,7 +297,7 @@ def fly(
             a = (next_vio - i * h_ns) / h_ns
             xv, qv, wv = _interp(s, s_next, a, h)
             vio_t[m], vio_x[m], vio_q[m], vio_w[m] = next_vio, xv, qv, wv
-            vio_e[m] = vio.sample(xv)
+            vio_e[m] = vio.sample(xv, wv, (s_next[3:6] - s[3:6]) / h)
             y_latest = xv + vio_e[m]
             m += 1
             next_vio += vio_ns
