@@ -16,3 +16,48 @@ def real_data() -> Path:
     if not SHARED_REAL.is_dir():
         pytest.skip("../shared/data/real is not present (only the project's own data is)")
     return SHARED_REAL
+
+
+# --------------------------------------------------------------------------- gamma_strict <= gamma
+def _strict_above_gamma(root: Path) -> list[str]:
+    """Certificates under ``root`` whose paper's ``gamma_strict`` exceeds ``gamma`` (both finite).
+
+    ``R0 = eps_e`` unless set, so ``gamma_strict = R0 / (1 - S ||Phi_xy||)`` never exceeds
+    ``gamma = (eps_e + S a) / (1 - S ||Phi_xy||)`` (DESIGN.md, Premise status)."""
+    import math
+
+    import yaml
+
+    bad = []
+    for f in sorted(root.rglob("certificate.yaml")):
+        try:
+            doc = yaml.safe_load(f.read_text())
+        except (OSError, yaml.YAMLError):
+            continue
+        if not isinstance(doc, dict):
+            continue
+        g, s = doc.get("gamma"), doc.get("gamma_strict")
+        nums = [v for v in (g, s) if isinstance(v, int | float) and math.isfinite(v)]
+        if len(nums) == 2 and s > g:
+            bad.append(f"{f}: gamma_strict = {s} > gamma = {g}")
+    return bad
+
+
+@pytest.fixture(autouse=True)
+def _gamma_strict_at_most_gamma(request):
+    """After each test: every certificate.yaml in its tmp_path has gamma_strict <= gamma."""
+    # taken before the test (so torn down after this fixture), only where the test uses it
+    root = request.getfixturevalue("tmp_path") if "tmp_path" in request.fixturenames else None
+    yield
+    if root is not None:
+        bad = _strict_above_gamma(root)
+        assert not bad, "; ".join(bad)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _gamma_strict_at_most_gamma_everywhere(tmp_path_factory):
+    """At the end of the session: the same over every folder the suite wrote (module- and
+    session-scoped fixtures included)."""
+    yield
+    bad = _strict_above_gamma(tmp_path_factory.getbasetemp())
+    assert not bad, "; ".join(bad)

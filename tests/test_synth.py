@@ -86,7 +86,9 @@ def test_paper_controllers_with_certificates(tmp_path, error_model):
         p = c["premise"]
         assert (p["S"]["chosen"], p["S"]["value"], p["S"]["violated"]) == ("p50", 0.13, None)
         assert (p["eps_e"]["chosen"], p["eps_e"]["violated"]) == ("max", 0.0)
-        assert p["r"]["value"] == 1.0 and p["Delta"]["value"] == 0.05 and p["eps_w"]["value"] == 0.01
+        assert (
+            p["r"]["value"] == 1.0 and p["Delta"]["value"] == 0.05 and p["eps_w"]["value"] == 0.01
+        )
         assert "no training_states.parquet" in p["training_data"]
         a = c["eps_w"] * nxx + c["delta"]
         assert c["gamma"] == pytest.approx(

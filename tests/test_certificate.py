@@ -1,0 +1,186 @@
+"""What a certificate says (issue 11): its premise and the training data's violated shares,
+``certified`` only when the premise holds on all of it, weighted norms refused, and the
+suite-wide ``gamma_strict <= gamma`` check able to fail."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from qsls.cli.main import app
+from qsls.pipeline.core.artifacts import dump_yaml
+from qsls.pipeline.errormodel.model import TRAINING_FILE, ErrorModel, SlopeStats
+from qsls.pipeline.ingest.flight import E_COLS, X_COLS
+
+RUN = CliRunner()
+T = 12
+MIN_SEP = 0.05
+
+
+def _invoke(*args):
+    return RUN.invoke(app, [str(a) for a in args])
+
+
+def _brute_slopes(x, e, radius, min_sep):
+    """Every pair's slope over ``min_sep <= ||x_i - x_j|| < radius`` (all pairs, numpy)."""
+    i, j = np.triu_indices(len(x), k=1)
+    d = np.abs(x[i] - x[j]).max(axis=1)
+    m = (d >= min_sep) & (d < radius) & (d > 0)
+    return np.abs(e[i] - e[j]).max(axis=1)[m] / d[m]
+
+
+@pytest.fixture(scope="module")
+def fit_dir(tmp_path_factory):
+    """A fit folder: training states with a smooth, slightly noisy error (slopes well below 1)
+    and an error model whose numbers are computed here from all pairs."""
+    rng = np.random.default_rng(7)
+    n = 300
+    x = rng.uniform(-1.0, 1.0, (n, 6)) * [1.0, 1.0, 0.3, 0.5, 0.5, 0.2]
+    e = 0.01 * np.sin(2.0 * x[:, [1, 0, 2, 4, 3, 5]]) + rng.normal(0.0, 0.002, (n, 6))
+    root = tmp_path_factory.mktemp("premise") / "fit"
+    root.mkdir()
+    frame = {"flight": ["f"] * n, "t": 0.1 * np.arange(n)}
+    frame |= {c: x[:, k] for k, c in enumerate(X_COLS)} | {c: e[:, k] for k, c in enumerate(E_COLS)}
+    pd.DataFrame(frame).to_parquet(root / TRAINING_FILE)
+    s = _brute_slopes(x, e, 1.0, MIN_SEP)
+    enorm = np.abs(e).max(axis=1)
+    q = {"p50": 50, "p90": 90, "p95": 95}
+    em = ErrorModel(
+        eps_e=float(enorm.max()),
+        eps_e_percentiles={k: float(np.percentile(enorm, v)) for k, v in q.items()},
+        radius=1.0,
+        min_separation=MIN_SEP,
+        s_slope=SlopeStats(
+            max=float(s.max()), percentiles={k: float(np.percentile(s, v)) for k, v in q.items()}
+        ),
+        R0=float(enorm.max()),
+        delta=0.02,
+        n_samples=n,
+        n_pairs=len(s),
+    )
+    (root / "error_model.yaml").write_text(dump_yaml(em))
+    return root, x, e, em
+
+
+def _cert(folder, name="l1_robust"):
+    return yaml.safe_load((folder / name / "certificate.yaml").read_text())
+
+
+def test_premise_shares_match_an_all_pairs_count(tmp_path, fit_dir):
+    root, x, e, em = fit_dir
+    out = tmp_path / "relaxed"
+    res = _invoke("synth", "-m", root, "-T", T, "--S", "p50", "--eps-e", "p90", "-o", out)
+    assert res.exit_code == 0, res.output
+    s = _brute_slopes(x, e, 1.0, MIN_SEP)
+    enorm = np.abs(e).max(axis=1)
+    want_s = np.count_nonzero(s > em.s_slope.percentiles["p50"])
+    want_e = np.count_nonzero(enorm > em.eps_e_percentiles["p90"])
+    assert 0.45 < want_s / len(s) < 0.55 and 0.05 < want_e / len(enorm) < 0.15  # sanity
+    for name in ("l1_robust", "l1_robust_imitation", "l1_nominal", "pd"):
+        c = _cert(out, name)
+        p = c["premise"]
+        assert (p["S"]["chosen"], p["S"]["n_violating"], p["S"]["n_total"]) == (
+            "p50",
+            want_s,
+            len(s),
+        )
+        assert p["S"]["violated"] == pytest.approx(want_s / len(s), rel=1e-15)
+        assert (p["eps_e"]["chosen"], p["eps_e"]["n_violating"]) == ("p90", want_e)
+        assert p["eps_e"]["n_total"] == len(enorm)
+        assert p["r"] == {**p["r"], "value": 1.0, "chosen": "error model"}
+        assert p["Delta"]["value"] == 0.02 and p["eps_w"]["chosen"] == "number"
+    assert _cert(out)["status"] == "certified_relaxed"
+    assert _cert(out, "l1_robust_imitation")["status"] == "certified_relaxed"
+    assert _cert(out, "pd")["status"] == "reference"
+    # the one-line summary carries the shares
+    line = next(ln for ln in res.output.splitlines() if "l1_robust " in ln or "l1_robust│" in ln)
+    assert "certified_relaxed" in line
+    assert f"{100 * want_e / len(enorm):.3g}%" in res.output
+    assert f"{100 * want_s / len(s):.3g}%" in res.output
+
+    # the maxima: no training sample or pair outside the premise, plainly certified
+    full = tmp_path / "full"
+    res = _invoke("synth", "-m", root, "-T", T, "--S", "max", "--eps-e", "max", "-o", full)
+    assert res.exit_code == 0, res.output
+    c = _cert(full)
+    assert c["status"] == "certified", c["premise"]
+    assert c["premise"]["S"]["violated"] == 0.0 and c["premise"]["S"]["n_total"] == len(s)
+    assert c["premise"]["eps_e"]["violated"] == 0.0
+
+    # a number just below the largest slope: exactly one pair violates it
+    below = float(np.sort(s)[-2] + np.sort(s)[-1]) / 2
+    one = tmp_path / "one"
+    res = _invoke("synth", "-m", root, "-T", T, "--S", repr(below), "-o", one)
+    assert res.exit_code == 0, res.output
+    c = _cert(one)
+    assert c["premise"]["S"]["chosen"] == "number" and c["premise"]["S"]["n_violating"] == 1
+    assert c["status"] == "certified_relaxed"
+
+
+def test_relaxed_controller_export_states_its_premise(tmp_path, fit_dir):
+    root = fit_dir[0]
+    out = tmp_path / "s"
+    res = _invoke(
+        "synth", "-m", root, "-T", T, "--S", "p50", "--controllers", "single", "-o", out
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    folder = out / "l1_robust"
+    share = _cert(out)["premise"]["S"]["violated"]
+    res = _invoke("export", folder, "-t", "c", "--out", tmp_path / "c")
+    assert res.exit_code == 2 and "certified_relaxed" in res.output
+    assert not (tmp_path / "c").exists()
+    res = _invoke("export", folder, "-t", "c", "--out", tmp_path / "c", "--allow-uncertified")
+    assert res.exit_code == 0, res.output
+    hdr = (tmp_path / "c" / "qsls_ctrl.h").read_text()
+    assert "certificate status certified_relaxed" in hdr and "RELAXED premise" in hdr
+    assert f"{100 * share:.3g}% of pairs (S p50)" in hdr
+
+
+def _weighted_model(tmp_path):
+    em = ErrorModel(
+        eps_e=0.05,
+        radius=1.0,
+        state_scale=[1.0, 1.0, 1.0, 0.5, 0.5, 0.5],
+        s_slope=SlopeStats(max=0.1),
+        R0=0.05,
+        n_samples=100,
+        n_pairs=1000,
+    )
+    f = tmp_path / "wfit" / "error_model.yaml"
+    f.parent.mkdir()
+    f.write_text(dump_yaml(em))
+    return f.parent
+
+
+@pytest.mark.parametrize("command", ["synth", "sweep"])
+def test_weighted_error_model_is_refused(tmp_path, command):
+    """A weighted ``S`` with the unweighted ``||Phi_xy||`` is never mixed: one line, exit 2."""
+    model = _weighted_model(tmp_path)
+    args = ["-m", model, "-o", tmp_path / "out"]
+    args += ["-T", T] if command == "synth" else ["-g", "T=8,10"]
+    res = _invoke(command, *args)
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), res.output
+    assert "state_scale" in lines[0] and "refit with the default state_scale" in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_gamma_strict_check_finds_a_violation(tmp_path_factory):
+    """The conftest check that runs after every test flags gamma_strict > gamma."""
+    from tests.conftest import _strict_above_gamma
+
+    root = tmp_path_factory.mktemp("strict")
+    (root / "a").mkdir()
+    (root / "a" / "certificate.yaml").write_text("gamma: 0.233\ngamma_strict: 0.314\n")
+    (root / "b").mkdir()
+    (root / "b" / "certificate.yaml").write_text("gamma: .inf\ngamma_strict: .inf\n")
+    try:
+        bad = _strict_above_gamma(root)
+        assert len(bad) == 1 and "gamma_strict = 0.314 > gamma = 0.233" in bad[0]
+    finally:
+        (root / "a" / "certificate.yaml").unlink()
+    assert _strict_above_gamma(root) == []
