@@ -124,7 +124,9 @@ def locate(buf: np.ndarray, summary: Any, wanted: dict[int, int]) -> list[Locate
     return out
 
 
-def _records(buf: np.ndarray, rec: np.ndarray, loc: Located) -> tuple[np.ndarray, np.ndarray]:
+def _records(
+    buf: np.ndarray, rec: np.ndarray, channel: np.ndarray, log_ns: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """(starts, ends) of the message data of the records at ``rec`` (their byte positions in
     ``buf``), each checked against the index: op code ``MESSAGE``, channel id, log time.
 
@@ -139,9 +141,9 @@ def _records(buf: np.ndarray, rec: np.ndarray, loc: Located) -> tuple[np.ndarray
         raise layout.LayoutError("message record beyond the chunk")
     if not np.all(buf[rec] == Opcode.MESSAGE):
         raise layout.LayoutError("the index points at a record that is not a message")
-    if not np.array_equal(layout._words(buf, rec + 9, 1, "<u2")[:, 0], loc.channel):
+    if not np.array_equal(layout._words(buf, rec + 9, 1, "<u2")[:, 0], channel):
         raise layout.LayoutError("message record of another channel than the index says")
-    if not np.array_equal(layout._words(buf, rec + 15, 1, "<u8")[:, 0].view(np.int64), loc.log_ns):
+    if not np.array_equal(layout._words(buf, rec + 15, 1, "<u8")[:, 0].view(np.int64), log_ns):
         raise layout.LayoutError("message log time differs from the index")
     length = layout._words(buf, rec + 1, 1, "<u8")[:, 0].astype(np.int64)
     starts = rec + _MSG_HEAD
@@ -153,18 +155,11 @@ def _records(buf: np.ndarray, rec: np.ndarray, loc: Located) -> tuple[np.ndarray
 
 def _batch(buf: np.ndarray, base: list[int], locs: list[Located]) -> Batch:
     """One batch over ``buf``, chunk ``k``'s records starting at byte ``base[k]``."""
-    starts, ends = [], []
-    for b, loc in zip(base, locs, strict=True):
-        s, e = _records(buf, b + loc.offsets, loc)
-        starts.append(s)
-        ends.append(e)
-    return Batch(
-        buf,
-        np.concatenate(starts),
-        np.concatenate(ends),
-        np.concatenate([loc.log_ns for loc in locs]),
-        np.concatenate([loc.label for loc in locs]),
-    )
+    rec = np.concatenate([b + loc.offsets for b, loc in zip(base, locs, strict=True)])
+    log_ns = np.concatenate([loc.log_ns for loc in locs])
+    channel = np.concatenate([loc.channel for loc in locs])
+    starts, ends = _records(buf, rec, channel, log_ns)
+    return Batch(buf, starts, ends, log_ns, np.concatenate([loc.label for loc in locs]))
 
 
 def _data_start(buf: np.ndarray, ch: Any) -> int:
@@ -206,7 +201,8 @@ def mcap_batches(path: Path, summary: Any, wanted: dict[int, int]) -> Iterator[B
     :class:`layout.LayoutError` (before yielding) when the summary cannot locate the
     messages, or later when a record is not where the index says.
     """
-    buf = np.memmap(path, dtype=np.uint8, mode="r")
+    # a plain ndarray over the map: memmap's __getitem__ costs more than the gathers
+    buf = np.memmap(path, dtype=np.uint8, mode="r").view(np.ndarray)
     locs = locate(buf, summary, wanted)
     if not locs:
         return
