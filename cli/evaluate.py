@@ -57,6 +57,13 @@ def command(
         help="Time constant (s) of the average drawn over ||e|| in figures (0: none). (default: 1)",
     ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
+    flown_by: str = typer.Option(
+        None,
+        "--flown-by",
+        help="Name of the --controller that flew the --flights: the theorem is checked "
+        "on its flights; every other pair (and every flight when not given) checks the "
+        "premise only.",
+    ),
     seeds: str = typer.Option(
         None, "--seeds", help="--fly: comma-separated seeds. (default: 0,1,2)"
     ),
@@ -92,6 +99,8 @@ def command(
     if fly:
         if flights:
             raise InputError("--flights is not used with --fly (the flights are flown); drop one")
+        if flown_by:
+            raise InputError("--flown-by is not used with --fly (each flight records its own)")
         fly_given = overrides(
             seeds=parse_list(seeds, "--seeds", "int") or None, duration=duration, jobs=jobs,
             conditions=parse_list(conditions, "--conditions", "value"),
@@ -109,6 +118,7 @@ def command(
         return
     from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
 
+    ov.update(overrides(flown_by=flown_by))
     bound_options = validate(EvaluateOptions, merge(section, ov), str(config or "options"))
     with RichProgress() as progress:
         checked = evaluate(

@@ -139,7 +139,8 @@ def setup(tmp_path):
 
 def test_bounds_match_hand_computation(setup):
     tmp, model, ctrl, flight = setup
-    res = evaluate([flight], model, [ctrl], EvaluateOptions(figures=False), tmp / "ev")
+    opts = EvaluateOptions(figures=False, flown_by="l1_robust")
+    res = evaluate([flight], model, [ctrl], opts, tmp / "ev")
     row = res.table.iloc[0]
     denom = 1 - 0.2 * 2.5
     gamma_strict = 0.05 / denom
@@ -153,12 +154,30 @@ def test_bounds_match_hand_computation(setup):
     # Only the spike exceeds the bounds: one sample of 200.
     assert row["frac_under_gamma"] == pytest.approx(199 / 200)
     assert row["frac_under_gamma_strict"] == pytest.approx(199 / 200)
-    assert not row["bound_holds"]
-    # 0.2 > eps_e + S d = 0.07: the assumption is what failed, and the verdict says so.
+    assert not row["local_bound_holds"]
+    # 0.2 > eps_e + S d = 0.07: the premise failed on this flight, and the verdict says so.
     assert not row["assumption_holds"]
-    assert "assumption violated at 0.5% of samples" in row["verdict"]
-    assert row["verdict"].startswith("FAILS")
+    assert "premise violated at 0.5% of samples" in row["verdict"]
     assert row["frac_premise_holds"] == pytest.approx(199 / 200)
+    # The theorem: x_hat_k = x_k - 2.5 e_{k-1} (Phi_xy(1) = 2.5 I); a_nominal by brute force.
+    x = circle_states(200, z=1.1)
+    e = np.full((200, 6), 0.03)
+    e[37, 3] = 0.2
+    x_hat = x.copy()
+    x_hat[1:] -= 2.5 * e[:-1]
+    d_hat = np.abs(x_hat[:, None, :] - circle_states(400)[None]).max(axis=2).min(axis=1)
+    a = d_hat.max()
+    assert a > row["max_distance_to_training"] + 0.05  # the flown distance does not bound a
+    assert row["theorem_applies"] and row["flown_by"] == "l1_robust"
+    assert row["a_nominal"] == pytest.approx(a, rel=1e-12)
+    assert row["a_nominal_t"] == pytest.approx(DT * int(d_hat.argmax()))
+    gamma_nominal = (0.05 + 0.2 * a) / (1 - 0.2 * 2.5)
+    assert row["gamma_nominal"] == pytest.approx(gamma_nominal, rel=1e-12)
+    assert row["nominal_ratio"] == pytest.approx(0.2 / gamma_nominal, rel=1e-12)
+    assert bool(row["bound_holds"]) is bool(gamma_nominal >= 0.2)
+    assert bool(row["nominal_within_radius"]) is bool(a < 0.5)
+    assert row["verdict"].startswith("holds: max ||e|| 0.2 <= gamma_nominal")
+    assert row["a_certificate"] == pytest.approx(0.01 * 2.0 + 0.0)
     doc = json.loads((tmp / "ev" / "evaluation.json").read_text())
     assert doc["controllers"][0]["max_ratio"] == pytest.approx(row["max_ratio"])
     cols = pd.read_parquet(tmp / "ev" / "evaluation.parquet").columns
@@ -181,9 +200,13 @@ def test_bound_holds_when_errors_small(setup):
     tmp, model, ctrl, _ = setup
     x = circle_states(100, z=1.05)
     flight = write_flight(tmp / "quiet", x, np.full((100, 6), 0.02))
-    res = evaluate([flight], model, [ctrl], EvaluateOptions(), tmp / "ev2")
+    res = evaluate([flight], model, [ctrl], EvaluateOptions(flown_by="l1_robust"), tmp / "ev2")
     row = res.table.iloc[0]
-    assert row["bound_holds"] and row["assumption_holds"] and row["verdict"] == "holds"
+    assert row["bound_holds"] and row["assumption_holds"]
+    assert row["verdict"].startswith("holds: ") and "premise holds at every sample" in row["verdict"]
+    # x_hat = x - 2.5 * 0.02: every coordinate 0.05 off the flown state, which is 0.05 above
+    # the training circle: a_nominal is 0.05 (z) or 0.1 (z and the shift add) at most.
+    assert 0.05 - 1e-9 <= row["a_nominal"] <= 0.1 + 1e-9
     assert row["frac_under_gamma"] == 1.0
     assert (tmp / "ev2" / "perception_error.png").stat().st_size > 1000
     assert (tmp / "ev2" / "distance_to_training.png").is_file()
@@ -196,8 +219,17 @@ def test_no_guarantee_when_s_phi_at_least_one(setup):
     )
     b = load_controller_bound(pd_dir)
     assert not b.has_guarantee and math.isinf(b.gamma_strict)
-    res = evaluate([flight], model, [pd_dir], EvaluateOptions(figures=False), tmp / "ev3")
-    assert res.table.iloc[0]["verdict"].startswith("no bound")
+    opts = EvaluateOptions(figures=False, flown_by="pd")
+    res = evaluate([flight], model, [pd_dir], opts, tmp / "ev3")
+    row = res.table.iloc[0]
+    assert row["verdict"].startswith("no bound: S*||W Phi_xy|| = 2 >= 1")
+    assert math.isinf(row["gamma_nominal"]) and not row["bound_holds"]
+    # a recorded flight: the premise only, the theorem's columns empty
+    res = evaluate([flight], model, [pd_dir], EvaluateOptions(figures=False), tmp / "ev3b")
+    row = res.table.iloc[0]
+    assert row["verdict"].startswith("premise only (a recorded flight")
+    assert not row["theorem_applies"] and math.isnan(row["gamma_nominal"])
+    assert row["bound_holds"] is None
     # finite formula but robustness condition not met: no guarantee, said so
     nom = write_controller(tmp / "nom", model, robustness_lhs=1.4, status="uncertified")
     b = load_controller_bound(nom)
@@ -290,11 +322,12 @@ def test_nonfinite_samples_are_dropped_and_counted(setup):
     e = np.full((100, 6), 0.02)
     x[10:15] = np.nan
     flight = write_flight(tmp / "gappy", x, e)
-    row = evaluate([flight], model, [ctrl], EvaluateOptions(figures=False), tmp / "ev5").table.iloc[
-        0
-    ]
+    opts = EvaluateOptions(figures=False, flown_by="l1_robust")
+    row = evaluate([flight], model, [ctrl], opts, tmp / "ev5").table.iloc[0]
     assert row["n_samples"] == 95 and row["n_nonfinite_dropped"] == 5
     assert row["frac_under_gamma"] == 1.0 and row["bound_holds"]
+    # e_10..e_14 unknown: x_hat_k = x_k - 2.5 e_{k-1} is undefined for k = 10..15
+    assert row["n_nominal_undefined"] == 6 and "x_hat undefined at 6 samples" in row["verdict"]
 
 
 def test_same_controller_name_from_two_synth_folders(setup):

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import yaml
 
@@ -64,6 +65,26 @@ def test_quickstart_end_to_end(quickstart):
     page = (work / "reports" / "quickstart" / "index.html").read_text()
     assert "Controllers and certificates" in page and "data:image/png;base64," in page
     assert elapsed < 300, f"the quickstart took {elapsed:.0f} s (target: 5 minutes)"
+
+
+@pytest.mark.slow
+def test_quickstart_theorem_on_the_flown_flights(quickstart):
+    """The theorem on the flights each controller flew (issue 11): on ``l1_robust``'s regular
+    flight the nominal trajectory strays further from the training data than the flown one
+    (so the flown distance does not bound the theorem's ``a``), and the verdict follows from
+    ``max ||e||`` against ``gamma_nominal``."""
+    work = quickstart[0]
+    ev = pd.read_parquet(work / "runs" / "quickstart" / "fly" / "evaluation.parquet")
+    own = ev[ev["controller"] == ev["flown_by"]]
+    assert len(own) and own["theorem_applies"].astype(bool).all()
+    row = own[(own["controller"] == "l1_robust") & (own["condition"] == "regular")].iloc[0]
+    assert row["a_nominal"] > row["max_distance_to_training"]
+    for _, r in own.iterrows():
+        assert bool(r["bound_holds"]) is bool(r["max_error_norm"] <= r["gamma_nominal"])
+        assert r["nominal_ratio"] == pytest.approx(r["max_error_norm"] / r["gamma_nominal"])
+    others = ev[ev["controller"] != ev["flown_by"]]
+    assert not others["theorem_applies"].astype(bool).any()
+    assert others["gamma_nominal"].isna().all()
 
 
 def _data_files(work: Path) -> dict[str, bytes]:

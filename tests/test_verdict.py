@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -16,32 +17,50 @@ from tests.test_evaluate import circle_states, setup, write_flight  # noqa: F401
 def _verdict_lines(output: str) -> dict[str, str]:
     return {
         m.group(1): m.group(2)
-        for m in re.finditer(r"^  (\S+): (holds|FAILS|no certified bound), .*$", output, re.M)
+        for m in re.finditer(
+            r"^  (\S+): (holds|FAILS|no certified bound|premise only), .*$", output, re.M
+        )
     }
+
+
+def _evaluate(model, ctrl, flight, out, *extra):
+    return CliRunner().invoke(
+        app, ["evaluate", "--model", str(model), "--controller", str(ctrl),
+              "--flights", str(flight), "--out", str(out), "--no-figures", *extra],
+    )  # fmt: skip
 
 
 def test_evaluate_ends_with_the_verdict_per_controller(setup):  # noqa: F811 (the fixture)
     tmp, model, ctrl, spiky = setup
-    res = CliRunner().invoke(
-        app, ["evaluate", "--model", str(model), "--controller", str(ctrl),
-              "--flights", str(spiky), "--out", str(tmp / "ev"), "--no-figures"],
-    )  # fmt: skip
+    # a recorded flight: the theorem does not apply, the premise is what is checked
+    res = _evaluate(model, ctrl, spiky, tmp / "ev0")
     assert res.exit_code == 0, res.output
     tail = res.output.strip().splitlines()[-2:]
     assert tail[0] == "Certified bound on the held-out flights:"
-    # the planted spike 0.2 against gamma = (0.05 + 0.2 (0.01*2 + 0.1)) / (1 - 0.2*2.5)
-    gamma = (0.05 + 0.2 * (0.01 * 2.0 + 0.1)) / (1 - 0.2 * 2.5)
-    assert (
-        tail[1] == f"  l1_robust: FAILS, worst ||e||/gamma {0.2 / gamma:.3g} (held_out), 1 flight"
+    assert tail[1] == (
+        "  l1_robust: premise only, premise holds at 99.5% of samples "
+        "(not flown by it: the theorem does not apply), 1 flight"
     )
-
-    quiet = write_flight(tmp / "quiet", circle_states(100, z=1.05), np.full((100, 6), 0.02))
-    res = CliRunner().invoke(
-        app, ["evaluate", "--model", str(model), "--controller", str(ctrl),
-              "--flights", str(quiet), "--out", str(tmp / "ev2"), "--no-figures"],
-    )  # fmt: skip
+    # flown by it: the planted spike 0.2 against gamma_nominal (x_hat = x - 2.5 e_{k-1})
+    res = _evaluate(model, ctrl, spiky, tmp / "ev", "--flown-by", "l1_robust")
     assert res.exit_code == 0, res.output
     assert _verdict_lines(res.output) == {"l1_robust": "holds"}
-    ratio = float(re.search(r"worst \|\|e\|\|/gamma ([0-9.e-]+)", res.output).group(1))
-    # ||e|| = 0.02 everywhere, 0.05 from the training states: gamma = (0.05 + 0.2 (0.02 + 0.05)) / 0.5
-    assert ratio == pytest.approx(0.02 / ((0.05 + 0.2 * (0.02 + 0.05)) / 0.5), abs=5e-4)
+    row = pd.read_parquet(tmp / "ev" / "evaluation.parquet").iloc[0]
+    assert f"worst ||e||/gamma_nominal {0.2 / row['gamma_nominal']:.3g} (held_out)" in res.output
+
+    # the last sample's error 0.3 never reaches x_hat: a_nominal stays small and the bound
+    # (eps_e + S a) / (1 - S ||Phi_xy||) <= (0.05 + 0.2 * 0.1) / 0.5 = 0.14 fails
+    e = np.full((100, 6), 0.02)
+    e[-1, 0] = 0.3
+    late = write_flight(tmp / "late", circle_states(100, z=1.05), e)
+    res = _evaluate(model, ctrl, late, tmp / "ev1", "--flown-by", "l1_robust")
+    assert res.exit_code == 0, res.output
+    assert _verdict_lines(res.output) == {"l1_robust": "FAILS"}
+
+    quiet = write_flight(tmp / "quiet", circle_states(100, z=1.05), np.full((100, 6), 0.02))
+    res = _evaluate(model, ctrl, quiet, tmp / "ev2", "--flown-by", "l1_robust")
+    assert res.exit_code == 0, res.output
+    assert _verdict_lines(res.output) == {"l1_robust": "holds"}
+    ratio = float(re.search(r"worst \|\|e\|\|/gamma_nominal ([0-9.e-]+)", res.output).group(1))
+    row = pd.read_parquet(tmp / "ev2" / "evaluation.parquet").iloc[0]
+    assert ratio == pytest.approx(0.02 / row["gamma_nominal"], abs=5e-4)

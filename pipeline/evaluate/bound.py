@@ -2,46 +2,50 @@
 Closed-loop evaluation; paper, Bounded Perception Error Guarantee).
 
 For a controller certified with an S-slope ``S``, error bound ``eps_e`` (and ``R0``), process
-noise ``eps_w`` and responses ``Phi``, the guarantee is (DESIGN.md, Robust synthesis)::
+noise ``eps_w`` and responses ``Phi``, the certificate states (DESIGN.md, Robust synthesis)::
 
     ||e|| <= gamma        = (eps_e + S a) / (1 - S ||Phi_xy||),  a = eps_w ||Phi_xx H|| + Delta
     ||e|| <= gamma_strict = R0 / (1 - S ||Phi_xy||)              (the paper's comparison)
 
-``Delta`` is how far the flown states stray from the training states. The paper dropped it as
-"difficult to calculate"; here it is measured: for every held-out sample ``k`` the distance
-``d_k = min_i ||x_k - x_i||`` (infinity norm of the error model's scaled state) to the nearest
-training state, with a KD-tree over the training states. ``gamma_k`` uses ``Delta = d_k`` for
-sample ``k``; since ``d_k`` already includes the part of the deviation the perception error
-itself causes, this is at least as large as the theorem's ``a``: a conservative, data-driven
-reading of the bound. A flight's ``gamma`` is the largest ``gamma_k`` over the flight.
+Each row of the check (one flight, one controller) holds three things:
 
-Both bounds rest on an assumption about the perception error away from the training data,
-the S-slope: ``||e(x) - e(x_d)|| <= S ||x - x_d||`` within radius ``r`` of a training state
-``x_d`` with ``||e(x_d)|| <= eps_e``, hence ``||e_k|| <= eps_e + S d_k`` (the *premise*). When
-a bound fails the check says whether the premise failed on the flight (the certified S or
-eps_e is too small for where the vehicle went: the assumption is violated) or whether the
-bound failed although its premise held (which the theory rules out; look for a bug or a
-flight outside the radius).
+- **The theorem** (:mod:`.theorem`), only on a flight the controller flew itself: ``x_hat``,
+  ``a_nominal``, ``gamma_nominal = (eps_e + S a_nominal) / (1 - S ||Phi_xy||)`` and the verdict
+  ``bound_holds = max_k ||e_k|| <= gamma_nominal``. On a recorded log or another controller's
+  flight the theorem does not apply: those columns are empty and the verdict says so.
+- **The premise** ``||e_k|| <= eps_e + S d_k`` with ``d_k = min_i ||W (x_k - x_i)||`` the
+  flown state's distance to the nearest training state (KD-tree, infinity norm, ``W`` the
+  error model's ``state_scale``), within the radius ``r``: the share of samples where it holds,
+  the worst ratio and when. This tests the error model (how it generalizes), not the
+  controller.
+- **The per-sample curve** ``gamma_k = (eps_e + S (eps_w ||Phi_xx H|| + d_k)) / (...)``, kept for
+  the figures (columns ``gamma``, ``max_ratio``, ``frac_under_gamma``, ``local_bound_holds``).
+  It is *not* the theorem's bound: it holds wherever the premise holds (``gamma_k >= eps_e +
+  S d_k``), and ``d_k`` does not bound the theorem's distance (on the quickstart's
+  ``l1_robust`` flight ``max d_k`` = 0.122 while ``a_nominal`` = 0.152).
+
+When the theorem's bound fails the verdict says whether the premise failed on the flight
+(the certified S or eps_e is too small for where the vehicle went) or whether it failed
+although its premise held (which the theory rules out on the linear plant; look for model
+mismatch or a flight outside the radius).
 
 Outputs (``evaluate``): ``evaluation.parquet`` (one row per flight and controller),
 ``evaluation.json`` (the same rows, per-controller totals, warnings), ``samples.parquet``
-(per-sample ``||e_k||``, ``d_k``, ``gamma_k`` for the report) and figures.
+(per-sample ``||e_k||``, ``d_k``, ``gamma_k``, ``d(x_hat_k)`` for the report) and figures.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
-from qsls.pipeline.control.sls import l1_norm
-from qsls.pipeline.core.artifacts import StageWriter, require_stage, sha256_file, sha256_path
+from qsls.pipeline.core.artifacts import StageWriter, require_stage
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
@@ -50,10 +54,42 @@ from qsls.pipeline.errormodel.model import (
     error_model_file,
     load_error_model,
 )
+from qsls.pipeline.evaluate.certified import (
+    ControllerBound,
+    check_model_hash,
+    expand_controllers,
+    load_bounds,
+    load_controller_bound,
+)
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
 from qsls.pipeline.evaluate.table import Evaluation
+from qsls.pipeline.evaluate.theorem import (
+    Premise,
+    premise_only,
+    theorem_check,
+    theorem_verdict,
+    uniform_grid,
+)
 from qsls.pipeline.evaluate.training import TrainingData, load_training
 from qsls.pipeline.ingest.flight import errors, read_flight, states
+
+__all__ = [
+    "ControllerBound",
+    "EvaluateOptions",
+    "EvaluateResult",
+    "TrainingData",
+    "bound_check",
+    "check_flight",
+    "check_model_hash",
+    "evaluate",
+    "expand_controllers",
+    "load_bounds",
+    "load_controller_bound",
+    "load_flights",
+    "load_training",
+    "resolve_model",
+    "write_tables",
+]
 
 
 class EvaluateOptions(Options):
@@ -63,138 +99,15 @@ class EvaluateOptions(Options):
     """Time constant (s) of the first-order average drawn over ``||e||`` in the figures
     (the paper's figure used 1 s); 0 draws the raw signal only. Numbers are never smoothed."""
     state_scale: tuple[float, float, float, float, float, float] | None = None
-    """Per-coordinate weights of the state distance; default: the error model's."""
+    """Per-coordinate weights of the state distance; must equal the error model's (its
+    S-slope is a slope in that norm), which is the default."""
+    flown_by: str | None = None
+    """The controller (by name) that flew the given flights: the theorem is checked on its
+    rows; every other row, and every row when unset, checks the premise only."""
     figures: bool = True
     """Write the PNG figures."""
     max_figure_flights: int = 12
     """At most this many flights get a panel in the figures (all are in the tables)."""
-
-
-# --------------------------------------------------------------------------- controllers
-@dataclass(frozen=True)
-class ControllerBound:
-    """What the bound check needs from one controller folder's certificate."""
-
-    name: str
-    folder: Path
-    status: str
-    robust: bool
-    S: float
-    eps_e: float
-    R0: float
-    eps_w: float
-    norm_phi_xx_h: float
-    norm_phi_xy: float
-    radius: float
-    delta: float
-    gamma_certificate: float
-    model_sha256: str | None
-    robustness_lhs: float | None = None
-    certificate: dict[str, Any] = field(repr=False, default_factory=dict)
-
-    @property
-    def denominator(self) -> float:
-        """``1 - S ||Phi_xy||``; the bound's formula is finite only when positive."""
-        return 1.0 - self.S * self.norm_phi_xy
-
-    @property
-    def finite(self) -> bool:
-        return self.denominator > 0
-
-    @property
-    def no_guarantee_reason(self) -> str | None:
-        """Why the theorem does not apply to this controller (``None``: it does)."""
-        if not self.finite:
-            return f"S*||Phi_xy|| = {self.S * self.norm_phi_xy:.3g} >= 1"
-        if self.status in ("failed", "solver_inaccurate"):
-            return f"certificate status '{self.status}'"
-        if self.robustness_lhs is not None and self.robustness_lhs >= 1.0:
-            return f"robustness condition not met (lhs {self.robustness_lhs:.3g} >= 1)"
-        return None
-
-    @property
-    def has_guarantee(self) -> bool:
-        """The theorem applies: finite bound, a verified controller, and the robustness
-        condition met (lhs < 1, the certificate's ``robustness_lhs``); a nominal or PD
-        controller usually misses the last."""
-        return self.no_guarantee_reason is None
-
-    @property
-    def gamma_strict(self) -> float:
-        """``R0 / (1 - S ||Phi_xy||)`` (inf when ``S ||Phi_xy|| >= 1``)."""
-        return self.R0 / self.denominator if self.finite else math.inf
-
-    def gamma_at(self, distance: np.ndarray) -> np.ndarray:
-        """``gamma_k = (eps_e + S (eps_w ||Phi_xx H|| + d_k)) / (1 - S ||Phi_xy||)``."""
-        d = np.asarray(distance, dtype=float)
-        if not self.finite:
-            return np.full(d.shape, math.inf)
-        a = self.eps_w * self.norm_phi_xx_h + d
-        return (self.eps_e + self.S * a) / self.denominator
-
-    def premise_at(self, distance: np.ndarray) -> np.ndarray:
-        """The S-slope premise ``eps_e + S d_k``: the error the assumption allows at ``x_k``."""
-        return self.eps_e + self.S * np.asarray(distance, dtype=float)
-
-
-def load_controller_bound(folder: Path) -> ControllerBound:
-    """The bound's numbers from a verified controller folder (:func:`load_controller_dir`):
-    the setting from its certificate, the norms ``||Phi_xy||`` and ``||Phi_xx H||`` recomputed
-    from its responses."""
-    d = load_controller_dir(folder)
-    c, taps = d.certificate, d.controller.taps
-    return ControllerBound(
-        name=d.name,
-        folder=d.folder,
-        status=c.status,
-        robust=c.robust,
-        S=c.S,
-        eps_e=c.eps_e,
-        R0=c.R0,
-        eps_w=c.eps_w,
-        norm_phi_xx_h=l1_norm(taps.Phi_xx, d.controller.model.H),
-        norm_phi_xy=l1_norm(taps.Phi_xy),
-        radius=c.radius,
-        delta=c.delta,
-        gamma_certificate=c.gamma,
-        model_sha256=c.error_model_sha256,
-        robustness_lhs=c.robustness_lhs,
-        certificate=c.model_dump(),
-    )
-
-
-def load_bounds(folders: Sequence[Path]) -> list[ControllerBound]:
-    """Every folder's bound, names made unique (``<synth folder>-<controller>`` on a clash,
-    e.g. two synth outputs that both hold ``l1_robust``)."""
-    from collections import Counter
-    from dataclasses import replace
-
-    bounds = [load_controller_bound(f) for f in folders]
-    counts = Counter(b.name for b in bounds)
-    return [
-        replace(b, name=f"{b.folder.parent.name}-{b.name}") if counts[b.name] > 1 else b
-        for b in bounds
-    ]
-
-
-def check_model_hash(bound: ControllerBound, model_file: Path, *, force: bool) -> str | None:
-    """Compare the controller's recorded error-model hash with ``model_file``'s.
-
-    Returns a warning (hash differs and ``force``, or no hash recorded), ``None`` when they
-    match; raises :class:`InputError` when they differ and not ``force``.
-    """
-    if bound.model_sha256 is None:
-        return f"{bound.name}: certificate records no error-model hash; cannot check it was certified against this model"
-    ours = {sha256_file(model_file), sha256_path(model_file.parent)}
-    if bound.model_sha256 in ours:
-        return None
-    msg = (
-        f"{bound.name}: certified against error model {bound.model_sha256[:12]}, "
-        f"but --model is {sha256_file(model_file)[:12]}"
-    )
-    if not force:
-        raise InputError(msg + "; pass the model it was certified with, or --force to check anyway")
-    return msg + " (checked anyway: --force)"
 
 
 # --------------------------------------------------------------------------- the check
@@ -204,46 +117,55 @@ def check_flight(
     bound: ControllerBound,
     training: TrainingData,
     nearest: tuple[np.ndarray, np.ndarray] | None = None,
+    flown_by: str | None = None,
 ) -> tuple[dict[str, Any], pd.DataFrame]:
-    """One flight against one controller's bounds: the table row and the per-sample frame."""
-    x = states(flight)
-    e = errors(flight)
-    t = flight["t"].to_numpy(float)
-    ok = np.isfinite(x).all(axis=1) & np.isfinite(e).all(axis=1)
+    """One flight against one controller: the table row and the per-sample frame.
+
+    ``flown_by`` names the controller that flew the flight (``None``: a recorded log); the
+    theorem is checked only when it is ``bound`` itself (module docstring)."""
+    x_all = states(flight)
+    e_all = errors(flight)
+    t_all = flight["t"].to_numpy(float)
+    ok = np.isfinite(x_all).all(axis=1) & np.isfinite(e_all).all(axis=1)
     if not ok.any():
         raise InputError(f"flight {name}: no samples with finite states and errors")
-    d, idx = nearest if nearest is not None else training.nearest(x[ok])
-    x, e, t, n_dropped = x[ok], e[ok], t[ok], int((~ok).sum())
+    d, idx = nearest if nearest is not None else training.nearest(x_all[ok])
+    x, e, t, n_dropped = x_all[ok], e_all[ok], t_all[ok], int((~ok).sum())
     e_norm = np.abs(e).max(axis=1)
     gamma_k = bound.gamma_at(d)
     gamma_strict = bound.gamma_strict
     premise_k = bound.premise_at(d)
     inside = d < bound.radius
     ratio, ratio_strict, premise_ratio = _ratios(e_norm, gamma_k, gamma_strict, premise_k)
-    k_ratio = int(np.argmax(ratio))
-    k_err = int(np.argmax(e_norm))
-    k_dist = int(np.argmax(d))
+    k_ratio, k_err, k_dist = int(np.argmax(ratio)), int(np.argmax(e_norm)), int(np.argmax(d))
     k_prem = int(np.argmax(premise_ratio))
-    max_slope = _max_slope_to_training(e, d, idx, inside, training)
-    bound_holds = bool(np.all(e_norm <= gamma_k)) if bound.finite else False
-    strict_holds = bool(np.all(e_norm <= gamma_strict))
     premise_holds = bool(np.all(premise_ratio <= 1.0))
     frac_premise = float(np.mean(premise_ratio <= 1.0))
     within_radius = bool(np.all(inside))
-    verdict = _verdict(
-        bound,
-        bound_holds,
-        strict_holds,
-        premise_holds,
-        within_radius,
-        float(premise_ratio[k_prem]),
-        float(t[k_prem]),
-        max_slope,
-        frac_premise,
-    )
+    max_slope = _max_slope_to_training(e, d, idx, inside, training)
+    problems = _premise_problems(
+        bound, premise_holds, within_radius, float(premise_ratio[k_prem]), float(t[k_prem]),
+        max_slope, frac_premise,
+    )  # fmt: skip
+    why_not = _why_theorem_not(bound, flown_by, t_all)
+    d_hat = np.full(len(t), np.nan)
+    if why_not is None:
+        assert bound.phi_xy is not None
+        premise = Premise(bound.eps_e, bound.S, bound.radius, bound.a_certificate)
+        theorem, d_hat_all = theorem_check(
+            x_all, e_all, t_all, bound.phi_xy, premise, training.scale, training.distance
+        )
+        d_hat = d_hat_all[ok]
+        head = theorem_verdict(theorem, float(e_norm[k_err]), premise)
+        if not theorem["bound_holds"] and premise_holds and within_radius:
+            problems.append("although the premise holds on this flight")
+    else:
+        theorem = premise_only(bound.a_certificate)
+        head = f"premise only ({why_not}: the theorem does not apply)"
     row = {
         "flight": name,
         "controller": bound.name,
+        "flown_by": flown_by or "",
         "status": bound.status,
         "robust": bound.robust,
         "S": bound.S,
@@ -252,6 +174,7 @@ def check_flight(
         "norm_phi_xy": bound.norm_phi_xy,
         "norm_phi_xx_h": bound.norm_phi_xx_h,
         "has_guarantee": bound.has_guarantee,
+        **theorem,
         "gamma": float(gamma_k.max()),
         "gamma_min": float(gamma_k.min()),
         "gamma_certificate": bound.gamma_certificate,
@@ -278,10 +201,10 @@ def check_flight(
         "max_premise_ratio": float(premise_ratio[k_prem]),
         "max_premise_ratio_t": float(t[k_prem]),
         "max_slope_to_training": max_slope,
-        "bound_holds": bound_holds,
-        "strict_bound_holds": strict_holds,
+        "local_bound_holds": bool(np.all(e_norm <= gamma_k)) if bound.finite else False,
+        "strict_bound_holds": bool(np.all(e_norm <= gamma_strict)),
         "assumption_holds": premise_holds and within_radius,
-        "verdict": verdict,
+        "verdict": "; ".join([head, *problems]),
     }
     samples = pd.DataFrame(
         {
@@ -290,12 +213,27 @@ def check_flight(
             "t": t,
             "error_norm": e_norm,
             "distance": d,
+            "nominal_distance": d_hat,
             "gamma": gamma_k,
             "gamma_strict": np.full(len(t), gamma_strict),
+            "gamma_nominal": np.full(len(t), theorem["gamma_nominal"]),
             "premise": premise_k,
         }
     )
     return row, samples
+
+
+def _why_theorem_not(bound: ControllerBound, flown_by: str | None, t: np.ndarray) -> str | None:
+    """Why the theorem cannot be checked on this flight against ``bound`` (``None``: it can)."""
+    if not flown_by:
+        return "a recorded flight"
+    if flown_by != bound.name:
+        return f"flown by {flown_by}"
+    if bound.phi_xy is None or not math.isfinite(bound.dt):
+        return "controller without responses"
+    if not uniform_grid(t, bound.dt):
+        return f"flight not sampled at the controller's dt = {bound.dt:g} s"
+    return None
 
 
 def _ratios(
@@ -322,22 +260,17 @@ def _max_slope_to_training(
     return float((np.abs(e - training.e[idx]).max(axis=1)[use] / d[use]).max())
 
 
-def _verdict(
+def _premise_problems(
     bound: ControllerBound,
-    holds: bool,
-    strict_holds: bool,
     premise_holds: bool,
     within_radius: bool,
     premise_ratio: float,
     premise_t: float,
     max_slope: float,
-    frac_premise: float = 0.0,
-) -> str:
-    if not bound.finite:
-        return (
-            f"no bound: S*||Phi_xy|| = {bound.S * bound.norm_phi_xy:.3g} >= 1 "
-            "(not certified for this S)"
-        )
+    frac_premise: float,
+) -> list[str]:
+    """What the verdict says besides its head: a missing guarantee, the premise failing on
+    the flight, the flight leaving the radius."""
     problems = []
     if not bound.has_guarantee:
         problems.append(
@@ -346,23 +279,15 @@ def _verdict(
     if not premise_holds:
         slope = f", held-out slope to training {max_slope:.3g} > S" if max_slope > bound.S else ""
         problems.append(
-            f"assumption violated at {100 * (1 - frac_premise):.1f}% of samples: ||e|| reaches "
+            f"premise violated at {100 * (1 - frac_premise):.1f}% of samples: ||e|| reaches "
             f"{premise_ratio:.3g}x eps_e + S*d at t={premise_t:.2f}s (certified S={bound.S:.3g}, "
             f"eps_e={bound.eps_e:.3g} are too small for this flight{slope})"
         )
+    else:
+        problems.append("premise holds at every sample")
     if not within_radius:
         problems.append(f"flight leaves the radius r={bound.radius:.3g} around the training states")
-    if holds and strict_holds:
-        head = "holds"
-    elif holds:
-        head = "holds (strict bound exceeded)"
-    else:
-        head = "FAILS"
-    if problems:
-        return f"{head}; " + "; ".join(problems)
-    if not holds:
-        return f"{head} although its assumptions hold on this flight"
-    return head
+    return problems
 
 
 # --------------------------------------------------------------------------- stage
@@ -397,26 +322,6 @@ def resolve_model(path: Path) -> tuple[Path, Path]:
     return f, f.parent
 
 
-def expand_controllers(folders: Sequence[Path]) -> list[Path]:
-    """Controller folders; a synth output folder stands for every controller inside it."""
-    out: list[Path] = []
-    for f in folders:
-        f = Path(f)
-        if not f.is_dir():
-            raise InputError(f"{f}: no such controller folder")
-        if (f / CERTIFICATE_FILE).is_file():
-            out.append(f)
-            continue
-        inner = sorted(p for p in f.iterdir() if p.is_dir() and (p / CERTIFICATE_FILE).is_file())
-        if not inner:
-            raise InputError(
-                f"{f}: no {CERTIFICATE_FILE} (and no controller folders inside); pass a "
-                "controller folder written by 'qsls synth'"
-            )
-        out.extend(inner)
-    return out
-
-
 def load_flights(folders: Sequence[Path]) -> list[tuple[str, pd.DataFrame]]:
     """Read held-out flights (flight folders or ``flight.parquet`` files), unique names."""
     if not folders:
@@ -439,10 +344,12 @@ def bound_check(
     training: TrainingData,
     *,
     pairs: Sequence[tuple[int, int]] | None = None,
+    flown_by: Sequence[str | None] | None = None,
     progress: Progress = NULL_PROGRESS,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Every flight against every controller (or the given ``(flight, controller)`` index
-    pairs): ``(rows, samples)``. Nearest distances are computed once per flight."""
+    pairs): ``(rows, samples)``. ``flown_by[i]`` names the controller that flew flight ``i``
+    (``None``: recorded). Nearest distances are computed once per flight."""
     if pairs is None:
         pairs = [(i, j) for i in range(len(flights)) for j in range(len(bounds))]
     progress.start("bound check", total=len(pairs))
@@ -456,8 +363,10 @@ def bound_check(
             if not ok.any():
                 raise InputError(f"flight {name}: no samples with finite states and errors")
             nearest[i] = training.nearest(x[ok])
-        row, s = check_flight(name, df, bounds[j], training, nearest[i])
+        by = flown_by[i] if flown_by is not None else None
+        row, s = check_flight(name, df, bounds[j], training, nearest[i], by)
         rows.append(row)
+        s.insert(1, "flown_by", by or "")
         samples.append(s)
         progress.advance()
     progress.finish()
@@ -478,11 +387,27 @@ def controller_totals(table: pd.DataFrame) -> list[dict[str, Any]]:
                 "frac_under_gamma": float(g["frac_under_gamma"].mean()),
                 "frac_under_gamma_strict": float(g["frac_under_gamma_strict"].mean()),
                 "max_ratio": float(g["max_ratio"].max()),
-                "bound_holds_all": bool(g["bound_holds"].all()),
+                **_theorem_totals(g),
+                "frac_premise_holds": float(g["frac_premise_holds"].mean()),
                 "assumption_holds_all": bool(g["assumption_holds"].all()),
             }
         )
     return out
+
+
+def _theorem_totals(g: pd.DataFrame) -> dict[str, Any]:
+    """Over one controller's rows where the theorem applies (its own flights): how many, did
+    the bound hold on all, the worst ``max ||e|| / gamma_nominal`` (None without such rows)."""
+    own = g[g["theorem_applies"].astype(bool)] if "theorem_applies" in g else g.iloc[:0]
+    if not len(own):
+        return {"theorem_flights": 0, "bound_holds_all": None, "max_nominal_ratio": None}
+    ratio = pd.to_numeric(own["nominal_ratio"], errors="coerce")
+    return {
+        "theorem_flights": len(own),
+        "bound_holds_all": bool(own["bound_holds"].astype(bool).all()),
+        "max_nominal_ratio": float(ratio.max()) if ratio.notna().any() else None,
+        "max_a_nominal": float(own["a_nominal"].max()),
+    }
 
 
 def evaluate(
@@ -502,6 +427,11 @@ def evaluate(
     if not folders:
         raise InputError("no controllers given; pass at least one --controller folder")
     bounds = load_bounds(folders)
+    if options.flown_by is not None and options.flown_by not in {b.name for b in bounds}:
+        raise InputError(
+            f"--flown-by {options.flown_by}: not among the controllers "
+            f"({', '.join(b.name for b in bounds)})"
+        )
     warnings = [w for b in bounds if (w := check_model_hash(b, model_file, force=force))]
     training = load_training(fit_dir, model, options.state_scale)
     held_out = load_flights(flights)
@@ -512,7 +442,9 @@ def evaluate(
             require_stage(Path(f) if Path(f).is_dir() else Path(f).parent, "ingest")
         except InputError as exc:
             warnings.append(str(exc))
-    table, samples = bound_check(held_out, bounds, training, progress=progress)
+    table, samples = bound_check(
+        held_out, bounds, training, flown_by=[options.flown_by] * len(held_out), progress=progress
+    )
     return write_evaluation(
         out,
         table,

@@ -376,6 +376,9 @@ def _bound_columns(per: pd.DataFrame, checks: pd.DataFrame) -> pd.DataFrame:
             frac_under_gamma=("frac_under_gamma", "mean"),
             frac_under_gamma_strict=("frac_under_gamma_strict", "mean"),
             max_ratio=("max_ratio", "max"),
+            gamma_nominal_max=("gamma_nominal", "max"),
+            max_nominal_ratio=("nominal_ratio", "max"),
+            bound_holds_all=("bound_holds", lambda b: bool(b.astype(bool).all())),
         )
         .reset_index()
     )
@@ -469,11 +472,10 @@ def _check_flights(
             pairs.append((i, j))
     if not pairs:
         return pd.DataFrame(), pd.DataFrame(), ref_j
-    checks, samples = bound_check(held, list(bounds), training, pairs=pairs)
-    checks.insert(2, "flown_by", checks["flight"].map(flown))
+    by = [flown[name] for name, _ in held]
+    checks, samples = bound_check(held, list(bounds), training, pairs=pairs, flown_by=by)
     cond_of = dict(zip(flights["flight"], flights["condition"], strict=True))
     checks.insert(3, "condition", checks["flight"].map(cond_of))
-    samples.insert(1, "flown_by", samples["flight"].map(flown))
     return checks, samples, ref_j
 
 

@@ -54,6 +54,10 @@ class TrainingData:
         d, i = self.tree.query(np.asarray(query, dtype=float) * self.scale, k=1, p=np.inf)
         return np.asarray(d, dtype=float), np.asarray(i, dtype=np.int64)
 
+    def distance(self, query: np.ndarray) -> np.ndarray:
+        """``min_i ||W (q - x_i)||_inf`` for each row ``q`` of ``query``."""
+        return self.nearest(query)[0]
+
 
 def load_training(fit_dir: Path, model: ErrorModel, scale: Sequence[float] | None) -> TrainingData:
     """``FITDIR/training_states.parquet`` (columns ``x_px .. x_vz``, optionally ``e_*``)."""
@@ -64,10 +68,16 @@ def load_training(fit_dir: Path, model: ErrorModel, scale: Sequence[float] | Non
         raise InputError(
             f"{path}: missing columns {', '.join(missing)}; regenerate with 'qsls fit'"
         )
+    if scale is not None and tuple(scale) != tuple(model.state_scale):
+        raise InputError(
+            f"state_scale {list(scale)} differs from the error model's "
+            f"{list(model.state_scale)}: its S-slope is a slope in the model's norm; "
+            "drop state_scale or refit with 'qsls fit --state-scale'"
+        )
     e = errors(df) if all(c in df.columns for c in E_COLS) else None
     return TrainingData.build(
         states(df),
-        scale or model.state_scale,
+        model.state_scale,
         e,
         model.min_separation,
     )

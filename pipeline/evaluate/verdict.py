@@ -1,9 +1,11 @@
-"""The answer of an evaluation, per controller: does the certified bound hold on every
-flight (``||e_k|| <= gamma_k``, DESIGN.md Evaluation), and the worst ratio ``||e|| / gamma``.
+"""The answer of an evaluation, per controller (DESIGN.md, Closed-loop evaluation).
 
-Read from the evaluation table (``evaluation.parquet``, one row per flight and controller):
-its ``bound_holds`` column when present (else ``max_ratio <= 1``), ``max_ratio``, and
-``has_guarantee`` (a controller without a certified bound has no verdict to give).
+On the flights a controller flew itself (``theorem_applies``), the theorem's verdict:
+``bound_holds = max_k ||e_k|| <= gamma_nominal`` on every one, and the worst
+``max ||e|| / gamma_nominal``. On recorded logs and other controllers' flights the theorem
+does not apply: the verdict is the premise's (the share of samples with
+``||e_k|| <= eps_e + S d_k``), which tests the error model, not the controller. A table
+written before the theorem columns existed falls back to ``bound_holds`` and ``max_ratio``.
 """
 
 from __future__ import annotations
@@ -20,23 +22,40 @@ class Verdict:
     controller: str
     flights: int
     certified: bool  # has a certified bound to check
-    holds: bool  # the bound held on every flight (False when not certified)
-    worst_ratio: float  # max over flights of max_k ||e_k|| / gamma_k
+    holds: bool  # the bound held on every flight it applies to (False when not certified)
+    worst_ratio: float  # max over those flights of max ||e|| / gamma_nominal
     worst_flight: str
+    theorem: bool = True  # the theorem applied to at least one flight
+    premise_share: float = math.nan  # premise-only rows: mean share of samples under it
 
     @property
     def word(self) -> str:
         if not self.certified:
             return "no certified bound"
+        if not self.theorem:
+            return "premise only"
         return "holds" if self.holds else "FAILS"
 
     def line(self) -> str:
+        n = f"{self.flights} flight{'s' if self.flights != 1 else ''}"
+        if self.certified and not self.theorem:
+            share = f"{100 * self.premise_share:.1f}%" if math.isfinite(self.premise_share) else "n/a"
+            return (
+                f"{self.controller}: {self.word}, premise holds at {share} of samples "
+                f"(not flown by it: the theorem does not apply), {n}"
+            )
         ratio = f"{self.worst_ratio:.3g}" if math.isfinite(self.worst_ratio) else "n/a"
         where = f" ({self.worst_flight})" if self.worst_flight else ""
-        return (
-            f"{self.controller}: {self.word}, worst ||e||/gamma {ratio}{where}, "
-            f"{self.flights} flight{'s' if self.flights != 1 else ''}"
-        )
+        what = "gamma_nominal" if self.theorem else "gamma"
+        return f"{self.controller}: {self.word}, worst ||e||/{what} {ratio}{where}, {n}"
+
+
+def _worst(g: pd.DataFrame, col: str) -> tuple[float, str]:
+    ratio = pd.to_numeric(g[col], errors="coerce") if col in g else None
+    if ratio is None or not ratio.notna().any():
+        return math.nan, ""
+    k = ratio.idxmax()
+    return float(ratio[k]), str(g.loc[k, "flight"]) if "flight" in g else ""
 
 
 def verdicts(table: pd.DataFrame) -> list[Verdict]:
@@ -45,22 +64,29 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
     if table is None or not len(table) or "controller" not in table:
         return out
     for name, g in table.groupby("controller", sort=False):
-        ratio = pd.to_numeric(g["max_ratio"], errors="coerce") if "max_ratio" in g else None
         certified = bool(g["has_guarantee"].all()) if "has_guarantee" in g else True
-        if "bound_holds" in g:
-            holds = bool(g["bound_holds"].astype(bool).all())
-        else:
-            holds = ratio is not None and bool((ratio <= 1.0).all())
-        worst, flight = math.nan, ""
-        if ratio is not None and ratio.notna().any():
-            k = ratio.idxmax()
-            worst, flight = float(ratio[k]), str(g.loc[k, "flight"]) if "flight" in g else ""
-        out.append(Verdict(str(name), len(g), certified, holds and certified, worst, flight))
+        if "theorem_applies" not in g:  # an older table: the per-sample check
+            worst, flight = _worst(g, "max_ratio")
+            holds = bool(g["bound_holds"].astype(bool).all()) if "bound_holds" in g else (
+                math.isfinite(worst) and worst <= 1.0
+            )
+            out.append(Verdict(str(name), len(g), certified, holds and certified, worst, flight))
+            continue
+        own = g[g["theorem_applies"].astype(bool)]
+        if not len(own):
+            share = float(pd.to_numeric(g["frac_premise_holds"], errors="coerce").mean())
+            out.append(
+                Verdict(str(name), len(g), certified, False, math.nan, "", False, share)
+            )
+            continue
+        worst, flight = _worst(own, "nominal_ratio")
+        holds = bool(own["bound_holds"].astype(bool).all())
+        out.append(Verdict(str(name), len(own), certified, holds and certified, worst, flight))
     return out
 
 
 def read_verdicts(folder: Path) -> list[Verdict]:
-    """The verdicts of an evaluate stage folder (empty when it holds no table)."""
+    """The verdicts of an evaluate stage folder (empty when it holds no evaluation)."""
     from qsls.pipeline.evaluate.table import Evaluation
 
     return verdicts(Evaluation.load(folder).rows) if Evaluation.exists(folder) else []

@@ -1,0 +1,184 @@
+"""The controllers a bound check reads: each folder's certificate and responses, verified
+(:func:`~qsls.pipeline.control.artifacts.load_controller_dir`), with the numbers of the
+certificate's guarantee (DESIGN.md, Robust synthesis)::
+
+    gamma        = (eps_e + S a) / (1 - S ||Phi_xy||),  a = eps_w ||Phi_xx H|| + Delta
+    gamma_strict = R0 / (1 - S ||Phi_xy||)
+
+The norms are recomputed from the controller's taps, never read from the certificate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
+from qsls.pipeline.control.sls import l1_norm
+from qsls.pipeline.core.artifacts import sha256_file, sha256_path
+from qsls.pipeline.core.errors import InputError
+
+
+@dataclass(frozen=True)
+class ControllerBound:
+    """What the bound check needs from one controller folder's certificate."""
+
+    name: str
+    folder: Path
+    status: str
+    robust: bool
+    S: float
+    eps_e: float
+    R0: float
+    eps_w: float
+    norm_phi_xx_h: float
+    norm_phi_xy: float
+    radius: float
+    delta: float
+    gamma_certificate: float
+    model_sha256: str | None
+    robustness_lhs: float | None = None
+    certificate: dict[str, Any] = field(repr=False, default_factory=dict)
+    phi_xy: np.ndarray | None = field(repr=False, compare=False, default=None)
+    """The ``(T+1, nx, ny)`` taps of ``Phi_xy`` (the theorem's ``x_hat``)."""
+    dt: float = math.nan
+    """The controller's sample time."""
+
+    @property
+    def a_certificate(self) -> float:
+        """The certificate's a-priori ``a = eps_w ||Phi_xx H|| + Delta``."""
+        return self.eps_w * self.norm_phi_xx_h + self.delta
+
+    @property
+    def denominator(self) -> float:
+        """``1 - S ||Phi_xy||``; the bound's formula is finite only when positive."""
+        return 1.0 - self.S * self.norm_phi_xy
+
+    @property
+    def finite(self) -> bool:
+        return self.denominator > 0
+
+    @property
+    def no_guarantee_reason(self) -> str | None:
+        """Why the theorem does not apply to this controller (``None``: it does)."""
+        if not self.finite:
+            return f"S*||Phi_xy|| = {self.S * self.norm_phi_xy:.3g} >= 1"
+        if self.status in ("failed", "solver_inaccurate"):
+            return f"certificate status '{self.status}'"
+        if self.robustness_lhs is not None and self.robustness_lhs >= 1.0:
+            return f"robustness condition not met (lhs {self.robustness_lhs:.3g} >= 1)"
+        return None
+
+    @property
+    def has_guarantee(self) -> bool:
+        """The theorem applies: finite bound, a verified controller, and the robustness
+        condition met (lhs < 1, the certificate's ``robustness_lhs``); a nominal or PD
+        controller usually misses the last."""
+        return self.no_guarantee_reason is None
+
+    @property
+    def gamma_strict(self) -> float:
+        """``R0 / (1 - S ||Phi_xy||)`` (inf when ``S ||Phi_xy|| >= 1``)."""
+        return self.R0 / self.denominator if self.finite else math.inf
+
+    def gamma_at(self, distance: np.ndarray) -> np.ndarray:
+        """``gamma_k = (eps_e + S (eps_w ||Phi_xx H|| + d_k)) / (1 - S ||Phi_xy||)``."""
+        d = np.asarray(distance, dtype=float)
+        if not self.finite:
+            return np.full(d.shape, math.inf)
+        a = self.eps_w * self.norm_phi_xx_h + d
+        return (self.eps_e + self.S * a) / self.denominator
+
+    def premise_at(self, distance: np.ndarray) -> np.ndarray:
+        """The S-slope premise ``eps_e + S d_k``: the error the assumption allows at ``x_k``."""
+        return self.eps_e + self.S * np.asarray(distance, dtype=float)
+
+
+def load_controller_bound(folder: Path) -> ControllerBound:
+    """The bound's numbers from a verified controller folder (:func:`load_controller_dir`):
+    the setting from its certificate, the norms ``||Phi_xy||`` and ``||Phi_xx H||`` recomputed
+    from its responses."""
+    d = load_controller_dir(folder)
+    c, taps = d.certificate, d.controller.taps
+    return ControllerBound(
+        name=d.name,
+        folder=d.folder,
+        status=c.status,
+        robust=c.robust,
+        S=c.S,
+        eps_e=c.eps_e,
+        R0=c.R0,
+        eps_w=c.eps_w,
+        norm_phi_xx_h=l1_norm(taps.Phi_xx, d.controller.model.H),
+        norm_phi_xy=l1_norm(taps.Phi_xy),
+        radius=c.radius,
+        delta=c.delta,
+        gamma_certificate=c.gamma,
+        model_sha256=c.error_model_sha256,
+        robustness_lhs=c.robustness_lhs,
+        certificate=c.model_dump(),
+        phi_xy=taps.Phi_xy,
+        dt=float(d.controller.dt),
+    )
+
+
+def load_bounds(folders: Sequence[Path]) -> list[ControllerBound]:
+    """Every folder's bound, names made unique (``<synth folder>-<controller>`` on a clash,
+    e.g. two synth outputs that both hold ``l1_robust``)."""
+    from collections import Counter
+    from dataclasses import replace
+
+    bounds = [load_controller_bound(f) for f in folders]
+    counts = Counter(b.name for b in bounds)
+    return [
+        replace(b, name=f"{b.folder.parent.name}-{b.name}") if counts[b.name] > 1 else b
+        for b in bounds
+    ]
+
+
+def check_model_hash(bound: ControllerBound, model_file: Path, *, force: bool) -> str | None:
+    """Compare the controller's recorded error-model hash with ``model_file``'s.
+
+    Returns a warning (hash differs and ``force``, or no hash recorded), ``None`` when they
+    match; raises :class:`InputError` when they differ and not ``force``.
+    """
+    if bound.model_sha256 is None:
+        return f"{bound.name}: certificate records no error-model hash; cannot check it was certified against this model"
+    ours = {sha256_file(model_file), sha256_path(model_file.parent)}
+    if bound.model_sha256 in ours:
+        return None
+    msg = (
+        f"{bound.name}: certified against error model {bound.model_sha256[:12]}, "
+        f"but --model is {sha256_file(model_file)[:12]}"
+    )
+    if not force:
+        raise InputError(msg + "; pass the model it was certified with, or --force to check anyway")
+    return msg + " (checked anyway: --force)"
+
+
+
+def expand_controllers(folders: Sequence[Path]) -> list[Path]:
+    """Controller folders; a synth output folder stands for every controller inside it."""
+    out: list[Path] = []
+    for f in folders:
+        f = Path(f)
+        if not f.is_dir():
+            raise InputError(f"{f}: no such controller folder")
+        if (f / CERTIFICATE_FILE).is_file():
+            out.append(f)
+            continue
+        inner = sorted(p for p in f.iterdir() if p.is_dir() and (p / CERTIFICATE_FILE).is_file())
+        if not inner:
+            raise InputError(
+                f"{f}: no {CERTIFICATE_FILE} (and no controller folders inside); pass a "
+                "controller folder written by 'qsls synth'"
+            )
+        out.extend(inner)
+    return out
+
+
