@@ -184,3 +184,74 @@ def test_gamma_strict_check_finds_a_violation(tmp_path_factory):
     finally:
         (root / "a" / "certificate.yaml").unlink()
     assert _strict_above_gamma(root) == []
+
+
+# --------------------------------------------------------------------------- reference norms
+def test_closed_loop_norm_of_a_geometric_series():
+    """``sum_k a^k = 1 / (1 - a)`` (and with a rotation-like 2x2 block, a non-normal case
+    checked against a 20000-tap sum); an unstable loop has no finite norm."""
+    from qsls.pipeline.control.nominal import closed_loop_norm
+
+    one = np.ones((1, 1))
+    n = closed_loop_norm(np.array([[0.99]]), one, one, 20)
+    # an upper bound (to the float rounding of a 2752-term sum) within 1e-9 of the answer
+    assert n.lower <= 100.0 <= n.value * (1 + 1e-12) and abs(n.value - 100.0) < 1e-9
+    assert n.truncated == pytest.approx((1 - 0.99**20) / (1 - 0.99), rel=1e-13)
+    acl = np.array([[0.9, 2.0], [-0.05, 0.9]])  # ||acl|| > 1 but spectral radius < 1
+    left, right = np.array([[1.0, 0.0]]), np.array([[0.0], [1.0]])
+    ref = sum(np.abs(left @ np.linalg.matrix_power(acl, k) @ right).sum() for k in range(20000))
+    n = closed_loop_norm(acl, left, right, 10)
+    assert n.lower <= ref + 1e-9 and ref <= n.value + 1e-12 and n.tail_bound < 1e-9
+    assert closed_loop_norm(np.array([[1.01]]), one, one, 5).value == float("inf")
+
+
+def _pd_impulse_norm(folder, steps=3000):
+    """``||Phi_xy||`` of the PD flown as the runtime qsls loads (u = K y), on the plant stored
+    in its controller.npz: an impulse in each measurement channel, row sums over 3000 steps."""
+    from qsls.pipeline.control.artifacts import Controller, load_runtime
+
+    model = Controller.load(folder).model
+    ctrl = load_runtime(folder)
+    rows = np.zeros(6)
+    for j in range(6):
+        ctrl.reset()
+        x = np.zeros(6)
+        for k in range(steps):
+            u = ctrl.step(model.C @ x + (np.eye(6)[j] if k == 0 else 0.0))
+            x = model.A @ x + model.B @ u
+            rows += np.abs(x)
+    return float(rows.max())
+
+
+def test_pd_certificate_states_the_true_closed_loop_norms(tmp_path):
+    """T = 20: ||Phi_xy|| 3.28 over the stored taps, 3.43 for the closed loop; an S between
+    1/3.43 and 1/3.28 gets no guarantee although the truncated norm would grant one."""
+    from qsls.pipeline.control import sls
+    from qsls.pipeline.control.artifacts import Controller
+    from qsls.pipeline.evaluate.bound import load_controller_bound
+
+    S = 0.2985  # S * 3.28 = 0.978 < 1 <= S * 3.43 = 1.025
+    out = tmp_path / "s"
+    res = _invoke(
+        "synth", "-T", 20, "--S", S, "--eps-e", "0.01", "--radius", "1", "--controllers",
+        "single", "--no-robust", "-o", out,
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    c = _cert(out, "pd")
+    taps = Controller.load(out / "pd").taps
+    truncated = sls.l1_norm(taps.Phi_xy)
+    assert truncated == pytest.approx(3.2778, abs=1e-4)
+    cl = c["closed_loop_norms"]["phi_xy"]
+    assert cl["truncated"] == pytest.approx(truncated, rel=1e-12)
+    independent = _pd_impulse_norm(out / "pd")
+    assert independent == pytest.approx(3.4335, abs=1e-4)
+    assert cl["lower"] <= independent + 1e-9 and abs(c["norm_phi_xy"] - independent) < 1e-9
+    for key in ("phi_xx_h", "phi_ux", "phi_uy"):  # each above its truncation
+        assert c[f"norm_{key}"] > c["closed_loop_norms"][key]["truncated"]
+    # no guarantee: S ||Phi_xy|| >= 1 with the true norm
+    assert (
+        c["s_times_norm_phi_xy"] == pytest.approx(S * independent, rel=1e-9) and S * truncated < 1
+    )
+    assert c["gamma"] == float("inf") and c["gamma_strict"] == float("inf")
+    assert c["robustness_lhs"] >= 1 and c["status"] == "reference"
+    assert not load_controller_bound(out / "pd").has_guarantee

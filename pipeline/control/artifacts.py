@@ -22,6 +22,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from qsls.pipeline.control.nominal import ClosedLoopNorm
 from qsls.pipeline.control.plant import LinearModel
 from qsls.pipeline.control.premise import Premise
 from qsls.pipeline.control.realize import (
@@ -200,6 +201,9 @@ class Certificate(BaseModel):
     Q: list[list[float]] | None = None
     R: list[list[float]] | None = None
     closed_loop_spectral_radius: float | None = None
+    closed_loop_norms: dict[str, ClosedLoopNorm] | None = None
+    """A reference (static-gain) controller's true closed-loop norms: ``norm_phi_*`` are their
+    ``value`` (an upper bound: horizon plus a geometric tail), ``truncated`` the ``T``-tap ones."""
     kp: list[float] | None = None
     kd: list[float] | None = None
     imitate: str | None = None

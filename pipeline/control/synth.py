@@ -366,11 +366,18 @@ def certified_controller(
 
 
 def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) -> Built:
-    from qsls.pipeline.control.certify import certify
-    from qsls.pipeline.control.nominal import pd_responses, spectral_radius
+    """The PD reference: its responses truncated to ``T`` taps are stored, but its norms and
+    guarantee numbers are the true closed loop's (:func:`nominal.static_gain_norms`), never the
+    truncated ones, which underestimate them."""
+    from qsls.pipeline.control.certify import certify, guarantee
+    from qsls.pipeline.control.nominal import pd_responses, spectral_radius, static_gain_norms
 
     K, taps = pd_responses(r.model, gains, T)
     status, fields = certify(taps, r.model, r.setting(), reference=True)
+    norms = static_gain_norms(r.model, K, T)
+    fields |= {f"norm_{k}": n.value for k, n in norms.items()}
+    fields |= guarantee(norms["phi_xy"].value, norms["phi_xx_h"].value, r.setting())
+    fields["closed_loop_norms"] = norms
     cert = {
         "controller": "pd",
         "status": status,
