@@ -215,7 +215,7 @@ def own_rows(f: Facts, name: str) -> tuple[Any, bool]:
     the theorem-level columns (``gamma_nominal``)."""
     for ev in f.evaluations:
         t = ev.table
-        if ev.kind == "fly" and "flown_by" in t and "controller" in t:
+        if "flown_by" in t and "controller" in t:
             rows = t[(t["controller"] == name) & (t["flown_by"] == name)]
             if len(rows):
                 return rows, "gamma_nominal" in t

@@ -224,12 +224,14 @@ def section_heldout(f: Facts, counter: list[int]) -> Section | None:
                 word = "premise only" if theorem else word
             n = _note_index(notes, text) if text else 0
             ratio = r["max_error_norm"] / r[gcol] if theorem else r.get("max_ratio")
+            a_cols = [r.get("a_nominal"), r.get("a_certificate")] if theorem else []
             rows.append(
                 [
                     r["flight"],
                     r["controller"],
-                    r.get("flown_by", "(recorded)"),
+                    r.get("flown_by") or "(recorded)",
                     r.get("max_error_norm"),
+                    *a_cols,
                     r.get(gcol),
                     ratio,
                     r.get("frac_premise_holds"),
@@ -247,6 +249,7 @@ def section_heldout(f: Facts, counter: list[int]) -> Section | None:
                 "controller",
                 "flown by",
                 "max ||e||",
+                *(["a_nominal (flown)", "a (certificate)"] if theorem else []),
                 "gamma" if not theorem else "gamma_nominal",
                 "max ||e|| / gamma",
                 "premise holds (share)",
@@ -256,8 +259,16 @@ def section_heldout(f: Facts, counter: list[int]) -> Section | None:
             f"{ev.folder}: {scope}, ||e|| against {what}",
             notes=notes,
             csv=csv,
-            text_cols=[1, 2, 7],
+            text_cols=[1, 2, 9 if theorem else 7],
         )
+        if theorem:
+            sec.text(
+                "On a flight the controller flew itself, x = x_hat + Phi_xy * e: a_nominal is "
+                "how far x_hat (the flight without perception error) strayed from the training "
+                "data, and gamma_nominal = (eps_e + S a_nominal) / (1 - S ||Phi_xy||) is the "
+                "theorem's bound on that flight; the certificate bounds a a priori by "
+                "eps_w ||Phi_xx H|| + Delta. Other rows check the premise only."
+            )
         if not theorem:
             sec.text(
                 "The per-sample check compares ||e_k|| with gamma evaluated at the flown state's "
