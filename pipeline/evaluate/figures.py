@@ -40,7 +40,9 @@ def _dt(t: np.ndarray) -> float:
 
 def perception_error_figure(samples: pd.DataFrame, smooth_s: float = 1.0) -> Any:
     """``||e_k||`` over time per flight, smoothed with a ``smooth_s`` time constant, with each
-    controller's ``gamma_strict`` (dashed) and data-driven ``gamma_k`` (dotted)."""
+    controller's ``gamma_nominal`` (solid: the theorem's bound, on flights it flew itself),
+    ``gamma_strict`` (dashed) and the per-sample premise curve ``gamma(d_k)`` (dotted: it
+    tests the error model, not the controller)."""
     flights = list(dict.fromkeys(samples["flight"]))
     fig, axes = _grid(len(flights))
     for ax, name in zip(axes, flights, strict=False):
@@ -59,12 +61,15 @@ def perception_error_figure(samples: pd.DataFrame, smooth_s: float = 1.0) -> Any
             )
         for c, g in s.groupby("controller", sort=False):
             col = style.controller_colour(str(c))
+            gn = g["gamma_nominal"].iloc[0] if "gamma_nominal" in g else np.nan
+            if np.isfinite(gn):
+                ax.axhline(gn, color=col, ls="-", lw=1.2, label=f"{c} gamma_nominal")
             gs = g["gamma_strict"].iloc[0]
             if np.isfinite(gs):
                 ax.axhline(gs, color=col, ls="--", lw=1, label=f"{c} gamma_strict")
             gk = g["gamma"].to_numpy()
             if np.all(np.isfinite(gk)):
-                ax.plot(g["t"], gk, color=col, ls=":", lw=1, label=f"{c} gamma(d)")
+                ax.plot(g["t"], gk, color=col, ls=":", lw=1, label=f"{c} gamma(d), premise curve")
             over = g["error_norm"].to_numpy() > gk
             if np.any(over):
                 ax.plot(
