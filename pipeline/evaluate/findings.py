@@ -106,13 +106,14 @@ def finding_bound(
         all_under = bool((ref["frac_under_gamma_strict"] >= 1.0).all())
         nums = ", ".join(f"{c} {worst[c]:.3g}" for c in worst.index)
         own = checks[(checks["controller"] == checks["flown_by"]) & checks["has_guarantee"]]
-        own_fail = own[~own["bound_holds"]]
+        own = own[own["bound_holds"].notna()]  # None: no theorem on this pair
+        own_fail = own[~own["bound_holds"].astype(bool)]
         own_txt = (
             f"each certified controller against its own data-driven gamma(d): holds on "
             f"{len(own) - len(own_fail)} of {len(own)} flights"
         )
         if len(own_fail):
-            n_ass = int((~own_fail["assumption_holds"]).sum())
+            n_ass = int((~own_fail["assumption_holds"].astype(bool)).sum())
             own_txt += (
                 f"; fails on {', '.join(own_fail['flight'])} "
                 f"({n_ass} of them with the S-slope/eps_e premise violated: "
@@ -194,26 +195,33 @@ def compare_with_paper(
     return [f for f in found if f is not None]
 
 
-def comparison_markdown(comparison: Sequence[dict[str, Any]], per: pd.DataFrame) -> str:
-    """The findings table and the per-controller metrics as Markdown."""
-    lines = [
-        "# qsls against the paper's findings",
-        "",
-        "| finding (paper) | qsls | agrees |",
-        "|---|---|---|",
-    ]
+def comparison_markdown(
+    comparison: Sequence[dict[str, Any]],
+    per: pd.DataFrame,
+    findings: dict[str, Any] | None = None,
+) -> str:
+    """The findings table (paired by seed with intervals when ``findings``, the
+    ``findings.json`` document, is given) and the per-controller metrics as Markdown."""
+    from qsls.pipeline.evaluate.paired import findings_markdown
+
+    lines = ["# qsls against the paper's findings", ""]
 
     def cell(v: Any) -> str:
         return str(v).replace("|", "\\|")
 
-    lines += [
-        f"| {cell(c['finding'])} | {cell(c['qsls'])} | {cell(c['agrees'])} |" for c in comparison
-    ]
+    if findings is not None:
+        lines += findings_markdown(findings, comparison)
+    else:
+        lines += ["| finding (paper) | qsls | agrees |", "|---|---|---|"]
+        lines += [
+            f"| {cell(c['finding'])} | {cell(c['qsls'])} | {cell(c['agrees'])} |"
+            for c in comparison
+        ]
     cols = [
         "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
         "perception_error_rms", "perception_error_max", "control_effort_rms",
-        "control_smoothness_rms", "smoothness_vs_pd", "gamma_strict", "frac_under_gamma",
-        "max_ratio",
+        "control_smoothness_rms", "smoothness_vs_pd", "reaction_vs_pd", "angular_rate_rms",
+        "blur_px_mean", "gamma_strict", "frac_under_gamma", "max_ratio",
     ]  # fmt: skip
     cols = [c for c in cols if c in per.columns]
     lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]

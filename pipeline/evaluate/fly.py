@@ -14,19 +14,22 @@ real flight does; the ingested ``flight.parquet`` is what the bound check
 Metrics per flight (true state against the reference; emulator error at the VIO rate):
 tracking RMS/max of ``||p - p_ref||_2``, perception error RMS/max of ``||e||_inf``, control
 effort (RMS of ``u - hover``), smoothness (RMS of ``u[k+1] - u[k]``), a crash flag with the
-simulator's reason. Then per controller and condition the mean over seeds, the paper's
-figures, and a table that holds the results against the paper's three findings
-(paper, Results):
+simulator's reason; against PD on the same estimate (the paper's input figure), the
+feedback attitude command's RMS (``reaction_vs_pd``, softness) and its step change's RMS
+(``smoothness_vs_pd``, roughness); the body rate and the image blur it makes. Then per
+controller and condition the mean over seeds, the paper's figures, and the paper's four
+findings (paper, Results), each paired by seed with a 95% interval and a verdict in
+``findings.json`` (:mod:`qsls.pipeline.evaluate.paired`) and ``comparison.md``:
 
 1. regular perception: every controller tracks, and PD tracks best;
 2. degraded perception: the robust ``qr``-cost controller (``l1_robust``) has the lowest
    perception error;
-3. every controller's perception error stays below the bound.
+3. every controller's perception error stays below the bound;
+4. the robust controllers react more softly than PD would on the same estimate.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import shutil
 import tempfile
@@ -37,7 +40,6 @@ from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
-from numpy.typing import ArrayLike
 from pydantic import Field
 
 from qsls.pipeline.core.errors import InputError, QslsError
@@ -62,6 +64,14 @@ from qsls.pipeline.evaluate.findings import (
     compare_with_paper,
     comparison_markdown,
 )
+from qsls.pipeline.evaluate.inputs import (
+    PdHeightController,
+    command_offset,
+    input_comparison,
+    motion_metrics,
+    pd_on_same_estimate,
+)
+from qsls.pipeline.evaluate.paired import FINDINGS_FILE, paired_findings
 from qsls.pipeline.ingest.flight import read_flight
 from qsls.pipeline.ingest.stage import IngestOptions
 from qsls.pipeline.sim.simulate import SimOptions
@@ -135,77 +145,6 @@ class FlyOutcome:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-def pd_on_same_estimate(
-    opts: SimOptions,
-    mass: float,
-    t: np.ndarray,
-    y: np.ndarray,
-    ref: np.ndarray,
-    K: ArrayLike | None = None,
-) -> np.ndarray:
-    """``u_PD = hover + u_ff + K (y - r)`` (k, 3): what the PD controller would command from
-    the estimate another controller saw (the paper's input figure). ``K``: the flown PD's
-    gain (from the synth folder's ``pd``); default: the simulator's PD gains."""
-    from qsls.pipeline.control.pdgain import pd_gain
-    from qsls.pipeline.control.plant import GRAVITY
-    from qsls.pipeline.sim.references import Reference
-
-    if len(t) == 0:
-        return np.zeros((0, 3))
-    _, _, acc = Reference(opts.reference).arrays(t)
-    ff = np.c_[-acc[:, 0] / GRAVITY, acc[:, 1] / GRAVITY, mass * acc[:, 2]]
-    hover = np.array([0.0, 0.0, mass * GRAVITY])
-    gain = pd_gain(opts.controller.pd, mass) if K is None else np.asarray(K, dtype=float)
-    return hover + ff + (y - ref) @ gain.T
-
-
-def input_comparison(u: np.ndarray, u_pd: np.ndarray) -> dict[str, float]:
-    """Attitude commands (pitch, roll) against PD's from the same estimate: RMS step change
-    of each (smoothness, rad per tick), their ratio, and the RMS difference (rad)."""
-    if len(u) < 2:
-        return {"attitude_smoothness": math.nan, "pd_attitude_smoothness": math.nan,
-                "smoothness_vs_pd": math.nan, "attitude_diff_from_pd_rms": math.nan}  # fmt: skip
-    a = float(np.sqrt(np.mean(np.diff(u[:, :2], axis=0) ** 2)))
-    b = float(np.sqrt(np.mean(np.diff(u_pd[:, :2], axis=0) ** 2)))
-    return {
-        "attitude_smoothness": a,
-        "pd_attitude_smoothness": b,
-        "smoothness_vs_pd": a / b if b > 0 else math.nan,
-        "attitude_diff_from_pd_rms": float(np.sqrt(np.mean((u[:, :2] - u_pd[:, :2]) ** 2))),
-    }
-
-
-class PdHeightController:
-    """A synthesized controller's pitch and roll with the PD's thrust (paper, Controllers:
-    "the z control of the PD controller was used instead")."""
-
-    def __init__(self, inner: Any, pd: Any) -> None:
-        self.inner, self.pd = inner, pd
-        self.name = f"{inner.name}+pd_z"
-        self.dt = inner.dt
-
-    @classmethod
-    def build(cls, opts: SimOptions, K: Any = None) -> PdHeightController:
-        from qsls.pipeline.sim.controllers import PDController, make_controller
-        from qsls.pipeline.sim.vehicle import Vehicle
-
-        mass = Vehicle(opts.vehicle).mass
-        inner = make_controller(opts.controller, mass)
-        pd = PDController(opts.controller.pd, mass, inner.dt)
-        if K is not None:
-            pd.K = np.asarray(K, dtype=float)
-        return cls(inner, pd)
-
-    def reset(self) -> None:
-        self.inner.reset()
-        self.pd.reset()
-
-    def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: Any) -> np.ndarray:
-        u = np.array(self.inner.command(t, y, q, ref), dtype=float)
-        u[2] = self.pd.command(t, y, q, ref)[2]
-        return u
-
-
 def run_job(job: FlyJob) -> FlyOutcome:
     """Fly one controller (simulate: closed loop + bag), then ingest the bag."""
     from qsls.pipeline.core.config import merge
@@ -235,6 +174,7 @@ def run_job(job: FlyJob) -> FlyOutcome:
         ingest_error = str(exc)
     t_ctrl = f.ctrl_t_ns / NS
     u_pd = pd_on_same_estimate(opts, f.mass, t_ctrl, f.ctrl_y, f.ctrl_ref, job.pd_gain)
+    u_off = command_offset(opts, f.mass, t_ctrl)
     n_sub = max(1, round(f.dt * NS / (f.t_ns[1] - f.t_ns[0]))) if len(f.t_ns) > 1 else 1
     idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
     return FlyOutcome(
@@ -242,7 +182,11 @@ def run_job(job: FlyJob) -> FlyOutcome:
         controller=job.controller,
         condition=job.condition,
         seed=job.seed,
-        metrics={**f.metrics(), **input_comparison(f.ctrl_u, u_pd)},
+        metrics={
+            **f.metrics(),
+            **input_comparison(f.ctrl_u, u_pd, u_off),
+            **motion_metrics(opts, job.seed, f.vio_x, f.vio_w),
+        },
         ingest_error=ingest_error,
         t_ctrl=t_ctrl,
         x_ctrl=f.x[idx],
@@ -288,6 +232,7 @@ class FlyResult(EvaluateResult):
     flights: pd.DataFrame = field(default_factory=pd.DataFrame)
     per_controller: pd.DataFrame = field(default_factory=pd.DataFrame)
     comparison: list[dict[str, Any]] = field(default_factory=list)
+    findings: dict[str, Any] = field(default_factory=dict)
     wall_time_s: float = 0.0
 
     def summary(self) -> dict[str, Any]:
@@ -312,8 +257,19 @@ class FlyResult(EvaluateResult):
         return out
 
     def comparison_rows(self) -> tuple[list[str], list[list[Any]]]:
-        cols = ["finding (paper)", "qsls", "agrees"]
-        return cols, [[c["finding"], c["qsls"], c["agrees"]] for c in self.comparison]
+        """Per finding: the point comparison and, paired by seed, the effect and verdict."""
+        cols = ["finding (paper)", "qsls", "agrees", "effect [95% CI]", "verdict"]
+        by_id = {str(f["id"]): f for f in self.findings.get("findings", [])}
+        rows = []
+        for c in self.comparison:
+            f = by_id.get(str(c["finding"]).partition(".")[0])
+            eff, verdict = "-", "-"
+            if f is not None and f["effect"] is not None:
+                lo, hi = f["ci"]
+                ci = f" [{lo:.3g}, {hi:.3g}]" if lo is not None and hi is not None else ""
+                eff, verdict = f"{f['effect']:.3g}{ci}", f["verdict"]
+            rows.append([c["finding"], c["qsls"], c["agrees"], eff, verdict])
+        return cols, rows
 
 
 # --------------------------------------------------------------------------- analysis
@@ -336,7 +292,10 @@ def flight_table(outcomes: Sequence[FlyOutcome]) -> pd.DataFrame:
                 "control_smoothness_rms": m["control_smoothness_rms"],
                 "attitude_smoothness": m["attitude_smoothness"],
                 "smoothness_vs_pd": m["smoothness_vs_pd"],
+                "reaction_vs_pd": m["reaction_vs_pd"],
                 "attitude_diff_from_pd_rms": m["attitude_diff_from_pd_rms"],
+                "angular_rate_rms": m["angular_rate_rms"],
+                "blur_px_mean": m["blur_px_mean"],
                 "crashed": bool(m["crashed"]),
                 "crash_reason": m["crash_reason"] or "",
                 "ingest_error": o.ingest_error or "",
@@ -355,7 +314,10 @@ def per_controller_table(flights: pd.DataFrame) -> pd.DataFrame:
         "control_effort_rms": "mean",
         "control_smoothness_rms": "mean",
         "smoothness_vs_pd": "mean",
+        "reaction_vs_pd": "mean",
         "attitude_diff_from_pd_rms": "mean",
+        "angular_rate_rms": "mean",
+        "blur_px_mean": "mean",
         "crashed": "sum",
         "seed": "count",
     }
@@ -479,6 +441,14 @@ def _check_flights(
     return checks, samples, ref_j
 
 
+def _true_lipschitz(outcomes: Sequence[FlyOutcome]) -> dict[str, float]:
+    """The emulator's Lipschitz constant per condition (the largest over flights)."""
+    true_l: dict[str, float] = {}
+    for o in outcomes:
+        true_l[o.condition] = max(true_l.get(o.condition, 0.0), float(o.extra["lipschitz"]))
+    return true_l
+
+
 def fly_evaluate(
     error_model: Path,
     controllers: Sequence[Path],
@@ -532,16 +502,19 @@ def fly_evaluate(
             checks, samples, ref_j = _check_flights(outcomes, jobs, flights, bounds, training)
             per = _bound_columns(per_controller_table(flights), checks)
             ref_bound = bounds[ref_j] if ref_j is not None else None
-            true_l: dict[str, float] = {}
-            for o in outcomes:
-                true_l[o.condition] = max(true_l.get(o.condition, 0.0), float(o.extra["lipschitz"]))
             comparison = compare_with_paper(
-                per, checks, options.track_threshold_m, ref_bound, options.tie_rel, true_l
-            )
+                per, checks, options.track_threshold_m, ref_bound, options.tie_rel,
+                _true_lipschitz(outcomes),
+            )  # fmt: skip
+            findings = paired_findings(
+                flights, checks, ref_bound.name if ref_bound else None, PAPER_CONTROLLERS,
+                options.track_threshold_m,
+            )  # fmt: skip
 
             w.write_parquet("flights.parquet", flights)
             w.write_parquet("per_controller.parquet", per)
-            w.write_text("comparison.md", comparison_markdown(comparison, per))
+            w.write_json(FINDINGS_FILE, findings)
+            w.write_text("comparison.md", comparison_markdown(comparison, per, findings))
             if options.figures:
                 write_fly_figures(w, outcomes, bounds, options, ref_bound)
             extra_json = {
@@ -559,6 +532,7 @@ def fly_evaluate(
                     "flights": len(flights),
                     "crashed": int(flights["crashed"].sum()),
                     **{f"finding_{c['finding'][0]}_agrees": c["agrees"] for c in comparison},
+                    **{f"finding_{f['id']}_verdict": f["verdict"] for f in findings["findings"]},
                     "controllers": totals,
                     "warnings": len(warnings),
                 }
@@ -572,6 +546,7 @@ def fly_evaluate(
         flights=flights,
         per_controller=per,
         comparison=comparison,
+        findings=findings,
         wall_time_s=time.perf_counter() - t0,
     )
 

@@ -1,0 +1,131 @@
+"""The flown commands against what PD would command from the same estimate (the paper's
+input figure), and the motion that drives the emulator's blur.
+
+``u = hover + u_ff + u_fb`` for PD and the synthesized controllers
+(:class:`qsls.pipeline.sim.controllers.LinearController`); PD on another controller's
+estimate ``y`` commands ``u_PD = hover + u_ff + K (y - r)``. Arrays in, numbers out.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from qsls.pipeline.sim.simulate import SimOptions
+
+
+def pd_on_same_estimate(
+    opts: SimOptions,
+    mass: float,
+    t: np.ndarray,
+    y: np.ndarray,
+    ref: np.ndarray,
+    K: ArrayLike | None = None,
+) -> np.ndarray:
+    """``u_PD = hover + u_ff + K (y - r)`` (k, 3): what the PD controller would command from
+    the estimate another controller saw (the paper's input figure). ``K``: the flown PD's
+    gain (from the synth folder's ``pd``); default: the simulator's PD gains."""
+    from qsls.pipeline.control.pdgain import pd_gain
+
+    if len(t) == 0:
+        return np.zeros((0, 3))
+    gain = pd_gain(opts.controller.pd, mass) if K is None else np.asarray(K, dtype=float)
+    return command_offset(opts, mass, t) + (y - ref) @ gain.T
+
+
+def command_offset(opts: SimOptions, mass: float, t: np.ndarray) -> np.ndarray:
+    """``hover + u_ff`` (k, 3): the part of PD's and the synthesized controllers' command
+    that does not depend on the estimate (the reference's feedforward)."""
+    from qsls.pipeline.control.plant import GRAVITY
+    from qsls.pipeline.sim.references import Reference
+
+    if len(t) == 0:
+        return np.zeros((0, 3))
+    _, _, acc = Reference(opts.reference).arrays(t)
+    ff = np.c_[-acc[:, 0] / GRAVITY, acc[:, 1] / GRAVITY, mass * acc[:, 2]]
+    return np.array([0.0, 0.0, mass * GRAVITY]) + ff
+
+
+def input_comparison(u: np.ndarray, u_pd: np.ndarray, u_off: np.ndarray) -> dict[str, float]:
+    """Attitude commands (pitch, roll) against PD's from the same estimate: RMS step change
+    of each (roughness, rad per tick) and their ratio ``smoothness_vs_pd``; RMS of each
+    feedback command ``u - u_off`` (``u_off = hover + u_ff``: the reaction to the estimate,
+    rad) and their ratio ``reaction_vs_pd`` (< 1: softer than PD, the paper's input
+    figure); and the RMS difference (rad)."""
+    if len(u) < 2:
+        keys = ("attitude_smoothness", "pd_attitude_smoothness", "smoothness_vs_pd",
+                "reaction_rms", "pd_reaction_rms", "reaction_vs_pd", "attitude_diff_from_pd_rms")  # fmt: skip
+        return dict.fromkeys(keys, math.nan)
+
+    def rms(a: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(a**2)))
+
+    a, b = rms(np.diff(u[:, :2], axis=0)), rms(np.diff(u_pd[:, :2], axis=0))
+    ra, rb = rms(u[:, :2] - u_off[:, :2]), rms(u_pd[:, :2] - u_off[:, :2])
+    return {
+        "attitude_smoothness": a,
+        "pd_attitude_smoothness": b,
+        "smoothness_vs_pd": a / b if b > 0 else math.nan,
+        "reaction_rms": ra,
+        "pd_reaction_rms": rb,
+        "reaction_vs_pd": ra / rb if rb > 0 else math.nan,
+        "attitude_diff_from_pd_rms": rms(u[:, :2] - u_pd[:, :2]),
+    }
+
+
+def motion_metrics(opts: SimOptions, seed: int, x: np.ndarray, w: np.ndarray) -> dict[str, float]:
+    """At the VIO samples: RMS of the body rate ``||omega||_2`` (rad/s) and the mean image
+    blur (px) that motion makes with this condition's exposure (the emulator's ``b_k``,
+    whether or not its blur part is switched on)."""
+    from qsls.pipeline.sim.vio import VioEmulator
+
+    if len(x) == 0:
+        return {"angular_rate_rms": math.nan, "blur_px_mean": math.nan}
+    blur = VioEmulator(opts.vio, seed).blur(x, w)
+    return {
+        "angular_rate_rms": float(np.sqrt(np.mean(np.sum(w * w, axis=1)))),
+        "blur_px_mean": float(np.mean(blur)),
+    }
+
+
+class PdHeightController:
+    """A synthesized controller's pitch and roll with the PD's thrust (paper, Controllers:
+    "the z control of the PD controller was used instead")."""
+
+    def __init__(self, inner: Any, pd: Any) -> None:
+        self.inner, self.pd = inner, pd
+        self.name = f"{inner.name}+pd_z"
+        self.dt = inner.dt
+
+    @classmethod
+    def build(cls, opts: SimOptions, K: Any = None) -> PdHeightController:
+        from qsls.pipeline.sim.controllers import PDController, make_controller
+        from qsls.pipeline.sim.vehicle import Vehicle
+
+        mass = Vehicle(opts.vehicle).mass
+        inner = make_controller(opts.controller, mass)
+        pd = PDController(opts.controller.pd, mass, inner.dt)
+        if K is not None:
+            pd.K = np.asarray(K, dtype=float)
+        return cls(inner, pd)
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.pd.reset()
+
+    def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: Any) -> np.ndarray:
+        u = np.array(self.inner.command(t, y, q, ref), dtype=float)
+        u[2] = self.pd.command(t, y, q, ref)[2]
+        return u
+
+
+__all__ = [
+    "PdHeightController",
+    "command_offset",
+    "input_comparison",
+    "motion_metrics",
+    "pd_on_same_estimate",
+]

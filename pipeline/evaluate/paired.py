@@ -1,0 +1,345 @@
+"""The paper's four findings paired by seed, with 95% intervals (``fly/findings.json``).
+
+The same seed gives every controller the same emulator randomness, so each finding is one
+effect per seed, compared between controllers flown with that seed in the same condition;
+:mod:`qsls.pipeline.evaluate.stats` turns the per-seed effects into a mean, a 95% interval
+and a verdict (``reproduced`` / ``contradicted`` / ``inconclusive``). Ratios are tested on
+their logarithm and reported as geometric means (no effect: 1):
+
+1. regular perception, PD tracks best: ``r_i = min_{c != pd} rms_track(c, i) / rms_track(pd, i)``
+   (the paper: ``> 1``); whether every controller tracks is reported beside it.
+2. degraded perception, ``l1_robust`` has the lowest perception error:
+   ``r_i = min_{c != l1_robust} rms||e||(c, i) / rms||e||(l1_robust, i)`` (the paper: ``> 1``).
+3. the perception error stays below the bound: ``r_i = max_flights max_k ||e_k|| / gamma`` over
+   the flights of seed ``i`` (the paper: ``< 1``). ``gamma`` is the theorem's
+   ``gamma_nominal`` on the certified controllers' own flights when the bound check has it,
+   else ``gamma_strict`` of the reference robust controller on every flight (the paper's
+   comparison, its 1.602).
+4. the robust controllers react more softly than PD would on the same estimate:
+   ``r_i`` = geometric mean over the robust controllers and conditions of
+   ``RMS(u_att - u_ff) / RMS(u_PD,att - u_ff)`` (their feedback attitude command against PD's
+   ``K (y - r)`` on the estimate they flew on; the paper: ``< 1``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from qsls.pipeline.evaluate.stats import Direction, Interval, ratio_interval, t_interval, verdict
+
+ROBUST = ("l1_robust", "l1_robust_imitation")
+FINDINGS_FILE = "findings.json"
+
+
+def _g(v: float) -> str:
+    return f"{v:.3g}" if math.isfinite(v) else "n/a"
+
+
+def _iv_text(iv: Interval) -> str:
+    lo, hi = iv.ci
+    ci = f"[{_g(lo)}, {_g(hi)}]" if lo is not None and hi is not None else "(no interval)"
+    return f"{_g(iv.mean)} {ci}"
+
+
+def _pivot(flights: pd.DataFrame, condition: str, col: str) -> pd.DataFrame:
+    """``col`` as (seed x controller) for one condition (seeds flown by every column)."""
+    sub = flights[flights["condition"] == condition]
+    if sub.empty or col not in sub:
+        return pd.DataFrame()
+    return sub.pivot_table(index="seed", columns="controller", values=col, aggfunc="first")
+
+
+def _item(
+    fid: int,
+    claim: str,
+    definition: str,
+    per_seed: pd.Series,
+    direction: Direction,
+    detail: str,
+    mechanism: Callable[[], str] | None = None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """One finding: the per-seed ratios' geometric mean, interval and verdict (against 1)."""
+    iv = ratio_interval(per_seed.to_numpy(float))
+    v = verdict(iv, 1.0, direction)
+    item: dict[str, Any] = {
+        "id": fid,
+        "claim": claim,
+        "effect": float(iv.mean) if math.isfinite(iv.mean) else None,
+        "ci": iv.ci,
+        "verdict": v,
+        "n_seeds": iv.n,
+        "effect_definition": definition,
+        "paper_direction": f"{'>' if direction == 'greater' else '<'} 1",
+        "per_seed": {str(int(s)): float(r) for s, r in per_seed.items()},
+        "detail": f"effect {_iv_text(iv)} over {iv.n} seeds: {v}; {detail}",
+    }
+    if v != "reproduced" and mechanism is not None:
+        item["mechanism"] = item["detail"] + "; why: " + mechanism()
+    return {**item, **extra}
+
+
+def _best_other(piv: pd.DataFrame, who: str) -> pd.Series:
+    """``min_{c != who} piv[c] / piv[who]`` per seed (seeds where all flew)."""
+    piv = piv.dropna()
+    others = [c for c in piv.columns if c != who]
+    return piv[others].min(axis=1) / piv[who]
+
+
+def finding1_tracking(
+    flights: pd.DataFrame, paper4: Sequence[str], threshold: float
+) -> dict | None:
+    """Finding 1 (module docstring): PD tracks best in regular perception."""
+    piv = _pivot(flights, "regular", "tracking_rms_m")
+    cols = [c for c in paper4 if c in piv.columns]
+    if "pd" not in cols or len(cols) < 2:
+        return None
+    piv = piv[cols]
+    reg = flights[(flights["condition"] == "regular") & flights["controller"].isin(cols)]
+    bad = sorted(set(reg.loc[reg["crashed"] | (reg["tracking_rms_m"] >= threshold), "controller"]))
+    means = piv.mean().sort_values()
+    detail = (
+        "tracking RMS (m), mean over seeds: "
+        + ", ".join(f"{c} {means[c]:.3f}" for c in means.index)
+        + ("; all track" if not bad else f"; not tracking (crash or RMS >= {threshold:g} m) on "
+           f"some seed: {', '.join(bad)}")
+    )  # fmt: skip
+
+    def why() -> str:
+        best = means.index[0]
+        if best != "pd":
+            return f"{best} has the lowest mean tracking RMS ({means[best]:.3f} m, PD {means['pd']:.3f} m)"
+        return (
+            f"PD has the lowest mean tracking RMS, but its margin over {means.index[1]} "
+            "is within the seed-to-seed spread"
+        )
+
+    return _item(
+        1,
+        "regular perception: all controllers track, PD tracks best",
+        "per seed, the best other controller's tracking RMS / PD's (> 1: PD best)",
+        _best_other(piv, "pd"),
+        "greater",
+        detail,
+        why,
+        all_track=not bad,
+    )
+
+
+def finding2_degraded(flights: pd.DataFrame, paper4: Sequence[str]) -> dict | None:
+    """Finding 2 (module docstring): ``l1_robust`` lowest perception error in degraded."""
+    piv = _pivot(flights, "degraded", "perception_error_rms")
+    cols = [c for c in paper4 if c in piv.columns]
+    if "l1_robust" not in cols or len(cols) < 2:
+        return None
+    piv = piv[cols].dropna()
+    pairwise = {
+        c: ratio_interval((piv[c] / piv["l1_robust"]).to_numpy(float)) for c in cols
+        if c != "l1_robust"
+    }  # fmt: skip
+    detail = "each controller's ||e|| RMS / l1_robust's (> 1: l1_robust lower): " + ", ".join(
+        f"{c} {_iv_text(iv)}" for c, iv in pairwise.items()
+    )
+
+    def why() -> str:
+        return _motion_mechanism(flights, cols)
+
+    return _item(
+        2,
+        "degraded perception: the robust qr-cost controller (l1_robust) has the lowest "
+        "perception error",
+        "per seed, the lowest other controller's ||e||_inf RMS / l1_robust's (> 1: l1_robust "
+        "lowest)",
+        _best_other(piv, "l1_robust"),
+        "greater",
+        detail,
+        why,
+        pairwise={c: {"effect": iv.mean, "ci": iv.ci} for c, iv in pairwise.items()},
+    )
+
+
+def _motion_mechanism(flights: pd.DataFrame, cols: Sequence[str]) -> str:
+    """Which controller flies roughest, and how much blur (and error) that makes."""
+    deg = flights[(flights["condition"] == "degraded") & flights["controller"].isin(cols)]
+    have = [c for c in ("attitude_smoothness", "angular_rate_rms", "blur_px_mean") if c in deg]
+    m = deg.groupby("controller")[[*have, "perception_error_rms"]].mean()
+    parts = []
+    for c in m.index:
+        r = m.loc[c]
+        bits = []
+        if "attitude_smoothness" in have:
+            bits.append(f"attitude step {r['attitude_smoothness']:.3g} rad")
+        if "angular_rate_rms" in have:
+            bits.append(f"body rate RMS {r['angular_rate_rms']:.3g} rad/s")
+        if "blur_px_mean" in have:
+            bits.append(f"blur {r['blur_px_mean']:.3g} px")
+        parts.append(f"{c}: " + ", ".join([*bits, f"||e|| RMS {r['perception_error_rms']:.4g}"]))
+    return (
+        "the emulator's error depends on the motion only through blur, drift with motion and "
+        "feature loss (when switched on); the controllers' motion in degraded perception: "
+        + "; ".join(parts)
+    )
+
+
+def finding3_bound(
+    checks: pd.DataFrame, flights: pd.DataFrame, ref_name: str | None
+) -> dict | None:
+    """Finding 3 (module docstring): the perception error stays below the bound."""
+    if checks.empty:
+        return None
+    seed_of = dict(zip(flights["flight"], flights["seed"], strict=True))
+    checks = checks.assign(seed=checks["flight"].map(seed_of))
+    nominal = "gamma_nominal" in checks and checks["gamma_nominal"].notna().any()
+    if nominal:
+        rows = checks[(checks["controller"] == checks["flown_by"]) & checks["has_guarantee"]]
+        rows = rows[np.isfinite(rows["gamma_nominal"].astype(float))]
+        ratio = rows["max_error_norm"].astype(float) / rows["gamma_nominal"].astype(float)
+        basis = "gamma_nominal (the theorem, own flights of the certified controllers)"
+    else:
+        rows = checks[checks["controller"] == ref_name]
+        ratio = rows["max_ratio_strict"].astype(float)
+        basis = f"gamma_strict of {ref_name} on every flight (the paper's comparison)"
+    if rows.empty:
+        return None
+    frame = pd.DataFrame({"seed": rows["seed"], "ratio": ratio, "by": rows["flown_by"]})
+    per_seed = frame.groupby("seed")["ratio"].max()
+    by = frame.groupby("by")["ratio"].max().sort_values()
+    detail = f"bound: {basis}; worst max ||e|| / gamma per controller: " + ", ".join(
+        f"{c} {_g(v)}" for c, v in by.items()
+    )
+
+    def why() -> str:
+        worst = frame.loc[frame["ratio"].idxmax()]
+        return (
+            f"the worst flight ({worst['by']}, seed {int(worst['seed'])}) reaches "
+            f"{_g(float(worst['ratio']))} x gamma; the bound rests on the certificate's S and "
+            "eps_e, which the flown errors exceed where the premise check says so"
+        )
+
+    return _item(
+        3,
+        "every controller's perception error stays below the bound",
+        "per seed, the largest max ||e|| / gamma over the flights of that seed (< 1: below)",
+        per_seed,
+        "less",
+        detail,
+        why,
+        bound=("gamma_nominal" if nominal else "gamma_strict"),
+    )
+
+
+def finding4_softness(flights: pd.DataFrame) -> dict | None:
+    """Finding 4 (module docstring): the robust controllers react more softly than PD."""
+    rob = flights[flights["controller"].isin(ROBUST)]
+    if rob.empty or "reaction_vs_pd" not in rob:
+        return None
+    logs = np.log(rob["reaction_vs_pd"].astype(float).where(rob["reaction_vs_pd"] > 0))
+    per_seed = np.exp(logs.groupby(rob["seed"]).mean())
+    groups = {
+        f"{c} ({cond})": ratio_interval(g["reaction_vs_pd"].to_numpy(float))
+        for (c, cond), g in rob.groupby(["controller", "condition"], sort=False)
+    }
+    rough = rob.groupby(["controller", "condition"], sort=False)["smoothness_vs_pd"].mean()
+    detail = "feedback attitude command RMS / PD's on the same estimate (< 1: softer): " + (
+        ", ".join(f"{k} {_iv_text(iv)}" for k, iv in groups.items())
+    )
+
+    def why() -> str:
+        return (
+            "RMS step change of the attitude command / PD's on the same estimate (roughness, "
+            "what drives blur): "
+            + ", ".join(f"{c} ({cond}) {v:.3g}" for (c, cond), v in rough.items())
+        )
+
+    return _item(
+        4,
+        "(qualitative) the robust controllers react more softly than PD would on the same estimate",
+        "per seed, the geometric mean over the robust controllers and conditions of "
+        "RMS(u_att - u_ff) / RMS(K_PD (y - r))_att (< 1: softer)",
+        per_seed,
+        "less",
+        detail,
+        why,
+        by_controller={k: {"effect": iv.mean, "ci": iv.ci} for k, iv in groups.items()},
+        roughness_vs_pd={f"{c} ({cond})": float(v) for (c, cond), v in rough.items()},
+    )
+
+
+def degraded_rms(flights: pd.DataFrame, names: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """Per controller, the mean over seeds of the degraded-perception ``||e||`` RMS and its
+    95% t-interval."""
+    deg = flights[flights["condition"] == "degraded"]
+    out: dict[str, dict[str, Any]] = {}
+    for c in names:
+        iv = t_interval(deg.loc[deg["controller"] == c, "perception_error_rms"].to_numpy(float))
+        if iv.n:
+            out[c] = {"mean": iv.mean, "ci": iv.ci, "n": iv.n}
+    return out
+
+
+def paired_findings(
+    flights: pd.DataFrame,
+    checks: pd.DataFrame,
+    ref_name: str | None,
+    paper4: Sequence[str],
+    threshold: float,
+) -> dict[str, Any]:
+    """``findings.json``: ``{n_seeds, findings: [{id, claim, effect, ci, verdict, ...}],
+    degraded_perception_rms: {controller: {mean, ci}}}`` (issue 13's schema plus details)."""
+    found = (
+        finding1_tracking(flights, paper4, threshold),
+        finding2_degraded(flights, paper4),
+        finding3_bound(checks, flights, ref_name),
+        finding4_softness(flights),
+    )
+    names = list(dict.fromkeys(flights["controller"])) if len(flights) else []
+    return {
+        "n_seeds": int(flights["seed"].nunique()) if len(flights) else 0,
+        "level": 0.95,
+        "method": "paired by seed; Student t-interval of the per-seed log ratios, reported as "
+        "a geometric mean ratio (no effect: 1)",
+        "findings": [f for f in found if f is not None],
+        "degraded_perception_rms": degraded_rms(flights, names),
+    }
+
+
+def findings_markdown(doc: dict[str, Any], comparison: Sequence[dict[str, Any]] = ()) -> list[str]:
+    """The findings as a Markdown table (``| 1. claim | effect [CI] | verdict | qsls | ... |``),
+    with the point comparison (means over seeds, ``agrees``) of the same finding beside."""
+
+    def cell(v: Any) -> str:
+        return str(v).replace("|", "\\|")
+
+    point = {str(c["finding"]).partition(".")[0]: c for c in comparison}
+    lines = [
+        f"Paired by seed ({doc.get('n_seeds', 0)} seeds): {doc.get('method', '')}.",
+        "",
+        "| finding (paper) | effect [95% CI] | verdict | qsls | means over seeds (agrees) |",
+        "|---|---|---|---|---|",
+    ]
+    for f in doc.get("findings", []):
+        lo, hi = f["ci"]
+        eff = "n/a" if f["effect"] is None else f"{f['effect']:.3g}"
+        ci = f" [{lo:.3g}, {hi:.3g}]" if lo is not None and hi is not None else ""
+        c = point.get(str(f["id"]))
+        means = f"{c['qsls']} ({c['agrees']})" if c else "-"
+        lines.append(
+            f"| {f['id']}. {cell(f['claim'])} | {eff}{ci} (paper: {cell(f['paper_direction'])}) "
+            f"| {f['verdict']} | {cell(f.get('mechanism', f['detail']))} | {cell(means)} |"
+        )
+    rms = doc.get("degraded_perception_rms") or {}
+    if rms:
+        lines += ["", "Degraded perception, ||e||_inf RMS per controller (mean [95% CI]):", ""]
+        for name, v in rms.items():
+            lo, hi = v["ci"]
+            ci = f" [{lo:.4g}, {hi:.4g}]" if lo is not None and hi is not None else ""
+            lines.append(f"- {name}: {v['mean']:.4g}{ci}")
+    return lines
+
+
+__all__ = ["FINDINGS_FILE", "findings_markdown", "paired_findings"]
