@@ -156,3 +156,32 @@ def test_half_the_true_slope_is_flagged_by_the_premise_check(certified):
         assert r["frac_premise_holds"] < 1.0 and not r["assumption_holds"]
         assert "premise violated" in r["verdict"] and r["verdict"].startswith("FAILS")
     print(f"\nS certified at half the true slope: bound fails on {len(failed)} of {SEEDS} seeds")
+
+
+def test_reference_pd_gets_its_closed_loop_norm_and_long_responses(certified):
+    """The PD beside the certified controller is a closed loop, not a FIR: the bound uses its
+    true ``||Phi_xy||`` (above the truncated taps') and ``x_hat`` from its responses to the
+    horizon where the tail is negligible, which equals the loop flown without the error."""
+    from qsls.pipeline.control.artifacts import load_runtime
+    from qsls.pipeline.control.sls import l1_norm
+
+    folder = certified.parent / "pd"
+    bound = load_controller_bound(folder)
+    ctrl = load_controller_dir(folder).controller
+    assert ctrl.kind == "static_gain"
+    assert bound.norm_phi_xy > l1_norm(ctrl.taps.Phi_xy) + 0.05  # truncation underestimates
+    assert bound.phi_xy is not None and bound.phi_xy.shape[0] > ctrl.taps.T + 1
+    assert bound.phi_xy_tail < 1e-9
+    model, runtime = ctrl.model, load_runtime(folder)
+    rng = np.random.default_rng(3)
+    steps = 300
+    e = rng.uniform(-0.05, 0.05, (steps, 6))
+    w = rng.uniform(-EPS_W, EPS_W, (steps, 6))
+    xs = np.zeros((2, steps, 6))
+    for run, scale in enumerate((1.0, 0.0)):
+        runtime.reset()
+        x = np.zeros(6)
+        for k in range(steps):
+            xs[run, k] = x
+            x = model.A @ x + model.B @ runtime.step(model.C @ x + scale * e[k]) + model.H @ w[k]
+    np.testing.assert_allclose(nominal_states(xs[0], e, bound.phi_xy), xs[1], rtol=0, atol=1e-9)

@@ -151,7 +151,9 @@ def check_flight(
     d_hat = np.full(len(t), np.nan)
     if why_not is None:
         assert bound.phi_xy is not None
-        premise = Premise(bound.eps_e, bound.S, bound.radius, bound.a_certificate)
+        premise = Premise(
+            bound.eps_e, bound.S, bound.radius, bound.a_certificate, bound.phi_xy_tail
+        )
         theorem, d_hat_all = theorem_check(
             x_all, e_all, t_all, bound.phi_xy, premise, training.scale, training.distance
         )

@@ -5,7 +5,9 @@ certificate's guarantee (DESIGN.md, Robust synthesis)::
     gamma        = (eps_e + S a) / (1 - S ||Phi_xy||),  a = eps_w ||Phi_xx H|| + Delta
     gamma_strict = R0 / (1 - S ||Phi_xy||)
 
-The norms are recomputed from the controller's taps, never read from the certificate.
+The norms are recomputed from the controller's taps, never read from the certificate; a
+static-gain reference controller (PD) gets its closed loop's true norms
+(:func:`~qsls.pipeline.control.nominal.static_gain_norms`), not its truncated taps'.
 """
 
 from __future__ import annotations
@@ -45,7 +47,10 @@ class ControllerBound:
     robustness_lhs: float | None = None
     certificate: dict[str, Any] = field(repr=False, default_factory=dict)
     phi_xy: np.ndarray | None = field(repr=False, compare=False, default=None)
-    """The ``(T+1, nx, ny)`` taps of ``Phi_xy`` (the theorem's ``x_hat``)."""
+    """The ``(T+1, nx, ny)`` taps of ``Phi_xy`` (the theorem's ``x_hat``); for a static gain
+    (PD) the closed loop's taps to the horizon where its tail is negligible."""
+    phi_xy_tail: float = 0.0
+    """Bound on ``||Phi_xy||`` beyond ``phi_xy``'s taps (0 for a FIR controller)."""
     dt: float = math.nan
     """The controller's sample time."""
 
@@ -105,6 +110,19 @@ def load_controller_bound(folder: Path) -> ControllerBound:
     from its responses."""
     d = load_controller_dir(folder)
     c, taps = d.certificate, d.controller.taps
+    ctrl = d.controller
+    norm_xy, norm_xx_h = l1_norm(taps.Phi_xy), l1_norm(taps.Phi_xx, ctrl.model.H)
+    phi_xy, tail = taps.Phi_xy, 0.0
+    if ctrl.kind == "static_gain" and ctrl.K is not None:
+        # A reference controller is a closed loop, not a FIR: its true norms (long horizon
+        # plus a geometric tail bound), never the truncated taps' (DESIGN.md, Robust synthesis).
+        from qsls.pipeline.control.nominal import static_gain_norms, static_gain_responses
+
+        true = static_gain_norms(ctrl.model, ctrl.K, taps.T)
+        norm_xy, norm_xx_h = true["phi_xy"].value, true["phi_xx_h"].value
+        tail = true["phi_xy"].tail_bound
+        if math.isfinite(norm_xy):
+            phi_xy = static_gain_responses(ctrl.model, ctrl.K, true["phi_xy"].horizon).Phi_xy
     return ControllerBound(
         name=d.name,
         folder=d.folder,
@@ -114,16 +132,17 @@ def load_controller_bound(folder: Path) -> ControllerBound:
         eps_e=c.eps_e,
         R0=c.R0,
         eps_w=c.eps_w,
-        norm_phi_xx_h=l1_norm(taps.Phi_xx, d.controller.model.H),
-        norm_phi_xy=l1_norm(taps.Phi_xy),
+        norm_phi_xx_h=norm_xx_h,
+        norm_phi_xy=norm_xy,
         radius=c.radius,
         delta=c.delta,
         gamma_certificate=c.gamma,
         model_sha256=c.error_model_sha256,
         robustness_lhs=c.robustness_lhs,
         certificate=c.model_dump(),
-        phi_xy=taps.Phi_xy,
-        dt=float(d.controller.dt),
+        phi_xy=phi_xy,
+        phi_xy_tail=tail,
+        dt=float(ctrl.dt),
     )
 
 

@@ -97,6 +97,8 @@ class Premise:
     S: float
     radius: float
     a_certificate: float
+    norm_tail: float = 0.0
+    """Bound on ``||Phi_xy||`` beyond the taps given (a closed loop's tail; 0 for a FIR)."""
 
 
 def theorem_check(
@@ -119,7 +121,7 @@ def theorem_check(
     d_hat = np.full(len(x_hat), np.nan)
     if defined.any():
         d_hat[defined] = distance(x_hat[defined])
-    norm_w = weighted_l1_norm(phi_xy, scale)
+    norm_w = weighted_l1_norm(phi_xy, scale) + float(np.max(scale)) * premise.norm_tail
     e_norm = np.abs(e).max(axis=1)
     finite_e = np.isfinite(e_norm)
     max_e = float(e_norm[finite_e].max()) if finite_e.any() else math.nan
