@@ -68,13 +68,13 @@ def write_fit(folder, x_train, e_train, *, eps_e=0.05, s_max=3.0, radius=0.5):
 
 def write_controller(folder, model_file, **over):
     """A controller folder whose responses have the given norms: ``Phi_xy(1) = ||Phi_xy|| I``,
-    ``Phi_xx(1) = ||Phi_xx|| I`` (a static gain K = 0, which the bound check never runs)."""
+    ``Phi_xx(1) = ||Phi_xx|| I`` (a filter bank the bound check never runs)."""
     cert = {
         "controller": Path(folder).name,
         "status": "certified",
         "robust": True,
         "strictly_proper": False,
-        "T": 1,
+        "T": 2,
         "S": 0.2,
         "eps_e": 0.05,
         "R0": 0.05,
@@ -99,12 +99,12 @@ def write_controller(folder, model_file, **over):
     cert.update(over)
     eye = np.eye(6)
     taps = Taps(
-        Phi_xx=np.stack([0 * eye, cert["norm_phi_xx_h"] * eye]),
-        Phi_ux=np.zeros((2, 3, 6)),
-        Phi_xy=np.stack([0 * eye, cert["norm_phi_xy"] * eye]),
-        Phi_uy=np.zeros((2, 3, 6)),
+        Phi_xx=np.stack([0 * eye, cert["norm_phi_xx_h"] * eye, 0 * eye]),
+        Phi_ux=np.zeros((3, 3, 6)),
+        Phi_xy=np.stack([0 * eye, cert["norm_phi_xy"] * eye, 0 * eye]),
+        Phi_uy=np.zeros((3, 3, 6)),
     )
-    ctrl = Controller(taps, quadrotor_model(), "static_gain", np.zeros((3, 6)))
+    ctrl = Controller(taps, quadrotor_model())
     with StageWriter(folder, "synth") as w:
         w.write_bytes(CONTROLLER_FILE, ctrl.to_bytes())
         w.write_text(
