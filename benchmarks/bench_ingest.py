@@ -4,14 +4,18 @@ Bags (written once under benchmarks/_work/, reused afterwards):
   (a) ROS1, 100k nav_msgs/Odometry (VIO, 200 Hz) + 100k geometry_msgs/PoseStamped
       (motion capture, 200 Hz) = 200k messages over 500 s;
   (b) the same with 640x480 mono8 camera images interleaved (>= 500 MB), uncompressed;
-  (c) (b) with LZ4 chunk compression.
+  (c) (b) with LZ4 chunk compression;
+and (a), (b) as ROS2-sqlite3 and ROS2-MCAP (rosbag2 folders, uncompressed MCAP chunks) and as
+a plain MCAP file with zstd chunks (images in the same chunks are decompressed too).
 
 For each bag, in the same run:
   - ``qsls ingest`` end to end (read both topics, offset, alignment, resampling,
     flight.parquet) with the fast decoder and with ``decoder="deserializer"`` (every
     message through rosbags' per-message deserializer, what evo does);
   - reading the two topics only, both ways, and rosbags' raw message iteration (the floor
-    of any reader that goes through ``messages()``).
+    of any reader that goes through ``messages()``);
+  - MCAP only: reading the two topics through the per-message readers (``mcap``/rosbags
+    iteration, then the numpy decoder): the MCAP path before the whole-chunk decoder.
 
 Run: python benchmarks/bench_ingest.py [--quick]
 """
@@ -36,7 +40,7 @@ from qsls.pipeline.ingest.sources.write import ImageStream, write_bag  # noqa: E
 from qsls.pipeline.ingest.stage import IngestOptions, ingest  # noqa: E402
 from tests.bagfixtures import make_flight  # noqa: E402
 
-FORMATS = ("ros1", "ros2-sqlite", "ros2-mcap")
+FORMATS = ("ros1", "ros2-sqlite", "ros2-mcap", "mcap-zstd")
 
 
 def build(
@@ -94,6 +98,18 @@ def run_ingest(bag: Path, decoder: str) -> float:
     return t
 
 
+def read_per_message(bag: Path) -> int:
+    """The MCAP read before the chunk decoder: raw messages one by one, decoded at once."""
+    from qsls.pipeline.core.progress import NULL_PROGRESS
+
+    with BagSource(bag) as s:
+        infos = [t for t in s.topics() if t.topic in ("/vio/odom", "/mocap/pose")]
+        raws = s._raw_pass(infos, NULL_PROGRESS)
+        trajs = [s._decode(i, raws[i.topic], None, True) for i in infos]
+    assert all(t.decoder == "numpy" for t in trajs)
+    return sum(len(t) for t in trajs)
+
+
 def read_both(bag: Path, fast: bool) -> int:
     with BagSource(bag) as s:
         return len(s.read("/vio/odom", fast=fast)) + len(s.read("/mocap/pose", fast=fast))
@@ -119,9 +135,11 @@ def main() -> None:
     tag = "quick" if args.quick else "full"
     bags = {}
     for fmt in FORMATS:
-        ext = ".bag" if fmt == "ros1" else ""
-        bags[f"{fmt} (a) poses only"] = build(n_pose, 0, None, f"a_{tag}_{fmt}{ext}", fmt)
-        bags[f"{fmt} (b) + images"] = build(n_pose, mb, None, f"b_{tag}_{fmt}{ext}", fmt)
+        ext = {"ros1": ".bag", "mcap-zstd": ".mcap"}.get(fmt, "")
+        kind, _, comp = fmt.partition("-") if fmt == "mcap-zstd" else (fmt, "", "")
+        for key, img in (("a", 0.0), ("b", mb)):
+            label = f"{fmt} ({key}) {'+ images' if img else 'poses only'}"
+            bags[label] = build(n_pose, img, comp or None, f"{key}_{tag}_{fmt}{ext}", kind)
     bags["ros1 (b) + images, LZ4"] = build(n_pose, mb, "lz4", f"b_lz4_{tag}.bag")
     n_msgs = 2 * n_pose
     run_ingest(bags["ros1 (a) poses only"], "fast")  # warm-up: imports (pyarrow) once
@@ -132,21 +150,27 @@ def main() -> None:
         ingest_slow = run_ingest(bag, "deserializer")
         read_fast = timed(lambda bag=bag: read_both(bag, True), repeat=2)
         read_slow = timed(lambda bag=bag: read_both(bag, False))
-        raw = timed(lambda bag=bag: raw_iteration(bag))
+        raw = timed(lambda bag=bag: raw_iteration(bag)) if "mcap-zstd" not in label else np.nan
+        before = timed(lambda bag=bag: read_per_message(bag)) if "mcap" in label else np.nan
         sha = timed(lambda bag=bag: sum(len(_hash_file(f)) for f in _files(bag)))
-        rows.append((label, size, ingest_fast, ingest_slow, read_fast, read_slow, raw, sha))
+        rows.append((label, size, ingest_fast, ingest_slow, read_fast, read_slow, raw, before, sha))
     print(f"\n{n_msgs} Odometry+PoseStamped messages per bag; seconds (messages/s)\n")
     head = (
         f"{'bag':34s} {'MB':>6s} | {'ingest fast':>18s} {'ingest deser.':>18s} {'speed-up':>8s}"
-        f" | {'read fast':>9s} {'read deser.':>11s} {'raw iter':>8s} {'sha256':>6s}"
+        f" | {'read fast':>9s} {'read deser.':>11s} {'raw iter':>8s} {'per-msg':>7s}"
+        f" {'sha256':>6s}"
     )
     print(head)
     print("-" * len(head))
-    for label, size, f_, s_, rf, rs, raw, sha in rows:
+    for label, size, f_, s_, rf, rs, raw, before, sha in rows:
         print(
             f"{label:34s} {size:6.0f} | {f_:7.2f} ({n_msgs / f_:8.0f}) {s_:7.2f} ({n_msgs / s_:8.0f}) "
-            f"{s_ / f_:7.1f}x | {rf:9.2f} {rs:11.2f} {raw:8.2f} {sha:6.2f}"
+            f"{s_ / f_:7.1f}x | {rf:9.2f} {rs:11.2f} {raw:8.2f} {before:7.2f} {sha:6.2f}"
         )
+    print(
+        "(per-msg: MCAP read through the per-message readers, the path before the chunk decoder;"
+        " raw iter: rosbags' messages(), which cannot open a plain MCAP)"
+    )
     by = {r[0]: r for r in rows}
     print()
     for fmt in FORMATS:
@@ -155,6 +179,7 @@ def main() -> None:
             f"{fmt:12s} speed-up over the deserializer path {a[3] / a[2]:5.1f}x (target >= 3x); "
             f"with images / without {b[2] / a[2]:4.2f}x (target <= 1.3x)"
         )
+
 
 if __name__ == "__main__":
     main()
