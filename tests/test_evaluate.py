@@ -385,6 +385,16 @@ def test_tampered_or_foreign_controller_is_refused(setup):
     r = _run(["--model", model, "--controller", foreign, "--flights", flight, "--out", tmp / "o2"])
     assert r.exit_code == 2 and "is not the controller its certificate.yaml certifies" in r.output
     assert not (tmp / "o2").exists()
+    # fly and export refuse both folders the same way, before any work
+    for folder, why in ((bad, "K_by does not match"), (foreign, "certificate.yaml certifies")):
+        for args in (
+            ["evaluate", "--fly", "--model", model, "--controller", folder, "--out", tmp / "o3"],
+            ["export", folder, "--target", "c", "--out", tmp / "o4"],
+        ):
+            r = CliRunner().invoke(app, [str(a) for a in args])
+            assert r.exit_code == 2 and why in r.output, (args[0], r.output)
+            assert len(r.output.strip().splitlines()) == 1
+            assert not (tmp / "o3").exists() and not (tmp / "o4").exists()
 
 
 def test_silent_mismatches_are_refused_or_warned(setup):
