@@ -255,3 +255,21 @@ def test_pd_certificate_states_the_true_closed_loop_norms(tmp_path):
     assert c["gamma"] == float("inf") and c["gamma_strict"] == float("inf")
     assert c["robustness_lhs"] >= 1 and c["status"] == "reference"
     assert not load_controller_bound(out / "pd").has_guarantee
+
+
+def test_sweep_rows_state_the_premise(tmp_path, fit_dir):
+    """A sweep row at a percentile S is relaxed, with the share of pairs violating it."""
+    root, x, e, em = fit_dir
+    out = tmp_path / "sw"
+    res = _invoke(
+        "sweep", "-m", root, "-g", "S=p50,max", "-g", "T=10", "--eps-e", "max", "-o", out,
+        "--jobs", "1",
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    t = pd.read_parquet(out / "sweep.parquet").set_index("S")
+    s = _brute_slopes(x, e, 1.0, MIN_SEP)
+    share = np.count_nonzero(s > em.s_slope.percentiles["p50"]) / len(s)
+    assert t.loc["p50", "status"] == "certified_relaxed" and not t.loc["p50", "premise_holds"]
+    assert t.loc["p50", "S_violated"] == pytest.approx(share, rel=1e-15)
+    assert t.loc["max", "status"] == "certified" and t.loc["max", "premise_holds"]
+    assert t.loc["max", "S_violated"] == 0.0 and (t["eps_e_violated"] == 0.0).all()

@@ -185,3 +185,28 @@ def premise_of(
         eps_w=PremiseEntry(value=values["eps_w"], chosen="number"),
         training_data=where,
     )
+
+
+PREMISE_COLUMNS = ("premise_holds", "eps_e_violated", "S_violated")
+"""The premise's columns of a sweep table (one row per grid point)."""
+
+
+def premise_fields(
+    opts: Any,
+    values: dict[str, float],
+    em: ErrorModel | None,
+    em_file: Path | None,
+    cache: dict[tuple[float, ...], dict[str, Any]],
+) -> dict[str, Any]:
+    """:func:`premise_of` as the :data:`PREMISE_COLUMNS` of a sweep row (NaN: share unknown);
+    ``cache`` keeps one count per distinct ``(S, eps_e, radius)``."""
+    key = (values["S"], values["eps_e"], values["radius"])
+    if key not in cache:
+        p = premise_of(opts, values, em, em_file)
+        nan = float("nan")
+        cache[key] = {
+            "premise_holds": p.holds,
+            "eps_e_violated": nan if p.eps_e.violated is None else p.eps_e.violated,
+            "S_violated": nan if p.S.violated is None else p.S.violated,
+        }
+    return cache[key]

@@ -35,6 +35,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
+from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_fields
 from qsls.pipeline.control.synth import ProblemOptions, read_model, resolve, warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
@@ -83,12 +84,15 @@ class SweepOptions(ProblemOptions):
 
 
 # --------------------------------------------------------------------------- points
-def grid_points(options: SweepOptions, em: Any) -> list[dict[str, Any]]:
-    """One plain dict per grid point: the grid values, the resolved numbers and everything
-    a worker needs (picklable, no pydantic objects)."""
+def grid_points(
+    options: SweepOptions, em: Any, em_file: Path | None = None
+) -> list[dict[str, Any]]:
+    """One plain dict per grid point: the grid values, the resolved numbers, the premise's
+    violated shares (:func:`premise_fields`) and everything a worker needs (picklable)."""
     axes = list(options.grid)
     base = options.model_dump(exclude={"grid", "certify", "s_max_curve", "chunks_per_job"})
-    points = []
+    points: list[dict[str, Any]] = []
+    cache: dict[tuple[float, ...], dict[str, Any]] = {}
     for i, combo in enumerate(itertools.product(*(options.grid[a] for a in axes))):
         gv = dict(zip(axes, combo, strict=True))
         upd = {k: v for k, v in gv.items() if k not in ("q_scale", "r_scale")}
@@ -130,6 +134,7 @@ def grid_points(options: SweepOptions, em: Any) -> list[dict[str, Any]]:
                 "imitate": opts.imitate,
                 "solver": opts.solver,
                 "certify": options.certify,
+                **premise_fields(opts, r.record(), em, em_file, cache),
             }
         )
     return points
@@ -191,6 +196,7 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
 
     row: dict[str, Any] = {"index": p["index"], **p["grid"]}
     row.update({f"{k}_value": p[k] for k in ("S", "eps_e", "radius", "delta", "eps_w")})
+    row.update({k: p.get(k, k == "premise_holds") for k in PREMISE_COLUMNS})
     empty: dict[str, Any] = dict.fromkeys(RESULT_COLUMNS, math.nan)
     empty.update(status="", feasible=False, solver_status="", build_time_s=0.0, solve_time_s=0.0)
     row.update(empty)
@@ -228,7 +234,8 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
     )  # fmt: skip
     setting = Setting(p["S"], p["eps_e"], p["radius"], p["eps_w"], p["delta"], p["R0"])
     if p["certify"]:
-        status, f = certify(sol.taps, model, setting, solver_status=sol.status)
+        holds = bool(p.get("premise_holds", True))
+        status, f = certify(sol.taps, model, setting, solver_status=sol.status, premise_holds=holds)
     else:
         _, f = certify(sol.taps, model, setting, reference=True)
         status = "solved" if sol.status == "optimal" else "solver_inaccurate"
@@ -491,8 +498,8 @@ def compute(
 
     if scheduler is not None:
         scheduler = check_scheduler(scheduler)
-    em, _, _ = read_model(error_model)
-    points = grid_points(options, em)
+    em, _, em_file = read_model(error_model)
+    points = grid_points(options, em, em_file)
     jobs = jobs if jobs is not None else (os.cpu_count() or 1)
     if jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {jobs}")
