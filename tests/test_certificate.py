@@ -139,26 +139,19 @@ def test_relaxed_controller_export_states_its_premise(tmp_path, fit_dir):
     assert f"{100 * share:.3g}% of pairs (S p50)" in hdr
 
 
-def _weighted_model(tmp_path):
-    em = ErrorModel(
-        eps_e=0.05,
-        radius=1.0,
-        state_scale=[1.0, 1.0, 1.0, 0.5, 0.5, 0.5],
-        s_slope=SlopeStats(max=0.1),
-        R0=0.05,
-        n_samples=100,
-        n_pairs=1000,
-    )
+def _weighted_model(tmp_path, em):
+    """``em`` fitted with a state_scale other than ones (its own folder)."""
+    weighted = em.model_copy(update={"state_scale": [1.0, 1.0, 1.0, 0.5, 0.5, 0.5]})
     f = tmp_path / "wfit" / "error_model.yaml"
     f.parent.mkdir()
-    f.write_text(dump_yaml(em))
+    f.write_text(dump_yaml(weighted))
     return f.parent
 
 
 @pytest.mark.parametrize("command", ["synth", "sweep"])
-def test_weighted_error_model_is_refused(tmp_path, command):
+def test_weighted_error_model_is_refused(tmp_path, fit_dir, command):
     """A weighted ``S`` with the unweighted ``||Phi_xy||`` is never mixed: one line, exit 2."""
-    model = _weighted_model(tmp_path)
+    model = _weighted_model(tmp_path, fit_dir[3])
     args = ["-m", model, "-o", tmp_path / "out"]
     args += ["-T", T] if command == "synth" else ["-g", "T=8,10"]
     res = _invoke(command, *args)
