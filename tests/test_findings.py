@@ -167,6 +167,11 @@ def test_fly_writes_findings_json_with_verdicts_from_their_intervals(trained, tm
     want = (deg["pd"] / deg["l1_robust"]).to_numpy()
     np.testing.assert_allclose(sorted(f2["per_seed"].values()), sorted(want), rtol=1e-12)
     # PD against itself reacts exactly like PD; the comparison table holds the verdicts
-    assert np.allclose(flights.loc[flights["controller"] == "pd", "reaction_vs_pd"], 1.0)
+    pd_rows = flights[flights["controller"] == "pd"]
+    assert np.allclose(pd_rows[["reaction_vs_pd", "error_reaction_vs_pd"]], 1.0)
+    rob = flights[flights["controller"] == "l1_robust"]
+    assert (
+        np.isfinite(rob["error_reaction_vs_pd"]).all() and (rob["error_reaction_vs_pd"] > 0).all()
+    )
     md = (tmp_path / "ev" / "comparison.md").read_text()
     assert all(f"| {f['verdict']} |" in md for f in doc["findings"])

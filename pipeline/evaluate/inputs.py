@@ -76,6 +76,34 @@ def input_comparison(u: np.ndarray, u_pd: np.ndarray, u_off: np.ndarray) -> dict
     }
 
 
+def error_reaction(
+    opts: SimOptions, mass: float, e: np.ndarray, K: ArrayLike | None = None
+) -> dict[str, float]:
+    """The controller's reaction to the estimation error alone against PD's: by linearity
+    the feedback ``K (y - r) = K (x - r) + K e``, so ``u_e = K e`` (the flown controller's
+    filter run from rest on the error sequence ``e`` (k, 6) at its ticks) and ``K_PD e``;
+    ``error_reaction_vs_pd = RMS(u_e,att) / RMS(K_PD e)_att`` (< 1: it reacts less to
+    estimation errors than PD). ``nan`` for a controller that is not a linear filter (SE3)."""
+    from qsls.pipeline.control.pdgain import pd_gain
+    from qsls.pipeline.sim.controllers import LinearController, PDController, make_controller
+
+    nan = {"error_reaction_vs_pd": math.nan}
+    if len(e) < 2 or opts.controller.kind == "se3":
+        return nan
+    ctrl = make_controller(opts.controller, mass)
+    if isinstance(ctrl, PDController):
+        u_e = e @ np.asarray(ctrl.K, dtype=float).T
+    elif isinstance(ctrl, LinearController):
+        ctrl.runtime.reset()
+        u_e = np.array([np.asarray(ctrl.runtime.step(ek), dtype=float).reshape(3) for ek in e])
+    else:
+        return nan
+    gain = pd_gain(opts.controller.pd, mass) if K is None else np.asarray(K, dtype=float)
+    b = float(np.sqrt(np.mean((e @ gain.T)[:, :2] ** 2)))
+    a = float(np.sqrt(np.mean(u_e[:, :2] ** 2)))
+    return {"error_reaction_vs_pd": a / b if b > 0 else math.nan}
+
+
 def motion_metrics(opts: SimOptions, seed: int, x: np.ndarray, w: np.ndarray) -> dict[str, float]:
     """At the VIO samples: RMS of the body rate ``||omega||_2`` (rad/s) and the mean image
     blur (px) that motion makes with this condition's exposure (the emulator's ``b_k``,
@@ -125,6 +153,7 @@ class PdHeightController:
 __all__ = [
     "PdHeightController",
     "command_offset",
+    "error_reaction",
     "input_comparison",
     "motion_metrics",
     "pd_on_same_estimate",

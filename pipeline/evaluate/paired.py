@@ -244,17 +244,26 @@ def finding4_softness(flights: pd.DataFrame) -> dict | None:
         f"{c} ({cond})": ratio_interval(g["reaction_vs_pd"].to_numpy(float))
         for (c, cond), g in rob.groupby(["controller", "condition"], sort=False)
     }
-    rough = rob.groupby(["controller", "condition"], sort=False)["smoothness_vs_pd"].mean()
+    g = rob.groupby(["controller", "condition"], sort=False)
+    rough = g["smoothness_vs_pd"].mean()
+    err = g["error_reaction_vs_pd"].mean() if "error_reaction_vs_pd" in rob else None
     detail = "feedback attitude command RMS / PD's on the same estimate (< 1: softer): " + (
         ", ".join(f"{k} {_iv_text(iv)}" for k, iv in groups.items())
     )
 
     def why() -> str:
-        return (
+        text = (
             "RMS step change of the attitude command / PD's on the same estimate (roughness, "
             "what drives blur): "
             + ", ".join(f"{c} ({cond}) {v:.3g}" for (c, cond), v in rough.items())
         )
+        if err is not None:
+            text += (
+                "; the reaction to the estimation error alone (the controller's filter on "
+                "e = y - x against K_PD e): "
+                + ", ".join(f"{c} ({cond}) {v:.3g}" for (c, cond), v in err.items())
+            )
+        return text
 
     return _item(
         4,
@@ -267,6 +276,9 @@ def finding4_softness(flights: pd.DataFrame) -> dict | None:
         why,
         by_controller={k: {"effect": iv.mean, "ci": iv.ci} for k, iv in groups.items()},
         roughness_vs_pd={f"{c} ({cond})": float(v) for (c, cond), v in rough.items()},
+        error_reaction_vs_pd=(
+            {f"{c} ({cond})": float(v) for (c, cond), v in err.items()} if err is not None else {}
+        ),
     )
 
 
