@@ -445,6 +445,11 @@ def _check_flights(
     return checks, samples, ref_j
 
 
+def _motion_parts(sim: SimOptions) -> list[str]:
+    """The VIO emulator's motion-dependent parts switched on for the flights."""
+    return [k for k in ("blur", "motion_drift", "feature_loss") if getattr(sim.vio, k, False)]
+
+
 def _true_lipschitz(outcomes: Sequence[FlyOutcome]) -> dict[str, float]:
     """The emulator's Lipschitz constant per condition (the largest over flights)."""
     true_l: dict[str, float] = {}
@@ -512,7 +517,7 @@ def fly_evaluate(
             )  # fmt: skip
             findings = paired_findings(
                 flights, checks, ref_bound.name if ref_bound else None, PAPER_CONTROLLERS,
-                options.track_threshold_m,
+                options.track_threshold_m, _motion_parts(options.sim),
             )  # fmt: skip
 
             w.write_parquet("flights.parquet", flights)

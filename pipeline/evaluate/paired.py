@@ -131,7 +131,9 @@ def finding1_tracking(
     )
 
 
-def finding2_degraded(flights: pd.DataFrame, paper4: Sequence[str]) -> dict | None:
+def finding2_degraded(
+    flights: pd.DataFrame, paper4: Sequence[str], motion_parts: Sequence[str] = ()
+) -> dict | None:
     """Finding 2 (module docstring): ``l1_robust`` lowest perception error in degraded."""
     piv = _pivot(flights, "degraded", "perception_error_rms")
     cols = [c for c in paper4 if c in piv.columns]
@@ -147,7 +149,7 @@ def finding2_degraded(flights: pd.DataFrame, paper4: Sequence[str]) -> dict | No
     )
 
     def why() -> str:
-        return _motion_mechanism(flights, cols)
+        return _motion_mechanism(flights, cols, motion_parts)
 
     return _item(
         2,
@@ -163,7 +165,9 @@ def finding2_degraded(flights: pd.DataFrame, paper4: Sequence[str]) -> dict | No
     )
 
 
-def _motion_mechanism(flights: pd.DataFrame, cols: Sequence[str]) -> str:
+def _motion_mechanism(
+    flights: pd.DataFrame, cols: Sequence[str], motion_parts: Sequence[str]
+) -> str:
     """Which controller flies roughest, and how much blur (and error) that makes."""
     deg = flights[(flights["condition"] == "degraded") & flights["controller"].isin(cols)]
     have = [c for c in ("attitude_smoothness", "angular_rate_rms", "blur_px_mean") if c in deg]
@@ -179,10 +183,15 @@ def _motion_mechanism(flights: pd.DataFrame, cols: Sequence[str]) -> str:
         if "blur_px_mean" in have:
             bits.append(f"blur {r['blur_px_mean']:.3g} px")
         parts.append(f"{c}: " + ", ".join([*bits, f"||e|| RMS {r['perception_error_rms']:.4g}"]))
+    on = (
+        f"on in these flights: {', '.join(motion_parts)}"
+        if motion_parts
+        else "all off in these flights, so the error depends on the path flown only"
+    )
     return (
-        "the emulator's error depends on the motion only through blur, drift with motion and "
-        "feature loss (when switched on); the controllers' motion in degraded perception: "
-        + "; ".join(parts)
+        "the emulator's error depends on how the vehicle is flown through its motion-dependent "
+        f"parts (blur, drift with motion, feature loss; {on}); the controllers' motion in "
+        "degraded perception: " + "; ".join(parts)
     )
 
 
@@ -300,12 +309,14 @@ def paired_findings(
     ref_name: str | None,
     paper4: Sequence[str],
     threshold: float,
+    motion_parts: Sequence[str] = (),
 ) -> dict[str, Any]:
     """``findings.json``: ``{n_seeds, findings: [{id, claim, effect, ci, verdict, ...}],
-    degraded_perception_rms: {controller: {mean, ci}}}`` (issue 13's schema plus details)."""
+    degraded_perception_rms: {controller: {mean, ci}}}`` (issue 13's schema plus details).
+    ``motion_parts``: the emulator's motion-dependent parts switched on (for the mechanism)."""
     found = (
         finding1_tracking(flights, paper4, threshold),
-        finding2_degraded(flights, paper4),
+        finding2_degraded(flights, paper4, motion_parts),
         finding3_bound(checks, flights, ref_name),
         finding4_softness(flights),
     )

@@ -324,10 +324,13 @@ def section_flown(f: Facts, counter: list[int]) -> Section | None:
             ("tracking_max_m", "tracking max (m)"),
             ("perception_error_rms", "||e|| RMS"),
             ("perception_error_max", "||e|| max"),
+            ("reaction_vs_pd", "feedback command vs PD on its estimate (< 1: softer)"),
             ("smoothness_vs_pd", "input roughness vs PD (1 = PD)"),
             ("crashed", "crashed"),
         ]
         cols = [(k, h) for k, h in cols if k in pc]
+        if "reaction_vs_pd" in pc:  # softness (finding 4) in its place; roughness in the CSV
+            cols = [(k, h) for k, h in cols if k != "smoothness_vs_pd"]
         csv = _csv(sec, f"per_controller_{_slug(f.fly_folder)}.csv", pc)
         sec.table(
             [h for _, h in cols],
