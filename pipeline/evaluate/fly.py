@@ -259,8 +259,9 @@ class FlyResult(EvaluateResult):
         return out
 
     def comparison_rows(self) -> tuple[list[str], list[list[Any]]]:
-        """Per finding: the point comparison and, paired by seed, the effect and verdict."""
-        cols = ["finding (paper)", "qsls", "agrees", "effect [95% CI]", "verdict"]
+        """Per finding, paired by seed: the effect with its interval and the verdict, beside
+        the point comparison's ``agrees`` (the details: ``comparison.md``)."""
+        cols = ["finding (paper)", "effect [95% CI] (paper)", "verdict", "means agree"]
         by_id = {str(f["id"]): f for f in self.findings.get("findings", [])}
         rows = []
         for c in self.comparison:
@@ -269,8 +270,9 @@ class FlyResult(EvaluateResult):
             if f is not None and f["effect"] is not None:
                 lo, hi = f["ci"]
                 ci = f" [{lo:.3g}, {hi:.3g}]" if lo is not None and hi is not None else ""
-                eff, verdict = f"{f['effect']:.3g}{ci}", f["verdict"]
-            rows.append([c["finding"], c["qsls"], c["agrees"], eff, verdict])
+                eff = f"{f['effect']:.3g}{ci} ({f['paper_direction']})"
+                verdict = f["verdict"]
+            rows.append([c["finding"], eff, verdict, c["agrees"]])
         return cols, rows
 
 
