@@ -111,12 +111,11 @@ def finding1_tracking(
     )  # fmt: skip
 
     def why() -> str:
-        best = means.index[0]
-        if best != "pd":
-            return f"{best} has the lowest mean tracking RMS ({means[best]:.3f} m, PD {means['pd']:.3f} m)"
+        best, runner = means.index[0], means.index[1]
+        other = runner if best == "pd" else best
         return (
-            f"PD has the lowest mean tracking RMS, but its margin over {means.index[1]} "
-            "is within the seed-to-seed spread"
+            f"lowest mean tracking RMS: {best} ({means[best]:.4f} m); PD {means['pd']:.4f} m, "
+            f"{other} {means[other]:.4f} m"
         )
 
     return _item(
@@ -216,6 +215,9 @@ def finding3_bound(
     if rows.empty:
         return None
     frame = pd.DataFrame({"seed": rows["seed"], "ratio": ratio, "by": rows["flown_by"]})
+    for col in ("frac_premise_holds", "max_premise_ratio", "condition"):
+        if col in rows:
+            frame[col] = rows[col]
     per_seed = frame.groupby("seed")["ratio"].max()
     by = frame.groupby("by")["ratio"].max().sort_values()
     detail = f"bound: {basis}; worst max ||e|| / gamma per controller: " + ", ".join(
@@ -224,11 +226,19 @@ def finding3_bound(
 
     def why() -> str:
         worst = frame.loc[frame["ratio"].idxmax()]
-        return (
-            f"the worst flight ({worst['by']}, seed {int(worst['seed'])}) reaches "
-            f"{_g(float(worst['ratio']))} x gamma; the bound rests on the certificate's S and "
-            "eps_e, which the flown errors exceed where the premise check says so"
+        cond = f", {worst['condition']}" if "condition" in frame else ""
+        text = (
+            f"the worst flight ({worst['by']}{cond}, seed {int(worst['seed'])}) reaches "
+            f"{_g(float(worst['ratio']))} x gamma; the bound holds only under its premise "
+            "||e|| <= eps_e + S d (the certificate's eps_e and S)"
         )
+        if "frac_premise_holds" in frame and "max_premise_ratio" in frame:
+            text += (
+                f", which holds on {100 * float(frame['frac_premise_holds'].mean()):.1f}% of "
+                f"the samples of these flights, the error reaching "
+                f"{_g(float(frame['max_premise_ratio'].max()))} x (eps_e + S d)"
+            )
+        return text
 
     return _item(
         3,
