@@ -49,7 +49,7 @@ class PremiseEntry(BaseModel):
 class Premise(BaseModel):
     """``certificate.yaml``'s ``premise``: ``eps_e``, ``S``, ``r``, ``Delta``, ``eps_w``."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(frozen=True, extra="forbid")
 
     eps_e: PremiseEntry
     S: PremiseEntry
