@@ -197,7 +197,9 @@ def mcap_batches(path: Path, summary: Any, wanted: dict[int, int]) -> Iterator[B
     holds the label), chunk by chunk in file order (module docstring).
 
     All chunks uncompressed: one batch over a memory map of the file. Otherwise the chunks
-    are decompressed once each and grouped into batches of about 64 MB. Raises
+    are decompressed once each and copied into batches of about 64 MB in one reused buffer
+    (fresh memory per batch costs more in page faults than the decompression): a batch's
+    ``buf`` is only valid until the next batch is asked for. Raises
     :class:`layout.LayoutError` (before yielding) when the summary cannot locate the
     messages, or later when a record is not where the index says.
     """
@@ -209,22 +211,20 @@ def mcap_batches(path: Path, summary: Any, wanted: dict[int, int]) -> Iterator[B
     if all(loc.chunk.compression == "" for loc in locs):
         yield _batch(buf, [_data_start(buf, loc.chunk) for loc in locs], locs)
         return
-    parts: list[bytes] = []
+    sizes = [loc.chunk.uncompressed_size for loc in locs]
+    work = np.empty(min(_BATCH_BYTES, sum(sizes)) + max(sizes), np.uint8)
+    base: list[int] = []
     group: list[Located] = []
     size = 0
     with open(path, "rb") as fh:
         for loc in locs:
             data = _decompressed(fh, loc.chunk)
-            if parts and size + len(data) > _BATCH_BYTES:
-                yield _flush(parts, group)
-                parts, group, size = [], [], 0
-            parts.append(data)
+            if group and size + len(data) > _BATCH_BYTES:
+                yield _batch(work[:size], base, group)
+                base, group, size = [], [], 0
+            work[size : size + len(data)] = np.frombuffer(data, np.uint8)
+            base.append(size)
             group.append(loc)
             size += len(data)
-    if parts:
-        yield _flush(parts, group)
-
-
-def _flush(parts: list[bytes], group: list[Located]) -> Batch:
-    base = np.cumsum([0] + [len(p) for p in parts[:-1]]).tolist()
-    return _batch(np.frombuffer(b"".join(parts), np.uint8), base, group)
+    if group:
+        yield _batch(work[:size], base, group)
