@@ -266,3 +266,23 @@ def test_sweep_rows_state_the_premise(tmp_path, fit_dir):
     assert t.loc["p50", "S_violated"] == pytest.approx(share, rel=1e-15)
     assert t.loc["max", "status"] == "certified" and t.loc["max", "premise_holds"]
     assert t.loc["max", "S_violated"] == 0.0 and (t["eps_e_violated"] == 0.0).all()
+
+
+def test_controller_norms_are_the_closed_loops(tmp_path):
+    """``Controller.norms()``: a filter bank's from its taps, the PD's from its whole loop."""
+    from qsls.pipeline.control import sls
+    from qsls.pipeline.control.artifacts import Controller
+
+    out = tmp_path / "s"
+    res = _invoke(
+        "synth", "-T", 10, "--S", "0.1", "--eps-e", "0.01", "--radius", "1", "-o", out
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    pd_ctrl, robust = Controller.load(out / "pd"), Controller.load(out / "l1_robust")
+    assert pd_ctrl.norms()["phi_xy"] == pytest.approx(_pd_impulse_norm(out / "pd"), abs=1e-9)
+    assert pd_ctrl.norms()["phi_xy"] == _cert(out, "pd")["norm_phi_xy"]
+    assert pd_ctrl.norms()["phi_xy"] > sls.l1_norm(pd_ctrl.taps.Phi_xy) + 0.1  # T = 10
+    assert robust.norms() == {
+        "phi_xy": _cert(out)["norm_phi_xy"],
+        "phi_xx_h": _cert(out)["norm_phi_xx_h"],
+    }

@@ -22,7 +22,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from qsls.pipeline.control.nominal import ClosedLoopNorm
+from qsls.pipeline.control.nominal import ClosedLoopNorm, static_gain_norms
 from qsls.pipeline.control.plant import LinearModel
 from qsls.pipeline.control.premise import Premise
 from qsls.pipeline.control.realize import (
@@ -31,7 +31,7 @@ from qsls.pipeline.control.realize import (
     StaticGainController,
     filter_bank,
 )
-from qsls.pipeline.control.sls import RESPONSES, Taps
+from qsls.pipeline.control.sls import RESPONSES, Taps, l1_norm
 from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_yaml, npz_bytes
 from qsls.pipeline.core.errors import InputError
 
@@ -79,6 +79,19 @@ class Controller:
     def bank(self) -> FilterBank:
         """The realization gains, derived from the taps (:func:`realize.filter_bank`)."""
         return filter_bank(self.taps)
+
+    def norms(self) -> dict[str, float]:
+        """``phi_xy`` and ``phi_xx_h`` (``||Phi_xy||``, ``||Phi_xx H||``) of the closed loop this
+        controller makes: of its taps for a filter bank (FIR: exact), of the whole closed loop
+        for a static gain (:func:`nominal.static_gain_norms`; its taps are truncated)."""
+        if self.kind == "static_gain":
+            assert self.K is not None
+            true = static_gain_norms(self.model, self.K, self.T)
+            return {k: true[k].value for k in ("phi_xy", "phi_xx_h")}
+        return {
+            "phi_xy": l1_norm(self.taps.Phi_xy),
+            "phi_xx_h": l1_norm(self.taps.Phi_xx, self.model.H),
+        }
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every array stored in ``controller.npz``."""
