@@ -299,3 +299,23 @@ def test_damaged_chunk_is_refused_in_one_line(bags: dict[str, Path], tmp_path: P
     with pytest.raises(InputError) as err, BagSource(f) as src:
         src.read("/vio/odom")
     assert "\n" not in str(err.value) and "truncated or damaged" in str(err.value)
+
+
+@pytest.mark.parametrize("key", ["plain-zstd-small", "plain-lz4-small"])
+def test_many_batches_in_the_reused_buffer(
+    bags: dict[str, Path], key: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Batches of ~20 kB (the buffer is overwritten by every next batch) read the same."""
+    monkeypatch.setattr(mcapchunks, "_BATCH_BYTES", 20_000)
+    bag = bags[key]
+    s = _summary(bag)
+    wanted = {cid: 0 for cid, ch in s.channels.items() if ch.topic == "/vio/odom"}
+    assert len(list(mcapchunks.mcap_batches(_mcap_file(bag), s, wanted))) > 5
+    with BagSource(bag) as src:
+        tr = src.read("/vio/odom")
+    ref = reference(bag, "/vio/odom")
+    assert tr.decoder == "numpy"
+    np.testing.assert_array_equal(tr.log_ns, ref["log"])
+    np.testing.assert_array_equal(tr.header_ns, ref["header"])
+    np.testing.assert_array_equal(np.hstack([tr.position, tr.orientation]), ref["pose"])
+    np.testing.assert_array_equal(tr.velocity, ref["twist"])
