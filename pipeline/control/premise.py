@@ -108,20 +108,27 @@ def slope_violations(
         return 0, 0
     xs = x[:, scale > 0] * scale[scale > 0]
     g = cell_grid(xs, float(radius))
-    X = np.ascontiguousarray(xs[g.order])
-    E = np.ascontiguousarray(e[g.order])
+    X = np.ascontiguousarray(xs[g.order].T)  # (dim, n): one row per coordinate
+    E = np.ascontiguousarray(e[g.order].T)
     lo = min_separation if min_separation > 0 else float(np.nextafter(0.0, 1.0))
     bad = total = 0
     for r0, r1, cols in pair_blocks(g, block_elems):
-        d = np.abs(X[r0:r1, None, :] - X[None, cols, :]).max(axis=2)
+        d = _cheb(X[:, r0:r1], X[:, cols])
         m = (d < radius) & (d >= lo) & (cols[None, :] > np.arange(r0, r1)[:, None])
         if not m.any():
             continue
-        de = np.abs(E[r0:r1, None, :] - E[None, cols, :]).max(axis=2)
-        s = de[m] / d[m]
+        s = _cheb(E[:, r0:r1], E[:, cols])[m] / d[m]
         total += len(s)
         bad += int(np.count_nonzero(s > S))
     return bad, total
+
+
+def _cheb(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``max_k |a[k, i] - b[k, j]|`` (rows x cols), one coordinate at a time (2-D memory)."""
+    d = np.abs(a[0][:, None] - b[0][None, :])
+    for k in range(1, len(a)):
+        np.maximum(d, np.abs(a[k][:, None] - b[k][None, :]), out=d)
+    return d
 
 
 # --------------------------------------------------------------------------- the record
