@@ -418,15 +418,7 @@ class BagSource:
             return [self.path]
         from rosbags.rosbag2.storage_mcap import McapReader
 
-        files = []
-        for bag in self._reader.readers:
-            storages = getattr(bag.storage, "storages", [bag.storage])  # a folder, or one file
-            if bag.compression_mode or not all(
-                isinstance(s, McapReader) and isinstance(s.path, Path) for s in storages
-            ):
-                return None
-            files += [s.path for s in storages]
-        return files
+        return self._storage_files(McapReader)
 
     def _mcap_batches(self, files: list[Path], infos: list[TopicInfo]) -> Iterator[Batch]:
         """The messages of ``infos`` in every MCAP file, labelled by their index in ``infos``;
@@ -531,13 +523,18 @@ class BagSource:
         per topic (rosbags' reader yields one message at a time); None for anything else."""
         from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
+        return self._storage_files(Sqlite3Reader)
+
+    def _storage_files(self, storage: type[Any]) -> list[Path] | None:
+        """The files of a rosbag2 without message/file compression whose storages are all
+        ``storage`` (rosbags' reader class); None for anything else."""
         if self._reader is None or not self._reader.is2:
             return None
         files = []
         for bag in self._reader.readers:
             storages = getattr(bag.storage, "storages", [bag.storage])  # a folder, or one file
             if bag.compression_mode or not all(
-                isinstance(s, Sqlite3Reader) and isinstance(s.path, Path) for s in storages
+                isinstance(s, storage) and isinstance(s.path, Path) for s in storages
             ):
                 return None
             files += [s.path for s in storages]
