@@ -96,7 +96,11 @@ def write_plain(path: Path, compression: str, chunk_size: int, **opts: Any) -> P
     return path
 
 
-def write_rosbag2(path: Path, zstd_chunks: bool) -> Path:
+def write_rosbag2(
+    path: Path, zstd_chunks: bool, rows: list[tuple[int, str, int]] | None = None, rev: bool = False
+) -> Path:
+    """A rosbag2 MCAP bag of ``rows`` (default: all), topics registered in reverse if ``rev``
+    (other channel ids)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
@@ -105,9 +109,10 @@ def write_rosbag2(path: Path, zstd_chunks: bool) -> Path:
     if zstd_chunks:
         w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
     with w:
+        topics = [*TOPICS.items(), ("/cam", IMAGE)]
         conns = {tp: w.add_connection(tp, mt, typestore=ts)
-                 for tp, mt in [*TOPICS.items(), ("/cam", IMAGE)]}  # fmt: skip
-        for log, tp, i in _schedule():
+                 for tp, mt in (topics[::-1] if rev else topics)}  # fmt: skip
+        for log, tp, i in _schedule() if rows is None else rows:
             mt, msg = _message(ts, tp, i)
             w.write(conns[tp], log, bytes(ts.serialize_cdr(msg, mt)))
     return path
@@ -319,3 +324,41 @@ def test_many_batches_in_the_reused_buffer(
     np.testing.assert_array_equal(tr.header_ns, ref["header"])
     np.testing.assert_array_equal(np.hstack([tr.position, tr.orientation]), ref["pose"])
     np.testing.assert_array_equal(tr.velocity, ref["twist"])
+
+
+def test_rosbag2_split_into_two_mcap_files(tmp_path: Path) -> None:
+    """A bag split into two storage files whose channel ids differ: read as one topic."""
+    import yaml
+
+    rows = _schedule()
+    a = write_rosbag2(tmp_path / "a", False, rows[: len(rows) // 2])
+    b = write_rosbag2(tmp_path / "b", True, rows[len(rows) // 2 :], rev=True)
+    (b / "b.mcap").rename(a / "a_1.mcap")
+    meta_a, meta_b = (yaml.safe_load((x / "metadata.yaml").read_text()) for x in (a, b))
+    info, other = meta_a["rosbag2_bagfile_information"], meta_b["rosbag2_bagfile_information"]
+    info["relative_file_paths"].append("a_1.mcap")
+    info["files"].append({**other["files"][0], "path": "a_1.mcap"})
+    info["message_count"] += other["message_count"]
+    counts = {
+        t["topic_metadata"]["name"]: t["message_count"] for t in other["topics_with_message_count"]
+    }
+    for t in info["topics_with_message_count"]:
+        t["message_count"] += counts[t["topic_metadata"]["name"]]
+    (a / "metadata.yaml").write_text(yaml.safe_dump(meta_a))
+    ids = [
+        {ch.topic: cid for cid, ch in _summary(f).channels.items()}
+        for f in (a / "a.mcap", a / "a_1.mcap")
+    ]
+    assert ids[0]["/vio/odom"] != ids[1]["/vio/odom"]
+    with BagSource(a) as src:
+        infos = [t for t in src.topics() if t.topic in TOPICS]
+        assert sorted(src._indexed_fast(infos, NULL_PROGRESS)) == sorted(TOPICS)
+        trajs = src.read_many([(t, None) for t in TOPICS])
+    for tr in trajs:
+        ref = [reference(f, tr.name) for f in (a / "a.mcap", a / "a_1.mcap")]
+        assert tr.decoder == "numpy" and len(tr) == N
+        np.testing.assert_array_equal(tr.log_ns, ref[0]["log"] + ref[1]["log"])
+        np.testing.assert_array_equal(tr.header_ns, ref[0]["header"] + ref[1]["header"])
+        np.testing.assert_array_equal(
+            np.hstack([tr.position, tr.orientation]), ref[0]["pose"] + ref[1]["pose"]
+        )
