@@ -334,7 +334,7 @@ def paired_findings(
     return {
         "n_seeds": int(flights["seed"].nunique()) if len(flights) else 0,
         "level": 0.95,
-        "method": "paired by seed; Student t-interval of the per-seed log ratios, reported as "
+        "method": "Student t-interval of the per-seed log ratios, reported as "
         "a geometric mean ratio (no effect: 1)",
         "findings": [f for f in found if f is not None],
         "degraded_perception_rms": degraded_rms(flights, names),
