@@ -47,12 +47,16 @@ def circle_states(seed: int, laps: float = 3.0, dt: float = 0.1) -> tuple[np.nda
     return t, x
 
 
+MOTION_OFF = {"blur": False, "motion_drift": False, "feature_loss": False}
+
+
 def vio_flights(root: Path, n: int = 3, **switches) -> tuple[list[Path], float]:
     """``n`` circle flights with the VIO emulator's errors; returns (folders, L)."""
     folders, lip = [], 0.0
     for seed in range(n):
         t, x = circle_states(seed)
-        vio = VioEmulator(VioParams(**switches), seed)
+        # the position-only emulator (its motion parts need body rates these states lack)
+        vio = VioEmulator(VioParams(**{**MOTION_OFF, **switches}), seed)
         e = vio.errors(x)
         lip = vio.lipschitz
         folders.append(write_flight(root / f"flight{seed}", t, x, x + e))

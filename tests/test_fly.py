@@ -30,6 +30,9 @@ STEEP_VIO = {
     "drift": False,
     "noise": False,
     "outliers": False,
+    "blur": False,
+    "motion_drift": False,
+    "feature_loss": False,
     "ridges": [
         {"normal_deg": 0.0, "offset": 0.35, "width": 0.2, "amplitude": [0.2, 0, 0, 0, 0, 0]},
     ],

@@ -80,10 +80,10 @@ def test_drift_per_radian_and_faster_per_metre_when_fast():
 
 def test_feature_loss_only_above_thresholds_and_more_often_in_poor_texture():
     n = 60_000
-    calm = np.tile([0.0, 0.0, 1.0], (n, 1))  # below 1.5 rad/s
+    calm = np.tile([0.0, 0.0, 2.5], (n, 1))  # below 3 rad/s
     assert not VioEmulator(only("feature_loss"), 3).errors(hover(n), calm).any()
-    jerk = np.tile([0.0, 0.0, 5.0], (n, 1))  # acceleration above 4 m/s^2
-    fast = np.tile([0.0, 0.0, 2.0], (n, 1))
+    jerk = np.tile([0.0, 0.0, 9.0], (n, 1))  # acceleration above 8 m/s^2
+    fast = np.tile([0.0, 0.0, 3.5], (n, 1))
     odds = {}
     for perception in ("regular", "degraded"):
         prm = only("feature_loss", perception=perception)
@@ -153,11 +153,11 @@ def test_pd_flown_harder_sees_more_blur_and_a_worse_estimate():
         rate = [np.linalg.norm(f.vio_w, axis=1).mean() for f in (soft, hard)]
         assert rate[1] > 2.0 * rate[0]
         rms = [f.metrics()["perception_error_rms"] for f in (soft, hard)]
-        assert rms[1] > 1.06 * rms[0], rms
+        assert rms[1] > 1.03 * rms[0], rms  # measured 5 to 10 % on seeds 0-3
         blur_only = {**MOTION_OFF, "blur": True}
         rms_blur = [fly(_pd_flight(k, blur_only), seed=seed).metrics()["perception_error_rms"]
                     for k in (0.5, 2.0)]  # fmt: skip
-        assert rms_blur[1] > 1.04 * rms_blur[0], rms_blur
+        assert rms_blur[1] > 1.03 * rms_blur[0], rms_blur
         rms_off = [fly(_pd_flight(k, MOTION_OFF), seed=seed).metrics()["perception_error_rms"]
                    for k in (0.5, 2.0)]  # fmt: skip
         assert abs(rms_off[1] / rms_off[0] - 1) < 0.01, rms_off

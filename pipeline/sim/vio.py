@@ -150,9 +150,9 @@ class VioParams(Options):
     drift: bool = True
     noise: bool = True
     outliers: bool = True
-    blur: bool = False
-    motion_drift: bool = False
-    feature_loss: bool = False
+    blur: bool = True
+    motion_drift: bool = True
+    feature_loss: bool = True
     perception: Literal["regular", "degraded"] = "regular"
 
     rate_hz: float = Field(100.0, ge=30.0, le=200.0)
@@ -211,7 +211,7 @@ class VioParams(Options):
     """Extra position noise std per pixel of blur (m/px)."""
     blur_noise_velocity: float = Field(0.005, ge=0)
     """Extra velocity noise std per pixel of blur (m/s/px)."""
-    blur_outlier_rate: float = Field(0.002, ge=0)
+    blur_outlier_rate: float = Field(0.0005, ge=0)
     """Extra velocity-outlier probability per sample per pixel of blur."""
 
     # drift with motion
@@ -223,9 +223,9 @@ class VioParams(Options):
     """Per-metre drift grows by ``1 + drift_speed_gain * speed`` (per m/s)."""
 
     # feature loss
-    loss_rate_threshold: float = Field(1.5, gt=0)
+    loss_rate_threshold: float = Field(3.0, gt=0)
     """Body rate above which tracking can be lost (rad/s)."""
-    loss_accel_threshold: float = Field(4.0, gt=0)
+    loss_accel_threshold: float = Field(8.0, gt=0)
     """Acceleration above which tracking can be lost (m/s^2)."""
     loss_rate_hz: float = Field(0.5, ge=0)
     """Bursts per second spent above a threshold, in ideal texture and light."""
