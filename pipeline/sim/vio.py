@@ -483,9 +483,11 @@ class VioEmulator:
         fast = (rate > prm.loss_rate_threshold) | (
             np.sqrt((a * a).sum(axis=1)) > prm.loss_accel_threshold
         )
-        quality = self.light * self.texture(xs)
-        hz = prm.loss_rate_hz * (1.0 + prm.loss_texture_gain * (1.0 - quality))
-        start = np.where(fast, -np.expm1(-hz * self.dt_v), 0.0)
+        start = np.zeros(n)
+        if fast.any():
+            quality = self.light * self.texture(xs[fast])
+            hz = prm.loss_rate_hz * (1.0 + prm.loss_texture_gain * (1.0 - quality))
+            start[fast] = -np.expm1(-hz * self.dt_v)
         loss = burst_errors(self._burst, start, u_loss, self._loss_samples, self._loss_peak)
         if prm.feature_loss:
             e += loss

@@ -28,6 +28,8 @@ def velocity_spikes(
     ``u[:, 1]``) gets a spike of sign and magnitude in ``[lo, hi]`` from ``u[:, 2]``
     (``[0, .5)`` negative, ``[.5, 1)`` positive)."""
     rows = np.nonzero(hit)[0]
+    if not len(rows):  # the usual case: skip the arithmetic
+        return rows, np.zeros((0, 3))
     axis = np.minimum((u[rows, 1] * 3).astype(int), 2)
     w = u[rows, 2]
     sign = np.where(w < 0.5, -1.0, 1.0)
