@@ -1,12 +1,13 @@
 """VIO emulator: the error a visual-inertial odometry estimate makes, ``y = x + e``.
 
 State ``x = [px, py, pz, vx, vy, vz]`` (world = motion-capture frame, z up). The error is
-the sum of four parts, each with its own switch in :class:`VioParams`::
+the sum of seven parts, each with its own switch in :class:`VioParams`::
 
     e_k = g * b(x_k)          smooth spatial bias field (known Lipschitz constant)
         + d_k                 drift that grows with the distance travelled
         + sigma(p_k) * n_k    white noise, larger where texture or light is poor
         + o_k                 occasional velocity outliers
+        + blur, drift with motion, feature loss   (motion-dependent parts, below)
 
 **Bias field.** ``b(x) = sum_r A_r tanh((n_r . p - c_r) / w_r)          (ridges)
                      + sum_q A_q sin(k_q . p + phi_q)                   (ripples)
@@ -60,14 +61,16 @@ per metre when fast (``dtheta_k = ||omega_k||_2 dt_v``, ``s_k = ||v_k||_2``)::
     m_{k+1} = m_k + drift_per_radian * u * dtheta_k + drift_walk_radian * sqrt(dtheta_k) * N(0, I)
                   + drift_speed_gain * s_k * (drift_fraction * u * ds_k + drift_walk * sqrt(ds_k) * N(0, I))
 
-so the per-metre rate is ``drift_fraction (1 + drift_speed_gain s)`` with both sums on.
+so the per-metre rate is ``drift_fraction (1 + drift_speed_gain s)`` with both sums on
+(``dtheta = 0`` at a flight's first sample; ``u`` is the drift's direction).
 
 *Feature loss.* While ``||omega_k||_2 > loss_rate_threshold`` or ``||a_k||_2 >
 loss_accel_threshold``, a burst (a tracking loss and its recovery) starts with probability
 ``1 - exp(-loss_rate_hz (1 + loss_texture_gain (1 - light texture(p_k))) dt_v)`` per sample
-(more often in poor texture). It lasts ``L`` samples, ``L dt_v`` uniform in
-``loss_duration_s``, and adds ``A sin(pi (j + 1) / (L + 1))`` at its ``j``-th sample,
-``A = [loss_position] * 3 + [loss_velocity] * 3`` times uniforms in ``[-1, 1]``.
+(more often in poor texture) when no burst is running. It lasts ``m`` samples, ``m``
+uniform among the whole numbers from ``loss_duration_s[0] / dt_v`` to ``loss_duration_s[1] /
+dt_v`` (rounded), and adds ``A sin(pi (j + 1) / (m + 1))`` at its ``j``-th sample, ``A =
+[loss_position] * 3 + [loss_velocity] * 3`` times uniforms in ``[-1, 1]``.
 
 These parts are noise-like: the bias field and its Lipschitz constant ``L`` do not change.
 
@@ -273,10 +276,10 @@ _N_STREAMS = 8
 class VioEmulator:
     """The VIO error model of the module docstring, seeded and deterministic.
 
-    Stateless parts: :meth:`bias`, :meth:`texture`, :meth:`noise_std`. Stateful per-sample
-    model: :meth:`reset`, then :meth:`sample` once per VIO sample in time order (drift
-    integrates the distance between consecutive samples), or :meth:`errors` on a whole
-    trajectory at once (identical values).
+    Stateless parts: :meth:`bias`, :meth:`texture`, :meth:`noise_std`, :meth:`blur`. Stateful
+    per-sample model: :meth:`reset`, then :meth:`sample` once per VIO sample in time order
+    (the drift sums integrate the motion between consecutive samples; a feature-loss burst
+    carries over), or :meth:`errors` on a whole trajectory at once (identical values).
     """
 
     def __init__(self, params: VioParams, seed: int) -> None:
