@@ -2,6 +2,7 @@
 
     python benchmarks/bench_rpe.py            # 5 seeds per emulated row
     python benchmarks/bench_rpe.py --quick    # 2 seeds
+    python benchmarks/bench_rpe.py FLIGHT...  # the statistic on ingested flight folders only
 
 The statistic (:mod:`qsls.pipeline.evaluate.rpe`): the 1 s relative position error over
 non-overlapping 1 s windows of an aligned flight, the ratio of its mean over the fastest third
@@ -53,17 +54,22 @@ RATE_HZ = 100.0
 DT = 0.1
 
 
-def real_row(name: str, work: Path) -> dict[str, Any]:
+def flight_row(folder: Path) -> dict[str, Any]:
+    """The statistic on an ingested flight (a folder holding ``flight.parquet``)."""
     from qsls.pipeline.evaluate.rpe import rpe_vs_speed
     from qsls.pipeline.ingest.flight import Flight
+
+    f = Flight.load(folder)
+    return vars(rpe_vs_speed(f.frame["t"].to_numpy(), f.states(), f.measurements()))
+
+
+def real_row(name: str, work: Path) -> dict[str, Any]:
     from qsls.pipeline.ingest.stage import IngestOptions, ingest
 
     truth = REAL / name / PAIRS[name][0]
     o = IngestOptions(vio=REAL / name / "estimate_tum.txt", truth=truth, align="se3", dt=DT)
     ingest([], o, work / name, force=True)
-    f = Flight.load(work / name)
-    x, y = f.states(), f.measurements()
-    return vars(rpe_vs_speed(f.frame["t"].to_numpy(), x, y))
+    return flight_row(work / name)
 
 
 def truth_states(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -145,6 +151,10 @@ def print_table(table: list[tuple[str, str, dict[str, str]]]) -> None:
 
 
 def main() -> None:
+    folders = [Path(a) for a in sys.argv[1:] if not a.startswith("--")]
+    if folders:
+        print_table([(str(f), "ingested", summarize([flight_row(f)])) for f in folders])
+        return
     seeds = range(2 if "--quick" in sys.argv else 5)
     if not REAL.is_dir():
         sys.exit(f"{REAL} not found: the real pairs are needed for this benchmark")
