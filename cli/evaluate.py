@@ -61,8 +61,8 @@ def command(
         None,
         "--flown-by",
         help="Name of the --controller that flew the --flights: the theorem is checked "
-        "on its flights; every other pair (and every flight when not given) checks the "
-        "premise only.",
+        "on its flights; every other pair checks the premise only. (default: none: "
+        "recorded flights, premise only)",
     ),
     seeds: str = typer.Option(
         None, "--seeds", help="--fly: comma-separated seeds. (default: 0,1,2)"
