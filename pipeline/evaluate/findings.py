@@ -96,6 +96,12 @@ def finding_degraded_perception(per: pd.DataFrame, tie_rel: float) -> dict[str, 
     return None
 
 
+def _names(items: list[str], most: int = 6) -> str:
+    """The first ``most`` names and how many more."""
+    more = f" and {len(items) - most} more" if len(items) > most else ""
+    return ", ".join(items[:most]) + more
+
+
 def finding_bound(
     checks: pd.DataFrame, ref_bound: ControllerBound | None, true_lipschitz: dict[str, float] | None
 ) -> dict[str, Any] | None:
@@ -109,13 +115,13 @@ def finding_bound(
         own = own[own["bound_holds"].notna()]  # None: no theorem on this pair
         own_fail = own[~own["bound_holds"].astype(bool)]
         own_txt = (
-            f"each certified controller against its own data-driven gamma(d): holds on "
-            f"{len(own) - len(own_fail)} of {len(own)} flights"
+            f"the theorem on each certified controller's own flights (max ||e|| <= "
+            f"gamma_nominal): holds on {len(own) - len(own_fail)} of {len(own)} flights"
         )
         if len(own_fail):
             n_ass = int((~own_fail["assumption_holds"].astype(bool)).sum())
             own_txt += (
-                f"; fails on {', '.join(own_fail['flight'])} "
+                f"; fails on {_names(list(own_fail['flight']))} "
                 f"({n_ass} of them with the S-slope/eps_e premise violated: "
                 f"||e|| above eps_e + S d)"
             )
@@ -145,7 +151,7 @@ def finding_bound(
         if not ref_bound.has_guarantee:
             detail = f"{ref_bound.name} has no guarantee; " + detail
         agrees = "yes" if all_under and own_fail.empty else (
-            "partly (strict bound yes, data-driven gamma(d) no)" if all_under else "no"
+            "partly (strict bound yes, gamma_nominal no)" if all_under else "no"
         )  # fmt: skip
         return {
             "finding": "3. every controller's perception error stays below the bound",
