@@ -203,7 +203,9 @@ def test_bound_holds_when_errors_small(setup):
     res = evaluate([flight], model, [ctrl], EvaluateOptions(flown_by="l1_robust"), tmp / "ev2")
     row = res.table.iloc[0]
     assert row["bound_holds"] and row["assumption_holds"]
-    assert row["verdict"].startswith("holds: ") and "premise holds at every sample" in row["verdict"]
+    assert (
+        row["verdict"].startswith("holds: ") and "premise holds at every sample" in row["verdict"]
+    )
     # x_hat = x - 2.5 * 0.02: every coordinate 0.05 off the flown state, which is 0.05 above
     # the training circle: a_nominal is 0.05 (z) or 0.1 (z and the shift add) at most.
     assert 0.05 - 1e-9 <= row["a_nominal"] <= 0.1 + 1e-9
@@ -395,6 +397,71 @@ def test_tampered_or_foreign_controller_is_refused(setup):
             assert r.exit_code == 2 and why in r.output, (args[0], r.output)
             assert len(r.output.strip().splitlines()) == 1
             assert not (tmp / "o3").exists() and not (tmp / "o4").exists()
+
+
+def _with_matching_hash(folder, source, npz: bytes, **update):
+    """``folder`` holding ``npz`` and ``source``'s certificate, its hash made to match."""
+    folder.mkdir()
+    (folder / CONTROLLER_FILE).write_bytes(npz)
+    cert = Certificate.load(source).model_copy(
+        update={"controller_sha256": sha256_file(folder / CONTROLLER_FILE), **update}
+    )
+    cert.save(folder)
+    return folder
+
+
+def test_damaged_altered_pd_or_overclaiming_controllers_are_refused(setup):
+    """A truncated or empty controller.npz (with and without a matching hash), a PD whose K
+    was changed by 1e-4 (hash updated), and a certificate edited to 'certified' over its own
+    violated premise: evaluate, evaluate --fly and export give one line, exit 2."""
+    from qsls.pipeline.control.nominal import pd_responses
+    from qsls.pipeline.control.pdgain import PDGains
+    from qsls.pipeline.control.premise import Premise, PremiseEntry
+
+    tmp, model, _, flight = setup
+    good, ctrl = _filter_bank_controller(tmp / "fb", model)
+    raw = ctrl.to_bytes()
+    cut = tmp / "cut"  # truncated, certificate unchanged: the hash refuses it before parsing
+    cut.mkdir()
+    (cut / CONTROLLER_FILE).write_bytes(raw[:5000])
+    (cut / CERTIFICATE_FILE).write_bytes((good / CERTIFICATE_FILE).read_bytes())
+    cut_hashed = _with_matching_hash(tmp / "cut_hashed", good, raw[:5000])
+    empty = _with_matching_hash(tmp / "empty", good, b"")
+    K, taps = pd_responses(quadrotor_model(), PDGains(), 10)
+    pd_ok = Controller(taps, quadrotor_model(), "static_gain", K)
+    assert Controller.load(_with_matching_hash(tmp / "pd", good, pd_ok.to_bytes())).K is not None
+    arrays = pd_ok.arrays()
+    arrays["K"] = arrays["K"].copy()
+    arrays["K"][0, 0] += 1e-4
+    from qsls.pipeline.core.artifacts import npz_bytes
+
+    pd_bad = _with_matching_hash(tmp / "pd_bad", good, npz_bytes(arrays))
+    relaxed = Premise(
+        eps_e=PremiseEntry(value=0.05, chosen="p95", violated=0.05, n_violating=20, n_total=400),
+        S=PremiseEntry(value=0.2, chosen="p50", violated=0.5, n_violating=50, n_total=100),
+        r=PremiseEntry(value=0.5, chosen="number"),
+        Delta=PremiseEntry(value=0.0, chosen="number"),
+        eps_w=PremiseEntry(value=0.01, chosen="number"),
+        training_data="training_states.parquet",
+    )
+    over = _with_matching_hash(tmp / "over", good, raw, status="certified", premise=relaxed)
+    cases = (
+        (cut, "is not the controller its certificate.yaml certifies"),
+        (cut_hashed, "not a readable controller file"),
+        (empty, "not a readable controller file"),
+        (pd_bad, "gain K does not match"),
+        (over, "says 'certified' against its own record"),
+    )
+    for k, (folder, why) in enumerate(cases):
+        for args in (
+            ["evaluate", "--model", model, "--controller", folder, "--flights", flight],
+            ["evaluate", "--fly", "--model", model, "--controller", folder],
+            ["export", folder, "--target", "c"],
+        ):
+            out = tmp / f"o{k}_{args[0]}{len(args)}"
+            r = CliRunner().invoke(app, [str(a) for a in [*args, "--out", out]])
+            assert r.exit_code == 2 and why in r.output, (folder.name, args[:2], r.output)
+            assert len(r.output.strip().splitlines()) == 1 and not out.exists()
 
 
 def test_silent_mismatches_are_refused_or_warned(setup):

@@ -15,6 +15,7 @@ A controller folder (one per controller inside a ``qsls synth`` output) holds:
 from __future__ import annotations
 
 import hashlib
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -22,7 +23,11 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from qsls.pipeline.control.nominal import ClosedLoopNorm, static_gain_norms
+from qsls.pipeline.control.nominal import (
+    ClosedLoopNorm,
+    static_gain_norms,
+    static_gain_responses,
+)
 from qsls.pipeline.control.plant import LinearModel
 from qsls.pipeline.control.premise import Premise
 from qsls.pipeline.control.realize import (
@@ -128,8 +133,10 @@ class Controller:
         try:
             with np.load(f, allow_pickle=False) as data:
                 arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{f}: not a readable controller file ({exc})") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise InputError(
+                f"{f}: not a readable controller file ({exc}); regenerate it with 'qsls synth'"
+            ) from None
         missing = [k for k in (*RESPONSES, "A", "B", "C", "H", "dt", "mass") if k not in arrays]
         if missing:
             raise InputError(
@@ -144,12 +151,31 @@ class Controller:
         if kind == "static_gain":
             if "K" not in arrays:
                 raise InputError(f"{f}: a static_gain controller without K")
-            return cls(taps, model, "static_gain", np.asarray(arrays["K"], dtype=float))
+            K = np.asarray(arrays["K"], dtype=float)
+            _check_static_gain(f, model, K, taps)
+            return cls(taps, model, "static_gain", K)
         if kind != "filter_bank":
             raise InputError(f"{f}: unknown controller kind '{kind}'")
         ctrl = cls(taps, model, "filter_bank")
         _check_gains(f, arrays, ctrl.bank)
         return ctrl
+
+
+def _check_static_gain(f: Path, model: LinearModel, K: np.ndarray, taps: Taps) -> None:
+    """A static gain's stored taps are its closed loop's responses (``Phi_uy(0) = K``,
+    ``Phi_xy(k) = A_cl^(k-1) B K``, ...): refuse a ``K`` that does not produce them."""
+    ok = K.shape == (model.nu, model.ny)
+    if ok:
+        derived = static_gain_responses(model, K, taps.T)
+        for name in RESPONSES:
+            want, got = getattr(derived, name), getattr(taps, name)
+            scale = max(1.0, float(np.abs(want).max(initial=0.0)))
+            ok = ok and want.shape == got.shape and np.abs(want - got).max() <= GAIN_TOL * scale
+    if not ok:
+        raise InputError(
+            f"{f}: gain K does not match the controller's taps (file altered?); "
+            "refusing to use it: regenerate it with 'qsls synth'"
+        )
 
 
 def _check_gains(f: Path, arrays: dict[str, np.ndarray], bank: FilterBank) -> None:
@@ -293,13 +319,24 @@ def load_controller_dir(folder: Path) -> ControllerDir:
     if not folder.is_dir():
         raise InputError(f"{folder}: no such controller folder")
     cert = Certificate.load(folder)
-    ctrl = Controller.load(folder)
-    actual = hashlib.sha256((folder / CONTROLLER_FILE).read_bytes()).hexdigest()
-    if actual != cert.controller_sha256:
+    f = folder / CONTROLLER_FILE
+    if f.is_file():  # the hash first: a damaged file is refused before it is parsed
+        actual = hashlib.sha256(f.read_bytes()).hexdigest()
+        if actual != cert.controller_sha256:
+            raise InputError(
+                f"{folder}: {CONTROLLER_FILE} (sha256 {actual[:12]}) is not the controller its "
+                f"{CERTIFICATE_FILE} certifies ({cert.controller_sha256[:12]}); refusing to use it"
+            )
+    failed = [k for k, v in (cert.checks or {}).items() if not v.get("passed", True)]
+    why = f"failed checks {', '.join(failed)}" if failed else ""
+    if not why and cert.premise is not None and not cert.premise.holds:
+        why = cert.premise.shares()
+    if cert.status == "certified" and why:
         raise InputError(
-            f"{folder}: {CONTROLLER_FILE} (sha256 {actual[:12]}) is not the controller its "
-            f"{CERTIFICATE_FILE} certifies ({cert.controller_sha256[:12]}); refusing to use it"
+            f"{folder}: {CERTIFICATE_FILE} says 'certified' against its own record ({why}); "
+            "the file was altered: regenerate it with 'qsls synth'"
         )
+    ctrl = Controller.load(folder)
     return ControllerDir(folder, ctrl, cert)
 
 
