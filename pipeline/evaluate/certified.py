@@ -180,7 +180,6 @@ def check_model_hash(bound: ControllerBound, model_file: Path, *, force: bool) -
     return msg + " (checked anyway: --force)"
 
 
-
 def expand_controllers(folders: Sequence[Path]) -> list[Path]:
     """Controller folders; a synth output folder stands for every controller inside it."""
     out: list[Path] = []
@@ -199,5 +198,3 @@ def expand_controllers(folders: Sequence[Path]) -> list[Path]:
             )
         out.extend(inner)
     return out
-
-

@@ -39,7 +39,9 @@ class Verdict:
     def line(self) -> str:
         n = f"{self.flights} flight{'s' if self.flights != 1 else ''}"
         if self.certified and not self.theorem:
-            share = f"{100 * self.premise_share:.1f}%" if math.isfinite(self.premise_share) else "n/a"
+            share = (
+                f"{100 * self.premise_share:.1f}%" if math.isfinite(self.premise_share) else "n/a"
+            )
             return (
                 f"{self.controller}: {self.word}, premise holds at {share} of samples "
                 f"(not flown by it: the theorem does not apply), {n}"
@@ -67,17 +69,17 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
         certified = bool(g["has_guarantee"].all()) if "has_guarantee" in g else True
         if "theorem_applies" not in g:  # an older table: the per-sample check
             worst, flight = _worst(g, "max_ratio")
-            holds = bool(g["bound_holds"].astype(bool).all()) if "bound_holds" in g else (
-                math.isfinite(worst) and worst <= 1.0
+            holds = (
+                bool(g["bound_holds"].astype(bool).all())
+                if "bound_holds" in g
+                else (math.isfinite(worst) and worst <= 1.0)
             )
             out.append(Verdict(str(name), len(g), certified, holds and certified, worst, flight))
             continue
         own = g[g["theorem_applies"].astype(bool)]
         if not len(own):
             share = float(pd.to_numeric(g["frac_premise_holds"], errors="coerce").mean())
-            out.append(
-                Verdict(str(name), len(g), certified, False, math.nan, "", False, share)
-            )
+            out.append(Verdict(str(name), len(g), certified, False, math.nan, "", False, share))
             continue
         worst, flight = _worst(own, "nominal_ratio")
         holds = bool(own["bound_holds"].astype(bool).all())
