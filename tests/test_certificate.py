@@ -148,13 +148,24 @@ def _weighted_model(tmp_path, em):
     return f.parent
 
 
-@pytest.mark.parametrize("command", ["synth", "sweep"])
+@pytest.mark.parametrize("command", ["synth", "sweep", "evaluate", "evaluate --fly"])
 def test_weighted_error_model_is_refused(tmp_path, fit_dir, command):
-    """A weighted ``S`` with the unweighted ``||Phi_xy||`` is never mixed: one line, exit 2."""
+    """A weighted ``S`` with the unweighted ``||Phi_xy||`` is never mixed: one line, exit 2
+    (evaluate: the certificates state unweighted norms, so their gamma would mix them)."""
     model = _weighted_model(tmp_path, fit_dir[3])
-    args = ["-m", model, "-o", tmp_path / "out"]
-    args += ["-T", T] if command == "synth" else ["-g", "T=8,10"]
-    res = _invoke(command, *args)
+    ev = "evaluate" in command
+    args = ["--model" if ev else "-m", model, "--out" if ev else "-o", tmp_path / "out"]
+    if command == "synth":
+        args += ["-T", T]
+    elif command == "sweep":
+        args += ["-g", "T=8,10"]
+    else:
+        ctrl = tmp_path / "synth"
+        assert _invoke("synth", "-m", fit_dir[0], "-o", ctrl, "-T", T).exit_code == 0
+        args += ["--controller", ctrl]
+        if command == "evaluate":
+            args += ["--flights", fit_dir[0]]
+    res = _invoke(*command.split(), *args)
     assert res.exit_code == 2, res.output
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: "), res.output

@@ -131,11 +131,15 @@ def test_adversarial_closed_loop_bound_holds_on_every_seed(certified):
     # x_hat is what the loop does without perception error: the same loop with e = 0
     xs0, _, _ = _fly(certified, S_CERT, SEEDS, STEPS, with_e=False)
     for s in (0, 17, 199):
-        x_hat = nominal_states(xs[:, :, s], es[:, :, s], load_controller_dir(certified).controller.taps.Phi_xy)
+        x_hat = nominal_states(
+            xs[:, :, s], es[:, :, s], load_controller_dir(certified).controller.taps.Phi_xy
+        )
         np.testing.assert_allclose(x_hat, xs0[:, :, s], rtol=0, atol=1e-12)
     assert all(r["theorem_applies"] for r in rows)
     assert all(r["frac_premise_holds"] == 1.0 for r in rows)  # the adversary obeys the premise
-    assert all(bool(r["bound_holds"]) for r in rows), [r["verdict"] for r in rows if not r["bound_holds"]]
+    assert all(bool(r["bound_holds"]) for r in rows), [
+        r["verdict"] for r in rows if not r["bound_holds"]
+    ]
     tight = np.array([r["nominal_ratio"] for r in rows])
     print(f"\ntightness max ||e|| / gamma_nominal over {SEEDS} seeds: "
           f"min {tight.min():.3f} median {np.median(tight):.3f} max {tight.max():.3f}")  # fmt: skip

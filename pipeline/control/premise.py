@@ -24,10 +24,25 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.errormodel.model import TRAINING_FILE, ErrorModel
 from qsls.pipeline.errormodel.pairgrid import cell_grid, pair_blocks
 
 BLOCK_ELEMS = 1 << 21
+
+
+def check_unweighted(em: ErrorModel | None, to: str = "synthesize") -> None:
+    """Refuse an error model fitted with a ``state_scale`` W other than ones: its ``S`` and
+    distances are in the weighted norm ``||W x||``, the guarantee then needs ``||W Phi_xy||``
+    while synthesis constrains (and certificates state) the unweighted ``||Phi_xy||``
+    (DESIGN.md, Weighted norms): the two are never mixed."""
+    if em is None or all(v == 1.0 for v in em.state_scale):
+        return
+    raise InputError(
+        f"the error model was fitted with state_scale {list(em.state_scale)}, so its S and "
+        "distances are in a weighted norm, but synthesis bounds the unweighted ||Phi_xy|| and "
+        f"the two must not be mixed; refit with the default state_scale (all ones) to {to}"
+    )
 
 
 class PremiseEntry(BaseModel):

@@ -44,7 +44,7 @@ from qsls.pipeline.control.plant import (
     LinearModel,
     quadrotor_model,
 )
-from qsls.pipeline.control.premise import Premise, premise_of
+from qsls.pipeline.control.premise import Premise, check_unweighted, premise_of
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
@@ -183,19 +183,6 @@ def _number(value: Number | None, em: ErrorModel | None, what: str, resolver: st
             f"{what} = '{value}' is {out} in the error model; need a finite number >= 0"
         )
     return out
-
-
-def check_unweighted(em: ErrorModel | None) -> None:
-    """Refuse an error model fitted with a ``state_scale`` W other than ones: its ``S`` and
-    distances are in the weighted norm ``||W x||``, the guarantee then needs ``||W Phi_xy||``
-    while synthesis constrains the unweighted ``||Phi_xy||`` (DESIGN.md, Weighted norms)."""
-    if em is None or all(v == 1.0 for v in em.state_scale):
-        return
-    raise InputError(
-        f"the error model was fitted with state_scale {list(em.state_scale)}, so its S and "
-        "distances are in a weighted norm, but synthesis bounds the unweighted ||Phi_xy|| and "
-        "the two must not be mixed; refit with the default state_scale (all ones) to synthesize"
-    )
 
 
 def resolve(opts: ProblemOptions, em: ErrorModel | None) -> Resolved:

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from qsls.pipeline.control.premise import check_unweighted
 from qsls.pipeline.core.artifacts import StageWriter, require_stage
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
@@ -427,6 +428,7 @@ def evaluate(
     """The bound check of every held-out flight against every controller's certificate."""
     model_file, fit_dir = resolve_model(error_model)
     model = load_error_model(model_file)
+    check_unweighted(model, "check certified controllers")
     folders = expand_controllers(controllers)
     if not folders:
         raise InputError("no controllers given; pass at least one --controller folder")

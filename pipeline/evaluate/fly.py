@@ -472,6 +472,7 @@ def fly_evaluate(
     """Fly, ingest, bound-check and compare (module docstring); writes the stage ``out``."""
     import time
 
+    from qsls.pipeline.control.premise import check_unweighted
     from qsls.pipeline.core.artifacts import StageWriter, check_output
     from qsls.pipeline.errormodel.model import load_error_model
 
@@ -479,6 +480,7 @@ def fly_evaluate(
     check_output(Path(out), force)
     model_file, fit_dir = resolve_model(error_model)
     model = load_error_model(model_file)
+    check_unweighted(model, "check certified controllers")
     folders = _select(expand_controllers(controllers), options.controllers)
     bounds = load_bounds(folders)
     warnings = [m for b in bounds if (m := check_model_hash(b, model_file, force=force))]
