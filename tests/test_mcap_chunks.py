@@ -362,3 +362,53 @@ def test_rosbag2_split_into_two_mcap_files(tmp_path: Path) -> None:
         np.testing.assert_array_equal(
             np.hstack([tr.position, tr.orientation]), ref[0]["pose"] + ref[1]["pose"]
         )
+
+
+@pytest.mark.parametrize("compression", ["none", "zstd"])
+def test_frame_names_come_from_the_earliest_message(tmp_path: Path, compression: str) -> None:
+    """Chunks out of log-time order, the frame name changing within the topic: the fast path
+    names the frames of the first message in log time, as the per-message path does."""
+    from mcap.writer import CompressionType, Writer
+
+    ts = typestore(ros1=False)
+    f = tmp_path / "order.mcap"
+    with open(f, "wb") as fh:
+        w = Writer(fh, compression=CompressionType[compression.upper()], chunk_size=800)
+        w.start(profile="ros2", library="qsls-test")
+        msgdef, _ = ts.generate_msgdef(POSE_STAMPED, ros_version=2)
+        sid = w.register_schema(name=POSE_STAMPED, encoding="ros2msg", data=msgdef.encode())
+        ch = w.register_channel(topic="/pose", message_encoding="cdr", schema_id=sid)
+        for k, (log0, frame) in enumerate(((T0 + 10**9, "odom"), (T0, "map"))):
+            for i in range(50):
+                t = ts.types
+                hdr = t["std_msgs/msg/Header"](
+                    stamp=t["builtin_interfaces/msg/Time"](sec=1000 + 50 * k + i, nanosec=0),
+                    frame_id=frame,
+                )
+                pose = t["geometry_msgs/msg/Pose"](
+                    position=t["geometry_msgs/msg/Point"](x=float(i), y=0.0, z=1.0),
+                    orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                )
+                msg = t[POSE_STAMPED](header=hdr, pose=pose)
+                data = bytes(ts.serialize_cdr(msg, POSE_STAMPED))
+                w.add_message(ch, log_time=log0 + i, data=data, publish_time=log0 + i, sequence=i)
+        w.finish()
+    with BagSource(f) as src:
+        fast, slow = src.read("/pose", fast=True), src.read("/pose", fast=False)
+    assert fast.decoder == "numpy" and slow.decoder != "numpy"
+    assert fast.frame_id == slow.frame_id == "map"
+    np.testing.assert_array_equal(fast.log_ns, slow.log_ns)
+    np.testing.assert_array_equal(fast.header_ns, slow.header_ns)
+
+
+def test_a_chunk_index_whose_size_lies_is_a_layout_error(bags: dict[str, Path]) -> None:
+    """An index claiming 16 TiB (or 16 bytes more) for a chunk: LayoutError (the caller falls
+    back to the per-message reader), before anything is allocated from the claim."""
+    bag = bags["plain-zstd-small"]
+    for claim in (1 << 44, None):
+        summary = _summary(bag)
+        first = min(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+        first.uncompressed_size = claim if claim else first.uncompressed_size + 16
+        wanted = {c.id: 0 for c in summary.channels.values() if c.topic == "/vio/odom"}
+        with pytest.raises(layout.LayoutError, match="another size than its index says"):
+            list(mcapchunks.mcap_batches(_mcap_file(bag), summary, wanted))

@@ -448,15 +448,25 @@ class BagSource:
         (stable: batches come in chunk order); an empty dict on a ``LayoutError``."""
         encoding = "ros1" if self._mcap is None and not self._reader.is2 else "cdr"
         parts: dict[str, list[tuple[layout.Decoded, np.ndarray]]] = {t: [] for t in ids}
+        # (log time, frame_id, child_frame_id) of each topic's first message in log-time order
+        # (the per-message path's): chunks need not be in time order
+        first: dict[str, tuple[int, str, str]] = {}
         try:
             for batch in batches():
                 for info in infos:
                     m = np.isin(batch.conn, list(ids[info.topic]))
                     if m.any():
-                        d = layout.decode(
-                            batch.buf, batch.starts[m], batch.ends[m], info.msgtype, encoding
-                        )
-                        parts[info.topic].append((d, batch.log_ns[m]))
+                        starts, ends, logs = batch.starts[m], batch.ends[m], batch.log_ns[m]
+                        d = layout.decode(batch.buf, starts, ends, info.msgtype, encoding)
+                        parts[info.topic].append((d, logs))
+                        k = int(np.argmin(logs))
+                        if info.topic not in first or logs[k] < first[info.topic][0]:
+                            if k:
+                                one = slice(k, k + 1)
+                                d = layout.decode(
+                                    batch.buf, starts[one], ends[one], info.msgtype, encoding
+                                )
+                            first[info.topic] = (int(logs[k]), d.frame_id, d.child_frame_id)
                 progress.advance(len(batch.starts))
         except layout.LayoutError:
             return {}
@@ -472,8 +482,8 @@ class BagSource:
             order = np.argsort(logs, kind="stable")  # batches come in chunk order
             out[info.topic] = _trajectory(
                 info.topic, info.msgtype, header[order], logs[order], pose[order],
-                None if twist is None else twist[order], ds[0][0].frame_id,
-                ds[0][0].child_frame_id, "numpy",
+                None if twist is None else twist[order], first[info.topic][1],
+                first[info.topic][2], "numpy",
             )  # fmt: skip
         return out
 

@@ -120,7 +120,7 @@ def decode(
     size = len(buf)
     if n == 0:
         return Decoded(np.zeros(0, np.int64), np.zeros((0, 7)), None, "", "")
-    if ends.min() > size or (ends - starts).min() < 8:
+    if ends.max() > size or (ends - starts).min() < 8:
         raise LayoutError("message bounds outside the buffer or too short")
     if cdr:
         enc = _gather(buf, starts, 4)

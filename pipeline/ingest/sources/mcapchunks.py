@@ -188,7 +188,9 @@ def _decompressed(fh: Any, ch: Any) -> bytes:
         raise layout.LayoutError(f"cannot decompress {exc}") from None
     data = stream.read(size)
     if len(data) != ch.uncompressed_size:
-        raise ValueError(f"chunk at byte {ch.chunk_start_offset} decompressed to a wrong size")
+        raise layout.LayoutError(
+            f"chunk at byte {ch.chunk_start_offset} decompressed to another size than its index says"
+        )
     return data
 
 
@@ -211,8 +213,10 @@ def mcap_batches(path: Path, summary: Any, wanted: dict[int, int]) -> Iterator[B
     if all(loc.chunk.compression == "" for loc in locs):
         yield _batch(buf, [_data_start(buf, loc.chunk) for loc in locs], locs)
         return
-    sizes = [loc.chunk.uncompressed_size for loc in locs]
-    work = np.empty(min(_BATCH_BYTES, sum(sizes)) + max(sizes), np.uint8)
+    # at most one batch up front; grown from the data actually decompressed, never from the
+    # index's (unverified) sizes alone
+    sizes = sum(loc.chunk.uncompressed_size for loc in locs)
+    work = np.empty(min(_BATCH_BYTES, max(sizes, 0)), np.uint8)
     base: list[int] = []
     group: list[Located] = []
     size = 0
@@ -222,6 +226,10 @@ def mcap_batches(path: Path, summary: Any, wanted: dict[int, int]) -> Iterator[B
             if group and size + len(data) > _BATCH_BYTES:
                 yield _batch(work[:size], base, group)
                 base, group, size = [], [], 0
+            if size + len(data) > len(work):
+                grown = np.empty(max(size + len(data), min(2 * len(work), _BATCH_BYTES)), np.uint8)
+                grown[:size] = work[:size]
+                work = grown
             work[size : size + len(data)] = np.frombuffer(data, np.uint8)
             base.append(size)
             group.append(loc)
