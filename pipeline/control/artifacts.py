@@ -85,17 +85,22 @@ class Controller:
         """The realization gains, derived from the taps (:func:`realize.filter_bank`)."""
         return filter_bank(self.taps)
 
-    def norms(self) -> dict[str, float]:
+    def norms(self) -> dict[str, ClosedLoopNorm]:
         """``phi_xy`` and ``phi_xx_h`` (``||Phi_xy||``, ``||Phi_xx H||``) of the closed loop this
-        controller makes: of its taps for a filter bank (FIR: exact), of the whole closed loop
-        for a static gain (:func:`nominal.static_gain_norms`; its taps are truncated)."""
+        controller makes: of its taps for a filter bank (FIR: exact, no tail), of the whole
+        closed loop for a static gain (:func:`nominal.static_gain_norms`; its taps are
+        truncated)."""
         if self.kind == "static_gain":
             assert self.K is not None
             true = static_gain_norms(self.model, self.K, self.T)
-            return {k: true[k].value for k in ("phi_xy", "phi_xx_h")}
-        return {
+            return {k: true[k] for k in ("phi_xy", "phi_xx_h")}
+        fir = {
             "phi_xy": l1_norm(self.taps.Phi_xy),
             "phi_xx_h": l1_norm(self.taps.Phi_xx, self.model.H),
+        }
+        return {
+            k: ClosedLoopNorm(value=v, lower=v, tail_bound=0.0, horizon=self.T, truncated=v)
+            for k, v in fir.items()
         }
 
     def arrays(self) -> dict[str, np.ndarray]:

@@ -65,7 +65,7 @@ from qsls.pipeline.evaluate.certified import (
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
 from qsls.pipeline.evaluate.table import Evaluation
 from qsls.pipeline.evaluate.theorem import (
-    Premise,
+    TheoremNumbers,
     premise_only,
     theorem_check,
     theorem_verdict,
@@ -152,7 +152,7 @@ def check_flight(
     d_hat = np.full(len(t), np.nan)
     if why_not is None:
         assert bound.phi_xy is not None
-        premise = Premise(
+        premise = TheoremNumbers(
             bound.eps_e, bound.S, bound.radius, bound.a_certificate, bound.phi_xy_tail
         )
         theorem, d_hat_all = theorem_check(

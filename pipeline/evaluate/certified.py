@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
-from qsls.pipeline.control.sls import l1_norm
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import InputError
 
@@ -111,18 +110,16 @@ def load_controller_bound(folder: Path) -> ControllerBound:
     d = load_controller_dir(folder)
     c, taps = d.certificate, d.controller.taps
     ctrl = d.controller
-    norm_xy, norm_xx_h = l1_norm(taps.Phi_xy), l1_norm(taps.Phi_xx, ctrl.model.H)
-    phi_xy, tail = taps.Phi_xy, 0.0
-    if ctrl.kind == "static_gain" and ctrl.K is not None:
-        # A reference controller is a closed loop, not a FIR: its true norms (long horizon
-        # plus a geometric tail bound), never the truncated taps' (DESIGN.md, Robust synthesis).
-        from qsls.pipeline.control.nominal import static_gain_norms, static_gain_responses
+    # a reference controller is a closed loop, not a FIR: its true norms (long horizon plus a
+    # geometric tail bound), never the truncated taps' (DESIGN.md, Robust synthesis)
+    norms = ctrl.norms()
+    xy = norms["phi_xy"]
+    norm_xy, norm_xx_h, tail = xy.value, norms["phi_xx_h"].value, xy.tail_bound
+    phi_xy = taps.Phi_xy
+    if ctrl.K is not None and ctrl.kind == "static_gain" and math.isfinite(norm_xy):
+        from qsls.pipeline.control.nominal import static_gain_responses
 
-        true = static_gain_norms(ctrl.model, ctrl.K, taps.T)
-        norm_xy, norm_xx_h = true["phi_xy"].value, true["phi_xx_h"].value
-        tail = true["phi_xy"].tail_bound
-        if math.isfinite(norm_xy):
-            phi_xy = static_gain_responses(ctrl.model, ctrl.K, true["phi_xy"].horizon).Phi_xy
+        phi_xy = static_gain_responses(ctrl.model, ctrl.K, xy.horizon).Phi_xy
     return ControllerBound(
         name=d.name,
         folder=d.folder,

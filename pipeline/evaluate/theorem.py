@@ -90,8 +90,9 @@ def uniform_grid(t: np.ndarray, dt: float, rel: float = 1e-3) -> bool:
 
 
 @dataclass(frozen=True)
-class Premise:
-    """The certificate's numbers the theorem uses."""
+class TheoremNumbers:
+    """The certificate's numbers the theorem uses (the premise as the certificate states it
+    is :class:`qsls.pipeline.control.premise.Premise`)."""
 
     eps_e: float
     S: float
@@ -106,7 +107,7 @@ def theorem_check(
     e: np.ndarray,
     t: np.ndarray,
     phi_xy: np.ndarray,
-    premise: Premise,
+    premise: TheoremNumbers,
     scale: np.ndarray,
     distance: Any,
 ) -> tuple[dict[str, Any], np.ndarray]:
@@ -164,7 +165,7 @@ def premise_only(a_certificate: float) -> dict[str, Any]:
     }
 
 
-def theorem_verdict(cols: dict[str, Any], max_error: float, premise: Premise) -> str:
+def theorem_verdict(cols: dict[str, Any], max_error: float, premise: TheoremNumbers) -> str:
     """The head of the verdict for a row where the theorem applies."""
     g = cols["gamma_nominal"]
     if not math.isfinite(g):
