@@ -98,3 +98,41 @@ def test_real_vio_errs_more_when_flown_faster(real_data, tmp_path):
         assert st.windows >= 60
         assert st.ratio == pytest.approx(ratio, abs=0.05) and st.ratio > 1.1
         assert st.rho == pytest.approx(rho, abs=0.05) and st.rho > 0.1
+
+
+# The real range of the statistic: the three EuRoC pairs above (1.23 to 1.83).
+REAL_RATIO = (1.23, 1.83)
+# The ridges' first design, before the calibration of pipeline/sim/vio.py's _default_ridges.
+FIRST_RIDGES = [
+    {"normal_deg": 0.0, "offset": -0.35, "width": 0.2, "amplitude": (0.04, 0, 0, 0, 0.025, 0)},
+    {"normal_deg": 90.0, "offset": -0.3, "width": 0.25, "amplitude": (0, 0.04, 0, 0.03, 0, 0)},
+    {"normal_deg": 45.0, "offset": 0.6, "width": 0.3, "amplitude": (0, 0, 0.015, 0, 0, 0.015)},
+]
+
+
+@pytest.mark.parametrize("perception", ["regular", "degraded"])
+def test_emulated_flight_at_euroc_speeds_falls_in_the_real_range(perception):
+    """A closed-loop PD flight over a figure eight (0.6 to 1.3 m/s, EuRoC-like) on the default
+    emulator: its fast/slow RPE ratio lies in the real range, and with the ridges' first design
+    (the same Lipschitz constant, position steps 1/0.35 as large) it lies well above it."""
+    from qsls.pipeline.sim.closedloop import FlightOptions, fly
+    from qsls.pipeline.sim.vio import VioEmulator, VioParams
+
+    def ratio(vio: dict) -> float:
+        o = FlightOptions.model_validate(
+            {
+                "controller": {"kind": "pd"},
+                "reference": {"kind": "figure8", "radius": 1.5, "period": 10.0, "laps": 6},
+                "vio": {"perception": perception, **vio},
+            }
+        )
+        log = fly(o, seed=0)
+        k = slice(None, None, round(o.vio.rate_hz * DT))
+        st = rpe_vs_speed(log.vio_t_ns[k] * 1e-9, log.vio_x[k], log.vio_y[k])
+        assert st.windows >= 60 and st.rho > 0.1
+        return st.ratio
+
+    first = VioParams.model_validate({"ridges": FIRST_RIDGES})
+    assert VioEmulator(first, 0).lipschitz == VioEmulator(VioParams(), 0).lipschitz
+    assert REAL_RATIO[0] <= ratio({}) <= REAL_RATIO[1]
+    assert ratio({"ridges": FIRST_RIDGES}) > REAL_RATIO[1] + 0.5
