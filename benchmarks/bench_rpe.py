@@ -3,6 +3,7 @@
     python benchmarks/bench_rpe.py            # 5 seeds per emulated row
     python benchmarks/bench_rpe.py --quick    # 2 seeds
     python benchmarks/bench_rpe.py FLIGHT...  # the statistic on ingested flight folders only
+    python benchmarks/bench_rpe.py --scan     # the calibration of the bias field's position steps
 
 The statistic (:mod:`qsls.pipeline.evaluate.rpe`): the 1 s relative position error over
 non-overlapping 1 s windows of an aligned flight, the ratio of its mean over the fastest third
@@ -23,6 +24,12 @@ speed and RPE. Rows:
   the spatial bias field, to show how much of the speed dependence it makes).
 
 Emulated rows give the mean over seeds and the range [min, max].
+
+``--scan`` shows how the default bias field was chosen (``pipeline/sim/vio.py``,
+``_default_ridges``): the ridges' position steps at ``scale`` times their first design (0.04 m,
+0.04 m, 0.015 m), the velocity steps at 1/0.7 of theirs (so that the Lipschitz constant stays
+0.209 for every scale below 1), motion parts on, 3 seeds, for each of the emulated flights
+above; the default is the largest scale whose flights all fall in the real range.
 """
 
 from __future__ import annotations
@@ -97,18 +104,24 @@ def truth_states(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     return t, np.hstack([p, v]), omega, a
 
 
-def emulated_row(truth: tuple[np.ndarray, ...], motion: bool, seed: int) -> dict[str, Any]:
+def emulated_row(
+    truth: tuple[np.ndarray, ...], motion: bool, seed: int, vio: dict[str, Any] | None = None
+) -> dict[str, Any]:
     from qsls.pipeline.evaluate.rpe import rpe_vs_speed
     from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
     t, x, omega, a = truth
-    prm = VioParams.model_validate({"rate_hz": RATE_HZ, **dict.fromkeys(MOTION, motion)})
+    prm = VioParams.model_validate(
+        {"rate_hz": RATE_HZ, **dict.fromkeys(MOTION, motion), **(vio or {})}
+    )
     e = VioEmulator(prm, seed).errors(x, omega, a)
     k = slice(None, None, round(RATE_HZ * DT))
     return vars(rpe_vs_speed(t[k] * 1e-9, x[k], x[k] + e[k]))
 
 
-def sim_row(motion: bool, seed: int, perception: str, bias: bool) -> dict[str, Any]:
+def sim_row(
+    motion: bool, seed: int, perception: str, bias: bool, vio: dict[str, Any] | None = None
+) -> dict[str, Any]:
     from qsls.pipeline.evaluate.rpe import rpe_vs_speed
     from qsls.pipeline.sim.closedloop import FlightOptions, fly
 
@@ -116,7 +129,12 @@ def sim_row(motion: bool, seed: int, perception: str, bias: bool) -> dict[str, A
         {
             "controller": {"kind": "pd"},
             "reference": {"kind": "figure8", "radius": 1.5, "period": 10.0, "laps": 6},
-            "vio": {"perception": perception, "bias": bias, **dict.fromkeys(MOTION, motion)},
+            "vio": {
+                "perception": perception,
+                "bias": bias,
+                **dict.fromkeys(MOTION, motion),
+                **(vio or {}),
+            },
         }
     )
     log = fly(o, seed=seed)
@@ -150,7 +168,56 @@ def print_table(table: list[tuple[str, str, dict[str, str]]]) -> None:
         print(" | ".join(c.ljust(w) for c, w in zip(r, width, strict=True)))
 
 
+FIRST_RIDGES = [  # the bias field's first design (normal, offset, width, amplitude)
+    (0.0, -0.35, 0.2, (0.04, 0, 0, 0, 0.025, 0)),
+    (90.0, -0.3, 0.25, (0, 0.04, 0, 0.03, 0, 0)),
+    (45.0, 0.6, 0.3, (0, 0, 0.015, 0, 0, 0.015)),
+]
+REAL_RANGE = (1.23, 1.83)  # the three real pairs (table of the default run)
+
+
+def scaled_ridges(scale: float) -> list[dict[str, Any]]:
+    """The first ridges with position steps times ``scale`` and, below 1, velocity steps / 0.7."""
+    v = 1.0 if scale == 1 else 1 / 0.7
+    return [
+        {"normal_deg": n, "offset": c, "width": w,
+         "amplitude": [a * scale for a in amp[:3]] + [a * v for a in amp[3:]]}
+        for n, c, w, amp in FIRST_RIDGES
+    ]  # fmt: skip
+
+
+def scan() -> None:
+    from qsls.pipeline.sim.vio import VioEmulator, VioParams
+
+    seeds = range(3)
+    truths = {label: truth_states(name) for label, name in TRUTHS.items()}
+    table: list[tuple[str, str, dict[str, str]]] = []
+    chosen = None
+    for scale in (1.0, 0.5, 0.35, 0.25):
+        vio = {"ridges": scaled_ridges(scale)}
+        lip = VioEmulator(VioParams.model_validate(vio), 0).lipschitz
+        ratios = []
+        for label, truth in truths.items():
+            rows = [emulated_row(truth, True, s, vio) for s in seeds]
+            ratios += [r["ratio"] for r in rows]
+            table.append((f"{label} truth", f"scale {scale}, L {lip:.3f}", summarize(rows)))
+        for perception in ("regular", "degraded"):
+            rows = [sim_row(True, s, perception, True, vio) for s in seeds]
+            ratios += [r["ratio"] for r in rows]
+            table.append((f"sim figure8 ({perception})", f"scale {scale}, L {lip:.3f}",
+                          summarize(rows)))  # fmt: skip
+        inside = all(REAL_RANGE[0] <= r <= REAL_RANGE[1] for r in ratios)
+        print(f"scale {scale}: every seed's ratio in {REAL_RANGE}: {inside}", flush=True)
+        if inside and chosen is None:
+            chosen = scale
+    print_table(table)
+    print(f"\nlargest scale with every emulated flight in the real range: {chosen}")
+
+
 def main() -> None:
+    if "--scan" in sys.argv:
+        scan()
+        return
     folders = [Path(a) for a in sys.argv[1:] if not a.startswith("--")]
     if folders:
         print_table([(str(f), "ingested", summarize([flight_row(f)])) for f in folders])

@@ -128,7 +128,7 @@ def _default_ridges() -> list[Ridge]:
     # velocity error average out over a lap: the bias does not look like a rotation of the
     # frame or a clock shift (both of which ingest must recover).
     #
-    # Calibrated against real VIO (benchmarks/bench_rpe.py): a real VIO's position error
+    # Calibrated against real VIO (benchmarks/bench_rpe.py --scan): a real VIO's position error
     # changes by a few cm over a 1 s window, and its 1 s RPE grows with speed by 1.23-1.83x
     # (fastest over slowest third of windows, EuRoC). The position steps are 0.35 of their
     # first design (0.04 m, 0.04 m, 0.015 m), the largest of {1, 0.5, 0.35, 0.25} that puts
