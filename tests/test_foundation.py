@@ -105,3 +105,18 @@ def test_cli_version_and_help():
         [sys.executable, "-m", "qsls.cli.main", "--help"], capture_output=True, text=True
     )
     assert proc.returncode == 0 and "Usage" in proc.stdout
+
+
+@pytest.mark.parametrize("size", [0, 1, (1 << 20) + 3, (1 << 24) - 1, 1 << 24, (1 << 24) + 7])
+def test_file_hash_equals_hashlib_read_or_mapped(tmp_path, size):
+    """Files from 16 MiB on are hashed through a memory map, smaller ones read: both give
+    hashlib's sha256 of the bytes (primed in a thread or not)."""
+    import hashlib
+
+    data = np.random.default_rng(size).integers(0, 256, size, dtype=np.uint8).tobytes()
+    f = tmp_path / "f.bin"
+    f.write_bytes(data)
+    want = hashlib.sha256(data).hexdigest()
+    assert artifacts.sha256_file(f) == want
+    artifacts.prime_hashes([f])
+    assert artifacts.sha256_file(f) == want
