@@ -20,7 +20,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import mmap
 import os
 import shutil
 import time
@@ -47,7 +46,6 @@ MANIFEST = "manifest.json"
 _TMP_MARK = TMP_MARK
 _OLD_MARK = OLD_MARK
 _CHUNK = 1 << 20
-_MAP_FROM = 1 << 24  # files at least this big are hashed through a memory map
 
 # Packages whose versions go into every manifest (the ones that shape the numbers).
 _PACKAGES = (
@@ -77,17 +75,6 @@ def _file_key(path: Path) -> tuple[str, int, int]:
 def _hash_file(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:
-        if os.fstat(fh.fileno()).st_size >= _MAP_FROM:
-            try:
-                mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-            except (OSError, ValueError):  # a file system that cannot map: read it
-                pass
-            else:
-                # hashed from the page cache in place: no copy into a buffer (8% on big bags)
-                with mm, memoryview(mm) as view:
-                    for i in range(0, len(view), _CHUNK):
-                        h.update(view[i : i + _CHUNK])
-                return h.hexdigest()
         while chunk := fh.read(_CHUNK):
             h.update(chunk)
     return h.hexdigest()
