@@ -102,21 +102,16 @@ def test_real_vio_errs_more_when_flown_faster(real_data, tmp_path):
 
 # The real range of the statistic: the three EuRoC pairs above (1.23 to 1.83).
 REAL_RATIO = (1.23, 1.83)
-# The ridges' first design, before the calibration of pipeline/sim/vio.py's _default_ridges.
-FIRST_RIDGES = [
-    {"normal_deg": 0.0, "offset": -0.35, "width": 0.2, "amplitude": (0.04, 0, 0, 0, 0.025, 0)},
-    {"normal_deg": 90.0, "offset": -0.3, "width": 0.25, "amplitude": (0, 0.04, 0, 0.03, 0, 0)},
-    {"normal_deg": 45.0, "offset": 0.6, "width": 0.3, "amplitude": (0, 0, 0.015, 0, 0, 0.015)},
-]
 
 
 @pytest.mark.parametrize("perception", ["regular", "degraded"])
 def test_emulated_flight_at_euroc_speeds_falls_in_the_real_range(perception):
     """A closed-loop PD flight over a figure eight (0.6 to 1.3 m/s, EuRoC-like) on the default
-    emulator: its fast/slow RPE ratio lies in the real range, and with the ridges' first design
-    (the same Lipschitz constant, position steps 1/0.35 as large) it lies well above it."""
+    emulator: its fast/slow RPE ratio lies in the real range; with the position steps of the
+    ridges' first design (velocity steps and Lipschitz constant as the defaults') it lies well
+    above it."""
     from qsls.pipeline.sim.closedloop import FlightOptions, fly
-    from qsls.pipeline.sim.vio import VioEmulator, VioParams
+    from qsls.pipeline.sim.vio import RIDGE_VELOCITY_SCALE, VioEmulator, VioParams, scaled_ridges
 
     def ratio(vio: dict) -> float:
         o = FlightOptions.model_validate(
@@ -132,7 +127,9 @@ def test_emulated_flight_at_euroc_speeds_falls_in_the_real_range(perception):
         assert st.windows >= 60 and st.rho > 0.1
         return st.ratio
 
-    first = VioParams.model_validate({"ridges": FIRST_RIDGES})
-    assert VioEmulator(first, 0).lipschitz == VioEmulator(VioParams(), 0).lipschitz
+    first = [r.model_dump() for r in scaled_ridges(1.0, RIDGE_VELOCITY_SCALE)]
+    lipschitz = VioEmulator(VioParams.model_validate({"ridges": first}), 0).lipschitz
+    assert VioEmulator(VioParams(), 0).lipschitz == pytest.approx(lipschitz, rel=1e-12)
+    assert lipschitz == pytest.approx(0.209, rel=1e-12)  # the first design's L
     assert REAL_RATIO[0] <= ratio({}) <= REAL_RATIO[1]
-    assert ratio({"ridges": FIRST_RIDGES}) > REAL_RATIO[1] + 0.5
+    assert ratio({"ridges": first}) > REAL_RATIO[1] + 0.5

@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from qsls.pipeline.core.config import validate
 from qsls.pipeline.core.errors import ConfigError
-from qsls.pipeline.sim.vio import VioEmulator, VioParams
+from qsls.pipeline.sim.vio import VioEmulator, VioParams, scaled_ridges
 
 MOTION_OFF = {"blur": False, "motion_drift": False, "feature_loss": False}
 BIAS_ONLY = {"drift": False, "noise": False, "outliers": False, **MOTION_OFF}
@@ -157,8 +157,9 @@ def test_motion_parts_off_is_bit_identical_to_the_emulator_before_them(
     x = circle_states(0.01, seconds=20)
     rng = np.random.default_rng(5)
     omega, accel = rng.normal(0, 3, (len(x), 3)), rng.normal(0, 6, (len(x), 3))
-    # the same bias field: the default ridges were recalibrated after (see _default_ridges)
+    # the same bias field: the default ridges were recalibrated after (FIRST_RIDGES)
     ridges = [r.model_dump() for r in old.VioParams().ridges]
+    assert ridges == [r.model_dump() for r in scaled_ridges(1.0, 1.0)]
     for seed in (0, 11):
         want = old.VioEmulator(old.VioParams(**extra), seed).errors(x)
         new = VioEmulator(VioParams(**MOTION_OFF, ridges=ridges, **extra), seed)

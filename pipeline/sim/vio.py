@@ -76,8 +76,9 @@ These parts are noise-like: the bias field and its Lipschitz constant ``L`` do n
 
 Random parts come from independent streams of ``numpy.random.SeedSequence(seed)``, so
 switching one part off leaves the others' values unchanged (and with the three motion parts
-off the errors are bit for bit those of the emulator before they existed); the same seed
-gives the same errors.
+off and the first design's ridges, :data:`FIRST_RIDGES`, the errors are bit for bit those of
+the emulator before the motion parts existed; the default ridges were recalibrated after);
+the same seed gives the same errors.
 """
 
 from __future__ import annotations
@@ -122,28 +123,47 @@ class PerceptionLevel(Options):
     texture: float = Field(1.0, gt=0, le=1)
 
 
-def _default_ridges() -> list[Ridge]:
-    # Each ridge feeds the position error along its own normal and the velocity error across
-    # it, so that on the default circle the tangential position error and the radial
-    # velocity error average out over a lap: the bias does not look like a rotation of the
-    # frame or a clock shift (both of which ingest must recover).
-    #
-    # Calibrated against real VIO (benchmarks/bench_rpe.py --scan): a real VIO's position error
-    # changes by a few cm over a 1 s window, and its 1 s RPE grows with speed by 1.23-1.83x
-    # (fastest over slowest third of windows, EuRoC). The position steps are 0.35 of their
-    # first design (0.04 m, 0.04 m, 0.015 m), the largest of {1, 0.5, 0.35, 0.25} that puts
-    # every emulated flight of that benchmark in the real range; the velocity steps are 1/0.7
-    # of theirs (0.025, 0.03, 0.015 m/s), which restores the e_vy row as the largest, so the
-    # Lipschitz constant L (0.209) is what it was.
+# The bias field's ridges as first designed: (normal_deg, offset, width, amplitude). Each
+# feeds the position error along its own normal and the velocity error across it, so that on
+# the default circle the tangential position error and the radial velocity error average
+# out over a lap: the bias does not look like a rotation of the frame or a clock shift (both
+# of which ingest must recover). The x = -0.35 m ridge is crossed twice per lap (not by the
+# approach from the centre to the circle's first point); y = -0.3 m likewise; the diagonal
+# one makes the height and vertical-velocity error.
+FIRST_RIDGES: tuple[tuple[float, float, float, Six], ...] = (
+    (0.0, -0.35, 0.2, (0.04, 0.0, 0.0, 0.0, 0.025, 0.0)),
+    (90.0, -0.3, 0.25, (0.0, 0.04, 0.0, 0.03, 0.0, 0.0)),
+    (45.0, 0.6, 0.3, (0.0, 0.0, 0.015, 0.0, 0.0, 0.015)),
+)
+# Calibrated against real VIO (benchmarks/bench_rpe.py --scan): the position steps of the
+# first design are scaled so that the 1 s RPE's growth with speed (fastest over slowest third
+# of 1 s windows: 1.23-1.83x on real EuRoC VIO) falls in the real range on every emulated
+# flight of that benchmark; the velocity steps by the one common factor that makes the
+# largest row of L (now e_vy: 0.0357 / 0.2 + ripples 0.0105 + kappa 0.02) 0.209 again, so
+# the Lipschitz constant is the first design's.
+RIDGE_POSITION_SCALE = 0.35
+RIDGE_VELOCITY_SCALE = 1.428
+
+
+def scaled_ridges(position: float, velocity: float) -> list[Ridge]:
+    """:data:`FIRST_RIDGES` with the position steps times ``position`` and the velocity steps
+    times ``velocity`` (rounded to 1e-9 m, m/s)."""
+
+    def scale(a: Six) -> Six:
+        p, v = position, velocity
+        return (
+            round(a[0] * p, 9), round(a[1] * p, 9), round(a[2] * p, 9),
+            round(a[3] * v, 9), round(a[4] * v, 9), round(a[5] * v, 9),
+        )  # fmt: skip
+
     return [
-        # x = -0.35 m, crossed twice per lap (not by the approach from the centre to the
-        # circle's first point): dominates e_vy (slope 0.1785) and feeds e_px.
-        Ridge(normal_deg=0.0, offset=-0.35, width=0.2, amplitude=(0.014, 0, 0, 0, 0.0357, 0)),
-        # y = -0.3 m: dominates e_vx and feeds e_py.
-        Ridge(normal_deg=90.0, offset=-0.3, width=0.25, amplitude=(0, 0.014, 0, 0.0429, 0, 0)),
-        # diagonal: height and vertical-velocity error.
-        Ridge(normal_deg=45.0, offset=0.6, width=0.3, amplitude=(0, 0, 0.00525, 0, 0, 0.0214)),
+        Ridge(normal_deg=n, offset=c, width=w, amplitude=scale(amp))
+        for n, c, w, amp in FIRST_RIDGES
     ]
+
+
+def _default_ridges() -> list[Ridge]:
+    return scaled_ridges(RIDGE_POSITION_SCALE, RIDGE_VELOCITY_SCALE)
 
 
 def _default_ripples() -> list[Ripple]:
