@@ -196,7 +196,7 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
 
     row: dict[str, Any] = {"index": p["index"], **p["grid"]}
     row.update({f"{k}_value": p[k] for k in ("S", "eps_e", "radius", "delta", "eps_w")})
-    row.update({k: p.get(k, k == "premise_holds") for k in PREMISE_COLUMNS})
+    row.update({k: p[k] for k in PREMISE_COLUMNS})
     empty: dict[str, Any] = dict.fromkeys(RESULT_COLUMNS, math.nan)
     empty.update(status="", feasible=False, solver_status="", build_time_s=0.0, solve_time_s=0.0)
     row.update(empty)
@@ -234,8 +234,13 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
     )  # fmt: skip
     setting = Setting(p["S"], p["eps_e"], p["radius"], p["eps_w"], p["delta"], p["R0"])
     if p["certify"]:
-        holds = bool(p.get("premise_holds", True))
-        status, f = certify(sol.taps, model, setting, solver_status=sol.status, premise_holds=holds)
+        status, f = certify(
+            sol.taps,
+            model,
+            setting,
+            solver_status=sol.status,
+            premise_holds=bool(p["premise_holds"]),
+        )
     else:
         _, f = certify(sol.taps, model, setting, reference=True)
         status = "solved" if sol.status == "optimal" else "solver_inaccurate"
