@@ -45,7 +45,6 @@ from qsls.pipeline.core.locks import (  # clean_stale: re-exported for the repor
 MANIFEST = "manifest.json"
 _TMP_MARK = TMP_MARK
 _OLD_MARK = OLD_MARK
-_CHUNK = 1 << 20
 
 # Packages whose versions go into every manifest (the ones that shape the numbers).
 _PACKAGES = (
@@ -73,11 +72,9 @@ def _file_key(path: Path) -> tuple[str, int, int]:
 
 
 def _hash_file(path: Path) -> str:
-    h = hashlib.sha256()
+    # file_digest reads into one reused buffer: no fresh 1 MiB object per read
     with open(path, "rb") as fh:
-        while chunk := fh.read(_CHUNK):
-            h.update(chunk)
-    return h.hexdigest()
+        return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
 def sha256_file(path: Path) -> str:
