@@ -15,7 +15,9 @@ For each bag, in the same run:
   - reading the two topics only, both ways, and rosbags' raw message iteration (the floor
     of any reader that goes through ``messages()``);
   - MCAP only: reading the two topics through the per-message readers (``mcap``/rosbags
-    iteration, then the numpy decoder): the MCAP path before the whole-chunk decoder.
+    iteration, then the numpy decoder): the MCAP path before the whole-chunk decoder;
+  - ``qsls ingest`` as a user runs it, a fresh process each time (interpreter start, imports
+    and console output included), fast and with ``decoder: deserializer`` from a config.
 
 Run: python benchmarks/bench_ingest.py [--quick]
 """
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import shutil
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -106,6 +109,26 @@ def paired(a: Path, b: Path, n: int = 5) -> tuple[float, float, float]:
         ta.append(run_ingest(a, "fast", repeat=1))
         tb.append(run_ingest(b, "fast", repeat=1))
     return min(ta), min(tb), float(np.median(np.array(tb) / np.array(ta)))
+
+
+def run_cli(bag: Path, decoder: str, repeat: int) -> float:
+    """Wall time of ``qsls ingest`` in a fresh interpreter (best of ``repeat``)."""
+    out = WORK / f"cli_{bag.stem}_{decoder}"
+    cfg = WORK / "deserializer.yaml"
+    cfg.write_text("ingest:\n  decoder: deserializer\n")
+    cmd = [sys.executable, "-m", "qsls.cli.main", "ingest", str(bag), "--vio-topic", "/vio/odom",
+           "--truth-topic", "/mocap/pose", "--out", str(out), "--force"]  # fmt: skip
+    if decoder != "fast":
+        cmd += ["--config", str(cfg)]
+
+    def go() -> None:
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode:
+            raise SystemExit(f"qsls ingest {bag.name} failed: {done.stderr.strip()[-300:]}")
+
+    t = timed(go, repeat)
+    shutil.rmtree(out, ignore_errors=True)
+    return t
 
 
 def read_per_message(bag: Path) -> int:
@@ -208,6 +231,25 @@ def main() -> None:
         ta, tb, med = pairs[fmt]
         target = "" if fmt == "mcap-zstd" else "  (target <= 1.3x)"
         print(f"{fmt:12s} | {ta:8.2f} {tb:8.2f} | {tb / ta:8.2f}x {med:10.2f}x{target}")
+    print(
+        "\nqsls ingest as a process, what a user types (interpreter start, imports and console"
+        " output included; fast best of 3, deserializer 1 run):\n"
+    )
+    head = (
+        f"{'bag':34s} | {'fast':>6s} {'deser.':>7s} {'speed-up':>8s} | "
+        f"{'with images / without':>21s}"
+    )
+    print(head)
+    print("-" * len(head))
+    cli: dict[str, float] = {}
+    for label, bag in bags.items():
+        fast, slow = run_cli(bag, "fast", 3), run_cli(bag, "deserializer", 1)
+        cli[label] = fast
+        fmt = label.split(" ")[0]
+        ratio = ""
+        if "(b) + images" in label and f"{fmt} (a) poses only" in cli and "LZ4" not in label:
+            ratio = f"{fast / cli[f'{fmt} (a) poses only']:20.2f}x"
+        print(f"{label:34s} | {fast:6.2f} {slow:7.2f} {slow / fast:7.1f}x | {ratio}")
 
 
 if __name__ == "__main__":
