@@ -226,27 +226,34 @@ def test_truth_gap_listed_on_vio_clock(tmp_path: Path) -> None:
     assert np.any(np.isclose(st, 5.9)) and np.any(np.isclose(st, 6.6))
 
 
+def _blas_threads() -> int:
+    from threadpoolctl import threadpool_info
+
+    return max(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
+
+
 def test_blas_held_to_one_thread_while_ingest_hashes(tmp_path: Path) -> None:
     """The input hash runs on the second core while the bag is read and aligned; OpenBLAS's
     workers spin on that core after each threaded call, so BLAS gets one thread for the
-    ingest, and its setting is given back afterwards."""
-    from threadpoolctl import threadpool_info, threadpool_limits
+    ingest, and its setting is given back afterwards, after a refused input too."""
+    from threadpoolctl import threadpool_limits
 
+    from qsls.pipeline.core.errors import InputError
     from qsls.pipeline.core.progress import NullProgress
-
-    def blas_threads() -> int:
-        return max(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
 
     seen: list[int] = []
 
     class Watch(NullProgress):
         def advance(self, amount: float = 1.0) -> None:
-            seen.append(blas_threads())
+            seen.append(_blas_threads())
 
     bag = write_flight(tmp_path / bag_name("ros2-mcap"), "ros2-mcap", make_flight(seed=3))
     with threadpool_limits(limits=2, user_api="blas"):
-        if blas_threads() < 2:
+        if _blas_threads() < 2:
             pytest.skip("BLAS runs one thread here: nothing to hold back")
         ingest([bag], IngestOptions(), tmp_path / "out", progress=Watch())
-        assert blas_threads() == 2
+        assert _blas_threads() == 2
+        with pytest.raises(InputError, match="no topic"):
+            ingest([bag], IngestOptions(vio_topic="/nope"), tmp_path / "o2", progress=Watch())
+        assert _blas_threads() == 2
     assert seen and set(seen) == {1}

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.ingest.align import savgol_derivative
-from tests.bagfixtures import make_flight
+from tests.bagfixtures import bag_name, make_flight, write_flight
 
 HEAVY = ("cvxpy", "scipy", "matplotlib")
 
@@ -50,21 +50,28 @@ def test_cli_import_loads_no_heavy_module(tmp_path):
     assert loaded.strip() == "[]"
 
 
-def test_ingest_loads_neither_solver_nor_plotting(tmp_path):
-    """A real ingest of TUM files (velocity from the differentiator) in a fresh interpreter."""
+@pytest.mark.parametrize("fmt", ["tum", "ros1", "ros2-sqlite", "ros2-mcap"])
+def test_ingest_loads_neither_solver_nor_plotting(tmp_path, fmt):
+    """A real ingest in a fresh interpreter: TUM files (velocity from the differentiator), or
+    a bag read through the fast paths."""
     f = make_flight(duration=10.0, dropouts=(), noise_m=0.0005)
-    for name, s in (("est.txt", f.vio), ("gt.txt", f.truth)):
-        (tmp_path / name).write_text(
-            "".join(
-                f"{n // 10**9}.{n % 10**9:09d} {' '.join(f'{x:.12g}' for x in [*a, *b])}\n"
-                for n, a, b in zip(s.header_ns, s.position, s.orientation, strict=True)
+    if fmt == "tum":
+        for name, s in (("est.txt", f.vio), ("gt.txt", f.truth)):
+            (tmp_path / name).write_text(
+                "".join(
+                    f"{n // 10**9}.{n % 10**9:09d} {' '.join(f'{x:.12g}' for x in [*a, *b])}\n"
+                    for n, a, b in zip(s.header_ns, s.position, s.orientation, strict=True)
+                )
             )
-        )
+        args = "'--vio', 'est.txt', '--truth', 'gt.txt'"
+    else:
+        bag = write_flight(tmp_path / bag_name(fmt), fmt, f)
+        args = f"{bag.name!r}"
     loaded = _run(
         "import sys\n"
         "from qsls.cli.main import app\n"
         "try:\n"
-        "    app(['ingest', '--vio', 'est.txt', '--truth', 'gt.txt', '--out', 'o'])\n"
+        f"    app(['ingest', {args}, '--out', 'o'])\n"
         "except SystemExit as e:\n"
         "    assert not e.code, e.code\n"
         f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))\n",

@@ -386,7 +386,13 @@ def ingest(
     force: bool = False,
     progress: Progress = NULL_PROGRESS,
 ) -> IngestResult:
-    """Read, synchronize, align and resample one flight into ``out`` (module docstring)."""
+    """Read, synchronize, align and resample one flight into ``out`` (module docstring).
+
+    BLAS runs one thread meanwhile (``threadpoolctl``, process-wide, the setting before is
+    restored): the input hash has the other core. Ingests in several threads of one process
+    at once are not supported (qsls runs them one after another, or in processes): the
+    last to leave could keep the limit.
+    """
     from concurrent.futures import ThreadPoolExecutor
 
     from qsls.pipeline.core.artifacts import check_output, prime_hashes
@@ -401,8 +407,8 @@ def ingest(
     # Hash the inputs for the manifest while the bags are read (hashlib releases the GIL):
     # on an indexed bag holding camera images the hash of every byte, not the read, is the
     # longest part. It gets the second core to itself: OpenBLAS's workers keep spinning
-    # after each threaded call (the alignment's n x 3 products) and took that core from it
-    # (611 MB MCAP with images: 0.50 -> 0.45 s; BLAS alone gains nothing on these sizes).
+    # after each threaded call and took that core from it (611 MB MCAP with images:
+    # 0.50 -> 0.45 s; more BLAS threads gain nothing on these sizes).
     from threadpoolctl import threadpool_limits
 
     hasher = ThreadPoolExecutor(max_workers=1)

@@ -72,6 +72,7 @@ are used.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -142,14 +143,19 @@ def golden_section(
     Of the bracket ``[a, b]`` and its inner points ``c = b - (b - a) / phi``,
     ``d = a + (b - a) / phi`` (``phi`` the golden ratio), the part ``[a, d]`` is kept when
     ``f(c) <= f(d)``, else ``[c, b]``; the kept inner point is an inner point of the new
-    bracket, so each step costs one evaluation and shrinks the bracket by ``1 / phi``:
-    ``log((hi - lo) / xatol) / log(phi)`` evaluations (22 for 40 ms to 1 us). The result is
-    the better of the last two inner points.
+    bracket, so each step costs one evaluation and shrinks the bracket by ``1 / phi``. The
+    steps are counted in advance, ``ceil(log((hi - lo) / xatol) / log(phi))``, so the search
+    ends even where floating point cannot resolve ``xatol``: 2 + 23 evaluations for 40 ms to
+    1 us (scipy's bounded Brent needs fewer on a smooth cost, 6 on a parabola, but costs its
+    import). The result is the better of the last two inner points.
     """
+    if not xatol > 0:
+        raise ValueError("xatol must be positive")
     a, b = lo, hi
+    steps = math.ceil(math.log((b - a) / xatol) / -math.log(_INV_PHI)) if b - a > xatol else 0
     c, d = b - _INV_PHI * (b - a), a + _INV_PHI * (b - a)
     fc, fd = f(c), f(d)
-    while b - a > xatol:
+    for _ in range(steps):
         if fc <= fd:
             b, d, fd = d, c, fc
             c = b - _INV_PHI * (b - a)
