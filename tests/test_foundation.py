@@ -120,3 +120,25 @@ def test_file_hash_equals_hashlib(tmp_path, size):
     assert artifacts.sha256_file(f) == want
     artifacts.prime_hashes([f])
     assert artifacts.sha256_file(f) == want
+
+
+@pytest.mark.parametrize("n", [0, 1, 257])
+def test_flight_table_reads_back_as_the_pandas_frame(tmp_path, n):
+    """What ingest writes (a pyarrow table built without pandas) reads back as exactly the
+    DataFrame ``make_flight_frame`` builds from the same arrays, dtypes and index included;
+    and its parquet bytes are the same on every write."""
+    from qsls.pipeline.ingest.flight import flight_table, make_flight_frame, read_flight
+
+    rng = np.random.default_rng(n)
+    stamps = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 100_000_000
+    x = rng.normal(size=(n, 6))
+    y = x + rng.normal(scale=0.01, size=(n, 6))
+    data = artifacts.parquet_bytes(flight_table(stamps, x, y))
+    # strided columns (C order) and contiguous ones (Fortran order) give the same bytes
+    assert data == artifacts.parquet_bytes(
+        flight_table(stamps, np.asfortranarray(x), np.asfortranarray(y))
+    )
+    (tmp_path / "flight.parquet").write_bytes(data)
+    pd.testing.assert_frame_equal(
+        read_flight(tmp_path), make_flight_frame(stamps, x, y), check_exact=True
+    )

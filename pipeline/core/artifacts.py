@@ -177,11 +177,12 @@ def dump_json(obj: Any) -> str:
 
 
 def parquet_bytes(df: Any) -> bytes:
-    """Deterministic parquet bytes of a pandas DataFrame (no index, zstd, fixed writer)."""
+    """Deterministic parquet bytes of a pandas DataFrame (no index) or a pyarrow Table (zstd,
+    fixed writer)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    table = pa.Table.from_pandas(df, preserve_index=False)
+    table = df if isinstance(df, pa.Table) else pa.Table.from_pandas(df, preserve_index=False)
     buf = io.BytesIO()
     pq.write_table(table, buf, compression="zstd", compression_level=3)
     return buf.getvalue()

@@ -16,5 +16,6 @@ __all__, __getattr__ = lazy_api(
         "fit_alignment": "align",
         "read_flight": "flight",
         "make_flight_frame": "flight",
+        "flight_table": "flight",
     },
 )

@@ -18,7 +18,7 @@ Steps (DESIGN.md names):
    common interval (``t_0`` the first multiple of ``dt`` inside it, VIO clock); a grid
    point between two samples of either stream further apart than ``max_gap`` is dropped,
    and those gaps are listed in the manifest.
-7. ``flight.parquet`` (:func:`qsls.pipeline.ingest.flight.make_flight_frame`): ``x`` = truth,
+7. ``flight.parquet`` (:func:`qsls.pipeline.ingest.flight.flight_table`): ``x`` = truth,
    ``y`` = aligned VIO, ``e = y - x``.
 """
 
@@ -526,7 +526,7 @@ def _ingest(
     from qsls.pipeline.core.artifacts import StageWriter, parquet_bytes
     from qsls.pipeline.core.rotations import matrix_to_quat, quat_to_matrix
     from qsls.pipeline.ingest.align import fit_alignment
-    from qsls.pipeline.ingest.flight import FLIGHT_FILE, make_flight_frame
+    from qsls.pipeline.ingest.flight import FLIGHT_FILE, flight_table
 
     vio_t, truth_t, where = _read_streams(sources, o, progress)
     vio = prepare(vio_t, "vio", where["vio"], o)
@@ -565,7 +565,7 @@ def _ingest(
             "the streams overlap too little (check --max-gap, --dt and the topics)"
         )
     stamps = grid[valid]
-    df = make_flight_frame(stamps, xv[valid], yv[valid])
+    table = flight_table(stamps, xv[valid], yv[valid])
     err = yv[valid] - xv[valid]
     rms_p = float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
     rms_v = float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1))))
@@ -576,7 +576,7 @@ def _ingest(
     streams = {"vio": vio.describe(), "truth": truth.describe()}
     streams["vio"]["stamp"] = streams["truth"]["stamp"] = o.stamp
     results: dict[str, Any] = {
-        "samples": len(df),
+        "samples": table.num_rows,
         "dropped_grid_samples": int(len(grid) - valid.sum()),
         "dt": o.dt,
         "time_offset_s": tau,
@@ -592,7 +592,7 @@ def _ingest(
         "streams": streams,
     }
     # the files are serialized while the input hash may still run; the writer needs it
-    files = {FLIGHT_FILE: parquet_bytes(df)}
+    files = {FLIGHT_FILE: parquet_bytes(table)}
     if o.export_tum:
         q_vio = matrix_to_quat(al.rotation[None] @ quat_to_matrix(vio.orientation))
         files["vio_aligned.tum"] = _tum_text(vio.t_ns, p_vio, q_vio).encode()
@@ -602,4 +602,4 @@ def _ingest(
         for name, data in files.items():
             w.write_bytes(name, data)
         w.results.update(results)
-    return IngestResult(out, len(df), tau, al.as_dict(), rms_p, rms_v, streams, gaps)
+    return IngestResult(out, table.num_rows, tau, al.as_dict(), rms_p, rms_v, streams, gaps)
