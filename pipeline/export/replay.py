@@ -9,7 +9,7 @@ at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
    Python module (``backend: python``) or the C compiled with the system compiler and loaded
    with ctypes (``backend: c``), ``u`` and the attitude conversion both.
 2. The VIO stream is read by ingest's readers (any source ``qsls ingest`` reads), stamps
-   prepared as ingest does (:func:`qsls.pipeline.ingest.stage.prepare`), velocity rotated to
+   prepared as ingest does (:func:`qsls.pipeline.ingest.streams.prepare`), velocity rotated to
    the VIO world frame (``v_w = R(q) v_b``; or differentiated when the stream has none).
 3. Resampled as ingest does: linear interpolation on ``t_k = t_0 + k dt`` (``t_0`` the
    first multiple of ``dt`` in the stream); ticks between two samples further apart than
@@ -139,7 +139,8 @@ def read_vio(source: Path, o: ReplayOptions) -> tuple[Any, np.ndarray]:
     from qsls.pipeline.ingest.sources.base import detect
     from qsls.pipeline.ingest.sources.select import POSE_TYPES, VIO_TYPES, describe, find_topic
     from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
-    from qsls.pipeline.ingest.stage import IngestOptions, prepare
+    from qsls.pipeline.ingest.stage import IngestOptions
+    from qsls.pipeline.ingest.streams import prepare
 
     source = Path(source)
     if not source.exists():
@@ -179,22 +180,22 @@ def resample(
 ) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]], list[slice]]:
     """Ingest's resampling of ``[p, v]`` onto ``t_0 + k dt``: stamps, values, gaps, segments."""
     from qsls.pipeline.ingest.align import segments
-    from qsls.pipeline.ingest.stage import _gaps, _interp
+    from qsls.pipeline.ingest.streams import gaps, interp
 
     dt_ns, gap_ns = round(dt * NS), round(max_gap * NS)
     lo, hi = int(vio.t_ns[0]), int(vio.t_ns[-1])
     start = -(-lo // dt_ns) * dt_ns
     grid = np.arange(start, hi + 1, dt_ns, dtype=np.int64)
-    values, valid = _interp(grid, vio.t_ns, np.hstack([vio.position, v]), gap_ns)
+    values, valid = interp(grid, vio.t_ns, np.hstack([vio.position, v]), gap_ns)
     if valid.sum() < 2:
         raise InputError(
             f"the VIO stream gives only {int(valid.sum())} ticks of dt = {dt:g} s; "
             "nothing to replay (check the topic and --max-gap)"
         )
     stamps = grid[valid]
-    gaps = _gaps(vio, lo, hi, gap_ns, int(stamps[0]))
+    found_gaps = gaps(vio, lo, hi, gap_ns, int(stamps[0]))
     # a run of valid grid points is a segment: consecutive kept stamps exactly dt apart
-    return stamps, values[valid], gaps, segments(stamps, dt_ns)
+    return stamps, values[valid], found_gaps, segments(stamps, dt_ns)
 
 
 # --------------------------------------------------------------------------- controller

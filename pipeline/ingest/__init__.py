@@ -1,7 +1,8 @@
 """``qsls ingest``: flight logs to one clock, one frame, one ``dt`` grid (``flight.parquet``).
 
-``sources/`` reads bags and text trajectories into arrays; ``timesync`` finds the clock
-offset; ``align`` the frame; ``flight`` is the flight table every later stage reads.
+``sources/`` reads bags and text trajectories into arrays; ``streams`` picks and prepares
+the VIO and truth streams; ``timesync`` finds the clock offset; ``align`` the frame;
+``flight`` is the flight table every later stage reads.
 """
 
 from qsls.pipeline.core.api import lazy_api

@@ -2,12 +2,13 @@
 
 Steps (DESIGN.md names):
 
-1. Read the two streams (:mod:`qsls.pipeline.ingest.sources`): a VIO topic (``nav_msgs/Odometry``)
-   and a truth topic (pose types, or a TF transform) from one or two bags, or text files
-   (TUM, EuRoC csv) given with ``vio`` / ``truth``.
-2. Stamps: header or log time; sort by stamp, drop exact duplicate stamps (the first
-   message of a stamp is kept), count both. Non-finite values stop the stage (or are
-   dropped and counted with ``drop_nonfinite``).
+1. Read the two streams (:mod:`qsls.pipeline.ingest.streams`, through
+   :mod:`qsls.pipeline.ingest.sources`): a VIO topic (``nav_msgs/Odometry``) and a truth
+   topic (pose types, or a TF transform) from one or two bags, or text files (TUM, EuRoC
+   csv) given with ``vio`` / ``truth``.
+2. Stamps (:func:`qsls.pipeline.ingest.streams.prepare`): header or log time; sort by
+   stamp, drop exact duplicate stamps (the first message of a stamp is kept), count both.
+   Non-finite values stop the stage (or are dropped and counted with ``drop_nonfinite``).
 3. Clock offset ``tau`` (``time_offset_s``, added to truth stamps to put them on the VIO
    clock): given, or estimated (:mod:`qsls.pipeline.ingest.timesync`).
 4. Frame: VIO velocity to the VIO world frame (``body``: ``v_w = R(q) v_b``; ``world``: as
@@ -27,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -35,6 +36,9 @@ from pydantic import Field, field_validator
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+
+if TYPE_CHECKING:
+    from qsls.pipeline.ingest.streams import Prepared
 
 STAGE = "ingest"
 
@@ -86,45 +90,6 @@ class IngestOptions(Options):
 
 
 @dataclass(frozen=True)
-class Prepared:
-    """A stream after stamp selection, sorting and de-duplication."""
-
-    role: str
-    source: str
-    topic: str
-    msgtype: str
-    decoder: str
-    t_ns: np.ndarray
-    position: np.ndarray
-    orientation: np.ndarray
-    velocity: np.ndarray | None
-    messages: int
-    duplicates: int
-    unsorted: int
-    nonfinite: int
-
-    @property
-    def rate_hz(self) -> float:
-        if len(self.t_ns) < 2:
-            return 0.0
-        return float(1e9 / np.median(np.diff(self.t_ns)))
-
-    def describe(self) -> dict[str, Any]:
-        return {
-            "source": self.source,
-            "topic": self.topic,
-            "msgtype": self.msgtype,
-            "decoder": self.decoder,
-            "messages": self.messages,
-            "samples": len(self.t_ns),
-            "rate_hz": round(self.rate_hz, 3),
-            "duplicates_dropped": self.duplicates,
-            "unsorted": self.unsorted,
-            "nonfinite_dropped": self.nonfinite,
-        }
-
-
-@dataclass(frozen=True)
 class IngestResult:
     out: Path
     samples: int
@@ -154,218 +119,6 @@ class IngestResult:
 def _describe_stream(s: dict[str, Any]) -> str:
     kind = str(s["msgtype"]).rsplit("/", 1)[-1]
     return f"{s['topic']} ({kind}, {s['messages']} msgs, {s['rate_hz']:.1f} Hz)"
-
-
-# --------------------------------------------------------------------------- reading
-def _read_streams(
-    sources: list[Path], o: IngestOptions, progress: Progress
-) -> tuple[Any, Any, dict[str, str]]:
-    """(vio Trajectory, truth Trajectory, {role: source path})."""
-    from qsls.pipeline.ingest.sources.bags import BagSource
-    from qsls.pipeline.ingest.sources.base import detect
-    from qsls.pipeline.ingest.sources.select import choose
-    from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
-    from qsls.pipeline.ingest.sources.write import TF
-
-    sources = [Path(s) for s in sources]
-    if not sources and (o.vio is None or o.truth is None):
-        raise InputError("no input: give a bag (SOURCE...) or both --vio FILE and --truth FILE")
-    texts: dict[str, Any] = {}
-    bags: dict[Path, BagSource] = {}
-    try:
-        role_files: dict[str, list[Path]] = {}
-        for role, given in (("vio", o.vio), ("truth", o.truth)):
-            files = [Path(given)] if given is not None else sources
-            role_files[role] = files
-            for f in files:
-                kind = detect(f)
-                if kind in ("tum", "euroc"):
-                    if given is None:
-                        raise InputError(
-                            f"{f}: a text trajectory; pass text files with --vio FILE --truth FILE"
-                        )
-                    texts[role] = (read_tum if kind == "tum" else read_euroc)(f)
-                elif f not in bags:
-                    bags[f] = BagSource(f)
-        topics = {p: b.topics() for p, b in bags.items()}
-        vio_topics = [t for f in role_files["vio"] if f in bags for t in topics[f]]
-        truth_topics = [t for f in role_files["truth"] if f in bags for t in topics[f]]
-        if "vio" in texts and "truth" in texts:
-            return texts["vio"], texts["truth"], {"vio": str(o.vio), "truth": str(o.truth)}
-        vio_info = truth_info = None
-        if "vio" in texts:
-            truth_info = _pick_truth(truth_topics, o)
-        elif "truth" in texts:
-            vio_info = _pick_vio(vio_topics, o)
-        else:
-            vio_info, truth_info = choose(
-                vio_topics, truth_topics, o.vio_topic, o.truth_topic, o.truth_frame
-            )
-        fast = o.decoder == "fast"
-        if truth_info is not None and truth_info.msgtype == TF and not o.truth_frame:
-            # a TF topic alone: read it first, its reader lists the transforms to choose from
-            bags[truth_info.source].read(truth_info.topic, fast=fast, progress=progress)
-        out: dict[str, Any] = dict(texts)
-        where: dict[str, str] = {}
-        wanted: dict[Path, list[tuple[str, str, str | None]]] = {}
-        for role, info in (("vio", vio_info), ("truth", truth_info)):
-            if info is None:
-                where[role] = str(o.vio if role == "vio" else o.truth)
-                continue
-            frame = o.truth_frame if role == "truth" else None
-            wanted.setdefault(info.source, []).append((role, info.topic, frame))
-            where[role] = str(info.source)
-        for source, reqs in wanted.items():  # one pass per bag for both streams
-            got = bags[source].read_many([(t, f) for _, t, f in reqs], fast=fast, progress=progress)
-            out.update({role: g for (role, _, _), g in zip(reqs, got, strict=True)})
-        return out["vio"], out["truth"], where
-    finally:
-        for b in bags.values():
-            b.close()
-
-
-def _pick_truth(topics: list[Any], o: IngestOptions) -> Any:
-    """The truth topic when the VIO comes from a text file."""
-    from qsls.pipeline.ingest.sources.select import POSE_TYPES, TRUTH_TYPES, describe, find_topic
-
-    if o.truth_topic:
-        t = find_topic(topics, o.truth_topic, "truth", TRUTH_TYPES)
-    else:
-        allowed = TRUTH_TYPES if o.truth_frame else POSE_TYPES
-        c = [t for t in topics if t.msgtype in allowed and t.topic != "/tf_static"]
-        if len(c) != 1:
-            raise InputError(
-                f"cannot choose the truth topic automatically ({len(c)} candidates: "
-                f"{describe(c)}); pass --truth-topic"
-            )
-        t = c[0]
-    if t.msgtype.endswith("TFMessage") and not o.truth_frame:
-        raise InputError(f"topic {t.topic} is a TF topic; pass --truth-frame PARENT/CHILD")
-    return t
-
-
-def _pick_vio(topics: list[Any], o: IngestOptions) -> Any:
-    from qsls.pipeline.ingest.sources.select import POSE_TYPES, choose_vio, find_topic
-
-    if o.vio_topic:
-        return find_topic(topics, o.vio_topic, "vio", POSE_TYPES)
-    return choose_vio(topics, set())
-
-
-# --------------------------------------------------------------------------- preparing
-def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
-    """Stamps, non-finite check, sort, exact-duplicate removal (module docstring, step 2)."""
-    t = traj.log_ns if o.stamp == "log" else traj.header_ns
-    t = np.asarray(t, dtype=np.int64)
-    p, q, v = traj.position, traj.orientation, traj.velocity
-    n = len(t)
-    name = f"{role} stream {traj.name}"
-    if n == 0:
-        raise InputError(f"{name} has no messages; check the topic or the file")
-    ok = np.isfinite(p).all(axis=1) & np.isfinite(q).all(axis=1)
-    if v is not None:
-        ok &= np.isfinite(v).all(axis=1)
-    qn = np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1)
-    ok &= qn > 1e-9
-    nonfinite = int(n - ok.sum())
-    if nonfinite and not o.drop_nonfinite:
-        first = int(np.flatnonzero(~ok)[0])
-        raise InputError(
-            f"{name}: {nonfinite} of {n} messages hold NaN, infinite or zero-quaternion values "
-            f"(first is message {first}); fix the log or pass --drop-nonfinite to skip them"
-        )
-    if nonfinite:
-        t, p, q = t[ok], p[ok], q[ok]
-        v = v[ok] if v is not None else None
-    unsorted = int(np.sum(np.diff(t) < 0))
-    order = np.argsort(t, kind="stable")
-    t, p, q = t[order], p[order], q[order]
-    v = v[order] if v is not None else None
-    keep = np.concatenate([[True], np.diff(t) != 0])
-    duplicates = int(len(t) - keep.sum())
-    t, p, q = t[keep], p[keep], q[keep]
-    v = v[keep] if v is not None else None
-    if len(t) < 10:
-        raise InputError(f"{name}: only {len(t)} usable messages; at least 10 are needed")
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    return Prepared(
-        role,
-        source,
-        traj.name,
-        traj.msgtype,
-        traj.decoder,
-        t,
-        p,
-        q,
-        v,
-        n,
-        duplicates,
-        unsorted,
-        nonfinite,
-    )
-
-
-def check_streams(vio: Prepared, truth: Prepared, o: IngestOptions) -> None:
-    """Refuse what would give a meaningless flight: the same stream as VIO and truth (the
-    same source and topic, or identical samples: ``e = 0`` everywhere, a degenerate error
-    model), or a stream whose own sampling step is longer than ``max_gap`` (no grid point
-    could be interpolated from it)."""
-    same_source = Path(vio.source).resolve() == Path(truth.source).resolve()
-    if same_source and vio.topic == truth.topic:
-        raise InputError(
-            f"the VIO and truth streams are the same ({vio.topic} in {vio.source}); "
-            "the errors would all be 0: give the VIO estimate and the ground truth"
-        )
-    if len(vio.t_ns) == len(truth.t_ns) and np.array_equal(vio.position, truth.position):
-        raise InputError(
-            f"the VIO ({vio.topic}) and truth ({truth.topic}) streams hold identical samples; "
-            "the errors would all be 0: give the VIO estimate and the ground truth"
-        )
-    for s in (vio, truth):
-        step = float(np.median(np.diff(s.t_ns))) * 1e-9
-        if step > o.max_gap:
-            raise InputError(
-                f"the {s.role} stream {s.topic} has one sample every {step:.3g} s "
-                f"({s.rate_hz:.3g} Hz), longer than --max-gap {o.max_gap:g} s, so no point "
-                f"could be interpolated; raise --max-gap above {step:.3g} s (e.g. "
-                f"{2 * step:.2g}) if interpolating across {step:.3g} s is acceptable"
-            )
-
-
-def _interp(
-    grid: np.ndarray, t: np.ndarray, values: np.ndarray, max_gap_ns: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation at ``grid``; mask of grid points not bracketing a long gap."""
-    i = np.searchsorted(t, grid, side="right") - 1
-    inside = (i >= 0) & (i < len(t))
-    i = np.clip(i, 0, len(t) - 1)
-    exact = inside & (t[i] == grid)
-    j = np.clip(i + 1, 0, len(t) - 1)
-    bracket = inside & (i + 1 < len(t)) & ((t[j] - t[i]) <= max_gap_ns)
-    valid = exact | bracket
-    x = (grid - t[0]).astype(float)
-    tt = (t - t[0]).astype(float)
-    out = np.column_stack([np.interp(x, tt, values[:, k]) for k in range(values.shape[1])])
-    return out, valid
-
-
-def _gaps(s: Prepared, lo: int, hi: int, max_gap_ns: int, t_first: int) -> list[dict[str, Any]]:
-    d = np.diff(s.t_ns)
-    out = []
-    for k in np.flatnonzero(d > max_gap_ns):
-        a, b = int(s.t_ns[k]), int(s.t_ns[k + 1])
-        if b <= lo or a >= hi:
-            continue
-        out.append(
-            {
-                "stream": s.role,
-                "start_ns": a,
-                "end_ns": b,
-                "t_start_s": round((a - t_first) * 1e-9, 6),
-                "duration_s": round((b - a) * 1e-9, 6),
-            }
-        )
-    return out
 
 
 def _tum_text(t_ns: np.ndarray, p: np.ndarray, q: np.ndarray) -> str:
@@ -527,8 +280,9 @@ def _ingest(
     from qsls.pipeline.core.rotations import matrix_to_quat, quat_to_matrix
     from qsls.pipeline.ingest.align import fit_alignment
     from qsls.pipeline.ingest.flight import FLIGHT_FILE, flight_table
+    from qsls.pipeline.ingest.streams import check_streams, gaps, interp, prepare, read_streams
 
-    vio_t, truth_t, where = _read_streams(sources, o, progress)
+    vio_t, truth_t, where = read_streams(sources, o, progress)
     vio = prepare(vio_t, "vio", where["vio"], o)
     truth = prepare(truth_t, "truth", where["truth"], o)
     check_streams(vio, truth, o)
@@ -542,7 +296,7 @@ def _ingest(
     # ---- alignment on time-matched pairs (VIO stamps inside the truth's coverage)
     lo, hi = max(vio.t_ns[0], tt[0]), min(vio.t_ns[-1], tt[-1])
     sel = (vio.t_ns >= lo) & (vio.t_ns <= hi)
-    p_truth_at_vio, ok = _interp(vio.t_ns[sel], tt, truth.position, gap_ns)
+    p_truth_at_vio, ok = interp(vio.t_ns[sel], tt, truth.position, gap_ns)
     if ok.sum() < 10:
         raise InputError(
             f"only {int(ok.sum())} VIO samples fall where the truth stream has data; "
@@ -556,8 +310,8 @@ def _ingest(
     dt_ns = round(o.dt * 1e9)
     start = -(-lo // dt_ns) * dt_ns
     grid = np.arange(start, hi + 1, dt_ns, dtype=np.int64)
-    yv, ok_v = _interp(grid, vio.t_ns, np.hstack([p_vio, v_vio]), gap_ns)
-    xv, ok_t = _interp(grid, tt, np.hstack([truth.position, v_truth]), gap_ns)
+    yv, ok_v = interp(grid, vio.t_ns, np.hstack([p_vio, v_vio]), gap_ns)
+    xv, ok_t = interp(grid, tt, np.hstack([truth.position, v_truth]), gap_ns)
     valid = ok_v & ok_t
     if valid.sum() < 10:
         raise InputError(
@@ -570,7 +324,7 @@ def _ingest(
     rms_p = float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
     rms_v = float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1))))
     truth_vio_clock = dataclasses.replace(truth, t_ns=tt)
-    gaps = _gaps(vio, lo, hi, gap_ns, int(stamps[0])) + _gaps(
+    found_gaps = gaps(vio, lo, hi, gap_ns, int(stamps[0])) + gaps(
         truth_vio_clock, lo, hi, gap_ns, int(stamps[0])
     )
     streams = {"vio": vio.describe(), "truth": truth.describe()}
@@ -588,7 +342,7 @@ def _ingest(
         "duplicates_dropped": {"vio": vio.duplicates, "truth": truth.duplicates},
         "unsorted_stamps": {"vio": vio.unsorted, "truth": truth.unsorted},
         "nonfinite_dropped": {"vio": vio.nonfinite, "truth": truth.nonfinite},
-        "gaps": gaps,
+        "gaps": found_gaps,
         "streams": streams,
     }
     # the files are serialized while the input hash may still run; the writer needs it
@@ -602,4 +356,4 @@ def _ingest(
         for name, data in files.items():
             w.write_bytes(name, data)
         w.results.update(results)
-    return IngestResult(out, table.num_rows, tau, al.as_dict(), rms_p, rms_v, streams, gaps)
+    return IngestResult(out, table.num_rows, tau, al.as_dict(), rms_p, rms_v, streams, found_gaps)
