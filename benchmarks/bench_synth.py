@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.plant import quadrotor_model
+from qsls.pipeline.core.plant import quadrotor_model
 
 SETTING = {"eps_w": 0.01, "eps_e": 0.05, "S": 0.2, "radius": 1.0, "delta": 0.05}
 Q = np.diag([10.0, 10, 10, 1, 1, 1])

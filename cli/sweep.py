@@ -48,7 +48,7 @@ def command(
         None, "--cost", help="Base cost: qr or imitation. (default: qr)"
     ),
     s: str | None = typer.Option(
-        None, "--S", help="Base S: a number or an error-model name. (default: max)"
+        None, "--S", help="Base S: a number, lofo (leave-one-flight-out) or an error-model name. (default: lofo)"
     ),
     eps_e: str | None = typer.Option(
         None, "--eps-e", help="Base eps_e: a number or a name. (default: max)"

@@ -49,7 +49,7 @@ def command(
     s: str | None = typer.Option(
         None,
         "--S",
-        help="S-slope: a number or an error-model name (max, p95, local_p99). (default: max)",
+        help="S-slope: a number, lofo (leave-one-flight-out) or an error-model name (max, p95, local_p99). (default: lofo)",
     ),
     eps_e: str | None = typer.Option(
         None, "--eps-e", help="Error bound: a number or a name (max, p99, R0). (default: max)"

@@ -18,10 +18,10 @@ from qsls.pipeline.control.artifacts import (
     Certificate,
     Controller,
 )
-from qsls.pipeline.control.plant import quadrotor_model
 from qsls.pipeline.control.sls import Taps
 from qsls.pipeline.control.sls import l1_norm as fir_inf_norm
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
+from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.evaluate.bound import (
     EvaluateOptions,
     TrainingData,

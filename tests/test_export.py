@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 from qsls.cli.main import app
 from qsls.pipeline.control.artifacts import load_runtime
 from qsls.pipeline.core.artifacts import dump_yaml
-from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
+from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
 from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
 
 RUN = CliRunner()
@@ -39,6 +39,7 @@ def controllers(tmp_path_factory):
     the uncertified l1_nominal} (T = 15, the synth tests' error model)."""
     root = tmp_path_factory.mktemp("export")
     em = ErrorModel(
+        disturbance=DisturbanceStats(max=0.01, source="inputs", n_steps=100),
         eps_e=0.05,
         eps_e_percentiles={"p95": 0.04},
         radius=1.0,
@@ -278,10 +279,10 @@ def test_bad_input(tmp_path, controllers):
     relaxed = tmp_path / "relaxed"
     shutil.copytree(good, relaxed)
     cert = yaml.safe_load((relaxed / "certificate.yaml").read_text())
-    cert["status"] = "certified_relaxed"
+    cert["status"] = "relaxed"
     (relaxed / "certificate.yaml").write_text(yaml.safe_dump(cert))
     res = invoke("export", relaxed, "-t", "python", "--out", tmp_path / "r")
-    _one_line_error(res, "certified_relaxed", "premise is relaxed", "not plainly certified")
+    _one_line_error(res, "relaxed", "premise is relaxed", "not plainly certified")
     # tampered: one tap changed (the gains are rewritten to match, the sha256 does not)
     tampered = tmp_path / "tampered"
     shutil.copytree(good, tampered)

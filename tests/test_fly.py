@@ -16,8 +16,8 @@ from typer.testing import CliRunner
 
 from qsls.cli.main import app
 from qsls.pipeline.control.artifacts import load_runtime as load_controller
-from qsls.pipeline.control.plant import quadrotor_model
 from qsls.pipeline.control.synth import SynthOptions, synth
+from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.errormodel.fit import FitOptions, fit
 from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
 from qsls.pipeline.ingest.stage import IngestOptions, ingest
@@ -118,7 +118,7 @@ def test_s_below_lipschitz_is_reported_as_assumption_violation(trained, tmp_path
     root, lipschitz = trained
     assert lipschitz > 5 * S_CERTIFIED  # certified with an S well below the true constant
     cert = yaml.safe_load((root / "synth" / "l1_robust" / "certificate.yaml").read_text())
-    assert cert["status"].startswith("certified")  # on the training data's premise, relaxed or not
+    assert cert["status"] in ("certified", "relaxed")  # on the training data's premise
     opts = FlyOptions(
         seeds=[0], duration=10.0, conditions=["regular"], controllers=["l1_robust"],
         se3=False, jobs=1, figures=False, sim=SimOptions.model_validate({"vio": STEEP_VIO}),

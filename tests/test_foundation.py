@@ -12,10 +12,10 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline.control.plant import quadrotor_model
 from qsls.pipeline.core import artifacts
 from qsls.pipeline.core.config import Options, load_options
 from qsls.pipeline.core.errors import ConfigError, OutputExistsError
+from qsls.pipeline.core.plant import quadrotor_model
 
 
 class _Inner(Options):

@@ -257,7 +257,7 @@ def test_euroc_report_says_why_nothing_is_feasible(real_data, tmp_path):
 
 # --------------------------------------------------------------------------- newer keys
 def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(tmp_path):
-    """Certificates with a ``premise`` and ``certified_relaxed``, evaluation rows with
+    """Certificates with a ``premise`` and ``relaxed``, evaluation rows with
     ``gamma_nominal``, and ``findings.json`` (issues 11 and 13) are read as such; the same
     run without them falls back to today's keys and says the check is per sample."""
     from qsls.pipeline.report.document import render_html
@@ -268,7 +268,7 @@ def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(t
           "percentiles": {"p50": 0.1}}, "radius": 1.0}  # fmt: skip
     premise = {"eps_e": {"value": 0.2, "chosen": "p95", "violated": 0.043},
                "S": {"value": 0.1, "chosen": "p50", "violated": 0.512}}  # fmt: skip
-    cert = {"status": "certified_relaxed", "T": 20, "S": 0.1, "eps_e": 0.2, "gamma": 0.25,
+    cert = {"status": "relaxed", "T": 20, "S": 0.1, "eps_e": 0.2, "gamma": 0.25,
             "premise": premise}  # fmt: skip
     rows = pd.DataFrame(
         {

@@ -7,7 +7,7 @@ import pytest
 from rotorpy.vehicles.multirotor import Multirotor
 from scipy.spatial.transform import Rotation
 
-from qsls.pipeline.control.plant import GRAVITY, quadrotor_model
+from qsls.pipeline.core.plant import GRAVITY, quadrotor_model
 from qsls.pipeline.sim.closedloop import FlightOptions, fly
 from qsls.pipeline.sim.controllers import LinearController, PDController, make_controller
 from qsls.pipeline.sim.references import Reference, ReferenceOptions

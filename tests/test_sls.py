@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.control import certify, sls
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.control.plant import quadrotor_model
 from qsls.pipeline.control.realize import RealizedController, filter_bank
+from qsls.pipeline.core.plant import quadrotor_model
 from tests.lqg_reference import lqg_h2_squared
 
 Q = np.diag([10.0, 10, 10, 1, 1, 1])
@@ -176,7 +177,7 @@ def test_solver_trouble_is_never_certified():
     sol = prob.solve(v, solver_options={"max_iter": 3})
     assert sol.status in ("inaccurate", "error")
     if sol.taps is not None:
-        setting = certify.Setting(0.1, 0.05, 1.0, 0.01, 0.05, 0.05)
+        setting = PremiseNumbers(eps=0.05, S=0.1, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
         status, fields = certify.certify(sol.taps, MODEL, setting, solver_status=sol.status)
         assert status != "certified" and not fields["checks"]["solver"]["passed"]
 
@@ -190,7 +191,7 @@ def test_certificate_checks_catch_a_wrong_response():
         sls.Structure(10, "l1", "qr", True),
         sls.Values(eps_w=0.01, eps_e=0.05, S=0.1, delta=0.05),
     )
-    setting = certify.Setting(0.1, 0.05, 1.0, 0.01, 0.05, 0.05)
+    setting = PremiseNumbers(eps=0.05, S=0.1, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
     status, f = certify.certify(sol.taps, MODEL, setting)
     assert status == "certified" and f["realization_error"] < 1e-12
     bad_uy = sol.taps.Phi_uy.copy()

@@ -15,9 +15,9 @@ from typer.testing import CliRunner
 
 from qsls.cli.main import app
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.plant import quadrotor_model
 from qsls.pipeline.core.artifacts import dump_yaml
-from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
+from qsls.pipeline.core.plant import quadrotor_model
+from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
 
 RUN = CliRunner()
 REPO = Path(__file__).resolve().parents[1]
@@ -181,13 +181,14 @@ def test_ci_sweep_matches_committed_expectation(tmp_path):
 
 def test_error_model_names_resolve(tmp_path):
     em = ErrorModel(
+        disturbance=DisturbanceStats(max=0.01, source="inputs", n_steps=100),
         eps_e=0.05, radius=1.0, s_slope=SlopeStats(max=11.7, percentiles={"p50": 0.1}), R0=0.05,
         delta=0.05, n_samples=10, n_pairs=10,
     )  # fmt: skip
     f = tmp_path / "error_model.yaml"
     f.write_text(dump_yaml(em))
     cfg = tmp_path / "s.yaml"
-    cfg.write_text("eps_e: max\ngrid:\n  S: [p50, max]\n  T: [6]\n")
+    cfg.write_text("eps_e: max\neps_w: 0.01\ngrid:\n  S: [p50, max]\n  T: [6]\n")
     out = tmp_path / "o"
     res = _sweep("-c", cfg, "-m", f, "-o", out, "--jobs", "1")
     assert res.exit_code == 0, res.output
@@ -197,7 +198,7 @@ def test_error_model_names_resolve(tmp_path):
     assert list(t["feasible"]) == [True, False]
     assert t["radius_value"].tolist() == [1.0, 1.0] and t["delta_value"].tolist() == [0.05, 0.05]
     # numbers and names on one axis: the column holds text
-    cfg.write_text("eps_e: max\ngrid:\n  S: [0.02, p50]\n  T: [6]\n")
+    cfg.write_text("eps_e: max\neps_w: 0.01\ngrid:\n  S: [0.02, p50]\n  T: [6]\n")
     res = _sweep("-c", cfg, "-m", f, "-o", tmp_path / "o2", "--jobs", "1")
     assert res.exit_code == 0, res.output
     assert list(_table(tmp_path / "o2")["S"]) == ["0.02", "p50"]

@@ -13,10 +13,10 @@ from qsls.cli.main import app
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.artifacts import load_runtime as load_controller
 from qsls.pipeline.control.pdgain import PDGains, pd_gain
-from qsls.pipeline.control.plant import quadrotor_model
 from qsls.pipeline.control.synth import SynthOptions, max_feasible_s
 from qsls.pipeline.core.artifacts import dump_yaml, sha256_file
-from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
+from qsls.pipeline.core.plant import quadrotor_model
+from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
 
 RUN = CliRunner()
 T = 12
@@ -25,6 +25,7 @@ T = 12
 @pytest.fixture
 def error_model(tmp_path):
     em = ErrorModel(
+        disturbance=DisturbanceStats(max=0.01, source="inputs", n_steps=100),
         eps_e=0.05,
         eps_e_percentiles={"p95": 0.04},
         radius=1.0,
@@ -67,7 +68,7 @@ def test_paper_controllers_with_certificates(tmp_path, error_model):
         c = certs[n]
         # the nominal ignores the constraint: verified, but no guarantee at this S; S = p50
         # leaves training pairs outside the premise: relaxed, never plainly certified
-        want = "uncertified" if n == "l1_nominal" else "certified_relaxed"
+        want = "uncertified" if n == "l1_nominal" else "relaxed"
         assert c["status"] == want, (n, c["checks"])
         assert all(v["passed"] for k, v in c["checks"].items() if k != "robustness")
         assert c["error_model_sha256"] == sha
@@ -80,7 +81,7 @@ def test_paper_controllers_with_certificates(tmp_path, error_model):
             "radius"
         ]
         assert lhs == pytest.approx(c["robustness_lhs"], rel=1e-12)
-        assert (lhs < 1) == (want == "certified_relaxed")
+        assert (lhs < 1) == (want == "relaxed")
         # the premise, stated: p50 below the max (violated, share unknown without the
         # training states), eps_e = max (violated by none)
         p = c["premise"]
@@ -144,7 +145,7 @@ def test_strictly_proper_h2_single(tmp_path, error_model):
     assert res.exit_code == 0, res.output
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["h2_robust", "pd"]
     ctrl = load_controller(out / "h2_robust")
-    assert ctrl.strictly_proper and ctrl.certificate["status"] == "certified_relaxed"
+    assert ctrl.strictly_proper and ctrl.certificate["status"] == "relaxed"
     with np.load(out / "h2_robust" / "controller.npz") as d:
         assert np.abs(d["Phi_uy"][0]).max() == 0
 
@@ -160,10 +161,10 @@ def test_controller_files_are_deterministic(tmp_path, error_model):
 
 def test_infeasible_is_exit_3_with_diagnosis(tmp_path, error_model):
     out = tmp_path / "inf"
-    res = _synth("-m", error_model, "-T", T, "-o", out)  # S = max = 11.7
+    res = _synth("-m", error_model, "-T", T, "--S", "max", "-o", out)  # S = max = 11.7
     assert res.exit_code == 3
     assert "necessary condition S + eps_e/r < 1" in res.output
-    found = re.search(r"smallest achievable \|\|Phi_xy\|\| at T=12 is ([0-9.]+)", res.output)
+    found = re.search(r"smallest achievable N = \|\|W_x Phi_xy W_e\^-1\|\| at T=12 is ([0-9.]+)", res.output)
     assert float(found.group(1)) == pytest.approx(sls.min_phi_xy(quadrotor_model(), 12), rel=1e-3)
     assert "largest feasible S for this setting is" in res.output
     assert not out.exists()
@@ -187,7 +188,7 @@ def test_max_feasible_s_is_feasible_and_one_percent_above_is_not(tmp_path, error
     ok = _synth(*single, "--S", repr(s_max), "-o", tmp_path / "ok")
     assert ok.exit_code == 0, ok.output
     cert = yaml.safe_load((tmp_path / "ok" / "l1_robust" / "certificate.yaml").read_text())
-    assert cert["status"] == "certified_relaxed" and cert["margin"] > 0  # S < max
+    assert cert["status"] == "relaxed" and cert["margin"] > 0  # S < max
     bad = _synth(*single, "--S", repr(1.01 * s_max), "-o", tmp_path / "bad")
     assert bad.exit_code == 3 and not (tmp_path / "bad").exists()
     # the bound is tight: the certified controller at S_max has ||Phi_xy|| where the
@@ -275,4 +276,4 @@ def test_shipped_config_is_valid():
 
     cfg = Path(__file__).resolve().parents[1] / "configs" / "synth.yaml"
     opts = load_options(SynthOptions, cfg)
-    assert opts.T == 20 and opts.norm == "l1" and opts.S == "p90"
+    assert opts.T == 20 and opts.norm == "l1" and opts.S == "lofo"

@@ -23,12 +23,12 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from qsls.pipeline.control.certify import Status
 from qsls.pipeline.control.nominal import (
     ClosedLoopNorm,
     static_gain_norms,
     static_gain_responses,
 )
-from qsls.pipeline.control.plant import LinearModel
 from qsls.pipeline.control.premise import Premise
 from qsls.pipeline.control.realize import (
     FilterBank,
@@ -39,6 +39,7 @@ from qsls.pipeline.control.realize import (
 from qsls.pipeline.control.sls import RESPONSES, Taps, l1_norm
 from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_yaml, npz_bytes
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import LinearModel
 
 CONTROLLER_FILE = "controller.npz"
 CERTIFICATE_FILE = "certificate.yaml"
@@ -199,16 +200,16 @@ def _check_gains(f: Path, arrays: dict[str, np.ndarray], bank: FilterBank) -> No
 class Certificate(BaseModel):
     """``certificate.yaml``: what was certified, against which setting, and the checks.
 
-    The guarantee (DESIGN.md, Robust synthesis): ``||e|| <= gamma = (eps_e + S a) /
-    (1 - S ||Phi_xy||)``, ``a = eps_w ||Phi_xx H|| + Delta``; ``gamma_strict = R0 / (1 - S
-    ||Phi_xy||)``; the robustness condition ``robustness_lhs = (S + eps_e / r) ||Phi_xy|| +
-    (eps_w ||Phi_xx H|| + Delta) / r < 1``.
+    The guarantee (docs/guarantee.md, :mod:`qsls.pipeline.control.guarantee`): when
+    ``robustness_lhs = (S + eps/r) N + (a + eps_o G_m)/r < 1``, ``dist(x_k) <= rho* <= r`` and
+    the dense error ``|d_k|_e <= gamma = eps + S rho*``, ``a = eps_w N_w + Delta``;
+    ``gamma_strict = R0 / (1 - S N)`` is the paper's comparison.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     controller: str
-    status: str
+    status: Status
     robust: bool
     norm: str | None = None
     cost: str | None = None
@@ -231,7 +232,18 @@ class Certificate(BaseModel):
     s_times_norm_phi_xy: float
     a: float
     gamma: float
+    """The bound on the dense error, ``eps + S rho*`` (Dean et al.'s gamma in the special case)."""
     gamma_strict: float
+    rho_star: float | None = None
+    """``dist(x_k) <= rho*`` for every k: the region the guarantee keeps the vehicle in."""
+    norm_N: float | None = None
+    norm_N_w: float | None = None
+    G_m: float | None = None
+    m: int = 0
+    eps_o: float = 0.0
+    measure: str = "full"
+    tested_range: float | None = None
+    """Largest distance at which the premise's S was tested on left-out data."""
     achievability_residual: float
     truncation_residual: float | None = None
     realization_error: float | None = None

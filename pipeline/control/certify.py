@@ -11,22 +11,24 @@ that are stored (never from the solver's own report):
   scaled by ``max(1, max |Phi|)``);
 - internal stability: with random plant state and random controller memory (``beta`` and
   past ``y``) and no input, the closed loop returns to zero and its peak stays bounded;
-- guarantee: ``lhs = (S + eps_e/r)||Phi_xy|| + (eps_w ||Phi_xx H|| + Delta)/r < 1``, so
-  ``gamma = (eps_e + S a) / (1 - S ||Phi_xy||)``, ``a = eps_w ||Phi_xx H|| + Delta``, and the
-  paper's ``gamma_strict = R0 / (1 - S ||Phi_xy||)`` are finite.
+- measured channels: with ``measure: position`` the taps of ``Phi_uy`` on the velocity
+  errors are zero (the controller never reads them);
+- guarantee (:mod:`qsls.pipeline.control.guarantee`, docs/guarantee.md): ``lhs = (S + eps/r) N
+  + (a + eps_o G_m)/r < 1`` and ``rho* = (a + N eps + eps_o G_m)/(1 - S N) <= r``, so the dense
+  error stays below ``gamma = eps + S rho*``; the paper's ``gamma_strict = R0 / (1 - S N)``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.plant import LinearModel
+from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, guarantee
 from qsls.pipeline.control.realize import FilterBank, RealizedController, filter_bank
 from qsls.pipeline.control.sls import Taps
+from qsls.pipeline.core.plant import LinearModel
 
 ACHIEVABILITY_TOL = 1e-7
 REALIZATION_TOL = 1e-8
@@ -103,63 +105,52 @@ def perturbation_response(
     return float(sizes.max()), float(sizes[-T:].max())
 
 
-@dataclass(frozen=True)
-class Setting:
-    """The numbers a certificate is checked against."""
-
-    S: float
-    eps_e: float
-    radius: float
-    eps_w: float
-    delta: float
-    R0: float
+Status = Literal["certified", "relaxed", "uncertified", "failed", "solver_inaccurate", "reference"]
+"""``certified``: every check passed, ``lhs <= 1 - margin`` and the premise holds on all the
+training data; ``relaxed``: the same, but part of the training data violates the premise (or
+was excluded, or S was not tested); ``uncertified``: realized and verified, but the robustness
+condition fails; ``failed`` / ``solver_inaccurate``: never certified; ``reference``: not
+synthesized (the PD)."""
 
 
-def guarantee(norm_xy: float, norm_xx_h: float, s: Setting) -> dict[str, float]:
-    """``robustness_lhs``, ``margin = 1 - lhs``, ``gamma`` and ``gamma_strict`` (inf when
-    ``S ||Phi_xy|| >= 1``: no guarantee)."""
-    lhs = sls.robustness_lhs(norm_xy, norm_xx_h, s.S, s.eps_e, s.radius, s.eps_w, s.delta)
-    a = s.eps_w * norm_xx_h + s.delta
-    den = 1.0 - s.S * norm_xy
-    gamma = (s.eps_e + s.S * a) / den if den > 0 else float("inf")
-    strict = s.R0 / den if den > 0 else float("inf")
+def guarantee_fields(numbers: PremiseNumbers, norms: Norms) -> dict[str, float]:
+    """The certificate's guarantee numbers (:func:`qsls.pipeline.control.guarantee.guarantee`):
+    ``robustness_lhs``, ``margin``, ``a``, ``rho_star``, ``gamma`` (the dense bound
+    ``eps + S rho*``), ``gamma_strict`` and the system quantities ``N``, ``N_w``, ``G_m``."""
+    g = guarantee(numbers, norms)
     return {
-        "robustness_lhs": float(lhs),
-        "margin": float(1.0 - lhs),
-        "s_times_norm_phi_xy": float(s.S * norm_xy),
-        "a": float(a),
-        "gamma": float(gamma),
-        "gamma_strict": float(strict),
+        "robustness_lhs": g.robustness_lhs,
+        "margin": g.margin,
+        "s_times_norm_phi_xy": g.s_times_n,
+        "a": g.a,
+        "rho_star": g.rho_star,
+        "gamma": g.dense_bound,
+        "gamma_strict": g.gamma_strict,
+        "norm_N": norms.N,
+        "norm_N_w": norms.N_w,
+        "G_m": norms.G_m,
     }
 
 
 def certify(
     taps: Taps,
     model: LinearModel,
-    setting: Setting,
+    numbers: PremiseNumbers,
+    shape: sls.Shape = sls.Shape(),
     *,
     solver_status: str = "optimal",
     reference: bool = False,
     premise_holds: bool = True,
-) -> tuple[str, dict[str, Any]]:
-    """Run every check on ``taps``; returns ``(status, fields)``.
-
-    ``status``: ``certified`` (all checks passed, ``lhs < 1`` and the premise holds on all
-    the training data), ``certified_relaxed`` (the same, but ``premise_holds`` is False: part
-    of the training data violates the premise, :mod:`qsls.pipeline.control.premise`), ``uncertified`` (the
-    controller is realized and verified but the robustness condition fails, so there is no
-    guarantee), ``solver_inaccurate`` / ``failed`` (never certified), or ``reference`` for
-    a controller that was not synthesized (the PD, whose truncated responses are stored).
-    """
+) -> tuple[Status, dict[str, Any]]:
+    """Run every check on ``taps``; returns ``(status, fields)`` (:data:`Status`)."""
     bank = filter_bank(taps)
     residuals = sls.achievability_residuals(taps, model)
     resid = max(residuals.values())
-    n_xy = sls.l1_norm(taps.Phi_xy)
-    n_xx = sls.l1_norm(taps.Phi_xx, model.H)
-    g = guarantee(n_xy, n_xx, setting)
+    norms = shape.norms(taps, model)
+    g = guarantee_fields(numbers, norms)
     fields: dict[str, Any] = {
-        "norm_phi_xx_h": n_xx,  # ||Phi_xx H|| (H = I by default)
-        "norm_phi_xy": n_xy,
+        "norm_phi_xx_h": sls.l1_norm(taps.Phi_xx, model.H),  # ||Phi_xx H|| (H = I by default)
+        "norm_phi_xy": sls.l1_norm(taps.Phi_xy),
         "norm_phi_ux": sls.l1_norm(taps.Phi_ux, model.H),
         "norm_phi_uy": sls.l1_norm(taps.Phi_uy),
         **g,
@@ -173,6 +164,7 @@ def certify(
     fields["realization_error"] = rerr
     fields["perturbation_peak"] = peak
     fields["perturbation_final"] = final
+    unread = _unread_gain(taps, shape)
     checks: dict[str, dict[str, Any]] = {
         "solver": {"value": solver_status, "passed": solver_status == "optimal"},
         "achievability": {
@@ -186,20 +178,35 @@ def certify(
             "limit": PERTURBATION_TOL,
             "passed": bool(np.isfinite(peak) and final <= PERTURBATION_TOL),
         },
+        "measured_channels": {
+            "value": unread,
+            "limit": ACHIEVABILITY_TOL,
+            "passed": unread <= ACHIEVABILITY_TOL,
+        },
         "robustness": {
             "value": g["robustness_lhs"],
             "limit": 1.0,
-            "passed": g["robustness_lhs"] < 1.0,
+            "passed": g["robustness_lhs"] < 1.0 and g["rho_star"] <= numbers.radius,
         },
     }
     fields["checks"] = checks
     verified = all(c["passed"] for k, c in checks.items() if k != "robustness")
+    status: Status
     if solver_status == "inaccurate":
         status = "solver_inaccurate"
     elif not verified:
         status = "failed"
     elif checks["robustness"]["passed"] and np.isfinite(g["gamma"]):
-        status = "certified" if premise_holds else "certified_relaxed"
+        status = "certified" if premise_holds else "relaxed"
     else:
         status = "uncertified"
     return status, fields
+
+
+def _unread_gain(taps: Taps, shape: sls.Shape) -> float:
+    """Largest ``|Phi_uy|`` entry on the error channels the controller must not read (0 for
+    ``measure: full``): position-only output feedback is checked on the taps, not assumed."""
+    from qsls.pipeline.control.guarantee import measured_channels
+
+    unread = [j for j in range(taps.Phi_uy.shape[2]) if j not in measured_channels(shape.measure)]
+    return float(np.abs(taps.Phi_uy[:, :, unread]).max()) if unread else 0.0

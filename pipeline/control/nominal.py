@@ -31,8 +31,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from qsls.pipeline.control.pdgain import PDGains, pd_gain
-from qsls.pipeline.control.plant import LinearModel
 from qsls.pipeline.control.sls import Taps
+from qsls.pipeline.core.plant import LinearModel
 
 
 def static_gain_responses(model: LinearModel, K: np.ndarray, T: int) -> Taps:

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from qsls.pipeline.control.plant import GRAVITY
 from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.plant import GRAVITY
 
 
 class PDGains(Options):

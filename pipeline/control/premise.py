@@ -1,23 +1,26 @@
-"""The premise a certificate rests on, and how much of the training data violates it.
+"""The premise a certificate rests on: its numbers, how each was chosen, and how much of the
+training data violates it (docs/guarantee.md, Premise).
 
-The guarantee (DESIGN.md, Robust synthesis) holds where ``||e|| <= eps_e + S ||x - x_d||``
-within radius ``r`` of the training states ``x_d``, with ``||w|| <= eps_w`` and the reference
-within ``Delta`` of the training data. With ``eps_e`` or ``S`` set to a percentile, part of the
-training data itself lies outside that premise (DESIGN.md, Premise status); this module records,
-for each number, its value, how it was chosen and, for the error-model ones, the violated share:
+The premise (:mod:`qsls.pipeline.errormodel.honest`) is measured on the training states the
+error model was fitted on (``training_states.parquet`` beside ``error_model.yaml``):
 
-- ``eps_e``: the share of training samples with ``||e_k|| > eps_e``;
-- ``S``: the share of training pairs with ``||e_i - e_j|| / ||W (x_i - x_j)|| > S`` over the
-  pairs the S-slope estimator counts (``min_separation <= ||W (x_i - x_j)|| < r``, the
-  certificate's ``r``), found on the same cell grid (:mod:`qsls.pipeline.errormodel.pairgrid`).
+- ``eps_e``: the bound on the dense error ``|d_k|_e``; violated by the training samples above it;
+- ``S``: tested leave-one-flight-out, violated by the left-out samples with
+  ``|d_k|_e > min(eps, eps_{-f}) + S dist_{-f}(x_k)`` within ``r`` of the other flights;
+- ``m``: violated by the windows of ``T`` steps with more than ``m`` outliers;
+- ``eps_o``: violated by the outliers with ``||o_k||_inf > eps_o``;
+- ``eps_w``: violated by the steps with ``||w_k||_inf > eps_w`` (realized disturbance);
+- samples the fit excluded count as violations too.
 
-A certificate is plainly ``certified`` only when both shares are zero (:attr:`Premise.holds`).
-Without the training states beside the error model a share is known only when the value is at
-least the error model's maximum (then 0); otherwise it is unknown and the premise not shown to hold.
+A certificate is ``certified`` only when every share is zero, nothing was excluded and ``S`` was
+tested on left-out flights (:attr:`Premise.holds`); otherwise it is ``relaxed``. A premise
+that no training sample satisfies is refused.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,210 +28,270 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.model import TRAINING_FILE, ErrorModel
-from qsls.pipeline.errormodel.pairgrid import cell_grid, pair_blocks
 
-BLOCK_ELEMS = 1 << 21
-
-
-def check_unweighted(em: ErrorModel | None, to: str = "synthesize") -> None:
-    """Refuse an error model fitted with a ``state_scale`` W other than ones: its ``S`` and
-    distances are in the weighted norm ``||W x||``, the guarantee then needs ``||W Phi_xy||``
-    while synthesis constrains (and certificates state) the unweighted ``||Phi_xy||``
-    (DESIGN.md, Weighted norms): the two are never mixed."""
-    if em is None or all(v == 1.0 for v in em.state_scale):
-        return
-    raise InputError(
-        f"the error model was fitted with state_scale {list(em.state_scale)}, so its S and "
-        "distances are in a weighted norm, but synthesis bounds the unweighted ||Phi_xy|| and "
-        f"the two must not be mixed; refit with the default state_scale (all ones) to {to}"
-    )
+ONES = (1.0,) * 6
 
 
 class PremiseEntry(BaseModel):
-    """One number of the premise: its value, how it was chosen and (error-model numbers only)
-    the share of the training data violating it (``None``: not known)."""
+    """One number of the premise: its value, how it was chosen and the share of the training
+    data violating it (``None``: not known)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     value: float
     chosen: str
-    """``number`` (given), ``max``, ``pXX`` / ``local_pXX`` (the error model's), ``error model``
-    (its radius or Delta) or ``default``."""
+    """``number`` (given), ``max``, ``lofo`` (leave-one-flight-out), ``pXX`` / ``local_pXX``,
+    ``binomial`` (m), ``gate`` / ``given`` (eps_o), ``error model`` or ``default``."""
     violated: float | None = None
     n_violating: int | None = None
     n_total: int | None = None
-    """Samples (``eps_e``) or pairs (``S``) checked."""
+    """Samples, left-out samples, windows, outliers or steps checked."""
 
 
 class Premise(BaseModel):
-    """``certificate.yaml``'s ``premise``: ``eps_e``, ``S``, ``r``, ``Delta``, ``eps_w``."""
+    """``certificate.yaml``'s ``premise``."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     eps_e: PremiseEntry
+    """The bound on the dense error ``|d|_e`` (``||e||`` in the special case)."""
     S: PremiseEntry
     r: PremiseEntry
     Delta: PremiseEntry
     eps_w: PremiseEntry
+    m: PremiseEntry | None = None
+    eps_o: PremiseEntry | None = None
+    measure: str = "full"
+    beta: float | None = None
+    state_scale: list[float] = list(ONES)
+    error_scale: list[float] = list(ONES)
+    eps_w_source: str | None = None
+    """``inputs`` or ``input_free_residual`` (a lower bound: inputs were not logged)."""
+    tested_range: float | None = None
+    """Largest distance at which ``S`` was tested (left-out samples within ``r``)."""
+    n_excluded: int = 0
+    """Training samples the fit left out (each one counts against the premise)."""
     training_data: str | None = None
-    """Where the shares were computed (the training states file), why they could not be, or
-    None without an error model."""
+    """Where the shares were computed, why they could not be, or None without an error model."""
+
+    def entries(self) -> dict[str, PremiseEntry]:
+        out = {"eps_e": self.eps_e, "S": self.S, "eps_w": self.eps_w}
+        if self.m is not None:
+            out["m"] = self.m
+        if self.eps_o is not None:
+            out["eps_o"] = self.eps_o
+        return out
 
     @property
     def holds(self) -> bool:
-        """The premise holds on all training data: no share violated, none unknown. Without an
-        error model the numbers are the user's assumption and no training data contradicts it."""
+        """Every training sample, window and left-out sample satisfies every premise quantity,
+        nothing excluded. Without an error model the numbers are the user's assumption, and no
+        training data contradicts them."""
         if self.training_data is None:
             return True
-        return all(e.violated == 0.0 for e in (self.eps_e, self.S))
+        return self.n_excluded == 0 and all(e.violated == 0.0 for e in self.entries().values())
 
     def shares(self) -> str:
-        """``eps_e violated by 4.3% of samples, S by 51% of pairs`` (for one-line summaries)."""
-        return (
-            f"premise violated by {_pct(self.eps_e.violated)} of training samples (eps_e "
-            f"{self.eps_e.chosen}), {_pct(self.S.violated)} of pairs (S {self.S.chosen})"
-        )
+        """``premise violated: eps_e by 5% of samples, S by 2% of left-out samples`` (one line)."""
+        what = {
+            "eps_e": "samples", "S": "left-out samples", "eps_w": "steps", "m": "windows",
+            "eps_o": "outliers",
+        }  # fmt: skip
+        parts = [
+            f"{k} by {_pct(e.violated)} of {what[k]} ({e.chosen})"
+            for k, e in self.entries().items()
+            if e.violated != 0.0
+        ]
+        if self.n_excluded:
+            parts.append(f"{self.n_excluded} training samples excluded by the fit")
+        return "premise violated: " + ("; ".join(parts) if parts else "nowhere")
 
 
 def _pct(v: float | None) -> str:
-    if v is None:
-        return "an unknown share"
-    return f"{100 * v:.3g}%"
+    return "an unknown share" if v is None else f"{100 * v:.3g}%"
 
 
-# --------------------------------------------------------------------------- the shares
-def eps_e_violations(e: np.ndarray, eps_e: float) -> tuple[int, int]:
-    """``(samples with ||e_k||_inf > eps_e, samples)``."""
-    norms = np.abs(np.asarray(e, dtype=float)).max(axis=1)
-    return int(np.count_nonzero(norms > eps_e)), len(norms)
+# --------------------------------------------------------------------------- measuring
+@dataclass(frozen=True)
+class Spec:
+    """How the premise is measured: the norms, the channels, the clip, the window."""
+
+    measure: str = "full"
+    beta: float = math.inf
+    state_scale: tuple[float, ...] = ONES
+    error_scale: tuple[float, ...] = ONES
+    radius: float = 1.0
+    window: int = 20
+    risk: float = 1e-3
 
 
-def slope_violations(
-    x: np.ndarray,
-    e: np.ndarray,
-    S: float,
-    radius: float,
-    *,
-    min_separation: float = 0.0,
-    state_scale: np.ndarray | None = None,
-    block_elems: int = BLOCK_ELEMS,
-) -> tuple[int, int]:
-    """``(pairs with slope > S, pairs)`` over ``min_separation <= ||W (x_i - x_j)|| < r``,
-    ``d > 0`` (the pairs :func:`qsls.pipeline.errormodel.slopes.pair_slopes` counts)."""
-    x = np.asarray(x, dtype=float)
-    e = np.asarray(e, dtype=float)
-    scale = np.ones(x.shape[1]) if state_scale is None else np.asarray(state_scale, float)
-    if len(x) < 2:
-        return 0, 0
-    xs = x[:, scale > 0] * scale[scale > 0]
-    g = cell_grid(xs, float(radius))
-    X = np.ascontiguousarray(xs[g.order].T)  # (dim, n): one row per coordinate
-    E = np.ascontiguousarray(e[g.order].T)
-    lo = min_separation if min_separation > 0 else float(np.nextafter(0.0, 1.0))
-    bad = total = 0
-    for r0, r1, cols in pair_blocks(g, block_elems):
-        d = _cheb(X[:, r0:r1], X[:, cols])
-        m = (d < radius) & (d >= lo) & (cols[None, :] > np.arange(r0, r1)[:, None])
-        if not m.any():
-            continue
-        s = _cheb(E[:, r0:r1], E[:, cols])[m] / d[m]
-        total += len(s)
-        bad += int(np.count_nonzero(s > S))
-    return bad, total
+@dataclass(frozen=True)
+class Measured:
+    """The premise quantities of the training data under a :class:`Spec` (arrays per sample)."""
+
+    spec: Spec
+    dense: np.ndarray
+    """``|d_k|_e``."""
+    outlier: np.ndarray
+    """``||o_k||_inf`` (0 where none)."""
+    flight: np.ndarray
+    dist_other: np.ndarray
+    w_norm: np.ndarray | None
+    slope: honest.SlopeFit
+    outliers: honest.OutlierFit
+
+    @property
+    def eps(self) -> float:
+        return float(self.dense.max())
 
 
-def _cheb(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``max_k |a[k, i] - b[k, j]|`` (rows x cols), one coordinate at a time (2-D memory)."""
-    d = np.abs(a[0][:, None] - b[0][None, :])
-    for k in range(1, len(a)):
-        np.maximum(d, np.abs(a[k][:, None] - b[k][None, :]), out=d)
-    return d
+def measure(x: np.ndarray, e: np.ndarray, flight: np.ndarray, w_norm: np.ndarray | None,
+            spec: Spec) -> Measured:  # fmt: skip
+    """Split the errors, take their weighted norms and fit ``S`` and ``m`` (pure: arrays in)."""
+    d, o = honest.split_errors(e, spec.beta, spec.measure)  # type: ignore[arg-type]
+    dense = honest.weighted_norm(d, spec.error_scale)
+    dist = honest.other_flight_distances(x, flight, spec.state_scale)
+    slope = honest.lofo_slope(dense, flight, dist, spec.radius)
+    mag = np.abs(o).max(axis=1)
+    outl = honest.fit_outliers(o, flight, spec.window, spec.risk)
+    return Measured(spec, dense, mag, flight, dist, w_norm, slope, outl)
 
 
-# --------------------------------------------------------------------------- the record
-def _chosen(value: Any) -> str:
-    return "number" if isinstance(value, int | float) else str(value)
+def load_measured(em_file: Path, em: ErrorModel, spec: Spec) -> Measured | None:
+    """:func:`measure` on the training states beside ``em_file`` (None when they are absent)."""
+    import pandas as pd
+
+    from qsls.pipeline.ingest.flight import E_COLS, X_COLS
+
+    f = Path(em_file).parent / TRAINING_FILE
+    if not f.is_file():
+        return None
+    df = pd.read_parquet(f)
+    x, e = df[list(X_COLS)].to_numpy(float), df[list(E_COLS)].to_numpy(float)
+    codes = pd.factorize(df["flight"])[0] if "flight" in df.columns else np.zeros(len(df), int)
+    w = df["w_norm"].to_numpy(float) if "w_norm" in df.columns else None
+    return measure(x, e, codes, w, spec)
 
 
-def _entry(
-    value: float, chosen: str, top: float | None, counted: tuple[int, int] | None
-) -> PremiseEntry:
-    """``violated``: counted on the training data when it is at hand; else 0 when ``value`` is
-    at least the error model's maximum ``top``, and unknown (None) otherwise."""
-    if counted is not None and counted[1] > 0:
-        bad, n = counted
-        return PremiseEntry(
-            value=value, chosen=chosen, violated=bad / n, n_violating=bad, n_total=n
-        )
+def _count(bad: np.ndarray, total: np.ndarray | None = None) -> tuple[int, int]:
+    n = int(len(bad) if total is None else int(total.sum()))
+    return int(np.count_nonzero(bad)), n
+
+
+def _entry(value: float, chosen: str, counted: tuple[int, int] | None) -> PremiseEntry:
+    if counted is None:
+        return PremiseEntry(value=value, chosen=chosen)
+    bad, n = counted
+    return PremiseEntry(
+        value=value, chosen=chosen, violated=bad / n if n else 0.0, n_violating=bad, n_total=n
+    )
+
+
+@dataclass(frozen=True)
+class Chosen:
+    """The premise's numbers as synthesis uses them, with how each was chosen."""
+
+    eps: float
+    S: float
+    radius: float
+    delta: float
+    eps_w: float
+    m: int
+    eps_o: float
+    how: dict[str, str]
+
+
+def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
+                   where: str | None) -> Premise:  # fmt: skip
+    """The certificate's :class:`Premise`: every number with the share of the training data
+    violating it (counted on ``meas``)."""
+    h = chosen.how
+    spec = meas.spec if meas is not None else None
+    if meas is None:
+        # without the training states a share is known only where the number is at least
+        # the error model's maximum over them (then nothing violates it)
+        eps = _bounded(chosen.eps, h["eps_e"], em.eps_e if em is not None else None)
+        S = _bounded(chosen.S, h["S"], em.s_slope.max if em is not None else None)
+        top_w = em.disturbance.max if em is not None and em.disturbance is not None else None
+        eps_w = _bounded(chosen.eps_w, h["eps_w"], top_w)
+        m = eps_o = None
+        tested = None
+    else:
+        eps = _entry(chosen.eps, h["eps_e"], _count(meas.dense > chosen.eps))
+        within = meas.dist_other <= chosen.radius
+        if math.isnan(meas.slope.S):
+            S = _entry(chosen.S, h["S"], None)  # one flight: nothing to leave out
+        else:
+            others = {int(f): _others_max(meas, int(f)) for f in np.unique(meas.flight)}
+            cap = np.minimum(chosen.eps, np.array([others[int(f)] for f in meas.flight]))
+            bad = within & (meas.dense > cap + chosen.S * meas.dist_other)
+            S = _entry(chosen.S, h["S"], (int(bad.sum()), int(within.sum())))
+        if meas.w_norm is not None:
+            w = meas.w_norm[np.isfinite(meas.w_norm)]
+            eps_w = _entry(chosen.eps_w, h["eps_w"], _count(w > chosen.eps_w))
+        else:
+            top_w = em.disturbance.max if em is not None and em.disturbance is not None else None
+            eps_w = _bounded(chosen.eps_w, h["eps_w"], top_w)
+        has_out = bool(honest.outlier_channels(spec.measure, spec.beta))  # type: ignore[union-attr, arg-type]
+        if has_out:
+            counts = honest.window_counts(meas.outlier > 0, meas.flight, spec.window)  # type: ignore[union-attr]
+            m = _entry(chosen.m, h["m"], _count(counts > chosen.m))
+            out = meas.outlier[meas.outlier > 0]
+            eps_o = _entry(chosen.eps_o, h["eps_o"], _count(out > chosen.eps_o) if len(out) else (0, 0))
+        else:
+            m = eps_o = None
+        tested = meas.slope.tested_range
+    return Premise(
+        eps_e=eps, S=S,
+        r=PremiseEntry(value=chosen.radius, chosen=h["r"]),
+        Delta=PremiseEntry(value=chosen.delta, chosen=h["Delta"]),
+        eps_w=eps_w, m=m, eps_o=eps_o,
+        measure=spec.measure if spec else "full",
+        beta=spec.beta if spec and math.isfinite(spec.beta) else None,
+        state_scale=list(spec.state_scale) if spec else list(ONES),
+        error_scale=list(spec.error_scale) if spec else list(ONES),
+        eps_w_source=em.disturbance.source if em is not None and em.disturbance else None,
+        tested_range=tested,
+        n_excluded=em.n_excluded if em is not None else 0,
+        training_data=where,
+    )  # fmt: skip
+
+
+def _bounded(value: float, chosen: str, top: float | None) -> PremiseEntry:
     if top is not None and value >= top:
         return PremiseEntry(value=value, chosen=chosen, violated=0.0)
     return PremiseEntry(value=value, chosen=chosen)
 
 
-def premise_of(
-    opts: Any, values: dict[str, float], em: ErrorModel | None, em_file: Path | None
-) -> Premise:
-    """The premise of a synthesis: ``values`` the resolved ``S, eps_e, radius, delta, eps_w``,
-    ``opts`` the options they came from (how each was chosen), the shares from the training
-    states beside ``em_file`` when present."""
-    import pandas as pd
-
-    from qsls.pipeline.ingest.flight import E_COLS, X_COLS
-
-    S, eps_e, radius = values["S"], values["eps_e"], values["radius"]
-    counted_e = counted_s = None
-    where = None
-    if em is not None and em_file is not None:
-        f = Path(em_file).parent / TRAINING_FILE
-        if f.is_file():
-            df = pd.read_parquet(f, columns=[*X_COLS, *E_COLS])
-            x, e = df[list(X_COLS)].to_numpy(float), df[list(E_COLS)].to_numpy(float)
-            counted_e = eps_e_violations(e, eps_e)
-            counted_s = slope_violations(
-                x, e, S, radius, min_separation=em.min_separation,
-                state_scale=np.asarray(em.state_scale, float),
-            )  # fmt: skip
-            where = f"{TRAINING_FILE} beside the error model"
-        else:
-            where = f"no {TRAINING_FILE} beside the error model: shares not computed"
-    elif em is not None:
-        where = "error model given as a file without its fit folder: shares not computed"
-    top_e = em.eps_e if em is not None else None
-    top_s = em.s_slope.max if em is not None else None
-    from_em = "error model" if em is not None else "default"
-    return Premise(
-        eps_e=_entry(eps_e, _chosen(opts.eps_e), top_e, counted_e),
-        S=_entry(S, _chosen(opts.S), top_s, counted_s),
-        r=PremiseEntry(value=radius, chosen=from_em if opts.radius is None else "number"),
-        Delta=PremiseEntry(
-            value=values["delta"], chosen=from_em if opts.delta is None else _chosen(opts.delta)
-        ),
-        eps_w=PremiseEntry(value=values["eps_w"], chosen="number"),
-        training_data=where,
-    )
+def _others_max(meas: Measured, f: int) -> float:
+    other = meas.flight != f
+    return float(meas.dense[other].max()) if other.any() else math.inf
 
 
-PREMISE_COLUMNS = ("premise_holds", "eps_e_violated", "S_violated")
+def refuse_empty(p: Premise) -> None:
+    """A premise that no training sample satisfies is no premise: refused."""
+    e = p.eps_e
+    if e.violated is not None and e.n_total and e.violated >= 1.0:
+        raise InputError(
+            f"eps_e = {e.value:g} is exceeded by every one of the {e.n_total} training samples: "
+            "a premise no sample satisfies certifies nothing; use eps_e max (the training "
+            "maximum) or a larger number"
+        )
+
+
+PREMISE_COLUMNS = ("premise_holds", "eps_e_violated", "S_violated", "tested_range", "m", "eps_o")
 """The premise's columns of a sweep table (one row per grid point)."""
 
 
-def premise_fields(
-    opts: Any,
-    values: dict[str, float],
-    em: ErrorModel | None,
-    em_file: Path | None,
-    cache: dict[tuple[float, ...], dict[str, Any]],
-) -> dict[str, Any]:
-    """:func:`premise_of` as the :data:`PREMISE_COLUMNS` of a sweep row (NaN: share unknown);
-    ``cache`` keeps one count per distinct ``(S, eps_e, radius)``."""
-    key = (values["S"], values["eps_e"], values["radius"])
-    if key not in cache:
-        p = premise_of(opts, values, em, em_file)
-        nan = float("nan")
-        cache[key] = {
-            "premise_holds": p.holds,
-            "eps_e_violated": nan if p.eps_e.violated is None else p.eps_e.violated,
-            "S_violated": nan if p.S.violated is None else p.S.violated,
-        }
-    return cache[key]
+def premise_columns(p: Premise, chosen: Chosen) -> dict[str, Any]:
+    nan = math.nan
+    return {
+        "premise_holds": p.holds,
+        "eps_e_violated": nan if p.eps_e.violated is None else p.eps_e.violated,
+        "S_violated": nan if p.S.violated is None else p.S.violated,
+        "tested_range": nan if p.tested_range is None else p.tested_range,
+        "m": chosen.m,
+        "eps_o": chosen.eps_o,
+    }

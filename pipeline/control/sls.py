@@ -48,8 +48,8 @@ from typing import Any, Literal
 import numpy as np
 import scipy.sparse as sp
 
-from qsls.pipeline.control.plant import LinearModel
 from qsls.pipeline.core.errors import SolverError
+from qsls.pipeline.core.plant import LinearModel
 
 Norm = Literal["l1", "h2"]
 Cost = Literal["qr", "imitation", "min_phi_xy", "ratio", "none"]
@@ -209,6 +209,13 @@ class Structure:
     # row depend on every row, which doubled Clarabel's time at T = 50). :func:`solve`
     # picks this from the values.
     diagonal_weights: bool = True
+    # The premise's norms (docs/guarantee.md), compiled into the problem: W_x, W_e, which
+    # error channels the controller reads (position-only: Phi_uy's velocity columns are 0),
+    # and the outlier count m per window (G_m enters the robustness constraint when m > 0).
+    state_scale: tuple[float, ...] = (1.0,) * 6
+    error_scale: tuple[float, ...] = (1.0,) * 6
+    measure: str = "full"
+    m: int = 0
 
 
 def is_diagonal(m: np.ndarray) -> bool:
@@ -229,6 +236,7 @@ class Values:
     delta: float = 0.0
     nominal: Taps | None = None
     ratio_lambda: float = 0.0  # Dinkelbach's lambda (cost 'ratio' only)
+    eps_o: float = 0.0  # outlier magnitude bound (robust problems with m > 0)
 
 
 @dataclass(frozen=True)
@@ -288,15 +296,32 @@ class SLSProblem:
             cons += [Y[:, :ny] == b @ W0, Y @ zy - a @ Y - b @ W1 == 0]
         if s.strictly_proper:
             cons.append(W0 == 0)
+        from qsls.pipeline.control.guarantee import (
+            error_weights,
+            measured_channels,
+            outlier_channels,
+        )
+
+        measured = measured_channels(s.measure)
+        unread = [t * ny + j for t in range(T + 1) for j in range(ny) if j not in measured]
+        if unread:  # position-only output feedback: u never reads these channels
+            cons.append(W[:, unread] == 0)
+        wx = sp.diags(np.asarray(s.state_scale, float))
+        inv_e = sp.diags(np.tile(error_weights(s.error_scale, measured), T))
         XH = X @ ih
-        n_xy = cp.max(cp.sum(cp.abs(Y), axis=1))
-        n_xx = cp.max(cp.sum(cp.abs(XH), axis=1))
+        n_xy = cp.max(cp.sum(cp.abs(wx @ Y @ inv_e), axis=1))
+        n_xx = cp.max(cp.sum(cp.abs(wx @ XH), axis=1))
+        g_m = self._sparse_gain(Y, s, outlier_channels(s.measure, s.m), T, ny)
         p: dict[str, Any] = {}
         if s.robust:
             p["c_xy"] = cp.Parameter(nonneg=True, name="S_plus_eps_e_over_r")
             p["c_xx"] = cp.Parameter(nonneg=True, name="eps_w_over_r")
             p["c_rhs"] = cp.Parameter(name="one_minus_delta_over_r")
-            cons.append(p["c_xy"] * n_xy + p["c_xx"] * n_xx <= p["c_rhs"])
+            lhs = p["c_xy"] * n_xy + p["c_xx"] * n_xx
+            if g_m is not None:
+                p["c_o"] = cp.Parameter(nonneg=True, name="eps_o_over_r")
+                lhs = lhs + p["c_o"] * g_m
+            cons.append(lhs <= p["c_rhs"])
         if s.cost in ("qr", "imitation"):
             blocks = {}
             for name, var, rows, right in (
@@ -325,10 +350,13 @@ class SLSProblem:
                 objective = sum(cp.sum_squares(v) for v in blocks.values())
         elif s.cost == "min_phi_xy":
             objective = n_xy
-        elif s.cost == "ratio":  # Dinkelbach: min lambda ||Phi_xy|| + (eps_w / r) ||Phi_xx H||
+        elif s.cost == "ratio":  # Dinkelbach: min lambda N + (eps_w / r) N_w + (eps_o / r) G_m
             p["lam"] = cp.Parameter(nonneg=True, name="lambda")
             p["c_xx_ratio"] = cp.Parameter(nonneg=True, name="eps_w_over_r_ratio")
             objective = p["lam"] * n_xy + p["c_xx_ratio"] * n_xx
+            if g_m is not None:
+                p["c_o_ratio"] = cp.Parameter(nonneg=True, name="eps_o_over_r_ratio")
+                objective = objective + p["c_o_ratio"] * g_m
         elif s.cost == "none":
             objective = cp.Constant(0.0)  # type: ignore[assignment]
         else:
@@ -338,6 +366,24 @@ class SLSProblem:
         self.construct_time_s = time.perf_counter() - t0
         self._compiled = False
 
+    @staticmethod
+    def _sparse_gain(Y: Any, s: Structure, channels: tuple[int, ...], T: int, ny: int) -> Any:
+        """``G_m`` as a convex expression of ``Phi_xy``'s taps 1..T (None without outliers):
+        per state row, the ``m`` largest per-tap sums of ``|Phi_xy(t)_ij|`` over the outlier
+        channels (``cp.sum_largest``), weighted by ``W_x``."""
+        import cvxpy as cp
+
+        if not channels:
+            return None
+        rows = [t * ny + j for t in range(T) for j in channels]
+        cols = [t for t in range(T) for _ in channels]
+        pick = sp.csc_matrix((np.ones(len(rows)), (rows, cols)), shape=(T * ny, T))
+        per_tap = cp.abs(Y) @ pick  # (nx, T)
+        k = min(s.m, T)
+        return cp.max(
+            cp.hstack([s.state_scale[i] * cp.sum_largest(per_tap[i, :], k) for i in range(Y.shape[0])])
+        )
+
     # ---- parameters
     def set_values(self, v: Values) -> None:
         s, p, m = self.structure, self.params, self.model
@@ -345,6 +391,8 @@ class SLSProblem:
             p["c_xy"].value = float(v.S + v.eps_e / v.radius)
             p["c_xx"].value = float(v.eps_w / v.radius)
             p["c_rhs"].value = float(1.0 - v.delta / v.radius - ROBUST_BACKOFF)
+            if "c_o" in p:
+                p["c_o"].value = float(v.eps_o / v.radius)
         if s.cost in ("qr", "imitation"):
             qh = psd_sqrt(v.Q, "Q")
             rh = psd_sqrt(v.R, "R")
@@ -370,6 +418,8 @@ class SLSProblem:
         if s.cost == "ratio":
             p["lam"].value = float(v.ratio_lambda)
             p["c_xx_ratio"].value = float(v.eps_w / v.radius)
+            if "c_o_ratio" in p:
+                p["c_o_ratio"].value = float(v.eps_o / v.radius)
         del m
 
     def taps(self) -> Taps:
@@ -383,6 +433,8 @@ class SLSProblem:
         uy = from_side_by_side(np.asarray(self.W.value), ny).reshape(-1, nu, ny)
         if self.structure.strictly_proper:
             uy[0] = 0.0  # structurally zero (the solver returns ~1e-19)
+        if self.structure.measure == "position":
+            uy[:, :, 3:] = 0.0  # never read (the solver returns ~1e-14)
         return Taps(
             Phi_xx=with_zero(self.X.value, nx),
             Phi_ux=with_zero(self.U.value, nx),
@@ -468,16 +520,48 @@ def solve(
 
 
 # --------------------------------------------------------------------------- feasibility
+@dataclass(frozen=True)
+class Shape:
+    """The premise's norms a feasibility question is asked in (:class:`Structure`'s fields)."""
+
+    state_scale: tuple[float, ...] = (1.0,) * 6
+    error_scale: tuple[float, ...] = (1.0,) * 6
+    measure: str = "full"
+    m: int = 0
+
+    def structure(self, T: int, cost: Cost, strictly_proper: bool) -> Structure:
+        return Structure(
+            T, "l1", cost, False, strictly_proper, state_scale=self.state_scale,
+            error_scale=self.error_scale, measure=self.measure, m=self.m,
+        )  # fmt: skip
+
+    def norms(self, taps: Taps, model: LinearModel) -> Any:
+        from qsls.pipeline.control.guarantee import (
+            measured_channels,
+            outlier_channels,
+            system_norms,
+        )
+
+        return system_norms(
+            taps.Phi_xy, taps.Phi_xx @ model.H, state_scale=self.state_scale,
+            error_scale=self.error_scale, measured=measured_channels(self.measure),
+            outlier_channels=outlier_channels(self.measure, self.m), m=self.m,
+        )  # fmt: skip
+
+
 def min_phi_xy(
-    model: LinearModel, T: int, *, strictly_proper: bool = False, solver: str = "CLARABEL"
+    model: LinearModel,
+    T: int,
+    *,
+    strictly_proper: bool = False,
+    solver: str = "CLARABEL",
+    shape: Shape = Shape(),
 ) -> float:
-    """The smallest achievable ``||Phi_xy||`` (induced inf-to-inf) at horizon ``T``."""
-    sol = solve(
-        model, Structure(T, "l1", "min_phi_xy", False, strictly_proper), Values(), solver=solver
-    )
+    """The smallest achievable ``N = ||W_x Phi_xy W_e^-1||`` (induced inf-to-inf) at ``T``."""
+    sol = solve(model, shape.structure(T, "min_phi_xy", strictly_proper), Values(), solver=solver)
     if sol.taps is None:
         raise SolverError(f"the smallest-||Phi_xy|| problem failed ({sol.solver_status})")
-    return l1_norm(sol.taps.Phi_xy)
+    return float(shape.norms(sol.taps, model).N)
 
 
 @dataclass(frozen=True)
@@ -486,7 +570,7 @@ class MaxS:
     norms of the response that attains it and the Dinkelbach iterations used."""
 
     s_max: float
-    ratio: float  # max over achievable Phi of (1 - Delta/r - eps_w ||Phi_xx H|| / r) / ||Phi_xy||
+    ratio: float  # max over achievable Phi of (1 - Delta/r - (eps_w N_w + eps_o G_m)/r) / N
     norm_phi_xy: float
     norm_phi_xx: float
     iterations: int
@@ -501,36 +585,37 @@ def max_feasible_s(
     radius: float,
     eps_w: float = 0.0,
     delta: float = 0.0,
+    eps_o: float = 0.0,
     strictly_proper: bool = False,
     solver: str = "CLARABEL",
+    shape: Shape = Shape(),
     tol: float = 1e-9,
     max_iter: int = 50,
 ) -> MaxS:
-    """Largest ``S`` with ``(S + eps_e/r)||Phi_xy|| + (eps_w ||Phi_xx H|| + Delta)/r <= 1 -
-    backoff`` satisfiable, by Dinkelbach's method on the ratio
-    ``rho(Phi) = (1 - backoff - Delta/r - (eps_w/r) ||Phi_xx H||) / ||Phi_xy||``:
-    ``S_max = max rho - eps_e / r``. Each step solves ``min lam ||Phi_xy|| + (eps_w/r)
-    ||Phi_xx H||`` (an LP re-solved through Parameters) and sets ``lam = rho(Phi)``; the
-    iteration increases ``lam`` monotonically and converges superlinearly. The answer is
-    rounded down by a relative ``1e-7`` so that ``S_max`` itself solves as feasible.
+    """Largest ``S`` with ``(S + eps/r) N + (eps_w N_w + Delta + eps_o G_m)/r <= 1 - backoff``
+    satisfiable (docs/guarantee.md), by Dinkelbach's method on the ratio
+    ``rho(Phi) = (1 - backoff - Delta/r - (eps_w N_w + eps_o G_m)/r) / N``:
+    ``S_max = max rho - eps / r``. Each step solves ``min lam N + (eps_w/r) N_w + (eps_o/r)
+    G_m`` (an LP re-solved through Parameters) and sets ``lam = rho(Phi)``; the iteration
+    increases ``lam`` monotonically and converges superlinearly. The answer is rounded down
+    by a relative ``1e-7`` so that ``S_max`` itself solves as feasible.
     """
-    structure = Structure(T, "l1", "ratio", False, strictly_proper)
+    structure = shape.structure(T, "ratio", strictly_proper)
     c0 = 1.0 - ROBUST_BACKOFF - delta / radius
     lam, total, it = 0.0, 0.0, 0
     nxy = nxx = float("nan")
     for it in range(1, max_iter + 1):
-        sol = solve(
-            model, structure, Values(eps_w=eps_w, radius=radius, ratio_lambda=lam), solver=solver
-        )
+        values = Values(eps_w=eps_w, radius=radius, ratio_lambda=lam, eps_o=eps_o)
+        sol = solve(model, structure, values, solver=solver)
         total += sol.solve_time_s
         if sol.taps is None:
             raise SolverError(f"the largest-feasible-S subproblem failed ({sol.solver_status})")
-        nxy = l1_norm(sol.taps.Phi_xy)
-        nxx = l1_norm(sol.taps.Phi_xx, model.H)
-        new = (c0 - eps_w / radius * nxx) / nxy
+        n = shape.norms(sol.taps, model)
+        nxy, nxx = n.N, n.N_w
+        new = (c0 - (eps_w * n.N_w + eps_o * n.G_m) / radius) / n.N
         if it == 1 and new <= 0:
-            # lam = 0 minimized ||Phi_xx H||: even then (eps_w ||Phi_xx H|| + Delta) / r
-            # leaves nothing for S: no S >= 0 is feasible
+            # lam = 0 minimized eps_w N_w + eps_o G_m: even then (a + eps_o G_m) / r leaves
+            # nothing for S: no S >= 0 is feasible
             return MaxS(-math.inf, new, nxy, nxx, it, total)
         if it > 1 and new - lam <= tol * max(1.0, abs(lam)):
             lam = max(lam, new)

@@ -27,7 +27,7 @@ import itertools
 import math
 import os
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +35,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
-from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_fields
+from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_columns
 from qsls.pipeline.control.synth import ProblemOptions, read_model, resolve, warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
@@ -47,9 +47,9 @@ AXES = (
 )  # fmt: skip
 TIMING = ("build_time_s", "solve_time_s")
 RESULT_COLUMNS = (
-    "status", "feasible", "cost_value", "norm_phi_xy", "norm_phi_xx", "robustness_lhs",
-    "margin", "gamma", "gamma_strict", "achievability_residual", "realization_error",
-    "solver_status", *TIMING,
+    "status", "feasible", "skipped", "cost_value", "norm_phi_xy", "norm_N", "norm_phi_xx",
+    "robustness_lhs", "margin", "rho_star", "gamma", "gamma_strict", "achievability_residual",
+    "realization_error", "solver_status", *TIMING,
 )  # fmt: skip
 
 
@@ -92,7 +92,6 @@ def grid_points(
     axes = list(options.grid)
     base = options.model_dump(exclude={"grid", "certify", "s_max_curve", "chunks_per_job"})
     points: list[dict[str, Any]] = []
-    cache: dict[tuple[float, ...], dict[str, Any]] = {}
     for i, combo in enumerate(itertools.product(*(options.grid[a] for a in axes))):
         gv = dict(zip(axes, combo, strict=True))
         upd = {k: v for k, v in gv.items() if k not in ("q_scale", "r_scale")}
@@ -102,7 +101,7 @@ def grid_points(
             opts = validate(ProblemOptions, {**base, **upd}, "grid point")
         except ConfigError as exc:
             raise ConfigError(f"grid point {gv}: {exc}") from None
-        r = resolve(opts, em)
+        r = resolve(opts, em, em_file)
         qs, rs = float(gv.get("q_scale", 1.0)), float(gv.get("r_scale", 1.0))
         if qs <= 0 or rs <= 0:
             raise ConfigError(f"grid point {gv}: q_scale and r_scale must be > 0")
@@ -125,7 +124,13 @@ def grid_points(
                 "radius": r.radius,
                 "delta": r.delta,
                 "R0": r.R0,
+                "necessary": r.S + r.eps_e / r.radius,
                 "eps_w": r.eps_w,
+                "eps_o_value": r.eps_o,
+                "m_value": r.m,
+                "state_scale": list(r.shape.state_scale),
+                "error_scale": list(r.shape.error_scale),
+                "measure": r.shape.measure,
                 "dt": opts.dt,
                 "mass": opts.mass,
                 "H": opts.H,
@@ -134,14 +139,46 @@ def grid_points(
                 "imitate": opts.imitate,
                 "solver": opts.solver,
                 "certify": options.certify,
-                **premise_fields(opts, r.record(), em, em_file, cache),
+                **(premise_columns(r.premise, _chosen(r)) if r.premise else _no_premise(r)),
             }
         )
     return points
 
 
+def _chosen(r: Any) -> Any:
+    from qsls.pipeline.control.premise import Chosen
+
+    return Chosen(r.eps_e, r.S, r.radius, r.delta, r.eps_w, r.m, r.eps_o, {})
+
+
+def _no_premise(r: Any) -> dict[str, Any]:
+    return {
+        "premise_holds": True, "eps_e_violated": math.nan, "S_violated": math.nan,
+        "tested_range": math.nan, "m": r.m, "eps_o": r.eps_o,
+    }  # fmt: skip
+
+
+def _numbers(p: dict[str, Any]) -> Any:
+    from qsls.pipeline.control.guarantee import PremiseNumbers
+
+    return PremiseNumbers(
+        eps=p["eps_e"], S=p["S"], radius=p["radius"], eps_w=p["eps_w"], delta=p["delta"],
+        eps_o=p["eps_o_value"], m=p["m_value"], R0=p["R0"],
+    )  # fmt: skip
+
+
+def _shape(p: dict[str, Any]) -> Any:
+    from qsls.pipeline.control.sls import Shape
+
+    return Shape(tuple(p["state_scale"]), tuple(p["error_scale"]), p["measure"], p["m_value"])
+
+
 def structure_key(p: dict[str, Any]) -> tuple:
     return (
+        p["measure"],
+        tuple(p["state_scale"]),
+        tuple(p["error_scale"]),
+        p["m_value"],
         p["T"],
         p["norm"],
         p["cost"],
@@ -156,7 +193,7 @@ def structure_key(p: dict[str, Any]) -> tuple:
 def point_cost(p: dict[str, Any]) -> float:
     """Rough relative solve time of a point (interior-point work grows like T^1.5 here;
     points that fail the necessary condition are not solved)."""
-    if p["robust"] and p["S"] + p["eps_e"] / p["radius"] >= 1.0:
+    if p["robust"] and p["necessary"] >= 1.0:
         return 0.01
     return float(p["T"]) ** 1.5
 
@@ -181,7 +218,7 @@ def make_chunks(points: list[dict[str, Any]], n_chunks: int) -> list[list[dict[s
 
 # --------------------------------------------------------------------------- worker
 def _model(p: dict[str, Any]) -> Any:
-    from qsls.pipeline.control.plant import quadrotor_model
+    from qsls.pipeline.core.plant import quadrotor_model
 
     H = None if p["H"] is None else np.asarray(p["H"])
     return quadrotor_model(dt=p["dt"], mass=p["mass"], H=H)
@@ -190,7 +227,7 @@ def _model(p: dict[str, Any]) -> Any:
 def run_point(p: dict[str, Any]) -> dict[str, Any]:
     """Solve (and certify) one grid point; never raises for a solver outcome."""
     from qsls.pipeline.control import sls
-    from qsls.pipeline.control.certify import Setting, certify
+    from qsls.pipeline.control.certify import certify
     from qsls.pipeline.control.nominal import pd_responses
     from qsls.pipeline.control.pdgain import PDGains
 
@@ -198,13 +235,20 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
     row.update({f"{k}_value": p[k] for k in ("S", "eps_e", "radius", "delta", "eps_w")})
     row.update({k: p[k] for k in PREMISE_COLUMNS})
     empty: dict[str, Any] = dict.fromkeys(RESULT_COLUMNS, math.nan)
-    empty.update(status="", feasible=False, solver_status="", build_time_s=0.0, solve_time_s=0.0)
+    empty.update(
+        status="", feasible=False, skipped=False, solver_status="", build_time_s=0.0,
+        solve_time_s=0.0,
+    )  # fmt: skip
     row.update(empty)
     model = _model(p)
-    if p["robust"] and p["S"] + p["eps_e"] / p["radius"] >= 1.0:
+    row["skipped"] = bool(p["robust"] and p["necessary"] >= 1.0)
+    if row["skipped"]:  # answered without the solver
         row.update(status="infeasible", solver_status="necessary condition S + eps_e/r < 1 fails")
         return row
-    structure = sls.Structure(p["T"], p["norm"], p["cost"], p["robust"], p["strictly_proper"])
+    shape = _shape(p)
+    structure = replace(
+        shape.structure(p["T"], p["cost"], p["strictly_proper"]), norm=p["norm"], robust=p["robust"]
+    )
     nominal = None
     if p["cost"] == "imitation":
         if p["imitate"] == "pd":
@@ -216,7 +260,7 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
     Q, R = np.asarray(p["Q"]), np.asarray(p["R"])
     values = sls.Values(
         Q=Q, R=R, eps_w=p["eps_w"], eps_e=p["eps_e"], S=p["S"], radius=p["radius"],
-        delta=p["delta"], nominal=nominal,
+        delta=p["delta"], nominal=nominal, eps_o=p["eps_o_value"],
     )  # fmt: skip
     sol = sls.solve(model, structure, values, solver=p["solver"])
     row.update(
@@ -232,22 +276,19 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
         p["norm"], sol.taps, model, sls.psd_sqrt(Q), sls.psd_sqrt(R), p["eps_w"], p["eps_e"],
         nominal if p["cost"] == "imitation" else None,
     )  # fmt: skip
-    setting = Setting(p["S"], p["eps_e"], p["radius"], p["eps_w"], p["delta"], p["R0"])
+    numbers = _numbers(p)
     if p["certify"]:
         status, f = certify(
-            sol.taps,
-            model,
-            setting,
-            solver_status=sol.status,
+            sol.taps, model, numbers, shape, solver_status=sol.status,
             premise_holds=bool(p["premise_holds"]),
-        )
+        )  # fmt: skip
     else:
-        _, f = certify(sol.taps, model, setting, reference=True)
+        _, f = certify(sol.taps, model, numbers, shape, reference=True)
         status = "solved" if sol.status == "optimal" else "solver_inaccurate"
         f["realization_error"] = math.nan
     row["status"] = status
     for k in ("norm_phi_xy", "robustness_lhs", "margin", "gamma", "gamma_strict",
-              "achievability_residual", "realization_error"):  # fmt: skip
+              "achievability_residual", "realization_error", "rho_star", "norm_N"):  # fmt: skip
         row[k] = f[k]
     row["norm_phi_xx"] = f["norm_phi_xx_h"]
     return row
@@ -318,24 +359,31 @@ def s_max_task(spec: dict[str, Any]) -> dict[str, Any]:
     from qsls.pipeline.control import sls
 
     model = _model(spec)
+    shape = _shape(spec)
     ms = sls.max_feasible_s(
         model, spec["T"], eps_e=spec["eps_e"], radius=spec["radius"], eps_w=spec["eps_w"],
-        delta=spec["delta"], strictly_proper=spec["strictly_proper"], solver=spec["solver"],
+        delta=spec["delta"], eps_o=spec["eps_o_value"], strictly_proper=spec["strictly_proper"],
+        solver=spec["solver"], shape=shape,
     )  # fmt: skip
     min_xy = sls.min_phi_xy(
-        model, spec["T"], strictly_proper=spec["strictly_proper"], solver=spec["solver"]
-    )
+        model, spec["T"], strictly_proper=spec["strictly_proper"], solver=spec["solver"],
+        shape=shape,
+    )  # fmt: skip
     keep = ("T", "eps_e", "radius", "eps_w", "delta", "strictly_proper")
     return {**{k: spec[k] for k in keep}, "s_max": ms.s_max, "min_norm_phi_xy": min_xy}
 
 
 def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    keys = ("T", "eps_e", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass")
+    keys = ("T", "eps_e", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass",
+            "eps_o_value", "m_value", "measure")  # fmt: skip
     seen: dict[tuple, dict[str, Any]] = {}
     for p in points:
-        k = (*(p[x] for x in keys), str(p["H"]))
+        k = (*(p[x] for x in keys), str(p["H"]), str(p["state_scale"]), str(p["error_scale"]))
         if k not in seen:
-            seen[k] = {**{x: p[x] for x in keys}, "H": p["H"], "solver": p["solver"]}
+            seen[k] = {
+                **{x: p[x] for x in keys}, "H": p["H"], "solver": p["solver"],
+                "state_scale": p["state_scale"], "error_scale": p["error_scale"],
+            }  # fmt: skip
     return sorted(seen.values(), key=lambda s: tuple(s[x] for x in keys))
 
 
@@ -485,7 +533,8 @@ class SweepResult:
         out.update({f"status {k}": v for k, v in sorted(self.counts.items())})
         if self.s_max is not None and len(self.s_max):
             for _, r in self.s_max.iterrows():
-                out[f"largest feasible S at T={int(r['T'])}"] = float(r["s_max"])
+                v = float(r["s_max"])
+                out[f"largest feasible S at T={int(r['T'])}"] = v if v >= 0 else "none feasible"
         return out
 
 

@@ -21,6 +21,7 @@ Infeasible is an answer: before solving, the necessary condition ``S + eps_e / r
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, cast
@@ -35,8 +36,13 @@ from qsls.pipeline.control.artifacts import (
     Certificate,
     Controller,
 )
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.control.plant import (
+from qsls.pipeline.control.premise import Measured, Premise
+from qsls.pipeline.core.artifacts import StageWriter, sha256_file
+from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
+from qsls.pipeline.core.plant import (
     NU,
     NX,
     PAPER_DT_S,
@@ -44,12 +50,13 @@ from qsls.pipeline.control.plant import (
     LinearModel,
     quadrotor_model,
 )
-from qsls.pipeline.control.premise import Premise, check_unweighted, premise_of
-from qsls.pipeline.core.artifacts import StageWriter, sha256_file
-from qsls.pipeline.core.config import Options
-from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.errormodel.model import ErrorModel, error_model_file, load_error_model
+from qsls.pipeline.errormodel.model import (
+    TRAINING_FILE,
+    ErrorModel,
+    error_model_file,
+    load_error_model,
+)
 
 Number = float | str
 
@@ -82,12 +89,40 @@ class ProblemOptions(Options):
     strictly_proper: bool = False
     Q: list[list[float]] = Field(default_factory=lambda: np.diag([10.0, 10, 10, 1, 1, 1]).tolist())
     R: list[list[float]] = Field(default_factory=lambda: np.diag([1.0, 1, 0.1]).tolist())
-    eps_w: float = Field(0.01, ge=0, description="process noise bound ||w|| <= eps_w")
+    eps_w: Number | None = Field(
+        None,
+        description="disturbance bound ||w|| <= eps_w: a number, max or pNN of the training "
+        "flights' realized disturbance; default: its max (0.01 without an error model)",
+    )
     H: list[list[float]] | None = None
     mass: float = Field(PAPER_MASS_KG, gt=0)
     dt: float = Field(PAPER_DT_S, gt=0)
-    S: Number = "max"
-    eps_e: Number = "max"
+    S: Number = Field(
+        "lofo",
+        description="S-slope: lofo (leave-one-flight-out, every left-out sample satisfies the "
+        "premise), max / pNN / local_pNN (pair slopes), or a number",
+    )
+    eps_e: Number = Field(
+        "max", description="bound on the dense error |d|_e: max (training maximum), pNN or a number"
+    )
+    measure: Literal["full", "position"] = Field(
+        "full", description="error channels the controller reads: full, or position only"
+    )
+    beta: float | None = Field(
+        None, gt=0, description="velocity clip of the dense part (None: no sparse part)"
+    )
+    error_scale: tuple[float, float, float, float, float, float] = Field(
+        (1.0,) * 6, description="W_e: weights of the error norm |e|_e = ||W_e e||_inf"
+    )
+    m: int | Literal["auto"] = Field(
+        "auto", description="outliers allowed per window of T steps (auto: binomial risk)"
+    )
+    eps_o: float | None = Field(
+        None, ge=0, description="bound on one outlier (a physical bound; never the sample max)"
+    )
+    outlier_risk: float = Field(
+        1e-3, gt=0, lt=1, description="risk of a window holding more than m outliers"
+    )
     radius: float | None = Field(None, gt=0, description="default: the error model's radius")
     delta: Number | None = Field(None, description="Delta; default: the error model's delta")
     R0: Number | None = Field(
@@ -115,11 +150,18 @@ class ProblemOptions(Options):
     def _h(cls, v: Any) -> Any:
         return None if v is None else _matrix(v, NX, "H", False)
 
-    @field_validator("S", "eps_e")
+    @field_validator("S", "eps_e", "eps_w", "delta", "R0")
     @classmethod
     def _nonneg(cls, v: Any) -> Any:
-        if isinstance(v, int | float) and v < 0:
-            raise ValueError("must be >= 0")
+        if isinstance(v, int | float) and not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"must be a finite number >= 0, got {v}")
+        return v
+
+    @field_validator("error_scale")
+    @classmethod
+    def _scale(cls, v: Any) -> Any:
+        if any(not (math.isfinite(w) and w > 0) for w in v):
+            raise ValueError(f"weights must be finite and > 0, got {list(v)}")
         return v
 
 
@@ -139,7 +181,8 @@ class SynthOptions(ProblemOptions):
 # --------------------------------------------------------------------------- resolution
 @dataclass(frozen=True)
 class Resolved:
-    """A problem's numbers, names resolved against the error model."""
+    """A problem's numbers, names resolved against the error model and its training data,
+    with the premise they form (:mod:`qsls.pipeline.control.premise`)."""
 
     model: LinearModel
     Q: np.ndarray
@@ -150,55 +193,155 @@ class Resolved:
     delta: float
     R0: float
     eps_w: float
+    m: int = 0
+    eps_o: float = 0.0
+    shape: sls.Shape = field(default_factory=sls.Shape)
+    premise: Premise | None = None
 
     def values(self, nominal: sls.Taps | None = None) -> sls.Values:
         return sls.Values(
             Q=self.Q, R=self.R, eps_w=self.eps_w, eps_e=self.eps_e, S=self.S,
-            radius=self.radius, delta=self.delta, nominal=nominal,
+            radius=self.radius, delta=self.delta, nominal=nominal, eps_o=self.eps_o,
         )  # fmt: skip
 
-    def setting(self) -> Any:
-        from qsls.pipeline.control.certify import Setting
+    def numbers(self) -> PremiseNumbers:
+        return PremiseNumbers(
+            eps=self.eps_e, S=self.S, radius=self.radius, eps_w=self.eps_w, delta=self.delta,
+            eps_o=self.eps_o, m=self.m, R0=self.R0,
+        )  # fmt: skip
 
-        return Setting(self.S, self.eps_e, self.radius, self.eps_w, self.delta, self.R0)
+    def structure(self, T: int, norm: sls.Norm, cost: Any, robust: bool, sp_: bool) -> sls.Structure:
+        sh = self.shape
+        return sls.Structure(
+            T, norm, cost, robust, sp_, state_scale=sh.state_scale, error_scale=sh.error_scale,
+            measure=sh.measure, m=sh.m,
+        )  # fmt: skip
 
     def record(self) -> dict[str, Any]:
         return {
             "S": self.S, "eps_e": self.eps_e, "radius": self.radius, "delta": self.delta,
-            "eps_w": self.eps_w, "R0": self.R0,
+            "eps_w": self.eps_w, "R0": self.R0, "m": self.m, "eps_o": self.eps_o,
+            "measure": self.shape.measure,
         }  # fmt: skip
 
 
-def _number(value: Number | None, em: ErrorModel | None, what: str, resolver: str) -> float:
-    if isinstance(value, int | float):
-        return float(value)
+def _how(value: Any) -> str:
+    return "number" if isinstance(value, int | float) else str(value)
+
+
+def _eps(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None, trivial: bool) -> float:
+    v = opts.eps_e
+    if isinstance(v, int | float):
+        return float(v)
     if em is None:
         raise InputError(
-            f"{what} = '{value}' names a number of an error model, but none was given; "
+            f"eps_e = '{v}' names a number of an error model, but none was given; "
             "pass --model or give a number"
         )
-    out = getattr(em, resolver)(value)
-    if not np.isfinite(out) or out < 0:
+    if meas is not None:
+        key = str(v).strip()
+        if key == "max":
+            return meas.eps
+        if key.startswith("p"):
+            try:
+                return float(np.percentile(meas.dense, float(key[1:])))
+            except ValueError:
+                pass
+    elif not trivial:
         raise InputError(
-            f"{what} = '{value}' is {out} in the error model; need a finite number >= 0"
+            "eps_e: with measure, beta or error_scale set, the dense bound is measured on the "
+            "training states, but the error model has none beside it; pass the fit folder"
         )
-    return out
+    return em.resolve_eps_e(v)
 
 
-def resolve(opts: ProblemOptions, em: ErrorModel | None) -> Resolved:
-    """Numbers for every setting; error-model names (``max``, ``p95``...) looked up; an error
-    model with a weighted state norm refused (:func:`check_unweighted`)."""
-    check_unweighted(em)
-    S = _number(opts.S, em, "S", "resolve_s")
-    eps_e = _number(opts.eps_e, em, "eps_e", "resolve_eps_e")
+def _slope(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None) -> float:
+    v = opts.S
+    if isinstance(v, int | float):
+        return float(v)
+    if em is None:
+        raise InputError(
+            f"S = '{v}' names a number of an error model, but none was given; "
+            "pass --model or give a number"
+        )
+    if str(v).strip() != "lofo":
+        return em.resolve_s(v)
+    if meas is None:
+        raise InputError(
+            "S = lofo is measured on the training states beside the error model, which are "
+            "missing; pass the fit folder, or give S as a number"
+        )
+    if math.isnan(meas.slope.S):
+        raise InputError(
+            "S = lofo leaves one training flight out at a time and needs at least two; fit on "
+            "more flights, or give S as a number (the premise is then untested: relaxed)"
+        )
+    if not math.isfinite(meas.slope.S):
+        raise InputError(
+            "S = lofo is infinite: a left-out sample exceeds the other flights' largest error at "
+            "distance 0 from them; give S as a number (relaxed) or raise beta / error_scale"
+        )
+    return meas.slope.S
+
+
+def _disturbance(opts: ProblemOptions, em: ErrorModel | None) -> tuple[float, str]:
+    v = opts.eps_w
+    if isinstance(v, int | float):
+        return float(v), "number"
+    if v is None and (em is None or em.disturbance is None):
+        return 0.01, "default (assumed, not measured)"
+    if em is None:
+        raise InputError(f"eps_w = '{v}' needs an error model; pass --model or give a number")
+    w = em.resolve_eps_w("max" if v is None else v)
+    return w, "max" if v is None else str(v)
+
+
+def resolve(
+    opts: ProblemOptions, em: ErrorModel | None, em_file: Path | None = None
+) -> Resolved:
+    """Numbers for every setting, names (``max``, ``lofo``, ``p95``...) looked up on the error
+    model and its training states, and the premise they form with its violated shares."""
+    from qsls.pipeline.control.premise import Chosen, Spec, load_measured, premise_record
+
     if opts.radius is not None:
         radius = float(opts.radius)
     elif em is not None:
         radius = float(em.radius)
     else:
         raise InputError("radius: give a number (no error model to take it from)")
-    if radius <= 0:
-        raise InputError(f"radius must be > 0, got {radius}")
+    state_scale = tuple(em.state_scale) if em is not None else (1.0,) * 6
+    spec = Spec(
+        measure=opts.measure, beta=math.inf if opts.beta is None else float(opts.beta),
+        state_scale=state_scale, error_scale=tuple(opts.error_scale), radius=radius,
+        window=opts.T, risk=opts.outlier_risk,
+    )  # fmt: skip
+    trivial = opts.measure == "full" and opts.beta is None and all(w == 1.0 for w in opts.error_scale)
+    meas = load_measured(em_file, em, spec) if em is not None and em_file is not None else None
+    where = None
+    if em is not None:
+        where = (
+            f"{TRAINING_FILE} beside the error model" if meas is not None
+            else f"no {TRAINING_FILE} beside the error model: shares not computed"
+        )  # fmt: skip
+    eps_e = _eps(opts, em, meas, trivial)
+    S = _slope(opts, em, meas)
+    for name, val in (("S", S), ("eps_e", eps_e)):
+        if not (math.isfinite(val) and val >= 0):
+            raise InputError(f"{name} = '{getattr(opts, name)}' is {val}; need a finite number >= 0")
+    eps_w, how_w = _disturbance(opts, em)
+    outlier_ch = opts.measure == "full" and opts.beta is not None
+    if not outlier_ch:
+        m = 0
+    elif opts.m == "auto":
+        m = meas.outliers.m if meas is not None else 0
+    else:
+        m = int(opts.m)
+    if outlier_ch and opts.eps_o is None:
+        raise InputError(
+            "beta clips the velocity errors, so what it clips off is an outlier: give eps_o, a "
+            "bound on one outlier from the estimator's physics or gate (never the sample maximum)"
+        )
+    eps_o = float(opts.eps_o or 0.0) if outlier_ch else 0.0
     if opts.delta is None:
         delta = float(em.delta) if em is not None else 0.0
     elif isinstance(opts.delta, int | float):
@@ -209,13 +352,26 @@ def resolve(opts: ProblemOptions, em: ErrorModel | None) -> Resolved:
         raise InputError(
             f"delta = '{opts.delta}': give a number (or omit it to use the error model's)"
         )
-    # R0: the error bound in use unless set, so that gamma_strict <= gamma (DESIGN.md)
-    R0 = eps_e if opts.R0 is None else _number(opts.R0, em, "R0", "resolve_eps_e")
+    # R0: the error bound in use unless set, so that gamma_strict <= gamma
+    R0 = eps_e if opts.R0 is None else (
+        float(opts.R0) if isinstance(opts.R0, int | float) else em.resolve_eps_e(opts.R0)  # type: ignore[union-attr]
+    )  # fmt: skip
+    from_em = "error model" if em is not None else "default"
+    how = {
+        "eps_e": _how(opts.eps_e), "S": _how(opts.S), "eps_w": how_w,
+        "m": "binomial" if opts.m == "auto" else "number",
+        "eps_o": "given", "r": from_em if opts.radius is None else "number",
+        "Delta": from_em if opts.delta is None else _how(opts.delta),
+    }  # fmt: skip
+    chosen = Chosen(eps_e, S, radius, delta, eps_w, m, eps_o, how)
+    premise = premise_record(chosen, meas, em, where)
     H = None if opts.H is None else np.asarray(opts.H)
     model = quadrotor_model(dt=opts.dt, mass=opts.mass, H=H)
+    shape = sls.Shape(state_scale, tuple(opts.error_scale), opts.measure, m)
     return Resolved(
-        model, np.asarray(opts.Q), np.asarray(opts.R), S, eps_e, radius, delta, R0, opts.eps_w
-    )
+        model, np.asarray(opts.Q), np.asarray(opts.R), S, eps_e, radius, delta, R0, eps_w,
+        m, eps_o, shape, premise,
+    )  # fmt: skip
 
 
 def read_model(path: Path | None) -> tuple[ErrorModel | None, str | None, Path | None]:
@@ -231,15 +387,19 @@ def diagnose(
     r: Resolved, T: int, strictly_proper: bool, solver: str = "CLARABEL"
 ) -> dict[str, Any]:
     """Why a robust problem is infeasible: the necessary condition, the smallest
-    achievable ``||Phi_xy||`` at ``T`` and the largest feasible ``S``."""
-    nec = r.S + r.eps_e / r.radius
-    min_xy = sls.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver)
+    achievable ``N`` at ``T`` and the largest feasible ``S``."""
+    from qsls.pipeline.control.guarantee import necessary_condition
+
+    nec = necessary_condition(r.numbers())
+    min_xy = sls.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
     ms = sls.max_feasible_s(
         r.model, T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
-        strictly_proper=strictly_proper, solver=solver,
+        eps_o=r.eps_o, strictly_proper=strictly_proper, solver=solver, shape=r.shape,
     )  # fmt: skip
     return {
         "S": r.S,
+        "eps_e": r.eps_e,
+        "radius": r.radius,
         "S_plus_eps_e_over_r": nec,
         "necessary_condition_holds": bool(nec < 1.0),
         "min_norm_phi_xy": min_xy,
@@ -249,6 +409,7 @@ def diagnose(
 
 
 def diagnosis_message(d: dict[str, Any]) -> str:
+    """One line: what fails, and what could help (a radius cannot help when ``S >= 1``)."""
     parts = []
     if not d["necessary_condition_holds"]:
         parts.append(
@@ -259,13 +420,22 @@ def diagnosis_message(d: dict[str, Any]) -> str:
         parts.append(
             f"the necessary condition S + eps_e/r < 1 holds ({d['S_plus_eps_e_over_r']:.4g})"
         )
-    parts.append(f"the smallest achievable ||Phi_xy|| at T={d['T']} is {d['min_norm_phi_xy']:.4g}")
+    parts.append(f"the smallest achievable N = ||W_x Phi_xy W_e^-1|| at T={d['T']} is {d['min_norm_phi_xy']:.4g}")
     if d["max_feasible_S"] >= 0:
         parts.append(
             f"the largest feasible S for this setting is {d['max_feasible_S']:.6g} (S = {d['S']:.4g} given)"
         )
+    elif d["S"] >= 1.0:
+        parts.append(
+            f"no radius or horizon can help: S = {d['S']:.4g} >= 1 alone breaks S N < 1; a smaller "
+            "S needs a different premise (S = lofo, an error_scale that weights the velocity "
+            "errors less, beta with eps_o, or measure: position)"
+        )
     else:
-        parts.append("no S >= 0 is feasible for this setting (lower eps_e or Delta, raise r or T)")
+        parts.append(
+            "no S >= 0 is feasible for this setting: lower eps_e (beta, error_scale, measure: "
+            "position) or Delta (training flights nearer the reference), or raise r or T"
+        )
     return "robust synthesis is infeasible: " + "; ".join(parts)
 
 
@@ -312,16 +482,15 @@ def certified_controller(
     *,
     extra: dict[str, Any] | None = None,
     nominal: sls.Taps | None = None,
-    premise: Premise | None = None,
 ) -> Built:
-    """Certify a solution and assemble its certificate and controller; ``certified_relaxed``
-    instead of ``certified`` when the ``premise`` does not hold on all the training data."""
+    """Certify a solution and assemble its certificate and controller; ``relaxed`` instead of
+    ``certified`` when the premise does not hold on all the training data."""
     from qsls.pipeline.control.certify import certify
 
     assert sol.taps is not None
-    holds = premise is None or premise.holds
+    holds = r.premise is None or r.premise.holds
     status, fields = certify(
-        sol.taps, r.model, r.setting(), solver_status=sol.status, premise_holds=holds
+        sol.taps, r.model, r.numbers(), r.shape, solver_status=sol.status, premise_holds=holds
     )
     q_half, r_half = sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R)
     cost = sls.cost_value(
@@ -340,13 +509,14 @@ def certified_controller(
         "T": structure.T,
         **r.record(),
         **fields,
+        "tested_range": r.premise.tested_range if r.premise else None,
         "solver_status": sol.solver_status,
         "dt": r.model.dt,
         "mass": r.model.mass,
         "Q": r.Q.tolist(),
         "R": r.R.tolist(),
         **(extra or {}),
-        "premise": premise,
+        "premise": r.premise,
     }
     timings = {"build_time_s": sol.build_time_s, "solve_time_s": sol.solve_time_s}
     return _built(name, Controller(sol.taps, r.model), cert, timings)
@@ -356,14 +526,22 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
     """The PD reference: its responses truncated to ``T`` taps are stored, but its norms and
     guarantee numbers are the true closed loop's (:func:`nominal.static_gain_norms`), never the
     truncated ones, which underestimate them."""
-    from qsls.pipeline.control.certify import certify, guarantee
+    from qsls.pipeline.control.certify import certify, guarantee_fields
+    from qsls.pipeline.control.guarantee import Norms
     from qsls.pipeline.control.nominal import pd_responses, spectral_radius, static_gain_norms
 
     K, taps = pd_responses(r.model, gains, T)
-    status, fields = certify(taps, r.model, r.setting(), reference=True)
+    status, fields = certify(taps, r.model, r.numbers(), r.shape, reference=True)
     norms = static_gain_norms(r.model, K, T)
     fields |= {f"norm_{k}": n.value for k, n in norms.items()}
-    fields |= guarantee(norms["phi_xy"].value, norms["phi_xx_h"].value, r.setting())
+    # weighted norms of the closed loop bounded through its unweighted ones:
+    # ||W_x Phi W_e^-1|| <= max w_x ||Phi|| max 1/w_e, and G_m <= max w_x ||Phi_xy||
+    wx, we = max(r.shape.state_scale), 1.0 / min(r.shape.error_scale)
+    nxy = norms["phi_xy"].value
+    true = Norms(
+        N=wx * nxy * we, N_w=wx * norms["phi_xx_h"].value, G_m=wx * nxy if r.m > 0 else 0.0
+    )
+    fields |= guarantee_fields(r.numbers(), true)
     fields["closed_loop_norms"] = norms
     cert = {
         "controller": "pd",
@@ -404,12 +582,14 @@ class SynthResult:
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {"out": self.out.as_posix()}
         for name, cert in self.certificates.items():
-            g = cert.get("gamma")
             out[name] = (
-                f"{cert['status']}; ||Phi_xy|| = {cert['norm_phi_xy']:.4g}, "
-                f"margin = {cert['margin']:.3g}, gamma = {g:.4g}"
+                f"{cert['status']}; N = {cert['norm_N']:.4g}, margin = {cert['margin']:.3g}, "
+                f"rho* = {cert['rho_star']:.4g}"
             )
-            if cert["status"] == "certified_relaxed" and cert.get("premise"):
+            if cert.get("tested_range") is not None:
+                out[name] += f" (premise tested to {cert['tested_range']:.3g})"
+            out[name] += f", dense error <= {cert['gamma']:.4g}"
+            if cert["status"] == "relaxed" and cert.get("premise"):
                 out[name] += "; " + Premise.model_validate(cert["premise"]).shares()
         return out
 
@@ -459,22 +639,24 @@ def synth(
     from qsls.pipeline.core.artifacts import check_output
 
     check_output(out, force, [error_model] if error_model is not None else [])
+    from qsls.pipeline.control.guarantee import necessary_condition
+    from qsls.pipeline.control.premise import refuse_empty
+
     em, sha, em_file = read_model(error_model)
-    r = resolve(options, em)
-    plan = controller_plan(options)
-    prem = premise_of(options, r.record(), em, em_file)
-    base_extra = {
-        "error_model": em_file.as_posix() if em_file else None,
-        "error_model_sha256": sha,
-        "solver": options.solver,
-    }
-    if any(s.robust for _, s in plan) and r.S + r.eps_e / r.radius >= 1.0:
+    r = resolve(options, em, em_file)
+    if r.premise is not None:
+        refuse_empty(r.premise)
+    plan = [(n, r.structure(st.T, st.norm, st.cost, st.robust, st.strictly_proper))
+            for n, st in controller_plan(options)]  # fmt: skip
+    # the error model by its hash only: a path would differ between two folders of one run
+    base_extra = {"error_model": None, "error_model_sha256": sha, "solver": options.solver}
+    if any(s.robust for _, s in plan) and necessary_condition(r.numbers()) >= 1.0:
         d = diagnose(r, options.T, options.strictly_proper, options.solver)
         raise InfeasibleError(diagnosis_message(d), d)
     warn_size(options.T, len(plan), progress)
     progress.start("synth", total=len(plan) + 1)
     ctrls: dict[str, Built] = {}
-    reference = pd_controller(r, options.pd, options.T, {**base_extra, "premise": prem})
+    reference = pd_controller(r, options.pd, options.T, {**base_extra, "premise": r.premise})
     ctrls["pd"] = reference
     progress.advance()
     for name, st in plan:
@@ -502,9 +684,7 @@ def synth(
             raise SolverError(
                 f"{name}: the solver failed ({sol.solver_status}); nothing was certified"
             )
-        ctrls[name] = certified_controller(
-            name, sol, r, st, extra=extra, nominal=nominal, premise=prem
-        )
+        ctrls[name] = certified_controller(name, sol, r, st, extra=extra, nominal=nominal)
         progress.advance()
     progress.finish()
     with StageWriter(
@@ -549,28 +729,31 @@ class MaxFeasibleSResult:
 
 
 def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeasibleSResult:
-    """The largest S for which the robust problem of ``options`` is feasible (its
-    feasibility does not depend on the cost); see :func:`qsls.pipeline.control.sls.max_feasible_s`."""
-    em, _, _ = read_model(error_model)
+    """The largest S for which the robust problem of ``options`` is feasible under its premise
+    (its feasibility does not depend on the cost); see :func:`qsls.pipeline.control.sls.max_feasible_s`."""
+    em, _, em_file = read_model(error_model)
     opts = options.model_copy(update={"S": 0.0})
-    r = resolve(opts, em)
+    r = resolve(opts, em, em_file)
     ms = sls.max_feasible_s(
         r.model, options.T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
-        strictly_proper=options.strictly_proper, solver=options.solver,
+        eps_o=r.eps_o, strictly_proper=options.strictly_proper, solver=options.solver,
+        shape=r.shape,
     )  # fmt: skip
     min_xy = sls.min_phi_xy(
-        r.model, options.T, strictly_proper=options.strictly_proper, solver=options.solver
-    )
+        r.model, options.T, strictly_proper=options.strictly_proper, solver=options.solver,
+        shape=r.shape,
+    )  # fmt: skip
     if not ms.s_max >= 0:
-        # at S = 0 the constraint is (eps_e ||Phi_xy|| + eps_w ||Phi_xx H|| + Delta) / r <= 1,
-        # with ||Phi_xy|| >= its minimum at T and ||Phi_xx H|| >= ||H|| = 1 (Phi_xx(1) = I)
-        lower = (r.eps_e * min_xy + r.eps_w + r.delta) / r.radius
+        # at S = 0 the constraint is (eps N + eps_w N_w + Delta + eps_o G_m) / r <= 1, with N
+        # at least its minimum at T and N_w >= min w_x (Phi_xx(1) = I)
+        lower = (r.eps_e * min_xy + r.eps_w * min(r.shape.state_scale) + r.delta) / r.radius
         raise InfeasibleError(
-            f"no S >= 0 is feasible at T = {options.T}: even S = 0 needs "
-            f"(eps_e ||Phi_xy|| + eps_w ||Phi_xx H|| + Delta) / r < 1, and with eps_e = "
-            f"{r.eps_e:.4g}, the smallest ||Phi_xy|| = {min_xy:.4g} at this T, eps_w = "
+            f"none feasible: no S >= 0 is feasible at T = {options.T}: even S = 0 needs "
+            f"(eps_e N + eps_w N_w + Delta + eps_o G_m) / r < 1, and with eps_e = "
+            f"{r.eps_e:.4g}, the smallest N = {min_xy:.4g} at this T, eps_w = "
             f"{r.eps_w:.4g}, Delta = {r.delta:.4g} and r = {r.radius:.4g} it is at least "
-            f"{lower:.4g}; lower eps_e (a percentile) or Delta, or raise r or T",
+            f"{lower:.4g}; lower eps_e (beta, error_scale, measure: position) or Delta, or "
+            "raise r or T",
             {"T": options.T, "min_norm_phi_xy": min_xy, "lower_bound_at_S0": lower},
         )
     return MaxFeasibleSResult(

@@ -37,11 +37,13 @@ from pydantic import Field, field_validator
 from qsls.pipeline.core.artifacts import StageWriter, check_output, require_stage
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import PAPER_MASS_KG
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import (
     ERROR_MODEL_FILE,
     TRAINING_FILE,
     AxisStats,
+    DisturbanceStats,
     ErrorModel,
     SlopeStats,
     WorstPair,
@@ -112,6 +114,13 @@ class FitOptions(Options):
     """Write the PNG figures."""
     jobs: int = Field(1, ge=1, le=64)
     """Threads for the pair pass (the result does not depend on it)."""
+    inputs: list[str] | None = None
+    """Logged inputs, one control log per flight in the flights' order (parquet with
+    ``stamp_ns``, ``u_pitch``, ``u_roll``, ``u_thrust`` on the VIO clock, as ``qsls simulate``
+    writes ``control.parquet``): the realized disturbance ``w`` is measured with them; without
+    them it is the input-free residual, a lower bound (docs/guarantee.md)."""
+    mass: float = Field(PAPER_MASS_KG, gt=0)
+    """Vehicle mass (kg) of the model the disturbance is measured through (hover thrust, B)."""
 
     @field_validator("percentiles")
     @classmethod
@@ -171,6 +180,8 @@ class FitResult:
         out["percentile rel. error"] = s.percentile_rel_error
         out["R0"] = m.R0
         out["delta"] = m.delta
+        if m.disturbance is not None:
+            out["eps_w (max ||w||)"] = f"{m.disturbance.max:.4g} ({m.disturbance.source})"
         if m.worst_pairs:
             w = m.worst_pairs[0]
             out["worst pair"] = (
@@ -191,6 +202,8 @@ class _Training:
     keep: np.ndarray  # (n,) bool: used for the model
     exclusions: dict[str, int]
     dt: float = float("nan")  # the flights' common sample period (s)
+    w_norm: np.ndarray | None = None  # (n,) ||w_k||_inf of the step k -> k+1 (NaN: unknown)
+    w_source: str = ""
 
 
 def _flight_names(flights: list[Path]) -> list[str]:
@@ -235,13 +248,61 @@ def _load(flights: list[Path], options: FitOptions) -> _Training:
         out[np.flatnonzero(keep)] = (z > options.outlier_z).any(axis=1)
         ex["outliers"] = int(out.sum())
         keep &= ~out
+    w_norm, w_source = _disturbance(loaded, options, dt)
     if not keep.any():
         raise InputError(
             f"all {len(keep)} samples were excluded ("
             + ", ".join(f"{k}: {v}" for k, v in ex.items() if v)
             + "); relax --skip-start / --exclude-outliers"
         )
-    return _Training(names, fi, t, x, e, keep, ex, dt)
+    return _Training(names, fi, t, x, e, keep, ex, dt, w_norm, w_source)
+
+
+def _disturbance(
+    loaded: list[Flight], options: FitOptions, dt: float
+) -> tuple[np.ndarray, str]:
+    """``||w_k||_inf`` of every sample (:mod:`qsls.pipeline.errormodel.disturbance`) and how it
+    was measured."""
+    from qsls.pipeline.core.plant import GRAVITY, quadrotor_model
+    from qsls.pipeline.errormodel.disturbance import INPUTS, RESIDUAL, flight_disturbance
+
+    if options.inputs is not None and len(options.inputs) != len(loaded):
+        raise InputError(
+            f"inputs: {len(options.inputs)} control logs for {len(loaded)} flights; give one "
+            "per flight, in the flights' order"
+        )
+    plant = quadrotor_model(dt=dt, mass=options.mass)
+    hover = np.array([0.0, 0.0, options.mass * GRAVITY])
+    out = []
+    for k, fl in enumerate(loaded):
+        df = fl.frame
+        logged = None
+        if options.inputs is not None:
+            logged = _read_inputs(Path(options.inputs[k]), int(df["stamp_ns"].iloc[0]))
+        out.append(
+            flight_disturbance(
+                df["t"].to_numpy(float), states(df), dt, plant.A, plant.B, hover, logged
+            )
+        )
+    return np.concatenate(out), INPUTS if options.inputs is not None else RESIDUAL
+
+
+U_COLS = ("u_pitch", "u_roll", "u_thrust")
+
+
+def _read_inputs(path: Path, stamp0_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, u)`` of a control log, ``t`` in seconds from the flight's first sample."""
+    if not path.is_file():
+        raise InputError(f"inputs: {path} does not exist; give the flight's control log")
+    try:
+        df = pd.read_parquet(path, columns=["stamp_ns", *U_COLS])
+    except Exception:
+        raise InputError(
+            f"inputs: {path} is not a control log (parquet with stamp_ns, "
+            f"{', '.join(U_COLS)})"
+        ) from None
+    t = (df["stamp_ns"].to_numpy(np.int64) - stamp0_ns) / 1e9
+    return t, df[list(U_COLS)].to_numpy(float)
 
 
 def _common_dt(flights: list[Flight], names: list[str]) -> float:
@@ -483,11 +544,28 @@ def fit(
         worst_pairs=_worst_pairs(tr, idx, ps),
         bootstrap=_bootstrap_summary(enorm, W, ps, options) if W is not None else None,
         flights=tr.names,
+        disturbance=_disturbance_stats(tr, idx, options.percentiles),
     )
     _write(Path(out), model, tr, idx, ps, options, flights, force)
     return FitResult(
         out=Path(out), model=model, noise_floor=model.noise_floor, n_candidates=ps.n_candidates
     )
+
+
+def _disturbance_stats(
+    tr: _Training, idx: np.ndarray, percentiles: list[float]
+) -> DisturbanceStats | None:
+    """Max and percentiles of ``||w_k||_inf`` over the kept samples' steps."""
+    if tr.w_norm is None:
+        return None
+    w = tr.w_norm[idx]
+    w = w[np.isfinite(w)]
+    if not len(w):
+        return None
+    return DisturbanceStats(
+        max=float(w.max()), percentiles=percentile_table(w, percentiles), source=tr.w_source,
+        n_steps=len(w),
+    )  # fmt: skip
 
 
 def _refuse_zero_error(e: np.ndarray, tr: _Training) -> None:
@@ -555,6 +633,7 @@ def _write(
         {"flight": [tr.names[k] for k in tr.flight_idx[idx]], "t": tr.t[idx]}
         | {c: x[:, k] for k, c in enumerate(X_COLS)}
         | {c: e[:, k] for k, c in enumerate(E_COLS)}
+        | ({"w_norm": tr.w_norm[idx]} if tr.w_norm is not None else {})
     )
     results = {
         "eps_e": model.eps_e,
@@ -563,6 +642,7 @@ def _write(
         "n_samples": len(idx),
         "n_pairs": ps.n_pairs,
         "delta": model.delta,
+        "eps_w": model.disturbance.max if model.disturbance else None,
         "dt": tr.dt,
     }
     with StageWriter(out, STAGE, options=options, inputs=flights, force=force) as w:

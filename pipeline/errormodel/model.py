@@ -63,6 +63,18 @@ class WorstPair(_Frozen):
     flight_j: str | None = None
 
 
+class DisturbanceStats(_Frozen):
+    """The realized disturbance ``||w_k||_inf`` of the training flights through the model
+    (:mod:`qsls.pipeline.errormodel.disturbance`)."""
+
+    max: float
+    percentiles: dict[str, float] = Field(default_factory=dict)
+    source: str
+    """``inputs`` (measured with the logged inputs) or ``input_free_residual`` (no inputs
+    logged: the smallest disturbance any input leaves, a lower bound on a controller's)."""
+    n_steps: int
+
+
 class ErrorModel(_Frozen):
     """Everything ``qsls fit`` learned about ``e = y - x`` on the training flights."""
 
@@ -90,6 +102,8 @@ class ErrorModel(_Frozen):
     worst_pairs: list[WorstPair] = Field(default_factory=list)
     bootstrap: dict[str, Any] | None = None
     flights: list[str] = Field(default_factory=list)
+    disturbance: DisturbanceStats | None = None
+    """``eps_w`` measured on the training flights (None: an error model from before it was)."""
 
     def resolve_s(self, name: str | float) -> float:
         """The S-slope called ``name`` (``max``, ``p95``, ``local_p99``) or a number."""
@@ -106,6 +120,20 @@ class ErrorModel(_Frozen):
                 key[6:],
             )
         return _lookup(table, key, what, name)
+
+    def resolve_eps_w(self, name: str | float) -> float:
+        """The disturbance bound called ``name`` (``max``, ``pNN``) or a number."""
+        if isinstance(name, int | float):
+            return float(name)
+        if self.disturbance is None:
+            raise InputError(
+                f"eps_w '{name}': this error model has no measured disturbance; refit it "
+                "with this qsls or give eps_w as a number"
+            )
+        key = str(name).strip()
+        if key == "max":
+            return self.disturbance.max
+        return _lookup(self.disturbance.percentiles, key, "disturbance.percentiles", name)
 
     def resolve_eps_e(self, name: str | float) -> float:
         """The error bound called ``name`` (``max``, ``p99``, ``R0``) or a number."""

@@ -45,7 +45,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.control.premise import check_unweighted
 from qsls.pipeline.core.artifacts import StageWriter, require_stage
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
@@ -58,6 +57,7 @@ from qsls.pipeline.errormodel.model import (
 from qsls.pipeline.evaluate.certified import (
     ControllerBound,
     check_model_hash,
+    check_unweighted,
     expand_controllers,
     load_bounds,
     load_controller_bound,

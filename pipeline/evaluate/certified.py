@@ -103,12 +103,40 @@ class ControllerBound:
         return self.eps_e + self.S * np.asarray(distance, dtype=float)
 
 
+def check_unweighted(em: Any, to: str = "check certified controllers") -> None:
+    """Refuse an error model fitted with a ``state_scale`` other than ones: the flight check
+    compares errors against ``eps_e + S d_k`` with unweighted ``||Phi_xy||`` (docs/guarantee.md);
+    a weighted premise is checked by synthesis, not yet on flights."""
+    if em is None or all(v == 1.0 for v in em.state_scale):
+        return
+    raise InputError(
+        f"the error model was fitted with state_scale {list(em.state_scale)}; the flight check "
+        f"reads unweighted norms, so it cannot {to} against it yet; refit with the default "
+        "state_scale (all ones) to check flights"
+    )
+
+
+def check_premise_form(folder: Path, cert: Any) -> None:
+    """Refuse a certificate whose premise the flight check does not read yet: position-only,
+    a dense/sparse split (beta) or error weights (docs/guarantee.md, Flight checks)."""
+    p = cert.premise
+    if p is None:
+        return
+    if p.measure != "full" or p.beta is not None or any(w != 1.0 for w in p.error_scale):
+        raise InputError(
+            f"{folder}: its premise (measure {p.measure}, beta {p.beta}, error_scale "
+            f"{p.error_scale}) is a generalized one, which qsls evaluate does not check on "
+            "flights yet; evaluate a full-state certificate with unweighted errors"
+        )
+
+
 def load_controller_bound(folder: Path) -> ControllerBound:
     """The bound's numbers from a verified controller folder (:func:`load_controller_dir`):
     the setting from its certificate, the norms ``||Phi_xy||`` and ``||Phi_xx H||`` recomputed
     from its responses."""
     d = load_controller_dir(folder)
     c, taps = d.certificate, d.controller.taps
+    check_premise_form(d.folder, c)
     ctrl = d.controller
     # a reference controller is a closed loop, not a FIR: its true norms (long horizon plus a
     # geometric tail bound), never the truncated taps' (DESIGN.md, Robust synthesis)

@@ -472,9 +472,9 @@ def fly_evaluate(
     """Fly, ingest, bound-check and compare (module docstring); writes the stage ``out``."""
     import time
 
-    from qsls.pipeline.control.premise import check_unweighted
     from qsls.pipeline.core.artifacts import StageWriter, check_output
     from qsls.pipeline.errormodel.model import load_error_model
+    from qsls.pipeline.evaluate.certified import check_unweighted
 
     t0 = time.perf_counter()
     check_output(Path(out), force)

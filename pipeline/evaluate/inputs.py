@@ -39,7 +39,7 @@ def pd_on_same_estimate(
 def command_offset(opts: SimOptions, mass: float, t: np.ndarray) -> np.ndarray:
     """``hover + u_ff`` (k, 3): the part of PD's and the synthesized controllers' command
     that does not depend on the estimate (the reference's feedforward)."""
-    from qsls.pipeline.control.plant import GRAVITY
+    from qsls.pipeline.core.plant import GRAVITY
     from qsls.pipeline.sim.references import Reference
 
     if len(t) == 0:

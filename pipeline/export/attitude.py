@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qsls.pipeline.control.plant import GRAVITY
+from qsls.pipeline.core.plant import GRAVITY
 
 
 def absolute_input(u: np.ndarray, acc: np.ndarray, mass: float, g: float = GRAVITY) -> np.ndarray:

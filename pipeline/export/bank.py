@@ -145,14 +145,14 @@ class Facts:
 def guarantee_line(cert: Certificate) -> str:
     """The guarantee in one line, with its premise (or why there is none); a relaxed
     premise says so, with the shares of the training data that violate it."""
-    if cert.status not in ("certified", "certified_relaxed"):
+    if cert.status not in ("certified", "relaxed"):
         return f"none: status {cert.status} ({status_reason(cert)})"
     line = (
         f"||e||_inf <= gamma = {cert.gamma:.6g} while ||e_k|| <= eps_e + S d(x_k) holds within "
         f"r of the training states (eps_e = {cert.eps_e:.6g}, S = {cert.S:.6g}, "
         f"r = {cert.radius:.6g}, Delta = {cert.delta:.6g}, ||w|| <= eps_w = {cert.eps_w:.6g})"
     )
-    if cert.status == "certified_relaxed":
+    if cert.status == "relaxed":
         line += f"; RELAXED premise: {_shares(cert)}"
     return line
 
@@ -184,7 +184,7 @@ def status_reason(cert: Certificate) -> str:
     s = cert.status
     if s == "certified":
         return f"robustness_lhs = {cert.robustness_lhs:.6g} < 1, all checks passed"
-    if s == "certified_relaxed":
+    if s == "relaxed":
         return (
             "the premise is relaxed (eps_e or S set below the training data's maximum, so "
             f"part of the training data lies outside it); this is not plainly certified: {_shares(cert)}"

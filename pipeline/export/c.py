@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qsls.pipeline.control.plant import GRAVITY
+from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.export.attitude import c_function
 from qsls.pipeline.export.bank import ExportBank, Facts, Precision
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from qsls.pipeline.control.plant import GRAVITY
 from qsls.pipeline.control.sls import side_by_side
+from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.export.attitude import PY_FUNCTION
 from qsls.pipeline.export.bank import ExportBank, Facts
 

@@ -230,7 +230,7 @@ def command_ticks(
     hover_thrust: float,
 ) -> Ticks:
     """Run the controller over each segment (reset at its start) and convert to commands."""
-    from qsls.pipeline.control.plant import GRAVITY
+    from qsls.pipeline.core.plant import GRAVITY
     from qsls.pipeline.export.attitude import absolute_input
 
     n = len(stamps)
@@ -248,7 +248,7 @@ def command_ticks(
 
 def limits(ticks: Ticks, mass: float, o: ReplayOptions) -> dict[str, Any]:
     """Largest tilt, thrust range against hover, and the shares beyond the limits."""
-    from qsls.pipeline.control.plant import GRAVITY
+    from qsls.pipeline.core.plant import GRAVITY
     from qsls.pipeline.export.attitude import tilt_rad
 
     tilt = np.degrees(tilt_rad(ticks.u_abs))

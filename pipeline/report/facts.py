@@ -82,8 +82,7 @@ def _parquet(path: Path) -> Any:
 # --------------------------------------------------------------------------- status words
 STATUS_WORDS = {
     "certified": ("certified", "ok"),
-    "certified_relaxed": ("certified, relaxed premise", "warn"),
-    "relaxed": ("certified, relaxed premise", "warn"),
+    "relaxed": ("relaxed premise, not certified", "warn"),
     "uncertified": ("no guarantee", "muted"),
     "reference": ("reference, no guarantee", "muted"),
     "infeasible": ("infeasible", "bad"),

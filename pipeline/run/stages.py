@@ -40,8 +40,11 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
     if not cfg.flights:
         raise ConfigError(f"{src('flights')}: a run needs at least one flight")
     ingest_ids: dict[str, list[str]] = {"train": [], "heldout": []}
+    sim_ids: dict[str, list[str | None]] = {"train": [], "heldout": []}
     for i, fl in enumerate(cfg.flights):
-        ingest_ids[fl.role].append(_flight_stages(graph, cfg, fl, i, base, wanted, src, progress))
+        ingest_id, sim_id = _flight_stages(graph, cfg, fl, i, base, wanted, src, progress)
+        ingest_ids[fl.role].append(ingest_id)
+        sim_ids[fl.role].append(sim_id)
     if "fit" not in wanted:
         return graph
     if not ingest_ids["train"]:
@@ -50,7 +53,11 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
 
     fit_opts = validate(FitOptions, cfg.fit, src("fit"))
     train = tuple(ingest_ids["train"])
-    graph.add(Stage("fit", "fit", fit_opts, _fit_exec(fit_opts, list(train), progress), train))
+    # simulated training flights logged their inputs: the disturbance is measured with them
+    sims = [s for s in sim_ids["train"] if s is not None]
+    logged = sims if len(sims) == len(train) and fit_opts.inputs is None else []
+    execute = _fit_exec(fit_opts, list(train), logged, progress)
+    graph.add(Stage("fit", "fit", fit_opts, execute, (*train, *logged)))
     if cfg.sweep is not None and "sweep" in wanted:
         _sweep_stage(graph, cfg.sweep, src, progress)
     if cfg.synth is None or "synth" not in wanted:
@@ -73,8 +80,8 @@ def _flight_stages(
     wanted: set[str],
     src: Src,
     progress: Progress,
-) -> str:
-    """The flight's simulate stage (simulated flights) and its ingest stage; the ingest id."""
+) -> tuple[str, str | None]:
+    """The flight's simulate stage (simulated flights) and its ingest stage: their ids."""
     from qsls.pipeline.ingest.stage import IngestOptions
 
     sources: list[Path] = []
@@ -113,7 +120,7 @@ def _flight_stages(
             external=external,
         )
     )
-    return stage_id
+    return stage_id, deps[0] if deps else None
 
 
 def _sweep_stage(graph: StageGraph, section: dict[str, Any], src: Src, progress: Progress) -> None:
@@ -190,11 +197,16 @@ def _ingest_exec(
     return execute
 
 
-def _fit_exec(opts: Any, train: list[str], progress: Progress) -> Any:
+def _fit_exec(opts: Any, train: list[str], logged: list[str], progress: Progress) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         from qsls.pipeline.errormodel.fit import fit
+        from qsls.pipeline.sim.simulate import CONTROL_FILE
 
-        return fit([deps[d] for d in train], opts, out, force=True, progress=progress)
+        if logged:
+            opts_ = opts.model_copy(update={"inputs": [str(deps[s] / CONTROL_FILE) for s in logged]})
+        else:
+            opts_ = opts
+        return fit([deps[d] for d in train], opts_, out, force=True, progress=progress)
 
     return execute
 

@@ -30,9 +30,9 @@ import numpy as np
 from pydantic import Field
 
 from qsls.pipeline.control.pdgain import PDGains, pd_gain
-from qsls.pipeline.control.plant import GRAVITY, PAPER_DT_S
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import GRAVITY, PAPER_DT_S
 from qsls.pipeline.sim.references import RefSample
 from qsls.pipeline.sim.vehicle import ctatt_to_paper, quad_params
 

@@ -47,6 +47,10 @@ STATE = ("px", "py", "pz", "vx", "vy", "vz")
 _LOG_STREAM = 1000
 
 
+
+CONTROL_FILE = "control.parquet"
+"""What the controller saw and commanded at each tick (``stamp_ns``, ``y_*``, ``r_*``, ``u_*``)."""
+
 class LogOptions(Options):
     """How the flight is recorded: format, topics, clocks, frames, transport delays."""
 
@@ -243,7 +247,7 @@ def _frames(flight: FlightLog, start_ns: int) -> dict[str, Any]:
             "u_thrust": flight.ctrl_u[:, 2],
         }
     )
-    return {"errors.parquet": errors, "trajectory.parquet": traj, "control.parquet": control}
+    return {"errors.parquet": errors, "trajectory.parquet": traj, CONTROL_FILE: control}
 
 
 def simulate(

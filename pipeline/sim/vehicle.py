@@ -43,8 +43,8 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field
 
-from qsls.pipeline.control.plant import GRAVITY
 from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.core.rotations import quat_to_matrix
 
 _D = 0.08  # arm length (m)

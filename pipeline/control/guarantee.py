@@ -1,0 +1,170 @@
+"""The guarantee's arithmetic, in one place (docs/guarantee.md).
+
+Norms are weighted: ``|z|_x = ||W_x z||_inf`` on states, ``|e|_e = ||W_e e||_inf`` on errors;
+``dist(x) = min_d |x - x_d|_x`` to the training states. The premise (dense plus sparse errors,
+:mod:`qsls.pipeline.errormodel.honest`) is ``|d_k|_e <= eps + S dist(x_k)`` within ``r``, at most
+``m`` outliers ``||o_k||_inf <= eps_o`` in any ``T`` consecutive steps, ``||w_k||_inf <= eps_w``
+and ``dist(x_ref,k) <= Delta``. The system quantities of responses ``Phi``::
+
+    N   = ||W_x Phi_xy W_e^-1||                     (measured error channels only)
+    N_w = ||W_x Phi_xx H||
+    G_m = max_i w_x,i * (sum of the m largest over taps t of sum_{j outlier} |Phi_xy(t)_ij|)
+    a   = eps_w N_w + Delta
+
+Robustness condition and conclusion::
+
+    lhs  = (S + eps/r) N + (a + eps_o G_m) / r <= 1 - margin
+    rho* = (a + N eps + eps_o G_m) / (1 - S N) <= r        (dist(x_k) <= rho* for all k)
+    |d_k|_e <= eps + S rho*                                  (the dense error stays bounded)
+
+With ``W_x = W_e = I`` and no outliers (``m = 0``) this is Dean et al.'s theorem:
+``eps + S rho* = (eps + S a) / (1 - S N) = gamma``. The paper's stricter comparison
+``gamma_strict = R0 / (1 - S N)`` drops ``a``. The condition ``S + eps/r < 1`` is necessary
+because ``||Phi_xy|| >= 1`` on this plant (``N >= min_i w_x,i / max_j w_e,j`` for positions).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from qsls.pipeline.control.sls import l1_norm
+
+ONES = (1.0,) * 6
+VELOCITY = (3, 4, 5)
+
+
+def measured_channels(measure: str) -> tuple[int, ...]:
+    """Error channels the controller reads: all six (``full``) or the positions (``position``)."""
+    return (0, 1, 2, 3, 4, 5) if measure == "full" else (0, 1, 2)
+
+
+def outlier_channels(measure: str, m: int) -> tuple[int, ...]:
+    """Channels whose errors may hold outliers: the measured velocities when ``m > 0``."""
+    return VELOCITY if measure == "full" and m > 0 else ()
+
+
+def error_weights(error_scale: Sequence[float], measured: Sequence[int]) -> np.ndarray:
+    """``W_e^-1`` on the measured channels, 0 on the others (their columns of ``Phi_xy`` vanish)."""
+    inv = np.zeros(len(error_scale))
+    for j in measured:
+        inv[j] = 1.0 / float(error_scale[j])
+    return inv
+
+
+def sparse_gain(phi_xy: np.ndarray, state_scale: Sequence[float], channels: Sequence[int], m: int) -> float:
+    """``G_m``: the peak gain of ``Phi_xy`` for inputs with at most ``m`` nonzero taps, each of
+    infinity norm at most 1, on ``channels``."""
+    if m <= 0 or not len(channels):
+        return 0.0
+    per_tap = np.abs(phi_xy[:, :, list(channels)]).sum(axis=2)  # (taps, nx)
+    top = -np.sort(-per_tap, axis=0)[:m]  # the m largest taps of every row
+    return float((np.asarray(state_scale, float) * top.sum(axis=0)).max())
+
+
+@dataclass(frozen=True)
+class Norms:
+    """The system quantities of one controller's responses."""
+
+    N: float
+    N_w: float
+    G_m: float
+
+
+def system_norms(
+    phi_xy: np.ndarray,
+    phi_xx_h: np.ndarray,
+    *,
+    state_scale: Sequence[float] = ONES,
+    error_scale: Sequence[float] = ONES,
+    measured: Sequence[int] = tuple(range(6)),
+    outlier_channels: Sequence[int] = (),
+    m: int = 0,
+) -> Norms:
+    """``N``, ``N_w`` and ``G_m`` (module docstring) from the taps ``Phi_xy`` and ``Phi_xx H``."""
+    wx = np.asarray(state_scale, float)[None, :, None]
+    inv_e = error_weights(error_scale, measured)[None, None, :]
+    return Norms(
+        N=l1_norm(wx * phi_xy * inv_e),
+        N_w=l1_norm(wx * phi_xx_h),
+        G_m=sparse_gain(phi_xy, state_scale, outlier_channels, m),
+    )
+
+
+@dataclass(frozen=True)
+class PremiseNumbers:
+    """The numbers of the premise (docs/guarantee.md)."""
+
+    eps: float
+    S: float
+    radius: float
+    eps_w: float
+    delta: float
+    eps_o: float = 0.0
+    m: int = 0
+    R0: float | None = None
+    """The paper's error bound for ``gamma_strict`` (``eps`` when unset)."""
+
+
+def a_prior(p: PremiseNumbers, n: Norms) -> float:
+    """``a = eps_w N_w + Delta``: the a-priori bound on ``dist(x_hat_k)``."""
+    return p.eps_w * n.N_w + p.delta
+
+
+def robustness_lhs(p: PremiseNumbers, n: Norms) -> float:
+    """``(S + eps/r) N + (a + eps_o G_m) / r``."""
+    return (p.S + p.eps / p.radius) * n.N + (a_prior(p, n) + p.eps_o * n.G_m) / p.radius
+
+
+def necessary_condition(p: PremiseNumbers) -> float:
+    """``S + eps/r``: below 1 is necessary for feasibility (``N >= 1`` on this plant, unit weights)."""
+    return p.S + p.eps / p.radius
+
+
+def rho_star(p: PremiseNumbers, n: Norms, a: float | None = None) -> float:
+    """``(a + N eps + eps_o G_m) / (1 - S N)`` (inf when ``S N >= 1``); ``a`` defaults to the
+    a-priori :func:`a_prior` (on a flight, the measured ``max dist(x_hat)``)."""
+    den = 1.0 - p.S * n.N
+    if den <= 0:
+        return math.inf
+    a = a_prior(p, n) if a is None else a
+    return (a + n.N * p.eps + p.eps_o * n.G_m) / den
+
+
+def dense_bound(p: PremiseNumbers, rho: float) -> float:
+    """``eps + S rho``: the bound on ``|d_k|_e`` while ``dist(x_k) <= rho``."""
+    return p.eps + p.S * rho if math.isfinite(rho) else math.inf
+
+
+@dataclass(frozen=True)
+class Guarantee:
+    """What a controller's certificate promises, with the numbers it follows from."""
+
+    robustness_lhs: float
+    margin: float
+    a: float
+    rho_star: float
+    dense_bound: float
+    """``eps + S rho*`` (Dean et al.'s gamma in the special case)."""
+    gamma_strict: float
+    s_times_n: float
+
+
+def guarantee(p: PremiseNumbers, n: Norms) -> Guarantee:
+    """Every number of the guarantee for premise ``p`` and system quantities ``n``."""
+    lhs = robustness_lhs(p, n)
+    rho = rho_star(p, n)
+    den = 1.0 - p.S * n.N
+    r0 = p.eps if p.R0 is None else p.R0
+    return Guarantee(
+        robustness_lhs=float(lhs),
+        margin=float(1.0 - lhs),
+        a=float(a_prior(p, n)),
+        rho_star=float(rho),
+        dense_bound=float(dense_bound(p, rho)),
+        gamma_strict=float(r0 / den) if den > 0 else math.inf,
+        s_times_n=float(p.S * n.N),
+    )

@@ -1,0 +1,89 @@
+"""The realized disturbance ``w`` of a flight through the model (docs/guarantee.md, Premise).
+
+With the linear model ``x_{k+1} = A x_k + B u_k + w_k`` (``H = I``), whatever the model does not
+explain, mismatch included, is disturbance::
+
+    w_k = x_{k+1} - A x_k - B (u_k - u_hover)
+
+When the flight logged its inputs, this is measured directly. When it did not (a recorded
+log of another vehicle, EuRoC), the input is unknown and only the part of ``w`` that *no*
+input explains can be measured: per axis, with ``r1 = p_{k+1} - p_k - dt v_k``,
+``r2 = v_{k+1} - v_k`` and the input entering as an acceleration ``a`` through
+``(dt^2/2, dt)``, ``min_a max(|r1 - dt^2/2 a|, |r2 - dt a|) = |r1 dt - r2 dt^2/2| / (dt + dt^2/2)``.
+That input-free residual is a lower bound on the realized ``w`` of any controller, and a
+certificate built on it says so.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+Source = str
+INPUTS = "inputs"
+"""``w`` measured with the flight's logged inputs."""
+RESIDUAL = "input_free_residual"
+"""``w`` as the smallest disturbance that explains the motion under any input (a lower bound)."""
+
+
+def realized_disturbance(
+    x: np.ndarray, u: np.ndarray, A: np.ndarray, B: np.ndarray, u_hover: np.ndarray
+) -> np.ndarray:
+    """``w_k = x_{k+1} - A x_k - B (u_k - u_hover)``, ``(n - 1, nx)`` for ``n`` samples."""
+    x = np.asarray(x, float)
+    du = np.asarray(u, float) - np.asarray(u_hover, float)
+    return x[1:] - x[:-1] @ A.T - du[:-1] @ B.T
+
+
+def input_free_residual(x: np.ndarray, dt: float) -> np.ndarray:
+    """The smallest ``w_k`` (per axis, infinity norm) that explains ``x_{k+1}`` from ``x_k``
+    under any acceleration held over the step (module docstring); ``(n - 1, 6)``."""
+    x = np.asarray(x, float)
+    c1, c2 = 0.5 * dt * dt, dt
+    r1 = x[1:, :3] - x[:-1, :3] - dt * x[:-1, 3:]
+    r2 = x[1:, 3:] - x[:-1, 3:]
+    a = (r1 + r2) / (c1 + c2)
+    return np.hstack([r1 - c1 * a, r2 - c2 * a])
+
+
+def step_inputs(t: np.ndarray, t_log: np.ndarray, u_log: np.ndarray, dt: float) -> np.ndarray:
+    """The input held over each step ``[t_k, t_k + dt)``: the mean of the logged inputs in it
+    (a controller faster than ``dt`` changes its command within the step); NaN where none."""
+    t = np.asarray(t, float)
+    t_log = np.asarray(t_log, float)
+    u_log = np.asarray(u_log, float)
+    order = np.argsort(t_log, kind="stable")
+    t_log, u_log = t_log[order], u_log[order]
+    tol = 1e-6 * dt
+    lo = np.searchsorted(t_log, t - tol, side="left")
+    hi = np.searchsorted(t_log, t + dt - tol, side="left")
+    c = np.vstack([np.zeros((1, u_log.shape[1])), np.cumsum(u_log, axis=0)])
+    n = (hi - lo)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, (c[hi] - c[lo]) / np.maximum(n, 1), np.nan)
+
+
+def flight_disturbance(
+    t: np.ndarray,
+    x: np.ndarray,
+    dt: float,
+    A: np.ndarray,
+    B: np.ndarray,
+    u_hover: np.ndarray,
+    inputs: tuple[np.ndarray, np.ndarray] | None,
+) -> np.ndarray:
+    """``||w_k||_inf`` per sample of one flight (NaN at its last sample, across a gap and where
+    the inputs do not cover the step): realized with ``inputs = (t_log, u_log)``, else the
+    input-free residual."""
+    t = np.asarray(t, float)
+    out = np.full(len(t), np.nan)
+    if len(t) < 2:
+        return out
+    if inputs is not None:
+        u = step_inputs(t, inputs[0], inputs[1], dt)
+        w = realized_disturbance(x, u, A, B, u_hover)
+    else:
+        w = input_free_residual(x, dt)
+    norm = np.abs(w).max(axis=1)
+    regular = np.abs(np.diff(t) - dt) <= 1e-6 * dt
+    out[:-1] = np.where(regular, norm, np.nan)
+    return out
