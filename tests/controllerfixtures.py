@@ -1,0 +1,71 @@
+"""Controllers built in memory for the direct export tests: a real SLS solve (Clarabel), the
+certificate from ``certify()``, and a :class:`ControllerDir` that no file backs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from qsls.pipeline.control import sls
+from qsls.pipeline.control.artifacts import Certificate, Controller, ControllerDir
+from qsls.pipeline.control.certify import Setting, certify
+from qsls.pipeline.control.plant import quadrotor_model
+
+SETTING = Setting(S=0.05, eps_e=0.05, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
+
+
+def independent_bank(taps: sls.Taps, ys: np.ndarray) -> np.ndarray:
+    """The filter bank written from DESIGN.md's export equations with explicit tap loops::
+
+    u[k]      = sum_{t>=1} Phi_ux(t) beta[k+1-t] + sum_{t>=0} Phi_uy(t) y[k-t]
+    beta[k+1] = -sum_{t>=2} Phi_xx(t) beta[k+2-t] - sum_{t>=1} Phi_xy(t) y[k+1-t]
+
+    (zero history before k = 0); ``u`` for every ``y`` in ``ys``."""
+    T = taps.T
+    n = len(ys)
+    beta = np.zeros((n + 1, taps.Phi_xx.shape[1]))
+    us = np.zeros((n, taps.Phi_ux.shape[1]))
+    for k in range(n):
+        u = sum(taps.Phi_uy[t] @ ys[k - t] for t in range(0, T + 1) if k - t >= 0)
+        u = u + sum(taps.Phi_ux[t] @ beta[k + 1 - t] for t in range(1, T + 1) if k + 1 - t >= 0)
+        us[k] = u
+        nb = -sum(taps.Phi_xy[t] @ ys[k + 1 - t] for t in range(1, T + 1) if k + 1 - t >= 0)
+        nb = nb - sum(
+            (taps.Phi_xx[t] @ beta[k + 2 - t] for t in range(2, T + 1) if k + 2 - t >= 0),
+            np.zeros_like(nb),
+        )
+        beta[k + 1] = nb
+    return us
+
+
+def synthesized(
+    T: int = 8, *, strictly_proper: bool = False, name: str = "l1_robust"
+) -> ControllerDir:
+    """A robust L1 controller at horizon ``T`` with its certificate, as objects."""
+    model = quadrotor_model()
+    values = sls.Values(
+        eps_w=SETTING.eps_w,
+        eps_e=SETTING.eps_e,
+        S=SETTING.S,
+        radius=SETTING.radius,
+        delta=SETTING.delta,
+    )
+    sol = sls.solve(model, sls.Structure(T, "l1", "qr", True, strictly_proper), values)
+    assert sol.status == "optimal" and sol.taps is not None, sol.solver_status
+    status, fields = certify(sol.taps, model, SETTING)
+    cert = Certificate(
+        controller=name,
+        status=status,
+        robust=True,
+        norm="l1",
+        cost="qr",
+        strictly_proper=strictly_proper,
+        T=T,
+        dt=model.dt,
+        mass=model.mass,
+        controller_sha256=Controller(sol.taps, model).sha256(),
+        **SETTING.__dict__,
+        **fields,
+    )
+    return ControllerDir(Path("/nowhere") / name, Controller(sol.taps, model), cert)
