@@ -211,3 +211,27 @@ def test_bad_input(tmp_path, controllers, flown):  # noqa: F811
     res = invoke("replay", good, tmp_path / "none.bag", *args, "--out", tmp_path / "x.mcap")
     _one_line_error(res, "none.bag")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.mcap"]  # nothing half-written
+
+
+def test_an_output_overlapping_an_input_is_refused_even_with_force(tmp_path, controllers, flown):  # noqa: F811
+    """Issue 26, item 1: ``--out flight.mcap --force`` on the recorded flight itself used to
+    replace it with the replay."""
+    import hashlib
+    import shutil
+
+    _, bag, _ = flown
+    (inner,) = sorted(bag.glob("*.mcap"))
+    flight = tmp_path / "flight.mcap"
+    shutil.copyfile(inner, flight)
+    before = hashlib.sha256(flight.read_bytes()).hexdigest()
+    good, args = controllers["proper"], ["--vio-topic", "/vio/odometry", "--reference", "circle"]
+    res = invoke("replay", good, flight, *args, "--out", flight, "--force")
+    msg = _one_line_error(res, "is the input", "even with --force")
+    assert hashlib.sha256(flight.read_bytes()).hexdigest() == before
+    # inside the rosbag2 folder that is the input, and inside the controller folder
+    res = invoke("replay", good, bag, *args, "--out", bag / "replay.mcap", "--force")
+    _one_line_error(res, "lies inside the input")
+    res = invoke("replay", good, flight, *args, "--out", good / "replay.mcap", "--force")
+    _one_line_error(res, "lies inside the input")
+    assert not (bag / "replay.mcap").exists() and not (good / "replay.mcap").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.mcap"], msg

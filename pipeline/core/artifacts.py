@@ -392,11 +392,14 @@ def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
 
 
-def refuse_overlap(out: Path, inputs: Iterable[Path]) -> None:
-    """An output folder that is, contains or lies inside an input would destroy it on
-    publish: refused with one line, whatever ``--force`` says (resolved, symlinks followed)."""
+def refuse_overlap(out: Path, inputs: Iterable[Path], what: str = "output folder") -> None:
+    """An output (``what``: folder or file) that is, contains or lies inside an input would
+    destroy it on publish: refused with one line, whatever ``--force`` says (resolved,
+    symlinks followed). The ``--config`` files the command read are inputs too."""
+    from qsls.pipeline.core.config import config_files
+
     o = Path(out).resolve()
-    for given in inputs:
+    for given in [*inputs, *config_files()]:
         i = Path(given).resolve()
         if o == i:
             how = "is"
@@ -407,8 +410,8 @@ def refuse_overlap(out: Path, inputs: Iterable[Path]) -> None:
         else:
             continue
         raise InputError(
-            f"output folder {out} {how} the input {given}; writing it would destroy the input "
-            "(even with --force): choose an output folder apart from the inputs"
+            f"{what} {out} {how} the input {given}; writing it would destroy the input "
+            f"(even with --force): choose an {what} apart from the inputs"
         )
 
 

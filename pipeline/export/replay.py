@@ -277,6 +277,7 @@ def replay(
 ) -> ReplayResult:
     """The dry run (module docstring); writes ``out`` (an ``.mcap`` file) atomically."""
     from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.core.artifacts import refuse_overlap
     from qsls.pipeline.core.errors import OutputExistsError
     from qsls.pipeline.export.bank import check_exportable
     from qsls.pipeline.export.rosout import write_mcap
@@ -285,6 +286,7 @@ def replay(
     out = Path(out)
     if out.suffix != ".mcap":
         raise ConfigError(f"--out {out}: the replay is written as an MCAP file; name it *.mcap")
+    refuse_overlap(out, [folder, source], "output file")
     if out.exists() and not force:
         raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
     if out.is_dir():
