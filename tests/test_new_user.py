@@ -3,12 +3,15 @@ other inputs answered with one line and nothing left behind, through the public 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
 
 RUN = CliRunner()
+REPO = Path(__file__).resolve().parents[1]
 
 
 def invoke(*args):
@@ -75,3 +78,64 @@ def test_an_output_containing_the_config_file_is_refused_even_with_force(tmp_pat
     assert cfg.read_bytes() == before and sorted(p.name for p in folder.iterdir()) == ["fit.yaml"]
     # the same file, kept apart from the output, is read as usual
     assert invoke("fit", *flights, "--config", cfg, "--out", tmp_path / "fit").exit_code == 0
+
+
+# --------------------------------------------------------------------------- item 5
+def _unwritable(tmp_path):
+    """(output, the folder the message names, why): a file used as a folder, and /proc."""
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    places = [(blocker / "out", blocker, "not a folder")]
+    if Path("/proc/self").is_dir():
+        places.append((Path("/proc/qsls-no/out"), Path("/proc"), "No such file or directory"))
+    return places
+
+
+def _refused_unwritable(res, out, folder, why, what="output folder"):
+    line = one_line(res)
+    assert line.startswith(f"error: cannot write the {what} {out.absolute()}: "), line
+    assert f"folder {folder} is not writable ({why})" in line, line
+
+
+def test_an_unwritable_output_is_one_line_for_fit_ingest_and_run(tmp_path):
+    from tests.bagfixtures import write_flight as write_bag
+    from tests.test_fit import vio_flights
+
+    flights, _ = vio_flights(tmp_path / "flights", n=1)
+    bag = write_bag(tmp_path / "f.bag", "ros1", duration=15.0)
+    for out, folder, why in _unwritable(tmp_path):
+        _refused_unwritable(invoke("fit", *flights, "--out", out), out, folder, why)
+        _refused_unwritable(invoke("ingest", bag, "--out", out), out, folder, why)
+        res = invoke("run", REPO / "configs" / "quickstart.yaml", "--out", out)
+        _refused_unwritable(res, out, folder, why, "run folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "f.bag", "flights"]
+
+
+def test_a_read_only_mount_is_one_line(tmp_path):
+    """A read-only file system, mounted in a user namespace of its own (skipped where the
+    kernel does not allow one)."""
+    import shutil
+    import subprocess
+    import sys
+
+    from tests.test_fit import vio_flights
+
+    flights, _ = vio_flights(tmp_path / "flights", n=1)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare")
+    probe = subprocess.run(["unshare", "-rm", "mount", "-t", "tmpfs", "-o", "ro", "none", ro],
+                           capture_output=True)  # fmt: skip
+    if probe.returncode != 0:
+        pytest.skip("no user namespaces with mounts here")
+    script = (
+        f"mount -t tmpfs -o ro none {ro} && "
+        f"{sys.executable} -m qsls.cli.main fit {flights[0]} --out {ro}/fit --radius 1"
+    )
+    proc = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip() == (
+        f"error: cannot write the output folder {ro}/fit: folder {ro} is not writable "
+        "(Read-only file system); choose another --out"
+    )

@@ -235,3 +235,19 @@ def test_an_output_overlapping_an_input_is_refused_even_with_force(tmp_path, con
     _one_line_error(res, "lies inside the input")
     assert not (bag / "replay.mcap").exists() and not (good / "replay.mcap").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.mcap"], msg
+
+
+def test_an_unwritable_output_is_one_line_for_export_and_replay(tmp_path, controllers, flown):  # noqa: F811
+    """Issue 26, item 5: a read-only or impossible output location was a 40-line OSError."""
+    from tests.test_new_user import _unwritable
+
+    _, bag, _ = flown
+    good = controllers["proper"]
+    for out, folder, why in _unwritable(tmp_path):
+        res = invoke("export", good, "--target", "python", "--out", out)
+        _one_line_error(res, f"cannot write the output folder {out.absolute()}: ",
+                        f"folder {folder} is not writable ({why})")  # fmt: skip
+        res = invoke("replay", good, bag, "--reference", "circle", "--out", out / "r.mcap")
+        _one_line_error(res, f"cannot write the output file {(out / 'r.mcap').absolute()}: ",
+                        f"folder {folder} is not writable ({why})")  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]

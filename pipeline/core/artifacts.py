@@ -37,8 +37,10 @@ from qsls.pipeline.core.locks import (  # clean_stale: re-exported for the repor
     OLD_MARK,
     TMP_MARK,
     check_unlocked,
+    check_writable,
     clean_stale,
     hold_output,
+    make_parent,
     release_output,
 )
 
@@ -303,7 +305,7 @@ class StageWriter:
     def __enter__(self) -> StageWriter:
         check_output(self.out, self.force, self.inputs)
         self._t0 = time.perf_counter()
-        self.out.parent.mkdir(parents=True, exist_ok=True)
+        make_parent(self.out, "output folder")
         hold_output(self.out)
         clean_stale(self.out)
         self.tmp = self.out.with_name(f".{self.out.name}{_TMP_MARK}{os.getpid()}")
@@ -380,11 +382,13 @@ class StageWriter:
 
 
 def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
-    """Refuse an output folder that overlaps an input, is being written by another process
-    (its lock, :func:`check_unlocked`; :class:`StageWriter` holds it while it writes), or
-    exists (unless ``force``)."""
+    """Refuse an output folder that overlaps an input, cannot be written (a read-only or
+    missing location, :func:`check_writable`), is being written by another process (its
+    lock, :func:`check_unlocked`; :class:`StageWriter` holds it while it writes), or exists
+    (unless ``force``)."""
     out = Path(out)
     refuse_overlap(out, inputs)
+    check_writable(out, "output folder")
     check_unlocked(out)
     if out.exists() and not force:
         raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")

@@ -279,6 +279,7 @@ def replay(
     from qsls.pipeline.control.artifacts import load_controller_dir
     from qsls.pipeline.core.artifacts import refuse_overlap
     from qsls.pipeline.core.errors import OutputExistsError
+    from qsls.pipeline.core.locks import check_writable, make_parent, unwritable
     from qsls.pipeline.export.bank import check_exportable
     from qsls.pipeline.export.rosout import write_mcap
     from qsls.pipeline.sim.references import Reference
@@ -287,6 +288,7 @@ def replay(
     if out.suffix != ".mcap":
         raise ConfigError(f"--out {out}: the replay is written as an MCAP file; name it *.mcap")
     refuse_overlap(out, [folder, source], "output file")
+    check_writable(out, "output file")
     if out.exists() and not force:
         raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
     if out.is_dir():
@@ -323,5 +325,9 @@ def replay(
         "topics": {"command": options.command_topic, "deviation": Topics.deviation},
     }
     topics = Topics(command=options.command_topic, frame_id=options.frame_id)
-    write_mcap(out, ticks, topics, json.dumps(report, sort_keys=True))
+    make_parent(out, "output file")
+    try:
+        write_mcap(out, ticks, topics, json.dumps(report, sort_keys=True))
+    except PermissionError as exc:
+        raise unwritable(out, exc, "output file") from None
     return ReplayResult(out, report)

@@ -25,7 +25,12 @@ from qsls.pipeline import __version__
 from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_json, sha256_file, to_plain
 from qsls.pipeline.core.config import Options, read_yaml, validate
 from qsls.pipeline.core.errors import ConfigError
-from qsls.pipeline.core.locks import FolderLock, clean_dead_temporaries
+from qsls.pipeline.core.locks import (
+    FolderLock,
+    check_writable,
+    clean_dead_temporaries,
+    unwritable,
+)
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.report.stage import RUN_FILE
 from qsls.pipeline.run.graph import Stage, StageGraph, StageOutcome
@@ -134,8 +139,12 @@ def run(
         raise ConfigError(
             f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)})"
         )
+    check_writable(root, "run folder")
     graph = plan(cfg, config_path, root, progress)  # options checked before anything is written
-    root.mkdir(parents=True, exist_ok=True)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise unwritable(root, exc, "run folder") from None
     with FolderLock(root, "run folder"):
         clean_dead_temporaries(root)
         return _run_locked(cfg, config_path, root, graph, force, from_stage, on_stage)
