@@ -139,3 +139,19 @@ def test_a_read_only_mount_is_one_line(tmp_path):
         f"error: cannot write the output folder {ro}/fit: folder {ro} is not writable "
         "(Read-only file system); choose another --out"
     )
+
+
+# --------------------------------------------------------------------------- item 8
+@pytest.mark.parametrize(
+    "prefix, why",
+    [
+        ("int", "'int' is a C keyword; choose another name, e.g. 'int_ctrl'"),
+        ("restrict", "'restrict' is a C keyword; choose another name, e.g. 'restrict_ctrl'"),
+        ("class", "'class' is a Python keyword; choose another name, e.g. 'class_ctrl'"),
+        ("__x", "'__x' is reserved in C (a leading '__' or '_' and a capital)"),
+    ],
+)
+def test_export_prefix_must_be_a_usable_identifier(tmp_path, prefix, why):
+    res = invoke("export", tmp_path / "ctrl", "-t", "c", "--prefix", prefix, "--out", tmp_path / "x")
+    assert one_line(res).startswith(f"error: options: 'prefix': {why}")
+    assert list(tmp_path.iterdir()) == []

@@ -19,6 +19,7 @@ these checks; the files themselves are byte-identical for the same controller an
 
 from __future__ import annotations
 
+import keyword
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +39,14 @@ from qsls.pipeline.export.bank import (
 )
 
 STAGE = "export"
+C_KEYWORDS = frozenset(
+    "auto break case char const continue default do double else enum extern float for goto if "
+    "inline int long register restrict return short signed sizeof static struct switch "
+    "typedef union unsigned void volatile while _Bool _Complex _Imaginary _Alignas _Alignof "
+    "_Atomic _Generic _Noreturn _Static_assert _Thread_local".split()
+)
+"""C99 and C11 keywords, refused as ``--prefix``: the prefix alone is the state's struct tag
+(``struct PREFIX``), so a keyword fails to compile."""
 Y_BOUND = 1.0
 """Random test inputs: ``y`` uniform in ``[-Y_BOUND, Y_BOUND]`` (m, m/s)."""
 
@@ -66,6 +75,14 @@ class ExportOptions(Options):
             raise ValueError(
                 "not a C identifier (letters, digits, '_', not starting with a digit, "
                 "at most 41 characters)"
+            )
+        if v in C_KEYWORDS or keyword.iskeyword(v):
+            lang = "C" if v in C_KEYWORDS else "Python"
+            raise ValueError(f"'{v}' is a {lang} keyword; choose another name, e.g. '{v}_ctrl'")
+        if v.startswith("__") or (v.startswith("_") and v[1:2].isupper()):
+            raise ValueError(
+                f"'{v}' is reserved in C (a leading '__' or '_' and a capital); "
+                "start the prefix with a letter"
             )
         return v
 
