@@ -152,6 +152,8 @@ def test_a_read_only_mount_is_one_line(tmp_path):
     ],
 )
 def test_export_prefix_must_be_a_usable_identifier(tmp_path, prefix, why):
-    res = invoke("export", tmp_path / "ctrl", "-t", "c", "--prefix", prefix, "--out", tmp_path / "x")
+    res = invoke(
+        "export", tmp_path / "ctrl", "-t", "c", "--prefix", prefix, "--out", tmp_path / "x"
+    )
     assert one_line(res).startswith(f"error: options: 'prefix': {why}")
     assert list(tmp_path.iterdir()) == []
