@@ -157,3 +157,58 @@ def test_export_prefix_must_be_a_usable_identifier(tmp_path, prefix, why):
     )
     assert one_line(res).startswith(f"error: options: 'prefix': {why}")
     assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- item 7
+def _tum_lines(t_text, p, sep=" "):
+    return "".join(
+        sep.join([a, *(f"{v:.6f}" for v in (*b, 0.0, 0.0, 0.0, 1.0))]) + "\n"
+        for a, b in zip(t_text, p, strict=True)
+    )
+
+
+def test_tum_stamps_in_nanoseconds_read_as_the_same_flight(tmp_path):
+    import numpy as np
+
+    from qsls.pipeline.core.artifacts import sha256_file
+
+    t_ns = 1_403_636_579_000_000_000 + np.arange(0, 20_000_000_000, 20_000_000, dtype=np.int64)
+    t = (t_ns - t_ns[0]) * 1e-9
+    truth = np.c_[np.cos(t), np.sin(t), 1 + 0.1 * np.sin(3 * t)]
+    vio = truth + np.random.default_rng(0).normal(scale=0.01, size=truth.shape)
+    secs = [f"{v // 10**9}.{v % 10**9:09d}" for v in t_ns.tolist()]
+    nanos = [str(v) for v in t_ns.tolist()]
+    for name, stamps in (("s", secs), ("ns", nanos)):
+        (tmp_path / f"vio_{name}.tum").write_text(_tum_lines(stamps, vio))
+        (tmp_path / f"truth_{name}.tum").write_text(_tum_lines(stamps, truth))
+        res = invoke("ingest", "--vio", tmp_path / f"vio_{name}.tum",
+                     "--truth", tmp_path / f"truth_{name}.tum", "--out", tmp_path / name)  # fmt: skip
+        assert res.exit_code == 0, res.output
+    assert sha256_file(tmp_path / "s" / "flight.parquet") == sha256_file(
+        tmp_path / "ns" / "flight.parquet"
+    )
+
+
+def test_a_comma_separated_tum_file_and_a_stamp_beyond_any_clock_are_named(tmp_path):
+    p = [(1.0, 2.0, 3.0)] * 2
+    commas = tmp_path / "commas.tum"
+    commas.write_text(
+        "# t x y z qx qy qz qw\n" + _tum_lines(["1403636579.758", "1403636579.808"], p, ",")
+    )
+    good = tmp_path / "good.tum"
+    good.write_text(_tum_lines(["1403636579.758", "1403636579.808"], p))
+    res = invoke("ingest", "--vio", commas, "--truth", good, "--out", tmp_path / "o")
+    assert one_line(res) == (
+        f"error: {commas}: read as EuRoC csv (comma-separated, 't_ns, px, py, pz, qw, qx, qy, "
+        "qz, ...' with t in integer nanoseconds), but line 2 has '1403636579.758', 8 "
+        "comma-separated fields with a stamp in seconds: a TUM file with commas? TUM separates "
+        "'t x y z qx qy qz qw' (t in seconds) by spaces; replace the commas by spaces"
+    )
+    huge = tmp_path / "huge.tum"
+    huge.write_text(_tum_lines(["1e30", "2e30"], p))
+    res = invoke("ingest", "--vio", huge, "--truth", good, "--out", tmp_path / "o")
+    assert one_line(res) == (
+        f"error: {huge}: line 1: stamp 1e30 read as seconds is beyond any clock; TUM stamps "
+        "are seconds ('1403636579.758555'), or integer nanoseconds (>= 1e+15)"
+    )
+    assert not (tmp_path / "o").exists()
