@@ -212,3 +212,61 @@ def test_a_comma_separated_tum_file_and_a_stamp_beyond_any_clock_are_named(tmp_p
         "are seconds ('1403636579.758555'), or integer nanoseconds (>= 1e+15)"
     )
     assert not (tmp_path / "o").exists()
+
+
+# --------------------------------------------------------------------------- item 12
+def test_from_fly_reruns_fly_only_and_an_unknown_stage_names_the_choices(tmp_path):
+    from qsls.pipeline.core.artifacts import StageWriter
+    from qsls.pipeline.run.graph import Stage, StageGraph
+
+    def writer(kind):
+        def execute(out, deps):
+            with StageWriter(out, kind, options={}, force=True) as w:
+                w.write_text("x.txt", kind)
+
+        return execute
+
+    def graph():
+        g = StageGraph(tmp_path / "run")
+        g.add(Stage("fit", "fit", {}, writer("fit")))
+        g.add(Stage("synth", "synth", {}, writer("synth"), deps=("fit",)))
+        g.add(Stage("evaluate", "evaluate", {}, writer("evaluate"), deps=("synth",)))
+        g.add(Stage("fly", "evaluate", {}, writer("evaluate"), deps=("synth",)))
+        return g
+
+    assert [o.status for o in graph().run()] == ["ran"] * 4
+    ran = {o.id for o in graph().run(from_kind="fly") if o.status == "ran"}
+    assert ran == {"fly"}
+    ran = {o.id for o in graph().run(from_kind="evaluate") if o.status == "ran"}
+    assert ran == {"evaluate", "fly"}
+    res = invoke(
+        "run", REPO / "configs" / "quickstart.yaml", "--from", "flying", "--out", tmp_path / "r"
+    )
+    assert one_line(res) == (
+        "error: --from flying: not a stage (choose from simulate, ingest, fit, sweep, synth, "
+        "evaluate, report, fly)"
+    )
+    assert not (tmp_path / "r").exists()
+
+
+def test_report_on_a_folder_that_is_not_a_run_is_one_line(tmp_path):
+    from qsls.pipeline.core.artifacts import StageWriter
+
+    stage = tmp_path / "model"
+    with StageWriter(stage, "fit", options={}) as w:
+        w.write_text("error_model.yaml", "eps_e: 0.1\n")
+    res = invoke("report", stage, "--out", tmp_path / "r")
+    assert one_line(res) == (
+        f"error: {stage}: a 'fit' stage folder, not a run; pass the run folder that holds it "
+        "(written by 'qsls run', e.g. runs/quickstart)"
+    )
+    # a folder holding stage folders, but not where a run puts them
+    other = tmp_path / "work"
+    with StageWriter(other / "mine" / "model", "fit", options={}) as w:
+        w.write_text("error_model.yaml", "eps_e: 0.1\n")
+    res = invoke("report", other, "--out", tmp_path / "r")
+    assert one_line(res) == (
+        f"error: {other}: not a run folder (no run.json and no stage folders such as fit/ or "
+        "ingest/NAME/); pass the folder a 'qsls run' wrote, e.g. runs/quickstart"
+    )
+    assert not (tmp_path / "r").exists()

@@ -58,6 +58,31 @@ class ReportResult:
         }
 
 
+def check_run_folder(run_dir: Path) -> None:
+    """Refuse, in one line, a folder that is not a run: missing, a stage's own folder, or a
+    folder with neither ``run.json`` nor a stage folder where ``qsls run`` puts them
+    (``RUN/fit``, ``RUN/ingest/NAME``, ...)."""
+    if not run_dir.is_dir():
+        raise InputError(f"{run_dir}: no such run folder")
+    if (run_dir / MANIFEST).is_file():
+        try:
+            stage = json.loads((run_dir / MANIFEST).read_text()).get("stage", "?")
+        except json.JSONDecodeError:
+            stage = "?"
+        raise InputError(
+            f"{run_dir}: a '{stage}' stage folder, not a run; pass the run folder that holds "
+            "it (written by 'qsls run', e.g. runs/quickstart)"
+        )
+    if (run_dir / RUN_FILE).is_file():
+        return
+    if any((run_dir / kind).is_dir() for kind in (*_KNOWN, "fly")):
+        return
+    raise InputError(
+        f"{run_dir}: not a run folder (no {RUN_FILE} and no stage folders such as fit/ or "
+        "ingest/NAME/); pass the folder a 'qsls run' wrote, e.g. runs/quickstart"
+    )
+
+
 def _stage_dirs(run_dir: Path) -> dict[str, list[Path]]:
     """Stage kind -> folders holding a manifest of that stage, sorted by path."""
     found: dict[str, list[Path]] = {}
@@ -186,8 +211,7 @@ def report(
 ) -> ReportResult:
     """Write ``index.html``, ``report.md`` and the PNGs into ``out`` (default ``reports/<name>``)."""
     run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise InputError(f"{run_dir}: no such run folder")
+    check_run_folder(run_dir)
     info = json.loads((run_dir / RUN_FILE).read_text()) if (run_dir / RUN_FILE).is_file() else {}
     name = info.get("name", run_dir.name)
     out = Path(out) if out is not None else Path("reports") / name

@@ -135,9 +135,9 @@ def run(
     config_path = Path(config_path)
     cfg = load_run_config(config_path)
     root = Path(out) if out is not None else resolve_path(Path.cwd(), cfg.out or f"runs/{cfg.name}")
-    if from_stage is not None and from_stage not in STAGE_ORDER:
+    if from_stage is not None and from_stage not in (*STAGE_ORDER, "fly"):
         raise ConfigError(
-            f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)})"
+            f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)}, fly)"
         )
     check_writable(root, "run folder")
     graph = plan(cfg, config_path, root, progress)  # options checked before anything is written
