@@ -270,3 +270,29 @@ def test_report_on_a_folder_that_is_not_a_run_is_one_line(tmp_path):
         "ingest/NAME/); pass the folder a 'qsls run' wrote, e.g. runs/quickstart"
     )
     assert not (tmp_path / "r").exists()
+
+
+# --------------------------------------------------------------------------- item 3
+@pytest.mark.slow
+def test_two_runs_of_one_config_keep_their_own_reports_and_write_nowhere_else(tmp_path):
+    import subprocess
+    import sys
+
+    from tests.test_run_cache import _config
+
+    cfg = _config(tmp_path, report=True)
+    for out in ("a", "b"):
+        proc = subprocess.run(
+            [sys.executable, "-m", "qsls.cli.main", "run", cfg, "--out", out],
+            cwd=tmp_path, capture_output=True, text=True,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert f"{out}/report/index.html" in proc.stdout
+    # the working folder holds the config and the two runs, nothing else (no reports/)
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == [
+        "a", "b", cfg.name,
+    ]  # fmt: skip
+    a, b = (tmp_path / n / "report" / "index.html" for n in "ab")
+    assert a.is_file() and b.is_file()
+    # same config and seed: the same page, each in its own run (neither overwrote the other)
+    assert a.read_bytes() == b.read_bytes() and a.stat().st_ino != b.stat().st_ino

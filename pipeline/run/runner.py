@@ -187,7 +187,9 @@ def _run_locked(
     if cfg.report and "report" in wanted:
         from qsls.pipeline.report.stage import report
 
-        report_dir = Path("reports") / cfg.name
+        from qsls.pipeline.report.stage import REPORT_DIR
+
+        report_dir = root / REPORT_DIR  # inside the run: a run writes only where it was told
         if on_stage:
             on_stage("report", "running", len(outcomes), len(outcomes) + 1, "")
         report(root, report_dir, force=True)
