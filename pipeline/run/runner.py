@@ -185,9 +185,7 @@ def _run_locked(
     report_dir = None
     wanted = set(cfg.stages or STAGE_ORDER)
     if cfg.report and "report" in wanted:
-        from qsls.pipeline.report.stage import report
-
-        from qsls.pipeline.report.stage import REPORT_DIR
+        from qsls.pipeline.report.stage import REPORT_DIR, report
 
         report_dir = root / REPORT_DIR  # inside the run: a run writes only where it was told
         if on_stage:
