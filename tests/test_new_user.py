@@ -296,3 +296,45 @@ def test_two_runs_of_one_config_keep_their_own_reports_and_write_nowhere_else(tm
     assert a.is_file() and b.is_file()
     # same config and seed: the same page, each in its own run (neither overwrote the other)
     assert a.read_bytes() == b.read_bytes() and a.stat().st_ino != b.stat().st_ino
+
+
+# --------------------------------------------------------------------------- item 2
+def _run_config(tmp_path, **changes):
+    import yaml
+
+    from tests.test_run_cache import SMALL
+
+    data = {**SMALL, **changes}
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    return cfg
+
+
+def test_a_heldout_flight_without_an_evaluate_section_is_evaluated_with_defaults(tmp_path):
+    from qsls.pipeline.evaluate.bound import EvaluateOptions
+    from qsls.pipeline.run.runner import load_run_config, plan
+    from tests.test_run_cache import SMALL
+
+    flights = [*SMALL["flights"], {"name": "held", "role": "heldout", "simulate": {"seed": 3}}]
+    for stages in (None, ["simulate", "ingest", "fit", "synth", "evaluate"]):
+        cfg = _run_config(tmp_path, flights=flights, stages=stages)
+        graph = plan(load_run_config(cfg), cfg, tmp_path / "run")
+        (evaluate,) = [s for s in graph.stages if s.id == "evaluate"]
+        assert evaluate.options == EvaluateOptions()
+        assert set(evaluate.deps) == {"fit", "synth", "ingest/held"}
+    assert not (tmp_path / "run").exists()
+
+
+def test_evaluate_listed_with_nothing_to_evaluate_is_refused_before_any_stage(tmp_path):
+    stages = ["simulate", "ingest", "fit", "synth", "evaluate"]
+    res = invoke("run", _run_config(tmp_path, stages=stages), "--out", tmp_path / "run")
+    assert one_line(res) == (
+        f"error: {tmp_path}: stages: evaluate is listed but there is nothing to evaluate: no "
+        "flight has role 'heldout' and there is no evaluate: section with fly:"
+    )
+    res = invoke("run", _run_config(tmp_path, stages=stages, synth=None), "--out", tmp_path / "run")
+    assert one_line(res) == (
+        f"error: {tmp_path}: stages: evaluate is listed but there are no controllers to "
+        "evaluate: add a synth: section (and synth to the stages)"
+    )
+    assert not (tmp_path / "run").exists()
