@@ -251,3 +251,25 @@ def test_an_unwritable_output_is_one_line_for_export_and_replay(tmp_path, contro
         _one_line_error(res, f"cannot write the output file {(out / 'r.mcap').absolute()}: ",
                         f"folder {folder} is not writable ({why})")  # fmt: skip
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+def test_the_replay_is_the_same_bytes_wherever_the_recording_lives(tmp_path, controllers, flown):  # noqa: F811
+    """Issue 26, item 4: the MCAP held the source's absolute path."""
+    import shutil
+
+    from qsls.pipeline.core.artifacts import sha256_path
+
+    _, bag, _ = flown
+    args = ["--vio-topic", "/vio/odometry", "--reference", "circle"]
+    outs = []
+    for where in ("here", "there/deeper"):
+        copy = tmp_path / where / "flight"
+        shutil.copytree(bag, copy)
+        outs.append(tmp_path / where / "replay.mcap")
+        res = invoke("replay", controllers["proper"], copy, *args, "--out", outs[-1])
+        assert res.exit_code == 0, res.output
+    assert outs[0].read_bytes() == outs[1].read_bytes()
+    rep = report_of(outs[0])
+    assert rep["source"] == rep["vio"]["source"] == "flight"
+    assert rep["source_sha256"] == sha256_path(bag)
+    assert str(tmp_path) not in outs[0].read_bytes().decode("latin-1")

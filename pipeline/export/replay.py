@@ -277,7 +277,7 @@ def replay(
 ) -> ReplayResult:
     """The dry run (module docstring); writes ``out`` (an ``.mcap`` file) atomically."""
     from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.core.artifacts import refuse_overlap
+    from qsls.pipeline.core.artifacts import refuse_overlap, sha256_path
     from qsls.pipeline.core.errors import OutputExistsError
     from qsls.pipeline.core.locks import check_writable, make_parent, unwritable
     from qsls.pipeline.export.bank import check_exportable
@@ -312,8 +312,11 @@ def replay(
         "status": cdir.certificate.status,
         "controller_sha256": cdir.certificate.controller_sha256,
         "backend": options.backend,
-        "source": str(source),
-        "vio": vio.describe(),
+        # the source by name and content, not by path: the same replay is the same bytes
+        # wherever the recording lives
+        "source": Path(source).name,
+        "source_sha256": sha256_path(Path(source)),
+        "vio": {**vio.describe(), "source": Path(source).name},
         "reference": ref_opts.model_dump(mode="json"),
         "dt": c.dt,
         "ticks": len(stamps),
