@@ -15,7 +15,6 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from qsls.pipeline.control.artifacts import load_runtime
 from qsls.pipeline.ingest.sources.bags import BagSource
 from qsls.pipeline.ingest.sources.write import OdometryStream, write_bag
-from qsls.pipeline.sim.vehicle import paper_to_ctatt
 from tests.test_export import _one_line_error, compiler, controllers, invoke  # noqa: F401
 
 STATE = ["px", "py", "pz", "vx", "vy", "vz"]
@@ -115,24 +114,30 @@ def test_commands_equal_the_flown_controllers(tmp_path, controllers, flown):  # 
     ctrl = load_runtime(controllers["proper"])
     u_python = np.array([ctrl.step(y) for y in dev[:, :6]])
     np.testing.assert_allclose(dev[:, 6:], u_python, rtol=0, atol=1e-12)
-    # AttitudeTarget: the simulator's vehicle conversion of the flown command
+    # AttitudeTarget: the exact map of the flown command (force [-m g pitch, m g roll, thrust],
+    # body z along it, yaw 0: the minimal tilt)
     att = msgs["/mavros/setpoint_raw/attitude"]
     for k, jj in zip(i, j, strict=True):
         t, m = att[k]
         assert t == stamps[k] == m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-        thrust, q = paper_to_ctatt(u_flown[list(j).index(jj)])
+        ua = u_flown[list(j).index(jj)]
+        f = np.array([-MASS_G * ua[0], MASS_G * ua[1], ua[2]])
+        n = f / np.linalg.norm(f)
+        q = np.array([-n[1], n[0], 0.0, 1 + n[2]]) / np.sqrt(2 * (1 + n[2]))
         got = [m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w]
         np.testing.assert_allclose(got, q, rtol=0, atol=1e-12)
         assert m.type_mask == 7
-        assert m.thrust == pytest.approx(0.5 * thrust / MASS_G, rel=1e-6)
+        assert m.thrust == pytest.approx(0.5 * np.linalg.norm(f) / MASS_G, rel=1e-6)
     # the limits in the report, recomputed from the commands
     lim = report_of(out)["limits"]
-    tilt = np.degrees(np.arccos(np.cos(absolute[:, 0]) * np.cos(absolute[:, 1])))
+    f = np.c_[-MASS_G * absolute[:, 0], MASS_G * absolute[:, 1], absolute[:, 2]]
+    tilt = np.degrees(np.arctan2(np.hypot(f[:, 0], f[:, 1]), f[:, 2]))
     assert lim["max_tilt_deg"] == pytest.approx(tilt.max(), abs=1e-9)
-    assert lim["frac_tilt_exceeded"] == pytest.approx(np.mean(tilt > 20.0))
-    assert lim["thrust_max_ratio"] == pytest.approx(absolute[:, 2].max() / MASS_G, rel=1e-12)
-    assert lim["thrust_min_ratio"] == pytest.approx(absolute[:, 2].min() / MASS_G, rel=1e-12)
-    assert 0 < tilt.max() < 20 and report_of(out)["gaps"] == []
+    assert lim["pct_tilt_exceeded"] == pytest.approx(100 * np.mean(tilt > 20.0))
+    thrust = np.linalg.norm(f, axis=1)
+    assert lim["thrust_max_ratio"] == pytest.approx(thrust.max() / MASS_G, rel=1e-12)
+    assert lim["thrust_min_ratio"] == pytest.approx(thrust.min() / MASS_G, rel=1e-12)
+    assert 0 < tilt.max() < 20 and report_of(out)["gaps"] == [] and lim["pct_limited"] == 0
 
 
 def test_backends_agree_and_output_is_deterministic(tmp_path, controllers, flown, compiler):  # noqa: F811

@@ -32,11 +32,12 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.units import NS
+from qsls.pipeline.export.attitude import AttitudeLimits, check_thrust_limits
 from qsls.pipeline.export.rosout import Ticks, Topics
 from qsls.pipeline.sim.references import ReferenceOptions
 
@@ -66,6 +67,19 @@ class ReplayOptions(Options):
     """mavros' normalized thrust at hover (PX4's MPC_THR_HOVER): ``thrust = this * T / (m g)``."""
     command_topic: str = "/mavros/setpoint_raw/attitude"
     frame_id: str = "map"
+    tilt_limit_deg: float = Field(AttitudeLimits.max_tilt_deg, gt=0, lt=90)
+    """The exported attitude helper's tilt limit (deg), as ``qsls export --tilt-limit-deg``."""
+    thrust_limits: tuple[float, float] = (AttitudeLimits.thrust_min, AttitudeLimits.thrust_max)
+    """The exported attitude helper's thrust range (x hover), as ``qsls export``."""
+
+    @field_validator("thrust_limits")
+    @classmethod
+    def _thrust_limits(cls, v: tuple[float, float]) -> tuple[float, float]:
+        return check_thrust_limits(v)
+
+    @property
+    def limits(self) -> AttitudeLimits:
+        return AttitudeLimits(self.tilt_limit_deg, *self.thrust_limits)
 
     @model_validator(mode="after")
     def _band(self) -> ReplayOptions:
@@ -90,8 +104,11 @@ class ReplayResult:
             "ticks": f"{r['ticks']} at dt = {r['dt']} s in {r['segments']} segment(s)",
             "largest tilt (deg)": lim["max_tilt_deg"],
             "thrust range / hover": f"{lim['thrust_min_ratio']:.3f} .. {lim['thrust_max_ratio']:.3f}",
-            f"ticks with tilt > {lim['tilt_limit_deg']:g} deg": lim["frac_tilt_exceeded"],
-            f"ticks with thrust outside {lim['thrust_band']}x hover": lim["frac_thrust_outside"],
+            f"ticks with tilt > {lim['tilt_limit_deg']:g} deg": f"{lim['pct_tilt_exceeded']:.1f} %",
+            f"ticks with thrust outside {lim['thrust_band']}x hover": (
+                f"{lim['pct_thrust_outside']:.1f} %"
+            ),
+            f"ticks limited by the export ({lim['export_limits']})": f"{lim['pct_limited']:.1f} %",
             "gaps": (
                 "none"
                 if not gaps
@@ -199,11 +216,13 @@ def resample(
 
 
 # --------------------------------------------------------------------------- controller
-def exported_runtime(cdir: Any, backend: str, workdir: Path) -> tuple[Any, Any]:
+def exported_runtime(
+    cdir: Any, backend: str, workdir: Path, limits: AttitudeLimits = AttitudeLimits()
+) -> tuple[Any, Any]:
     """``(controller, attitude)`` of the exported code: ``step(y) -> u``, ``(u, acc) -> (T, q)``."""
     from qsls.pipeline.export.bank import export_bank, facts
 
-    bank, fx = export_bank(cdir), facts(cdir)
+    bank, fx = export_bank(cdir), facts(cdir, limits)
     if backend == "python":
         from qsls.pipeline.export.python import load_module, module
 
@@ -247,26 +266,33 @@ def command_ticks(
 
 
 def limits(ticks: Ticks, mass: float, o: ReplayOptions) -> dict[str, Any]:
-    """Largest tilt, thrust range against hover, and the shares beyond the limits."""
+    """Largest commanded tilt, thrust range against hover, the shares (%) beyond the report's
+    thresholds, and how often the exported helper's limits acted on the demand."""
     from qsls.pipeline.control.plant import GRAVITY
-    from qsls.pipeline.export.attitude import tilt_rad
+    from qsls.pipeline.export.attitude import demanded_force, limited, quat_tilt_rad
 
-    tilt = np.degrees(tilt_rad(ticks.u_abs))
+    tilt = np.degrees(quat_tilt_rad(ticks.q))
+    f = demanded_force(ticks.u_abs, mass)
+    demanded = np.degrees(np.arctan2(np.hypot(f[:, 0], f[:, 1]), f[:, 2]))
     ratio = ticks.thrust / (mass * GRAVITY)
     lo, hi = o.thrust_band
     k = int(np.argmax(tilt))
     return {
         "max_tilt_deg": float(tilt[k]),
         "max_tilt_t_s": float((ticks.stamp_ns[k] - ticks.stamp_ns[0]) / NS),
+        "first_tilt_deg": float(tilt[0]),
+        "max_demanded_tilt_deg": float(demanded.max()),
         "tilt_limit_deg": o.max_tilt_deg,
-        "frac_tilt_exceeded": float(np.mean(tilt > o.max_tilt_deg)),
+        "pct_tilt_exceeded": 100.0 * float(np.mean(tilt > o.max_tilt_deg)),
         "hover_thrust_n": mass * GRAVITY,
         "thrust_min_n": float(ticks.thrust.min()),
         "thrust_max_n": float(ticks.thrust.max()),
         "thrust_min_ratio": float(ratio.min()),
         "thrust_max_ratio": float(ratio.max()),
         "thrust_band": [lo, hi],
-        "frac_thrust_outside": float(np.mean((ratio < lo) | (ratio > hi))),
+        "pct_thrust_outside": 100.0 * float(np.mean((ratio < lo) | (ratio > hi))),
+        "export_limits": o.limits.describe(),
+        "pct_limited": 100.0 * float(np.mean(limited(f, mass, o.limits))),
         "normalized_thrust_max": float(ticks.thrust_normalized.max()),
     }
 
@@ -303,7 +329,7 @@ def replay(
     p_r, v_r, acc = Reference(ref_opts).arrays(t_ref)
     y_dev = yv - np.hstack([p_r, v_r])
     with tempfile.TemporaryDirectory(prefix="qsls-replay-") as tmp:
-        ctrl, attitude = exported_runtime(cdir, options.backend, Path(tmp))
+        ctrl, attitude = exported_runtime(cdir, options.backend, Path(tmp), options.limits)
         ticks = command_ticks(
             ctrl, attitude, stamps, y_dev, acc, parts, c.mass, options.hover_thrust
         )
