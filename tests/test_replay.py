@@ -88,7 +88,7 @@ def test_commands_equal_the_flown_controllers(tmp_path, controllers, flown):  # 
     out = tmp_path / "replay.mcap"
     res = invoke(
         "replay", controllers["proper"], bag, "--vio-topic", "/vio/odometry",
-        "--reference", "circle", "--out", out,
+        "--reference", "circle", "--align", "none", "--out", out,
     )  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "ticks" in res.output and "largest tilt" in res.output
@@ -278,3 +278,48 @@ def test_the_replay_is_the_same_bytes_wherever_the_recording_lives(tmp_path, con
     assert rep["source"] == rep["vio"]["source"] == "flight"
     assert rep["source_sha256"] == sha256_path(bag)
     assert str(tmp_path) not in outs[0].read_bytes().decode("latin-1")
+
+
+def test_the_vio_frame_is_aligned_to_the_reference(tmp_path, controllers, flown):  # noqa: F811
+    """Issue 26, item 14: the same flight logged with its VIO frame yawed 35 deg and shifted
+    (the simulator's default) replays, aligned, as the flight logged in the world frame; not
+    aligned, its first command is a large tilt, and the command says so loudly."""
+    root, bag, _ = flown
+    cfg = yaml.safe_load((root / "sim.yaml").read_text())
+    cfg["log"] = {"format": "ros2-mcap"}  # the default VIO frame: 35 deg, (0.8, -0.4, 0.05) m
+    (tmp_path / "sim.yaml").write_text(yaml.safe_dump(cfg))
+    res = invoke("simulate", "--config", tmp_path / "sim.yaml", "--out", tmp_path / "sim")
+    assert res.exit_code == 0, res.output
+    turned = tmp_path / "sim" / "flight"
+    args = [controllers["proper"], "--vio-topic", "/vio/odometry", "--reference", "circle"]
+    devs, reps = {}, {}
+    for name, src, extra in (
+        ("world", bag, []),
+        ("turned", turned, []),
+        ("given", turned, ["--align", "none", "--vio-to-reference", "0.8,-0.4,0.05,35"]),
+        ("none", turned, ["--align", "none"]),
+    ):
+        out = tmp_path / f"{name}.mcap"
+        res = invoke("replay", args[0], src, *args[1:], *extra, "--out", out)
+        assert res.exit_code == 0, res.output
+        devs[name] = deviations(read_mcap(out)[1]["/qsls/deviation"])[1]
+        reps[name] = report_of(out)
+        assert ("WARNING: the first command tilts" in res.output) == (name == "none"), res.output
+    # the 4-DoF fit is the same whatever frame the VIO was logged in
+    np.testing.assert_allclose(devs["turned"], devs["world"], rtol=0, atol=1e-6)
+    assert reps["turned"]["alignment"]["yaw_deg"] == pytest.approx(
+        reps["world"]["alignment"]["yaw_deg"] + 35.0, abs=1e-6
+    )
+    # the known transform gives the world-frame flight's deviations without a fit
+    plain = tmp_path / "plain.mcap"
+    assert (
+        invoke("replay", args[0], bag, *args[1:], "--align", "none", "--out", plain).exit_code == 0
+    )
+    plain_dev = deviations(read_mcap(plain)[1]["/qsls/deviation"])[1]
+    np.testing.assert_allclose(devs["given"][:, :6], plain_dev[:, :6], rtol=0, atol=1e-9)
+    # not aligned: far from the reference at the first tick, a large first tilt
+    lim = reps["none"]["limits"]
+    assert reps["none"]["first_deviation_m"] > 0.5 and lim["first_tilt_deg"] > 20
+    assert reps["turned"]["first_deviation_m"] < 0.5
+    assert reps["turned"]["limits"]["pct_tilt_exceeded"] < lim["pct_tilt_exceeded"]
+    assert reps["none"]["warnings"] and not reps["turned"]["warnings"]

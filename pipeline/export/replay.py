@@ -17,7 +17,9 @@ at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
    each gap-free segment (its memory would otherwise hold samples from before the gap).
 4. ``y - r`` with the reference ``r`` (:class:`qsls.pipeline.sim.references.Reference`,
    given as ``KIND[:key=value,...]`` or a YAML file; its time is 0 at the first tick plus
-   ``reference_t0``; the world frame is the VIO's), ``u = K (y - r)``, and
+   ``reference_t0``), the VIO put into the reference's frame first (:func:`reference_frame`:
+   a 4-DoF fit of the recording onto the reference, a given transform, or none; a large
+   first deviation or tilt is a warning), ``u = K (y - r)``, and
    ``pitch, roll, thrust = hover + feedforward + u`` -> thrust and quaternion.
 5. Command limits: largest tilt, thrust range against hover ``m g``, the fraction of ticks
    with tilt beyond ``max_tilt_deg`` and with thrust outside ``thrust_band`` (times hover).
@@ -67,6 +69,14 @@ class ReplayOptions(Options):
     """mavros' normalized thrust at hover (PX4's MPC_THR_HOVER): ``thrust = this * T / (m g)``."""
     command_topic: str = "/mavros/setpoint_raw/attitude"
     frame_id: str = "map"
+    align: Literal["4dof", "none"] = "4dof"
+    """How the VIO stream is put into the reference's frame: ``4dof`` fits a yaw and a
+    translation (VIO's unobservable gauge, as ``qsls ingest --align 4dof``) of the whole
+    recording onto the reference; ``none`` takes the VIO frame as the reference's."""
+    vio_to_reference: tuple[float, float, float, float] | None = None
+    """A known transform instead: ``x, y, z, yaw_deg`` with ``p_ref = Rz(yaw) p_vio + [x y z]``."""
+    warn_deviation_m: float = Field(0.5, gt=0)
+    """Warn when the first tick's position deviation from the reference exceeds this (m)."""
     tilt_limit_deg: float = Field(AttitudeLimits.max_tilt_deg, gt=0, lt=90)
     """The exported attitude helper's tilt limit (deg), as ``qsls export --tilt-limit-deg``."""
     thrust_limits: tuple[float, float] = (AttitudeLimits.thrust_min, AttitudeLimits.thrust_max)
@@ -102,6 +112,8 @@ class ReplayResult:
             "controller": f"{r['controller']} ({r['status']}, {r['backend']})",
             "VIO": f"{r['vio']['topic']} ({r['vio']['messages']} msgs, {r['vio']['rate_hz']} Hz)",
             "ticks": f"{r['ticks']} at dt = {r['dt']} s in {r['segments']} segment(s)",
+            "VIO -> reference frame": _alignment_text(r["alignment"]),
+            "first deviation (m)": r["first_deviation_m"],
             "largest tilt (deg)": lim["max_tilt_deg"],
             "thrust range / hover": f"{lim['thrust_min_ratio']:.3f} .. {lim['thrust_max_ratio']:.3f}",
             f"ticks with tilt > {lim['tilt_limit_deg']:g} deg": f"{lim['pct_tilt_exceeded']:.1f} %",
@@ -115,6 +127,11 @@ class ReplayResult:
                 else "; ".join(f"{g['t_start_s']:.3f} s (+{g['duration_s']:.3f} s)" for g in gaps)
             ),
         }
+
+
+def _alignment_text(al: dict[str, Any]) -> str:
+    t = ", ".join(f"{v:.3f}" for v in al["translation"])
+    return f"{al['method']}: yaw {al['yaw_deg']:.2f} deg, offset [{t}] m"
 
 
 # --------------------------------------------------------------------------- inputs
@@ -215,6 +232,34 @@ def resample(
     return stamps, values[valid], found_gaps, segments(stamps, dt_ns)
 
 
+def reference_frame(p_vio: np.ndarray, p_ref: np.ndarray, o: ReplayOptions) -> Any:
+    """The transform putting VIO positions into the reference's frame (ingest's
+    :class:`~qsls.pipeline.ingest.align.Alignment`): the given ``vio_to_reference``, or the
+    ``align`` fit of the whole recording onto the reference at the same ticks (a reference
+    without horizontal motion, hover, fixes no yaw: only the offset is fitted)."""
+    from qsls.pipeline.core.rotations import rot_z
+    from qsls.pipeline.ingest.align import Alignment, fit_alignment
+
+    if o.vio_to_reference is not None:
+        x, y, z, yaw = o.vio_to_reference
+        return Alignment("given", rot_z(np.radians(yaw)), np.array([x, y, z]))
+    return fit_alignment(p_vio, p_ref, o.align)
+
+
+def warnings(report: dict[str, Any], o: ReplayOptions) -> list[str]:
+    """Loud lines for a dry run that starts far from its reference or beyond the tilt limit."""
+    lim, dev = report["limits"], report["first_deviation_m"]
+    if dev <= o.warn_deviation_m and lim["first_tilt_deg"] <= o.max_tilt_deg:
+        return []
+    return [
+        f"the first command tilts {lim['first_tilt_deg']:.1f} deg (the controller asks "
+        f"{lim['first_demanded_tilt_deg']:.1f} deg), {dev:.2f} m from the "
+        f"reference (alignment: {report['alignment']['method']}); the VIO and the reference "
+        "must share a frame: check --align / --vio-to-reference, --reference and --reference-t0 "
+        "before flying this"
+    ]
+
+
 # --------------------------------------------------------------------------- controller
 def exported_runtime(
     cdir: Any, backend: str, workdir: Path, limits: AttitudeLimits = AttitudeLimits()
@@ -282,6 +327,7 @@ def limits(ticks: Ticks, mass: float, o: ReplayOptions) -> dict[str, Any]:
         "max_tilt_t_s": float((ticks.stamp_ns[k] - ticks.stamp_ns[0]) / NS),
         "first_tilt_deg": float(tilt[0]),
         "max_demanded_tilt_deg": float(demanded.max()),
+        "first_demanded_tilt_deg": float(demanded[0]),
         "tilt_limit_deg": o.max_tilt_deg,
         "pct_tilt_exceeded": 100.0 * float(np.mean(tilt > o.max_tilt_deg)),
         "hover_thrust_n": mass * GRAVITY,
@@ -327,6 +373,8 @@ def replay(
     stamps, yv, gaps, parts = resample(vio, v, c.dt, options.max_gap)
     t_ref = (stamps - stamps[0]) / NS + options.reference_t0
     p_r, v_r, acc = Reference(ref_opts).arrays(t_ref)
+    al = reference_frame(yv[:, :3], p_r, options)
+    yv = np.hstack([al.apply(yv[:, :3]), al.rotate(yv[:, 3:])])
     y_dev = yv - np.hstack([p_r, v_r])
     with tempfile.TemporaryDirectory(prefix="qsls-replay-") as tmp:
         ctrl, attitude = exported_runtime(cdir, options.backend, Path(tmp), options.limits)
@@ -350,9 +398,12 @@ def replay(
         "first_stamp_ns": int(stamps[0]),
         "gaps": gaps,
         "controller_reset_at_ns": [int(stamps[sl.start]) for sl in parts],
+        "alignment": {**al.as_dict(), "yaw_deg": float(np.degrees(al.yaw_rad))},
+        "first_deviation_m": float(np.linalg.norm(y_dev[0, :3])),
         "limits": limits(ticks, c.mass, options),
         "topics": {"command": options.command_topic, "deviation": Topics.deviation},
     }
+    report["warnings"] = warnings(report, options)
     topics = Topics(command=options.command_topic, frame_id=options.frame_id)
     make_parent(out, "output file")
     try:
