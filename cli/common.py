@@ -66,8 +66,10 @@ def cli_errors(fn: F) -> F:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from qsls.pipeline.core.config import forget_config_files
         from qsls.pipeline.core.errors import QslsError
 
+        forget_config_files()
         global _MAIN_PID
         if not _MAIN_PID and sys.platform.startswith("linux"):
             os.register_at_fork(after_in_child=_die_with_parent)

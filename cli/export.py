@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, overrides, print_summary
+from qsls.cli.common import cli_errors, overrides, parse_list, print_summary
 
 EXAMPLE = "qsls export controllers/l1_robust --target c --out export"
 
@@ -36,6 +36,16 @@ def command(
         "--verify-ticks",
         help="Random ticks of the check against the Python realization. (default: 10000)",
     ),
+    tilt_limit_deg: float | None = typer.Option(
+        None,
+        "--tilt-limit-deg",
+        help="Largest tilt the attitude helper commands (deg). (default: 30)",
+    ),
+    thrust_limits: str | None = typer.Option(
+        None,
+        "--thrust-limits",
+        help="LOW,HIGH thrust the attitude helper commands, x hover m g. (default: 0.5,2)",
+    ),
     config: Path | None = typer.Option(None, "--config", help="YAML file of export options."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
 ) -> None:
@@ -49,6 +59,8 @@ def command(
         prefix=prefix,
         allow_uncertified=allow_uncertified or None,
         verify_ticks=verify_ticks,
+        tilt_limit_deg=tilt_limit_deg,
+        thrust_limits=parse_list(thrust_limits, "--thrust-limits"),
     )
     options = load_options(ExportOptions, config, given, section="export")
     result = export(controller, options, out, force=force)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, overrides, print_summary
+from qsls.cli.common import cli_errors, overrides, parse_list, print_summary
 
 EXAMPLE = "qsls replay controllers/l1_robust flight.bag --out replay"
 
@@ -55,6 +55,22 @@ def command(
     allow_uncertified: bool = typer.Option(
         False, "--allow-uncertified", help="Replay a controller whose status is not 'certified'."
     ),
+    align: str | None = typer.Option(
+        None,
+        "--align",
+        help="Put the VIO into the reference's frame: 4dof (fit yaw + offset, default) or none.",
+    ),
+    vio_to_reference: str | None = typer.Option(
+        None,
+        "--vio-to-reference",
+        help="A known transform instead of the fit: X,Y,Z,YAW_DEG (p_ref = Rz(yaw) p_vio + xyz).",
+    ),
+    tilt_limit_deg: float | None = typer.Option(
+        None, "--tilt-limit-deg", help="The exported helper's tilt limit (deg, default 30)."
+    ),
+    thrust_limits: str | None = typer.Option(
+        None, "--thrust-limits", help="The exported helper's LOW,HIGH thrust x hover (0.5,2)."
+    ),
     config: Path | None = typer.Option(None, "--config", help="YAML file of replay options."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output file."),
 ) -> None:
@@ -82,6 +98,10 @@ def command(
         vio_velocity_frame=vio_velocity_frame,
         drop_nonfinite=drop_nonfinite or None,
         allow_uncertified=allow_uncertified or None,
+        align=align,
+        vio_to_reference=parse_list(vio_to_reference, "--vio-to-reference"),
+        tilt_limit_deg=tilt_limit_deg,
+        thrust_limits=parse_list(thrust_limits, "--thrust-limits"),
     )
     options = load_options(ReplayOptions, config, given, section="replay")
     result = replay(controller, source, options, out, force=force)
@@ -91,4 +111,6 @@ def command(
             "there, controller reset after it",
             err=True,
         )
+    for w in result.report["warnings"]:
+        typer.echo(f"WARNING: {w}", err=True)
     print_summary("qsls replay", result.summary())

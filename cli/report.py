@@ -8,14 +8,14 @@ import typer
 
 from qsls.cli.common import RichProgress, cli_errors, print_summary
 
-EXAMPLE = "qsls report runs/quickstart --out reports/quickstart"
+EXAMPLE = "qsls report runs/quickstart --out quickstart-report"
 
 
 @cli_errors
 def command(
     run_dir: Path = typer.Argument(..., help="Folder of a 'qsls run' (holds the stage folders)."),
     out: Path | None = typer.Option(
-        None, "--out", "-o", help="Report folder. Default: reports/<run name>."
+        None, "--out", "-o", help="Report folder. Default: RUN_DIR/report."
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing report folder."),
 ) -> None:

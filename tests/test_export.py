@@ -157,6 +157,12 @@ def test_stdlib_module_in_isolated_python(tmp_path, controllers, timing):
     assert res.exit_code == 0, res.output
     ys = random_y()
     (tmp_path / "y.json").write_text(json.dumps(ys.tolist()))
+    u_att, acc, yaw = attitude_inputs()
+    (tmp_path / "att.json").write_text(
+        json.dumps(
+            [[u, a, w] for u, a, w in zip(u_att.tolist(), acc.tolist(), yaw.tolist(), strict=True)]
+        )
+    )
     driver = tmp_path / "drive.py"
     driver.write_text(
         textwrap.dedent(
@@ -170,7 +176,8 @@ def test_stdlib_module_in_isolated_python(tmp_path, controllers, timing):
             ys = json.load(open({str(tmp_path / "y.json")!r}))
             us = [c.step(y) for y in ys]
             print(json.dumps({{"u": us, "dt": ctrl_mod.DT, "status": ctrl_mod.STATUS,
-                              "att": ctrl_mod.attitude([0.1, -0.2, 0.3], [1.0, 0.5, -0.2])}}))
+                              "att": [ctrl_mod.attitude(u, a, w) for u, a, w in
+                                      json.load(open({str(tmp_path / "att.json")!r}))]}}))
             """
         )
     )
@@ -181,20 +188,28 @@ def test_stdlib_module_in_isolated_python(tmp_path, controllers, timing):
     got = json.loads(proc.stdout)
     assert got["dt"] == 0.1 and got["status"] == "certified"
     assert np.abs(np.array(got["u"]) - python_u(folder, ys)).max() <= 1e-12
-    from qsls.pipeline.export.attitude import absolute_input
-    from qsls.pipeline.sim.vehicle import paper_to_ctatt
+    # the module's attitude() is the numpy helper's exact map, limits included
+    from qsls.pipeline.export.attitude import thrust_attitude
 
-    thrust, q = paper_to_ctatt(absolute_input([0.1, -0.2, 0.3], [1.0, 0.5, -0.2], 0.256)[0])
-    assert got["att"][0] == pytest.approx(thrust, abs=1e-14)
-    np.testing.assert_allclose(got["att"][1], q, atol=1e-15)
+    thrust, q = thrust_attitude(u_att, acc, 0.256, yaw=yaw)
+    np.testing.assert_allclose([t for t, _ in got["att"]], thrust, rtol=0, atol=1e-13)
+    np.testing.assert_allclose([qq for _, qq in got["att"]], q, rtol=0, atol=1e-15)
+
+
+def attitude_inputs(n=400, seed=1):
+    """``u``, reference accelerations and yaws, a quarter of them beyond the default limits."""
+    rng = np.random.default_rng(seed)
+    u = rng.uniform(-0.4, 0.4, (n, 3))
+    acc = rng.uniform(-3.0, 3.0, (n, 3))
+    acc[: n // 4] *= 4.0  # up to 12 m/s^2: beyond 30 deg of tilt and 2 m g
+    return u, acc, rng.uniform(-np.pi, np.pi, n)
 
 
 def test_attitude_helper_signs(tmp_path, controllers, compiler):
-    """C helper = the simulator's conversion; a positive paper pitch tilts thrust toward -x
-    (vx' = -g pitch), a positive roll toward +y; the hover thrust is m g."""
+    """C helper = the numpy helper (limits and yaw included); a positive paper pitch tilts
+    thrust toward -x (vx' = -g pitch), a positive roll toward +y; the hover thrust is m g."""
     from qsls.pipeline.core.rotations import quat_to_matrix
-    from qsls.pipeline.export.attitude import absolute_input
-    from qsls.pipeline.sim.vehicle import paper_to_ctatt
+    from qsls.pipeline.export.attitude import thrust_attitude
 
     out = tmp_path / "c"
     assert invoke("export", controllers["proper"], "-t", "c", "--out", out).exit_code == 0
@@ -209,13 +224,67 @@ def test_attitude_helper_signs(tmp_path, controllers, compiler):
     # feedforward: a reference accelerating toward +x tilts the thrust toward +x
     b3 = quat_to_matrix(c.attitude([0.0, 0.0, 0.0], [2.0, 0.0, 0.0])[1])[:, 2]
     assert b3[0] > 0
-    rng = np.random.default_rng(1)
-    for _ in range(200):
-        u, a = rng.uniform(-0.4, 0.4, 3), rng.uniform(-3, 3, 3)
-        th, qq = c.attitude(u, a)
-        t_ref, q_ref = paper_to_ctatt(absolute_input(u, a, 0.256)[0])
-        assert th == pytest.approx(t_ref, abs=1e-14)
-        np.testing.assert_allclose(qq, q_ref, atol=1e-15)
+    u, acc, yaw = attitude_inputs()
+    got = [c.attitude(uk, ak, wk) for uk, ak, wk in zip(u, acc, yaw, strict=True)]
+    t_ref, q_ref = thrust_attitude(u, acc, 0.256, yaw=yaw)
+    np.testing.assert_allclose([t for t, _ in got], t_ref, rtol=0, atol=1e-13)
+    np.testing.assert_allclose([qq for _, qq in got], q_ref, rtol=0, atol=1e-15)
+    # the limits are the header's: an export with others commands other attitudes
+    out2 = tmp_path / "c2"
+    res = invoke("export", controllers["proper"], "-t", "c", "--out", out2,
+                 "--tilt-limit-deg", "10", "--thrust-limits", "0.8,1.2")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    header = (out2 / "qsls_ctrl.h").read_text()
+    assert "QSLS_CTRL_MAX_TILT 0.17453292519943295 /* rad (10 deg) */" in header
+    assert "tilt <= 10 deg, thrust in [0.8, 1.2] x m g" in header
+    c2 = CController(build(compiler, out2), dt=0.1)
+    from qsls.pipeline.export.attitude import AttitudeLimits
+
+    t2, q2 = thrust_attitude(u, acc, 0.256, AttitudeLimits(10.0, 0.8, 1.2), yaw=yaw)
+    got2 = [c2.attitude(uk, ak, wk) for uk, ak, wk in zip(u, acc, yaw, strict=True)]
+    np.testing.assert_allclose([t for t, _ in got2], t2, rtol=0, atol=1e-13)
+    np.testing.assert_allclose([qq for _, qq in got2], q2, rtol=0, atol=1e-15)
+
+
+def test_attitude_is_the_exact_flatness_map_within_its_limits():
+    """Issue 26, items 15-16, from first principles: body z along a + g e3, thrust
+    m |a + g e3| (not the small-angle m (g + a_z)), the yaw about world z after the minimal
+    tilt, and the limits clamp tilt and thrust."""
+    from qsls.pipeline.core.rotations import quat_to_matrix
+    from qsls.pipeline.export.attitude import AttitudeLimits, thrust_attitude
+
+    m, g = 0.256, 9.81
+    lim = AttitudeLimits(30.0, 0.5, 2.0)
+    # the quickstart's 1.6 m/s^2 sideways: thrust m sqrt(g^2 + a^2), 1.3 % above m g
+    thrust, q = thrust_attitude([0.0, 0.0, 0.0], [1.6, 0.0, 0.0], m, lim)
+    assert thrust[0] == pytest.approx(m * np.hypot(g, 1.6), rel=1e-14)
+    assert thrust[0] / (m * g) - 1 == pytest.approx(0.0132, abs=2e-4)
+    z = quat_to_matrix(q[0])[:, 2]
+    np.testing.assert_allclose(z, np.array([1.6, 0.0, g]) / np.hypot(1.6, g), atol=1e-15)
+    # random demands within the limits: body z = f / |f|, thrust |f|, yaw about world z
+    rng = np.random.default_rng(3)
+    u = rng.uniform(-0.1, 0.1, (300, 3))
+    acc = rng.uniform(-1.5, 1.5, (300, 3))
+    yaw = rng.uniform(-np.pi, np.pi, 300)
+    thrust, q = thrust_attitude(u, acc, m, lim, yaw=yaw)
+    f = m * (acc + np.c_[-g * u[:, 0], g * u[:, 1], u[:, 2] / m] + [0.0, 0.0, g])
+    np.testing.assert_allclose(thrust, np.linalg.norm(f, axis=1), rtol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-15)
+    for k in range(300):
+        R = quat_to_matrix(q[k])
+        np.testing.assert_allclose(R[:, 2], f[k] / np.linalg.norm(f[k]), atol=1e-14)
+        # Rz(-yaw) R is a pure tilt: no rotation about its own z (its quaternion's z is 0)
+        c, s = np.cos(yaw[k]), np.sin(yaw[k])
+        tilt = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]]) @ R
+        assert abs(tilt[0, 1] - tilt[1, 0]) < 1e-14
+    # beyond the limits: tilt at most 30 deg, thrust within [0.5, 2] m g, direction kept
+    thrust, q = thrust_attitude(
+        [[0.0, 0.0, 0.0]] * 3, [[20.0, 0, 0], [0, 0, 30.0], [0, 0, -20.0]], m, lim
+    )
+    z = np.array([quat_to_matrix(qq)[:, 2] for qq in q])
+    assert np.degrees(np.arccos(z[0, 2])) == pytest.approx(30.0, abs=1e-12) and z[0, 0] > 0
+    assert thrust[1] == pytest.approx(2.0 * m * g) and z[1] == pytest.approx([0, 0, 1])
+    assert thrust[2] == pytest.approx(0.5 * m * g) and z[2] == pytest.approx([0, 0, 1])
 
 
 @pytest.mark.parametrize("timing", ["proper", "strict"])

@@ -15,7 +15,6 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from qsls.pipeline.control.artifacts import load_runtime
 from qsls.pipeline.ingest.sources.bags import BagSource
 from qsls.pipeline.ingest.sources.write import OdometryStream, write_bag
-from qsls.pipeline.sim.vehicle import paper_to_ctatt
 from tests.test_export import _one_line_error, compiler, controllers, invoke  # noqa: F401
 
 STATE = ["px", "py", "pz", "vx", "vy", "vz"]
@@ -89,7 +88,7 @@ def test_commands_equal_the_flown_controllers(tmp_path, controllers, flown):  # 
     out = tmp_path / "replay.mcap"
     res = invoke(
         "replay", controllers["proper"], bag, "--vio-topic", "/vio/odometry",
-        "--reference", "circle", "--out", out,
+        "--reference", "circle", "--align", "none", "--out", out,
     )  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "ticks" in res.output and "largest tilt" in res.output
@@ -115,24 +114,30 @@ def test_commands_equal_the_flown_controllers(tmp_path, controllers, flown):  # 
     ctrl = load_runtime(controllers["proper"])
     u_python = np.array([ctrl.step(y) for y in dev[:, :6]])
     np.testing.assert_allclose(dev[:, 6:], u_python, rtol=0, atol=1e-12)
-    # AttitudeTarget: the simulator's vehicle conversion of the flown command
+    # AttitudeTarget: the exact map of the flown command (force [-m g pitch, m g roll, thrust],
+    # body z along it, yaw 0: the minimal tilt)
     att = msgs["/mavros/setpoint_raw/attitude"]
     for k, jj in zip(i, j, strict=True):
         t, m = att[k]
         assert t == stamps[k] == m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-        thrust, q = paper_to_ctatt(u_flown[list(j).index(jj)])
+        ua = u_flown[list(j).index(jj)]
+        f = np.array([-MASS_G * ua[0], MASS_G * ua[1], ua[2]])
+        n = f / np.linalg.norm(f)
+        q = np.array([-n[1], n[0], 0.0, 1 + n[2]]) / np.sqrt(2 * (1 + n[2]))
         got = [m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w]
         np.testing.assert_allclose(got, q, rtol=0, atol=1e-12)
         assert m.type_mask == 7
-        assert m.thrust == pytest.approx(0.5 * thrust / MASS_G, rel=1e-6)
+        assert m.thrust == pytest.approx(0.5 * np.linalg.norm(f) / MASS_G, rel=1e-6)
     # the limits in the report, recomputed from the commands
     lim = report_of(out)["limits"]
-    tilt = np.degrees(np.arccos(np.cos(absolute[:, 0]) * np.cos(absolute[:, 1])))
+    f = np.c_[-MASS_G * absolute[:, 0], MASS_G * absolute[:, 1], absolute[:, 2]]
+    tilt = np.degrees(np.arctan2(np.hypot(f[:, 0], f[:, 1]), f[:, 2]))
     assert lim["max_tilt_deg"] == pytest.approx(tilt.max(), abs=1e-9)
-    assert lim["frac_tilt_exceeded"] == pytest.approx(np.mean(tilt > 20.0))
-    assert lim["thrust_max_ratio"] == pytest.approx(absolute[:, 2].max() / MASS_G, rel=1e-12)
-    assert lim["thrust_min_ratio"] == pytest.approx(absolute[:, 2].min() / MASS_G, rel=1e-12)
-    assert 0 < tilt.max() < 20 and report_of(out)["gaps"] == []
+    assert lim["pct_tilt_exceeded"] == pytest.approx(100 * np.mean(tilt > 20.0))
+    thrust = np.linalg.norm(f, axis=1)
+    assert lim["thrust_max_ratio"] == pytest.approx(thrust.max() / MASS_G, rel=1e-12)
+    assert lim["thrust_min_ratio"] == pytest.approx(thrust.min() / MASS_G, rel=1e-12)
+    assert 0 < tilt.max() < 20 and report_of(out)["gaps"] == [] and lim["pct_limited"] == 0
 
 
 def test_backends_agree_and_output_is_deterministic(tmp_path, controllers, flown, compiler):  # noqa: F811
@@ -211,3 +216,110 @@ def test_bad_input(tmp_path, controllers, flown):  # noqa: F811
     res = invoke("replay", good, tmp_path / "none.bag", *args, "--out", tmp_path / "x.mcap")
     _one_line_error(res, "none.bag")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.mcap"]  # nothing half-written
+
+
+def test_an_output_overlapping_an_input_is_refused_even_with_force(tmp_path, controllers, flown):  # noqa: F811
+    """Issue 26, item 1: ``--out flight.mcap --force`` on the recorded flight itself used to
+    replace it with the replay."""
+    import hashlib
+    import shutil
+
+    _, bag, _ = flown
+    (inner,) = sorted(bag.glob("*.mcap"))
+    flight = tmp_path / "flight.mcap"
+    shutil.copyfile(inner, flight)
+    before = hashlib.sha256(flight.read_bytes()).hexdigest()
+    good, args = controllers["proper"], ["--vio-topic", "/vio/odometry", "--reference", "circle"]
+    res = invoke("replay", good, flight, *args, "--out", flight, "--force")
+    msg = _one_line_error(res, "is the input", "even with --force")
+    assert hashlib.sha256(flight.read_bytes()).hexdigest() == before
+    # inside the rosbag2 folder that is the input, and inside the controller folder
+    res = invoke("replay", good, bag, *args, "--out", bag / "replay.mcap", "--force")
+    _one_line_error(res, "lies inside the input")
+    res = invoke("replay", good, flight, *args, "--out", good / "replay.mcap", "--force")
+    _one_line_error(res, "lies inside the input")
+    assert not (bag / "replay.mcap").exists() and not (good / "replay.mcap").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.mcap"], msg
+
+
+def test_an_unwritable_output_is_one_line_for_export_and_replay(tmp_path, controllers, flown):  # noqa: F811
+    """Issue 26, item 5: a read-only or impossible output location was a 40-line OSError."""
+    from tests.test_new_user import _unwritable
+
+    _, bag, _ = flown
+    good = controllers["proper"]
+    for out, folder, why in _unwritable(tmp_path):
+        res = invoke("export", good, "--target", "python", "--out", out)
+        _one_line_error(res, f"cannot write the output folder {out.absolute()}: ",
+                        f"folder {folder} is not writable ({why})")  # fmt: skip
+        res = invoke("replay", good, bag, "--reference", "circle", "--out", out / "r.mcap")
+        _one_line_error(res, f"cannot write the output file {(out / 'r.mcap').absolute()}: ",
+                        f"folder {folder} is not writable ({why})")  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+def test_the_replay_is_the_same_bytes_wherever_the_recording_lives(tmp_path, controllers, flown):  # noqa: F811
+    """Issue 26, item 4: the MCAP held the source's absolute path."""
+    import shutil
+
+    from qsls.pipeline.core.artifacts import sha256_path
+
+    _, bag, _ = flown
+    args = ["--vio-topic", "/vio/odometry", "--reference", "circle"]
+    outs = []
+    for where in ("here", "there/deeper"):
+        copy = tmp_path / where / "flight"
+        shutil.copytree(bag, copy)
+        outs.append(tmp_path / where / "replay.mcap")
+        res = invoke("replay", controllers["proper"], copy, *args, "--out", outs[-1])
+        assert res.exit_code == 0, res.output
+    assert outs[0].read_bytes() == outs[1].read_bytes()
+    rep = report_of(outs[0])
+    assert rep["source"] == rep["vio"]["source"] == "flight"
+    assert rep["source_sha256"] == sha256_path(bag)
+    assert str(tmp_path) not in outs[0].read_bytes().decode("latin-1")
+
+
+def test_the_vio_frame_is_aligned_to_the_reference(tmp_path, controllers, flown):  # noqa: F811
+    """Issue 26, item 14: the same flight logged with its VIO frame yawed 35 deg and shifted
+    (the simulator's default) replays, aligned, as the flight logged in the world frame; not
+    aligned, its first command is a large tilt, and the command says so loudly."""
+    root, bag, _ = flown
+    cfg = yaml.safe_load((root / "sim.yaml").read_text())
+    cfg["log"] = {"format": "ros2-mcap"}  # the default VIO frame: 35 deg, (0.8, -0.4, 0.05) m
+    (tmp_path / "sim.yaml").write_text(yaml.safe_dump(cfg))
+    res = invoke("simulate", "--config", tmp_path / "sim.yaml", "--out", tmp_path / "sim")
+    assert res.exit_code == 0, res.output
+    turned = tmp_path / "sim" / "flight"
+    args = [controllers["proper"], "--vio-topic", "/vio/odometry", "--reference", "circle"]
+    devs, reps = {}, {}
+    for name, src, extra in (
+        ("world", bag, []),
+        ("turned", turned, []),
+        ("given", turned, ["--align", "none", "--vio-to-reference", "0.8,-0.4,0.05,35"]),
+        ("none", turned, ["--align", "none"]),
+    ):
+        out = tmp_path / f"{name}.mcap"
+        res = invoke("replay", args[0], src, *args[1:], *extra, "--out", out)
+        assert res.exit_code == 0, res.output
+        devs[name] = deviations(read_mcap(out)[1]["/qsls/deviation"])[1]
+        reps[name] = report_of(out)
+        assert ("WARNING: the first command tilts" in res.output) == (name == "none"), res.output
+    # the 4-DoF fit is the same whatever frame the VIO was logged in
+    np.testing.assert_allclose(devs["turned"], devs["world"], rtol=0, atol=1e-6)
+    assert reps["turned"]["alignment"]["yaw_deg"] == pytest.approx(
+        reps["world"]["alignment"]["yaw_deg"] + 35.0, abs=1e-6
+    )
+    # the known transform gives the world-frame flight's deviations without a fit
+    plain = tmp_path / "plain.mcap"
+    assert (
+        invoke("replay", args[0], bag, *args[1:], "--align", "none", "--out", plain).exit_code == 0
+    )
+    plain_dev = deviations(read_mcap(plain)[1]["/qsls/deviation"])[1]
+    np.testing.assert_allclose(devs["given"][:, :6], plain_dev[:, :6], rtol=0, atol=1e-9)
+    # not aligned: far from the reference at the first tick, a large first tilt
+    lim = reps["none"]["limits"]
+    assert reps["none"]["first_deviation_m"] > 0.5 and lim["first_tilt_deg"] > 20
+    assert reps["turned"]["first_deviation_m"] < 0.5
+    assert reps["turned"]["limits"]["pct_tilt_exceeded"] < lim["pct_tilt_exceeded"]
+    assert reps["none"]["warnings"] and not reps["turned"]["warnings"]

@@ -159,7 +159,7 @@ def quickstart(tmp_path_factory):
     cfg.write_text((REPO / "configs" / "quickstart.yaml").read_text())
     proc = _run(cfg, work)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    return work / "runs" / "quickstart", work / "reports" / "quickstart"
+    return work / "runs" / "quickstart", work / "runs" / "quickstart" / "report"
 
 
 def _cards(page: str) -> dict[str, str]:
@@ -240,7 +240,7 @@ def test_euroc_report_says_why_nothing_is_feasible(real_data, tmp_path):
     cfg.write_text(text.replace("../../shared/data/real", str(real_data)))
     proc = _run(cfg, tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    run_dir, out = tmp_path / "runs" / "euroc", tmp_path / "reports" / "euroc"
+    run_dir, out = tmp_path / "runs" / "euroc", tmp_path / "runs" / "euroc" / "report"
     sweep = pd.read_parquet(run_dir / "sweep" / "sweep.parquet")
     smax = pd.read_parquet(run_dir / "sweep" / "s_max.parquet").sort_values("T")
     assert not sweep["feasible"].any()

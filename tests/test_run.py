@@ -66,7 +66,7 @@ def test_quickstart_end_to_end(quickstart):
     assert certs["l1_robust"]["robustness_lhs"] <= 1.0 + 1e-9
     for stage in statuses:
         assert (run_dir / stage / "manifest.json").is_file(), stage
-    page = (work / "reports" / "quickstart" / "index.html").read_text()
+    page = (work / "runs" / "quickstart" / "report" / "index.html").read_text()
     assert "Controllers and certificates" in page and "data:image/png;base64," in page
     assert elapsed < 300, f"the quickstart took {elapsed:.0f} s (target: 5 minutes)"
 
@@ -101,7 +101,7 @@ def _data_files(work: Path) -> dict[str, bytes]:
         p.relative_to(work).as_posix(): p.read_bytes()
         .replace(commit.encode(), b"GIT")
         .replace(commit[:10].encode(), b"GIT")
-        for root in (work / "runs" / "quickstart", work / "reports" / "quickstart")
+        for root in (work / "runs" / "quickstart",)
         for p in sorted(root.rglob("*"))
         if p.is_file() and p.name not in skip and not p.name.startswith(".")
     }
@@ -149,7 +149,7 @@ def test_run_report_is_reproducible(quickstart):
     work, _, _, _ = quickstart
     proc = _qsls("report", "runs/quickstart", "--out", "again", cwd=work)
     assert proc.returncode == 0, proc.stderr
-    first, second = work / "reports" / "quickstart", work / "again"
+    first, second = work / "runs" / "quickstart" / "report", work / "again"
     assert (first / "index.html").read_bytes() == (second / "index.html").read_bytes()
 
 
@@ -238,4 +238,4 @@ def test_euroc_config_on_the_real_flights(real_data, tmp_path):
     assert outside[relaxed].all() and not outside[table["status"] == "certified"].any()
     # The max S-slope is infeasible, as in the paper.
     assert not table.loc[table["S"] == "max", "feasible"].any()
-    assert (tmp_path / "reports" / "euroc" / "index.html").is_file()
+    assert (tmp_path / "runs" / "euroc" / "report" / "index.html").is_file()

@@ -111,7 +111,7 @@ def test_a_missing_or_changed_output_reruns_its_stage_and_everything_after(tmp_p
     cfg_report = _config(tmp_path, report=True)
     proc = _qsls("run", cfg_report, "--from", "report", cwd=tmp_path)
     assert _ran(proc) == set()
-    assert (tmp_path / "reports" / "small" / "index.html").is_file()
+    assert (tmp_path / "runs" / "small" / "report" / "index.html").is_file()
 
 
 # --------------------------------------------------------------------------- item 4

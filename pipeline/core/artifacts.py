@@ -37,8 +37,10 @@ from qsls.pipeline.core.locks import (  # clean_stale: re-exported for the repor
     OLD_MARK,
     TMP_MARK,
     check_unlocked,
+    check_writable,
     clean_stale,
     hold_output,
+    make_parent,
     release_output,
 )
 
@@ -303,7 +305,7 @@ class StageWriter:
     def __enter__(self) -> StageWriter:
         check_output(self.out, self.force, self.inputs)
         self._t0 = time.perf_counter()
-        self.out.parent.mkdir(parents=True, exist_ok=True)
+        make_parent(self.out, "output folder")
         hold_output(self.out)
         clean_stale(self.out)
         self.tmp = self.out.with_name(f".{self.out.name}{_TMP_MARK}{os.getpid()}")
@@ -380,11 +382,13 @@ class StageWriter:
 
 
 def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
-    """Refuse an output folder that overlaps an input, is being written by another process
-    (its lock, :func:`check_unlocked`; :class:`StageWriter` holds it while it writes), or
-    exists (unless ``force``)."""
+    """Refuse an output folder that overlaps an input, cannot be written (a read-only or
+    missing location, :func:`check_writable`), is being written by another process (its
+    lock, :func:`check_unlocked`; :class:`StageWriter` holds it while it writes), or exists
+    (unless ``force``)."""
     out = Path(out)
     refuse_overlap(out, inputs)
+    check_writable(out, "output folder")
     check_unlocked(out)
     if out.exists() and not force:
         raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
@@ -392,11 +396,14 @@ def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
 
 
-def refuse_overlap(out: Path, inputs: Iterable[Path]) -> None:
-    """An output folder that is, contains or lies inside an input would destroy it on
-    publish: refused with one line, whatever ``--force`` says (resolved, symlinks followed)."""
+def refuse_overlap(out: Path, inputs: Iterable[Path], what: str = "output folder") -> None:
+    """An output (``what``: folder or file) that is, contains or lies inside an input would
+    destroy it on publish: refused with one line, whatever ``--force`` says (resolved,
+    symlinks followed). The ``--config`` files the command read are inputs too."""
+    from qsls.pipeline.core.config import config_files
+
     o = Path(out).resolve()
-    for given in inputs:
+    for given in [*inputs, *config_files()]:
         i = Path(given).resolve()
         if o == i:
             how = "is"
@@ -407,8 +414,8 @@ def refuse_overlap(out: Path, inputs: Iterable[Path]) -> None:
         else:
             continue
         raise InputError(
-            f"output folder {out} {how} the input {given}; writing it would destroy the input "
-            "(even with --force): choose an output folder apart from the inputs"
+            f"{what} {out} {how} the input {given}; writing it would destroy the input "
+            f"(even with --force): choose an {what} apart from the inputs"
         )
 
 

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
 from qsls.pipeline.core.errors import ConfigError
 
@@ -21,11 +21,29 @@ T = TypeVar("T", bound="Options")
 
 
 class Options(BaseModel):
-    """Base of every options model: immutable, and unknown keys are errors."""
+    """Base of every options model: immutable, unknown keys are errors, and every number
+    is finite (``nan`` and ``inf`` are refused wherever they appear: a plain number, a
+    number-or-name such as ``S``, a list or a matrix)."""
 
     model_config = ConfigDict(
         extra="forbid", frozen=True, validate_default=True, use_attribute_docstrings=True
     )
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _finite(cls, value: Any) -> Any:
+        if _nonfinite(value):
+            raise ValueError("must be a finite number")
+        return value
+
+
+def _nonfinite(value: Any) -> bool:
+    """Whether ``value`` (a number, or nested lists/tuples of them) holds a nan or an inf."""
+    import math
+
+    if isinstance(value, float):
+        return not math.isfinite(value)
+    return isinstance(value, list | tuple) and any(_nonfinite(v) for v in value)
 
 
 def read_yaml(path: Path) -> dict[str, Any]:
@@ -75,6 +93,21 @@ def load_options(
     return validate(model, data, str(config) if config is not None else "options")
 
 
+# The --config files this process read: inputs of the stage like any other, so an output
+# that is, contains or lies inside one is refused (qsls.pipeline.core.artifacts.refuse_overlap).
+_CONFIG_FILES: list[Path] = []
+
+
+def config_files() -> tuple[Path, ...]:
+    """The ``--config`` files read so far by this command (:func:`read_section`)."""
+    return tuple(_CONFIG_FILES)
+
+
+def forget_config_files() -> None:
+    """Start a new command (the CLI calls this; one process may run several in tests)."""
+    _CONFIG_FILES.clear()
+
+
 def read_section(config: Path | None, section: str | None) -> dict[str, Any]:
     """A command's options in a YAML file, the same way for every command: the file's
     ``section`` mapping when it has one (a ``qsls run`` config holds every stage's), else
@@ -82,6 +115,7 @@ def read_section(config: Path | None, section: str | None) -> dict[str, Any]:
     if config is None:
         return {}
     data = read_yaml(config)
+    _CONFIG_FILES.append(Path(config))
     if section is None or section not in data:
         return data
     sub = data[section]
@@ -113,7 +147,7 @@ def describe_validation_error(model: type[BaseModel], exc: ValidationError) -> s
         elif err.get("type") == "missing":
             parts.append(f"missing required option '{dotted}'")
         else:
-            msg = err.get("msg", "invalid value")
+            msg = err.get("msg", "invalid value").removeprefix("Value error, ")
             got = err.get("input")
             shown = f" (got {got!r})" if got is not None and not isinstance(got, dict) else ""
             parts.append(f"'{dotted}': {msg}{shown}")

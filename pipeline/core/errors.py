@@ -25,6 +25,10 @@ class OutputExistsError(QslsError):
     """The output folder exists and ``--force`` was not given."""
 
 
+class UnwritableError(QslsError):
+    """The output location cannot be written (read-only, not a folder, no permission)."""
+
+
 class BusyError(QslsError):
     """Another live process is writing the same output or run folder."""
 

@@ -18,7 +18,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from qsls.pipeline.core.errors import BusyError
+from qsls.pipeline.core.errors import BusyError, UnwritableError
 
 TMP_MARK = ".tmp-"
 OLD_MARK = ".old-"
@@ -36,6 +36,48 @@ def pid_alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
+
+
+def unwritable(target: Path, exc: OSError, what: str = "output") -> UnwritableError:
+    """One line for an output location that cannot be written: which folder, and why."""
+    where = Path(exc.filename).parent if exc.filename else Path(target).parent
+    why = exc.strerror or type(exc).__name__
+    return UnwritableError(
+        f"cannot write the {what} {target}: folder {where} is not writable ({why}); "
+        "choose another --out"
+    )
+
+
+def check_writable(target: Path, what: str = "output") -> None:
+    """Refuse now (before a long computation) when ``target`` cannot be created: its
+    nearest existing ancestor is not a writable folder (read-only mount, no permission, a
+    file). Creates nothing; the writers still turn a later ``OSError`` into one line."""
+    target = Path(target).absolute()
+    parent = target.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise unwritable(
+            target, NotADirectoryError(errno.ENOTDIR, "not a folder", str(parent / "x")), what
+        )
+    if not os.access(parent, os.W_OK | os.X_OK):
+        code = errno.EROFS if _read_only(parent) else errno.EACCES
+        raise unwritable(target, OSError(code, os.strerror(code), str(parent / "x")), what)
+
+
+def _read_only(folder: Path) -> bool:
+    try:
+        return bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
+def make_parent(target: Path, what: str = "output") -> None:
+    """Create ``target``'s parent folders; an unwritable location is one line."""
+    try:
+        Path(target).parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise unwritable(target, exc, what) from None
 
 
 def lock_path(target: Path) -> Path:
@@ -62,7 +104,10 @@ class FolderLock:
 
     def acquire(self) -> FolderLock:
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            except OSError as exc:
+                raise unwritable(self.target, exc, self.what) from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as exc:

@@ -13,13 +13,14 @@ so the state is the last ``T`` values of ``beta`` and the last ``T + 1`` values 
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
 from qsls.pipeline.control.artifacts import Certificate, ControllerDir
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.export.attitude import AttitudeLimits
 
 Precision = Literal["double", "float"]
 REAL_BYTES = {"double": 8, "float": 4}
@@ -140,6 +141,8 @@ class Facts:
     T: int
     strictly_proper: bool
     guarantee: str
+    limits: AttitudeLimits = field(default_factory=AttitudeLimits)
+    """The attitude helper's tilt and thrust limits."""
 
 
 def guarantee_line(cert: Certificate) -> str:
@@ -163,7 +166,7 @@ def _shares(cert: Certificate) -> str:
     return cert.premise.shares()
 
 
-def facts(cdir: ControllerDir) -> Facts:
+def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> Facts:
     c, cert = cdir.controller, cdir.certificate
     return Facts(
         name=cdir.name,
@@ -174,6 +177,7 @@ def facts(cdir: ControllerDir) -> Facts:
         T=c.T,
         strictly_proper=c.strictly_proper,
         guarantee=guarantee_line(cert),
+        limits=limits,
     )
 
 

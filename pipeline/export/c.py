@@ -11,6 +11,8 @@ round-trip), or the float32 value with 9 significant digits and an ``f`` suffix.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from qsls.pipeline.core.plant import GRAVITY
@@ -65,8 +67,22 @@ def _comment(facts: Facts, precision: Precision, file: str) -> str:
  * Signs and units (the paper's convention, DESIGN.md): y = measured [px py pz vx vy vz]
  * minus the reference state (m, m/s; world frame, z up); u = [pitch, roll, thrust] minus
  * hover [0, 0, m g] minus the reference's feedforward [-a_x/g, a_y/g, m a_z] (rad, rad, N),
- * with the paper's B: vx' = -g pitch, vy' = +g roll. _attitude() converts to a z-up world:
- * theta = -pitch about body y, phi = -roll about body x, yaw 0, q = [x, y, z, w].
+ * with the paper's B: vx' = -g pitch, vy' = +g roll.
+ *
+ * FRAMES: the reference and the measurement must be in the same world frame (z up). A VIO
+ * estimate lives in its own frame (its start pose): align it to the reference's frame before
+ * y is formed, or express the reference in the VIO frame; otherwise the deviation y holds
+ * the frames' offset and the first command can be a large tilt.
+ *
+ * _attitude() is the exact (differential-flatness) map: f = m (a_ref + a_u + g e3)
+ * with a_u = [-g u0, g u1, u2 / m]; thrust = |f| in NEWTONS; body z = f / |f|. Yaw: the
+ * caller's commanded heading (rad about world z; pass 0 to hold world x) is applied after
+ * the minimal tilt: q = q_z(yaw) * q(e3 -> Rz(-yaw) body z), q = [x, y, z, w].
+ * Limits ({facts.limits.describe()}; `qsls export --tilt-limit-deg
+ * --thrust-limits`): f_z >= THRUST_MIN m g cos(MAX_TILT), |f_xy| <= f_z tan(MAX_TILT), then
+ * |f| clamped to [THRUST_MIN, THRUST_MAX] m g.
+ * mavros AttitudeTarget takes a normalized thrust: thrust_norm = HOVER * thrust / (m g),
+ * HOVER the vehicle's hover throttle (PX4 MPC_THR_HOVER; `qsls replay --hover-thrust`).
  */"""
 
 
@@ -92,6 +108,9 @@ extern "C" {{
 #define {m}_NX {bank.nx}
 #define {m}_NY {bank.ny}
 #define {m}_NU {bank.nu}
+#define {m}_MAX_TILT {literal(math.radians(facts.limits.max_tilt_deg), precision)} /* rad ({facts.limits.max_tilt_deg:g} deg) */
+#define {m}_THRUST_MIN {literal(facts.limits.thrust_min, precision)} /* x m g */
+#define {m}_THRUST_MAX {literal(facts.limits.thrust_max, precision)} /* x m g */
 #define {m}_STRICTLY_PROPER {int(facts.strictly_proper)}
 #define {m}_STATUS "{facts.status}"
 #define {m}_SHA256 "{facts.sha256}"
@@ -113,9 +132,9 @@ size_t {prefix}_size(void);
 void {prefix}_reset({prefix}_t *c);
 /* One tick of dt: u (deviation from hover + feedforward) from y (deviation from reference). */
 void {prefix}_step({prefix}_t *c, const {real} y[{m}_NY], {real} u[{m}_NU]);
-/* u plus the reference acceleration acc_ref (m/s^2, world, z up) -> collective thrust (N)
- * and attitude quaternion q = [x, y, z, w] in a z-up world. */
-void {prefix}_attitude(const {real} u[{m}_NU], const {real} acc_ref[3],
+/* u plus the reference acceleration acc_ref (m/s^2, world, z up) and the commanded yaw
+ * (rad) -> collective thrust (N, limited) and attitude q = [x, y, z, w] (tilt limited). */
+void {prefix}_attitude(const {real} u[{m}_NU], const {real} acc_ref[3], {real} yaw,
                 {real} *thrust, {real} q[4]);
 
 #ifdef __cplusplus

@@ -89,7 +89,7 @@ class CController:
         self._att = getattr(self._lib, f"{prefix}_attitude")
         self._att.restype = None
         ptr = ctypes.POINTER(real)
-        self._att.argtypes = [ptr, ptr, ptr, ptr]
+        self._att.argtypes = [ptr, ptr, real, ptr, ptr]
         self._y = (real * 6)()
         self._u = (real * 3)()
         self.reset()
@@ -103,13 +103,15 @@ class CController:
         self._step(self._state, self._y, self._u)
         return np.array(self._u[:], dtype=float)
 
-    def attitude(self, u: np.ndarray, acc_ref: np.ndarray) -> tuple[float, np.ndarray]:
+    def attitude(
+        self, u: np.ndarray, acc_ref: np.ndarray, yaw: float = 0.0
+    ) -> tuple[float, np.ndarray]:
         """``(thrust, q [x, y, z, w])`` from the exported ``_attitude`` helper."""
         uu = (self.real * 3)(*[float(v) for v in u])
         aa = (self.real * 3)(*[float(v) for v in acc_ref])
         thrust = self.real(0.0)
         q = (self.real * 4)()
-        self._att(uu, aa, ctypes.byref(thrust), q)
+        self._att(uu, aa, self.real(float(yaw)), ctypes.byref(thrust), q)
         return float(thrust.value), np.array(q[:], dtype=float)
 
 

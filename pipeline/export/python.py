@@ -14,7 +14,7 @@ import numpy as np
 
 from qsls.pipeline.control.sls import side_by_side
 from qsls.pipeline.core.plant import GRAVITY
-from qsls.pipeline.export.attitude import PY_FUNCTION
+from qsls.pipeline.export.attitude import py_function
 from qsls.pipeline.export.bank import ExportBank, Facts
 
 PER_LINE = 4
@@ -58,8 +58,16 @@ dt = {facts.dt!r} s, mass = {facts.mass!r} kg, T = {facts.T} taps, {timing}.
 Signs and units (the paper's convention): y = measured [px, py, pz, vx, vy, vz] minus the
 reference state (m, m/s; world frame, z up); u = [pitch, roll, thrust] minus hover [0, 0, m g]
 minus the reference's feedforward [-a_x/g, a_y/g, m a_z] (rad, rad, N), with the paper's B:
-vx' = -g pitch, vy' = +g roll. attitude() converts u to a collective thrust and a quaternion
-[x, y, z, w] in a z-up world (theta = -pitch about body y, phi = -roll about body x, yaw 0).
+vx' = -g pitch, vy' = +g roll.
+
+Frames: the reference and the measurement must be in the same world frame (z up); align a
+VIO estimate (its own start frame) to the reference's frame before forming y.
+
+attitude(u, acc_ref, yaw=0.0) is the exact (differential-flatness) map: f = m (a_ref + a_u +
+g e3), a_u = [-g u0, g u1, u2 / m]; thrust = |f| in newtons; body z = f / |f|; the commanded
+yaw (rad about world z) is applied after the minimal tilt; q = [x, y, z, w]. Limits:
+{facts.limits.describe()} (MAX_TILT, THRUST_MIN, THRUST_MAX below). mavros AttitudeTarget
+takes a normalized thrust: hover_throttle * thrust / (MASS * GRAVITY).
 
 Call Controller.step(y) once per DT seconds; Controller.reset() before the first tick.
 """
@@ -123,7 +131,7 @@ class Controller:
         beta[NX:] = beta[:-NX]
         beta[:NX] = nb
         return u
-{PY_FUNCTION}'''
+{py_function(facts.limits)}'''
 
 
 def load_module(text: str, name: str = "qsls_exported") -> object:

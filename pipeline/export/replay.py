@@ -17,7 +17,9 @@ at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
    each gap-free segment (its memory would otherwise hold samples from before the gap).
 4. ``y - r`` with the reference ``r`` (:class:`qsls.pipeline.sim.references.Reference`,
    given as ``KIND[:key=value,...]`` or a YAML file; its time is 0 at the first tick plus
-   ``reference_t0``; the world frame is the VIO's), ``u = K (y - r)``, and
+   ``reference_t0``), the VIO put into the reference's frame first (:func:`reference_frame`:
+   a 4-DoF fit of the recording onto the reference, a given transform, or none; a large
+   first deviation or tilt is a warning), ``u = K (y - r)``, and
    ``pitch, roll, thrust = hover + feedforward + u`` -> thrust and quaternion.
 5. Command limits: largest tilt, thrust range against hover ``m g``, the fraction of ticks
    with tilt beyond ``max_tilt_deg`` and with thrust outside ``thrust_band`` (times hover).
@@ -32,11 +34,12 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.units import NS
+from qsls.pipeline.export.attitude import AttitudeLimits, check_thrust_limits
 from qsls.pipeline.export.rosout import Ticks, Topics
 from qsls.pipeline.sim.references import ReferenceOptions
 
@@ -66,6 +69,27 @@ class ReplayOptions(Options):
     """mavros' normalized thrust at hover (PX4's MPC_THR_HOVER): ``thrust = this * T / (m g)``."""
     command_topic: str = "/mavros/setpoint_raw/attitude"
     frame_id: str = "map"
+    align: Literal["4dof", "none"] = "4dof"
+    """How the VIO stream is put into the reference's frame: ``4dof`` fits a yaw and a
+    translation (VIO's unobservable gauge, as ``qsls ingest --align 4dof``) of the whole
+    recording onto the reference; ``none`` takes the VIO frame as the reference's."""
+    vio_to_reference: tuple[float, float, float, float] | None = None
+    """A known transform instead: ``x, y, z, yaw_deg`` with ``p_ref = Rz(yaw) p_vio + [x y z]``."""
+    warn_deviation_m: float = Field(0.5, gt=0)
+    """Warn when the first tick's position deviation from the reference exceeds this (m)."""
+    tilt_limit_deg: float = Field(AttitudeLimits.max_tilt_deg, gt=0, lt=90)
+    """The exported attitude helper's tilt limit (deg), as ``qsls export --tilt-limit-deg``."""
+    thrust_limits: tuple[float, float] = (AttitudeLimits.thrust_min, AttitudeLimits.thrust_max)
+    """The exported attitude helper's thrust range (x hover), as ``qsls export``."""
+
+    @field_validator("thrust_limits")
+    @classmethod
+    def _thrust_limits(cls, v: tuple[float, float]) -> tuple[float, float]:
+        return check_thrust_limits(v)
+
+    @property
+    def limits(self) -> AttitudeLimits:
+        return AttitudeLimits(self.tilt_limit_deg, *self.thrust_limits)
 
     @model_validator(mode="after")
     def _band(self) -> ReplayOptions:
@@ -88,16 +112,26 @@ class ReplayResult:
             "controller": f"{r['controller']} ({r['status']}, {r['backend']})",
             "VIO": f"{r['vio']['topic']} ({r['vio']['messages']} msgs, {r['vio']['rate_hz']} Hz)",
             "ticks": f"{r['ticks']} at dt = {r['dt']} s in {r['segments']} segment(s)",
+            "VIO -> reference frame": _alignment_text(r["alignment"]),
+            "first deviation (m)": r["first_deviation_m"],
             "largest tilt (deg)": lim["max_tilt_deg"],
             "thrust range / hover": f"{lim['thrust_min_ratio']:.3f} .. {lim['thrust_max_ratio']:.3f}",
-            f"ticks with tilt > {lim['tilt_limit_deg']:g} deg": lim["frac_tilt_exceeded"],
-            f"ticks with thrust outside {lim['thrust_band']}x hover": lim["frac_thrust_outside"],
+            f"ticks with tilt > {lim['tilt_limit_deg']:g} deg": f"{lim['pct_tilt_exceeded']:.1f} %",
+            f"ticks with thrust outside {lim['thrust_band']}x hover": (
+                f"{lim['pct_thrust_outside']:.1f} %"
+            ),
+            f"ticks limited by the export ({lim['export_limits']})": f"{lim['pct_limited']:.1f} %",
             "gaps": (
                 "none"
                 if not gaps
                 else "; ".join(f"{g['t_start_s']:.3f} s (+{g['duration_s']:.3f} s)" for g in gaps)
             ),
         }
+
+
+def _alignment_text(al: dict[str, Any]) -> str:
+    t = ", ".join(f"{v:.3f}" for v in al["translation"])
+    return f"{al['method']}: yaw {al['yaw_deg']:.2f} deg, offset [{t}] m"
 
 
 # --------------------------------------------------------------------------- inputs
@@ -198,12 +232,42 @@ def resample(
     return stamps, values[valid], found_gaps, segments(stamps, dt_ns)
 
 
+def reference_frame(p_vio: np.ndarray, p_ref: np.ndarray, o: ReplayOptions) -> Any:
+    """The transform putting VIO positions into the reference's frame (ingest's
+    :class:`~qsls.pipeline.ingest.align.Alignment`): the given ``vio_to_reference``, or the
+    ``align`` fit of the whole recording onto the reference at the same ticks (a reference
+    without horizontal motion, hover, fixes no yaw: only the offset is fitted)."""
+    from qsls.pipeline.core.rotations import rot_z
+    from qsls.pipeline.ingest.align import Alignment, fit_alignment
+
+    if o.vio_to_reference is not None:
+        x, y, z, yaw = o.vio_to_reference
+        return Alignment("given", rot_z(np.radians(yaw)), np.array([x, y, z]))
+    return fit_alignment(p_vio, p_ref, o.align)
+
+
+def warnings(report: dict[str, Any], o: ReplayOptions) -> list[str]:
+    """Loud lines for a dry run that starts far from its reference or beyond the tilt limit."""
+    lim, dev = report["limits"], report["first_deviation_m"]
+    if dev <= o.warn_deviation_m and lim["first_tilt_deg"] <= o.max_tilt_deg:
+        return []
+    return [
+        f"the first command tilts {lim['first_tilt_deg']:.1f} deg (the controller asks "
+        f"{lim['first_demanded_tilt_deg']:.1f} deg), {dev:.2f} m from the "
+        f"reference (alignment: {report['alignment']['method']}); the VIO and the reference "
+        "must share a frame: check --align / --vio-to-reference, --reference and --reference-t0 "
+        "before flying this"
+    ]
+
+
 # --------------------------------------------------------------------------- controller
-def exported_runtime(cdir: Any, backend: str, workdir: Path) -> tuple[Any, Any]:
+def exported_runtime(
+    cdir: Any, backend: str, workdir: Path, limits: AttitudeLimits = AttitudeLimits()
+) -> tuple[Any, Any]:
     """``(controller, attitude)`` of the exported code: ``step(y) -> u``, ``(u, acc) -> (T, q)``."""
     from qsls.pipeline.export.bank import export_bank, facts
 
-    bank, fx = export_bank(cdir), facts(cdir)
+    bank, fx = export_bank(cdir), facts(cdir, limits)
     if backend == "python":
         from qsls.pipeline.export.python import load_module, module
 
@@ -247,26 +311,34 @@ def command_ticks(
 
 
 def limits(ticks: Ticks, mass: float, o: ReplayOptions) -> dict[str, Any]:
-    """Largest tilt, thrust range against hover, and the shares beyond the limits."""
+    """Largest commanded tilt, thrust range against hover, the shares (%) beyond the report's
+    thresholds, and how often the exported helper's limits acted on the demand."""
     from qsls.pipeline.core.plant import GRAVITY
-    from qsls.pipeline.export.attitude import tilt_rad
+    from qsls.pipeline.export.attitude import demanded_force, limited, quat_tilt_rad
 
-    tilt = np.degrees(tilt_rad(ticks.u_abs))
+    tilt = np.degrees(quat_tilt_rad(ticks.q))
+    f = demanded_force(ticks.u_abs, mass)
+    demanded = np.degrees(np.arctan2(np.hypot(f[:, 0], f[:, 1]), f[:, 2]))
     ratio = ticks.thrust / (mass * GRAVITY)
     lo, hi = o.thrust_band
     k = int(np.argmax(tilt))
     return {
         "max_tilt_deg": float(tilt[k]),
         "max_tilt_t_s": float((ticks.stamp_ns[k] - ticks.stamp_ns[0]) / NS),
+        "first_tilt_deg": float(tilt[0]),
+        "max_demanded_tilt_deg": float(demanded.max()),
+        "first_demanded_tilt_deg": float(demanded[0]),
         "tilt_limit_deg": o.max_tilt_deg,
-        "frac_tilt_exceeded": float(np.mean(tilt > o.max_tilt_deg)),
+        "pct_tilt_exceeded": 100.0 * float(np.mean(tilt > o.max_tilt_deg)),
         "hover_thrust_n": mass * GRAVITY,
         "thrust_min_n": float(ticks.thrust.min()),
         "thrust_max_n": float(ticks.thrust.max()),
         "thrust_min_ratio": float(ratio.min()),
         "thrust_max_ratio": float(ratio.max()),
         "thrust_band": [lo, hi],
-        "frac_thrust_outside": float(np.mean((ratio < lo) | (ratio > hi))),
+        "pct_thrust_outside": 100.0 * float(np.mean((ratio < lo) | (ratio > hi))),
+        "export_limits": o.limits.describe(),
+        "pct_limited": 100.0 * float(np.mean(limited(f, mass, o.limits))),
         "normalized_thrust_max": float(ticks.thrust_normalized.max()),
     }
 
@@ -277,7 +349,9 @@ def replay(
 ) -> ReplayResult:
     """The dry run (module docstring); writes ``out`` (an ``.mcap`` file) atomically."""
     from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.core.artifacts import refuse_overlap, sha256_path
     from qsls.pipeline.core.errors import OutputExistsError
+    from qsls.pipeline.core.locks import check_writable, make_parent, unwritable
     from qsls.pipeline.export.bank import check_exportable
     from qsls.pipeline.export.rosout import write_mcap
     from qsls.pipeline.sim.references import Reference
@@ -285,6 +359,8 @@ def replay(
     out = Path(out)
     if out.suffix != ".mcap":
         raise ConfigError(f"--out {out}: the replay is written as an MCAP file; name it *.mcap")
+    refuse_overlap(out, [folder, source], "output file")
+    check_writable(out, "output file")
     if out.exists() and not force:
         raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
     if out.is_dir():
@@ -297,9 +373,11 @@ def replay(
     stamps, yv, gaps, parts = resample(vio, v, c.dt, options.max_gap)
     t_ref = (stamps - stamps[0]) / NS + options.reference_t0
     p_r, v_r, acc = Reference(ref_opts).arrays(t_ref)
+    al = reference_frame(yv[:, :3], p_r, options)
+    yv = np.hstack([al.apply(yv[:, :3]), al.rotate(yv[:, 3:])])
     y_dev = yv - np.hstack([p_r, v_r])
     with tempfile.TemporaryDirectory(prefix="qsls-replay-") as tmp:
-        ctrl, attitude = exported_runtime(cdir, options.backend, Path(tmp))
+        ctrl, attitude = exported_runtime(cdir, options.backend, Path(tmp), options.limits)
         ticks = command_ticks(
             ctrl, attitude, stamps, y_dev, acc, parts, c.mass, options.hover_thrust
         )
@@ -308,8 +386,11 @@ def replay(
         "status": cdir.certificate.status,
         "controller_sha256": cdir.certificate.controller_sha256,
         "backend": options.backend,
-        "source": str(source),
-        "vio": vio.describe(),
+        # the source by name and content, not by path: the same replay is the same bytes
+        # wherever the recording lives
+        "source": Path(source).name,
+        "source_sha256": sha256_path(Path(source)),
+        "vio": {**vio.describe(), "source": Path(source).name},
         "reference": ref_opts.model_dump(mode="json"),
         "dt": c.dt,
         "ticks": len(stamps),
@@ -317,9 +398,16 @@ def replay(
         "first_stamp_ns": int(stamps[0]),
         "gaps": gaps,
         "controller_reset_at_ns": [int(stamps[sl.start]) for sl in parts],
+        "alignment": {**al.as_dict(), "yaw_deg": float(np.degrees(al.yaw_rad))},
+        "first_deviation_m": float(np.linalg.norm(y_dev[0, :3])),
         "limits": limits(ticks, c.mass, options),
         "topics": {"command": options.command_topic, "deviation": Topics.deviation},
     }
+    report["warnings"] = warnings(report, options)
     topics = Topics(command=options.command_topic, frame_id=options.frame_id)
-    write_mcap(out, ticks, topics, json.dumps(report, sort_keys=True))
+    make_parent(out, "output file")
+    try:
+        write_mcap(out, ticks, topics, json.dumps(report, sort_keys=True))
+    except PermissionError as exc:
+        raise unwritable(out, exc, "output file") from None
     return ReplayResult(out, report)

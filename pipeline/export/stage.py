@@ -19,6 +19,7 @@ these checks; the files themselves are byte-identical for the same controller an
 
 from __future__ import annotations
 
+import keyword
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +29,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.core.config import Options
+from qsls.pipeline.export.attitude import AttitudeLimits, check_thrust_limits
 from qsls.pipeline.export.bank import (
     PREFIX_RE,
     ExportBank,
@@ -38,6 +40,56 @@ from qsls.pipeline.export.bank import (
 )
 
 STAGE = "export"
+C_KEYWORDS = frozenset(
+    [
+        "auto",
+        "break",
+        "case",
+        "char",
+        "const",
+        "continue",
+        "default",
+        "do",
+        "double",
+        "else",
+        "enum",
+        "extern",
+        "float",
+        "for",
+        "goto",
+        "if",
+        "inline",
+        "int",
+        "long",
+        "register",
+        "restrict",
+        "return",
+        "short",
+        "signed",
+        "sizeof",
+        "static",
+        "struct",
+        "switch",
+        "typedef",
+        "union",
+        "unsigned",
+        "void",
+        "volatile",
+        "while",
+        "_Bool",
+        "_Complex",
+        "_Imaginary",
+        "_Alignas",
+        "_Alignof",
+        "_Atomic",
+        "_Generic",
+        "_Noreturn",
+        "_Static_assert",
+        "_Thread_local",
+    ]
+)
+"""C99 and C11 keywords, refused as ``--prefix``: the prefix alone is the state's struct tag
+(``struct PREFIX``), so a keyword fails to compile."""
 Y_BOUND = 1.0
 """Random test inputs: ``y`` uniform in ``[-Y_BOUND, Y_BOUND]`` (m, m/s)."""
 
@@ -58,6 +110,19 @@ class ExportOptions(Options):
     seed: int = Field(0, ge=0)
     compiler: str | None = None
     """C compiler for the check (default ``$CC``, ``cc``, ``gcc``, ``clang``)."""
+    tilt_limit_deg: float = Field(AttitudeLimits.max_tilt_deg, gt=0, lt=90)
+    """The attitude helper's largest tilt from vertical (deg), stated in the header."""
+    thrust_limits: tuple[float, float] = (AttitudeLimits.thrust_min, AttitudeLimits.thrust_max)
+    """The attitude helper's thrust range, in multiples of hover ``m g``."""
+
+    @field_validator("thrust_limits")
+    @classmethod
+    def _thrust_limits(cls, v: tuple[float, float]) -> tuple[float, float]:
+        return check_thrust_limits(v)
+
+    @property
+    def limits(self) -> AttitudeLimits:
+        return AttitudeLimits(self.tilt_limit_deg, *self.thrust_limits)
 
     @field_validator("prefix")
     @classmethod
@@ -66,6 +131,14 @@ class ExportOptions(Options):
             raise ValueError(
                 "not a C identifier (letters, digits, '_', not starting with a digit, "
                 "at most 41 characters)"
+            )
+        if v in C_KEYWORDS or keyword.iskeyword(v):
+            lang = "C" if v in C_KEYWORDS else "Python"
+            raise ValueError(f"'{v}' is a {lang} keyword; choose another name, e.g. '{v}_ctrl'")
+        if v.startswith("__") or (v.startswith("_") and v[1:2].isupper()):
+            raise ValueError(
+                f"'{v}' is reserved in C (a leading '__' or '_' and a capital); "
+                "start the prefix with a letter"
             )
         return v
 
@@ -199,7 +272,7 @@ def _verify_python(text: str, ys: np.ndarray, ref_u: np.ndarray) -> dict[str, An
 
 def generate(bank: ExportBank, cdir: Any, options: ExportOptions) -> dict[str, str]:
     """The files of the export, by name."""
-    fx = facts(cdir)
+    fx = facts(cdir, options.limits)
     if options.target == "c":
         from qsls.pipeline.export.c import c_files
 

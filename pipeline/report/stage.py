@@ -4,7 +4,7 @@ The report reads only the run folder (stage folders, their manifests, ``run.json
 same run folder gives byte-identical output: figures are rendered with fixed metadata, the
 only times shown are those the run recorded, and sections come in a fixed order.
 
-``reports/<name>/index.html`` opens with the summary (one card per controller: status,
+``RUN/report/index.html`` opens with the summary (one card per controller: status,
 premise, guarantee, held-out verdict), then the paper's figures, the evidence section by
 section, and the provenance collapsed at the end. It embeds every figure as a base64 PNG (no
 network, no external file); ``report.md`` has the same structure and links the same PNG
@@ -56,6 +56,48 @@ class ReportResult:
             "sections": self.n_sections,
             "figures": self.n_figures,
         }
+
+
+REPORT_DIR = "report"
+"""The report's folder inside its run folder."""
+
+
+def _run_inputs(run_dir: Path, out: Path) -> list[Path]:
+    """What the report reads: ``run.json`` and every folder of the run but the report's own
+    (so ``RUN/report`` may be written, while an output that is or holds a stage folder is
+    refused)."""
+    target = out.resolve()
+    found = [
+        p
+        for p in sorted(run_dir.iterdir())
+        if not p.name.startswith(".") and (p.is_dir() or p.name == RUN_FILE)
+    ]
+    return [p for p in found if p.resolve() != target] or [run_dir]
+
+
+def check_run_folder(run_dir: Path) -> None:
+    """Refuse, in one line, a folder that is not a run: missing, a stage's own folder, or a
+    folder with neither ``run.json`` nor a stage folder where ``qsls run`` puts them
+    (``RUN/fit``, ``RUN/ingest/NAME``, ...)."""
+    if not run_dir.is_dir():
+        raise InputError(f"{run_dir}: no such run folder")
+    if (run_dir / MANIFEST).is_file():
+        try:
+            stage = json.loads((run_dir / MANIFEST).read_text()).get("stage", "?")
+        except json.JSONDecodeError:
+            stage = "?"
+        raise InputError(
+            f"{run_dir}: a '{stage}' stage folder, not a run; pass the run folder that holds "
+            "it (written by 'qsls run', e.g. runs/quickstart)"
+        )
+    if (run_dir / RUN_FILE).is_file():
+        return
+    if any((run_dir / kind).is_dir() for kind in (*_KNOWN, "fly")):
+        return
+    raise InputError(
+        f"{run_dir}: not a run folder (no {RUN_FILE} and no stage folders such as fit/ or "
+        "ingest/NAME/); pass the folder a 'qsls run' wrote, e.g. runs/quickstart"
+    )
 
 
 def _stage_dirs(run_dir: Path) -> dict[str, list[Path]]:
@@ -184,14 +226,14 @@ def report(
     force: bool = False,
     progress: Progress = NULL_PROGRESS,
 ) -> ReportResult:
-    """Write ``index.html``, ``report.md`` and the PNGs into ``out`` (default ``reports/<name>``)."""
+    """Write ``index.html``, ``report.md`` and the PNGs into ``out`` (default ``RUN/report``:
+    the report belongs to its run, so two runs of one config never share one)."""
     run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise InputError(f"{run_dir}: no such run folder")
+    check_run_folder(run_dir)
     info = json.loads((run_dir / RUN_FILE).read_text()) if (run_dir / RUN_FILE).is_file() else {}
     name = info.get("name", run_dir.name)
-    out = Path(out) if out is not None else Path("reports") / name
-    check_output(out, force, [run_dir])
+    out = Path(out) if out is not None else run_dir / REPORT_DIR
+    check_output(out, force, _run_inputs(run_dir, out))
     sections = build_sections(run_dir, progress)
     title = f"qsls report: {name}"
     subtitle = _subtitle(info, name)

@@ -139,12 +139,14 @@ class StageGraph:
         if from_kind is None:
             return {}
         kinds = [s.kind for s in self.stages]
-        if from_kind not in kinds:
+        # a kind (evaluate: the bound check and fly) or a stage's own id (fly)
+        hits = [i for i, s in enumerate(self.stages) if from_kind in (s.kind, s.id)]
+        if not hits:
             raise ConfigError(
                 f"--from {from_kind}: this run has no such stage (it has: {', '.join(dict.fromkeys(kinds))})"
             )
-        first = kinds.index(from_kind)
-        redo = self.downstream([s.id for s in self.stages[first:] if s.kind == from_kind])
+        first = hits[0]
+        redo = self.downstream([self.stages[i].id for i in hits])
         return dict.fromkeys(
             sorted(redo | {s.id for s in self.stages[first:]}), f"--from {from_kind}"
         )

@@ -25,7 +25,12 @@ from qsls.pipeline import __version__
 from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_json, sha256_file, to_plain
 from qsls.pipeline.core.config import Options, read_yaml, validate
 from qsls.pipeline.core.errors import ConfigError
-from qsls.pipeline.core.locks import FolderLock, clean_dead_temporaries
+from qsls.pipeline.core.locks import (
+    FolderLock,
+    check_writable,
+    clean_dead_temporaries,
+    unwritable,
+)
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.report.stage import RUN_FILE
 from qsls.pipeline.run.graph import Stage, StageGraph, StageOutcome
@@ -130,12 +135,16 @@ def run(
     config_path = Path(config_path)
     cfg = load_run_config(config_path)
     root = Path(out) if out is not None else resolve_path(Path.cwd(), cfg.out or f"runs/{cfg.name}")
-    if from_stage is not None and from_stage not in STAGE_ORDER:
+    if from_stage is not None and from_stage not in (*STAGE_ORDER, "fly"):
         raise ConfigError(
-            f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)})"
+            f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)}, fly)"
         )
+    check_writable(root, "run folder")
     graph = plan(cfg, config_path, root, progress)  # options checked before anything is written
-    root.mkdir(parents=True, exist_ok=True)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise unwritable(root, exc, "run folder") from None
     with FolderLock(root, "run folder"):
         clean_dead_temporaries(root)
         return _run_locked(cfg, config_path, root, graph, force, from_stage, on_stage)
@@ -176,9 +185,9 @@ def _run_locked(
     report_dir = None
     wanted = set(cfg.stages or STAGE_ORDER)
     if cfg.report and "report" in wanted:
-        from qsls.pipeline.report.stage import report
+        from qsls.pipeline.report.stage import REPORT_DIR, report
 
-        report_dir = Path("reports") / cfg.name
+        report_dir = root / REPORT_DIR  # inside the run: a run writes only where it was told
         if on_stage:
             on_stage("report", "running", len(outcomes), len(outcomes) + 1, "")
         report(root, report_dir, force=True)

@@ -60,14 +60,29 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
     graph.add(Stage("fit", "fit", fit_opts, execute, (*train, *logged)))
     if cfg.sweep is not None and "sweep" in wanted:
         _sweep_stage(graph, cfg.sweep, src, progress)
+    listed = set(cfg.stages or ())
     if cfg.synth is None or "synth" not in wanted:
+        if "evaluate" in listed:
+            raise ConfigError(
+                f"{src('stages')}: evaluate is listed but there are no controllers to evaluate: "
+                "add a synth: section (and synth to the stages)"
+            )
         return graph
     from qsls.pipeline.control.synth import SynthOptions
 
     synth_opts = validate(SynthOptions, cfg.synth, src("synth"))
     graph.add(Stage("synth", "synth", synth_opts, _synth_exec(synth_opts, progress), deps=("fit",)))
-    if cfg.evaluate is not None and "evaluate" in wanted:
-        _evaluate_stages(graph, cfg.evaluate, ingest_ids["heldout"], src, progress)
+    heldout = ingest_ids["heldout"]
+    if "evaluate" not in wanted:
+        return graph
+    if cfg.evaluate is None and not heldout and "evaluate" in listed:
+        raise ConfigError(
+            f"{src('stages')}: evaluate is listed but there is nothing to evaluate: no flight "
+            "has role 'heldout' and there is no evaluate: section with fly:"
+        )
+    # a held-out flight is checked with the default options when the section is left out
+    if cfg.evaluate is not None or heldout:
+        _evaluate_stages(graph, cfg.evaluate or {}, heldout, src, progress)
     return graph
 
 

@@ -1,6 +1,8 @@
 """Text trajectories as evo reads them: TUM files and the EuRoC ground-truth csv.
 
 - TUM: one pose per line, ``t x y z qx qy qz qw``, ``t`` in seconds, ``#`` comments.
+  Stamps written as integer nanoseconds (a ROS-exported TUM file) are recognized by their
+  size (:func:`tum_stamps_ns`) and read as nanoseconds.
 - EuRoC csv (``state_groundtruth_estimate0/data.csv``): ``t_ns, p(3), q(w, x, y, z),
   v(3) world frame, gyro bias(3), accel bias(3)``; a ``#timestamp`` header line. Its
   velocity is the dataset's own (world frame), kept in ``Trajectory.velocity``.
@@ -61,10 +63,9 @@ def read_tum(path: Path) -> Trajectory:
         )
     try:
         a = np.array(rows, dtype=float).reshape(-1, 8)
-        # stamps from the text itself: seconds with up to 9 decimals, exactly in ns
-        ns = np.array([_sec_to_ns(r[0]) for r in rows], dtype=np.int64)
     except ValueError as exc:
         raise InputError(f"{path}: a value is not a number ({exc})") from None
+    ns = tum_stamps_ns(path, [r[0] for r in rows], lines)
     check_order(path, ns, lines)
     return Trajectory(
         name=Path(path).name,
@@ -76,6 +77,47 @@ def read_tum(path: Path) -> Trajectory:
         velocity=None,
         decoder="text",
     )
+
+
+NS_STAMP_MIN = 10**15
+"""An integer TUM stamp at least this large is nanoseconds: as seconds it would be 31
+million years; as nanoseconds it is 11.6 days after the clock's zero (ROS time since 1970
+is 1.7e18 ns)."""
+
+
+def tum_stamps_ns(path: Path, stamps: list[str], lines: list[int]) -> np.ndarray:
+    """TUM stamps as int64 nanoseconds: seconds (up to 9 decimals, exact), or integer
+    nanoseconds when every stamp is an integer and the first is at least
+    :data:`NS_STAMP_MIN`."""
+    if all(s.lstrip("+-").isdigit() for s in stamps) and int(stamps[0]) >= NS_STAMP_MIN:
+        out = [int(s) for s in stamps]
+        unit = "nanoseconds"
+    else:
+        try:
+            out = [_sec_to_ns(s) for s in stamps]
+        except ValueError:
+            bad = next(i for i, s in enumerate(stamps) if not _is_number(s))
+            raise InputError(
+                f"{path}: line {lines[bad]}: stamp '{stamps[bad]}' is not a number"
+            ) from None
+        unit = "seconds"
+    limit = np.iinfo(np.int64).max
+    big = next((i for i, v in enumerate(out) if abs(v) > limit), None)
+    if big is not None:
+        raise InputError(
+            f"{path}: line {lines[big]}: stamp {stamps[big]} read as {unit} is beyond any clock; "
+            "TUM stamps are seconds ('1403636579.758555'), or integer nanoseconds "
+            f"(>= {NS_STAMP_MIN:.0e})"
+        )
+    return np.array(out, dtype=np.int64)
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
 
 
 def _sec_to_ns(s: str) -> int:
@@ -96,6 +138,20 @@ def read_euroc(path: Path) -> Trajectory:
             "needs at least 8 ('t_ns, px, py, pz, qw, qx, qy, qz')"
         )
     width = min(len(r) for r in rows)
+    odd = next((i for i, r in enumerate(rows) if not r[0].lstrip("+-").isdigit()), None)
+    if odd is not None:
+        what = (
+            f"{len(rows[odd])} comma-separated fields with a stamp in seconds: a TUM file with "
+            "commas? TUM separates 't x y z qx qy qz qw' (t in seconds) by spaces; replace the "
+            "commas by spaces"
+            if len(rows[odd]) == 8 and _is_number(rows[odd][0])
+            else "a stamp that is not an integer"
+        )
+        raise InputError(
+            f"{path}: read as EuRoC csv (comma-separated, 't_ns, px, py, pz, qw, qx, qy, qz, "
+            f"...' with t in integer nanoseconds), but line {lines[odd]} has "
+            f"'{rows[odd][0]}', {what}"
+        )
     try:
         ns = np.array([int(r[0]) for r in rows], dtype=np.int64)
         a = np.array([r[:width] for r in rows], dtype=float)

@@ -1,0 +1,340 @@
+"""What a new user met (issue 26): bad numbers, unwritable folders, misnamed formats and
+other inputs answered with one line and nothing left behind, through the public commands."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from qsls.cli.main import app
+
+RUN = CliRunner()
+REPO = Path(__file__).resolve().parents[1]
+
+
+def invoke(*args):
+    return RUN.invoke(app, [str(a) for a in args])
+
+
+def one_line(res, code: int = 2) -> str:
+    """The single ``error:`` line of a refused command (no traceback)."""
+    assert res.exit_code == code, res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit), res.exception
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1, res.output
+    return lines[0]
+
+
+# --------------------------------------------------------------------------- item 6
+@pytest.mark.parametrize(
+    "args, field, value",
+    [
+        (["ingest", "--vio", "v.txt", "--truth", "t.txt", "--time-offset", "nan"], "time_offset", "nan"),
+        (["ingest", "--vio", "v.txt", "--truth", "t.txt", "--time-offset", "inf"], "time_offset", "inf"),
+        (["synth", "--S", "nan"], "S", "nan"),
+        (["synth", "--eps-e", "nan"], "eps_e", "nan"),
+        (["synth", "--delta", "nan"], "delta", "nan"),
+        (["synth", "--dt", "inf"], "dt", "inf"),
+        (["synth", "--S", "-inf"], "S", "-inf"),
+    ],
+)  # fmt: skip
+def test_non_finite_numbers_are_refused_by_the_options_model(tmp_path, args, field, value):
+    res = invoke(*args, "--out", tmp_path / "out")
+    assert one_line(res) == f"error: options: '{field}': must be a finite number (got {value})"
+    assert not (tmp_path / "out").exists()
+
+
+def test_non_finite_numbers_in_a_config_file_or_a_list_are_refused(tmp_path):
+    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.core.errors import ConfigError
+    from qsls.pipeline.export.replay import ReplayOptions
+
+    cfg = tmp_path / "replay.yaml"
+    cfg.write_text("replay:\n  thrust_band: [0.5, .inf]\n")
+    with pytest.raises(ConfigError, match=r"'thrust_band': must be a finite number"):
+        load_options(ReplayOptions, cfg, section="replay")
+    cfg.write_text("replay:\n  max_gap: .nan\n")
+    with pytest.raises(ConfigError, match=r"'max_gap': must be a finite number \(got nan\)"):
+        load_options(ReplayOptions, cfg, section="replay")
+
+
+# --------------------------------------------------------------------------- item 1
+def test_an_output_containing_the_config_file_is_refused_even_with_force(tmp_path):
+    from tests.test_fit import vio_flights
+
+    flights, _ = vio_flights(tmp_path / "flights", n=1)
+    folder = tmp_path / "d"
+    folder.mkdir()
+    cfg = folder / "fit.yaml"
+    cfg.write_text("fit:\n  radius: 1.0\n  figures: false\n")
+    before = cfg.read_bytes()
+    res = invoke("fit", *flights, "--config", cfg, "--out", folder, "--force")
+    assert one_line(res) == (
+        f"error: output folder {folder} contains the input {cfg}; writing it would destroy the "
+        "input (even with --force): choose an output folder apart from the inputs"
+    )
+    assert cfg.read_bytes() == before and sorted(p.name for p in folder.iterdir()) == ["fit.yaml"]
+    # the same file, kept apart from the output, is read as usual
+    assert invoke("fit", *flights, "--config", cfg, "--out", tmp_path / "fit").exit_code == 0
+
+
+# --------------------------------------------------------------------------- item 5
+def _unwritable(tmp_path):
+    """(output, the folder the message names, why): a file used as a folder, and /proc."""
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    places = [(blocker / "out", blocker, "not a folder")]
+    if Path("/proc/self").is_dir():
+        places.append((Path("/proc/qsls-no/out"), Path("/proc"), "No such file or directory"))
+    return places
+
+
+def _refused_unwritable(res, out, folder, why, what="output folder"):
+    line = one_line(res)
+    assert line.startswith(f"error: cannot write the {what} {out.absolute()}: "), line
+    assert f"folder {folder} is not writable ({why})" in line, line
+
+
+def test_an_unwritable_output_is_one_line_for_fit_ingest_and_run(tmp_path):
+    from tests.bagfixtures import write_flight as write_bag
+    from tests.test_fit import vio_flights
+
+    flights, _ = vio_flights(tmp_path / "flights", n=1)
+    bag = write_bag(tmp_path / "f.bag", "ros1", duration=15.0)
+    for out, folder, why in _unwritable(tmp_path):
+        _refused_unwritable(invoke("fit", *flights, "--out", out), out, folder, why)
+        _refused_unwritable(invoke("ingest", bag, "--out", out), out, folder, why)
+        res = invoke("run", REPO / "configs" / "quickstart.yaml", "--out", out)
+        _refused_unwritable(res, out, folder, why, "run folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "f.bag", "flights"]
+
+
+def test_a_read_only_mount_is_one_line(tmp_path):
+    """A read-only file system, mounted in a user namespace of its own (skipped where the
+    kernel does not allow one)."""
+    import shutil
+    import subprocess
+    import sys
+
+    from tests.test_fit import vio_flights
+
+    flights, _ = vio_flights(tmp_path / "flights", n=1)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare")
+    probe = subprocess.run(["unshare", "-rm", "mount", "-t", "tmpfs", "-o", "ro", "none", ro],
+                           capture_output=True)  # fmt: skip
+    if probe.returncode != 0:
+        pytest.skip("no user namespaces with mounts here")
+    script = (
+        f"mount -t tmpfs -o ro none {ro} && "
+        f"{sys.executable} -m qsls.cli.main fit {flights[0]} --out {ro}/fit --radius 1"
+    )
+    proc = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip() == (
+        f"error: cannot write the output folder {ro}/fit: folder {ro} is not writable "
+        "(Read-only file system); choose another --out"
+    )
+
+
+# --------------------------------------------------------------------------- item 8
+@pytest.mark.parametrize(
+    "prefix, why",
+    [
+        ("int", "'int' is a C keyword; choose another name, e.g. 'int_ctrl'"),
+        ("restrict", "'restrict' is a C keyword; choose another name, e.g. 'restrict_ctrl'"),
+        ("class", "'class' is a Python keyword; choose another name, e.g. 'class_ctrl'"),
+        ("__x", "'__x' is reserved in C (a leading '__' or '_' and a capital)"),
+    ],
+)
+def test_export_prefix_must_be_a_usable_identifier(tmp_path, prefix, why):
+    res = invoke(
+        "export", tmp_path / "ctrl", "-t", "c", "--prefix", prefix, "--out", tmp_path / "x"
+    )
+    assert one_line(res).startswith(f"error: options: 'prefix': {why}")
+    assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- item 7
+def _tum_lines(t_text, p, sep=" "):
+    return "".join(
+        sep.join([a, *(f"{v:.6f}" for v in (*b, 0.0, 0.0, 0.0, 1.0))]) + "\n"
+        for a, b in zip(t_text, p, strict=True)
+    )
+
+
+def test_tum_stamps_in_nanoseconds_read_as_the_same_flight(tmp_path):
+    import numpy as np
+
+    from qsls.pipeline.core.artifacts import sha256_file
+
+    t_ns = 1_403_636_579_000_000_000 + np.arange(0, 20_000_000_000, 20_000_000, dtype=np.int64)
+    t = (t_ns - t_ns[0]) * 1e-9
+    truth = np.c_[np.cos(t), np.sin(t), 1 + 0.1 * np.sin(3 * t)]
+    vio = truth + np.random.default_rng(0).normal(scale=0.01, size=truth.shape)
+    secs = [f"{v // 10**9}.{v % 10**9:09d}" for v in t_ns.tolist()]
+    nanos = [str(v) for v in t_ns.tolist()]
+    for name, stamps in (("s", secs), ("ns", nanos)):
+        (tmp_path / f"vio_{name}.tum").write_text(_tum_lines(stamps, vio))
+        (tmp_path / f"truth_{name}.tum").write_text(_tum_lines(stamps, truth))
+        res = invoke("ingest", "--vio", tmp_path / f"vio_{name}.tum",
+                     "--truth", tmp_path / f"truth_{name}.tum", "--out", tmp_path / name)  # fmt: skip
+        assert res.exit_code == 0, res.output
+    assert sha256_file(tmp_path / "s" / "flight.parquet") == sha256_file(
+        tmp_path / "ns" / "flight.parquet"
+    )
+
+
+def test_a_comma_separated_tum_file_and_a_stamp_beyond_any_clock_are_named(tmp_path):
+    p = [(1.0, 2.0, 3.0)] * 2
+    commas = tmp_path / "commas.tum"
+    commas.write_text(
+        "# t x y z qx qy qz qw\n" + _tum_lines(["1403636579.758", "1403636579.808"], p, ",")
+    )
+    good = tmp_path / "good.tum"
+    good.write_text(_tum_lines(["1403636579.758", "1403636579.808"], p))
+    res = invoke("ingest", "--vio", commas, "--truth", good, "--out", tmp_path / "o")
+    assert one_line(res) == (
+        f"error: {commas}: read as EuRoC csv (comma-separated, 't_ns, px, py, pz, qw, qx, qy, "
+        "qz, ...' with t in integer nanoseconds), but line 2 has '1403636579.758', 8 "
+        "comma-separated fields with a stamp in seconds: a TUM file with commas? TUM separates "
+        "'t x y z qx qy qz qw' (t in seconds) by spaces; replace the commas by spaces"
+    )
+    huge = tmp_path / "huge.tum"
+    huge.write_text(_tum_lines(["1e30", "2e30"], p))
+    res = invoke("ingest", "--vio", huge, "--truth", good, "--out", tmp_path / "o")
+    assert one_line(res) == (
+        f"error: {huge}: line 1: stamp 1e30 read as seconds is beyond any clock; TUM stamps "
+        "are seconds ('1403636579.758555'), or integer nanoseconds (>= 1e+15)"
+    )
+    assert not (tmp_path / "o").exists()
+
+
+# --------------------------------------------------------------------------- item 12
+def test_from_fly_reruns_fly_only_and_an_unknown_stage_names_the_choices(tmp_path):
+    from qsls.pipeline.core.artifacts import StageWriter
+    from qsls.pipeline.run.graph import Stage, StageGraph
+
+    def writer(kind):
+        def execute(out, deps):
+            with StageWriter(out, kind, options={}, force=True) as w:
+                w.write_text("x.txt", kind)
+
+        return execute
+
+    def graph():
+        g = StageGraph(tmp_path / "run")
+        g.add(Stage("fit", "fit", {}, writer("fit")))
+        g.add(Stage("synth", "synth", {}, writer("synth"), deps=("fit",)))
+        g.add(Stage("evaluate", "evaluate", {}, writer("evaluate"), deps=("synth",)))
+        g.add(Stage("fly", "evaluate", {}, writer("evaluate"), deps=("synth",)))
+        return g
+
+    assert [o.status for o in graph().run()] == ["ran"] * 4
+    ran = {o.id for o in graph().run(from_kind="fly") if o.status == "ran"}
+    assert ran == {"fly"}
+    ran = {o.id for o in graph().run(from_kind="evaluate") if o.status == "ran"}
+    assert ran == {"evaluate", "fly"}
+    res = invoke(
+        "run", REPO / "configs" / "quickstart.yaml", "--from", "flying", "--out", tmp_path / "r"
+    )
+    assert one_line(res) == (
+        "error: --from flying: not a stage (choose from simulate, ingest, fit, sweep, synth, "
+        "evaluate, report, fly)"
+    )
+    assert not (tmp_path / "r").exists()
+
+
+def test_report_on_a_folder_that_is_not_a_run_is_one_line(tmp_path):
+    from qsls.pipeline.core.artifacts import StageWriter
+
+    stage = tmp_path / "model"
+    with StageWriter(stage, "fit", options={}) as w:
+        w.write_text("error_model.yaml", "eps_e: 0.1\n")
+    res = invoke("report", stage, "--out", tmp_path / "r")
+    assert one_line(res) == (
+        f"error: {stage}: a 'fit' stage folder, not a run; pass the run folder that holds it "
+        "(written by 'qsls run', e.g. runs/quickstart)"
+    )
+    # a folder holding stage folders, but not where a run puts them
+    other = tmp_path / "work"
+    with StageWriter(other / "mine" / "model", "fit", options={}) as w:
+        w.write_text("error_model.yaml", "eps_e: 0.1\n")
+    res = invoke("report", other, "--out", tmp_path / "r")
+    assert one_line(res) == (
+        f"error: {other}: not a run folder (no run.json and no stage folders such as fit/ or "
+        "ingest/NAME/); pass the folder a 'qsls run' wrote, e.g. runs/quickstart"
+    )
+    assert not (tmp_path / "r").exists()
+
+
+# --------------------------------------------------------------------------- item 3
+@pytest.mark.slow
+def test_two_runs_of_one_config_keep_their_own_reports_and_write_nowhere_else(tmp_path):
+    import subprocess
+    import sys
+
+    from tests.test_run_cache import _config
+
+    cfg = _config(tmp_path, report=True)
+    for out in ("a", "b"):
+        proc = subprocess.run(
+            [sys.executable, "-m", "qsls.cli.main", "run", cfg, "--out", out],
+            cwd=tmp_path, capture_output=True, text=True,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert f"{out}/report/index.html" in proc.stdout
+    # the working folder holds the config and the two runs, nothing else (no reports/)
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == [
+        "a", "b", cfg.name,
+    ]  # fmt: skip
+    a, b = (tmp_path / n / "report" / "index.html" for n in "ab")
+    assert a.is_file() and b.is_file()
+    # same config and seed: the same page, each in its own run (neither overwrote the other)
+    assert a.read_bytes() == b.read_bytes() and a.stat().st_ino != b.stat().st_ino
+
+
+# --------------------------------------------------------------------------- item 2
+def _run_config(tmp_path, **changes):
+    import yaml
+
+    from tests.test_run_cache import SMALL
+
+    data = {**SMALL, **changes}
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump(data, sort_keys=False))
+    return cfg
+
+
+def test_a_heldout_flight_without_an_evaluate_section_is_evaluated_with_defaults(tmp_path):
+    from qsls.pipeline.evaluate.bound import EvaluateOptions
+    from qsls.pipeline.run.runner import load_run_config, plan
+    from tests.test_run_cache import SMALL
+
+    flights = [*SMALL["flights"], {"name": "held", "role": "heldout", "simulate": {"seed": 3}}]
+    for stages in (None, ["simulate", "ingest", "fit", "synth", "evaluate"]):
+        cfg = _run_config(tmp_path, flights=flights, stages=stages)
+        graph = plan(load_run_config(cfg), cfg, tmp_path / "run")
+        (evaluate,) = [s for s in graph.stages if s.id == "evaluate"]
+        assert evaluate.options == EvaluateOptions()
+        assert set(evaluate.deps) == {"fit", "synth", "ingest/held"}
+    assert not (tmp_path / "run").exists()
+
+
+def test_evaluate_listed_with_nothing_to_evaluate_is_refused_before_any_stage(tmp_path):
+    stages = ["simulate", "ingest", "fit", "synth", "evaluate"]
+    res = invoke("run", _run_config(tmp_path, stages=stages), "--out", tmp_path / "run")
+    assert one_line(res) == (
+        f"error: {tmp_path}: stages: evaluate is listed but there is nothing to evaluate: no "
+        "flight has role 'heldout' and there is no evaluate: section with fly:"
+    )
+    res = invoke("run", _run_config(tmp_path, stages=stages, synth=None), "--out", tmp_path / "run")
+    assert one_line(res) == (
+        f"error: {tmp_path}: stages: evaluate is listed but there are no controllers to "
+        "evaluate: add a synth: section (and synth to the stages)"
+    )
+    assert not (tmp_path / "run").exists()
