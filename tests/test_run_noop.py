@@ -61,7 +61,10 @@ def test_an_up_to_date_rerun_runs_nothing_imports_nothing_heavy_and_notices_chan
 ):
     data = {
         **SMALL,
-        "flights": [*SMALL["flights"], {"name": "held", "role": "heldout", "simulate": {"seed": 3}}],
+        "flights": [
+            *SMALL["flights"],
+            {"name": "held", "role": "heldout", "simulate": {"seed": 3}},
+        ],
         "evaluate": {},
         "report": True,
     }
