@@ -51,7 +51,7 @@ def command(
             on_stage=on_stage,
         )
     print_summary("qsls run", result.summary())
-    from qsls.pipeline.evaluate.verdict import read_verdicts
-
+    notes = {oc.id: oc.notes for oc in result.outcomes}  # recorded when each stage ran
     for stage, title in (("evaluate", "held-out flights"), ("fly", "flown flights")):
-        print_verdicts(f"Certified bound on the {title}", read_verdicts(result.root / stage))
+        lines = notes.get(stage, {}).get("verdicts", [])
+        print_verdicts(f"Certified bound on the {title}", lines)

@@ -24,7 +24,7 @@ import os
 import shutil
 import time
 import zipfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -100,15 +100,17 @@ def prime_hashes(paths: Iterable[Path]) -> None:
             _PRIMED[key] = _hash_file(f)
 
 
-def sha256_path(path: Path) -> str:
+def sha256_path(path: Path, hash_file: Callable[[Path], str] | None = None) -> str:
     """Hex sha256 of a file, or of a folder: its files' relative paths and hashes, sorted.
 
     A folder's ``manifest.json`` is left out: it holds the wall time, which changes on
-    every run although the data does not.
+    every run although the data does not. ``hash_file`` hashes one file (default
+    :func:`sha256_file`; the run cache passes one that reuses hashes of unchanged files).
     """
     path = Path(path)
+    hash_file = hash_file or sha256_file
     if path.is_file():
-        return sha256_file(path)
+        return hash_file(path)
     if not path.is_dir():
         raise InputError(f"{path}: no such file or folder")
     h = hashlib.sha256()
@@ -116,7 +118,7 @@ def sha256_path(path: Path) -> str:
         rel = f.relative_to(path).as_posix()
         if rel == MANIFEST or any(part.startswith(".") for part in f.relative_to(path).parts):
             continue
-        h.update(rel.encode() + b"\0" + sha256_file(f).encode() + b"\n")
+        h.update(rel.encode() + b"\0" + hash_file(f).encode() + b"\n")
     return h.hexdigest()
 
 

@@ -33,7 +33,8 @@ from qsls.pipeline.core.locks import (
 )
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.report.stage import RUN_FILE
-from qsls.pipeline.run.graph import Stage, StageGraph, StageOutcome
+from qsls.pipeline.run.graph import Stage, StageGraph, StageOutcome, run_versions
+from qsls.pipeline.run.memo import fingerprint, planned_graph
 from qsls.pipeline.run.paths import resolve_path
 
 # (stage id, "running" | "ran" | "skipped", index, count, why it ran)
@@ -140,7 +141,10 @@ def run(
             f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)}, fly)"
         )
     check_writable(root, "run folder")
-    graph = plan(cfg, config_path, root, progress)  # options checked before anything is written
+    # options checked before anything is written; an unchanged config is not planned again
+    versions = run_versions()
+    fp = fingerprint(cfg, config_path.parent, root, versions)
+    graph = planned_graph(root, fp, lambda: plan(cfg, config_path, root, progress), versions)
     try:
         root.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -169,7 +173,9 @@ def _run_locked(
         "config": to_plain(cfg),
         "stages": graph.ids,
     }
-    atomic_write_bytes(root / RUN_FILE, dump_json(info).encode())
+    body = dump_json(info).encode()
+    if not (root / RUN_FILE).is_file() or (root / RUN_FILE).read_bytes() != body:
+        atomic_write_bytes(root / RUN_FILE, body)
 
     def started(stage: Stage, i: int, n: int) -> None:
         if on_stage:
@@ -179,16 +185,35 @@ def _run_locked(
         if on_stage:
             on_stage(oc.id, oc.status, i, n, oc.reason)
 
-    # the report is not a cached stage (it always runs), so --from report reruns only it
+    # the report runs after every stage (not counted among them): when one ran, when its
+    # folder or run.json changed, or when asked (--force, --from report, which reruns only it)
     from_kind = None if from_stage == "report" else from_stage
     outcomes = graph.run(force=force, from_kind=from_kind, on_start=started, on_done=done)
     report_dir = None
     wanted = set(cfg.stages or STAGE_ORDER)
     if cfg.report and "report" in wanted:
-        from qsls.pipeline.report.stage import REPORT_DIR, report
+        from qsls.pipeline.report.stage import REPORT_DIR
 
         report_dir = root / REPORT_DIR  # inside the run: a run writes only where it was told
-        if on_stage:
-            on_stage("report", "running", len(outcomes), len(outcomes) + 1, "")
-        report(root, report_dir, force=True)
+        n = len(outcomes)
+
+        def report_started(stage: Stage) -> None:
+            if on_stage:
+                on_stage("report", "running", n, n + 1, "")
+
+        redo = "--force" if force else ("--from report" if from_stage == "report" else None)
+        stage = _report_stage(root, report_dir, info, tuple(graph.ids))
+        graph.run_last(stage, outcomes, redo=redo, on_start=report_started)
     return RunResult(root=root, outcomes=tuple(outcomes), report=report_dir)
+
+
+def _report_stage(root: Path, out: Path, info: dict[str, Any], deps: tuple[str, ...]) -> Stage:
+    """The report of run folder ``root`` into ``out``: it reads the stage folders and run.json."""
+
+    def execute(folder: Path, deps: Any) -> Any:
+        from qsls.pipeline.report.stage import report
+
+        return report(root, folder, force=True)
+
+    options = {"out": str(out.resolve()), "run": info}
+    return Stage("report", "report", options, execute, deps=deps, folder=out)

@@ -170,13 +170,23 @@ def _evaluate_stages(
     if heldout:
         execute = _evaluate_exec(eval_opts, heldout, progress)
         deps = ("fit", "synth", *heldout)
-        graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps))
+        graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps, notes=_verdicts))
     if fly_cfg is not None:
         from qsls.pipeline.evaluate.fly import FlyOptions
 
         fly_opts = validate(FlyOptions, merge(eval_cfg, fly_cfg), src("evaluate.fly"))
         execute = _fly_exec(fly_opts, progress)
-        graph.add(Stage("fly", "evaluate", fly_opts, execute, deps=("fit", "synth")))
+        graph.add(
+            Stage("fly", "evaluate", fly_opts, execute, deps=("fit", "synth"), notes=_verdicts)
+        )
+
+
+def _verdicts(out: Path) -> dict[str, Any]:
+    """An evaluation's verdict lines, one per controller, kept in the run state so that a
+    rerun with nothing to do prints them without reading the table."""
+    from qsls.pipeline.evaluate.verdict import read_verdicts
+
+    return {"verdicts": [v.line() for v in read_verdicts(out)]}
 
 
 def _simulate_stage(

@@ -1,0 +1,133 @@
+"""``qsls ingest`` as a process against reading the same two topics message by message.
+
+Issue 27's target: ``qsls ingest`` of a 200 000-message bag (100 000 nav_msgs/Odometry and
+100 000 geometry_msgs/PoseStamped at 200 Hz), as a fresh process, at least 3x faster than
+reading the same two topics message by message with rosbags' deserializer in a fresh
+process. Both sides are what a user types, interpreter start and imports included:
+
+- ``qsls ingest BAG`` (read both topics, time offset, alignment, resampling, hashing,
+  flight.parquet and manifest, console output);
+- the reader: ``rosbags.highlevel.AnyReader`` over the two topics' connections,
+  ``reader.deserialize(raw, msgtype)`` per message and its stamp, position and orientation
+  kept in lists, then numpy arrays (what evo and most scripts do). A plain MCAP file, which
+  AnyReader cannot open, is read with the ``mcap`` package's reader and rosbags'
+  ``typestore.deserialize_cdr``;
+- for reference, the previous baseline of ``bench_ingest.py``: ``qsls ingest`` itself with
+  ``decoder: deserializer`` (the same per-message reading plus everything ingest does
+  after it), which makes a larger ratio.
+
+The bags are those of ``bench_ingest.py`` (poses only, built once under benchmarks/_work/).
+Run: python benchmarks/bench_ingest_process.py [--quick] [--repeat N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_ingest import WORK, build, run_cli  # noqa: E402
+
+READER = r"""
+import sys
+from pathlib import Path
+
+import numpy as np
+from rosbags.typesys import Stores, get_typestore
+
+bag, plain_mcap = Path(sys.argv[1]), sys.argv[2] == "mcap"
+topics = ("/vio/odom", "/mocap/pose")
+rows = {t: [] for t in topics}
+
+
+def row(msg):
+    pose = msg.pose.pose if hasattr(msg, "twist") else msg.pose
+    st, p, q = msg.header.stamp, pose.position, pose.orientation
+    ns = getattr(st, "nanosec", None)
+    ns = st.nsec if ns is None else ns
+    return (st.sec * 1_000_000_000 + ns, p.x, p.y, p.z, q.x, q.y, q.z, q.w)
+
+
+ts = get_typestore(Stores.ROS2_HUMBLE)
+if plain_mcap:
+    from mcap.reader import make_reader
+
+    with open(bag, "rb") as fh:
+        for schema, channel, message in make_reader(fh).iter_messages(topics=topics):
+            rows[channel.topic].append(row(ts.deserialize_cdr(message.data, schema.name)))
+else:
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag], default_typestore=ts) as reader:
+        conns = [c for c in reader.connections if c.topic in topics]
+        for conn, _, raw in reader.messages(connections=conns):
+            rows[conn.topic].append(row(reader.deserialize(raw, conn.msgtype)))
+arrays = {t: np.array(v, dtype=float) for t, v in rows.items()}
+print(sum(len(a) for a in arrays.values()))
+"""
+
+FORMATS = {  # label: (bench_ingest format, file suffix, plain MCAP)
+    "ros1": ("ros1", ".bag", False),
+    "ros2-sqlite3": ("ros2-sqlite", "", False),
+    "ros2-mcap": ("ros2-mcap", "", False),
+    "mcap (zstd)": ("mcap-zstd", ".mcap", True),
+}
+
+
+def run_reader(bag: Path, plain_mcap: bool, expected: int, repeat: int) -> float:
+    """Best wall time of the message-by-message reader in a fresh interpreter."""
+    cmd = [sys.executable, "-c", READER, str(bag), "mcap" if plain_mcap else "bag"]
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        best = min(best, time.perf_counter() - t0)
+        if done.returncode or int(done.stdout.strip()) != expected:
+            raise SystemExit(f"reader on {bag.name}: {done.stderr.strip()[-300:] or done.stdout}")
+    return best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="20k messages instead of 200k")
+    ap.add_argument("--repeat", type=int, default=3, help="fresh processes per cell (best)")
+    args = ap.parse_args()
+    n_pose = 10_000 if args.quick else 100_000
+    tag = "quick" if args.quick else "full"
+    WORK.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for label, (fmt, ext, plain) in FORMATS.items():
+        kind, _, comp = fmt.partition("-") if plain else (fmt, "", "")
+        bag = build(n_pose, 0.0, comp or None, f"a_{tag}_{fmt}{ext}", kind)
+        qsls = run_cli(bag, "fast", args.repeat)
+        reader = run_reader(bag, plain, 2 * n_pose, args.repeat)
+        old = run_cli(bag, "deserializer", args.repeat)
+        rows.append((label, qsls, reader, old))
+    print(
+        f"\n{2 * n_pose} messages ({n_pose} Odometry + {n_pose} PoseStamped, 200 Hz), poses"
+        f" only; wall seconds of a fresh process, best of {args.repeat}\n"
+    )
+    head = (
+        f"{'bag':14s} | {'qsls ingest':>11s} | {'reader':>7s} {'ratio':>6s} | "
+        f"{'ingest, deser.':>14s} {'ratio':>6s}"
+    )
+    print(head)
+    print("-" * len(head))
+    for label, qsls, reader, old in rows:
+        print(
+            f"{label:14s} | {qsls:11.2f} | {reader:7.2f} {reader / qsls:5.1f}x | "
+            f"{old:14.2f} {old / qsls:5.1f}x"
+        )
+    print(
+        "\nreader: the two topics read message by message with rosbags' deserializer (target:"
+        " qsls ingest >= 3x faster on ros2-sqlite3); ingest, deser.: qsls ingest with"
+        " decoder: deserializer, the previous baseline"
+    )
+
+
+if __name__ == "__main__":
+    main()
