@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -82,12 +83,14 @@ class CameraVio:
         self.frames = 0
         self.features_sum = 0
         self.blur_sum = 0.0
-        self.dark: list[tuple[float, float]] = []
+        self.dark = [(float(a), float(b)) for a, b in cam.lens_cap]
         self._digest = hashlib.sha256()
         self.snapshot_s = snapshot_s
         self.snapshot: Snapshot | None = None
         self.nees: list[tuple[float, float, float]] = []  # (t, NEES of [p, v], NEES of theta)
         self.record_nees = False
+        self.seconds = {"imu": 0.0, "render": 0.0, "track": 0.0, "filter": 0.0}
+        """Wall-clock seconds spent per part (for benchmarks/bench_camera.py)."""
 
     # ------------------------------------------------------------------ checks
     def check_view(self, s0: np.ndarray, what: str = "the start pose") -> float:
@@ -111,6 +114,8 @@ class CameraVio:
             quat_to_matrix(s0[6:10]), s0[0:3].astype(float), s0[3:6].astype(float),
         )  # fmt: skip
         self.step_index = 0
+        self._s_last: np.ndarray | None = None
+        self._r_last = np.eye(3)
         self._frame(s0, 0.0)
 
     def step(self, s0: np.ndarray, s1: np.ndarray) -> None:
@@ -118,10 +123,16 @@ class CameraVio:
         flt = self.filter
         assert flt is not None
         h = self.h_ns / NS
-        r0, r1 = quat_to_matrix(s0[6:10]), quat_to_matrix(s1[6:10])
+        c0 = time.perf_counter()
+        r0 = self._r_last if self._s_last is s0 else quat_to_matrix(s0[6:10])
+        r1 = quat_to_matrix(s1[6:10])
+        self._s_last, self._r_last = s1, r1
         omega, acc = true_rates(r0, r1, s0[3:6], s1[3:6], h, self.gravity)
         wm, am = self.imu.measure(omega, acc)
+        c1 = time.perf_counter()
         flt.propagate(wm, am, h)
+        self.seconds["imu"] += c1 - c0
+        self.seconds["filter"] += time.perf_counter() - c1
         self.step_index += 1
         if self.step_index % self.steps_per_frame == 0:
             self._frame(s1, self.step_index * h, r1)
@@ -131,14 +142,21 @@ class CameraVio:
         assert flt is not None
         r_wb = quat_to_matrix(s[6:10]) if r_wb is None else r_wb
         dark = any(a <= t < b for a, b in self.dark)
+        c0 = time.perf_counter()
         img = self.renderer.render(
             r_wb, s[0:3], s[10:13], s[3:6], self.r_bc, self.t_bc, dark=dark
         )
+        c1 = time.perf_counter()
         self._digest.update(img.tobytes())
         ids, pts = self.tracker.track(img)
+        c2 = time.perf_counter()
         k = self.renderer.k
         uv = (pts.astype(float) - k[:2, 2]) / self.cam.focal_px
         flt.process_frame(self.frames, ids, uv)
+        c3 = time.perf_counter()
+        self.seconds["render"] += c1 - c0
+        self.seconds["track"] += c2 - c1
+        self.seconds["filter"] += c3 - c2
         self.frames += 1
         self.features_sum += len(ids)
         self.blur_sum += self.renderer.last_blur_px

@@ -41,7 +41,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from qsls.pipeline.sim.camera.geometry import skew, so3_exp
 from qsls.pipeline.sim.camera.options import CameraOptions
@@ -56,59 +56,62 @@ class Track:
 
 
 def triangulate(
-    rc: np.ndarray, pc: np.ndarray, z: np.ndarray, iters: int = 3
+    rc: np.ndarray, pc: np.ndarray, z: np.ndarray, w: np.ndarray, iters: int = 3
 ) -> tuple[np.ndarray, np.ndarray]:
     """Feature positions (F, 3) from rays: camera rotations ``rc`` (F, M, 3, 3), centres
-    ``pc`` (F, M, 3), normalized points ``z`` (F, M, 2); and a validity flag (F,) (all
-    depths positive and finite). Linear: ``sum_j (I - b_j b_j^T)(p_f - p_cj) = 0`` for unit
-    rays ``b_j``; then ``iters`` Gauss-Newton steps on the reprojection error."""
+    ``pc`` (F, M, 3), normalized points ``z`` (F, M, 2), weights ``w`` (F, M) (1: an
+    observation, 0: padding); and a validity flag (F,) (depths positive, finite). Linear:
+    ``sum_j (I - b_j b_j^T)(p_f - p_cj) = 0`` for unit rays ``b_j``; then ``iters``
+    Gauss-Newton steps on the reprojection error."""
     f, m = z.shape[:2]
     d = np.concatenate([z, np.ones((f, m, 1))], axis=2)
     b = np.einsum("fmij,fmj->fmi", rc, d)
     b /= np.linalg.norm(b, axis=2, keepdims=True)
-    proj = I3[None, None] - b[..., :, None] * b[..., None, :]  # (F, M, 3, 3)
+    proj = (I3[None, None] - b[..., :, None] * b[..., None, :]) * w[..., None, None]
     a = proj.sum(axis=1)
     y = np.einsum("fmij,fmj->fi", proj, pc)
     ok = np.abs(np.linalg.det(a)) > 1e-9
     a[~ok] = I3
     pf = np.linalg.solve(a, y[..., None])[..., 0]
     rct = np.swapaxes(rc, 2, 3)
+    valid = w > 0
     for _ in range(iters):
         x = np.einsum("fmij,fmj->fmi", rct, pf[:, None, :] - pc)  # in each camera
-        zc = x[..., 2:3]
-        bad = (zc[..., 0] <= 1e-3).any(axis=1)
+        zc = x[..., 2]
+        ok &= ~((zc <= 1e-3) & valid).any(axis=1)
         zc = np.where(zc > 1e-3, zc, 1e-3)
-        res = z - x[..., :2] / zc
+        res = (z - x[..., :2] / zc[..., None]) * w[..., None]
         jp = np.zeros((f, m, 2, 3))
-        jp[..., 0, 0] = 1.0 / zc[..., 0]
-        jp[..., 1, 1] = 1.0 / zc[..., 0]
-        jp[..., :, 2] = -x[..., :2] / (zc * zc)
+        jp[..., 0, 0] = w / zc
+        jp[..., 1, 1] = w / zc
+        jp[..., :, 2] = -x[..., :2] * (w / (zc * zc))[..., None]
         j = jp @ rct  # (F, M, 2, 3)
         jtj = np.einsum("fmki,fmkj->fij", j, j) + 1e-9 * I3
         jtr = np.einsum("fmki,fmk->fi", j, res)
-        ok &= ~bad
         jtj[~ok] = I3
         pf = pf + np.linalg.solve(jtj, jtr[..., None])[..., 0]
     x = np.einsum("fmij,fmj->fmi", rct, pf[:, None, :] - pc)
-    ok &= (x[..., 2] > 0.05).all(axis=1) & np.isfinite(pf).all(axis=1)
+    ok &= ((x[..., 2] > 0.05) | ~valid).all(axis=1) & np.isfinite(pf).all(axis=1)
     return pf, ok
 
 
 def feature_constraints(
-    rc: np.ndarray, pc: np.ndarray, z: np.ndarray, pf: np.ndarray
+    rc: np.ndarray, pc: np.ndarray, z: np.ndarray, w: np.ndarray, pf: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Null-space projected residuals ``r_o`` (F, 2M-3) and Jacobians ``H_o`` (F, 2M-3, M, 6)
-    on each feature's own clones (``dtheta_c, dp_c``), module docstring."""
+    on each feature's own clones (``dtheta_c, dp_c``), module docstring. Padding (``w = 0``)
+    enters as rows of zeros: measurements ``0 = 0 dx + n`` that carry no information, so the
+    projected constraints are those of the real observations (plus uninformative rows)."""
     f, m = z.shape[:2]
     rct = np.swapaxes(rc, 2, 3)
     dpw = pf[:, None, :] - pc  # (F, M, 3)
     x = np.einsum("fmij,fmj->fmi", rct, dpw)
     zc = x[..., 2]
-    r = (z - x[..., :2] / zc[..., None]).reshape(f, 2 * m)
+    r = ((z - x[..., :2] / zc[..., None]) * w[..., None]).reshape(f, 2 * m)
     jp = np.zeros((f, m, 2, 3))
-    jp[..., 0, 0] = 1.0 / zc
-    jp[..., 1, 1] = 1.0 / zc
-    jp[..., :, 2] = -x[..., :2] / (zc * zc)[..., None]
+    jp[..., 0, 0] = w / zc
+    jp[..., 1, 1] = w / zc
+    jp[..., :, 2] = -x[..., :2] * (w / (zc * zc))[..., None]
     jr = jp @ rct  # J_pi R_c^T (F, M, 2, 3)
     sk = np.zeros((f, m, 3, 3))
     sk[..., 0, 1], sk[..., 0, 2] = -dpw[..., 2], dpw[..., 1]
@@ -159,7 +162,7 @@ class Msckf:
 
     def _gate(self, dof: int) -> float:
         if dof not in self._gates:
-            self._gates[dof] = float(chi2.ppf(self.cam.chi2_gate, dof))
+            self._gates[dof] = float(chdtri(dof, 1.0 - self.cam.chi2_gate))
         return self._gates[dof]
 
     # ------------------------------------------------------------------ propagation
@@ -253,58 +256,65 @@ class Msckf:
                 del tr.clones[0], tr.uv[0]
 
     def _update(self, tracks: list[Track]) -> None:
+        """EKF update with the tracks' constraints, all features in one batch (shorter
+        tracks padded to the longest)."""
         pos = {c: i for i, c in enumerate(self.clone_ids)}
         crs = np.array(self.clone_R)
         cps = np.array(self.clone_p)
-        by_len: dict[int, list[Track]] = {}
-        for tr in tracks:
-            by_len.setdefault(len(tr.clones), []).append(tr)
         n = self.P.shape[0]
-        hs, rs = [], []
-        for m in sorted(by_len):
-            group = by_len[m]
-            cidx = np.array([[pos[c] for c in tr.clones] for tr in group])  # (F, M)
-            z = np.array([tr.uv for tr in group])  # (F, M, 2)
-            rc, pc = crs[cidx], cps[cidx]
-            span = np.linalg.norm(pc - pc.mean(axis=1, keepdims=True), axis=2).max(axis=1)
-            pf, ok = triangulate(rc, pc, z)
-            depth = np.linalg.norm(pf - pc.mean(axis=1), axis=1)
-            ok &= 2.0 * span > self.cam.min_parallax_ratio * depth
-            if not ok.any():
-                continue
-            ro, ho = feature_constraints(rc[ok], pc[ok], z[ok], pf[ok])
-            f = len(ro)
-            k = 2 * m - 3
-            cols = (15 + 6 * cidx[ok][:, :, None] + np.arange(6)[None, None, :]).reshape(f, 6 * m)
-            hc = ho.reshape(f, k, 6 * m)
-            # gate on the feature's own clones: S = H_c P_cc H_c^T + s^2 I
-            pcc = self.P[cols[:, :, None], cols[:, None, :]]
-            s = hc @ pcc @ np.swapaxes(hc, 1, 2) + self.sigma**2 * np.eye(k)
-            gamma = np.einsum("fi,fi->f", ro, np.linalg.solve(s, ro[..., None])[..., 0])
-            good = gamma < self._gate(k)
-            self.gated_features += int((~good).sum())
-            self.used_features += int(good.sum())
-            g = int(good.sum())
-            if g:
-                hfull = np.zeros((g, k, n))
-                rows = np.arange(g)[:, None, None]
-                hfull[rows, np.arange(k)[None, :, None], cols[good][:, None, :]] = hc[good]
-                hs.append(hfull.reshape(-1, n))
-                rs.append(ro[good].reshape(-1))
-        if not hs:
+        m = max(len(tr.clones) for tr in tracks)
+        f = len(tracks)
+        cidx = np.zeros((f, m), np.int64)
+        z = np.zeros((f, m, 2))
+        w = np.zeros((f, m))
+        for i, tr in enumerate(tracks):
+            k = len(tr.clones)
+            cidx[i, :k] = [pos[c] for c in tr.clones]
+            cidx[i, k:] = cidx[i, k - 1]
+            z[i, :k] = tr.uv
+            z[i, k:] = tr.uv[-1]
+            w[i, :k] = 1.0
+        rc, pc = crs[cidx], cps[cidx]
+        span = np.linalg.norm(pc - pc.mean(axis=1, keepdims=True), axis=2).max(axis=1)
+        pf, ok = triangulate(rc, pc, z, w)
+        depth = np.linalg.norm(pf - pc.mean(axis=1), axis=1)
+        ok &= 2.0 * span > self.cam.min_parallax_ratio * depth
+        if not ok.any():
             return
-        h = np.vstack(hs)
-        r = np.concatenate(rs)
+        rc, pc, z, w, pf, cidx = rc[ok], pc[ok], z[ok], w[ok], pf[ok], cidx[ok]
+        ro, ho = feature_constraints(rc, pc, z, w, pf)
+        f = len(ro)
+        k = 2 * m - 3
+        cols = (15 + 6 * cidx[:, :, None] + np.arange(6)[None, None, :]).reshape(f, 6 * m)
+        hc = ho.reshape(f, k, 6 * m)
+        # gate on the feature's own clones: S = H_c P_cc H_c^T + s^2 I, dof 2 M_f - 3
+        pcc = self.P[cols[:, :, None], cols[:, None, :]]
+        s = hc @ pcc @ np.swapaxes(hc, 1, 2) + self.sigma**2 * np.eye(k)
+        gamma = np.einsum("fi,fi->f", ro, np.linalg.solve(s, ro[..., None])[..., 0])
+        dof = 2 * w.sum(axis=1).astype(int) - 3
+        good = gamma < np.array([self._gate(int(d)) for d in dof])
+        self.gated_features += int((~good).sum())
+        g = int(good.sum())
+        self.used_features += g
+        if not g:
+            return
+        # padded observations scatter into six dummy columns past the state
+        dummy = (w[good] == 0)[:, :, None].repeat(6, axis=2).reshape(g, 6 * m)
+        cg = np.where(dummy, n + np.arange(6 * m)[None, :] % 6, cols[good])
+        hfull = np.zeros((g, k, n + 6))
+        hfull[np.arange(g)[:, None, None], np.arange(k)[None, :, None], cg[:, None, :]] = hc[good]
+        h = hfull[:, :, :n].reshape(-1, n)
+        r = ro[good].reshape(-1)
         if h.shape[0] > n:
             q, h = np.linalg.qr(h, mode="reduced")
             r = q.T @ r
         P = self.P
         pht = P @ h.T
-        s = h @ pht + self.sigma**2 * np.eye(h.shape[0])
-        k = np.linalg.solve(s, pht.T).T
-        dx = k @ r
-        ikh = np.eye(n) - k @ h
-        self.P = ikh @ P @ ikh.T + self.sigma**2 * (k @ k.T)
+        s2 = h @ pht + self.sigma**2 * np.eye(h.shape[0])
+        gain = np.linalg.solve(s2, pht.T).T
+        dx = gain @ r
+        ikh = np.eye(n) - gain @ h
+        self.P = ikh @ P @ ikh.T + self.sigma**2 * (gain @ gain.T)
         self.P = 0.5 * (self.P + self.P.T)
         self._correct(dx)
 

@@ -48,8 +48,9 @@ class CameraOptions(Options):
     """Focal length (px) of the undistorted pinhole; the principal point is the centre."""
     rate_hz: float = Field(20.0, gt=0, le=60)
     """Frame rate; frames fall on physics steps (a whole number of them per frame)."""
-    pitch_deg: float = Field(30.0, ge=-90, le=90)
-    """Optical axis tilted this far from straight down towards the body's +x (forward)."""
+    pitch_deg: float = Field(30.0, ge=-180, le=180)
+    """Optical axis tilted this far from straight down towards the body's +x (forward): 0
+    looks down, 90 forward, 180 up."""
     offset_m: tuple[float, float, float] = (0.05, 0.0, -0.02)
     """Camera centre in the body frame (m)."""
 
@@ -64,6 +65,9 @@ class CameraOptions(Options):
     """Read noise (electrons RMS)."""
     noise: bool = True
     """Shot and read noise; off: the noise-free (still quantized, clipped) image."""
+    lens_cap: list[tuple[float, float]] = Field(default_factory=list)
+    """Intervals ``[start, end)`` (s from the flight's start) with the lens covered: black
+    frames (read noise only), so the filter runs on the IMU alone."""
     blur_px_per_substep: float = Field(1.5, gt=0)
     """Image motion (px) per sub-frame render averaged over the exposure (at least one)."""
     blur_max_substeps: int = Field(6, ge=1, le=32)

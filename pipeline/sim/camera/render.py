@@ -63,6 +63,10 @@ class Renderer:
         self._field = self.rng.standard_normal((2 * h, 2 * w), dtype=np.float32)
         ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
         self._pix = (xs, ys)
+        levels = np.arange(256, dtype=np.float32)
+        self._sigma_lut = (
+            np.sqrt(levels * (self.electrons / 255.0) + cam.read_noise_e**2) * self.gain
+        ).astype(np.float32).reshape(1, 256)
         self.last_substeps = 1
         self.last_blur_px = 0.0
 
@@ -95,17 +99,20 @@ class Renderer:
         return all(line[0] * x + line[1] * y + line[2] > 0 for x, y in ((0, 0), (w, 0), (0, h), (w, h)))
 
     def albedo(self, r_wc: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """Float32 albedo in [0, 255] of one instant (the planes over the haze)."""
+        """Albedo in [0, 255] of one instant (the planes over the haze): uint8 when the
+        ground fills the image, else float32."""
         out: np.ndarray | None = None
         for pl in self.planes:
             h_inv = np.linalg.inv(pl.tex_to_image(self.k, r_wc.T, p))
             img = cv2.warpPerspective(
                 pl.texture, h_inv, self.size,
                 flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                borderMode=cv2.BORDER_WRAP if pl.tiled else cv2.BORDER_CONSTANT,
+                borderMode=cv2.BORDER_REFLECT_101 if pl.tiled else cv2.BORDER_CONSTANT,
             )  # fmt: skip
             full = pl.tiled and self._corners_visible(pl, r_wc, p)
             if out is None:
+                if full and len(self.planes) == 1:
+                    return img  # uint8: the usual case, one fully visible ground
                 if full:
                     out = img.astype(np.float32)
                     continue
@@ -153,23 +160,27 @@ class Renderer:
                 dt = self.t_exp * ((j + 0.5) / n - 0.5)
                 rb = r_wb @ so3_exp(omega * dt)
                 pb = p_wb + v * dt
-                rho += self.albedo(rb @ r_bc, pb + rb @ t_bc)
+                cv2.add(rho, self.albedo(rb @ r_bc, pb + rb @ t_bc), dst=rho, dtype=cv2.CV_32F)
             rho *= 1.0 / n
         return self.expose(rho)
 
     def expose(self, rho255: np.ndarray) -> np.ndarray:
-        """Noise, rounding and clipping of an albedo image in [0, 255] (module docstring)."""
+        """Noise, rounding and clipping of an albedo image in [0, 255] (module docstring);
+        ``rho255`` uint8 (one sub-frame: the noise's std from a table) or float32."""
         cam = self.cam
-        if cam.noise:
-            e = rho255 * (self.electrons / 255.0) + cam.read_noise_e**2
-            sigma = cv2.sqrt(e) * self.gain
-            oy = int(self.rng.integers(0, cam.height))
-            ox = int(self.rng.integers(0, cam.width))
-            z = self._field[oy : oy + cam.height, ox : ox + cam.width]
-            img = rho255 + sigma * z
+        if not cam.noise:
+            if rho255.dtype == np.uint8:
+                return rho255
+            return cv2.add(rho255, 0.0, dtype=cv2.CV_8U)
+        if rho255.dtype == np.uint8:
+            sigma = cv2.LUT(rho255, self._sigma_lut)
         else:
-            img = rho255
-        return np.clip(img + 0.5, 0.0, 255.0).astype(np.uint8)
+            sigma = cv2.sqrt(rho255 * (self.electrons / 255.0) + cam.read_noise_e**2) * self.gain
+        oy = int(self.rng.integers(0, cam.height))
+        ox = int(self.rng.integers(0, cam.width))
+        z = self._field[oy : oy + cam.height, ox : ox + cam.width]
+        # cv2.add with an 8-bit result rounds to nearest and saturates to [0, 255]
+        return cv2.add(rho255, cv2.multiply(sigma, z), dtype=cv2.CV_8U)
 
 
 MAX_DEPTH_FALLBACK = 5.0

@@ -73,13 +73,13 @@ class Tracker:
     def _detect(self, img: np.ndarray) -> None:
         cam = self.cam
         free = cam.max_features - len(self.pts)
-        if free <= 0:
+        if free < max(1, cam.max_features // 10):  # detect when a tenth is missing
             return
         kps = self.fast.detect(img)
         if not kps:
             return
-        xy = np.array([k.pt for k in kps], np.float32)
-        resp = np.array([k.response for k in kps], np.float32)
+        xy = cv2.KeyPoint_convert(kps).reshape(-1, 2).astype(np.float32)
+        resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
         m = 4.0
         inside = (xy[:, 0] >= m) & (xy[:, 0] <= cam.width - 1 - m) & (xy[:, 1] >= m) & (xy[:, 1] <= cam.height - 1 - m)
         xy, resp = xy[inside], resp[inside]

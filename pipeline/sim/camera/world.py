@@ -34,7 +34,7 @@ class Plane:
     a2: np.ndarray  # (3,) unit, texture v axis
     m_per_px: float
     texture: np.ndarray  # (n, n) uint8
-    tiled: bool  # the ground repeats its tile; a wall ends at its texture's edges
+    tiled: bool  # the ground extends its tile (mirrored); a wall ends at its texture's edges
     extent_px: tuple[int, int]  # (u, v) texels of a finite plane
 
     @property
@@ -97,7 +97,8 @@ def build_world(cam: CameraOptions, texture_level: float) -> list[Plane]:
     ground_tex = scaled(_base_texture(cam.texture_seed, n), strength)
     planes = [
         Plane(
-            origin=np.array([0.0, 0.0, cam.ground_z]),
+            # the tile centred on the origin (flights stay well inside; beyond, it mirrors)
+            origin=np.array([-0.5 * n * cam.texture_m_per_px, -0.5 * n * cam.texture_m_per_px, cam.ground_z]),
             a1=np.array([1.0, 0.0, 0.0]),
             a2=np.array([0.0, 1.0, 0.0]),
             m_per_px=cam.texture_m_per_px,
