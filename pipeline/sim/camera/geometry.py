@@ -68,3 +68,16 @@ def matrix_quat(r: np.ndarray) -> np.ndarray:
     out = np.array(q, dtype=float)
     out /= math.sqrt(float(out @ out))
     return -out if out[3] < 0 else out
+
+
+def thrust_attitudes(acc: np.ndarray, gravity: float = 9.81) -> np.ndarray:
+    """Quaternions (n, 4) xyzw of a multirotor with zero yaw whose thrust axis (body z)
+    points along ``acc + g e_z`` (what it must to fly accelerations ``acc`` (n, 3))."""
+    from qsls.pipeline.core.rotations import matrix_to_quat
+
+    zb = acc + np.array([0.0, 0.0, gravity])
+    zb /= np.linalg.norm(zb, axis=1, keepdims=True)
+    yb = np.cross(zb, np.array([1.0, 0.0, 0.0]))
+    yb /= np.linalg.norm(yb, axis=1, keepdims=True)
+    xb = np.cross(yb, zb)
+    return matrix_to_quat(np.stack([xb, yb, zb], axis=2))

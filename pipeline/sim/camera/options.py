@@ -57,7 +57,7 @@ class CameraOptions(Options):
     # ---------------------------------------------------------------- image formation
     exposure_s: float = Field(0.004, gt=0)
     """Exposure in full light (s); auto exposure lengthens it as ``exposure_s / light``."""
-    exposure_max_s: float = Field(0.02, gt=0)
+    exposure_max_s: float = Field(0.006, gt=0)
     """Longest exposure (s); below that light the gain rises instead (more noise)."""
     full_well_e: float = Field(1500.0, gt=0)
     """Electrons collected by a white pixel in full light at ``exposure_s``."""
@@ -117,7 +117,7 @@ class CameraOptions(Options):
     # ---------------------------------------------------------------- filter
     window: int = Field(10, ge=3, le=30)
     """Camera clones in the sliding window."""
-    pixel_sigma: float = Field(0.7, gt=0)
+    pixel_sigma: float = Field(0.3, gt=0)
     """Feature measurement noise (px) the filter assumes."""
     min_track: int = Field(3, ge=2)
     """Observations a feature needs before it constrains the clones."""
