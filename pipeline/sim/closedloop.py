@@ -13,6 +13,13 @@ stage both use it. Timing, all on integer nanoseconds of simulation time:
   the true body rate there and the physics step's mean acceleration ``(v_{i+1} - v_i) / h``
   (for its motion-dependent parts: blur, drift with motion, feature loss).
 
+With ``vio.kind: camera`` the estimate comes instead from the camera loop
+(:class:`~qsls.pipeline.sim.camera.loop.CameraVio`): every physics step makes an IMU sample
+that propagates an MSCKF, every ``1 / vio.camera.rate_hz`` a frame is rendered from the true
+pose and tracked, and a VIO sample is the filter's latest estimate (``e = estimate - x``,
+and the estimated attitude in ``vio_q_est``). The camera must see a textured plane from the
+start pose (checked before flying).
+
 A crash (position below ``crash.floor_z``, farther than ``crash.max_deviation`` from the
 reference in any axis, tilt beyond ``crash.max_tilt_deg``, or a non-finite state) ends the
 flight: the log holds everything up to it and says why.
@@ -21,10 +28,10 @@ flight: the log holds everything up to it and says why.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError
@@ -34,6 +41,9 @@ from qsls.pipeline.sim.controllers import Controller, ControllerOptions, make_co
 from qsls.pipeline.sim.references import Reference, ReferenceOptions, RefSample
 from qsls.pipeline.sim.vehicle import Vehicle, VehicleOptions
 from qsls.pipeline.sim.vio import VioEmulator, VioParams
+
+if TYPE_CHECKING:
+    from qsls.pipeline.sim.camera.loop import CameraVio
 
 
 class CrashOptions(Options):
@@ -58,6 +68,14 @@ class FlightOptions(Options):
     controller: ControllerOptions = ControllerOptions()
     vio: VioParams = VioParams()
     crash: CrashOptions = CrashOptions()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _vio_kind(cls, data: Any) -> Any:
+        """``vio: camera`` (or ``emulator``) is short for ``vio: {kind: camera}``."""
+        if isinstance(data, dict) and isinstance(data.get("vio"), str):
+            return {**data, "vio": {"kind": data["vio"]}}
+        return data
 
     def flight_duration(self) -> float:
         return (
@@ -91,6 +109,7 @@ class FlightLog:
     crash_time_s: float | None = None
     lipschitz: float = 0.0
     emulator: dict[str, Any] = field(default_factory=dict)
+    vio_q_est: np.ndarray | None = None  # (m, 4) estimated attitude (camera loop only)
 
     @property
     def vio_y(self) -> np.ndarray:
@@ -161,6 +180,7 @@ class _Record:
     vio_q: np.ndarray
     vio_w: np.ndarray
     vio_e: np.ndarray
+    vio_qe: np.ndarray
     c_t: np.ndarray
     c_y: np.ndarray
     c_r: np.ndarray
@@ -175,6 +195,7 @@ class _Record:
             vio_q=np.empty((n_vio, 4)),
             vio_w=np.empty((n_vio, 3)),
             vio_e=np.empty((n_vio, 6)),
+            vio_qe=np.empty((n_vio, 4)),
             c_t=np.empty(n_ctrl, dtype=np.int64),
             c_y=np.empty((n_ctrl, 6)),
             c_r=np.empty((n_ctrl, 6)),
@@ -182,9 +203,10 @@ class _Record:
         )
 
     def log(
-        self, ctrl: Controller, veh: Vehicle, vio: VioEmulator, t_ns: np.ndarray,
+        self, ctrl: Controller, veh: Vehicle, t_ns: np.ndarray,
         ref_states: np.ndarray, n: int, m: int, k: int, *,
         crashed: bool, reason: str | None, crash_t: float | None,
+        lipschitz: float, described: dict[str, Any], camera: bool,
     ) -> FlightLog:  # fmt: skip
         """The first ``n`` physics steps, ``m`` VIO samples and ``k`` controller ticks."""
         S = self.S[:n]
@@ -209,12 +231,33 @@ class _Record:
             crashed=crashed,
             crash_reason=reason,
             crash_time_s=crash_t,
-            lipschitz=vio.lipschitz,
-            emulator=vio.describe(),
+            lipschitz=lipschitz,
+            emulator=described,
+            vio_q_est=self.vio_qe[:m].copy() if camera else None,
         )
 
 
 def fly(
+    options: FlightOptions,
+    controller: Controller | None = None,
+    seed: int | None = None,
+    *,
+    vehicle: Vehicle | None = None,
+    progress: Progress = NULL_PROGRESS,
+) -> FlightLog:
+    """Fly ``controller`` (default: ``options.controller``) over the reference; see module doc.
+
+    The camera loop's small matrices run on one BLAS thread (threads only add overhead
+    there, and several flights run side by side on a process pool)."""
+    if options.vio.kind != "camera":
+        return _fly(options, controller, seed, vehicle=vehicle, progress=progress)
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _fly(options, controller, seed, vehicle=vehicle, progress=progress)
+
+
+def _fly(
     options: FlightOptions,
     controller: Controller | None = None,
     seed: int | None = None,
@@ -228,6 +271,7 @@ def fly(
     ctrl = controller or make_controller(options.controller, veh.mass)
     ref = Reference(options.reference)
     vio = VioEmulator(options.vio, seed)
+    cam = _camera_loop(options, seed, veh) if options.vio.kind == "camera" else None
     crash = options.crash
     truth_feedback = options.controller.feedback == "truth"
 
@@ -266,7 +310,13 @@ def fly(
     # first VIO sample at t = 0
     m = 0
     vio_t[0], vio_x[0], vio_q[0], vio_w[0] = 0, s[0:6], s[6:10], s[10:13]
-    vio_e[0] = vio.sample(s[0:6], s[10:13], np.zeros(3))
+    if cam is None:
+        vio_e[0] = vio.sample(s[0:6], s[10:13], np.zeros(3))
+    else:
+        cam.check_view(s)
+        cam.start(s)
+        est, rec.vio_qe[0] = cam.estimate()
+        vio_e[0] = est - s[0:6]
     m = 1
     next_vio = vio_ns
     y_latest = vio_x[0] + vio_e[0]
@@ -292,12 +342,18 @@ def fly(
             progress.advance(1)
         s_next = veh.step(s, thrust, cmd_q, h)
         S[i + 1] = s_next
+        if cam is not None:
+            cam.step(s, s_next)
         t1 = (i + 1) * h_ns
         while next_vio <= t1 and m < n_vio_max:
             a = (next_vio - i * h_ns) / h_ns
             xv, qv, wv = _interp(s, s_next, a, h)
             vio_t[m], vio_x[m], vio_q[m], vio_w[m] = next_vio, xv, qv, wv
-            vio_e[m] = vio.sample(xv, wv, (s_next[3:6] - s[3:6]) / h)
+            if cam is None:
+                vio_e[m] = vio.sample(xv, wv, (s_next[3:6] - s[3:6]) / h)
+            else:
+                est, rec.vio_qe[m] = cam.estimate()
+                vio_e[m] = est - xv
             y_latest = xv + vio_e[m]
             m += 1
             next_vio += vio_ns
@@ -311,9 +367,20 @@ def fly(
 
     n = last_step + 1
     return rec.log(
-        ctrl, veh, vio, t_ns[:n], np.hstack([ref_p[:n], ref_v[:n]]), n, m, k,
+        ctrl, veh, t_ns[:n], np.hstack([ref_p[:n], ref_v[:n]]), n, m, k,
         crashed=crashed, reason=reason, crash_t=crash_t,
+        lipschitz=0.0 if cam else vio.lipschitz,
+        described=cam.describe() if cam else vio.describe(), camera=cam is not None,
     )  # fmt: skip
+
+
+def _camera_loop(options: FlightOptions, seed: int, veh: Vehicle) -> CameraVio:
+    """The camera loop of a flight (``vio.kind: camera``), in the active perception level."""
+    from qsls.pipeline.sim.camera.loop import CameraVio
+
+    level = options.vio.level
+    h_ns = round(NS / options.vehicle.physics_hz)
+    return CameraVio(options.vio.camera, level.light, level.texture, seed, veh.g, h_ns)
 
 
 def _crash_reason(

@@ -162,8 +162,10 @@ def log_streams(
     y = flight.vio_y
     n = len(y)
     p_vio = (y[:, :3] - trans) @ rz  # rows: R_z^T (p - t)
-    q_vio = quat_mul(_quat_z(-yaw, n), flight.vio_q)
-    twist = _rotate_by_conj(flight.vio_q, y[:, 3:])  # R_body^T v_world (= in VIO frame too)
+    # the attitude the estimator reports: the true one (emulator) or the filter's (camera)
+    q_est = flight.vio_q if flight.vio_q_est is None else flight.vio_q_est
+    q_vio = quat_mul(_quat_z(-yaw, n), q_est)
+    twist = _rotate_by_conj(q_est, y[:, 3:])  # R_body^T v_world (= in VIO frame too)
     vio_stamp = start_ns + flight.vio_t_ns
     jit = rng.uniform(0.0, lo.delay_jitter_s, n)
     vio_log = np.maximum.accumulate(

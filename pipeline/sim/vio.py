@@ -86,9 +86,10 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field, SerializerFunctionWrapHandler, field_validator, model_serializer
 
 from qsls.pipeline.core.config import Options
+from qsls.pipeline.sim.camera.options import CameraOptions
 from qsls.pipeline.sim.viomotion import Burst, blur_pixels, burst_errors, velocity_spikes
 
 Six = tuple[float, float, float, float, float, float]
@@ -185,6 +186,13 @@ class VioParams(Options):
     motion_drift: bool = True
     feature_loss: bool = True
     perception: Literal["regular", "degraded"] = "regular"
+    kind: Literal["emulator", "camera"] = "emulator"
+    """Where the estimate comes from: ``emulator`` (the error model of this module) or
+    ``camera`` (a rendered camera, an IMU and an MSCKF: :mod:`qsls.pipeline.sim.camera`,
+    parameters in ``camera``; ``perception`` and the presets' light and texture keep their
+    meaning, the error-model parameters below are not used)."""
+    camera: CameraOptions = CameraOptions()
+    """The camera loop's parameters (``kind: camera``)."""
 
     rate_hz: float = Field(100.0, ge=30.0, le=200.0)
     """VIO output rate (Hz), 30 to 200 like real VIO pipelines."""
@@ -268,6 +276,16 @@ class VioParams(Options):
     """Peak position error of a burst (m)."""
     loss_velocity: float = Field(0.3, ge=0)
     """Peak velocity error of a burst (m/s)."""
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """An emulator's options dump without ``kind`` and ``camera``, as before the camera
+        loop existed: the emulator's artifacts (manifest, truth.json) stay byte-identical."""
+        out: dict[str, Any] = handler(self)
+        if self.kind == "emulator":
+            out.pop("kind", None)
+            out.pop("camera", None)
+        return out
 
     @field_validator("outlier_max")
     @classmethod
