@@ -30,7 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_ingest import WORK, build, run_cli  # noqa: E402
+from bench_ingest import WORK, build, run_cli
 
 READER = r"""
 import sys

@@ -9,10 +9,12 @@ import numpy as np
 
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.artifacts import Certificate, Controller, ControllerDir
-from qsls.pipeline.control.certify import Setting, certify
+from qsls.pipeline.control.certify import certify
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.plant import quadrotor_model
 
-SETTING = Setting(S=0.05, eps_e=0.05, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
+SETTING = PremiseNumbers(eps=0.05, S=0.05, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
+RECORD = {"S": 0.05, "eps_e": 0.05, "radius": 1.0, "eps_w": 0.01, "delta": 0.05, "R0": 0.05}
 
 
 def independent_bank(taps: sls.Taps, ys: np.ndarray) -> np.ndarray:
@@ -46,7 +48,7 @@ def synthesized(
     model = quadrotor_model()
     values = sls.Values(
         eps_w=SETTING.eps_w,
-        eps_e=SETTING.eps_e,
+        eps_e=SETTING.eps,
         S=SETTING.S,
         radius=SETTING.radius,
         delta=SETTING.delta,
@@ -65,7 +67,7 @@ def synthesized(
         dt=model.dt,
         mass=model.mass,
         controller_sha256=Controller(sol.taps, model).sha256(),
-        **SETTING.__dict__,
+        **RECORD,
         **fields,
     )
     return ControllerDir(Path("/nowhere") / name, Controller(sol.taps, model), cert)

@@ -39,7 +39,7 @@ def test_noise_free_figure_eight_within_2cm():
     """Exact IMU, noise-free sharp images of full texture: within 2 cm over 20 s."""
     t, p, q = figure_eight(20.0)
     cam = CameraOptions(noise=False, imu_noise=False)
-    est, att, loop = replay(cam, 1.0, 1.0, 0, t, p, q)
+    est, _att, loop = replay(cam, 1.0, 1.0, 0, t, p, q)
     err = np.linalg.norm(est[:, :3] - p, axis=1)
     assert err.max() < 0.02, err.max()
     v = np.gradient(p, t, axis=0)
@@ -65,7 +65,7 @@ def test_lens_cap_runs_on_imu_and_recovers():
     orig = L.CameraVio
     L.CameraVio = Probe
     try:
-        est, _, loop = replay(cam, 1.0, 1.0, 0, t, p, q)
+        est, _, _loop = replay(cam, 1.0, 1.0, 0, t, p, q)
     finally:
         L.CameraVio = orig
     assert np.isfinite(est).all()

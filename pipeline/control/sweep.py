@@ -277,6 +277,7 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
         nominal if p["cost"] == "imitation" else None,
     )  # fmt: skip
     numbers = _numbers(p)
+    status: str
     if p["certify"]:
         status, f = certify(
             sol.taps, model, numbers, shape, solver_status=sol.status,

@@ -171,7 +171,7 @@ class Renderer:
         if not cam.noise:
             if rho255.dtype == np.uint8:
                 return rho255
-            return cv2.add(rho255, 0.0, dtype=cv2.CV_8U)
+            return cv2.add(rho255, 0.0, dtype=cv2.CV_8U)  # type: ignore[call-overload]
         if rho255.dtype == np.uint8:
             sigma = cv2.LUT(rho255, self._sigma_lut)
         else:

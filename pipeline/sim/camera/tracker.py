@@ -25,7 +25,7 @@ class Tracker:
 
     def __init__(self, cam: CameraOptions) -> None:
         self.cam = cam
-        self.fast = cv2.FastFeatureDetector_create(cam.fast_threshold, True)
+        self.fast = cv2.FastFeatureDetector_create(cam.fast_threshold, True)  # type: ignore[attr-defined]
         self.lk = {
             "winSize": (cam.klt_window, cam.klt_window),
             "maxLevel": cam.klt_levels,
@@ -48,7 +48,7 @@ class Tracker:
         """Ids and pixel positions of the features in ``img`` (module docstring)."""
         cam = self.cam
         if self.prev is not None and len(self.pts):
-            nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, img, self.pts.reshape(-1, 1, 2), None, **self.lk)
+            nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, img, self.pts.reshape(-1, 1, 2), None, **self.lk)  # type: ignore[call-overload]
             nxt = nxt.reshape(-1, 2)
             margin = 2.0
             ok = (
@@ -78,7 +78,7 @@ class Tracker:
         kps = self.fast.detect(img)
         if not kps:
             return
-        xy = cv2.KeyPoint_convert(kps).reshape(-1, 2).astype(np.float32)
+        xy = cv2.KeyPoint_convert(kps).reshape(-1, 2).astype(np.float32)  # type: ignore[attr-defined]
         resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
         m = 4.0
         inside = (xy[:, 0] >= m) & (xy[:, 0] <= cam.width - 1 - m) & (xy[:, 1] >= m) & (xy[:, 1] <= cam.height - 1 - m)

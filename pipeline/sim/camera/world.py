@@ -122,6 +122,6 @@ def build_world(cam: CameraOptions, texture_level: float) -> list[Plane]:
                 origin=start, a1=a1, a2=a2, m_per_px=cam.texture_m_per_px,
                 texture=scaled(np.ascontiguousarray(base[:nv, :nu]), strength),
                 tiled=False, extent_px=(nu, nv),
-            )  # fmt: skip
+            )
         )
     return planes
