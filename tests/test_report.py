@@ -293,7 +293,7 @@ def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(t
     assert (v.n_flights, v.n_hold, v.theorem) == (2, 1, True)
     assert abs(v.worst_ratio - 1.2) < 1e-12  # 0.3 / 0.25, not the per-sample 9.0
     page = render_html("t", "", [summary_section(f)])
-    assert "certified, relaxed premise" in page and "51% of pairs" in page
+    assert "relaxed premise, not certified" in page and "51% of left-out samples" in page
     assert "gamma_nominal = 1.2" in page and "reproduced" in page and "-0.02" in page
 
     # the same without the newer keys: inferred premise, per-sample verdict, no crash
@@ -303,5 +303,5 @@ def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(t
     f.findings = {}
     assert premise_entry(f.controllers[0], em, "S") == ("p50", 0.5, True)
     page = render_html("t", "", [summary_section(f)])
-    assert "certified, relaxed premise" in page  # a percentile premise is not rounded up
+    assert "relaxed premise, not certified" in page  # a percentile premise is not rounded up
     assert "per-sample check" in page and "gamma(d) = 9" in page

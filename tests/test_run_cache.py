@@ -32,7 +32,7 @@ SMALL = {
     ],
     "ingest": {"dt": 0.1},
     "fit": {"radius": 1.0},
-    "synth": {"T": 5, "S": 0.01, "eps_e": 0.01, "controllers": "single"},
+    "synth": {"T": 5, "S": 0.01, "eps_e": "p50", "eps_w": 0.01, "controllers": "single"},
     "report": False,
 }
 

@@ -95,7 +95,7 @@ def controller_card(f: Facts, c: Controller) -> Card:
         approx = "~" if inferred_e or inferred_s else ""
         note = (
             f"Outside the premise: {approx}{pct(share_e)} of training samples (eps_e), "
-            f"{approx}{pct(share_s)} of pairs (S)."
+            f"{approx}{pct(share_s)} of left-out samples (S)."
         )
     v = heldout_verdict(f, c)
     links = [("certificate", "#controllers")]
