@@ -242,6 +242,10 @@ class Certificate(BaseModel):
     m: int = 0
     eps_o: float = 0.0
     measure: str = "full"
+    gate: float | None = None
+    """Velocity gate ``V``: the controller reads ``clip(y_v - v_ref, -V, V)``."""
+    rho_v: float | None = None
+    """Certified bound on the velocity deviation from the reference (``<= V`` with a gate)."""
     tested_range: float | None = None
     """Largest distance at which the premise's S was tested on left-out data."""
     achievability_residual: float

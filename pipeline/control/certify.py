@@ -189,8 +189,24 @@ def certify(
             "passed": g["robustness_lhs"] < 1.0 and g["rho_star"] <= numbers.radius,
         },
     }
+    if numbers.gate is not None and shape.gate:
+        from qsls.pipeline.control.guarantee import (
+            measured_channels,
+            outlier_channels,
+            velocity_deviation,
+        )
+
+        rho_v = velocity_deviation(
+            taps.Phi_xy, taps.Phi_xx @ model.H, numbers, error_scale=shape.error_scale,
+            measured=measured_channels(shape.measure),
+            outlier_channels=outlier_channels(shape.measure, shape.m),
+        )  # fmt: skip
+        fields["rho_v"] = rho_v
+        ok = rho_v <= numbers.gate * (1 + 1e-7)
+        checks["robustness"]["passed"] = bool(checks["robustness"]["passed"] and ok)
+        checks["gate"] = {"value": rho_v, "limit": numbers.gate, "passed": bool(ok)}
     fields["checks"] = checks
-    verified = all(c["passed"] for k, c in checks.items() if k != "robustness")
+    verified = all(c["passed"] for k, c in checks.items() if k not in ("robustness", "gate"))
     status: Status
     if solver_status == "inaccurate":
         status = "solver_inaccurate"

@@ -107,6 +107,8 @@ class PremiseNumbers:
     m: int = 0
     R0: float | None = None
     """The paper's error bound for ``gamma_strict`` (``eps`` when unset)."""
+    gate: float | None = None
+    """Velocity gate ``V`` (None: no gate)."""
 
 
 def a_prior(p: PremiseNumbers, n: Norms) -> float:
@@ -137,6 +139,35 @@ def rho_star(p: PremiseNumbers, n: Norms, a: float | None = None) -> float:
 def dense_bound(p: PremiseNumbers, rho: float) -> float:
     """``eps + S rho``: the bound on ``|d_k|_e`` while ``dist(x_k) <= rho``."""
     return p.eps + p.S * rho if math.isfinite(rho) else math.inf
+
+
+def velocity_deviation(
+    phi_xy: np.ndarray,
+    phi_xx_h: np.ndarray,
+    p: PremiseNumbers,
+    *,
+    error_scale: Sequence[float] = ONES,
+    measured: Sequence[int] = tuple(range(6)),
+    outlier_channels: Sequence[int] = (),
+) -> float:
+    """``rho_v``: the bound on ``|v_k - v_ref,k|`` that the velocity gate needs (docs/guarantee.md,
+    Velocity gate). With ``x - x_ref = Phi_xx H w + Phi_xy (d + o)``, ``|d_j| <= (eps + S r) / w_e,j``
+    while ``dist(x) <= rho* <= r``, per velocity row ``i``::
+
+        rho_v = max_i eps_w sum|Phi_xx H|_i + (eps + S r) sum|Phi_xy W_e^-1|_i + eps_o G_m,i
+
+    (unweighted rows: the gate is in m/s)."""
+    inv_e = error_weights(error_scale, measured)[None, None, :]
+    out = 0.0
+    for i in VELOCITY:
+        dense = float(np.abs(phi_xy[:, i, :] * inv_e[0]).sum())
+        dist = float(np.abs(phi_xx_h[:, i, :]).sum())
+        sparse = 0.0
+        if p.m > 0 and len(outlier_channels):
+            per_tap = np.abs(phi_xy[:, i, list(outlier_channels)]).sum(axis=1)
+            sparse = float(np.sort(per_tap)[::-1][: p.m].sum())
+        out = max(out, p.eps_w * dist + (p.eps + p.S * p.radius) * dense + p.eps_o * sparse)
+    return out
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,8 @@ class Premise(BaseModel):
     beta: float | None = None
     state_scale: list[float] = list(ONES)
     error_scale: list[float] = list(ONES)
+    gate: float | None = None
+    """Velocity gate ``V``: the controller reads ``clip(y_v, v_ref +/- V)``; ``eps_o = 2 V - beta``."""
     eps_w_source: str | None = None
     """``inputs`` or ``input_free_residual`` (a lower bound: inputs were not logged)."""
     tested_range: float | None = None
@@ -125,6 +127,8 @@ class Spec:
     radius: float = 1.0
     window: int = 20
     risk: float = 1e-3
+    H: tuple[tuple[float, ...], ...] | None = None
+    """The disturbance's input matrix: ``eps_w`` bounds ``||H^-1 w_k||_inf`` (None: ``H = I``)."""
 
 
 @dataclass(frozen=True)
@@ -145,6 +149,15 @@ class Measured:
     @property
     def eps(self) -> float:
         return float(self.dense.max())
+
+    def eps_w(self, q: float | None = None) -> float | None:
+        """The realized disturbance's maximum (or ``q``-th percentile) over the training steps."""
+        if self.w_norm is None:
+            return None
+        w = self.w_norm[np.isfinite(self.w_norm)]
+        if not len(w):
+            return None
+        return float(w.max() if q is None else np.percentile(w, q))
 
 
 def measure(x: np.ndarray, e: np.ndarray, flight: np.ndarray, w_norm: np.ndarray | None,
@@ -171,7 +184,13 @@ def load_measured(em_file: Path, em: ErrorModel, spec: Spec) -> Measured | None:
     df = pd.read_parquet(f)
     x, e = df[list(X_COLS)].to_numpy(float), df[list(E_COLS)].to_numpy(float)
     codes = pd.factorize(df["flight"])[0] if "flight" in df.columns else np.zeros(len(df), int)
-    w = df["w_norm"].to_numpy(float) if "w_norm" in df.columns else None
+    w_cols = [f"w_{a}" for a in ("px", "py", "pz", "vx", "vy", "vz")]
+    w = None
+    if all(c in df.columns for c in w_cols):
+        from qsls.pipeline.errormodel.disturbance import shaped_norm
+
+        H = None if spec.H is None else np.asarray(spec.H, float)
+        w = shaped_norm(df[w_cols].to_numpy(float), H)
     return measure(x, e, codes, w, spec)
 
 
@@ -201,6 +220,7 @@ class Chosen:
     m: int
     eps_o: float
     how: dict[str, str]
+    gate: float | None = None
 
 
 def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
@@ -239,7 +259,10 @@ def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
             counts = honest.window_counts(meas.outlier > 0, meas.flight, spec.window)  # type: ignore[union-attr]
             m = _entry(chosen.m, h["m"], _count(counts > chosen.m))
             out = meas.outlier[meas.outlier > 0]
-            eps_o = _entry(chosen.eps_o, h["eps_o"], _count(out > chosen.eps_o) if len(out) else (0, 0))
+            if h["eps_o"].startswith("gate"):  # a guarantee of the gate, not a measurement
+                eps_o = _entry(chosen.eps_o, h["eps_o"], (0, len(out)))
+            else:
+                eps_o = _entry(chosen.eps_o, h["eps_o"], _count(out > chosen.eps_o))
         else:
             m = eps_o = None
         tested = meas.slope.tested_range
@@ -252,6 +275,7 @@ def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
         beta=spec.beta if spec and math.isfinite(spec.beta) else None,
         state_scale=list(spec.state_scale) if spec else list(ONES),
         error_scale=list(spec.error_scale) if spec else list(ONES),
+        gate=chosen.gate,
         eps_w_source=em.disturbance.source if em is not None and em.disturbance else None,
         tested_range=tested,
         n_excluded=em.n_excluded if em is not None else 0,

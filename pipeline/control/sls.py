@@ -216,6 +216,7 @@ class Structure:
     error_scale: tuple[float, ...] = (1.0,) * 6
     measure: str = "full"
     m: int = 0
+    gate: bool = False  # robust problems: the certified velocity deviation stays within V
 
 
 def is_diagonal(m: np.ndarray) -> bool:
@@ -237,6 +238,7 @@ class Values:
     nominal: Taps | None = None
     ratio_lambda: float = 0.0  # Dinkelbach's lambda (cost 'ratio' only)
     eps_o: float = 0.0  # outlier magnitude bound (robust problems with m > 0)
+    gate: float | None = None  # velocity gate V (structures with gate)
 
 
 @dataclass(frozen=True)
@@ -322,6 +324,8 @@ class SLSProblem:
                 p["c_o"] = cp.Parameter(nonneg=True, name="eps_o_over_r")
                 lhs = lhs + p["c_o"] * g_m
             cons.append(lhs <= p["c_rhs"])
+            if s.gate:
+                cons += self._gate_constraints(X @ ih, Y, s, measured, T, ny, p)
         if s.cost in ("qr", "imitation"):
             blocks = {}
             for name, var, rows, right in (
@@ -384,6 +388,32 @@ class SLSProblem:
             cp.hstack([s.state_scale[i] * cp.sum_largest(per_tap[i, :], k) for i in range(Y.shape[0])])
         )
 
+    @staticmethod
+    def _gate_constraints(
+        XH: Any, Y: Any, s: Structure, measured: tuple[int, ...], T: int, ny: int, p: dict
+    ) -> list:
+        """``rho_v <= V`` (:func:`qsls.pipeline.control.guarantee.velocity_deviation`) per
+        velocity row: ``eps_w sum|Phi_xx H|_i + (eps + S r) sum|Phi_xy W_e^-1|_i + eps_o G_m,i``."""
+        import cvxpy as cp
+
+        from qsls.pipeline.control.guarantee import error_weights, outlier_channels
+
+        p["g_w"] = cp.Parameter(nonneg=True, name="gate_eps_w")
+        p["g_d"] = cp.Parameter(nonneg=True, name="gate_eps_plus_S_r")
+        p["g_o"] = cp.Parameter(nonneg=True, name="gate_eps_o")
+        p["g_V"] = cp.Parameter(nonneg=True, name="gate_V")
+        inv_e = sp.diags(np.tile(error_weights(s.error_scale, measured), T))
+        channels = outlier_channels(s.measure, s.m)
+        out = []
+        for i in (3, 4, 5):
+            row = p["g_w"] * cp.sum(cp.abs(XH[i, :])) + p["g_d"] * cp.sum(cp.abs(Y[i, :] @ inv_e))
+            if channels:
+                cols = [t * ny + j for t in range(T) for j in channels]
+                per_tap = cp.reshape(cp.abs(Y[i, cols]), (T, len(channels)), order="C")
+                row = row + p["g_o"] * cp.sum_largest(cp.sum(per_tap, axis=1), min(s.m, T))
+            out.append(row <= p["g_V"])
+        return out
+
     # ---- parameters
     def set_values(self, v: Values) -> None:
         s, p, m = self.structure, self.params, self.model
@@ -393,6 +423,13 @@ class SLSProblem:
             p["c_rhs"].value = float(1.0 - v.delta / v.radius - ROBUST_BACKOFF)
             if "c_o" in p:
                 p["c_o"].value = float(v.eps_o / v.radius)
+            if "g_V" in p:
+                if v.gate is None:
+                    raise ValueError("this problem was built with a velocity gate: give its V")
+                p["g_w"].value = float(v.eps_w)
+                p["g_d"].value = float(v.eps_e + v.S * v.radius)
+                p["g_o"].value = float(v.eps_o)
+                p["g_V"].value = float(v.gate)
         if s.cost in ("qr", "imitation"):
             qh = psd_sqrt(v.Q, "Q")
             rh = psd_sqrt(v.R, "R")
@@ -528,11 +565,12 @@ class Shape:
     error_scale: tuple[float, ...] = (1.0,) * 6
     measure: str = "full"
     m: int = 0
+    gate: bool = False
 
     def structure(self, T: int, cost: Cost, strictly_proper: bool) -> Structure:
         return Structure(
             T, "l1", cost, False, strictly_proper, state_scale=self.state_scale,
-            error_scale=self.error_scale, measure=self.measure, m=self.m,
+            error_scale=self.error_scale, measure=self.measure, m=self.m, gate=self.gate,
         )  # fmt: skip
 
     def norms(self, taps: Taps, model: LinearModel) -> Any:
@@ -586,6 +624,7 @@ def max_feasible_s(
     eps_w: float = 0.0,
     delta: float = 0.0,
     eps_o: float = 0.0,
+    gate: float | None = None,
     strictly_proper: bool = False,
     solver: str = "CLARABEL",
     shape: Shape = Shape(),
@@ -623,4 +662,22 @@ def max_feasible_s(
         lam = new if it == 1 else max(lam, new)
     s_max = lam - eps_e / radius
     s_max -= 1e-7 * max(abs(s_max), 1e-3)
+    if shape.gate and s_max >= 0:  # S enters the gate's constraint too: bisect on feasibility
+        gated = replace(shape.structure(T, "none", strictly_proper), robust=True)
+
+        def feasible(S: float) -> bool:
+            v = Values(S=S, eps_e=eps_e, radius=radius, eps_w=eps_w, delta=delta, eps_o=eps_o,
+                       gate=gate)  # fmt: skip
+            return solve(model, gated, v, solver=solver).status == "optimal"
+
+        lo, hi = 0.0, s_max
+        if not feasible(lo):
+            return MaxS(-math.inf, lam, nxy, nxx, it, total)
+        if not feasible(hi):
+            for _ in range(30):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if feasible(mid) else (lo, mid)
+                if hi - lo <= 1e-6 * max(hi, 1e-3):
+                    break
+            s_max = lo
     return MaxS(s_max, lam, nxy, nxx, it, total)

@@ -123,6 +123,12 @@ class ProblemOptions(Options):
     outlier_risk: float = Field(
         1e-3, gt=0, lt=1, description="risk of a window holding more than m outliers"
     )
+    gate: float | None = Field(
+        None,
+        gt=0,
+        description="velocity gate V: the controller reads clip(y_v, v_ref +/- V), so an outlier "
+        "is at most 2V - beta (eps_o); needs beta",
+    )
     radius: float | None = Field(None, gt=0, description="default: the error model's radius")
     delta: Number | None = Field(None, description="Delta; default: the error model's delta")
     R0: Number | None = Field(
@@ -197,31 +203,33 @@ class Resolved:
     eps_o: float = 0.0
     shape: sls.Shape = field(default_factory=sls.Shape)
     premise: Premise | None = None
+    gate: float | None = None
 
     def values(self, nominal: sls.Taps | None = None) -> sls.Values:
         return sls.Values(
             Q=self.Q, R=self.R, eps_w=self.eps_w, eps_e=self.eps_e, S=self.S,
             radius=self.radius, delta=self.delta, nominal=nominal, eps_o=self.eps_o,
+            gate=self.gate,
         )  # fmt: skip
 
     def numbers(self) -> PremiseNumbers:
         return PremiseNumbers(
             eps=self.eps_e, S=self.S, radius=self.radius, eps_w=self.eps_w, delta=self.delta,
-            eps_o=self.eps_o, m=self.m, R0=self.R0,
+            eps_o=self.eps_o, m=self.m, R0=self.R0, gate=self.gate,
         )  # fmt: skip
 
     def structure(self, T: int, norm: sls.Norm, cost: Any, robust: bool, sp_: bool) -> sls.Structure:
         sh = self.shape
         return sls.Structure(
             T, norm, cost, robust, sp_, state_scale=sh.state_scale, error_scale=sh.error_scale,
-            measure=sh.measure, m=sh.m,
+            measure=sh.measure, m=sh.m, gate=sh.gate and robust,
         )  # fmt: skip
 
     def record(self) -> dict[str, Any]:
         return {
             "S": self.S, "eps_e": self.eps_e, "radius": self.radius, "delta": self.delta,
             "eps_w": self.eps_w, "R0": self.R0, "m": self.m, "eps_o": self.eps_o,
-            "measure": self.shape.measure,
+            "measure": self.shape.measure, "gate": self.gate,
         }  # fmt: skip
 
 
@@ -284,16 +292,38 @@ def _slope(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None) -
     return meas.slope.S
 
 
-def _disturbance(opts: ProblemOptions, em: ErrorModel | None) -> tuple[float, str]:
+def _disturbance(
+    opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None
+) -> tuple[float, str]:
+    """``eps_w``: a number, or the training flights' realized disturbance ``||H^-1 w_k||``."""
     v = opts.eps_w
     if isinstance(v, int | float):
         return float(v), "number"
+    name = "max" if v is None else str(v).strip()
+    if meas is not None and meas.w_norm is not None:
+        q = None if name == "max" else _percentile(name, "eps_w")
+        w = meas.eps_w(q)
+        if w is not None:
+            return w, name
     if v is None and (em is None or em.disturbance is None):
         return 0.01, "default (assumed, not measured)"
     if em is None:
         raise InputError(f"eps_w = '{v}' needs an error model; pass --model or give a number")
-    w = em.resolve_eps_w("max" if v is None else v)
-    return w, "max" if v is None else str(v)
+    if opts.H is not None:
+        raise InputError(
+            "eps_w with H: the disturbance is measured as ||H^-1 w|| on the training states, "
+            "which are missing beside the error model; pass the fit folder or give a number"
+        )
+    return em.resolve_eps_w(name), name
+
+
+def _percentile(name: str, what: str) -> float:
+    try:
+        if name.startswith("p"):
+            return float(name[1:])
+    except ValueError:
+        pass
+    raise InputError(f"{what} = '{name}': use max, pNN or a number")
 
 
 def resolve(
@@ -309,11 +339,14 @@ def resolve(
         radius = float(em.radius)
     else:
         raise InputError("radius: give a number (no error model to take it from)")
+    if opts.H is not None and abs(np.linalg.det(np.asarray(opts.H))) < 1e-12:
+        raise InputError("H must be invertible: eps_w bounds ||H^-1 w|| of the realized disturbance")
     state_scale = tuple(em.state_scale) if em is not None else (1.0,) * 6
     spec = Spec(
         measure=opts.measure, beta=math.inf if opts.beta is None else float(opts.beta),
         state_scale=state_scale, error_scale=tuple(opts.error_scale), radius=radius,
         window=opts.T, risk=opts.outlier_risk,
+        H=None if opts.H is None else tuple(tuple(r) for r in opts.H),
     )  # fmt: skip
     trivial = opts.measure == "full" and opts.beta is None and all(w == 1.0 for w in opts.error_scale)
     meas = load_measured(em_file, em, spec) if em is not None and em_file is not None else None
@@ -328,7 +361,7 @@ def resolve(
     for name, val in (("S", S), ("eps_e", eps_e)):
         if not (math.isfinite(val) and val >= 0):
             raise InputError(f"{name} = '{getattr(opts, name)}' is {val}; need a finite number >= 0")
-    eps_w, how_w = _disturbance(opts, em)
+    eps_w, how_w = _disturbance(opts, em, meas)
     outlier_ch = opts.measure == "full" and opts.beta is not None
     if not outlier_ch:
         m = 0
@@ -336,12 +369,23 @@ def resolve(
         m = meas.outliers.m if meas is not None else 0
     else:
         m = int(opts.m)
-    if outlier_ch and opts.eps_o is None:
+    if opts.gate is not None and not outlier_ch:
+        raise InputError("gate: a velocity gate needs measure: full and beta (it bounds outliers)")
+    if opts.gate is not None and opts.eps_o is not None:
+        raise InputError("give gate or eps_o, not both: the gate sets eps_o = 2 gate - beta")
+    if outlier_ch and opts.eps_o is None and opts.gate is None:
         raise InputError(
             "beta clips the velocity errors, so what it clips off is an outlier: give eps_o, a "
-            "bound on one outlier from the estimator's physics or gate (never the sample maximum)"
+            "bound on one outlier from the estimator's physics, or a velocity gate (never the "
+            "sample maximum)"
         )
-    eps_o = float(opts.eps_o or 0.0) if outlier_ch else 0.0
+    if opts.gate is not None:
+        assert opts.beta is not None
+        if 2 * opts.gate <= opts.beta:
+            raise InputError(f"gate {opts.gate:g} must exceed beta / 2 = {opts.beta / 2:g}")
+        eps_o = 2 * opts.gate - opts.beta
+    else:
+        eps_o = float(opts.eps_o or 0.0) if outlier_ch else 0.0
     if opts.delta is None:
         delta = float(em.delta) if em is not None else 0.0
     elif isinstance(opts.delta, int | float):
@@ -360,17 +404,18 @@ def resolve(
     how = {
         "eps_e": _how(opts.eps_e), "S": _how(opts.S), "eps_w": how_w,
         "m": "binomial" if opts.m == "auto" else "number",
-        "eps_o": "given", "r": from_em if opts.radius is None else "number",
+        "eps_o": "gate (2V - beta)" if opts.gate is not None else "given",
+        "r": from_em if opts.radius is None else "number",
         "Delta": from_em if opts.delta is None else _how(opts.delta),
     }  # fmt: skip
-    chosen = Chosen(eps_e, S, radius, delta, eps_w, m, eps_o, how)
+    chosen = Chosen(eps_e, S, radius, delta, eps_w, m, eps_o, how, opts.gate)
     premise = premise_record(chosen, meas, em, where)
     H = None if opts.H is None else np.asarray(opts.H)
     model = quadrotor_model(dt=opts.dt, mass=opts.mass, H=H)
-    shape = sls.Shape(state_scale, tuple(opts.error_scale), opts.measure, m)
+    shape = sls.Shape(state_scale, tuple(opts.error_scale), opts.measure, m, opts.gate is not None)
     return Resolved(
         model, np.asarray(opts.Q), np.asarray(opts.R), S, eps_e, radius, delta, R0, eps_w,
-        m, eps_o, shape, premise,
+        m, eps_o, shape, premise, opts.gate,
     )  # fmt: skip
 
 
@@ -394,7 +439,8 @@ def diagnose(
     min_xy = sls.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
     ms = sls.max_feasible_s(
         r.model, T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
-        eps_o=r.eps_o, strictly_proper=strictly_proper, solver=solver, shape=r.shape,
+        eps_o=r.eps_o, gate=r.gate, strictly_proper=strictly_proper, solver=solver,
+        shape=r.shape,
     )  # fmt: skip
     return {
         "S": r.S,
@@ -489,8 +535,11 @@ def certified_controller(
 
     assert sol.taps is not None
     holds = r.premise is None or r.premise.holds
+    from dataclasses import replace
+
+    shape = replace(r.shape, gate=structure.gate)
     status, fields = certify(
-        sol.taps, r.model, r.numbers(), r.shape, solver_status=sol.status, premise_holds=holds
+        sol.taps, r.model, r.numbers(), shape, solver_status=sol.status, premise_holds=holds
     )
     q_half, r_half = sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R)
     cost = sls.cost_value(
@@ -508,6 +557,7 @@ def certified_controller(
         "strictly_proper": structure.strictly_proper,
         "T": structure.T,
         **r.record(),
+        "gate": r.gate if structure.gate else None,  # only a gated design reads through the gate
         **fields,
         "tested_range": r.premise.tested_range if r.premise else None,
         "solver_status": sol.solver_status,
@@ -552,6 +602,7 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
         "strictly_proper": False,
         "T": T,
         **r.record(),
+        "gate": None,
         **fields,
         "closed_loop_spectral_radius": spectral_radius(r.model, K),
         "kp": list(gains.kp),
@@ -736,8 +787,8 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
     r = resolve(opts, em, em_file)
     ms = sls.max_feasible_s(
         r.model, options.T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
-        eps_o=r.eps_o, strictly_proper=options.strictly_proper, solver=options.solver,
-        shape=r.shape,
+        eps_o=r.eps_o, gate=r.gate, strictly_proper=options.strictly_proper,
+        solver=options.solver, shape=r.shape,
     )  # fmt: skip
     min_xy = sls.min_phi_xy(
         r.model, options.T, strictly_proper=options.strictly_proper, solver=options.solver,

@@ -71,11 +71,11 @@ def flight_disturbance(
     u_hover: np.ndarray,
     inputs: tuple[np.ndarray, np.ndarray] | None,
 ) -> np.ndarray:
-    """``||w_k||_inf`` per sample of one flight (NaN at its last sample, across a gap and where
-    the inputs do not cover the step): realized with ``inputs = (t_log, u_log)``, else the
-    input-free residual."""
+    """``w_k`` per sample of one flight, ``(n, 6)`` (NaN at its last sample, across a gap and
+    where the inputs do not cover the step): realized with ``inputs = (t_log, u_log)``, else
+    the input-free residual."""
     t = np.asarray(t, float)
-    out = np.full(len(t), np.nan)
+    out = np.full((len(t), 6), np.nan)
     if len(t) < 2:
         return out
     if inputs is not None:
@@ -83,7 +83,15 @@ def flight_disturbance(
         w = realized_disturbance(x, u, A, B, u_hover)
     else:
         w = input_free_residual(x, dt)
-    norm = np.abs(w).max(axis=1)
     regular = np.abs(np.diff(t) - dt) <= 1e-6 * dt
-    out[:-1] = np.where(regular, norm, np.nan)
+    out[:-1] = np.where(regular[:, None], w, np.nan)
     return out
+
+
+def shaped_norm(w: np.ndarray, H: np.ndarray | None) -> np.ndarray:
+    """``||H^-1 w_k||_inf`` per row (``H = I`` when None): the disturbance in the model's
+    ``x_{k+1} = A x_k + B u_k + H w_k`` (docs/guarantee.md; ``H`` square and invertible)."""
+    w = np.asarray(w, float)
+    if H is not None:
+        w = np.linalg.solve(np.asarray(H, float), w.T).T
+    return np.abs(w).max(axis=1)

@@ -202,7 +202,7 @@ class _Training:
     keep: np.ndarray  # (n,) bool: used for the model
     exclusions: dict[str, int]
     dt: float = float("nan")  # the flights' common sample period (s)
-    w_norm: np.ndarray | None = None  # (n,) ||w_k||_inf of the step k -> k+1 (NaN: unknown)
+    w: np.ndarray | None = None  # (n, 6) w_k of the step k -> k+1 (NaN: unknown)
     w_source: str = ""
 
 
@@ -248,21 +248,21 @@ def _load(flights: list[Path], options: FitOptions) -> _Training:
         out[np.flatnonzero(keep)] = (z > options.outlier_z).any(axis=1)
         ex["outliers"] = int(out.sum())
         keep &= ~out
-    w_norm, w_source = _disturbance(loaded, options, dt)
+    w, w_source = _disturbance(loaded, options, dt)
     if not keep.any():
         raise InputError(
             f"all {len(keep)} samples were excluded ("
             + ", ".join(f"{k}: {v}" for k, v in ex.items() if v)
             + "); relax --skip-start / --exclude-outliers"
         )
-    return _Training(names, fi, t, x, e, keep, ex, dt, w_norm, w_source)
+    return _Training(names, fi, t, x, e, keep, ex, dt, w, w_source)
 
 
 def _disturbance(
     loaded: list[Flight], options: FitOptions, dt: float
 ) -> tuple[np.ndarray, str]:
-    """``||w_k||_inf`` of every sample (:mod:`qsls.pipeline.errormodel.disturbance`) and how it
-    was measured."""
+    """``w_k`` of every sample (:mod:`qsls.pipeline.errormodel.disturbance`) and how it was
+    measured."""
     from qsls.pipeline.core.plant import GRAVITY, quadrotor_model
     from qsls.pipeline.errormodel.disturbance import INPUTS, RESIDUAL, flight_disturbance
 
@@ -288,6 +288,8 @@ def _disturbance(
 
 
 U_COLS = ("u_pitch", "u_roll", "u_thrust")
+W_COLS = tuple(f"w_{a}" for a in AXES)
+"""The realized disturbance's columns in ``training_states.parquet``."""
 
 
 def _read_inputs(path: Path, stamp0_ns: int) -> tuple[np.ndarray, np.ndarray]:
@@ -556,9 +558,9 @@ def _disturbance_stats(
     tr: _Training, idx: np.ndarray, percentiles: list[float]
 ) -> DisturbanceStats | None:
     """Max and percentiles of ``||w_k||_inf`` over the kept samples' steps."""
-    if tr.w_norm is None:
+    if tr.w is None:
         return None
-    w = tr.w_norm[idx]
+    w = np.abs(tr.w[idx]).max(axis=1)
     w = w[np.isfinite(w)]
     if not len(w):
         return None
@@ -633,7 +635,7 @@ def _write(
         {"flight": [tr.names[k] for k in tr.flight_idx[idx]], "t": tr.t[idx]}
         | {c: x[:, k] for k, c in enumerate(X_COLS)}
         | {c: e[:, k] for k, c in enumerate(E_COLS)}
-        | ({"w_norm": tr.w_norm[idx]} if tr.w_norm is not None else {})
+        | ({c: tr.w[idx, k] for k, c in enumerate(W_COLS)} if tr.w is not None else {})
     )
     results = {
         "eps_e": model.eps_e,

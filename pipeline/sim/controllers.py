@@ -182,17 +182,26 @@ class PDController:
 class LinearController:
     """A synthesized controller: ``u = hover + u_ff + K.step(y - r)``, ``K`` from realize."""
 
-    def __init__(self, runtime: Any, mass: float, name: str, dt: float | None = None) -> None:
+    def __init__(
+        self, runtime: Any, mass: float, name: str, dt: float | None = None,
+        gate: float | None = None,
+    ) -> None:  # fmt: skip
         self.runtime = runtime
         self.mass = float(mass)
         self.name = name
         self.dt = float(dt if dt is not None else runtime.dt)
+        self.gate = gate
+        """Velocity gate ``V``: the velocity deviation read is clipped to ``[-V, V]``."""
 
     def reset(self) -> None:
         self.runtime.reset()
 
     def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample) -> np.ndarray:
-        u = np.asarray(self.runtime.step(np.asarray(y - ref.state, dtype=float)), dtype=float)
+        dev = np.asarray(y - ref.state, dtype=float)
+        if self.gate is not None:  # docs/guarantee.md, Velocity gate
+            dev = dev.copy()
+            dev[3:] = np.clip(dev[3:], -self.gate, self.gate)
+        u = np.asarray(self.runtime.step(dev), dtype=float)
         return hover_input(self.mass) + feedforward(ref, self.mass) + u.reshape(3)
 
 
@@ -236,4 +245,7 @@ def make_controller(options: ControllerOptions, mass: float) -> Controller:
             f"controller {folder}: synthesized for dt = {runtime.dt} s, "
             f"cannot run at rate_hz = {options.rate_hz}"
         )
-    return LinearController(runtime, mass, name)
+    from qsls.pipeline.control.artifacts import Certificate
+
+    gate = Certificate.load(folder).gate if (folder / "certificate.yaml").is_file() else None
+    return LinearController(runtime, mass, name, gate=gate)
