@@ -91,7 +91,7 @@ def command(
     """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
     from qsls.pipeline.core.config import merge, read_section, validate
     from qsls.pipeline.core.errors import InputError
-    from qsls.pipeline.evaluate.verdict import verdicts
+    from qsls.pipeline.evaluate.verdict import combined
 
     section = read_section(config, "evaluate")  # its 'fly' mapping: the flying options
     fly_cfg = section.pop("fly", None)
@@ -127,7 +127,7 @@ def command(
     for w in checked.warnings:
         typer.echo(f"warning: {w}", err=True)
     print_summary("qsls evaluate", checked.summary())
-    print_verdicts("Certified bound on the held-out flights", verdicts(checked.table))
+    print_verdicts("Certified bound on the held-out flights", combined(checked.table, None))
 
 
 def _fly(
@@ -136,7 +136,7 @@ def _fly(
     """``evaluate --fly``: fly, then the summary, the paper comparison and the verdicts."""
     from qsls.pipeline.core.config import validate
     from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
-    from qsls.pipeline.evaluate.verdict import verdicts
+    from qsls.pipeline.evaluate.verdict import combined
 
     options = validate(FlyOptions, data, source)
     with RichProgress() as progress:
@@ -144,4 +144,4 @@ def _fly(
     print_summary("qsls evaluate --fly", result.summary())
     cols, rows = result.comparison_rows()
     print_table("Against the paper's findings", cols, rows)
-    print_verdicts("Certified bound on the flown flights", verdicts(result.table))
+    print_verdicts("Certified bound on the flown flights", combined(result.table, result.assumptions))

@@ -52,6 +52,24 @@ class ControllerBound:
     """Bound on ``||Phi_xy||`` beyond ``phi_xy``'s taps (0 for a FIR controller)."""
     dt: float = math.nan
     """The controller's sample time."""
+    beta: float = math.inf
+    measure: str = "full"
+    error_scale: tuple[float, ...] = (1.0,) * 6
+
+    @property
+    def generalized(self) -> bool:
+        """The premise splits or weights the error (docs/guarantee.md): the premise here is on
+        the dense part, and the guarantee is checked on the controller's own log."""
+        return self.measure != "full" or math.isfinite(self.beta) or any(
+            w != 1.0 for w in self.error_scale
+        )
+
+    def dense(self, e: np.ndarray) -> np.ndarray:
+        """``|d_k|_e``: the part of the error the premise bounds by ``eps_e + S d_k``."""
+        from qsls.pipeline.errormodel import honest
+
+        d, _ = honest.split_errors(e, self.beta, self.measure)  # type: ignore[arg-type]
+        return honest.weighted_norm(d, self.error_scale)
 
     @property
     def a_certificate(self) -> float:
@@ -116,18 +134,28 @@ def check_unweighted(em: Any, to: str = "check certified controllers") -> None:
     )
 
 
-def check_premise_form(folder: Path, cert: Any) -> None:
-    """Refuse a certificate whose premise the flight check does not read yet: position-only,
-    a dense/sparse split (beta) or error weights (docs/guarantee.md, Flight checks)."""
-    p = cert.premise
-    if p is None:
-        return
-    if p.measure != "full" or p.beta is not None or any(w != 1.0 for w in p.error_scale):
-        raise InputError(
-            f"{folder}: its premise (measure {p.measure}, beta {p.beta}, error_scale "
-            f"{p.error_scale}) is a generalized one, which qsls evaluate does not check on "
-            "flights yet; evaluate a full-state certificate with unweighted errors"
-        )
+def certified_premise(folder: Path) -> Any:
+    """What the certificate in ``folder`` promises, for the checks on its own flights
+    (:class:`qsls.pipeline.evaluate.assumptions.CertifiedPremise`); None for a controller
+    without a guarantee to check (a reference, a nominal or a failed one)."""
+    from qsls.pipeline.core.plant import GRAVITY
+    from qsls.pipeline.evaluate.assumptions import CertifiedPremise
+
+    d = load_controller_dir(folder)
+    c = d.certificate
+    if c.status not in ("certified", "relaxed") or not c.robust or c.rho_star is None:
+        return None
+    p = c.premise
+    model = d.controller.model
+    return CertifiedPremise(
+        eps=c.eps_e, S=c.S, radius=c.radius, eps_w=c.eps_w, delta=c.delta, a=c.a,
+        rho_star=c.rho_star, m=c.m, eps_o=c.eps_o,
+        beta=math.inf if p is None or p.beta is None else p.beta,
+        measure=c.measure,
+        error_scale=tuple(p.error_scale) if p is not None else (1.0,) * 6,
+        gate=c.gate, phi_xy=d.controller.taps.Phi_xy, A=model.A, B=model.B, H=model.H,
+        u_hover=np.array([0.0, 0.0, model.mass * GRAVITY]),
+    )  # fmt: skip
 
 
 def load_controller_bound(folder: Path) -> ControllerBound:
@@ -136,7 +164,6 @@ def load_controller_bound(folder: Path) -> ControllerBound:
     from its responses."""
     d = load_controller_dir(folder)
     c, taps = d.certificate, d.controller.taps
-    check_premise_form(d.folder, c)
     ctrl = d.controller
     # a reference controller is a closed loop, not a FIR: its true norms (long horizon plus a
     # geometric tail bound), never the truncated taps' (DESIGN.md, Robust synthesis)
@@ -168,6 +195,9 @@ def load_controller_bound(folder: Path) -> ControllerBound:
         phi_xy=phi_xy,
         phi_xy_tail=tail,
         dt=float(ctrl.dt),
+        beta=math.inf if c.premise is None or c.premise.beta is None else c.premise.beta,
+        measure=c.measure,
+        error_scale=tuple(c.premise.error_scale) if c.premise is not None else (1.0,) * 6,
     )
 
 

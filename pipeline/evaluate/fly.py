@@ -73,6 +73,7 @@ from qsls.pipeline.evaluate.inputs import (
     pd_on_same_estimate,
 )
 from qsls.pipeline.evaluate.paired import FINDINGS_FILE, paired_findings
+from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.ingest.flight import read_flight
 from qsls.pipeline.ingest.stage import IngestOptions
 from qsls.pipeline.sim.simulate import SimOptions
@@ -140,6 +141,7 @@ class FlyOutcome:
     x_ctrl: np.ndarray  # (k, 6) truth at the controller ticks
     ref_ctrl: np.ndarray  # (k, 6)
     u_ctrl: np.ndarray  # (k, 3) absolute input, paper signs
+    y_ctrl: np.ndarray  # (k, 6) what the controller read (before its gate, if any)
     t_vio: np.ndarray  # (m,) s
     e_norm: np.ndarray  # (m,) ||e||_inf of the emulator
     u_pd: np.ndarray  # (k, 3) what PD would command from the same estimate
@@ -194,6 +196,7 @@ def run_job(job: FlyJob) -> FlyOutcome:
         x_ctrl=f.x[idx],
         ref_ctrl=f.ctrl_ref,
         u_ctrl=f.ctrl_u,
+        y_ctrl=f.ctrl_y,
         t_vio=f.vio_t_ns / NS,
         e_norm=np.abs(f.vio_e).max(axis=1),
         u_pd=u_pd,
@@ -233,6 +236,8 @@ def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[F
 class FlyResult(EvaluateResult):
     flights: pd.DataFrame = field(default_factory=pd.DataFrame)
     per_controller: pd.DataFrame = field(default_factory=pd.DataFrame)
+    assumptions: pd.DataFrame = field(default_factory=pd.DataFrame)
+    """Every assumption of the guarantee on each certified controller's own flights."""
     comparison: list[dict[str, Any]] = field(default_factory=list)
     findings: dict[str, Any] = field(default_factory=dict)
     wall_time_s: float = 0.0
@@ -447,6 +452,27 @@ def _check_flights(
     return checks, samples, ref_j
 
 
+def assumption_table(
+    outcomes: Sequence[FlyOutcome], bounds: Sequence[ControllerBound], training: Any
+) -> pd.DataFrame:
+    """:func:`qsls.pipeline.evaluate.assumptions.check_assumptions` on every flight a certified
+    (or relaxed) robust controller flew, from its own log at its own ticks."""
+    from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions
+    from qsls.pipeline.evaluate.certified import certified_premise
+
+    premises = {b.name: certified_premise(b.folder) for b in bounds}
+    rows = []
+    for o in outcomes:
+        c = premises.get(o.controller)
+        if c is None or o.metrics.get("crashed"):
+            continue
+        log = FlownLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl)
+        row = check_assumptions(log, c, training.distance)
+        rows.append({"flight": o.name, "controller": o.controller, "condition": o.condition,
+                     "seed": o.seed, **row})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
 def _motion_parts(sim: SimOptions) -> list[str]:
     """The VIO emulator's motion-dependent parts switched on for the flights."""
     return [k for k in ("blur", "motion_drift", "feature_loss") if getattr(sim.vio, k, False)]
@@ -513,6 +539,7 @@ def fly_evaluate(
                     )
 
             checks, samples, ref_j = _check_flights(outcomes, jobs, flights, bounds, training)
+            assumptions = assumption_table(outcomes, bounds, training)
             per = _bound_columns(per_controller_table(flights), checks)
             ref_bound = bounds[ref_j] if ref_j is not None else None
             comparison = compare_with_paper(
@@ -521,10 +548,11 @@ def fly_evaluate(
             )  # fmt: skip
             findings = paired_findings(
                 flights, checks, ref_bound.name if ref_bound else None, PAPER_CONTROLLERS,
-                options.track_threshold_m, _motion_parts(options.sim),
+                options.track_threshold_m, _motion_parts(options.sim), assumptions,
             )  # fmt: skip
 
             w.write_parquet("flights.parquet", flights)
+            w.write_parquet(ASSUMPTIONS_FILE, assumptions)
             w.write_parquet("per_controller.parquet", per)
             w.write_json(FINDINGS_FILE, findings)
             w.write_text("comparison.md", comparison_markdown(comparison, per, findings))
@@ -535,6 +563,7 @@ def fly_evaluate(
                 "flights_table": flights.to_dict(orient="records"),
                 "per_controller": per.to_dict(orient="records"),
                 "comparison": comparison,
+                "assumptions": assumptions.to_dict(orient="records"),
             }
             totals = write_tables(
                 w, checks, samples, warnings, model, options, extra_json, own_only=True
@@ -555,6 +584,7 @@ def fly_evaluate(
     return FlyResult(
         out=Path(out),
         table=checks,
+        assumptions=assumptions,
         warnings=tuple(warnings),
         flights=flights,
         per_controller=per,

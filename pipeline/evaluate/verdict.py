@@ -52,6 +52,55 @@ class Verdict:
         return f"{self.controller}: {self.word}, worst ||e||/{what} {ratio}{where}, {n}"
 
 
+@dataclass(frozen=True)
+class AssumptionVerdict:
+    """A certified controller on its own flights: did every assumption of its guarantee hold
+    (:mod:`qsls.pipeline.evaluate.assumptions`), and if not, which failed first and where."""
+
+    controller: str
+    flights: int
+    n_hold: int
+    first_failed: str
+    worst_flight: str
+    detail: str
+    bound_held_all: bool
+
+    def line(self) -> str:
+        n = f"{self.flights} flight{'s' if self.flights != 1 else ''}"
+        if self.n_hold == self.flights:
+            held = "held" if self.bound_held_all else "did NOT hold"
+            return (
+                f"{self.controller}: every assumption holds on {n}; as a consequence the "
+                f"bound {held}"
+            )
+        return (
+            f"{self.controller}: FAILS on {self.flights - self.n_hold} of {n}: "
+            f"{self.worst_flight}: {self.detail}"
+        )
+
+
+def assumption_verdicts(table: pd.DataFrame) -> list[AssumptionVerdict]:
+    """One :class:`AssumptionVerdict` per controller of an assumptions table."""
+    out: list[AssumptionVerdict] = []
+    if table is None or not len(table):
+        return out
+    for name, g in table.groupby("controller", sort=False):
+        bad = g[~g["assumptions_hold"].astype(bool)]
+        first = bad.iloc[0] if len(bad) else None
+        out.append(
+            AssumptionVerdict(
+                str(name),
+                len(g),
+                len(g) - len(bad),
+                str(first["first_failed"]) if first is not None else "",
+                str(first["flight"]) if first is not None else "",
+                str(first["verdict"]) if first is not None else "",
+                bool(g["bound_held"].astype(bool).all()),
+            )
+        )
+    return out
+
+
 def _worst(g: pd.DataFrame, col: str) -> tuple[float, str]:
     ratio = pd.to_numeric(g[col], errors="coerce") if col in g else None
     if ratio is None or not ratio.notna().any():
@@ -87,8 +136,26 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
     return out
 
 
-def read_verdicts(folder: Path) -> list[Verdict]:
+ASSUMPTIONS_FILE = "assumptions.parquet"
+
+
+def combined(
+    table: pd.DataFrame, assumptions: pd.DataFrame | None
+) -> list[Verdict | AssumptionVerdict]:
+    """Each controller's verdict: on its own flights from the assumptions table when it has
+    one there, else from the bound-check table."""
+    own = assumption_verdicts(assumptions) if assumptions is not None else []
+    names = {v.controller for v in own}
+    rest = [v for v in verdicts(table) if v.controller not in names]
+    return [*own, *rest]
+
+
+def read_verdicts(folder: Path) -> list[Verdict | AssumptionVerdict]:
     """The verdicts of an evaluate stage folder (empty when it holds no evaluation)."""
     from qsls.pipeline.evaluate.table import Evaluation
 
-    return verdicts(Evaluation.load(folder).rows) if Evaluation.exists(folder) else []
+    if not Evaluation.exists(folder):
+        return []
+    f = Path(folder) / ASSUMPTIONS_FILE
+    assumptions = pd.read_parquet(f) if f.is_file() else None
+    return combined(Evaluation.load(folder).rows, assumptions)
