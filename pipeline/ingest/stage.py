@@ -64,6 +64,10 @@ class IngestOptions(Options):
     """Frame of the Odometry twist: body (ROS convention) or world (VINS-style)."""
     stamp: Literal["header", "log"] = "header"
     """Time of a message: its header stamp or the bag's log time."""
+    max_truth_accel: float = Field(100.0, gt=0)
+    """A truth interval implying a larger acceleration (m/s^2) is a motion-capture
+    discontinuity: turned into a gap of ``max_gap`` (never interpolated across) and counted
+    (``discontinuities``); 100 m/s^2 is 10 g, beyond any flight."""
     max_gap: float = Field(0.25, gt=0)
     """Never interpolate across a gap longer than this (s)."""
     truth_frame: str | None = None

@@ -41,6 +41,8 @@ class Prepared:
     duplicates: int
     unsorted: int
     nonfinite: int
+    glitches: int = 0
+    """Truth discontinuities turned into gaps (:func:`truth_jumps`)."""
 
     @property
     def rate_hz(self) -> float:
@@ -60,6 +62,7 @@ class Prepared:
             "duplicates_dropped": self.duplicates,
             "unsorted": self.unsorted,
             "nonfinite_dropped": self.nonfinite,
+            "discontinuities": self.glitches,
         }
 
 
@@ -195,6 +198,14 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     if len(t) < 10:
         raise InputError(f"{name}: only {len(t)} usable messages; at least 10 are needed")
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    glitches = 0
+    if role == "truth":  # a discontinuity of the truth becomes a gap, never interpolated motion
+        jumps = truth_jumps(t, p, o.max_truth_accel)
+        glitches = len(jumps)
+        if glitches:
+            bad = drop_around(t, jumps, int(o.max_gap * 1e9 / 2) + 1)
+            t, p, q = t[~bad], p[~bad], q[~bad]
+            v = v[~bad] if v is not None else None
     return Prepared(
         role,
         source,
@@ -209,7 +220,42 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
         duplicates,
         unsorted,
         nonfinite,
+        glitches,
     )
+
+
+GLITCH_JUMP_M = 0.01
+"""A discontinuity also moves the position off the neighbouring motion by at least this much:
+the acceleration of a few millimetres of noise at hundreds of hertz is never mistaken for one."""
+
+
+def truth_jumps(t_ns: np.ndarray, p: np.ndarray, max_accel: float) -> np.ndarray:
+    """Intervals ``[k, k+1]`` of a motion-capture stream that no vehicle could have flown: the
+    interval's velocity differs from both neighbouring intervals' by an acceleration above
+    ``max_accel`` (m/s^2) and moves the position at least :data:`GLITCH_JUMP_M` off their
+    mean velocity (a tracker that jumps and comes back makes two such intervals, one that
+    re-acquires with an offset makes one)."""
+    t = (np.asarray(t_ns, np.int64) - int(t_ns[0])) / 1e9
+    if len(t) < 4:
+        return np.zeros(0, dtype=np.int64)
+    h = np.diff(t)
+    v = np.diff(p, axis=0) / h[:, None]
+    dv = np.abs(np.diff(v, axis=0)).max(axis=1) / (0.5 * (h[:-1] + h[1:]))  # between intervals
+    before = np.concatenate([[0.0], dv])  # interval i against i-1
+    after = np.concatenate([dv, [0.0]])  # interval i against i+1
+    mean_nb = 0.5 * (np.vstack([v[:1], v[:-1]]) + np.vstack([v[1:], v[-1:]]))
+    off = np.abs(v - mean_nb).max(axis=1) * h
+    return np.flatnonzero((before > max_accel) & (after > max_accel) & (off >= GLITCH_JUMP_M))
+
+
+def drop_around(t_ns: np.ndarray, intervals: np.ndarray, half_gap_ns: int) -> np.ndarray:
+    """Samples to drop so that each jump becomes a gap the resampling will not bridge: those
+    within ``half_gap_ns`` of the interval's ends."""
+    bad = np.zeros(len(t_ns), dtype=bool)
+    for k in intervals:
+        lo, hi = int(t_ns[k]) - half_gap_ns, int(t_ns[k + 1]) + half_gap_ns
+        bad |= (t_ns >= lo) & (t_ns <= hi)
+    return bad
 
 
 def check_streams(vio: Prepared, truth: Prepared, o: IngestOptions) -> None:
