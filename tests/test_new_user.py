@@ -338,3 +338,46 @@ def test_evaluate_listed_with_nothing_to_evaluate_is_refused_before_any_stage(tm
         "evaluate: add a synth: section (and synth to the stages)"
     )
     assert not (tmp_path / "run").exists()
+
+
+# --------------------------------------------------------------------------- item 13
+@pytest.mark.slow
+def test_ctrl_c_during_a_parallel_sweep_ends_it_at_once(tmp_path):
+    """Ctrl-C (SIGINT to the process group) ended a --jobs 2 sweep only after the points
+    being solved finished (11-20 s); now as quickly as SIGTERM."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import yaml
+
+    from tests.test_run_cache import _alive, _children
+
+    cfg = yaml.safe_load((REPO / "configs" / "ci_sweep.yaml").read_text())
+    cfg["grid"]["T"] = [40, 60, 80]  # points of a few seconds each
+    (tmp_path / "big.yaml").write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "qsls.cli.main", "sweep", "--config", tmp_path / "big.yaml",
+         "--out", tmp_path / "sw", "--jobs", "2"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while len(workers := _children(proc.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(workers) == 2
+        time.sleep(2.0)  # inside the solves
+        t0 = time.monotonic()
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130 and "interrupted; no partial output was kept" in err, err
+    assert "Traceback" not in err
+    assert took < 3, f"Ctrl-C took {took:.1f} s"
+    assert not any(_alive(w) for w in workers)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.yaml"]
