@@ -179,9 +179,13 @@ def overrides(**kwargs: Any) -> dict[str, Any]:
 
 
 class RichProgress:
-    """A :class:`qsls.pipeline.core.progress.Progress` drawn with rich on stderr."""
+    """A :class:`qsls.pipeline.core.progress.Progress` drawn with rich on stderr.
 
-    def __init__(self) -> None:
+    When stderr is not a terminal (a log file, CI, a pipe) no bar is drawn; instead a task
+    prints ``LABEL: DONE/TOTAL (ELAPSED s)`` when it starts and at most every ``every``
+    seconds while it advances, so a long stage (fly: 24 s) is not silent until it ends."""
+
+    def __init__(self, every: float = 5.0) -> None:
         from rich.console import Console
         from rich.progress import (
             BarColumn,
@@ -203,6 +207,18 @@ class RichProgress:
             disable=not sys.stderr.isatty(),
         )
         self._task: Any = None
+        self._lines = not sys.stderr.isatty()
+        self._every = every
+        self._label, self._total, self._done = "", None, 0.0
+        self._t0 = self._last = 0.0
+
+    def _line(self) -> None:
+        import time
+
+        now = time.perf_counter()
+        self._last = now
+        total = f"/{self._total:g}" if self._total is not None else ""
+        self.note(f"{self._label}: {self._done:g}{total} ({now - self._t0:.1f} s)")
 
     def __enter__(self) -> RichProgress:
         self._progress.start()
@@ -217,11 +233,23 @@ class RichProgress:
         return self._progress.console
 
     def start(self, label: str, total: float | None = None) -> None:
+        import time
+
         self._task = self._progress.add_task(label, total=total)
+        if self._lines:
+            self._label, self._total, self._done = label, total, 0.0
+            self._t0 = time.perf_counter()
+            self._line()
 
     def advance(self, amount: float = 1.0) -> None:
+        import time
+
         if self._task is not None:
             self._progress.advance(self._task, amount)
+            if self._lines:
+                self._done += amount
+                if time.perf_counter() - self._last >= self._every:
+                    self._line()
 
     def note(self, message: str) -> None:
         """A line on stderr, shown also when no bar is drawn (not a terminal)."""

@@ -381,3 +381,35 @@ def test_ctrl_c_during_a_parallel_sweep_ends_it_at_once(tmp_path):
     assert took < 3, f"Ctrl-C took {took:.1f} s"
     assert not any(_alive(w) for w in workers)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["big.yaml"]
+
+
+# --------------------------------------------------------------------------- smaller: console
+def test_a_first_run_says_done_and_a_rerun_says_why():
+    from qsls.cli.run import stage_line
+
+    assert stage_line("fit", "ran", 2, 6, "not run yet", 3.25) == "[3/6] fit" + " " * 22 + (
+        "done        (   3.2 s)"
+    )
+    line = stage_line("fit", "ran", 2, 6, "output fit/error_model.yaml is missing", 3.0)
+    assert line is not None and line.endswith("  ran: output fit/error_model.yaml is missing")
+    assert stage_line("synth", "skipped", 3, 6, "", 1.0).endswith("up to date  (   1.0 s)")
+    assert stage_line("synth", "running", 3, 6, "", 1.0) is None
+
+
+def test_long_stages_print_lines_when_not_on_a_terminal(capsys):
+    """With stderr not a terminal no bar is drawn: a line at the start and then at most every
+    ``every`` seconds (every 0 s here: one per step; every hour: the start line only)."""
+    from qsls.cli.common import RichProgress
+
+    with RichProgress(every=0.0) as p:
+        p.start("flying", total=3)
+        for _ in range(3):
+            p.advance()
+        p.finish()
+    err = capsys.readouterr().err.splitlines()
+    assert [ln.split(" (")[0] for ln in err] == [f"flying: {k}/3" for k in range(4)]
+    with RichProgress(every=3600.0) as p:
+        p.start("sweep", total=36)
+        for _ in range(36):
+            p.advance()
+    assert [ln.split(" (")[0] for ln in capsys.readouterr().err.splitlines()] == ["sweep: 0/36"]
