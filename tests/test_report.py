@@ -2,11 +2,13 @@
 
 The layout is measured by the browser at 1280x900 (document width, table rows, figure
 widths, where the summary sits); the summary's numbers are checked against the stage files
-read independently here. Screenshots of the first screen are kept in reports/test-artifacts/.
+read independently here. Screenshots of the first screen stay in pytest's temporary folders
+(copied to $QSLS_TEST_ARTIFACTS when set, e.g. by CI); nothing is written into the checkout.
 """
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -26,7 +28,6 @@ from qsls.pipeline.ingest.flight import make_flight_frame
 from .browser import HEIGHT, WIDTH, find_chromium, visit
 
 REPO = Path(__file__).resolve().parents[1]
-ARTIFACTS = REPO / "reports" / "test-artifacts"
 needs_chromium = pytest.mark.skipif(find_chromium() is None, reason="chromium is not installed")
 
 
@@ -105,8 +106,10 @@ def _check_layout(page, shot: Path, name: str) -> dict:
     assert left == [], f"requests left the file: {left}"
     dangling = {h[1:] for h in lay["links"]} - set(lay["ids"])
     assert dangling == set(), f"links to missing sections: {dangling}"
-    ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(shot, ARTIFACTS / f"report_first_screen_{name}.png")
+    keep = os.environ.get("QSLS_TEST_ARTIFACTS")
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(shot, Path(keep) / f"report_first_screen_{name}.png")
     return lay
 
 
