@@ -413,3 +413,49 @@ def test_long_stages_print_lines_when_not_on_a_terminal(capsys):
         for _ in range(36):
             p.advance()
     assert [ln.split(" (")[0] for ln in capsys.readouterr().err.splitlines()] == ["sweep: 0/36"]
+
+
+# --------------------------------------------------------------------------- smaller: palette
+# Machado, Oliveira & Fernandes (2009), severity 1, on linear RGB
+_CVD = {
+    "normal": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+    "protanopia": [[0.152286, 1.052583, -0.204868], [0.114503, 0.786281, 0.099216],
+                   [-0.003882, -0.048116, 1.051998]],
+    "deuteranopia": [[0.367322, 0.860646, -0.227968], [0.280085, 0.672501, 0.047413],
+                     [-0.011820, 0.042940, 0.968881]],
+    "tritanopia": [[1.255528, -0.076749, -0.178779], [-0.078411, 0.930809, 0.147602],
+                   [0.004733, 0.691367, 0.303900]],
+}  # fmt: skip
+
+
+def _lab(hex_colour, cvd="normal"):
+    """CIELAB (D65) of an sRGB colour as seen with ``cvd``."""
+    import numpy as np
+
+    c = np.array([int(hex_colour[i : i + 2], 16) for i in (1, 3, 5)]) / 255
+    rgb = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    rgb = np.clip(np.array(_CVD[cvd]) @ rgb, 0, 1)
+    xyz = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722],
+                    [0.0193, 0.1192, 0.9505]]) @ rgb / [0.95047, 1.0, 1.08883]  # fmt: skip
+    f = np.where(xyz > (6 / 29) ** 3, np.cbrt(xyz), xyz / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+
+def test_every_controller_has_a_distinct_colour_blind_safe_colour():
+    import itertools
+
+    import numpy as np
+
+    from qsls.pipeline.core.style import CONTROLLER_COLOURS, controller_colour
+
+    names = ["pd", "l1_nominal", "l1_robust", "l1_robust_imitation", "se3"]
+    assert len({controller_colour(n) for n in names}) == len(names)
+    for cvd in _CVD:
+        for a, b in itertools.combinations(names, 2):
+            d = np.linalg.norm(_lab(CONTROLLER_COLOURS[a], cvd) - _lab(CONTROLLER_COLOURS[b], cvd))
+            assert d >= 15, f"{a} and {b}: {d:.1f} CIELAB units apart under {cvd}"
+    # the three l1_* controllers in different hue families (sky blue and blue were one)
+    hue = {n: np.degrees(np.arctan2(*_lab(CONTROLLER_COLOURS[n])[[2, 1]])) % 360 for n in names}
+    for a, b in itertools.combinations(["l1_nominal", "l1_robust", "l1_robust_imitation"], 2):
+        gap = abs(hue[a] - hue[b]) % 360
+        assert min(gap, 360 - gap) >= 45, f"{a} and {b}: hues {hue[a]:.0f} and {hue[b]:.0f} deg"
