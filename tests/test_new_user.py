@@ -459,3 +459,46 @@ def test_every_controller_has_a_distinct_colour_blind_safe_colour():
     for a, b in itertools.combinations(["l1_nominal", "l1_robust", "l1_robust_imitation"], 2):
         gap = abs(hue[a] - hue[b]) % 360
         assert min(gap, 360 - gap) >= 45, f"{a} and {b}: hues {hue[a]:.0f} and {hue[b]:.0f} deg"
+
+
+# --------------------------------------------------------------------------- smaller: figure
+def test_the_perception_error_figure_draws_what_the_verdict_compares():
+    """Per-sample ||e_k|| (not a 1 s average), its peak, and gamma_nominal of the flight the
+    controller flew (not gamma_strict), with the axis holding the peak (it ended at 0.3 while
+    the peak was 1.03)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import pandas as pd
+
+    from qsls.pipeline.evaluate.figures import error_per_controller_figure, own_gamma
+
+    t = np.arange(0.0, 20.0, 0.1)
+    e = 0.05 + 0.02 * np.sin(t)
+    e[137] = 1.03  # one outlier: a 1 s average would show ~0.14
+    outcomes = [
+        SimpleNamespace(name="regular/l1_robust/s0", condition="regular", controller="l1_robust"),
+        SimpleNamespace(name="regular/pd/s0", condition="regular", controller="pd"),
+    ]
+    checks = pd.DataFrame(
+        {
+            "flight": ["regular/l1_robust/s0", "regular/l1_robust/s0", "regular/pd/s0"],
+            "controller": ["l1_robust", "pd", "pd"],
+            "flown_by": ["l1_robust", "l1_robust", "pd"],
+            "gamma_nominal": [0.25, 0.9, np.nan],
+        }
+    )
+    bounds = own_gamma(outcomes, checks)  # the own flight's row, not the reference bound's
+    assert bounds["regular/l1_robust"] == 0.25 and np.isnan(bounds["regular/pd"])
+    traces = {"regular/l1_robust": (t, e), "regular/pd": (t, 0.5 * e)}
+    fig = error_per_controller_figure(traces, bounds, ["regular"])
+    (ax,) = fig.axes
+    lines = {ln.get_label(): ln for ln in ax.get_lines()}
+    np.testing.assert_array_equal(lines["l1_robust"].get_ydata(), e)  # every sample, as is
+    np.testing.assert_array_equal(lines["pd"].get_ydata(), 0.5 * e)
+    peaks = sorted(float(ln.get_ydata()[0]) for ln in ax.get_lines() if ln.get_marker() == "v")
+    assert peaks == [0.515, 1.03]
+    level = [ln.get_ydata()[0] for ln in ax.get_lines() if ln.get_linestyle() == "--"]
+    assert level == [0.25]  # l1_robust's gamma_nominal; pd has no bound
+    assert ax.get_ylim()[1] >= 1.03 and "gamma_nominal" in ax.get_title(loc="left")
+    assert [tx.get_text() for tx in ax.texts] == ["1.03", "0.515"]

@@ -522,7 +522,7 @@ def fly_evaluate(
             w.write_json(FINDINGS_FILE, findings)
             w.write_text("comparison.md", comparison_markdown(comparison, per, findings))
             if options.figures:
-                write_fly_figures(w, outcomes, bounds, options, ref_bound)
+                write_fly_figures(w, outcomes, bounds, options, ref_bound, checks)
             extra_json = {
                 "mode": "fly",
                 "flights_table": flights.to_dict(orient="records"),
