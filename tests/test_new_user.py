@@ -502,3 +502,29 @@ def test_the_perception_error_figure_draws_what_the_verdict_compares():
     assert level == [0.25]  # l1_robust's gamma_nominal; pd has no bound
     assert ax.get_ylim()[1] >= 1.03 and "gamma_nominal" in ax.get_title(loc="left")
     assert [tx.get_text() for tx in ax.texts] == ["1.03", "0.515"]
+
+
+# --------------------------------------------------------------------------- smaller: one seed
+def test_one_seed_says_no_interval_instead_of_dashes(tmp_path):
+    import math
+
+    from qsls.pipeline.evaluate.paired import _iv_text
+    from qsls.pipeline.evaluate.stats import Interval
+    from qsls.pipeline.report.facts import Facts, interval_text
+    from qsls.pipeline.report.summary import findings_lines
+
+    one = {"id": 1, "claim": "PD tracks best", "verdict": "inconclusive", "effect": 1.31,
+           "ci": [None, None]}  # fmt: skip
+    f = Facts(run_dir=tmp_path, info={"name": "x"}, stages={},
+              findings={"n_seeds": 1, "findings": [one]})  # fmt: skip
+    assert findings_lines(f) == [
+        "Finding 1, PD tracks best: **inconclusive** (effect 1.31, one seed: no interval)"
+    ]
+    ten = {**one, "ci": [1.1, 1.52]}
+    f = Facts(run_dir=tmp_path, info={"name": "x"}, stages={},
+              findings={"n_seeds": 10, "findings": [ten]})  # fmt: skip
+    assert findings_lines(f) == [
+        "Finding 1, PD tracks best: **inconclusive** (effect 1.31, 95% CI 1.1 to 1.52)"
+    ]
+    assert interval_text([None, None], 3) == "no interval"
+    assert _iv_text(Interval(1.31, math.nan, math.nan, 1)) == "1.31 (one seed: no interval)"

@@ -261,6 +261,16 @@ def heldout_verdict(f: Facts, c: Controller) -> Verdict:
     )
 
 
+def interval_text(ci: Any, n_seeds: Any = None) -> str:
+    """A finding's 95% interval as text: ``a to b``; with one seed there is none to give
+    (``one seed: no interval``, not ``- to -``)."""
+    if isinstance(ci, list | tuple) and len(ci) == 2 and None not in ci:
+        lo, hi = (float(v) for v in ci)
+        if math.isfinite(lo) and math.isfinite(hi):
+            return f"{g4(lo)} to {g4(hi)}"
+    return "one seed: no interval" if n_seeds == 1 else "no interval"
+
+
 def findings_list(f: Facts) -> list[dict[str, Any]]:
     """The paper's findings as ``{id, claim, verdict, effect, ci, detail}`` from
     ``findings.json`` (issue 13's schema) or, failing that, the comparison table."""
@@ -273,6 +283,7 @@ def findings_list(f: Facts) -> list[dict[str, Any]]:
                 "verdict": str(item.get("verdict", "")),
                 "effect": item.get("effect"),
                 "ci": item.get("ci"),
+                "n_seeds": item.get("n_seeds", f.findings.get("n_seeds")),
                 "detail": str(first(item, "mechanism", "detail", "qsls", default="")),
             }
         )

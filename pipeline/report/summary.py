@@ -19,6 +19,7 @@ from qsls.pipeline.report.facts import (
     first,
     g4,
     heldout_verdict,
+    interval_text,
     num,
     pct,
     status_words,
@@ -173,10 +174,8 @@ def findings_lines(f: Facts) -> list[str]:
         ci = item.get("ci")
         effect = ""
         if item.get("effect") is not None:
-            effect = f" (effect {g4(item['effect'])}"
-            if isinstance(ci, list | tuple) and len(ci) == 2:
-                effect += f", 95% CI {g4(ci[0])} to {g4(ci[1])}"
-            effect += ")"
+            iv = interval_text(ci, item.get("n_seeds"))
+            effect = f" (effect {g4(item['effect'])}, {'95% CI ' if ' to ' in iv else ''}{iv})"
         out.append(f"Finding {item['id']}, {item['claim']}: **{item['verdict']}**{effect}")
     return out
 
