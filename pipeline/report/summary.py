@@ -22,6 +22,7 @@ from qsls.pipeline.report.facts import (
     interval_text,
     num,
     pct,
+    recorded_verdict,
     status_words,
 )
 
@@ -102,7 +103,12 @@ def controller_card(f: Facts, c: Controller) -> Card:
     links = [("certificate", "#controllers")]
     if v.n_flights:
         links += [("flights", "#heldout"), ("figures", "#figures")]
-    return Card(c.name, controller_colour(c.name), badge, kind, items, v.text, v.kind, links, note)
+    rec = recorded_verdict(f, c)
+    more = [("Held-out recorded flights", rec.text, rec.kind)] if rec is not None else []
+    return Card(
+        c.name, controller_colour(c.name), badge, kind, items, v.text, v.kind, links, note,
+        "Flown flights", more,
+    )  # fmt: skip
 
 
 # --------------------------------------------------------------------------- lines
@@ -128,7 +134,7 @@ def lead_sentence(f: Facts) -> str:
         what = "gamma_nominal" if all(v.theorem for v in flown) else "gamma(d)"
         text += (
             f" On the flights the certified controllers flew themselves, the bound held on "
-            f"{ok} of {n} (worst max ||e|| / {what} = {g4(worst)}; [held-out flights](#heldout))."
+            f"{ok} of {n} (worst max ||e|| / {what} = {g4(worst)}; [flown flights](#heldout))."
         )
     return text
 
