@@ -27,14 +27,9 @@ def _end_children() -> None:
     """End this process's worker processes (process pools): terminate, then kill."""
     import multiprocessing
 
-    children = multiprocessing.active_children()
-    for child in children:
-        child.terminate()
-    for child in children:
-        child.join(timeout=3)
-        if child.is_alive():
-            child.kill()
-            child.join(timeout=3)
+    from qsls.pipeline.core.pools import end_processes
+
+    end_processes(multiprocessing.active_children())
 
 
 def _die_with_parent() -> None:
@@ -209,7 +204,8 @@ class RichProgress:
         self._task: Any = None
         self._lines = not sys.stderr.isatty()
         self._every = every
-        self._label, self._total, self._done = "", None, 0.0
+        self._label, self._done = "", 0.0
+        self._total: float | None = None
         self._t0 = self._last = 0.0
 
     def _line(self) -> None:

@@ -353,7 +353,7 @@ def test_ctrl_c_during_a_parallel_sweep_ends_it_at_once(tmp_path):
 
     import yaml
 
-    from tests.test_run_cache import _alive, _children
+    from tests.test_run_cache import _alive, _workers
 
     cfg = yaml.safe_load((REPO / "configs" / "ci_sweep.yaml").read_text())
     cfg["grid"]["T"] = [40, 60, 80]  # points of a few seconds each
@@ -364,10 +364,7 @@ def test_ctrl_c_during_a_parallel_sweep_ends_it_at_once(tmp_path):
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
     )  # fmt: skip
     try:
-        deadline = time.monotonic() + 60
-        while len(workers := _children(proc.pid)) < 2 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert len(workers) == 2
+        workers = _workers(proc.pid, 2)
         time.sleep(2.0)  # inside the solves
         t0 = time.monotonic()
         os.killpg(proc.pid, signal.SIGINT)

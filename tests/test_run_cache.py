@@ -72,6 +72,15 @@ def _children(pid: int) -> list[int]:
     return [int(p) for p in out.stdout.split()]
 
 
+def _workers(pid: int, n: int = 2, timeout: float = 60) -> list[int]:
+    """The ``n`` worker processes of ``pid``, once they are all running."""
+    deadline = time.monotonic() + timeout
+    while len(found := _children(pid)) < n and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(found) == n, found
+    return found
+
+
 def _wait_for(pattern: str, proc: subprocess.Popen, timeout: float = 120) -> None:
     deadline = time.monotonic() + timeout
     while not glob.glob(pattern):
@@ -186,10 +195,7 @@ def test_a_signal_during_fly_leaves_no_temporary_and_no_worker(tmp_path, sig):
     )  # fmt: skip
     try:
         _wait_for(str(run / ".fly.tmp-*"), proc)
-        deadline = time.monotonic() + 30
-        while len(workers := _children(proc.pid)) < 2 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert len(workers) == 2
+        workers = _workers(proc.pid, 2, timeout=30)
         time.sleep(0.5)  # inside the flights
         t0 = time.monotonic()
         if sig == signal.SIGINT:  # Ctrl-C: the terminal signals the whole process group

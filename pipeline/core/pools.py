@@ -42,10 +42,15 @@ def stop_pool(pool: Any) -> None:
     """End a process pool now: queued tasks cancelled, workers terminated (then killed)."""
     workers = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
-    for w in workers:
-        w.terminate()
-    for w in workers:
-        w.join(timeout=3)
-        if w.is_alive():
-            w.kill()
-            w.join(timeout=3)
+    end_processes(workers)
+
+
+def end_processes(procs: Sequence[Any]) -> None:
+    """Terminate ``multiprocessing`` processes, then kill those still alive after 3 s."""
+    for p in procs:
+        p.terminate()
+    for p in procs:
+        p.join(timeout=3)
+        if p.is_alive():
+            p.kill()
+            p.join(timeout=3)

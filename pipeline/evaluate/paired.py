@@ -60,8 +60,9 @@ def _g(v: float) -> str:
 def _iv_text(iv: Interval) -> str:
     lo, hi = iv.ci
     none = "(one seed: no interval)" if iv.n == 1 else "(no interval)"
-    ok = lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi)
-    ci = f"[{_g(lo)}, {_g(hi)}]" if ok else none
+    if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
+        return f"{_g(iv.mean)} {none}"
+    ci = f"[{_g(lo)}, {_g(hi)}]"
     return f"{_g(iv.mean)} {ci}"
 
 
