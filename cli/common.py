@@ -177,8 +177,9 @@ class RichProgress:
     """A :class:`qsls.pipeline.core.progress.Progress` drawn with rich on stderr.
 
     When stderr is not a terminal (a log file, CI, a pipe) no bar is drawn; instead a task
-    prints ``LABEL: DONE/TOTAL (ELAPSED s)`` when it starts and at most every ``every``
-    seconds while it advances, so a long stage (fly: 24 s) is not silent until it ends."""
+    prints ``LABEL: DONE/TOTAL (ELAPSED s)`` at most every ``every`` seconds while it
+    advances, so a long stage (fly: 24 s) is not silent until it ends (a short one stays
+    quiet)."""
 
     def __init__(self, every: float = 5.0) -> None:
         from rich.console import Console
@@ -234,8 +235,7 @@ class RichProgress:
         self._task = self._progress.add_task(label, total=total)
         if self._lines:
             self._label, self._total, self._done = label, total, 0.0
-            self._t0 = time.perf_counter()
-            self._line()
+            self._t0 = self._last = time.perf_counter()
 
     def advance(self, amount: float = 1.0) -> None:
         import time
