@@ -27,14 +27,9 @@ def _end_children() -> None:
     """End this process's worker processes (process pools): terminate, then kill."""
     import multiprocessing
 
-    children = multiprocessing.active_children()
-    for child in children:
-        child.terminate()
-    for child in children:
-        child.join(timeout=3)
-        if child.is_alive():
-            child.kill()
-            child.join(timeout=3)
+    from qsls.pipeline.core.pools import end_processes
+
+    end_processes(multiprocessing.active_children())
 
 
 def _die_with_parent() -> None:
@@ -179,9 +174,14 @@ def overrides(**kwargs: Any) -> dict[str, Any]:
 
 
 class RichProgress:
-    """A :class:`qsls.pipeline.core.progress.Progress` drawn with rich on stderr."""
+    """A :class:`qsls.pipeline.core.progress.Progress` drawn with rich on stderr.
 
-    def __init__(self) -> None:
+    When stderr is not a terminal (a log file, CI, a pipe) no bar is drawn; instead a task
+    prints ``LABEL: DONE/TOTAL (ELAPSED s)`` at most every ``every`` seconds while it
+    advances, so a long stage (fly: 24 s) is not silent until it ends (a short one stays
+    quiet)."""
+
+    def __init__(self, every: float = 5.0) -> None:
         from rich.console import Console
         from rich.progress import (
             BarColumn,
@@ -203,6 +203,19 @@ class RichProgress:
             disable=not sys.stderr.isatty(),
         )
         self._task: Any = None
+        self._lines = not sys.stderr.isatty()
+        self._every = every
+        self._label, self._done = "", 0.0
+        self._total: float | None = None
+        self._t0 = self._last = 0.0
+
+    def _line(self) -> None:
+        import time
+
+        now = time.perf_counter()
+        self._last = now
+        total = f"/{self._total:g}" if self._total is not None else ""
+        self.note(f"{self._label}: {self._done:g}{total} ({now - self._t0:.1f} s)")
 
     def __enter__(self) -> RichProgress:
         self._progress.start()
@@ -217,11 +230,22 @@ class RichProgress:
         return self._progress.console
 
     def start(self, label: str, total: float | None = None) -> None:
+        import time
+
         self._task = self._progress.add_task(label, total=total)
+        if self._lines:
+            self._label, self._total, self._done = label, total, 0.0
+            self._t0 = self._last = time.perf_counter()
 
     def advance(self, amount: float = 1.0) -> None:
+        import time
+
         if self._task is not None:
             self._progress.advance(self._task, amount)
+            if self._lines:
+                self._done += amount
+                if time.perf_counter() - self._last >= self._every:
+                    self._line()
 
     def note(self, message: str) -> None:
         """A line on stderr, shown also when no bar is drawn (not a terminal)."""

@@ -11,6 +11,22 @@ from qsls.cli.common import RichProgress, cli_errors, print_summary, print_verdi
 EXAMPLE = "qsls run configs/quickstart.yaml --from fit"
 
 
+FIRST_RUN = "not run yet"
+"""The run state's reason for a stage with no record: the first run, said by 'done' alone."""
+
+
+def stage_line(
+    stage_id: str, status: str, i: int, n: int, reason: str, elapsed: float
+) -> str | None:
+    """The console line of a finished stage: ``[i/n] id  done|up to date  (t s)``, and why it
+    ran when that is news (a change, a missing output; not a first run)."""
+    if status == "running":
+        return None
+    mark = {"ran": "done", "skipped": "up to date"}.get(status, status)
+    why = f"  ran: {reason}" if status == "ran" and reason and reason != FIRST_RUN else ""
+    return f"[{i + 1}/{n}] {stage_id:<24} {mark:<11} ({elapsed:6.1f} s){why}"
+
+
 @cli_errors
 def command(
     config: Path = typer.Argument(..., help="Run config (YAML), e.g. configs/quickstart.yaml."),
@@ -32,14 +48,9 @@ def command(
     t0 = time.perf_counter()
 
     def on_stage(stage_id: str, status: str, i: int, n: int, reason: str) -> None:
-        elapsed = time.perf_counter() - t0
-        mark = {"running": "…", "ran": "done", "skipped": "up to date"}.get(status, status)
-        why = f"  ran: {reason}" if status == "ran" and reason else ""
-        if status != "running":
-            progress.console.print(
-                f"[{i + 1}/{n}] {stage_id:<24} {mark:<11} ({elapsed:6.1f} s){why}",
-                soft_wrap=True,
-            )
+        line = stage_line(stage_id, status, i, n, reason, time.perf_counter() - t0)
+        if line is not None:
+            progress.console.print(line, soft_wrap=True, markup=False, highlight=False)
 
     with RichProgress() as progress:
         result = run(

@@ -61,3 +61,20 @@ def _gamma_strict_at_most_gamma_everywhere(tmp_path_factory):
     yield
     bad = _strict_above_gamma(tmp_path_factory.getbasetemp())
     assert not bad, "; ".join(bad)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _nothing_written_into_the_checkout():
+    """The suite writes under pytest's temporary folders only: no new entry in the checkout's
+    reports/, runs/ or top level (issue 26: reports/test-artifacts/ was written there)."""
+
+    def entries() -> set[str]:
+        top = {p.name for p in REPO.iterdir()}
+        sub = {f"{d}/{p.name}" for d in ("reports", "runs") if (REPO / d).is_dir()
+               for p in (REPO / d).iterdir()}  # fmt: skip
+        return top | sub
+
+    before = entries()
+    yield
+    new = sorted(e for e in entries() - before if not e.startswith((".", "__")))
+    assert not new, f"the test suite wrote into the checkout: {new}"

@@ -338,3 +338,190 @@ def test_evaluate_listed_with_nothing_to_evaluate_is_refused_before_any_stage(tm
         "evaluate: add a synth: section (and synth to the stages)"
     )
     assert not (tmp_path / "run").exists()
+
+
+# --------------------------------------------------------------------------- item 13
+@pytest.mark.slow
+def test_ctrl_c_during_a_parallel_sweep_ends_it_at_once(tmp_path):
+    """Ctrl-C (SIGINT to the process group) ended a --jobs 2 sweep only after the points
+    being solved finished (11-20 s); now as quickly as SIGTERM."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import yaml
+
+    from tests.test_run_cache import _alive, _workers
+
+    cfg = yaml.safe_load((REPO / "configs" / "ci_sweep.yaml").read_text())
+    cfg["grid"]["T"] = [40, 60, 80]  # points of a few seconds each
+    (tmp_path / "big.yaml").write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "qsls.cli.main", "sweep", "--config", tmp_path / "big.yaml",
+         "--out", tmp_path / "sw", "--jobs", "2"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    try:
+        workers = _workers(proc.pid, 2)
+        time.sleep(2.0)  # inside the solves
+        t0 = time.monotonic()
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130 and "interrupted; no partial output was kept" in err, err
+    assert "Traceback" not in err
+    assert took < 3, f"Ctrl-C took {took:.1f} s"
+    assert not any(_alive(w) for w in workers)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.yaml"]
+
+
+# --------------------------------------------------------------------------- smaller: console
+def test_a_first_run_says_done_and_a_rerun_says_why():
+    from qsls.cli.run import stage_line
+
+    assert stage_line("fit", "ran", 2, 6, "not run yet", 3.25) == "[3/6] fit" + " " * 22 + (
+        "done        (   3.2 s)"
+    )
+    line = stage_line("fit", "ran", 2, 6, "output fit/error_model.yaml is missing", 3.0)
+    assert line is not None and line.endswith("  ran: output fit/error_model.yaml is missing")
+    assert stage_line("synth", "skipped", 3, 6, "", 1.0).endswith("up to date  (   1.0 s)")
+    assert stage_line("synth", "running", 3, 6, "", 1.0) is None
+
+
+def test_long_stages_print_lines_when_not_on_a_terminal(capsys):
+    """With stderr not a terminal no bar is drawn: a line at most every ``every`` seconds
+    while a task advances (every 0 s here: one per step; every hour: none)."""
+    from qsls.cli.common import RichProgress
+
+    with RichProgress(every=0.0) as p:
+        p.start("flying", total=3)
+        for _ in range(3):
+            p.advance()
+        p.finish()
+    err = capsys.readouterr().err.splitlines()
+    assert [ln.split(" (")[0] for ln in err] == [f"flying: {k}/3" for k in (1, 2, 3)]
+    with RichProgress(every=3600.0) as p:
+        p.start("sweep", total=36)
+        for _ in range(36):
+            p.advance()
+    assert capsys.readouterr().err == ""
+
+
+# --------------------------------------------------------------------------- smaller: palette
+# Machado, Oliveira & Fernandes (2009), severity 1, on linear RGB
+_CVD = {
+    "normal": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+    "protanopia": [[0.152286, 1.052583, -0.204868], [0.114503, 0.786281, 0.099216],
+                   [-0.003882, -0.048116, 1.051998]],
+    "deuteranopia": [[0.367322, 0.860646, -0.227968], [0.280085, 0.672501, 0.047413],
+                     [-0.011820, 0.042940, 0.968881]],
+    "tritanopia": [[1.255528, -0.076749, -0.178779], [-0.078411, 0.930809, 0.147602],
+                   [0.004733, 0.691367, 0.303900]],
+}  # fmt: skip
+
+
+def _lab(hex_colour, cvd="normal"):
+    """CIELAB (D65) of an sRGB colour as seen with ``cvd``."""
+    import numpy as np
+
+    c = np.array([int(hex_colour[i : i + 2], 16) for i in (1, 3, 5)]) / 255
+    rgb = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    rgb = np.clip(np.array(_CVD[cvd]) @ rgb, 0, 1)
+    xyz = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722],
+                    [0.0193, 0.1192, 0.9505]]) @ rgb / [0.95047, 1.0, 1.08883]  # fmt: skip
+    f = np.where(xyz > (6 / 29) ** 3, np.cbrt(xyz), xyz / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+
+def test_every_controller_has_a_distinct_colour_blind_safe_colour():
+    import itertools
+
+    import numpy as np
+
+    from qsls.pipeline.core.style import CONTROLLER_COLOURS, controller_colour
+
+    names = ["pd", "l1_nominal", "l1_robust", "l1_robust_imitation", "se3"]
+    assert len({controller_colour(n) for n in names}) == len(names)
+    for cvd in _CVD:
+        for a, b in itertools.combinations(names, 2):
+            d = np.linalg.norm(_lab(CONTROLLER_COLOURS[a], cvd) - _lab(CONTROLLER_COLOURS[b], cvd))
+            assert d >= 15, f"{a} and {b}: {d:.1f} CIELAB units apart under {cvd}"
+    # the three l1_* controllers in different hue families (sky blue and blue were one)
+    hue = {n: np.degrees(np.arctan2(*_lab(CONTROLLER_COLOURS[n])[[2, 1]])) % 360 for n in names}
+    for a, b in itertools.combinations(["l1_nominal", "l1_robust", "l1_robust_imitation"], 2):
+        gap = abs(hue[a] - hue[b]) % 360
+        assert min(gap, 360 - gap) >= 45, f"{a} and {b}: hues {hue[a]:.0f} and {hue[b]:.0f} deg"
+
+
+# --------------------------------------------------------------------------- smaller: figure
+def test_the_perception_error_figure_draws_what_the_verdict_compares():
+    """Per-sample ||e_k|| (not a 1 s average), its peak, and gamma_nominal of the flight the
+    controller flew (not gamma_strict), with the axis holding the peak (it ended at 0.3 while
+    the peak was 1.03)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import pandas as pd
+
+    from qsls.pipeline.evaluate.figures import error_per_controller_figure, own_gamma
+
+    t = np.arange(0.0, 20.0, 0.1)
+    e = 0.05 + 0.02 * np.sin(t)
+    e[137] = 1.03  # one outlier: a 1 s average would show ~0.14
+    outcomes = [
+        SimpleNamespace(name="regular/l1_robust/s0", condition="regular", controller="l1_robust"),
+        SimpleNamespace(name="regular/pd/s0", condition="regular", controller="pd"),
+    ]
+    checks = pd.DataFrame(
+        {
+            "flight": ["regular/l1_robust/s0", "regular/l1_robust/s0", "regular/pd/s0"],
+            "controller": ["l1_robust", "pd", "pd"],
+            "flown_by": ["l1_robust", "l1_robust", "pd"],
+            "gamma_nominal": [0.25, 0.9, np.nan],
+        }
+    )
+    bounds = own_gamma(outcomes, checks)  # the own flight's row, not the reference bound's
+    assert bounds["regular/l1_robust"] == 0.25 and np.isnan(bounds["regular/pd"])
+    traces = {"regular/l1_robust": (t, e), "regular/pd": (t, 0.5 * e)}
+    fig = error_per_controller_figure(traces, bounds, ["regular"])
+    (ax,) = fig.axes
+    lines = {ln.get_label(): ln for ln in ax.get_lines()}
+    np.testing.assert_array_equal(lines["l1_robust"].get_ydata(), e)  # every sample, as is
+    np.testing.assert_array_equal(lines["pd"].get_ydata(), 0.5 * e)
+    peaks = sorted(float(ln.get_ydata()[0]) for ln in ax.get_lines() if ln.get_marker() == "v")
+    assert peaks == [0.515, 1.03]
+    level = [ln.get_ydata()[0] for ln in ax.get_lines() if ln.get_linestyle() == "--"]
+    assert level == [0.25]  # l1_robust's gamma_nominal; pd has no bound
+    assert ax.get_ylim()[1] >= 1.03 and "gamma_nominal" in ax.get_title(loc="left")
+    assert [tx.get_text() for tx in ax.texts] == ["1.03", "0.515"]
+
+
+# --------------------------------------------------------------------------- smaller: one seed
+def test_one_seed_says_no_interval_instead_of_dashes(tmp_path):
+    import math
+
+    from qsls.pipeline.evaluate.paired import _iv_text
+    from qsls.pipeline.evaluate.stats import Interval
+    from qsls.pipeline.report.facts import Facts, interval_text
+    from qsls.pipeline.report.summary import findings_lines
+
+    one = {"id": 1, "claim": "PD tracks best", "verdict": "inconclusive", "effect": 1.31,
+           "ci": [None, None]}  # fmt: skip
+    f = Facts(run_dir=tmp_path, info={"name": "x"}, stages={},
+              findings={"n_seeds": 1, "findings": [one]})  # fmt: skip
+    assert findings_lines(f) == [
+        "Finding 1, PD tracks best: **inconclusive** (effect 1.31, one seed: no interval)"
+    ]
+    ten = {**one, "ci": [1.1, 1.52]}
+    f = Facts(run_dir=tmp_path, info={"name": "x"}, stages={},
+              findings={"n_seeds": 10, "findings": [ten]})  # fmt: skip
+    assert findings_lines(f) == [
+        "Finding 1, PD tracks best: **inconclusive** (effect 1.31, 95% CI 1.1 to 1.52)"
+    ]
+    assert interval_text([None, None], 3) == "no interval"
+    assert _iv_text(Interval(1.31, math.nan, math.nan, 1)) == "1.31 (one seed: no interval)"

@@ -2,11 +2,13 @@
 
 The layout is measured by the browser at 1280x900 (document width, table rows, figure
 widths, where the summary sits); the summary's numbers are checked against the stage files
-read independently here. Screenshots of the first screen are kept in reports/test-artifacts/.
+read independently here. Screenshots of the first screen stay in pytest's temporary folders
+(copied to $QSLS_TEST_ARTIFACTS when set, e.g. by CI); nothing is written into the checkout.
 """
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -26,7 +28,6 @@ from qsls.pipeline.ingest.flight import make_flight_frame
 from .browser import HEIGHT, WIDTH, find_chromium, visit
 
 REPO = Path(__file__).resolve().parents[1]
-ARTIFACTS = REPO / "reports" / "test-artifacts"
 needs_chromium = pytest.mark.skipif(find_chromium() is None, reason="chromium is not installed")
 
 
@@ -105,8 +106,10 @@ def _check_layout(page, shot: Path, name: str) -> dict:
     assert left == [], f"requests left the file: {left}"
     dangling = {h[1:] for h in lay["links"]} - set(lay["ids"])
     assert dangling == set(), f"links to missing sections: {dangling}"
-    ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(shot, ARTIFACTS / f"report_first_screen_{name}.png")
+    keep = os.environ.get("QSLS_TEST_ARTIFACTS")
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(shot, Path(keep) / f"report_first_screen_{name}.png")
     return lay
 
 
@@ -195,7 +198,7 @@ def test_quickstart_summary_states_each_controller_and_its_verdict(quickstart):
             )
             assert ("relaxed" in text) == (not at_max), text
         own = ev[(ev["controller"] == name) & (ev["flown_by"] == name)]
-        assert "Held-out:" in text
+        assert "Flown flights:" in text
         if len(own) and bool(own["has_guarantee"].all()):
             held = int(own["bound_holds"].sum())
             assert f"held on {held} of {len(own)} own flights" in text, text
@@ -226,7 +229,7 @@ def test_quickstart_report_in_chromium_at_1280(quickstart):
     assert {c["text"].splitlines()[0] for c in lay["cards"]} == set(names)
     for card in lay["cards"]:
         assert card["top"] < HEIGHT, card["text"][:40]  # on the first screen
-        assert "Held-out:" in card["text"]
+        assert "Flown flights:" in card["text"]
     assert len(lay["figures"]) >= 8
 
 
@@ -295,6 +298,26 @@ def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(t
     page = render_html("t", "", [summary_section(f)])
     assert "relaxed premise, not certified" in page and "51% of left-out samples" in page
     assert "gamma_nominal = 1.2" in page and "reproduced" in page and "-0.02" in page
+    # the verdict is labelled as the flown flights' (they were labelled "Held-out"), and the
+    # recorded held-out flight's premise check is a line of its own (issue 26)
+    assert "<b>Flown flights:</b> bound held on 1 of 2 own flights" in page
+    assert "Held-out" not in page.split("<b>Flown flights:</b>")[0].rsplit("<h3>", 1)[-1]
+    recorded = pd.DataFrame(
+        {
+            "flight": ["held"], "controller": ["c"], "flown_by": [""], "has_guarantee": [True],
+            "theorem_applies": [False], "frac_premise_holds": [0.874], "bound_holds": [False],
+            "max_ratio": [1.7],
+        }
+    )  # fmt: skip
+    f.evaluations = [
+        EvalTable("fly", "fly", rows, []),
+        EvalTable("evaluate", "evaluate", recorded, []),
+    ]
+    page = render_html("t", "", [summary_section(f)])
+    assert (
+        "<b>Held-out recorded flights:</b> premise ||e_k|| &lt;= eps_e + S d_k holds at 87.4% of "
+        "samples (1 flight; not flown by it: the theorem does not apply)"
+    ) in page
 
     # the same without the newer keys: inferred premise, per-sample verdict, no crash
     old = {k: v for k, v in cert.items() if k != "premise"} | {"status": "certified"}

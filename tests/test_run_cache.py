@@ -72,6 +72,15 @@ def _children(pid: int) -> list[int]:
     return [int(p) for p in out.stdout.split()]
 
 
+def _workers(pid: int, n: int = 2, timeout: float = 60) -> list[int]:
+    """The ``n`` worker processes of ``pid``, once they are all running."""
+    deadline = time.monotonic() + timeout
+    while len(found := _children(pid)) < n and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(found) == n, found
+    return found
+
+
 def _wait_for(pattern: str, proc: subprocess.Popen, timeout: float = 120) -> None:
     deadline = time.monotonic() + timeout
     while not glob.glob(pattern):
@@ -170,22 +179,31 @@ FLY = {"fly": {"seeds": [0, 1, 2, 3], "duration": 30, "conditions": ["regular"],
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+@pytest.mark.parametrize(
+    "sig", [signal.SIGTERM, signal.SIGKILL, signal.SIGINT], ids=["SIGTERM", "SIGKILL", "SIGINT"]
+)
 def test_a_signal_during_fly_leaves_no_temporary_and_no_worker(tmp_path, sig):
+    import os
+
     cfg = _config(tmp_path, name="fly", flights=SMALL["flights"][:1], evaluate=FLY)
     run = tmp_path / "runs" / "fly"
+    systmp = tmp_path / "systmp"  # the system temporary folder, as this run sees it
+    systmp.mkdir()
     proc = subprocess.Popen(
-        _cmd("run", cfg), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
+        _cmd("run", cfg), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, env={**os.environ, "TMPDIR": str(systmp)}, start_new_session=True,
+    )  # fmt: skip
     try:
         _wait_for(str(run / ".fly.tmp-*"), proc)
-        deadline = time.monotonic() + 30
-        while len(workers := _children(proc.pid)) < 2 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert len(workers) == 2
+        workers = _workers(proc.pid, 2, timeout=30)
         time.sleep(0.5)  # inside the flights
-        proc.send_signal(sig)
+        t0 = time.monotonic()
+        if sig == signal.SIGINT:  # Ctrl-C: the terminal signals the whole process group
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
         _, err = proc.communicate(timeout=30)
+        took = time.monotonic() - t0
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -193,9 +211,15 @@ def test_a_signal_during_fly_leaves_no_temporary_and_no_worker(tmp_path, sig):
     while any(_alive(w) for w in workers) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not any(_alive(w) for w in workers), "a worker outlived the run"
+    # fly's scratch lives in the stage's temporary folder, never in the system's
+    assert not list(systmp.glob("qsls-fly-*"))
     if sig == signal.SIGTERM:
         assert proc.returncode == 143
         assert "terminated (SIGTERM); no partial output was kept" in err
+        assert not list(run.glob(".*tmp-*")) and not list(run.glob(".*.lock"))
+    elif sig == signal.SIGINT:
+        assert proc.returncode == 130 and "interrupted; no partial output was kept" in err
+        assert took < 5, f"Ctrl-C took {took:.1f} s to end the run"  # the workers are not awaited
         assert not list(run.glob(".*tmp-*")) and not list(run.glob(".*.lock"))
     else:
         assert list(run.glob(".fly.tmp-*"))  # SIGKILL cannot be handled: the next run cleans

@@ -398,20 +398,18 @@ def _run_local(
             out.append(fn(arg))
             progress.advance(w)
         return out
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from qsls.pipeline.core.pools import run_pool
 
-    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
     results: list[Any] = [None] * len(tasks)
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        futs = {pool.submit(fn, arg): i for i, (fn, arg) in enumerate(tasks)}
-        from concurrent.futures import as_completed
-
-        for fut in as_completed(futs):
-            i = futs[fut]
-            results[i] = fut.result()
-            progress.advance(weights[i])
+    for i, res in run_pool(_call, tasks, jobs):  # stops at once on Ctrl-C
+        results[i] = res
+        progress.advance(weights[i])
     return results
+
+
+def _call(task: tuple[Any, Any]) -> Any:
+    fn, arg = task
+    return fn(arg)
 
 
 DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")

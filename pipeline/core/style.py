@@ -27,14 +27,17 @@ OKABE_ITO = {
     "reddish_purple": "#CC79A7",
 }
 
+# the three l1_* controllers in three hue families (purple, blue, green; sky blue beside
+# blue read as one), every pair at least 15 CIELAB units apart also under simulated
+# protanopia, deuteranopia and tritanopia (tests/test_new_user.py)
 CONTROLLER_COLOURS = {
     "pd": OKABE_ITO["vermillion"],
-    "l1_nominal": OKABE_ITO["sky_blue"],
+    "l1_nominal": OKABE_ITO["reddish_purple"],
     "l1_robust": OKABE_ITO["blue"],
     "l1_robust_imitation": OKABE_ITO["bluish_green"],
     "se3": OKABE_ITO["orange"],
 }
-_SPARE = (OKABE_ITO["reddish_purple"], "#8C6D1F", "#555555", "#9A9AE6")
+_SPARE = (OKABE_ITO["sky_blue"], "#8C6D1F", "#555555", "#9A9AE6")
 # series that are not controllers (flights, percentiles): the palette in a fixed order
 CYCLE = (
     OKABE_ITO["blue"],

@@ -138,25 +138,38 @@ def error_per_controller_figure(
     traces: Mapping[str, tuple[np.ndarray, np.ndarray]],
     bounds: Mapping[str, float],
     conditions: Sequence[str],
-    smooth_s: float,
 ) -> Any:
-    """``||e||`` (smoothed) per controller, one panel per condition, with the bounds.
+    """What the verdict compares: per-sample ``||e_k||`` per controller (no averaging), its
+    peak ``max_k ||e_k||`` marked and labelled, and the controller's ``gamma_nominal`` on that
+    flight (dashed), one panel per condition; the y-axis holds every peak and bound.
 
-    ``traces`` maps ``"condition/controller"`` to ``(t, ||e||)``; ``bounds`` maps a controller
-    to its ``gamma_strict``."""
+    ``traces`` maps ``"condition/controller"`` to ``(t, ||e||)``; ``bounds`` maps the same
+    keys to ``gamma_nominal`` (missing or not finite: no bound drawn)."""
     fig, axes = _grid(len(conditions), height=3.0)
     for ax, cond in zip(axes, conditions, strict=False):
         names = [k.split("/", 1)[1] for k in traces if k.split("/", 1)[0] == cond]
+        top = 0.0
         for c in names:
             t, e = traces[f"{cond}/{c}"]
             col = style.controller_colour(c)
-            ax.plot(t, smooth(e, _dt(t), smooth_s), color=col, lw=1.3, label=c)
-            b = bounds.get(c, np.inf)
+            ax.plot(t, e, color=col, lw=0.8, label=c)
+            if len(e):
+                k = int(np.argmax(e))
+                ax.plot([t[k]], [e[k]], "v", color=col, ms=7)
+                ax.annotate(f"{e[k]:.3g}", (t[k], e[k]), textcoords="offset points",
+                            xytext=(4, 4), color=col, fontsize=8.5)  # fmt: skip
+                top = max(top, float(e[k]))
+            b = bounds.get(f"{cond}/{c}", math.nan)
             if np.isfinite(b):
-                ax.axhline(b, color=col, ls="--", lw=1.0)
+                ax.axhline(b, color=col, ls="--", lw=1.1)
+                top = max(top, float(b))
         ax.set_yscale("log")
+        if top > 0:
+            ax.set_ylim(top=top * 1.6)
         ax.set_title(
-            f"{cond} perception: ||e|| ({smooth_s:g} s average); dashed: gamma_strict", loc="left"
+            f"{cond} perception: ||e_k|| per sample, peak marked; dashed: gamma_nominal "
+            "(the bound the verdict checks)",
+            loc="left",
         )
         ax.set_ylabel("||e||_inf")
     axes[-1].set_xlabel("t (s)")
@@ -164,7 +177,9 @@ def error_per_controller_figure(
     return fig
 
 
-def write_fly_figures(w: Any, outcomes: Any, bounds: Any, options: Any, ref_bound: Any) -> None:
+def write_fly_figures(
+    w: Any, outcomes: Any, bounds: Any, options: Any, ref_bound: Any, checks: Any = None
+) -> None:
     """The paper's figures of a fly evaluation: tracking per condition, the robust
     controller's input against PD's on the same estimate, ||e|| against the bound."""
 
@@ -188,10 +203,23 @@ def write_fly_figures(w: Any, outcomes: Any, bounds: Any, options: Any, ref_boun
         u_pd = o.u_pd
         w.write_figure(f"input_{robust}_vs_pd.png", input_figure(o.t_ctrl, o.u_ctrl, u_pd, robust))
     traces_e = {f"{o.condition}/{o.controller}": (o.t_vio, o.e_norm) for o in first.values()}
-    gs = {b.name: b.gamma_strict for b in bounds}
-    if ref_bound is not None:
-        gs.setdefault("se3", ref_bound.gamma_strict)
     w.write_figure(
         "perception_error.png",
-        error_per_controller_figure(traces_e, gs, options.conditions, options.smooth_s),
+        error_per_controller_figure(
+            traces_e, own_gamma(first.values(), checks), options.conditions
+        ),
     )
+
+
+def own_gamma(outcomes: Any, checks: Any) -> dict[str, float]:
+    """``"condition/controller"`` -> ``gamma_nominal`` of the flight the controller flew
+    itself (the theorem's bound, as the verdict uses it)."""
+    if checks is None or len(checks) == 0 or "gamma_nominal" not in checks:
+        return {}
+    own = checks[checks["controller"] == checks["flown_by"]]
+    by_flight = dict(zip(own["flight"], own["gamma_nominal"], strict=True))
+    return {
+        f"{o.condition}/{o.controller}": float(by_flight[o.name])
+        for o in outcomes
+        if o.name in by_flight
+    }

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -213,20 +212,11 @@ def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[F
             results[i] = run_job(j)
             progress.advance()
     else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from qsls.pipeline.core.pools import run_pool
 
-        # fork: workers inherit the imported simulator (spawn would re-import it per worker)
-        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            futs = {pool.submit(run_job, j): i for i, j in enumerate(jobs)}
-            try:
-                for fut in as_completed(futs):
-                    results[futs[fut]] = fut.result()
-                    progress.advance()
-            except BaseException:
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
+        for i, res in run_pool(run_job, jobs, workers):  # stops at once on Ctrl-C
+            results[i] = res
+            progress.advance()
     progress.finish()
     return [r for r in results if r is not None]
 
@@ -517,11 +507,14 @@ def fly_evaluate(
         specs.append(("se3", "se3"))
     workers = options.jobs or os.cpu_count() or 1
 
-    tmp_root = Path(tempfile.mkdtemp(prefix="qsls-fly-"))
-    try:
-        with StageWriter(
-            out, "evaluate", options=options, inputs=[model_file, *folders], force=force
-        ) as w:
+    with StageWriter(
+        out, "evaluate", options=options, inputs=[model_file, *folders], force=force
+    ) as w:
+        # scratch inside the stage's temporary folder: removed before it is published, and
+        # reclaimed with it by the next writer if this process is killed (SIGKILL included)
+        tmp_root = w.tmp / ".scratch"
+        tmp_root.mkdir()
+        try:
             jobs = _make_jobs(
                 specs, options, sims=w.path("sims") if options.keep_bags else tmp_root,
                 flights=w.path("flights"), pd_gain=_pd_gain_of(folders),
@@ -557,7 +550,7 @@ def fly_evaluate(
             w.write_json(FINDINGS_FILE, findings)
             w.write_text("comparison.md", comparison_markdown(comparison, per, findings))
             if options.figures:
-                write_fly_figures(w, outcomes, bounds, options, ref_bound)
+                write_fly_figures(w, outcomes, bounds, options, ref_bound, checks)
             extra_json = {
                 "mode": "fly",
                 "flights_table": flights.to_dict(orient="records"),
@@ -579,8 +572,8 @@ def fly_evaluate(
                     "warnings": len(warnings),
                 }
             )
-    finally:
-        shutil.rmtree(tmp_root, ignore_errors=True)
+        finally:
+            shutil.rmtree(tmp_root, ignore_errors=True)
     return FlyResult(
         out=Path(out),
         table=checks,

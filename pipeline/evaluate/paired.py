@@ -59,7 +59,10 @@ def _g(v: float) -> str:
 
 def _iv_text(iv: Interval) -> str:
     lo, hi = iv.ci
-    ci = f"[{_g(lo)}, {_g(hi)}]" if lo is not None and hi is not None else "(no interval)"
+    none = "(one seed: no interval)" if iv.n == 1 else "(no interval)"
+    if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
+        return f"{_g(iv.mean)} {none}"
+    ci = f"[{_g(lo)}, {_g(hi)}]"
     return f"{_g(iv.mean)} {ci}"
 
 

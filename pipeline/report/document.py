@@ -111,6 +111,8 @@ class Card:
     verdict_kind: str
     links: list[tuple[str, str]] = field(default_factory=list)
     note: str = ""  # a muted line under the numbers (the premise's shares)
+    verdict_label: str = "Flown flights"  # whose flights ``verdict`` is about
+    more: list[tuple[str, str, str]] = field(default_factory=list)  # (label, text, kind)
 
 
 @dataclass
@@ -254,7 +256,10 @@ def _html_card(c: Card) -> str:
         f'<span class="badge {c.kind}">{html.escape(c.badge)}</span>'
         f"<dl>{items}</dl>"
         + (f'<p class="muted">{_inline(c.note)}</p>' if c.note else "")
-        + f'<p class="{c.verdict_kind}"><b>Held-out:</b> {_inline(c.verdict)}</p>'
+        + "".join(
+            f'<p class="{kind}"><b>{html.escape(label)}:</b> {_inline(text)}</p>'
+            for label, text, kind in [(c.verdict_label, c.verdict, c.verdict_kind), *c.more]
+        )
         + (f'<p class="links">{links}</p>' if links else "")
         + "</div>"
     )
@@ -337,7 +342,7 @@ def _md_table(t: Table) -> list[str]:
 
 
 def _md_cards(cards: Sequence[Card]) -> list[str]:
-    cols = ["controller", "status", *(k for k, _ in cards[0].items), "held-out verdict"]
+    cols = ["controller", "status", *(k for k, _ in cards[0].items), "verdict"]
     lines = ["| " + " | ".join(c.replace("|", "\\|") for c in cols) + " |"]
     lines.append("| " + " | ".join(["---", "---", *["---:"] * len(cards[0].items), "---"]) + " |")
     for c in cards:
@@ -346,7 +351,10 @@ def _md_cards(cards: Sequence[Card]) -> list[str]:
             f"**{c.title}**",
             c.badge,
             *(values.get(k, "-") for k, _ in cards[0].items),
-            c.verdict,
+            "; ".join(
+                f"{label}: {text}"
+                for label, text, _ in [(c.verdict_label, c.verdict, c.verdict_kind), *c.more]
+            ),
         ]
         lines.append("| " + " | ".join(x.replace("|", "\\|") for x in cells) + " |")
     links = sorted({(t, h) for c in cards for t, h in c.links}, key=lambda x: x[1])

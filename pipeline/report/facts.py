@@ -221,6 +221,42 @@ def own_rows(f: Facts, name: str) -> tuple[Any, bool]:
     return None, False
 
 
+def recorded_verdict(f: Facts, c: Controller) -> Verdict | None:
+    """The premise check on the recorded held-out flights (the ``evaluate`` stage): the
+    theorem does not apply to a flight the controller did not fly, so this tests the error
+    model there, apart from the verdict on the flights it flew."""
+    from qsls.pipeline.evaluate.verdict import verdicts
+
+    for ev in f.evaluations:
+        t = ev.table
+        if ev.kind != "evaluate" or "controller" not in t:
+            continue
+        rows = t[t["controller"] == c.name]
+        if "flown_by" in rows:
+            rows = rows[rows["flown_by"].fillna("").astype(str) != c.name]
+        if not len(rows):
+            continue
+        (v,) = verdicts(rows)
+        n = f"{v.flights} flight{'s' * (v.flights != 1)}"
+        if not v.certified:
+            return Verdict(f"no guarantee to check ({n})", "muted", v.flights)
+        if v.theorem:  # an older table without the theorem columns: the per-sample check
+            return Verdict(
+                f"per-sample bound {'held' if v.holds else 'FAILED'}; worst max ||e|| / "
+                f"gamma(d) = {g4(v.worst_ratio)} ({n})",
+                "ok" if v.holds else "bad",
+                v.flights,
+            )
+        share = f"{100 * v.premise_share:.1f}%" if math.isfinite(v.premise_share) else "n/a"
+        return Verdict(
+            f"premise ||e_k|| <= eps_e + S d_k holds at {share} of samples ({n}; not flown "
+            "by it: the theorem does not apply)",
+            "muted",
+            v.flights,
+        )
+    return None
+
+
 def heldout_verdict(f: Facts, c: Controller) -> Verdict:
     """Did the guarantee hold on the flights this controller flew itself?"""
     rows, theorem = own_rows(f, c.name)
@@ -260,6 +296,16 @@ def heldout_verdict(f: Facts, c: Controller) -> Verdict:
     )
 
 
+def interval_text(ci: Any, n_seeds: Any = None) -> str:
+    """A finding's 95% interval as text: ``a to b``; with one seed there is none to give
+    (``one seed: no interval``, not ``- to -``)."""
+    if isinstance(ci, list | tuple) and len(ci) == 2 and None not in ci:
+        lo, hi = (float(v) for v in ci)
+        if math.isfinite(lo) and math.isfinite(hi):
+            return f"{g4(lo)} to {g4(hi)}"
+    return "one seed: no interval" if n_seeds == 1 else "no interval"
+
+
 def findings_list(f: Facts) -> list[dict[str, Any]]:
     """The paper's findings as ``{id, claim, verdict, effect, ci, detail}`` from
     ``findings.json`` (issue 13's schema) or, failing that, the comparison table."""
@@ -272,6 +318,7 @@ def findings_list(f: Facts) -> list[dict[str, Any]]:
                 "verdict": str(item.get("verdict", "")),
                 "effect": item.get("effect"),
                 "ci": item.get("ci"),
+                "n_seeds": item.get("n_seeds", f.findings.get("n_seeds")),
                 "detail": str(first(item, "mechanism", "detail", "qsls", default="")),
             }
         )

@@ -12,7 +12,15 @@ import re
 from typing import Any
 
 from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
-from qsls.pipeline.report.facts import Facts, findings_list, first, g4, pct, status_words
+from qsls.pipeline.report.facts import (
+    Facts,
+    findings_list,
+    first,
+    g4,
+    interval_text,
+    pct,
+    status_words,
+)
 from qsls.pipeline.report.summary import premise_entry, status_badge
 
 
@@ -319,8 +327,9 @@ def section_flown(f: Facts, counter: list[int]) -> Section | None:
         for it in items:
             ci = it.get("ci")
             eff = g4(it["effect"]) if it.get("effect") is not None else "-"
-            if isinstance(ci, list | tuple) and len(ci) == 2:
-                eff += f" [{g4(ci[0])}, {g4(ci[1])}]"
+            if it.get("effect") is not None:
+                iv = interval_text(ci, it.get("n_seeds"))
+                eff += f" [{iv.replace(' to ', ', ')}]" if " to " in iv else f" ({iv})"
             n = _note_index(notes, it["detail"]) if it["detail"] else 0
             rows.append([it["id"], it["claim"], it["verdict"], eff, f"[{n}]" if n else "-"])
         sec.table(

@@ -19,8 +19,10 @@ from qsls.pipeline.report.facts import (
     first,
     g4,
     heldout_verdict,
+    interval_text,
     num,
     pct,
+    recorded_verdict,
     status_words,
 )
 
@@ -101,7 +103,12 @@ def controller_card(f: Facts, c: Controller) -> Card:
     links = [("certificate", "#controllers")]
     if v.n_flights:
         links += [("flights", "#heldout"), ("figures", "#figures")]
-    return Card(c.name, controller_colour(c.name), badge, kind, items, v.text, v.kind, links, note)
+    rec = recorded_verdict(f, c)
+    more = [("Held-out recorded flights", rec.text, rec.kind)] if rec is not None else []
+    return Card(
+        c.name, controller_colour(c.name), badge, kind, items, v.text, v.kind, links, note,
+        "Flown flights", more,
+    )  # fmt: skip
 
 
 # --------------------------------------------------------------------------- lines
@@ -127,7 +134,7 @@ def lead_sentence(f: Facts) -> str:
         what = "gamma_nominal" if all(v.theorem for v in flown) else "gamma(d)"
         text += (
             f" On the flights the certified controllers flew themselves, the bound held on "
-            f"{ok} of {n} (worst max ||e|| / {what} = {g4(worst)}; [held-out flights](#heldout))."
+            f"{ok} of {n} (worst max ||e|| / {what} = {g4(worst)}; [flown flights](#heldout))."
         )
     return text
 
@@ -173,10 +180,8 @@ def findings_lines(f: Facts) -> list[str]:
         ci = item.get("ci")
         effect = ""
         if item.get("effect") is not None:
-            effect = f" (effect {g4(item['effect'])}"
-            if isinstance(ci, list | tuple) and len(ci) == 2:
-                effect += f", 95% CI {g4(ci[0])} to {g4(ci[1])}"
-            effect += ")"
+            iv = interval_text(ci, item.get("n_seeds"))
+            effect = f" (effect {g4(item['effect'])}, {'95% CI ' if ' to ' in iv else ''}{iv})"
         out.append(f"Finding {item['id']}, {item['claim']}: **{item['verdict']}**{effect}")
     return out
 
