@@ -223,3 +223,20 @@ def test_a_qsls_run_notices_another_installed_solver_version(tmp_path):
     assert _ran(_qsls("run", cfg, cwd=tmp_path, env=env)) == set()
     state = json.loads((tmp_path / "runs" / "small" / "run_state.json").read_text())
     assert state["stages"]["ingest/train_1"]["versions"]["cvxpy"] == "0.0.1"
+
+
+def test_a_touched_output_is_hashed_once_and_an_edited_one_reruns(tmp_path):
+    calls: list[str] = []
+    _graph(tmp_path, [], calls).run()
+    out = tmp_path / "fit" / "m.txt"
+    recorded = RunState.load(tmp_path).stages["fit"].files["m.txt"]
+
+    os.utime(out, ns=(5, 5))  # same bytes, another mtime: hashed, restamped, skipped
+    calls.clear()
+    assert {o.status for o in _graph(tmp_path, [], calls).run()} == {"skipped"}
+    restamped = RunState.load(tmp_path).stages["fit"].files["m.txt"]
+    assert (restamped.mtime_ns, restamped.sha256) == (5, recorded.sha256)
+
+    out.write_text("9" * len(out.read_text()))  # same size, other bytes
+    outcomes = _graph(tmp_path, [], calls).run()
+    assert calls == ["fit"] and outcomes[1].reason == "output m.txt changed"

@@ -187,3 +187,26 @@ def test_sqlite_bulk_rows_are_rosbags_messages(bags: dict[str, Path]) -> None:
         assert src._sqlite_files() == [db]
     with BagSource(bags["ros2-zstd"]) as src:
         assert src._sqlite_files() is None
+
+
+def test_sqlite_bag_read_without_opening_rosbags(bags: dict[str, Path]) -> None:
+    """An uncompressed sqlite3 rosbag2 is listed from its metadata.yaml and its pose topics
+    read with one SQL query: rosbags' reader (which scans the whole database on opening) is
+    never opened, and the result is rosbags' deserializer's; a compressed bag goes through
+    rosbags."""
+    with BagSource(bags["ros2-sqlite"]) as src:
+        listed = {t.topic: (t.msgtype, t.count) for t in src.topics()}
+        fast = src.read_many([("/vio/odom", None), ("/p0", None)])
+        assert src._reader is None
+    with BagSource(bags["ros2-sqlite"]) as src:
+        slow = src.read_many([("/vio/odom", None), ("/p0", None)], fast=False)
+        assert src._reader is not None  # opened for the deserializer
+    with BagSource(bags["ros1"]) as ros1:
+        assert listed == {t.topic: (t.msgtype, t.count) for t in ros1.topics()}
+    for f, s in zip(fast, slow, strict=True):
+        assert (f.decoder, s.decoder) == ("numpy", "deserializer")
+        assert len(f) > 100 and np.array_equal(f.header_ns, s.header_ns)
+        assert np.array_equal(f.log_ns, s.log_ns) and np.array_equal(f.position, s.position)
+        assert np.array_equal(f.orientation, s.orientation) and f.frame_id == s.frame_id
+    with BagSource(bags["ros2-zstd"]) as src:
+        assert src._reader is not None and src.read("/vio/odom").decoder == "numpy"

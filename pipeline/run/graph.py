@@ -163,7 +163,8 @@ class StageGraph:
         outcomes = []
         n = len(self.stages)
         for i, s in enumerate(self.stages):
-            why = asked.get(s.id) or self._stale(state, s, keys[s.id]) or after.get(s.id)
+            why, state = self._stale(state, s, keys[s.id])
+            why = asked.get(s.id) or why or after.get(s.id)
             if why is not None and on_start:
                 on_start(s, i, n)
             state, oc = self._run_one(state, s, keys[s.id], why)
@@ -190,13 +191,19 @@ class StageGraph:
         keys = {oc.id: oc.key for oc in outcomes}
         key = self.key(stage, keys)
         ran = next((f"{oc.id} ran" for oc in outcomes if oc.status == "ran"), None)
-        why = redo or ran or self._stale(state, stage, key)
+        stale, state = self._stale(state, stage, key)
+        why = redo or ran or stale
         if why is not None and on_start:
             on_start(stage)
         return self._run_one(state, stage, key, why)[1]
 
-    def _stale(self, state: RunState, s: Stage, key: str) -> str | None:
-        return state.why_stale(s.id, key, self._out(s), self.versions)
+    def _stale(self, state: RunState, s: Stage, key: str) -> tuple[str | None, RunState]:
+        """Why ``s`` must run (or None), and ``state`` with its touched files restamped
+        (saved at once: the next run then hashes them no more)."""
+        why, checked = state.check(s.id, key, self._out(s), self.versions)
+        if checked is not state:
+            checked.save(self.root)
+        return why, checked
 
     def _run_one(
         self, state: RunState, s: Stage, key: str, why: str | None

@@ -107,20 +107,30 @@ class StageRecord(_Frozen):
 
     def problem(self, folder: Path) -> str | None:
         """Why ``folder`` no longer holds what was recorded (None when it does)."""
+        return self.verify(folder)[0]
+
+    def verify(self, folder: Path) -> tuple[str | None, StageRecord]:
+        """(why ``folder`` no longer holds what was recorded or None, this record with the
+        new mtimes of files that were hashed and found unchanged, so they are not hashed
+        again next time)."""
         folder = Path(folder)
         if not self.files:
-            return "nothing recorded"
+            return "nothing recorded", self
+        touched: dict[str, FileStamp] = {}
         for name, stamp in self.files.items():
             f = folder / name
             try:
                 st = os.stat(f)
             except FileNotFoundError:
-                return f"{name} is missing"
+                return f"{name} is missing", self
             if st.st_size == stamp.size and st.st_mtime_ns == stamp.mtime_ns:
                 continue
             if st.st_size != stamp.size or sha256_file(f) != stamp.sha256:
-                return f"{name} changed"
-        return None
+                return f"{name} changed", self
+            touched[name] = stamp.model_copy(update={"mtime_ns": st.st_mtime_ns})
+        if not touched:
+            return None, self
+        return None, self.model_copy(update={"files": {**self.files, **touched}})
 
 
 class InputHashes:
@@ -212,12 +222,22 @@ class RunState(_Frozen):
         self, stage_id: str, key: str, folder: Path, versions: Mapping[str, str] | None = None
     ) -> str | None:
         """Why stage ``stage_id`` must run (None when it is up to date)."""
+        return self.check(stage_id, key, folder, versions)[0]
+
+    def check(
+        self, stage_id: str, key: str, folder: Path, versions: Mapping[str, str] | None = None
+    ) -> tuple[str | None, RunState]:
+        """(why stage ``stage_id`` must run or None, this state with the stage's touched but
+        unchanged files restamped)."""
         rec = self.stages.get(stage_id)
         if rec is None:
-            return "not run yet"
+            return "not run yet", self
         if rec.key != key:
             if versions is not None and rec.versions and rec.versions != dict(versions):
-                return f"package versions changed ({_changed_versions(rec.versions, versions)})"
-            return "its options or inputs changed"
-        problem = rec.problem(folder)
-        return f"output {problem}" if problem else None
+                why = f"package versions changed ({_changed_versions(rec.versions, versions)})"
+                return why, self
+            return "its options or inputs changed", self
+        problem, checked = rec.verify(folder)
+        if problem:
+            return f"output {problem}", self
+        return None, self if checked is rec else self.with_stage(stage_id, checked)

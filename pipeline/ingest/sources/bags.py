@@ -21,8 +21,11 @@ Decoding, fastest first:
    memory-mapped, zstd/lz4 chunks decompressed once each with the ``mcap`` package's
    helpers, the records checked against the index and decoded for the whole topic at once.
    A test compares them record for record with the ``mcap`` reader.
-3. ROS2 sqlite3, MCAP without a usable index, fixed-layout types: raw messages from one
-   query per topic or from the reader, decoded at once.
+3. ROS2 sqlite3 without compression, fixed-layout types (:mod:`qsls.pipeline.ingest.sources.sqlite`):
+   the topics from ``metadata.yaml`` and the wanted topics' messages from one SQL query per
+   database file, decoded at once; rosbags' reader is not even opened (its opening scans
+   the whole database to count messages and imports a ROS 2 typestore). MCAP without a
+   usable index: raw messages from the reader, decoded at once.
 4. Anything else (``tf2_msgs/msg/TFMessage``, big-endian CDR, unexpected layouts):
    rosbags' (or mcap_ros2's) per-message deserializer.
 """
@@ -45,6 +48,7 @@ from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.ingest.sources import layout, mcapchunks
 from qsls.pipeline.ingest.sources.base import BAG_HINT, TopicInfo, Trajectory, bag_root, detect
 from qsls.pipeline.ingest.sources.ros1index import Batch, ros1_batches
+from qsls.pipeline.ingest.sources.sqlite import SqliteBag, open_sqlite_bag, sqlite_batches
 from qsls.pipeline.ingest.sources.write import ODOMETRY, TF, typestore
 
 _REPAIR = {
@@ -210,6 +214,7 @@ class BagSource:
             )
         self._tmp: str | None = None
         self._reader: Any = None
+        self._sqlite: SqliteBag | None = None
         self._mcap: Any = None
         self._fh: Any = None
         try:
@@ -238,6 +243,13 @@ class BagSource:
                 )
             self._summary = summary
             return
+        if self.kind == "rosbag2":
+            self._sqlite = open_sqlite_bag(bag_root(self.path))
+            if self._sqlite is not None:
+                return  # rosbags' reader only when it is needed (_rosbags)
+        self._open_rosbags()
+
+    def _open_rosbags(self) -> Any:
         from rosbags.highlevel import AnyReader
 
         target = self.path
@@ -249,6 +261,16 @@ class BagSource:
             target = self._db3_folder(self.path)
         self._reader = AnyReader([target], default_typestore=typestore(ros1=False))
         self._reader.open()
+        return self._reader
+
+    def _rosbags(self) -> Any:
+        """rosbags' reader of a bag that is not a plain MCAP, opened on first use."""
+        return self._reader if self._reader is not None else self._open_rosbags()
+
+    @property
+    def _cdr(self) -> bool:
+        """Messages are CDR (ROS 2, MCAP), not ROS1."""
+        return self._mcap is not None or self._sqlite is not None or self._reader.is2
 
     def _link(self, src: Path, name: str) -> Path:
         self._tmp = tempfile.mkdtemp(prefix="qsls-bag-")
@@ -339,6 +361,9 @@ class BagSource:
                 prev = out.get(ch.topic)
                 n = int(counts.get(cid, 0)) + (prev.count if prev else 0)
                 out[ch.topic] = TopicInfo(ch.topic, mt, n, self.path)
+        elif self._sqlite is not None:
+            for topic, (mt, n) in self._sqlite.topics.items():
+                out[topic] = TopicInfo(topic, mt, n, self.path)
         else:
             for topic, info in self._reader.topics.items():
                 out[topic] = TopicInfo(topic, info.msgtype or "?", int(info.msgcount), self.path)
@@ -398,6 +423,11 @@ class BagSource:
         chunks, plain or rosbag2 (:mod:`mcapchunks`); an empty dict: fall back."""
         if not infos:
             return {}
+        dbs = self._sqlite_files() if self._mcap is None else None
+        if dbs:
+            topics = [i.topic for i in infos]
+            ids = {t: {k} for k, t in enumerate(topics)}
+            return self._batches_fast(infos, ids, lambda: sqlite_batches(dbs, topics), progress)
         r = self._reader
         if self._mcap is None and not r.is2:
             ids = {i.topic: {c.id for c in r.connections if c.topic == i.topic} for i in infos}
@@ -446,7 +476,7 @@ class BagSource:
     ) -> dict[str, Trajectory]:
         """Decode ``batches`` (``Batch.conn`` in ``ids[topic]``) per topic, in log-time order
         (stable: batches come in chunk order); an empty dict on a ``LayoutError``."""
-        encoding = "ros1" if self._mcap is None and not self._reader.is2 else "cdr"
+        encoding = "cdr" if self._cdr else "ros1"
         parts: dict[str, list[tuple[layout.Decoded, np.ndarray]]] = {t: [] for t in ids}
         # (log time, frame_id, child_frame_id) of each topic's first message in log-time order
         # (the per-message path's): chunks need not be in time order
@@ -516,7 +546,7 @@ class BagSource:
                     raws.extend(rows[1])
                 n += len(raws)
         else:
-            r = self._reader
+            r = self._rosbags()
             conns = [c for c in r.connections if c.topic in out]
             for c, log, raw in r.messages(connections=conns):
                 raws, logs, _ = out[c.topic]
@@ -531,6 +561,8 @@ class BagSource:
     def _sqlite_files(self) -> list[Path] | None:
         """The ``.db3`` files of an uncompressed sqlite3 rosbag2, read directly with one query
         per topic (rosbags' reader yields one message at a time); None for anything else."""
+        if self._sqlite is not None:
+            return self._sqlite.files
         from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
         return self._storage_files(Sqlite3Reader)
@@ -555,7 +587,7 @@ class BagSource:
     ) -> Trajectory:
         raws, logs, schema = raw
         mt = info.msgtype
-        cdr = self._mcap is not None or self._reader.is2
+        cdr = self._cdr
         if fast and mt in layout.FIXED_TYPES:
             try:
                 buf, starts, ends = layout.concat(raws)
@@ -576,6 +608,7 @@ class BagSource:
                     raise InputError(f"{self.path}: cannot decode topic {info.topic} ({mt})")
                 msgs = [dec(x) for x in raws]
         else:
-            msgs = [self._reader.deserialize(x, mt) for x in raws]
+            reader = self._rosbags()
+            msgs = [reader.deserialize(x, mt) for x in raws]
         arrays = objects_to_arrays(msgs, logs, mt, truth_frame, info.topic)
         return _trajectory(info.topic, mt, *arrays, "deserializer")

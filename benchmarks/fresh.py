@@ -1,0 +1,55 @@
+"""Timing commands as fresh processes, what a user types (interpreter start and imports in).
+
+An installed qsls has compiled bytecode (pip compiles it at install time); a source tree
+run with ``PYTHONDONTWRITEBYTECODE`` (as in CI) compiles every qsls module on every start,
+which is not what a user pays. :func:`fresh_env` gives the children a bytecode cache
+under ``benchmarks/_work/pycache``, and :func:`best_walls` runs each command once untimed to
+fill it. CPU seconds (user + system of the child) are reported beside wall seconds: they
+move less than wall time on a machine shared with other work.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import subprocess
+import time
+from pathlib import Path
+
+WORK = Path(__file__).resolve().parent / "_work"
+
+
+def fresh_env() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env["PYTHONPYCACHEPREFIX"] = str(WORK / "pycache")
+    return env
+
+
+def _once(cmd: list[str], cwd: Path | None, env: dict[str, str]) -> tuple[float, float, str]:
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode:
+        raise SystemExit(f"{' '.join(cmd[:4])} ... failed: {done.stderr.strip()[-400:]}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu, done.stdout
+
+
+def best_walls(
+    cmds: dict[str, list[str]], repeat: int, cwd: Path | None = None
+) -> dict[str, tuple[float, float, str]]:
+    """``{label: (best wall seconds, least CPU seconds, stdout)}`` over ``repeat`` fresh runs
+    of each command, taken in turns (a machine shared with other work slows both sides of
+    a ratio alike), after one untimed run of each; a failing command ends the benchmark."""
+    env = fresh_env()
+    for cmd in cmds.values():
+        _once(cmd, cwd, env)
+    best = {k: (float("inf"), float("inf"), "") for k in cmds}
+    for _ in range(repeat):
+        for label, cmd in cmds.items():
+            wall, cpu, out = _once(cmd, cwd, env)
+            w, c, _ = best[label]
+            best[label] = (min(w, wall), min(c, cpu), out)
+    return best
