@@ -22,7 +22,18 @@ def _qsls(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 def test_simulate_camera_bag_is_ingested(tmp_path):
     """``qsls simulate --vio camera`` writes a bag ``qsls ingest`` reads; its errors are the
     MSCKF's (no emulator bias field: L = 0), finite, centimetre-sized."""
-    sim = _qsls("simulate", "--out", "sim", "--vio", "camera", "--duration", "8", "--seed", "4", cwd=tmp_path)
+    sim = _qsls(
+        "simulate",
+        "--out",
+        "sim",
+        "--vio",
+        "camera",
+        "--duration",
+        "8",
+        "--seed",
+        "4",
+        cwd=tmp_path,
+    )
     assert sim.returncode == 0, sim.stderr[-2000:]
     truth = json.loads((tmp_path / "sim" / "truth.json").read_text())
     assert truth["lipschitz"] == 0.0
@@ -44,15 +55,25 @@ def test_simulate_camera_same_seed_same_bag(tmp_path):
     for out in ("a", "b"):
         proc = _qsls("simulate", "--out", out, "--vio", "camera", "--duration", "3", cwd=tmp_path)
         assert proc.returncode == 0, proc.stderr[-2000:]
-    assert (tmp_path / "a" / "flight.bag").read_bytes() == (tmp_path / "b" / "flight.bag").read_bytes()
+    assert (tmp_path / "a" / "flight.bag").read_bytes() == (
+        tmp_path / "b" / "flight.bag"
+    ).read_bytes()
 
 
 @pytest.mark.parametrize(
     ("args", "config", "message"),
     [
-        (["--perception", "foggy"], None, "'vio.perception': Input should be 'regular' or 'degraded'"),
+        (
+            ["--perception", "foggy"],
+            None,
+            "'vio.perception': Input should be 'regular' or 'degraded'",
+        ),
         (["--vio", "lidar"], None, "'vio.kind': Input should be 'emulator' or 'camera'"),
-        (["--vio", "camera"], "vio: {camera: {pitch_deg: 180}}", "sees a textured plane on 0% of its image"),
+        (
+            ["--vio", "camera"],
+            "vio: {camera: {pitch_deg: 180}}",
+            "sees a textured plane on 0% of its image",
+        ),
         (["--vio", "camera"], "vio: {camera: {width: 752, height: 480}}", "speed budget"),
     ],
 )

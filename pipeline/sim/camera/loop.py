@@ -87,7 +87,9 @@ class CameraVio:
         self._digest = hashlib.sha256()
         self.snapshot_s = snapshot_s
         self.snapshot: Snapshot | None = None
-        self.nees: list[tuple[float, float, float]] = []  # (t, NEES of [p, v], NEES of theta)
+        self.nees: list[tuple[float, float, float, float]] = []
+        """Per frame when ``record_nees``: (t, NEES of [p, v], NEES of the attitude, the
+        position's standard deviation ``sqrt(trace P_pp)``)."""
         self.record_nees = False
         self.seconds = {"imu": 0.0, "render": 0.0, "track": 0.0, "filter": 0.0}
         """Wall-clock seconds spent per part (for benchmarks/bench_camera.py)."""
@@ -143,9 +145,7 @@ class CameraVio:
         r_wb = quat_to_matrix(s[6:10]) if r_wb is None else r_wb
         dark = any(a <= t < b for a, b in self.dark)
         c0 = time.perf_counter()
-        img = self.renderer.render(
-            r_wb, s[0:3], s[10:13], s[3:6], self.r_bc, self.t_bc, dark=dark
-        )
+        img = self.renderer.render(r_wb, s[0:3], s[10:13], s[3:6], self.r_bc, self.t_bc, dark=dark)
         c1 = time.perf_counter()
         self._digest.update(img.tobytes())
         ids, pts = self.tracker.track(img)
@@ -165,9 +165,9 @@ class CameraVio:
         if self.record_nees:
             self.nees.append((t, *self.nees_now(s, r_wb)))
 
-    def nees_now(self, s: np.ndarray, r_wb: np.ndarray) -> tuple[float, float]:
+    def nees_now(self, s: np.ndarray, r_wb: np.ndarray) -> tuple[float, float, float]:
         """Normalized estimation error squared of ``[p, v]`` (6 dof) and of the attitude
-        (3 dof) against the true state ``s``: ``e^T P^-1 e``."""
+        (3 dof) against the true state ``s``: ``e^T P^-1 e``; and ``sqrt(trace P_pp)``."""
         flt = self.filter
         assert flt is not None
         p = flt.imu_covariance()
@@ -177,6 +177,7 @@ class CameraVio:
         return (
             float(e @ np.linalg.solve(pv, e)),
             float(dth @ np.linalg.solve(p[0:3, 0:3], dth)),
+            float(np.sqrt(np.trace(p[3:6, 3:6]))),
         )
 
     def estimate(self) -> tuple[np.ndarray, np.ndarray]:
@@ -206,14 +207,23 @@ class CameraVio:
 
 
 def replay(
-    cam: CameraOptions, light: float, texture: float, seed: int, t: np.ndarray,
-    p: np.ndarray, q: np.ndarray, *, gravity: float = 9.81,
+    cam: CameraOptions,
+    light: float,
+    texture: float,
+    seed: int,
+    t: np.ndarray,
+    p: np.ndarray,
+    q: np.ndarray,
+    *,
+    gravity: float = 9.81,
+    record: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, CameraVio]:
     """Fly a recorded trajectory through the camera loop (no controller).
 
     ``t`` (n,) uniformly spaced times (s), ``p`` (n, 3) positions, ``q`` (n, 4) attitudes
     (xyzw, body to world). Velocities are central differences of ``p``, body rates the
-    relative rotation between samples. Returns the estimated ``[p, v]`` (n, 6) and attitudes
+    relative rotation between samples. ``record``: keep the NEES per frame
+    (:attr:`CameraVio.nees`). Returns the estimated ``[p, v]`` (n, 6) and attitudes
     (n, 4) at the samples, and the loop (its counters).
     """
     h = float(np.median(np.diff(t)))
@@ -227,6 +237,7 @@ def replay(
         s[i, 10:13] = so3_log(rs[i].T @ rs[i + 1]) / h
     s[-1, 10:13] = s[-2, 10:13]
     loop = CameraVio(cam, light, texture, seed, gravity, h_ns)
+    loop.record_nees = record
     loop.check_view(s[0])
     loop.start(s[0])
     est = np.zeros((n, 6))
