@@ -78,6 +78,12 @@ def command(
     jobs: int = typer.Option(
         None, "--jobs", help="--fly: parallel flights, 0 = all cores. (default: 0)"
     ),
+    vio: str = typer.Option(
+        None,
+        "--vio",
+        help="--fly: where the estimate comes from: 'emulator' (the VIO error model) or "
+        "'camera' (rendered camera, IMU and MSCKF). (default: emulator)",
+    ),
     backend: str = typer.Option(
         None,
         "--backend",
@@ -103,7 +109,7 @@ def command(
             raise InputError("--flown-by is not used with --fly (each flight records its own)")
         fly_given = overrides(
             seeds=parse_list(seeds, "--seeds", "int") or None, duration=duration, jobs=jobs,
-            conditions=parse_list(conditions, "--conditions", "value"),
+            conditions=parse_list(conditions, "--conditions", "value"), vio=vio,
             sim={"controller": {"backend": backend}} if backend else None,
         )  # fmt: skip
         base = merge(section, fly_cfg) if isinstance(fly_cfg, dict) else section

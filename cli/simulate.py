@@ -40,6 +40,12 @@ def command(
         "--perception",
         help="VIO conditions: 'regular' or 'degraded' (less light and texture). (default: regular)",
     ),
+    vio: str = typer.Option(
+        None,
+        "--vio",
+        help="Where the estimate comes from: 'emulator' (the VIO error model) or 'camera' "
+        "(a rendered camera, an IMU and an MSCKF; vio.camera in the config). (default: emulator)",
+    ),
     controller: str = typer.Option(
         None,
         "--controller",
@@ -59,7 +65,7 @@ def command(
     ov = overrides(
         seed=seed,
         duration=duration,
-        vio=overrides(perception=perception) or None,
+        vio=overrides(perception=perception, kind=vio) or None,
         controller=overrides(kind=controller) or None,
         log=overrides(format=fmt) or None,
     )

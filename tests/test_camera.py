@@ -22,7 +22,12 @@ def figure_eight(seconds: float, half_width: float = 1.0, period: float = 10.0, 
     a = half_width
     p = np.stack([a * np.sin(w * t), 0.5 * a * np.sin(2 * w * t), 1.0 + 0.1 * np.sin(w * t)], 1)
     acc = np.stack(
-        [-a * w * w * np.sin(w * t), -2 * a * w * w * np.sin(2 * w * t), -0.1 * w * w * np.sin(w * t)], 1
+        [
+            -a * w * w * np.sin(w * t),
+            -2 * a * w * w * np.sin(2 * w * t),
+            -0.1 * w * w * np.sin(w * t),
+        ],
+        1,
     )
     return t, p, thrust_attitudes(acc)
 
@@ -39,7 +44,7 @@ def test_noise_free_figure_eight_within_2cm():
     """Exact IMU, noise-free sharp images of full texture: within 2 cm over 20 s."""
     t, p, q = figure_eight(20.0)
     cam = CameraOptions(noise=False, imu_noise=False)
-    est, _att, loop = replay(cam, 1.0, 1.0, 0, t, p, q)
+    est, _, loop = replay(cam, 1.0, 1.0, 0, t, p, q)
     err = np.linalg.norm(est[:, :3] - p, axis=1)
     assert err.max() < 0.02, err.max()
     v = np.gradient(p, t, axis=0)
@@ -53,23 +58,9 @@ def test_lens_cap_runs_on_imu_and_recovers():
     off the features return and the covariance shrinks again."""
     t, p, q = figure_eight(14.0)
     cam = CameraOptions(lens_cap=[(5.0, 8.0)])
-    loop_sig: list[tuple[float, float]] = []
-    import qsls.pipeline.sim.camera.loop as L
-
-    class Probe(L.CameraVio):
-        def _frame(self, s, t_s, r_wb=None):  # record the position std at every frame
-            super()._frame(s, t_s, r_wb)
-            cov = self.filter.imu_covariance()
-            loop_sig.append((t_s, float(np.sqrt(np.trace(cov[3:6, 3:6])))))
-
-    orig = L.CameraVio
-    L.CameraVio = Probe
-    try:
-        est, _, _loop = replay(cam, 1.0, 1.0, 0, t, p, q)
-    finally:
-        L.CameraVio = orig
+    est, _, loop = replay(cam, 1.0, 1.0, 0, t, p, q, record=True)
+    ts, sig = np.array(loop.nees)[:, [0, 3]].T
     assert np.isfinite(est).all()
-    ts, sig = np.array(loop_sig).T
     before = sig[(ts > 4.0) & (ts < 5.0)].max()
     capped = sig[(ts > 7.5) & (ts < 8.0)].min()
     after = sig[(ts > 12.0)].max()
@@ -85,21 +76,8 @@ def test_consistency_nees_in_band():
     the 6 a consistent filter has (a pessimistic filter is allowed; an overconfident one not)."""
     from scipy.stats import chi2
 
-    import qsls.pipeline.sim.camera.loop as L
-
     t, p, q = figure_eight(20.0)
-
-    class Probe(L.CameraVio):
-        def start(self, s0):
-            self.record_nees = True
-            super().start(s0)
-
-    orig = L.CameraVio
-    L.CameraVio = Probe
-    try:
-        _, _, loop = replay(CameraOptions(), 1.0, 1.0, 3, t, p, q)
-    finally:
-        L.CameraVio = orig
+    _, _, loop = replay(CameraOptions(), 1.0, 1.0, 3, t, p, q, record=True)
     nees = np.array(loop.nees)[1:, 1]
     lo, hi = chi2.ppf([0.005, 0.995], 6)
     inside = np.mean((nees > lo) & (nees < hi))

@@ -69,6 +69,7 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "config": None,
             "force": None,
             "perception": "vio.perception",
+            "vio": "vio.kind",
             "controller": "controller.kind",
             "fmt": "log.format",
         },

@@ -90,6 +90,9 @@ class FlyOptions(EvaluateOptions):
         min_length=1,
     )
     """Perception conditions (the emulator's presets)."""
+    vio: Literal["emulator", "camera"] = "emulator"
+    """Where each flight's estimate comes from: the VIO emulator or the camera loop (a
+    rendered camera, an IMU and an MSCKF: ``sim.vio.camera`` holds its parameters)."""
     controllers: list[str] | None = None
     """Controller folder names to fly; default: the paper's four where given, else all."""
     se3: bool = True
@@ -385,6 +388,8 @@ def _make_jobs(
     """One job per condition, seed and controller (``specs``: ``(name, se3 | folder)``)."""
     sim = options.sim.model_dump(mode="json")
     sim["duration"] = options.duration
+    if options.vio != "emulator":
+        sim["vio"] = {**sim["vio"], "kind": options.vio}
     ingest_opts = options.ingest.model_dump(mode="json")
     jobs = []
     for cond in options.conditions:

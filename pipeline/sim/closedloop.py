@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field
 
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError
@@ -68,14 +68,6 @@ class FlightOptions(Options):
     controller: ControllerOptions = ControllerOptions()
     vio: VioParams = VioParams()
     crash: CrashOptions = CrashOptions()
-
-    @model_validator(mode="before")
-    @classmethod
-    def _vio_kind(cls, data: Any) -> Any:
-        """``vio: camera`` (or ``emulator``) is short for ``vio: {kind: camera}``."""
-        if isinstance(data, dict) and isinstance(data.get("vio"), str):
-            return {**data, "vio": {"kind": data["vio"]}}
-        return data
 
     def flight_duration(self) -> float:
         return (

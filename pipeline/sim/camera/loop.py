@@ -87,10 +87,13 @@ class CameraVio:
         self._digest = hashlib.sha256()
         self.snapshot_s = snapshot_s
         self.snapshot: Snapshot | None = None
-        self.nees: list[tuple[float, float, float]] = []  # (t, NEES of [p, v], NEES of theta)
+        self.nees: list[tuple[float, float, float, float]] = []
+        """Per frame when ``record_nees``: (t, NEES of [p, v], NEES of the attitude, the
+        position's standard deviation ``sqrt(trace P_pp)``)."""
         self.record_nees = False
         self.seconds = {"imu": 0.0, "render": 0.0, "track": 0.0, "filter": 0.0}
-        """Wall-clock seconds spent per part (for benchmarks/bench_camera.py)."""
+        """CPU seconds of this process spent per part (for benchmarks/bench_camera.py; the
+        CPU clock, not the wall clock, so that other processes on the machine do not count)."""
 
     # ------------------------------------------------------------------ checks
     def check_view(self, s0: np.ndarray, what: str = "the start pose") -> float:
@@ -123,16 +126,16 @@ class CameraVio:
         flt = self.filter
         assert flt is not None
         h = self.h_ns / NS
-        c0 = time.perf_counter()
+        c0 = time.process_time()
         r0 = self._r_last if self._s_last is s0 else quat_to_matrix(s0[6:10])
         r1 = quat_to_matrix(s1[6:10])
         self._s_last, self._r_last = s1, r1
         omega, acc = true_rates(r0, r1, s0[3:6], s1[3:6], h, self.gravity)
         wm, am = self.imu.measure(omega, acc)
-        c1 = time.perf_counter()
+        c1 = time.process_time()
         flt.propagate(wm, am, h)
         self.seconds["imu"] += c1 - c0
-        self.seconds["filter"] += time.perf_counter() - c1
+        self.seconds["filter"] += time.process_time() - c1
         self.step_index += 1
         if self.step_index % self.steps_per_frame == 0:
             self._frame(s1, self.step_index * h, r1)
@@ -142,18 +145,16 @@ class CameraVio:
         assert flt is not None
         r_wb = quat_to_matrix(s[6:10]) if r_wb is None else r_wb
         dark = any(a <= t < b for a, b in self.dark)
-        c0 = time.perf_counter()
-        img = self.renderer.render(
-            r_wb, s[0:3], s[10:13], s[3:6], self.r_bc, self.t_bc, dark=dark
-        )
-        c1 = time.perf_counter()
+        c0 = time.process_time()
+        img = self.renderer.render(r_wb, s[0:3], s[10:13], s[3:6], self.r_bc, self.t_bc, dark=dark)
+        c1 = time.process_time()
         self._digest.update(img.tobytes())
         ids, pts = self.tracker.track(img)
-        c2 = time.perf_counter()
+        c2 = time.process_time()
         k = self.renderer.k
         uv = (pts.astype(float) - k[:2, 2]) / self.cam.focal_px
         flt.process_frame(self.frames, ids, uv)
-        c3 = time.perf_counter()
+        c3 = time.process_time()
         self.seconds["render"] += c1 - c0
         self.seconds["track"] += c2 - c1
         self.seconds["filter"] += c3 - c2
@@ -165,9 +166,9 @@ class CameraVio:
         if self.record_nees:
             self.nees.append((t, *self.nees_now(s, r_wb)))
 
-    def nees_now(self, s: np.ndarray, r_wb: np.ndarray) -> tuple[float, float]:
+    def nees_now(self, s: np.ndarray, r_wb: np.ndarray) -> tuple[float, float, float]:
         """Normalized estimation error squared of ``[p, v]`` (6 dof) and of the attitude
-        (3 dof) against the true state ``s``: ``e^T P^-1 e``."""
+        (3 dof) against the true state ``s``: ``e^T P^-1 e``; and ``sqrt(trace P_pp)``."""
         flt = self.filter
         assert flt is not None
         p = flt.imu_covariance()
@@ -177,6 +178,7 @@ class CameraVio:
         return (
             float(e @ np.linalg.solve(pv, e)),
             float(dth @ np.linalg.solve(p[0:3, 0:3], dth)),
+            float(np.sqrt(np.trace(p[3:6, 3:6]))),
         )
 
     def estimate(self) -> tuple[np.ndarray, np.ndarray]:
@@ -206,14 +208,23 @@ class CameraVio:
 
 
 def replay(
-    cam: CameraOptions, light: float, texture: float, seed: int, t: np.ndarray,
-    p: np.ndarray, q: np.ndarray, *, gravity: float = 9.81,
+    cam: CameraOptions,
+    light: float,
+    texture: float,
+    seed: int,
+    t: np.ndarray,
+    p: np.ndarray,
+    q: np.ndarray,
+    *,
+    gravity: float = 9.81,
+    record: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, CameraVio]:
     """Fly a recorded trajectory through the camera loop (no controller).
 
     ``t`` (n,) uniformly spaced times (s), ``p`` (n, 3) positions, ``q`` (n, 4) attitudes
     (xyzw, body to world). Velocities are central differences of ``p``, body rates the
-    relative rotation between samples. Returns the estimated ``[p, v]`` (n, 6) and attitudes
+    relative rotation between samples. ``record``: keep the NEES per frame
+    (:attr:`CameraVio.nees`). Returns the estimated ``[p, v]`` (n, 6) and attitudes
     (n, 4) at the samples, and the loop (its counters).
     """
     h = float(np.median(np.diff(t)))
@@ -227,6 +238,7 @@ def replay(
         s[i, 10:13] = so3_log(rs[i].T @ rs[i + 1]) / h
     s[-1, 10:13] = s[-2, 10:13]
     loop = CameraVio(cam, light, texture, seed, gravity, h_ns)
+    loop.record_nees = record
     loop.check_view(s[0])
     loop.start(s[0])
     est = np.zeros((n, 6))

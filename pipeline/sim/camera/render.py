@@ -49,7 +49,11 @@ class Renderer:
     """Renders frames of one flight: planes, exposure, blur, noise (module docstring)."""
 
     def __init__(
-        self, cam: CameraOptions, planes: list[Plane], light: float, seed_seq: np.random.SeedSequence
+        self,
+        cam: CameraOptions,
+        planes: list[Plane],
+        light: float,
+        seed_seq: np.random.SeedSequence,
     ) -> None:
         self.cam = cam
         self.planes = planes
@@ -65,8 +69,10 @@ class Renderer:
         self._pix = (xs, ys)
         levels = np.arange(256, dtype=np.float32)
         self._sigma_lut = (
-            np.sqrt(levels * (self.electrons / 255.0) + cam.read_noise_e**2) * self.gain
-        ).astype(np.float32).reshape(1, 256)
+            (np.sqrt(levels * (self.electrons / 255.0) + cam.read_noise_e**2) * self.gain)
+            .astype(np.float32)
+            .reshape(1, 256)
+        )
         self.last_substeps = 1
         self.last_blur_px = 0.0
 
@@ -96,7 +102,9 @@ class Renderer:
     def _corners_visible(self, pl: Plane, r_wc: np.ndarray, p: np.ndarray) -> bool:
         line = pl.front_line(self.k_inv, r_wc, p)
         w, h = self.cam.width - 1, self.cam.height - 1
-        return all(line[0] * x + line[1] * y + line[2] > 0 for x, y in ((0, 0), (w, 0), (0, h), (w, h)))
+        return all(
+            line[0] * x + line[1] * y + line[2] > 0 for x, y in ((0, 0), (w, 0), (0, h), (w, h))
+        )
 
     def albedo(self, r_wc: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Albedo in [0, 255] of one instant (the planes over the haze): uint8 when the
@@ -127,7 +135,9 @@ class Renderer:
         return out
 
     # ------------------------------------------------------------------ a frame
-    def blur_pixels(self, r_wc: np.ndarray, p: np.ndarray, omega: np.ndarray, v: np.ndarray) -> float:
+    def blur_pixels(
+        self, r_wc: np.ndarray, p: np.ndarray, omega: np.ndarray, v: np.ndarray
+    ) -> float:
         """``b`` of the module docstring (px over the exposure)."""
         axis = r_wc[:, 2]
         ground = self.planes[0]
@@ -148,7 +158,11 @@ class Renderer:
         r_wc = r_wb @ r_bc
         p_wc = p_wb + r_wb @ t_bc
         b = self.blur_pixels(r_wc, p_wc, r_wb @ omega, v)
-        n = 1 if dark else max(1, min(cam.blur_max_substeps, math.ceil(b / cam.blur_px_per_substep)))
+        n = (
+            1
+            if dark
+            else max(1, min(cam.blur_max_substeps, math.ceil(b / cam.blur_px_per_substep)))
+        )
         self.last_substeps, self.last_blur_px = n, b
         if dark:
             rho = np.zeros((cam.height, cam.width), np.float32)
@@ -171,7 +185,7 @@ class Renderer:
         if not cam.noise:
             if rho255.dtype == np.uint8:
                 return rho255
-            return cv2.add(rho255, 0.0, dtype=cv2.CV_8U)  # type: ignore[call-overload]
+            return cv2.add(rho255, np.zeros_like(rho255), dtype=cv2.CV_8U)
         if rho255.dtype == np.uint8:
             sigma = cv2.LUT(rho255, self._sigma_lut)
         else:

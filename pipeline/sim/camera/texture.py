@@ -62,11 +62,15 @@ def _shapes(rng: np.random.Generator, n: int, count: int) -> np.ndarray:
                 elif kind == 1:
                     cv2.rectangle(canvas, (x, y), (x + size, y + h), level, -1)
                 else:
-                    cv2.line(canvas, (x, y), (x + dx, y + dy), level, max(1, size // 4), cv2.LINE_AA)
+                    cv2.line(
+                        canvas, (x, y), (x + dx, y + dy), level, max(1, size // 4), cv2.LINE_AA
+                    )
     return canvas
 
 
-def make_texture(seed: int, size: int, strength: float, shapes_per_mpx: float = 2500.0) -> np.ndarray:
+def make_texture(
+    seed: int, size: int, strength: float, shapes_per_mpx: float = 2500.0
+) -> np.ndarray:
     """The texture of the module docstring, ``(size, size)`` uint8."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 25]))
     noise = _octaves(rng, size)

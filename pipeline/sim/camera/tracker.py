@@ -25,12 +25,9 @@ class Tracker:
 
     def __init__(self, cam: CameraOptions) -> None:
         self.cam = cam
-        self.fast = cv2.FastFeatureDetector_create(cam.fast_threshold, True)  # type: ignore[attr-defined]
-        self.lk = {
-            "winSize": (cam.klt_window, cam.klt_window),
-            "maxLevel": cam.klt_levels,
-            "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03),
-        }
+        self.fast = cv2.FastFeatureDetector.create(cam.fast_threshold, True)
+        self.win = (cam.klt_window, cam.klt_window)
+        self.criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)
         self.cols, self.rows = cam.grid
         self.cell = (cam.width / self.cols, cam.height / self.rows)
         self.prev: np.ndarray | None = None
@@ -48,7 +45,12 @@ class Tracker:
         """Ids and pixel positions of the features in ``img`` (module docstring)."""
         cam = self.cam
         if self.prev is not None and len(self.pts):
-            nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, img, self.pts.reshape(-1, 1, 2), None, **self.lk)  # type: ignore[call-overload]
+            nxt, st, _ = cv2.calcOpticalFlowPyrLK(
+                self.prev, img, self.pts.reshape(-1, 1, 2), np.empty(0, np.float32),
+                winSize=self.win, maxLevel=cam.klt_levels, criteria=self.criteria,
+            )  # fmt: skip
+            nxt = np.asarray(nxt)
+            st = np.asarray(st)
             nxt = nxt.reshape(-1, 2)
             margin = 2.0
             ok = (
@@ -78,10 +80,15 @@ class Tracker:
         kps = self.fast.detect(img)
         if not kps:
             return
-        xy = cv2.KeyPoint_convert(kps).reshape(-1, 2).astype(np.float32)  # type: ignore[attr-defined]
+        xy = np.asarray(cv2.KeyPoint.convert(kps), np.float32).reshape(-1, 2)
         resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
         m = 4.0
-        inside = (xy[:, 0] >= m) & (xy[:, 0] <= cam.width - 1 - m) & (xy[:, 1] >= m) & (xy[:, 1] <= cam.height - 1 - m)
+        inside = (
+            (xy[:, 0] >= m)
+            & (xy[:, 0] <= cam.width - 1 - m)
+            & (xy[:, 1] >= m)
+            & (xy[:, 1] <= cam.height - 1 - m)
+        )
         xy, resp = xy[inside], resp[inside]
         if not len(xy):
             return

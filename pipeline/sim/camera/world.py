@@ -98,7 +98,9 @@ def build_world(cam: CameraOptions, texture_level: float) -> list[Plane]:
     planes = [
         Plane(
             # the tile centred on the origin (flights stay well inside; beyond, it mirrors)
-            origin=np.array([-0.5 * n * cam.texture_m_per_px, -0.5 * n * cam.texture_m_per_px, cam.ground_z]),
+            origin=np.array(
+                [-0.5 * n * cam.texture_m_per_px, -0.5 * n * cam.texture_m_per_px, cam.ground_z]
+            ),
             a1=np.array([1.0, 0.0, 0.0]),
             a2=np.array([0.0, 1.0, 0.0]),
             m_per_px=cam.texture_m_per_px,
@@ -119,9 +121,13 @@ def build_world(cam: CameraOptions, texture_level: float) -> list[Plane]:
         base = _base_texture(cam.texture_seed + 1000 + i, max(nu, nv))
         planes.append(
             Plane(
-                origin=start, a1=a1, a2=a2, m_per_px=cam.texture_m_per_px,
+                origin=start,
+                a1=a1,
+                a2=a2,
+                m_per_px=cam.texture_m_per_px,
                 texture=scaled(np.ascontiguousarray(base[:nv, :nu]), strength),
-                tiled=False, extent_px=(nu, nv),
+                tiled=False,
+                extent_px=(nu, nv),
             )
         )
     return planes

@@ -1,0 +1,91 @@
+"""Speed of the camera loop: a 30 s closed-loop flight with camera perception, part by part.
+
+    python benchmarks/bench_camera.py             # regular and degraded, 30 s each
+    python benchmarks/bench_camera.py --quick     # 10 s, regular only
+
+One core (OpenCV and BLAS limited to one thread); times are CPU seconds of this process
+(on an idle core, wall time), so a loaded machine does not inflate them. Rows: the same flight with the VIO
+emulator (the naive way: no pixels at all), then with the camera loop, whose time is split
+into its parts (IMU synthesis, rendering, tracking, the MSCKF: propagation and updates) as
+measured inside :class:`qsls.pipeline.sim.camera.loop.CameraVio`; ``physics + control`` is
+the rest of the flight. Frames per second are per part, against the camera's real-time rate
+(20 frames per second of flight). The issue's budget: the camera loop's parts together at
+most 3 s for a 30 s flight (10x real time).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import cv2
+from threadpoolctl import threadpool_limits
+
+
+def _flight(kind: str, perception: str, seconds: float) -> tuple[float, dict[str, float], int]:
+    from qsls.pipeline.sim.camera import loop as camera_loop
+    from qsls.pipeline.sim.closedloop import FlightOptions, fly
+
+    parts: dict[str, float] = {}
+    frames = 0
+    orig = camera_loop.CameraVio.describe
+
+    def keep(self: camera_loop.CameraVio) -> dict:
+        nonlocal frames
+        parts.update(self.seconds)
+        frames = self.frames
+        return orig(self)
+
+    camera_loop.CameraVio.describe = keep  # type: ignore[method-assign]
+    try:
+        opts = FlightOptions.model_validate(
+            {"duration": seconds, "vio": {"kind": kind, "perception": perception}}
+        )
+        t0 = time.process_time()  # CPU clock: other processes on the machine do not count
+        fly(opts)
+        wall = time.process_time() - t0
+    finally:
+        camera_loop.CameraVio.describe = orig  # type: ignore[method-assign]
+    return wall, parts, frames
+
+
+def main(argv: list[str]) -> None:
+    quick = "--quick" in argv
+    seconds = 10.0 if quick else 30.0
+    cv2.setNumThreads(1)
+    with threadpool_limits(limits=1):
+        _flight("camera", "regular", 1.0)  # warm up: imports, the texture (cached per process)
+        print(f"{seconds:g} s flight, one core (best of 2 runs per row)\n")
+        head = f"{'row':34s} {'CPU (s)':>9s} {'x real time':>12s} {'frames/s':>9s}"
+        print(head)
+        print("-" * len(head))
+        for perception in ("regular",) if quick else ("regular", "degraded"):
+            emu = min(_flight("emulator", perception, seconds)[0] for _ in range(2))
+            print(
+                f"{'emulator ' + perception + ' (whole flight)':34s} {emu:9.2f} {seconds / emu:12.1f} {'-':>9s}"
+            )
+            runs = [_flight("camera", perception, seconds) for _ in range(2)]
+            wall, parts, frames = min(runs, key=lambda r: r[0])
+            cam_total = sum(parts.values())
+            for name in ("imu", "render", "track", "filter"):
+                s = parts[name]
+                fps = frames / s if s > 0 else float("inf")
+                print(
+                    f"{'  camera ' + perception + ': ' + name:34s} {s:9.2f} {seconds / s:12.1f} {fps:9.0f}"
+                )
+            print(
+                f"{'  camera ' + perception + ': camera parts':34s} {cam_total:9.2f} {seconds / cam_total:12.1f} {frames / cam_total:9.0f}"
+            )
+            print(
+                f"{'  camera ' + perception + ': physics + control':34s} {wall - cam_total:9.2f} {seconds / (wall - cam_total):12.1f} {'-':>9s}"
+            )
+            print(
+                f"{'camera ' + perception + ' (whole flight)':34s} {wall:9.2f} {seconds / wall:12.1f} {frames / wall:9.0f}"
+            )
+            budget = 3.0 * seconds / 30.0
+            verdict = "within" if cam_total <= budget else "OVER"
+            print(f"  camera parts {cam_total:.2f} s: {verdict} the {budget:g} s budget\n")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
