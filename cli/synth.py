@@ -58,8 +58,32 @@ def command(
         None, "--radius", "-r", help="Radius r. (default: the error model's)"
     ),
     delta: float | None = typer.Option(None, "--delta", help="Delta. (default: the error model's)"),
-    eps_w: float | None = typer.Option(
-        None, "--eps-w", help="Process noise bound eps_w. (default: 0.01)"
+    eps_w: str | None = typer.Option(
+        None,
+        "--eps-w",
+        help="Disturbance bound eps_w: a number, max or pNN of the training flights' realized "
+        "disturbance. (default: max; 0.01 without an error model)",
+    ),
+    measure: str | None = typer.Option(
+        None, "--measure", help="Error channels read: full or position. (default: full)"
+    ),
+    beta: float | None = typer.Option(
+        None,
+        "--beta",
+        help="Clip of the velocity errors' dense part; what it clips off is an outlier. "
+        "(default: none)",
+    ),
+    eps_o: float | None = typer.Option(
+        None, "--eps-o", help="Bound on one outlier (a physical bound). (default: none)"
+    ),
+    gate: float | None = typer.Option(
+        None, "--gate", help="Velocity gate V: eps_o = 2V - beta. (default: none)"
+    ),
+    m: str | None = typer.Option(
+        None, "--m", help="Outliers per window of T steps: a number or auto. (default: auto)"
+    ),
+    error_scale: str | None = typer.Option(
+        None, "--error-scale", help="W_e: 6 weights of the error norm. (default: 1,1,1,1,1,1)"
     ),
     q: str | None = typer.Option(
         None, "--Q", help="State weight diagonal. (default: 10,10,10,1,1,1)"
@@ -91,8 +115,10 @@ def command(
     given: dict[str, Any] = overrides(
         T=horizon, norm=norm, controllers=controllers, cost=cost, robust=robust,
         strictly_proper=strictly_proper, S=number_or_name(s), eps_e=number_or_name(eps_e),
-        radius=radius, delta=delta, eps_w=eps_w, Q=parse_list(q, "--Q"), R=parse_list(r, "--R"),
-        mass=mass, dt=dt, imitate=imitate, solver=solver,
+        radius=radius, delta=delta, eps_w=number_or_name(eps_w), Q=parse_list(q, "--Q"),
+        R=parse_list(r, "--R"), mass=mass, dt=dt, imitate=imitate, solver=solver,
+        measure=measure, beta=beta, eps_o=eps_o, gate=gate, m=number_or_name(m),
+        error_scale=parse_list(error_scale, "--error-scale"),
     )  # fmt: skip
     opts = load_options(SynthOptions, config, given, section="synth")
     if max_feasible_s:

@@ -310,3 +310,38 @@ def test_controller_norms_are_the_closed_loops(tmp_path):
         "phi_xy": _cert(out)["norm_phi_xy"],
         "phi_xx_h": _cert(out)["norm_phi_xx_h"],
     }
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--beta", "0.2"], "give eps_o"),
+        (["--gate", "1.0"], "needs measure: full and beta"),
+        (["--beta", "0.2", "--gate", "1.0", "--eps-o", "1.0"], "not both"),
+        (["--beta", "0.5", "--gate", "0.2"], "must exceed beta / 2"),
+        (["--eps-e", "0"], "every one of the"),
+    ],
+)
+def test_an_unusable_premise_is_refused_in_one_line(tmp_path, fit_dir, args, says):
+    out = tmp_path / "s"
+    res = _invoke("synth", "-m", fit_dir[0], "-T", T, *args, "-o", out)
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and says in lines[0], res.output
+    assert not out.exists()
+
+
+def test_lofo_needs_two_flights(tmp_path, fit_dir):
+    """One training flight: nothing to leave out, so S = lofo is refused and a given S leaves
+    the premise untested (relaxed, S's share unknown)."""
+    root = tmp_path / "one"
+    root.mkdir()
+    df = pd.read_parquet(fit_dir[0] / TRAINING_FILE)
+    df.assign(flight="f").to_parquet(root / TRAINING_FILE)
+    (root / "error_model.yaml").write_text((fit_dir[0] / "error_model.yaml").read_text())
+    res = _invoke("synth", "-m", root, "-T", T, "-o", tmp_path / "a")
+    assert res.exit_code == 2 and "needs at least two" in res.output, res.output
+    res = _invoke("synth", "-m", root, "-T", T, "--S", "0.01", "-o", tmp_path / "b")
+    assert res.exit_code == 0, res.output
+    c = _cert(tmp_path / "b")
+    assert c["status"] == "relaxed" and c["premise"]["S"]["violated"] is None

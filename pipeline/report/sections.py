@@ -82,9 +82,9 @@ def section_paper_figures(f: Facts, counter: list[int]) -> Section | None:
 _STATUS_NOTES = {
     "certified": "certified: every check passed (solver, achievability <= 1e-7, realization "
     "<= 1e-8, internal stability, robustness lhs <= 1) on the premise shown.",
-    "relaxed": "certified, relaxed premise: the checks passed, but eps_e or S is a percentile "
-    "of the training data, so part of that data lies outside the premise (shares below); the "
-    "guarantee holds only where the premise does.",
+    "relaxed": "relaxed premise, not certified: the checks passed, but part of the training "
+    "data lies outside the premise (a percentile, a number below the measured one, excluded "
+    "samples or an untested S: shares below); no guarantee is claimed from it.",
     "uncertified": "no guarantee: a nominal controller whose robustness lhs exceeds 1; gamma "
     "is the formula's value, shown for comparison only.",
     "reference": "reference, no guarantee: PD given as a closed loop, compared with the "
@@ -107,8 +107,10 @@ def _controller_rows(f: Facts) -> tuple[list[list[Any]], list[list[Any]], list[l
                 d.get("T"),
                 d.get("S"),
                 d.get("eps_e"),
-                d.get("norm_phi_xy"),
+                first(d, "norm_N", "norm_phi_xy"),
                 d.get("robustness_lhs"),
+                d.get("rho_star"),
+                d.get("tested_range"),
                 d.get("gamma"),
             ]
         )
@@ -125,6 +127,7 @@ def _controller_rows(f: Facts) -> tuple[list[list[Any]], list[list[Any]], list[l
         )
         pe, pe_share, pe_inf = premise_entry(c, em, "eps_e")
         ps, ps_share, ps_inf = premise_entry(c, em, "S")
+        prem = d.get("premise") or {}
         premise.append(
             [
                 c.name,
@@ -134,10 +137,33 @@ def _controller_rows(f: Facts) -> tuple[list[list[Any]], list[list[Any]], list[l
                 "~" * ps_inf + pct(ps_share),
                 d.get("radius"),
                 d.get("delta"),
-                d.get("eps_w"),
+                _with_source(d.get("eps_w"), prem.get("eps_w_source")),
+                _entry_text(prem.get("m")),
+                _entry_text(prem.get("eps_o")),
+                prem.get("measure", "full"),
             ]
         )
     return rows, checks, premise
+
+
+def _with_source(value: Any, source: str | None) -> str:
+    if value is None:
+        return "-"
+    text = f"{value:.4g}"
+    if source == "input_free_residual":
+        text += " (input-free residual: a lower bound)"
+    elif source:
+        text += f" ({source})"
+    return text
+
+
+def _entry_text(e: dict[str, Any] | None) -> str:
+    """``value (how; share violated)`` of a premise entry, ``-`` where the premise has none."""
+    if not e:
+        return "-"
+    share = e.get("violated")
+    tail = "" if share is None else f"; {100 * share:.3g}% outside"
+    return f"{e['value']:.4g} ({e['chosen']}{tail})"
 
 
 def section_controllers(f: Facts, counter: list[int]) -> Section | None:
@@ -159,12 +185,16 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
             "T (steps)",
             "S",
             "eps_e",
-            "||Phi_xy||",
+            "N = ||W_x Phi_xy W_e^-1||",
             "robustness lhs (<= 1)",
-            "gamma",
+            "rho*",
+            "premise tested to",
+            "gamma = eps_e + S rho*",
         ],
         rows,
-        "Certificates: the guarantee ||e|| <= gamma = (eps_e + S a) / (1 - S ||Phi_xy||)",
+        "Certificates (docs/guarantee.md): when lhs = (S + eps_e/r) N + (a + eps_o G_m)/r <= 1, "
+        "the vehicle stays within rho* of the training states and the dense error below gamma; "
+        "the premise's S was tested on left-out flights only out to the distance shown",
         notes=notes,
         text_cols=[1],
     )
@@ -188,10 +218,13 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
             "eps_e chosen",
             "samples outside",
             "S chosen",
-            "pairs outside",
+            "left-out samples outside",
             "r",
             "Delta",
             "eps_w",
+            "m (outliers per T steps)",
+            "eps_o",
+            "measure",
         ],
         premise,
         "The premise each guarantee rests on (shares of the training data violating it)",
@@ -363,7 +396,36 @@ def section_flown(f: Facts, counter: list[int]) -> Section | None:
             csv=csv,
             text_cols=[0, 1],
         )
+    _assumptions_table(f, sec)
     return sec
+
+
+def _assumptions_table(f: Facts, sec: Section) -> None:
+    """Every assumption of the guarantee on each certified controller's own flights (the
+    fly stage's ``assumptions.parquet``): the value against its limit, the first to fail."""
+    import pandas as pd
+
+    path = f.run_dir / f.fly_folder / "assumptions.parquet" if f.fly_folder else None
+    if path is None or not path.is_file():
+        return
+    a = pd.read_parquet(path)
+    if not len(a):
+        return
+    names = ("disturbance", "nominal", "invariance", "dense", "outliers")
+    rows = [
+        [r["flight"], *(f"{r[f'{n}_value']:.3g} / {r[f'{n}_limit']:.3g}" for n in names),
+         r["first_failed"] or "none", "held" if r["bound_held"] else "NOT held"]
+        for _, r in a.iterrows()
+    ]  # fmt: skip
+    sec.table(
+        ["flight", "||H^-1 w|| / eps_w", "dist(x_hat) / a", "dist(x) / rho*",
+         "dense error above eps_e + S dist", "outliers per T steps / m", "first to fail",
+         "bound (consequence)"],
+        rows,
+        "The guarantee's assumptions on each certified controller's own flights, from its own "
+        "log (docs/guarantee.md): a flight is inside the guarantee only if none fails",
+        text_cols=[0, 6, 7],
+    )  # fmt: skip
 
 
 # --------------------------------------------------------------------------- error model
