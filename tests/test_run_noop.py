@@ -71,7 +71,7 @@ def test_an_up_to_date_rerun_runs_nothing_imports_nothing_heavy_and_notices_chan
     cfg = tmp_path / "small.yaml"
     cfg.write_text(yaml.safe_dump(data, sort_keys=False))
     run = tmp_path / "runs" / "small"
-    index = tmp_path / "reports" / "small" / "index.html"
+    index = run / "report" / "index.html"
 
     first = _qsls("run", cfg, cwd=tmp_path)
     assert "evaluate" in _ran(first) and index.is_file()

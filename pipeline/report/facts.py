@@ -257,8 +257,33 @@ def recorded_verdict(f: Facts, c: Controller) -> Verdict | None:
     return None
 
 
+def assumption_rows(f: Facts, name: str) -> Any:
+    """The fly stage's assumption checks of controller ``name`` (None without them)."""
+    import pandas as pd
+
+    if not f.fly_folder:
+        return None
+    path = f.run_dir / f.fly_folder / "assumptions.parquet"
+    if not path.is_file():
+        return None
+    a = pd.read_parquet(path)
+    rows = a[a["controller"] == name] if len(a) else a
+    return rows if len(rows) else None
+
+
 def heldout_verdict(f: Facts, c: Controller) -> Verdict:
-    """Did the guarantee hold on the flights this controller flew itself?"""
+    """Did the guarantee hold on the flights this controller flew itself? Every assumption
+    checked on its own log where the fly stage has them, else the bound check's verdict."""
+    a = assumption_rows(f, c.name)
+    if a is not None:
+        n = len(a)
+        ok = int((a["assumptions_hold"].astype(bool) & a["bound_held"].astype(bool)).sum())
+        bad = a[~a["assumptions_hold"].astype(bool)]
+        text = f"every assumption held on {ok} of {n} own flights"
+        if len(bad):
+            r = bad.iloc[0]
+            text += f"; first failure: '{r['first_failed']}' on {r['flight']}"
+        return Verdict(text, "ok" if ok == n else "bad", n, ok, float(n - ok), True)
     rows, theorem = own_rows(f, c.name)
     if rows is None:
         if any(ev.kind == "fly" for ev in f.evaluations):

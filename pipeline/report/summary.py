@@ -15,6 +15,7 @@ from qsls.pipeline.report.document import Card, Section
 from qsls.pipeline.report.facts import (
     Controller,
     Facts,
+    assumption_rows,
     findings_list,
     first,
     g4,
@@ -72,7 +73,7 @@ def relaxed(c: Controller, em: dict[str, Any]) -> bool:
 def status_badge(c: Controller, em: dict[str, Any]) -> tuple[str, str]:
     words, kind = status_words(c.status)
     if c.status == "certified" and "premise" not in c.cert and relaxed(c, em):
-        return "certified, relaxed premise", "warn"  # never round a relaxed premise up
+        return "relaxed premise, not certified", "warn"  # never round a relaxed premise up
     return words, kind
 
 
@@ -92,6 +93,10 @@ def controller_card(f: Facts, c: Controller) -> Card:
         ("eps_e", _with_how(c.cert.get("eps_e"), how_e)),
         ("gamma", g4(c.cert.get("gamma"))),
     ]
+    if c.cert.get("rho_star") is not None and c.status in ("certified", "relaxed"):
+        tested = c.cert.get("tested_range")
+        items.append(("rho*", g4(c.cert["rho_star"]) + (
+            f" (premise tested to {g4(tested)})" if tested is not None else "")))  # fmt: skip
     note = ""
     if (share_e > 0 or share_s > 0) and c.certified:
         approx = "~" if inferred_e or inferred_s else ""
@@ -116,12 +121,13 @@ def lead_sentence(f: Facts) -> str:
     em = f.error_model
     names = [c.name for c in f.controllers]
     plain = [c.name for c in f.controllers if c.certified and not relaxed(c, em)]
-    rel = [c.name for c in f.controllers if c.certified and relaxed(c, em)]
+    rel = [c.name for c in f.controllers
+           if c.status == "relaxed" or (c.certified and relaxed(c, em))]  # fmt: skip
     parts = [f"{len(names)} controller{'s' * (len(names) != 1)} synthesized"]
     if plain:
         parts.append(f"certified: {', '.join(plain)}")
     if rel:
-        parts.append(f"certified on a relaxed premise: {', '.join(rel)}")
+        parts.append(f"on a relaxed premise, not certified: {', '.join(rel)}")
     if not plain and not rel:
         parts.append("none certified")
     held = [heldout_verdict(f, c) for c in f.controllers if c.certified]
@@ -130,12 +136,19 @@ def lead_sentence(f: Facts) -> str:
     if flown:
         n = sum(v.n_flights for v in flown)
         ok = sum(v.n_hold for v in flown)
-        worst = max(v.worst_ratio for v in flown)
-        what = "gamma_nominal" if all(v.theorem for v in flown) else "gamma(d)"
-        text += (
-            f" On the flights the certified controllers flew themselves, the bound held on "
-            f"{ok} of {n} (worst max ||e|| / {what} = {g4(worst)}; [flown flights](#heldout))."
-        )
+        if all(assumption_rows(f, c.name) is not None for c in f.controllers if c.certified):
+            text += (
+                f" On the flights the certified controllers flew themselves, every assumption "
+                f"of the guarantee held on {ok} of {n} ([flown flights](#findings))."
+            )
+        else:
+            worst = max(v.worst_ratio for v in flown)
+            what = "gamma_nominal" if all(v.theorem for v in flown) else "gamma(d)"
+            text += (
+                f" On the flights the certified controllers flew themselves, the bound held "
+                f"on {ok} of {n} (worst max ||e|| / {what} = {g4(worst)}; "
+                "[flown flights](#heldout))."
+            )
     return text
 
 
