@@ -345,3 +345,20 @@ def test_lofo_needs_two_flights(tmp_path, fit_dir):
     assert res.exit_code == 0, res.output
     c = _cert(tmp_path / "b")
     assert c["status"] == "relaxed" and c["premise"]["S"]["violated"] is None
+
+
+def test_samples_the_fit_excluded_make_the_premise_relaxed(tmp_path, fit_dir):
+    """Exclusions appear in the certificate: a fit that left samples out cannot certify."""
+    root = tmp_path / "excl"
+    root.mkdir()
+    (root / TRAINING_FILE).write_bytes((fit_dir[0] / TRAINING_FILE).read_bytes())
+    em = fit_dir[3].model_copy(update={"n_excluded": 3, "exclusions": {"outliers": 3}})
+    (root / "error_model.yaml").write_text(dump_yaml(em))
+    res = _invoke("synth", "-m", root, "-T", T, "--eps-e", "max", "-o", tmp_path / "s")
+    assert res.exit_code == 0, res.output
+    c = _cert(tmp_path / "s")
+    assert c["status"] == "relaxed" and c["premise"]["n_excluded"] == 3
+    from qsls.pipeline.control.premise import Premise
+
+    assert "3 training samples excluded by the fit" in Premise.model_validate(c["premise"]).shares()
+    assert "excluded" in res.output
