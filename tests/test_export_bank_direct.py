@@ -204,3 +204,14 @@ def test_gate_words_for_each_status(proper):
 
     ref = c.model_copy(update={"status": "reference"})
     assert B.status_reason(ref) == "a reference controller (not synthesized), with no guarantee"
+
+
+def test_a_gated_certificate_is_not_exported_without_its_gate():
+    """The exported filter bank does not clip the velocity: a certificate that rests on the
+    gate is refused (one line naming the gate), unless --allow-uncertified."""
+    d = synthesized()
+    gated = d.certificate.model_copy(update={"gate": 1.5})
+    cdir = dataclasses.replace(d, certificate=gated)
+    with pytest.raises(InputError, match=r"velocity gate .* clip\(y_v - v_ref, -1.5, 1.5\)"):
+        B.check_exportable(cdir, allow_uncertified=False)
+    B.check_exportable(cdir, allow_uncertified=True)

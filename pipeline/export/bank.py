@@ -203,8 +203,18 @@ def status_reason(cert: Certificate) -> str:
 
 
 def check_exportable(cdir: ControllerDir, allow_uncertified: bool) -> None:
-    """Refuse anything but ``certified`` unless ``allow_uncertified`` (exit 2)."""
+    """Refuse anything but ``certified`` unless ``allow_uncertified`` (exit 2). A certificate
+    whose controller reads its velocity through a gate (docs/guarantee.md, Velocity gate) is
+    refused too: the exported filter bank does not clip, and without the clip the guarantee
+    does not hold."""
     cert = cdir.certificate
+    if cert.gate is not None and not allow_uncertified:
+        raise InputError(
+            f"{cdir.folder}: its guarantee needs the velocity gate (the controller reads "
+            f"clip(y_v - v_ref, -{cert.gate:g}, {cert.gate:g})), which the exported code does "
+            "not apply; clip the velocity deviation before _step yourself and pass "
+            "--allow-uncertified, or synthesize without a gate"
+        )
     if cert.status == "certified" or allow_uncertified:
         return
     raise InputError(
