@@ -277,3 +277,12 @@ def test_shipped_config_is_valid():
     cfg = Path(__file__).resolve().parents[1] / "configs" / "synth.yaml"
     opts = load_options(SynthOptions, cfg)
     assert opts.T == 20 and opts.norm == "l1" and opts.S == "lofo"
+
+
+def test_s_at_least_one_says_no_radius_can_help(tmp_path, error_model):
+    """S >= 1 breaks S N < 1 for every achievable response: the diagnosis says that no radius
+    or horizon can help and what could (issue 26, item 11)."""
+    res = _synth("-m", error_model, "-T", 8, "--S", "1.2", "-o", tmp_path / "o")
+    assert res.exit_code == 3, res.output
+    assert "no radius or horizon can help" in " ".join(res.output.split())
+    assert not (tmp_path / "o").exists()

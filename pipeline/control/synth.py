@@ -467,17 +467,17 @@ def diagnosis_message(d: dict[str, Any]) -> str:
             f"the necessary condition S + eps_e/r < 1 holds ({d['S_plus_eps_e_over_r']:.4g})"
         )
     parts.append(f"the smallest achievable N = ||W_x Phi_xy W_e^-1|| at T={d['T']} is {d['min_norm_phi_xy']:.4g}")
-    if d["max_feasible_S"] >= 0:
-        parts.append(
-            f"the largest feasible S for this setting is {d['max_feasible_S']:.6g} (S = {d['S']:.4g} given)"
-        )
-    elif d["S"] >= 1.0:
+    if d["S"] >= 1.0:
         parts.append(
             f"no radius or horizon can help: S = {d['S']:.4g} >= 1 alone breaks S N < 1; a smaller "
             "S needs a different premise (S = lofo, an error_scale that weights the velocity "
             "errors less, beta with eps_o, or measure: position)"
         )
-    else:
+    if d["max_feasible_S"] >= 0:
+        parts.append(
+            f"the largest feasible S for this setting is {d['max_feasible_S']:.6g} (S = {d['S']:.4g} given)"
+        )
+    elif d["S"] < 1.0:
         parts.append(
             "no S >= 0 is feasible for this setting: lower eps_e (beta, error_scale, measure: "
             "position) or Delta (training flights nearer the reference), or raise r or T"
