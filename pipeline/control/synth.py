@@ -237,15 +237,20 @@ def _how(value: Any) -> str:
     return "number" if isinstance(value, int | float) else str(value)
 
 
+def _needs_model(what: str, v: Any, em: ErrorModel | None) -> ErrorModel:
+    if em is None:
+        raise InputError(
+            f"{what} = '{v}' names a number of an error model, but none was given; "
+            "pass --model or give a number"
+        )
+    return em
+
+
 def _eps(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None, trivial: bool) -> float:
     v = opts.eps_e
     if isinstance(v, int | float):
         return float(v)
-    if em is None:
-        raise InputError(
-            f"eps_e = '{v}' names a number of an error model, but none was given; "
-            "pass --model or give a number"
-        )
+    em = _needs_model("eps_e", v, em)
     if meas is not None:
         key = str(v).strip()
         if key == "max":
@@ -267,11 +272,7 @@ def _slope(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None) -
     v = opts.S
     if isinstance(v, int | float):
         return float(v)
-    if em is None:
-        raise InputError(
-            f"S = '{v}' names a number of an error model, but none was given; "
-            "pass --model or give a number"
-        )
+    em = _needs_model("S", v, em)
     if str(v).strip() != "lofo":
         return em.resolve_s(v)
     if meas is None:

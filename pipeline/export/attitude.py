@@ -38,7 +38,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from pydantic import Field, field_validator
 
+from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.plant import GRAVITY
 
 
@@ -66,6 +68,24 @@ def check_thrust_limits(v: tuple[float, float]) -> tuple[float, float]:
     if not 0 < lo < 1 < hi:
         raise ValueError(f"thrust limits must satisfy 0 < low < 1 < high (x m g), got {lo}, {hi}")
     return v
+
+
+class LimitOptions(Options):
+    """The attitude helper's saturation as options (``qsls export`` and ``qsls replay``)."""
+
+    tilt_limit_deg: float = Field(AttitudeLimits.max_tilt_deg, gt=0, lt=90)
+    """The attitude helper's largest tilt from vertical (deg), stated in the header."""
+    thrust_limits: tuple[float, float] = (AttitudeLimits.thrust_min, AttitudeLimits.thrust_max)
+    """The attitude helper's thrust range, in multiples of hover ``m g``."""
+
+    @field_validator("thrust_limits")
+    @classmethod
+    def _thrust_limits(cls, v: tuple[float, float]) -> tuple[float, float]:
+        return check_thrust_limits(v)
+
+    @property
+    def limits(self) -> AttitudeLimits:
+        return AttitudeLimits(self.tilt_limit_deg, *self.thrust_limits)
 
 
 def absolute_input(u: np.ndarray, acc: np.ndarray, mass: float, g: float = GRAVITY) -> np.ndarray:

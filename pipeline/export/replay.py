@@ -34,17 +34,16 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, model_validator
 
-from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.units import NS
-from qsls.pipeline.export.attitude import AttitudeLimits, check_thrust_limits
+from qsls.pipeline.export.attitude import AttitudeLimits, LimitOptions
 from qsls.pipeline.export.rosout import Ticks, Topics
 from qsls.pipeline.sim.references import ReferenceOptions
 
 
-class ReplayOptions(Options):
+class ReplayOptions(LimitOptions):
     """Options of ``qsls replay``."""
 
     vio_topic: str | None = None
@@ -77,20 +76,6 @@ class ReplayOptions(Options):
     """A known transform instead: ``x, y, z, yaw_deg`` with ``p_ref = Rz(yaw) p_vio + [x y z]``."""
     warn_deviation_m: float = Field(0.5, gt=0)
     """Warn when the first tick's position deviation from the reference exceeds this (m)."""
-    tilt_limit_deg: float = Field(AttitudeLimits.max_tilt_deg, gt=0, lt=90)
-    """The exported attitude helper's tilt limit (deg), as ``qsls export --tilt-limit-deg``."""
-    thrust_limits: tuple[float, float] = (AttitudeLimits.thrust_min, AttitudeLimits.thrust_max)
-    """The exported attitude helper's thrust range (x hover), as ``qsls export``."""
-
-    @field_validator("thrust_limits")
-    @classmethod
-    def _thrust_limits(cls, v: tuple[float, float]) -> tuple[float, float]:
-        return check_thrust_limits(v)
-
-    @property
-    def limits(self) -> AttitudeLimits:
-        return AttitudeLimits(self.tilt_limit_deg, *self.thrust_limits)
-
     @model_validator(mode="after")
     def _band(self) -> ReplayOptions:
         lo, hi = self.thrust_band

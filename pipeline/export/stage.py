@@ -28,8 +28,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from qsls.pipeline.core.config import Options
-from qsls.pipeline.export.attitude import AttitudeLimits, check_thrust_limits
+from qsls.pipeline.export.attitude import LimitOptions
 from qsls.pipeline.export.bank import (
     PREFIX_RE,
     ExportBank,
@@ -94,7 +93,7 @@ Y_BOUND = 1.0
 """Random test inputs: ``y`` uniform in ``[-Y_BOUND, Y_BOUND]`` (m, m/s)."""
 
 
-class ExportOptions(Options):
+class ExportOptions(LimitOptions):
     """Options of ``qsls export``."""
 
     target: Literal["c", "python"] = "c"
@@ -110,20 +109,6 @@ class ExportOptions(Options):
     seed: int = Field(0, ge=0)
     compiler: str | None = None
     """C compiler for the check (default ``$CC``, ``cc``, ``gcc``, ``clang``)."""
-    tilt_limit_deg: float = Field(AttitudeLimits.max_tilt_deg, gt=0, lt=90)
-    """The attitude helper's largest tilt from vertical (deg), stated in the header."""
-    thrust_limits: tuple[float, float] = (AttitudeLimits.thrust_min, AttitudeLimits.thrust_max)
-    """The attitude helper's thrust range, in multiples of hover ``m g``."""
-
-    @field_validator("thrust_limits")
-    @classmethod
-    def _thrust_limits(cls, v: tuple[float, float]) -> tuple[float, float]:
-        return check_thrust_limits(v)
-
-    @property
-    def limits(self) -> AttitudeLimits:
-        return AttitudeLimits(self.tilt_limit_deg, *self.thrust_limits)
-
     @field_validator("prefix")
     @classmethod
     def _prefix(cls, v: str) -> str:
