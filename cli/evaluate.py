@@ -89,6 +89,7 @@ def command(
     ),
 ) -> None:
     """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
+    import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
     from qsls.pipeline.core.config import merge, read_section, validate
     from qsls.pipeline.core.errors import InputError
     from qsls.pipeline.evaluate.verdict import verdicts

@@ -14,10 +14,10 @@ import pytest
 from qsls.pipeline.control.artifacts import Controller, ControllerDir
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.control.plant import quadrotor_model
 from qsls.pipeline.control.realize import RealizedController
 from qsls.pipeline.control.sls import Taps
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.export import bank as B
 from qsls.pipeline.export.c import c_files
 from tests.controllerfixtures import independent_bank, synthesized

@@ -39,6 +39,7 @@ from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import PAPER_MASS_KG
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.references import ReferenceOptions
 from qsls.pipeline.errormodel.model import (
     ERROR_MODEL_FILE,
     TRAINING_FILE,
@@ -64,7 +65,6 @@ from qsls.pipeline.ingest.flight import (
     read_flight,
     states,
 )
-from qsls.pipeline.sim.references import ReferenceOptions
 
 STAGE = "fit"
 FIGURES = ("slope_distribution.png", "error_norm.png", "worst_pairs.png")
@@ -391,7 +391,7 @@ def reference_states(options: FitOptions) -> tuple[np.ndarray | None, str | None
                 "'circle:radius=1,height=1,period=5' (kinds: circle, hover, figure8)"
             )
         ref = parse_reference(ref)
-    from qsls.pipeline.sim.references import Reference
+    from qsls.pipeline.core.references import Reference
 
     dur = ref.natural_duration()
     t0 = 0.0 if options.reference_lead_in else float(getattr(ref, "start_s", 0.0))

@@ -15,7 +15,7 @@ at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
    first multiple of ``dt`` in the stream); ticks between two samples further apart than
    ``max_gap`` are dropped and the gaps listed. The controller is reset at the start of
    each gap-free segment (its memory would otherwise hold samples from before the gap).
-4. ``y - r`` with the reference ``r`` (:class:`qsls.pipeline.sim.references.Reference`,
+4. ``y - r`` with the reference ``r`` (:class:`qsls.pipeline.core.references.Reference`,
    given as ``KIND[:key=value,...]`` or a YAML file; its time is 0 at the first tick plus
    ``reference_t0``), the VIO put into the reference's frame first (:func:`reference_frame`:
    a 4-DoF fit of the recording onto the reference, a given transform, or none; a large
@@ -38,10 +38,10 @@ from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError, InputError
+from qsls.pipeline.core.references import ReferenceOptions
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.export.attitude import AttitudeLimits, check_thrust_limits
 from qsls.pipeline.export.rosout import Ticks, Topics
-from qsls.pipeline.sim.references import ReferenceOptions
 
 
 class ReplayOptions(Options):
@@ -352,9 +352,9 @@ def replay(
     from qsls.pipeline.core.artifacts import refuse_overlap, sha256_path
     from qsls.pipeline.core.errors import OutputExistsError
     from qsls.pipeline.core.locks import check_writable, make_parent, unwritable
+    from qsls.pipeline.core.references import Reference
     from qsls.pipeline.export.bank import check_exportable
     from qsls.pipeline.export.rosout import write_mcap
-    from qsls.pipeline.sim.references import Reference
 
     out = Path(out)
     if out.suffix != ".mcap":

@@ -200,6 +200,7 @@ def _simulate_stage(
     stage_id = f"simulate/{fl.name}"
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.sim.simulate import simulate
 
         return simulate(opts, out, force=True, progress=progress)
@@ -267,6 +268,7 @@ def _synth_exec(opts: Any, progress: Progress) -> Any:
 
 def _evaluate_exec(opts: Any, heldout: list[str], progress: Progress) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.evaluate.bound import evaluate
 
         flights = [deps[d] for d in heldout]
@@ -279,6 +281,7 @@ def _evaluate_exec(opts: Any, heldout: list[str], progress: Progress) -> Any:
 
 def _fly_exec(opts: Any, progress: Progress) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.evaluate.fly import fly_evaluate
 
         return fly_evaluate(deps["fit"], [deps["synth"]], opts, out, force=True, progress=progress)

@@ -36,9 +36,9 @@ from pydantic import Field, model_validator
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.references import Reference, ReferenceOptions, RefSample
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.sim.controllers import Controller, ControllerOptions, make_controller
-from qsls.pipeline.sim.references import Reference, ReferenceOptions, RefSample
 from qsls.pipeline.sim.vehicle import Vehicle, VehicleOptions
 from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
