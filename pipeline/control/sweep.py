@@ -227,7 +227,7 @@ def _model(p: dict[str, Any]) -> Any:
 def run_point(p: dict[str, Any]) -> dict[str, Any]:
     """Solve (and certify) one grid point; never raises for a solver outcome."""
     from qsls.pipeline.control import sls
-    from qsls.pipeline.control.certify import certify
+    from qsls.pipeline.control.certify import SOLVER_INACCURATE, certify
     from qsls.pipeline.control.nominal import pd_responses
     from qsls.pipeline.control.pdgain import PDGains
 
@@ -285,7 +285,7 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
         )  # fmt: skip
     else:
         _, f = certify(sol.taps, model, numbers, shape, reference=True)
-        status = "solved" if sol.status == "optimal" else "solver_inaccurate"
+        status = "solved" if sol.status == "optimal" else SOLVER_INACCURATE
         f["realization_error"] = math.nan
     row["status"] = status
     for k in ("norm_phi_xy", "robustness_lhs", "margin", "gamma", "gamma_strict",

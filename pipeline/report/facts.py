@@ -2,9 +2,13 @@
 
 Every stage's files are read here (certificates, error model, sweep tables, the bound
 check, the flown comparison and its findings); the summary and the sections only format.
-Newer keys are preferred where they exist (a certificate's ``premise``, ``bound_holds``
-against ``gamma_nominal``, ``fly/findings.json``) and today's keys are used otherwise, so a
-run folder written by any qsls version renders.
+Certificates and the error model are read through their typed loaders
+(:meth:`~qsls.pipeline.control.artifacts.Certificate.load`,
+:func:`~qsls.pipeline.errormodel.model.load_error_model`), so a file this qsls cannot read
+stops the report with the loader's one-line error; the sections see their fields as
+mappings. In the evaluation tables newer keys are preferred where they exist
+(``bound_holds`` against ``gamma_nominal``, ``fly/findings.json``) and older ones used
+otherwise.
 """
 
 from __future__ import annotations
@@ -15,7 +19,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
+from qsls.pipeline.control.certify import (
+    CERTIFIED,
+    FAILED,
+    REFERENCE,
+    RELAXED,
+    SOLVER_INACCURATE,
+    UNCERTIFIED,
+    Status,
+)
 from qsls.pipeline.core.artifacts import read_manifest
+from qsls.pipeline.errormodel.model import ERROR_MODEL_FILE, load_error_model
 
 RUN_FILE = "run.json"
 
@@ -54,15 +69,6 @@ def pct(v: Any) -> str:
     return f"{100 * x:.1f}%" if 0 < x < 0.01 else f"{100 * x:.0f}%"
 
 
-def _yaml(path: Path) -> dict[str, Any]:
-    import yaml
-
-    if not path.is_file():
-        return {}
-    doc = yaml.safe_load(path.read_text())
-    return doc if isinstance(doc, dict) else {}
-
-
 def _json(path: Path) -> dict[str, Any]:
     if not path.is_file():
         return {}
@@ -80,23 +86,19 @@ def _parquet(path: Path) -> Any:
 
 
 # --------------------------------------------------------------------------- status words
-STATUS_WORDS = {
-    "certified": ("certified", "ok"),
-    "relaxed": ("relaxed premise, not certified", "warn"),
-    "uncertified": ("no guarantee", "muted"),
-    "reference": ("reference, no guarantee", "muted"),
-    "infeasible": ("infeasible", "bad"),
+STATUS_WORDS: dict[Status, tuple[str, str]] = {
+    CERTIFIED: ("certified", "ok"),
+    RELAXED: ("relaxed premise, not certified", "warn"),
+    UNCERTIFIED: ("no guarantee", "muted"),
+    REFERENCE: ("reference, no guarantee", "muted"),
+    FAILED: ("failed", "bad"),
+    SOLVER_INACCURATE: ("solver inaccurate", "bad"),
 }
 
 
 def status_words(status: Any) -> tuple[str, str]:
     """A certificate's status in plain words and its badge kind (ok/warn/bad/muted)."""
-    s = str(status or "unknown")
-    if s in STATUS_WORDS:
-        return STATUS_WORDS[s]
-    if s.startswith("certified_"):
-        return (f"certified ({s.split('_', 1)[1].replace('_', ' ')})", "warn")
-    return (s.replace("_", " "), "bad")
+    return STATUS_WORDS.get(status, (str(status or "unknown").replace("_", " "), "bad"))
 
 
 # --------------------------------------------------------------------------- the facts
@@ -105,6 +107,12 @@ class Controller:
     name: str
     folder: str  # synth folder, relative to the run
     cert: dict[str, Any]
+    """The certificate's fields (:meth:`Certificate.model_dump`)."""
+
+    @classmethod
+    def of(cls, certificate: Certificate, folder: str, fallback_name: str) -> Controller:
+        name = certificate.controller or fallback_name
+        return cls(name, folder, certificate.model_dump())
 
     @property
     def status(self) -> str:
@@ -112,7 +120,7 @@ class Controller:
 
     @property
     def certified(self) -> bool:
-        return self.status.startswith("certified")
+        return self.status == CERTIFIED
 
     def premise(self, key: str) -> dict[str, Any]:
         """``premise[key]`` as a mapping (value, how chosen, violated share), or empty."""
@@ -160,14 +168,13 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
     info = _json(run_dir / RUN_FILE)
     f = Facts(run_dir=run_dir, info=info, stages=stages)
     for folder in stages.get("fit", []):
-        em = _yaml(folder / "error_model.yaml")
-        if em and not f.error_model:
-            f.error_model, f.error_model_folder = em, f.rel(folder)
+        if not f.error_model and (folder / ERROR_MODEL_FILE).is_file():
+            f.error_model = load_error_model(folder).model_dump()
+            f.error_model_folder = f.rel(folder)
     for folder in stages.get("synth", []):
-        for cert_file in sorted(folder.glob("*/certificate.yaml")):
-            cert = _yaml(cert_file)
-            name = str(cert.get("controller") or cert_file.parent.name)
-            f.controllers.append(Controller(name, f.rel(folder), cert))
+        for cert_file in sorted(folder.glob(f"*/{CERTIFICATE_FILE}")):
+            cert = Certificate.load(cert_file)
+            f.controllers.append(Controller.of(cert, f.rel(folder), cert_file.parent.name))
     for folder in stages.get("sweep", []):
         if f.sweep is None:
             f.sweep = _parquet(folder / "sweep.parquet")
