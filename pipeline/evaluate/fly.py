@@ -43,6 +43,7 @@ import pandas as pd
 from pydantic import Field
 
 from qsls.pipeline.core.errors import InputError, QslsError
+from qsls.pipeline.core.pool import run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.evaluate.bound import (
@@ -204,28 +205,9 @@ def run_job(job: FlyJob) -> FlyOutcome:
 def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[FlyOutcome]:
     """All flights, on a process pool of ``workers`` (in order of ``jobs``)."""
     progress.start("flying", total=len(jobs))
-    results: list[FlyOutcome | None] = [None] * len(jobs)
-    if workers <= 1 or len(jobs) <= 1:
-        for i, j in enumerate(jobs):
-            results[i] = run_job(j)
-            progress.advance()
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        # fork: workers inherit the imported simulator (spawn would re-import it per worker)
-        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            futs = {pool.submit(run_job, j): i for i, j in enumerate(jobs)}
-            try:
-                for fut in as_completed(futs):
-                    results[futs[fut]] = fut.result()
-                    progress.advance()
-            except BaseException:
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
+    results = run_tasks([(run_job, j) for j in jobs], workers, lambda i: progress.advance())
     progress.finish()
-    return [r for r in results if r is not None]
+    return results
 
 
 # --------------------------------------------------------------------------- result
