@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
 from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_columns
@@ -82,6 +82,41 @@ class SweepOptions(ProblemOptions):
             if not isinstance(values, list) or not values:
                 raise ValueError(f"grid axis '{key}' needs a non-empty list of values")
         return g
+
+
+
+class SweepSection(SweepOptions):
+    """The ``sweep:`` section of a config file, the same for ``qsls sweep --config`` and
+    ``qsls run``: the sweep's options plus where it runs (which changes no result, so only
+    :meth:`options` is the stage's record and cache key)."""
+
+    jobs: int | None = Field(None, ge=1)
+    """Local worker processes (default: all cores)."""
+    scheduler: str | None = None
+    """Dask scheduler address ``SCHEME://HOST:PORT`` (instead of ``jobs``)."""
+    wait_workers: float = Field(60.0, gt=0)
+    """With ``scheduler``: seconds to wait for a first worker, and for one to come back when
+    all have left, before giving up."""
+
+    @field_validator("scheduler")
+    @classmethod
+    def _scheduler(cls, v: str | None) -> str | None:
+        if v is None:
+            return None
+        try:
+            return check_scheduler(v)
+        except ConfigError as exc:
+            raise ValueError(str(exc).removeprefix("--scheduler ")) from None
+
+    @model_validator(mode="after")
+    def _one_executor(self) -> SweepSection:
+        if self.jobs is not None and self.scheduler is not None:
+            raise ValueError("give jobs or scheduler, not both")
+        return self
+
+    def options(self) -> SweepOptions:
+        """The sweep's own options (without ``jobs``, ``scheduler``, ``wait_workers``)."""
+        return SweepOptions.model_validate({k: getattr(self, k) for k in SweepOptions.model_fields})
 
 
 # --------------------------------------------------------------------------- points
