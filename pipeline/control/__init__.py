@@ -12,11 +12,9 @@ __all__, __getattr__ = lazy_api(
         "Taps": "sls",
         "solve": "sls",
         "filter_bank": "realize",
-        "load_controller": "realize",
-        "certify": "certify",
+        "load_controller_dir": "artifacts",
+        "Certificate": "artifacts",
         "SynthOptions": "synth",
-        "synth": "synth",
         "SweepOptions": "sweep",
-        "sweep": "sweep",
     },
 )

@@ -131,7 +131,7 @@ def sizes(bank: ExportBank, precision: Precision = "double") -> Sizes:
 
 # --------------------------------------------------------------------------- facts
 @dataclass(frozen=True)
-class Facts:
+class ExportFacts:
     """What a generated file states about its controller."""
 
     name: str
@@ -167,9 +167,9 @@ def _shares(cert: Certificate) -> str:
     return cert.premise.shares()
 
 
-def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> Facts:
+def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> ExportFacts:
     c, cert = cdir.controller, cdir.certificate
-    return Facts(
+    return ExportFacts(
         name=cdir.name,
         status=cert.status,
         sha256=cert.controller_sha256,

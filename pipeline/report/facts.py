@@ -103,14 +103,14 @@ def status_words(status: Any) -> tuple[str, str]:
 
 # --------------------------------------------------------------------------- the facts
 @dataclass(frozen=True)
-class Controller:
+class ControllerFacts:
     name: str
     folder: str  # synth folder, relative to the run
     cert: dict[str, Any]
     """The certificate's fields (:meth:`Certificate.model_dump`)."""
 
     @classmethod
-    def of(cls, certificate: Certificate, folder: str, fallback_name: str) -> Controller:
+    def of(cls, certificate: Certificate, folder: str, fallback_name: str) -> ControllerFacts:
         name = certificate.controller or fallback_name
         return cls(name, folder, certificate.model_dump())
 
@@ -146,7 +146,7 @@ class Facts:
     stages: dict[str, list[Path]]
     error_model: dict[str, Any] = field(default_factory=dict)
     error_model_folder: str = ""
-    controllers: list[Controller] = field(default_factory=list)
+    controllers: list[ControllerFacts] = field(default_factory=list)
     sweep: Any = None
     s_max: Any = None
     sweep_options: dict[str, Any] = field(default_factory=dict)
@@ -174,7 +174,7 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
     for folder in stages.get("synth", []):
         for cert_file in sorted(folder.glob(f"*/{CERTIFICATE_FILE}")):
             cert = Certificate.load(cert_file)
-            f.controllers.append(Controller.of(cert, f.rel(folder), cert_file.parent.name))
+            f.controllers.append(ControllerFacts.of(cert, f.rel(folder), cert_file.parent.name))
     for folder in stages.get("sweep", []):
         if f.sweep is None:
             f.sweep = _parquet(folder / "sweep.parquet")
@@ -207,7 +207,7 @@ def _read_evaluation(f: Facts, folder: Path) -> None:
 
 # --------------------------------------------------------------------------- verdicts
 @dataclass(frozen=True)
-class Verdict:
+class HeldoutVerdict:
     text: str
     kind: str  # ok | warn | bad | muted
     n_flights: int = 0
@@ -228,13 +228,13 @@ def own_rows(f: Facts, name: str) -> tuple[Any, bool]:
     return None, False
 
 
-def heldout_verdict(f: Facts, c: Controller) -> Verdict:
+def heldout_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict:
     """Did the guarantee hold on the flights this controller flew itself?"""
     rows, theorem = own_rows(f, c.name)
     if rows is None:
         if any(ev.kind == "fly" for ev in f.evaluations):
-            return Verdict("not flown", "muted")
-        return Verdict("not flown (the theorem applies to its own flights only)", "muted")
+            return HeldoutVerdict("not flown", "muted")
+        return HeldoutVerdict("not flown (the theorem applies to its own flights only)", "muted")
     n = len(rows)
     if theorem:
         gamma = rows["gamma_nominal"].astype(float)
@@ -247,7 +247,7 @@ def heldout_verdict(f: Facts, c: Controller) -> Verdict:
     guaranteed = bool(rows["has_guarantee"].all()) if "has_guarantee" in rows else c.certified
     what = "max ||e|| / gamma_nominal" if theorem else "max ||e|| / gamma(d)"
     if not guaranteed:
-        return Verdict(
+        return HeldoutVerdict(
             f"no guarantee to check; {what} = {g4(ratio)} on {n} flight{'s' * (n > 1)}",
             "muted",
             n,
@@ -257,7 +257,7 @@ def heldout_verdict(f: Facts, c: Controller) -> Verdict:
         )
     kind = "ok" if holds == n else "bad"
     scope = "" if theorem else " (per-sample check)"
-    return Verdict(
+    return HeldoutVerdict(
         f"bound held on {holds} of {n} own flights{scope}; worst {what} = {g4(ratio)}",
         kind,
         n,

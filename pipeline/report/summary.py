@@ -14,7 +14,9 @@ from qsls.pipeline.control.certify import CERTIFIED, REFERENCE
 from qsls.pipeline.core.style import controller_colour
 from qsls.pipeline.report.document import Card, Section
 from qsls.pipeline.report.facts import (
-    Controller,
+    ControllerFacts as Controller,
+)
+from qsls.pipeline.report.facts import (
     Facts,
     findings_list,
     first,

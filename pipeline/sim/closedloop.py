@@ -38,7 +38,7 @@ from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.references import Reference, ReferenceOptions, RefSample
 from qsls.pipeline.core.units import NS
-from qsls.pipeline.sim.controllers import Controller, ControllerOptions, make_controller
+from qsls.pipeline.sim.controllers import ControllerOptions, PositionController, make_controller
 from qsls.pipeline.sim.vehicle import Vehicle, VehicleOptions
 from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
@@ -203,7 +203,7 @@ class _Record:
         )
 
     def log(
-        self, ctrl: Controller, veh: Vehicle, t_ns: np.ndarray,
+        self, ctrl: PositionController, veh: Vehicle, t_ns: np.ndarray,
         ref_states: np.ndarray, n: int, m: int, k: int, *,
         crashed: bool, reason: str | None, crash_t: float | None,
         lipschitz: float, described: dict[str, Any], camera: bool,
@@ -239,7 +239,7 @@ class _Record:
 
 def fly(
     options: FlightOptions,
-    controller: Controller | None = None,
+    controller: PositionController | None = None,
     seed: int | None = None,
     *,
     vehicle: Vehicle | None = None,
@@ -259,7 +259,7 @@ def fly(
 
 def _fly(
     options: FlightOptions,
-    controller: Controller | None = None,
+    controller: PositionController | None = None,
     seed: int | None = None,
     *,
     vehicle: Vehicle | None = None,

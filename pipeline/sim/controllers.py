@@ -1,6 +1,6 @@
 """Position controllers behind one small interface, in the paper's input convention.
 
-A :class:`Controller` is called every ``dt`` with the state estimate ``y = [p, v]`` (the VIO
+A :class:`PositionController` is called every ``dt`` with the state estimate ``y = [p, v]`` (the VIO
 estimate on the vehicle, never the truth, unless a test asks for truth feedback), the
 estimated attitude and the reference, and returns the ABSOLUTE input
 ``[pitch, roll, thrust]`` in the paper's signs (``vx' = -g pitch``, ``vy' = +g roll``,
@@ -60,7 +60,7 @@ class ControllerOptions(Options):
     ``qsls export --target c``, compiled and loaded with ctypes (the PD's static gain stays)."""
 
 
-class Controller(Protocol):
+class PositionController(Protocol):
     """What the closed loop calls every ``dt``."""
 
     name: str
@@ -233,7 +233,7 @@ def _runtime_loader(backend: str) -> RuntimeLoader:
     return loader
 
 
-def make_controller(options: ControllerOptions, mass: float) -> Controller:
+def make_controller(options: ControllerOptions, mass: float) -> PositionController:
     """Build the controller named by ``options.kind``."""
     kind = options.kind
     rate_dt = None if options.rate_hz is None else 1.0 / options.rate_hz
