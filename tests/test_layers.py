@@ -121,3 +121,23 @@ def test_stage_packages_import_only_downward_and_never_in_a_cycle():
     assert upward == []
     # the graph is real: the top layer reaches down to every stage it runs
     assert {"ingest", "errormodel", "control", "sim", "evaluate", "report"} <= set(graph["run"])
+
+
+def test_the_simulator_flies_the_exported_c_through_a_runtime_export_registers():
+    """sim sits below export: the compiled-C runtime is registered by export, not imported."""
+    import subprocess
+    import sys
+
+    code = (
+        "from qsls.pipeline.sim.controllers import _runtime_loader\n"
+        "from qsls.pipeline.core.errors import InputError\n"
+        "try:\n    _runtime_loader('c')\nexcept InputError as e:\n    print(e)\n"
+        "import qsls.pipeline.export.cbuild as cb\n"
+        "print(_runtime_loader('c') is cb.c_runtime)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines() == [
+        "controller backend 'c' is not available: import qsls.pipeline.export.cbuild first "
+        "(the qsls commands do)",
+        "True",
+    ]
