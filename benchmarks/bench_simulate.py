@@ -38,7 +38,7 @@ def stock_rotorpy(duration: float, hz: float = 100.0) -> tuple[np.ndarray, np.nd
     from rotorpy.controllers.quadrotor_control import SE3Control
     from rotorpy.vehicles.multirotor import Multirotor
 
-    from qsls.pipeline.sim.references import Reference
+    from qsls.pipeline.core.references import Reference
     from qsls.pipeline.sim.vehicle import Vehicle, quad_params
 
     params = quad_params()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -95,40 +96,32 @@ def command(
     ),
 ) -> None:
     """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
-    from qsls.pipeline.core.config import merge, read_section, validate
+    import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
+    from qsls.pipeline.core.config import load_options
     from qsls.pipeline.core.errors import InputError
+    from qsls.pipeline.evaluate.section import EvaluateSection
     from qsls.pipeline.evaluate.verdict import combined
 
-    section = read_section(config, "evaluate")  # its 'fly' mapping: the flying options
-    fly_cfg = section.pop("fly", None)
-    ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None)
+    ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None, flown_by=flown_by)
+    if fly and flights:
+        raise InputError("--flights is not used with --fly (the flights are flown); drop one")
+    if fly and flown_by:
+        raise InputError("--flown-by is not used with --fly (each flight records its own)")
+    section = load_options(EvaluateSection, config, ov, section="evaluate")
+    source = str(config or "options")
     if fly:
-        if flights:
-            raise InputError("--flights is not used with --fly (the flights are flown); drop one")
-        if flown_by:
-            raise InputError("--flown-by is not used with --fly (each flight records its own)")
         fly_given = overrides(
             seeds=parse_list(seeds, "--seeds", "int") or None, duration=duration, jobs=jobs,
             conditions=parse_list(conditions, "--conditions", "value"), vio=vio,
             sim={"controller": {"backend": backend}} if backend else None,
         )  # fmt: skip
-        base = merge(section, fly_cfg) if isinstance(fly_cfg, dict) else section
-        _fly(
-            model,
-            controller,
-            out,
-            merge(base, {**ov, **fly_given}),
-            str(config or "options"),
-            force,
-        )
+        _fly(model, controller, out, section.flying({**ov, **fly_given}, source), force)
         return
-    from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
+    from qsls.pipeline.evaluate.bound import evaluate
 
-    ov.update(overrides(flown_by=flown_by))
-    bound_options = validate(EvaluateOptions, merge(section, ov), str(config or "options"))
     with RichProgress() as progress:
         checked = evaluate(
-            flights or [], model, controller, bound_options, out, force=force, progress=progress
+            flights or [], model, controller, section.bound(), out, force=force, progress=progress
         )
     for w in checked.warnings:
         typer.echo(f"warning: {w}", err=True)
@@ -136,15 +129,11 @@ def command(
     print_verdicts("Certified bound on the held-out flights", combined(checked.table, None))
 
 
-def _fly(
-    model: Path, controllers: list[Path], out: Path, data: dict, source: str, force: bool
-) -> None:
+def _fly(model: Path, controllers: list[Path], out: Path, options: Any, force: bool) -> None:
     """``evaluate --fly``: fly, then the summary, the paper comparison and the verdicts."""
-    from qsls.pipeline.core.config import validate
-    from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
+    from qsls.pipeline.evaluate.fly import fly_evaluate
     from qsls.pipeline.evaluate.verdict import combined
 
-    options = validate(FlyOptions, data, source)
     with RichProgress() as progress:
         result = fly_evaluate(model, controllers, options, out, force=force, progress=progress)
     print_summary("qsls evaluate --fly", result.summary())

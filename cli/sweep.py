@@ -83,20 +83,21 @@ def command(
     scheduler: str | None = typer.Option(
         None,
         "--scheduler",
-        help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 (instead of --jobs).",
+        help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 (instead of --jobs). "
+        "(default: none: local processes)",
     ),
-    wait_workers: float = typer.Option(
-        60.0,
+    wait_workers: float | None = typer.Option(
+        None,
         "--wait-workers",
         help="With --scheduler: seconds to wait for a first worker, and for one to come back "
-        "when all have left, before giving up.",
+        "when all have left, before giving up. (default: 60)",
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
 ) -> None:
     """A grid of robust syntheses (feasibility map), locally or on a Dask cluster."""
     from qsls.cli.common import RichProgress
-    from qsls.pipeline.control.sweep import SweepOptions, sweep
-    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.control.sweep import SweepSection, check_scheduler, sweep
+    from qsls.pipeline.core.config import merge, read_section, validate
     from qsls.pipeline.core.errors import ConfigError
 
     if jobs is not None and scheduler is not None:
@@ -105,12 +106,17 @@ def command(
     given = overrides(
         T=horizon, norm=norm, cost=cost, S=number_or_name(s), eps_e=number_or_name(eps_e),
         radius=radius, delta=delta, eps_w=eps_w, grid=axes or None,
-        Q=parse_list(q, "--Q"), R=parse_list(r, "--R"),
+        Q=parse_list(q, "--Q"), R=parse_list(r, "--R"), jobs=jobs,
+        scheduler=None if scheduler is None else check_scheduler(scheduler),
+        wait_workers=wait_workers,
     )  # fmt: skip
-    opts = load_options(SweepOptions, config, given, section="sweep")
+    data = read_section(config, "sweep")
+    if jobs is not None or scheduler is not None:  # the command line's executor replaces the file's
+        data = {k: v for k, v in data.items() if k not in ("jobs", "scheduler")}
+    section = validate(SweepSection, merge(data, given), str(config or "options"))
     with RichProgress() as progress:
         result = sweep(
-            opts, out, error_model=model, force=force, progress=progress,
-            jobs=jobs, scheduler=scheduler, worker_timeout=wait_workers,
+            section.options(), out, error_model=model, force=force, progress=progress,
+            jobs=section.jobs, scheduler=section.scheduler, worker_timeout=section.wait_workers,
         )  # fmt: skip
     print_summary("sweep", result.summary())

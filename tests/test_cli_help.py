@@ -39,14 +39,11 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
         },
     ),
     "sweep": (
-        "qsls.pipeline.control.sweep:SweepOptions",
+        "qsls.pipeline.control.sweep:SweepSection",
         {
             "config": None,
             "out": None,
             "model": None,
-            "jobs": None,
-            "scheduler": None,
-            "wait_workers": None,
             "force": None,
             "horizon": "T",
             "s": "S",

@@ -17,8 +17,8 @@ MODELS = {
     "fit": ("qsls.pipeline.errormodel.fit:FitOptions", set(), {"--no-figures": "figures"}),
     "synth": ("qsls.pipeline.control.synth:SynthOptions", {"--model", "--max-feasible-s"}, {}),
     "sweep": (
-        "qsls.pipeline.control.sweep:SweepOptions",
-        {"--model", "--jobs", "--scheduler", "--wait-workers"},
+        "qsls.pipeline.control.sweep:SweepSection",
+        {"--model"},
         {},
     ),
     "evaluate": (

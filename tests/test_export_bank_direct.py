@@ -14,10 +14,10 @@ import pytest
 from qsls.pipeline.control.artifacts import Controller, ControllerDir
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.control.plant import quadrotor_model
 from qsls.pipeline.control.realize import RealizedController
 from qsls.pipeline.control.sls import Taps
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.export import bank as B
 from qsls.pipeline.export.c import c_files
 from tests.controllerfixtures import independent_bank, synthesized
@@ -101,7 +101,7 @@ def test_counts_and_sizes_against_independent_counts(proper, strict):
         assert shares["const_share_of_1MB_flash"] == 8 * n / (1024 * 1024)
 
 
-def _c_sizeof(tmp_path: Path, bank: B.ExportBank, facts: B.Facts, precision: B.Precision) -> int:
+def _c_sizeof(tmp_path: Path, bank: B.ExportBank, facts: B.ExportFacts, precision: B.Precision) -> int:
     files = c_files(bank, facts, "szt", precision)
     for name, text in files.items():
         (tmp_path / name).write_text(text)

@@ -13,10 +13,10 @@ from typer.testing import CliRunner
 from qsls.cli.main import app
 from qsls.pipeline.core.artifacts import StageWriter
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.references import Reference, ReferenceOptions
 from qsls.pipeline.errormodel.fit import FIGURES, TRAINING_FILE, FitOptions, fit
 from qsls.pipeline.errormodel.model import load_error_model
 from qsls.pipeline.ingest.flight import E_COLS, X_COLS, make_flight_frame
-from qsls.pipeline.sim.references import Reference, ReferenceOptions
 from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
 PNG = b"\x89PNG\r\n\x1a\n"

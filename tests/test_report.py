@@ -263,7 +263,7 @@ def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(t
     ``gamma_nominal``, and ``findings.json`` (issues 11 and 13) are read as such; the same
     run without them falls back to today's keys and says the check is per sample."""
     from qsls.pipeline.report.document import render_html
-    from qsls.pipeline.report.facts import Controller, EvalTable, Facts, heldout_verdict
+    from qsls.pipeline.report.facts import ControllerFacts, EvalTable, Facts, heldout_verdict
     from qsls.pipeline.report.summary import premise_entry, summary_section
 
     em = {"eps_e": 0.3, "eps_e_percentiles": {"p95": 0.2}, "s_slope": {"max": 2.0,
@@ -285,7 +285,7 @@ def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(t
         }
     )
     f = Facts(run_dir=tmp_path, info={"name": "x"}, stages={}, error_model=em)
-    c = Controller("c", "synth", cert)
+    c = ControllerFacts("c", "synth", cert)
     f.controllers = [c]
     f.evaluations = [EvalTable("fly", "fly", rows, [])]
     f.findings = {"findings": [{"id": 2, "claim": "robust lowest", "effect": -0.012,
@@ -320,7 +320,7 @@ def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(t
 
     # the same without the newer keys: inferred premise, per-sample verdict, no crash
     old = {k: v for k, v in cert.items() if k != "premise"} | {"status": "certified"}
-    f.controllers = [Controller("c", "synth", old)]
+    f.controllers = [ControllerFacts("c", "synth", old)]
     f.evaluations = [EvalTable("fly", "fly", rows.drop(columns=["gamma_nominal"]), [])]
     f.findings = {}
     assert premise_entry(f.controllers[0], em, "S") == ("p50", 0.5, True)

@@ -8,9 +8,9 @@ from rotorpy.vehicles.multirotor import Multirotor
 from scipy.spatial.transform import Rotation
 
 from qsls.pipeline.core.plant import GRAVITY, quadrotor_model
+from qsls.pipeline.core.references import Reference, ReferenceOptions
 from qsls.pipeline.sim.closedloop import FlightOptions, fly
 from qsls.pipeline.sim.controllers import LinearController, PDController, make_controller
-from qsls.pipeline.sim.references import Reference, ReferenceOptions
 from qsls.pipeline.sim.vehicle import (
     Vehicle,
     VehicleOptions,
@@ -190,8 +190,8 @@ def test_divergent_controller_ends_the_flight_with_a_reason():
 
 
 def test_fast_se3_equals_rotorpy_se3control():
+    from qsls.pipeline.core.references import RefSample
     from qsls.pipeline.sim.controllers import SE3Controller
-    from qsls.pipeline.sim.references import RefSample
     from qsls.pipeline.sim.vehicle import quad_params
 
     fast = SE3Controller(quad_params(), 0.01)

@@ -23,7 +23,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from qsls.pipeline.control.certify import Status
+from qsls.pipeline.control.certify import CERTIFIED, Status
 from qsls.pipeline.control.nominal import (
     ClosedLoopNorm,
     static_gain_norms,
@@ -352,7 +352,7 @@ def load_controller_dir(folder: Path) -> ControllerDir:
     why = f"failed checks {', '.join(failed)}" if failed else ""
     if not why and cert.premise is not None and not cert.premise.holds:
         why = cert.premise.shares()
-    if cert.status == "certified" and why:
+    if cert.status == CERTIFIED and why:
         raise InputError(
             f"{folder}: {CERTIFICATE_FILE} says 'certified' against its own record ({why}); "
             "the file was altered: regenerate it with 'qsls synth'"

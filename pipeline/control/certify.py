@@ -20,7 +20,7 @@ that are stored (never from the solver's own report):
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 
@@ -111,6 +111,12 @@ training data; ``relaxed``: the same, but part of the training data violates the
 was excluded, or S was not tested); ``uncertified``: realized and verified, but the robustness
 condition fails; ``failed`` / ``solver_inaccurate``: never certified; ``reference``: not
 synthesized (the PD)."""
+CERTIFIED: Final[Status] = "certified"
+RELAXED: Final[Status] = "relaxed"
+UNCERTIFIED: Final[Status] = "uncertified"
+FAILED: Final[Status] = "failed"
+SOLVER_INACCURATE: Final[Status] = "solver_inaccurate"
+REFERENCE: Final[Status] = "reference"
 
 
 def guarantee_fields(numbers: PremiseNumbers, norms: Norms) -> dict[str, float]:
@@ -158,7 +164,7 @@ def certify(
     }
     if reference:
         fields["truncation_residual"] = resid
-        return "reference", fields
+        return REFERENCE, fields
     rerr = realization_error(taps, model, bank)
     peak, final = perturbation_response(model, bank)
     fields["realization_error"] = rerr
@@ -209,13 +215,13 @@ def certify(
     verified = all(c["passed"] for k, c in checks.items() if k not in ("robustness", "gate"))
     status: Status
     if solver_status == "inaccurate":
-        status = "solver_inaccurate"
+        status = SOLVER_INACCURATE
     elif not verified:
-        status = "failed"
+        status = FAILED
     elif checks["robustness"]["passed"] and np.isfinite(g["gamma"]):
-        status = "certified" if premise_holds else "relaxed"
+        status = CERTIFIED if premise_holds else RELAXED
     else:
-        status = "uncertified"
+        status = UNCERTIFIED
     return status, fields
 
 

@@ -32,13 +32,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
 from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_columns
 from qsls.pipeline.control.synth import ProblemOptions, read_model, resolve, warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
+from qsls.pipeline.core.pools import run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 
 AXES = (
@@ -81,6 +82,41 @@ class SweepOptions(ProblemOptions):
             if not isinstance(values, list) or not values:
                 raise ValueError(f"grid axis '{key}' needs a non-empty list of values")
         return g
+
+
+
+class SweepSection(SweepOptions):
+    """The ``sweep:`` section of a config file, the same for ``qsls sweep --config`` and
+    ``qsls run``: the sweep's options plus where it runs (which changes no result, so only
+    :meth:`options` is the stage's record and cache key)."""
+
+    jobs: int | None = Field(None, ge=1)
+    """Local worker processes (default: all cores)."""
+    scheduler: str | None = None
+    """Dask scheduler address ``SCHEME://HOST:PORT`` (instead of ``jobs``)."""
+    wait_workers: float = Field(60.0, gt=0)
+    """With ``scheduler``: seconds to wait for a first worker, and for one to come back when
+    all have left, before giving up."""
+
+    @field_validator("scheduler")
+    @classmethod
+    def _scheduler(cls, v: str | None) -> str | None:
+        if v is None:
+            return None
+        try:
+            return check_scheduler(v)
+        except ConfigError as exc:
+            raise ValueError(str(exc).removeprefix("--scheduler ")) from None
+
+    @model_validator(mode="after")
+    def _one_executor(self) -> SweepSection:
+        if self.jobs is not None and self.scheduler is not None:
+            raise ValueError("give jobs or scheduler, not both")
+        return self
+
+    def options(self) -> SweepOptions:
+        """The sweep's own options (without ``jobs``, ``scheduler``, ``wait_workers``)."""
+        return SweepOptions.model_validate({k: getattr(self, k) for k in SweepOptions.model_fields})
 
 
 # --------------------------------------------------------------------------- points
@@ -227,7 +263,7 @@ def _model(p: dict[str, Any]) -> Any:
 def run_point(p: dict[str, Any]) -> dict[str, Any]:
     """Solve (and certify) one grid point; never raises for a solver outcome."""
     from qsls.pipeline.control import sls
-    from qsls.pipeline.control.certify import certify
+    from qsls.pipeline.control.certify import SOLVER_INACCURATE, certify
     from qsls.pipeline.control.nominal import pd_responses
     from qsls.pipeline.control.pdgain import PDGains
 
@@ -285,7 +321,7 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
         )  # fmt: skip
     else:
         _, f = certify(sol.taps, model, numbers, shape, reference=True)
-        status = "solved" if sol.status == "optimal" else "solver_inaccurate"
+        status = "solved" if sol.status == "optimal" else SOLVER_INACCURATE
         f["realization_error"] = math.nan
     row["status"] = status
     for k in ("norm_phi_xy", "robustness_lhs", "margin", "gamma", "gamma_strict",
@@ -295,63 +331,14 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-_BLAS_SETTERS = (
-    "scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
-    "openblas_set_num_threads64_", "openblas_set_num_threads",
-)  # fmt: skip
-_BLAS_GETTERS = (
-    "scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads",
-    "openblas_get_num_threads64_", "openblas_get_num_threads",
-)  # fmt: skip
-
-
-def _openblas() -> list[tuple[Any, Any]]:
-    """``(set, get)`` num-threads functions of every OpenBLAS loaded in this process."""
-    import ctypes
-
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = sorted({ln.split()[-1] for ln in fh if "openblas" in ln.lower() and "/" in ln})
-    except OSError:
-        return []
-    out = []
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        setter = next((getattr(lib, n) for n in _BLAS_SETTERS if hasattr(lib, n)), None)
-        getter = next((getattr(lib, n) for n in _BLAS_GETTERS if hasattr(lib, n)), None)
-        if setter is not None and getter is not None:
-            out.append((setter, getter))
-    return out
-
-
-class single_threaded_blas:
-    """Run OpenBLAS on one thread inside the block (restored after). Each sweep worker
-    is one process per core; OpenBLAS's own threads only spin against the other worker
-    (measured: 9.8 CPU s instead of 5.5 for the same sweep, no faster)."""
-
-    def __enter__(self) -> single_threaded_blas:
-        import ctypes
-
-        self._saved = []
-        for setter, getter in _openblas():
-            getter.restype = ctypes.c_int
-            self._saved.append((setter, int(getter())))
-            setter(ctypes.c_int(1))
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        import ctypes
-
-        for setter, n in self._saved:
-            setter(ctypes.c_int(n))
-
-
 def run_chunk(chunk: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Run a chunk of points in this process (the unit of work for the pool and Dask)."""
-    with single_threaded_blas():
+    """Run a chunk of points in this process (the unit of work for the pool and Dask), BLAS
+    on one thread: each worker is one process per core, and BLAS's own threads only spin
+    against the other worker (measured: 9.8 CPU s instead of 5.5 for the same sweep, no
+    faster)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
         return [run_point(p) for p in chunk]
 
 
@@ -389,29 +376,6 @@ def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 # --------------------------------------------------------------------------- executors
-def _run_local(
-    tasks: list[tuple[Any, Any]], jobs: int, progress: Progress, weights: list[int]
-) -> list[Any]:
-    if jobs <= 1:
-        out = []
-        for (fn, arg), w in zip(tasks, weights, strict=True):
-            out.append(fn(arg))
-            progress.advance(w)
-        return out
-    from qsls.pipeline.core.pools import run_pool
-
-    results: list[Any] = [None] * len(tasks)
-    for i, res in run_pool(_call, tasks, jobs):  # stops at once on Ctrl-C
-        results[i] = res
-        progress.advance(weights[i])
-    return results
-
-
-def _call(task: tuple[Any, Any]) -> Any:
-    fn, arg = task
-    return fn(arg)
-
-
 DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
 
 
@@ -569,7 +533,7 @@ def compute(
         results = _run_dask(tasks, scheduler, progress, weights, worker_timeout)
         executor = f"dask {scheduler}"
     else:
-        results = _run_local(tasks, jobs, progress, weights)
+        results = run_tasks(tasks, jobs, lambda i: progress.advance(weights[i]))
         executor = f"local, {jobs} process{'es' if jobs > 1 else ''}"
     progress.finish()
     rows = [r for res in results[: len(chunks)] for r in res]

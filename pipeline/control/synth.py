@@ -36,6 +36,7 @@ from qsls.pipeline.control.artifacts import (
     Certificate,
     Controller,
 )
+from qsls.pipeline.control.certify import RELAXED
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.premise import Measured, Premise
@@ -641,7 +642,7 @@ class SynthResult:
             if cert.get("tested_range") is not None:
                 out[name] += f" (premise tested to {cert['tested_range']:.3g})"
             out[name] += f", dense error <= {cert['gamma']:.4g}"
-            if cert["status"] == "relaxed" and cert.get("premise"):
+            if cert["status"] == RELAXED and cert.get("premise"):
                 out[name] += "; " + Premise.model_validate(cert["premise"]).shares()
         return out
 

@@ -1,4 +1,5 @@
-"""Shared foundations: stage folders and atomic writes, option models, errors, progress."""
+"""Shared foundations: stage folders and atomic writes, option models, errors, progress, the
+plant model, reference trajectories, units and rotations (what every stage needs)."""
 
 from qsls.pipeline.core.api import lazy_api
 
@@ -17,6 +18,10 @@ __all__, __getattr__ = lazy_api(
         "InfeasibleError": "errors",
         "SolverError": "errors",
         "Progress": "progress",
+        "LinearModel": "plant",
+        "quadrotor_model": "plant",
+        "Reference": "references",
+        "ReferenceOptions": "references",
         "NULL_PROGRESS": "progress",
     },
 )

@@ -38,6 +38,34 @@ def run_pool(
     pool.shutdown()
 
 
+def run_tasks(
+    tasks: Sequence[tuple[Callable[[Any], Any], Any]],
+    jobs: int,
+    done: Callable[[int], None] | None = None,
+) -> list[Any]:
+    """``[fn(arg) for fn, arg in tasks]`` in the order of ``tasks``: on ``jobs`` forked
+    workers (:func:`run_pool`: stopped at once when interrupted), or in this process when
+    ``jobs <= 1`` or there is a single task. ``done(i)`` is called in this process when task
+    ``i`` has finished (for progress)."""
+    results: list[Any] = [None] * len(tasks)
+    if jobs <= 1 or len(tasks) <= 1:
+        for i, (fn, arg) in enumerate(tasks):
+            results[i] = fn(arg)
+            if done is not None:
+                done(i)
+        return results
+    for i, res in run_pool(_call, tasks, min(jobs, len(tasks))):
+        results[i] = res
+        if done is not None:
+            done(i)
+    return results
+
+
+def _call(task: tuple[Callable[[Any], Any], Any]) -> Any:
+    fn, arg = task
+    return fn(arg)
+
+
 def stop_pool(pool: Any) -> None:
     """End a process pool now: queued tasks cancelled, workers terminated (then killed)."""
     workers = list((getattr(pool, "_processes", None) or {}).values())

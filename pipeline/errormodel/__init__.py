@@ -9,7 +9,6 @@ __all__, __getattr__ = lazy_api(
         "load_error_model": "model",
         "FitOptions": "fit",
         "FitResult": "fit",
-        "fit": "fit",
         "pair_slopes": "slopes",
         "PairSlopes": "slopes",
         "nearest_distance": "slopes",

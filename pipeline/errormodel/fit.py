@@ -39,6 +39,7 @@ from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import PAPER_MASS_KG
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.references import ReferenceOptions, parse_reference
 from qsls.pipeline.errormodel.model import (
     ERROR_MODEL_FILE,
     TRAINING_FILE,
@@ -64,7 +65,6 @@ from qsls.pipeline.ingest.flight import (
     read_flight,
     states,
 )
-from qsls.pipeline.sim.references import ReferenceOptions
 
 STAGE = "fit"
 FIGURES = ("slope_distribution.png", "error_norm.png", "worst_pairs.png")
@@ -350,27 +350,6 @@ def noise_floor(tr: _Training) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- reference
-def parse_reference(spec: str) -> ReferenceOptions:
-    """``circle:radius=1,height=1,period=5`` (any ReferenceOptions field) to options."""
-    from qsls.pipeline.core.config import validate
-
-    kind, _, rest = spec.partition(":")
-    data: dict[str, Any] = {"kind": kind.strip()}
-    for item in filter(None, (s.strip() for s in rest.split(","))):
-        key, eq, val = item.partition("=")
-        if not eq:
-            raise InputError(f"reference '{spec}': expected key=value, got '{item}'")
-        key = key.strip()
-        if key == "center":
-            data[key] = tuple(float(v) for v in val.replace(";", " ").split())
-        else:
-            try:
-                data[key] = float(val)
-            except ValueError:
-                data[key] = val.strip()
-    return validate(ReferenceOptions, data, f"reference '{spec}'")
-
-
 def reference_states(options: FitOptions) -> tuple[np.ndarray | None, str | None]:
     """The reference states ``r_k`` (m, 6) and a description, or (None, None)."""
     ref = options.reference
@@ -393,7 +372,7 @@ def reference_states(options: FitOptions) -> tuple[np.ndarray | None, str | None
                 "'circle:radius=1,height=1,period=5' (kinds: circle, hover, figure8)"
             )
         ref = parse_reference(ref)
-    from qsls.pipeline.sim.references import Reference
+    from qsls.pipeline.core.references import Reference
 
     dur = ref.natural_duration()
     t0 = 0.0 if options.reference_lead_in else float(getattr(ref, "start_s", 0.0))

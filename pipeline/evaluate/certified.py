@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
+from qsls.pipeline.control.certify import FAILED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import InputError
 
@@ -90,7 +91,7 @@ class ControllerBound:
         """Why the theorem does not apply to this controller (``None``: it does)."""
         if not self.finite:
             return f"S*||Phi_xy|| = {self.S * self.norm_phi_xy:.3g} >= 1"
-        if self.status in ("failed", "solver_inaccurate"):
+        if self.status in (FAILED, SOLVER_INACCURATE):
             return f"certificate status '{self.status}'"
         if self.robustness_lhs is not None and self.robustness_lhs >= 1.0:
             return f"robustness condition not met (lhs {self.robustness_lhs:.3g} >= 1)"

@@ -42,6 +42,7 @@ import pandas as pd
 from pydantic import Field
 
 from qsls.pipeline.core.errors import InputError, QslsError
+from qsls.pipeline.core.pools import run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.evaluate.bound import (
@@ -209,19 +210,9 @@ def run_job(job: FlyJob) -> FlyOutcome:
 def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[FlyOutcome]:
     """All flights, on a process pool of ``workers`` (in order of ``jobs``)."""
     progress.start("flying", total=len(jobs))
-    results: list[FlyOutcome | None] = [None] * len(jobs)
-    if workers <= 1 or len(jobs) <= 1:
-        for i, j in enumerate(jobs):
-            results[i] = run_job(j)
-            progress.advance()
-    else:
-        from qsls.pipeline.core.pools import run_pool
-
-        for i, res in run_pool(run_job, jobs, workers):  # stops at once on Ctrl-C
-            results[i] = res
-            progress.advance()
+    results = run_tasks([(run_job, j) for j in jobs], workers, lambda i: progress.advance())
     progress.finish()
-    return [r for r in results if r is not None]
+    return results
 
 
 # --------------------------------------------------------------------------- result

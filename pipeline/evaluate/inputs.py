@@ -40,7 +40,7 @@ def command_offset(opts: SimOptions, mass: float, t: np.ndarray) -> np.ndarray:
     """``hover + u_ff`` (k, 3): the part of PD's and the synthesized controllers' command
     that does not depend on the estimate (the reference's feedforward)."""
     from qsls.pipeline.core.plant import GRAVITY
-    from qsls.pipeline.sim.references import Reference
+    from qsls.pipeline.core.references import Reference
 
     if len(t) == 0:
         return np.zeros((0, 3))

@@ -16,6 +16,5 @@ __all__, __getattr__ = lazy_api(
         "c_runtime": "cbuild",
         "CController": "cbuild",
         "ReplayOptions": "replay",
-        "replay": "replay",
     },
 )

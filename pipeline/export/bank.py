@@ -19,6 +19,7 @@ from typing import Literal
 import numpy as np
 
 from qsls.pipeline.control.artifacts import Certificate, ControllerDir
+from qsls.pipeline.control.certify import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.export.attitude import AttitudeLimits
 
@@ -130,7 +131,7 @@ def sizes(bank: ExportBank, precision: Precision = "double") -> Sizes:
 
 # --------------------------------------------------------------------------- facts
 @dataclass(frozen=True)
-class Facts:
+class ExportFacts:
     """What a generated file states about its controller."""
 
     name: str
@@ -148,14 +149,14 @@ class Facts:
 def guarantee_line(cert: Certificate) -> str:
     """The guarantee in one line, with its premise (or why there is none); a relaxed
     premise says so, with the shares of the training data that violate it."""
-    if cert.status not in ("certified", "relaxed"):
+    if cert.status not in (CERTIFIED, RELAXED):
         return f"none: status {cert.status} ({status_reason(cert)})"
     line = (
         f"||e||_inf <= gamma = {cert.gamma:.6g} while ||e_k|| <= eps_e + S d(x_k) holds within "
         f"r of the training states (eps_e = {cert.eps_e:.6g}, S = {cert.S:.6g}, "
         f"r = {cert.radius:.6g}, Delta = {cert.delta:.6g}, ||w|| <= eps_w = {cert.eps_w:.6g})"
     )
-    if cert.status == "relaxed":
+    if cert.status == RELAXED:
         line += f"; RELAXED premise: {_shares(cert)}"
     return line
 
@@ -166,9 +167,9 @@ def _shares(cert: Certificate) -> str:
     return cert.premise.shares()
 
 
-def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> Facts:
+def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> ExportFacts:
     c, cert = cdir.controller, cdir.certificate
-    return Facts(
+    return ExportFacts(
         name=cdir.name,
         status=cert.status,
         sha256=cert.controller_sha256,
@@ -186,16 +187,16 @@ def status_reason(cert: Certificate) -> str:
     """Why a certificate's status is what it is, in a few words."""
     failed = [k for k, v in (cert.checks or {}).items() if not v.get("passed", True)]
     s = cert.status
-    if s == "certified":
+    if s == CERTIFIED:
         return f"robustness_lhs = {cert.robustness_lhs:.6g} < 1, all checks passed"
-    if s == "relaxed":
+    if s == RELAXED:
         return (
             "the premise is relaxed (eps_e or S set below the training data's maximum, so "
             f"part of the training data lies outside it); this is not plainly certified: {_shares(cert)}"
         )
-    if s == "reference":
+    if s == REFERENCE:
         return "a reference controller (not synthesized), with no guarantee"
-    if s == "uncertified" or failed == ["robustness"]:
+    if s == UNCERTIFIED or failed == ["robustness"]:
         return f"robustness condition fails: robustness_lhs = {cert.robustness_lhs:.6g} >= 1"
     if failed:
         return "failed checks: " + ", ".join(failed)
@@ -215,7 +216,7 @@ def check_exportable(cdir: ControllerDir, allow_uncertified: bool) -> None:
             "not apply; clip the velocity deviation before _step yourself and pass "
             "--allow-uncertified, or synthesize without a gate"
         )
-    if cert.status == "certified" or allow_uncertified:
+    if cert.status == CERTIFIED or allow_uncertified:
         return
     raise InputError(
         f"{cdir.folder}: status is '{cert.status}' ({status_reason(cert)}); only certified "

@@ -17,7 +17,7 @@ import numpy as np
 
 from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.export.attitude import c_function
-from qsls.pipeline.export.bank import ExportBank, Facts, Precision
+from qsls.pipeline.export.bank import ExportBank, ExportFacts, Precision
 
 PER_LINE = 6
 
@@ -50,7 +50,7 @@ def _array(name: str, a: np.ndarray, real: str, precision: Precision, dims: list
     return "\n".join(lines)
 
 
-def _comment(facts: Facts, precision: Precision, file: str) -> str:
+def _comment(facts: ExportFacts, precision: Precision, file: str) -> str:
     timing = (
         "strictly proper: u[k] uses y up to k-1 (Phi_uy(0) = 0)"
         if facts.strictly_proper
@@ -86,7 +86,7 @@ def _comment(facts: Facts, precision: Precision, file: str) -> str:
  */"""
 
 
-def header(bank: ExportBank, facts: Facts, prefix: str, precision: Precision) -> str:
+def header(bank: ExportBank, facts: ExportFacts, prefix: str, precision: Precision) -> str:
     """The header: constants, the complete state type and the four functions."""
     m = prefix.upper()
     real = f"{prefix}_real_t"
@@ -156,7 +156,7 @@ def _mac(out: str, table: str, vec: str, rows: str, cols: str) -> str:
     )
 
 
-def source(bank: ExportBank, facts: Facts, prefix: str, precision: Precision) -> str:
+def source(bank: ExportBank, facts: ExportFacts, prefix: str, precision: Precision) -> str:
     """The source: the taps and the step (ring-buffer filter bank)."""
     m = prefix.upper()
     real = f"{prefix}_real_t"
@@ -238,7 +238,7 @@ void {prefix}_step({prefix}_t *c, const {real} y[{m}_NY], {real} u[{m}_NU])
 {c_function(prefix, real, precision == "float")}"""
 
 
-def c_files(bank: ExportBank, facts: Facts, prefix: str, precision: Precision) -> dict[str, str]:
+def c_files(bank: ExportBank, facts: ExportFacts, prefix: str, precision: Precision) -> dict[str, str]:
     """``{PREFIX.h: ..., PREFIX.c: ...}``."""
     return {
         f"{prefix}.h": header(bank, facts, prefix, precision),

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.sim.controllers import register_runtime
 
 STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
 COMPILERS = ("cc", "gcc", "clang")
@@ -148,3 +149,6 @@ def c_runtime(folder: Path, *, precision: str = "double", prefix: str = "qsls_ct
         name=cdir.name,
         certificate=cdir.certificate.model_dump(),
     )
+
+
+register_runtime("c", c_runtime)

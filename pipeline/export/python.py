@@ -15,7 +15,7 @@ import numpy as np
 from qsls.pipeline.control.sls import side_by_side
 from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.export.attitude import py_function
-from qsls.pipeline.export.bank import ExportBank, Facts
+from qsls.pipeline.export.bank import ExportBank, ExportFacts
 
 PER_LINE = 4
 
@@ -42,7 +42,7 @@ def _tuple_rows(name: str, m: np.ndarray) -> str:
     return "\n".join(out)
 
 
-def module(bank: ExportBank, facts: Facts) -> str:
+def module(bank: ExportBank, facts: ExportFacts) -> str:
     """The module's source text."""
     ku, kb = rows(bank)
     nx, ny = bank.nx, bank.ny

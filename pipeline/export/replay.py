@@ -15,7 +15,7 @@ at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
    first multiple of ``dt`` in the stream); ticks between two samples further apart than
    ``max_gap`` are dropped and the gaps listed. The controller is reset at the start of
    each gap-free segment (its memory would otherwise hold samples from before the gap).
-4. ``y - r`` with the reference ``r`` (:class:`qsls.pipeline.sim.references.Reference`,
+4. ``y - r`` with the reference ``r`` (:class:`qsls.pipeline.core.references.Reference`,
    given as ``KIND[:key=value,...]`` or a YAML file; its time is 0 at the first tick plus
    ``reference_t0``), the VIO put into the reference's frame first (:func:`reference_frame`:
    a 4-DoF fit of the recording onto the reference, a given transform, or none; a large
@@ -37,10 +37,10 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from qsls.pipeline.core.errors import ConfigError, InputError
+from qsls.pipeline.core.references import ReferenceOptions, parse_reference
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.export.attitude import AttitudeLimits, LimitOptions
 from qsls.pipeline.export.rosout import Ticks, Topics
-from qsls.pipeline.sim.references import ReferenceOptions
 
 
 class ReplayOptions(LimitOptions):
@@ -120,34 +120,17 @@ def _alignment_text(al: dict[str, Any]) -> str:
 
 
 # --------------------------------------------------------------------------- inputs
-def parse_reference(spec: str) -> ReferenceOptions:
-    """``circle``, ``circle:radius=1.5,period=6,center=[0.5,0]`` or a YAML file of options."""
-    import yaml
-
+def reference_options(spec: str) -> ReferenceOptions:
+    """``--reference``: a reference in the one text form
+    (:func:`~qsls.pipeline.core.references.parse_reference`, e.g.
+    ``circle:radius=1.5,period=6,center=[0.5,0]``) or a YAML file of its options."""
     from qsls.pipeline.core.config import read_yaml, validate
 
     path = Path(spec)
     if path.suffix in (".yaml", ".yml") or path.is_file():
         raw = read_yaml(path)
         return validate(ReferenceOptions, raw.get("reference", raw), str(path))
-    kind, _, rest = spec.partition(":")
-    data: dict[str, Any] = {"kind": kind.strip()}
-    depth, start = 0, 0
-    parts = []
-    for i, ch in enumerate(rest + ","):
-        depth += (ch in "[(") - (ch in "])")
-        if ch == "," and depth == 0:
-            parts.append(rest[start:i])
-            start = i + 1
-    for part in filter(str.strip, parts):
-        key, eq, value = part.partition("=")
-        if not eq:
-            raise ConfigError(f"--reference '{spec}': expected key=value, got '{part}'")
-        try:
-            data[key.strip()] = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise ConfigError(f"--reference '{spec}': cannot read the value of '{key}'") from None
-    return validate(ReferenceOptions, data, f"--reference '{spec}'")
+    return parse_reference(spec, "--reference")
 
 
 def read_vio(source: Path, o: ReplayOptions) -> tuple[Any, np.ndarray]:
@@ -337,9 +320,9 @@ def replay(
     from qsls.pipeline.core.artifacts import refuse_overlap, sha256_path
     from qsls.pipeline.core.errors import OutputExistsError
     from qsls.pipeline.core.locks import check_writable, make_parent, unwritable
+    from qsls.pipeline.core.references import Reference
     from qsls.pipeline.export.bank import check_exportable
     from qsls.pipeline.export.rosout import write_mcap
-    from qsls.pipeline.sim.references import Reference
 
     out = Path(out)
     if out.suffix != ".mcap":
@@ -352,7 +335,7 @@ def replay(
         raise OutputExistsError(f"{out} is a folder; choose another --out")
     cdir = load_controller_dir(folder)
     check_exportable(cdir, options.allow_uncertified)
-    ref_opts = parse_reference(options.reference)
+    ref_opts = reference_options(options.reference)
     c = cdir.controller
     vio, v = read_vio(source, options)
     stamps, yv, gaps, parts = resample(vio, v, c.dt, options.max_gap)

@@ -2,9 +2,13 @@
 
 Every stage's files are read here (certificates, error model, sweep tables, the bound
 check, the flown comparison and its findings); the summary and the sections only format.
-Newer keys are preferred where they exist (a certificate's ``premise``, ``bound_holds``
-against ``gamma_nominal``, ``fly/findings.json``) and today's keys are used otherwise, so a
-run folder written by any qsls version renders.
+Certificates and the error model are read through their typed loaders
+(:meth:`~qsls.pipeline.control.artifacts.Certificate.load`,
+:func:`~qsls.pipeline.errormodel.model.load_error_model`), so a file this qsls cannot read
+stops the report with the loader's one-line error; the sections see their fields as
+mappings. In the evaluation tables newer keys are preferred where they exist
+(``bound_holds`` against ``gamma_nominal``, ``fly/findings.json``) and older ones used
+otherwise.
 """
 
 from __future__ import annotations
@@ -15,7 +19,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
+from qsls.pipeline.control.certify import (
+    CERTIFIED,
+    FAILED,
+    REFERENCE,
+    RELAXED,
+    SOLVER_INACCURATE,
+    UNCERTIFIED,
+    Status,
+)
 from qsls.pipeline.core.artifacts import read_manifest
+from qsls.pipeline.errormodel.model import ERROR_MODEL_FILE, load_error_model
 
 RUN_FILE = "run.json"
 
@@ -54,15 +69,6 @@ def pct(v: Any) -> str:
     return f"{100 * x:.1f}%" if 0 < x < 0.01 else f"{100 * x:.0f}%"
 
 
-def _yaml(path: Path) -> dict[str, Any]:
-    import yaml
-
-    if not path.is_file():
-        return {}
-    doc = yaml.safe_load(path.read_text())
-    return doc if isinstance(doc, dict) else {}
-
-
 def _json(path: Path) -> dict[str, Any]:
     if not path.is_file():
         return {}
@@ -80,31 +86,33 @@ def _parquet(path: Path) -> Any:
 
 
 # --------------------------------------------------------------------------- status words
-STATUS_WORDS = {
-    "certified": ("certified", "ok"),
-    "relaxed": ("relaxed premise, not certified", "warn"),
-    "uncertified": ("no guarantee", "muted"),
-    "reference": ("reference, no guarantee", "muted"),
-    "infeasible": ("infeasible", "bad"),
+STATUS_WORDS: dict[Status, tuple[str, str]] = {
+    CERTIFIED: ("certified", "ok"),
+    RELAXED: ("relaxed premise, not certified", "warn"),
+    UNCERTIFIED: ("no guarantee", "muted"),
+    REFERENCE: ("reference, no guarantee", "muted"),
+    FAILED: ("failed", "bad"),
+    SOLVER_INACCURATE: ("solver inaccurate", "bad"),
 }
 
 
 def status_words(status: Any) -> tuple[str, str]:
     """A certificate's status in plain words and its badge kind (ok/warn/bad/muted)."""
-    s = str(status or "unknown")
-    if s in STATUS_WORDS:
-        return STATUS_WORDS[s]
-    if s.startswith("certified_"):
-        return (f"certified ({s.split('_', 1)[1].replace('_', ' ')})", "warn")
-    return (s.replace("_", " "), "bad")
+    return STATUS_WORDS.get(status, (str(status or "unknown").replace("_", " "), "bad"))
 
 
 # --------------------------------------------------------------------------- the facts
 @dataclass(frozen=True)
-class Controller:
+class ControllerFacts:
     name: str
     folder: str  # synth folder, relative to the run
     cert: dict[str, Any]
+    """The certificate's fields (:meth:`Certificate.model_dump`)."""
+
+    @classmethod
+    def of(cls, certificate: Certificate, folder: str, fallback_name: str) -> ControllerFacts:
+        name = certificate.controller or fallback_name
+        return cls(name, folder, certificate.model_dump())
 
     @property
     def status(self) -> str:
@@ -112,7 +120,7 @@ class Controller:
 
     @property
     def certified(self) -> bool:
-        return self.status.startswith("certified")
+        return self.status == CERTIFIED
 
     def premise(self, key: str) -> dict[str, Any]:
         """``premise[key]`` as a mapping (value, how chosen, violated share), or empty."""
@@ -138,7 +146,7 @@ class Facts:
     stages: dict[str, list[Path]]
     error_model: dict[str, Any] = field(default_factory=dict)
     error_model_folder: str = ""
-    controllers: list[Controller] = field(default_factory=list)
+    controllers: list[ControllerFacts] = field(default_factory=list)
     sweep: Any = None
     s_max: Any = None
     sweep_options: dict[str, Any] = field(default_factory=dict)
@@ -160,14 +168,13 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
     info = _json(run_dir / RUN_FILE)
     f = Facts(run_dir=run_dir, info=info, stages=stages)
     for folder in stages.get("fit", []):
-        em = _yaml(folder / "error_model.yaml")
-        if em and not f.error_model:
-            f.error_model, f.error_model_folder = em, f.rel(folder)
+        if not f.error_model and (folder / ERROR_MODEL_FILE).is_file():
+            f.error_model = load_error_model(folder).model_dump()
+            f.error_model_folder = f.rel(folder)
     for folder in stages.get("synth", []):
-        for cert_file in sorted(folder.glob("*/certificate.yaml")):
-            cert = _yaml(cert_file)
-            name = str(cert.get("controller") or cert_file.parent.name)
-            f.controllers.append(Controller(name, f.rel(folder), cert))
+        for cert_file in sorted(folder.glob(f"*/{CERTIFICATE_FILE}")):
+            cert = Certificate.load(cert_file)
+            f.controllers.append(ControllerFacts.of(cert, f.rel(folder), cert_file.parent.name))
     for folder in stages.get("sweep", []):
         if f.sweep is None:
             f.sweep = _parquet(folder / "sweep.parquet")
@@ -200,7 +207,7 @@ def _read_evaluation(f: Facts, folder: Path) -> None:
 
 # --------------------------------------------------------------------------- verdicts
 @dataclass(frozen=True)
-class Verdict:
+class HeldoutVerdict:
     text: str
     kind: str  # ok | warn | bad | muted
     n_flights: int = 0
@@ -221,7 +228,7 @@ def own_rows(f: Facts, name: str) -> tuple[Any, bool]:
     return None, False
 
 
-def recorded_verdict(f: Facts, c: Controller) -> Verdict | None:
+def recorded_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict | None:
     """The premise check on the recorded held-out flights (the ``evaluate`` stage): the
     theorem does not apply to a flight the controller did not fly, so this tests the error
     model there, apart from the verdict on the flights it flew."""
@@ -239,16 +246,16 @@ def recorded_verdict(f: Facts, c: Controller) -> Verdict | None:
         (v,) = verdicts(rows)
         n = f"{v.flights} flight{'s' * (v.flights != 1)}"
         if not v.certified:
-            return Verdict(f"no guarantee to check ({n})", "muted", v.flights)
+            return HeldoutVerdict(f"no guarantee to check ({n})", "muted", v.flights)
         if v.theorem:  # an older table without the theorem columns: the per-sample check
-            return Verdict(
+            return HeldoutVerdict(
                 f"per-sample bound {'held' if v.holds else 'FAILED'}; worst max ||e|| / "
                 f"gamma(d) = {g4(v.worst_ratio)} ({n})",
                 "ok" if v.holds else "bad",
                 v.flights,
             )
         share = f"{100 * v.premise_share:.1f}%" if math.isfinite(v.premise_share) else "n/a"
-        return Verdict(
+        return HeldoutVerdict(
             f"premise ||e_k|| <= eps_e + S d_k holds at {share} of samples ({n}; not flown "
             "by it: the theorem does not apply)",
             "muted",
@@ -271,7 +278,7 @@ def assumption_rows(f: Facts, name: str) -> Any:
     return rows if len(rows) else None
 
 
-def heldout_verdict(f: Facts, c: Controller) -> Verdict:
+def heldout_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict:
     """Did the guarantee hold on the flights this controller flew itself? Every assumption
     checked on its own log where the fly stage has them, else the bound check's verdict."""
     a = assumption_rows(f, c.name)
@@ -283,12 +290,12 @@ def heldout_verdict(f: Facts, c: Controller) -> Verdict:
         if len(bad):
             r = bad.iloc[0]
             text += f"; first failure: '{r['first_failed']}' on {r['flight']}"
-        return Verdict(text, "ok" if ok == n else "bad", n, ok, float(n - ok), True)
+        return HeldoutVerdict(text, "ok" if ok == n else "bad", n, ok, float(n - ok), True)
     rows, theorem = own_rows(f, c.name)
     if rows is None:
         if any(ev.kind == "fly" for ev in f.evaluations):
-            return Verdict("not flown", "muted")
-        return Verdict("not flown (the theorem applies to its own flights only)", "muted")
+            return HeldoutVerdict("not flown", "muted")
+        return HeldoutVerdict("not flown (the theorem applies to its own flights only)", "muted")
     n = len(rows)
     if theorem:
         gamma = rows["gamma_nominal"].astype(float)
@@ -301,7 +308,7 @@ def heldout_verdict(f: Facts, c: Controller) -> Verdict:
     guaranteed = bool(rows["has_guarantee"].all()) if "has_guarantee" in rows else c.certified
     what = "max ||e|| / gamma_nominal" if theorem else "max ||e|| / gamma(d)"
     if not guaranteed:
-        return Verdict(
+        return HeldoutVerdict(
             f"no guarantee to check; {what} = {g4(ratio)} on {n} flight{'s' * (n > 1)}",
             "muted",
             n,
@@ -311,7 +318,7 @@ def heldout_verdict(f: Facts, c: Controller) -> Verdict:
         )
     kind = "ok" if holds == n else "bad"
     scope = "" if theorem else " (per-sample check)"
-    return Verdict(
+    return HeldoutVerdict(
         f"bound held on {holds} of {n} own flights{scope}; worst {what} = {g4(ratio)}",
         kind,
         n,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from qsls.pipeline.control.certify import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
 from qsls.pipeline.report.facts import (
     Facts,
@@ -80,14 +81,14 @@ def section_paper_figures(f: Facts, counter: list[int]) -> Section | None:
 
 # --------------------------------------------------------------------------- certificates
 _STATUS_NOTES = {
-    "certified": "certified: every check passed (solver, achievability <= 1e-7, realization "
+    CERTIFIED: "certified: every check passed (solver, achievability <= 1e-7, realization "
     "<= 1e-8, internal stability, robustness lhs <= 1) on the premise shown.",
-    "relaxed": "relaxed premise, not certified: the checks passed, but part of the training "
+    RELAXED: "relaxed premise, not certified: the checks passed, but part of the training "
     "data lies outside the premise (a percentile, a number below the measured one, excluded "
     "samples or an untested S: shares below); no guarantee is claimed from it.",
-    "uncertified": "no guarantee: a nominal controller whose robustness lhs exceeds 1; gamma "
+    UNCERTIFIED: "no guarantee: a nominal controller whose robustness lhs exceeds 1; gamma "
     "is the formula's value, shown for comparison only.",
-    "reference": "reference, no guarantee: PD given as a closed loop, compared with the "
+    REFERENCE: "reference, no guarantee: PD given as a closed loop, compared with the "
     "synthesized controllers; its norms are FIR-truncated.",
 }
 
@@ -176,7 +177,7 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
     notes = [
         n
         for key, n in _STATUS_NOTES.items()
-        if any(status_words(key)[0] == s or (key == "relaxed" and "relaxed" in s) for s in seen)
+        if any(status_words(key)[0] == s or (key == RELAXED and "relaxed" in s) for s in seen)
     ]
     sec.table(
         [

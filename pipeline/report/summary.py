@@ -10,10 +10,13 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from qsls.pipeline.control.certify import CERTIFIED, REFERENCE
 from qsls.pipeline.core.style import controller_colour
 from qsls.pipeline.report.document import Card, Section
 from qsls.pipeline.report.facts import (
-    Controller,
+    ControllerFacts as Controller,
+)
+from qsls.pipeline.report.facts import (
     Facts,
     assumption_rows,
     findings_list,
@@ -72,7 +75,7 @@ def relaxed(c: Controller, em: dict[str, Any]) -> bool:
 
 def status_badge(c: Controller, em: dict[str, Any]) -> tuple[str, str]:
     words, kind = status_words(c.status)
-    if c.status == "certified" and "premise" not in c.cert and relaxed(c, em):
+    if c.status == CERTIFIED and "premise" not in c.cert and relaxed(c, em):
         return "relaxed premise, not certified", "warn"  # never round a relaxed premise up
     return words, kind
 
@@ -156,7 +159,7 @@ def error_model_line(f: Facts) -> str:
     em = f.error_model
     slope = em.get("s_slope") or {}
     line = f"Error model: eps_e max {g4(em.get('eps_e'))}, S max {g4(slope.get('max'))}"
-    used = [c for c in f.controllers if c.status not in ("reference",)] or f.controllers
+    used = [c for c in f.controllers if c.status != REFERENCE] or f.controllers
     if used:
         c = used[0]
         how_e, share_e, inf_e = premise_entry(c, em, "eps_e")
@@ -203,7 +206,7 @@ def warning_lines(f: Facts) -> list[str]:
     out = []
     em = f.error_model
     for c in f.controllers:
-        if c.status == "certified" and "premise" not in c.cert and relaxed(c, em):
+        if c.status == CERTIFIED and "premise" not in c.cert and relaxed(c, em):
             how_e, _, _ = premise_entry(c, em, "eps_e")
             how_s, _, _ = premise_entry(c, em, "S")
             out.append(

@@ -62,7 +62,18 @@ class FlightSpec(Options):
 
 
 class RunConfig(Options):
-    """The run: flights plus each stage's options (the stage's own option names)."""
+    """The run: flights plus each stage's options (the stage's own option names).
+
+    Each stage section is the same section the stage command reads with ``--config``, and is
+    validated when the run is planned by the model that command uses: ``simulate``
+    :class:`~qsls.pipeline.sim.simulate.SimOptions` (a flight's ``simulate:`` over it),
+    ``ingest`` :class:`~qsls.pipeline.ingest.stage.IngestOptions` (a flight's over it),
+    ``fit`` :class:`~qsls.pipeline.errormodel.fit.FitOptions`, ``sweep``
+    :class:`~qsls.pipeline.control.sweep.SweepSection` (with ``jobs``, ``scheduler``,
+    ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.synth.SynthOptions`,
+    ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (with ``fly``).
+    They are mappings here so that reading a run config imports no stage: a run with
+    nothing to do imports nothing heavy."""
 
     name: str
     seed: int = 0

@@ -139,22 +139,11 @@ def _flight_stages(
 
 
 def _sweep_stage(graph: StageGraph, section: dict[str, Any], src: Src, progress: Progress) -> None:
-    from qsls.pipeline.control.sweep import SweepOptions
+    from qsls.pipeline.control.sweep import SweepSection
 
-    sweep_cfg = dict(section)
-    jobs = sweep_cfg.pop("jobs", None)
-    scheduler = sweep_cfg.pop("scheduler", None)
-    wait_workers = float(sweep_cfg.pop("wait_workers", 60.0))
-    if scheduler is not None:
-        from qsls.pipeline.control.sweep import check_scheduler
-
-        try:
-            scheduler = check_scheduler(str(scheduler))
-        except ConfigError as exc:
-            raise ConfigError(f"{src('sweep')}: {exc}") from None
-    opts = validate(SweepOptions, sweep_cfg, src("sweep"))
-    execute = _sweep_exec(opts, jobs, scheduler, wait_workers, progress)
-    graph.add(Stage("sweep", "sweep", opts, execute, deps=("fit",)))
+    sec = validate(SweepSection, section, src("sweep"))
+    execute = _sweep_exec(sec.options(), sec.jobs, sec.scheduler, sec.wait_workers, progress)
+    graph.add(Stage("sweep", "sweep", sec.options(), execute, deps=("fit",)))
 
 
 def _evaluate_stages(
@@ -162,19 +151,16 @@ def _evaluate_stages(
 ) -> None:
     """The bound check on the held-out flights (when there are some) and the flights flown
     (when the section has ``fly``)."""
-    from qsls.pipeline.evaluate.bound import EvaluateOptions
+    from qsls.pipeline.evaluate.section import EvaluateSection
 
-    eval_cfg = dict(section)
-    fly_cfg = eval_cfg.pop("fly", None)
-    eval_opts = validate(EvaluateOptions, eval_cfg, src("evaluate"))
+    sec = validate(EvaluateSection, section, src("evaluate"))
     if heldout:
+        eval_opts = sec.bound()
         execute = _evaluate_exec(eval_opts, heldout, progress)
         deps = ("fit", "synth", *heldout)
         graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps, notes=_verdicts))
-    if fly_cfg is not None:
-        from qsls.pipeline.evaluate.fly import FlyOptions
-
-        fly_opts = validate(FlyOptions, merge(eval_cfg, fly_cfg), src("evaluate.fly"))
+    if sec.fly is not None:
+        fly_opts = sec.flying(source=src("evaluate.fly"))
         execute = _fly_exec(fly_opts, progress)
         graph.add(
             Stage("fly", "evaluate", fly_opts, execute, deps=("fit", "synth"), notes=_verdicts)
@@ -200,6 +186,7 @@ def _simulate_stage(
     stage_id = f"simulate/{fl.name}"
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.sim.simulate import simulate
 
         return simulate(opts, out, force=True, progress=progress)
@@ -267,6 +254,7 @@ def _synth_exec(opts: Any, progress: Progress) -> Any:
 
 def _evaluate_exec(opts: Any, heldout: list[str], progress: Progress) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.evaluate.bound import evaluate
 
         flights = [deps[d] for d in heldout]
@@ -279,6 +267,7 @@ def _evaluate_exec(opts: Any, heldout: list[str], progress: Progress) -> Any:
 
 def _fly_exec(opts: Any, progress: Progress) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.evaluate.fly import fly_evaluate
 
         return fly_evaluate(deps["fit"], [deps["synth"]], opts, out, force=True, progress=progress)

@@ -36,9 +36,9 @@ from pydantic import Field
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.references import Reference, ReferenceOptions, RefSample
 from qsls.pipeline.core.units import NS
-from qsls.pipeline.sim.controllers import Controller, ControllerOptions, make_controller
-from qsls.pipeline.sim.references import Reference, ReferenceOptions, RefSample
+from qsls.pipeline.sim.controllers import ControllerOptions, PositionController, make_controller
 from qsls.pipeline.sim.vehicle import Vehicle, VehicleOptions
 from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
@@ -195,7 +195,7 @@ class _Record:
         )
 
     def log(
-        self, ctrl: Controller, veh: Vehicle, t_ns: np.ndarray,
+        self, ctrl: PositionController, veh: Vehicle, t_ns: np.ndarray,
         ref_states: np.ndarray, n: int, m: int, k: int, *,
         crashed: bool, reason: str | None, crash_t: float | None,
         lipschitz: float, described: dict[str, Any], camera: bool,
@@ -231,7 +231,7 @@ class _Record:
 
 def fly(
     options: FlightOptions,
-    controller: Controller | None = None,
+    controller: PositionController | None = None,
     seed: int | None = None,
     *,
     vehicle: Vehicle | None = None,
@@ -251,7 +251,7 @@ def fly(
 
 def _fly(
     options: FlightOptions,
-    controller: Controller | None = None,
+    controller: PositionController | None = None,
     seed: int | None = None,
     *,
     vehicle: Vehicle | None = None,

@@ -1,6 +1,6 @@
 """Position controllers behind one small interface, in the paper's input convention.
 
-A :class:`Controller` is called every ``dt`` with the state estimate ``y = [p, v]`` (the VIO
+A :class:`PositionController` is called every ``dt`` with the state estimate ``y = [p, v]`` (the VIO
 estimate on the vehicle, never the truth, unless a test asks for truth feedback), the
 estimated attitude and the reference, and returns the ABSOLUTE input
 ``[pitch, roll, thrust]`` in the paper's signs (``vx' = -g pitch``, ``vy' = +g roll``,
@@ -23,6 +23,7 @@ through the paper's ``B``: ``u_ff = [-a_x / g, a_y / g, m a_z]``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
@@ -33,7 +34,7 @@ from qsls.pipeline.control.pdgain import PDGains, pd_gain
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import GRAVITY, PAPER_DT_S
-from qsls.pipeline.sim.references import RefSample
+from qsls.pipeline.core.references import RefSample
 from qsls.pipeline.sim.vehicle import ctatt_to_paper, quad_params
 
 SE3_HZ = 100.0
@@ -59,7 +60,7 @@ class ControllerOptions(Options):
     ``qsls export --target c``, compiled and loaded with ctypes (the PD's static gain stays)."""
 
 
-class Controller(Protocol):
+class PositionController(Protocol):
     """What the closed loop calls every ``dt``."""
 
     name: str
@@ -218,7 +219,30 @@ def controller_folder(spec: str | Path) -> Path:
     return path
 
 
-def make_controller(options: ControllerOptions, mass: float) -> Controller:
+RuntimeLoader = Callable[[Path], Any]
+"""A controller folder to a runtime with ``dt``, ``reset()``, ``step(y - r) -> u``."""
+_RUNTIMES: dict[str, RuntimeLoader] = {}
+
+
+def register_runtime(backend: str, loader: RuntimeLoader) -> None:
+    """Make ``ControllerOptions.backend == backend`` fly the runtime ``loader(folder)``.
+
+    The simulator sits below ``export``, so the compiled-C runtime registers itself from
+    :mod:`qsls.pipeline.export.cbuild` (imported by the commands that fly controllers)."""
+    _RUNTIMES[backend] = loader
+
+
+def _runtime_loader(backend: str) -> RuntimeLoader:
+    loader = _RUNTIMES.get(backend)
+    if loader is None:
+        raise InputError(
+            f"controller backend '{backend}' is not available: import "
+            "qsls.pipeline.export.cbuild first (the qsls commands do)"
+        )
+    return loader
+
+
+def make_controller(options: ControllerOptions, mass: float) -> PositionController:
     """Build the controller named by ``options.kind``."""
     kind = options.kind
     rate_dt = None if options.rate_hz is None else 1.0 / options.rate_hz
@@ -235,10 +259,8 @@ def make_controller(options: ControllerOptions, mass: float) -> Controller:
     from qsls.pipeline.control.realize import StaticGainController
 
     runtime: Any = load_runtime(folder)
-    if options.backend == "c" and not isinstance(runtime, StaticGainController):
-        from qsls.pipeline.export.cbuild import c_runtime
-
-        runtime = c_runtime(folder)
+    if options.backend != "python" and not isinstance(runtime, StaticGainController):
+        runtime = _runtime_loader(options.backend)(folder)
     name = str(getattr(runtime, "name", None) or folder.name)
     if rate_dt is not None and abs(rate_dt - runtime.dt) > 1e-9:
         raise InputError(

@@ -37,7 +37,7 @@ from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.rotations import quat_mul
 from qsls.pipeline.sim.closedloop import NS, FlightLog, FlightOptions, fly
-from qsls.pipeline.sim.controllers import Controller
+from qsls.pipeline.sim.controllers import PositionController
 from qsls.pipeline.sim.mocap import MocapOptions, sample_mocap
 
 STAGE = "simulate"
@@ -258,7 +258,7 @@ def simulate(
     *,
     force: bool = False,
     progress: Progress = NULL_PROGRESS,
-    controller: Controller | None = None,
+    controller: PositionController | None = None,
     inputs: list[Path] | None = None,
 ) -> SimResult:
     """Fly ``options`` (or the given ``controller``) and write the stage folder ``out``."""

@@ -27,12 +27,13 @@ reference state ``r = [p, v]``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 from pydantic import Field
 
-from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.config import Options, validate
+from qsls.pipeline.core.errors import ConfigError
 
 
 class ReferenceOptions(Options):
@@ -69,6 +70,41 @@ class ReferenceOptions(Options):
         """Take-off, then ``ramp_s / 2 + laps * period`` (hover: ``laps * period``)."""
         extra = 0.5 * self.ramp_s if self.kind != "hover" else 0.0
         return self.start_s + extra + self.laps * self.period
+
+
+
+def parse_reference(spec: str, what: str = "reference") -> ReferenceOptions:
+    """The one text form of a reference: ``KIND`` or ``KIND:key=value,key=value`` with any
+    :class:`ReferenceOptions` field, values as YAML (``center=[0.5,0]``); the centre may also
+    be written ``center=0.5;0`` or ``center=0.5 0``. Errors name ``what`` (e.g. ``--reference``)."""
+    import yaml
+
+    kind, _, rest = spec.partition(":")
+    kinds = get_args(ReferenceOptions.model_fields["kind"].annotation)
+    if kind.strip() not in kinds:
+        raise ConfigError(
+            f"{what} '{spec}': unknown kind '{kind.strip()}' (kinds: {', '.join(kinds)}; "
+            "e.g. 'circle:radius=1,height=1,period=5')"
+        )
+    data: dict[str, Any] = {"kind": kind.strip()}
+    depth, start, parts = 0, 0, []
+    for i, ch in enumerate(rest + ","):  # commas inside [..] belong to a list value
+        depth += (ch in "[(") - (ch in "])")
+        if ch == "," and depth == 0:
+            parts.append(rest[start:i])
+            start = i + 1
+    for part in filter(str.strip, parts):
+        key, eq, value = part.partition("=")
+        if not eq:
+            raise ConfigError(f"{what} '{spec}': expected key=value, got '{part.strip()}'")
+        key, value = key.strip(), value.strip()
+        if key == "center" and not value.startswith("["):
+            value = "[" + ",".join(value.replace(";", " ").split()) + "]"
+        try:
+            data[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ConfigError(f"{what} '{spec}': cannot read the value of '{key}'") from None
+    return validate(ReferenceOptions, data, f"{what} '{spec}'")
 
 
 @dataclass(frozen=True)

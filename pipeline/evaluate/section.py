@@ -1,0 +1,38 @@
+"""The ``evaluate:`` section of a config file, read the same way by ``qsls evaluate --config``
+and by ``qsls run``: the bound check's options (:class:`EvaluateOptions`) and, under ``fly:``,
+the options of the flights flown by the controllers (:class:`FlyOptions`, which inherit the
+section's own keys: ``figures: false`` beside ``fly:`` holds for both)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+from qsls.pipeline.core.config import merge, validate
+from qsls.pipeline.evaluate.bound import EvaluateOptions
+
+if TYPE_CHECKING:
+    from qsls.pipeline.evaluate.fly import FlyOptions
+
+
+class EvaluateSection(EvaluateOptions):
+    """``evaluate:``: the bound check's options, plus ``fly`` for ``evaluate --fly``."""
+
+    fly: dict[str, Any] | None = None
+    """Options of ``qsls evaluate --fly`` (the run's ``fly`` stage) over the section's own:
+    seeds, duration, conditions, jobs, sim, ... (:class:`FlyOptions`); absent: the run flies
+    nothing."""
+
+    def _own(self) -> dict[str, Any]:
+        return self.model_dump(exclude={"fly"}, exclude_unset=True)
+
+    def bound(self) -> EvaluateOptions:
+        """The bound check's options."""
+        return EvaluateOptions.model_validate(self._own())
+
+    def flying(self, overrides: Mapping[str, Any] | None = None, source: str = "options") -> FlyOptions:
+        """The flying options: the section's keys, then ``fly``'s, then ``overrides`` (the
+        command line's); errors name ``source``."""
+        from qsls.pipeline.evaluate.fly import FlyOptions
+
+        return validate(FlyOptions, merge(merge(self._own(), self.fly or {}), overrides or {}), source)

@@ -1,0 +1,143 @@
+"""The stage packages form layers: each imports only the ones below it (imports inside functions
+count; ``if TYPE_CHECKING:`` imports do not), so the package import graph has no cycle."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PIPELINE = Path(__file__).resolve().parents[1] / "pipeline"
+LAYERS = ("core", "ingest", "errormodel", "control", "sim", "evaluate", "export", "report", "run")
+"""Bottom to top."""
+
+
+def imported_packages(source: str, here: str) -> set[str]:
+    """The stage packages other than its own that ``source`` imports anywhere (``here``: the
+    dotted package holding the module, for relative imports); ``TYPE_CHECKING`` blocks skipped."""
+    tree = ast.parse(source)
+    skip = {
+        id(node)
+        for block in ast.walk(tree)
+        if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
+        for stmt in block.body
+        for node in ast.walk(stmt)
+    }
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        names: list[str] = []
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            module = node.module or ""
+            if node.level:
+                base = here.split(".")[: len(here.split(".")) - node.level + 1]
+                module = ".".join([*base, module] if module else base)
+            names = (
+                [f"{module}.{a.name}" for a in node.names]
+                if module == "qsls.pipeline"
+                else [module]
+            )
+        for name in names:
+            parts = name.split(".")
+            if parts[:2] == ["qsls", "pipeline"] and len(parts) > 2 and parts[2] in LAYERS:
+                found.add(parts[2])
+    found.discard(here.split(".")[2])
+    return found
+
+
+def package_graph() -> dict[str, dict[str, list[str]]]:
+    """``{package: {imported package: [files that import it]}}`` over ``pipeline/``."""
+    graph: dict[str, dict[str, list[str]]] = {}
+    for f in sorted(PIPELINE.rglob("*.py")):
+        parts = f.relative_to(PIPELINE).parts
+        if len(parts) < 2:
+            continue
+        here = ".".join(["qsls", "pipeline", *parts[:-1]])
+        for dep in imported_packages(f.read_text(), here):
+            graph.setdefault(parts[0], {}).setdefault(dep, []).append(
+                f.relative_to(PIPELINE).as_posix()
+            )
+    return graph
+
+
+def cycles(graph: dict[str, dict[str, list[str]]]) -> list[list[str]]:
+    """Every elementary cycle through the smallest-named package in it (depth-first)."""
+    out = []
+    for start in sorted(graph):
+
+        def walk(node: str, path: list[str], start: str = start) -> None:
+            for nxt in graph.get(node, {}):
+                if nxt == start:
+                    out.append([*path, start])
+                elif nxt > start and nxt not in path:
+                    walk(nxt, [*path, nxt])
+
+        walk(start, [start])
+    return out
+
+
+def test_the_walker_sees_imports_in_functions_and_skips_type_checking():
+    src = (
+        "from typing import TYPE_CHECKING\n"
+        "from qsls.pipeline.core.errors import InputError\n"
+        "if TYPE_CHECKING:\n    from qsls.pipeline.report.facts import Facts\n"
+        "def f():\n    from qsls.pipeline.export.cbuild import c_runtime\n"
+        "    import qsls.pipeline.ingest.flight\n"
+        "from qsls.pipeline import evaluate\n"
+        "from ..run import runner\n"
+        "from . import sls\n"
+    )
+    assert imported_packages(src, "qsls.pipeline.control") == {
+        "core",
+        "export",
+        "ingest",
+        "evaluate",
+        "run",
+    }
+    assert cycles({"a": {"b": []}, "b": {"c": []}, "c": {"a": [], "b": []}}) == [
+        ["a", "b", "c", "a"],
+        ["b", "c", "b"],
+    ]
+    nested = "from .. import stage\nfrom ...sim import vio\n"
+    assert imported_packages(nested, "qsls.pipeline.ingest.sources") == {"sim"}
+
+
+def test_every_stage_package_has_a_layer():
+    packages = {p.name for p in PIPELINE.iterdir() if (p / "__init__.py").is_file()}
+    assert packages == set(LAYERS)
+
+
+def test_stage_packages_import_only_downward_and_never_in_a_cycle():
+    graph = package_graph()
+    assert cycles(graph) == []
+    upward = [
+        f"{pkg} -> {dep} ({', '.join(files)})"
+        for pkg, deps in graph.items()
+        for dep, files in deps.items()
+        if LAYERS.index(dep) > LAYERS.index(pkg)
+    ]
+    assert upward == []
+    # the graph is real: the top layer reaches down to every stage it runs
+    assert {"ingest", "errormodel", "control", "sim", "evaluate", "report"} <= set(graph["run"])
+
+
+def test_the_simulator_flies_the_exported_c_through_a_runtime_export_registers():
+    """sim sits below export: the compiled-C runtime is registered by export, not imported."""
+    import subprocess
+    import sys
+
+    code = (
+        "from qsls.pipeline.sim.controllers import _runtime_loader\n"
+        "from qsls.pipeline.core.errors import InputError\n"
+        "try:\n    _runtime_loader('c')\nexcept InputError as e:\n    print(e)\n"
+        "import qsls.pipeline.export.cbuild as cb\n"
+        "print(_runtime_loader('c') is cb.c_runtime)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines() == [
+        "controller backend 'c' is not available: import qsls.pipeline.export.cbuild first "
+        "(the qsls commands do)",
+        "True",
+    ]

@@ -1,0 +1,81 @@
+"""One name per concept: public class names are unique across the library, a stage package
+exports no name that is also one of its submodules (``control.certify`` is always the
+module), and a reference has one text form, the older spellings included."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import pkgutil
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.references import ReferenceOptions, parse_reference
+from tests.test_layers import LAYERS
+
+PIPELINE = Path(__file__).resolve().parents[1] / "pipeline"
+
+
+def _top_level(kind: type) -> dict[str, list[str]]:
+    found: dict[str, list[str]] = defaultdict(list)
+    for f in sorted(PIPELINE.rglob("*.py")):
+        for node in ast.parse(f.read_text()).body:
+            if isinstance(node, kind) and not node.name.startswith("_"):
+                found[node.name].append(f.relative_to(PIPELINE).as_posix())
+    return found
+
+
+def test_public_class_names_are_unique():
+    classes = _top_level(ast.ClassDef)
+    assert {k: v for k, v in classes.items() if len(v) > 1} == {}
+    assert len(classes) > 100  # the scan sees the library
+
+
+def test_one_reference_grammar():
+    assert _top_level(ast.FunctionDef)["parse_reference"] == ["core/references.py"]
+
+
+@pytest.mark.parametrize("name", LAYERS)
+def test_no_package_exports_a_name_that_is_also_a_submodule(name):
+    package = importlib.import_module(f"qsls.pipeline.{name}")
+    submodules = {m.name for m in pkgutil.iter_modules(package.__path__)}
+    assert set(getattr(package, "__all__", ())) & submodules == set()
+    for exported in getattr(package, "__all__", ()):  # every listed name resolves
+        assert getattr(package, exported) is not None
+
+
+def test_control_certify_is_the_module_however_it_is_reached():
+    import qsls.pipeline.control as control
+    from qsls.pipeline.control import certify
+
+    assert certify.__name__ == "qsls.pipeline.control.certify"
+    assert control.certify is certify and callable(certify.certify)
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [
+        "circle:radius=1.5,period=6,center=[0.5,-1]",
+        "circle:radius=1.5,period=6,center=0.5;-1",  # the fit's older spelling
+        "circle: radius = 1.5 , period=6, center = 0.5 -1",
+    ],
+)
+def test_every_spelling_of_the_centre_gives_the_same_reference(spec):
+    ref = parse_reference(spec)
+    assert ref == ReferenceOptions(kind="circle", radius=1.5, period=6.0, center=(0.5, -1.0))
+
+
+def test_reference_errors_are_one_line_and_name_the_option():
+    with pytest.raises(
+        ConfigError,
+        match=r"--reference 'square': unknown kind 'square' \(kinds: circle, hover, figure8",
+    ):
+        parse_reference("square", "--reference")
+    with pytest.raises(ConfigError, match="expected key=value, got 'radius'"):
+        parse_reference("circle:radius")
+    with pytest.raises(ConfigError, match="unknown option 'radus'; did you mean 'radius'"):
+        parse_reference("hover:radus=2")
+    assert parse_reference("figure8").kind == "figure8"
