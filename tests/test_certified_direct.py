@@ -20,7 +20,6 @@ from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.evaluate.certified import (
     ControllerBound,
     check_model_hash,
-    check_premise_form,
     check_unweighted,
     expand_controllers,
     load_bounds,
@@ -129,7 +128,13 @@ def test_premises_the_flight_check_cannot_read_are_refused(robust):
     check_unweighted(SimpleNamespace(state_scale=[1.0] * 6))
     with pytest.raises(InputError, match=r"state_scale \[2.0, 1.0"):
         check_unweighted(SimpleNamespace(state_scale=[2.0] + [1.0] * 5))
-    premise = SimpleNamespace(measure="position", beta=None, error_scale=[1.0] * 6)
-    check_premise_form(Path("c"), SimpleNamespace(premise=None))
-    with pytest.raises(InputError, match="measure position"):
-        check_premise_form(Path("c"), SimpleNamespace(premise=premise))
+    # a generalized premise bounds the dense part: velocity clipped at beta, weighted by W_e
+    from dataclasses import replace
+
+    assert not BOUND.generalized
+    g = replace(BOUND, beta=0.2, error_scale=(1, 1, 1, 0.5, 0.5, 0.5))
+    e = np.array([[0.05, 0, 0, 0.9, 0, 0], [0.01, 0, 0, 0.1, 0, 0]])
+    assert g.generalized
+    np.testing.assert_allclose(g.dense(e), [0.1, 0.05])  # 0.5 * min(0.9, 0.2); 0.5 * 0.1
+    pos = replace(BOUND, measure="position")
+    np.testing.assert_allclose(pos.dense(e), [0.05, 0.01])  # velocity errors are not read

@@ -49,6 +49,6 @@ def test_a_failing_task_cancels_the_tasks_not_started(tmp_path):
     with pytest.raises(ValueError, match="task 0 fails"):
         run_tasks(tasks, 2)
     finished = len(list(tmp_path.glob("*.done")))
-    # the tasks already handed to the workers finish (the two running, the few in the
-    # executor's call queue), the rest never start; without the cancel all eleven would run
-    assert 1 <= finished <= 6
+    # the workers are terminated at once (run_pool): at most the tasks already running or in
+    # the executor's call queue may have finished; without the cancel all eleven would run
+    assert finished <= 6
