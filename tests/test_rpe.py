@@ -76,10 +76,10 @@ def test_too_few_windows_is_an_error():
 # The three real pairs of ../shared/data/real: (truth file, fast/slow ratio, rho) measured.
 REAL_PAIRS = {
     "euroc_v102_rpg": ("groundtruth_tum.txt", 1.83, 0.39),
-    "euroc_mh04_rpg": ("groundtruth_tum.txt", 1.23, 0.18),
+    "euroc_mh04_rpg": ("groundtruth_tum.txt", 1.29, 0.18),  # truth jumps made gaps (was 1.23)
     "euroc_v102": ("groundtruth.csv", 1.30, 0.34),
 }
-# The real range of the statistic, from those pairs (1.23 to 1.83).
+# The real range of the statistic, from those pairs (1.29 to 1.83).
 REAL_RATIO = (min(v[1] for v in REAL_PAIRS.values()), max(v[1] for v in REAL_PAIRS.values()))
 
 
@@ -87,7 +87,7 @@ REAL_RATIO = (min(v[1] for v in REAL_PAIRS.values()), max(v[1] for v in REAL_PAI
 @pytest.mark.slow
 def test_real_vio_errs_more_when_flown_faster(real_data, tmp_path):
     """The three EuRoC pairs, ingested from their text files (SE(3) alignment, dt 0.1 s):
-    every one has a larger 1 s RPE in its fastest third of windows (measured 1.83, 1.23,
+    every one has a larger 1 s RPE in its fastest third of windows (measured 1.83, 1.29,
     1.30; rho 0.39, 0.18, 0.34)."""
     from qsls.pipeline.ingest.flight import Flight
     from qsls.pipeline.ingest.stage import IngestOptions, ingest
