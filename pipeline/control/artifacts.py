@@ -23,7 +23,6 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from qsls.pipeline.control.certify import CERTIFIED, Status
 from qsls.pipeline.control.nominal import (
     ClosedLoopNorm,
     static_gain_norms,
@@ -37,6 +36,7 @@ from qsls.pipeline.control.realize import (
     filter_bank,
 )
 from qsls.pipeline.control.sls import RESPONSES, Taps, l1_norm
+from qsls.pipeline.control.status import CERTIFIED, Status
 from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_yaml, npz_bytes
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import LinearModel

@@ -20,7 +20,7 @@ that are stored (never from the solver's own report):
 
 from __future__ import annotations
 
-from typing import Any, Final, Literal
+from typing import Any
 
 import numpy as np
 
@@ -105,18 +105,15 @@ def perturbation_response(
     return float(sizes.max()), float(sizes[-T:].max())
 
 
-Status = Literal["certified", "relaxed", "uncertified", "failed", "solver_inaccurate", "reference"]
-"""``certified``: every check passed, ``lhs <= 1 - margin`` and the premise holds on all the
-training data; ``relaxed``: the same, but part of the training data violates the premise (or
-was excluded, or S was not tested); ``uncertified``: realized and verified, but the robustness
-condition fails; ``failed`` / ``solver_inaccurate``: never certified; ``reference``: not
-synthesized (the PD)."""
-CERTIFIED: Final[Status] = "certified"
-RELAXED: Final[Status] = "relaxed"
-UNCERTIFIED: Final[Status] = "uncertified"
-FAILED: Final[Status] = "failed"
-SOLVER_INACCURATE: Final[Status] = "solver_inaccurate"
-REFERENCE: Final[Status] = "reference"
+from qsls.pipeline.control.status import (  # noqa: E402 (one light home, re-exported)
+    CERTIFIED,
+    FAILED,
+    REFERENCE,
+    RELAXED,
+    SOLVER_INACCURATE,
+    UNCERTIFIED,
+    Status,
+)
 
 
 def guarantee_fields(numbers: PremiseNumbers, norms: Norms) -> dict[str, float]:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
-from qsls.pipeline.control.certify import FAILED, SOLVER_INACCURATE
+from qsls.pipeline.control.status import FAILED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import InputError
 

@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 
 from qsls.pipeline.control.artifacts import Certificate, ControllerDir
-from qsls.pipeline.control.certify import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
+from qsls.pipeline.control.status import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.export.attitude import AttitudeLimits
 

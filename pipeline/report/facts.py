@@ -17,10 +17,9 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
-from qsls.pipeline.control.certify import (
+from qsls.pipeline.control.status import (
     CERTIFIED,
     FAILED,
     REFERENCE,
@@ -31,6 +30,9 @@ from qsls.pipeline.control.certify import (
 )
 from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.errormodel.model import ERROR_MODEL_FILE, load_error_model
+
+if TYPE_CHECKING:
+    from qsls.pipeline.control.artifacts import Certificate
 
 RUN_FILE = "run.json"
 
@@ -172,6 +174,8 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
             f.error_model = load_error_model(folder).model_dump()
             f.error_model_folder = f.rel(folder)
     for folder in stages.get("synth", []):
+        from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
+
         for cert_file in sorted(folder.glob(f"*/{CERTIFICATE_FILE}")):
             cert = Certificate.load(cert_file)
             f.controllers.append(ControllerFacts.of(cert, f.rel(folder), cert_file.parent.name))

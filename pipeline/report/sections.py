@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from qsls.pipeline.control.certify import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
+from qsls.pipeline.control.status import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
 from qsls.pipeline.report.facts import (
     Facts,

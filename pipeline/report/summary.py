@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from qsls.pipeline.control.certify import CERTIFIED, REFERENCE
+from qsls.pipeline.control.status import CERTIFIED, REFERENCE
 from qsls.pipeline.core.style import controller_colour
 from qsls.pipeline.report.document import Card, Section
 from qsls.pipeline.report.facts import (
@@ -168,7 +168,7 @@ def error_model_line(f: Facts) -> str:
             f"; used: eps_e {_with_how(c.cert.get('eps_e'), how_e)}, "
             f"S {_with_how(c.cert.get('S'), how_s)}; training data outside the premise: "
             f"{'~' * inf_e}{pct(share_e)} of samples (eps_e), "
-            f"{'~' * inf_s}{pct(share_s)} of pairs (S)"
+            f"{'~' * inf_s}{pct(share_s)} of left-out samples (S)"
         )
     line += f"; radius r {g4(em.get('radius'))}, {em.get('n_samples', '?')} samples"
     return line + " ([error model](#error-model))."
