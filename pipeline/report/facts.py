@@ -293,7 +293,7 @@ def heldout_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict:
         text = f"every assumption held on {ok} of {n} own flights"
         if len(bad):
             r = bad.iloc[0]
-            text += f"; first failure: '{r['first_failed']}' on {r['flight']}"
+            text += f"; first failure: {r['first_failed']} on {r['flight']}"
         return HeldoutVerdict(text, "ok" if ok == n else "bad", n, ok, float(n - ok), True)
     rows, theorem = own_rows(f, c.name)
     if rows is None:

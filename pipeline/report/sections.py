@@ -93,12 +93,16 @@ _STATUS_NOTES = {
 }
 
 
-def _controller_rows(f: Facts) -> tuple[list[list[Any]], list[list[Any]], list[list[Any]]]:
-    """Per controller: the certificate row, the checks row and the premise row."""
+def _controller_rows(
+    f: Facts,
+) -> tuple[list[list[Any]], list[list[Any]], list[list[Any]], list[list[Any]]]:
+    """Per controller: the certificate row, the checks row, the premise row and (where the
+    premise has one) its sparse part's row."""
     em = f.error_model
     rows: list[list[Any]] = []
     checks: list[list[Any]] = []
     premise: list[list[Any]] = []
+    sparse: list[list[Any]] = []
     for c in f.controllers:
         d = c.cert
         rows.append(
@@ -110,8 +114,6 @@ def _controller_rows(f: Facts) -> tuple[list[list[Any]], list[list[Any]], list[l
                 d.get("eps_e"),
                 first(d, "norm_N", "norm_phi_xy"),
                 d.get("robustness_lhs"),
-                d.get("rho_star"),
-                d.get("tested_range"),
                 d.get("gamma"),
             ]
         )
@@ -119,7 +121,8 @@ def _controller_rows(f: Facts) -> tuple[list[list[Any]], list[list[Any]], list[l
             [
                 c.name,
                 d.get("a"),
-                d.get("R0"),
+                d.get("rho_star"),
+                d.get("tested_range"),
                 d.get("gamma_strict"),
                 d.get("achievability_residual"),
                 d.get("realization_error"),
@@ -139,12 +142,14 @@ def _controller_rows(f: Facts) -> tuple[list[list[Any]], list[list[Any]], list[l
                 d.get("radius"),
                 d.get("delta"),
                 _with_source(d.get("eps_w"), prem.get("eps_w_source")),
-                _entry_text(prem.get("m")),
-                _entry_text(prem.get("eps_o")),
-                prem.get("measure", "full"),
             ]
         )
-    return rows, checks, premise
+        if prem.get("m") or prem.get("measure", "full") != "full":
+            sparse.append(
+                [c.name, prem.get("measure", "full"), _entry_text(prem.get("m")),
+                 _entry_text(prem.get("eps_o")), d.get("gate")]
+            )  # fmt: skip
+    return rows, checks, premise, sparse
 
 
 def _with_source(value: Any, source: str | None) -> str:
@@ -172,7 +177,7 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
         return None
     em = f.error_model
     sec = Section("Controllers and certificates", id="controllers")
-    rows, checks, premise = _controller_rows(f)
+    rows, checks, premise, sparse = _controller_rows(f)
     seen = sorted({status_badge(c, em)[0] for c in f.controllers})
     notes = [
         n
@@ -188,29 +193,29 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
             "eps_e",
             "N = ||W_x Phi_xy W_e^-1||",
             "robustness lhs (<= 1)",
-            "rho*",
-            "premise tested to",
             "gamma = eps_e + S rho*",
         ],
         rows,
         "Certificates (docs/guarantee.md): when lhs = (S + eps_e/r) N + (a + eps_o G_m)/r <= 1, "
-        "the vehicle stays within rho* of the training states and the dense error below gamma; "
-        "the premise's S was tested on left-out flights only out to the distance shown",
+        "the vehicle stays within rho* of the training states (next table) and the dense error "
+        "below gamma",
         notes=notes,
         text_cols=[1],
     )
     sec.table(
         [
             "controller",
-            "a = eps_w ||Phi_xx H|| + Delta",
-            "R0",
-            "gamma_strict = R0/(1 - S ||Phi_xy||)",
+            "a = eps_w N_w + Delta",
+            "rho*",
+            "premise tested to",
+            "gamma_strict = R0/(1 - S N)",
             "achievability residual",
             "realization error",
             "solver",
         ],
         checks,
-        "The a-priori distance, the paper's stricter comparison and the numerical checks",
+        "The a-priori distance, the region rho* beside the distance out to which the premise's S "
+        "was tested on left-out flights, the paper's stricter comparison and the numerical checks",
         text_cols=[6],
     )
     sec.table(
@@ -223,9 +228,6 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
             "r",
             "Delta",
             "eps_w",
-            "m (outliers per T steps)",
-            "eps_o",
-            "measure",
         ],
         premise,
         "The premise each guarantee rests on (shares of the training data violating it)",
@@ -236,6 +238,14 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
         if any("premise" not in c.cert for c in f.controllers)
         else [],
     )
+    if sparse:
+        sec.table(
+            ["controller", "measured channels", "m (outliers per T steps)", "eps_o", "gate V"],
+            sparse,
+            "The premise's sparse part: at most m velocity outliers (errors beyond beta) in any "
+            "T steps, each within eps_o (from the gate: 2V - beta)",
+            text_cols=[1, 2, 3],
+        )
     return sec
 
 
