@@ -23,7 +23,7 @@ def _strict_above_gamma(root: Path) -> list[str]:
     """Certificates under ``root`` whose paper's ``gamma_strict`` exceeds ``gamma`` (both finite).
 
     ``R0 = eps_e`` unless set, so ``gamma_strict = R0 / (1 - S ||Phi_xy||)`` never exceeds
-    ``gamma = (eps_e + S a) / (1 - S ||Phi_xy||)`` (DESIGN.md, Premise status)."""
+    ``gamma = (eps_e + S a) / (1 - S ||Phi_xy||)`` (docs/guarantee.md#the-present-theorem)."""
     import math
 
     import yaml

@@ -18,7 +18,7 @@ RECORD = {"S": 0.05, "eps_e": 0.05, "radius": 1.0, "eps_w": 0.01, "delta": 0.05,
 
 
 def independent_bank(taps: sls.Taps, ys: np.ndarray) -> np.ndarray:
-    """The filter bank written from DESIGN.md's export equations with explicit tap loops::
+    """The filter bank written from the export equations of docs/export.md with explicit tap loops::
 
     u[k]      = sum_{t>=1} Phi_ux(t) beta[k+1-t] + sum_{t>=0} Phi_uy(t) y[k-t]
     beta[k+1] = -sum_{t>=2} Phi_xx(t) beta[k+2-t] - sum_{t>=1} Phi_xy(t) y[k+1-t]

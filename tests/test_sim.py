@@ -134,7 +134,7 @@ def test_pd_flies_on_vio_and_controller_sees_the_estimate():
 
 
 class _PDRuntime:
-    """A synthesized-controller runtime (contracts.md: dt, reset, step(y - r) -> u)."""
+    """A synthesized-controller runtime (docs/model.md#reference-and-feedforward: dt, reset, step(y - r) -> u)."""
 
     def __init__(self, K: np.ndarray, dt: float) -> None:
         self.K, self.dt = K, dt

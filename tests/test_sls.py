@@ -21,7 +21,7 @@ MODEL = quadrotor_model()
 @pytest.mark.parametrize(("strictly_proper", "design_value"), [(False, 152.1087), (True, 189.1760)])
 def test_h2_without_robustness_equals_lqg(strictly_proper, design_value):
     """H2 synthesis at T = 60 == the Riccati/Lyapunov LQG cost (current-estimate form when
-    Phi_uy(0) is free, predictor form when strictly proper), and DESIGN.md's figures."""
+    Phi_uy(0) is free, predictor form when strictly proper), and the figures of docs/synthesis.md#costs."""
     m = MODEL
     ref = lqg_h2_squared(m.A, m.B, m.C, m.H, Q, R, 1.0, 0.5, strictly_proper=strictly_proper)
     sol = sls.solve(
@@ -46,7 +46,7 @@ def test_min_phi_xy_at_least_one_and_design_figures():
     assert got[10] == pytest.approx(3.4, abs=0.05)
     assert got[20] == pytest.approx(2.16, abs=0.01)
     assert got[20] >= 1.0 and got[10] > got[20]
-    # independent of the mass (DESIGN.md)
+    # independent of the mass (docs/synthesis.md#the-robustness-constraint)
     assert sls.min_phi_xy(quadrotor_model(mass=1.3), 20) == pytest.approx(got[20], rel=1e-6)
 
 

@@ -4,7 +4,7 @@ A controller folder (one per controller inside a ``qsls synth`` output) holds:
 
 - ``controller.npz`` (:class:`Controller`): the FIR responses ``Phi_xx, Phi_ux, Phi_xy,
   Phi_uy`` (taps ``0..T``), the plant ``A, B, C, H``, ``dt``, ``mass``, ``kind``; for a
-  filter bank the realization gains ``K_bb, K_by, K_ub, K_uy`` (DESIGN.md, Realization), for
+  filter bank the realization gains ``K_bb, K_by, K_ub, K_uy`` (docs/synthesis.md#realization-the-filter-bank), for
   a static gain (the PD reference) its ``K``. The gains are redundant with the taps: on load
   they are recomputed from the taps and a file whose stored gains differ is refused.
 - ``certificate.yaml`` (:class:`Certificate`): the setting, norms, guarantee and checks, and

@@ -1,4 +1,4 @@
-"""The checks behind every certificate (DESIGN.md, Robust synthesis; issue 5).
+"""The checks behind every certificate (docs/synthesis.md#the-checks-behind-a-certificate).
 
 A controller is ``certified`` only when all of these pass, each recomputed from the taps
 that are stored (never from the solver's own report):

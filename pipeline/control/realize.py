@@ -15,7 +15,7 @@ a finite memory of ``T`` past ``beta`` and ``T+1`` past ``y``. Unlike the compac
 ``(I + Phi_ux B)^-1 Phi_uy`` (poles at z = 1 on this plant), every internal signal of this
 realization is stable: a perturbation of its memory dies out.
 
-Units and signs (contracts.md): ``y`` is the measurement minus the reference state,
+Units and signs (docs/conventions.md#state-input-and-measurement): ``y`` is the measurement minus the reference state,
 ``u`` the deviation of ``[pitch, roll, thrust]`` from hover plus feedforward, paper signs.
 """
 

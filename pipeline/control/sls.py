@@ -1,4 +1,4 @@
-"""The FIR output-feedback SLS problem (DESIGN.md, Robust synthesis).
+"""The FIR output-feedback SLS problem (docs/synthesis.md#fir-responses-and-achievability).
 
 Taps ``k = 0..T`` of the four closed-loop responses (paper: ``Phi_xw, Phi_uw, Phi_xe,
 Phi_ue``)::

@@ -1,4 +1,4 @@
-"""Units shared by every stage (DESIGN.md, Conventions: time is int64 nanoseconds inside)."""
+"""Units shared by every stage (docs/conventions.md#time: time is int64 nanoseconds inside)."""
 
 NS = 1_000_000_000
 """Nanoseconds per second."""

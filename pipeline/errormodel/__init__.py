@@ -1,4 +1,4 @@
-"""``qsls fit``: the perception error model (DESIGN.md, Error model): ``eps_e``, S-slopes, ``delta``."""
+"""``qsls fit``: the perception error model (docs/errormodel.md): ``eps_e``, S-slopes, ``delta``."""
 
 from qsls.pipeline.core.api import lazy_api
 

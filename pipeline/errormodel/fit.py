@@ -1,4 +1,4 @@
-"""``qsls fit``: the data-driven perception error model (DESIGN.md, Error model; paper III-C).
+"""``qsls fit``: the data-driven perception error model (docs/errormodel.md; paper III-C).
 
 Training data: the aligned samples ``(x_i, e_i)`` of ingested flights, ``e = y - x``.
 

@@ -1,4 +1,4 @@
-"""The perception error model artifact, ``error_model.yaml`` (DESIGN.md, Error model).
+"""The perception error model artifact, ``error_model.yaml`` (docs/errormodel.md#output).
 
 This module fixes the file's schema and how later stages read it; the estimator that
 writes it lives in :mod:`qsls.pipeline.errormodel.fit`.

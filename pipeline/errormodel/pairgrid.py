@@ -2,7 +2,7 @@
 
 States are binned into cells at least ``r`` wide, so every pair closer than ``r`` lies in
 the same or a neighbouring cell; neighbouring cells are then visited in dense blocks of
-bounded size, never as an all-pairs matrix (DESIGN.md, Error model).
+bounded size, never as an all-pairs matrix (docs/errormodel.md#the-s-slope).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The pair-slope engine behind the S-slope (DESIGN.md, Error model).
+"""The pair-slope engine behind the S-slope (docs/errormodel.md#the-s-slope).
 
 For training samples ``(x_i, e_i)`` and a radius ``r``, the S-slope statistics are taken over
 the pair slopes

@@ -1,8 +1,7 @@
-"""The guarantee on held-out flights: ``||e_k||`` against the certified bounds (DESIGN.md,
-Closed-loop evaluation; paper, Bounded Perception Error Guarantee).
+"""The guarantee on held-out flights: ``||e_k||`` against the certified bounds (docs/evaluation.md; paper, Bounded Perception Error Guarantee).
 
 For a controller certified with an S-slope ``S``, error bound ``eps_e`` (and ``R0``), process
-noise ``eps_w`` and responses ``Phi``, the certificate states (DESIGN.md, Robust synthesis)::
+noise ``eps_w`` and responses ``Phi``, the certificate states (docs/guarantee.md)::
 
     ||e|| <= gamma        = (eps_e + S a) / (1 - S ||Phi_xy||),  a = eps_w ||Phi_xx H|| + Delta
     ||e|| <= gamma_strict = R0 / (1 - S ||Phi_xy||)              (the paper's comparison)

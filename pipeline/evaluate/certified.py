@@ -1,6 +1,6 @@
 """The controllers a bound check reads: each folder's certificate and responses, verified
 (:func:`~qsls.pipeline.control.artifacts.load_controller_dir`), with the numbers of the
-certificate's guarantee (DESIGN.md, Robust synthesis)::
+certificate's guarantee (docs/guarantee.md#the-present-theorem)::
 
     gamma        = (eps_e + S a) / (1 - S ||Phi_xy||),  a = eps_w ||Phi_xx H|| + Delta
     gamma_strict = R0 / (1 - S ||Phi_xy||)
@@ -167,7 +167,7 @@ def load_controller_bound(folder: Path) -> ControllerBound:
     c, taps = d.certificate, d.controller.taps
     ctrl = d.controller
     # a reference controller is a closed loop, not a FIR: its true norms (long horizon plus a
-    # geometric tail bound), never the truncated taps' (DESIGN.md, Robust synthesis)
+    # geometric tail bound), never the truncated taps' (docs/synthesis.md#the-papers-controllers)
     norms = ctrl.norms()
     xy = norms["phi_xy"]
     norm_xy, norm_xx_h, tail = xy.value, norms["phi_xx_h"].value, xy.tail_bound

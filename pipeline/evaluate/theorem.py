@@ -1,5 +1,6 @@
 """The guarantee checked the way the theorem states it, on a flight flown by the certified
-controller (DESIGN.md, Closed-loop evaluation; paper, Bounded Perception Error Guarantee).
+controller (docs/evaluation.md, docs/guarantee.md#the-closed-loop-split-in-two; paper, Bounded
+Perception Error Guarantee).
 
 With the controller in the loop the state splits into what the vehicle would have done
 without perception error and the controller's response to that error::

@@ -1,5 +1,5 @@
 """The training states of an error model, with a KD-tree for the distance of any state to
-them (infinity norm of the error model's scaled state, DESIGN.md Error model)."""
+them (infinity norm of the error model's scaled state, docs/errormodel.md#weights)."""
 
 from __future__ import annotations
 

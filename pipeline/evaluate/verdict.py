@@ -1,4 +1,4 @@
-"""The answer of an evaluation, per controller (DESIGN.md, Closed-loop evaluation).
+"""The answer of an evaluation, per controller (docs/evaluation.md#which-flights).
 
 On the flights a controller flew itself (``theorem_applies``), the theorem's verdict:
 ``bound_holds = max_k ||e_k|| <= gamma_nominal`` on every one, and the worst

@@ -1,6 +1,6 @@
 """The controller's ``u`` plus the reference's feedforward -> collective thrust and attitude.
 
-DESIGN.md, Model and Signs. The paper's linear model reads ``u = [pitch, roll, thrust]``
+docs/model.md#signs-paper-b-against-a-z-up-body-frame. The paper's linear model reads ``u = [pitch, roll, thrust]``
 (deviations from hover plus the reference's feedforward) as an acceleration
 ``a_u = [-g u0, g u1, u2 / m]`` (``vx' = -g pitch``, ``vy' = +g roll``). The command is the
 exact (differential-flatness) map of the total acceleration ``a = a_ref + a_u``::

@@ -1,7 +1,7 @@
 """What every export target shares: the filter bank's taps in the exported layout, the
 sizes and operation counts, the facts a generated file states, and the certificate gate.
 
-The exported filter bank (DESIGN.md, Realization and Export), with ``T`` taps::
+The exported filter bank (docs/export.md#the-exported-filter-bank), with ``T`` taps::
 
     u[k]      = sum_{t>=1} Phi_ux(t) beta[k+1-t] + sum_{t>=0} Phi_uy(t) y[k-t]
     beta[k+1] = -sum_{t>=2} Phi_xx(t) beta[k+2-t] - sum_{t>=1} Phi_xy(t) y[k+1-t]

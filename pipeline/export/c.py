@@ -64,7 +64,7 @@ def _comment(facts: ExportFacts, precision: Precision, file: str) -> str:
  * guarantee: {facts.guarantee}
  * dt = {facts.dt!r} s, mass = {facts.mass!r} kg, T = {facts.T} taps, {timing}, {precision}.
  *
- * Signs and units (the paper's convention, DESIGN.md): y = measured [px py pz vx vy vz]
+ * Signs and units (the paper's convention, docs/conventions.md#signs): y = measured [px py pz vx vy vz]
  * minus the reference state (m, m/s; world frame, z up); u = [pitch, roll, thrust] minus
  * hover [0, 0, m g] minus the reference's feedforward [-a_x/g, a_y/g, m a_z] (rad, rad, N),
  * with the paper's B: vx' = -g pitch, vy' = +g roll.

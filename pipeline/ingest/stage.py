@@ -1,6 +1,6 @@
 """``qsls ingest``: VIO and motion-capture streams onto one clock, one frame and one grid.
 
-Steps (DESIGN.md names):
+Steps (docs/ingest.md#steps):
 
 1. Read the two streams (:mod:`qsls.pipeline.ingest.streams`, through
    :mod:`qsls.pipeline.ingest.sources`): a VIO topic (``nav_msgs/Odometry``) and a truth
@@ -178,7 +178,7 @@ def ingest(
 
 
 def _clock_offset(vio: Prepared, truth: Prepared, o: IngestOptions) -> tuple[float, dict[str, Any]]:
-    """``time_offset_s`` (added to truth stamps, DESIGN.md Conventions) and how it was found:
+    """``time_offset_s`` (added to truth stamps, docs/conventions.md#clocks) and how it was found:
     given, or the minimum over the offset of the aligned mismatch (:mod:`timesync`)."""
     from qsls.pipeline.ingest.timesync import estimate_offset
 

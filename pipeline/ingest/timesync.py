@@ -1,6 +1,6 @@
 """Estimate the constant clock offset between the VIO and the truth streams.
 
-Convention (DESIGN.md): ``tau = time_offset_s`` is added to truth stamps to put them on
+Convention (docs/conventions.md#clocks): ``tau = time_offset_s`` is added to truth stamps to put them on
 the VIO clock; the truth position at VIO time ``t`` is ``p_truth(t - tau)``.
 
 Position term. For a candidate ``tau`` the truth positions are interpolated at

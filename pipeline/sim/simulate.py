@@ -14,7 +14,7 @@ Output folder (stage ``simulate``, written through :class:`StageWriter`):
 - ``trajectory.parquet`` (truth and reference at the physics rate, VIO clock) and
   ``control.parquet`` (what the controller saw and commanded at each tick).
 
-Clocks (DESIGN.md convention): ``time_offset_s`` is added to motion-capture stamps to put
+Clocks (docs/conventions.md#clocks): ``time_offset_s`` is added to motion-capture stamps to put
 them on the VIO clock, so ``mocap_stamp = vio_clock(t) - time_offset_s``. The bag's log time
 is the recorder's clock, here the VIO computer's: ``log = (stamp on the VIO clock) +
 transport delay + jitter``.
@@ -65,7 +65,7 @@ class LogOptions(Options):
     mocap_frame_id: str = "world"
     mocap_child_frame_id: str = "quad"
     time_offset_s: float = Field(-0.137, ge=-5.0, le=5.0)
-    """Added to motion-capture stamps to put them on the VIO clock (DESIGN.md)."""
+    """Added to motion-capture stamps to put them on the VIO clock (docs/conventions.md#clocks)."""
     vio_clock_start_s: float = Field(1_700_000_000.0, ge=0)
     """VIO clock reading at the start of the flight (s)."""
     vio_delay_s: float = Field(0.020, ge=0)

@@ -20,7 +20,7 @@ from:
   (an angular-acceleration PD: natural frequency 23 rad/s, damping 1), run at the physics
   rate as RotorPy does (its attitude loop is evaluated once per ``Multirotor.step``).
 
-**Signs** (DESIGN.md, Model): the paper's ``B`` has ``vx' = -g pitch``, ``vy' = +g roll``; in
+**Signs** (docs/model.md#signs-paper-b-against-a-z-up-body-frame): the paper's ``B`` has ``vx' = -g pitch``, ``vy' = +g roll``; in
 RotorPy's z-up body frame a right-handed rotation ``theta`` about body y gives
 ``x'' = +g theta`` and ``phi`` about x gives ``y'' = -g phi``. The conversion happens once,
 in :func:`paper_to_ctatt`: ``theta = -pitch``, ``phi = -roll``, attitude
