@@ -194,16 +194,6 @@ def test_maps_reproduce_the_achievability_equations():
     z0 = np.linalg.lstsq(E, -maps.e, rcond=None)[0]
     basis = np.linalg.svd(E)[2][E.shape[0] :].T
     z = z0 + basis @ rng.normal(size=basis.shape[1])
-    taps = sls.Taps(
-        **{
-            name: np.concatenate(
-                [np.zeros((aff.first, aff.rows, aff.cols)), aff.value(z)]
-            )
-            for name, aff in (
-                ("Phi_xx", maps.Phi_xx), ("Phi_ux", maps.Phi_ux),
-                ("Phi_xy", maps.Phi_xy), ("Phi_uy", maps.Phi_uy),
-            )
-        }
-    )  # fmt: skip
+    taps = sls.Taps(**{name: getattr(maps, name).value(z) for name in sls.RESPONSES})
     assert max(sls.achievability_residuals(taps, MODEL).values()) < 1e-9
     assert np.abs(taps.Phi_uy).max() > 0.1  # a generic point, not the zero response

@@ -55,10 +55,14 @@ class Affine:
     def taps(self) -> int:
         return self.M.shape[0] // (self.rows * self.cols)
 
-    def value(self, z: np.ndarray) -> np.ndarray:
-        """The taps ``(taps, rows, cols)`` at ``z``."""
+    def value(self, z: np.ndarray, zero: np.ndarray | None = None) -> np.ndarray:
+        """The taps ``0 .. first + taps - 1`` at ``z``, ``(taps, rows, cols)`` (the ones before
+        ``first`` are 0, and so are the elements ``zero`` marks)."""
         v = self.M @ z + self.f
-        return np.transpose(v.reshape(self.taps, self.cols, self.rows), (0, 2, 1))
+        if zero is not None:
+            v[zero] = 0.0
+        t = np.transpose(v.reshape(self.taps, self.cols, self.rows), (0, 2, 1))
+        return np.concatenate([np.zeros((self.first, self.rows, self.cols)), t])
 
     def entry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(tap - first, row, col)`` of every element of the vector."""

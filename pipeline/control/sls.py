@@ -515,19 +515,10 @@ class SLSProblem:
                     p["N" + key].value = half @ side_by_side(taps)
 
     def taps(self) -> Taps:
-        mp = self.maps
         z = np.asarray(self.z.value)
-        out = {}
-        for name in RESPONSES:
-            aff: Affine = getattr(mp, name)
-            vals = aff.M @ z + aff.f
-            if name == "Phi_uy":
-                vals[self.fixed_uy] = 0.0  # structurally zero (the solver returns ~1e-14)
-            t = np.transpose(vals.reshape(aff.taps, aff.cols, aff.rows), (0, 2, 1))
-            if aff.first:
-                t = np.concatenate([np.zeros((aff.first, *t.shape[1:])), t])
-            out[name] = t
-        return Taps(**out)
+        # Phi_uy's fixed taps are structurally zero (the solver returns ~1e-14)
+        zero = {"Phi_uy": self.fixed_uy}
+        return Taps(**{n: getattr(self.maps, n).value(z, zero.get(n)) for n in RESPONSES})
 
     def solve(
         self, values: Values, *, solver: str = "CLARABEL", solver_options: dict | None = None
