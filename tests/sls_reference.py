@@ -16,7 +16,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from qsls.pipeline.control.sls import (
-    ROBUST_BACKOFF,
     SLSProblem,
     Structure,
     Taps,
@@ -192,49 +191,29 @@ class VectorizedProblem(SLSProblem):
         return out
 
     # ---- parameters
-    def set_values(self, v: Values) -> None:
-        s, p, m = self.structure, self.params, self.model
-        if s.robust:
-            p["c_xy"].value = float(v.S + v.eps_e / v.radius)
-            p["c_xx"].value = float(v.eps_w / v.radius)
-            p["c_rhs"].value = float(1.0 - v.delta / v.radius - ROBUST_BACKOFF)
-            if "c_o" in p:
-                p["c_o"].value = float(v.eps_o / v.radius)
-            if "g_V" in p:
-                if v.gate is None:
-                    raise ValueError("this problem was built with a velocity gate: give its V")
-                p["g_w"].value = float(v.eps_w)
-                p["g_d"].value = float(v.eps_e + v.S * v.radius)
-                p["g_o"].value = float(v.eps_o)
-                p["g_V"].value = float(v.gate)
-        if s.cost in ("qr", "imitation"):
-            qh = psd_sqrt(v.Q, "Q")
-            rh = psd_sqrt(v.R, "R")
-            if s.cost == "qr":
-                w = {"xx": v.eps_w, "xy": v.eps_e, "ux": v.eps_w, "uy": v.eps_e}
+    def _set_weights(self, v: Values) -> None:
+        s, p = self.structure, self.params
+        qh = psd_sqrt(v.Q, "Q")
+        rh = psd_sqrt(v.R, "R")
+        if s.cost == "qr":
+            w = {"xx": v.eps_w, "xy": v.eps_e, "ux": v.eps_w, "uy": v.eps_e}
+        else:
+            w = dict.fromkeys(("xx", "xy", "ux", "uy"), 1.0)
+        for name, half in (("xx", qh), ("xy", qh), ("ux", rh), ("uy", rh)):
+            if s.diagonal_weights:
+                if not (is_diagonal(v.Q) and is_diagonal(v.R)):
+                    raise ValueError("this problem was built for diagonal Q and R")
+                p["L" + name].value = w[name] * np.diag(half)
             else:
-                w = dict.fromkeys(("xx", "xy", "ux", "uy"), 1.0)
-            for name, half in (("xx", qh), ("xy", qh), ("ux", rh), ("uy", rh)):
-                if s.diagonal_weights:
-                    if not (is_diagonal(v.Q) and is_diagonal(v.R)):
-                        raise ValueError("this problem was built for diagonal Q and R")
-                    p["L" + name].value = w[name] * np.diag(half)
-                else:
-                    p["L" + name].value = w[name] * half
-            if s.cost == "imitation":
-                if v.nominal is None:
-                    raise ValueError("the imitation cost needs nominal responses")
-                n = v.nominal.truncated(s.T)
-                p["Nxx"].value = qh @ side_by_side(n.Phi_xx[1:])
-                p["Nxy"].value = qh @ side_by_side(n.Phi_xy[1:])
-                p["Nux"].value = rh @ side_by_side(n.Phi_ux[1:])
-                p["Nuy"].value = rh @ side_by_side(n.Phi_uy)
-        if s.cost == "ratio":
-            p["lam"].value = float(v.ratio_lambda)
-            p["c_xx_ratio"].value = float(v.eps_w / v.radius)
-            if "c_o_ratio" in p:
-                p["c_o_ratio"].value = float(v.eps_o / v.radius)
-        del m
+                p["L" + name].value = w[name] * half
+        if s.cost == "imitation":
+            if v.nominal is None:
+                raise ValueError("the imitation cost needs nominal responses")
+            n = v.nominal.truncated(s.T)
+            p["Nxx"].value = qh @ side_by_side(n.Phi_xx[1:])
+            p["Nxy"].value = qh @ side_by_side(n.Phi_xy[1:])
+            p["Nux"].value = rh @ side_by_side(n.Phi_ux[1:])
+            p["Nuy"].value = rh @ side_by_side(n.Phi_uy)
 
     def taps(self) -> Taps:
         m = self.model
