@@ -16,7 +16,7 @@ rows per column and tap, the FIR end at ``k = T`` included). The left equations 
 Phi_uy(k) = Phi_xx(k+2) - Phi_xx(k+1) A = Phi_xy(k+1)``). Each map reaches back at most
 three taps, so the problem data stay as sparse as the taps themselves, unlike eliminating
 ``Phi_xx`` by its recursion from ``Phi_ux`` (every tap then depends on all earlier ones;
-measured: Clarabel 4.5x slower than with no elimination at T = 50).
+measured at T = 50: Clarabel 1.35 s against 0.3 s with no elimination at all).
 
 Decoupled blocks: when ``A``, ``B`` and ``H`` couple the states and inputs only within
 groups (the quadrotor's three axes), the responses between two groups satisfy homogeneous

@@ -23,7 +23,7 @@ that reads them. Every number that a sweep varies (weights, ``S``, ``eps_e``, ``
 ``eps_w``, ``Delta``, the imitation target) is a cvxpy Parameter: a problem structure
 (``T``, norm, cost, robust, timing, premise norms) is compiled once (DPP) and then only
 re-solved, cold. Measured at T = 50 (L1 robust c_QR): Clarabel 25 iterations on 2.4k
-variables instead of 37 on 14k, 4x faster (benchmarks/bench_synth.py).
+variables instead of 37 on 14k; build plus solve 5x less CPU (benchmarks/bench_synth.py).
 
 Norms: the induced inf-to-inf norm of an FIR operator is the largest row sum of absolute
 values over all its taps side by side (:func:`l1_norm`); H2 is the Frobenius norm over all
@@ -292,38 +292,36 @@ class SLSProblem:
         self.z = z = cp.Variable(mp.n_free, name="free_taps")
         measured = measured_channels(s.measure)
         # Phi_uy's taps fixed at 0: tap 0 when strictly proper, the unread channels' columns
-        _, _, col = mp.Phi_uy.entry()
-        tap = np.arange(mp.Phi_uy.M.shape[0]) // (mp.Phi_uy.rows * mp.Phi_uy.cols)
-        self.fixed_uy = ~np.isin(col, measured) | ((tap == 0) if s.strictly_proper else False)
+        tap, _, col = mp.Phi_uy.entry()
+        unread = ~np.isin(col, measured)
+        self.fixed_uy = unread | ((tap == 0) if s.strictly_proper else False)
         # the last taps of an unread column follow from the earlier ones: not imposed twice
-        implied = tap > s.T - implied_zero_taps(model, self.pattern)[col]
-        imposed = self.fixed_uy & ~(implied & ~np.isin(col, measured))
+        implied = unread & (tap > s.T - implied_zero_taps(model, self.pattern)[col])
+        imposed = self.fixed_uy & ~implied
         E = sp.vstack([mp.E, mp.Phi_uy.M[imposed]]).tocsr()
         e = np.concatenate([mp.e, mp.Phi_uy.f[imposed]])
         rows = np.diff(E.indptr) > 0  # a fixed tap outside the block pattern is no equation
         self.E = E[rows]
-        cons: list[Any] = [self.E @ z + e[rows] == 0]
+        self._cons: list[Any] = [self.E @ z + e[rows] == 0]
         self._epi: dict[str, tuple[np.ndarray, np.ndarray, Any]] = {}
-        for name in ("Phi_xx_H", "Phi_xy", "Phi_ux_H", "Phi_uy"):
-            cons += self._epigraph(name)
-        wx = np.asarray(s.state_scale, float)
-        inv_e = error_weights(s.error_scale, measured)
-        ones_x = np.ones(nx)
-        rs_xh = self._sums("Phi_xx_H", lambda t, i, j: ones_x[i])
-        rs_xy_e = self._sums("Phi_xy", lambda t, i, j: inv_e[j])
-        n_xy = cp.max(cp.multiply(wx, rs_xy_e))
-        n_xx = cp.max(cp.multiply(wx, rs_xh))
-        channels = outlier_channels(s.measure, s.m)
-        per_tap = None
-        g_m = None
-        if channels:  # G_m: per row, the m largest per-tap sums over the outlier channels
-            per_tap = self._sums("Phi_xy", lambda t, i, j: np.isin(j, channels), by_tap=True)
-            k = min(s.m, T)
-            g_m = cp.max(
-                cp.hstack(
-                    [wx[i] * cp.sum_largest(per_tap[i * T : (i + 1) * T], k) for i in range(nx)]
+        n_xy = n_xx = g_m = per_tap = None
+        if s.robust or s.cost in ("min_phi_xy", "ratio"):  # N, N_w, G_m (docs/guarantee.md)
+            wx = np.asarray(s.state_scale, float)
+            inv_e = error_weights(s.error_scale, measured)
+            rs_xh = self._sums("Phi_xx_H", lambda t, i, j: 1.0)
+            rs_xy_e = self._sums("Phi_xy", lambda t, i, j: inv_e[j])
+            n_xy = cp.max(cp.multiply(wx, rs_xy_e))
+            n_xx = cp.max(cp.multiply(wx, rs_xh))
+            channels = outlier_channels(s.measure, s.m)
+            if channels:  # G_m: per row, the m largest per-tap sums over the outlier channels
+                per_tap = self._sums("Phi_xy", lambda t, i, j: np.isin(j, channels), by_tap=True)
+                k = min(s.m, T)
+                g_m = cp.max(
+                    cp.hstack(
+                        [wx[i] * cp.sum_largest(per_tap[i * T : (i + 1) * T], k) for i in range(nx)]
+                    )
                 )
-            )
+        cons = self._cons
         p: dict[str, Any] = {}
         if s.robust:
             p["c_xy"] = cp.Parameter(nonneg=True, name="S_plus_eps_e_over_r")
@@ -384,8 +382,10 @@ class SLSProblem:
 
     def _sums(self, name: str, weight: Any, *, by_tap: bool = False) -> Any:
         """``sum weight(tap, i, j) |Phi(tap)_ij|`` per row ``i`` (per row and tap, row-major,
-        with ``by_tap``), from the epigraph of response ``name``."""
+        with ``by_tap``), from the epigraph of response ``name`` (made on first use)."""
         aff = getattr(self.maps, name)
+        if name not in self._epi:
+            self._cons += self._epigraph(name)
         varies, const, t = self._epi[name]
         tap, i, j = aff.entry()
         w = np.broadcast_to(np.asarray(weight(tap, i, j), float), i.shape)
