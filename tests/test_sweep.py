@@ -82,12 +82,55 @@ def test_local_sweep_table_and_feasibility(tmp_path):
             assert row["status"] == "certified" and row["margin"] > 0
             assert row["norm_phi_xy"] >= 1 and row["gamma"] > 0
     assert set(t.loc[t["S"] == 1.5, "status"]) == {"infeasible"}  # S + eps_e/r >= 1, not solved
+    assert list(t["skipped"]) == list(t["S"] == 1.5)  # and marked so
+    assert set(t.loc[t["skipped"], "solver_status"]) == {
+        "necessary condition S + eps_e/r < 1 fails"
+    }
     timings = json.loads((out / "manifest.json").read_text())["results"]["timings"]
     assert len(timings["points"]) == 16
     assert all(timings["points"][str(i)] == [0.0, 0.0] for i in t.loc[t["S"] == 1.5, "index"])
     assert timings["solve_time_s"] > 0
     smax = pd.read_csv(out / "s_max.csv")
     assert dict(zip(smax["T"], smax["s_max"], strict=True)) == pytest.approx(s_max, rel=1e-6)
+
+
+GRID = """
+delta: 0.05
+eps_w: 0.01
+grid:
+  S: [0.05, 0.3, 0.99]
+  T: [6, 10]
+  eps_e: [0.02, 0.05]
+  radius: [0.5, 1.0]
+"""
+
+
+def test_one_and_two_processes_write_identical_tables(tmp_path):
+    """The sweep and largest-S tables are byte-identical on 1 and 2 processes, and one
+    Dinkelbach run per T and radius gives every eps_e the S_max of its own run."""
+    cfg = tmp_path / "grid.yaml"
+    cfg.write_text(GRID)
+    for jobs in (1, 2):
+        res = _sweep("-c", cfg, "-o", tmp_path / f"j{jobs}", "--jobs", jobs)
+        assert res.exit_code == 0, res.output
+    for name in ("sweep.parquet", "sweep.csv", "s_max.parquet", "s_max.csv"):
+        assert (tmp_path / "j1" / name).read_bytes() == (tmp_path / "j2" / name).read_bytes()
+    t = _table(tmp_path / "j1")
+    assert len(t) == 24
+    assert list(t["skipped"]) == list(t["S"] + t["eps_e"] / t["radius"] >= 1)
+    assert t["skipped"].sum() == 8 and not t.loc[t["skipped"], "feasible"].any()
+    smax = pd.read_parquet(tmp_path / "j1" / "s_max.parquet")
+    assert len(smax) == 8
+    model = quadrotor_model()
+    for _, row in smax.iterrows():
+        own = sls.max_feasible_s(
+            model, int(row["T"]), eps_e=row["eps_e"], radius=row["radius"], eps_w=0.01, delta=0.05
+        )
+        assert row["s_max"] == own.s_max  # the same solves: exactly the same number
+    solved = t[~t["skipped"]]
+    s_of = {(r.T, r.eps_e, r.radius): r.s_max for r in smax.itertuples()}
+    for r in solved.itertuples():
+        assert r.feasible == (s_of[(r.T, r.eps_e, r.radius)] >= r.S)
 
 
 def _free_port() -> int:
@@ -155,12 +198,14 @@ def test_dask_cluster_gives_the_local_table(tmp_path):
                 p.kill()
                 p.wait()
         log.close()
-    res = _sweep("-c", cfg, "-o", tmp_path / "local", "--jobs", "1")
-    assert res.exit_code == 0, res.output
-    for name in ("sweep.parquet", "sweep.csv", "s_max.parquet"):
-        assert (tmp_path / "dask" / name).read_bytes() == (tmp_path / "local" / name).read_bytes()
+    for jobs in (1, 2):
+        res = _sweep("-c", cfg, "-o", tmp_path / f"local{jobs}", "--jobs", jobs)
+        assert res.exit_code == 0, res.output
+        for name in ("sweep.parquet", "sweep.csv", "s_max.parquet"):
+            got = (tmp_path / "dask" / name).read_bytes()
+            assert got == (tmp_path / f"local{jobs}" / name).read_bytes()
     sa = pd.read_parquet(tmp_path / "dask" / "s_max.parquet")
-    sb = pd.read_parquet(tmp_path / "local" / "s_max.parquet")
+    sb = pd.read_parquet(tmp_path / "local1" / "s_max.parquet")
     pd.testing.assert_frame_equal(sa, sb, check_exact=True)
 
 

@@ -342,37 +342,59 @@ def run_chunk(chunk: list[dict[str, Any]]) -> list[dict[str, Any]]:
         return [run_point(p) for p in chunk]
 
 
-def s_max_task(spec: dict[str, Any]) -> dict[str, Any]:
-    """Largest feasible S (and the smallest ||Phi_xy||) for one ``T`` and error setting."""
+def s_max_task(spec: dict[str, Any]) -> list[dict[str, Any]]:
+    """Largest feasible S (and the smallest ||Phi_xy||) for one ``T`` and error setting and
+    every ``eps_e`` of the grid: one Dinkelbach run serves them all (``eps_e`` only shifts
+    ``S_max``, :func:`qsls.pipeline.control.sls.max_ratio`)."""
     from qsls.pipeline.control import sls
 
     model = _model(spec)
     shape = _shape(spec)
-    ms = sls.max_feasible_s(
-        model, spec["T"], eps_e=spec["eps_e"], radius=spec["radius"], eps_w=spec["eps_w"],
-        delta=spec["delta"], eps_o=spec["eps_o_value"], strictly_proper=spec["strictly_proper"],
-        solver=spec["solver"], shape=shape,
-    )  # fmt: skip
+    common = {
+        "radius": spec["radius"], "eps_w": spec["eps_w"], "delta": spec["delta"],
+        "eps_o": spec["eps_o_value"], "strictly_proper": spec["strictly_proper"],
+        "solver": spec["solver"], "shape": shape,
+    }  # fmt: skip
+    ratio = sls.max_ratio(model, spec["T"], **common)
     min_xy = sls.min_phi_xy(
         model, spec["T"], strictly_proper=spec["strictly_proper"], solver=spec["solver"],
         shape=shape,
     )  # fmt: skip
-    keep = ("T", "eps_e", "radius", "eps_w", "delta", "strictly_proper")
-    return {**{k: spec[k] for k in keep}, "s_max": ms.s_max, "min_norm_phi_xy": min_xy}
+    keep = ("T", "radius", "eps_w", "delta", "strictly_proper")
+    rows = []
+    for eps_e in spec["eps_e"]:
+        ms = sls.max_feasible_s(model, spec["T"], eps_e=eps_e, ratio=ratio, **common)
+        rows.append({**{k: spec[k] for k in keep}, "eps_e": eps_e, "s_max": ms.s_max,
+                     "min_norm_phi_xy": min_xy})  # fmt: skip
+    return rows
+
+
+S_MAX_KEYS = ("T", "eps_e", "radius", "eps_w", "delta", "strictly_proper")
 
 
 def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    keys = ("T", "eps_e", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass",
-            "eps_o_value", "m_value", "measure")  # fmt: skip
+    """One task per ``T`` and error setting, with the ``eps_e`` values it answers for."""
+    keys = ("T", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass", "eps_o_value",
+            "m_value", "measure")  # fmt: skip
     seen: dict[tuple, dict[str, Any]] = {}
     for p in points:
         k = (*(p[x] for x in keys), str(p["H"]), str(p["state_scale"]), str(p["error_scale"]))
         if k not in seen:
             seen[k] = {
                 **{x: p[x] for x in keys}, "H": p["H"], "solver": p["solver"],
-                "state_scale": p["state_scale"], "error_scale": p["error_scale"],
+                "state_scale": p["state_scale"], "error_scale": p["error_scale"], "eps_e": [],
             }  # fmt: skip
+        if p["eps_e"] not in seen[k]["eps_e"]:
+            seen[k]["eps_e"].append(p["eps_e"])
     return sorted(seen.values(), key=lambda s: tuple(s[x] for x in keys))
+
+
+def s_max_table(results: list[list[dict[str, Any]]]) -> Any:
+    """The tasks' rows in one table, ordered by ``T`` and setting (``eps_e`` before ``radius``)."""
+    import pandas as pd
+
+    rows = sorted((r for res in results for r in res), key=lambda r: tuple(r[k] for k in S_MAX_KEYS))
+    return pd.DataFrame(rows, columns=[*S_MAX_KEYS, "s_max", "min_norm_phi_xy"])
 
 
 # --------------------------------------------------------------------------- executors
@@ -541,7 +563,7 @@ def compute(
     for axis in options.grid:  # an axis mixing numbers and names is stored as text
         if len({isinstance(v, str) for v in table[axis]}) > 1:
             table[axis] = table[axis].map(str)
-    smax = pd.DataFrame(results[len(chunks) :]) if specs else pd.DataFrame()
+    smax = s_max_table(results[len(chunks) :]) if specs else pd.DataFrame()
     return table, smax, executor
 
 

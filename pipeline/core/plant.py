@@ -13,6 +13,7 @@ Discretized by zero-order hold at ``dt``: ``x[k+1] = A x[k] + B u[k] + H w[k]``,
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.linalg import expm
@@ -72,6 +73,12 @@ class LinearModel:
         return self.C.shape[0]
 
 
+@lru_cache(maxsize=64)
+def _discrete(dt: float, mass: float, g: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(A, B)`` at ``dt`` (one ``expm`` per distinct model: a sweep builds thousands)."""
+    return zoh(*continuous_model(mass, g), dt)
+
+
 def quadrotor_model(
     dt: float = PAPER_DT_S,
     mass: float = PAPER_MASS_KG,
@@ -81,6 +88,6 @@ def quadrotor_model(
     """The paper's discrete model; ``H`` defaults to ``I`` (``||H|| = 1``)."""
     if dt <= 0:
         raise ValueError(f"dt must be positive, got {dt}")
-    a, b = zoh(*continuous_model(mass, g), dt)
+    a, b = (m.copy() for m in _discrete(float(dt), float(mass), float(g)))
     h = np.eye(NX) if H is None else np.asarray(H, dtype=float)
     return LinearModel(A=a, B=b, C=np.eye(NY, NX), H=h, dt=float(dt), mass=float(mass))
