@@ -164,6 +164,7 @@ def grid_points(
                 "eps_w": r.eps_w,
                 "eps_o_value": r.eps_o,
                 "m_value": r.m,
+                "gate_value": r.gate,
                 "state_scale": list(r.shape.state_scale),
                 "error_scale": list(r.shape.error_scale),
                 "measure": r.shape.measure,
@@ -199,14 +200,17 @@ def _numbers(p: dict[str, Any]) -> Any:
 
     return PremiseNumbers(
         eps=p["eps_e"], S=p["S"], radius=p["radius"], eps_w=p["eps_w"], delta=p["delta"],
-        eps_o=p["eps_o_value"], m=p["m_value"], R0=p["R0"],
+        eps_o=p["eps_o_value"], m=p["m_value"], R0=p["R0"], gate=p["gate_value"],
     )  # fmt: skip
 
 
 def _shape(p: dict[str, Any]) -> Any:
     from qsls.pipeline.control.sls import Shape
 
-    return Shape(tuple(p["state_scale"]), tuple(p["error_scale"]), p["measure"], p["m_value"])
+    return Shape(
+        tuple(p["state_scale"]), tuple(p["error_scale"]), p["measure"], p["m_value"],
+        p["gate_value"] is not None,
+    )  # fmt: skip
 
 
 def structure_key(p: dict[str, Any]) -> tuple:
@@ -215,6 +219,7 @@ def structure_key(p: dict[str, Any]) -> tuple:
         tuple(p["state_scale"]),
         tuple(p["error_scale"]),
         p["m_value"],
+        p["gate_value"],
         p["T"],
         p["norm"],
         p["cost"],
@@ -296,7 +301,7 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
     Q, R = np.asarray(p["Q"]), np.asarray(p["R"])
     values = sls.Values(
         Q=Q, R=R, eps_w=p["eps_w"], eps_e=p["eps_e"], S=p["S"], radius=p["radius"],
-        delta=p["delta"], nominal=nominal, eps_o=p["eps_o_value"],
+        delta=p["delta"], nominal=nominal, eps_o=p["eps_o_value"], gate=p["gate_value"],
     )  # fmt: skip
     sol = sls.solve(model, structure, values, solver=p["solver"])
     row.update(
@@ -363,7 +368,9 @@ def s_max_task(spec: dict[str, Any]) -> list[dict[str, Any]]:
     keep = ("T", "radius", "eps_w", "delta", "strictly_proper")
     rows = []
     for eps_e in spec["eps_e"]:
-        ms = sls.max_feasible_s(model, spec["T"], eps_e=eps_e, ratio=ratio, **common)
+        ms = sls.max_feasible_s(
+            model, spec["T"], eps_e=eps_e, ratio=ratio, gate=spec["gate_value"], **common
+        )
         rows.append({**{k: spec[k] for k in keep}, "eps_e": eps_e, "s_max": ms.s_max,
                      "min_norm_phi_xy": min_xy})  # fmt: skip
     return rows
@@ -375,7 +382,7 @@ S_MAX_KEYS = ("T", "eps_e", "radius", "eps_w", "delta", "strictly_proper")
 def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One task per ``T`` and error setting, with the ``eps_e`` values it answers for."""
     keys = ("T", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass", "eps_o_value",
-            "m_value", "measure")  # fmt: skip
+            "m_value", "measure", "gate_value")  # fmt: skip
     seen: dict[tuple, dict[str, Any]] = {}
     for p in points:
         k = (*(p[x] for x in keys), str(p["H"]), str(p["state_scale"]), str(p["error_scale"]))
@@ -386,7 +393,7 @@ def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
             }  # fmt: skip
         if p["eps_e"] not in seen[k]["eps_e"]:
             seen[k]["eps_e"].append(p["eps_e"])
-    return sorted(seen.values(), key=lambda s: tuple(s[x] for x in keys))
+    return sorted(seen.values(), key=lambda s: tuple(-1.0 if s[x] is None else s[x] for x in keys))
 
 
 def s_max_table(results: list[list[dict[str, Any]]]) -> Any:
