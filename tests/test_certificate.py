@@ -362,3 +362,23 @@ def test_samples_the_fit_excluded_make_the_premise_relaxed(tmp_path, fit_dir):
 
     assert "3 training samples excluded by the fit" in Premise.model_validate(c["premise"]).shares()
     assert "excluded" in res.output
+
+
+def test_a_gated_sweep_row_is_what_synth_certifies(tmp_path, fit_dir):
+    """The sweep solves and certifies a gated premise as synth does (the gate's constraint
+    and check included): same status, rho* and gamma on the same setting."""
+    root = fit_dir[0]
+    common = ["-T", "8", "--beta", "0.01", "--gate", "0.5", "--eps-e", "max"]
+    res = _invoke("synth", "-m", root, *common, "--controllers", "single", "-o", tmp_path / "s")
+    assert res.exit_code == 0, res.output
+    cert = _cert(tmp_path / "s")
+    assert cert["gate"] == 0.5 and cert["eps_o"] == pytest.approx(0.99)
+    assert cert["rho_v"] <= 0.5 + 1e-9
+    cfg = tmp_path / "sw.yaml"
+    cfg.write_text("beta: 0.01\ngate: 0.5\neps_e: max\ngrid:\n  T: [8]\n")
+    res = _invoke("sweep", "-m", root, "-c", cfg, "-o", tmp_path / "w", "--jobs", "1")
+    assert res.exit_code == 0, res.output
+    row = pd.read_parquet(tmp_path / "w" / "sweep.parquet").iloc[0]
+    assert row["status"] == cert["status"]
+    assert row["rho_star"] == pytest.approx(cert["rho_star"], rel=1e-6)
+    assert row["gamma"] == pytest.approx(cert["gamma"], rel=1e-6)
