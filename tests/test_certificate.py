@@ -374,6 +374,17 @@ def test_a_gated_sweep_row_is_what_synth_certifies(tmp_path, fit_dir):
     cert = _cert(tmp_path / "s")
     assert cert["gate"] == 0.5 and cert["eps_o"] == pytest.approx(0.99)
     assert cert["rho_v"] <= 0.5 + 1e-9
+    # the outlier count's risk, stated per window and per flight length, from the rate's
+    # one-sided 95 % Clopper-Pearson bound
+    from scipy.stats import beta, binom
+
+    o, m = cert["premise"]["outliers"], cert["m"]
+    k, n = o["n_outliers"], o["n_samples"]
+    assert 0 < k < n and o["max_in_window"] <= m
+    assert o["rate_upper_95"] == pytest.approx(beta.ppf(0.95, k + 1, n - k), rel=1e-12)
+    assert o["risk_per_window"] == pytest.approx(binom.sf(m, 8, o["rate_upper_95"]), rel=1e-12)
+    assert o["risk_per_window"] <= 1e-3 < binom.sf(m - 1, 8, o["rate_upper_95"])
+    assert o["risk_per_flight"]["1000"] == pytest.approx(min(1.0, 993 * o["risk_per_window"]))
     cfg = tmp_path / "sw.yaml"
     cfg.write_text("beta: 0.01\ngate: 0.5\neps_e: max\ngrid:\n  T: [8]\n")
     res = _invoke("sweep", "-m", root, "-c", cfg, "-o", tmp_path / "w", "--jobs", "1")

@@ -286,3 +286,20 @@ def test_s_at_least_one_says_no_radius_can_help(tmp_path, error_model):
     assert res.exit_code == 3, res.output
     assert "no radius or horizon can help" in " ".join(res.output.split())
     assert not (tmp_path / "o").exists()
+
+
+def test_certificates_do_not_depend_on_where_the_run_lives(tmp_path, error_model):
+    """The certificate records the error model by its sha256, never by a path: the same
+    synthesis from two folders writes byte-identical certificates (issue 26, item 4)."""
+    import shutil
+
+    outs = []
+    for where in ("a/deep/folder", "b"):
+        fit = tmp_path / where / "fit"
+        shutil.copytree(error_model.parent, fit)
+        out = tmp_path / where / "synth"
+        res = _synth("-m", fit, "-T", 8, "--S", "0.05", "--controllers", "single", "-o", out)
+        assert res.exit_code == 0, res.output
+        outs.append((out / "l1_robust" / "certificate.yaml").read_bytes())
+    assert outs[0] == outs[1]
+    assert str(tmp_path).encode() not in outs[0]

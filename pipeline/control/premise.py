@@ -73,6 +73,10 @@ class Premise(BaseModel):
     """``inputs`` or ``input_free_residual`` (a lower bound: inputs were not logged)."""
     tested_range: float | None = None
     """Largest distance at which ``S`` was tested (left-out samples within ``r``)."""
+    outliers: dict[str, Any] | None = None
+    """The sparse part on the training data: outliers, rate, its one-sided 95 % upper bound, the
+    largest count in a window, and the risk that a flight of N steps holds a window of more
+    than ``m`` outliers at that bound (union bound), for a few flight lengths."""
     n_excluded: int = 0
     """Training samples the fit left out (each one counts against the premise)."""
     training_data: str | None = None
@@ -276,11 +280,28 @@ def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
         state_scale=list(spec.state_scale) if spec else list(ONES),
         error_scale=list(spec.error_scale) if spec else list(ONES),
         gate=chosen.gate,
+        outliers=_outlier_record(meas, chosen.m) if m is not None else None,
         eps_w_source=em.disturbance.source if em is not None and em.disturbance else None,
         tested_range=tested,
         n_excluded=em.n_excluded if em is not None else 0,
         training_data=where,
     )  # fmt: skip
+
+
+FLIGHT_STEPS = (100, 300, 1000, 3000)
+"""Flight lengths (steps) at which a certificate states the outlier count's risk."""
+
+
+def _outlier_record(meas: Measured | None, m: int) -> dict[str, Any] | None:
+    if meas is None:
+        return None
+    o, T = meas.outliers, meas.spec.window
+    return {
+        "n_outliers": o.n_outliers, "n_samples": o.n_samples, "rate": o.rate,
+        "rate_upper_95": o.rate_upper, "max_in_window": o.max_in_window, "window": T,
+        "risk_per_window": honest.window_exceed_prob(m, T, o.rate_upper),
+        "risk_per_flight": {str(n): honest.flight_risk(m, T, o.rate_upper, n) for n in FLIGHT_STEPS},
+    }  # fmt: skip
 
 
 def _bounded(value: float, chosen: str, top: float | None) -> PremiseEntry:
