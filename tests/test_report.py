@@ -213,7 +213,8 @@ def test_quickstart_report_tables_files_and_bytes(quickstart, tmp_path):
     _check_tables_and_files(out)
     assert (out / "report.md").read_text().splitlines()[0] == "# qsls report: quickstart"
     again = tmp_path / "again"
-    assert CliRunner().invoke(app, ["report", str(run_dir), "--out", str(again)]).exit_code == 0
+    res = CliRunner().invoke(app, ["report", str(run_dir), "--out", str(again)])
+    assert res.exit_code == 0, res.output
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(p.name for p in again.iterdir())
     for name in names:
