@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.certify import CERTIFIED, FAILED, SOLVER_INACCURATE
 from qsls.pipeline.control.guarantee import Norms, guarantee
+from qsls.pipeline.control.status import CERTIFIED, FAILED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.evaluate.certified import (

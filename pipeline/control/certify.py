@@ -28,6 +28,15 @@ from qsls.pipeline.control import sls
 from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, guarantee
 from qsls.pipeline.control.realize import FilterBank, RealizedController, filter_bank
 from qsls.pipeline.control.sls import Taps
+from qsls.pipeline.control.status import (
+    CERTIFIED,
+    FAILED,
+    REFERENCE,
+    RELAXED,
+    SOLVER_INACCURATE,
+    UNCERTIFIED,
+    Status,
+)
 from qsls.pipeline.core.plant import LinearModel
 
 ACHIEVABILITY_TOL = 1e-7
@@ -103,17 +112,6 @@ def perturbation_response(
         )
         x = a @ x + b @ u
     return float(sizes.max()), float(sizes[-T:].max())
-
-
-from qsls.pipeline.control.status import (  # noqa: E402 (one light home, re-exported)
-    CERTIFIED,
-    FAILED,
-    REFERENCE,
-    RELAXED,
-    SOLVER_INACCURATE,
-    UNCERTIFIED,
-    Status,
-)
 
 
 def guarantee_fields(numbers: PremiseNumbers, norms: Norms) -> dict[str, float]:

@@ -268,9 +268,10 @@ def _model(p: dict[str, Any]) -> Any:
 def run_point(p: dict[str, Any]) -> dict[str, Any]:
     """Solve (and certify) one grid point; never raises for a solver outcome."""
     from qsls.pipeline.control import sls
-    from qsls.pipeline.control.certify import SOLVER_INACCURATE, certify
+    from qsls.pipeline.control.certify import certify
     from qsls.pipeline.control.nominal import pd_responses
     from qsls.pipeline.control.pdgain import PDGains
+    from qsls.pipeline.control.status import SOLVER_INACCURATE
 
     row: dict[str, Any] = {"index": p["index"], **p["grid"]}
     row.update({f"{k}_value": p[k] for k in ("S", "eps_e", "radius", "delta", "eps_w")})

@@ -36,10 +36,10 @@ from qsls.pipeline.control.artifacts import (
     Certificate,
     Controller,
 )
-from qsls.pipeline.control.certify import RELAXED
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.premise import Measured, Premise
+from qsls.pipeline.control.status import RELAXED
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
