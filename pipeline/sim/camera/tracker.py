@@ -18,6 +18,8 @@ import numpy as np
 from qsls.pipeline.sim.camera.options import CameraOptions
 
 _MIN_RANSAC = 12
+_MARGIN = 4
+"""New features start at least this many pixels inside the image."""
 
 
 class Tracker:
@@ -35,11 +37,37 @@ class Tracker:
         self.ids = np.zeros(0, np.int64)
         self.next_id = 0
         self.rejected = 0
+        # pixel rows and columns of each grid cell (as _cells assigns integer pixels), and the
+        # detection mask's margin: FAST runs on the free cells only
+        self._col_edges = self._edges(cam.width, self.cell[0], self.cols)
+        self._row_edges = self._edges(cam.height, self.cell[1], self.rows)
+        self._mask = np.zeros((cam.height, cam.width), np.uint8)
+
+    @staticmethod
+    def _edges(size: int, cell: float, n: int) -> np.ndarray:
+        """``e`` (n + 1,) with the pixels ``e[i] <= x < e[i + 1]`` in cell ``i``."""
+        of = np.minimum((np.arange(size, dtype=np.float32) / cell).astype(int), n - 1)
+        return np.searchsorted(of, np.arange(n + 1), side="left")
 
     def _cells(self, pts: np.ndarray) -> np.ndarray:
         cx = np.minimum((pts[:, 0] / self.cell[0]).astype(int), self.cols - 1)
         cy = np.minimum((pts[:, 1] / self.cell[1]).astype(int), self.rows - 1)
         return cy * self.cols + cx
+
+    def _free_mask(self, taken: np.ndarray) -> np.ndarray:
+        """255 on the pixels of the cells not ``taken`` at least 4 px inside the image (where
+        a new feature may start), else 0. OpenCV's FAST filters its corners by the mask after
+        detecting on the whole image, so the corners kept are those it finds unmasked; the
+        mask only spares converting the others."""
+        mask = self._mask
+        mask[:] = 0
+        ce, re = self._col_edges, self._row_edges
+        for c in np.flatnonzero(~taken).tolist():
+            y, x = divmod(c, self.cols)
+            mask[re[y] : re[y + 1], ce[x] : ce[x + 1]] = 255
+        m = _MARGIN
+        mask[:m], mask[-m:], mask[:, :m], mask[:, -m:] = 0, 0, 0, 0
+        return mask
 
     def track(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ids and pixel positions of the features in ``img`` (module docstring)."""
@@ -77,23 +105,13 @@ class Tracker:
         free = cam.max_features - len(self.pts)
         if free < max(1, cam.max_features // 10):  # detect when a tenth is missing
             return
-        kps = self.fast.detect(img)
+        taken = np.zeros(self.cols * self.rows, bool)
+        taken[self._cells(self.pts)] = True
+        kps = self.fast.detect(img, self._free_mask(taken))
         if not kps:
             return
         xy = np.asarray(cv2.KeyPoint.convert(kps), np.float32).reshape(-1, 2)
         resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
-        m = 4.0
-        inside = (
-            (xy[:, 0] >= m)
-            & (xy[:, 0] <= cam.width - 1 - m)
-            & (xy[:, 1] >= m)
-            & (xy[:, 1] <= cam.height - 1 - m)
-        )
-        xy, resp = xy[inside], resp[inside]
-        if not len(xy):
-            return
-        taken = np.zeros(self.cols * self.rows, bool)
-        taken[self._cells(self.pts)] = True
         cell = self._cells(xy)
         order = np.lexsort((-resp, cell))  # by cell, strongest first
         first = np.ones(len(order), bool)
