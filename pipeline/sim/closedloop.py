@@ -99,7 +99,9 @@ class FlightLog:
     crashed: bool = False
     crash_reason: str | None = None
     crash_time_s: float | None = None
-    lipschitz: float = 0.0
+    lipschitz: float | None = None
+    """The emulator's bias-field Lipschitz constant (the true S-slope); None for the camera
+    loop, whose errors come from no designed field."""
     emulator: dict[str, Any] = field(default_factory=dict)
     vio_q_est: np.ndarray | None = None  # (m, 4) estimated attitude (camera loop only)
 
@@ -198,7 +200,7 @@ class _Record:
         self, ctrl: Controller, veh: Vehicle, t_ns: np.ndarray,
         ref_states: np.ndarray, n: int, m: int, k: int, *,
         crashed: bool, reason: str | None, crash_t: float | None,
-        lipschitz: float, described: dict[str, Any], camera: bool,
+        lipschitz: float | None, described: dict[str, Any], camera: bool,
     ) -> FlightLog:  # fmt: skip
         """The first ``n`` physics steps, ``m`` VIO samples and ``k`` controller ticks."""
         S = self.S[:n]
@@ -361,7 +363,7 @@ def _fly(
     return rec.log(
         ctrl, veh, t_ns[:n], np.hstack([ref_p[:n], ref_v[:n]]), n, m, k,
         crashed=crashed, reason=reason, crash_t=crash_t,
-        lipschitz=0.0 if cam else vio.lipschitz,
+        lipschitz=None if cam else vio.lipschitz,
         described=cam.describe() if cam else vio.describe(), camera=cam is not None,
     )  # fmt: skip
 

@@ -7,7 +7,8 @@ Output folder (stage ``simulate``, written through :class:`StageWriter`):
   ``results.bag``. Topics: VIO ``nav_msgs/Odometry`` (twist in the body frame, ROS
   convention) and motion capture ``geometry_msgs/PoseStamped`` or ``TransformStamped``;
 - ``truth.json``: ``time_offset_s``, ``vio_frame`` (``yaw_rad``, ``translation``),
-  ``lipschitz``, the emulator's parameters, ``crashed`` and the flight's metrics;
+  ``lipschitz`` (null for the camera loop: no designed bias field), the emulator's
+  parameters, ``crashed`` and the flight's metrics;
 - ``errors.parquet``: the emulator's error at every VIO sample, in the motion-capture
   (world) frame before the VIO frame's transform: ``stamp_ns`` (VIO clock), ``e_px`` ..
   ``e_vz``, and the true state ``x_px`` .. ``x_vz`` there;
@@ -106,7 +107,9 @@ class SimResult:
             "tracking max (m)": m["tracking_max_m"],
             "perception error RMS (inf-norm)": m["perception_error_rms"],
             "perception error max (inf-norm)": m["perception_error_max"],
-            "bias Lipschitz L": self.truth["lipschitz"],
+            "bias Lipschitz L": (
+                "none (camera loop)" if self.truth["lipschitz"] is None else self.truth["lipschitz"]
+            ),
             "crashed": self.flight.crashed,
         }
         if self.flight.crashed:
