@@ -39,6 +39,7 @@ Functions of arrays, batched over the features that have the same number of obse
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -199,6 +200,10 @@ class Msckf:
         self.used_features = 0
         self.gated_features = 0
         self._gates: dict[int, float] = {}
+        # (used, gated) per recent frame, for the innovation check of :meth:`health`
+        self._recent: deque[tuple[int, int]] = deque(
+            maxlen=max(1, round(cam.reset_window_s * cam.rate_hz))
+        )
 
     def _gate(self, dof: int) -> float:
         if dof not in self._gates:
@@ -270,9 +275,38 @@ class Msckf:
         self.clone_R = np.concatenate([self.clone_R, (self.R @ self.r_bc)[None]])
         self.clone_p = np.concatenate([self.clone_p, (self.p + self.R @ self.t_bc)[None]])
 
+    def health(self) -> str | None:
+        """Why the filter cannot be trusted any more, or None (checked after each frame):
+
+        - innovations: over the last ``reset_window_s`` at least ``reset_min_gated``
+          features failed the chi-square gate and they are at least ``reset_gated_fraction``
+          of those that reached it (the camera contradicts the state: diverged);
+        - covariance: ``sqrt(trace P_pp) > reset_sigma_position`` (lost: too long on the IMU
+          alone), or a non-finite state or covariance.
+        """
+        cam = self.cam
+        if not (np.isfinite(self.P).all() and np.isfinite(self.p).all()):
+            return "non-finite state"
+        used = sum(u for u, _ in self._recent)
+        gated = sum(g for _, g in self._recent)
+        if gated >= cam.reset_min_gated and gated >= cam.reset_gated_fraction * (used + gated):
+            return (
+                f"innovations: {gated} of {used + gated} features rejected by the gate in "
+                f"{cam.reset_window_s:g} s"
+            )
+        sigma = math.sqrt(max(float(np.trace(self.P[3:6, 3:6])), 0.0))
+        if sigma > cam.reset_sigma_position:
+            return f"covariance: position std {sigma:.2f} m"
+        return None
+
     def process_frame(self, frame_id: int, ids: np.ndarray, uv: np.ndarray) -> None:
         """Propagate ``P`` to the frame, clone, add the observations ``uv`` (normalized, (n,
         2)) of features ``ids``, update with the finished tracks, slide the window."""
+        u0, g0 = self.used_features, self.gated_features
+        self._frame(frame_id, ids, uv)
+        self._recent.append((self.used_features - u0, self.gated_features - g0))
+
+    def _frame(self, frame_id: int, ids: np.ndarray, uv: np.ndarray) -> None:
         self._apply_propagation()
         self._clone(frame_id)
         seen = set()
