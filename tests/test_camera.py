@@ -158,7 +158,7 @@ def test_diverged_filter_is_detected_and_reinitialized():
     (innovation check), the filter restarts (velocity and tilt re-initialized, position
     kept) and the error stops growing; with the reset off it grows without bound."""
     t, err, loop = _fly_with_kick(CameraOptions(), 5.0, 0.5)
-    t_off, err_off, off = _fly_with_kick(CameraOptions(reset=False), 5.0, 0.5)
+    _, err_off, off = _fly_with_kick(CameraOptions(reset=False), 5.0, 0.5)
     assert off.resets == [] and loop.describe()["resets"] == len(loop.resets) >= 1
     t_reset, why = loop.resets[0]
     assert 5.0 < t_reset < 6.5 and why.startswith("innovations"), loop.resets

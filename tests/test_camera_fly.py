@@ -48,10 +48,11 @@ def test_degraded_flight_that_diverged_now_resets_instead_of_crashing():
         return fly(
             FlightOptions.model_validate(
                 {
-                    "seed": 4, "duration": 30.0, "controller": {"kind": "se3"},
-                    "vio": {"kind": "camera", "perception": "degraded",
-                            "camera": {"reset": reset}},
-                }  # fmt: skip
+                    "seed": 4,
+                    "duration": 30.0,
+                    "controller": {"kind": "se3"},
+                    "vio": {"kind": "camera", "perception": "degraded", "camera": {"reset": reset}},
+                }
             )
         )
 

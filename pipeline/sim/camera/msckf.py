@@ -238,9 +238,7 @@ class Msckf:
         k = self._pending
         if k == 0:
             return np.eye(15), np.zeros((15, 15))
-        phis, qd = imu_transitions(
-            self._pend_r[:k], self._pend_ra[:k], self._pend_h[:k], self.cam
-        )
+        phis, qd = imu_transitions(self._pend_r[:k], self._pend_ra[:k], self._pend_h[:k], self.cam)
         phi, q = phis[0], np.diag(qd[0])
         for i in range(1, k):
             p_i = phis[i]
