@@ -104,6 +104,8 @@ class FlightLog:
     loop, whose errors come from no designed field."""
     emulator: dict[str, Any] = field(default_factory=dict)
     vio_q_est: np.ndarray | None = None  # (m, 4) estimated attitude (camera loop only)
+    camera_frame: dict[str, np.ndarray] | None = None
+    """The camera loop's kept frame and its tracked features (``Snapshot.arrays``), if any."""
 
     @property
     def vio_y(self) -> np.ndarray:
@@ -201,6 +203,7 @@ class _Record:
         ref_states: np.ndarray, n: int, m: int, k: int, *,
         crashed: bool, reason: str | None, crash_t: float | None,
         lipschitz: float | None, described: dict[str, Any], camera: bool,
+        camera_frame: dict[str, np.ndarray] | None = None,
     ) -> FlightLog:  # fmt: skip
         """The first ``n`` physics steps, ``m`` VIO samples and ``k`` controller ticks."""
         S = self.S[:n]
@@ -228,6 +231,7 @@ class _Record:
             lipschitz=lipschitz,
             emulator=described,
             vio_q_est=self.vio_qe[:m].copy() if camera else None,
+            camera_frame=camera_frame,
         )
 
 
@@ -365,6 +369,7 @@ def _fly(
         crashed=crashed, reason=reason, crash_t=crash_t,
         lipschitz=None if cam else vio.lipschitz,
         described=cam.describe() if cam else vio.describe(), camera=cam is not None,
+        camera_frame=cam.snapshot.arrays() if cam is not None and cam.snapshot else None,
     )  # fmt: skip
 
 

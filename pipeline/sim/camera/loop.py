@@ -49,6 +49,11 @@ class Snapshot:
     image: np.ndarray
     points: np.ndarray
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """As arrays (``camera_frame.npz``): ``t_s`` (), ``image`` (h, w) uint8, ``points``
+        (n, 2) float32 pixels."""
+        return {"t_s": np.asarray(self.t_s), "image": self.image, "points": self.points}
+
 
 class CameraVio:
     """The camera loop of the module docstring."""
@@ -88,7 +93,7 @@ class CameraVio:
         self.blur_sum = 0.0
         self.dark = [(float(a), float(b)) for a, b in cam.lens_cap]
         self._digest = hashlib.sha256()
-        self.snapshot_s = snapshot_s
+        self.snapshot_s = cam.snapshot_s if snapshot_s is None else snapshot_s
         self.snapshot: Snapshot | None = None
         self.nees: list[tuple[float, float, float, float]] = []
         """Per frame when ``record_nees``: (t, NEES of [p, v], NEES of the attitude, the

@@ -65,6 +65,9 @@ class CameraOptions(Options):
     """Read noise (electrons RMS)."""
     noise: bool = True
     """Shot and read noise; off: the noise-free (still quantized, clipped) image."""
+    snapshot_s: float | None = Field(10.0, ge=0)
+    """Flight time (s) of the one frame kept with its tracked features (``qsls simulate``
+    writes it as ``camera_frame.npz``, the report shows it); None keeps none."""
     lens_cap: list[tuple[float, float]] = Field(default_factory=list)
     """Intervals ``[start, end)`` (s from the flight's start) with the lens covered: black
     frames (read noise only), so the filter runs on the IMU alone."""
