@@ -183,3 +183,36 @@ def test_lost_filter_reinitializes_when_the_scene_returns():
     ts, sig = np.array(loop.nees)[:, [0, 3]].T
     assert sig[(ts > 8.5) & (ts < 9.0)].min() > 0.15
     assert sig[ts > t_reset].max() < 0.05
+
+
+def test_fast_on_free_cells_finds_the_whole_images_corners():
+    """The tracker runs FAST on each free grid cell grown by a halo; the corners (and their
+    scores) it keeps are exactly those FAST finds on the whole image inside those cells."""
+    import cv2
+
+    from qsls.pipeline.sim.camera.loop import CameraVio, trajectory_states
+    from qsls.pipeline.sim.camera.tracker import _MARGIN, Tracker
+
+    cam = CameraOptions()
+    t, p, q = figure_eight(1.0)
+    s, h_ns = trajectory_states(t, p, q)
+    loop = CameraVio(cam, 0.35, 0.45, 1, 9.81, h_ns)
+    img = loop.renderer.render(
+        np.eye(3), s[100, 0:3], s[100, 10:13], s[100, 3:6], loop.r_bc, loop.t_bc
+    )
+    tr = Tracker(cam)
+    rng = np.random.default_rng(0)
+    whole = cv2.FastFeatureDetector.create(cam.fast_threshold, True).detect(img)
+    wxy = np.array([k.pt for k in whole], np.float32)
+    wresp = np.array([k.response for k in whole], np.float32)
+    inside = (
+        (wxy[:, 0] >= _MARGIN) & (wxy[:, 0] <= cam.width - 1 - _MARGIN)
+        & (wxy[:, 1] >= _MARGIN) & (wxy[:, 1] <= cam.height - 1 - _MARGIN)
+    )  # fmt: skip
+    for _ in range(5):
+        taken = rng.random(tr.cols * tr.rows) < 0.6
+        xy, resp = tr._corners(img, taken)
+        keep = inside & ~taken[tr._cells(wxy)]
+        want = sorted(zip(map(tuple, wxy[keep].tolist()), wresp[keep].tolist(), strict=True))
+        got = sorted(zip(map(tuple, xy.tolist()), resp.tolist(), strict=True))
+        assert len(got) > 20 and got == want

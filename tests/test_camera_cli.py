@@ -105,3 +105,10 @@ def test_run_ci_camera_config(tmp_path):
     assert len(flights) == 10 and not flights["ingest_error"].astype(bool).any()
     sim = json.loads((run / "simulate" / "train_1" / "truth.json").read_text())
     assert sim["emulator"]["estimator"] == "msckf"
+    # camera flights claim no true Lipschitz constant, so finding 3 does not quote one
+    assert "true Lipschitz" not in (run / "fly" / "comparison.md").read_text()
+    # the report puts the emulator and camera held-out flights side by side, with frames
+    md = (run / "report" / "report.md").read_text()
+    sec = md[md.index("## Camera loop beside the emulator") :]
+    assert "heldout_1_emulator | emulator" in sec and "heldout_1 | camera (MSCKF)" in sec
+    assert "Controllers flown with the camera loop" in sec and "camera_frames.png" in sec
