@@ -16,7 +16,7 @@ def _sim(run: Path, name: str, kind: str, perception: str) -> None:
             "seed": 3,
             "duration": 1.5,
             "vio": {"kind": kind, "perception": perception, "camera": {"snapshot_s": 1.0}},
-        }  # fmt: skip
+        }
     )
     simulate(opts, run / "simulate" / name)
 
