@@ -132,3 +132,87 @@ def test_camera_over_budget_is_refused():
 
     with pytest.raises(ValidationError, match="speed budget"):
         CameraOptions(width=752, height=480, rate_hz=20.0)
+
+
+def _fly_with_kick(cam: CameraOptions, kick_t: float, kick_v: float, seconds: float = 14.0):
+    """Replay the figure eight and, at ``kick_t``, knock the filter's velocity off by
+    ``kick_v`` (m/s) with its covariance untouched: an overconfident, wrong filter."""
+    from qsls.pipeline.sim.camera.loop import CameraVio, trajectory_states
+
+    t, p, q = figure_eight(seconds)
+    s, h_ns = trajectory_states(t, p, q)
+    loop = CameraVio(cam, 1.0, 1.0, 2, 9.81, h_ns)
+    loop.start(s[0])
+    est = np.zeros((len(t), 6))
+    est[0] = loop.estimate()[0]
+    for i in range(len(t) - 1):
+        if i == round(kick_t * 200):
+            loop.filter.v = loop.filter.v + np.array([kick_v, 0.0, 0.0])
+        loop.step(s[i], s[i + 1])
+        est[i + 1] = loop.estimate()[0]
+    return t, np.linalg.norm(est[:, :3] - p, axis=1), loop
+
+
+def test_diverged_filter_is_detected_and_reinitialized():
+    """A wrong velocity the covariance does not admit: the camera's features fail the gate
+    (innovation check), the filter restarts (velocity and tilt re-initialized, position
+    kept) and the error stops growing; with the reset off it grows without bound."""
+    t, err, loop = _fly_with_kick(CameraOptions(), 5.0, 0.5)
+    _, err_off, off = _fly_with_kick(CameraOptions(reset=False), 5.0, 0.5)
+    assert off.resets == [] and loop.describe()["resets"] == len(loop.resets) >= 1
+    t_reset, why = loop.resets[0]
+    assert 5.0 < t_reset < 6.5 and why.startswith("innovations"), loop.resets
+    assert np.isfinite(err).all()
+    kept = err[np.searchsorted(t, t_reset)]
+    assert err[t > t_reset + 1.0].max() < kept + 0.1, (kept, err.max())
+    assert err_off[-1] > 3 * err[-1] and err_off[-1] > 1.0, (err_off[-1], err[-1])
+    assert (err[t < 5.0] == err_off[t < 5.0]).all()  # the same flight until the kick
+
+
+def test_lost_filter_reinitializes_when_the_scene_returns():
+    """A lens cap long enough for the position std to pass ``reset_sigma_position``: the
+    filter is lost, waits in the dark (no features to initialize on), and restarts at the
+    first frame with enough features; no NaN; its covariance is the prior again."""
+    t, p, q = figure_eight(14.0)
+    cam = CameraOptions(lens_cap=[(4.0, 9.0)], reset_sigma_position=0.15)
+    est, _, loop = replay(cam, 1.0, 1.0, 0, t, p, q, record=True)
+    assert np.isfinite(est).all()
+    assert len(loop.resets) == 1, loop.resets
+    t_reset, why = loop.resets[0]
+    assert 9.0 <= t_reset < 9.5 and why.startswith("covariance"), loop.resets
+    ts, sig = np.array(loop.nees)[:, [0, 3]].T
+    assert sig[(ts > 8.5) & (ts < 9.0)].min() > 0.15
+    assert sig[ts > t_reset].max() < 0.05
+
+
+def test_fast_on_free_cells_finds_the_whole_images_corners():
+    """The tracker runs FAST on each free grid cell grown by a halo; the corners (and their
+    scores) it keeps are exactly those FAST finds on the whole image inside those cells."""
+    import cv2
+
+    from qsls.pipeline.sim.camera.loop import CameraVio, trajectory_states
+    from qsls.pipeline.sim.camera.tracker import _MARGIN, Tracker
+
+    cam = CameraOptions()
+    t, p, q = figure_eight(1.0)
+    s, h_ns = trajectory_states(t, p, q)
+    loop = CameraVio(cam, 0.35, 0.45, 1, 9.81, h_ns)
+    img = loop.renderer.render(
+        np.eye(3), s[100, 0:3], s[100, 10:13], s[100, 3:6], loop.r_bc, loop.t_bc
+    )
+    tr = Tracker(cam)
+    rng = np.random.default_rng(0)
+    whole = cv2.FastFeatureDetector.create(cam.fast_threshold, True).detect(img)
+    wxy = np.array([k.pt for k in whole], np.float32)
+    wresp = np.array([k.response for k in whole], np.float32)
+    inside = (
+        (wxy[:, 0] >= _MARGIN) & (wxy[:, 0] <= cam.width - 1 - _MARGIN)
+        & (wxy[:, 1] >= _MARGIN) & (wxy[:, 1] <= cam.height - 1 - _MARGIN)
+    )  # fmt: skip
+    for _ in range(5):
+        taken = rng.random(tr.cols * tr.rows) < 0.6
+        xy, resp = tr._corners(img, taken)
+        keep = inside & ~taken[tr._cells(wxy)]
+        want = sorted(zip(map(tuple, wxy[keep].tolist()), wresp[keep].tolist(), strict=True))
+        got = sorted(zip(map(tuple, xy.tolist()), resp.tolist(), strict=True))
+        assert len(got) > 20 and got == want

@@ -465,9 +465,12 @@ def _motion_parts(sim: SimOptions) -> list[str]:
 
 
 def _true_lipschitz(outcomes: Sequence[FlyOutcome]) -> dict[str, float]:
-    """The emulator's Lipschitz constant per condition (the largest over flights)."""
+    """The emulator's Lipschitz constant per condition (the largest over flights); none for
+    the camera loop's flights (no designed bias field, so no true constant to compare)."""
     true_l: dict[str, float] = {}
     for o in outcomes:
+        if o.extra["lipschitz"] is None:
+            continue
         true_l[o.condition] = max(true_l.get(o.condition, 0.0), float(o.extra["lipschitz"]))
     return true_l
 

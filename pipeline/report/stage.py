@@ -175,6 +175,7 @@ _KNOWN = {"simulate", "ingest", "fit", "sweep", "synth", "evaluate"}
 
 def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Section]:
     """Summary first, the paper's figures, the evidence, the appendix last."""
+    from qsls.pipeline.report import camera as cam
     from qsls.pipeline.report import flights as fl
     from qsls.pipeline.report import sections as rs
 
@@ -192,6 +193,7 @@ def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Se
         rs.section_sweep,
         fl.section_flights,
         fl.section_simulated,
+        cam.section_camera,
     ]
     if not f.controllers:  # nothing synthesized: the sweep is the answer, it comes first
         builders.remove(rs.section_sweep)

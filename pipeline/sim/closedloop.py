@@ -99,9 +99,13 @@ class FlightLog:
     crashed: bool = False
     crash_reason: str | None = None
     crash_time_s: float | None = None
-    lipschitz: float = 0.0
+    lipschitz: float | None = None
+    """The emulator's bias-field Lipschitz constant (the true S-slope); None for the camera
+    loop, whose errors come from no designed field."""
     emulator: dict[str, Any] = field(default_factory=dict)
     vio_q_est: np.ndarray | None = None  # (m, 4) estimated attitude (camera loop only)
+    camera_frame: dict[str, np.ndarray] | None = None
+    """The camera loop's kept frame and its tracked features (``Snapshot.arrays``), if any."""
 
     @property
     def vio_y(self) -> np.ndarray:
@@ -198,7 +202,8 @@ class _Record:
         self, ctrl: PositionController, veh: Vehicle, t_ns: np.ndarray,
         ref_states: np.ndarray, n: int, m: int, k: int, *,
         crashed: bool, reason: str | None, crash_t: float | None,
-        lipschitz: float, described: dict[str, Any], camera: bool,
+        lipschitz: float | None, described: dict[str, Any], camera: bool,
+        camera_frame: dict[str, np.ndarray] | None = None,
     ) -> FlightLog:  # fmt: skip
         """The first ``n`` physics steps, ``m`` VIO samples and ``k`` controller ticks."""
         S = self.S[:n]
@@ -226,6 +231,7 @@ class _Record:
             lipschitz=lipschitz,
             emulator=described,
             vio_q_est=self.vio_qe[:m].copy() if camera else None,
+            camera_frame=camera_frame,
         )
 
 
@@ -361,8 +367,9 @@ def _fly(
     return rec.log(
         ctrl, veh, t_ns[:n], np.hstack([ref_p[:n], ref_v[:n]]), n, m, k,
         crashed=crashed, reason=reason, crash_t=crash_t,
-        lipschitz=0.0 if cam else vio.lipschitz,
+        lipschitz=None if cam else vio.lipschitz,
         described=cam.describe() if cam else vio.describe(), camera=cam is not None,
+        camera_frame=cam.snapshot.arrays() if cam is not None and cam.snapshot else None,
     )  # fmt: skip
 
 

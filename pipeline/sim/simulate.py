@@ -7,12 +7,14 @@ Output folder (stage ``simulate``, written through :class:`StageWriter`):
   ``results.bag``. Topics: VIO ``nav_msgs/Odometry`` (twist in the body frame, ROS
   convention) and motion capture ``geometry_msgs/PoseStamped`` or ``TransformStamped``;
 - ``truth.json``: ``time_offset_s``, ``vio_frame`` (``yaw_rad``, ``translation``),
-  ``lipschitz``, the emulator's parameters, ``crashed`` and the flight's metrics;
+  ``lipschitz`` (null for the camera loop: no designed bias field), the emulator's
+  parameters, ``crashed`` and the flight's metrics;
 - ``errors.parquet``: the emulator's error at every VIO sample, in the motion-capture
   (world) frame before the VIO frame's transform: ``stamp_ns`` (VIO clock), ``e_px`` ..
   ``e_vz``, and the true state ``x_px`` .. ``x_vz`` there;
 - ``trajectory.parquet`` (truth and reference at the physics rate, VIO clock) and
-  ``control.parquet`` (what the controller saw and commanded at each tick).
+  ``control.parquet`` (what the controller saw and commanded at each tick);
+- ``camera_frame.npz`` (camera loop only): one frame and the features tracked on it.
 
 Clocks (docs/conventions.md#clocks): ``time_offset_s`` is added to motion-capture stamps to put
 them on the VIO clock, so ``mocap_stamp = vio_clock(t) - time_offset_s``. The bag's log time
@@ -32,7 +34,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field
 
-from qsls.pipeline.core.artifacts import StageWriter
+from qsls.pipeline.core.artifacts import StageWriter, npz_bytes
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.rotations import quat_mul
@@ -49,6 +51,8 @@ _LOG_STREAM = 1000
 
 
 CONTROL_FILE = "control.parquet"
+CAMERA_FRAME = "camera_frame.npz"
+"""The camera loop's kept frame (``vio.camera.snapshot_s``) and its tracked features."""
 """What the controller saw and commanded at each tick (``stamp_ns``, ``y_*``, ``r_*``, ``u_*``)."""
 
 class LogOptions(Options):
@@ -106,7 +110,9 @@ class SimResult:
             "tracking max (m)": m["tracking_max_m"],
             "perception error RMS (inf-norm)": m["perception_error_rms"],
             "perception error max (inf-norm)": m["perception_error_max"],
-            "bias Lipschitz L": self.truth["lipschitz"],
+            "bias Lipschitz L": (
+                "none (camera loop)" if self.truth["lipschitz"] is None else self.truth["lipschitz"]
+            ),
             "crashed": self.flight.crashed,
         }
         if self.flight.crashed:
@@ -295,6 +301,8 @@ def simulate(
             "mass": flight.mass,
         }
         w.write_json("truth.json", truth)
+        if flight.camera_frame is not None:
+            w.write_bytes(CAMERA_FRAME, npz_bytes(flight.camera_frame))
         for fname, df in _frames(flight, clocks["vio_clock_start_ns"]).items():
             w.write_parquet(fname, df)
         w.results.update(

@@ -18,13 +18,44 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 
 def so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula (module docstring); second order below 1e-8 rad."""
-    a2 = float(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
-    k = skew(phi)
+    """Rodrigues' formula (module docstring); second order below 1e-8 rad. Written out on
+    floats with ``[phi]x^2 = phi phi^T - a^2 I`` (one array made, not five: the filter calls
+    it once per IMU sample)."""
+    x, y, z = float(phi[0]), float(phi[1]), float(phi[2])
+    a2 = x * x + y * y + z * z
     if a2 < 1e-16:
-        return np.eye(3) + k + 0.5 * (k @ k)
-    a = math.sqrt(a2)
-    return np.eye(3) + (math.sin(a) / a) * k + ((1.0 - math.cos(a)) / a2) * (k @ k)
+        s, c = 1.0, 0.5
+    else:
+        a = math.sqrt(a2)
+        s, c = math.sin(a) / a, (1.0 - math.cos(a)) / a2
+    return np.array(
+        [
+            [1.0 + c * (x * x - a2), c * x * y - s * z, c * x * z + s * y],
+            [c * x * y + s * z, 1.0 + c * (y * y - a2), c * y * z - s * x],
+            [c * x * z - s * y, c * y * z + s * x, 1.0 + c * (z * z - a2)],
+        ]
+    )
+
+
+def so3_exp_many(phi: np.ndarray) -> np.ndarray:
+    """:func:`so3_exp` of each row of ``phi`` (N, 3): rotations (N, 3, 3)."""
+    a2 = np.einsum("ni,ni->n", phi, phi)
+    small = a2 < 1e-16
+    a = np.sqrt(np.where(small, 1.0, a2))
+    s = np.where(small, 1.0, np.sin(a) / a)
+    c = np.where(small, 0.5, (1.0 - np.cos(a)) / np.where(small, 1.0, a2))
+    x, y, z = phi[:, 0], phi[:, 1], phi[:, 2]
+    out = c[:, None, None] * (phi[:, :, None] * phi[:, None, :])
+    idx = np.arange(3)
+    out[:, idx, idx] += (1.0 - c * a2)[:, None]
+    sz, sy, sx = s * z, s * y, s * x
+    out[:, 0, 1] -= sz
+    out[:, 1, 0] += sz
+    out[:, 0, 2] += sy
+    out[:, 2, 0] -= sy
+    out[:, 1, 2] -= sx
+    out[:, 2, 1] += sx
+    return out
 
 
 def so3_log(r: np.ndarray) -> np.ndarray:

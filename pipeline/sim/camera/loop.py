@@ -28,7 +28,7 @@ import numpy as np
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.rotations import quat_to_matrix
 from qsls.pipeline.core.units import NS
-from qsls.pipeline.sim.camera.geometry import camera_in_body, matrix_quat, so3_log
+from qsls.pipeline.sim.camera.geometry import camera_in_body, matrix_quat, so3_exp, so3_log
 from qsls.pipeline.sim.camera.imu import Imu, true_rates
 from qsls.pipeline.sim.camera.msckf import Msckf
 from qsls.pipeline.sim.camera.options import CameraOptions
@@ -36,7 +36,7 @@ from qsls.pipeline.sim.camera.render import Renderer
 from qsls.pipeline.sim.camera.tracker import Tracker
 from qsls.pipeline.sim.camera.world import build_world
 
-_STREAM_IMU, _STREAM_IMAGE = 101, 102
+_STREAM_IMU, _STREAM_IMAGE, _STREAM_RESET = 101, 102, 103
 MIN_VISIBLE = 0.3
 """Least fraction of the image on a textured plane at the start pose (else refused)."""
 
@@ -48,6 +48,11 @@ class Snapshot:
     t_s: float
     image: np.ndarray
     points: np.ndarray
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """As arrays (``camera_frame.npz``): ``t_s`` (), ``image`` (h, w) uint8, ``points``
+        (n, 2) float32 pixels."""
+        return {"t_s": np.asarray(self.t_s), "image": self.image, "points": self.points}
 
 
 class CameraVio:
@@ -79,13 +84,16 @@ class CameraVio:
         )  # fmt: skip
         self.tracker = Tracker(cam)
         self.filter: Msckf | None = None
+        self._reset_rng = np.random.default_rng(np.random.SeedSequence([int(seed), _STREAM_RESET]))
+        self.resets: list[tuple[float, str]] = []
+        """Re-initializations: (time s, why) (:meth:`_reinitialize`)."""
         self.step_index = 0
         self.frames = 0
         self.features_sum = 0
         self.blur_sum = 0.0
         self.dark = [(float(a), float(b)) for a, b in cam.lens_cap]
         self._digest = hashlib.sha256()
-        self.snapshot_s = snapshot_s
+        self.snapshot_s = cam.snapshot_s if snapshot_s is None else snapshot_s
         self.snapshot: Snapshot | None = None
         self.nees: list[tuple[float, float, float, float]] = []
         """Per frame when ``record_nees``: (t, NEES of [p, v], NEES of the attitude, the
@@ -154,6 +162,10 @@ class CameraVio:
         k = self.renderer.k
         uv = (pts.astype(float) - k[:2, 2]) / self.cam.focal_px
         flt.process_frame(self.frames, ids, uv)
+        if self.cam.reset and len(ids) >= self.cam.reset_min_features:
+            why = flt.health()
+            if why is not None:
+                self._reinitialize(s, r_wb, t, why)
         c3 = time.process_time()
         self.seconds["render"] += c1 - c0
         self.seconds["track"] += c2 - c1
@@ -165,6 +177,26 @@ class CameraVio:
             self.snapshot = Snapshot(t_s=t, image=img, points=pts)
         if self.record_nees:
             self.nees.append((t, *self.nees_now(s, r_wb)))
+
+    def _reinitialize(self, s: np.ndarray, r_wb: np.ndarray, t: float, why: str) -> None:
+        """Restart a diverged or lost filter (:meth:`Msckf.health`) the way a VIO
+        re-initializes once it tracks a scene again: a fresh filter with the initial prior,
+        empty window and zero biases; velocity and tilt (roll, pitch) as an initialization
+        recovers them, the true ones plus an error drawn from that prior (seeded); position
+        and yaw, which no initialization can recover, kept from the lost estimate (the new
+        estimate is anchored where the old one was)."""
+        old = self.filter
+        assert old is not None
+        cam = self.cam
+        z = self._reset_rng.standard_normal(6)
+        tilt = math.radians(cam.init_sigma_tilt_deg) * np.array([z[0], z[1], 0.0])
+        dyaw = math.atan2(old.R[1, 0], old.R[0, 0]) - math.atan2(r_wb[1, 0], r_wb[0, 0])
+        r0 = so3_exp(tilt) @ so3_exp(np.array([0.0, 0.0, dyaw])) @ r_wb
+        v0 = s[3:6] + cam.init_sigma_velocity * z[3:6]
+        new = Msckf(cam, self.r_bc, self.t_bc, self.gravity, r0, old.p.copy(), v0)
+        new.used_features, new.gated_features = old.used_features, old.gated_features
+        self.filter = new
+        self.resets.append((t, why))
 
     def nees_now(self, s: np.ndarray, r_wb: np.ndarray) -> tuple[float, float, float]:
         """Normalized estimation error squared of ``[p, v]`` (6 dof) and of the attitude
@@ -203,6 +235,8 @@ class CameraVio:
             "features_used": flt.used_features if flt else 0,
             "features_gated": flt.gated_features if flt else 0,
             "ransac_rejected": self.tracker.rejected,
+            "resets": len(self.resets),
+            "reset_times_s": [round(t, 3) for t, _ in self.resets],
             "frames_sha256": self._digest.hexdigest(),
         }
 
@@ -227,16 +261,8 @@ def replay(
     (:attr:`CameraVio.nees`). Returns the estimated ``[p, v]`` (n, 6) and attitudes
     (n, 4) at the samples, and the loop (its counters).
     """
-    h = float(np.median(np.diff(t)))
-    h_ns = round(h * NS)
-    v = np.gradient(p, t, axis=0)
+    s, h_ns = trajectory_states(t, p, q)
     n = len(t)
-    s = np.zeros((n, 13))
-    s[:, 0:3], s[:, 3:6], s[:, 6:10] = p, v, q
-    rs = quat_to_matrix(q)
-    for i in range(n - 1):
-        s[i, 10:13] = so3_log(rs[i].T @ rs[i + 1]) / h
-    s[-1, 10:13] = s[-2, 10:13]
     loop = CameraVio(cam, light, texture, seed, gravity, h_ns)
     loop.record_nees = record
     loop.check_view(s[0])
@@ -248,6 +274,22 @@ def replay(
         loop.step(s[i], s[i + 1])
         est[i + 1], att[i + 1] = loop.estimate()
     return est, att, loop
+
+
+def trajectory_states(t: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, int]:
+    """The loop's true states ``[p, v, q, omega_body]`` (n, 13) of a recorded trajectory
+    (:func:`replay`'s arguments) and its step (ns): velocities are central differences of
+    ``p``, body rates the relative rotation between samples."""
+    h = float(np.median(np.diff(t)))
+    v = np.gradient(p, t, axis=0)
+    n = len(t)
+    s = np.zeros((n, 13))
+    s[:, 0:3], s[:, 3:6], s[:, 6:10] = p, v, q
+    rs = quat_to_matrix(q)
+    for i in range(n - 1):
+        s[i, 10:13] = so3_log(rs[i].T @ rs[i + 1]) / h
+    s[-1, 10:13] = s[-2, 10:13]
+    return s, round(h * NS)
 
 
 def frame_period_ok(rate_hz: float, physics_hz: float) -> bool:

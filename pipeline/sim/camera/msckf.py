@@ -28,8 +28,9 @@ Jacobians ``J_pi R_cj^T [p_f - p_cj]x`` (dtheta_cj), ``-J_pi R_cj^T`` (dp_cj) an
 (p_f). Projecting on the left null space ``A`` of ``H_f`` removes the feature:
 ``r_o = A^T r = A^T H_x dx + A^T n`` (the multi-state constraint). Each feature passes a
 chi-square gate ``r_o^T (H_o P H_o^T + s^2 I)^-1 r_o < chi2_q(2M - 3)``; the stacked
-constraints are compressed by a thin QR when taller than the state, then the EKF update
-(Joseph form). A feature is used when its track ends, or when the oldest clone leaves the
+constraints (on the clone columns only: the IMU columns of ``H`` are zero) enter the EKF
+update through ``H^T H`` and ``H^T r``, which is what a QR compression of a tall stack keeps,
+at a fraction of its cost (``Msckf._ekf_update``); ``P <- P - K S K^T``, symmetrized. A feature is used when its track ends, or when the oldest clone leaves the
 window (then every track seen in it is used and restarted, and the clone marginalized).
 
 Functions of arrays, batched over the features that have the same number of observations.
@@ -38,12 +39,13 @@ Functions of arrays, batched over the features that have the same number of obse
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import chdtri
 
-from qsls.pipeline.sim.camera.geometry import skew, so3_exp
+from qsls.pipeline.sim.camera.geometry import skew, so3_exp, so3_exp_many
 from qsls.pipeline.sim.camera.options import CameraOptions
 
 I3 = np.eye(3)
@@ -53,6 +55,19 @@ I3 = np.eye(3)
 class Track:
     clones: list[int] = field(default_factory=list)  # frame ids
     uv: list[tuple[float, float]] = field(default_factory=list)  # normalized image points
+
+
+def _projection_jacobian(
+    rct: np.ndarray, x: np.ndarray, w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For points ``x`` (F, M, 3) in cameras with world-to-camera rotations ``rct`` (F, M, 3,
+    3): the projections ``pi(x)`` (F, M, 2), the depths ``x_3`` (floored at 1 mm) and ``J_pi
+    R_c^T`` (F, M, 2, 3) times the weights ``w``, written out as ``(R_c^T[:2] - pi(x)
+    R_c^T[2]) / x_3`` (``J_pi = [I | -pi(x)] / x_3``)."""
+    zc = np.where(x[..., 2] > 1e-3, x[..., 2], 1e-3)
+    zh = x[..., :2] / zc[..., None]
+    j = (rct[..., :2, :] - zh[..., :, None] * rct[..., 2:3, :]) * (w / zc)[..., None, None]
+    return zh, zc, j
 
 
 def triangulate(
@@ -65,32 +80,27 @@ def triangulate(
     Gauss-Newton steps on the reprojection error."""
     f, m = z.shape[:2]
     d = np.concatenate([z, np.ones((f, m, 1))], axis=2)
-    b = np.einsum("fmij,fmj->fmi", rc, d)
+    b = (rc @ d[..., None])[..., 0]
     b /= np.linalg.norm(b, axis=2, keepdims=True)
-    proj = (I3[None, None] - b[..., :, None] * b[..., None, :]) * w[..., None, None]
+    proj = (I3 - b[..., :, None] * b[..., None, :]) * w[..., None, None]
     a = proj.sum(axis=1)
-    y = np.einsum("fmij,fmj->fi", proj, pc)
+    y = (proj @ pc[..., None]).sum(axis=1)
     ok = np.abs(np.linalg.det(a)) > 1e-9
     a[~ok] = I3
-    pf = np.linalg.solve(a, y[..., None])[..., 0]
+    pf = np.linalg.solve(a, y)[..., 0]
     rct = np.swapaxes(rc, 2, 3)
     valid = w > 0
     for _ in range(iters):
-        x = np.einsum("fmij,fmj->fmi", rct, pf[:, None, :] - pc)  # in each camera
-        zc = x[..., 2]
-        ok &= ~((zc <= 1e-3) & valid).any(axis=1)
-        zc = np.where(zc > 1e-3, zc, 1e-3)
-        res = (z - x[..., :2] / zc[..., None]) * w[..., None]
-        jp = np.zeros((f, m, 2, 3))
-        jp[..., 0, 0] = w / zc
-        jp[..., 1, 1] = w / zc
-        jp[..., :, 2] = -x[..., :2] * (w / (zc * zc))[..., None]
-        j = jp @ rct  # (F, M, 2, 3)
-        jtj = np.einsum("fmki,fmkj->fij", j, j) + 1e-9 * I3
-        jtr = np.einsum("fmki,fmk->fi", j, res)
+        x = (rct @ (pf[:, None, :] - pc)[..., None])[..., 0]  # in each camera
+        ok &= ~((x[..., 2] <= 1e-3) & valid).any(axis=1)
+        zh, _, j = _projection_jacobian(rct, x, w)
+        res = ((z - zh) * w[..., None]).reshape(f, 2 * m, 1)
+        jf = j.reshape(f, 2 * m, 3)
+        jt = np.swapaxes(jf, 1, 2)
+        jtj = jt @ jf + 1e-9 * I3
         jtj[~ok] = I3
-        pf = pf + np.linalg.solve(jtj, jtr[..., None])[..., 0]
-    x = np.einsum("fmij,fmj->fmi", rct, pf[:, None, :] - pc)
+        pf = pf + np.linalg.solve(jtj, jt @ res)[..., 0]
+    x = (rct @ (pf[:, None, :] - pc)[..., None])[..., 0]
     ok &= ((x[..., 2] > 0.05) | ~valid).all(axis=1) & np.isfinite(pf).all(axis=1)
     return pf, ok
 
@@ -101,32 +111,61 @@ def feature_constraints(
     """Null-space projected residuals ``r_o`` (F, 2M-3) and Jacobians ``H_o`` (F, 2M-3, M, 6)
     on each feature's own clones (``dtheta_c, dp_c``), module docstring. Padding (``w = 0``)
     enters as rows of zeros: measurements ``0 = 0 dx + n`` that carry no information, so the
-    projected constraints are those of the real observations (plus uninformative rows)."""
+    projected constraints are those of the real observations (plus uninformative rows).
+
+    ``H_x`` is block diagonal (observation ``j`` sees clone ``j`` only), so ``A^T H_x`` is
+    taken block by block; ``v^T [d]x = (v x d)^T`` gives the attitude block row by row."""
     f, m = z.shape[:2]
     rct = np.swapaxes(rc, 2, 3)
     dpw = pf[:, None, :] - pc  # (F, M, 3)
-    x = np.einsum("fmij,fmj->fmi", rct, dpw)
-    zc = x[..., 2]
-    r = ((z - x[..., :2] / zc[..., None]) * w[..., None]).reshape(f, 2 * m)
-    jp = np.zeros((f, m, 2, 3))
-    jp[..., 0, 0] = w / zc
-    jp[..., 1, 1] = w / zc
-    jp[..., :, 2] = -x[..., :2] * (w / (zc * zc))[..., None]
-    jr = jp @ rct  # J_pi R_c^T (F, M, 2, 3)
-    sk = np.zeros((f, m, 3, 3))
-    sk[..., 0, 1], sk[..., 0, 2] = -dpw[..., 2], dpw[..., 1]
-    sk[..., 1, 0], sk[..., 1, 2] = dpw[..., 2], -dpw[..., 0]
-    sk[..., 2, 0], sk[..., 2, 1] = -dpw[..., 1], dpw[..., 0]
-    hx = np.zeros((f, m, 2, m, 6))
-    idx = np.arange(m)
-    hx[:, idx, :, idx, 0:3] = np.moveaxis(jr @ sk, 1, 0)
-    hx[:, idx, :, idx, 3:6] = np.moveaxis(-jr, 1, 0)
-    hf = jr.reshape(f, 2 * m, 3)
-    q, _ = np.linalg.qr(hf, mode="complete")
+    x = (rct @ dpw[..., None])[..., 0]
+    zh, _, jr = _projection_jacobian(rct, x, w)  # jr = J_pi R_c^T (F, M, 2, 3)
+    r = ((z - zh) * w[..., None]).reshape(f, 2 * m, 1)
+    hb = np.empty((f, m, 2, 6))  # [J_pi R_c^T [d]x | -J_pi R_c^T], rows v^T [d]x = (v x d)^T
+    d0, d1, d2 = dpw[..., None, 0], dpw[..., None, 1], dpw[..., None, 2]
+    hb[..., 0] = jr[..., 1] * d2 - jr[..., 2] * d1
+    hb[..., 1] = jr[..., 2] * d0 - jr[..., 0] * d2
+    hb[..., 2] = jr[..., 0] * d1 - jr[..., 1] * d0
+    hb[..., 3:] = -jr
+    q, _ = np.linalg.qr(jr.reshape(f, 2 * m, 3), mode="complete")
     a = q[:, :, 3:]  # (F, 2M, 2M-3)
-    ro = np.einsum("fki,fk->fi", a, r)
-    ho = np.einsum("fki,fkj->fij", a, hx.reshape(f, 2 * m, 6 * m)).reshape(f, 2 * m - 3, m, 6)
-    return ro, ho
+    k = 2 * m - 3
+    ro = (np.swapaxes(a, 1, 2) @ r)[..., 0]
+    ho = np.swapaxes(a.reshape(f, m, 2, k), 2, 3) @ hb  # (F, M, 2M-3, 6)
+    return ro, np.swapaxes(ho, 1, 2)
+
+
+def imu_transitions(
+    r: np.ndarray, ra: np.ndarray, h: np.ndarray, cam: CameraOptions
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per IMU sample ``k``: ``Phi_k = I + F h + (F h)^2 / 2`` (K, 15, 15) from the sample's
+    attitude ``R`` (K, 3, 3), ``R a`` (K, 3) and step ``h`` (K,) (module docstring), and the
+    diagonal of ``Q_k`` (K, 15). ``F h`` has the blocks ``-R h`` (dtheta <- db_g), ``I h``
+    (dp <- dv), ``-[R a]x h`` (dv <- dtheta) and ``-R h`` (dv <- db_a); half its square adds
+    ``-[R a]x h^2 / 2`` (dp <- dtheta), ``-R h^2 / 2`` (dp <- db_a) and ``[R a]x R h^2 / 2``
+    (dv <- db_g), all written out here instead of multiplied."""
+    k = len(h)
+    hh = h[:, None, None]
+    sk = np.zeros((k, 3, 3))
+    sk[:, 0, 1], sk[:, 0, 2], sk[:, 1, 2] = -ra[:, 2], ra[:, 1], -ra[:, 0]
+    sk[:, 1, 0], sk[:, 2, 0], sk[:, 2, 1] = ra[:, 2], -ra[:, 1], ra[:, 0]
+    phi = np.zeros((k, 15, 15))
+    idx = np.arange(15)
+    phi[:, idx, idx] = 1.0
+    rh = r * hh
+    phi[:, 0:3, 9:12] = -rh
+    phi[:, 3:6, 6:9] = I3 * hh
+    phi[:, 3:6, 0:3] = -0.5 * sk * (hh * hh)
+    phi[:, 3:6, 12:15] = -0.5 * rh * hh
+    phi[:, 6:9, 0:3] = -sk * hh
+    phi[:, 6:9, 9:12] = 0.5 * (sk @ r) * (hh * hh)
+    phi[:, 6:9, 12:15] = -rh
+    qd = np.zeros((k, 15))
+    qd[:, 0:3] = (cam.gyro_noise**2 * h)[:, None]
+    qd[:, 6:9] = (cam.accel_noise**2 * h)[:, None]
+    qd[:, 9:12] = (cam.gyro_walk**2 * h)[:, None]
+    qd[:, 12:15] = (cam.accel_walk**2 * h)[:, None]
+    return phi, qd
 
 
 class Msckf:
@@ -150,15 +189,21 @@ class Msckf:
             + [cam.init_sigma_accel_bias**2] * 3
         )
         self.clone_ids: list[int] = []
-        self.clone_R: list[np.ndarray] = []
-        self.clone_p: list[np.ndarray] = []
+        self.clone_R = np.zeros((0, 3, 3))  # (N, 3, 3) camera to world
+        self.clone_p = np.zeros((0, 3))  # (N, 3) camera centres
         self.tracks: dict[int, Track] = {}
         self.sigma = cam.pixel_sigma / cam.focal_px
-        self._phi = np.eye(15)
-        self._q = np.zeros((15, 15))
+        self._pending = 0  # IMU samples since the last frame
+        self._pend_r = np.zeros((0, 3, 3))
+        self._pend_ra = np.zeros((0, 3))
+        self._pend_h = np.zeros(0)
         self.used_features = 0
         self.gated_features = 0
         self._gates: dict[int, float] = {}
+        # (used, gated) per recent frame, for the innovation check of :meth:`health`
+        self._recent: deque[tuple[int, int]] = deque(
+            maxlen=max(1, round(cam.reset_window_s * cam.rate_hz))
+        )
 
     def _gate(self, dof: int) -> float:
         if dof not in self._gates:
@@ -167,8 +212,8 @@ class Msckf:
 
     # ------------------------------------------------------------------ propagation
     def propagate(self, wm: np.ndarray, am: np.ndarray, h: float) -> None:
-        """One IMU sample (module docstring); the covariance waits for the next frame."""
-        cam = self.cam
+        """One IMU sample (module docstring): the state now; the sample's ``R`` and ``R a``
+        are kept so that the covariance is propagated once, at the next frame."""
         w = wm - self.bg
         a = am - self.ba
         r = self.R
@@ -177,31 +222,43 @@ class Msckf:
         self.p = self.p + self.v * h + 0.5 * h * h * acc
         self.v = self.v + acc * h
         self.R = r @ so3_exp(w * h)
-        fh = np.zeros((15, 15))
-        fh[0:3, 9:12] = -r * h
-        fh[3:6, 6:9] = I3 * h
-        fh[6:9, 0:3] = -skew(ra) * h
-        fh[6:9, 12:15] = -r * h
-        phi = np.eye(15) + fh + 0.5 * (fh @ fh)
-        self._phi = phi @ self._phi
-        qd = np.zeros(15)
-        qd[0:3] = cam.gyro_noise**2 * h
-        qd[6:9] = cam.accel_noise**2 * h
-        qd[9:12] = cam.gyro_walk**2 * h
-        qd[12:15] = cam.accel_walk**2 * h
-        self._q = phi @ self._q @ phi.T + np.diag(qd)
+        k = self._pending
+        if k == len(self._pend_h):
+            grow = max(16, 2 * k)
+            self._pend_r = np.concatenate([self._pend_r, np.zeros((grow - k, 3, 3))])
+            self._pend_ra = np.concatenate([self._pend_ra, np.zeros((grow - k, 3))])
+            self._pend_h = np.concatenate([self._pend_h, np.zeros(grow - k)])
+        self._pend_r[k], self._pend_ra[k], self._pend_h[k] = r, ra, h
+        self._pending = k + 1
+
+    def _transition(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(Phi, Q)`` of the IMU samples since the last frame: ``Phi = Phi_K ... Phi_1``,
+        ``Q = sum_k Phi_K..Phi_{k+1} Q_k (...)^T`` with the per-sample ``Phi_k``, ``Q_k`` of
+        :func:`imu_transitions`."""
+        k = self._pending
+        if k == 0:
+            return np.eye(15), np.zeros((15, 15))
+        phis, qd = imu_transitions(self._pend_r[:k], self._pend_ra[:k], self._pend_h[:k], self.cam)
+        phi, q = phis[0], np.diag(qd[0])
+        for i in range(1, k):
+            p_i = phis[i]
+            phi = p_i @ phi
+            q = p_i @ q @ p_i.T
+            q[np.diag_indices(15)] += qd[i]
+        return phi, q
 
     def _apply_propagation(self) -> None:
-        phi, P = self._phi, self.P
-        P[:15, :15] = phi @ P[:15, :15] @ phi.T + self._q
+        phi, q = self._transition()
+        self._pending = 0
+        P = self.P
+        P[:15, :15] = phi @ P[:15, :15] @ phi.T + q
         P[:15, 15:] = phi @ P[:15, 15:]
         P[15:, :15] = P[:15, 15:].T
-        self._phi = np.eye(15)
-        self._q = np.zeros((15, 15))
 
     def imu_covariance(self) -> np.ndarray:
         """The IMU block of ``P`` propagated to now (15, 15)."""
-        return self._phi @ self.P[:15, :15] @ self._phi.T + self._q
+        phi, q = self._transition()
+        return phi @ self.P[:15, :15] @ phi.T + q
 
     # ------------------------------------------------------------------ a frame
     def _clone(self, frame_id: int) -> None:
@@ -213,12 +270,41 @@ class Msckf:
         pj = j @ self.P
         self.P = np.block([[self.P, pj.T], [pj, pj[:, :15] @ j[:, :15].T]])
         self.clone_ids.append(frame_id)
-        self.clone_R.append(self.R @ self.r_bc)
-        self.clone_p.append(self.p + self.R @ self.t_bc)
+        self.clone_R = np.concatenate([self.clone_R, (self.R @ self.r_bc)[None]])
+        self.clone_p = np.concatenate([self.clone_p, (self.p + self.R @ self.t_bc)[None]])
+
+    def health(self) -> str | None:
+        """Why the filter cannot be trusted any more, or None (checked after each frame):
+
+        - innovations: over the last ``reset_window_s`` at least ``reset_min_gated``
+          features failed the chi-square gate and they are at least ``reset_gated_fraction``
+          of those that reached it (the camera contradicts the state: diverged);
+        - covariance: ``sqrt(trace P_pp) > reset_sigma_position`` (lost: too long on the IMU
+          alone), or a non-finite state or covariance.
+        """
+        cam = self.cam
+        if not (np.isfinite(self.P).all() and np.isfinite(self.p).all()):
+            return "non-finite state"
+        used = sum(u for u, _ in self._recent)
+        gated = sum(g for _, g in self._recent)
+        if gated >= cam.reset_min_gated and gated >= cam.reset_gated_fraction * (used + gated):
+            return (
+                f"innovations: {gated} of {used + gated} features rejected by the gate in "
+                f"{cam.reset_window_s:g} s"
+            )
+        sigma = math.sqrt(max(float(np.trace(self.P[3:6, 3:6])), 0.0))
+        if sigma > cam.reset_sigma_position:
+            return f"covariance: position std {sigma:.2f} m"
+        return None
 
     def process_frame(self, frame_id: int, ids: np.ndarray, uv: np.ndarray) -> None:
         """Propagate ``P`` to the frame, clone, add the observations ``uv`` (normalized, (n,
         2)) of features ``ids``, update with the finished tracks, slide the window."""
+        u0, g0 = self.used_features, self.gated_features
+        self._frame(frame_id, ids, uv)
+        self._recent.append((self.used_features - u0, self.gated_features - g0))
+
+    def _frame(self, frame_id: int, ids: np.ndarray, uv: np.ndarray) -> None:
         self._apply_propagation()
         self._clone(frame_id)
         seen = set()
@@ -250,18 +336,20 @@ class Msckf:
     def _marginalize_oldest(self) -> None:
         keep = np.r_[0:15, 21 : self.P.shape[0]]
         self.P = self.P[np.ix_(keep, keep)]
-        del self.clone_ids[0], self.clone_R[0], self.clone_p[0]
+        del self.clone_ids[0]
+        self.clone_R, self.clone_p = self.clone_R[1:], self.clone_p[1:]
         for tr in self.tracks.values():
             while tr.clones and tr.clones[0] < self.clone_ids[0]:
                 del tr.clones[0], tr.uv[0]
 
     def _update(self, tracks: list[Track]) -> None:
         """EKF update with the tracks' constraints, all features in one batch (shorter
-        tracks padded to the longest)."""
+        tracks padded to the longest).
+
+        ``H`` is zero on the IMU state (a feature constrains the clones only), so the
+        constraints are stacked on the clone columns ``H_c`` alone (:meth:`_ekf_update`)."""
+        nc = len(self.clone_ids)
         pos = {c: i for i, c in enumerate(self.clone_ids)}
-        crs = np.array(self.clone_R)
-        cps = np.array(self.clone_p)
-        n = self.P.shape[0]
         m = max(len(tr.clones) for tr in tracks)
         f = len(tracks)
         cidx = np.zeros((f, m), np.int64)
@@ -274,7 +362,7 @@ class Msckf:
             z[i, :k] = tr.uv
             z[i, k:] = tr.uv[-1]
             w[i, :k] = 1.0
-        rc, pc = crs[cidx], cps[cidx]
+        rc, pc = self.clone_R[cidx], self.clone_p[cidx]
         span = np.linalg.norm(pc - pc.mean(axis=1, keepdims=True), axis=2).max(axis=1)
         pf, ok = triangulate(rc, pc, z, w)
         depth = np.linalg.norm(pf - pc.mean(axis=1), axis=1)
@@ -285,10 +373,10 @@ class Msckf:
         ro, ho = feature_constraints(rc, pc, z, w, pf)
         f = len(ro)
         k = 2 * m - 3
-        cols = (15 + 6 * cidx[:, :, None] + np.arange(6)[None, None, :]).reshape(f, 6 * m)
+        cols = (6 * cidx[:, :, None] + np.arange(6)[None, None, :]).reshape(f, 6 * m)
         hc = ho.reshape(f, k, 6 * m)
         # gate on the feature's own clones: S = H_c P_cc H_c^T + s^2 I, dof 2 M_f - 3
-        pcc = self.P[cols[:, :, None], cols[:, None, :]]
+        pcc = self.P[15:, 15:][cols[:, :, None], cols[:, None, :]]
         s = hc @ pcc @ np.swapaxes(hc, 1, 2) + self.sigma**2 * np.eye(k)
         gamma = np.einsum("fi,fi->f", ro, np.linalg.solve(s, ro[..., None])[..., 0])
         dof = 2 * w.sum(axis=1).astype(int) - 3
@@ -298,23 +386,32 @@ class Msckf:
         self.used_features += g
         if not g:
             return
-        # padded observations scatter into six dummy columns past the state
-        dummy = (w[good] == 0)[:, :, None].repeat(6, axis=2).reshape(g, 6 * m)
-        cg = np.where(dummy, n + np.arange(6 * m)[None, :] % 6, cols[good])
-        hfull = np.zeros((g, k, n + 6))
-        hfull[np.arange(g)[:, None, None], np.arange(k)[None, :, None], cg[:, None, :]] = hc[good]
-        h = hfull[:, :, :n].reshape(-1, n)
+        # padded observations (zero blocks) go to a dummy clone past the window, so that they
+        # do not overwrite the real block of the clone they repeat
+        ci = np.where(w[good] > 0, cidx[good], nc)
+        hs = np.zeros((g, k, nc + 1, 6))
+        hs[np.arange(g)[:, None], :, ci, :] = np.swapaxes(ho[good], 1, 2)
+        h = hs[:, :, :nc, :].reshape(g * k, 6 * nc)
         r = ro[good].reshape(-1)
-        if h.shape[0] > n:
-            q, h = np.linalg.qr(h, mode="reduced")
-            r = q.T @ r
+        self._ekf_update(h.T @ h, h.T @ r)
+
+    def _ekf_update(self, m: np.ndarray, b: np.ndarray) -> None:
+        """EKF update with the stacked constraints ``r = H_c dx_c + n`` on the clone columns,
+        given as ``M = H_c^T H_c`` and ``b = H_c^T r`` (``_update``). With the push-through
+        identity ``H_c^T (H_c P_cc H_c^T + s^2 I)^-1 = (M P_cc + s^2 I)^-1 H_c^T``::
+
+            X = (M P_cc + s^2 I)^-1 [b | M P_c:],   dx = P_:c X_b,   P <- P - P_:c X_P
+
+        (``K r`` and ``K S K^T = K H P`` of the Kalman update), then ``P`` symmetrized. This
+        is the update after a QR compression of ``H_c`` (the same ``M`` and ``b``) without
+        the QR: a stack of a few hundred rows costs one ``H^T H``."""
         P = self.P
-        pht = P @ h.T
-        s2 = h @ pht + self.sigma**2 * np.eye(h.shape[0])
-        gain = np.linalg.solve(s2, pht.T).T
-        dx = gain @ r
-        ikh = np.eye(n) - gain @ h
-        self.P = ikh @ P @ ikh.T + self.sigma**2 * (gain @ gain.T)
+        pc = P[15:]  # P_c: (6 N, n)
+        a = m @ pc[:, 15:]
+        a[np.diag_indices_from(a)] += self.sigma**2
+        x = np.linalg.solve(a, np.column_stack([b, m @ pc]))
+        dx = pc.T @ x[:, 0]
+        self.P = P - pc.T @ x[:, 1:]
         self.P = 0.5 * (self.P + self.P.T)
         self._correct(dx)
 
@@ -324,7 +421,6 @@ class Msckf:
         self.v = self.v + dx[6:9]
         self.bg = self.bg + dx[9:12]
         self.ba = self.ba + dx[12:15]
-        for i in range(len(self.clone_ids)):
-            o = 15 + 6 * i
-            self.clone_R[i] = so3_exp(dx[o : o + 3]) @ self.clone_R[i]
-            self.clone_p[i] = self.clone_p[i] + dx[o + 3 : o + 6]
+        dc = dx[15:].reshape(-1, 6)
+        self.clone_R = so3_exp_many(dc[:, :3]) @ self.clone_R
+        self.clone_p = self.clone_p + dc[:, 3:]

@@ -65,6 +65,9 @@ class CameraOptions(Options):
     """Read noise (electrons RMS)."""
     noise: bool = True
     """Shot and read noise; off: the noise-free (still quantized, clipped) image."""
+    snapshot_s: float | None = Field(10.0, ge=0)
+    """Flight time (s) of the one frame kept with its tracked features (``qsls simulate``
+    writes it as ``camera_frame.npz``, the report shows it); None keeps none."""
     lens_cap: list[tuple[float, float]] = Field(default_factory=list)
     """Intervals ``[start, end)`` (s from the flight's start) with the lens covered: black
     frames (read noise only), so the filter runs on the IMU alone."""
@@ -131,6 +134,25 @@ class CameraOptions(Options):
     init_sigma_yaw_deg: float = Field(0.1, gt=0)
     init_sigma_gyro_bias: float = Field(1e-3, gt=0)
     init_sigma_accel_bias: float = Field(2e-2, gt=0)
+
+    # ---------------------------------------------------------------- failure and reset
+    reset: bool = True
+    """Detect a diverged or lost filter and re-initialize it (docs/camera.md); off: the
+    filter runs on whatever it has, however wrong (for comparison)."""
+    reset_window_s: float = Field(1.0, gt=0)
+    """Span of the innovation check (s of frames)."""
+    reset_min_gated: int = Field(10, ge=1)
+    """Innovation check: at least this many features rejected by the chi-square gate over the
+    span, and ..."""
+    reset_gated_fraction: float = Field(0.8, gt=0, le=1)
+    """... at least this fraction of the features that reached the gate: the filter's
+    predictions disagree with what the camera sees (diverged)."""
+    reset_sigma_position: float = Field(2.0, gt=0)
+    """Covariance check: ``sqrt(trace P_pp)`` above this (m) means the estimate is lost (too
+    long on the IMU alone: no parallax, no features)."""
+    reset_min_features: int = Field(20, ge=1)
+    """Re-initialization waits until the tracker holds this many features (as a real VIO's
+    initialization needs a tracked scene)."""
 
     @model_validator(mode="after")
     def _budget(self) -> CameraOptions:

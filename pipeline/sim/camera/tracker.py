@@ -18,6 +18,11 @@ import numpy as np
 from qsls.pipeline.sim.camera.options import CameraOptions
 
 _MIN_RANSAC = 12
+_MARGIN = 4
+"""New features start at least this many pixels inside the image."""
+_HALO = 5
+"""Pixels around a free cell given to FAST (its circle's radius 3, plus non-maximum
+suppression's neighbour, plus one)."""
 
 
 class Tracker:
@@ -35,11 +40,52 @@ class Tracker:
         self.ids = np.zeros(0, np.int64)
         self.next_id = 0
         self.rejected = 0
+        # pixel columns and rows of each grid cell (as _cells assigns integer pixels): FAST
+        # runs on the free cells only
+        self._col_edges = self._edges(cam.width, self.cell[0], self.cols)
+        self._row_edges = self._edges(cam.height, self.cell[1], self.rows)
+
+    @staticmethod
+    def _edges(size: int, cell: float, n: int) -> np.ndarray:
+        """``e`` (n + 1,) with the pixels ``e[i] <= x < e[i + 1]`` in cell ``i``."""
+        of = np.minimum((np.arange(size, dtype=np.float32) / cell).astype(int), n - 1)
+        return np.searchsorted(of, np.arange(n + 1), side="left")
 
     def _cells(self, pts: np.ndarray) -> np.ndarray:
         cx = np.minimum((pts[:, 0] / self.cell[0]).astype(int), self.cols - 1)
         cy = np.minimum((pts[:, 1] / self.cell[1]).astype(int), self.rows - 1)
         return cy * self.cols + cx
+
+    def _corners(self, img: np.ndarray, taken: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """FAST corners (pixels (n, 2), responses (n,)) in the cells not ``taken``, at least
+        :data:`_MARGIN` px inside the image: FAST runs on each free cell grown by
+        :data:`_HALO` px (a corner's score reads a radius-3 circle and non-maximum
+        suppression its neighbours' scores, so inside the cell the corners and scores are
+        those of the whole image), cells in order, each in OpenCV's row-major order."""
+        cam = self.cam
+        ce, re = self._col_edges, self._row_edges
+        xys, resps = [], []
+        for c in np.flatnonzero(~taken).tolist():
+            y, x = divmod(c, self.cols)
+            x0, x1 = max(int(ce[x]), _MARGIN), min(int(ce[x + 1]), cam.width - _MARGIN)
+            y0, y1 = max(int(re[y]), _MARGIN), min(int(re[y + 1]), cam.height - _MARGIN)
+            if x1 <= x0 or y1 <= y0:
+                continue
+            gx, gy = max(x0 - _HALO, 0), max(y0 - _HALO, 0)
+            kps = self.fast.detect(
+                img[gy : min(y1 + _HALO, cam.height), gx : min(x1 + _HALO, cam.width)]
+            )
+            if not kps:
+                continue
+            xy = np.asarray(cv2.KeyPoint.convert(kps), np.float32).reshape(-1, 2)
+            xy += np.array([gx, gy], np.float32)
+            inside = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
+            resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
+            xys.append(xy[inside])
+            resps.append(resp[inside])
+        if not xys:
+            return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+        return np.concatenate(xys), np.concatenate(resps)
 
     def track(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ids and pixel positions of the features in ``img`` (module docstring)."""
@@ -77,23 +123,11 @@ class Tracker:
         free = cam.max_features - len(self.pts)
         if free < max(1, cam.max_features // 10):  # detect when a tenth is missing
             return
-        kps = self.fast.detect(img)
-        if not kps:
-            return
-        xy = np.asarray(cv2.KeyPoint.convert(kps), np.float32).reshape(-1, 2)
-        resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
-        m = 4.0
-        inside = (
-            (xy[:, 0] >= m)
-            & (xy[:, 0] <= cam.width - 1 - m)
-            & (xy[:, 1] >= m)
-            & (xy[:, 1] <= cam.height - 1 - m)
-        )
-        xy, resp = xy[inside], resp[inside]
-        if not len(xy):
-            return
         taken = np.zeros(self.cols * self.rows, bool)
         taken[self._cells(self.pts)] = True
+        xy, resp = self._corners(img, taken)
+        if not len(xy):
+            return
         cell = self._cells(xy)
         order = np.lexsort((-resp, cell))  # by cell, strongest first
         first = np.ones(len(order), bool)

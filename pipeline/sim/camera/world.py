@@ -17,6 +17,7 @@ part of a plane is a half-plane of the image (a wall is further clipped to its e
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -37,7 +38,7 @@ class Plane:
     tiled: bool  # the ground extends its tile (mirrored); a wall ends at its texture's edges
     extent_px: tuple[int, int]  # (u, v) texels of a finite plane
 
-    @property
+    @cached_property
     def normal(self) -> np.ndarray:
         return np.cross(self.a1, self.a2)
 

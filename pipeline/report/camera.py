@@ -1,0 +1,140 @@
+"""The report's camera section: the VIO emulator and the camera loop side by side.
+
+Appears when the run has camera flights (a simulate folder whose ``truth.json`` names the
+``msckf`` estimator, or a fly stage flown with ``vio: camera``). It shows
+
+- the simulated flights paired by perception condition and seed, emulator beside camera
+  (perception error, tracking, and the camera loop's own counters: features per frame, blur,
+  filter resets);
+- the fly stage's per-controller results of the camera loop, per condition (the emulator's
+  counterpart of the same experiment is ``configs/paper_sim.yaml``'s run when it is not in
+  this run);
+- one frame of each condition with the features tracked on it (``camera_frame.npz`` of a
+  camera simulate folder, drawn here).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from qsls.pipeline.core.artifacts import figure_bytes, read_manifest
+from qsls.pipeline.report.document import Figure, Section
+from qsls.pipeline.report.facts import Facts
+
+FRAME_FILE = "camera_frame.npz"
+
+
+def _simulated(f: Facts) -> list[dict[str, Any]]:
+    """One record per simulate folder: its estimator, condition, seed and results."""
+    rows = []
+    for folder in f.stages.get("simulate", []):
+        truth_file = folder / "truth.json"
+        if not truth_file.is_file():
+            continue
+        truth = json.loads(truth_file.read_text())
+        emu = truth.get("emulator", {})
+        res = read_manifest(folder).get("results", {})
+        camera = emu.get("estimator") == "msckf"
+        rows.append(
+            {
+                "folder": folder,
+                "flight": folder.name,
+                "estimator": "camera (MSCKF)" if camera else "emulator",
+                "camera": camera,
+                "condition": emu.get("params", {}).get("perception", "?"),
+                "seed": truth.get("seed"),
+                "e_rms": res.get("perception_error_rms"),
+                "e_max": res.get("perception_error_max"),
+                "tracking_rms": res.get("tracking_rms_m"),
+                "crashed": res.get("crashed"),
+                "features": emu.get("features_per_frame") if camera else None,
+                "blur": emu.get("blur_px_mean") if camera else None,
+                "resets": emu.get("resets") if camera else None,
+            }
+        )
+    return rows
+
+
+def _fly_is_camera(f: Facts) -> bool:
+    if not f.fly_folder:
+        return False
+    opts = read_manifest(f.run_dir / f.fly_folder).get("options", {})
+    return opts.get("vio") == "camera"
+
+
+def _frames_figure(frames: list[tuple[str, Path]], counter: list[int]) -> Figure:
+    """The kept frames side by side, tracked features circled."""
+    import matplotlib.pyplot as plt
+
+    from qsls.pipeline.core import style
+
+    fig, ax = style.subplots(1, len(frames), width=style.WIDTH_IN, height=2.6)
+    for a, (cond, path) in zip(ax[0], frames, strict=True):
+        d = np.load(path)
+        pts = d["points"]
+        a.imshow(d["image"], cmap="gray", vmin=0, vmax=255, interpolation="nearest")
+        if len(pts):
+            a.scatter(pts[:, 0], pts[:, 1], s=14, facecolors="none", edgecolors="#e8552d", lw=0.8)
+        a.set_title(f"{cond}: t = {float(d['t_s']):g} s, {len(pts)} features", loc="left")
+        a.set_xticks([])
+        a.set_yticks([])
+    counter[0] += 1
+    try:
+        png = figure_bytes(fig, "png", 110)
+    finally:
+        plt.close(fig)
+    caption = (
+        "One camera frame per perception condition with the features the tracker holds on "
+        "it (circles): degraded light means a longer exposure (more blur), more noise and a "
+        "weaker texture"
+    )
+    return Figure(f"fig{counter[0]:02d}_camera_frames.png", png, caption)
+
+
+def section_camera(f: Facts, counter: list[int]) -> Section | None:
+    """The section of the module docstring, or None when the run has no camera flights."""
+    sims = _simulated(f)
+    fly_camera = _fly_is_camera(f)
+    if not fly_camera and not any(r["camera"] for r in sims):
+        return None
+    sec = Section("Camera loop beside the emulator", id="camera")
+    sec.text(
+        "Flights whose estimate comes from a rendered camera, a 200 Hz IMU and an MSCKF "
+        "(docs/camera.md) beside flights with the VIO emulator's designed errors: same "
+        "controller, seed and perception condition."
+    )
+    keyed = sorted(sims, key=lambda r: (str(r["condition"]), r["seed"] or 0, r["estimator"]))
+    if keyed:
+        sec.table(
+            ["condition", "seed", "flight", "estimator", "||e|| RMS", "||e|| max",
+             "tracking RMS (m)", "crashed", "features / frame", "blur (px)", "resets"],
+            [[r["condition"], r["seed"], r["flight"], r["estimator"], r["e_rms"], r["e_max"],
+              r["tracking_rms"], r["crashed"], r["features"], r["blur"], r["resets"]]
+             for r in keyed],
+            "Simulated flights, emulator and camera loop side by side",
+            text_cols=[0, 2, 3],
+        )  # fmt: skip
+    per = f.per_controller
+    if fly_camera and per is not None and len(per):
+        cols = [c for c in ("condition", "controller", "tracking_rms_m", "perception_error_rms",
+                            "perception_error_max", "crashed", "flights") if c in per]  # fmt: skip
+        sec.table(
+            cols,
+            per[cols].to_numpy().tolist(),
+            f"Controllers flown with the camera loop ({f.fly_folder}); the emulator's run of the "
+            "same experiment: configs/paper_sim.yaml",
+            text_cols=[0, 1],
+        )
+    frames: dict[str, Path] = {}
+    for r in sims:
+        path = r["folder"] / FRAME_FILE
+        if r["camera"] and path.is_file():
+            frames.setdefault(str(r["condition"]), path)
+    if frames:
+        order = sorted(frames, key=lambda c: (c != "regular", c))
+        sec.figures([_frames_figure([(c, frames[c]) for c in order], counter)])
+    return sec
