@@ -32,14 +32,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from qsls.pipeline.control.sls import l1_norm
+from qsls.pipeline.errormodel.honest import VELOCITY, measured_channels
 
 ONES = (1.0,) * 6
-VELOCITY = (3, 4, 5)
-
-
-def measured_channels(measure: str) -> tuple[int, ...]:
-    """Error channels the controller reads: all six (``full``) or the positions (``position``)."""
-    return (0, 1, 2, 3, 4, 5) if measure == "full" else (0, 1, 2)
+__all__ = ["VELOCITY", "measured_channels"]  # re-exported: one definition, in the premise's fit
 
 
 def outlier_channels(measure: str, m: int) -> tuple[int, ...]:

@@ -167,7 +167,7 @@ class Measured:
 def measure(x: np.ndarray, e: np.ndarray, flight: np.ndarray, w_norm: np.ndarray | None,
             spec: Spec) -> Measured:  # fmt: skip
     """Split the errors, take their weighted norms and fit ``S`` and ``m`` (pure: arrays in)."""
-    d, o = honest.split_errors(e, spec.beta, spec.measure)  # type: ignore[arg-type]
+    d, o = honest.split_errors(e, spec.beta, spec.measure)
     dense = honest.weighted_norm(d, spec.error_scale)
     dist = honest.other_flight_distances(x, flight, spec.state_scale)
     slope = honest.lofo_slope(dense, flight, dist, spec.radius)
@@ -258,7 +258,7 @@ def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
         else:
             top_w = em.disturbance.max if em is not None and em.disturbance is not None else None
             eps_w = _bounded(chosen.eps_w, h["eps_w"], top_w)
-        has_out = bool(honest.outlier_channels(spec.measure, spec.beta))  # type: ignore[union-attr, arg-type]
+        has_out = bool(honest.outlier_channels(spec.measure, spec.beta))  # type: ignore[union-attr]
         if has_out:
             counts = honest.window_counts(meas.outlier > 0, meas.flight, spec.window)  # type: ignore[union-attr]
             m = _entry(chosen.m, h["m"], _count(counts > chosen.m))

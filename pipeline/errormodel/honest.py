@@ -38,18 +38,18 @@ POSITION = (0, 1, 2)
 VELOCITY = (3, 4, 5)
 
 
-def measured_channels(measure: Measure) -> tuple[int, ...]:
+def measured_channels(measure: str) -> tuple[int, ...]:
     """Error channels the controller reads: all six, or the three positions."""
     return POSITION + VELOCITY if measure == "full" else POSITION
 
 
-def outlier_channels(measure: Measure, beta: float) -> tuple[int, ...]:
+def outlier_channels(measure: str, beta: float) -> tuple[int, ...]:
     """Channels that may carry a sparse part: the measured velocities when ``beta`` is finite."""
     return VELOCITY if measure == "full" and math.isfinite(beta) else ()
 
 
 def split_errors(
-    e: np.ndarray, beta: float, measure: Measure = "full"
+    e: np.ndarray, beta: float, measure: str = "full"
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(d, o)`` with ``e = d + o`` on the measured channels: ``d = clip(e, -beta, beta)`` on the
     measured velocity channels, ``d = e`` on positions; unmeasured channels are zero in both."""

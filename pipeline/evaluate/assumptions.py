@@ -93,7 +93,7 @@ def check_assumptions(
     ch = list(measured_channels(c.measure))
     e_read = np.zeros_like(e)
     e_read[:, ch] = e[:, ch]
-    d, o = honest.split_errors(e_read, c.beta, c.measure)  # type: ignore[arg-type]
+    d, o = honest.split_errors(e_read, c.beta, c.measure)
     dense = honest.weighted_norm(d, c.error_scale)
     mag = np.abs(o).max(axis=1)
     dist = distance(log.x)

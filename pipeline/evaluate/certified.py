@@ -69,7 +69,7 @@ class ControllerBound:
         """``|d_k|_e``: the part of the error the premise bounds by ``eps_e + S d_k``."""
         from qsls.pipeline.errormodel import honest
 
-        d, _ = honest.split_errors(e, self.beta, self.measure)  # type: ignore[arg-type]
+        d, _ = honest.split_errors(e, self.beta, self.measure)
         return honest.weighted_norm(d, self.error_scale)
 
     @property
