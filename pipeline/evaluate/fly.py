@@ -447,6 +447,7 @@ def assumption_table(
     from qsls.pipeline.evaluate.certified import certified_premise
 
     premises = {b.name: certified_premise(b.folder) for b in bounds}
+    status = {b.name: b.status for b in bounds}
     rows = []
     for o in outcomes:
         c = premises.get(o.controller)
@@ -454,8 +455,8 @@ def assumption_table(
             continue
         log = FlownLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl)
         row = check_assumptions(log, c, training.distance)
-        rows.append({"flight": o.name, "controller": o.controller, "condition": o.condition,
-                     "seed": o.seed, **row})  # fmt: skip
+        rows.append({"flight": o.name, "controller": o.controller, "status": status[o.controller],
+                     "condition": o.condition, "seed": o.seed, **row})  # fmt: skip
     return pd.DataFrame(rows)
 
 
