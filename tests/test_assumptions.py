@@ -114,6 +114,19 @@ def test_a_broken_assumption_is_named_first_with_its_time(certified, kwargs, fai
     assert f"assumption '{failed}' fails first at t={t_fail:.2f}s" in row["verdict"]
 
 
+def test_a_crashed_flight_is_never_reported_as_held(certified):
+    from qsls.pipeline.evaluate.assumptions import crashed
+
+    model, taps, premise = certified
+    row = check_assumptions(_fly(model, taps), premise, _training().distance)
+    assert row["assumptions_hold"]
+    out = crashed(row, 7.5, "ground")
+    assert not out["assumptions_hold"] and out["first_failed"] == "crashed"
+    assert out["verdict"].startswith("the flight crashed at t=7.5s (ground)")
+    bad = check_assumptions(_fly(model, taps, w_scale=3.0), premise, _training().distance)
+    assert crashed(bad, 7.5, "ground")["first_failed"] == "disturbance"  # the cause comes first
+
+
 def test_gate_clips_what_the_controller_reads():
     log = FlownLog(
         np.zeros(2), np.zeros((2, 6)), np.array([[0, 0, 0, 3.0, -0.5, 0]] * 2), np.zeros((2, 3)),

@@ -136,6 +136,18 @@ def check_assumptions(
     return row
 
 
+def crashed(row: dict[str, Any], when: Any, reason: Any) -> dict[str, Any]:
+    """A row of a flight that crashed: checked on the ticks it flew, and never reported as
+    held (a crash is outside every guarantee, whatever held before it)."""
+    if not row["assumptions_hold"]:
+        return row
+    return row | {
+        "assumptions_hold": False,
+        "first_failed": "crashed",
+        "verdict": f"the flight crashed at t={when}s ({reason}); every assumption held before",
+    }
+
+
 def _first(bad: np.ndarray, t: np.ndarray) -> float:
     idx = np.flatnonzero(bad)
     return float(t[idx[0]]) if len(idx) else math.nan

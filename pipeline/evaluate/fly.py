@@ -443,7 +443,7 @@ def assumption_table(
 ) -> pd.DataFrame:
     """:func:`qsls.pipeline.evaluate.assumptions.check_assumptions` on every flight a certified
     (or relaxed) robust controller flew, from its own log at its own ticks."""
-    from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions
+    from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions, crashed
     from qsls.pipeline.evaluate.certified import certified_premise
 
     premises = {b.name: certified_premise(b.folder) for b in bounds}
@@ -451,11 +451,14 @@ def assumption_table(
     rows = []
     for o in outcomes:
         c = premises.get(o.controller)
-        if c is None or o.metrics.get("crashed"):
-            continue
+        if c is None or len(o.t_ctrl) < 2:
+            continue  # a crashed flight is checked on the ticks it flew: a crash is no excuse
         log = FlownLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl)
         row = check_assumptions(log, c, training.distance)
+        if o.metrics.get("crashed"):
+            row = crashed(row, o.extra.get("crash_time_s"), o.metrics.get("crash_reason"))
         rows.append({"flight": o.name, "controller": o.controller, "status": status[o.controller],
+                     "crashed": bool(o.metrics.get("crashed")),
                      "condition": o.condition, "seed": o.seed, **row})  # fmt: skip
     return pd.DataFrame(rows)
 
