@@ -29,7 +29,7 @@ from pydantic import BaseModel, ConfigDict
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.errormodel import honest
-from qsls.pipeline.errormodel.model import TRAINING_FILE, ErrorModel
+from qsls.pipeline.errormodel.model import TRAINING_FILE, W_COLS, ErrorModel
 
 ONES = (1.0,) * 6
 
@@ -176,8 +176,12 @@ def measure(x: np.ndarray, e: np.ndarray, flight: np.ndarray, w_norm: np.ndarray
     return Measured(spec, dense, mag, flight, dist, w_norm, slope, outl)
 
 
-def load_measured(em_file: Path, em: ErrorModel, spec: Spec) -> Measured | None:
-    """:func:`measure` on the training states beside ``em_file`` (None when they are absent)."""
+_MEASURED: dict[tuple[Any, ...], Measured] = {}
+
+
+def load_measured(em_file: Path, spec: Spec) -> Measured | None:
+    """:func:`measure` on the training states beside ``em_file`` (None when they are absent),
+    kept per file version and spec: a sweep resolves every grid point against it."""
     import pandas as pd
 
     from qsls.pipeline.ingest.flight import E_COLS, X_COLS
@@ -185,17 +189,21 @@ def load_measured(em_file: Path, em: ErrorModel, spec: Spec) -> Measured | None:
     f = Path(em_file).parent / TRAINING_FILE
     if not f.is_file():
         return None
+    st = f.stat()
+    key = (str(f.resolve()), st.st_mtime_ns, st.st_size, spec)
+    if key in _MEASURED:
+        return _MEASURED[key]
     df = pd.read_parquet(f)
     x, e = df[list(X_COLS)].to_numpy(float), df[list(E_COLS)].to_numpy(float)
     codes = pd.factorize(df["flight"])[0] if "flight" in df.columns else np.zeros(len(df), int)
-    w_cols = [f"w_{a}" for a in ("px", "py", "pz", "vx", "vy", "vz")]
     w = None
-    if all(c in df.columns for c in w_cols):
+    if all(c in df.columns for c in W_COLS):
         from qsls.pipeline.errormodel.disturbance import shaped_norm
 
         H = None if spec.H is None else np.asarray(spec.H, float)
-        w = shaped_norm(df[w_cols].to_numpy(float), H)
-    return measure(x, e, codes, w, spec)
+        w = shaped_norm(df[list(W_COLS)].to_numpy(float), H)
+    _MEASURED[key] = meas = measure(x, e, codes, w, spec)
+    return meas
 
 
 def _count(bad: np.ndarray, total: np.ndarray | None = None) -> tuple[int, int]:

@@ -351,7 +351,7 @@ def resolve(
         H=None if opts.H is None else tuple(tuple(r) for r in opts.H),
     )  # fmt: skip
     trivial = opts.measure == "full" and opts.beta is None and all(w == 1.0 for w in opts.error_scale)
-    meas = load_measured(em_file, em, spec) if em is not None and em_file is not None else None
+    meas = load_measured(em_file, spec) if em is not None and em_file is not None else None
     where = None
     if em is not None:
         where = (

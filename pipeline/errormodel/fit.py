@@ -43,6 +43,7 @@ from qsls.pipeline.core.references import ReferenceOptions, parse_reference
 from qsls.pipeline.errormodel.model import (
     ERROR_MODEL_FILE,
     TRAINING_FILE,
+    W_COLS,
     AxisStats,
     DisturbanceStats,
     ErrorModel,
@@ -288,8 +289,6 @@ def _disturbance(
 
 
 U_COLS = ("u_pitch", "u_roll", "u_thrust")
-W_COLS = tuple(f"w_{a}" for a in AXES)
-"""The realized disturbance's columns in ``training_states.parquet``."""
 
 
 def _read_inputs(path: Path, stamp0_ns: int) -> tuple[np.ndarray, np.ndarray]:

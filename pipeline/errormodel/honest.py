@@ -29,11 +29,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
-Measure = Literal["full", "position"]
 POSITION = (0, 1, 2)
 VELOCITY = (3, 4, 5)
 

@@ -23,6 +23,8 @@ if TYPE_CHECKING:
 
 ERROR_MODEL_FILE = "error_model.yaml"
 TRAINING_FILE = "training_states.parquet"
+W_COLS = ("w_px", "w_py", "w_pz", "w_vx", "w_vy", "w_vz")
+"""The realized disturbance's columns in ``training_states.parquet``."""
 _PCT = re.compile(r"^p(\d+(?:\.\d+)?)$")
 
 
