@@ -55,10 +55,10 @@ def synthesized(
     )
     sol = sls.solve(model, sls.Structure(T, "l1", "qr", True, strictly_proper), values)
     assert sol.status == "optimal" and sol.taps is not None, sol.solver_status
-    status, fields = certify(sol.taps, model, SETTING)
-    cert = Certificate(
+    c = certify(sol.taps, model, SETTING)
+    cert = Certificate.of(
+        c,
         controller=name,
-        status=status,
         robust=True,
         norm="l1",
         cost="qr",
@@ -68,6 +68,5 @@ def synthesized(
         mass=model.mass,
         controller_sha256=Controller(sol.taps, model).sha256(),
         **RECORD,
-        **fields,
     )
     return ControllerDir(Path("/nowhere") / name, Controller(sol.taps, model), cert)

@@ -15,6 +15,7 @@ from qsls.pipeline.control import sls
 from qsls.pipeline.control.certify import certify
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.realize import RealizedController, filter_bank
+from qsls.pipeline.control.status import CERTIFIED
 from qsls.pipeline.core.plant import GRAVITY, quadrotor_model
 from qsls.pipeline.evaluate.assumptions import (
     CertifiedPremise,
@@ -40,10 +41,10 @@ def certified():
                         gate=V)  # fmt: skip
     sol = sls.solve(model, st, values)
     assert sol.taps is not None, sol.solver_status
-    status, f = certify(sol.taps, model, NUMBERS, SHAPE)
-    assert status == "certified", f["checks"]
+    c = certify(sol.taps, model, NUMBERS, SHAPE)
+    assert c.status == CERTIFIED, c.checks
     premise = CertifiedPremise(
-        eps=0.1, S=0.0, radius=R, eps_w=0.01, delta=0.0, a=f["a"], rho_star=f["rho_star"],
+        eps=0.1, S=0.0, radius=R, eps_w=0.01, delta=0.0, a=c.a, rho_star=c.rho_star,
         m=2, eps_o=NUMBERS.eps_o, beta=BETA, measure="full", error_scale=SHAPE.error_scale,
         gate=V, phi_xy=sol.taps.Phi_xy, A=model.A, B=model.B, H=model.H,
         u_hover=np.array([0.0, 0.0, model.mass * GRAVITY]),

@@ -25,6 +25,7 @@ from qsls.pipeline.control.guarantee import (
     sparse_gain,
     system_norms,
 )
+from qsls.pipeline.control.status import CERTIFIED
 from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.errormodel import honest
 
@@ -148,14 +149,14 @@ def test_special_case_is_dean_et_al():
     n_xy = sls.l1_norm(sol.taps.Phi_xy)
     n_xx = sls.l1_norm(sol.taps.Phi_xx, model.H)
     numbers = PremiseNumbers(eps=eps, S=S, radius=r, eps_w=eps_w, delta=delta)
-    status, f = certify(sol.taps, model, numbers)
+    c = certify(sol.taps, model, numbers)
     a = eps_w * n_xx + delta
-    assert status == "certified"
-    assert f["robustness_lhs"] == pytest.approx((S + eps / r) * n_xy + a / r, rel=1e-12)
-    assert f["gamma"] == pytest.approx((eps + S * a) / (1 - S * n_xy), rel=1e-12)
-    assert f["gamma_strict"] == pytest.approx(eps / (1 - S * n_xy), rel=1e-12)
-    assert f["norm_N"] == pytest.approx(n_xy, rel=1e-14) and f["G_m"] == 0.0
-    assert f["rho_star"] <= r
+    assert c.status == CERTIFIED
+    assert c.robustness_lhs == pytest.approx((S + eps / r) * n_xy + a / r, rel=1e-12)
+    assert c.gamma == pytest.approx((eps + S * a) / (1 - S * n_xy), rel=1e-12)
+    assert c.gamma_strict == pytest.approx(eps / (1 - S * n_xy), rel=1e-12)
+    assert c.norm_N == pytest.approx(n_xy, rel=1e-14) and c.G_m == 0.0
+    assert c.rho_star <= r
 
 
 def test_generalized_synthesis_meets_its_own_constraint():
@@ -171,15 +172,15 @@ def test_generalized_synthesis_meets_its_own_constraint():
         assert sol.taps is not None, (measure, sol.solver_status)
         numbers = PremiseNumbers(eps=0.02, S=0.01, radius=1.5, eps_w=0.005, delta=0.05,
                                  eps_o=0.2, m=m)  # fmt: skip
-        status, f = certify(sol.taps, model, numbers, shape)
-        assert status == "certified", f["checks"]
-        assert f["robustness_lhs"] <= 1 - sls.ROBUST_BACKOFF + 1e-7
+        c = certify(sol.taps, model, numbers, shape)
+        assert c.status == CERTIFIED, c.checks
+        assert c.robustness_lhs <= 1 - sls.ROBUST_BACKOFF + 1e-7
         if measure == "position":
             assert np.abs(sol.taps.Phi_uy[:, :, 3:]).max() == 0.0
             assert np.abs(sol.taps.Phi_xy[:, :, 3:]).max() < 1e-9
         else:
-            assert f["G_m"] > 0
-        g = guarantee(numbers, Norms(f["norm_N"], f["norm_N_w"], f["G_m"]))
+            assert c.G_m > 0
+        g = guarantee(numbers, Norms(c.norm_N, c.norm_N_w, c.G_m))
         assert g.rho_star < 1.5 and g.dense_bound == pytest.approx(0.02 + 0.01 * g.rho_star)
 
 

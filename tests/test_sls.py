@@ -10,6 +10,7 @@ from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.realize import RealizedController, filter_bank
+from qsls.pipeline.control.status import CERTIFIED, FAILED
 from qsls.pipeline.core.plant import quadrotor_model
 from tests.lqg_reference import lqg_h2_squared
 
@@ -178,8 +179,8 @@ def test_solver_trouble_is_never_certified():
     assert sol.status in ("inaccurate", "error")
     if sol.taps is not None:
         setting = PremiseNumbers(eps=0.05, S=0.1, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
-        status, fields = certify.certify(sol.taps, MODEL, setting, solver_status=sol.status)
-        assert status != "certified" and not fields["checks"]["solver"]["passed"]
+        c = certify.certify(sol.taps, MODEL, setting, solver_status=sol.status)
+        assert c.status != CERTIFIED and not c.checks["solver"]["passed"]
 
 
 def test_certificate_checks_catch_a_wrong_response():
@@ -192,11 +193,11 @@ def test_certificate_checks_catch_a_wrong_response():
         sls.Values(eps_w=0.01, eps_e=0.05, S=0.1, delta=0.05),
     )
     setting = PremiseNumbers(eps=0.05, S=0.1, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
-    status, f = certify.certify(sol.taps, MODEL, setting)
-    assert status == "certified" and f["realization_error"] < 1e-12
+    c = certify.certify(sol.taps, MODEL, setting)
+    assert c.status == CERTIFIED and c.realization_error < 1e-12
     bad_uy = sol.taps.Phi_uy.copy()
     bad_uy[4, 0, 0] += 1e-5
-    status, f = certify.certify(replace(sol.taps, Phi_uy=bad_uy), MODEL, setting)
-    assert status == "failed"
-    assert f["achievability_residual"] > 1e-7 and not f["checks"]["achievability"]["passed"]
-    assert f["realization_error"] > 1e-8 and not f["checks"]["realization"]["passed"]
+    c = certify.certify(replace(sol.taps, Phi_uy=bad_uy), MODEL, setting)
+    assert c.status == FAILED
+    assert c.achievability_residual > 1e-7 and not c.checks["achievability"]["passed"]
+    assert c.realization_error > 1e-8 and not c.checks["realization"]["passed"]

@@ -197,6 +197,42 @@ def _check_gains(f: Path, arrays: dict[str, np.ndarray], bank: FilterBank) -> No
             )
 
 
+class CertificateBody(BaseModel):
+    """What :func:`qsls.pipeline.control.certify.certify` finds on a controller's taps: its
+    status, the norms of its responses, the guarantee's numbers (docs/guarantee.md) and the
+    checks, each recomputed from the taps. A :class:`Certificate` is this body with the setting
+    it was checked against (:meth:`Certificate.of`)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    status: Status
+    norm_phi_xx_h: float
+    norm_phi_xy: float
+    norm_phi_ux: float
+    norm_phi_uy: float
+    robustness_lhs: float
+    margin: float
+    s_times_norm_phi_xy: float
+    a: float
+    gamma: float
+    """The bound on the dense error, ``eps + S rho*``."""
+    gamma_strict: float
+    rho_star: float
+    norm_N: float
+    norm_N_w: float
+    G_m: float
+    achievability_residual: float
+    truncation_residual: float | None = None
+    """A reference controller's: its taps are a truncation, so the residual is the tail's."""
+    realization_error: float | None = None
+    perturbation_peak: float | None = None
+    perturbation_final: float | None = None
+    checks: dict[str, dict[str, Any]] | None = None
+    """``name -> {value, limit, passed}`` (none for a reference controller)."""
+    rho_v: float | None = None
+    """Certified bound on the velocity deviation (with a velocity gate)."""
+
+
 class Certificate(BaseModel):
     """``certificate.yaml``: what was certified, against which setting, and the checks.
 
@@ -274,6 +310,20 @@ class Certificate(BaseModel):
     premise: Premise | None = None
     """The premise the guarantee rests on, with the training data's violated shares
     (:mod:`qsls.pipeline.control.premise`); ``certified`` needs it to hold on all of it."""
+
+    @classmethod
+    def of(cls, body: CertificateBody, **setting: Any) -> Certificate:
+        """The certificate of ``body`` against ``setting`` (controller name, the premise's
+        numbers, the problem, ``controller_sha256``, ...); the file's keys keep this class's
+        order."""
+        return cls.model_validate({**setting, **dict(body)})
+
+    @property
+    def body(self) -> CertificateBody:
+        """The part :func:`~qsls.pipeline.control.certify.certify` computed."""
+        return CertificateBody.model_validate(
+            {k: getattr(self, k) for k in CertificateBody.model_fields}
+        )
 
     def to_yaml(self) -> str:
         return dump_yaml(self.model_dump())

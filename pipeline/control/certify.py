@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import sls
+from qsls.pipeline.control.artifacts import CertificateBody
 from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, guarantee
 from qsls.pipeline.control.realize import FilterBank, RealizedController, filter_bank
 from qsls.pipeline.control.sls import Taps
@@ -142,8 +143,9 @@ def certify(
     solver_status: str = "optimal",
     reference: bool = False,
     premise_holds: bool = True,
-) -> tuple[Status, dict[str, Any]]:
-    """Run every check on ``taps``; returns ``(status, fields)`` (:data:`Status`)."""
+) -> CertificateBody:
+    """Run every check on ``taps``: the certificate's body, its ``status`` one of
+    :data:`Status` (a ``reference`` controller is measured, not checked)."""
     bank = filter_bank(taps)
     residuals = sls.achievability_residuals(taps, model)
     resid = max(residuals.values())
@@ -158,8 +160,7 @@ def certify(
         "achievability_residual": resid,
     }
     if reference:
-        fields["truncation_residual"] = resid
-        return REFERENCE, fields
+        return CertificateBody(status=REFERENCE, truncation_residual=resid, **fields)
     rerr = realization_error(taps, model, bank)
     peak, final = perturbation_response(model, bank)
     fields["realization_error"] = rerr
@@ -217,7 +218,7 @@ def certify(
         status = CERTIFIED if premise_holds else RELAXED
     else:
         status = UNCERTIFIED
-    return status, fields
+    return CertificateBody(status=status, **fields)
 
 
 def _unread_gain(taps: Taps, shape: sls.Shape) -> float:

@@ -20,7 +20,7 @@ that no training sample satisfies is refused.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -176,34 +176,58 @@ def measure(x: np.ndarray, e: np.ndarray, flight: np.ndarray, w_norm: np.ndarray
     return Measured(spec, dense, mag, flight, dist, w_norm, slope, outl)
 
 
-_MEASURED: dict[tuple[Any, ...], Measured] = {}
+@dataclass(frozen=True, eq=False)
+class TrainingStates:
+    """The training states an error model was fitted on, in memory: states ``x`` ``(n, 6)``,
+    perception errors ``e`` ``(n, 6)``, flight codes ``(n,)`` and, when the fit measured it,
+    the realized disturbance ``w`` ``(n, 6)``. ``source`` is what a certificate's premise
+    records as where its shares were counted.
+
+    :meth:`measured` keeps the premise measured per :class:`Spec`: a sweep resolves every grid
+    point against one training set, and measuring (the other-flight KD-trees) is the costly
+    part."""
+
+    x: np.ndarray
+    e: np.ndarray
+    flight: np.ndarray
+    w: np.ndarray | None = None
+    source: str = "training data in memory"
+    _measured: dict[Spec, Measured] = field(default_factory=dict, repr=False)
+
+    def measured(self, spec: Spec) -> Measured:
+        """:func:`measure` under ``spec`` (once per spec)."""
+        if spec not in self._measured:
+            w = None
+            if self.w is not None:
+                from qsls.pipeline.errormodel.disturbance import shaped_norm
+
+                H = None if spec.H is None else np.asarray(spec.H, float)
+                w = shaped_norm(self.w, H)
+            self._measured[spec] = measure(self.x, self.e, self.flight, w, spec)
+        return self._measured[spec]
+
+    @classmethod
+    def from_frame(cls, df: Any, source: str = "training data in memory") -> TrainingStates:
+        """From a table with the flight columns ``x_*``, ``e_*``, optionally ``flight`` and the
+        disturbance ``w_*`` (the fit's ``training_states.parquet``)."""
+        import pandas as pd
+
+        from qsls.pipeline.ingest.flight import E_COLS, X_COLS
+
+        x, e = df[list(X_COLS)].to_numpy(float), df[list(E_COLS)].to_numpy(float)
+        codes = pd.factorize(df["flight"])[0] if "flight" in df.columns else np.zeros(len(df), int)
+        w = df[list(W_COLS)].to_numpy(float) if all(c in df.columns for c in W_COLS) else None
+        return cls(x, e, codes, w, source)
 
 
-def load_measured(em_file: Path, spec: Spec) -> Measured | None:
-    """:func:`measure` on the training states beside ``em_file`` (None when they are absent),
-    kept per file version and spec: a sweep resolves every grid point against it."""
+def training_beside(em_file: Path) -> TrainingStates | None:
+    """The training states beside ``em_file`` (None when they are absent)."""
     import pandas as pd
-
-    from qsls.pipeline.ingest.flight import E_COLS, X_COLS
 
     f = Path(em_file).parent / TRAINING_FILE
     if not f.is_file():
         return None
-    st = f.stat()
-    key = (str(f.resolve()), st.st_mtime_ns, st.st_size, spec)
-    if key in _MEASURED:
-        return _MEASURED[key]
-    df = pd.read_parquet(f)
-    x, e = df[list(X_COLS)].to_numpy(float), df[list(E_COLS)].to_numpy(float)
-    codes = pd.factorize(df["flight"])[0] if "flight" in df.columns else np.zeros(len(df), int)
-    w = None
-    if all(c in df.columns for c in W_COLS):
-        from qsls.pipeline.errormodel.disturbance import shaped_norm
-
-        H = None if spec.H is None else np.asarray(spec.H, float)
-        w = shaped_norm(df[list(W_COLS)].to_numpy(float), H)
-    _MEASURED[key] = meas = measure(x, e, codes, w, spec)
-    return meas
+    return TrainingStates.from_frame(pd.read_parquet(f), f"{TRAINING_FILE} beside the error model")
 
 
 def _count(bad: np.ndarray, total: np.ndarray | None = None) -> tuple[int, int]:

@@ -35,12 +35,14 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
+from qsls.pipeline.control.guarantee import necessary_condition
 from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_columns
 from qsls.pipeline.control.synth import ProblemOptions, read_model, resolve, warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.pools import run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.errormodel.model import error_model_file
 
 AXES = (
     "S", "eps_e", "radius", "delta", "T", "q_scale", "r_scale", "eps_w", "norm", "cost",
@@ -120,27 +122,28 @@ class SweepSection(SweepOptions):
 
 
 # --------------------------------------------------------------------------- points
-def grid_points(
-    options: SweepOptions, em: Any, em_file: Path | None = None
-) -> list[dict[str, Any]]:
-    """One plain dict per grid point: the grid values, the resolved numbers, the premise's
-    violated shares (:func:`premise_fields`) and everything a worker needs (picklable)."""
+def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[dict[str, Any]]:
+    """One plain dict per grid point: the grid values, the point's resolved problem
+    (:class:`~qsls.pipeline.control.synth.Resolved`, as ``qsls synth`` resolves it), the
+    premise's violated shares (:func:`premise_fields`) and everything a worker needs
+    (picklable)."""
+    from qsls.pipeline.core.config import validate
+
     axes = list(options.grid)
     base = options.model_dump(exclude={"grid", "certify", "s_max_curve", "chunks_per_job"})
     points: list[dict[str, Any]] = []
     for i, combo in enumerate(itertools.product(*(options.grid[a] for a in axes))):
         gv = dict(zip(axes, combo, strict=True))
         upd = {k: v for k, v in gv.items() if k not in ("q_scale", "r_scale")}
-        from qsls.pipeline.core.config import validate
-
         try:
             opts = validate(ProblemOptions, {**base, **upd}, "grid point")
         except ConfigError as exc:
             raise ConfigError(f"grid point {gv}: {exc}") from None
-        r = resolve(opts, em, em_file)
+        r = resolve(opts, em, training)
         qs, rs = float(gv.get("q_scale", 1.0)), float(gv.get("r_scale", 1.0))
         if qs <= 0 or rs <= 0:
             raise ConfigError(f"grid point {gv}: q_scale and r_scale must be > 0")
+        r = replace(r, Q=r.Q * qs, R=r.R * rs)
         points.append(
             {
                 "index": i,
@@ -148,19 +151,20 @@ def grid_points(
                     k: (v if isinstance(v, int | float | str | bool) else str(v))
                     for k, v in gv.items()
                 },
+                "resolved": r,
+                "structure": r.structure(
+                    opts.T, opts.norm, opts.cost, opts.robust, opts.strictly_proper
+                ),
                 "T": opts.T,
                 "norm": opts.norm,
                 "cost": opts.cost,
                 "robust": opts.robust,
                 "strictly_proper": opts.strictly_proper,
-                "Q": (np.asarray(opts.Q) * qs).tolist(),
-                "R": (np.asarray(opts.R) * rs).tolist(),
                 "S": r.S,
                 "eps_e": r.eps_e,
                 "radius": r.radius,
                 "delta": r.delta,
-                "R0": r.R0,
-                "necessary": r.S + r.eps_e / r.radius,
+                "necessary": necessary_condition(r.numbers()),
                 "eps_w": r.eps_w,
                 "eps_o_value": r.eps_o,
                 "m_value": r.m,
@@ -193,15 +197,6 @@ def _no_premise(r: Any) -> dict[str, Any]:
         "premise_holds": True, "eps_e_violated": math.nan, "S_violated": math.nan,
         "tested_range": math.nan, "m": r.m, "eps_o": r.eps_o,
     }  # fmt: skip
-
-
-def _numbers(p: dict[str, Any]) -> Any:
-    from qsls.pipeline.control.guarantee import PremiseNumbers
-
-    return PremiseNumbers(
-        eps=p["eps_e"], S=p["S"], radius=p["radius"], eps_w=p["eps_w"], delta=p["delta"],
-        eps_o=p["eps_o_value"], m=p["m_value"], R0=p["R0"], gate=p["gate_value"],
-    )  # fmt: skip
 
 
 def _shape(p: dict[str, Any]) -> Any:
@@ -266,12 +261,11 @@ def _model(p: dict[str, Any]) -> Any:
 
 
 def run_point(p: dict[str, Any]) -> dict[str, Any]:
-    """Solve (and certify) one grid point; never raises for a solver outcome."""
-    from qsls.pipeline.control import sls
-    from qsls.pipeline.control.certify import certify
-    from qsls.pipeline.control.nominal import pd_responses
-    from qsls.pipeline.control.pdgain import PDGains
+    """Solve (and certify) one grid point: :func:`qsls.pipeline.control.synth.design`, the
+    path ``qsls synth`` takes, its row the projection of that design; never raises for a
+    solver outcome."""
     from qsls.pipeline.control.status import SOLVER_INACCURATE
+    from qsls.pipeline.control.synth import design
 
     row: dict[str, Any] = {"index": p["index"], **p["grid"]}
     row.update({f"{k}_value": p[k] for k in ("S", "eps_e", "radius", "delta", "eps_w")})
@@ -282,59 +276,64 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
         solve_time_s=0.0,
     )  # fmt: skip
     row.update(empty)
-    model = _model(p)
     row["skipped"] = bool(p["robust"] and p["necessary"] >= 1.0)
     if row["skipped"]:  # answered without the solver
         row.update(status="infeasible", solver_status="necessary condition S + eps_e/r < 1 fails")
         return row
-    shape = _shape(p)
-    structure = replace(
-        shape.structure(p["T"], p["cost"], p["strictly_proper"]), norm=p["norm"], robust=p["robust"]
-    )
-    nominal = None
-    if p["cost"] == "imitation":
-        if p["imitate"] == "pd":
-            _, nominal = pd_responses(model, PDGains(kp=p["kp"], kd=p["kd"]), p["T"])
-        else:
-            from qsls.pipeline.control.synth import nominal_from_folder
-
-            nominal = nominal_from_folder(Path(p["imitate"]), p["T"])
-    Q, R = np.asarray(p["Q"]), np.asarray(p["R"])
-    values = sls.Values(
-        Q=Q, R=R, eps_w=p["eps_w"], eps_e=p["eps_e"], S=p["S"], radius=p["radius"],
-        delta=p["delta"], nominal=nominal, eps_o=p["eps_o_value"], gate=p["gate_value"],
+    d = design(
+        p["resolved"], p["structure"], nominal=_nominal(p), solver=p["solver"],
+        certify=p["certify"],
     )  # fmt: skip
-    sol = sls.solve(model, structure, values, solver=p["solver"])
+    sol = d.solution
     row.update(
         solver_status=sol.solver_status,
         build_time_s=sol.build_time_s,
         solve_time_s=sol.solve_time_s,
     )
-    if sol.taps is None:
+    if d.body is None:
         row["status"] = "infeasible" if sol.status == "infeasible" else "error"
         return row
-    row["feasible"] = True
-    row["cost_value"] = sls.cost_value(
-        p["norm"], sol.taps, model, sls.psd_sqrt(Q), sls.psd_sqrt(R), p["eps_w"], p["eps_e"],
-        nominal if p["cost"] == "imitation" else None,
-    )  # fmt: skip
-    numbers = _numbers(p)
-    status: str
+    row.update(feasible=True, cost_value=d.cost_value, **project(d.body))
     if p["certify"]:
-        status, f = certify(
-            sol.taps, model, numbers, shape, solver_status=sol.status,
-            premise_holds=bool(p["premise_holds"]),
-        )  # fmt: skip
+        row["status"] = d.body.status
     else:
-        _, f = certify(sol.taps, model, numbers, shape, reference=True)
-        status = "solved" if sol.status == "optimal" else SOLVER_INACCURATE
-        f["realization_error"] = math.nan
-    row["status"] = status
-    for k in ("norm_phi_xy", "robustness_lhs", "margin", "gamma", "gamma_strict",
-              "achievability_residual", "realization_error", "rho_star", "norm_N"):  # fmt: skip
-        row[k] = f[k]
-    row["norm_phi_xx"] = f["norm_phi_xx_h"]
+        row["status"] = "solved" if sol.status == "optimal" else SOLVER_INACCURATE
+        row["realization_error"] = math.nan
     return row
+
+
+ROW_FIELDS = {
+    "norm_phi_xy": "norm_phi_xy", "norm_phi_xx": "norm_phi_xx_h", "norm_N": "norm_N",
+    "robustness_lhs": "robustness_lhs", "margin": "margin", "rho_star": "rho_star",
+    "gamma": "gamma", "gamma_strict": "gamma_strict",
+    "achievability_residual": "achievability_residual", "realization_error": "realization_error",
+}  # fmt: skip
+"""A sweep column -> the certificate body's field it shows."""
+
+
+def project(body: Any) -> dict[str, Any]:
+    """A sweep row's certificate columns: the certificate body's numbers (NaN where absent)."""
+    out = {}
+    for col, f in ROW_FIELDS.items():
+        v = getattr(body, f)
+        out[col] = math.nan if v is None else v
+    return out
+
+
+def _nominal(p: dict[str, Any]) -> Any:
+    """An imitation point's target: the PD's responses or a controller folder's. (A nominal
+    SLS target, which ``qsls synth`` solves first, is not available to a single point.)"""
+    if p["cost"] != "imitation":
+        return None
+    if p["imitate"] == "pd":
+        from qsls.pipeline.control.nominal import pd_responses
+        from qsls.pipeline.control.pdgain import PDGains
+
+        _, taps = pd_responses(p["resolved"].model, PDGains(kp=p["kp"], kd=p["kd"]), p["T"])
+        return taps
+    from qsls.pipeline.control.synth import nominal_from_folder
+
+    return nominal_from_folder(Path(p["imitate"]), p["T"])
 
 
 def run_chunk(chunk: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -545,8 +544,8 @@ def compute(
 
     if scheduler is not None:
         scheduler = check_scheduler(scheduler)
-    em, _, em_file = read_model(error_model)
-    points = grid_points(options, em, em_file)
+    mi = read_model(error_model)
+    points = grid_points(options, mi.model, mi.training)
     jobs = jobs if jobs is not None else (os.cpu_count() or 1)
     if jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {jobs}")
@@ -611,12 +610,10 @@ def sweep(
         options, error_model=error_model, jobs=jobs, scheduler=scheduler,
         worker_timeout=worker_timeout, progress=progress,
     )  # fmt: skip
-    _, _, em_file = read_model(error_model)
     timings = _timings(table)
     table = table.drop(columns=list(TIMING))
-    with StageWriter(
-        out, "sweep", options=options, inputs=[em_file] if em_file else [], force=force
-    ) as w:
+    inputs = [error_model_file(error_model)] if error_model is not None else []
+    with StageWriter(out, "sweep", options=options, inputs=inputs, force=force) as w:
         w.write_parquet("sweep.parquet", table)
         w.write_text("sweep.csv", table.to_csv(index=False))
         if len(smax):

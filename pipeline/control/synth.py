@@ -22,7 +22,7 @@ Infeasible is an answer: before solving, the necessary condition ``S + eps_e / r
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal, cast
 
@@ -34,12 +34,13 @@ from qsls.pipeline.control.artifacts import (
     CERTIFICATE_FILE,
     CONTROLLER_FILE,
     Certificate,
+    CertificateBody,
     Controller,
 )
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.control.premise import Measured, Premise
-from qsls.pipeline.control.status import RELAXED
+from qsls.pipeline.control.premise import Measured, Premise, TrainingStates, training_beside
+from qsls.pipeline.control.status import RELAXED, Status
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
@@ -329,11 +330,12 @@ def _percentile(name: str, what: str) -> float:
 
 
 def resolve(
-    opts: ProblemOptions, em: ErrorModel | None, em_file: Path | None = None
+    opts: ProblemOptions, em: ErrorModel | None, training: TrainingStates | None = None
 ) -> Resolved:
     """Numbers for every setting, names (``max``, ``lofo``, ``p95``...) looked up on the error
-    model and its training states, and the premise they form with its violated shares."""
-    from qsls.pipeline.control.premise import Chosen, Spec, load_measured, premise_record
+    model and its training states, and the premise they form with its violated shares (pure:
+    no file is read)."""
+    from qsls.pipeline.control.premise import Chosen, Spec, premise_record
 
     if opts.radius is not None:
         radius = float(opts.radius)
@@ -351,11 +353,11 @@ def resolve(
         H=None if opts.H is None else tuple(tuple(r) for r in opts.H),
     )  # fmt: skip
     trivial = opts.measure == "full" and opts.beta is None and all(w == 1.0 for w in opts.error_scale)
-    meas = load_measured(em_file, spec) if em is not None and em_file is not None else None
+    meas = training.measured(spec) if em is not None and training is not None else None
     where = None
     if em is not None:
         where = (
-            f"{TRAINING_FILE} beside the error model" if meas is not None
+            training.source if training is not None
             else f"no {TRAINING_FILE} beside the error model: shares not computed"
         )  # fmt: skip
     eps_e = _eps(opts, em, meas, trivial)
@@ -421,12 +423,28 @@ def resolve(
     )  # fmt: skip
 
 
-def read_model(path: Path | None) -> tuple[ErrorModel | None, str | None, Path | None]:
-    """``(error model, sha256 of error_model.yaml, file)``; all None without a path."""
+@dataclass(frozen=True)
+class ModelInput:
+    """What a stage reads for its error model: the model, the sha256 of ``error_model.yaml``,
+    the file, and the training states beside it (each None when absent)."""
+
+    model: ErrorModel | None = None
+    sha256: str | None = None
+    file: Path | None = None
+    training: TrainingStates | None = None
+
+    @property
+    def inputs(self) -> list[Path]:
+        return [self.file] if self.file is not None else []
+
+
+def read_model(path: Path | None) -> ModelInput:
+    """The error model of ``path`` (a fit folder or its ``error_model.yaml``) and the training
+    states beside it, read once; empty without a path."""
     if path is None:
-        return None, None, None
+        return ModelInput()
     f = error_model_file(path)
-    return load_error_model(f), sha256_file(f), f
+    return ModelInput(load_error_model(f), sha256_file(f), f, training_beside(f))
 
 
 # --------------------------------------------------------------------------- diagnosis
@@ -489,6 +507,50 @@ def diagnosis_message(d: dict[str, Any]) -> str:
 
 # --------------------------------------------------------------------------- one controller
 @dataclass(frozen=True)
+class Design:
+    """One solved controller problem (:func:`design`): the solver's answer and, when it gave
+    taps, the certificate's body and the cost. ``qsls synth`` writes it as a controller folder
+    (:func:`certified_controller`); a sweep row is its projection."""
+
+    structure: sls.Structure
+    solution: sls.Solution
+    body: CertificateBody | None = None
+    cost_value: float = math.nan
+
+
+def design(
+    r: Resolved,
+    structure: sls.Structure,
+    *,
+    nominal: sls.Taps | None = None,
+    solver: str = "CLARABEL",
+    certify: bool = True,
+) -> Design:
+    """Solve one controller's problem and certify its taps (infeasible and failed solves are
+    returned, not raised); ``certify=False`` only measures them (a ``reference`` body).
+    ``relaxed`` instead of ``certified`` when the premise does not hold on all the training
+    data."""
+    from qsls.pipeline.control.certify import certify as check
+
+    sol = sls.solve(r.model, structure, r.values(nominal), solver=solver)
+    if sol.taps is None:
+        return Design(structure, sol)
+    shape = replace(r.shape, gate=structure.gate)
+    if certify:
+        holds = r.premise is None or r.premise.holds
+        body = check(
+            sol.taps, r.model, r.numbers(), shape, solver_status=sol.status, premise_holds=holds
+        )
+    else:
+        body = check(sol.taps, r.model, r.numbers(), shape, reference=True)
+    cost = sls.cost_value(
+        structure.norm, sol.taps, r.model, sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R), r.eps_w,
+        r.eps_e, nominal if structure.cost == "imitation" else None,
+    )  # fmt: skip
+    return Design(structure, sol, body, cost)
+
+
+@dataclass(frozen=True)
 class Built:
     """One synthesized (or reference) controller with its certificate, ready to write."""
 
@@ -498,7 +560,7 @@ class Built:
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
-    def status(self) -> str:
+    def status(self) -> Status:
         return self.certificate.status
 
     @property
@@ -506,61 +568,31 @@ class Built:
         return self.controller.taps
 
 
-def solve_one(
-    r: Resolved,
-    structure: sls.Structure,
-    *,
-    nominal: sls.Taps | None = None,
-    solver: str = "CLARABEL",
-) -> sls.Solution:
-    """Solve one controller's problem; infeasible/failed are returned, not raised."""
-    return sls.solve(r.model, structure, r.values(nominal), solver=solver)
-
-
-def _built(name: str, ctrl: Controller, cert: dict[str, Any], timings: dict[str, float]) -> Built:
-    cert = {**cert, "controller_sha256": ctrl.sha256()}
-    return Built(name, ctrl, Certificate.model_validate(cert), timings)
+def _built(
+    name: str, ctrl: Controller, body: CertificateBody, setting: dict[str, Any],
+    timings: dict[str, float],
+) -> Built:  # fmt: skip
+    cert = Certificate.of(body, **setting, controller_sha256=ctrl.sha256())
+    return Built(name, ctrl, cert, timings)
 
 
 def certified_controller(
-    name: str,
-    sol: sls.Solution,
-    r: Resolved,
-    structure: sls.Structure,
-    *,
-    extra: dict[str, Any] | None = None,
-    nominal: sls.Taps | None = None,
+    name: str, d: Design, r: Resolved, *, extra: dict[str, Any] | None = None
 ) -> Built:
-    """Certify a solution and assemble its certificate and controller; ``relaxed`` instead of
-    ``certified`` when the premise does not hold on all the training data."""
-    from qsls.pipeline.control.certify import certify
-
-    assert sol.taps is not None
-    holds = r.premise is None or r.premise.holds
-    from dataclasses import replace
-
-    shape = replace(r.shape, gate=structure.gate)
-    status, fields = certify(
-        sol.taps, r.model, r.numbers(), shape, solver_status=sol.status, premise_holds=holds
-    )
-    q_half, r_half = sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R)
-    cost = sls.cost_value(
-        structure.norm, sol.taps, r.model, q_half, r_half, r.eps_w, r.eps_e,
-        nominal if structure.cost == "imitation" else None,
-    )  # fmt: skip
-    cert = {
+    """The controller of a solved :class:`Design` with its certificate."""
+    sol, structure = d.solution, d.structure
+    assert sol.taps is not None and d.body is not None
+    setting = {
         "controller": name,
-        "status": status,
         "robust": structure.robust,
         "norm": structure.norm,
         "cost": structure.cost,
-        "cost_value": cost,
+        "cost_value": d.cost_value,
         "objective": sol.objective,
         "strictly_proper": structure.strictly_proper,
         "T": structure.T,
         **r.record(),
         "gate": r.gate if structure.gate else None,  # only a gated design reads through the gate
-        **fields,
         "tested_range": r.premise.tested_range if r.premise else None,
         "solver_status": sol.solver_status,
         "dt": r.model.dt,
@@ -571,7 +603,7 @@ def certified_controller(
         "premise": r.premise,
     }
     timings = {"build_time_s": sol.build_time_s, "solve_time_s": sol.solve_time_s}
-    return _built(name, Controller(sol.taps, r.model), cert, timings)
+    return _built(name, Controller(sol.taps, r.model), d.body, setting, timings)
 
 
 def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) -> Built:
@@ -583,9 +615,8 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
     from qsls.pipeline.control.nominal import pd_responses, spectral_radius, static_gain_norms
 
     K, taps = pd_responses(r.model, gains, T)
-    status, fields = certify(taps, r.model, r.numbers(), r.shape, reference=True)
+    body = certify(taps, r.model, r.numbers(), r.shape, reference=True)
     norms = static_gain_norms(r.model, K, T)
-    fields |= {f"norm_{k}": n.value for k, n in norms.items()}
     # weighted norms of the closed loop bounded through its unweighted ones:
     # ||W_x Phi W_e^-1|| <= max w_x ||Phi|| max 1/w_e, and G_m <= max w_x ||Phi_xy||
     wx, we = max(r.shape.state_scale), 1.0 / min(r.shape.error_scale)
@@ -593,11 +624,10 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
     true = Norms(
         N=wx * nxy * we, N_w=wx * norms["phi_xx_h"].value, G_m=wx * nxy if r.m > 0 else 0.0
     )
-    fields |= guarantee_fields(r.numbers(), true)
-    fields["closed_loop_norms"] = norms
-    cert = {
+    true_norms = {f"norm_{k}": n.value for k, n in norms.items()}
+    body = body.model_copy(update=true_norms | guarantee_fields(r.numbers(), true))
+    setting = {
         "controller": "pd",
-        "status": status,
         "robust": False,
         "norm": None,
         "cost": None,
@@ -605,7 +635,7 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
         "T": T,
         **r.record(),
         "gate": None,
-        **fields,
+        "closed_loop_norms": norms,
         "closed_loop_spectral_radius": spectral_radius(r.model, K),
         "kp": list(gains.kp),
         "kd": list(gains.kd),
@@ -613,7 +643,7 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
         "mass": r.model.mass,
         **extra,
     }
-    return _built("pd", Controller(taps, r.model, "static_gain", K), cert, {})
+    return _built("pd", Controller(taps, r.model, "static_gain", K), body, setting, {})
 
 
 def nominal_from_folder(path: Path, T: int) -> sls.Taps:
@@ -625,25 +655,61 @@ def nominal_from_folder(path: Path, T: int) -> sls.Taps:
     return Controller.load(Path(path)).taps.truncated(T)
 
 
+IMITATE_NAMED = ("pd", "l1_nominal", "h2_nominal")
+"""Imitation targets synthesized with the controllers; any other ``imitate`` is a folder."""
+
+
+def imitation_target(
+    target: str, T: int, done: dict[str, Built], folder: sls.Taps | None = None
+) -> sls.Taps:
+    """The responses an imitation controller imitates: the PD reference or a nominal
+    controller among those already ``done``, or ``folder`` (a controller folder's, read by the
+    stage)."""
+    if target == "pd":
+        return done["pd"].taps
+    if target in done:
+        return done[target].taps.truncated(T)
+    if target in IMITATE_NAMED:
+        raise InputError(f"imitate: {target} is not synthesized by this configuration")
+    if folder is None:
+        raise InputError(f"imitate: {target}: the controller folder was not read")
+    return folder
+
+
 # --------------------------------------------------------------------------- synth
+@dataclass(frozen=True)
+class Synthesized:
+    """Every controller of one configuration with its certificate (:func:`synthesize`), in
+    memory; ``qsls synth`` writes it as one folder per controller."""
+
+    resolved: Resolved
+    controllers: dict[str, Built]
+
+    def certificates(self) -> dict[str, Certificate]:
+        return {n: c.certificate for n, c in self.controllers.items()}
+
+    def statuses(self) -> dict[str, Status]:
+        return {n: c.status for n, c in self.controllers.items()}
+
+
 @dataclass(frozen=True)
 class SynthResult:
     out: Path
-    controllers: dict[str, str]  # name -> status
-    certificates: dict[str, dict[str, Any]] = field(repr=False)
+    controllers: dict[str, Status]  # name -> status
+    certificates: dict[str, Certificate] = field(repr=False)
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {"out": self.out.as_posix()}
         for name, cert in self.certificates.items():
             out[name] = (
-                f"{cert['status']}; N = {cert['norm_N']:.4g}, margin = {cert['margin']:.3g}, "
-                f"rho* = {cert['rho_star']:.4g}"
+                f"{cert.status}; N = {cert.norm_N:.4g}, margin = {cert.margin:.3g}, "
+                f"rho* = {cert.rho_star:.4g}"
             )
-            if cert.get("tested_range") is not None:
-                out[name] += f" (premise tested to {cert['tested_range']:.3g})"
-            out[name] += f", dense error <= {cert['gamma']:.4g}"
-            if cert["status"] == RELAXED and cert.get("premise"):
-                out[name] += "; " + Premise.model_validate(cert["premise"]).shares()
+            if cert.tested_range is not None:
+                out[name] += f" (premise tested to {cert.tested_range:.3g})"
+            out[name] += f", dense error <= {cert.gamma:.4g}"
+            if cert.status == RELAXED and cert.premise is not None:
+                out[name] += "; " + cert.premise.shares()
         return out
 
 
@@ -680,6 +746,62 @@ def warn_size(T: int, problems: int, progress: Progress) -> None:
     )
 
 
+def synthesize(
+    model: ErrorModel | None,
+    training: TrainingStates | None,
+    options: SynthOptions,
+    *,
+    error_model_sha256: str | None = None,
+    imitate: sls.Taps | None = None,
+    progress: Progress = NULL_PROGRESS,
+) -> Synthesized:
+    """The controllers of ``options`` with their certificates (module docstring), from an
+    error model and its training data in memory (both optional: numbers alone are a premise
+    no data tested). No file is read or written; ``imitate`` is the target's responses when
+    ``options.imitate`` names a controller folder. Raises :class:`InfeasibleError` with a
+    diagnosis when a robust problem is infeasible."""
+    from qsls.pipeline.control.guarantee import necessary_condition
+    from qsls.pipeline.control.premise import refuse_empty
+
+    r = resolve(options, model, training)
+    if r.premise is not None:
+        refuse_empty(r.premise)
+    plan = [(n, r.structure(st.T, st.norm, st.cost, st.robust, st.strictly_proper))
+            for n, st in controller_plan(options)]  # fmt: skip
+    # the error model by its hash only: a path would differ between two folders of one run
+    base_extra = {"error_model": None, "error_model_sha256": error_model_sha256,
+                  "solver": options.solver}  # fmt: skip
+    if any(s.robust for _, s in plan) and necessary_condition(r.numbers()) >= 1.0:
+        d = diagnose(r, options.T, options.strictly_proper, options.solver)
+        raise InfeasibleError(diagnosis_message(d), d)
+    warn_size(options.T, len(plan), progress)
+    progress.start("synth", total=len(plan) + 1)
+    ctrls: dict[str, Built] = {}
+    ctrls["pd"] = pd_controller(r, options.pd, options.T, {**base_extra, "premise": r.premise})
+    progress.advance()
+    for name, st in plan:
+        nominal = None
+        extra = dict(base_extra)
+        if st.cost == "imitation":
+            nominal = imitation_target(options.imitate, options.T, ctrls, imitate)
+            extra["imitate"] = options.imitate
+        if options.T >= LARGE_T:
+            progress.note(f"solving {name} (T = {options.T}) ...")
+        dsg = design(r, st, nominal=nominal, solver=options.solver)
+        if dsg.solution.status == "infeasible":
+            d = diagnose(r, options.T, options.strictly_proper, options.solver)
+            d["controller"] = name
+            raise InfeasibleError(f"{name}: " + diagnosis_message(d), d)
+        if dsg.solution.status == "error" or dsg.body is None:
+            raise SolverError(
+                f"{name}: the solver failed ({dsg.solution.solver_status}); nothing was certified"
+            )
+        ctrls[name] = certified_controller(name, dsg, r, extra=extra)
+        progress.advance()
+    progress.finish()
+    return Synthesized(r, ctrls)
+
+
 def synth(
     error_model: Path | None,
     options: SynthOptions,
@@ -688,72 +810,30 @@ def synth(
     force: bool = False,
     progress: Progress = NULL_PROGRESS,
 ) -> SynthResult:
-    """Synthesize, certify and write the controllers of ``options`` (module docstring)."""
+    """The stage: read the error model and its training states, :func:`synthesize`, write one
+    folder per controller (``controller.npz``, ``certificate.yaml``) and the manifest."""
     from qsls.pipeline.core.artifacts import check_output
 
     check_output(out, force, [error_model] if error_model is not None else [])
-    from qsls.pipeline.control.guarantee import necessary_condition
-    from qsls.pipeline.control.premise import refuse_empty
-
-    em, sha, em_file = read_model(error_model)
-    r = resolve(options, em, em_file)
-    if r.premise is not None:
-        refuse_empty(r.premise)
-    plan = [(n, r.structure(st.T, st.norm, st.cost, st.robust, st.strictly_proper))
-            for n, st in controller_plan(options)]  # fmt: skip
-    # the error model by its hash only: a path would differ between two folders of one run
-    base_extra = {"error_model": None, "error_model_sha256": sha, "solver": options.solver}
-    if any(s.robust for _, s in plan) and necessary_condition(r.numbers()) >= 1.0:
-        d = diagnose(r, options.T, options.strictly_proper, options.solver)
-        raise InfeasibleError(diagnosis_message(d), d)
-    warn_size(options.T, len(plan), progress)
-    progress.start("synth", total=len(plan) + 1)
-    ctrls: dict[str, Built] = {}
-    reference = pd_controller(r, options.pd, options.T, {**base_extra, "premise": r.premise})
-    ctrls["pd"] = reference
-    progress.advance()
-    for name, st in plan:
-        nominal = None
-        extra = dict(base_extra)
-        if st.cost == "imitation":
-            target = options.imitate
-            if target == "pd":
-                nominal = reference.taps
-            elif target in ctrls:
-                nominal = ctrls[target].taps.truncated(options.T)
-            elif target in ("l1_nominal", "h2_nominal"):
-                raise InputError(f"imitate: {target} is not synthesized by this configuration")
-            else:
-                nominal = nominal_from_folder(Path(target), options.T)
-            extra["imitate"] = target
-        if options.T >= LARGE_T:
-            progress.note(f"solving {name} (T = {options.T}) ...")
-        sol = solve_one(r, st, nominal=nominal, solver=options.solver)
-        if sol.status == "infeasible":
-            d = diagnose(r, options.T, options.strictly_proper, options.solver)
-            d["controller"] = name
-            raise InfeasibleError(f"{name}: " + diagnosis_message(d), d)
-        if sol.status == "error" or sol.taps is None:
-            raise SolverError(
-                f"{name}: the solver failed ({sol.solver_status}); nothing was certified"
-            )
-        ctrls[name] = certified_controller(name, sol, r, st, extra=extra, nominal=nominal)
-        progress.advance()
-    progress.finish()
-    with StageWriter(
-        out, "synth", options=options, inputs=[em_file] if em_file else [], force=force
-    ) as w:
+    mi = read_model(error_model)
+    folder = None
+    if options.imitate not in IMITATE_NAMED and any(
+        st.cost == "imitation" for _, st in controller_plan(options)
+    ):
+        folder = nominal_from_folder(Path(options.imitate), options.T)
+    result = synthesize(
+        mi.model, mi.training, options, error_model_sha256=mi.sha256, imitate=folder,
+        progress=progress,
+    )  # fmt: skip
+    ctrls = result.controllers
+    with StageWriter(out, "synth", options=options, inputs=mi.inputs, force=force) as w:
         for name, c in ctrls.items():
             w.write_bytes(f"{name}/{CONTROLLER_FILE}", c.controller.to_bytes())
             w.write_text(f"{name}/{CERTIFICATE_FILE}", c.certificate.to_yaml())
-        w.results["controllers"] = {n: c.status for n, c in ctrls.items()}
+        w.results["controllers"] = result.statuses()
         w.results["timings"] = {n: c.timings for n, c in ctrls.items() if c.timings}
-        w.results["error_model_sha256"] = sha
-    return SynthResult(
-        Path(out),
-        {n: c.status for n, c in ctrls.items()},
-        {n: c.certificate.model_dump() for n, c in ctrls.items()},
-    )
+        w.results["error_model_sha256"] = mi.sha256
+    return SynthResult(Path(out), result.statuses(), result.certificates())
 
 
 # --------------------------------------------------------------------------- max S
@@ -784,9 +864,9 @@ class MaxFeasibleSResult:
 def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeasibleSResult:
     """The largest S for which the robust problem of ``options`` is feasible under its premise
     (its feasibility does not depend on the cost); see :func:`qsls.pipeline.control.sls.max_feasible_s`."""
-    em, _, em_file = read_model(error_model)
+    mi = read_model(error_model)
     opts = options.model_copy(update={"S": 0.0})
-    r = resolve(opts, em, em_file)
+    r = resolve(opts, mi.model, mi.training)
     ms = sls.max_feasible_s(
         r.model, options.T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
         eps_o=r.eps_o, gate=r.gate, strictly_proper=options.strictly_proper,
