@@ -15,6 +15,13 @@ from typer.testing import CliRunner
 
 from qsls.cli.main import app
 from qsls.pipeline.control import sls
+from qsls.pipeline.control.sweep import (
+    ABOVE_S_MAX,
+    NECESSARY,
+    mark_above_s_max,
+    setting_key,
+    skip_reason,
+)
 from qsls.pipeline.core.artifacts import dump_yaml
 from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
@@ -82,13 +89,18 @@ def test_local_sweep_table_and_feasibility(tmp_path):
             assert row["status"] == "certified" and row["margin"] > 0
             assert row["norm_phi_xy"] >= 1 and row["gamma"] > 0
     assert set(t.loc[t["S"] == 1.5, "status"]) == {"infeasible"}  # S + eps_e/r >= 1, not solved
-    assert list(t["skipped"]) == list(t["S"] == 1.5)  # and marked so
-    assert set(t.loc[t["skipped"], "solver_status"]) == {
-        "necessary condition S + eps_e/r < 1 fails"
-    }
+    necessary = t["solver_status"] == NECESSARY
+    assert list(necessary) == list(t["S"] == 1.5)  # and marked so
+    # every other infeasible point lies above its T's largest feasible S: answered by the
+    # Dinkelbach run, not by a solve, and marked so; the solver ran on feasible points only
+    above = t["solver_status"] == ABOVE_S_MAX
+    assert list(above) == [r.S != 1.5 and s_max[r.T] < r.S for r in t.itertuples()]
+    assert above.sum() == 6 and list(t["skipped"]) == list(necessary | above)
+    assert set(t.loc[t["skipped"], "status"]) == {"infeasible"}
+    assert t.loc[~t["skipped"], "feasible"].all()
     timings = json.loads((out / "manifest.json").read_text())["results"]["timings"]
     assert len(timings["points"]) == 16
-    assert all(timings["points"][str(i)] == [0.0, 0.0] for i in t.loc[t["S"] == 1.5, "index"])
+    assert all(timings["points"][str(i)] == [0.0, 0.0] for i in t.loc[t["skipped"], "index"])
     assert timings["solve_time_s"] > 0
     smax = pd.read_csv(out / "s_max.csv")
     assert dict(zip(smax["T"], smax["s_max"], strict=True)) == pytest.approx(s_max, rel=1e-6)
@@ -117,8 +129,10 @@ def test_one_and_two_processes_write_identical_tables(tmp_path):
         assert (tmp_path / "j1" / name).read_bytes() == (tmp_path / "j2" / name).read_bytes()
     t = _table(tmp_path / "j1")
     assert len(t) == 24
-    assert list(t["skipped"]) == list(t["S"] + t["eps_e"] / t["radius"] >= 1)
-    assert t["skipped"].sum() == 8 and not t.loc[t["skipped"], "feasible"].any()
+    necessary = t["solver_status"] == NECESSARY
+    assert list(necessary) == list(t["S"] + t["eps_e"] / t["radius"] >= 1)
+    assert necessary.sum() == 8 and not t.loc[t["skipped"], "feasible"].any()
+    assert list(t["skipped"]) == list(necessary | (t["solver_status"] == ABOVE_S_MAX))
     smax = pd.read_parquet(tmp_path / "j1" / "s_max.parquet")
     assert len(smax) == 8
     model = quadrotor_model()
@@ -127,10 +141,34 @@ def test_one_and_two_processes_write_identical_tables(tmp_path):
             model, int(row["T"]), eps_e=row["eps_e"], radius=row["radius"], eps_w=0.01, delta=0.05
         )
         assert row["s_max"] == own.s_max  # the same solves: exactly the same number
-    solved = t[~t["skipped"]]
     s_of = {(r.T, r.eps_e, r.radius): r.s_max for r in smax.itertuples()}
-    for r in solved.itertuples():
+    for r in t[~necessary].itertuples():
         assert r.feasible == (s_of[(r.T, r.eps_e, r.radius)] >= r.S)
+        assert r.skipped == (not r.feasible)  # every infeasible point answered without a solve
+
+
+def test_points_above_the_largest_feasible_s_are_exactly_the_infeasible_ones():
+    """The Dinkelbach bound answers a point without the solver only where the solver would
+    say infeasible: just above the bound (by 1e-5) is marked and solves infeasible, the
+    largest feasible S itself is not marked and solves feasible, for two horizons."""
+    model = quadrotor_model()
+    setting = {"radius": 1.0, "eps_w": 0.01, "delta": 0.05}
+    for T in (6, 10):
+        ratio = sls.max_ratio(model, T, **setting)
+        upper = ratio.upper(sls.min_phi_xy(model, T))
+        assert ratio.ratio <= upper <= ratio.ratio * (1 + 1e-8)  # Dinkelbach's gap closed
+        s_max = sls.max_feasible_s(model, T, eps_e=0.05, ratio=ratio, **setting).s_max
+        point = {"robust": True, "T": T, "eps_e": 0.05, **setting, "strictly_proper": False,
+                 "dt": 0.1, "mass": 1.0, "eps_o_value": 0.0, "m_value": 0, "measure": "full",
+                 "gate_value": None, "H": None, "state_scale": [1.0] * 6,
+                 "error_scale": [1.0] * 6}  # fmt: skip
+        above = {**point, "S": upper - 0.05 + 1e-5, "necessary": 0.5}
+        at = {**point, "S": s_max, "necessary": 0.5}
+        assert mark_above_s_max([above, at], {setting_key(point): upper}) == 1
+        assert skip_reason(above) == ABOVE_S_MAX and skip_reason(at) == ""
+        for p, want in ((above, "infeasible"), (at, "optimal")):
+            v = sls.Values(S=p["S"], eps_e=0.05, **setting)
+            assert sls.solve(model, sls.Structure(T, "l1", "qr", True), v).status == want
 
 
 def _free_port() -> int:

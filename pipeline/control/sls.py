@@ -671,6 +671,18 @@ class MaxRatio:
     norm_phi_xx: float
     iterations: int
     solve_time_s: float
+    gap: float = 0.0
+    """``rho(Phi_k) - lam`` at the last step (Dinkelbach's a-posteriori gap; inf when the
+    iterations ran out before it closed)."""
+
+    def upper(self, min_norm_phi_xy: float) -> float:
+        """An upper bound on the true ``max rho``: the last step minimized
+        ``lam N + g`` over every achievable ``Phi``, so ``rho(Phi) <= lam + gap N_k / N(Phi)
+        <= lam + gap N_k / min N`` (0 when no response leaves anything for ``S``: then every
+        ``Phi`` has ``rho <= 0``); up to the solver's tolerance."""
+        if self.ratio == -math.inf:
+            return 0.0
+        return self.ratio + max(self.gap, 0.0) * self.norm_phi_xy / min_norm_phi_xy
 
 
 def max_ratio(
@@ -694,7 +706,7 @@ def max_ratio(
     every ``eps_e`` (:func:`max_feasible_s`)."""
     structure = shape.structure(T, "ratio", strictly_proper)
     c0 = 1.0 - ROBUST_BACKOFF - delta / radius
-    lam, total, it = 0.0, 0.0, 0
+    lam, total, it, gap = 0.0, 0.0, 0, math.inf
     nxy = nxx = float("nan")
     for it in range(1, max_iter + 1):
         values = Values(eps_w=eps_w, radius=radius, ratio_lambda=lam, eps_o=eps_o)
@@ -710,10 +722,11 @@ def max_ratio(
             # nothing for S: no S >= 0 is feasible
             return MaxRatio(-math.inf, nxy, nxx, it, total)
         if it > 1 and new - lam <= tol * max(1.0, abs(lam)):
+            gap = new - lam
             lam = max(lam, new)
             break
         lam = new if it == 1 else max(lam, new)
-    return MaxRatio(lam, nxy, nxx, it, total)
+    return MaxRatio(lam, nxy, nxx, it, total, gap)
 
 
 @dataclass(frozen=True)

@@ -228,10 +228,45 @@ def structure_key(p: dict[str, Any]) -> tuple:
 
 def point_cost(p: dict[str, Any]) -> float:
     """Rough relative solve time of a point (interior-point work grows like T^1.5 here;
-    points that fail the necessary condition are not solved)."""
-    if p["robust"] and p["necessary"] >= 1.0:
+    points answered without the solver cost nothing)."""
+    if skip_reason(p):
         return 0.01
     return float(p["T"]) ** 1.5
+
+
+NECESSARY = "necessary condition S + eps_e/r < 1 fails"
+ABOVE_S_MAX = "S above the largest feasible S of this setting (Dinkelbach bound)"
+S_MAX_TOL = 1e-6
+"""How far (relative) above the Dinkelbach bound a point's S must be to be answered infeasible
+without the solver: the bound is exact up to the solver's tolerance (about 1e-8)."""
+
+
+def skip_reason(p: dict[str, Any]) -> str:
+    """Why a robust point cannot be feasible, answered without the solver (empty: solve it):
+    the necessary condition, or ``S`` above the setting's largest feasible ``S``
+    (:func:`mark_above_s_max`)."""
+    if not p["robust"]:
+        return ""
+    if p["necessary"] >= 1.0:
+        return NECESSARY
+    return ABOVE_S_MAX if p.get("above_s_max") else ""
+
+
+def mark_above_s_max(points: list[dict[str, Any]], upper: dict[tuple, float]) -> int:
+    """Mark the robust points whose ``S`` exceeds ``max rho - eps_e / r`` of their setting
+    (``upper``: the setting's bound on ``max rho``, :meth:`qsls.pipeline.control.sls.MaxRatio.upper`)
+    by more than :data:`S_MAX_TOL`: the robustness constraint ``(S + eps_e/r) N + ... <= 1 - ...``
+    has no solution there, whatever the norm, cost, weights or timing (they do not enter
+    it), and a velocity gate only adds constraints. Returns how many were marked."""
+    n = 0
+    for p in points:
+        u = upper.get(setting_key(p))
+        if u is None or not p["robust"] or p["necessary"] >= 1.0:
+            continue
+        if p["S"] > u - p["eps_e"] / p["radius"] + S_MAX_TOL * max(1.0, abs(u)):
+            p["above_s_max"] = True
+            n += 1
+    return n
 
 
 def make_chunks(points: list[dict[str, Any]], n_chunks: int) -> list[list[dict[str, Any]]]:
@@ -276,9 +311,9 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
         solve_time_s=0.0,
     )  # fmt: skip
     row.update(empty)
-    row["skipped"] = bool(p["robust"] and p["necessary"] >= 1.0)
-    if row["skipped"]:  # answered without the solver
-        row.update(status="infeasible", solver_status="necessary condition S + eps_e/r < 1 fails")
+    why = skip_reason(p)
+    if why:  # answered without the solver
+        row.update(status="infeasible", skipped=True, solver_status=why)
         return row
     d = design(
         p["resolved"], p["structure"], nominal=_nominal(p), solver=p["solver"],
@@ -366,30 +401,41 @@ def s_max_task(spec: dict[str, Any]) -> list[dict[str, Any]]:
         shape=shape,
     )  # fmt: skip
     keep = ("T", "radius", "eps_w", "delta", "strictly_proper")
+    upper = ratio.upper(min_xy)
     rows = []
     for eps_e in spec["eps_e"]:
         ms = sls.max_feasible_s(
             model, spec["T"], eps_e=eps_e, ratio=ratio, gate=spec["gate_value"], **common
         )
         rows.append({**{k: spec[k] for k in keep}, "eps_e": eps_e, "s_max": ms.s_max,
-                     "min_norm_phi_xy": min_xy})  # fmt: skip
+                     "min_norm_phi_xy": min_xy, "key": spec["key"], "ratio_upper": upper})  # fmt: skip
     return rows
 
 
 S_MAX_KEYS = ("T", "eps_e", "radius", "eps_w", "delta", "strictly_proper")
 
 
+SETTING_KEYS = ("T", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass", "eps_o_value",
+                "m_value", "measure", "gate_value")  # fmt: skip
+
+
+def setting_key(p: dict[str, Any]) -> tuple:
+    """What the robustness constraint's feasibility depends on besides ``S`` and ``eps_e``."""
+    return (*(p[x] for x in SETTING_KEYS), str(p["H"]), str(p["state_scale"]),
+            str(p["error_scale"]))  # fmt: skip
+
+
 def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One task per ``T`` and error setting, with the ``eps_e`` values it answers for."""
-    keys = ("T", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass", "eps_o_value",
-            "m_value", "measure", "gate_value")  # fmt: skip
+    keys = SETTING_KEYS
     seen: dict[tuple, dict[str, Any]] = {}
     for p in points:
-        k = (*(p[x] for x in keys), str(p["H"]), str(p["state_scale"]), str(p["error_scale"]))
+        k = setting_key(p)
         if k not in seen:
             seen[k] = {
                 **{x: p[x] for x in keys}, "H": p["H"], "solver": p["solver"],
                 "state_scale": p["state_scale"], "error_scale": p["error_scale"], "eps_e": [],
+                "key": k,
             }  # fmt: skip
         if p["eps_e"] not in seen[k]["eps_e"]:
             seen[k]["eps_e"].append(p["eps_e"])
@@ -550,27 +596,33 @@ def compute(
     if jobs < 1:
         raise ConfigError(f"--jobs must be at least 1, got {jobs}")
     workers = jobs if scheduler is None else 8
-    chunks = make_chunks(points, workers * options.chunks_per_job)
-    tasks: list[tuple[Any, Any]] = [(run_chunk, c) for c in chunks]
-    weights = [len(c) for c in chunks]
     specs = s_max_specs(points) if options.s_max_curve else []
-    tasks += [(s_max_task, s) for s in specs]
-    weights += [1] * len(specs)
     warn_size(max(int(p["T"]) for p in points), len(points), progress)
-    progress.start("sweep", total=sum(weights))
+    progress.start("sweep", total=len(points) + len(specs))
+
+    def execute(tasks: list[tuple[Any, Any]], weights: list[int]) -> list[Any]:
+        if not tasks:
+            return []
+        if scheduler is not None:
+            return _run_dask(tasks, scheduler, progress, weights, worker_timeout)
+        return run_tasks(tasks, jobs, lambda i: progress.advance(weights[i]))
+
+    # first the largest feasible S of every setting: it answers the points above it
+    s_results = execute([(s_max_task, s) for s in specs], [1] * len(specs))
+    mark_above_s_max(points, {r["key"]: r["ratio_upper"] for res in s_results for r in res})
+    chunks = make_chunks(points, workers * options.chunks_per_job)
+    results = execute([(run_chunk, c) for c in chunks], [len(c) for c in chunks])
     if scheduler is not None:
-        results = _run_dask(tasks, scheduler, progress, weights, worker_timeout)
         executor = f"dask {scheduler}"
     else:
-        results = run_tasks(tasks, jobs, lambda i: progress.advance(weights[i]))
         executor = f"local, {jobs} process{'es' if jobs > 1 else ''}"
     progress.finish()
-    rows = [r for res in results[: len(chunks)] for r in res]
+    rows = [r for res in results for r in res]
     table = pd.DataFrame(rows).sort_values("index", kind="stable").reset_index(drop=True)
     for axis in options.grid:  # an axis mixing numbers and names is stored as text
         if len({isinstance(v, str) for v in table[axis]}) > 1:
             table[axis] = table[axis].map(str)
-    smax = s_max_table(results[len(chunks) :]) if specs else pd.DataFrame()
+    smax = s_max_table(s_results) if specs else pd.DataFrame()
     return table, smax, executor
 
 
