@@ -14,7 +14,7 @@ __all__, __getattr__ = lazy_api(
         "filter_bank": "realize",
         "load_controller_dir": "artifacts",
         "Certificate": "artifacts",
-        "SynthOptions": "synth",
-        "SweepOptions": "sweep",
+        "SynthOptions": "options",
+        "SweepOptions": "options",
     },
 )

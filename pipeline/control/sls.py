@@ -53,6 +53,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from qsls.pipeline.control.achievable import Affine, block_pattern, eliminate, implied_zero_taps
+from qsls.pipeline.control.options import psd_sqrt
 from qsls.pipeline.core.errors import SolverError
 from qsls.pipeline.core.plant import LinearModel
 
@@ -186,17 +187,6 @@ def robustness_lhs(
 ) -> float:
     """``(S + eps_e / r) ||Phi_xy|| + (eps_w ||Phi_xx H|| + Delta) / r``."""
     return (S + eps_e / radius) * norm_xy + (eps_w * norm_xx_h + delta) / radius
-
-
-def psd_sqrt(m: np.ndarray, what: str = "matrix") -> np.ndarray:
-    """Symmetric square root of a symmetric positive-definite matrix; ValueError otherwise."""
-    m = np.atleast_2d(np.asarray(m, dtype=float))
-    if m.shape[0] != m.shape[1] or not np.allclose(m, m.T, atol=1e-12 * max(1.0, np.abs(m).max())):
-        raise ValueError(f"{what} must be a symmetric square matrix")
-    w, v = np.linalg.eigh(m)
-    if w.min() <= 0:
-        raise ValueError(f"{what} must be positive definite (smallest eigenvalue {w.min():.3g})")
-    return (v * np.sqrt(w)) @ v.T
 
 
 # --------------------------------------------------------------------------- problem

@@ -32,93 +32,28 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
 from qsls.pipeline.control.guarantee import necessary_condition
+from qsls.pipeline.control.options import AXES as AXES
+from qsls.pipeline.control.options import DASK_SCHEMES as DASK_SCHEMES
+from qsls.pipeline.control.options import ProblemOptions, check_scheduler
+from qsls.pipeline.control.options import SweepOptions as SweepOptions
+from qsls.pipeline.control.options import SweepSection as SweepSection
 from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_columns
-from qsls.pipeline.control.synth import ProblemOptions, read_model, resolve, warn_size
+from qsls.pipeline.control.synth import read_model, resolve, warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.pools import run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import error_model_file
 
-AXES = (
-    "S", "eps_e", "radius", "delta", "T", "q_scale", "r_scale", "eps_w", "norm", "cost",
-    "robust", "strictly_proper",
-)  # fmt: skip
 TIMING = ("build_time_s", "solve_time_s")
 RESULT_COLUMNS = (
     "status", "feasible", "skipped", "cost_value", "norm_phi_xy", "norm_N", "norm_phi_xx",
     "robustness_lhs", "margin", "rho_star", "gamma", "gamma_strict", "achievability_residual",
     "realization_error", "solver_status", *TIMING,
 )  # fmt: skip
-
-
-class SweepOptions(ProblemOptions):
-    """Options of ``qsls sweep``: the base problem plus ``grid`` (axis -> list of values)."""
-
-    grid: dict[str, list[Any]] = Field(
-        default_factory=lambda: {"S": [0.05, 0.1, 0.2], "T": [10, 20]}  # type: ignore[arg-type]
-    )
-    """Grid axes (S, eps_e, radius, delta, T, q_scale, r_scale, eps_w, norm, cost, robust,
-    strictly_proper) and their values; every point is one synthesis."""
-    certify: bool = True
-    """Certify every feasible point (else only solve it)."""
-    s_max_curve: bool = True
-    """Also compute the largest feasible S for every T and error setting of the grid."""
-    chunks_per_job: int = Field(4, ge=1)
-    """Chunks handed to each worker (more: better balance, more scheduling)."""
-
-    @field_validator("grid")
-    @classmethod
-    def _grid(cls, g: dict[str, list[Any]]) -> dict[str, list[Any]]:
-        import difflib
-
-        for key, values in g.items():
-            if key not in AXES:
-                near = difflib.get_close_matches(key, AXES, n=1)
-                hint = f"; did you mean '{near[0]}'?" if near else f"; axes: {', '.join(AXES)}"
-                raise ValueError(f"unknown grid axis '{key}'{hint}")
-            if not isinstance(values, list) or not values:
-                raise ValueError(f"grid axis '{key}' needs a non-empty list of values")
-        return g
-
-
-
-class SweepSection(SweepOptions):
-    """The ``sweep:`` section of a config file, the same for ``qsls sweep --config`` and
-    ``qsls run``: the sweep's options plus where it runs (which changes no result, so only
-    :meth:`options` is the stage's record and cache key)."""
-
-    jobs: int | None = Field(None, ge=1)
-    """Local worker processes (default: all cores)."""
-    scheduler: str | None = None
-    """Dask scheduler address ``SCHEME://HOST:PORT`` (instead of ``jobs``)."""
-    wait_workers: float = Field(60.0, gt=0)
-    """With ``scheduler``: seconds to wait for a first worker, and for one to come back when
-    all have left, before giving up."""
-
-    @field_validator("scheduler")
-    @classmethod
-    def _scheduler(cls, v: str | None) -> str | None:
-        if v is None:
-            return None
-        try:
-            return check_scheduler(v)
-        except ConfigError as exc:
-            raise ValueError(str(exc).removeprefix("--scheduler ")) from None
-
-    @model_validator(mode="after")
-    def _one_executor(self) -> SweepSection:
-        if self.jobs is not None and self.scheduler is not None:
-            raise ValueError("give jobs or scheduler, not both")
-        return self
-
-    def options(self) -> SweepOptions:
-        """The sweep's own options (without ``jobs``, ``scheduler``, ``wait_workers``)."""
-        return SweepOptions.model_validate({k: getattr(self, k) for k in SweepOptions.model_fields})
 
 
 # --------------------------------------------------------------------------- points
@@ -451,32 +386,6 @@ def s_max_table(results: list[list[dict[str, Any]]]) -> Any:
 
 
 # --------------------------------------------------------------------------- executors
-DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
-
-
-def check_scheduler(address: str) -> str:
-    """A Dask scheduler address ``SCHEME://HOST:PORT`` (``tcp://`` when no scheme), checked
-    before anything runs: a missing port or an unknown scheme is one line, not a traceback
-    after the connection timeout."""
-    from distributed.comm.addressing import parse_address, parse_host_port
-
-    example = "e.g. tcp://127.0.0.1:8786"
-    try:
-        scheme, loc = parse_address(address.strip())
-        host, port = parse_host_port(loc)
-    except ValueError as exc:
-        raise ConfigError(
-            f"--scheduler {address}: {exc}; expected SCHEME://HOST:PORT, {example}"
-        ) from None
-    if scheme not in DASK_SCHEMES:
-        raise ConfigError(
-            f"--scheduler {address}: unknown scheme '{scheme}' (use {', '.join(DASK_SCHEMES)}), {example}"
-        )
-    if not host or not 0 < int(port) < 65536:
-        raise ConfigError(f"--scheduler {address}: expected SCHEME://HOST:PORT, {example}")
-    return f"{scheme}://{host}:{port}"
-
-
 def _n_workers(client: Any) -> int:
     return len(client.scheduler_info().get("workers", {}))
 

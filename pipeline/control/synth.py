@@ -24,10 +24,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal, cast
+from typing import Any, cast
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.artifacts import (
@@ -38,17 +37,15 @@ from qsls.pipeline.control.artifacts import (
     Controller,
 )
 from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.control.options import ProblemOptions, SynthOptions
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.premise import Measured, Premise, TrainingStates, training_beside
 from qsls.pipeline.control.status import RELAXED, Status
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
-from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
 from qsls.pipeline.core.plant import (
     NU,
     NX,
-    PAPER_DT_S,
-    PAPER_MASS_KG,
     LinearModel,
     quadrotor_model,
 )
@@ -59,131 +56,6 @@ from qsls.pipeline.errormodel.model import (
     error_model_file,
     load_error_model,
 )
-
-Number = float | str
-
-
-def _matrix(value: Any, n: int, what: str, psd: bool) -> list[list[float]]:
-    """A list of ``n`` numbers (diagonal) or an ``n x n`` nested list -> nested list."""
-    a = np.asarray(value, dtype=float)
-    if a.ndim == 1:
-        if a.shape != (n,):
-            raise ValueError(
-                f"{what} needs {n} diagonal entries or an {n}x{n} matrix, got {a.size}"
-            )
-        a = np.diag(a)
-    if a.shape != (n, n):
-        raise ValueError(f"{what} must be {n}x{n}, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{what} has non-finite entries")
-    if psd:
-        sls.psd_sqrt(a, what)
-    return a.tolist()
-
-
-class ProblemOptions(Options):
-    """One synthesis problem's settings (shared by ``synth`` and ``sweep``)."""
-
-    T: int = Field(20, ge=2, le=500, description="FIR horizon (taps 0..T)")
-    norm: Literal["l1", "h2"] = "l1"
-    cost: Literal["qr", "imitation"] = "qr"
-    robust: bool = True
-    strictly_proper: bool = False
-    Q: list[list[float]] = Field(default_factory=lambda: np.diag([10.0, 10, 10, 1, 1, 1]).tolist())
-    R: list[list[float]] = Field(default_factory=lambda: np.diag([1.0, 1, 0.1]).tolist())
-    eps_w: Number | None = Field(
-        None,
-        description="disturbance bound ||w|| <= eps_w: a number, max or pNN of the training "
-        "flights' realized disturbance; default: its max (0.01 without an error model)",
-    )
-    H: list[list[float]] | None = None
-    mass: float = Field(PAPER_MASS_KG, gt=0)
-    dt: float = Field(PAPER_DT_S, gt=0)
-    S: Number = Field(
-        "lofo",
-        description="S-slope: lofo (leave-one-flight-out, every left-out sample satisfies the "
-        "premise), max / pNN / local_pNN (pair slopes), or a number",
-    )
-    eps_e: Number = Field(
-        "max", description="bound on the dense error |d|_e: max (training maximum), pNN or a number"
-    )
-    measure: Literal["full", "position"] = Field(
-        "full", description="error channels the controller reads: full, or position only"
-    )
-    beta: float | None = Field(
-        None, gt=0, description="velocity clip of the dense part (None: no sparse part)"
-    )
-    error_scale: tuple[float, float, float, float, float, float] = Field(
-        (1.0,) * 6, description="W_e: weights of the error norm |e|_e = ||W_e e||_inf"
-    )
-    m: int | Literal["auto"] = Field(
-        "auto", description="outliers allowed per window of T steps (auto: binomial risk)"
-    )
-    eps_o: float | None = Field(
-        None, ge=0, description="bound on one outlier (a physical bound; never the sample max)"
-    )
-    outlier_risk: float = Field(
-        1e-3, gt=0, lt=1, description="risk of a window holding more than m outliers"
-    )
-    gate: float | None = Field(
-        None,
-        gt=0,
-        description="velocity gate V: the controller reads clip(y_v, v_ref +/- V), so an outlier "
-        "is at most 2V - beta (eps_o); needs beta",
-    )
-    radius: float | None = Field(None, gt=0, description="default: the error model's radius")
-    delta: Number | None = Field(None, description="Delta; default: the error model's delta")
-    R0: Number | None = Field(
-        None,
-        description="R0 for gamma_strict; default: the eps_e in use (so gamma_strict <= gamma)",
-    )
-    pd: PDGains = PDGains()
-    imitate: str = Field(
-        "pd", description="imitation target: pd, l1_nominal, h2_nominal or a folder"
-    )
-    solver: str = "CLARABEL"
-
-    @field_validator("Q", mode="before")
-    @classmethod
-    def _q(cls, v: Any) -> Any:
-        return _matrix(v, NX, "Q", True)
-
-    @field_validator("R", mode="before")
-    @classmethod
-    def _r(cls, v: Any) -> Any:
-        return _matrix(v, NU, "R", True)
-
-    @field_validator("H", mode="before")
-    @classmethod
-    def _h(cls, v: Any) -> Any:
-        return None if v is None else _matrix(v, NX, "H", False)
-
-    @field_validator("S", "eps_e", "eps_w", "delta", "R0")
-    @classmethod
-    def _nonneg(cls, v: Any) -> Any:
-        if isinstance(v, int | float) and not (math.isfinite(v) and v >= 0):
-            raise ValueError(f"must be a finite number >= 0, got {v}")
-        return v
-
-    @field_validator("error_scale")
-    @classmethod
-    def _scale(cls, v: Any) -> Any:
-        if any(not (math.isfinite(w) and w > 0) for w in v):
-            raise ValueError(f"weights must be finite and > 0, got {list(v)}")
-        return v
-
-
-class SynthOptions(ProblemOptions):
-    """Options of ``qsls synth``."""
-
-    norm: Literal["l1", "h2", "both"] = "l1"  # type: ignore[assignment]
-    controllers: Literal["paper", "single"] = "paper"
-
-    @model_validator(mode="after")
-    def _single(self) -> SynthOptions:
-        if self.controllers == "single" and self.norm == "both":
-            raise ValueError("controllers: single needs norm l1 or h2")
-        return self
 
 
 # --------------------------------------------------------------------------- resolution

@@ -28,18 +28,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import pandas as pd
-from pydantic import Field, field_validator
 
 from qsls.pipeline.core.artifacts import StageWriter, check_output, require_stage
-from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.plant import PAPER_MASS_KG
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.core.references import ReferenceOptions, parse_reference
+from qsls.pipeline.core.references import parse_reference
 from qsls.pipeline.errormodel.model import (
     ERROR_MODEL_FILE,
     TRAINING_FILE,
@@ -50,6 +47,7 @@ from qsls.pipeline.errormodel.model import (
     SlopeStats,
     WorstPair,
 )
+from qsls.pipeline.errormodel.options import FitOptions as FitOptions
 from qsls.pipeline.errormodel.slopes import (
     PairSlopes,
     nearest_distance,
@@ -70,85 +68,6 @@ from qsls.pipeline.ingest.flight import (
 STAGE = "fit"
 FIGURES = ("slope_distribution.png", "error_norm.png", "worst_pairs.png")
 _MAD = 1.4826
-
-
-class FitOptions(Options):
-    """``qsls fit``: how the error model is estimated from the training flights."""
-
-    radius: float = Field(0.5, gt=0)
-    """S-slope radius ``r``: pairs with ``||W (x_i - x_j)|| < r`` (m and m/s, infinity norm)."""
-    percentiles: list[float] = Field(default_factory=lambda: [50.0, 90.0, 95.0, 99.0])
-    """Percentiles reported for ``||e||``, pair slopes and per-sample largest slopes."""
-    min_separation: float | Literal["auto"] = "auto"
-    """Pairs closer than this are left out (noise floor); ``auto``: factor x the noise floor."""
-    min_separation_factor: float = Field(3.0, gt=0)
-    """``auto`` minimum separation = this x the estimated noise floor."""
-    state_scale: tuple[float, float, float, float, float, float] = (1.0,) * 6
-    """Weights ``W`` of ``px py pz vx vy vz`` in the state distance (1 m/s counts as 1 m)."""
-    exclude_outliers: bool = False
-    """Leave out samples whose robust z-score of ``e`` exceeds ``outlier_z`` on some axis."""
-    outlier_z: float = Field(3.5, gt=0)
-    """Robust z-score ``|e - median| / (1.4826 MAD)`` above which a sample is an outlier."""
-    skip_start: float = Field(0.0, ge=0)
-    """Seconds left out at the start of every flight (estimator start-up)."""
-    reference: ReferenceOptions | str | None = None
-    """For ``delta``: a reference (``circle:radius=1,height=1,period=5`` or a mapping of
-    the simulator's reference options) or a flight folder whose truth states are the
-    reference."""
-    reference_dt: float = Field(0.01, gt=0)
-    """Sampling step of a parametric reference (s)."""
-    reference_lead_in: bool = False
-    """Include a parametric reference's take-off and approach (before its pattern) in delta."""
-    r0: float | str = "max"
-    """``R0``: ``max`` (= eps_e), ``pNN`` (a percentile of ``||e||``) or a number."""
-    bootstrap: int = Field(0, ge=0)
-    """Bootstrap replicates for confidence intervals (0: none)."""
-    bootstrap_block: int = Field(10, ge=1)
-    """Block length (samples) of the moving-block bootstrap within each flight."""
-    bootstrap_level: float = Field(0.95, gt=0, lt=1)
-    """Confidence level of the bootstrap intervals."""
-    seed: int = 0
-    """Seed of the bootstrap."""
-    top_pairs: int = Field(20, ge=1, le=1000)
-    """Number of worst pairs reported."""
-    figures: bool = True
-    """Write the PNG figures."""
-    jobs: int = Field(1, ge=1, le=64)
-    """Threads for the pair pass (the result does not depend on it)."""
-    inputs: list[str] | None = None
-    """Logged inputs, one control log per flight in the flights' order (parquet with
-    ``stamp_ns``, ``u_pitch``, ``u_roll``, ``u_thrust`` on the VIO clock, as ``qsls simulate``
-    writes ``control.parquet``): the realized disturbance ``w`` is measured with them; without
-    them it is the input-free residual, a lower bound (docs/guarantee.md)."""
-    mass: float = Field(PAPER_MASS_KG, gt=0)
-    """Vehicle mass (kg) of the model the disturbance is measured through (hover thrust, B)."""
-
-    @field_validator("percentiles")
-    @classmethod
-    def _pcts(cls, v: list[float]) -> list[float]:
-        if not v:
-            raise ValueError("give at least one percentile")
-        bad = [q for q in v if not (0 <= q <= 100)]
-        if bad:
-            raise ValueError(f"percentiles must be in [0, 100], got {bad}")
-        return sorted({float(q) for q in v})
-
-    @field_validator("state_scale", mode="before")
-    @classmethod
-    def _scale(cls, v: Any) -> Any:
-        if isinstance(v, list | tuple):
-            if len(v) != 6:
-                raise ValueError(f"give 6 weights (px,py,pz,vx,vy,vz), got {len(v)}")
-            if any(not isinstance(w, int | float) or not w > 0 for w in v):
-                raise ValueError(f"weights must be positive numbers, got {list(v)}")
-        return v
-
-    @field_validator("min_separation")
-    @classmethod
-    def _minsep(cls, v: float | str) -> float | str:
-        if isinstance(v, float | int) and (v < 0 or not math.isfinite(v)):
-            raise ValueError(f"must be >= 0 or 'auto', got {v}")
-        return v
 
 
 @dataclass(frozen=True)

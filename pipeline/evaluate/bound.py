@@ -45,7 +45,6 @@ import numpy as np
 import pandas as pd
 
 from qsls.pipeline.core.artifacts import StageWriter, require_stage
-from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import (
@@ -62,6 +61,7 @@ from qsls.pipeline.evaluate.certified import (
     load_controller_bound,
 )
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
+from qsls.pipeline.evaluate.options import EvaluateOptions
 from qsls.pipeline.evaluate.table import Evaluation
 from qsls.pipeline.evaluate.theorem import (
     TheoremNumbers,
@@ -90,24 +90,6 @@ __all__ = [
     "resolve_model",
     "write_tables",
 ]
-
-
-class EvaluateOptions(Options):
-    """Options of the bound check (``qsls evaluate``)."""
-
-    smooth_s: float = 1.0
-    """Time constant (s) of the first-order average drawn over ``||e||`` in the figures
-    (the paper's figure used 1 s); 0 draws the raw signal only. Numbers are never smoothed."""
-    state_scale: tuple[float, float, float, float, float, float] | None = None
-    """Per-coordinate weights of the state distance; must equal the error model's (its
-    S-slope is a slope in that norm), which is the default."""
-    flown_by: str | None = None
-    """The controller (by name) that flew the given flights: the theorem is checked on its
-    rows; every other row, and every row when unset, checks the premise only."""
-    figures: bool = True
-    """Write the PNG figures."""
-    max_figure_flights: int = 12
-    """At most this many flights get a panel in the figures (all are in the tables)."""
 
 
 # --------------------------------------------------------------------------- the check

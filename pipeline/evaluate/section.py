@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from qsls.pipeline.core.config import merge, validate
-from qsls.pipeline.evaluate.bound import EvaluateOptions
+from qsls.pipeline.evaluate.options import EvaluateOptions
 
 if TYPE_CHECKING:
     from qsls.pipeline.evaluate.fly import FlyOptions

@@ -40,7 +40,7 @@ def fingerprint(config: Any, base: Path, root: Path, versions: Mapping[str, str]
     """What the plan of ``config`` (paths relative to ``base``, run folder ``root``) depends on."""
     return sha256_json(
         {
-            "config": to_plain(config),
+            "config": config.record() if hasattr(config, "record") else to_plain(config),
             "base": str(Path(base).resolve()),
             "root": str(Path(root).resolve()),
             "versions": dict(versions),

@@ -14,14 +14,15 @@ Relative paths in the config are relative to the config file's folder.
 from __future__ import annotations
 
 import subprocess
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, PrivateAttr, field_validator
 
 from qsls.pipeline import __version__
+from qsls.pipeline.control.options import SweepSection, SynthOptions
 from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_json, sha256_file, to_plain
 from qsls.pipeline.core.config import Options, read_yaml, validate
 from qsls.pipeline.core.errors import ConfigError
@@ -32,6 +33,8 @@ from qsls.pipeline.core.locks import (
     unwritable,
 )
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.errormodel.options import FitOptions
+from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.report.stage import RUN_FILE
 from qsls.pipeline.run.graph import Stage, StageGraph, StageOutcome, run_versions
 from qsls.pipeline.run.memo import fingerprint, planned_graph
@@ -64,16 +67,17 @@ class FlightSpec(Options):
 class RunConfig(Options):
     """The run: flights plus each stage's options (the stage's own option names).
 
-    Each stage section is the same section the stage command reads with ``--config``, and is
-    validated when the run is planned by the model that command uses: ``simulate``
-    :class:`~qsls.pipeline.sim.simulate.SimOptions` (a flight's ``simulate:`` over it),
-    ``ingest`` :class:`~qsls.pipeline.ingest.stage.IngestOptions` (a flight's over it),
-    ``fit`` :class:`~qsls.pipeline.errormodel.fit.FitOptions`, ``sweep``
-    :class:`~qsls.pipeline.control.sweep.SweepSection` (with ``jobs``, ``scheduler``,
-    ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.synth.SynthOptions`,
-    ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (with ``fly``).
-    They are mappings here so that reading a run config imports no stage: a run with
-    nothing to do imports nothing heavy."""
+    Each stage section is the same section the stage command reads with ``--config``, typed
+    by the model that command uses: ``fit`` :class:`~qsls.pipeline.errormodel.options.FitOptions`,
+    ``sweep`` :class:`~qsls.pipeline.control.options.SweepSection` (with ``jobs``,
+    ``scheduler``, ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions`,
+    ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (with ``fly``, whose
+    options are the section's keys under the flight's own: validated when planned). These
+    models live apart from their stages, so reading a run config loads no solver, pandas or
+    simulator: a run with nothing to do imports nothing heavy. ``simulate`` and ``ingest``
+    are bases that every flight's own ``simulate:`` / ``ingest:`` is laid over, so they are
+    validated per flight, when planned (:class:`~qsls.pipeline.sim.simulate.SimOptions`,
+    :class:`~qsls.pipeline.ingest.stage.IngestOptions`)."""
 
     name: str
     seed: int = 0
@@ -84,11 +88,31 @@ class RunConfig(Options):
     simulate: dict[str, Any] = Field(default_factory=dict)
     flights: list[FlightSpec]
     ingest: dict[str, Any] = Field(default_factory=dict)
-    fit: dict[str, Any] = Field(default_factory=dict)
-    sweep: dict[str, Any] | None = None
-    synth: dict[str, Any] | None = None
-    evaluate: dict[str, Any] | None = None
+    fit: FitOptions = Field(default_factory=FitOptions)
+    sweep: SweepSection | None = None
+    synth: SynthOptions | None = None
+    evaluate: EvaluateSection | None = None
     report: bool = True
+    _given: dict[str, Any] | None = PrivateAttr(None)
+
+    def record(self) -> dict[str, Any]:
+        """The config as plain data, its typed sections as they were written (the run's
+        ``run.json`` and the plan's fingerprint: a default added to an options model does
+        not make every run plan anew)."""
+        given = self._given
+        if given is None:
+            given = {k: getattr(self, k).model_dump(mode="json", exclude_unset=True)
+                     for k in SECTIONS if getattr(self, k) is not None}  # fmt: skip
+        plain = to_plain(self.model_dump(mode="json", exclude=set(SECTIONS)))
+        return {
+            k: (to_plain(given.get(k, DEFAULTS[k])) if k in SECTIONS else plain[k])
+            for k in type(self).model_fields
+        }
+
+
+SECTIONS = ("fit", "sweep", "synth", "evaluate")
+"""The typed stage sections of a run config (each validated with its stage's name in errors)."""
+DEFAULTS: dict[str, Any] = {"fit": {}, "sweep": None, "synth": None, "evaluate": None}
 
 
 @dataclass(frozen=True)
@@ -111,7 +135,21 @@ class RunResult:
 
 
 def load_run_config(path: Path) -> RunConfig:
-    return validate(RunConfig, read_yaml(path), str(path))
+    """A run config, every typed section validated by its stage's model; an error names the
+    section (``CONFIG_FOLDER: sweep: unknown option 'jbos'; did you mean 'jobs'?``), as the
+    stage command's ``--config`` does."""
+    raw = read_yaml(path)
+    base = Path(path).resolve().parent
+    typed = dict(raw)
+    models: dict[str, type[Options]] = {
+        "fit": FitOptions, "sweep": SweepSection, "synth": SynthOptions, "evaluate": EvaluateSection,
+    }  # fmt: skip
+    for key, model in models.items():
+        if isinstance(raw.get(key), Mapping):
+            typed[key] = validate(model, raw[key], f"{base}: {key}")
+    cfg = validate(RunConfig, typed, str(path))
+    cfg._given = {k: raw[k] for k in SECTIONS if k in raw}
+    return cfg
 
 
 def _git_commit() -> str:
@@ -181,7 +219,7 @@ def _run_locked(
         "git_commit": _git_commit(),
         "config_path": config_path.as_posix(),
         "config_sha256": sha256_file(config_path),
-        "config": to_plain(cfg),
+        "config": cfg.record(),
         "stages": graph.ids,
     }
     body = dump_json(info).encode()

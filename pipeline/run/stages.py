@@ -10,8 +10,11 @@ Folder layout under the run folder (one stage folder each, with its manifest)::
     evaluate/            bound check on the held-out flights
     fly/                 the controllers flown (evaluate --fly)
 
-Every stage's options are validated here, before anything runs, with the stage's own model,
-so a misspelled option is reported with the config's section and the nearest valid name.
+Every stage's options are validated before anything runs, with the stage's own model, so a
+misspelled option is reported with the config's section and the nearest valid name: the typed
+sections when the config is read (:func:`qsls.pipeline.run.runner.load_run_config`), a
+flight's simulate and ingest options (the run's section under the flight's) and the flying
+options (the evaluate section under its ``fly:``) here.
 """
 
 from __future__ import annotations
@@ -20,9 +23,11 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from qsls.pipeline.control.options import SweepSection
 from qsls.pipeline.core.config import merge, validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.run.graph import Stage, StageGraph
 from qsls.pipeline.run.paths import resolve_path
 
@@ -49,9 +54,7 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
         return graph
     if not ingest_ids["train"]:
         raise ConfigError(f"{src('flights')}: the fit needs at least one flight with role 'train'")
-    from qsls.pipeline.errormodel.fit import FitOptions
-
-    fit_opts = validate(FitOptions, cfg.fit, src("fit"))
+    fit_opts = cfg.fit
     train = tuple(ingest_ids["train"])
     # simulated training flights logged their inputs: the disturbance is measured with them
     sims = [s for s in sim_ids["train"] if s is not None]
@@ -68,9 +71,7 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
                 "add a synth: section (and synth to the stages)"
             )
         return graph
-    from qsls.pipeline.control.synth import SynthOptions
-
-    synth_opts = validate(SynthOptions, cfg.synth, src("synth"))
+    synth_opts = cfg.synth
     graph.add(Stage("synth", "synth", synth_opts, _synth_exec(synth_opts, progress), deps=("fit",)))
     heldout = ingest_ids["heldout"]
     if "evaluate" not in wanted:
@@ -82,7 +83,7 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
         )
     # a held-out flight is checked with the default options when the section is left out
     if cfg.evaluate is not None or heldout:
-        _evaluate_stages(graph, cfg.evaluate or {}, heldout, src, progress)
+        _evaluate_stages(graph, cfg.evaluate or EvaluateSection(), heldout, src, progress)
     return graph
 
 
@@ -138,22 +139,16 @@ def _flight_stages(
     return stage_id, deps[0] if deps else None
 
 
-def _sweep_stage(graph: StageGraph, section: dict[str, Any], src: Src, progress: Progress) -> None:
-    from qsls.pipeline.control.sweep import SweepSection
-
-    sec = validate(SweepSection, section, src("sweep"))
+def _sweep_stage(graph: StageGraph, sec: SweepSection, src: Src, progress: Progress) -> None:
     execute = _sweep_exec(sec.options(), sec.jobs, sec.scheduler, sec.wait_workers, progress)
     graph.add(Stage("sweep", "sweep", sec.options(), execute, deps=("fit",)))
 
 
 def _evaluate_stages(
-    graph: StageGraph, section: dict[str, Any], heldout: list[str], src: Src, progress: Progress
+    graph: StageGraph, sec: EvaluateSection, heldout: list[str], src: Src, progress: Progress
 ) -> None:
     """The bound check on the held-out flights (when there are some) and the flights flown
     (when the section has ``fly``)."""
-    from qsls.pipeline.evaluate.section import EvaluateSection
-
-    sec = validate(EvaluateSection, section, src("evaluate"))
     if heldout:
         eval_opts = sec.bound()
         execute = _evaluate_exec(eval_opts, heldout, progress)

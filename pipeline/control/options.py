@@ -1,0 +1,257 @@
+"""The options of ``qsls synth`` and ``qsls sweep`` (and their ``synth:`` / ``sweep:`` config
+sections), apart from the stages: this module imports only pydantic, numpy and the plant's
+constants, so ``qsls run`` validates a run config (:class:`qsls.pipeline.run.runner.RunConfig`)
+without loading the solver. :mod:`qsls.pipeline.control.synth` and
+:mod:`qsls.pipeline.control.sweep` re-export them."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from qsls.pipeline.control.pdgain import PDGains
+from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.plant import NU, NX, PAPER_DT_S, PAPER_MASS_KG
+
+
+def psd_sqrt(m: np.ndarray, what: str = "matrix") -> np.ndarray:
+    """Symmetric square root of a symmetric positive-definite matrix; ValueError otherwise."""
+    m = np.atleast_2d(np.asarray(m, dtype=float))
+    if m.shape[0] != m.shape[1] or not np.allclose(m, m.T, atol=1e-12 * max(1.0, np.abs(m).max())):
+        raise ValueError(f"{what} must be a symmetric square matrix")
+    w, v = np.linalg.eigh(m)
+    if w.min() <= 0:
+        raise ValueError(f"{what} must be positive definite (smallest eigenvalue {w.min():.3g})")
+    return (v * np.sqrt(w)) @ v.T
+
+
+
+Number = float | str
+
+
+def _matrix(value: Any, n: int, what: str, psd: bool) -> list[list[float]]:
+    """A list of ``n`` numbers (diagonal) or an ``n x n`` nested list -> nested list."""
+    a = np.asarray(value, dtype=float)
+    if a.ndim == 1:
+        if a.shape != (n,):
+            raise ValueError(
+                f"{what} needs {n} diagonal entries or an {n}x{n} matrix, got {a.size}"
+            )
+        a = np.diag(a)
+    if a.shape != (n, n):
+        raise ValueError(f"{what} must be {n}x{n}, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{what} has non-finite entries")
+    if psd:
+        psd_sqrt(a, what)
+    return a.tolist()
+
+
+class ProblemOptions(Options):
+    """One synthesis problem's settings (shared by ``synth`` and ``sweep``)."""
+
+    T: int = Field(20, ge=2, le=500, description="FIR horizon (taps 0..T)")
+    norm: Literal["l1", "h2"] = "l1"
+    cost: Literal["qr", "imitation"] = "qr"
+    robust: bool = True
+    strictly_proper: bool = False
+    Q: list[list[float]] = Field(default_factory=lambda: np.diag([10.0, 10, 10, 1, 1, 1]).tolist())
+    R: list[list[float]] = Field(default_factory=lambda: np.diag([1.0, 1, 0.1]).tolist())
+    eps_w: Number | None = Field(
+        None,
+        description="disturbance bound ||w|| <= eps_w: a number, max or pNN of the training "
+        "flights' realized disturbance; default: its max (0.01 without an error model)",
+    )
+    H: list[list[float]] | None = None
+    mass: float = Field(PAPER_MASS_KG, gt=0)
+    dt: float = Field(PAPER_DT_S, gt=0)
+    S: Number = Field(
+        "lofo",
+        description="S-slope: lofo (leave-one-flight-out, every left-out sample satisfies the "
+        "premise), max / pNN / local_pNN (pair slopes), or a number",
+    )
+    eps_e: Number = Field(
+        "max", description="bound on the dense error |d|_e: max (training maximum), pNN or a number"
+    )
+    measure: Literal["full", "position"] = Field(
+        "full", description="error channels the controller reads: full, or position only"
+    )
+    beta: float | None = Field(
+        None, gt=0, description="velocity clip of the dense part (None: no sparse part)"
+    )
+    error_scale: tuple[float, float, float, float, float, float] = Field(
+        (1.0,) * 6, description="W_e: weights of the error norm |e|_e = ||W_e e||_inf"
+    )
+    m: int | Literal["auto"] = Field(
+        "auto", description="outliers allowed per window of T steps (auto: binomial risk)"
+    )
+    eps_o: float | None = Field(
+        None, ge=0, description="bound on one outlier (a physical bound; never the sample max)"
+    )
+    outlier_risk: float = Field(
+        1e-3, gt=0, lt=1, description="risk of a window holding more than m outliers"
+    )
+    gate: float | None = Field(
+        None,
+        gt=0,
+        description="velocity gate V: the controller reads clip(y_v, v_ref +/- V), so an outlier "
+        "is at most 2V - beta (eps_o); needs beta",
+    )
+    radius: float | None = Field(None, gt=0, description="default: the error model's radius")
+    delta: Number | None = Field(None, description="Delta; default: the error model's delta")
+    R0: Number | None = Field(
+        None,
+        description="R0 for gamma_strict; default: the eps_e in use (so gamma_strict <= gamma)",
+    )
+    pd: PDGains = PDGains()
+    imitate: str = Field(
+        "pd", description="imitation target: pd, l1_nominal, h2_nominal or a folder"
+    )
+    solver: str = "CLARABEL"
+
+    @field_validator("Q", mode="before")
+    @classmethod
+    def _q(cls, v: Any) -> Any:
+        return _matrix(v, NX, "Q", True)
+
+    @field_validator("R", mode="before")
+    @classmethod
+    def _r(cls, v: Any) -> Any:
+        return _matrix(v, NU, "R", True)
+
+    @field_validator("H", mode="before")
+    @classmethod
+    def _h(cls, v: Any) -> Any:
+        return None if v is None else _matrix(v, NX, "H", False)
+
+    @field_validator("S", "eps_e", "eps_w", "delta", "R0")
+    @classmethod
+    def _nonneg(cls, v: Any) -> Any:
+        if isinstance(v, int | float) and not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"must be a finite number >= 0, got {v}")
+        return v
+
+    @field_validator("error_scale")
+    @classmethod
+    def _scale(cls, v: Any) -> Any:
+        if any(not (math.isfinite(w) and w > 0) for w in v):
+            raise ValueError(f"weights must be finite and > 0, got {list(v)}")
+        return v
+
+
+class SynthOptions(ProblemOptions):
+    """Options of ``qsls synth``."""
+
+    norm: Literal["l1", "h2", "both"] = "l1"  # type: ignore[assignment]
+    controllers: Literal["paper", "single"] = "paper"
+
+    @model_validator(mode="after")
+    def _single(self) -> SynthOptions:
+        if self.controllers == "single" and self.norm == "both":
+            raise ValueError("controllers: single needs norm l1 or h2")
+        return self
+
+
+
+AXES = (
+    "S", "eps_e", "radius", "delta", "T", "q_scale", "r_scale", "eps_w", "norm", "cost",
+    "robust", "strictly_proper",
+)  # fmt: skip
+
+class SweepOptions(ProblemOptions):
+    """Options of ``qsls sweep``: the base problem plus ``grid`` (axis -> list of values)."""
+
+    grid: dict[str, list[Any]] = Field(
+        default_factory=lambda: {"S": [0.05, 0.1, 0.2], "T": [10, 20]}  # type: ignore[arg-type]
+    )
+    """Grid axes (S, eps_e, radius, delta, T, q_scale, r_scale, eps_w, norm, cost, robust,
+    strictly_proper) and their values; every point is one synthesis."""
+    certify: bool = True
+    """Certify every feasible point (else only solve it)."""
+    s_max_curve: bool = True
+    """Also compute the largest feasible S for every T and error setting of the grid."""
+    chunks_per_job: int = Field(4, ge=1)
+    """Chunks handed to each worker (more: better balance, more scheduling)."""
+
+    @field_validator("grid")
+    @classmethod
+    def _grid(cls, g: dict[str, list[Any]]) -> dict[str, list[Any]]:
+        import difflib
+
+        for key, values in g.items():
+            if key not in AXES:
+                near = difflib.get_close_matches(key, AXES, n=1)
+                hint = f"; did you mean '{near[0]}'?" if near else f"; axes: {', '.join(AXES)}"
+                raise ValueError(f"unknown grid axis '{key}'{hint}")
+            if not isinstance(values, list) or not values:
+                raise ValueError(f"grid axis '{key}' needs a non-empty list of values")
+        return g
+
+
+
+class SweepSection(SweepOptions):
+    """The ``sweep:`` section of a config file, the same for ``qsls sweep --config`` and
+    ``qsls run``: the sweep's options plus where it runs (which changes no result, so only
+    :meth:`options` is the stage's record and cache key)."""
+
+    jobs: int | None = Field(None, ge=1)
+    """Local worker processes (default: all cores)."""
+    scheduler: str | None = None
+    """Dask scheduler address ``SCHEME://HOST:PORT`` (instead of ``jobs``)."""
+    wait_workers: float = Field(60.0, gt=0)
+    """With ``scheduler``: seconds to wait for a first worker, and for one to come back when
+    all have left, before giving up."""
+
+    @field_validator("scheduler")
+    @classmethod
+    def _scheduler(cls, v: str | None) -> str | None:
+        if v is None:
+            return None
+        try:
+            return check_scheduler(v)
+        except ConfigError as exc:
+            raise ValueError(str(exc).removeprefix("--scheduler ")) from None
+
+    @model_validator(mode="after")
+    def _one_executor(self) -> SweepSection:
+        if self.jobs is not None and self.scheduler is not None:
+            raise ValueError("give jobs or scheduler, not both")
+        return self
+
+    def options(self) -> SweepOptions:
+        """The sweep's own options (without ``jobs``, ``scheduler``, ``wait_workers``)."""
+        return SweepOptions.model_validate({k: getattr(self, k) for k in SweepOptions.model_fields})
+
+
+
+# --------------------------------------------------------------------------- where a sweep runs
+DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
+
+
+def check_scheduler(address: str) -> str:
+    """A Dask scheduler address ``SCHEME://HOST:PORT`` (``tcp://`` when no scheme), checked
+    before anything runs: a missing port or an unknown scheme is one line, not a traceback
+    after the connection timeout."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    example = "e.g. tcp://127.0.0.1:8786"
+    try:
+        scheme, loc = parse_address(address.strip())
+        host, port = parse_host_port(loc)
+    except ValueError as exc:
+        raise ConfigError(
+            f"--scheduler {address}: {exc}; expected SCHEME://HOST:PORT, {example}"
+        ) from None
+    if scheme not in DASK_SCHEMES:
+        raise ConfigError(
+            f"--scheduler {address}: unknown scheme '{scheme}' (use {', '.join(DASK_SCHEMES)}), {example}"
+        )
+    if not host or not 0 < int(port) < 65536:
+        raise ConfigError(f"--scheduler {address}: expected SCHEME://HOST:PORT, {example}")
+    return f"{scheme}://{host}:{port}"
+
+
