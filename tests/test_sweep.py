@@ -451,3 +451,26 @@ def test_none_feasible_is_said_not_a_negative_s(tmp_path):
     assert "none feasible" in res.output
     s_max = pd.read_parquet(tmp_path / "o" / "s_max.parquet")
     assert (s_max["s_max"] < 0).all()
+
+
+def test_a_sweep_row_is_the_certificate_synth_writes_for_the_same_options():
+    """One path from options to a certified solution: the sweep's row of a point is the
+    projection of the certificate ``synthesize`` makes for the same options (every number
+    equal, not close), the imitation of ``l1_nominal`` included."""
+    from qsls.pipeline.control.options import SweepOptions, SynthOptions
+    from qsls.pipeline.control.sweep import ROW_FIELDS, compute
+    from qsls.pipeline.control.synth import synthesize
+
+    base = {"T": 6, "S": 0.05, "eps_e": 0.05, "radius": 1.0, "delta": 0.05, "eps_w": 0.01,
+            "imitate": "l1_nominal"}  # fmt: skip
+    made = synthesize(None, None, SynthOptions(**base)).certificates()
+    opts = SweepOptions(**base, grid={"cost": ["qr", "imitation"]}, s_max_curve=False)
+    table, _, _ = compute(opts, jobs=1)
+    for row, name in zip(table.itertuples(), ("l1_robust", "l1_robust_imitation"), strict=True):
+        cert = made[name]
+        assert row.status == cert.status == "certified"
+        assert row.cost_value == cert.cost_value
+        for col, field in ROW_FIELDS.items():
+            assert getattr(row, col) == getattr(cert, field), (name, col)
+    assert made["l1_robust_imitation"].imitate == "l1_nominal"
+    assert table["cost_value"][1] != made["l1_robust"].cost_value  # a different problem

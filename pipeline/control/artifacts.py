@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, model_serializer
 
 from qsls.pipeline.control.nominal import (
     ClosedLoopNorm,
@@ -215,12 +215,15 @@ class CertificateBody(BaseModel):
     s_times_norm_phi_xy: float
     a: float
     gamma: float
-    """The bound on the dense error, ``eps + S rho*``."""
+    """The bound on the dense error, ``eps + S rho*`` (Dean et al.'s gamma in the special case)."""
     gamma_strict: float
-    rho_star: float
-    norm_N: float
-    norm_N_w: float
-    G_m: float
+    rho_star: float | None = None
+    """``dist(x_k) <= rho*`` for every k: the region the guarantee keeps the vehicle in."""
+    norm_N: float | None = None
+    norm_N_w: float | None = None
+    G_m: float | None = None
+    rho_v: float | None = None
+    """Certified bound on the velocity deviation from the reference (``<= V`` with a gate)."""
     achievability_residual: float
     truncation_residual: float | None = None
     """A reference controller's: its taps are a truncation, so the residual is the tail's."""
@@ -229,12 +232,11 @@ class CertificateBody(BaseModel):
     perturbation_final: float | None = None
     checks: dict[str, dict[str, Any]] | None = None
     """``name -> {value, limit, passed}`` (none for a reference controller)."""
-    rho_v: float | None = None
-    """Certified bound on the velocity deviation (with a velocity gate)."""
 
 
-class Certificate(BaseModel):
-    """``certificate.yaml``: what was certified, against which setting, and the checks.
+class Certificate(CertificateBody):
+    """``certificate.yaml``: what was certified (the :class:`CertificateBody`), against which
+    setting, and the checks.
 
     The guarantee (docs/guarantee.md, :mod:`qsls.pipeline.control.guarantee`): when
     ``robustness_lhs = (S + eps/r) N + (a + eps_o G_m)/r < 1``, ``dist(x_k) <= rho* <= r`` and
@@ -242,10 +244,7 @@ class Certificate(BaseModel):
     ``gamma_strict = R0 / (1 - S N)`` is the paper's comparison.
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
     controller: str
-    status: Status
     robust: bool
     norm: str | None = None
     cost: str | None = None
@@ -259,37 +258,13 @@ class Certificate(BaseModel):
     delta: float
     eps_w: float
     R0: float
-    norm_phi_xx_h: float
-    norm_phi_xy: float
-    norm_phi_ux: float
-    norm_phi_uy: float
-    robustness_lhs: float
-    margin: float
-    s_times_norm_phi_xy: float
-    a: float
-    gamma: float
-    """The bound on the dense error, ``eps + S rho*`` (Dean et al.'s gamma in the special case)."""
-    gamma_strict: float
-    rho_star: float | None = None
-    """``dist(x_k) <= rho*`` for every k: the region the guarantee keeps the vehicle in."""
-    norm_N: float | None = None
-    norm_N_w: float | None = None
-    G_m: float | None = None
     m: int = 0
     eps_o: float = 0.0
     measure: str = "full"
     gate: float | None = None
     """Velocity gate ``V``: the controller reads ``clip(y_v - v_ref, -V, V)``."""
-    rho_v: float | None = None
-    """Certified bound on the velocity deviation from the reference (``<= V`` with a gate)."""
     tested_range: float | None = None
     """Largest distance at which the premise's S was tested on left-out data."""
-    achievability_residual: float
-    truncation_residual: float | None = None
-    realization_error: float | None = None
-    perturbation_peak: float | None = None
-    perturbation_final: float | None = None
-    checks: dict[str, dict[str, Any]] | None = None
     solver_status: str | None = None
     solver: str | None = None
     dt: float
@@ -311,11 +286,15 @@ class Certificate(BaseModel):
     """The premise the guarantee rests on, with the training data's violated shares
     (:mod:`qsls.pipeline.control.premise`); ``certified`` needs it to hold on all of it."""
 
+    @model_serializer(mode="wrap")
+    def _in_file_order(self, handler: Any) -> dict[str, Any]:
+        data = handler(self)
+        return {k: data[k] for k in FILE_ORDER if k in data}
+
     @classmethod
     def of(cls, body: CertificateBody, **setting: Any) -> Certificate:
         """The certificate of ``body`` against ``setting`` (controller name, the premise's
-        numbers, the problem, ``controller_sha256``, ...); the file's keys keep this class's
-        order."""
+        numbers, the problem, ``controller_sha256``, ...), its keys in :data:`FILE_ORDER`."""
         return cls.model_validate({**setting, **dict(body)})
 
     @property
@@ -361,6 +340,19 @@ class Certificate(BaseModel):
                 f"{f}: not a certificate of this qsls version ({where}: {first['msg']}); "
                 "regenerate it with 'qsls synth'"
             ) from None
+
+
+FILE_ORDER = (
+    "controller", "status", "robust", "norm", "cost", "cost_value", "objective", "strictly_proper",
+    "T", "S", "eps_e", "radius", "delta", "eps_w", "R0", "norm_phi_xx_h", "norm_phi_xy",
+    "norm_phi_ux", "norm_phi_uy", "robustness_lhs", "margin", "s_times_norm_phi_xy", "a",
+    "gamma", "gamma_strict", "rho_star", "norm_N", "norm_N_w", "G_m", "m", "eps_o", "measure",
+    "gate", "rho_v", "tested_range", "achievability_residual", "truncation_residual",
+    "realization_error", "perturbation_peak", "perturbation_final", "checks", "solver_status",
+    "solver", "dt", "mass", "Q", "R", "closed_loop_spectral_radius", "closed_loop_norms", "kp",
+    "kd", "imitate", "error_model", "error_model_sha256", "controller_sha256", "premise",
+)  # fmt: skip
+"""The keys of ``certificate.yaml`` in their order: the setting first, then what was found."""
 
 
 @dataclass(frozen=True)

@@ -41,7 +41,8 @@ from qsls.pipeline.control.options import ProblemOptions, check_scheduler
 from qsls.pipeline.control.options import SweepOptions as SweepOptions
 from qsls.pipeline.control.options import SweepSection as SweepSection
 from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_columns
-from qsls.pipeline.control.synth import read_model, resolve, warn_size
+from qsls.pipeline.control.resolution import read_model, resolve
+from qsls.pipeline.control.synth import warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.pools import run_tasks
@@ -59,7 +60,7 @@ RESULT_COLUMNS = (
 # --------------------------------------------------------------------------- points
 def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[dict[str, Any]]:
     """One plain dict per grid point: the grid values, the point's resolved problem
-    (:class:`~qsls.pipeline.control.synth.Resolved`, as ``qsls synth`` resolves it), the
+    (:class:`~qsls.pipeline.control.resolution.Resolved`, as ``qsls synth`` resolves it), the
     premise's violated shares (:func:`premise_fields`) and everything a worker needs
     (picklable)."""
     from qsls.pipeline.core.config import validate
@@ -291,19 +292,33 @@ def project(body: Any) -> dict[str, Any]:
 
 
 def _nominal(p: dict[str, Any]) -> Any:
-    """An imitation point's target: the PD's responses or a controller folder's. (A nominal
-    SLS target, which ``qsls synth`` solves first, is not available to a single point.)"""
+    """An imitation point's target, as ``qsls synth`` chooses it
+    (:func:`qsls.pipeline.control.synth.imitation_target`): the PD's responses, the nominal
+    controller of the point's own options (``l1_nominal`` / ``h2_nominal``, solved here
+    first), or a controller folder's."""
     if p["cost"] != "imitation":
         return None
-    if p["imitate"] == "pd":
+    from qsls.pipeline.control.synth import IMITATE_NAMED, imitation_target, nominal_from_folder
+
+    r, T, target = p["resolved"], p["T"], p["imitate"]
+    if target not in IMITATE_NAMED:
+        return nominal_from_folder(Path(target), T)
+    done: dict[str, Any] = {}
+    if target == "pd":
         from qsls.pipeline.control.nominal import pd_responses
         from qsls.pipeline.control.pdgain import PDGains
 
-        _, taps = pd_responses(p["resolved"].model, PDGains(kp=p["kp"], kd=p["kd"]), p["T"])
-        return taps
-    from qsls.pipeline.control.synth import nominal_from_folder
+        done["pd"] = pd_responses(r.model, PDGains(kp=p["kp"], kd=p["kd"]), T)[1]
+    else:
+        from qsls.pipeline.control import sls
 
-    return nominal_from_folder(Path(p["imitate"]), p["T"])
+        norm = target.removesuffix("_nominal")
+        st = r.structure(T, norm, "qr", False, p["strictly_proper"])
+        sol = sls.solve(r.model, st, r.values(), solver=p["solver"])
+        if sol.taps is None:
+            raise InputError(f"imitate: {target} failed at this point ({sol.solver_status})")
+        done[target] = sol.taps
+    return imitation_target(target, T, done)
 
 
 def run_chunk(chunk: list[dict[str, Any]]) -> list[dict[str, Any]]:

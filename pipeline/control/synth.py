@@ -22,11 +22,10 @@ Infeasible is an answer: before solving, the necessary condition ``S + eps_e / r
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, cast
-
-import numpy as np
 
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.artifacts import (
@@ -36,345 +35,28 @@ from qsls.pipeline.control.artifacts import (
     CertificateBody,
     Controller,
 )
-from qsls.pipeline.control.guarantee import PremiseNumbers
-from qsls.pipeline.control.options import ProblemOptions, SynthOptions
+from qsls.pipeline.control.feasibility import MaxFeasibleSResult as MaxFeasibleSResult
+from qsls.pipeline.control.feasibility import diagnose, diagnosis_message
+from qsls.pipeline.control.feasibility import max_feasible_s as max_feasible_s
+from qsls.pipeline.control.options import ProblemOptions as ProblemOptions
+from qsls.pipeline.control.options import SynthOptions
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.control.premise import Measured, Premise, TrainingStates, training_beside
+from qsls.pipeline.control.premise import TrainingStates
+from qsls.pipeline.control.resolution import ModelInput as ModelInput
+from qsls.pipeline.control.resolution import Resolved as Resolved
+from qsls.pipeline.control.resolution import read_model as read_model
+from qsls.pipeline.control.resolution import resolve as resolve
 from qsls.pipeline.control.status import RELAXED, Status
-from qsls.pipeline.core.artifacts import StageWriter, sha256_file
+from qsls.pipeline.core.artifacts import StageWriter
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
 from qsls.pipeline.core.plant import (
     NU,
     NX,
-    LinearModel,
-    quadrotor_model,
 )
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import (
-    TRAINING_FILE,
     ErrorModel,
-    error_model_file,
-    load_error_model,
 )
-
-
-# --------------------------------------------------------------------------- resolution
-@dataclass(frozen=True)
-class Resolved:
-    """A problem's numbers, names resolved against the error model and its training data,
-    with the premise they form (:mod:`qsls.pipeline.control.premise`)."""
-
-    model: LinearModel
-    Q: np.ndarray
-    R: np.ndarray
-    S: float
-    eps_e: float
-    radius: float
-    delta: float
-    R0: float
-    eps_w: float
-    m: int = 0
-    eps_o: float = 0.0
-    shape: sls.Shape = field(default_factory=sls.Shape)
-    premise: Premise | None = None
-    gate: float | None = None
-
-    def values(self, nominal: sls.Taps | None = None) -> sls.Values:
-        return sls.Values(
-            Q=self.Q, R=self.R, eps_w=self.eps_w, eps_e=self.eps_e, S=self.S,
-            radius=self.radius, delta=self.delta, nominal=nominal, eps_o=self.eps_o,
-            gate=self.gate,
-        )  # fmt: skip
-
-    def numbers(self) -> PremiseNumbers:
-        return PremiseNumbers(
-            eps=self.eps_e, S=self.S, radius=self.radius, eps_w=self.eps_w, delta=self.delta,
-            eps_o=self.eps_o, m=self.m, R0=self.R0, gate=self.gate,
-        )  # fmt: skip
-
-    def structure(self, T: int, norm: sls.Norm, cost: Any, robust: bool, sp_: bool) -> sls.Structure:
-        sh = self.shape
-        return sls.Structure(
-            T, norm, cost, robust, sp_, state_scale=sh.state_scale, error_scale=sh.error_scale,
-            measure=sh.measure, m=sh.m, gate=sh.gate and robust,
-        )  # fmt: skip
-
-    def record(self) -> dict[str, Any]:
-        return {
-            "S": self.S, "eps_e": self.eps_e, "radius": self.radius, "delta": self.delta,
-            "eps_w": self.eps_w, "R0": self.R0, "m": self.m, "eps_o": self.eps_o,
-            "measure": self.shape.measure, "gate": self.gate,
-        }  # fmt: skip
-
-
-def _how(value: Any) -> str:
-    return "number" if isinstance(value, int | float) else str(value)
-
-
-def _needs_model(what: str, v: Any, em: ErrorModel | None) -> ErrorModel:
-    if em is None:
-        raise InputError(
-            f"{what} = '{v}' names a number of an error model, but none was given; "
-            "pass --model or give a number"
-        )
-    return em
-
-
-def _eps(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None, trivial: bool) -> float:
-    v = opts.eps_e
-    if isinstance(v, int | float):
-        return float(v)
-    em = _needs_model("eps_e", v, em)
-    if meas is not None:
-        key = str(v).strip()
-        if key == "max":
-            return meas.eps
-        if key.startswith("p"):
-            try:
-                return float(np.percentile(meas.dense, float(key[1:])))
-            except ValueError:
-                pass
-    elif not trivial:
-        raise InputError(
-            "eps_e: with measure, beta or error_scale set, the dense bound is measured on the "
-            "training states, but the error model has none beside it; pass the fit folder"
-        )
-    return em.resolve_eps_e(v)
-
-
-def _slope(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None) -> float:
-    v = opts.S
-    if isinstance(v, int | float):
-        return float(v)
-    em = _needs_model("S", v, em)
-    if str(v).strip() != "lofo":
-        return em.resolve_s(v)
-    if meas is None:
-        raise InputError(
-            "S = lofo is measured on the training states beside the error model, which are "
-            "missing; pass the fit folder, or give S as a number"
-        )
-    if math.isnan(meas.slope.S):
-        raise InputError(
-            "S = lofo leaves one training flight out at a time and needs at least two; fit on "
-            "more flights, or give S as a number (the premise is then untested: relaxed)"
-        )
-    if not math.isfinite(meas.slope.S):
-        raise InputError(
-            "S = lofo is infinite: a left-out sample exceeds the other flights' largest error at "
-            "distance 0 from them; give S as a number (relaxed) or raise beta / error_scale"
-        )
-    return meas.slope.S
-
-
-def _disturbance(
-    opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None
-) -> tuple[float, str]:
-    """``eps_w``: a number, or the training flights' realized disturbance ``||H^-1 w_k||``."""
-    v = opts.eps_w
-    if isinstance(v, int | float):
-        return float(v), "number"
-    name = "max" if v is None else str(v).strip()
-    if meas is not None and meas.w_norm is not None:
-        q = None if name == "max" else _percentile(name, "eps_w")
-        w = meas.eps_w(q)
-        if w is not None:
-            return w, name
-    if v is None and (em is None or em.disturbance is None):
-        return 0.01, "default (assumed, not measured)"
-    if em is None:
-        raise InputError(f"eps_w = '{v}' needs an error model; pass --model or give a number")
-    if opts.H is not None:
-        raise InputError(
-            "eps_w with H: the disturbance is measured as ||H^-1 w|| on the training states, "
-            "which are missing beside the error model; pass the fit folder or give a number"
-        )
-    return em.resolve_eps_w(name), name
-
-
-def _percentile(name: str, what: str) -> float:
-    try:
-        if name.startswith("p"):
-            return float(name[1:])
-    except ValueError:
-        pass
-    raise InputError(f"{what} = '{name}': use max, pNN or a number")
-
-
-def resolve(
-    opts: ProblemOptions, em: ErrorModel | None, training: TrainingStates | None = None
-) -> Resolved:
-    """Numbers for every setting, names (``max``, ``lofo``, ``p95``...) looked up on the error
-    model and its training states, and the premise they form with its violated shares (pure:
-    no file is read)."""
-    from qsls.pipeline.control.premise import Chosen, Spec, premise_record
-
-    if opts.radius is not None:
-        radius = float(opts.radius)
-    elif em is not None:
-        radius = float(em.radius)
-    else:
-        raise InputError("radius: give a number (no error model to take it from)")
-    if opts.H is not None and abs(np.linalg.det(np.asarray(opts.H))) < 1e-12:
-        raise InputError("H must be invertible: eps_w bounds ||H^-1 w|| of the realized disturbance")
-    state_scale = tuple(em.state_scale) if em is not None else (1.0,) * 6
-    spec = Spec(
-        measure=opts.measure, beta=math.inf if opts.beta is None else float(opts.beta),
-        state_scale=state_scale, error_scale=tuple(opts.error_scale), radius=radius,
-        window=opts.T, risk=opts.outlier_risk,
-        H=None if opts.H is None else tuple(tuple(r) for r in opts.H),
-    )  # fmt: skip
-    trivial = opts.measure == "full" and opts.beta is None and all(w == 1.0 for w in opts.error_scale)
-    meas = training.measured(spec) if em is not None and training is not None else None
-    where = None
-    if em is not None:
-        where = (
-            training.source if training is not None
-            else f"no {TRAINING_FILE} beside the error model: shares not computed"
-        )  # fmt: skip
-    eps_e = _eps(opts, em, meas, trivial)
-    S = _slope(opts, em, meas)
-    for name, val in (("S", S), ("eps_e", eps_e)):
-        if not (math.isfinite(val) and val >= 0):
-            raise InputError(f"{name} = '{getattr(opts, name)}' is {val}; need a finite number >= 0")
-    eps_w, how_w = _disturbance(opts, em, meas)
-    outlier_ch = opts.measure == "full" and opts.beta is not None
-    if not outlier_ch:
-        m = 0
-    elif opts.m == "auto":
-        m = meas.outliers.m if meas is not None else 0
-    else:
-        m = int(opts.m)
-    if opts.gate is not None and not outlier_ch:
-        raise InputError("gate: a velocity gate needs measure: full and beta (it bounds outliers)")
-    if opts.gate is not None and opts.eps_o is not None:
-        raise InputError("give gate or eps_o, not both: the gate sets eps_o = 2 gate - beta")
-    if outlier_ch and opts.eps_o is None and opts.gate is None:
-        raise InputError(
-            "beta clips the velocity errors, so what it clips off is an outlier: give eps_o, a "
-            "bound on one outlier from the estimator's physics, or a velocity gate (never the "
-            "sample maximum)"
-        )
-    if opts.gate is not None:
-        assert opts.beta is not None
-        if 2 * opts.gate <= opts.beta:
-            raise InputError(f"gate {opts.gate:g} must exceed beta / 2 = {opts.beta / 2:g}")
-        eps_o = 2 * opts.gate - opts.beta
-    else:
-        eps_o = float(opts.eps_o or 0.0) if outlier_ch else 0.0
-    if opts.delta is None:
-        delta = float(em.delta) if em is not None else 0.0
-    elif isinstance(opts.delta, int | float):
-        delta = float(opts.delta)
-    elif opts.delta == "delta" and em is not None:
-        delta = float(em.delta)
-    else:
-        raise InputError(
-            f"delta = '{opts.delta}': give a number (or omit it to use the error model's)"
-        )
-    # R0: the error bound in use unless set, so that gamma_strict <= gamma
-    R0 = eps_e if opts.R0 is None else (
-        float(opts.R0) if isinstance(opts.R0, int | float) else em.resolve_eps_e(opts.R0)  # type: ignore[union-attr]
-    )  # fmt: skip
-    from_em = "error model" if em is not None else "default"
-    how = {
-        "eps_e": _how(opts.eps_e), "S": _how(opts.S), "eps_w": how_w,
-        "m": "binomial" if opts.m == "auto" else "number",
-        "eps_o": "gate (2V - beta)" if opts.gate is not None else "given",
-        "r": from_em if opts.radius is None else "number",
-        "Delta": from_em if opts.delta is None else _how(opts.delta),
-    }  # fmt: skip
-    chosen = Chosen(eps_e, S, radius, delta, eps_w, m, eps_o, how, opts.gate)
-    premise = premise_record(chosen, meas, em, where)
-    H = None if opts.H is None else np.asarray(opts.H)
-    model = quadrotor_model(dt=opts.dt, mass=opts.mass, H=H)
-    shape = sls.Shape(state_scale, tuple(opts.error_scale), opts.measure, m, opts.gate is not None)
-    return Resolved(
-        model, np.asarray(opts.Q), np.asarray(opts.R), S, eps_e, radius, delta, R0, eps_w,
-        m, eps_o, shape, premise, opts.gate,
-    )  # fmt: skip
-
-
-@dataclass(frozen=True)
-class ModelInput:
-    """What a stage reads for its error model: the model, the sha256 of ``error_model.yaml``,
-    the file, and the training states beside it (each None when absent)."""
-
-    model: ErrorModel | None = None
-    sha256: str | None = None
-    file: Path | None = None
-    training: TrainingStates | None = None
-
-    @property
-    def inputs(self) -> list[Path]:
-        return [self.file] if self.file is not None else []
-
-
-def read_model(path: Path | None) -> ModelInput:
-    """The error model of ``path`` (a fit folder or its ``error_model.yaml``) and the training
-    states beside it, read once; empty without a path."""
-    if path is None:
-        return ModelInput()
-    f = error_model_file(path)
-    return ModelInput(load_error_model(f), sha256_file(f), f, training_beside(f))
-
-
-# --------------------------------------------------------------------------- diagnosis
-def diagnose(
-    r: Resolved, T: int, strictly_proper: bool, solver: str = "CLARABEL"
-) -> dict[str, Any]:
-    """Why a robust problem is infeasible: the necessary condition, the smallest
-    achievable ``N`` at ``T`` and the largest feasible ``S``."""
-    from qsls.pipeline.control.guarantee import necessary_condition
-
-    nec = necessary_condition(r.numbers())
-    min_xy = sls.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
-    ms = sls.max_feasible_s(
-        r.model, T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
-        eps_o=r.eps_o, gate=r.gate, strictly_proper=strictly_proper, solver=solver,
-        shape=r.shape,
-    )  # fmt: skip
-    return {
-        "S": r.S,
-        "eps_e": r.eps_e,
-        "radius": r.radius,
-        "S_plus_eps_e_over_r": nec,
-        "necessary_condition_holds": bool(nec < 1.0),
-        "min_norm_phi_xy": min_xy,
-        "max_feasible_S": ms.s_max,
-        "T": T,
-    }
-
-
-def diagnosis_message(d: dict[str, Any]) -> str:
-    """One line: what fails, and what could help (a radius cannot help when ``S >= 1``)."""
-    parts = []
-    if not d["necessary_condition_holds"]:
-        parts.append(
-            f"S + eps_e/r = {d['S_plus_eps_e_over_r']:.4g} >= 1 fails the necessary condition "
-            "S + eps_e/r < 1 (||Phi_xy|| >= 1 for this plant)"
-        )
-    else:
-        parts.append(
-            f"the necessary condition S + eps_e/r < 1 holds ({d['S_plus_eps_e_over_r']:.4g})"
-        )
-    parts.append(f"the smallest achievable N = ||W_x Phi_xy W_e^-1|| at T={d['T']} is {d['min_norm_phi_xy']:.4g}")
-    if d["S"] >= 1.0:
-        parts.append(
-            f"no radius or horizon can help: S = {d['S']:.4g} >= 1 alone breaks S N < 1; a smaller "
-            "S needs a different premise (S = lofo, an error_scale that weights the velocity "
-            "errors less, beta with eps_o, or measure: position)"
-        )
-    if d["max_feasible_S"] >= 0:
-        parts.append(
-            f"the largest feasible S for this setting is {d['max_feasible_S']:.6g} (S = {d['S']:.4g} given)"
-        )
-    elif d["S"] < 1.0:
-        parts.append(
-            "no S >= 0 is feasible for this setting: lower eps_e (beta, error_scale, measure: "
-            "position) or Delta (training flights nearer the reference), or raise r or T"
-        )
-    return "robust synthesis is infeasible: " + "; ".join(parts)
 
 
 # --------------------------------------------------------------------------- one controller
@@ -532,15 +214,15 @@ IMITATE_NAMED = ("pd", "l1_nominal", "h2_nominal")
 
 
 def imitation_target(
-    target: str, T: int, done: dict[str, Built], folder: sls.Taps | None = None
+    target: str, T: int, done: Mapping[str, sls.Taps], folder: sls.Taps | None = None
 ) -> sls.Taps:
-    """The responses an imitation controller imitates: the PD reference or a nominal
-    controller among those already ``done``, or ``folder`` (a controller folder's, read by the
-    stage)."""
+    """The responses an imitation controller imitates: the PD reference's or a nominal
+    controller's among the responses already ``done`` (by name), or ``folder`` (a controller
+    folder's, read by the stage)."""
     if target == "pd":
-        return done["pd"].taps
+        return done["pd"]
     if target in done:
-        return done[target].taps.truncated(T)
+        return done[target].truncated(T)
     if target in IMITATE_NAMED:
         raise InputError(f"imitate: {target} is not synthesized by this configuration")
     if folder is None:
@@ -655,7 +337,8 @@ def synthesize(
         nominal = None
         extra = dict(base_extra)
         if st.cost == "imitation":
-            nominal = imitation_target(options.imitate, options.T, ctrls, imitate)
+            done = {n: c.taps for n, c in ctrls.items()}
+            nominal = imitation_target(options.imitate, options.T, done, imitate)
             extra["imitate"] = options.imitate
         if options.T >= LARGE_T:
             progress.note(f"solving {name} (T = {options.T}) ...")
@@ -708,59 +391,3 @@ def synth(
     return SynthResult(Path(out), result.statuses(), result.certificates())
 
 
-# --------------------------------------------------------------------------- max S
-@dataclass(frozen=True)
-class MaxFeasibleSResult:
-    s_max: float
-    min_norm_phi_xy: float
-    T: int
-    eps_e: float
-    radius: float
-    eps_w: float
-    delta: float
-    iterations: int
-
-    def summary(self) -> dict[str, Any]:
-        return {
-            "largest feasible S": self.s_max,
-            "T": self.T,
-            "eps_e": self.eps_e,
-            "radius": self.radius,
-            "eps_w": self.eps_w,
-            "delta": self.delta,
-            "smallest ||Phi_xy|| at T": self.min_norm_phi_xy,
-            "Dinkelbach iterations": self.iterations,
-        }
-
-
-def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeasibleSResult:
-    """The largest S for which the robust problem of ``options`` is feasible under its premise
-    (its feasibility does not depend on the cost); see :func:`qsls.pipeline.control.sls.max_feasible_s`."""
-    mi = read_model(error_model)
-    opts = options.model_copy(update={"S": 0.0})
-    r = resolve(opts, mi.model, mi.training)
-    ms = sls.max_feasible_s(
-        r.model, options.T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
-        eps_o=r.eps_o, gate=r.gate, strictly_proper=options.strictly_proper,
-        solver=options.solver, shape=r.shape,
-    )  # fmt: skip
-    min_xy = sls.min_phi_xy(
-        r.model, options.T, strictly_proper=options.strictly_proper, solver=options.solver,
-        shape=r.shape,
-    )  # fmt: skip
-    if not ms.s_max >= 0:
-        # at S = 0 the constraint is (eps N + eps_w N_w + Delta + eps_o G_m) / r <= 1, with N
-        # at least its minimum at T and N_w >= min w_x (Phi_xx(1) = I)
-        lower = (r.eps_e * min_xy + r.eps_w * min(r.shape.state_scale) + r.delta) / r.radius
-        raise InfeasibleError(
-            f"none feasible: no S >= 0 is feasible at T = {options.T}: even S = 0 needs "
-            f"(eps_e N + eps_w N_w + Delta + eps_o G_m) / r < 1, and with eps_e = "
-            f"{r.eps_e:.4g}, the smallest N = {min_xy:.4g} at this T, eps_w = "
-            f"{r.eps_w:.4g}, Delta = {r.delta:.4g} and r = {r.radius:.4g} it is at least "
-            f"{lower:.4g}; lower eps_e (beta, error_scale, measure: position) or Delta, or "
-            "raise r or T",
-            {"T": options.T, "min_norm_phi_xy": min_xy, "lower_bound_at_S0": lower},
-        )
-    return MaxFeasibleSResult(
-        ms.s_max, min_xy, options.T, r.eps_e, r.radius, r.eps_w, r.delta, ms.iterations
-    )

@@ -1,0 +1,130 @@
+"""Why a robust problem is infeasible, and the largest feasible ``S``: the diagnosis an
+infeasible ``qsls synth`` reports (the necessary condition ``S + eps_e / r < 1``, the smallest
+achievable ``||Phi_xy||`` at ``T``, the largest feasible ``S``) and ``qsls synth
+--max-feasible-s``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from qsls.pipeline.control import sls
+from qsls.pipeline.control.options import ProblemOptions
+from qsls.pipeline.control.resolution import Resolved, read_model, resolve
+from qsls.pipeline.core.errors import InfeasibleError
+
+
+def diagnose(
+    r: Resolved, T: int, strictly_proper: bool, solver: str = "CLARABEL"
+) -> dict[str, Any]:
+    """Why a robust problem is infeasible: the necessary condition, the smallest
+    achievable ``N`` at ``T`` and the largest feasible ``S``."""
+    from qsls.pipeline.control.guarantee import necessary_condition
+
+    nec = necessary_condition(r.numbers())
+    min_xy = sls.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
+    ms = sls.max_feasible_s(
+        r.model, T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
+        eps_o=r.eps_o, gate=r.gate, strictly_proper=strictly_proper, solver=solver,
+        shape=r.shape,
+    )  # fmt: skip
+    return {
+        "S": r.S,
+        "eps_e": r.eps_e,
+        "radius": r.radius,
+        "S_plus_eps_e_over_r": nec,
+        "necessary_condition_holds": bool(nec < 1.0),
+        "min_norm_phi_xy": min_xy,
+        "max_feasible_S": ms.s_max,
+        "T": T,
+    }
+
+
+def diagnosis_message(d: dict[str, Any]) -> str:
+    """One line: what fails, and what could help (a radius cannot help when ``S >= 1``)."""
+    parts = []
+    if not d["necessary_condition_holds"]:
+        parts.append(
+            f"S + eps_e/r = {d['S_plus_eps_e_over_r']:.4g} >= 1 fails the necessary condition "
+            "S + eps_e/r < 1 (||Phi_xy|| >= 1 for this plant)"
+        )
+    else:
+        parts.append(
+            f"the necessary condition S + eps_e/r < 1 holds ({d['S_plus_eps_e_over_r']:.4g})"
+        )
+    parts.append(f"the smallest achievable N = ||W_x Phi_xy W_e^-1|| at T={d['T']} is {d['min_norm_phi_xy']:.4g}")
+    if d["S"] >= 1.0:
+        parts.append(
+            f"no radius or horizon can help: S = {d['S']:.4g} >= 1 alone breaks S N < 1; a smaller "
+            "S needs a different premise (S = lofo, an error_scale that weights the velocity "
+            "errors less, beta with eps_o, or measure: position)"
+        )
+    if d["max_feasible_S"] >= 0:
+        parts.append(
+            f"the largest feasible S for this setting is {d['max_feasible_S']:.6g} (S = {d['S']:.4g} given)"
+        )
+    elif d["S"] < 1.0:
+        parts.append(
+            "no S >= 0 is feasible for this setting: lower eps_e (beta, error_scale, measure: "
+            "position) or Delta (training flights nearer the reference), or raise r or T"
+        )
+    return "robust synthesis is infeasible: " + "; ".join(parts)
+
+
+# --------------------------------------------------------------------------- max S
+@dataclass(frozen=True)
+class MaxFeasibleSResult:
+    s_max: float
+    min_norm_phi_xy: float
+    T: int
+    eps_e: float
+    radius: float
+    eps_w: float
+    delta: float
+    iterations: int
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "largest feasible S": self.s_max,
+            "T": self.T,
+            "eps_e": self.eps_e,
+            "radius": self.radius,
+            "eps_w": self.eps_w,
+            "delta": self.delta,
+            "smallest ||Phi_xy|| at T": self.min_norm_phi_xy,
+            "Dinkelbach iterations": self.iterations,
+        }
+
+
+def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeasibleSResult:
+    """The largest S for which the robust problem of ``options`` is feasible under its premise
+    (its feasibility does not depend on the cost); see :func:`qsls.pipeline.control.sls.max_feasible_s`."""
+    mi = read_model(error_model)
+    opts = options.model_copy(update={"S": 0.0})
+    r = resolve(opts, mi.model, mi.training)
+    ms = sls.max_feasible_s(
+        r.model, options.T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
+        eps_o=r.eps_o, gate=r.gate, strictly_proper=options.strictly_proper,
+        solver=options.solver, shape=r.shape,
+    )  # fmt: skip
+    min_xy = sls.min_phi_xy(
+        r.model, options.T, strictly_proper=options.strictly_proper, solver=options.solver,
+        shape=r.shape,
+    )  # fmt: skip
+    if not ms.s_max >= 0:
+        # at S = 0 the constraint is (eps N + eps_w N_w + Delta + eps_o G_m) / r <= 1, with N
+        # at least its minimum at T and N_w >= min w_x (Phi_xx(1) = I)
+        lower = (r.eps_e * min_xy + r.eps_w * min(r.shape.state_scale) + r.delta) / r.radius
+        raise InfeasibleError(
+            f"none feasible: no S >= 0 is feasible at T = {options.T}: even S = 0 needs "
+            f"(eps_e N + eps_w N_w + Delta + eps_o G_m) / r < 1, and with eps_e = "
+            f"{r.eps_e:.4g}, the smallest N = {min_xy:.4g} at this T, eps_w = "
+            f"{r.eps_w:.4g}, Delta = {r.delta:.4g} and r = {r.radius:.4g} it is at least "
+            f"{lower:.4g}; lower eps_e (beta, error_scale, measure: position) or Delta, or "
+            "raise r or T",
+            {"T": options.T, "min_norm_phi_xy": min_xy, "lower_bound_at_S0": lower},
+        )
+    return MaxFeasibleSResult(
+        ms.s_max, min_xy, options.T, r.eps_e, r.radius, r.eps_w, r.delta, ms.iterations
+    )
