@@ -115,3 +115,36 @@ def test_sweep_section_splits_into_the_sweeps_options_and_where_it_runs():
     opts = sec.options()
     assert type(opts).__name__ == "SweepOptions" and opts.T == 6 and opts.grid == SWEEP["grid"]
     assert not {"jobs", "scheduler", "wait_workers"} & set(opts.model_dump())
+
+
+def test_run_config_sections_are_the_stage_commands_option_models(work):
+    """``RunConfig`` holds each stage section as the very model the stage command reads with
+    ``--config`` (equal objects from one file), records them as written, names the section in
+    an error, and reading it loads no solver, pandas or simulator."""
+    import subprocess
+    import sys
+
+    from qsls.pipeline.control.options import SynthOptions
+    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.errormodel.options import FitOptions
+    from qsls.pipeline.evaluate.section import EvaluateSection
+
+    synth = {"T": 6, "R": [10, 10, 1], "S": 0.05}
+    cfg = _write(work / "cfg", sweep=SWEEP, evaluate=EVALUATE, synth=synth, fit={"radius": 0.8})
+    rc = load_run_config(cfg)
+    for key, model in (("fit", FitOptions), ("synth", SynthOptions), ("sweep", SweepSection),
+                       ("evaluate", EvaluateSection)):  # fmt: skip
+        section = getattr(rc, key)
+        assert type(section) is model and section == load_options(model, cfg, section=key)
+    assert rc.synth is not None and rc.synth.R == [[10, 0, 0], [0, 10, 0], [0, 0, 1]]
+    assert rc.record()["synth"] == synth and rc.record()["fit"] == {"radius": 0.8}
+    code = (
+        "import sys; from qsls.pipeline.run.runner import load_run_config; "
+        f"load_run_config({str(cfg)!r}); "
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'cvxpy', 'scipy', 'pandas', "
+        "'matplotlib', 'rotorpy', 'pyarrow', 'clarabel', 'dask'}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+    with pytest.raises(ConfigError, match=r"cfg: synth: unknown option 'TT'; did you mean 'T'\?"):
+        load_run_config(_write(work / "cfg", synth={"TT": 6}))

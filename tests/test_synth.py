@@ -303,3 +303,55 @@ def test_certificates_do_not_depend_on_where_the_run_lives(tmp_path, error_model
         outs.append((out / "l1_robust" / "certificate.yaml").read_bytes())
     assert outs[0] == outs[1]
     assert str(tmp_path).encode() not in outs[0]
+
+
+def _training(n=400, seed=0):
+    from qsls.pipeline.control.premise import TrainingStates
+
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-1, 1, (n, 6))
+    flight = (x[:, 0] > 0).astype(int)
+    e = 0.01 * (1 + flight[:, None]) * np.sin(2 * x) + rng.normal(0, 0.002, x.shape)
+    return TrainingStates(x, e, flight, rng.uniform(-0.01, 0.01, x.shape))
+
+
+def _without_source(cert):
+    """A certificate's YAML without where its shares were counted and its model file's hash."""
+    premise = cert.premise.model_copy(update={"training_data": None})
+    return cert.model_copy(update={"premise": premise, "error_model_sha256": None}).to_yaml()
+
+
+def test_synthesize_in_memory_matches_the_stage_on_the_same_training_states(tmp_path):
+    """The pure core and the stage are one computation: ``synthesize`` on training states in
+    memory gives the certificate ``qsls synth`` writes from the same states saved beside the
+    error model (the same bytes, but for where the shares were counted), and a sweep over T
+    measures the premise once per measuring spec on the one training object."""
+    import pandas as pd
+
+    from qsls.pipeline.control.artifacts import Certificate
+    from qsls.pipeline.control.sweep import SweepOptions, grid_points
+    from qsls.pipeline.control.synth import synth, synthesize
+    from qsls.pipeline.errormodel.model import W_COLS
+    from qsls.pipeline.ingest.flight import E_COLS, X_COLS
+
+    tr = _training()
+    em = ErrorModel(eps_e=float(np.abs(tr.e).max()), radius=1.0, s_slope=SlopeStats(max=1.0),
+                    R0=0.0, delta=0.05, n_samples=len(tr.x), n_pairs=0)  # fmt: skip
+    opts = SynthOptions(T=8, S="lofo", eps_e="max", controllers="single")
+    mem = synthesize(em, tr, opts).controllers["l1_robust"].certificate
+    assert mem.status == "certified" and mem.premise is not None and mem.premise.holds
+    assert mem.S > 0 and mem.premise.S.chosen == "lofo" and mem.premise.S.violated == 0.0
+    fit = tmp_path / "fit"
+    fit.mkdir()
+    (fit / "error_model.yaml").write_text(dump_yaml(em))
+    df = pd.DataFrame(np.hstack([tr.x, tr.e, tr.w]), columns=[*X_COLS, *E_COLS, *W_COLS])
+    df.insert(0, "flight", np.where(tr.flight == 0, "a", "b"))
+    df.to_parquet(fit / "training_states.parquet")
+    synth(fit, opts, tmp_path / "out")
+    disk = Certificate.load(tmp_path / "out" / "l1_robust")
+    assert disk.premise is not None and disk.premise.training_data != mem.premise.training_data
+    assert _without_source(disk) == _without_source(mem)
+    tr2 = _training()
+    sweep = SweepOptions(S="lofo", eps_e="max", grid={"T": [6, 8], "eps_w": [0.01, 0.02]})
+    points = grid_points(sweep, em, tr2)
+    assert len(points) == 4 and len(tr2._measured) == 2  # one per window T, not per point
