@@ -22,7 +22,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from qsls.pipeline.control import sls
+from qsls.pipeline.control import largest_s, sls
 from qsls.pipeline.control.sweep import (
     ABOVE_S_MAX,
     NECESSARY,
@@ -54,7 +54,7 @@ def options() -> SweepOptions:
 
 def run_local(jobs: int) -> tuple[float, float, pd.DataFrame, pd.DataFrame]:
     sls._CACHE.clear()
-    sls._MIN_XY.clear()
+    largest_s._MIN_XY.clear()
     c0, t0 = _cpu(), time.perf_counter()
     table, smax, _ = compute(options(), jobs=jobs)
     return time.perf_counter() - t0, _cpu() - c0, table, smax
@@ -101,7 +101,7 @@ def cpu_balance(jobs: int = 2) -> tuple[float, float, float]:
     tasks += [(s_max_task, sp) for sp in s_max_specs(points)]
     main = time.process_time() - c0
     sls._CACHE.clear()
-    sls._MIN_XY.clear()
+    largest_s._MIN_XY.clear()
     per_worker: dict[int, float] = defaultdict(float)
     with ProcessPoolExecutor(jobs, mp_context=mp.get_context("fork")) as pool:
         for pid, cpu in pool.map(_timed, tasks):
@@ -116,33 +116,33 @@ def s_max_both_ways() -> list[tuple[str, int, int, float, pd.Series]]:
     model = quadrotor_model()
     out = []
     sls._CACHE.clear()
-    sls._MIN_XY.clear()
+    largest_s._MIN_XY.clear()
     c0 = time.process_time()
     solves, got = 0, {}
     for spec in specs:  # before: every (T, eps_e, radius) its own Dinkelbach and min ||Phi_xy||
         for eps_e in spec["eps_e"]:
-            ms = sls.max_feasible_s(
+            ms = largest_s.max_feasible_s(
                 model, spec["T"], eps_e=eps_e, radius=spec["radius"], eps_w=spec["eps_w"],
                 delta=spec["delta"],
             )  # fmt: skip
-            sls._MIN_XY.clear()
-            sls.min_phi_xy(model, spec["T"])
+            largest_s._MIN_XY.clear()
+            largest_s.min_phi_xy(model, spec["T"])
             solves += ms.iterations + 1
             got[(spec["T"], eps_e, spec["radius"])] = ms.s_max
     out.append(("per setting", len(got), solves, time.process_time() - c0, pd.Series(got)))
     sls._CACHE.clear()
-    sls._MIN_XY.clear()
+    largest_s._MIN_XY.clear()
     c0 = time.process_time()
     solves, got = 0, {}
     for spec in specs:
-        ratio = sls.max_ratio(model, spec["T"], radius=spec["radius"], eps_w=spec["eps_w"],
+        ratio = largest_s.max_ratio(model, spec["T"], radius=spec["radius"], eps_w=spec["eps_w"],
                               delta=spec["delta"])  # fmt: skip
         solves += ratio.iterations
-        n_min = len(sls._MIN_XY)
-        sls.min_phi_xy(model, spec["T"])
-        solves += len(sls._MIN_XY) - n_min
+        n_min = len(largest_s._MIN_XY)
+        largest_s.min_phi_xy(model, spec["T"])
+        solves += len(largest_s._MIN_XY) - n_min
         for eps_e in spec["eps_e"]:
-            ms = sls.max_feasible_s(
+            ms = largest_s.max_feasible_s(
                 model, spec["T"], eps_e=eps_e, radius=spec["radius"], eps_w=spec["eps_w"],
                 delta=spec["delta"], ratio=ratio,
             )  # fmt: skip

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qsls.pipeline.control import certify, sls
+from qsls.pipeline.control import certify, largest_s, sls
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.pdgain import PDGains
@@ -43,12 +43,12 @@ def test_h2_without_robustness_equals_lqg(strictly_proper, design_value):
 
 
 def test_min_phi_xy_at_least_one_and_design_figures():
-    got = {T: sls.min_phi_xy(MODEL, T) for T in (10, 20)}
+    got = {T: largest_s.min_phi_xy(MODEL, T) for T in (10, 20)}
     assert got[10] == pytest.approx(3.4, abs=0.05)
     assert got[20] == pytest.approx(2.16, abs=0.01)
     assert got[20] >= 1.0 and got[10] > got[20]
     # independent of the mass (docs/synthesis.md#the-robustness-constraint)
-    assert sls.min_phi_xy(quadrotor_model(mass=1.3), 20) == pytest.approx(got[20], rel=1e-6)
+    assert largest_s.min_phi_xy(quadrotor_model(mass=1.3), 20) == pytest.approx(got[20], rel=1e-6)
 
 
 def test_position_block_dc_gain_is_minus_identity():
@@ -90,7 +90,7 @@ def test_filter_bank_equals_sls_controller_transfer_function(strictly_proper):
 
 def test_max_feasible_s_is_feasible_and_one_percent_more_is_not():
     kw = {"eps_e": 0.05, "radius": 1.0, "eps_w": 0.01, "delta": 0.05}
-    ms = sls.max_feasible_s(MODEL, 12, **kw)
+    ms = largest_s.max_feasible_s(MODEL, 12, **kw)
     st = sls.Structure(12, "l1", "qr", True)
     ok = sls.solve(MODEL, st, sls.Values(S=ms.s_max, **kw))
     assert ok.status == "optimal"
@@ -100,8 +100,8 @@ def test_max_feasible_s_is_feasible_and_one_percent_more_is_not():
     assert lhs < 1.0
     assert sls.solve(MODEL, st, sls.Values(S=1.01 * ms.s_max, **kw)).status == "infeasible"
     # no Delta, no process noise: S_max = 1 / min ||Phi_xy|| - eps_e / r
-    ms0 = sls.max_feasible_s(MODEL, 12, eps_e=0.05, radius=1.0)
-    assert ms0.s_max == pytest.approx(1 / sls.min_phi_xy(MODEL, 12) - 0.05, rel=1e-5)
+    ms0 = largest_s.max_feasible_s(MODEL, 12, eps_e=0.05, radius=1.0)
+    assert ms0.s_max == pytest.approx(1 / largest_s.min_phi_xy(MODEL, 12) - 0.05, rel=1e-5)
 
 
 def test_pd_responses_match_a_simulated_pd_loop():

@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline.control import sls
+from qsls.pipeline.control import largest_s, sls
 from qsls.pipeline.control.sweep import (
     ABOVE_S_MAX,
     NECESSARY,
@@ -80,7 +80,7 @@ def test_local_sweep_table_and_feasibility(tmp_path):
     # robustness constraint does not involve the cost, so both norms agree)
     model = quadrotor_model()
     s_max = {
-        T: sls.max_feasible_s(model, T, eps_e=0.05, radius=1.0, eps_w=0.01, delta=0.05).s_max
+        T: largest_s.max_feasible_s(model, T, eps_e=0.05, radius=1.0, eps_w=0.01, delta=0.05).s_max
         for T in (6, 10)
     }
     for _, row in t.iterrows():
@@ -137,7 +137,7 @@ def test_one_and_two_processes_write_identical_tables(tmp_path):
     assert len(smax) == 8
     model = quadrotor_model()
     for _, row in smax.iterrows():
-        own = sls.max_feasible_s(
+        own = largest_s.max_feasible_s(
             model, int(row["T"]), eps_e=row["eps_e"], radius=row["radius"], eps_w=0.01, delta=0.05
         )
         assert row["s_max"] == own.s_max  # the same solves: exactly the same number
@@ -154,10 +154,10 @@ def test_points_above_the_largest_feasible_s_are_exactly_the_infeasible_ones():
     model = quadrotor_model()
     setting = {"radius": 1.0, "eps_w": 0.01, "delta": 0.05}
     for T in (6, 10):
-        ratio = sls.max_ratio(model, T, **setting)
-        upper = ratio.upper(sls.min_phi_xy(model, T))
+        ratio = largest_s.max_ratio(model, T, **setting)
+        upper = ratio.upper(largest_s.min_phi_xy(model, T))
         assert ratio.ratio <= upper <= ratio.ratio * (1 + 1e-8)  # Dinkelbach's gap closed
-        s_max = sls.max_feasible_s(model, T, eps_e=0.05, ratio=ratio, **setting).s_max
+        s_max = largest_s.max_feasible_s(model, T, eps_e=0.05, ratio=ratio, **setting).s_max
         point = {"robust": True, "T": T, "eps_e": 0.05, **setting, "strictly_proper": False,
                  "dt": 0.1, "mass": 1.0, "eps_o_value": 0.0, "m_value": 0, "measure": "full",
                  "gate_value": None, "H": None, "state_scale": [1.0] * 6,

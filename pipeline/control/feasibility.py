@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from qsls.pipeline.control import sls
+from qsls.pipeline.control import largest_s
 from qsls.pipeline.control.options import ProblemOptions
 from qsls.pipeline.control.resolution import Resolved, read_model, resolve
 from qsls.pipeline.core.errors import InfeasibleError
@@ -23,8 +23,8 @@ def diagnose(
     from qsls.pipeline.control.guarantee import necessary_condition
 
     nec = necessary_condition(r.numbers())
-    min_xy = sls.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
-    ms = sls.max_feasible_s(
+    min_xy = largest_s.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
+    ms = largest_s.max_feasible_s(
         r.model, T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
         eps_o=r.eps_o, gate=r.gate, strictly_proper=strictly_proper, solver=solver,
         shape=r.shape,
@@ -99,16 +99,16 @@ class MaxFeasibleSResult:
 
 def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeasibleSResult:
     """The largest S for which the robust problem of ``options`` is feasible under its premise
-    (its feasibility does not depend on the cost); see :func:`qsls.pipeline.control.sls.max_feasible_s`."""
+    (its feasibility does not depend on the cost); see :func:`qsls.pipeline.control.largest_s.max_feasible_s`."""
     mi = read_model(error_model)
     opts = options.model_copy(update={"S": 0.0})
     r = resolve(opts, mi.model, mi.training)
-    ms = sls.max_feasible_s(
+    ms = largest_s.max_feasible_s(
         r.model, options.T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
         eps_o=r.eps_o, gate=r.gate, strictly_proper=options.strictly_proper,
         solver=options.solver, shape=r.shape,
     )  # fmt: skip
-    min_xy = sls.min_phi_xy(
+    min_xy = largest_s.min_phi_xy(
         r.model, options.T, strictly_proper=options.strictly_proper, solver=options.solver,
         shape=r.shape,
     )  # fmt: skip

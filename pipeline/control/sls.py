@@ -43,7 +43,6 @@ certificate recomputed from the stored taps still has ``lhs < 1``.
 
 from __future__ import annotations
 
-import math
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -54,7 +53,6 @@ import scipy.sparse as sp
 
 from qsls.pipeline.control.achievable import Affine, block_pattern, eliminate, implied_zero_taps
 from qsls.pipeline.control.options import psd_sqrt
-from qsls.pipeline.core.errors import SolverError
 from qsls.pipeline.core.plant import LinearModel
 
 Norm = Literal["l1", "h2"]
@@ -626,158 +624,3 @@ class Shape:
             error_scale=self.error_scale, measured=measured_channels(self.measure),
             outlier_channels=outlier_channels(self.measure, self.m), m=self.m,
         )  # fmt: skip
-
-
-_MIN_XY: dict[tuple, float] = {}
-
-
-def min_phi_xy(
-    model: LinearModel,
-    T: int,
-    *,
-    strictly_proper: bool = False,
-    solver: str = "CLARABEL",
-    shape: Shape = Shape(),
-) -> float:
-    """The smallest achievable ``N = ||W_x Phi_xy W_e^-1||`` (induced inf-to-inf) at ``T``
-    (solved once per process: a sweep asks for every setting at that ``T``)."""
-    key = (_model_key(model), T, strictly_proper, solver, shape)
-    if key not in _MIN_XY:
-        st = shape.structure(T, "min_phi_xy", strictly_proper)
-        sol = solve(model, st, Values(), solver=solver)
-        if sol.taps is None:
-            raise SolverError(f"the smallest-||Phi_xy|| problem failed ({sol.solver_status})")
-        _MIN_XY[key] = float(shape.norms(sol.taps, model).N)
-    return _MIN_XY[key]
-
-
-@dataclass(frozen=True)
-class MaxRatio:
-    """``max rho(Phi)`` over achievable responses (:func:`max_ratio`), with the norms of the
-    response that attains it; ``ratio = -inf`` when no response leaves anything for ``S``."""
-
-    ratio: float
-    norm_phi_xy: float
-    norm_phi_xx: float
-    iterations: int
-    solve_time_s: float
-    gap: float = 0.0
-    """``rho(Phi_k) - lam`` at the last step (Dinkelbach's a-posteriori gap; inf when the
-    iterations ran out before it closed)."""
-
-    def upper(self, min_norm_phi_xy: float) -> float:
-        """An upper bound on the true ``max rho``: the last step minimized
-        ``lam N + g`` over every achievable ``Phi``, so ``rho(Phi) <= lam + gap N_k / N(Phi)
-        <= lam + gap N_k / min N`` (0 when no response leaves anything for ``S``: then every
-        ``Phi`` has ``rho <= 0``); up to the solver's tolerance."""
-        if self.ratio == -math.inf:
-            return 0.0
-        return self.ratio + max(self.gap, 0.0) * self.norm_phi_xy / min_norm_phi_xy
-
-
-def max_ratio(
-    model: LinearModel,
-    T: int,
-    *,
-    radius: float,
-    eps_w: float = 0.0,
-    delta: float = 0.0,
-    eps_o: float = 0.0,
-    strictly_proper: bool = False,
-    solver: str = "CLARABEL",
-    shape: Shape = Shape(),
-    tol: float = 1e-9,
-    max_iter: int = 50,
-) -> MaxRatio:
-    """``max rho(Phi)``, ``rho = (1 - backoff - Delta/r - (eps_w N_w + eps_o G_m)/r) / N``, by
-    Dinkelbach's method: each step solves ``min lam N + (eps_w/r) N_w + (eps_o/r) G_m`` (an
-    LP re-solved through Parameters) and sets ``lam = rho(Phi)``; ``lam`` increases
-    monotonically and converges superlinearly. ``eps_e`` plays no part: one ratio serves
-    every ``eps_e`` (:func:`max_feasible_s`)."""
-    structure = shape.structure(T, "ratio", strictly_proper)
-    c0 = 1.0 - ROBUST_BACKOFF - delta / radius
-    lam, total, it, gap = 0.0, 0.0, 0, math.inf
-    nxy = nxx = float("nan")
-    for it in range(1, max_iter + 1):
-        values = Values(eps_w=eps_w, radius=radius, ratio_lambda=lam, eps_o=eps_o)
-        sol = solve(model, structure, values, solver=solver)
-        total += sol.solve_time_s
-        if sol.taps is None:
-            raise SolverError(f"the largest-feasible-S subproblem failed ({sol.solver_status})")
-        n = shape.norms(sol.taps, model)
-        nxy, nxx = n.N, n.N_w
-        new = (c0 - (eps_w * n.N_w + eps_o * n.G_m) / radius) / n.N
-        if it == 1 and new <= 0:
-            # lam = 0 minimized eps_w N_w + eps_o G_m: even then (a + eps_o G_m) / r leaves
-            # nothing for S: no S >= 0 is feasible
-            return MaxRatio(-math.inf, nxy, nxx, it, total)
-        if it > 1 and new - lam <= tol * max(1.0, abs(lam)):
-            gap = new - lam
-            lam = max(lam, new)
-            break
-        lam = new if it == 1 else max(lam, new)
-    return MaxRatio(lam, nxy, nxx, it, total, gap)
-
-
-@dataclass(frozen=True)
-class MaxS:
-    """Largest S for which the robustness constraint is satisfiable (``s_max``), with the
-    norms of the response that attains it and the Dinkelbach iterations used."""
-
-    s_max: float
-    ratio: float  # max over achievable Phi of (1 - Delta/r - (eps_w N_w + eps_o G_m)/r) / N
-    norm_phi_xy: float
-    norm_phi_xx: float
-    iterations: int
-    solve_time_s: float
-
-
-def max_feasible_s(
-    model: LinearModel,
-    T: int,
-    *,
-    eps_e: float,
-    radius: float,
-    eps_w: float = 0.0,
-    delta: float = 0.0,
-    eps_o: float = 0.0,
-    gate: float | None = None,
-    strictly_proper: bool = False,
-    solver: str = "CLARABEL",
-    shape: Shape = Shape(),
-    ratio: MaxRatio | None = None,
-) -> MaxS:
-    """Largest ``S`` with ``(S + eps/r) N + (eps_w N_w + Delta + eps_o G_m)/r <= 1 - backoff``
-    satisfiable (docs/guarantee.md): ``S_max = max rho - eps / r`` (:func:`max_ratio`, or
-    ``ratio`` when given: computed for the same setting but any ``eps_e``). The answer is
-    rounded down by a relative ``1e-7`` so that ``S_max`` itself solves as feasible. With a
-    velocity gate ``S`` enters the gate's constraint too: ``S_max`` is then bisected on
-    feasibility below that bound."""
-    r = ratio or max_ratio(
-        model, T, radius=radius, eps_w=eps_w, delta=delta, eps_o=eps_o,
-        strictly_proper=strictly_proper, solver=solver, shape=shape,
-    )  # fmt: skip
-    lam, nxy, nxx, it, total = r.ratio, r.norm_phi_xy, r.norm_phi_xx, r.iterations, r.solve_time_s
-    if lam == -math.inf:
-        return MaxS(-math.inf, lam, nxy, nxx, it, total)
-    s_max = lam - eps_e / radius
-    s_max -= 1e-7 * max(abs(s_max), 1e-3)
-    if shape.gate and s_max >= 0:
-        gated = replace(shape.structure(T, "none", strictly_proper), robust=True)
-
-        def feasible(S: float) -> bool:
-            v = Values(S=S, eps_e=eps_e, radius=radius, eps_w=eps_w, delta=delta, eps_o=eps_o,
-                       gate=gate)  # fmt: skip
-            return solve(model, gated, v, solver=solver).status == "optimal"
-
-        lo, hi = 0.0, s_max
-        if not feasible(lo):
-            return MaxS(-math.inf, lam, nxy, nxx, it, total)
-        if not feasible(hi):
-            for _ in range(30):
-                mid = 0.5 * (lo + hi)
-                lo, hi = (mid, hi) if feasible(mid) else (lo, mid)
-                if hi - lo <= 1e-6 * max(hi, 1e-3):
-                    break
-            s_max = lo
-    return MaxS(s_max, lam, nxy, nxx, it, total)

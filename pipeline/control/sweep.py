@@ -3,8 +3,13 @@
 The grid is the Cartesian product of the values given for any of ``S`` (numbers or
 error-model names), ``eps_e``, ``radius``, ``delta``, ``T``, ``q_scale`` / ``r_scale``
 (multiplying ``Q`` / ``R``), ``eps_w``, ``norm``, ``cost``, ``robust``,
-``strictly_proper``; every other setting comes from the base options. Each point solves
-one synthesis problem (and certifies it: :mod:`qsls.pipeline.control.certify`).
+``strictly_proper``; every other setting comes from the base options. Each point is
+resolved and solved as ``qsls synth`` does it (:func:`qsls.pipeline.control.resolution.resolve`,
+:func:`qsls.pipeline.control.synth.design`) and its row is the projection of that design's
+certificate body. A robust point that cannot be feasible is answered without the solver and
+marked ``skipped``: by the necessary condition ``S + eps_e/r < 1``, or (with ``s_max_curve``)
+by ``S`` above its setting's largest feasible ``S``, computed first
+(:func:`mark_above_s_max`).
 
 Points are grouped by problem structure (``T``, norm, cost, robust, timing) and handed out
 in chunks; a worker process keeps its compiled problems (:func:`qsls.pipeline.control.sls.get_problem`),
@@ -190,7 +195,7 @@ def skip_reason(p: dict[str, Any]) -> str:
 
 def mark_above_s_max(points: list[dict[str, Any]], upper: dict[tuple, float]) -> int:
     """Mark the robust points whose ``S`` exceeds ``max rho - eps_e / r`` of their setting
-    (``upper``: the setting's bound on ``max rho``, :meth:`qsls.pipeline.control.sls.MaxRatio.upper`)
+    (``upper``: the setting's bound on ``max rho``, :meth:`qsls.pipeline.control.largest_s.MaxRatio.upper`)
     by more than :data:`S_MAX_TOL`: the robustness constraint ``(S + eps_e/r) N + ... <= 1 - ...``
     has no solution there, whatever the norm, cost, weights or timing (they do not enter
     it), and a velocity gate only adds constraints. Returns how many were marked."""
@@ -335,8 +340,8 @@ def run_chunk(chunk: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def s_max_task(spec: dict[str, Any]) -> list[dict[str, Any]]:
     """Largest feasible S (and the smallest ||Phi_xy||) for one ``T`` and error setting and
     every ``eps_e`` of the grid: one Dinkelbach run serves them all (``eps_e`` only shifts
-    ``S_max``, :func:`qsls.pipeline.control.sls.max_ratio`)."""
-    from qsls.pipeline.control import sls
+    ``S_max``, :func:`qsls.pipeline.control.largest_s.max_ratio`)."""
+    from qsls.pipeline.control import largest_s
 
     model = _model(spec)
     shape = _shape(spec)
@@ -345,8 +350,8 @@ def s_max_task(spec: dict[str, Any]) -> list[dict[str, Any]]:
         "eps_o": spec["eps_o_value"], "strictly_proper": spec["strictly_proper"],
         "solver": spec["solver"], "shape": shape,
     }  # fmt: skip
-    ratio = sls.max_ratio(model, spec["T"], **common)
-    min_xy = sls.min_phi_xy(
+    ratio = largest_s.max_ratio(model, spec["T"], **common)
+    min_xy = largest_s.min_phi_xy(
         model, spec["T"], strictly_proper=spec["strictly_proper"], solver=spec["solver"],
         shape=shape,
     )  # fmt: skip
@@ -354,7 +359,7 @@ def s_max_task(spec: dict[str, Any]) -> list[dict[str, Any]]:
     upper = ratio.upper(min_xy)
     rows = []
     for eps_e in spec["eps_e"]:
-        ms = sls.max_feasible_s(
+        ms = largest_s.max_feasible_s(
             model, spec["T"], eps_e=eps_e, ratio=ratio, gate=spec["gate_value"], **common
         )
         rows.append({**{k: spec[k] for k in keep}, "eps_e": eps_e, "s_max": ms.s_max,
