@@ -76,37 +76,47 @@ def run_dask(workers: int) -> tuple[float, float, pd.DataFrame, pd.DataFrame]:
     return wall, cpu, table, smax
 
 
-def _timed(task: tuple) -> tuple[int, float]:
+def _timed(task: tuple) -> tuple[int, float, object]:
     fn, arg = task
     c0 = _worker_cpu()
-    fn(arg)
-    return os.getpid(), _worker_cpu() - c0
+    res = fn(arg)
+    return os.getpid(), _worker_cpu() - c0, res
 
 
 def cpu_balance(jobs: int = 2) -> tuple[float, float, float]:
-    """The sweep's tasks (chunks of points and largest-S tasks, as :func:`compute` makes them)
-    on ``jobs`` fresh processes, timed by CPU seconds per worker: ``(main, total, busiest)``;
-    on ``jobs`` idle cores the sweep takes about ``main + busiest`` seconds (a figure the
-    shared machine's load does not distort)."""
+    """The sweep's tasks as :func:`compute` runs them (first the largest-S tasks, whose
+    answers mark the points above each setting's largest S, then chunks of points) on ``jobs``
+    fresh processes per phase, timed by CPU seconds per worker: ``(main, total, busiest)``,
+    ``busiest`` summed over the two phases; on ``jobs`` idle cores the sweep takes about
+    ``main + busiest`` seconds (a figure the shared machine's load does not distort)."""
     import multiprocessing as mp
     from collections import defaultdict
     from concurrent.futures import ProcessPoolExecutor
 
-    from qsls.pipeline.control.sweep import make_chunks, run_chunk, s_max_task
+    from qsls.pipeline.control.sweep import make_chunks, mark_above_s_max, run_chunk, s_max_task
+
+    def phase(tasks: list) -> tuple[list, float, float]:
+        per_worker: dict[int, float] = defaultdict(float)
+        results = []
+        with ProcessPoolExecutor(jobs, mp_context=mp.get_context("fork")) as pool:
+            for pid, cpu, res in pool.map(_timed, tasks):
+                per_worker[pid] += cpu
+                results.append(res)
+        return results, sum(per_worker.values()), max(per_worker.values())
 
     c0 = time.process_time()
     opts = options()
     points = grid_points(opts, None)
-    tasks = [(run_chunk, c) for c in make_chunks(points, jobs * opts.chunks_per_job)]
-    tasks += [(s_max_task, sp) for sp in s_max_specs(points)]
     main = time.process_time() - c0
     sls._CACHE.clear()
     largest_s._MIN_XY.clear()
-    per_worker: dict[int, float] = defaultdict(float)
-    with ProcessPoolExecutor(jobs, mp_context=mp.get_context("fork")) as pool:
-        for pid, cpu in pool.map(_timed, tasks):
-            per_worker[pid] += cpu
-    return main, sum(per_worker.values()), max(per_worker.values())
+    found, total1, busy1 = phase([(s_max_task, sp) for sp in s_max_specs(points)])
+    c0 = time.process_time()
+    mark_above_s_max(points, {r["key"]: r["ratio_upper"] for res in found for r in res})
+    chunks = make_chunks(points, jobs * opts.chunks_per_job)
+    main += time.process_time() - c0
+    _, total2, busy2 = phase([(run_chunk, c) for c in chunks])
+    return main, total1 + total2, busy1 + busy2
 
 
 def s_max_both_ways() -> list[tuple[str, int, int, float, pd.Series]]:
