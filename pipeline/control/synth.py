@@ -49,14 +49,9 @@ from qsls.pipeline.control.resolution import resolve as resolve
 from qsls.pipeline.control.status import RELAXED, Status
 from qsls.pipeline.core.artifacts import StageWriter
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
-from qsls.pipeline.core.plant import (
-    NU,
-    NX,
-)
+from qsls.pipeline.core.plant import NU, NX
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.errormodel.model import (
-    ErrorModel,
-)
+from qsls.pipeline.errormodel.model import ErrorModel
 
 
 # --------------------------------------------------------------------------- one controller
