@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
-from qsls.pipeline.control.status import FAILED, SOLVER_INACCURATE
+from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import InputError
 
@@ -144,7 +144,7 @@ def certified_premise(folder: Path) -> Any:
 
     d = load_controller_dir(folder)
     c = d.certificate
-    if c.status not in ("certified", "relaxed") or not c.robust or c.rho_star is None:
+    if c.status not in (CERTIFIED, RELAXED) or not c.robust or c.rho_star is None:
         return None
     p = c.premise
     model = d.controller.model

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from qsls.pipeline.control.status import CERTIFIED, RELAXED, Status
+
 
 @dataclass(frozen=True)
 class Verdict:
@@ -64,11 +66,11 @@ class AssumptionVerdict:
     worst_flight: str
     detail: str
     bound_held_all: bool
-    status: str = "certified"
+    status: Status = CERTIFIED
 
     def line(self) -> str:
         n = f"{self.flights} flight{'s' if self.flights != 1 else ''}"
-        if self.status == "relaxed":  # checked all the same, but nothing was promised
+        if self.status == RELAXED:  # checked all the same, but nothing was promised
             n += " (relaxed premise: no guarantee claimed)"
         if self.n_hold == self.flights:
             held = "held" if self.bound_held_all else "did NOT hold"
@@ -120,7 +122,7 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
     for name, g in table.groupby("controller", sort=False):
         certified = bool(g["has_guarantee"].all()) if "has_guarantee" in g else True
         if "status" in g:  # a reference or a relaxed premise claims no guarantee to check
-            certified = certified and bool((g["status"] == "certified").all())
+            certified = certified and bool((g["status"] == CERTIFIED).all())
         if "theorem_applies" not in g:  # an older table: the per-sample check
             worst, flight = _worst(g, "max_ratio")
             holds = (

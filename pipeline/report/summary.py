@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from qsls.pipeline.control.status import CERTIFIED, REFERENCE
+from qsls.pipeline.control.status import CERTIFIED, REFERENCE, RELAXED
 from qsls.pipeline.core.style import controller_colour
 from qsls.pipeline.report.document import Card, Section
 from qsls.pipeline.report.facts import (
@@ -96,7 +96,7 @@ def controller_card(f: Facts, c: Controller) -> Card:
         ("eps_e", _with_how(c.cert.get("eps_e"), how_e)),
         ("gamma", g4(c.cert.get("gamma"))),
     ]
-    if c.cert.get("rho_star") is not None and c.status in ("certified", "relaxed"):
+    if c.cert.get("rho_star") is not None and c.status in (CERTIFIED, RELAXED):
         tested = c.cert.get("tested_range")
         items.append(("rho*", g4(c.cert["rho_star"]) + (
             f" (premise tested to {g4(tested)})" if tested is not None else "")))  # fmt: skip
@@ -125,7 +125,7 @@ def lead_sentence(f: Facts) -> str:
     names = [c.name for c in f.controllers]
     plain = [c.name for c in f.controllers if c.certified and not relaxed(c, em)]
     rel = [c.name for c in f.controllers
-           if c.status == "relaxed" or (c.certified and relaxed(c, em))]  # fmt: skip
+           if c.status == RELAXED or (c.certified and relaxed(c, em))]  # fmt: skip
     parts = [f"{len(names)} controller{'s' * (len(names) != 1)} synthesized"]
     if plain:
         parts.append(f"certified: {', '.join(plain)}")
