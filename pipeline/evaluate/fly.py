@@ -5,7 +5,9 @@ RotorPy's SE3 controller of the training flights) is flown on the simulator's Ro
 vehicle with the VIO emulator in the loop (:func:`qsls.pipeline.sim.closedloop.fly` through
 :func:`qsls.pipeline.sim.simulate.simulate`), on the circle, in each perception condition
 and for each seed. Synthesized controllers act on ``y - r`` and add the reference's
-feedforward (:class:`qsls.pipeline.sim.controllers.LinearController`).
+feedforward (:class:`qsls.pipeline.sim.controllers.LinearController`). ``vio`` picks the
+estimator (the emulator or the camera loop); a list flies every controller with each, the
+results keyed by estimator (:mod:`qsls.pipeline.evaluate.estimators`).
 
 Each flight is written as a bag like a real log and goes through ``ingest`` exactly as a
 real flight does; the ingested ``flight.parquet`` is what the bound check
@@ -30,6 +32,7 @@ findings (paper, Results), each paired by seed with a 95% interval and a verdict
 
 from __future__ import annotations
 
+import itertools
 import os
 import shutil
 from collections.abc import Sequence
@@ -446,26 +449,14 @@ def _make_jobs(
         sim["duration"] = options.duration
         if vio != "emulator" or several:
             sim["vio"] = {**sim["vio"], "kind": vio}
-        for cond in options.conditions:
-            for seed in options.seeds:
-                for cname, spec in specs:
-                    name = f"{vio}_{cond}_s{seed}_{cname}" if several else f"{cond}_s{seed}_{cname}"
-                    jobs.append(
-                        FlyJob(
-                            name=name,
-                            controller=cname,
-                            spec=spec,
-                            condition=cond,
-                            seed=int(seed),
-                            sim=sim,
-                            ingest=ingest_opts,
-                            sim_dir=str(sims / name),
-                            flight_dir=str(flights / name),
-                            pd_gain=pd_gain,
-                            pd_z=options.pd_z_control,
-                            estimator=vio,
-                        )
-                    )
+        grid = itertools.product(options.conditions, options.seeds, specs)
+        for cond, seed, (cname, spec) in grid:
+            name = f"{vio}_{cond}_s{seed}_{cname}" if several else f"{cond}_s{seed}_{cname}"
+            jobs.append(FlyJob(
+                name=name, controller=cname, spec=spec, condition=cond, seed=int(seed), sim=sim,
+                ingest=ingest_opts, sim_dir=str(sims / name), flight_dir=str(flights / name),
+                pd_gain=pd_gain, pd_z=options.pd_z_control, estimator=vio,
+            ))  # fmt: skip
     return jobs
 
 
@@ -597,7 +588,7 @@ def fly_evaluate(
                         f"{o.name}: not bound-checked, ingest failed ({o.ingest_error})"
                     )
 
-            analyses = {
+            analyses: dict[str, Analysis] = {
                 vio: _analyse(
                     [o for o in outcomes if o.estimator == vio],
                     [j for j in jobs if j.estimator == vio], bounds, training, options,
