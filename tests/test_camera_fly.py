@@ -107,6 +107,27 @@ def test_fly_options_estimators():
             FlyOptions.model_validate({"vio": bad})
 
 
+@pytest.mark.parametrize(
+    ("vio", "message"),
+    [("camera,camera", "give each estimator once"), ("camera,lidar", "Input should be")],
+)
+def test_cli_refuses_a_bad_estimator_list(trained, tmp_path, vio, message):
+    """``--vio camera,emulator`` is a list; a repeated or unknown estimator is one line, and
+    nothing is written."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "qsls.cli.main", "evaluate", "--fly", "--model",
+         str(trained / "fit"), "--controller", str(trained / "synth"), "--vio", vio,
+         "--out", "out"],
+        cwd=tmp_path, capture_output=True, text=True,
+    )  # fmt: skip
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode != 0 and len(lines) == 1 and message in lines[0], proc.stderr
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.slow
 def test_fly_both_estimators_keyed_and_paired(trained, tmp_path):
     """``vio: [camera, emulator]`` flies every controller and seed with each estimator: the

@@ -107,7 +107,7 @@ class FlyOptions(EvaluateOptions):
     @classmethod
     def _distinct_estimators(cls, v: Vio | list[Vio]) -> Vio | list[Vio]:
         if isinstance(v, list) and (not v or len(set(v)) < len(v)):
-            raise ValueError(f"vio: give each estimator once, at least one (got {v})")
+            raise ValueError("vio: give each estimator once, at least one")
         return v
 
     @property
