@@ -202,4 +202,8 @@ def test_fly_both_estimators_keyed_and_paired(trained, tmp_path):
     cells = [c.strip() for c in row.strip("|").split("|")]
     robust = [t[t["controller"] == "l1_robust"]["tracking_rms_m"].mean() for t in (cam, theirs)]
     assert cells[2:5] == ["2", fmt(robust[0]), fmt(robust[1])]
+    # the paired ratio: geometric mean over the two seeds of camera / emulator tracking RMS
+    r = pairs[pairs["controller"] == "l1_robust"]
+    gm = float(np.exp(np.mean(np.log(r["tracking_rms_m_camera"] / r["tracking_rms_m_emulator"]))))
+    assert cells[-2].startswith(f"{gm:.3g} [")
     assert "| finding | camera | emulator |" in sec

@@ -67,6 +67,27 @@ def paired(analyses: Mapping[str, Analysis]) -> pd.DataFrame:
     return out if out is not None else pd.DataFrame()
 
 
+RATIO_METRICS = ["tracking_rms_m", "perception_error_rms"]
+"""The metrics compared across estimators as a paired ratio over seeds."""
+
+
+def estimator_ratios(pairs: pd.DataFrame, a: str, b: str) -> pd.DataFrame:
+    """Per condition and controller, for each of :data:`RATIO_METRICS`, the geometric mean over
+    seeds of ``metric_a / metric_b`` (estimator ``a`` against ``b`` on the same controller,
+    condition and seed) with the exp of the 95% t-interval of the log ratios
+    (:func:`qsls.pipeline.evaluate.stats.paired_ratio`; no difference: 1)."""
+    from qsls.pipeline.evaluate.stats import paired_ratio
+
+    rows = []
+    for (cond, ctrl), g in pairs.groupby(["condition", "controller"], sort=False):
+        row: dict[str, Any] = {"condition": cond, "controller": ctrl}
+        for m in RATIO_METRICS:
+            iv = paired_ratio(g[f"{m}_{a}"], g[f"{m}_{b}"])
+            row.update({f"{m}_ratio": iv.mean, f"{m}_lo": iv.lo, f"{m}_hi": iv.hi, "n": iv.n})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def findings_by_estimator(analyses: Mapping[str, Analysis]) -> dict[str, Any]:
     """The primary's findings document with ``estimator`` and ``by_estimator`` added."""
     primary = next(iter(analyses))
@@ -123,6 +144,8 @@ def write_by_estimator(w: StageWriter, analyses: Mapping[str, Analysis]) -> dict
 __all__ = [
     "PAIRED_FILE",
     "PER_CONTROLLER_FILE",
+    "RATIO_METRICS",
+    "estimator_ratios",
     "findings_by_estimator",
     "findings_markdown",
     "keyed",

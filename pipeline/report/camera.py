@@ -83,7 +83,7 @@ def _side_by_side(f: Facts, sec: Section, vios: list[str]) -> None:
     paired by controller, condition and seed (module docstring)."""
     import pandas as pd
 
-    from qsls.pipeline.evaluate.estimators import PAIRED_FILE
+    from qsls.pipeline.evaluate.estimators import PAIRED_FILE, estimator_ratios
 
     path = f.run_dir / f.fly_folder / PAIRED_FILE
     if not path.is_file():
@@ -107,14 +107,21 @@ def _side_by_side(f: Facts, sec: Section, vios: list[str]) -> None:
         parts.append(held)
         cols.append(f"assumptions held {vio}")
     wide = pd.concat(parts, axis=1).reset_index()
+    ratios = estimator_ratios(pairs, vios[0], vios[1])
+    for m, label in (("tracking_rms_m", "tracking RMS"), ("perception_error_rms", "||e|| RMS")):
+        ratios[f"{m}_text"] = [_ratio_text(r, m) for r in ratios.to_dict(orient="records")]
+        wide = wide.merge(ratios[["condition", "controller", f"{m}_text"]], how="left")
+        cols.append(f"{label} {vios[0]} / {vios[1]} [95% CI]")
     sec.table(
         cols,
         wide.to_numpy().tolist(),
         f"Controllers flown with each estimator ({f.fly_folder}), paired by seed and "
         "condition: means over the seeds (crashes summed); assumptions held: the flights on "
-        "which every assumption of the controller's guarantee held (- without a guarantee)",
+        "which every assumption of the controller's guarantee held (- without a guarantee); "
+        "the ratios: geometric mean over seeds of the per-seed ratio with its 95% interval "
+        "(1: no difference)",
         csv=csv,
-        text_cols=[0, 1, *range(len(cols) - len(vios), len(cols))],
+        text_cols=[0, 1, *range(len(cols) - len(vios) - 2, len(cols))],
     )
     by = (f.findings or {}).get("by_estimator") or {}
     rows: dict[str, list[Any]] = {}
@@ -128,6 +135,16 @@ def _side_by_side(f: Facts, sec: Section, vios: list[str]) -> None:
             "The paper's findings per estimator, each paired by seed within its estimator",
             text_cols=list(range(1 + len(vios))),
         )  # fmt: skip
+
+
+def _ratio_text(r: dict[str, Any], m: str) -> str:
+    """``0.81 [0.72, 0.9]``; the interval left out with one seed."""
+    import math
+
+    ratio, lo, hi = r[f"{m}_ratio"], r[f"{m}_lo"], r[f"{m}_hi"]
+    if not math.isfinite(ratio):
+        return "-"
+    return f"{ratio:.3g}" + (f" [{lo:.3g}, {hi:.3g}]" if math.isfinite(lo) else "")
 
 
 def _held_count(h: Any) -> str:
