@@ -83,7 +83,8 @@ def command(
         None,
         "--vio",
         help="--fly: where the estimate comes from: 'emulator' (the VIO error model) or "
-        "'camera' (rendered camera, IMU and MSCKF). (default: emulator)",
+        "'camera' (rendered camera, IMU and MSCKF); 'camera,emulator' flies both, paired "
+        "by seed. (default: emulator)",
     ),
     backend: str = typer.Option(
         None,
@@ -112,7 +113,8 @@ def command(
     if fly:
         fly_given = overrides(
             seeds=parse_list(seeds, "--seeds", "int") or None, duration=duration, jobs=jobs,
-            conditions=parse_list(conditions, "--conditions", "value"), vio=vio,
+            conditions=parse_list(conditions, "--conditions", "value"),
+            vio=parse_list(vio, "--vio", "value") if vio and "," in vio else vio,
             sim={"controller": {"backend": backend}} if backend else None,
         )  # fmt: skip
         _fly(model, controller, out, section.flying({**ov, **fly_given}, source), force)

@@ -100,6 +100,7 @@ def test_run_ci_camera_config(tmp_path):
     findings = json.loads((run / "fly" / "findings.json").read_text())
     assert findings["findings"]
     import pandas as pd
+    import yaml
 
     flights = pd.read_parquet(run / "fly" / "flights.parquet")
     assert len(flights) == 10 and not flights["ingest_error"].astype(bool).any()
@@ -111,4 +112,15 @@ def test_run_ci_camera_config(tmp_path):
     md = (run / "report" / "report.md").read_text()
     sec = md[md.index("## Camera loop beside the emulator") :]
     assert "heldout_1_emulator | emulator" in sec and "heldout_1 | camera (MSCKF)" in sec
-    assert "Controllers flown with the camera loop" in sec and "camera_frames.png" in sec
+    assert "camera_frames.png" in sec
+    # the fly stage flew both estimators: the controllers' results side by side, paired by seed
+    assert "Controllers flown with each estimator" in sec and "| finding | camera | emulator |" in sec
+    pairs = pd.read_parquet(run / "fly" / "paired_by_estimator.parquet")
+    assert len(pairs) == 10 and pairs["tracking_rms_m_emulator"].notna().all()
+    assert json.loads((run / "fly" / "findings.json").read_text())["estimator"] == "camera"
+    # the honest premise fitted on the camera loop's training flights (PD at 10 Hz, inputs
+    # logged, so eps_w is the realized disturbance) certifies the robust controller
+    cert = yaml.safe_load((run / "synth" / "l1_robust" / "certificate.yaml").read_text())
+    assert cert["status"] == "certified", cert["status"]
+    assert cert["premise"]["eps_w"]["chosen"] == "max" and cert["S"] == 0.0
+    assert cert["rho_star"] <= cert["radius"] and cert["tested_range"] > 0.2

@@ -61,3 +61,149 @@ def test_degraded_flight_that_diverged_now_resets_instead_of_crashing():
     on = flight(True)
     assert not on.crashed and on.emulator["resets"] >= 1
     assert np.abs(on.vio_e[:, :3]).max() < 1.0
+
+
+# --------------------------------------------------------------------------- both estimators
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A short emulator training flight -> ingest -> fit -> synth (one robust controller)."""
+    from qsls.pipeline.control.synth import SynthOptions, synth
+    from qsls.pipeline.errormodel.fit import FitOptions, fit
+    from qsls.pipeline.ingest.stage import IngestOptions, ingest
+    from qsls.pipeline.sim.simulate import SimOptions, simulate
+
+    root = tmp_path_factory.mktemp("camfly")
+    res = simulate(SimOptions.model_validate({"duration": 8.0, "seed": 0}), root / "train_sim")
+    ingest([res.bag], IngestOptions(), root / "train")
+    fit([root / "train"], FitOptions(radius=2.0, figures=False), root / "fit")
+    opts = SynthOptions(T=15, S=0.05, eps_e="max", delta=0.0, controllers="single")
+    synth(root / "fit", opts, root / "synth")
+    return root
+
+
+def _fly(root, out, vio):
+    from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
+
+    opts = FlyOptions.model_validate(
+        {"vio": vio, "seeds": [0, 1], "duration": 4.0, "conditions": ["regular"], "se3": False,
+         "jobs": 1, "figures": False}
+    )  # fmt: skip
+    return fly_evaluate(root / "fit", [root / "synth"], opts, out)
+
+
+def test_fly_options_estimators():
+    from pydantic import ValidationError
+
+    from qsls.pipeline.evaluate.fly import FlyOptions
+
+    assert FlyOptions().estimators == ("emulator",)
+    assert FlyOptions.model_validate({"vio": "camera"}).estimators == ("camera",)
+    both = FlyOptions.model_validate({"vio": ["camera", "emulator"]})
+    assert both.estimators == ("camera", "emulator")
+    assert both.model_dump(mode="json")["vio"] == ["camera", "emulator"]
+    assert FlyOptions().model_dump(mode="json")["vio"] == "emulator"  # unchanged for one
+    for bad in ([], ["camera", "camera"], ["lidar"]):
+        with pytest.raises(ValidationError):
+            FlyOptions.model_validate({"vio": bad})
+
+
+@pytest.mark.parametrize(
+    ("vio", "message"),
+    [("camera,camera", "give each estimator once"), ("camera,lidar", "Input should be")],
+)
+def test_cli_refuses_a_bad_estimator_list(trained, tmp_path, vio, message):
+    """``--vio camera,emulator`` is a list; a repeated or unknown estimator is one line, and
+    nothing is written."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "qsls.cli.main", "evaluate", "--fly", "--model",
+         str(trained / "fit"), "--controller", str(trained / "synth"), "--vio", vio,
+         "--out", "out"],
+        cwd=tmp_path, capture_output=True, text=True,
+    )  # fmt: skip
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode != 0 and len(lines) == 1 and message in lines[0], proc.stderr
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_fly_both_estimators_keyed_and_paired(trained, tmp_path):
+    """``vio: [camera, emulator]`` flies every controller and seed with each estimator: the
+    stage's own tables are the camera's, every estimator's rows are keyed, the pairs join the
+    same controller, condition and seed, and the emulator's flights are exactly those of an
+    emulator-only fly stage (same seeds)."""
+    import json
+
+    import pandas as pd
+
+    both = _fly(trained, tmp_path / "both", ["camera", "emulator"])
+    emu = _fly(trained, tmp_path / "emu", "emulator")
+    out = tmp_path / "both"
+
+    keyed = pd.read_parquet(out / "flights_by_estimator.parquet")
+    n = 2 * len(set(emu.flights["controller"]))  # two seeds per controller (pd, l1_robust)
+    assert n == 4
+    assert sorted(keyed["estimator"].value_counts().items()) == [("camera", n), ("emulator", n)]
+    assert keyed["flight"].str.startswith(tuple(f"{v}_" for v in ("camera", "emulator"))).all()
+    # the stage's own flights table: the primary (camera) estimator's flights only
+    own = pd.read_parquet(out / "flights.parquet")
+    assert list(own["flight"]) == list(keyed[keyed["estimator"] == "camera"]["flight"])
+    assert len(both.flights) == n
+
+    # the emulator's flights are an emulator-only stage's flights, number for number
+    mine = keyed[keyed["estimator"] == "emulator"].drop(columns=["estimator", "flight"])
+    theirs = emu.flights.drop(columns=["flight"])
+    pd.testing.assert_frame_equal(mine.reset_index(drop=True), theirs.reset_index(drop=True))
+    # the camera loop's estimate is not the emulator's
+    cam = keyed[keyed["estimator"] == "camera"].reset_index(drop=True)
+    assert not np.allclose(cam["perception_error_rms"], theirs["perception_error_rms"])
+
+    pairs = pd.read_parquet(out / "paired_by_estimator.parquet")
+    assert len(pairs) == n and set(pairs["condition"]) == {"regular"}
+    key = ["controller", "seed"]
+    for vio, t in (("camera", cam), ("emulator", emu.flights)):
+        merged = pairs.merge(t, on=key)
+        assert len(merged) == n
+        np.testing.assert_array_equal(merged[f"tracking_rms_m_{vio}"], merged["tracking_rms_m"])
+    # the robust controller's assumptions, per estimator, match the keyed assumption rows;
+    # PD has no guarantee, so nothing is checked on its flights
+    ass = pd.read_parquet(out / "assumptions_by_estimator.parquet")
+    assert set(ass["controller"]) == {"l1_robust"}
+    for vio in ("camera", "emulator"):
+        rows = ass[ass["estimator"] == vio].sort_values("seed")
+        robust = pairs[pairs["controller"] == "l1_robust"].sort_values("seed")
+        assert list(robust[f"assumptions_hold_{vio}"]) == list(rows["assumptions_hold"])
+        assert pairs[pairs["controller"] == "pd"][f"assumptions_hold_{vio}"].isna().all()
+
+    doc = json.loads((out / "findings.json").read_text())
+    assert doc["estimator"] == "camera" and set(doc["by_estimator"]) == {"camera", "emulator"}
+    assert doc["findings"] == doc["by_estimator"]["camera"]["findings"]
+    emu_doc = json.loads((tmp_path / "emu" / "findings.json").read_text())
+    assert "by_estimator" not in emu_doc and "estimator" not in emu_doc
+    assert not (tmp_path / "emu" / "paired_by_estimator.parquet").exists()
+    assert "Findings per estimator" in (out / "comparison.md").read_text()
+    assert "Findings per estimator" not in (tmp_path / "emu" / "comparison.md").read_text()
+
+    # the report's camera section puts both estimators' closed-loop results side by side
+    import shutil
+
+    from qsls.pipeline.report.document import fmt
+    from qsls.pipeline.report.stage import report
+
+    run = tmp_path / "run"
+    shutil.copytree(out, run / "fly")
+    md = (report(run).out / "report.md").read_text()
+    sec = md[md.index("## Camera loop beside the emulator") :]
+    assert "tracking RMS (m) camera | tracking RMS (m) emulator" in sec
+    assert "assumptions held camera | assumptions held emulator" in sec
+    row = next(line for line in sec.splitlines() if line.startswith("| regular | l1_robust"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    robust = [t[t["controller"] == "l1_robust"]["tracking_rms_m"].mean() for t in (cam, theirs)]
+    assert cells[2:5] == ["2", fmt(robust[0]), fmt(robust[1])]
+    # the paired ratio: geometric mean over the two seeds of camera / emulator tracking RMS
+    r = pairs[pairs["controller"] == "l1_robust"]
+    gm = float(np.exp(np.mean(np.log(r["tracking_rms_m_camera"] / r["tracking_rms_m_emulator"]))))
+    assert cells[-2].startswith(f"{gm:.3g} [")
+    assert "| finding | camera | emulator |" in sec

@@ -5,7 +5,9 @@ RotorPy's SE3 controller of the training flights) is flown on the simulator's Ro
 vehicle with the VIO emulator in the loop (:func:`qsls.pipeline.sim.closedloop.fly` through
 :func:`qsls.pipeline.sim.simulate.simulate`), on the circle, in each perception condition
 and for each seed. Synthesized controllers act on ``y - r`` and add the reference's
-feedforward (:class:`qsls.pipeline.sim.controllers.LinearController`).
+feedforward (:class:`qsls.pipeline.sim.controllers.LinearController`). ``vio`` picks the
+estimator (the emulator or the camera loop); a list flies every controller with each, the
+results keyed by estimator (:mod:`qsls.pipeline.evaluate.estimators`).
 
 Each flight is written as a bag like a real log and goes through ``ingest`` exactly as a
 real flight does; the ingested ``flight.parquet`` is what the bound check
@@ -30,6 +32,7 @@ findings (paper, Results), each paired by seed with a 95% interval and a verdict
 
 from __future__ import annotations
 
+import itertools
 import os
 import shutil
 from collections.abc import Sequence
@@ -39,7 +42,7 @@ from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from qsls.pipeline.core.errors import InputError, QslsError
 from qsls.pipeline.core.pools import run_tasks
@@ -78,6 +81,8 @@ from qsls.pipeline.ingest.flight import read_flight
 from qsls.pipeline.ingest.stage import IngestOptions
 from qsls.pipeline.sim.simulate import SimOptions
 
+Vio = Literal["emulator", "camera"]
+
 
 class FlyOptions(EvaluateOptions):
     """Options of ``qsls evaluate --fly`` (and those of the bound check)."""
@@ -91,9 +96,25 @@ class FlyOptions(EvaluateOptions):
         min_length=1,
     )
     """Perception conditions (the emulator's presets)."""
-    vio: Literal["emulator", "camera"] = "emulator"
+    vio: Vio | list[Vio] = "emulator"
     """Where each flight's estimate comes from: the VIO emulator or the camera loop (a
-    rendered camera, an IMU and an MSCKF: ``sim.vio.camera`` holds its parameters)."""
+    rendered camera, an IMU and an MSCKF: ``sim.vio.camera`` holds its parameters). A list
+    (``[camera, emulator]``) flies every controller, seed and condition with each estimator;
+    the first is the stage's primary (its tables as a single-estimator run writes them) and
+    every estimator's results are also keyed by estimator (docs/evaluation.md)."""
+
+    @field_validator("vio")
+    @classmethod
+    def _distinct_estimators(cls, v: Vio | list[Vio]) -> Vio | list[Vio]:
+        if isinstance(v, list) and (not v or len(set(v)) < len(v)):
+            raise ValueError("vio: give each estimator once, at least one")
+        return v
+
+    @property
+    def estimators(self) -> tuple[Vio, ...]:
+        """The estimators flown, the primary first."""
+        return tuple(self.vio) if isinstance(self.vio, list) else (self.vio,)
+
     controllers: list[str] | None = None
     """Controller folder names to fly; default: the paper's four where given, else all."""
     se3: bool = True
@@ -130,6 +151,7 @@ class FlyJob:
     flight_dir: str
     pd_gain: tuple[tuple[float, ...], ...] | None = None  # K of the flown PD, if any
     pd_z: bool = False  # thrust from PD (paper's setup), for synthesized controllers
+    estimator: str = "emulator"  # the vio kind of sim (what the results are keyed by)
 
 
 @dataclass
@@ -149,6 +171,7 @@ class FlyOutcome:
     e_norm: np.ndarray  # (m,) ||e||_inf of the emulator
     u_pd: np.ndarray  # (k, 3) what PD would command from the same estimate
     extra: dict[str, Any] = field(default_factory=dict)
+    estimator: str = "emulator"
 
 
 def run_job(job: FlyJob) -> FlyOutcome:
@@ -204,6 +227,7 @@ def run_job(job: FlyJob) -> FlyOutcome:
         e_norm=np.abs(f.vio_e).max(axis=1),
         u_pd=u_pd,
         extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass},
+        estimator=job.estimator,
     )
 
 
@@ -266,6 +290,45 @@ class FlyResult(EvaluateResult):
 
 
 # --------------------------------------------------------------------------- analysis
+@dataclass(frozen=True)
+class Analysis:
+    """One estimator's flights analysed as a single-estimator fly stage analyses them."""
+
+    flights: pd.DataFrame
+    checks: pd.DataFrame
+    samples: pd.DataFrame
+    assumptions: pd.DataFrame
+    per: pd.DataFrame
+    comparison: list[dict[str, Any]]
+    findings: dict[str, Any]
+    ref_bound: ControllerBound | None
+
+
+def _analyse(
+    outcomes: Sequence[FlyOutcome],
+    jobs: Sequence[FlyJob],
+    bounds: Sequence[ControllerBound],
+    training: Any,
+    options: FlyOptions,
+) -> Analysis:
+    """Tables, bound checks, assumptions, the paper comparison and the paired findings of one
+    estimator's flights."""
+    flights = flight_table(outcomes)
+    checks, samples, ref_j = _check_flights(outcomes, jobs, flights, bounds, training)
+    assumptions = assumption_table(outcomes, bounds, training)
+    per = _bound_columns(per_controller_table(flights), checks)
+    ref_bound = bounds[ref_j] if ref_j is not None else None
+    comparison = compare_with_paper(
+        per, checks, options.track_threshold_m, ref_bound, options.tie_rel,
+        _true_lipschitz(outcomes),
+    )  # fmt: skip
+    findings = paired_findings(
+        flights, checks, ref_bound.name if ref_bound else None, PAPER_CONTROLLERS,
+        options.track_threshold_m, _motion_parts(options.sim), assumptions,
+    )  # fmt: skip
+    return Analysis(flights, checks, samples, assumptions, per, comparison, findings, ref_bound)
+
+
 def flight_table(outcomes: Sequence[FlyOutcome]) -> pd.DataFrame:
     rows = []
     for o in outcomes:
@@ -376,32 +439,24 @@ def _make_jobs(
     flights: Path,
     pd_gain: tuple[tuple[float, ...], ...] | None,
 ) -> list[FlyJob]:
-    """One job per condition, seed and controller (``specs``: ``(name, se3 | folder)``)."""
-    sim = options.sim.model_dump(mode="json")
-    sim["duration"] = options.duration
-    if options.vio != "emulator":
-        sim["vio"] = {**sim["vio"], "kind": options.vio}
+    """One job per estimator, condition, seed and controller (``specs``:
+    ``(name, se3 | folder)``); with several estimators a flight's name starts with its own."""
+    several = len(options.estimators) > 1
     ingest_opts = options.ingest.model_dump(mode="json")
     jobs = []
-    for cond in options.conditions:
-        for seed in options.seeds:
-            for cname, spec in specs:
-                name = f"{cond}_s{seed}_{cname}"
-                jobs.append(
-                    FlyJob(
-                        name=name,
-                        controller=cname,
-                        spec=spec,
-                        condition=cond,
-                        seed=int(seed),
-                        sim=sim,
-                        ingest=ingest_opts,
-                        sim_dir=str(sims / name),
-                        flight_dir=str(flights / name),
-                        pd_gain=pd_gain,
-                        pd_z=options.pd_z_control,
-                    )
-                )
+    for vio in options.estimators:
+        sim = options.sim.model_dump(mode="json")
+        sim["duration"] = options.duration
+        if vio != "emulator" or several:
+            sim["vio"] = {**sim["vio"], "kind": vio}
+        grid = itertools.product(options.conditions, options.seeds, specs)
+        for cond, seed, (cname, spec) in grid:
+            name = f"{vio}_{cond}_s{seed}_{cname}" if several else f"{cond}_s{seed}_{cname}"
+            jobs.append(FlyJob(
+                name=name, controller=cname, spec=spec, condition=cond, seed=int(seed), sim=sim,
+                ingest=ingest_opts, sim_dir=str(sims / name), flight_dir=str(flights / name),
+                pd_gain=pd_gain, pd_z=options.pd_z_control, estimator=vio,
+            ))  # fmt: skip
     return jobs
 
 
@@ -523,7 +578,6 @@ def fly_evaluate(
                 flights=w.path("flights"), pd_gain=_pd_gain_of(folders),
             )  # fmt: skip
             outcomes = run_jobs(jobs, min(workers, len(jobs)), progress)
-            flights = flight_table(outcomes)
             for o in outcomes:
                 if o.metrics["crashed"]:
                     warnings.append(
@@ -534,26 +588,33 @@ def fly_evaluate(
                         f"{o.name}: not bound-checked, ingest failed ({o.ingest_error})"
                     )
 
-            checks, samples, ref_j = _check_flights(outcomes, jobs, flights, bounds, training)
-            assumptions = assumption_table(outcomes, bounds, training)
-            per = _bound_columns(per_controller_table(flights), checks)
-            ref_bound = bounds[ref_j] if ref_j is not None else None
-            comparison = compare_with_paper(
-                per, checks, options.track_threshold_m, ref_bound, options.tie_rel,
-                _true_lipschitz(outcomes),
-            )  # fmt: skip
-            findings = paired_findings(
-                flights, checks, ref_bound.name if ref_bound else None, PAPER_CONTROLLERS,
-                options.track_threshold_m, _motion_parts(options.sim), assumptions,
-            )  # fmt: skip
+            analyses: dict[str, Analysis] = {
+                vio: _analyse(
+                    [o for o in outcomes if o.estimator == vio],
+                    [j for j in jobs if j.estimator == vio], bounds, training, options,
+                )
+                for vio in options.estimators
+            }  # fmt: skip
+            a = analyses[options.estimators[0]]  # the primary: the stage's own tables
+            flights, checks, samples, assumptions = a.flights, a.checks, a.samples, a.assumptions
+            per, comparison, findings, ref_bound = a.per, a.comparison, a.findings, a.ref_bound
+            several = len(analyses) > 1
+            if several:
+                from qsls.pipeline.evaluate.estimators import findings_markdown, write_by_estimator
+
+                findings = write_by_estimator(w, analyses)
 
             w.write_parquet("flights.parquet", flights)
             w.write_parquet(ASSUMPTIONS_FILE, assumptions)
             w.write_parquet("per_controller.parquet", per)
             w.write_json(FINDINGS_FILE, findings)
-            w.write_text("comparison.md", comparison_markdown(comparison, per, findings))
+            md = comparison_markdown(comparison, per, findings)
+            w.write_text(
+                "comparison.md", md + ("\n" + findings_markdown(analyses) if several else "")
+            )
             if options.figures:
-                write_fly_figures(w, outcomes, bounds, options, ref_bound, checks)
+                primary = [o for o in outcomes if o.estimator == options.estimators[0]]
+                write_fly_figures(w, primary, bounds, options, ref_bound, checks)
             extra_json = {
                 "mode": "fly",
                 "flights_table": flights.to_dict(orient="records"),
@@ -575,6 +636,8 @@ def fly_evaluate(
                     "warnings": len(warnings),
                 }
             )
+            if several:
+                w.results["estimators"] = list(options.estimators)
         finally:
             shutil.rmtree(tmp_root, ignore_errors=True)
     return FlyResult(

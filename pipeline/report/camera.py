@@ -6,9 +6,12 @@ Appears when the run has camera flights (a simulate folder whose ``truth.json`` 
 - the simulated flights paired by perception condition and seed, emulator beside camera
   (perception error, tracking, and the camera loop's own counters: features per frame, blur,
   filter resets);
-- the fly stage's per-controller results of the camera loop, per condition (the emulator's
-  counterpart of the same experiment is ``configs/paper_sim.yaml``'s run when it is not in
-  this run);
+- the fly stage's per-controller results of the camera loop, per condition; when the fly
+  stage flew both estimators (``vio: [camera, emulator]``), each controller's closed-loop
+  results with the camera loop beside those with the emulator (same seeds and conditions:
+  :mod:`qsls.pipeline.evaluate.estimators`), the guarantee's assumptions per estimator and
+  each finding's verdict per estimator, the per-flight pairs attached as CSV (otherwise the
+  emulator's counterpart is ``configs/paper_sim.yaml``'s run);
 - one frame of each condition with the features tracked on it (``camera_frame.npz`` of a
   camera simulate folder, drawn here).
 """
@@ -59,11 +62,95 @@ def _simulated(f: Facts) -> list[dict[str, Any]]:
     return rows
 
 
-def _fly_is_camera(f: Facts) -> bool:
+def _fly_estimators(f: Facts) -> list[str]:
+    """The estimators the fly stage flew with, the primary first (none without a fly stage)."""
     if not f.fly_folder:
-        return False
-    opts = read_manifest(f.run_dir / f.fly_folder).get("options", {})
-    return opts.get("vio") == "camera"
+        return []
+    vio = read_manifest(f.run_dir / f.fly_folder).get("options", {}).get("vio", "emulator")
+    return list(vio) if isinstance(vio, list) else [str(vio)]
+
+
+ESTIMATOR_METRICS = {
+    "tracking_rms_m": "tracking RMS (m)",
+    "perception_error_rms": "||e|| RMS",
+    "perception_error_max": "||e|| max",
+    "crashed": "crashed",
+}
+
+
+def _side_by_side(f: Facts, sec: Section, vios: list[str]) -> None:
+    """The fly stage's controllers with each estimator beside each other, over the flights
+    paired by controller, condition and seed (module docstring)."""
+    import pandas as pd
+
+    from qsls.pipeline.evaluate.estimators import PAIRED_FILE, estimator_ratios
+
+    path = f.run_dir / f.fly_folder / PAIRED_FILE
+    if not path.is_file():
+        return
+    pairs = pd.read_parquet(path)
+    if not len(pairs):
+        return
+    csv = sec.attach(
+        f"paired_by_estimator_{f.fly_folder.replace('/', '_')}.csv",
+        pairs.to_csv(index=False, float_format="%.6g").encode(),
+    )
+    g = pairs.groupby(["condition", "controller"], sort=False)
+    cols, parts = ["condition", "controller", "seeds"], [g.size().rename("seeds")]
+    for m, label in ESTIMATOR_METRICS.items():
+        for vio in vios:
+            c = g[f"{m}_{vio}"]
+            parts.append((c.sum() if m == "crashed" else c.mean()).rename(f"{m}_{vio}"))
+            cols.append(f"{label} {vio}")
+    for vio in vios:
+        held = g[f"assumptions_hold_{vio}"].agg(_held_count).rename(f"held_{vio}")
+        parts.append(held)
+        cols.append(f"assumptions held {vio}")
+    wide = pd.concat(parts, axis=1).reset_index()
+    ratios = estimator_ratios(pairs, vios[0], vios[1])
+    for m, label in (("tracking_rms_m", "tracking RMS"), ("perception_error_rms", "||e|| RMS")):
+        ratios[f"{m}_text"] = [_ratio_text(r, m) for r in ratios.to_dict(orient="records")]
+        wide = wide.merge(ratios[["condition", "controller", f"{m}_text"]], how="left")
+        cols.append(f"{label} {vios[0]} / {vios[1]} [95% CI]")
+    sec.table(
+        cols,
+        wide.to_numpy().tolist(),
+        f"Controllers flown with each estimator ({f.fly_folder}), paired by seed and "
+        "condition: means over the seeds (crashes summed); assumptions held: the flights on "
+        "which every assumption of the controller's guarantee held (- without a guarantee); "
+        "the ratios: geometric mean over seeds of the per-seed ratio with its 95% interval "
+        "(1: no difference)",
+        csv=csv,
+        text_cols=[0, 1, *range(len(cols) - len(vios) - 2, len(cols))],
+    )
+    by = (f.findings or {}).get("by_estimator") or {}
+    rows: dict[str, list[Any]] = {}
+    for j, vio in enumerate(vios):
+        for item in by.get(vio, {}).get("findings", []):
+            head = f"{item['id']}. {item['claim']}"
+            rows.setdefault(str(item["id"]), [head] + ["-"] * len(vios))[1 + j] = item["verdict"]
+    if rows:
+        sec.table(
+            ["finding", *vios], list(rows.values()),
+            "The paper's findings per estimator, each paired by seed within its estimator",
+            text_cols=list(range(1 + len(vios))),
+        )  # fmt: skip
+
+
+def _ratio_text(r: dict[str, Any], m: str) -> str:
+    """``0.81 [0.72, 0.9]``; the interval left out with one seed."""
+    import math
+
+    ratio, lo, hi = r[f"{m}_ratio"], r[f"{m}_lo"], r[f"{m}_hi"]
+    if not math.isfinite(ratio):
+        return "-"
+    return f"{ratio:.3g}" + (f" [{lo:.3g}, {hi:.3g}]" if math.isfinite(lo) else "")
+
+
+def _held_count(h: Any) -> str:
+    """``k of n`` flights on which every assumption held, ``-`` when none was checked."""
+    h = h.dropna()
+    return f"{int(h.astype(bool).sum())} of {len(h)}" if len(h) else "-"
 
 
 def _frames_figure(frames: list[tuple[str, Path]], counter: list[int]) -> Figure:
@@ -98,7 +185,8 @@ def _frames_figure(frames: list[tuple[str, Path]], counter: list[int]) -> Figure
 def section_camera(f: Facts, counter: list[int]) -> Section | None:
     """The section of the module docstring, or None when the run has no camera flights."""
     sims = _simulated(f)
-    fly_camera = _fly_is_camera(f)
+    vios = _fly_estimators(f)
+    fly_camera = "camera" in vios
     if not fly_camera and not any(r["camera"] for r in sims):
         return None
     sec = Section("Camera loop beside the emulator", id="camera")
@@ -119,7 +207,9 @@ def section_camera(f: Facts, counter: list[int]) -> Section | None:
             text_cols=[0, 2, 3],
         )  # fmt: skip
     per = f.per_controller
-    if fly_camera and per is not None and len(per):
+    if fly_camera and len(vios) > 1:
+        _side_by_side(f, sec, vios)
+    elif fly_camera and per is not None and len(per):
         cols = [c for c in ("condition", "controller", "tracking_rms_m", "perception_error_rms",
                             "perception_error_max", "crashed", "flights") if c in per]  # fmt: skip
         sec.table(
