@@ -130,7 +130,7 @@ class CameraOptions(Options):
     """Feature measurement noise (px) of the ``fixed`` model."""
     pixel_sigma_floor: float = Field(0.1, gt=0)
     """``image`` model: the floor ``sigma_0`` (px)."""
-    pixel_noise_scale: float = Field(1.0, gt=0)
+    pixel_noise_scale: float = Field(2.0, gt=0)
     """``image`` model: ``k``, the factor on the Cramer-Rao bound of the KLT alignment."""
     pixel_sigma_max: float = Field(3.0, gt=0)
     """``image`` model: the largest std assumed (px)."""
