@@ -25,7 +25,12 @@ import numpy as np
 from qsls.pipeline.sim.camera.geometry import so3_exp
 from qsls.pipeline.sim.camera.msckf import Msckf
 from qsls.pipeline.sim.camera.options import CameraOptions
-from qsls.pipeline.sim.camera.vinit import InitRefusal, closed_form_init, world_from_first
+from qsls.pipeline.sim.camera.vinit import (
+    InitRefusal,
+    InitSolution,
+    closed_form_init,
+    world_from_first,
+)
 
 
 @dataclass(frozen=True)
@@ -104,20 +109,18 @@ class Estimator:
         if self.lost is not None:
             self._try_reinitialize(t)
 
-    def _try_reinitialize(self, t: float) -> None:
-        """Solve the window (:func:`.vinit.closed_form_init`); on success replace the filter
-        by a fresh one: attitude and velocity from the solution, its yaw and position those
-        of the lost estimate, zero biases; covariance the initial prior, with the tilt and
-        velocity blocks at least the solution's."""
+    def solve_window(self) -> InitSolution | InitRefusal:
+        """The closed-form initialization (:func:`.vinit.closed_form_init`) of the last
+        ``init_window_s`` of IMU samples and tracked features."""
         cam = self.cam
         frames = list(self._window)
         if len(frames) < 3:
-            return
+            return InitRefusal(f"{len(frames)} frames in the window")
         wm = np.concatenate([f.wm for f in frames[1:]])
         am = np.concatenate([f.am for f in frames[1:]])
         h = np.concatenate([f.h for f in frames[1:]])
         frame_sample = np.concatenate([[0], np.cumsum([len(f.h) for f in frames[1:]])])
-        sol = closed_form_init(
+        return closed_form_init(
             wm, am, h, frame_sample,
             np.concatenate([np.full(len(f.ids), j) for j, f in enumerate(frames)]),
             np.concatenate([f.ids for f in frames]),
@@ -128,7 +131,16 @@ class Estimator:
             max_sigma_velocity=cam.init_max_sigma_velocity,
             max_sigma_tilt=math.radians(cam.init_max_sigma_tilt_deg),
             max_residual=cam.init_max_residual,
+            sigma_scale=cam.init_sigma_scale,
         )  # fmt: skip
+
+    def _try_reinitialize(self, t: float) -> None:
+        """Solve the window (:meth:`solve_window`); on success replace the filter by a fresh
+        one: attitude and velocity from the solution, its yaw and position those of the lost
+        estimate, zero biases; covariance the initial prior, with the tilt and velocity
+        blocks at least the solution's."""
+        cam = self.cam
+        sol = self.solve_window()
         if isinstance(sol, InitRefusal):
             self.init_refusals.append((t, sol.why))
             return

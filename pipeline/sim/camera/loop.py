@@ -244,6 +244,8 @@ class CameraVio:
             "resets": len(self.resets),
             "reset_times_s": [round(t, 3) for t, _ in self.resets],
             "reset_refusals": len(self.estimator.init_refusals) if self.estimator else 0,
+            "reset_velocity_error": [round(e, 4) for _, e, _ in self.reset_errors],
+            "reset_tilt_error_deg": [round(e, 4) for _, _, e in self.reset_errors],
             "frames_sha256": self._digest.hexdigest(),
         }
 

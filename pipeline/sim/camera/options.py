@@ -169,12 +169,16 @@ class CameraOptions(Options):
     """Re-initialization (:mod:`.vinit`): the window of frames and IMU samples it solves."""
     init_min_features: int = Field(20, ge=3)
     """... at least this many features seen in 3 frames of the window, ..."""
-    init_max_sigma_velocity: float = Field(0.1, gt=0)
+    init_max_sigma_velocity: float = Field(0.2, gt=0)
     """... the velocity's std (m/s) at most this, ..."""
     init_max_sigma_tilt_deg: float = Field(2.0, gt=0)
     """... the tilt's std (deg) at most this, ..."""
     init_max_residual: float = Field(3.0, gt=0)
     """... and the whitened residuals' RMS at most this; else it retries at the next frame."""
+    init_sigma_scale: float = Field(2.5, gt=0)
+    """Factor on the solution's standard deviations (its least squares takes the tracks'
+    errors as independent; measured on the figure eight, its errors are about 4 times the
+    independent-error std)."""
 
     @model_validator(mode="after")
     def _budget(self) -> CameraOptions:

@@ -132,6 +132,7 @@ def closed_form_init(
     max_sigma_velocity: float = 0.1,
     max_sigma_tilt: float = math.radians(2.0),
     max_residual: float = 3.0,
+    sigma_scale: float = 1.0,
 ) -> InitSolution | InitRefusal:
     """Solve the window (module docstring).
 
@@ -139,8 +140,28 @@ def closed_form_init(
     (M,): the sample index of each frame (0 for the first, K for the last);
     observations: frame index ``obs_frame`` (n,), feature id ``obs_feature`` (n,),
     normalized point ``obs_uv`` (n, 2) and its noise std ``obs_sigma`` (n,) (normalized).
-    Features seen in fewer than 3 frames of the window are not used.
+    Features seen in fewer than 3 frames of the window are not used. ``sigma_scale``
+    multiplies the reported standard deviations (the least squares takes the observations'
+    errors as independent; a KLT track's are not, docs/camera.md).
     """
+    with np.errstate(all="ignore"):
+        try:
+            return _solve(
+                wm, am, h, frame_sample, obs_frame, obs_feature, obs_uv, obs_sigma, r_bc,
+                t_bc, gravity, min_features, max_sigma_velocity, max_sigma_tilt, max_residual,
+                sigma_scale,
+            )  # fmt: skip
+        except np.linalg.LinAlgError:
+            return InitRefusal("singular normal equations (no motion or no parallax)")
+
+
+def _solve(
+    wm: np.ndarray, am: np.ndarray, h: np.ndarray, frame_sample: np.ndarray,
+    obs_frame: np.ndarray, obs_feature: np.ndarray, obs_uv: np.ndarray,
+    obs_sigma: np.ndarray, r_bc: np.ndarray, t_bc: np.ndarray, gravity: float,
+    min_features: int, max_sigma_velocity: float, max_sigma_tilt: float,
+    max_residual: float, sigma_scale: float,
+) -> InitSolution | InitRefusal:  # fmt: skip
     rs, vs, ss, ts = preintegrate(wm, am, h)
     rf, sf, tf = rs[frame_sample], ss[frame_sample], ts[frame_sample]
     # features seen at least 3 times, observations sorted by feature then frame
@@ -212,6 +233,7 @@ def closed_form_init(
     if ref is None:
         return InitRefusal("refinement failed")
     v0, g0, xf, cov, rms = ref
+    cov = sigma_scale**2 * cov
     bb = _basis(g0 / gravity)
     t_m = float(tf[-1])
     v_m = v0 + g0 * t_m + vs[frame_sample[-1]]
