@@ -18,14 +18,7 @@ from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.run.runner import load_run_config, plan, run
 from tests.test_runner_direct import BASE, _flights
 
-SWEEP = {
-    "grid": {"S": [0.0, 0.01]},
-    "T": 6,
-    "eps_e": 0.05,
-    "radius": 1.0,
-    "s_max_curve": False,
-    "jobs": 2,
-}
+SWEEP = {"grid": {"S": [0.0, 0.01]}, "T": 6, "eps_e": 0.05, "radius": 1.0, "s_max_curve": False, "jobs": 2}
 EVALUATE = {"figures": False, "smooth_s": 0.5, "fly": {"seeds": [3], "jobs": 1, "duration": 5}}
 
 

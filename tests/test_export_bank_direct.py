@@ -101,9 +101,7 @@ def test_counts_and_sizes_against_independent_counts(proper, strict):
         assert shares["const_share_of_1MB_flash"] == 8 * n / (1024 * 1024)
 
 
-def _c_sizeof(
-    tmp_path: Path, bank: B.ExportBank, facts: B.ExportFacts, precision: B.Precision
-) -> int:
+def _c_sizeof(tmp_path: Path, bank: B.ExportBank, facts: B.ExportFacts, precision: B.Precision) -> int:
     files = c_files(bank, facts, "szt", precision)
     for name, text in files.items():
         (tmp_path / name).write_text(text)

@@ -251,10 +251,7 @@ def test_euroc_report_states_the_certified_position_only_controller(real_data, t
     summary = lay["summaryText"]
     assert "certified: " in summary and "l1_robust" in summary
     card = next(c["text"] for c in lay["cards"] if c["text"].startswith("l1_robust\n"))
-    assert (
-        "rho*" in card
-        and f"{cert['rho_star']:.3g} (premise tested to {cert['tested_range']:.3g})" in card
-    )
+    assert "rho*" in card and f"{cert['rho_star']:.3g} (premise tested to {cert['tested_range']:.3g})" in card
     assert f"{cert['gamma']:.3g}" in card
     page = (out / "index.html").read_text()
     assert "input-free residual: a lower bound" in page
