@@ -86,6 +86,30 @@ def test_consistency_nees_in_band():
     assert nees.mean() < 12.0
 
 
+def test_consistency_degraded_nees_in_band():
+    """The same check in the degraded condition (light 0.35, texture 0.45: longer exposure,
+    more blur and noise, weaker corners), seed 8 (the noise model was calibrated on seeds
+    3, 5, 7): with the pixel noise from the image formation (docs/camera.md) the NEES is
+    within its band on most frames and its mean not above 6 by much; with the fixed 0.3 px
+    the filter is overconfident (measured before: mean 9-19 over seeds 3-7)."""
+    from scipy.stats import chi2
+
+    t, p, q = figure_eight(20.0)
+    lo, hi = chi2.ppf([0.005, 0.995], 6)
+    means = {}
+    for model in ("image", "fixed"):
+        cam = CameraOptions(pixel_noise=model)
+        _, _, loop = replay(cam, 0.35, 0.45, 8, t, p, q, record=True)
+        nees = np.array(loop.nees)[1:, 1]
+        means[model] = nees.mean()
+        if model == "image":
+            assert np.mean((nees > lo) & (nees < hi)) > 0.8
+            assert np.mean(nees > hi) < 0.05
+            assert nees.mean() < 9.0, nees.mean()
+            assert loop.resets == []
+    assert means["fixed"] > 1.3 * means["image"], means
+
+
 def test_same_seed_same_bits_other_seed_other_bits():
     t, p, q = figure_eight(3.0)
     a = replay(CameraOptions(), 1.0, 1.0, 5, t, p, q)
