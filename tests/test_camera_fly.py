@@ -60,7 +60,8 @@ def test_degraded_flight_that_diverged_now_resets_instead_of_crashing():
     declared lost when the camera contradicts it, waits on the IMU until a window is
     well-conditioned (it refuses the windows of the take-off hover), re-initializes from the
     measurements only and the flight completes (measured: lost at 3.4 s, re-initialized at
-    4.7 s with a velocity error of 0.03 m/s; largest error 0.47 m)."""
+    4.7 s with a velocity error of 0.004 m/s and a tilt error of 0.14 deg; largest error
+    0.47 m)."""
     off = _degraded_flight(4, reset=False, pixel_noise="fixed")
     assert off.crashed and "3.00 m from the reference" in str(off.crash_reason)
     on = _degraded_flight(4, reset=True, pixel_noise="fixed")
