@@ -4,9 +4,11 @@
 true states at both ends of the step (``s = [p, v, q xyzw, omega_body, ...]``): the step
 makes one IMU sample (:mod:`.imu`) that propagates the filter; a step ending on a frame time
 (every ``1 / rate_hz``) renders the frame from the true pose at that time (:mod:`.render`),
-tracks features (:mod:`.tracker`) and updates the filter (:mod:`.msckf`). The estimate
-(position, velocity, attitude) is the filter's state after the latest step. Nothing here
-uses the emulator's error model.
+tracks features (:mod:`.tracker`), takes each feature's noise from the image (:mod:`.noise`)
+and hands the features to the estimator (:mod:`.estimator`: the MSCKF of :mod:`.msckf`, its
+health checks and re-initialization), which is given the true state once, at the start, and
+only measurements after. The estimate (position, velocity, attitude) is the filter's state
+after the latest step. Nothing here uses the emulator's error model.
 
 Random streams (``SeedSequence(seed)`` children, distinct from the emulator's): IMU noise,
 image noise. The world's texture has its own seed (``camera.texture_seed``).

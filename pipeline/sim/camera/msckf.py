@@ -25,9 +25,11 @@ with ``dtheta_c = dtheta``, ``dp_c = dp - [R t_bc]x dtheta``.
 triangulate ``p_f`` (linear least squares on the rays, then Gauss-Newton on the reprojection
 error), residuals ``r_j = z_j - pi(R_cj^T (p_f - p_cj))``, ``pi(x) = (x_1, x_2) / x_3``, with
 Jacobians ``J_pi R_cj^T [p_f - p_cj]x`` (dtheta_cj), ``-J_pi R_cj^T`` (dp_cj) and ``J_pi R_cj^T``
-(p_f). Projecting on the left null space ``A`` of ``H_f`` removes the feature:
-``r_o = A^T r = A^T H_x dx + A^T n`` (the multi-state constraint). Each feature passes a
-chi-square gate ``r_o^T (H_o P H_o^T + s^2 I)^-1 r_o < chi2_q(2M - 3)``; the stacked
+(p_f). Each observation's rows are divided by its noise std ``s_j`` (per feature and frame,
+:mod:`.noise`), so the noise is ``N(0, I)``. Projecting on the left null space ``A`` of
+``H_f`` removes the feature: ``r_o = A^T r = A^T H_x dx + A^T n`` (the multi-state
+constraint). Each feature passes a chi-square gate ``r_o^T (H_o P H_o^T + I)^-1 r_o <
+chi2_q(2M - 3)``; the stacked
 constraints (on the clone columns only: the IMU columns of ``H`` are zero) enter the EKF
 update through ``H^T H`` and ``H^T r``, which is what a QR compression of a tall stack keeps,
 at a fraction of its cost (``Msckf._ekf_update``); ``P <- P - K S K^T``, symmetrized. A feature is used when its track ends, or when the oldest clone leaves the

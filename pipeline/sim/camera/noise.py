@@ -30,19 +30,29 @@ SOBEL_NOISE = 12.0 / 64.0
 
 def structure_min_eig(img: np.ndarray, pts: np.ndarray, window: int) -> np.ndarray:
     """``lambda_min`` (n,) of the structure tensor summed over the ``window`` x ``window``
-    pixels around each point ``pts`` (n, 2) (module docstring)."""
-    if not len(pts):
+    pixels around each point ``pts`` (n, 2) (module docstring). Only the features' patches
+    are differentiated: they are cut from the image (reflected beyond its border) and
+    stacked into one column image for ``cv2.Sobel``; each patch keeps a one-pixel rim so that
+    its inner ``window`` x ``window`` gradients are those of the whole image."""
+    n = len(pts)
+    if not n:
         return np.zeros(0)
-    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
-    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-    k = (window, window)
-    sxx = cv2.boxFilter(gx * gx, -1, k, normalize=False)
-    syy = cv2.boxFilter(gy * gy, -1, k, normalize=False)
-    sxy = cv2.boxFilter(gx * gy, -1, k, normalize=False)
+    r = window // 2 + 1
+    size = 2 * r + 1  # the window and its rim
+    pad = cv2.copyMakeBorder(img, r, r, r, r, cv2.BORDER_REFLECT_101)
     h, w = img.shape
     x = np.clip(np.rint(pts[:, 0]).astype(int), 0, w - 1)
     y = np.clip(np.rint(pts[:, 1]).astype(int), 0, h - 1)
-    a, c, b = sxx[y, x].astype(float), syy[y, x].astype(float), sxy[y, x].astype(float)
+    off = np.arange(size)
+    patches = pad[(y[:, None] + off)[:, :, None], (x[:, None] + off)[:, None, :]]
+    col = np.ascontiguousarray(patches.reshape(n * size, size))
+    gx = cv2.Sobel(col, cv2.CV_32F, 1, 0, ksize=3, scale=0.125).reshape(n, size, size)
+    gy = cv2.Sobel(col, cv2.CV_32F, 0, 1, ksize=3, scale=0.125).reshape(n, size, size)
+    lo, hi = r - window // 2, r + window // 2 + 1
+    gx, gy = gx[:, lo:hi, lo:hi].astype(float), gy[:, lo:hi, lo:hi].astype(float)
+    a = np.einsum("nij,nij->n", gx, gx)
+    c = np.einsum("nij,nij->n", gy, gy)
+    b = np.einsum("nij,nij->n", gx, gy)
     return 0.5 * ((a + c) - np.sqrt((a - c) ** 2 + 4.0 * b * b))
 
 
