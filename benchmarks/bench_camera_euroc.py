@@ -111,7 +111,7 @@ def main(argv: list[str]) -> None:
         rows = []
         for seed in (0, 1, 2):
             c0 = time.process_time()
-            est, _, _ = replay(cam, 1.0, 1.0, seed, rel, pg, qg)
+            est, _, loop = replay(cam, 1.0, 1.0, seed, rel, pg, qg)
             cpu = time.process_time() - c0
             at = te - offset  # the real estimate's times on the truth clock
             inside = (at >= grid[0]) & (at <= grid[-1])
@@ -121,6 +121,7 @@ def main(argv: list[str]) -> None:
             rows.append((ate_o, rpe_o, cpu))
             print(
                 f"{'':8s} {f'camera loop, seed {seed}':30s} {ate_o:12.3f} {rpe_o:12.4f} {cpu:8.1f}"
+                f"  resets {len(loop.resets)}"
             )
         r = np.array(rows)
         print(

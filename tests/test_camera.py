@@ -86,6 +86,30 @@ def test_consistency_nees_in_band():
     assert nees.mean() < 12.0
 
 
+def test_consistency_degraded_nees_in_band():
+    """The same check in the degraded condition (light 0.35, texture 0.45: longer exposure,
+    more blur and noise, weaker corners), seed 8 (the noise model was calibrated on seeds
+    3, 5, 7): with the pixel noise from the image formation (docs/camera.md) the NEES is
+    within its band on most frames and its mean not above 6 by much; with the fixed 0.3 px
+    the filter is overconfident (measured before: mean 9-19 over seeds 3-7)."""
+    from scipy.stats import chi2
+
+    t, p, q = figure_eight(20.0)
+    lo, hi = chi2.ppf([0.005, 0.995], 6)
+    means = {}
+    for model in ("image", "fixed"):
+        cam = CameraOptions(pixel_noise=model)
+        _, _, loop = replay(cam, 0.35, 0.45, 8, t, p, q, record=True)
+        nees = np.array(loop.nees)[1:, 1]
+        means[model] = nees.mean()
+        if model == "image":
+            assert np.mean((nees > lo) & (nees < hi)) > 0.8
+            assert np.mean(nees > hi) < 0.05
+            assert nees.mean() < 9.0, nees.mean()
+            assert loop.resets == []
+    assert means["fixed"] > 1.3 * means["image"], means
+
+
 def test_same_seed_same_bits_other_seed_other_bits():
     t, p, q = figure_eight(3.0)
     a = replay(CameraOptions(), 1.0, 1.0, 5, t, p, q)
@@ -105,18 +129,24 @@ def _rpe(t, p, est) -> float:
 @pytest.mark.slow
 def test_faster_flight_and_less_light_larger_rpe():
     """Paired by seed: the 1 s RPE grows when the same circle is flown 2.7 times as fast
-    (0.8 to 2.1 m/s: more blur, features cross the image sooner), and when the slow circle
-    is flown in the degraded condition's light (0.35: exposure 4 -> 6 ms, capped, so more
-    blur and, with fewer electrons, more noise)."""
+    (0.8 to 2.1 m/s: more blur, features cross the image sooner), when the slow circle is
+    flown in little light (0.15: the exposure capped at 6 ms, 340 instead of 1500 electrons,
+    so more blur and twice the noise), and in the degraded condition (light 0.35, texture
+    0.45). Measured (seeds 0-2): fast 1.2-1.3x, light 0.15 1.2-1.6x. The degraded light alone
+    (0.35 at full texture) raised it with the fixed 0.3 px noise model; with the noise taken
+    from the image the filter weighs the noisier features less, and at 0.8 m/s its effect
+    (0.8-1.1x) is within the seeds' scatter, so it is not asserted."""
     slow = circle(12.0, 1.0, 8.0)
     fast = circle(12.0, 1.0, 3.0)
     cam = CameraOptions()
     for seed in (0, 1, 2):
         r_slow = _rpe(slow[0], slow[1], replay(cam, 1.0, 1.0, seed, *slow)[0])
         r_fast = _rpe(fast[0], fast[1], replay(cam, 1.0, 1.0, seed, *fast)[0])
-        r_dark = _rpe(slow[0], slow[1], replay(cam, 0.35, 1.0, seed, *slow)[0])
+        r_dark = _rpe(slow[0], slow[1], replay(cam, 0.15, 1.0, seed, *slow)[0])
+        r_degr = _rpe(slow[0], slow[1], replay(cam, 0.35, 0.45, seed, *slow)[0])
         assert r_fast > r_slow, (seed, r_slow, r_fast)
         assert r_dark > r_slow, (seed, r_slow, r_dark)
+        assert r_degr > r_slow, (seed, r_slow, r_degr)
 
 
 @pytest.mark.slow
@@ -124,7 +154,10 @@ def test_weaker_texture_and_more_blur_larger_rpe():
     """Paired by seed: the 1 s RPE grows on a floor of weaker texture (strength 0.3: fewer,
     weaker corners), and with motion blur alone (the fast circle under a 30 ms exposure
     instead of 4 ms, at the same photon count per pixel, so the noise does not change).
-    Measured: texture 2x (0.008 -> 0.015 m), blur 1.8-2.3x (0.009 -> 0.018 m)."""
+    Measured with the noise from the image (seeds 0-2): texture 1.2-1.5x (0.007-0.010 ->
+    0.011-0.013 m), blur 1.4-1.6x (0.009 -> 0.013-0.014 m). (With the fixed 0.3 px model:
+    texture 2x, blur 1.8-2.3x; the image model weighs weak and blurred features less, so
+    they cost less; the texture threshold went from 1.3x to 1.15x for that reason.)"""
     mid = circle(12.0, 1.0, 5.0)
     fast = circle(12.0, 1.0, 3.0)
     cam = CameraOptions()
@@ -134,7 +167,7 @@ def test_weaker_texture_and_more_blur_larger_rpe():
         r_weak = _rpe(mid[0], mid[1], replay(cam, 1.0, 0.3, seed, *mid)[0])
         r_fast = _rpe(fast[0], fast[1], replay(cam, 1.0, 1.0, seed, *fast)[0])
         r_blur = _rpe(fast[0], fast[1], replay(blurred, 1.0, 1.0, seed, *fast)[0])
-        assert r_weak > 1.3 * r_mid, (seed, r_mid, r_weak)
+        assert r_weak > 1.15 * r_mid, (seed, r_mid, r_weak)
         assert r_blur > 1.3 * r_fast, (seed, r_fast, r_blur)
 
 
@@ -191,17 +224,22 @@ def test_diverged_filter_is_detected_and_reinitialized():
 def test_lost_filter_reinitializes_when_the_scene_returns():
     """A lens cap long enough for the position std to pass ``reset_sigma_position``: the
     filter is lost, waits in the dark (no features to initialize on), and restarts at the
-    first frame with enough features; no NaN; its covariance is the prior again."""
+    first well-conditioned window (measurements only); no NaN; its covariance shrinks back."""
     t, p, q = figure_eight(14.0)
     cam = CameraOptions(lens_cap=[(4.0, 9.0)], reset_sigma_position=0.15)
     est, _, loop = replay(cam, 1.0, 1.0, 0, t, p, q, record=True)
     assert np.isfinite(est).all()
     assert len(loop.resets) == 1, loop.resets
     t_reset, why = loop.resets[0]
-    assert 9.0 <= t_reset < 9.5 and why.startswith("covariance"), loop.resets
+    # the closed-form re-initialization waits for enough frames with tracks after the cap
+    # (measured: refused until 9.65 s, the velocity std too large; then errors 0.04 m/s, 0.2 deg)
+    assert 9.0 <= t_reset < 10.0 and why.startswith("covariance"), loop.resets
     ts, sig = np.array(loop.nees)[:, [0, 3]].T
-    assert sig[(ts > 8.5) & (ts < 9.0)].min() > 0.15
-    assert sig[ts > t_reset].max() < 0.05
+    assert sig[(ts > 8.8) & (ts < 9.0)].min() > 0.15
+    # the new filter's velocity std is the re-initialization's (measured peak of the
+    # position std after it: 0.08 m), then the camera pins it down again
+    assert sig[ts > t_reset].max() < 0.12
+    assert sig[ts > t_reset + 2.0].max() < 0.02
 
 
 def test_fast_on_free_cells_finds_the_whole_images_corners():

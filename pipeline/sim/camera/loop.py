@@ -4,9 +4,11 @@
 true states at both ends of the step (``s = [p, v, q xyzw, omega_body, ...]``): the step
 makes one IMU sample (:mod:`.imu`) that propagates the filter; a step ending on a frame time
 (every ``1 / rate_hz``) renders the frame from the true pose at that time (:mod:`.render`),
-tracks features (:mod:`.tracker`) and updates the filter (:mod:`.msckf`). The estimate
-(position, velocity, attitude) is the filter's state after the latest step. Nothing here
-uses the emulator's error model.
+tracks features (:mod:`.tracker`), takes each feature's noise from the image (:mod:`.noise`)
+and hands the features to the estimator (:mod:`.estimator`: the MSCKF of :mod:`.msckf`, its
+health checks and re-initialization), which is given the true state once, at the start, and
+only measurements after. The estimate (position, velocity, attitude) is the filter's state
+after the latest step. Nothing here uses the emulator's error model.
 
 Random streams (``SeedSequence(seed)`` children, distinct from the emulator's): IMU noise,
 image noise. The world's texture has its own seed (``camera.texture_seed``).
@@ -28,15 +30,17 @@ import numpy as np
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.rotations import quat_to_matrix
 from qsls.pipeline.core.units import NS
-from qsls.pipeline.sim.camera.geometry import camera_in_body, matrix_quat, so3_exp, so3_log
+from qsls.pipeline.sim.camera.estimator import Estimator
+from qsls.pipeline.sim.camera.geometry import camera_in_body, matrix_quat, so3_log
 from qsls.pipeline.sim.camera.imu import Imu, true_rates
 from qsls.pipeline.sim.camera.msckf import Msckf
+from qsls.pipeline.sim.camera.noise import pixel_sigma
 from qsls.pipeline.sim.camera.options import CameraOptions
 from qsls.pipeline.sim.camera.render import Renderer
 from qsls.pipeline.sim.camera.tracker import Tracker
 from qsls.pipeline.sim.camera.world import build_world
 
-_STREAM_IMU, _STREAM_IMAGE, _STREAM_RESET = 101, 102, 103
+_STREAM_IMU, _STREAM_IMAGE = 101, 102
 MIN_VISIBLE = 0.3
 """Least fraction of the image on a textured plane at the start pose (else refused)."""
 
@@ -83,10 +87,10 @@ class CameraVio:
             np.random.SeedSequence([int(seed), _STREAM_IMAGE]),
         )  # fmt: skip
         self.tracker = Tracker(cam)
-        self.filter: Msckf | None = None
-        self._reset_rng = np.random.default_rng(np.random.SeedSequence([int(seed), _STREAM_RESET]))
-        self.resets: list[tuple[float, str]] = []
-        """Re-initializations: (time s, why) (:meth:`_reinitialize`)."""
+        self.estimator: Estimator | None = None
+        self.reset_errors: list[tuple[float, float, float]] = []
+        """Per re-initialization (evaluation only, never seen by the estimator): (time s,
+        velocity error m/s, tilt error deg) of the new estimate against the truth."""
         self.step_index = 0
         self.frames = 0
         self.features_sum = 0
@@ -118,9 +122,21 @@ class CameraVio:
         return frac
 
     # ------------------------------------------------------------------ running
+    @property
+    def filter(self) -> Msckf | None:
+        """The estimator's current MSCKF."""
+        return None if self.estimator is None else self.estimator.filter
+
+    @property
+    def resets(self) -> list[tuple[float, str]]:
+        """Re-initializations: (time s, why) (:class:`.estimator.Estimator`)."""
+        return [] if self.estimator is None else self.estimator.resets
+
     def start(self, s0: np.ndarray) -> None:
-        """Initialize the filter at the true start state (a VIO initialized at rest)."""
-        self.filter = Msckf(
+        """Start the estimator at the true start state (a VIO initialized at rest: the
+        estimate's world frame is the start pose); after this the estimator sees only the
+        IMU samples and the tracked features."""
+        self.estimator = Estimator(
             self.cam, self.r_bc, self.t_bc, self.gravity,
             quat_to_matrix(s0[6:10]), s0[0:3].astype(float), s0[3:6].astype(float),
         )  # fmt: skip
@@ -131,8 +147,8 @@ class CameraVio:
 
     def step(self, s0: np.ndarray, s1: np.ndarray) -> None:
         """One physics step from true state ``s0`` to ``s1`` (module docstring)."""
-        flt = self.filter
-        assert flt is not None
+        est = self.estimator
+        assert est is not None
         h = self.h_ns / NS
         c0 = time.process_time()
         r0 = self._r_last if self._s_last is s0 else quat_to_matrix(s0[6:10])
@@ -141,7 +157,7 @@ class CameraVio:
         omega, acc = true_rates(r0, r1, s0[3:6], s1[3:6], h, self.gravity)
         wm, am = self.imu.measure(omega, acc)
         c1 = time.process_time()
-        flt.propagate(wm, am, h)
+        est.propagate(wm, am, h)
         self.seconds["imu"] += c1 - c0
         self.seconds["filter"] += time.process_time() - c1
         self.step_index += 1
@@ -149,8 +165,8 @@ class CameraVio:
             self._frame(s1, self.step_index * h, r1)
 
     def _frame(self, s: np.ndarray, t: float, r_wb: np.ndarray | None = None) -> None:
-        flt = self.filter
-        assert flt is not None
+        est = self.estimator
+        assert est is not None
         r_wb = quat_to_matrix(s[6:10]) if r_wb is None else r_wb
         dark = any(a <= t < b for a, b in self.dark)
         c0 = time.process_time()
@@ -158,14 +174,17 @@ class CameraVio:
         c1 = time.process_time()
         self._digest.update(img.tobytes())
         ids, pts = self.tracker.track(img)
+        if self.cam.pixel_noise == "image":
+            sig_px = pixel_sigma(self.cam, img, pts, self.renderer.electrons)
+        else:
+            sig_px = np.full(len(ids), self.cam.pixel_sigma)
         c2 = time.process_time()
         k = self.renderer.k
         uv = (pts.astype(float) - k[:2, 2]) / self.cam.focal_px
-        flt.process_frame(self.frames, ids, uv)
-        if self.cam.reset and len(ids) >= self.cam.reset_min_features:
-            why = flt.health()
-            if why is not None:
-                self._reinitialize(s, r_wb, t, why)
+        n_resets = len(est.resets)
+        est.frame(t, ids, uv, sig_px / self.cam.focal_px)
+        if len(est.resets) > n_resets:
+            self.reset_errors.append((t, *self._errors(s, r_wb)))
         c3 = time.process_time()
         self.seconds["render"] += c1 - c0
         self.seconds["track"] += c2 - c1
@@ -178,25 +197,14 @@ class CameraVio:
         if self.record_nees:
             self.nees.append((t, *self.nees_now(s, r_wb)))
 
-    def _reinitialize(self, s: np.ndarray, r_wb: np.ndarray, t: float, why: str) -> None:
-        """Restart a diverged or lost filter (:meth:`Msckf.health`) the way a VIO
-        re-initializes once it tracks a scene again: a fresh filter with the initial prior,
-        empty window and zero biases; velocity and tilt (roll, pitch) as an initialization
-        recovers them, the true ones plus an error drawn from that prior (seeded); position
-        and yaw, which no initialization can recover, kept from the lost estimate (the new
-        estimate is anchored where the old one was)."""
-        old = self.filter
-        assert old is not None
-        cam = self.cam
-        z = self._reset_rng.standard_normal(6)
-        tilt = math.radians(cam.init_sigma_tilt_deg) * np.array([z[0], z[1], 0.0])
-        dyaw = math.atan2(old.R[1, 0], old.R[0, 0]) - math.atan2(r_wb[1, 0], r_wb[0, 0])
-        r0 = so3_exp(tilt) @ so3_exp(np.array([0.0, 0.0, dyaw])) @ r_wb
-        v0 = s[3:6] + cam.init_sigma_velocity * z[3:6]
-        new = Msckf(cam, self.r_bc, self.t_bc, self.gravity, r0, old.p.copy(), v0)
-        new.used_features, new.gated_features = old.used_features, old.gated_features
-        self.filter = new
-        self.resets.append((t, why))
+    def _errors(self, s: np.ndarray, r_wb: np.ndarray) -> tuple[float, float]:
+        """Velocity error (m/s) and tilt error (deg: the angle between the estimated and the
+        true gravity direction in the body frame) of the estimate against the truth ``s``."""
+        flt = self.filter
+        assert flt is not None
+        dv = float(np.linalg.norm(flt.v - s[3:6]))
+        cos = float(np.clip(flt.R[2] @ r_wb[2], -1.0, 1.0))
+        return dv, math.degrees(math.acos(cos))
 
     def nees_now(self, s: np.ndarray, r_wb: np.ndarray) -> tuple[float, float, float]:
         """Normalized estimation error squared of ``[p, v]`` (6 dof) and of the attitude
@@ -237,6 +245,9 @@ class CameraVio:
             "ransac_rejected": self.tracker.rejected,
             "resets": len(self.resets),
             "reset_times_s": [round(t, 3) for t, _ in self.resets],
+            "reset_refusals": len(self.estimator.init_refusals) if self.estimator else 0,
+            "reset_velocity_error": [round(e, 4) for _, e, _ in self.reset_errors],
+            "reset_tilt_error_deg": [round(e, 4) for _, _, e in self.reset_errors],
             "frames_sha256": self._digest.hexdigest(),
         }
 

@@ -25,9 +25,11 @@ with ``dtheta_c = dtheta``, ``dp_c = dp - [R t_bc]x dtheta``.
 triangulate ``p_f`` (linear least squares on the rays, then Gauss-Newton on the reprojection
 error), residuals ``r_j = z_j - pi(R_cj^T (p_f - p_cj))``, ``pi(x) = (x_1, x_2) / x_3``, with
 Jacobians ``J_pi R_cj^T [p_f - p_cj]x`` (dtheta_cj), ``-J_pi R_cj^T`` (dp_cj) and ``J_pi R_cj^T``
-(p_f). Projecting on the left null space ``A`` of ``H_f`` removes the feature:
-``r_o = A^T r = A^T H_x dx + A^T n`` (the multi-state constraint). Each feature passes a
-chi-square gate ``r_o^T (H_o P H_o^T + s^2 I)^-1 r_o < chi2_q(2M - 3)``; the stacked
+(p_f). Each observation's rows are divided by its noise std ``s_j`` (per feature and frame,
+:mod:`.noise`), so the noise is ``N(0, I)``. Projecting on the left null space ``A`` of
+``H_f`` removes the feature: ``r_o = A^T r = A^T H_x dx + A^T n`` (the multi-state
+constraint). Each feature passes a chi-square gate ``r_o^T (H_o P H_o^T + I)^-1 r_o <
+chi2_q(2M - 3)``; the stacked
 constraints (on the clone columns only: the IMU columns of ``H`` are zero) enter the EKF
 update through ``H^T H`` and ``H^T r``, which is what a QR compression of a tall stack keeps,
 at a fraction of its cost (``Msckf._ekf_update``); ``P <- P - K S K^T``, symmetrized. A feature is used when its track ends, or when the oldest clone leaves the
@@ -55,6 +57,7 @@ I3 = np.eye(3)
 class Track:
     clones: list[int] = field(default_factory=list)  # frame ids
     uv: list[tuple[float, float]] = field(default_factory=list)  # normalized image points
+    sig: list[float] = field(default_factory=list)  # their noise std (normalized units)
 
 
 def _projection_jacobian(
@@ -173,8 +176,10 @@ class Msckf:
 
     def __init__(
         self, cam: CameraOptions, r_bc: np.ndarray, t_bc: np.ndarray, gravity: float,
-        r0: np.ndarray, p0: np.ndarray, v0: np.ndarray,
+        r0: np.ndarray, p0: np.ndarray, v0: np.ndarray, p_init: np.ndarray | None = None,
     ) -> None:  # fmt: skip
+        """Start at ``(r0, p0, v0)``, zero biases, covariance ``p_init`` (15, 15) or the
+        initial prior of ``cam`` (``init_sigma_*``)."""
         self.cam = cam
         self.r_bc, self.t_bc = r_bc, t_bc
         self.g = np.array([0.0, 0.0, -gravity])
@@ -188,6 +193,8 @@ class Msckf:
             + [cam.init_sigma_gyro_bias**2] * 3
             + [cam.init_sigma_accel_bias**2] * 3
         )
+        if p_init is not None:
+            self.P = np.array(p_init, dtype=float)
         self.clone_ids: list[int] = []
         self.clone_R = np.zeros((0, 3, 3))  # (N, 3, 3) camera to world
         self.clone_p = np.zeros((0, 3))  # (N, 3) camera centres
@@ -297,23 +304,28 @@ class Msckf:
             return f"covariance: position std {sigma:.2f} m"
         return None
 
-    def process_frame(self, frame_id: int, ids: np.ndarray, uv: np.ndarray) -> None:
+    def process_frame(
+        self, frame_id: int, ids: np.ndarray, uv: np.ndarray, sigma: np.ndarray | None = None
+    ) -> None:
         """Propagate ``P`` to the frame, clone, add the observations ``uv`` (normalized, (n,
-        2)) of features ``ids``, update with the finished tracks, slide the window."""
+        2)) of features ``ids`` with noise std ``sigma`` (n,) (normalized; None: the fixed
+        ``pixel_sigma``), update with the finished tracks, slide the window."""
         u0, g0 = self.used_features, self.gated_features
-        self._frame(frame_id, ids, uv)
+        sig = np.full(len(ids), self.sigma) if sigma is None else sigma
+        self._frame(frame_id, ids, uv, sig)
         self._recent.append((self.used_features - u0, self.gated_features - g0))
 
-    def _frame(self, frame_id: int, ids: np.ndarray, uv: np.ndarray) -> None:
+    def _frame(self, frame_id: int, ids: np.ndarray, uv: np.ndarray, sig: np.ndarray) -> None:
         self._apply_propagation()
         self._clone(frame_id)
         seen = set()
-        for i, fid in enumerate(ids.tolist()):
+        for i, (fid, s) in enumerate(zip(ids.tolist(), sig.tolist(), strict=True)):
             tr = self.tracks.get(fid)
             if tr is None:
                 tr = self.tracks[fid] = Track()
             tr.clones.append(frame_id)
             tr.uv.append((float(uv[i, 0]), float(uv[i, 1])))
+            tr.sig.append(s)
             seen.add(fid)
         use: list[Track] = []
         for fid in [k for k in self.tracks if k not in seen]:
@@ -326,7 +338,7 @@ class Msckf:
             for fid, tr in self.tracks.items():
                 if tr.clones and tr.clones[0] == oldest:
                     if len(tr.clones) >= self.cam.min_track:
-                        use.append(Track(tr.clones, tr.uv))
+                        use.append(Track(tr.clones, tr.uv, tr.sig))
                     self.tracks[fid] = Track()
         if use:
             self._update(use)
@@ -340,7 +352,7 @@ class Msckf:
         self.clone_R, self.clone_p = self.clone_R[1:], self.clone_p[1:]
         for tr in self.tracks.values():
             while tr.clones and tr.clones[0] < self.clone_ids[0]:
-                del tr.clones[0], tr.uv[0]
+                del tr.clones[0], tr.uv[0], tr.sig[0]
 
     def _update(self, tracks: list[Track]) -> None:
         """EKF update with the tracks' constraints, all features in one batch (shorter
@@ -354,14 +366,14 @@ class Msckf:
         f = len(tracks)
         cidx = np.zeros((f, m), np.int64)
         z = np.zeros((f, m, 2))
-        w = np.zeros((f, m))
+        w = np.zeros((f, m))  # 1 / noise std of each observation (whitening), 0: padding
         for i, tr in enumerate(tracks):
             k = len(tr.clones)
             cidx[i, :k] = [pos[c] for c in tr.clones]
             cidx[i, k:] = cidx[i, k - 1]
             z[i, :k] = tr.uv
             z[i, k:] = tr.uv[-1]
-            w[i, :k] = 1.0
+            w[i, :k] = 1.0 / np.asarray(tr.sig)
         rc, pc = self.clone_R[cidx], self.clone_p[cidx]
         span = np.linalg.norm(pc - pc.mean(axis=1, keepdims=True), axis=2).max(axis=1)
         pf, ok = triangulate(rc, pc, z, w)
@@ -375,11 +387,11 @@ class Msckf:
         k = 2 * m - 3
         cols = (6 * cidx[:, :, None] + np.arange(6)[None, None, :]).reshape(f, 6 * m)
         hc = ho.reshape(f, k, 6 * m)
-        # gate on the feature's own clones: S = H_c P_cc H_c^T + s^2 I, dof 2 M_f - 3
+        # gate on the feature's own clones: S = H_c P_cc H_c^T + I (whitened), dof 2 M_f - 3
         pcc = self.P[15:, 15:][cols[:, :, None], cols[:, None, :]]
-        s = hc @ pcc @ np.swapaxes(hc, 1, 2) + self.sigma**2 * np.eye(k)
+        s = hc @ pcc @ np.swapaxes(hc, 1, 2) + np.eye(k)
         gamma = np.einsum("fi,fi->f", ro, np.linalg.solve(s, ro[..., None])[..., 0])
-        dof = 2 * w.sum(axis=1).astype(int) - 3
+        dof = 2 * (w > 0).sum(axis=1) - 3
         good = gamma < np.array([self._gate(int(d)) for d in dof])
         self.gated_features += int((~good).sum())
         g = int(good.sum())
@@ -397,10 +409,11 @@ class Msckf:
 
     def _ekf_update(self, m: np.ndarray, b: np.ndarray) -> None:
         """EKF update with the stacked constraints ``r = H_c dx_c + n`` on the clone columns,
-        given as ``M = H_c^T H_c`` and ``b = H_c^T r`` (``_update``). With the push-through
-        identity ``H_c^T (H_c P_cc H_c^T + s^2 I)^-1 = (M P_cc + s^2 I)^-1 H_c^T``::
+        given as ``M = H_c^T H_c`` and ``b = H_c^T r`` (``_update``), whitened (each
+        observation's rows divided by its noise std, so the noise is ``N(0, I)``). With the
+        push-through identity ``H_c^T (H_c P_cc H_c^T + I)^-1 = (M P_cc + I)^-1 H_c^T``::
 
-            X = (M P_cc + s^2 I)^-1 [b | M P_c:],   dx = P_:c X_b,   P <- P - P_:c X_P
+            X = (M P_cc + I)^-1 [b | M P_c:],   dx = P_:c X_b,   P <- P - P_:c X_P
 
         (``K r`` and ``K S K^T = K H P`` of the Kalman update), then ``P`` symmetrized. This
         is the update after a QR compression of ``H_c`` (the same ``M`` and ``b``) without
@@ -408,7 +421,7 @@ class Msckf:
         P = self.P
         pc = P[15:]  # P_c: (6 N, n)
         a = m @ pc[:, 15:]
-        a[np.diag_indices_from(a)] += self.sigma**2
+        a[np.diag_indices_from(a)] += 1.0  # the constraints are whitened (unit noise)
         x = np.linalg.solve(a, np.column_stack([b, m @ pc]))
         dx = pc.T @ x[:, 0]
         self.P = P - pc.T @ x[:, 1:]

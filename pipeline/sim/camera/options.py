@@ -9,6 +9,8 @@ m/s^3/sqrt(Hz)) at 200 Hz.
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field, model_validator
 
 from qsls.pipeline.core.config import Options
@@ -120,8 +122,18 @@ class CameraOptions(Options):
     # ---------------------------------------------------------------- filter
     window: int = Field(10, ge=3, le=30)
     """Camera clones in the sliding window."""
+    pixel_noise: Literal["image", "fixed"] = "image"
+    """Feature measurement noise the filter assumes: ``image``, per feature and frame from the
+    image formation (:mod:`.noise`: the structure tensor around the feature and the camera's
+    gain); ``fixed``, ``pixel_sigma`` for every feature."""
     pixel_sigma: float = Field(0.3, gt=0)
-    """Feature measurement noise (px) the filter assumes."""
+    """Feature measurement noise (px) of the ``fixed`` model."""
+    pixel_sigma_floor: float = Field(0.1, gt=0)
+    """``image`` model: the floor ``sigma_0`` (px)."""
+    pixel_noise_scale: float = Field(2.0, gt=0)
+    """``image`` model: ``k``, the factor on the Cramer-Rao bound of the KLT alignment."""
+    pixel_sigma_max: float = Field(3.0, gt=0)
+    """``image`` model: the largest std assumed (px)."""
     min_track: int = Field(3, ge=2)
     """Observations a feature needs before it constrains the clones."""
     min_parallax_ratio: float = Field(0.02, gt=0)
@@ -153,6 +165,20 @@ class CameraOptions(Options):
     reset_min_features: int = Field(20, ge=1)
     """Re-initialization waits until the tracker holds this many features (as a real VIO's
     initialization needs a tracked scene)."""
+    init_window_s: float = Field(1.0, gt=0)
+    """Re-initialization (:mod:`.vinit`): the window of frames and IMU samples it solves."""
+    init_min_features: int = Field(20, ge=3)
+    """... at least this many features seen in 3 frames of the window, ..."""
+    init_max_sigma_velocity: float = Field(0.2, gt=0)
+    """... the velocity's std (m/s) at most this, ..."""
+    init_max_sigma_tilt_deg: float = Field(2.0, gt=0)
+    """... the tilt's std (deg) at most this, ..."""
+    init_max_residual: float = Field(3.0, gt=0)
+    """... and the whitened residuals' RMS at most this; else it retries at the next frame."""
+    init_sigma_scale: float = Field(2.5, gt=0)
+    """Factor on the solution's standard deviations (its least squares takes the tracks'
+    errors as independent; measured on the figure eight, its errors are about 4 times the
+    independent-error std)."""
 
     @model_validator(mode="after")
     def _budget(self) -> CameraOptions:
