@@ -103,7 +103,7 @@ def _default_ripples() -> list[Ripple]:
 
 
 class VioParams(Options):
-    """Every parameter of the VIO emulator (all in the config; see the module docstring)."""
+    """Every parameter of the VIO emulator (all in the config; see :mod:`qsls.pipeline.sim.vio`)."""
 
     # switches
     bias: bool = True
@@ -115,10 +115,10 @@ class VioParams(Options):
     feature_loss: bool = True
     perception: Literal["regular", "degraded"] = "regular"
     kind: Literal["emulator", "camera"] = "emulator"
-    """Where the estimate comes from: ``emulator`` (the error model of this module) or
-    ``camera`` (a rendered camera, an IMU and an MSCKF: :mod:`qsls.pipeline.sim.camera`,
-    parameters in ``camera``; ``perception`` and the presets' light and texture keep their
-    meaning, the error-model parameters below are not used)."""
+    """Where the estimate comes from: ``emulator`` (the error model of
+    :mod:`qsls.pipeline.sim.vio`) or ``camera`` (a rendered camera, an IMU and an MSCKF:
+    :mod:`qsls.pipeline.sim.camera`, parameters in ``camera``; ``perception`` and the presets'
+    light and texture keep their meaning, the error-model parameters below are not used)."""
     camera: CameraOptions = CameraOptions()
     """The camera loop's parameters (``kind: camera``)."""
 

@@ -79,6 +79,9 @@ switching one part off leaves the others' values unchanged (and with the three m
 off and the first design's ridges, :data:`FIRST_RIDGES`, the errors are bit for bit those of
 the emulator before the motion parts existed; the default ridges were recalibrated after);
 the same seed gives the same errors.
+
+The parameters (:class:`VioParams`, the ridges and ripples) are defined in
+:mod:`qsls.pipeline.sim.options`, which loads no simulator, and re-exported here.
 """
 
 from __future__ import annotations
