@@ -219,3 +219,24 @@ def test_run_config_sections_are_the_stage_commands_option_models(work):
     assert out.stdout.strip() == "[]"
     with pytest.raises(ConfigError, match=r"cfg: synth: unknown option 'TT'; did you mean 'T'\?"):
         load_run_config(_write(work / "cfg", synth={"TT": 6}))
+
+
+def test_a_run_config_made_in_python_lays_each_flight_over_its_sections(tmp_path):
+    """Without a file, the sections as written are the keys set on the models: the flight's
+    own options still lie over them, and the record holds only those keys."""
+    from qsls.pipeline.ingest.options import IngestOptions
+    from qsls.pipeline.run.runner import FlightSpec, RunConfig
+    from qsls.pipeline.sim.options import SimOptions
+
+    rc = RunConfig(
+        name="py",
+        simulate=SimOptions(duration=2, vio={"noise": False}),
+        ingest=IngestOptions(dt=0.2),
+        flights=[FlightSpec(name="s", simulate={"seed": 4, "vio": {"perception": "degraded"}})],
+    )
+    assert rc.written("simulate") == {"duration": 2.0, "vio": {"noise": False}}
+    assert rc.record()["ingest"] == {"dt": 0.2} and rc.record()["sweep"] is None
+    by = {s.id: s.options for s in plan(rc, tmp_path / "run.yaml", tmp_path / "out").stages}
+    sim = by["simulate/s"]
+    assert (sim.duration, sim.seed, sim.vio.noise, sim.vio.perception) == (2.0, 4, False, "degraded")
+    assert sim.vio.outliers and by["ingest/s"]["options"].dt == 0.2
