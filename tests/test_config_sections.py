@@ -1,7 +1,8 @@
 """One YAML section, two readers: a ``qsls run`` config's ``sweep:`` and ``evaluate:`` sections
 (with the keys that say where and how to run: ``jobs``, ``scheduler``, ``wait_workers``,
-``fly``) work unchanged for the stage command with ``--config``, and the other way round; a
-misspelled key is the same one-line error from both."""
+``fly``) and its ``simulate:`` and ``ingest:`` sections (the bases of every flight's own) work
+unchanged for the stage command with ``--config``, and the other way round; a misspelled key
+is the same one-line error from both."""
 
 from __future__ import annotations
 
@@ -18,6 +19,8 @@ from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.run.runner import load_run_config, plan, run
 from tests.test_runner_direct import BASE, _flights
 
+SIMULATE = {"duration": 2, "vio": {"noise": False}, "log": {"format": "mcap"}}
+INGEST = {"dt": 0.1, "align": "4dof", "time_offset": -0.137, "min_overlap": 1.0}
 SWEEP = {"grid": {"S": [0.0, 0.01]}, "T": 6, "eps_e": 0.05, "radius": 1.0, "s_max_curve": False, "jobs": 2}
 EVALUATE = {"figures": False, "smooth_s": 0.5, "fly": {"seeds": [3], "jobs": 1, "duration": 5}}
 
@@ -117,6 +120,65 @@ def test_sweep_section_splits_into_the_sweeps_options_and_where_it_runs():
     assert not {"jobs", "scheduler", "wait_workers"} & set(opts.model_dump())
 
 
+def test_the_simulate_and_ingest_sections_work_for_their_commands_and_under_each_flight(work):
+    """A simulated flight of a run is its own ``simulate:`` laid over the section; the stage
+    commands reading the same file (the flight's keys given on the command line) write the
+    same options, the same bag and the same flight table."""
+    flight = {"name": "s", "simulate": {"seed": 4, "vio": {"perception": "degraded"}}}
+    cfg = _write(work / "cfg", simulate=SIMULATE, ingest=INGEST, flights=[flight],
+                 stages=["simulate", "ingest"])  # fmt: skip
+    ran = run(cfg, out=work / "run")
+    assert {o.id for o in ran.outcomes if o.status == "ran"} == {"simulate/s", "ingest/s"}
+    in_run = _manifest(work / "run" / "simulate" / "s")["options"]
+    # the flight's keys and the section's, merged (vio: both)
+    assert (in_run["seed"], in_run["duration"], in_run["log"]["format"]) == (4, 2.0, "mcap")
+    assert (in_run["vio"]["perception"], in_run["vio"]["noise"]) == ("degraded", False)
+    res = _cli("simulate", "--config", cfg, "--seed", 4, "--perception", "degraded",
+               "--out", work / "alone")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert _manifest(work / "alone")["options"] == in_run
+    bag = (work / "alone" / "flight.mcap").read_bytes()
+    assert bag == (work / "run" / "simulate" / "s" / "flight.mcap").read_bytes()
+    res = _cli("ingest", work / "alone" / "flight.mcap", "--config", cfg, "--out", work / "ing")
+    assert res.exit_code == 0, res.output
+    options = _manifest(work / "ing")["options"]
+    assert options == _manifest(work / "run" / "ingest" / "s")["options"]
+    assert (options["min_overlap"], options["time_offset"]) == (1.0, -0.137)
+    table = (work / "ing" / "flight.parquet").read_bytes()
+    assert table == (work / "run" / "ingest" / "s" / "flight.parquet").read_bytes()
+    # a flight's own keys are still checked when planned, the error naming the flight
+    bad = {**flight, "simulate": {"vio": {"perceptoin": "degraded"}}}
+    cfg = _write(work / "cfg", simulate=SIMULATE, flights=[bad])
+    with pytest.raises(ConfigError, match=r"\(flight 's'\): unknown option 'vio.perceptoin'"):
+        plan(load_run_config(cfg), cfg, work / "p")
+
+
+@pytest.mark.parametrize(
+    "key, section, message",
+    [
+        ("simulate", {**SIMULATE, "vio": {"noize": 0.1}},
+         "unknown option 'vio.noize'; did you mean 'noise'?"),
+        ("simulate", {**SIMULATE, "duratoin": 3}, "unknown option 'duratoin'; did you mean 'duration'?"),
+        # a base must be valid alone, as for the stage command: the default outlier_max is 1
+        ("simulate", {"vio": {"outlier_min": 2.0}},
+         "'vio.outlier_max': outlier_max (1.0) must be >= outlier_min (2.0)"),
+        ("ingest", {**INGEST, "algin": "se3"}, "unknown option 'algin'; did you mean 'align'?"),
+        ("ingest", {**INGEST, "dt": -1}, "'dt': Input should be greater than 0"),
+    ],
+)  # fmt: skip
+def test_a_bad_simulate_or_ingest_section_is_one_error_naming_it_from_both(
+    work, key, section, message
+):
+    cfg = _write(work / "cfg", **{key: section})
+    escaped = message.replace("(", r"\(").replace(")", r"\)").replace("?", r"\?")
+    # when the config is read, before any flight is planned
+    with pytest.raises(ConfigError, match=f"cfg: {key}: {escaped}"):
+        load_run_config(cfg)
+    res = _cli(key, "--config", cfg, "--out", work / "o")
+    assert res.exit_code == 2 and message in res.output and "Traceback" not in res.output
+    assert not (work / "o").exists()
+
+
 def test_run_config_sections_are_the_stage_commands_option_models(work):
     """``RunConfig`` holds each stage section as the very model the stage command reads with
     ``--config`` (equal objects from one file), records them as written, names the section in
@@ -128,23 +190,53 @@ def test_run_config_sections_are_the_stage_commands_option_models(work):
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.errormodel.options import FitOptions
     from qsls.pipeline.evaluate.section import EvaluateSection
+    from qsls.pipeline.ingest.stage import IngestOptions
+    from qsls.pipeline.sim.simulate import SimOptions
 
     synth = {"T": 6, "R": [10, 10, 1], "S": 0.05}
-    cfg = _write(work / "cfg", sweep=SWEEP, evaluate=EVALUATE, synth=synth, fit={"radius": 0.8})
+    cfg = _write(work / "cfg", sweep=SWEEP, evaluate=EVALUATE, synth=synth, fit={"radius": 0.8},
+                 simulate=SIMULATE, ingest=INGEST)  # fmt: skip
     rc = load_run_config(cfg)
     for key, model in (("fit", FitOptions), ("synth", SynthOptions), ("sweep", SweepSection),
-                       ("evaluate", EvaluateSection)):  # fmt: skip
+                       ("evaluate", EvaluateSection), ("simulate", SimOptions),
+                       ("ingest", IngestOptions)):  # fmt: skip
         section = getattr(rc, key)
         assert type(section) is model and section == load_options(model, cfg, section=key)
     assert rc.synth is not None and rc.synth.R == [[10, 0, 0], [0, 10, 0], [0, 0, 1]]
-    assert rc.record()["synth"] == synth and rc.record()["fit"] == {"radius": 0.8}
+    assert (rc.simulate.duration, rc.simulate.vio.noise, rc.ingest.min_overlap) == (2.0, False, 1.0)
+    record = rc.record()
+    assert record["synth"] == synth and record["fit"] == {"radius": 0.8}
+    # as written, not the models' dumps (a default added to a model does not plan anew)
+    assert (record["simulate"], record["ingest"]) == (SIMULATE, INGEST)
+    assert load_run_config(_write(work / "cfg")).record()["simulate"] == {}
     code = (
         "import sys; from qsls.pipeline.run.runner import load_run_config; "
         f"load_run_config({str(cfg)!r}); "
         "print(sorted({m.split('.')[0] for m in sys.modules} & {'cvxpy', 'scipy', 'pandas', "
-        "'matplotlib', 'rotorpy', 'pyarrow', 'clarabel', 'dask'}))"
+        "'matplotlib', 'rotorpy', 'pyarrow', 'clarabel', 'dask', 'cv2', 'rosbags', 'mcap'}))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
     with pytest.raises(ConfigError, match=r"cfg: synth: unknown option 'TT'; did you mean 'T'\?"):
         load_run_config(_write(work / "cfg", synth={"TT": 6}))
+
+
+def test_a_run_config_made_in_python_lays_each_flight_over_its_sections(tmp_path):
+    """Without a file, the sections as written are the keys set on the models: the flight's
+    own options still lie over them, and the record holds only those keys."""
+    from qsls.pipeline.ingest.options import IngestOptions
+    from qsls.pipeline.run.runner import FlightSpec, RunConfig
+    from qsls.pipeline.sim.options import SimOptions
+
+    rc = RunConfig(
+        name="py",
+        simulate=SimOptions(duration=2, vio={"noise": False}),
+        ingest=IngestOptions(dt=0.2),
+        flights=[FlightSpec(name="s", simulate={"seed": 4, "vio": {"perception": "degraded"}})],
+    )
+    assert rc.written("simulate") == {"duration": 2.0, "vio": {"noise": False}}
+    assert rc.record()["ingest"] == {"dt": 0.2} and rc.record()["sweep"] is None
+    by = {s.id: s.options for s in plan(rc, tmp_path / "run.yaml", tmp_path / "out").stages}
+    sim = by["simulate/s"]
+    assert (sim.duration, sim.seed, sim.vio.noise, sim.vio.perception) == (2.0, 4, False, "degraded")
+    assert sim.vio.outliers and by["ingest/s"]["options"].dt == 0.2

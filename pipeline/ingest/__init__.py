@@ -10,7 +10,7 @@ from qsls.pipeline.core.api import lazy_api
 __all__, __getattr__ = lazy_api(
     __name__,
     {
-        "IngestOptions": "stage",
+        "IngestOptions": "options",
         "IngestResult": "stage",
         "ingest": "stage",
         "estimate_offset": "timesync",

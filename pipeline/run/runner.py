@@ -35,10 +35,12 @@ from qsls.pipeline.core.locks import (
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.options import FitOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
+from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.report.stage import RUN_FILE
 from qsls.pipeline.run.graph import Stage, StageGraph, StageOutcome, run_versions
 from qsls.pipeline.run.memo import fingerprint, planned_graph
 from qsls.pipeline.run.paths import resolve_path
+from qsls.pipeline.sim.options import SimOptions
 
 # (stage id, "running" | "ran" | "skipped", index, count, why it ran)
 OnStage = Callable[[str, str, int, int, str], None]
@@ -68,16 +70,24 @@ class RunConfig(Options):
     """The run: flights plus each stage's options (the stage's own option names).
 
     Each stage section is the same section the stage command reads with ``--config``, typed
-    by the model that command uses: ``fit`` :class:`~qsls.pipeline.errormodel.options.FitOptions`,
-    ``sweep`` :class:`~qsls.pipeline.control.options.SweepSection` (with ``jobs``,
-    ``scheduler``, ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions`,
+    by the model that command uses: ``simulate``
+    :class:`~qsls.pipeline.sim.options.SimOptions`, ``ingest``
+    :class:`~qsls.pipeline.ingest.options.IngestOptions`, ``fit``
+    :class:`~qsls.pipeline.errormodel.options.FitOptions`, ``sweep``
+    :class:`~qsls.pipeline.control.options.SweepSection` (with ``jobs``, ``scheduler``,
+    ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions`,
     ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (with ``fly``, whose
     options are the section's keys under the flight's own: validated when planned). These
     models live apart from their stages, so reading a run config loads no solver, pandas or
-    simulator: a run with nothing to do imports nothing heavy. ``simulate`` and ``ingest``
-    are bases that every flight's own ``simulate:`` / ``ingest:`` is laid over, so they are
-    validated per flight, when planned (:class:`~qsls.pipeline.sim.simulate.SimOptions`,
-    :class:`~qsls.pipeline.ingest.stage.IngestOptions`)."""
+    simulator: a run with nothing to do imports nothing heavy.
+
+    ``simulate`` and ``ingest`` are also the bases of the flights: a flight's own
+    ``simulate:`` / ``ingest:`` is laid over the section as written (:meth:`written`; the
+    flight's keys win, nested mappings merge) and the result is validated per flight when
+    planned, its errors naming the flight. The base must be valid on its own, as it is for
+    ``qsls simulate --config`` / ``qsls ingest --config`` reading the same file: a base
+    ``vio: {outlier_min: 2}`` is refused (above the default ``outlier_max``, 1) even when
+    every flight raises ``outlier_max``; such a pair belongs in the flights."""
 
     name: str
     seed: int = 0
@@ -85,9 +95,9 @@ class RunConfig(Options):
     stages: (
         list[Literal["simulate", "ingest", "fit", "sweep", "synth", "evaluate", "report"]] | None
     ) = None
-    simulate: dict[str, Any] = Field(default_factory=dict)
+    simulate: SimOptions = Field(default_factory=SimOptions)
     flights: list[FlightSpec]
-    ingest: dict[str, Any] = Field(default_factory=dict)
+    ingest: IngestOptions = Field(default_factory=IngestOptions)
     fit: FitOptions = Field(default_factory=FitOptions)
     sweep: SweepSection | None = None
     synth: SynthOptions | None = None
@@ -95,24 +105,39 @@ class RunConfig(Options):
     report: bool = True
     _given: dict[str, Any] | None = PrivateAttr(None)
 
+    def written(self, key: str) -> Any:
+        """Section ``key`` as it was written: the file's mapping when the config was read
+        (:func:`load_run_config`), else the keys set on the model; the default when absent."""
+        if self._given is not None:
+            return self._given.get(key, DEFAULTS[key])
+        section = getattr(self, key)
+        return (
+            DEFAULTS[key]
+            if section is None
+            else section.model_dump(mode="json", exclude_unset=True)
+        )
+
     def record(self) -> dict[str, Any]:
         """The config as plain data, its typed sections as they were written (the run's
         ``run.json`` and the plan's fingerprint: a default added to an options model does
         not make every run plan anew)."""
-        given = self._given
-        if given is None:
-            given = {k: getattr(self, k).model_dump(mode="json", exclude_unset=True)
-                     for k in SECTIONS if getattr(self, k) is not None}  # fmt: skip
         plain = to_plain(self.model_dump(mode="json", exclude=set(SECTIONS)))
         return {
-            k: (to_plain(given.get(k, DEFAULTS[k])) if k in SECTIONS else plain[k])
+            k: (to_plain(self.written(k)) if k in SECTIONS else plain[k])
             for k in type(self).model_fields
         }
 
 
-SECTIONS = ("fit", "sweep", "synth", "evaluate")
+SECTIONS = ("simulate", "ingest", "fit", "sweep", "synth", "evaluate")
 """The typed stage sections of a run config (each validated with its stage's name in errors)."""
-DEFAULTS: dict[str, Any] = {"fit": {}, "sweep": None, "synth": None, "evaluate": None}
+MODELS: dict[str, type[Options]] = {
+    "simulate": SimOptions, "ingest": IngestOptions, "fit": FitOptions, "sweep": SweepSection,
+    "synth": SynthOptions, "evaluate": EvaluateSection,
+}  # fmt: skip
+"""Each section's model: the one its stage command reads with ``--config``."""
+DEFAULTS: dict[str, Any] = {
+    "simulate": {}, "ingest": {}, "fit": {}, "sweep": None, "synth": None, "evaluate": None,
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -141,10 +166,7 @@ def load_run_config(path: Path) -> RunConfig:
     raw = read_yaml(path)
     base = Path(path).resolve().parent
     typed = dict(raw)
-    models: dict[str, type[Options]] = {
-        "fit": FitOptions, "sweep": SweepSection, "synth": SynthOptions, "evaluate": EvaluateSection,
-    }  # fmt: skip
-    for key, model in models.items():
+    for key, model in MODELS.items():
         if isinstance(raw.get(key), Mapping):
             typed[key] = validate(model, raw[key], f"{base}: {key}")
     cfg = validate(RunConfig, typed, str(path))

@@ -13,8 +13,8 @@ Folder layout under the run folder (one stage folder each, with its manifest)::
 Every stage's options are validated before anything runs, with the stage's own model, so a
 misspelled option is reported with the config's section and the nearest valid name: the typed
 sections when the config is read (:func:`qsls.pipeline.run.runner.load_run_config`), a
-flight's simulate and ingest options (the run's section under the flight's) and the flying
-options (the evaluate section under its ``fly:``) here.
+flight's simulate and ingest options (the flight's own laid over the run's section as it was
+written) and the flying options (the evaluate section under its ``fly:``) here.
 """
 
 from __future__ import annotations
@@ -98,11 +98,11 @@ def _flight_stages(
     progress: Progress,
 ) -> tuple[str, str | None]:
     """The flight's simulate stage (simulated flights) and its ingest stage: their ids."""
-    from qsls.pipeline.ingest.stage import IngestOptions
+    from qsls.pipeline.ingest.options import IngestOptions
 
     sources: list[Path] = []
     deps: tuple[str, ...] = ()
-    ingest_opts: dict[str, Any] = merge(cfg.ingest, fl.ingest)
+    ingest_opts: dict[str, Any] = merge(cfg.written("ingest"), fl.ingest)
     if fl.simulate is not None:
         if "simulate" not in wanted and not (graph.root / "simulate" / fl.name).is_dir():
             raise ConfigError(
@@ -173,9 +173,9 @@ def _verdicts(out: Path) -> dict[str, Any]:
 def _simulate_stage(
     graph: StageGraph, cfg: Any, fl: Any, i: int, src: Src, progress: Progress
 ) -> str:
-    from qsls.pipeline.sim.simulate import SimOptions
+    from qsls.pipeline.sim.options import SimOptions
 
-    data = merge(cfg.simulate, fl.simulate or {})
+    data = merge(cfg.written("simulate"), fl.simulate or {})
     data.setdefault("seed", cfg.seed + i)
     opts = validate(SimOptions, data, src(f"simulate (flight '{fl.name}')"))
     stage_id = f"simulate/{fl.name}"

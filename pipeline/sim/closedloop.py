@@ -31,48 +31,18 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from pydantic import Field
 
-from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.core.references import Reference, ReferenceOptions, RefSample
+from qsls.pipeline.core.references import Reference, RefSample
 from qsls.pipeline.core.units import NS
-from qsls.pipeline.sim.controllers import ControllerOptions, PositionController, make_controller
-from qsls.pipeline.sim.vehicle import Vehicle, VehicleOptions
-from qsls.pipeline.sim.vio import VioEmulator, VioParams
+from qsls.pipeline.sim.controllers import PositionController, make_controller
+from qsls.pipeline.sim.options import CrashOptions, FlightOptions
+from qsls.pipeline.sim.vehicle import Vehicle
+from qsls.pipeline.sim.vio import VioEmulator
 
 if TYPE_CHECKING:
     from qsls.pipeline.sim.camera.loop import CameraVio
-
-
-class CrashOptions(Options):
-    """When a flight counts as crashed (and ends)."""
-
-    floor_z: float = 0.05
-    """Ground contact: true height below this (m)."""
-    max_deviation: float = Field(3.0, gt=0)
-    """Divergence: any position axis farther than this from the reference (m)."""
-    max_tilt_deg: float = Field(80.0, gt=0, le=180)
-    """Loss of control: tilt of the body z axis beyond this (degrees)."""
-
-
-class FlightOptions(Options):
-    """Everything that shapes one simulated flight."""
-
-    seed: int = Field(0, ge=0)
-    duration: float | None = Field(None, gt=0)
-    """Flight length (s); default: the reference's ramp / 2 + laps * period."""
-    vehicle: VehicleOptions = VehicleOptions()
-    reference: ReferenceOptions = ReferenceOptions()
-    controller: ControllerOptions = ControllerOptions()
-    vio: VioParams = VioParams()
-    crash: CrashOptions = CrashOptions()
-
-    def flight_duration(self) -> float:
-        return (
-            float(self.duration) if self.duration is not None else self.reference.natural_duration()
-        )
 
 
 @dataclass(frozen=True)

@@ -25,39 +25,18 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import numpy as np
-from pydantic import Field
 
 from qsls.pipeline.control.pdgain import PDGains, pd_gain
-from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import GRAVITY, PAPER_DT_S
 from qsls.pipeline.core.references import RefSample
+from qsls.pipeline.sim.options import ControllerOptions
 from qsls.pipeline.sim.vehicle import ctatt_to_paper, quad_params
 
 SE3_HZ = 100.0
-
-
-class ControllerOptions(Options):
-    """Which controller flies, how fast, and on what feedback."""
-
-    kind: str = "se3"
-    """``se3``, ``pd``, or the path of a synthesized controller folder (``controller.npz``)."""
-    rate_hz: float | None = Field(None, gt=0)
-    """Control rate; default: SE3 100 Hz, PD and synthesized controllers 1 / their dt (10 Hz)."""
-    feedback: Literal["vio", "truth"] = "vio"
-    """What the controller sees: the VIO estimate (as on the real vehicle) or the true state."""
-    pd: PDGains = PDGains()
-    se3_kp: tuple[float, float, float] = (6.5, 6.5, 15.0)
-    """SE3 position gains (RotorPy's defaults)."""
-    se3_kd: tuple[float, float, float] = (4.0, 4.0, 9.0)
-    se3_backend: Literal["fast", "rotorpy"] = "fast"
-    """``rotorpy`` calls ``SE3Control.update``; ``fast`` evaluates the same law (same output)."""
-    backend: Literal["python", "c"] = "python"
-    """Synthesized filter banks: ``python`` runs the realization (numpy); ``c`` flies the code of
-    ``qsls export --target c``, compiled and loaded with ctypes (the PD's static gain stays)."""
 
 
 class PositionController(Protocol):

@@ -13,22 +13,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import Field
 
-from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.rotations import quat_mul, rotvec_quat
 from qsls.pipeline.core.units import NS
-
-
-class MocapOptions(Options):
-    """The motion-capture system (ground truth)."""
-
-    rate_hz: float = Field(120.0, ge=100.0, le=200.0)
-    """Sample rate (Hz), 100 to 200 like Vicon/OptiTrack setups."""
-    position_noise: float = Field(0.001, ge=0)
-    """Position noise std per axis (m)."""
-    attitude_noise: float = Field(0.002, ge=0)
-    """Attitude noise std per axis (rad)."""
+from qsls.pipeline.sim.options import MocapOptions
 
 
 @dataclass(frozen=True)

@@ -29,18 +29,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import Field
 
 from qsls.pipeline.core.artifacts import StageWriter, npz_bytes
-from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.rotations import quat_mul
-from qsls.pipeline.sim.closedloop import NS, FlightLog, FlightOptions, fly
+from qsls.pipeline.sim.closedloop import NS, FlightLog, fly
 from qsls.pipeline.sim.controllers import PositionController
-from qsls.pipeline.sim.mocap import MocapOptions, sample_mocap
+from qsls.pipeline.sim.mocap import sample_mocap
+from qsls.pipeline.sim.options import LogOptions as LogOptions
+from qsls.pipeline.sim.options import SimOptions
 
 STAGE = "simulate"
 FORMATS = ("ros1", "ros2-sqlite", "ros2-mcap", "mcap")
@@ -48,46 +48,10 @@ STATE = ("px", "py", "pz", "vx", "vy", "vz")
 # SeedSequence stream for the logger (mocap noise, delay jitter); the VIO uses its own.
 _LOG_STREAM = 1000
 
-
-
 CONTROL_FILE = "control.parquet"
+"""What the controller saw and commanded at each tick (``stamp_ns``, ``y_*``, ``r_*``, ``u_*``)."""
 CAMERA_FRAME = "camera_frame.npz"
 """The camera loop's kept frame (``vio.camera.snapshot_s``) and its tracked features."""
-"""What the controller saw and commanded at each tick (``stamp_ns``, ``y_*``, ``r_*``, ``u_*``)."""
-
-class LogOptions(Options):
-    """How the flight is recorded: format, topics, clocks, frames, transport delays."""
-
-    format: Literal["ros1", "ros2-sqlite", "ros2-mcap", "mcap"] = "ros1"
-    compression: str | None = None
-    """Bag compression (ros1: lz4, bz2; rosbag2: zstd; mcap: zstd, lz4); none by default."""
-    vio_topic: str = "/vio/odometry"
-    vio_frame_id: str = "odom"
-    vio_child_frame_id: str = "base_link"
-    mocap_topic: str = "/vicon/quad/pose"
-    mocap_msgtype: Literal["PoseStamped", "TransformStamped"] = "PoseStamped"
-    mocap_frame_id: str = "world"
-    mocap_child_frame_id: str = "quad"
-    time_offset_s: float = Field(-0.137, ge=-5.0, le=5.0)
-    """Added to motion-capture stamps to put them on the VIO clock (docs/conventions.md#clocks)."""
-    vio_clock_start_s: float = Field(1_700_000_000.0, ge=0)
-    """VIO clock reading at the start of the flight (s)."""
-    vio_delay_s: float = Field(0.020, ge=0)
-    """Transport delay from VIO stamp to log time (s)."""
-    mocap_delay_s: float = Field(0.005, ge=0)
-    delay_jitter_s: float = Field(0.002, ge=0)
-    """Uniform extra delay in [0, jitter] per message (seeded)."""
-    vio_frame_yaw_deg: float = 35.0
-    """Yaw of the VIO world frame in the motion-capture frame (degrees)."""
-    vio_frame_translation: tuple[float, float, float] = (0.8, -0.4, 0.05)
-    """Origin of the VIO world frame in the motion-capture frame (m)."""
-
-
-class SimOptions(FlightOptions):
-    """``qsls simulate``: the flight (vehicle, reference, controller, VIO) and its logs."""
-
-    mocap: MocapOptions = MocapOptions()
-    log: LogOptions = LogOptions()
 
 
 @dataclass(frozen=True)

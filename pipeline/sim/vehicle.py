@@ -38,14 +38,13 @@ RotorPy does.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import Field
 
-from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.core.rotations import quat_to_matrix
+from qsls.pipeline.sim.options import VehicleOptions
 
 _D = 0.08  # arm length (m)
 _S2 = 0.70710678118
@@ -86,25 +85,6 @@ QUAD_256G: dict[str, Any] = {
     "kp_att": 544.0,
     "kd_att": 46.64,
 }
-
-
-class VehicleOptions(Options):
-    """The simulated vehicle and its integrator."""
-
-    mass: float = Field(0.256, gt=0)
-    """Mass (kg); the paper's vehicle weighs 256 g. Other parameters stay those of QUAD_256G."""
-    aero: bool = True
-    """RotorPy's aerodynamic wrenches (parasitic drag, rotor drag, translational lift)."""
-    physics_hz: float = Field(200.0, gt=0)
-    """Integration step rate; the attitude loop also runs at this rate."""
-    integrator: Literal["rk4", "solve_ivp"] = "rk4"
-    """``rk4``: the fast fixed-step loop; ``solve_ivp``: RotorPy's stock ``Multirotor.step``."""
-    ivp_rtol: float | None = Field(None, gt=0)
-    """``solve_ivp`` only: relative tolerance (None: RotorPy's default RK45 settings)."""
-    substeps: int = Field(1, ge=1, le=50)
-    """RK4 substeps per physics step (the motor command is held over the step)."""
-    max_tilt_deg: float = Field(35.0, gt=0, lt=90)
-    """Commanded pitch and roll are clipped to this angle."""
 
 
 def quad_params(options: VehicleOptions | None = None) -> dict[str, Any]:

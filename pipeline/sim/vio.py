@@ -79,233 +79,27 @@ switching one part off leaves the others' values unchanged (and with the three m
 off and the first design's ridges, :data:`FIRST_RIDGES`, the errors are bit for bit those of
 the emulator before the motion parts existed; the default ridges were recalibrated after);
 the same seed gives the same errors.
+
+The parameters (:class:`VioParams`, the ridges and ripples) are defined in
+:mod:`qsls.pipeline.sim.options`, which loads no simulator, and re-exported here.
 """
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import Field, SerializerFunctionWrapHandler, field_validator, model_serializer
 
-from qsls.pipeline.core.config import Options
-from qsls.pipeline.sim.camera.options import CameraOptions
+from qsls.pipeline.sim.options import FIRST_RIDGES as FIRST_RIDGES
+from qsls.pipeline.sim.options import RIDGE_POSITION_SCALE as RIDGE_POSITION_SCALE
+from qsls.pipeline.sim.options import RIDGE_VELOCITY_SCALE as RIDGE_VELOCITY_SCALE
+from qsls.pipeline.sim.options import PerceptionLevel as PerceptionLevel
+from qsls.pipeline.sim.options import Ridge as Ridge
+from qsls.pipeline.sim.options import Ripple as Ripple
+from qsls.pipeline.sim.options import Six as Six
+from qsls.pipeline.sim.options import VioParams
+from qsls.pipeline.sim.options import scaled_ridges as scaled_ridges
 from qsls.pipeline.sim.viomotion import Burst, blur_pixels, burst_errors, velocity_spikes
-
-Six = tuple[float, float, float, float, float, float]
-
-
-class Ridge(Options):
-    """A smooth step ``A tanh((n . p - offset) / width)`` across the floor."""
-
-    normal_deg: float = 0.0
-    """Direction of the ridge's normal in the horizontal plane (degrees from +x)."""
-    offset: float = 0.0
-    """Signed distance of the ridge's centre line from the origin along the normal (m)."""
-    width: float = Field(0.2, gt=0)
-    """Half-width of the steep part (m); the largest slope is amplitude / width."""
-    amplitude: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    """Step half-height per error component ``e_px .. e_vz`` (m, m/s)."""
-
-
-class Ripple(Options):
-    """A gentle undulation ``A sin(kx px + ky py + phase)``."""
-
-    wavevector: tuple[float, float] = (2.0, 1.0)
-    """``(kx, ky)`` in rad/m."""
-    phase: float = 0.0
-    amplitude: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-
-
-class PerceptionLevel(Options):
-    """Light level and texture richness, each in (0, 1] (1 = ideal)."""
-
-    light: float = Field(1.0, gt=0, le=1)
-    texture: float = Field(1.0, gt=0, le=1)
-
-
-# The bias field's ridges as first designed: (normal_deg, offset, width, amplitude). Each
-# feeds the position error along its own normal and the velocity error across it, so that on
-# the default circle the tangential position error and the radial velocity error average
-# out over a lap: the bias does not look like a rotation of the frame or a clock shift (both
-# of which ingest must recover). The x = -0.35 m ridge is crossed twice per lap (not by the
-# approach from the centre to the circle's first point); y = -0.3 m likewise; the diagonal
-# one makes the height and vertical-velocity error.
-FIRST_RIDGES: tuple[tuple[float, float, float, Six], ...] = (
-    (0.0, -0.35, 0.2, (0.04, 0.0, 0.0, 0.0, 0.025, 0.0)),
-    (90.0, -0.3, 0.25, (0.0, 0.04, 0.0, 0.03, 0.0, 0.0)),
-    (45.0, 0.6, 0.3, (0.0, 0.0, 0.015, 0.0, 0.0, 0.015)),
-)
-# Calibrated against real VIO (benchmarks/bench_rpe.py --scan): the position steps of the
-# first design are scaled so that the 1 s RPE's growth with speed (fastest over slowest third
-# of 1 s windows: 1.23-1.83x on real EuRoC VIO) falls in the real range on every emulated
-# flight of that benchmark; the velocity steps by the one common factor that makes the
-# largest row of L (now e_vy: 0.0357 / 0.2 + ripples 0.0105 + kappa 0.02) 0.209 again, so
-# the Lipschitz constant is the first design's.
-RIDGE_POSITION_SCALE = 0.35
-RIDGE_VELOCITY_SCALE = 1.428
-
-
-def scaled_ridges(position: float, velocity: float) -> list[Ridge]:
-    """:data:`FIRST_RIDGES` with the position steps times ``position`` and the velocity steps
-    times ``velocity`` (rounded to 1e-9 m, m/s)."""
-
-    def scale(a: Six) -> Six:
-        p, v = position, velocity
-        return (
-            round(a[0] * p, 9), round(a[1] * p, 9), round(a[2] * p, 9),
-            round(a[3] * v, 9), round(a[4] * v, 9), round(a[5] * v, 9),
-        )  # fmt: skip
-
-    return [
-        Ridge(normal_deg=n, offset=c, width=w, amplitude=scale(amp))
-        for n, c, w, amp in FIRST_RIDGES
-    ]
-
-
-def _default_ridges() -> list[Ridge]:
-    return scaled_ridges(RIDGE_POSITION_SCALE, RIDGE_VELOCITY_SCALE)
-
-
-def _default_ripples() -> list[Ripple]:
-    return [
-        Ripple(wavevector=(2.0, 1.0), phase=0.3, amplitude=(0.003, 0.003, 0.002, 0.0, 0.0, 0.0)),
-        Ripple(wavevector=(-1.0, 2.5), phase=1.1, amplitude=(0.0, 0.0, 0.0, 0.003, 0.003, 0.003)),
-    ]
-
-
-class VioParams(Options):
-    """Every parameter of the VIO emulator (all in the config; see the module docstring)."""
-
-    # switches
-    bias: bool = True
-    drift: bool = True
-    noise: bool = True
-    outliers: bool = True
-    blur: bool = True
-    motion_drift: bool = True
-    feature_loss: bool = True
-    perception: Literal["regular", "degraded"] = "regular"
-    kind: Literal["emulator", "camera"] = "emulator"
-    """Where the estimate comes from: ``emulator`` (the error model of this module) or
-    ``camera`` (a rendered camera, an IMU and an MSCKF: :mod:`qsls.pipeline.sim.camera`,
-    parameters in ``camera``; ``perception`` and the presets' light and texture keep their
-    meaning, the error-model parameters below are not used)."""
-    camera: CameraOptions = CameraOptions()
-    """The camera loop's parameters (``kind: camera``)."""
-
-    rate_hz: float = Field(100.0, ge=30.0, le=200.0)
-    """VIO output rate (Hz), 30 to 200 like real VIO pipelines."""
-
-    # perception presets
-    regular: PerceptionLevel = PerceptionLevel(light=1.0, texture=1.0)
-    degraded: PerceptionLevel = PerceptionLevel(light=0.35, texture=0.45)
-
-    # bias field
-    ridges: list[Ridge] = Field(default_factory=_default_ridges)
-    ripples: list[Ripple] = Field(default_factory=_default_ripples)
-    velocity_scale: tuple[float, float, float] = (0.02, 0.02, 0.01)
-    """Velocity scale-factor error ``kappa`` per axis (fraction)."""
-    bias_light_gain: float = Field(1.0, ge=0)
-    """Bias grows by ``1 + bias_light_gain (1 - light)`` in poor light."""
-
-    # drift
-    drift_fraction: float = Field(0.002, ge=0)
-    """Systematic position drift per metre travelled (m/m)."""
-    drift_walk: float = Field(0.002, ge=0)
-    """Random-walk drift density (m per sqrt(m) travelled)."""
-    drift_vertical: float = Field(0.3, ge=0)
-    """Scale of the vertical component of the drift direction."""
-
-    # noise
-    noise_position: float = Field(0.004, ge=0)
-    """Position noise std (m) with ideal texture and light."""
-    noise_velocity: float = Field(0.015, ge=0)
-    """Velocity noise std (m/s) with ideal texture and light."""
-    noise_gain: float = Field(4.0, ge=0)
-    """Noise grows by ``1 + noise_gain (1 - light * texture(p))``."""
-    texture_wavelength: float = Field(1.5, gt=0)
-    """Wavelength of the floor's texture pattern (m)."""
-    texture_patch_center: tuple[float, float] = (-0.6, 0.6)
-    """Centre of a poorly textured patch on the floor (m); the circle passes over it."""
-    texture_patch_radius: float = Field(0.35, gt=0)
-    texture_patch_depth: float = Field(0.5, ge=0, le=1)
-
-    # outliers
-    outlier_prob: float = Field(0.003, ge=0, le=1)
-    """Per-sample probability of a velocity outlier in ideal conditions."""
-    outlier_min: float = Field(0.3, ge=0)
-    outlier_max: float = Field(1.0, ge=0)
-
-    # motion blur
-    blur_exposure_s: float = Field(0.005, gt=0)
-    """Camera exposure in ideal light (s); ``/ light`` in poor light."""
-    blur_exposure_max_s: float = Field(0.02, gt=0)
-    """Longest exposure (s)."""
-    blur_focal_px: float = Field(460.0, gt=0)
-    """Focal length (px; EuRoC's cameras: about 460)."""
-    blur_min_height: float = Field(0.3, gt=0)
-    """Height below which the translation blur stops growing (m)."""
-    blur_noise_position: float = Field(0.0015, ge=0)
-    """Extra position noise std per pixel of blur (m/px)."""
-    blur_noise_velocity: float = Field(0.005, ge=0)
-    """Extra velocity noise std per pixel of blur (m/s/px)."""
-    blur_outlier_rate: float = Field(0.0005, ge=0)
-    """Extra velocity-outlier probability per sample per pixel of blur."""
-
-    # drift with motion
-    drift_per_radian: float = Field(0.002, ge=0)
-    """Systematic position drift per radian turned (m/rad)."""
-    drift_walk_radian: float = Field(0.002, ge=0)
-    """Random-walk drift density per radian turned (m per sqrt(rad))."""
-    drift_speed_gain: float = Field(1.0, ge=0)
-    """Per-metre drift grows by ``1 + drift_speed_gain * speed`` (per m/s)."""
-
-    # feature loss
-    loss_rate_threshold: float = Field(3.0, gt=0)
-    """Body rate above which tracking can be lost (rad/s)."""
-    loss_accel_threshold: float = Field(8.0, gt=0)
-    """Acceleration above which tracking can be lost (m/s^2)."""
-    loss_rate_hz: float = Field(0.5, ge=0)
-    """Bursts per second spent above a threshold, in ideal texture and light."""
-    loss_texture_gain: float = Field(4.0, ge=0)
-    """Burst rate grows by ``1 + loss_texture_gain (1 - light * texture(p))``."""
-    loss_duration_s: tuple[float, float] = (0.2, 0.6)
-    """Burst length range (s)."""
-    loss_position: float = Field(0.1, ge=0)
-    """Peak position error of a burst (m)."""
-    loss_velocity: float = Field(0.3, ge=0)
-    """Peak velocity error of a burst (m/s)."""
-
-    @model_serializer(mode="wrap")
-    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """An emulator's options dump without ``kind`` and ``camera``, as before the camera
-        loop existed: the emulator's artifacts (manifest, truth.json) stay byte-identical."""
-        out: dict[str, Any] = handler(self)
-        if self.kind == "emulator":
-            out.pop("kind", None)
-            out.pop("camera", None)
-        return out
-
-    @field_validator("outlier_max")
-    @classmethod
-    def _max_ge_min(cls, v: float, info: Any) -> float:
-        lo = info.data.get("outlier_min")
-        if lo is not None and v < lo:
-            raise ValueError(f"outlier_max ({v}) must be >= outlier_min ({lo})")
-        return v
-
-    @field_validator("loss_duration_s")
-    @classmethod
-    def _duration_ordered(cls, v: tuple[float, float]) -> tuple[float, float]:
-        if not 0 < v[0] <= v[1]:
-            raise ValueError(f"loss_duration_s {v} must be (min, max) with 0 < min <= max")
-        return v
-
-    @property
-    def level(self) -> PerceptionLevel:
-        """The active perception level (``regular`` or ``degraded`` preset)."""
-        return self.degraded if self.perception == "degraded" else self.regular
 
 
 def _dot2(p: np.ndarray, n: np.ndarray) -> np.ndarray:

@@ -1,0 +1,63 @@
+"""The options of ``qsls ingest`` (and of the ``ingest:`` section of a run config), apart from
+the stage: this module imports only pydantic, so ``qsls run`` validates a run config
+(:class:`qsls.pipeline.run.runner.RunConfig`) without loading the bag readers, scipy or
+pandas. :mod:`qsls.pipeline.ingest.stage` re-exports it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, field_validator
+
+from qsls.pipeline.core.config import Options
+
+
+class IngestOptions(Options):
+    """Options of ``qsls ingest`` (defaults are the built-in defaults)."""
+
+    vio_topic: str | None = None
+    """VIO topic (nav_msgs/Odometry, or a pose topic); chosen automatically when unambiguous."""
+    truth_topic: str | None = None
+    """Ground-truth topic; chosen automatically when unambiguous."""
+    vio: Path | None = None
+    """File holding the VIO stream (bag, TUM, EuRoC csv)."""
+    truth: Path | None = None
+    """File holding the truth stream (bag, TUM, EuRoC csv)."""
+    dt: float = Field(0.1, gt=0)
+    """Resampling period (s)."""
+    align: Literal["4dof", "se3", "none"] = "4dof"
+    """Frame alignment of the VIO to the truth: yaw + translation, full SE(3), or none."""
+    time_offset: Literal["auto"] | float = "auto"
+    """Seconds added to truth stamps to reach the VIO clock, or ``auto`` (estimated)."""
+    vio_velocity_frame: Literal["body", "world"] = "body"
+    """Frame of the Odometry twist: body (ROS convention) or world (VINS-style)."""
+    stamp: Literal["header", "log"] = "header"
+    """Time of a message: its header stamp or the bag's log time."""
+    max_truth_accel: float = Field(100.0, gt=0)
+    """A truth interval implying a larger acceleration (m/s^2) is a motion-capture
+    discontinuity: turned into a gap of ``max_gap`` (never interpolated across) and counted
+    (``discontinuities``); 100 m/s^2 is 10 g, beyond any flight."""
+    max_gap: float = Field(0.25, gt=0)
+    """Never interpolate across a gap longer than this (s)."""
+    truth_frame: str | None = None
+    """PARENT/CHILD transform of a TF topic."""
+    export_tum: bool = False
+    """Also write both aligned trajectories as TUM files (for evo)."""
+    max_time_offset: float = Field(2.0, gt=0)
+    """Search range of ``time_offset: auto`` (s)."""
+    min_overlap: float = Field(3.0, gt=0)
+    """Least common time of the two streams (s)."""
+    velocity_window: float = Field(0.1, gt=0)
+    """Window of the smoothing differentiator (s)."""
+    drop_nonfinite: bool = False
+    """Skip messages with NaN/inf values instead of stopping."""
+    decoder: Literal["fast", "deserializer"] = "fast"
+    """Message decoding: the fast field reader, or rosbags' full deserializer (a check)."""
+
+    @field_validator("truth_frame")
+    @classmethod
+    def _frame(cls, v: str | None) -> str | None:
+        if v is not None and (v.count("/") < 1 or not all(v.strip("/").split("/", 1))):
+            raise ValueError("expected PARENT/CHILD, e.g. world/body")
+        return v.strip("/") if v else v
