@@ -5,8 +5,8 @@ whole ``messages`` table, whose rows hold the message data), builds a typestore 
 a ROS 2 distribution's types) and then yields one message at a time. For the fixed-layout
 pose topics none of that is needed: :func:`open_sqlite_bag` takes the topics, their types
 and counts from the bag's ``metadata.yaml`` (what rosbags reads them from), and
-:func:`sqlite_batches` fetches the wanted topics' ``(topic_id, timestamp, data)`` rows in
-one query per file, in row order, as one buffer with every message's start and end (a
+:func:`sqlite_batches` fetches each wanted topic's ``(timestamp, data)`` rows in one query
+per topic and file, in row order, as one buffer with every message's start and end (a
 :class:`Batch`), which :mod:`layout` decodes for the whole topic at once.
 
 Anything else (compressed bags, another storage, a metadata file rosbags would refuse) is
@@ -79,40 +79,42 @@ def _gc_paused() -> Iterator[None]:
 
 
 def sqlite_batches(files: list[Path], topics: list[str]) -> Iterator[Batch]:
-    """The messages of ``topics`` in each database file as one :class:`Batch` (in row order,
-    ``conn`` = the topic's index in ``topics``)."""
+    """The messages of each of ``topics`` in each database file as one :class:`Batch` (in row
+    order, ``conn`` = the topic's index in ``topics``).
+
+    One query per topic: its messages then lie back to back in the batch's buffer, and a
+    topic whose messages all have one length (the frame names do not change) is decoded
+    through one strided view (:func:`layout._bytes`). A single query for all topics costs
+    the same (the table is scanned once instead of once per topic, but each row is handed
+    to Python either way) and interleaves them.
+    """
     for db in files:
         con = sqlite3.connect(f"file:{Path(db).resolve()}?mode=ro", uri=True)
         try:
-            ids = {
-                int(tid): topics.index(name)
-                for tid, name in con.execute("SELECT id, name FROM topics")
-                if name in topics
-            }
-            if not ids:
-                continue
-            marks = ",".join("?" * len(ids))
-            query = (
-                f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({marks}) "
-                "ORDER BY id"
-            )
-            with _gc_paused():
-                rows = con.execute(query, list(ids)).fetchall()
-                columns = tuple(zip(*rows, strict=True))
-                del rows
+            ids: dict[int, list[int]] = {}
+            for tid, name in con.execute("SELECT id, name FROM topics"):
+                if name in topics:
+                    ids.setdefault(topics.index(name), []).append(int(tid))
+            for k, tids in sorted(ids.items()):
+                marks = ",".join("?" * len(tids))
+                query = (
+                    f"SELECT timestamp, data FROM messages WHERE topic_id IN ({marks}) ORDER BY id"
+                )
+                with _gc_paused():
+                    rows = con.execute(query, tids).fetchall()
+                    columns = tuple(zip(*rows, strict=True))
+                    del rows
+                if not columns:
+                    continue
+                stamps, data = columns
+                lengths = np.fromiter(map(len, data), dtype=np.int64, count=len(data))
+                ends = np.cumsum(lengths)
+                yield Batch(
+                    buf=np.frombuffer(b"".join(data), dtype=np.uint8),
+                    starts=ends - lengths,
+                    ends=ends,
+                    log_ns=np.array(stamps, dtype=np.int64),
+                    conn=np.full(len(data), k, dtype=np.int64),
+                )
         finally:
             con.close()
-        if not columns:
-            continue
-        tids, stamps, data = columns
-        lengths = np.fromiter(map(len, data), dtype=np.int64, count=len(data))
-        ends = np.cumsum(lengths)
-        label = np.zeros(max(ids) + 1, dtype=np.int64)
-        label[list(ids)] = list(ids.values())
-        yield Batch(
-            buf=np.frombuffer(b"".join(data), dtype=np.uint8),
-            starts=ends - lengths,
-            ends=ends,
-            log_ns=np.array(stamps, dtype=np.int64),
-            conn=label[np.array(tids, dtype=np.int64)],
-        )
