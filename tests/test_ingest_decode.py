@@ -23,7 +23,13 @@ from tests.bagfixtures import make_flight
 # (frame_id, child_frame_id) per interleaved part of /vio/odom: an empty name, a long one,
 # and two pairs of the same total length whose second string starts at different offsets
 # (CDR pads each string's length word to 4 bytes)
-ODOM_FRAMES = [("odom", "base_link"), ("", "b"), ("w" * 61, "imu_0"), ("ab", "cdef"), ("abcd", "ef")]
+ODOM_FRAMES = [
+    ("odom", "base_link"),
+    ("", "b"),
+    ("w" * 61, "imu_0"),
+    ("ab", "cdef"),
+    ("abcd", "ef"),
+]
 POSE_FRAMES = ["world", "a_13_chars_xy", "v"]
 
 
