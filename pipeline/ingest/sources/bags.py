@@ -47,7 +47,7 @@ from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.ingest.sources import layout, mcapchunks
 from qsls.pipeline.ingest.sources.base import BAG_HINT, TopicInfo, Trajectory, bag_root, detect
-from qsls.pipeline.ingest.sources.ros1index import Batch, ros1_batches
+from qsls.pipeline.ingest.sources.ros1index import Batch, open_ros1, ros1_batches
 from qsls.pipeline.ingest.sources.sqlite import SqliteBag, open_sqlite_bag, sqlite_batches
 from qsls.pipeline.ingest.sources.write import ODOMETRY, TF, typestore
 
@@ -215,6 +215,7 @@ class BagSource:
         self._tmp: str | None = None
         self._reader: Any = None
         self._sqlite: SqliteBag | None = None
+        self._ros1: Any = None  # rosbags' ROS1 reader with a numpy index (ros1index.open_ros1)
         self._mcap: Any = None
         self._fh: Any = None
         try:
@@ -247,14 +248,25 @@ class BagSource:
             self._sqlite = open_sqlite_bag(bag_root(self.path))
             if self._sqlite is not None:
                 return  # rosbags' reader only when it is needed (_rosbags)
+        if self.kind == "ros1":
+            self._ros1 = open_ros1(self._ros1_path())
+            return  # AnyReader (typestore, index as objects) only when it is needed
         self._open_rosbags()
+
+    def _ros1_path(self) -> Path:
+        """The ROS1 bag under a ``.bag`` name (rosbags' readers go by the suffix)."""
+        if self.path.suffix == ".bag":
+            return self.path
+        if self._tmp is None:
+            return self._link(self.path, self.path.name + ".bag")
+        return Path(self._tmp) / (self.path.name + ".bag")
 
     def _open_rosbags(self) -> Any:
         from rosbags.highlevel import AnyReader
 
         target = self.path
-        if self.kind == "ros1" and self.path.suffix != ".bag":
-            target = self._link(self.path, self.path.name + ".bag")
+        if self.kind == "ros1":
+            target = self._ros1_path()
         elif self.kind == "rosbag2":
             target = bag_root(self.path)
         elif self.kind == "db3":
@@ -270,7 +282,9 @@ class BagSource:
     @property
     def _cdr(self) -> bool:
         """Messages are CDR (ROS 2, MCAP), not ROS1."""
-        return self._mcap is not None or self._sqlite is not None or self._reader.is2
+        if self._mcap is not None or self._sqlite is not None:
+            return True
+        return self._ros1 is None and self._reader.is2
 
     def _link(self, src: Path, name: str) -> Path:
         self._tmp = tempfile.mkdtemp(prefix="qsls-bag-")
@@ -332,6 +346,10 @@ class BagSource:
         return folder
 
     def close(self) -> None:
+        if self._ros1 is not None:
+            with contextlib.suppress(Exception):
+                self._ros1.close()
+            self._ros1 = None
         if self._reader is not None:
             with contextlib.suppress(Exception):
                 self._reader.close()
@@ -364,6 +382,9 @@ class BagSource:
         elif self._sqlite is not None:
             for topic, (mt, n) in self._sqlite.topics.items():
                 out[topic] = TopicInfo(topic, mt, n, self.path)
+        elif self._ros1 is not None:
+            for topic, info in self._ros1.topics.items():
+                out[topic] = TopicInfo(topic, info.msgtype or "?", int(info.msgcount), self.path)
         else:
             for topic, info in self._reader.topics.items():
                 out[topic] = TopicInfo(topic, info.msgtype or "?", int(info.msgcount), self.path)
@@ -423,18 +444,16 @@ class BagSource:
         chunks, plain or rosbag2 (:mod:`mcapchunks`); an empty dict: fall back."""
         if not infos:
             return {}
+        if self._ros1 is not None:
+            r1 = self._ros1
+            ids = {i.topic: {c.id for c in r1.connections if c.topic == i.topic} for i in infos}
+            conns = set().union(*ids.values())
+            return self._batches_fast(infos, ids, lambda: ros1_batches(r1, conns), progress)
         dbs = self._sqlite_files() if self._mcap is None else None
         if dbs:
             topics = [i.topic for i in infos]
             ids = {t: {k} for k, t in enumerate(topics)}
             return self._batches_fast(infos, ids, lambda: sqlite_batches(dbs, topics), progress)
-        r = self._reader
-        if self._mcap is None and not r.is2:
-            ids = {i.topic: {c.id for c in r.connections if c.topic == i.topic} for i in infos}
-            conns = set().union(*ids.values())
-            return self._batches_fast(
-                infos, ids, lambda: ros1_batches(r.readers[0], conns), progress
-            )
         files = self._mcap_files()
         if not files:
             return {}
