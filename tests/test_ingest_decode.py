@@ -85,9 +85,10 @@ def test_varying_lengths_decode_as_the_deserializer(bags: dict[str, Path], fmt: 
 def test_sqlite_topic_back_to_back_in_one_buffer(bags: dict[str, Path]) -> None:
     """The sqlite3 read gives each topic's messages back to back: a topic of one length
     is equally spaced (the strided view), a topic of varying lengths is not."""
-    from qsls.pipeline.ingest.sources.sqlite import open_sqlite_bag, sqlite_batches
+    from qsls.pipeline.ingest.sources.listing import open_rosbag2
+    from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
 
-    bag = open_sqlite_bag(bags["ros2-sqlite"])
+    bag = open_rosbag2(bags["ros2-sqlite"])
     assert bag is not None
     batches = {int(b.conn[0]): b for b in sqlite_batches(bag.files, ["/vio/odom", "/odd"])}
     for k, b in batches.items():
@@ -123,3 +124,36 @@ def test_words_equal_slicing_and_own_their_memory() -> None:
     for bad in (np.array([4995]), np.array([-1, 10])):
         with pytest.raises(layout.LayoutError):
             layout._words(buf, bad, 1, "<u8")
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "ros2-sqlite", "ros2-mcap"])
+def test_fast_paths_never_open_anyreader(bags: dict[str, Path], fmt: str) -> None:
+    """ROS1 bags and uncompressed rosbag2 folders are listed and read without rosbags'
+    AnyReader (its typestore and, for ROS1, its index of one object per message); the
+    per-message deserializer opens it."""
+    with BagSource(bags[fmt]) as src:
+        counts = {t.topic: t.count for t in src.topics()}
+        fast = src.read("/mocap/pose")
+        assert src._reader is None and fast.decoder == "numpy"
+        assert src.read("/mocap/pose", fast=False).decoder == "deserializer"
+        assert src._reader is not None
+        assert {t.topic: t.count for t in src.topics()} == counts
+    assert counts["/mocap/pose"] == len(fast) and counts["/vio/odom"] > 250
+
+
+def test_ros1_numpy_index_is_rosbags_index(bags: dict[str, Path]) -> None:
+    """The ROS1 index read by numpy (ros1index.open_ros1) has rosbags' entries: time, chunk,
+    offset and connection of every message, in rosbags' order."""
+    from rosbags.rosbag1 import Reader
+
+    from qsls.pipeline.ingest.sources.ros1index import _index, open_ros1
+
+    fast = open_ros1(bags["ros1"])
+    try:
+        with Reader(bags["ros1"]) as r:
+            for conns in ({c.id for c in r.connections}, {r.connections[0].id}):
+                want, got = _index(r, conns), _index(fast, conns)
+                assert len(want) > 250 and np.array_equal(got, want)
+            assert fast.indexes == {c.id: [] for c in fast.connections}  # no objects built
+    finally:
+        fast.close()

@@ -47,8 +47,9 @@ from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.ingest.sources import layout, mcapchunks
 from qsls.pipeline.ingest.sources.base import BAG_HINT, TopicInfo, Trajectory, bag_root, detect
+from qsls.pipeline.ingest.sources.listing import Rosbag2Listing, open_rosbag2
 from qsls.pipeline.ingest.sources.ros1index import Batch, open_ros1, ros1_batches
-from qsls.pipeline.ingest.sources.sqlite import SqliteBag, open_sqlite_bag, sqlite_batches
+from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
 from qsls.pipeline.ingest.sources.write import ODOMETRY, TF, typestore
 
 _REPAIR = {
@@ -214,7 +215,7 @@ class BagSource:
             )
         self._tmp: str | None = None
         self._reader: Any = None
-        self._sqlite: SqliteBag | None = None
+        self._listed: Rosbag2Listing | None = None  # from metadata.yaml (listing.py)
         self._ros1: Any = None  # rosbags' ROS1 reader with a numpy index (ros1index.open_ros1)
         self._mcap: Any = None
         self._fh: Any = None
@@ -245,8 +246,8 @@ class BagSource:
             self._summary = summary
             return
         if self.kind == "rosbag2":
-            self._sqlite = open_sqlite_bag(bag_root(self.path))
-            if self._sqlite is not None:
+            self._listed = open_rosbag2(bag_root(self.path))
+            if self._listed is not None:
                 return  # rosbags' reader only when it is needed (_rosbags)
         if self.kind == "ros1":
             self._ros1 = open_ros1(self._ros1_path())
@@ -282,7 +283,7 @@ class BagSource:
     @property
     def _cdr(self) -> bool:
         """Messages are CDR (ROS 2, MCAP), not ROS1."""
-        if self._mcap is not None or self._sqlite is not None:
+        if self._mcap is not None or self._listed is not None:
             return True
         return self._ros1 is None and self._reader.is2
 
@@ -379,8 +380,8 @@ class BagSource:
                 prev = out.get(ch.topic)
                 n = int(counts.get(cid, 0)) + (prev.count if prev else 0)
                 out[ch.topic] = TopicInfo(ch.topic, mt, n, self.path)
-        elif self._sqlite is not None:
-            for topic, (mt, n) in self._sqlite.topics.items():
+        elif self._listed is not None:
+            for topic, (mt, n) in self._listed.topics.items():
                 out[topic] = TopicInfo(topic, mt, n, self.path)
         elif self._ros1 is not None:
             for topic, info in self._ros1.topics.items():
@@ -465,6 +466,8 @@ class BagSource:
         compression (chunk compression is fine); None for anything else."""
         if self._mcap is not None:
             return [self.path]
+        if self._listed is not None:
+            return self._listed.files if self._listed.storage == "mcap" else None
         from rosbags.rosbag2.storage_mcap import McapReader
 
         return self._storage_files(McapReader)
@@ -580,8 +583,8 @@ class BagSource:
     def _sqlite_files(self) -> list[Path] | None:
         """The ``.db3`` files of an uncompressed sqlite3 rosbag2, read directly with one query
         per topic (rosbags' reader yields one message at a time); None for anything else."""
-        if self._sqlite is not None:
-            return self._sqlite.files
+        if self._listed is not None:
+            return self._listed.files if self._listed.storage == "sqlite3" else None
         from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
         return self._storage_files(Sqlite3Reader)

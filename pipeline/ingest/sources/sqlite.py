@@ -3,8 +3,8 @@
 rosbags' reader, on opening a sqlite3 bag, counts the messages of every topic (a scan of the
 whole ``messages`` table, whose rows hold the message data), builds a typestore (importing
 a ROS 2 distribution's types) and then yields one message at a time. For the fixed-layout
-pose topics none of that is needed: :func:`open_sqlite_bag` takes the topics, their types
-and counts from the bag's ``metadata.yaml`` (what rosbags reads them from), and
+pose topics none of that is needed: :mod:`listing` takes the topics, their types and
+counts from the bag's ``metadata.yaml`` (what rosbags reads them from), and
 :func:`sqlite_batches` fetches each wanted topic's ``(timestamp, data)`` rows in one query
 per topic and file, in row order, as one buffer with every message's start and end (a
 :class:`Batch`), which :mod:`layout` decodes for the whole topic at once.
@@ -19,51 +19,11 @@ import contextlib
 import gc
 import sqlite3
 from collections.abc import Iterator
-from dataclasses import dataclass
-from pathlib import Path, PurePath
+from pathlib import Path
 
 import numpy as np
 
 from qsls.pipeline.ingest.sources.ros1index import Batch
-
-
-@dataclass(frozen=True)
-class SqliteBag:
-    """An uncompressed sqlite3 rosbag2: its database files and ``{topic: (type, count)}``."""
-
-    files: list[Path]
-    topics: dict[str, tuple[str, int]]
-
-
-def open_sqlite_bag(folder: Path) -> SqliteBag | None:
-    """The bag in ``folder`` when its ``metadata.yaml`` describes an uncompressed sqlite3
-    rosbag2 of CDR messages whose files all exist; None for anything else."""
-    import yaml
-
-    try:
-        loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's parser when built
-        meta = yaml.load((Path(folder) / "metadata.yaml").read_text(), Loader=loader)
-        info = meta["rosbag2_bagfile_information"]
-        if int(info["version"]) > 9 or info["storage_identifier"] != "sqlite3":
-            return None
-        if (info.get("compression_mode") or "none").lower() != "none":
-            return None
-        files = [Path(folder) / PurePath(p).name for p in info["relative_file_paths"]]
-        topics: dict[str, tuple[str, int]] = {}
-        for entry in info["topics_with_message_count"]:
-            t = entry["topic_metadata"]
-            if t["serialization_format"] != "cdr":
-                return None
-            prev = topics.get(t["name"], (t["type"], 0))
-            if prev[0] != t["type"]:
-                return None
-            topics[t["name"]] = (t["type"], prev[1] + int(entry["message_count"]))
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError):
-        return None
-    if not files or not all(f.is_file() for f in files):
-        return None
-    return SqliteBag(files, topics)
-
 
 _MMAP_BYTES = 1 << 40
 
