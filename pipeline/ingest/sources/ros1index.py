@@ -47,7 +47,7 @@ def open_ros1(path: Path) -> Any:
     """
     from rosbags.rosbag1.reader import Header, Reader, ReaderError, RecordType, read_uint32
 
-    class NumpyIndexReader(Reader):  # type: ignore[misc]
+    class NumpyIndexReader(Reader):
         index_arrays: dict[int, list[tuple[int, np.ndarray]]]
 
         def read_index_data(self, pos: int, indexes: Any) -> None:
