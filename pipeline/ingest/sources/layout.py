@@ -93,6 +93,13 @@ def _words(buf: np.ndarray, pos: np.ndarray, count: int, dtype: str) -> np.ndarr
     return raw.view(dt).reshape(n, count)
 
 
+def column(rows: np.ndarray, at: int, dtype: str) -> np.ndarray:
+    """The little-endian word of ``dtype`` at byte ``at`` of every row of ``rows`` (``(n, k)``
+    ``uint8``, e.g. record heads gathered at once by :func:`_words`): ``(n,)``."""
+    size = np.dtype(dtype).itemsize
+    return np.ascontiguousarray(rows[:, at : at + size]).view(dtype)[:, 0]
+
+
 def _u32(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
     return _words(buf, pos, 1, "<u4")[:, 0].astype(np.int64)
 

@@ -109,15 +109,18 @@ def _records(
     fields = _header_fields(bytes(buf[int(rec[0]) + 4 : int(rec[0]) + 4 + h0]))
     if not {"op", "conn", "time"} <= set(fields):
         raise layout.LayoutError("record header without op/conn/time")
-    if not np.all(buf[rec + 4 + fields["op"]] == 2):
+    # each record's header and data length in one copy (one pass over the records, not four)
+    head = layout._words(buf, rec, 4 + h0 + 4, "u1")
+    if not np.all(head[:, 4 + fields["op"]] == 2):
         raise layout.LayoutError("index points at a record that is not message data")
-    if not np.array_equal(layout._u32(buf, rec + 4 + fields["conn"]), conns):
+    if not np.array_equal(layout.column(head, 4 + fields["conn"], "<u4"), conns):
         raise layout.LayoutError("record of another connection than the index says")
-    t = layout._words(buf, rec + 4 + fields["time"], 2, "<u4")
-    if not np.array_equal(t[:, 0].astype(np.int64) * 1_000_000_000 + t[:, 1], times):
+    sec = layout.column(head, 4 + fields["time"], "<u4").astype(np.int64)
+    nsec = layout.column(head, 8 + fields["time"], "<u4")
+    if not np.array_equal(sec * 1_000_000_000 + nsec, times):
         raise layout.LayoutError("record time differs from the index")
     starts = rec + 8 + h0
-    ends = starts + layout._u32(buf, rec + 4 + h0)
+    ends = starts + layout.column(head, 4 + h0, "<u4").astype(np.int64)
     if ends.max() > len(buf):
         raise layout.LayoutError("message data beyond the chunk")
     return starts, ends
