@@ -14,7 +14,9 @@ Decoding, fastest first:
    that hold wanted messages are decompressed once each. The record headers are checked
    (op code, connection id and time equal what the index says) and the message data
    decoded for the whole topic at once. A test checks the sliced bytes against rosbags'
-   ``messages()`` byte for byte.
+   ``messages()`` byte for byte. rosbags' ROS1 reader is opened with its index read by
+   numpy (:func:`qsls.pipeline.ingest.sources.ros1index.open_ros1`); ``AnyReader`` only
+   for the per-message path.
 2. MCAP (plain, and rosbag2 MCAP storage without message/file compression), fixed-layout
    types (:mod:`qsls.pipeline.ingest.sources.mcapchunks`): the summary's chunk indexes and
    each chunk's message indexes locate every wanted message; uncompressed chunks are
@@ -22,10 +24,11 @@ Decoding, fastest first:
    helpers, the records checked against the index and decoded for the whole topic at once.
    A test compares them record for record with the ``mcap`` reader.
 3. ROS2 sqlite3 without compression, fixed-layout types (:mod:`qsls.pipeline.ingest.sources.sqlite`):
-   the topics from ``metadata.yaml`` and the wanted topics' messages from one SQL query per
-   database file, decoded at once; rosbags' reader is not even opened (its opening scans
-   the whole database to count messages and imports a ROS 2 typestore). MCAP without a
-   usable index: raw messages from the reader, decoded at once.
+   the topics from ``metadata.yaml`` (:mod:`qsls.pipeline.ingest.sources.listing`, as for
+   rosbag2 MCAP folders) and each wanted topic's messages from one SQL query per database
+   file, decoded at once; rosbags' reader is not even opened (its opening scans the whole
+   database to count messages and imports a ROS 2 typestore). MCAP without a usable index:
+   raw messages from the reader, decoded at once.
 4. Anything else (``tf2_msgs/msg/TFMessage``, big-endian CDR, unexpected layouts):
    rosbags' (or mcap_ros2's) per-message deserializer.
 """

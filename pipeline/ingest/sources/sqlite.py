@@ -1,4 +1,4 @@
-"""rosbag2 sqlite3 storage read with SQL: one query per database file for every wanted topic.
+"""rosbag2 sqlite3 storage read with SQL: one query per wanted topic and database file.
 
 rosbags' reader, on opening a sqlite3 bag, counts the messages of every topic (a scan of the
 whole ``messages`` table, whose rows hold the message data), builds a typestore (importing
