@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import resource
+import statistics
 import subprocess
 import time
 from pathlib import Path
@@ -53,3 +54,22 @@ def best_walls(
             w, c, _ = best[label]
             best[label] = (min(w, wall), min(c, cpu), out)
     return best
+
+
+def median_runs(
+    cmds: dict[str, list[str]], repeat: int, cwd: Path | None = None
+) -> dict[str, tuple[float, float, str]]:
+    """``{label: (median wall seconds, median CPU seconds, stdout)}`` over ``repeat`` fresh
+    runs of each command, taken in turns after one untimed run of each (as
+    :func:`best_walls`); a failing command ends the benchmark."""
+    env = fresh_env()
+    for cmd in cmds.values():
+        _once(cmd, cwd, env)
+    runs: dict[str, list[tuple[float, float, str]]] = {k: [] for k in cmds}
+    for _ in range(repeat):
+        for label, cmd in cmds.items():
+            runs[label].append(_once(cmd, cwd, env))
+    return {
+        k: (statistics.median(r[0] for r in v), statistics.median(r[1] for r in v), v[-1][2])
+        for k, v in runs.items()
+    }

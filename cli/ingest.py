@@ -86,6 +86,7 @@ def command(
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
 ) -> None:
     """Put VIO estimates and ground truth on one clock, one frame and one dt grid."""
+    _one_blas_thread()
     from qsls.cli.common import RichProgress, print_summary
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.ingest.stage import IngestOptions, ingest
@@ -112,6 +113,23 @@ def command(
     with RichProgress() as progress:
         result = ingest(list(sources or []), options, out, force=force, progress=progress)
     print_summary("qsls ingest", result.summary())
+
+
+def _one_blas_thread() -> None:
+    """Start numpy with OpenBLAS on one thread, as ingest runs it anyway (the input hash has
+    the other core, :func:`qsls.pipeline.ingest.stage.ingest`): OpenBLAS otherwise starts a
+    thread per core at load (35 ms of CPU) that ingest then idles. The variable is set only
+    while numpy loads, and only when the user did not set it."""
+    import os
+    import sys
+
+    if "numpy" in sys.modules or "OPENBLAS_NUM_THREADS" in os.environ:
+        return
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    try:
+        import numpy  # noqa: F401
+    finally:
+        del os.environ["OPENBLAS_NUM_THREADS"]
 
 
 def _offset(value: str | None) -> str | float | None:

@@ -185,19 +185,24 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
             f"(first is message {first}); fix the log or pass --drop-nonfinite to skip them"
         )
     if nonfinite:
-        t, p, q = t[ok], p[ok], q[ok]
+        t, p, q, qn = t[ok], p[ok], q[ok], qn[ok]
         v = v[ok] if v is not None else None
-    unsorted = int(np.sum(np.diff(t) < 0))
-    order = np.argsort(t, kind="stable")
-    t, p, q = t[order], p[order], q[order]
-    v = v[order] if v is not None else None
-    keep = np.concatenate([[True], np.diff(t) != 0])
+    # the usual stream is sorted and without duplicates: nothing to reorder or drop then
+    step = np.diff(t)
+    unsorted = int(np.sum(step < 0))
+    if unsorted:
+        order = np.argsort(t, kind="stable")
+        t, p, q, qn = t[order], p[order], q[order], qn[order]
+        v = v[order] if v is not None else None
+        step = np.diff(t)
+    keep = np.concatenate([[True], step != 0])
     duplicates = int(len(t) - keep.sum())
-    t, p, q = t[keep], p[keep], q[keep]
-    v = v[keep] if v is not None else None
+    if duplicates:
+        t, p, q, qn = t[keep], p[keep], q[keep], qn[keep]
+        v = v[keep] if v is not None else None
     if len(t) < 10:
         raise InputError(f"{name}: only {len(t)} usable messages; at least 10 are needed")
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    q = q / qn[:, None]  # the norms of the finite quaternions kept
     glitches = 0
     if role == "truth":  # a discontinuity of the truth becomes a gap, never interpolated motion
         jumps = truth_jumps(t, p, o.max_truth_accel)

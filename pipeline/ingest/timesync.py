@@ -99,6 +99,13 @@ def _interp(q: np.ndarray, tt: np.ndarray, a: np.ndarray) -> np.ndarray:
     return np.column_stack([np.interp(q, tt, a[:, k]) for k in range(a.shape[1])])
 
 
+def _columns(a: np.ndarray) -> np.ndarray:
+    """``a`` stored column by column: ``np.interp`` copies a strided column on every call,
+    and the search interpolates the whole truth stream ~80 times (same values, so the same
+    interpolated samples)."""
+    return np.asfortranarray(a, dtype=float)
+
+
 def _terms(
     tau_s: float,
     tv: np.ndarray,
@@ -109,7 +116,8 @@ def _terms(
     gt: np.ndarray | None,
     method: str,
 ) -> tuple[float, float | None]:
-    """``P(tau)`` (m^2) and ``G(tau)`` (None without attitudes), module docstring."""
+    """``P(tau)`` (m^2) and ``G(tau)`` (None without attitudes), module docstring (the truth's
+    ``pt`` and ``gt`` are best stored by column, :func:`_columns`)."""
     q = tv - tau_s
     truth = _interp(q, tt, pt)
     al = fit_alignment(pv, truth, method)
@@ -218,7 +226,7 @@ def estimate_offset(
         moving = min(float(np.sqrt(np.mean(np.sum((g - g.mean(0)) ** 2, 1)))) for g in (gv, gt))
         if not moving > min_tilt_rad:  # level (or identity) attitudes: nothing to compare
             gv = gt = None
-    args = (gv, tt, pt, gt, method)
+    args = (gv, tt, _columns(pt), None if gt is None else _columns(gt), method)
     # coarse: a grid of step_s on at most coarse_samples of the samples
     sub = np.linspace(0, len(tv) - 1, min(len(tv), coarse_samples)).round().astype(int)
     gsub = None if gv is None else gv[sub]

@@ -14,7 +14,9 @@ Decoding, fastest first:
    that hold wanted messages are decompressed once each. The record headers are checked
    (op code, connection id and time equal what the index says) and the message data
    decoded for the whole topic at once. A test checks the sliced bytes against rosbags'
-   ``messages()`` byte for byte.
+   ``messages()`` byte for byte. rosbags' ROS1 reader is opened with its index read by
+   numpy (:func:`qsls.pipeline.ingest.sources.ros1index.open_ros1`); ``AnyReader`` only
+   for the per-message path.
 2. MCAP (plain, and rosbag2 MCAP storage without message/file compression), fixed-layout
    types (:mod:`qsls.pipeline.ingest.sources.mcapchunks`): the summary's chunk indexes and
    each chunk's message indexes locate every wanted message; uncompressed chunks are
@@ -22,10 +24,11 @@ Decoding, fastest first:
    helpers, the records checked against the index and decoded for the whole topic at once.
    A test compares them record for record with the ``mcap`` reader.
 3. ROS2 sqlite3 without compression, fixed-layout types (:mod:`qsls.pipeline.ingest.sources.sqlite`):
-   the topics from ``metadata.yaml`` and the wanted topics' messages from one SQL query per
-   database file, decoded at once; rosbags' reader is not even opened (its opening scans
-   the whole database to count messages and imports a ROS 2 typestore). MCAP without a
-   usable index: raw messages from the reader, decoded at once.
+   the topics from ``metadata.yaml`` (:mod:`qsls.pipeline.ingest.sources.listing`, as for
+   rosbag2 MCAP folders) and each wanted topic's messages from one SQL query per database
+   file, decoded at once; rosbags' reader is not even opened (its opening scans the whole
+   database to count messages and imports a ROS 2 typestore). MCAP without a usable index:
+   raw messages from the reader, decoded at once.
 4. Anything else (``tf2_msgs/msg/TFMessage``, big-endian CDR, unexpected layouts):
    rosbags' (or mcap_ros2's) per-message deserializer.
 """
@@ -47,8 +50,9 @@ from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.ingest.sources import layout, mcapchunks
 from qsls.pipeline.ingest.sources.base import BAG_HINT, TopicInfo, Trajectory, bag_root, detect
-from qsls.pipeline.ingest.sources.ros1index import Batch, ros1_batches
-from qsls.pipeline.ingest.sources.sqlite import SqliteBag, open_sqlite_bag, sqlite_batches
+from qsls.pipeline.ingest.sources.listing import Rosbag2Listing, open_rosbag2
+from qsls.pipeline.ingest.sources.ros1index import Batch, open_ros1, ros1_batches
+from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
 from qsls.pipeline.ingest.sources.write import ODOMETRY, TF, typestore
 
 _REPAIR = {
@@ -214,7 +218,8 @@ class BagSource:
             )
         self._tmp: str | None = None
         self._reader: Any = None
-        self._sqlite: SqliteBag | None = None
+        self._listed: Rosbag2Listing | None = None  # from metadata.yaml (listing.py)
+        self._ros1: Any = None  # rosbags' ROS1 reader with a numpy index (ros1index.open_ros1)
         self._mcap: Any = None
         self._fh: Any = None
         try:
@@ -244,17 +249,28 @@ class BagSource:
             self._summary = summary
             return
         if self.kind == "rosbag2":
-            self._sqlite = open_sqlite_bag(bag_root(self.path))
-            if self._sqlite is not None:
+            self._listed = open_rosbag2(bag_root(self.path))
+            if self._listed is not None:
                 return  # rosbags' reader only when it is needed (_rosbags)
+        if self.kind == "ros1":
+            self._ros1 = open_ros1(self._ros1_path())
+            return  # AnyReader (typestore, index as objects) only when it is needed
         self._open_rosbags()
+
+    def _ros1_path(self) -> Path:
+        """The ROS1 bag under a ``.bag`` name (rosbags' readers go by the suffix)."""
+        if self.path.suffix == ".bag":
+            return self.path
+        if self._tmp is None:
+            return self._link(self.path, self.path.name + ".bag")
+        return Path(self._tmp) / (self.path.name + ".bag")
 
     def _open_rosbags(self) -> Any:
         from rosbags.highlevel import AnyReader
 
         target = self.path
-        if self.kind == "ros1" and self.path.suffix != ".bag":
-            target = self._link(self.path, self.path.name + ".bag")
+        if self.kind == "ros1":
+            target = self._ros1_path()
         elif self.kind == "rosbag2":
             target = bag_root(self.path)
         elif self.kind == "db3":
@@ -270,7 +286,9 @@ class BagSource:
     @property
     def _cdr(self) -> bool:
         """Messages are CDR (ROS 2, MCAP), not ROS1."""
-        return self._mcap is not None or self._sqlite is not None or self._reader.is2
+        if self._mcap is not None or self._listed is not None:
+            return True
+        return self._ros1 is None and self._reader.is2
 
     def _link(self, src: Path, name: str) -> Path:
         self._tmp = tempfile.mkdtemp(prefix="qsls-bag-")
@@ -332,6 +350,10 @@ class BagSource:
         return folder
 
     def close(self) -> None:
+        if self._ros1 is not None:
+            with contextlib.suppress(Exception):
+                self._ros1.close()
+            self._ros1 = None
         if self._reader is not None:
             with contextlib.suppress(Exception):
                 self._reader.close()
@@ -361,9 +383,12 @@ class BagSource:
                 prev = out.get(ch.topic)
                 n = int(counts.get(cid, 0)) + (prev.count if prev else 0)
                 out[ch.topic] = TopicInfo(ch.topic, mt, n, self.path)
-        elif self._sqlite is not None:
-            for topic, (mt, n) in self._sqlite.topics.items():
+        elif self._listed is not None:
+            for topic, (mt, n) in self._listed.topics.items():
                 out[topic] = TopicInfo(topic, mt, n, self.path)
+        elif self._ros1 is not None:
+            for topic, info in self._ros1.topics.items():
+                out[topic] = TopicInfo(topic, info.msgtype or "?", int(info.msgcount), self.path)
         else:
             for topic, info in self._reader.topics.items():
                 out[topic] = TopicInfo(topic, info.msgtype or "?", int(info.msgcount), self.path)
@@ -423,18 +448,16 @@ class BagSource:
         chunks, plain or rosbag2 (:mod:`mcapchunks`); an empty dict: fall back."""
         if not infos:
             return {}
+        if self._ros1 is not None:
+            r1 = self._ros1
+            ids = {i.topic: {c.id for c in r1.connections if c.topic == i.topic} for i in infos}
+            conns = set().union(*ids.values())
+            return self._batches_fast(infos, ids, lambda: ros1_batches(r1, conns), progress)
         dbs = self._sqlite_files() if self._mcap is None else None
         if dbs:
             topics = [i.topic for i in infos]
             ids = {t: {k} for k, t in enumerate(topics)}
             return self._batches_fast(infos, ids, lambda: sqlite_batches(dbs, topics), progress)
-        r = self._reader
-        if self._mcap is None and not r.is2:
-            ids = {i.topic: {c.id for c in r.connections if c.topic == i.topic} for i in infos}
-            conns = set().union(*ids.values())
-            return self._batches_fast(
-                infos, ids, lambda: ros1_batches(r.readers[0], conns), progress
-            )
         files = self._mcap_files()
         if not files:
             return {}
@@ -446,6 +469,8 @@ class BagSource:
         compression (chunk compression is fine); None for anything else."""
         if self._mcap is not None:
             return [self.path]
+        if self._listed is not None:
+            return self._listed.files if self._listed.storage == "mcap" else None
         from rosbags.rosbag2.storage_mcap import McapReader
 
         return self._storage_files(McapReader)
@@ -561,8 +586,8 @@ class BagSource:
     def _sqlite_files(self) -> list[Path] | None:
         """The ``.db3`` files of an uncompressed sqlite3 rosbag2, read directly with one query
         per topic (rosbags' reader yields one message at a time); None for anything else."""
-        if self._sqlite is not None:
-            return self._sqlite.files
+        if self._listed is not None:
+            return self._listed.files if self._listed.storage == "sqlite3" else None
         from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
         return self._storage_files(Sqlite3Reader)

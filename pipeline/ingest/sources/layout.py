@@ -65,29 +65,39 @@ class Decoded:
     child_frame_id: str
 
 
-def _gather(buf: np.ndarray, pos: np.ndarray, nbytes: int) -> np.ndarray:
-    """Bytes ``buf[pos[i] : pos[i] + nbytes]`` of every ``i`` as an ``(n, nbytes)`` array."""
-    idx = pos[:, None] + np.arange(nbytes, dtype=np.int64)[None, :]
-    return np.ascontiguousarray(buf[idx])
-
-
 def _words(buf: np.ndarray, pos: np.ndarray, count: int, dtype: str) -> np.ndarray:
-    """``count`` little-endian words of ``dtype`` starting at byte ``pos[i]``: ``(n, count)``.
+    """``count`` little-endian words of ``dtype`` starting at byte ``pos[i]`` of ``buf`` (1-D
+    ``uint8``), for every ``i``: a contiguous ``(n, count)`` array; :class:`LayoutError` if
+    one leaves ``buf``.
 
-    Gathers whole words through ``itemsize`` shifted views of the buffer (one per
-    ``pos % itemsize``) instead of single bytes: ``itemsize`` times fewer indices.
+    The ``count`` words of a message are one opaque item of an array over ``buf`` itself
+    whose items start ``step`` bytes apart: ``step`` the spacing of equally spaced positions
+    (the messages of a topic stored back to back, all of one length: a rosbag2 sqlite3
+    topic read in one query), copied at once; else 1, an item starting at every byte, of
+    which ``pos`` picks one per message. One copy per message, no index per byte or word.
     """
     dt = np.dtype(dtype)
-    size = dt.itemsize
-    out = np.empty((len(pos), count), dtype=dt)
-    residue = pos % size
-    cols = np.arange(count, dtype=np.int64)[None, :]
-    for r in np.unique(residue).tolist():
-        m = residue == r
-        usable = (len(buf) - r) // size
-        view = buf[r : r + usable * size].view(dt)
-        out[m] = view[((pos[m] - r) // size)[:, None] + cols]
-    return out
+    n, nbytes = len(pos), count * dt.itemsize
+    if n == 0:
+        return np.zeros((0, count), dt)
+    if int(pos.min()) < 0 or int(pos.max()) + nbytes > len(buf):
+        raise LayoutError("a field beyond the end of the data")
+    p0 = int(pos[0])
+    step = int(pos[1] - p0) if n > 1 else 1
+    item = np.dtype((np.void, nbytes))  # one copy per message, not per word or byte
+    if step > 0 and np.array_equal(pos, p0 + step * np.arange(n, dtype=np.int64)):
+        # a copy even when the view is contiguous: callers reuse their buffers
+        raw = np.array(np.ndarray((n,), item, buffer=buf, offset=p0, strides=(step,)))
+    else:
+        raw = np.ndarray((len(buf) - nbytes + 1,), item, buffer=buf, strides=(1,))[pos]
+    return raw.view(dt).reshape(n, count)
+
+
+def column(rows: np.ndarray, at: int, dtype: str) -> np.ndarray:
+    """The little-endian word of ``dtype`` at byte ``at`` of every row of ``rows`` (``(n, k)``
+    ``uint8``, e.g. record heads gathered at once by :func:`_words`): ``(n,)``."""
+    size = np.dtype(dtype).itemsize
+    return np.ascontiguousarray(rows[:, at : at + size]).view(dtype)[:, 0]
 
 
 def _u32(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
@@ -123,7 +133,7 @@ def decode(
     if ends.max() > size or (ends - starts).min() < 8:
         raise LayoutError("message bounds outside the buffer or too short")
     if cdr:
-        enc = _gather(buf, starts, 4)
+        enc = _words(buf, starts, 4, "u1")
         if not (np.all(enc[:, 0] == 0) and np.all(enc[:, 1] == 1)):
             raise LayoutError("not little-endian plain CDR")
         base = starts + 4

@@ -139,13 +139,15 @@ def _records(
         return rec, rec
     if rec.max() + _MSG_HEAD > len(buf):
         raise layout.LayoutError("message record beyond the chunk")
-    if not np.all(buf[rec] == Opcode.MESSAGE):
+    # every record's fixed head in one copy (one pass over the scattered records, not four)
+    head = layout._words(buf, rec, _MSG_HEAD, "u1")
+    if not np.all(head[:, 0] == Opcode.MESSAGE):
         raise layout.LayoutError("the index points at a record that is not a message")
-    if not np.array_equal(layout._words(buf, rec + 9, 1, "<u2")[:, 0], channel):
+    if not np.array_equal(layout.column(head, 9, "<u2"), channel):
         raise layout.LayoutError("message record of another channel than the index says")
-    if not np.array_equal(layout._words(buf, rec + 15, 1, "<u8")[:, 0].view(np.int64), log_ns):
+    if not np.array_equal(layout.column(head, 15, "<u8").view(np.int64), log_ns):
         raise layout.LayoutError("message log time differs from the index")
-    length = layout._words(buf, rec + 1, 1, "<u8")[:, 0].astype(np.int64)
+    length = layout.column(head, 1, "<u8").astype(np.int64)
     starts = rec + _MSG_HEAD
     ends = rec + 9 + length
     if length.min() < _MSG_HEAD - 9 or ends.max() > len(buf):

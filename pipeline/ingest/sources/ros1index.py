@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from itertools import chain
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,10 +29,60 @@ class Batch:
     conn: np.ndarray
 
 
+_ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])
+
+
+def open_ros1(path: Path) -> Any:
+    """rosbags' ROS1 reader, opened, with its message index read by numpy instead of one
+    Python object per message.
+
+    ``rosbags.rosbag1.Reader.open`` checks the bag (magic, version, encryption, index
+    position) and reads its connections, chunk infos and chunk headers; after each chunk it
+    calls ``read_index_data`` for every connection in the chunk, which builds one
+    ``IndexData`` per message (0.16 s for 200 000 messages) and sorts them. Here that one
+    method reads the same record (rosbags' header parser, ``op`` = index data, ``ver`` 1,
+    ``count`` entries of ``uint32 sec, nsec, offset``) as one array per connection and
+    chunk, kept in ``index_arrays`` (``reader.indexes`` stays empty); the entries' count
+    must equal what the chunk info says. Everything else is rosbags' reader.
+    """
+    from rosbags.rosbag1.reader import Header, Reader, ReaderError, RecordType, read_uint32
+
+    class NumpyIndexReader(Reader):
+        index_arrays: dict[int, list[tuple[int, np.ndarray]]]
+
+        def read_index_data(self, pos: int, indexes: Any) -> None:
+            assert self.bio is not None
+            header = Header.read(self.bio, RecordType.IDXDATA)
+            if header.get_uint32("ver") != 1:
+                raise ReaderError("IDXDATA version is not supported.")
+            conn, count = header.get_uint32("conn"), header.get_uint32("count")
+            size = read_uint32(self.bio)
+            data = self.bio.read(size)
+            infos = self.__dict__.setdefault("_infos", {c.pos: c for c in self.chunk_infos})
+            counted = infos[pos].connection_counts.get(conn) if pos in infos else None
+            if size != 12 * count or len(data) != size or counted != count:
+                raise ReaderError("index data does not match its chunk info")
+            self.index_arrays.setdefault(conn, []).append((pos, np.frombuffer(data, _ENTRY)))
+
+    reader = NumpyIndexReader(path)
+    reader.index_arrays = {}
+    reader.open()
+    return reader
+
+
 def _index(reader1: Any, conn_ids: set[int]) -> np.ndarray:
-    """rows ``(time, chunk_pos, offset, conn)`` of rosbags' index, in time order."""
+    """rows ``(time, chunk_pos, offset, conn)`` of the reader's index, in time order: the
+    arrays of :func:`open_ros1`, or rosbags' ``IndexData`` of a plain rosbags reader."""
     parts = []
+    arrays = getattr(reader1, "index_arrays", None)
     for c in sorted(conn_ids):
+        if arrays is not None:
+            for pos, e in arrays.get(c, []):
+                t = e["sec"].astype(np.int64) * 1_000_000_000 + e["nsec"]
+                parts.append(np.column_stack([t, np.full(len(e), pos, np.int64),
+                                              e["offset"].astype(np.int64),
+                                              np.full(len(e), c, np.int64)]))  # fmt: skip
+            continue
         entries = reader1.indexes[c]
         a = np.fromiter(chain.from_iterable(entries), dtype=np.int64, count=3 * len(entries))
         a = a.reshape(-1, 3)
@@ -58,15 +109,18 @@ def _records(
     fields = _header_fields(bytes(buf[int(rec[0]) + 4 : int(rec[0]) + 4 + h0]))
     if not {"op", "conn", "time"} <= set(fields):
         raise layout.LayoutError("record header without op/conn/time")
-    if not np.all(buf[rec + 4 + fields["op"]] == 2):
+    # each record's header and data length in one copy (one pass over the records, not four)
+    head = layout._words(buf, rec, 4 + h0 + 4, "u1")
+    if not np.all(head[:, 4 + fields["op"]] == 2):
         raise layout.LayoutError("index points at a record that is not message data")
-    if not np.array_equal(layout._u32(buf, rec + 4 + fields["conn"]), conns):
+    if not np.array_equal(layout.column(head, 4 + fields["conn"], "<u4"), conns):
         raise layout.LayoutError("record of another connection than the index says")
-    t = layout._words(buf, rec + 4 + fields["time"], 2, "<u4")
-    if not np.array_equal(t[:, 0].astype(np.int64) * 1_000_000_000 + t[:, 1], times):
+    sec = layout.column(head, 4 + fields["time"], "<u4").astype(np.int64)
+    nsec = layout.column(head, 8 + fields["time"], "<u4")
+    if not np.array_equal(sec * 1_000_000_000 + nsec, times):
         raise layout.LayoutError("record time differs from the index")
     starts = rec + 8 + h0
-    ends = starts + layout._u32(buf, rec + 4 + h0)
+    ends = starts + layout.column(head, 4 + h0, "<u4").astype(np.int64)
     if ends.max() > len(buf):
         raise layout.LayoutError("message data beyond the chunk")
     return starts, ends

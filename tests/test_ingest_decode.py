@@ -1,0 +1,159 @@
+"""The numpy field reader against rosbags' deserializer where message lengths vary.
+
+A topic whose messages all have one length and lie back to back (a rosbag2 sqlite3 topic,
+read in one query) is read through one strided view; a topic whose frame names change
+length from message to message, or messages scattered between other records (ROS1, MCAP),
+through one gathered copy per message. Both must give what rosbags' (or mcap's)
+per-message deserializer gives, field for field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from qsls.pipeline.ingest.sources import layout
+from qsls.pipeline.ingest.sources.bags import BagSource
+from qsls.pipeline.ingest.sources.write import FORMATS, POSE_STAMPED, PoseStream, write_bag
+from tests.bagfixtures import make_flight
+
+# (frame_id, child_frame_id) per interleaved part of /vio/odom: an empty name, a long one,
+# and two pairs of the same total length whose second string starts at different offsets
+# (CDR pads each string's length word to 4 bytes)
+ODOM_FRAMES = [
+    ("odom", "base_link"),
+    ("", "b"),
+    ("w" * 61, "imu_0"),
+    ("ab", "cdef"),
+    ("abcd", "ef"),
+]
+POSE_FRAMES = ["world", "a_13_chars_xy", "v"]
+
+
+def _split(stream, frames):
+    """``stream`` as interleaved parts (message ``i`` in part ``i % len(frames)``), one frame
+    pair each: written to one topic they give messages of varying length."""
+    parts = []
+    for k, fr in enumerate(frames):
+        i = np.arange(k, len(stream), len(frames))
+        kw = {"header_ns": stream.header_ns[i], "log_ns": stream.log_ns[i],
+              "position": stream.position[i], "orientation": stream.orientation[i]}  # fmt: skip
+        if isinstance(fr, tuple):
+            kw |= {"frame_id": fr[0], "child_frame_id": fr[1],
+                   "linear_velocity": stream.linear_velocity[i], "angular_velocity": None}  # fmt: skip
+        else:
+            kw["frame_id"] = fr
+        parts.append(replace(stream, **kw))
+    return parts
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("decode")
+    f = make_flight(duration=6.0, vio_hz=50, truth_hz=100, dropouts=())
+    t = f.truth
+    odd = PoseStream("/odd", t.header_ns, t.log_ns + 7, t.position, t.orientation,
+                     msgtype=POSE_STAMPED, frame_id="x" * 13)  # fmt: skip
+    streams = [*_split(f.vio, ODOM_FRAMES), *_split(f.truth, POSE_FRAMES), odd]
+    names = {"ros1": "b.bag", "mcap": "b.mcap"}
+    return {fmt: write_bag(d / names.get(fmt, f"b_{fmt}"), streams, fmt) for fmt in FORMATS}
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_varying_lengths_decode_as_the_deserializer(bags: dict[str, Path], fmt: str) -> None:
+    with BagSource(bags[fmt]) as src:
+        names = ["/vio/odom", "/mocap/pose", "/odd"]
+        fast = src.read_many([(n, None) for n in names])
+        slow = src.read_many([(n, None) for n in names], fast=False)
+    for name, a, b in zip(names, fast, slow, strict=True):
+        assert (a.decoder, b.decoder) == ("numpy", "deserializer"), name
+        assert len(a) == len(b) > 250
+        for attr in ("header_ns", "log_ns", "position", "orientation"):
+            np.testing.assert_array_equal(getattr(a, attr), getattr(b, attr), err_msg=attr)
+        assert (a.frame_id, a.child_frame_id) == (b.frame_id, b.child_frame_id)
+        if name == "/vio/odom":
+            np.testing.assert_array_equal(a.velocity, b.velocity)
+            assert (a.frame_id, a.child_frame_id) == ODOM_FRAMES[0]
+        else:
+            assert a.velocity is None
+    assert fast[2].frame_id == "x" * 13
+
+
+def test_sqlite_topic_back_to_back_in_one_buffer(bags: dict[str, Path]) -> None:
+    """The sqlite3 read gives each topic's messages back to back: a topic of one length
+    is equally spaced (the strided view), a topic of varying lengths is not."""
+    from qsls.pipeline.ingest.sources.listing import open_rosbag2
+    from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
+
+    bag = open_rosbag2(bags["ros2-sqlite"])
+    assert bag is not None
+    batches = {int(b.conn[0]): b for b in sqlite_batches(bag.files, ["/vio/odom", "/odd"])}
+    for k, b in batches.items():
+        assert np.array_equal(b.starts[1:], b.ends[:-1]) and b.starts[0] == 0
+        assert b.ends[-1] == len(b.buf)
+        lengths = set((b.ends - b.starts).tolist())
+        assert len(lengths) == (1 if k == 1 else 4), lengths  # "ab"/"abcd" pairs: one length
+
+
+def test_words_equal_slicing_and_own_their_memory() -> None:
+    """``layout._words``: the words at equally spaced and at scattered byte positions are the
+    bytes at those positions; the result is a copy (readers reuse their buffers), and a
+    position outside the buffer is a LayoutError, not a read past its end."""
+    rng = np.random.default_rng(7)
+    buf = rng.integers(0, 256, size=5000, dtype=np.uint8)
+    spaced = 13 + 37 * np.arange(100, dtype=np.int64)
+    scattered = np.sort(rng.choice(4900, size=100, replace=False)).astype(np.int64)
+    for pos in (spaced, scattered, spaced[:1]):
+        for count, dtype in ((7, "<f8"), (2, "<u4"), (4, "u1")):
+            got = layout._words(buf, pos, count, dtype)
+            size = np.dtype(dtype).itemsize
+            want = np.stack([buf[p : p + count * size].view(dtype) for p in pos.tolist()])
+            assert got.shape == (len(pos), count) and got.flags.c_contiguous
+            assert got.tobytes() == want.tobytes()
+    work = buf.copy()
+    got = layout._words(work, spaced, 2, "<u4")
+    before = got.copy()
+    work[:] = 0
+    assert np.array_equal(got, before)
+    one = layout._words(work, np.array([8]), 1, "<u8")  # a contiguous view would alias work
+    work[8:16] = 255
+    assert one[0, 0] == 0
+    for bad in (np.array([4995]), np.array([-1, 10])):
+        with pytest.raises(layout.LayoutError):
+            layout._words(buf, bad, 1, "<u8")
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "ros2-sqlite", "ros2-mcap"])
+def test_fast_paths_never_open_anyreader(bags: dict[str, Path], fmt: str) -> None:
+    """ROS1 bags and uncompressed rosbag2 folders are listed and read without rosbags'
+    AnyReader (its typestore and, for ROS1, its index of one object per message); the
+    per-message deserializer opens it."""
+    with BagSource(bags[fmt]) as src:
+        counts = {t.topic: t.count for t in src.topics()}
+        fast = src.read("/mocap/pose")
+        assert src._reader is None and fast.decoder == "numpy"
+        assert src.read("/mocap/pose", fast=False).decoder == "deserializer"
+        assert src._reader is not None
+        assert {t.topic: t.count for t in src.topics()} == counts
+    assert counts["/mocap/pose"] == len(fast) and counts["/vio/odom"] > 250
+
+
+def test_ros1_numpy_index_is_rosbags_index(bags: dict[str, Path]) -> None:
+    """The ROS1 index read by numpy (ros1index.open_ros1) has rosbags' entries: time, chunk,
+    offset and connection of every message, in rosbags' order."""
+    from rosbags.rosbag1 import Reader
+
+    from qsls.pipeline.ingest.sources.ros1index import _index, open_ros1
+
+    fast = open_ros1(bags["ros1"])
+    try:
+        with Reader(bags["ros1"]) as r:
+            for conns in ({c.id for c in r.connections}, {r.connections[0].id}):
+                want, got = _index(r, conns), _index(fast, conns)
+                assert len(want) > 250 and np.array_equal(got, want)
+            assert fast.indexes == {c.id: [] for c in fast.connections}  # no objects built
+    finally:
+        fast.close()
