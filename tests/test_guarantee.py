@@ -21,10 +21,13 @@ from qsls.pipeline.control.guarantee import (
     Norms,
     PremiseNumbers,
     guarantee,
+    min_norm_bound,
+    necessary_condition,
     rho_star,
     sparse_gain,
     system_norms,
 )
+from qsls.pipeline.control import largest_s
 from qsls.pipeline.control.status import CERTIFIED
 from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.errormodel import honest
@@ -210,3 +213,31 @@ def test_outlier_windows_and_m():
     assert fit.m >= 2 and honest.window_exceed_prob(fit.m, 3, fit.rate_upper) <= 1e-3
     lo, hi = honest.clopper_pearson(4, 10)
     assert 0.12 < lo < 0.13 and 0.73 < hi < 0.74  # the textbook interval for 4 of 10
+
+
+@pytest.mark.parametrize(
+    ("state_scale", "error_scale"),
+    [((1,) * 6, (4,) * 6), ((1,) * 6, (0.5, 0.5, 0.5, 1, 1, 1)), ((1, 1, 1, 0.5, 0.5, 0.5), (0.3, 2, 1, 1, 1, 1))],
+)
+def test_necessary_condition_is_necessary_with_weights(state_scale, error_scale):
+    """``N_lower = max_i w_x,i / w_e,i`` lies below the smallest achievable ``N`` (the taps of
+    ``Phi_xy`` sum to ``-I`` on the positions), so a point that fails the weighted condition
+    is infeasible; with ``W_e = 4 I`` the unweighted ``S + eps/r < 1`` would refuse a point the
+    solver finds feasible (a review found the sweep skipping it)."""
+    model = quadrotor_model()
+    shape = sls.Shape(state_scale, error_scale, "full")
+    st = shape.structure(10, "min_phi_xy", False)
+    sol = sls.solve(model, st, sls.Values())
+    assert sol.taps is not None
+    np.testing.assert_allclose(np.diag(sol.taps.Phi_xy.sum(axis=0))[:3], -1.0, atol=1e-7)
+    n_min = largest_s.min_phi_xy(model, 10, shape=shape)
+    assert min_norm_bound(state_scale, error_scale) <= n_min + 1e-9
+    if error_scale == (4,) * 6:
+        numbers = PremiseNumbers(eps=0.6, S=0.5, radius=1.0, eps_w=0.0, delta=0.0)
+        assert numbers.S + numbers.eps / numbers.radius >= 1.0  # the old condition refused it
+        assert necessary_condition(numbers, state_scale, error_scale) < 1.0
+        ms = largest_s.max_feasible_s(model, 10, eps_e=0.6, radius=1.0, shape=shape)
+        assert ms.s_max > 0.5
+        rob = sls.Structure(**{**shape.structure(10, "qr", False).__dict__, "robust": True})
+        values = sls.Values(S=0.5, eps_e=0.6, radius=1.0, eps_w=0.0, delta=0.0)
+        assert sls.solve(model, rob, values).solver_status == "optimal"

@@ -20,9 +20,10 @@ def diagnose(
 ) -> dict[str, Any]:
     """Why a robust problem is infeasible: the necessary condition, the smallest
     achievable ``N`` at ``T`` and the largest feasible ``S``."""
-    from qsls.pipeline.control.guarantee import necessary_condition
+    from qsls.pipeline.control.guarantee import min_norm_bound, necessary_condition
 
-    nec = necessary_condition(r.numbers())
+    nec = necessary_condition(r.numbers(), r.shape.state_scale, r.shape.error_scale)
+    n_lower = min_norm_bound(r.shape.state_scale, r.shape.error_scale)
     min_xy = largest_s.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
     ms = largest_s.max_feasible_s(
         r.model, T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
@@ -33,7 +34,9 @@ def diagnose(
         "S": r.S,
         "eps_e": r.eps_e,
         "radius": r.radius,
-        "S_plus_eps_e_over_r": nec,
+        "S_plus_eps_e_over_r": r.S + r.eps_e / r.radius,
+        "N_lower": n_lower,
+        "necessary": nec,
         "necessary_condition_holds": bool(nec < 1.0),
         "min_norm_phi_xy": min_xy,
         "max_feasible_S": ms.s_max,
@@ -42,21 +45,22 @@ def diagnose(
 
 
 def diagnosis_message(d: dict[str, Any]) -> str:
-    """One line: what fails, and what could help (a radius cannot help when ``S >= 1``)."""
+    """One line: what fails, and what could help (a radius cannot help when ``S N_lower >= 1``)."""
     parts = []
+    lower = d["N_lower"]
+    cond = "S + eps_e/r < 1" if lower == 1.0 else f"(S + eps_e/r) N_lower < 1 (N_lower = {lower:.4g})"
     if not d["necessary_condition_holds"]:
         parts.append(
-            f"S + eps_e/r = {d['S_plus_eps_e_over_r']:.4g} >= 1 fails the necessary condition "
-            "S + eps_e/r < 1 (||Phi_xy|| >= 1 for this plant)"
+            f"S + eps_e/r = {d['S_plus_eps_e_over_r']:.4g} fails the necessary condition {cond} "
+            "(N >= N_lower = max over positions of w_x / w_e for this plant)"
         )
     else:
-        parts.append(
-            f"the necessary condition S + eps_e/r < 1 holds ({d['S_plus_eps_e_over_r']:.4g})"
-        )
+        parts.append(f"the necessary condition {cond} holds ({d['necessary']:.4g})")
     parts.append(f"the smallest achievable N = ||W_x Phi_xy W_e^-1|| at T={d['T']} is {d['min_norm_phi_xy']:.4g}")
-    if d["S"] >= 1.0:
+    if d["S"] * lower >= 1.0:
         parts.append(
-            f"no radius or horizon can help: S = {d['S']:.4g} >= 1 alone breaks S N < 1; a smaller "
+            f"no radius or horizon can help: S N_lower = {d['S'] * lower:.4g} >= 1 alone breaks "
+            "S N < 1; a smaller "
             "S needs a different premise (S = lofo, an error_scale that weights the velocity "
             "errors less, beta with eps_o, or measure: position)"
         )
@@ -64,7 +68,7 @@ def diagnosis_message(d: dict[str, Any]) -> str:
         parts.append(
             f"the largest feasible S for this setting is {d['max_feasible_S']:.6g} (S = {d['S']:.4g} given)"
         )
-    elif d["S"] < 1.0:
+    elif d["S"] * lower < 1.0:
         parts.append(
             "no S >= 0 is feasible for this setting: lower eps_e (beta, error_scale, measure: "
             "position) or Delta (training flights nearer the reference), or raise r or T"

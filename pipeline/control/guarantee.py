@@ -19,8 +19,9 @@ Robustness condition and conclusion::
 
 With ``W_x = W_e = I`` and no outliers (``m = 0``) this is Dean et al.'s theorem:
 ``eps + S rho* = (eps + S a) / (1 - S N) = gamma``. The paper's stricter comparison
-``gamma_strict = R0 / (1 - S N)`` drops ``a``. The condition ``S + eps/r < 1`` is necessary
-because ``||Phi_xy|| >= 1`` on this plant (``N >= min_i w_x,i / max_j w_e,j`` for positions).
+``gamma_strict = R0 / (1 - S N)`` drops ``a``. The condition ``(S + eps/r) N_lower < 1`` is
+necessary because ``N >= N_lower = max_i w_x,i / w_e,i`` over the positions on this plant
+(:func:`min_norm_bound`; with unit weights ``S + eps/r < 1``).
 """
 
 from __future__ import annotations
@@ -117,9 +118,22 @@ def robustness_lhs(p: PremiseNumbers, n: Norms) -> float:
     return (p.S + p.eps / p.radius) * n.N + (a_prior(p, n) + p.eps_o * n.G_m) / p.radius
 
 
-def necessary_condition(p: PremiseNumbers) -> float:
-    """``S + eps/r``: below 1 is necessary for feasibility (``N >= 1`` on this plant, unit weights)."""
-    return p.S + p.eps / p.radius
+def min_norm_bound(state_scale: Sequence[float] = ONES, error_scale: Sequence[float] = ONES) -> float:
+    """``N_lower = max over positions i of w_x,i / w_e,i <= N`` for every achievable response.
+
+    The taps of ``Phi_xy`` sum to ``-I`` on the position channels (the achievability equations
+    with the FIR end condition: a constant position error moves the position by its negative),
+    so row ``i`` of ``W_x Phi_xy W_e^-1`` has an l1 sum of at least ``w_x,i / w_e,i``."""
+    return max(float(state_scale[i]) / float(error_scale[i]) for i in range(3))
+
+
+def necessary_condition(
+    p: PremiseNumbers, state_scale: Sequence[float] = ONES, error_scale: Sequence[float] = ONES
+) -> float:
+    """``(S + eps/r) N_lower``: below 1 is necessary for feasibility, since the robustness
+    condition needs ``(S + eps/r) N < 1`` and ``N >= N_lower`` (:func:`min_norm_bound`; 1 with
+    unit weights, where it reads ``S + eps/r < 1``)."""
+    return (p.S + p.eps / p.radius) * min_norm_bound(state_scale, error_scale)
 
 
 def rho_star(p: PremiseNumbers, n: Norms, a: float | None = None) -> float:

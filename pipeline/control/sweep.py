@@ -105,7 +105,9 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
                 "eps_e": r.eps_e,
                 "radius": r.radius,
                 "delta": r.delta,
-                "necessary": necessary_condition(r.numbers()),
+                "necessary": necessary_condition(
+                    r.numbers(), r.shape.state_scale, r.shape.error_scale
+                ),
                 "eps_w": r.eps_w,
                 "eps_o_value": r.eps_o,
                 "m_value": r.m,

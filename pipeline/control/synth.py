@@ -320,7 +320,9 @@ def synthesize(
     # the error model by its hash only: a path would differ between two folders of one run
     base_extra = {"error_model": None, "error_model_sha256": error_model_sha256,
                   "solver": options.solver}  # fmt: skip
-    if any(s.robust for _, s in plan) and necessary_condition(r.numbers()) >= 1.0:
+    if any(s.robust for _, s in plan) and necessary_condition(
+        r.numbers(), r.shape.state_scale, r.shape.error_scale
+    ) >= 1.0:
         d = diagnose(r, options.T, options.strictly_proper, options.solver)
         raise InfeasibleError(diagnosis_message(d), d)
     warn_size(options.T, len(plan), progress)
