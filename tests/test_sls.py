@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.control import certify, largest_s, sls
-from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, robustness_lhs
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.realize import RealizedController, filter_bank
@@ -94,9 +94,9 @@ def test_max_feasible_s_is_feasible_and_one_percent_more_is_not():
     st = sls.Structure(12, "l1", "qr", True)
     ok = sls.solve(MODEL, st, sls.Values(S=ms.s_max, **kw))
     assert ok.status == "optimal"
-    lhs = sls.robustness_lhs(
-        sls.l1_norm(ok.taps.Phi_xy), sls.l1_norm(ok.taps.Phi_xx), ms.s_max, **kw
-    )
+    numbers = PremiseNumbers(eps=0.05, S=ms.s_max, radius=1.0, eps_w=0.01, delta=0.05)
+    norms = Norms(sls.l1_norm(ok.taps.Phi_xy), sls.l1_norm(ok.taps.Phi_xx), 0.0)
+    lhs = robustness_lhs(numbers, norms)
     assert lhs < 1.0
     assert sls.solve(MODEL, st, sls.Values(S=1.01 * ms.s_max, **kw)).status == "infeasible"
     # no Delta, no process noise: S_max = 1 / min ||Phi_xy|| - eps_e / r

@@ -192,7 +192,7 @@ class TrainingStates:
     flight: np.ndarray
     w: np.ndarray | None = None
     source: str = "training data in memory"
-    _measured: dict[Spec, Measured] = field(default_factory=dict, repr=False)
+    _measured: dict[Spec, Measured] = field(default_factory=dict, repr=False, init=False, compare=False)
 
     def measured(self, spec: Spec) -> Measured:
         """:func:`measure` under ``spec`` (once per spec)."""

@@ -106,7 +106,7 @@ def _eps(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None, tri
     elif not trivial:
         raise InputError(
             "eps_e: with measure, beta or error_scale set, the dense bound is measured on the "
-            "training states, but the error model has none beside it; pass the fit folder"
+            "training states, but the error model has none beside it; pass the fit folder (in Python: TrainingStates)"
         )
     return em.resolve_eps_e(v)
 
@@ -121,7 +121,7 @@ def _slope(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None) -
     if meas is None:
         raise InputError(
             "S = lofo is measured on the training states beside the error model, which are "
-            "missing; pass the fit folder, or give S as a number"
+            "missing; pass the fit folder (in Python: TrainingStates), or give S as a number"
         )
     if math.isnan(meas.slope.S):
         raise InputError(
@@ -156,7 +156,8 @@ def _disturbance(
     if opts.H is not None:
         raise InputError(
             "eps_w with H: the disturbance is measured as ||H^-1 w|| on the training states, "
-            "which are missing beside the error model; pass the fit folder or give a number"
+            "which are missing beside the error model; pass the fit folder (in Python: "
+            "TrainingStates) or give a number"
         )
     return em.resolve_eps_w(name), name
 

@@ -174,19 +174,6 @@ def achievability_residuals(taps: Taps, model: LinearModel) -> dict[str, float]:
     return {k: float(v) for k, v in res.items()}
 
 
-def robustness_lhs(
-    norm_xy: float,
-    norm_xx_h: float,
-    S: float,
-    eps_e: float,
-    radius: float,
-    eps_w: float,
-    delta: float,
-) -> float:
-    """``(S + eps_e / r) ||Phi_xy|| + (eps_w ||Phi_xx H|| + Delta) / r``."""
-    return (S + eps_e / radius) * norm_xy + (eps_w * norm_xx_h + delta) / radius
-
-
 # --------------------------------------------------------------------------- problem
 @dataclass(frozen=True)
 class Structure:
