@@ -138,7 +138,9 @@ class Estimator:
         """Solve the window (:meth:`solve_window`); on success replace the filter by a fresh
         one: attitude and velocity from the solution, its yaw and position those of the lost
         estimate, zero biases; covariance the initial prior, with the tilt and velocity
-        blocks at least the solution's."""
+        blocks at least the solution's and the position and yaw blocks the lost estimate's
+        (they are carried over, and the camera cannot observe them: a prior of 1 mm would
+        claim a certainty the carried estimate does not have; docs/camera.md)."""
         cam = self.cam
         sol = self.solve_window()
         if isinstance(sol, InitRefusal):
@@ -155,6 +157,9 @@ class Estimator:
         tilt2 = max(math.radians(cam.init_sigma_tilt_deg) ** 2, sol.sigma_tilt**2)
         p0[0, 0] = p0[1, 1] = tilt2
         p0[6:9, 6:9] = r_w0 @ sol.cov_v @ r_w0.T + cam.init_sigma_velocity**2 * np.eye(3)
+        p0[3:6, 3:6] = old.imu_covariance()[3:6, 3:6]
+        p0[2, 2] = max(p0[2, 2], float(old.imu_covariance()[2, 2]))
+        new.position_var0 = float(np.trace(p0[3:6, 3:6]))
         new.used_features, new.gated_features = old.used_features, old.gated_features
         self.filter = new
         self.resets.append((t, self.lost or ""))

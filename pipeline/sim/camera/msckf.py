@@ -195,6 +195,9 @@ class Msckf:
         )
         if p_init is not None:
             self.P = np.array(p_init, dtype=float)
+        self.position_var0 = 0.0
+        """``trace P_pp`` the filter started from (a re-initialized filter carries the lost
+        one's position uncertainty): the covariance check measures what was added since."""
         self.clone_ids: list[int] = []
         self.clone_R = np.zeros((0, 3, 3))  # (N, 3, 3) camera to world
         self.clone_p = np.zeros((0, 3))  # (N, 3) camera centres
@@ -299,7 +302,9 @@ class Msckf:
                 f"innovations: {gated} of {used + gated} features rejected by the gate in "
                 f"{cam.reset_window_s:g} s"
             )
-        sigma = math.sqrt(max(float(np.trace(self.P[3:6, 3:6])), 0.0))
+        # position and yaw are unobservable: a re-initialized filter keeps the lost one's
+        # uncertainty (position_var0), so only the growth since its start marks it lost
+        sigma = math.sqrt(max(float(np.trace(self.P[3:6, 3:6])) - self.position_var0, 0.0))
         if sigma > cam.reset_sigma_position:
             return f"covariance: position std {sigma:.2f} m"
         return None
