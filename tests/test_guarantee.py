@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from qsls.pipeline.control import sls
+from qsls.pipeline.control import largest_s, sls
 from qsls.pipeline.control.certify import certify
 from qsls.pipeline.control.guarantee import (
     VELOCITY,
@@ -27,7 +27,6 @@ from qsls.pipeline.control.guarantee import (
     sparse_gain,
     system_norms,
 )
-from qsls.pipeline.control import largest_s
 from qsls.pipeline.control.status import CERTIFIED
 from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.errormodel import honest
