@@ -283,3 +283,44 @@ def test_exclusions_are_counted_by_reason(tmp_path):
     assert m.n_excluded == 13 and m.n_samples == len(t) - 13
     df = pd.read_parquet(tmp_path / "out" / TRAINING_FILE)
     assert df["t"].min() >= 1.0 and np.isfinite(df.loc[:, list(E_COLS)].to_numpy()).all()
+
+
+def test_fit_model_on_arrays_in_memory_matches_the_stage(tmp_path):
+    """The pure core: :func:`fit_model` on samples built in memory (no file read or written)
+    gives ``eps_e = max ||e||`` and the exact largest pair slope (against the all-pairs
+    count), and the same error model ``qsls fit`` writes from the same samples on disk."""
+    from qsls.pipeline.errormodel.fit import FitData, fit_model, load_fit_data
+    from qsls.pipeline.errormodel.slopes import brute_force_slopes
+
+    rng = np.random.default_rng(3)
+    ts, xs, es = [], [], []
+    for seed in range(2):
+        t, x = circle_states(seed, laps=1.0)
+        ts.append(t)
+        xs.append(x)
+        es.append(0.02 * np.sin(x) + rng.normal(0, 0.002, x.shape))
+    n = [len(t) for t in ts]
+    data = FitData(
+        names=["a", "b"], flight_idx=np.repeat([0, 1], n), t=np.concatenate(ts),
+        x=np.concatenate(xs), e=np.concatenate(es), keep=np.ones(sum(n), bool),
+        exclusions={}, dt=0.1,
+    )  # fmt: skip
+    opts = FitOptions(radius=0.3, min_separation=0.01, bootstrap=0, figures=False)
+    before = set(tmp_path.iterdir())
+    fitted = fit_model(data, opts)
+    assert set(tmp_path.iterdir()) == before
+    m = fitted.model
+    assert m.eps_e == float(np.abs(data.e).max())
+    _, s_max, count = brute_force_slopes(data.x, data.e, 0.3, min_separation=0.01)
+    assert m.s_slope.max == pytest.approx(s_max, rel=1e-12) and m.n_pairs == count
+    # the stage on the same samples written as two ingested flights
+    folders = []
+    for k, name in enumerate(("a", "b")):
+        sel = data.flight_idx == k
+        folders.append(write_flight(tmp_path / name, data.t[sel], data.x[sel], data.x[sel] + data.e[sel]))
+    loaded = load_fit_data(folders, opts)
+    np.testing.assert_allclose(loaded.e, data.e, atol=1e-12)
+    res = fit(folders, opts, tmp_path / "fit")
+    assert res.model.eps_e == pytest.approx(m.eps_e, abs=1e-12)
+    assert res.model.s_slope.max == pytest.approx(m.s_slope.max, rel=1e-9)
+    assert res.model.n_pairs == m.n_pairs

@@ -113,7 +113,11 @@ class FitResult:
 
 # --------------------------------------------------------------------------- inputs
 @dataclass(frozen=True)
-class _Training:
+class FitData:
+    """The training samples in memory, every flight's in one array: what :func:`fit_model`
+    estimates the error model from (:func:`load_fit_data` reads it from ingested flights;
+    a notebook may build it from arrays)."""
+
     names: list[str]
     flight_idx: np.ndarray  # (n,) index into names
     t: np.ndarray
@@ -137,7 +141,9 @@ def _flight_names(flights: list[Path]) -> list[str]:
     return names
 
 
-def _load(flights: list[Path], options: FitOptions) -> _Training:
+def load_fit_data(flights: list[Path], options: FitOptions) -> FitData:
+    """The samples of the ingested ``flights`` (and, with ``options.inputs``, their realized
+    disturbance), with the exclusions of ``options`` applied as the ``keep`` mask."""
     if not flights:
         raise InputError("no flights given; pass one or more folders written by 'qsls ingest'")
     loaded = []
@@ -175,7 +181,7 @@ def _load(flights: list[Path], options: FitOptions) -> _Training:
             + ", ".join(f"{k}: {v}" for k, v in ex.items() if v)
             + "); relax --skip-start / --exclude-outliers"
         )
-    return _Training(names, fi, t, x, e, keep, ex, dt, w, w_source)
+    return FitData(names, fi, t, x, e, keep, ex, dt, w, w_source)
 
 
 def _disturbance(
@@ -248,7 +254,7 @@ def robust_z(e: np.ndarray) -> np.ndarray:
     return z
 
 
-def noise_floor(tr: _Training) -> np.ndarray:
+def noise_floor(tr: FitData) -> np.ndarray:
     """Per-axis white-noise std of ``e`` from second differences along each flight (6,)."""
     d2 = []
     for k in range(len(tr.names)):
@@ -374,20 +380,23 @@ def _axis_stats(e: np.ndarray) -> dict[str, AxisStats]:
     return out
 
 
-def fit(
-    flights: list[Path],
-    options: FitOptions,
-    out: Path,
-    *,
-    force: bool = False,
-    progress: Progress = NULL_PROGRESS,
-) -> FitResult:
-    """Estimate the error model of ``flights`` and write ``out`` (see the module doc)."""
-    flights = [Path(f) for f in flights]
-    check_output(Path(out), force, flights)  # before the work, not after it
+@dataclass(frozen=True)
+class Fitted:
+    """What :func:`fit_model` estimated: the model, the kept samples' indices into the data
+    and the pair slopes (for the stage's tables and figures)."""
+
+    model: ErrorModel
+    idx: np.ndarray
+    slopes: PairSlopes
+
+
+def fit_model(data: FitData, options: FitOptions, progress: Progress = NULL_PROGRESS) -> Fitted:
+    """The error model of ``data`` under ``options`` (module docstring; docs/errormodel.md),
+    nothing read or written: ``eps_e = max_i ||e_i||``, the S-slope statistics over the pairs
+    within ``r``, ``R0``, ``Delta`` from the reference and the disturbance statistics."""
     names = {pct_name(q) for q in options.percentiles}
     _resolve_r0(options.r0, 0.0, dict.fromkeys(names, 0.0))  # a clear error now, not later
-    tr = _load(flights, options)
+    tr = data
     ref_x, ref_desc = reference_states(options)
     idx = np.flatnonzero(tr.keep)
     x, e = tr.x[idx], tr.e[idx]
@@ -445,14 +454,33 @@ def fit(
         flights=tr.names,
         disturbance=_disturbance_stats(tr, idx, options.percentiles),
     )
-    _write(Path(out), model, tr, idx, ps, options, flights, force)
+    return Fitted(model, idx, ps)
+
+
+def fit(
+    flights: list[Path],
+    options: FitOptions,
+    out: Path,
+    *,
+    force: bool = False,
+    progress: Progress = NULL_PROGRESS,
+) -> FitResult:
+    """``qsls fit``: read ``flights``, :func:`fit_model`, write ``out`` (module docstring)."""
+    flights = [Path(f) for f in flights]
+    check_output(Path(out), force, flights)  # before the work, not after it
+    names = {pct_name(q) for q in options.percentiles}
+    _resolve_r0(options.r0, 0.0, dict.fromkeys(names, 0.0))  # a clear error before reading
+    data = load_fit_data(flights, options)
+    fitted = fit_model(data, options, progress)
+    _write(Path(out), fitted.model, data, fitted.idx, fitted.slopes, options, flights, force)
     return FitResult(
-        out=Path(out), model=model, noise_floor=model.noise_floor, n_candidates=ps.n_candidates
-    )
+        out=Path(out), model=fitted.model, noise_floor=fitted.model.noise_floor,
+        n_candidates=fitted.slopes.n_candidates,
+    )  # fmt: skip
 
 
 def _disturbance_stats(
-    tr: _Training, idx: np.ndarray, percentiles: list[float]
+    tr: FitData, idx: np.ndarray, percentiles: list[float]
 ) -> DisturbanceStats | None:
     """Max and percentiles of ``||w_k||_inf`` over the kept samples' steps."""
     if tr.w is None:
@@ -467,7 +495,7 @@ def _disturbance_stats(
     )  # fmt: skip
 
 
-def _refuse_zero_error(e: np.ndarray, tr: _Training) -> None:
+def _refuse_zero_error(e: np.ndarray, tr: FitData) -> None:
     """An error model of zeros (VIO equal to the truth) would certify any controller."""
     if not np.abs(e).max() > 0:
         raise InputError(
@@ -497,7 +525,7 @@ def _min_separation(options: FitOptions, floor: float) -> tuple[float, str]:
     return min_sep, "given"
 
 
-def _worst_pairs(tr: _Training, idx: np.ndarray, ps: PairSlopes) -> list[WorstPair]:
+def _worst_pairs(tr: FitData, idx: np.ndarray, ps: PairSlopes) -> list[WorstPair]:
     x, e = tr.x[idx], tr.e[idx]
     return [
         WorstPair(
@@ -519,7 +547,7 @@ def _worst_pairs(tr: _Training, idx: np.ndarray, ps: PairSlopes) -> list[WorstPa
 def _write(
     out: Path,
     model: ErrorModel,
-    tr: _Training,
+    tr: FitData,
     idx: np.ndarray,
     ps: PairSlopes,
     options: FitOptions,
