@@ -183,27 +183,12 @@ class RichProgress:
 
     def __init__(self, every: float = 5.0) -> None:
         from rich.console import Console
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
 
-        self._progress = Progress(
-            TextColumn("{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            console=Console(stderr=True),
-            transient=False,
-            disable=not sys.stderr.isatty(),
-        )
-        self._task: Any = None
+        self._console = Console(stderr=True)
         self._lines = not sys.stderr.isatty()
+        # rich.progress is imported only to draw bars (5-10 ms of a command's start)
+        self._progress: Any = None if self._lines else _bars(self._console)
+        self._task: Any = None
         self._every = every
         self._label, self._done = "", 0.0
         self._total: float | None = None
@@ -218,45 +203,73 @@ class RichProgress:
         self.note(f"{self._label}: {self._done:g}{total} ({now - self._t0:.1f} s)")
 
     def __enter__(self) -> RichProgress:
-        self._progress.start()
+        if self._progress is not None:
+            self._progress.start()
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        self._progress.stop()
+        if self._progress is not None:
+            self._progress.stop()
 
     @property
     def console(self) -> Any:
         """The console the bars draw on (print through it so lines and bars do not mix)."""
-        return self._progress.console
+        return self._console
 
     def start(self, label: str, total: float | None = None) -> None:
         import time
 
-        self._task = self._progress.add_task(label, total=total)
-        if self._lines:
+        if self._progress is not None:
+            self._task = self._progress.add_task(label, total=total)
+        else:
+            self._task = label
             self._label, self._total, self._done = label, total, 0.0
             self._t0 = self._last = time.perf_counter()
 
     def advance(self, amount: float = 1.0) -> None:
         import time
 
-        if self._task is not None:
+        if self._task is None:
+            return
+        if self._progress is not None:
             self._progress.advance(self._task, amount)
-            if self._lines:
-                self._done += amount
-                if time.perf_counter() - self._last >= self._every:
-                    self._line()
+            return
+        self._done += amount
+        if time.perf_counter() - self._last >= self._every:
+            self._line()
 
     def note(self, message: str) -> None:
         """A line on stderr, shown also when no bar is drawn (not a terminal)."""
-        self._progress.console.print(message, soft_wrap=True, markup=False, highlight=False)
+        self._console.print(message, soft_wrap=True, markup=False, highlight=False)
 
     def finish(self) -> None:
-        if self._task is not None:
+        if self._task is not None and self._progress is not None:
             task = self._progress.tasks[-1]
             if task.total is not None:
                 self._progress.update(self._task, completed=task.total)
-            self._task = None
+        self._task = None
+
+
+def _bars(console: Any) -> Any:
+    """rich's live progress bars on ``console``: description, bar, done/total, times."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+    )
 
 
 def print_summary(title: str, rows: Iterable[tuple[str, Any]] | Mapping[str, Any]) -> None:

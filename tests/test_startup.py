@@ -80,3 +80,60 @@ def test_ingest_loads_neither_solver_nor_plotting(tmp_path, fmt):
     )
     assert (tmp_path / "o" / "flight.parquet").is_file()
     assert loaded.strip().splitlines()[-1] == "[]"
+
+
+def _qsls(args: list[str], tmp_path: Path, full: bool) -> tuple[str, int]:
+    """``python -m qsls.cli.main ARGS`` (only the named command registered), or with
+    ``full`` the app an import builds (every command) called with ARGS; same terminal."""
+    import os
+
+    code = (
+        "import sys\nfrom qsls.cli.main import app\n"
+        f"app({args!r}, prog_name='python -m qsls.cli.main')\n"
+    )
+    cmd = ["-c", code] if full else ["-m", "qsls.cli.main", *args]
+    out = subprocess.run(
+        [sys.executable, *cmd], capture_output=True, text=True, cwd=tmp_path, timeout=120,
+        env={**os.environ, "COLUMNS": "100", "TERM": "dumb"},
+    )  # fmt: skip
+    return out.stdout + out.stderr, out.returncode
+
+
+def test_command_line_builds_only_the_named_command(tmp_path):
+    """``qsls ingest ...`` registers ingest alone (the other command modules are never
+    imported), yet its help and its errors are those of the app with every command (what an
+    import of ``qsls.cli.main`` builds); an unknown command still gets the near names."""
+    from qsls.cli.main import COMMANDS
+
+    code = (
+        "import runpy, sys\n"
+        "sys.argv = ['qsls', 'ingest', '--help']\n"
+        "try:\n"
+        "    runpy.run_module('qsls.cli.main', run_name='__main__')\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        f"print(sorted(m for _, m in {COMMANDS!r} if 'qsls.cli.' + m in sys.modules))\n"
+    )
+    assert _run(code, tmp_path).strip().splitlines()[-1] == "['ingest']"
+    for args in (["ingest", "--help"], ["fit", "--help"], ["ingest", "--bogus"], ["ingst"]):
+        got = _qsls(args, tmp_path, full=False)
+        assert got == _qsls(args, tmp_path, full=True), args
+        assert ("Usage:" in got[0]) and (got[1] == (0 if "--help" in args else 2)), args
+    assert "Did you mean 'ingest'?" in _qsls(["ingst"], tmp_path, full=False)[0]
+
+
+def test_pydantic_plugins_off_unless_the_user_says(tmp_path):
+    """The command sets ``PYDANTIC_DISABLE_PLUGINS=__all__`` (no plugin lookup at start-up)
+    only when the user has not set it."""
+    import os
+
+    code = (
+        "import os, sys\nsys.argv = ['qsls']\nimport qsls.cli.main\n"
+        "print(os.environ['PYDANTIC_DISABLE_PLUGINS'])\n"
+    )
+    assert _run(code, tmp_path).strip() == "__all__"
+    env = {**os.environ, "PYDANTIC_DISABLE_PLUGINS": "logfire"}
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env
+    )
+    assert out.stdout.strip() == "logfire"
