@@ -72,7 +72,7 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
         },
     ),
     "evaluate": (
-        "qsls.pipeline.evaluate.fly:FlyOptions",
+        "qsls.pipeline.evaluate.options:FlyOptions",
         {
             "model": None,
             "controller": None,
@@ -138,7 +138,7 @@ def test_every_options_help_states_the_models_default(command):
 DOCUMENTED = (
     "qsls.pipeline.errormodel.fit:FitOptions",
     "qsls.pipeline.ingest.stage:IngestOptions",
-    "qsls.pipeline.evaluate.fly:FlyOptions",
+    "qsls.pipeline.evaluate.options:FlyOptions",
     "qsls.pipeline.evaluate.bound:EvaluateOptions",
 )
 

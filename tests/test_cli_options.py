@@ -22,7 +22,7 @@ MODELS = {
         {},
     ),
     "evaluate": (
-        "qsls.pipeline.evaluate.fly:FlyOptions",
+        "qsls.pipeline.evaluate.options:FlyOptions",
         {"--model", "--controller", "--flights", "--fly"},
         {"--no-figures": "figures", "--backend": "sim.controller.backend"},
     ),

@@ -240,3 +240,15 @@ def test_a_run_config_made_in_python_lays_each_flight_over_its_sections(tmp_path
     sim = by["simulate/s"]
     assert (sim.duration, sim.seed, sim.vio.noise, sim.vio.perception) == (2.0, 4, False, "degraded")
     assert sim.vio.outliers and by["ingest/s"]["options"].dt == 0.2
+
+
+def test_a_bad_fly_subsection_is_refused_when_the_config_is_read(work):
+    """``evaluate.fly`` (laid over the evaluate section's own keys) is validated with the
+    flying options when the config is read, not first when the run is planned; the same
+    keys for ``qsls evaluate --fly --config`` name the same problem."""
+    cfg = _write(work / "cfg", evaluate={"figures": False, "fly": {"seedz": [1]}})
+    with pytest.raises(ConfigError, match=r"cfg: evaluate.fly: unknown option 'seedz'; did you mean 'seeds'\?"):
+        load_run_config(cfg)
+    cfg = _write(work / "cfg", evaluate={"fly": {"vio": ["camera", "camera"]}})
+    with pytest.raises(ConfigError, match="give each estimator once"):
+        load_run_config(cfg)

@@ -7,7 +7,7 @@ __all__, __getattr__ = lazy_api(
     {
         "EvaluateOptions": "bound",
         "evaluate": "bound",
-        "FlyOptions": "fly",
+        "FlyOptions": "options",
         "fly_evaluate": "fly",
     },
 )

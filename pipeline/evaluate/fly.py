@@ -38,11 +38,10 @@ import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import pandas as pd
-from pydantic import Field, field_validator
 
 from qsls.pipeline.core.errors import InputError, QslsError
 from qsls.pipeline.core.pools import run_tasks
@@ -50,7 +49,6 @@ from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.evaluate.bound import (
     ControllerBound,
-    EvaluateOptions,
     EvaluateResult,
     bound_check,
     check_model_hash,
@@ -75,66 +73,12 @@ from qsls.pipeline.evaluate.inputs import (
     motion_metrics,
     pd_on_same_estimate,
 )
+from qsls.pipeline.evaluate.options import FlyOptions as FlyOptions
+from qsls.pipeline.evaluate.options import IngestOptions, SimOptions
+from qsls.pipeline.evaluate.options import Vio as Vio
 from qsls.pipeline.evaluate.paired import FINDINGS_FILE, paired_findings
 from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.ingest.flight import read_flight
-from qsls.pipeline.ingest.stage import IngestOptions
-from qsls.pipeline.sim.simulate import SimOptions
-
-Vio = Literal["emulator", "camera"]
-
-
-class FlyOptions(EvaluateOptions):
-    """Options of ``qsls evaluate --fly`` (and those of the bound check)."""
-
-    seeds: list[int] = Field(default_factory=lambda: [0, 1, 2], min_length=1)
-    """Seeds of the VIO emulator (and of the log's noise); one flight per seed."""
-    duration: float = Field(30.0, gt=0)
-    """Seconds per flight."""
-    conditions: list[Literal["regular", "degraded"]] = Field(
-        default_factory=lambda: ["regular", "degraded"],  # type: ignore[arg-type]
-        min_length=1,
-    )
-    """Perception conditions (the emulator's presets)."""
-    vio: Vio | list[Vio] = "emulator"
-    """Where each flight's estimate comes from: the VIO emulator or the camera loop (a
-    rendered camera, an IMU and an MSCKF: ``sim.vio.camera`` holds its parameters). A list
-    (``[camera, emulator]``) flies every controller, seed and condition with each estimator;
-    the first is the stage's primary (its tables as a single-estimator run writes them) and
-    every estimator's results are also keyed by estimator (docs/evaluation.md)."""
-
-    @field_validator("vio")
-    @classmethod
-    def _distinct_estimators(cls, v: Vio | list[Vio]) -> Vio | list[Vio]:
-        if isinstance(v, list) and (not v or len(set(v)) < len(v)):
-            raise ValueError("vio: give each estimator once, at least one")
-        return v
-
-    @property
-    def estimators(self) -> tuple[Vio, ...]:
-        """The estimators flown, the primary first."""
-        return tuple(self.vio) if isinstance(self.vio, list) else (self.vio,)
-
-    controllers: list[str] | None = None
-    """Controller folder names to fly; default: the paper's four where given, else all."""
-    se3: bool = True
-    """Also fly RotorPy's SE3 controller (the training flights' controller)."""
-    jobs: int = Field(0, ge=0)
-    """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
-    sim: SimOptions = SimOptions()
-    """Vehicle, reference, VIO emulator, crash limits and the log's format (seed, duration,
-    controller and perception are set per flight)."""
-    ingest: IngestOptions = IngestOptions()
-    """How each flight's bag is ingested (as a real one)."""
-    track_threshold_m: float = Field(0.3, gt=0)
-    """A controller 'tracks' when it does not crash and its tracking RMS is below this (m)."""
-    tie_rel: float = Field(0.02, ge=0)
-    """Relative difference below which two controllers' numbers count as a tie (findings)."""
-    pd_z_control: bool = False
-    """Fly the synthesized controllers with the PD's height (thrust) channel, as the paper
-    did in simulation and on hardware "for safety"; pitch and roll stay theirs."""
-    keep_bags: bool = False
-    """Keep every flight's simulate folder (bag, truth.json) under ``sims/``."""
 
 
 # --------------------------------------------------------------------------- one flight

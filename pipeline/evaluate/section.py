@@ -6,13 +6,10 @@ section's own keys: ``figures: false`` beside ``fly:`` holds for both)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from qsls.pipeline.core.config import merge, validate
-from qsls.pipeline.evaluate.options import EvaluateOptions
-
-if TYPE_CHECKING:
-    from qsls.pipeline.evaluate.fly import FlyOptions
+from qsls.pipeline.evaluate.options import EvaluateOptions, FlyOptions
 
 
 class EvaluateSection(EvaluateOptions):
@@ -33,6 +30,4 @@ class EvaluateSection(EvaluateOptions):
     def flying(self, overrides: Mapping[str, Any] | None = None, source: str = "options") -> FlyOptions:
         """The flying options: the section's keys, then ``fly``'s, then ``overrides`` (the
         command line's); errors name ``source``."""
-        from qsls.pipeline.evaluate.fly import FlyOptions
-
         return validate(FlyOptions, merge(merge(self._own(), self.fly or {}), overrides or {}), source)

@@ -77,7 +77,8 @@ class RunConfig(Options):
     :class:`~qsls.pipeline.control.options.SweepSection` (with ``jobs``, ``scheduler``,
     ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions`,
     ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (with ``fly``, whose
-    options are the section's keys under the flight's own: validated when planned). These
+    options, :class:`~qsls.pipeline.evaluate.options.FlyOptions`, are the section's keys with
+``fly``'s laid over them: validated when the config is read too). These
     models live apart from their stages, so reading a run config loads no solver, pandas or
     simulator: a run with nothing to do imports nothing heavy.
 
@@ -170,6 +171,8 @@ def load_run_config(path: Path) -> RunConfig:
         if isinstance(raw.get(key), Mapping):
             typed[key] = validate(model, raw[key], f"{base}: {key}")
     cfg = validate(RunConfig, typed, str(path))
+    if cfg.evaluate is not None and cfg.evaluate.fly is not None:
+        cfg.evaluate.flying(source=f"{base}: evaluate.fly")  # the flights' options, checked now
     cfg._given = {k: raw[k] for k in SECTIONS if k in raw}
     return cfg
 
