@@ -58,3 +58,27 @@ def test_no_camera_section_without_camera_flights(tmp_path):
     _sim(run, "emu_regular", "emulator", "regular")
     md = (report(run).out / "report.md").read_text()
     assert "Camera loop" not in md
+
+
+def test_estimator_ratio_counts_the_pairs_it_dropped():
+    """A pair with a missing (NaN) or zero metric cannot enter a log ratio: it is dropped,
+    and the report's cell says how many seeds the ratio rests on."""
+    import numpy as np
+    import pandas as pd
+    import pytest
+
+    from qsls.pipeline.evaluate.estimators import estimator_ratios
+    from qsls.pipeline.report.camera import _ratio_text
+
+    pairs = pd.DataFrame({
+        "condition": "regular", "controller": "pd", "seed": [0, 1, 2, 3],
+        "tracking_rms_m_camera": [0.05, 0.04, np.nan, 0.06],
+        "tracking_rms_m_emulator": [0.10, 0.08, 0.09, 0.12],
+        "perception_error_rms_camera": [0.02, 0.02, 0.03, 0.02],
+        "perception_error_rms_emulator": [0.08, 0.08, 0.09, 0.0],
+    })  # fmt: skip
+    r = estimator_ratios(pairs, "camera", "emulator").iloc[0].to_dict()
+    assert r["n"] == 4 and r["tracking_rms_m_n"] == 3 and r["perception_error_rms_n"] == 3
+    assert r["tracking_rms_m_ratio"] == pytest.approx(0.5)
+    assert r["perception_error_rms_ratio"] == pytest.approx(np.exp(np.mean(np.log([0.25, 0.25, 1 / 3]))))
+    assert _ratio_text(r, "tracking_rms_m").endswith("(3 of 4 seeds)")

@@ -75,7 +75,9 @@ def estimator_ratios(pairs: pd.DataFrame, a: str, b: str) -> pd.DataFrame:
     """Per condition and controller, for each of :data:`RATIO_METRICS`, the geometric mean over
     seeds of ``metric_a / metric_b`` (estimator ``a`` against ``b`` on the same controller,
     condition and seed) with the exp of the 95% t-interval of the log ratios
-    (:func:`qsls.pipeline.evaluate.stats.paired_ratio`; no difference: 1)."""
+    (:func:`qsls.pipeline.evaluate.stats.paired_ratio`; no difference: 1). ``METRIC_n`` counts
+    the pairs used (a crashed flight with a zero or missing metric drops its pair), ``n`` the
+    pairs."""
     from qsls.pipeline.evaluate.stats import paired_ratio
 
     rows = []
@@ -83,7 +85,8 @@ def estimator_ratios(pairs: pd.DataFrame, a: str, b: str) -> pd.DataFrame:
         row: dict[str, Any] = {"condition": cond, "controller": ctrl}
         for m in RATIO_METRICS:
             iv = paired_ratio(g[f"{m}_{a}"], g[f"{m}_{b}"])
-            row.update({f"{m}_ratio": iv.mean, f"{m}_lo": iv.lo, f"{m}_hi": iv.hi, "n": iv.n})
+            row.update({f"{m}_ratio": iv.mean, f"{m}_lo": iv.lo, f"{m}_hi": iv.hi,
+                        f"{m}_n": iv.n, "n": len(g)})  # fmt: skip
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -138,13 +138,16 @@ def _side_by_side(f: Facts, sec: Section, vios: list[str]) -> None:
 
 
 def _ratio_text(r: dict[str, Any], m: str) -> str:
-    """``0.81 [0.72, 0.9]``; the interval left out with one seed."""
+    """``0.81 [0.72, 0.9]``; the interval left out with one seed; ``(k of n seeds)`` when
+    pairs were dropped (a non-positive or missing metric)."""
     import math
 
     ratio, lo, hi = r[f"{m}_ratio"], r[f"{m}_lo"], r[f"{m}_hi"]
     if not math.isfinite(ratio):
         return "-"
-    return f"{ratio:.3g}" + (f" [{lo:.3g}, {hi:.3g}]" if math.isfinite(lo) else "")
+    used, total = r.get(f"{m}_n", r.get("n")), r.get("n")
+    dropped = f" ({used} of {total} seeds)" if used is not None and used != total else ""
+    return f"{ratio:.3g}" + (f" [{lo:.3g}, {hi:.3g}]" if math.isfinite(lo) else "") + dropped
 
 
 def _held_count(h: Any) -> str:
