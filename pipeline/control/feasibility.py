@@ -1,5 +1,5 @@
 """Why a robust problem is infeasible, and the largest feasible ``S``: the diagnosis an
-infeasible ``qsls synth`` reports (the necessary condition ``S + eps_e / r < 1``, the smallest
+infeasible ``qsls synth`` reports (the necessary condition ``(S + eps_e / r) N_lower < 1``, the smallest
 achievable ``||Phi_xy||`` at ``T``, the largest feasible ``S``) and ``qsls synth
 --max-feasible-s``."""
 

@@ -7,7 +7,8 @@ error-model names), ``eps_e``, ``radius``, ``delta``, ``T``, ``q_scale`` / ``r_s
 resolved and solved as ``qsls synth`` does it (:func:`qsls.pipeline.control.resolution.resolve`,
 :func:`qsls.pipeline.control.synth.design`) and its row is the projection of that design's
 certificate body. A robust point that cannot be feasible is answered without the solver and
-marked ``skipped``: by the necessary condition ``S + eps_e/r < 1``, or (with ``s_max_curve``)
+marked ``skipped``: by the necessary condition ``(S + eps_e/r) N_lower < 1``
+(:func:`qsls.pipeline.control.guarantee.necessary_condition`), or (with ``s_max_curve``)
 by ``S`` above its setting's largest feasible ``S``, computed first
 (:func:`mark_above_s_max`).
 
@@ -177,7 +178,7 @@ def point_cost(p: dict[str, Any]) -> float:
     return float(p["T"]) ** 1.5
 
 
-NECESSARY = "necessary condition S + eps_e/r < 1 fails"
+NECESSARY = "necessary condition (S + eps_e/r) N_lower < 1 fails"
 ABOVE_S_MAX = "S above the largest feasible S of this setting (Dinkelbach bound)"
 S_MAX_TOL = 1e-6
 """How far (relative) above the Dinkelbach bound a point's S must be to be answered infeasible

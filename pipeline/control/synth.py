@@ -13,8 +13,9 @@ and with ``norm: h2`` (or ``both``) the H2 variants ``h2_nominal``, ``h2_robust`
 ``h2_robust_imitation``. ``controllers: single`` synthesizes one controller from
 ``norm``, ``cost`` and ``robust`` instead.
 
-Infeasible is an answer: before solving, the necessary condition ``S + eps_e / r < 1``
-(``||Phi_xy|| >= 1`` for this plant) is checked, and an infeasible robust problem raises
+Infeasible is an answer: before solving, the necessary condition
+``(S + eps_e / r) N_lower < 1`` (``N >= N_lower``, 1 with unit weights, for this plant:
+:func:`qsls.pipeline.control.guarantee.min_norm_bound`) is checked, and an infeasible robust problem raises
 :class:`InfeasibleError` (exit 3) with a diagnosis: that condition, the smallest achievable
 ``||Phi_xy||`` at this ``T`` and the largest feasible ``S`` (:func:`max_feasible_s`).
 """

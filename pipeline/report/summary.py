@@ -269,8 +269,8 @@ def infeasible_lines(f: Facts) -> list[str]:
     em_slope = (em.get("s_slope") or {}).get("max")
     out.append(
         "Why: the robustness constraint (S + eps_e/r) ||Phi_xy|| + (eps_w ||Phi_xx H|| + Delta)/r "
-        "<= 1 needs S + eps_e/r <= 1/min ||Phi_xy||, and since ||Phi_xy|| >= 1 always, "
-        "S + eps_e/r < 1 is necessary. Here min ||Phi_xy|| = "
+        "<= 1 needs S + eps_e/r <= 1/min ||Phi_xy||, and since ||Phi_xy|| >= 1 always (unit "
+        "weights), S + eps_e/r < 1 is necessary. Here min ||Phi_xy|| = "
         + ", ".join(f"{g4(v)} at T = {t}" for t, v in m.items())
         + f"; with eps_e/r = {g4(eps / r)} the smallest S in the grid gives S + eps_e/r = "
         f"{g4(s_lo + eps / r)} against 1/min ||Phi_xy|| = {g4(1 / mm)} at T = {t_best}, and the "
