@@ -157,8 +157,9 @@ class Estimator:
         tilt2 = max(math.radians(cam.init_sigma_tilt_deg) ** 2, sol.sigma_tilt**2)
         p0[0, 0] = p0[1, 1] = tilt2
         p0[6:9, 6:9] = r_w0 @ sol.cov_v @ r_w0.T + cam.init_sigma_velocity**2 * np.eye(3)
-        p0[3:6, 3:6] = old.imu_covariance()[3:6, 3:6]
-        p0[2, 2] = max(p0[2, 2], float(old.imu_covariance()[2, 2]))
+        p_old = old.imu_covariance()
+        p0[3:6, 3:6] = p_old[3:6, 3:6]
+        p0[2, 2] = max(p0[2, 2], float(p_old[2, 2]))
         new.position_var0 = float(np.trace(p0[3:6, 3:6]))
         new.used_features, new.gated_features = old.used_features, old.gated_features
         self.filter = new
