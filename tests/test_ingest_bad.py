@@ -183,3 +183,24 @@ def test_bad_options(tmp_path: Path, good_bag: Path) -> None:
     cfg = tmp_path / "c.yaml"
     cfg.write_text("max_gapp: 1\n")
     _fails(tmp_path, [str(good_bag), "--config", str(cfg)], "did you mean 'max_gap'")
+
+
+def test_a_truth_jump_is_found_and_becomes_a_gap():
+    """A motion-capture track that jumps 0.5 m for one sample and comes back (two intervals no
+    vehicle flies) and one that re-acquires 5 cm off (one interval) are found, a smooth
+    1 m/s track with 1 mm noise is not, and the samples within half a gap of each jump are
+    the ones dropped."""
+    from qsls.pipeline.ingest.streams import drop_around, truth_jumps
+
+    t = np.arange(200) * 10_000_000  # 100 Hz
+    p = np.c_[np.arange(200) * 0.01, np.zeros(200), np.ones(200)]
+    p += np.random.default_rng(0).normal(0, 0.001, p.shape)
+    assert len(truth_jumps(t, p, 100.0)) == 0
+    spike = p.copy()
+    spike[100, 1] += 0.5
+    np.testing.assert_array_equal(truth_jumps(t, spike, 100.0), [99, 100])
+    step = p.copy()
+    step[120:, 0] += 0.05
+    np.testing.assert_array_equal(truth_jumps(t, step, 100.0), [119])
+    bad = drop_around(t, np.array([119]), 25_000_000)  # half of a 0.05 s gap
+    np.testing.assert_array_equal(np.flatnonzero(bad), [117, 118, 119, 120, 121, 122])

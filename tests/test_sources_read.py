@@ -173,18 +173,20 @@ def test_sqlite_bulk_rows_are_rosbags_messages(bags: dict[str, Path]) -> None:
     for byte, in order; a compressed bag is left to rosbags."""
     from rosbags.rosbag2 import Reader
 
-    from qsls.pipeline.ingest.sources.bags import _sqlite_rows
+    from qsls.pipeline.core.progress import NULL_PROGRESS
 
     bag = bags["ros2-sqlite"]
     (db,) = bag.glob("*.db3")
+    with BagSource(bag) as src:
+        assert src._sqlite_files() == [db]
+        infos = [i for i in src.topics() if i.topic in ("/vio/odom", "/p1")]
+        got = src._raw_pass(infos, NULL_PROGRESS)
     with Reader(bag) as r:
         for topic in ("/vio/odom", "/p1"):
             conns = [c for c in r.connections if c.topic == topic]
             want = [(log, bytes(raw)) for _, log, raw in r.messages(connections=conns)]
-            logs, raws = _sqlite_rows(db, topic)
+            raws, logs, _ = got[topic]
             assert len(want) > 100 and list(zip(logs, raws, strict=True)) == want
-    with BagSource(bag) as src:
-        assert src._sqlite_files() == [db]
     with BagSource(bags["ros2-zstd"]) as src:
         assert src._sqlite_files() is None
 

@@ -192,20 +192,6 @@ def _trajectory(
 
 
 # --------------------------------------------------------------------------- sources
-def _sqlite_rows(db: Path, topic: str) -> tuple[list[int], list[bytes]]:
-    """``(log stamps, raw messages)`` of ``topic`` in a rosbag2 sqlite3 file, in one query."""
-    con = sqlite3.connect(f"file:{Path(db).resolve()}?mode=ro", uri=True)
-    try:
-        rows = con.execute(
-            "SELECT m.timestamp, m.data FROM messages m JOIN topics t ON m.topic_id = t.id "
-            "WHERE t.name = ? ORDER BY m.timestamp, m.id",
-            (topic,),
-        ).fetchall()
-    finally:
-        con.close()
-    return [int(r[0]) for r in rows], [bytes(r[1]) for r in rows]
-
-
 class BagSource:
     """An open bag (ROS1, rosbag2 folder or file, plain MCAP)."""
 
@@ -424,15 +410,21 @@ class BagSource:
         progress.start(f"reading {names}", total=sum(i.count for i in infos) or None)
         try:
             found: dict[str, Trajectory] = {}
+            misfit: set[str] = set()  # decoded per message: their layout did not fit
             if fast:
-                fixed = [i for i in infos if i.msgtype in layout.FIXED_TYPES]
-                found = self._indexed_fast(list({i.topic: i for i in fixed}.values()), progress)
+                fixed = list({i.topic: i for i in infos if i.msgtype in layout.FIXED_TYPES}.values())
+                indexed = self._indexed_fast(fixed, progress)
+                if indexed is None:
+                    misfit = {i.topic for i in fixed}
+                else:
+                    found = indexed
             rest = list({i.topic: i for i in infos if i.topic not in found}.values())
             raws = self._raw_pass(rest, progress) if rest else {}
             return [
-                found[t] if t in found else self._decode(known[t], raws[t], frame, fast)
+                found[t] if t in found
+                else self._decode(known[t], raws[t], frame, fast and t not in misfit)
                 for t, frame in requests
-            ]
+            ]  # fmt: skip
         except (InputError, layout.LayoutError):
             raise
         except Exception as exc:
@@ -443,9 +435,13 @@ class BagSource:
         finally:
             progress.finish()
 
-    def _indexed_fast(self, infos: list[TopicInfo], progress: Progress) -> dict[str, Trajectory]:
-        """Fixed-layout topics through the bag's own index: ROS1 (:mod:`ros1index`) or MCAP
-        chunks, plain or rosbag2 (:mod:`mcapchunks`); an empty dict: fall back."""
+    def _indexed_fast(
+        self, infos: list[TopicInfo], progress: Progress
+    ) -> dict[str, Trajectory] | None:
+        """Fixed-layout topics through the bag's own index: ROS1 (:mod:`ros1index`), sqlite3
+        (:mod:`sqlite`) or MCAP chunks, plain or rosbag2 (:mod:`mcapchunks`); an empty dict:
+        no index to use (the raw pass decodes them at once); None: their layout does not fit
+        (decoded per message, not tried again)."""
         if not infos:
             return {}
         if self._ros1 is not None:
@@ -498,9 +494,9 @@ class BagSource:
         ids: dict[str, set[int]],
         batches: Callable[[], Iterable[Batch]],
         progress: Progress,
-    ) -> dict[str, Trajectory]:
+    ) -> dict[str, Trajectory] | None:
         """Decode ``batches`` (``Batch.conn`` in ``ids[topic]``) per topic, in log-time order
-        (stable: batches come in chunk order); an empty dict on a ``LayoutError``."""
+        (stable: batches come in chunk order); None on a ``LayoutError``."""
         encoding = "cdr" if self._cdr else "ros1"
         parts: dict[str, list[tuple[layout.Decoded, np.ndarray]]] = {t: [] for t in ids}
         # (log time, frame_id, child_frame_id) of each topic's first message in log-time order
@@ -524,7 +520,7 @@ class BagSource:
                             first[info.topic] = (int(logs[k]), d.frame_id, d.child_frame_id)
                 progress.advance(len(batch.starts))
         except layout.LayoutError:
-            return {}
+            return None
         out = {}
         for info in infos:
             ds = parts[info.topic]
@@ -564,12 +560,14 @@ class BagSource:
                 if n % 4096 == 0:
                     progress.advance(4096)
         elif (dbs := self._sqlite_files()) is not None:
-            for topic, (raws, logs, _) in out.items():
-                for db in dbs:
-                    rows = _sqlite_rows(db, topic)
-                    logs.extend(rows[0])
-                    raws.extend(rows[1])
-                n += len(raws)
+            topics = list(out)
+            for batch in sqlite_batches(dbs, topics):  # one topic and file each, in row order
+                raws, logs, _ = out[topics[int(batch.conn[0])]]
+                order = np.argsort(batch.log_ns, kind="stable")  # by log time, as rosbags
+                buf = batch.buf.tobytes()
+                raws.extend(buf[batch.starts[i] : batch.ends[i]] for i in order)
+                logs.extend(batch.log_ns[order].tolist())
+                n += len(order)
         else:
             r = self._rosbags()
             conns = [c for c in r.connections if c.topic in out]
