@@ -410,21 +410,15 @@ class BagSource:
         progress.start(f"reading {names}", total=sum(i.count for i in infos) or None)
         try:
             found: dict[str, Trajectory] = {}
-            misfit: set[str] = set()  # decoded per message: their layout did not fit
             if fast:
-                fixed = list({i.topic: i for i in infos if i.msgtype in layout.FIXED_TYPES}.values())
-                indexed = self._indexed_fast(fixed, progress)
-                if indexed is None:
-                    misfit = {i.topic for i in fixed}
-                else:
-                    found = indexed
+                fixed = [i for i in infos if i.msgtype in layout.FIXED_TYPES]
+                found = self._indexed_fast(list({i.topic: i for i in fixed}.values()), progress)
             rest = list({i.topic: i for i in infos if i.topic not in found}.values())
             raws = self._raw_pass(rest, progress) if rest else {}
             return [
-                found[t] if t in found
-                else self._decode(known[t], raws[t], frame, fast and t not in misfit)
+                found[t] if t in found else self._decode(known[t], raws[t], frame, fast)
                 for t, frame in requests
-            ]  # fmt: skip
+            ]
         except (InputError, layout.LayoutError):
             raise
         except Exception as exc:
@@ -435,13 +429,11 @@ class BagSource:
         finally:
             progress.finish()
 
-    def _indexed_fast(
-        self, infos: list[TopicInfo], progress: Progress
-    ) -> dict[str, Trajectory] | None:
+    def _indexed_fast(self, infos: list[TopicInfo], progress: Progress) -> dict[str, Trajectory]:
         """Fixed-layout topics through the bag's own index: ROS1 (:mod:`ros1index`), sqlite3
         (:mod:`sqlite`) or MCAP chunks, plain or rosbag2 (:mod:`mcapchunks`); an empty dict:
-        no index to use (the raw pass decodes them at once); None: their layout does not fit
-        (decoded per message, not tried again)."""
+        fall back to the raw pass, which still decodes them at once where their layout fits
+        (an MCAP file without a usable index raises the same ``LayoutError`` as a misfit)."""
         if not infos:
             return {}
         if self._ros1 is not None:
@@ -494,9 +486,9 @@ class BagSource:
         ids: dict[str, set[int]],
         batches: Callable[[], Iterable[Batch]],
         progress: Progress,
-    ) -> dict[str, Trajectory] | None:
+    ) -> dict[str, Trajectory]:
         """Decode ``batches`` (``Batch.conn`` in ``ids[topic]``) per topic, in log-time order
-        (stable: batches come in chunk order); None on a ``LayoutError``."""
+        (stable: batches come in chunk order); an empty dict on a ``LayoutError``."""
         encoding = "cdr" if self._cdr else "ros1"
         parts: dict[str, list[tuple[layout.Decoded, np.ndarray]]] = {t: [] for t in ids}
         # (log time, frame_id, child_frame_id) of each topic's first message in log-time order
@@ -520,7 +512,7 @@ class BagSource:
                             first[info.topic] = (int(logs[k]), d.frame_id, d.child_frame_id)
                 progress.advance(len(batch.starts))
         except layout.LayoutError:
-            return None
+            return {}
         out = {}
         for info in infos:
             ds = parts[info.topic]
