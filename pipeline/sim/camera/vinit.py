@@ -252,7 +252,7 @@ def _solve(
     cov_v = jac @ cov @ jac.T
     sig_v = math.sqrt(max(float(np.linalg.eigvalsh(cov_v)[-1]), 0.0))
     sig_tilt = math.sqrt(max(float(np.linalg.eigvalsh(cov[3:5, 3:5])[-1]), 0.0)) / gravity
-    depth = ((xf[fcol[use]] - (sf[j_] + (rf[j_] @ t_bc))) * bj).sum(axis=1)
+    depth = ((xf[fcol[use]] - _centres(v0, g0, tf[j_], cam_off[j_])) * bj).sum(axis=1)
     if rms > max_residual:
         return InitRefusal(f"residuals {rms:.1f} times the assumed noise")
     if np.mean(depth > 0) < 0.9:
@@ -295,13 +295,19 @@ def world_from_first(g0: np.ndarray) -> np.ndarray:
     return so3_exp(axis / s * math.atan2(s, c))
 
 
+def _centres(v0: np.ndarray, g0: np.ndarray, t: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """Camera centres in the first frame's axes at times ``t``: ``C_j = v_0 t_j + g_0 t_j^2 / 2
+    + S_j + R_0j t_bc`` (``off`` the last two terms)."""
+    return v0 * t[:, None] + 0.5 * g0 * (t**2)[:, None] + off
+
+
 def _features(
     lam: np.ndarray, fcol: np.ndarray, ba: np.ndarray, v0: np.ndarray, g0: np.ndarray,
     ta: np.ndarray, off_a: np.ndarray, nf: int,
 ) -> np.ndarray:  # fmt: skip
     """Feature positions (nf, 3) in the first frame's axes from the linear solution: ``C_a +
     lambda b_a`` (distances floored at 5 cm)."""
-    ca = v0 * ta[:, None] + 0.5 * g0 * (ta**2)[:, None] + off_a
+    ca = _centres(v0, g0, ta, off_a)
     out = np.zeros((nf, 3))
     out[fcol] = ca + np.maximum(lam[fcol], 0.05)[:, None] * ba
     return out
