@@ -163,8 +163,10 @@ class StageGraph:
         outcomes = []
         n = len(self.stages)
         for i, s in enumerate(self.stages):
-            why, state = self._stale(state, s, keys[s.id])
-            why = asked.get(s.id) or why or after.get(s.id)
+            why = asked.get(s.id)
+            if why is None:  # a stage asked to rerun needs no check of its outputs
+                stale, state = self._stale(state, s, keys[s.id])
+                why = stale or after.get(s.id)
             if why is not None and on_start:
                 on_start(s, i, n)
             state, oc = self._run_one(state, s, keys[s.id], why)
@@ -191,8 +193,9 @@ class StageGraph:
         keys = {oc.id: oc.key for oc in outcomes}
         key = self.key(stage, keys)
         ran = next((f"{oc.id} ran" for oc in outcomes if oc.status == "ran"), None)
-        stale, state = self._stale(state, stage, key)
-        why = redo or ran or stale
+        why = redo or ran
+        if why is None:
+            why, state = self._stale(state, stage, key)
         if why is not None and on_start:
             on_start(stage)
         return self._run_one(state, stage, key, why)[1]
