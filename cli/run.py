@@ -7,12 +7,9 @@ from pathlib import Path
 import typer
 
 from qsls.cli.common import RichProgress, cli_errors, print_summary, print_verdicts
+from qsls.pipeline.run.state import FIRST_RUN
 
 EXAMPLE = "qsls run configs/quickstart.yaml --from fit"
-
-
-FIRST_RUN = "not run yet"
-"""The run state's reason for a stage with no record: the first run, said by 'done' alone."""
 
 
 def stage_line(

@@ -297,13 +297,6 @@ class Certificate(CertificateBody):
         numbers, the problem, ``controller_sha256``, ...), its keys in :data:`FILE_ORDER`."""
         return cls.model_validate({**setting, **dict(body)})
 
-    @property
-    def body(self) -> CertificateBody:
-        """The part :func:`~qsls.pipeline.control.certify.certify` computed."""
-        return CertificateBody.model_validate(
-            {k: getattr(self, k) for k in CertificateBody.model_fields}
-        )
-
     def to_yaml(self) -> str:
         return dump_yaml(self.model_dump())
 

@@ -62,7 +62,7 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
     execute = _fit_exec(fit_opts, list(train), logged, progress)
     graph.add(Stage("fit", "fit", fit_opts, execute, (*train, *logged)))
     if cfg.sweep is not None and "sweep" in wanted:
-        _sweep_stage(graph, cfg.sweep, src, progress)
+        _sweep_stage(graph, cfg.sweep, progress)
     listed = set(cfg.stages or ())
     if cfg.synth is None or "synth" not in wanted:
         if "evaluate" in listed:
@@ -139,9 +139,10 @@ def _flight_stages(
     return stage_id, deps[0] if deps else None
 
 
-def _sweep_stage(graph: StageGraph, sec: SweepSection, src: Src, progress: Progress) -> None:
-    execute = _sweep_exec(sec.options(), sec.jobs, sec.scheduler, sec.wait_workers, progress)
-    graph.add(Stage("sweep", "sweep", sec.options(), execute, deps=("fit",)))
+def _sweep_stage(graph: StageGraph, sec: SweepSection, progress: Progress) -> None:
+    opts = sec.options()
+    execute = _sweep_exec(opts, sec.jobs, sec.scheduler, sec.wait_workers, progress)
+    graph.add(Stage("sweep", "sweep", opts, execute, deps=("fit",)))
 
 
 def _evaluate_stages(

@@ -36,6 +36,9 @@ from qsls.pipeline.core.artifacts import MANIFEST, atomic_write_bytes, sha256_fi
 STATE_FILE = "run_state.json"
 STATE_VERSION = 3
 
+FIRST_RUN = "not run yet"
+"""Why a stage with no record runs (the console does not repeat it)."""
+
 
 class _Frozen(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -104,10 +107,6 @@ class StageRecord(_Frozen):
             digest = listed.get(name) or sha256_file(f)
             files[name] = FileStamp(sha256=digest, size=st.st_size, mtime_ns=st.st_mtime_ns)
         return cls(key=key, files=files, versions=dict(versions or {}), notes=dict(notes or {}))
-
-    def problem(self, folder: Path) -> str | None:
-        """Why ``folder`` no longer holds what was recorded (None when it does)."""
-        return self.verify(folder)[0]
 
     def verify(self, folder: Path) -> tuple[str | None, StageRecord]:
         """(why ``folder`` no longer holds what was recorded or None, this record with the
@@ -231,7 +230,7 @@ class RunState(_Frozen):
         unchanged files restamped)."""
         rec = self.stages.get(stage_id)
         if rec is None:
-            return "not run yet", self
+            return FIRST_RUN, self
         if rec.key != key:
             if versions is not None and rec.versions and rec.versions != dict(versions):
                 why = f"package versions changed ({_changed_versions(rec.versions, versions)})"
