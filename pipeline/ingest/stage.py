@@ -9,6 +9,8 @@ Steps (docs/ingest.md#steps):
 2. Stamps (:func:`qsls.pipeline.ingest.streams.prepare`): header or log time; sort by
    stamp, drop exact duplicate stamps (the first message of a stamp is kept), count both.
    Non-finite values stop the stage (or are dropped and counted with ``drop_nonfinite``).
+   A truth jump no vehicle could fly (``max_truth_accel``) becomes a gap, counted as
+   ``discontinuities``.
 3. Clock offset ``tau`` (``time_offset_s``, added to truth stamps to put them on the VIO
    clock): given, or estimated (:mod:`qsls.pipeline.ingest.timesync`).
 4. Frame: VIO velocity to the VIO world frame (``body``: ``v_w = R(q) v_b``; ``world``: as

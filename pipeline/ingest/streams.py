@@ -164,7 +164,8 @@ def _pick_vio(topics: list[Any], o: IngestOptions) -> Any:
 
 # --------------------------------------------------------------------------- preparing
 def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
-    """Stamps, non-finite check, sort, exact-duplicate removal (the ingest stage's step 2)."""
+    """Stamps, non-finite check, sort, exact-duplicate removal and, for the truth, jumps turned
+    into gaps (:func:`truth_jumps`, :func:`drop_around`): the ingest stage's step 2."""
     t = traj.log_ns if o.stamp == "log" else traj.header_ns
     t = np.asarray(t, dtype=np.int64)
     p, q, v = traj.position, traj.orientation, traj.velocity

@@ -1,15 +1,19 @@
 """Read one pose topic of a bag into a :class:`Trajectory`.
 
-Bags are opened with rosbags (``AnyReader``: ROS1 ``.bag`` and rosbag2 folders with
-sqlite3 or MCAP storage) and plain MCAP files with the ``mcap`` package; bag formats are
-never parsed by hand, with one exception, the ROS1 fast path below.
+Bags are listed and, off the fast paths, read with rosbags (``AnyReader``: ROS1 ``.bag`` and
+rosbag2 folders with sqlite3 or MCAP storage) and plain MCAP files with the ``mcap`` package.
+The fast paths below read what those libraries expose (rosbags' ROS1 reader and chunk
+list, a rosbag2 folder's ``metadata.yaml``, the sqlite3 tables, MCAP's summary and chunk
+indexes) and parse by hand only the record heads they check and the fixed-layout
+messages.
 
 Decoding, fastest first:
 
-1. ROS1, fixed-layout types (:mod:`qsls.pipeline.ingest.sources.layout`): rosbags' own index
-   (``Reader.indexes``: time, chunk position and offset of every message, ``Reader.chunks``:
-   where each chunk's data starts and how it is compressed) gives every message record's
-   place. Uncompressed chunks are memory-mapped, so only the pages holding the wanted
+1. ROS1, fixed-layout types (:mod:`qsls.pipeline.ingest.sources.layout`): the bag's message
+   index (time, chunk position and offset of every message, read as numpy arrays from its
+   index records, :func:`qsls.pipeline.ingest.sources.ros1index.open_ros1`) and rosbags'
+   ``Reader.chunks`` (where each chunk's data starts and how it is compressed) give every
+   message record's place. Uncompressed chunks are memory-mapped, so only the pages holding the wanted
    records are read (camera images in the same chunks are skipped); compressed chunks
    that hold wanted messages are decompressed once each. The record headers are checked
    (op code, connection id and time equal what the index says) and the message data

@@ -48,7 +48,7 @@ def sqlite_batches(files: list[Path], topics: list[str]) -> Iterator[Batch]:
 
     One query per topic: its messages then lie back to back in the batch's buffer, and a
     topic whose messages all have one length (the frame names do not change) is decoded
-    through one strided view (:func:`layout._bytes`). A single query for all topics costs
+    through one strided view (:func:`layout._words`). A single query for all topics costs
     the same (the table is scanned once instead of once per topic, but each row is handed
     to Python either way) and interleaves them.
     """
