@@ -55,7 +55,7 @@ def command(
     smooth_s: float = typer.Option(
         None,
         "--smooth-s",
-        help="Time constant (s) of the average drawn over ||e|| in figures (0: none). (default: 1)",
+        help="Time constant (s) of the average drawn over ||e|| in the bound check's figures, not --fly's (0: none). (default: 1)",
     ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     flown_by: str = typer.Option(

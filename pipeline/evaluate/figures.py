@@ -177,9 +177,7 @@ def error_per_controller_figure(
     return fig
 
 
-def write_fly_figures(
-    w: Any, outcomes: Any, bounds: Any, options: Any, ref_bound: Any, checks: Any = None
-) -> None:
+def write_fly_figures(w: Any, outcomes: Any, options: Any, checks: Any = None) -> None:
     """The paper's figures of a fly evaluation: tracking per condition, the robust
     controller's input against PD's on the same estimate, ||e|| against the bound."""
 

@@ -245,7 +245,6 @@ class Analysis:
     per: pd.DataFrame
     comparison: list[dict[str, Any]]
     findings: dict[str, Any]
-    ref_bound: ControllerBound | None
 
 
 def _analyse(
@@ -270,7 +269,7 @@ def _analyse(
         flights, checks, ref_bound.name if ref_bound else None, PAPER_CONTROLLERS,
         options.track_threshold_m, _motion_parts(options.sim), assumptions,
     )  # fmt: skip
-    return Analysis(flights, checks, samples, assumptions, per, comparison, findings, ref_bound)
+    return Analysis(flights, checks, samples, assumptions, per, comparison, findings)
 
 
 def flight_table(outcomes: Sequence[FlyOutcome]) -> pd.DataFrame:
@@ -541,7 +540,7 @@ def fly_evaluate(
             }  # fmt: skip
             a = analyses[options.estimators[0]]  # the primary: the stage's own tables
             flights, checks, samples, assumptions = a.flights, a.checks, a.samples, a.assumptions
-            per, comparison, findings, ref_bound = a.per, a.comparison, a.findings, a.ref_bound
+            per, comparison, findings = a.per, a.comparison, a.findings
             several = len(analyses) > 1
             if several:
                 from qsls.pipeline.evaluate.estimators import findings_markdown, write_by_estimator
@@ -558,7 +557,7 @@ def fly_evaluate(
             )
             if options.figures:
                 primary = [o for o in outcomes if o.estimator == options.estimators[0]]
-                write_fly_figures(w, primary, bounds, options, ref_bound, checks)
+                write_fly_figures(w, primary, options, checks)
             extra_json = {
                 "mode": "fly",
                 "flights_table": flights.to_dict(orient="records"),

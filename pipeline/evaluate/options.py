@@ -19,8 +19,9 @@ class EvaluateOptions(Options):
     """Options of the bound check (``qsls evaluate``)."""
 
     smooth_s: float = 1.0
-    """Time constant (s) of the first-order average drawn over ``||e||`` in the figures
-    (the paper's figure used 1 s); 0 draws the raw signal only. Numbers are never smoothed."""
+    """Time constant (s) of the first-order average drawn over ``||e||`` in the bound check's
+    figures (the paper's figure used 1 s; ``--fly`` draws the raw signal); 0 draws the raw
+    signal only. Numbers are never smoothed."""
     state_scale: tuple[float, float, float, float, float, float] | None = None
     """Per-coordinate weights of the state distance; must equal the error model's (its
     S-slope is a slope in that norm), which is the default."""

@@ -176,10 +176,10 @@ class Msckf:
 
     def __init__(
         self, cam: CameraOptions, r_bc: np.ndarray, t_bc: np.ndarray, gravity: float,
-        r0: np.ndarray, p0: np.ndarray, v0: np.ndarray, p_init: np.ndarray | None = None,
+        r0: np.ndarray, p0: np.ndarray, v0: np.ndarray,
     ) -> None:  # fmt: skip
-        """Start at ``(r0, p0, v0)``, zero biases, covariance ``p_init`` (15, 15) or the
-        initial prior of ``cam`` (``init_sigma_*``)."""
+        """Start at ``(r0, p0, v0)``, zero biases, covariance the initial prior of ``cam``
+        (``init_sigma_*``; a re-initialization then widens its blocks in place)."""
         self.cam = cam
         self.r_bc, self.t_bc = r_bc, t_bc
         self.g = np.array([0.0, 0.0, -gravity])
@@ -193,8 +193,6 @@ class Msckf:
             + [cam.init_sigma_gyro_bias**2] * 3
             + [cam.init_sigma_accel_bias**2] * 3
         )
-        if p_init is not None:
-            self.P = np.array(p_init, dtype=float)
         self.position_var0 = 0.0
         """``trace P_pp`` the filter started from (a re-initialized filter carries the lost
         one's position uncertainty): the covariance check measures what was added since."""
