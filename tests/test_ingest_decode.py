@@ -157,3 +157,82 @@ def test_ros1_numpy_index_is_rosbags_index(bags: dict[str, Path]) -> None:
             assert fast.indexes == {c.id: [] for c in fast.connections}  # no objects built
     finally:
         fast.close()
+
+
+@pytest.fixture(scope="module")
+def uniform_sqlite(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A sqlite3 bag whose /vio/odom (Odometry) and /mocap/pose topics each keep one layout,
+    and a /swap Odometry topic alternating frame pairs of one total length whose second
+    string and pose lie at different offsets."""
+    f = make_flight(duration=6.0, vio_hz=50, truth_hz=100, dropouts=())
+    swap = [replace(s, topic="/swap") for s in _split(f.vio, [("ab", "cdef"), ("abcd", "ef")])]
+    d = tmp_path_factory.mktemp("uniform")
+    return write_bag(d / "u", [f.vio, f.truth, *swap], "ros2-sqlite")
+
+
+def _sqlite(bag: Path, topics: list[str], msgtypes: list[str] | None) -> dict[int, list]:
+    from qsls.pipeline.ingest.sources.listing import open_rosbag2
+    from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
+
+    listed = open_rosbag2(bag)
+    assert listed is not None
+    out: dict[int, list] = {}
+    for b in sqlite_batches(listed.files, topics, msgtypes):
+        out.setdefault(int(b.conn[0]), []).append(b)
+    return out
+
+
+def test_sqlite_trimmed_records_hold_the_fields(uniform_sqlite: Path) -> None:
+    """A topic of one layout comes as trimmed records (an Odometry message without its two
+    covariances: 148 of its 724 bytes), decoded as rosbags' deserializer decodes the whole
+    messages; /swap's messages have one length but not one layout (their fixed bytes
+    differ), so it comes whole, and decodes the same."""
+    from qsls.pipeline.ingest.sources.write import ODOMETRY
+
+    topics = ["/vio/odom", "/mocap/pose", "/swap"]
+    whole = _sqlite(uniform_sqlite, topics, None)
+    trimmed = _sqlite(uniform_sqlite, topics, [ODOMETRY, POSE_STAMPED, ODOMETRY])
+    lengths = {k: set((b.ends - b.starts).tolist()) for k, (b,) in whole.items()}
+    assert len(lengths[2]) == 1  # one length, two layouts
+    assert [b.trimmed for (b,) in trimmed.values()] == [True, True, False]
+    odom = trimmed[0][0]
+    (full,) = lengths[0]
+    assert set((odom.ends - odom.starts).tolist()) == {full - 2 * 36 * 8}
+    for k in (0, 1):
+        np.testing.assert_array_equal(trimmed[k][0].log_ns, whole[k][0].log_ns)
+    with BagSource(uniform_sqlite) as src:
+        fast = src.read_many([(t, None) for t in topics])
+        slow = src.read_many([(t, None) for t in topics], fast=False)
+    for a, b in zip(fast, slow, strict=True):
+        assert (a.decoder, b.decoder) == ("numpy", "deserializer") and len(a) > 250
+        for attr in ("header_ns", "log_ns", "position", "orientation", "velocity"):
+            np.testing.assert_array_equal(getattr(a, attr), getattr(b, attr), err_msg=attr)
+        assert (a.frame_id, a.child_frame_id) == (b.frame_id, b.child_frame_id)
+
+
+def test_sqlite_trimmed_read_in_ranges_under_the_length_limit(
+    uniform_sqlite: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Under a small SQLite length limit each query covers a range of row ids whose result
+    stays within half the limit: many batches, together the same records and times."""
+    import sqlite3
+
+    from qsls.pipeline.ingest.sources import sqlite as sq
+    from qsls.pipeline.ingest.sources.write import ODOMETRY
+
+    topics, types = ["/vio/odom", "/mocap/pose"], [ODOMETRY, POSE_STAMPED]
+    one = _sqlite(uniform_sqlite, topics, types)
+    connect = sq._connect
+
+    def small(db: Path) -> sqlite3.Connection:
+        con = connect(db)
+        con.setlimit(sqlite3.SQLITE_LIMIT_LENGTH, 20_000)
+        return con
+
+    monkeypatch.setattr(sq, "_connect", small)
+    many = _sqlite(uniform_sqlite, topics, types)
+    for k in (0, 1):
+        assert len(one[k]) == 1 and len(many[k]) > 10 and all(b.trimmed for b in many[k])
+        assert max(len(b.buf) for b in many[k]) <= 10_000
+        assert b"".join(b.buf.tobytes() for b in many[k]) == one[k][0].buf.tobytes()
+        np.testing.assert_array_equal(np.concatenate([b.log_ns for b in many[k]]), one[k][0].log_ns)

@@ -449,7 +449,10 @@ class BagSource:
         if dbs:
             topics = [i.topic for i in infos]
             ids = {t: {k} for k, t in enumerate(topics)}
-            return self._batches_fast(infos, ids, lambda: sqlite_batches(dbs, topics), progress)
+            types = [i.msgtype for i in infos]
+            return self._batches_fast(
+                infos, ids, lambda: sqlite_batches(dbs, topics, types), progress
+            )
         files = self._mcap_files()
         if not files:
             return {}
@@ -504,15 +507,18 @@ class BagSource:
                     m = np.isin(batch.conn, list(ids[info.topic]))
                     if m.any():
                         starts, ends, logs = batch.starts[m], batch.ends[m], batch.log_ns[m]
-                        d = layout.decode(batch.buf, starts, ends, info.msgtype, encoding)
+                        d = layout.decode(
+                            batch.buf, starts, ends, info.msgtype, encoding, trimmed=batch.trimmed
+                        )
                         parts[info.topic].append((d, logs))
                         k = int(np.argmin(logs))
                         if info.topic not in first or logs[k] < first[info.topic][0]:
                             if k:
                                 one = slice(k, k + 1)
                                 d = layout.decode(
-                                    batch.buf, starts[one], ends[one], info.msgtype, encoding
-                                )
+                                    batch.buf, starts[one], ends[one], info.msgtype, encoding,
+                                    trimmed=batch.trimmed,
+                                )  # fmt: skip
                             first[info.topic] = (int(logs[k]), d.frame_id, d.child_frame_id)
                 progress.advance(len(batch.starts))
         except layout.LayoutError:

@@ -23,6 +23,7 @@ deserializer.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +50,11 @@ _PROGRAMS: dict[str, tuple[tuple, ...]] = {
     POSE_STAMPED: (("time",), ("str", "frame_id"), ("f64", "pose", 7)),
     POSE_COV: (("time",), ("str", "frame_id"), ("f64", "pose", 7), ("f64", None, 36)),
     TRANSFORM: (("time",), ("str", "frame_id"), ("str", "child_frame_id"), ("f64", "pose", 7)),
+}
+
+# the programs of trimmed records (:class:`Trim`): the skipped blocks cut out
+_TRIMMED = {
+    k: tuple(op for op in p if op[0] != "f64" or op[1] is not None) for k, p in _PROGRAMS.items()
 }
 
 FIXED_TYPES = tuple(_PROGRAMS)
@@ -111,70 +117,91 @@ def _string0(buf: np.ndarray, pos: int, length: int, cdr: bool) -> str:
     return raw.decode("utf-8", errors="replace")
 
 
-def decode(
-    buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, msgtype: str, encoding: str
-) -> Decoded:
-    """Decode messages ``buf[starts[i]:ends[i]]`` of ``msgtype`` (``ros1`` or ``cdr``)."""
-    program = _PROGRAMS.get(msgtype)
-    if program is None:
-        raise LayoutError(f"{msgtype} has no fixed layout")
+def _walk(
+    buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, program: tuple[tuple, ...], cdr: bool
+) -> Iterator[tuple[tuple, np.ndarray, np.ndarray]]:
+    """The fields of every message, in program order: ``(op, pos, end)`` with ``pos`` the
+    field's aligned first byte and ``end`` one past its last (a string's from its length
+    word), both ``(n,)``; last ``(("end",), pos, pos)`` after the final field. Raises
+    :class:`LayoutError` when a field leaves its message."""
+    base = starts + 4 if cdr else starts
+    pos = base.copy() if cdr else starts + 4  # CDR: after the encapsulation; ROS1: seq
+    for op in program:
+        if np.any(pos > ends):
+            raise LayoutError("field beyond the end of a message")
+        if cdr:
+            align = 7 if op[0] == "f64" else 3
+            pos = base + ((pos - base + align) & ~align)
+        if op[0] == "time":
+            end = pos + 8
+        elif op[0] == "str":
+            if np.any(pos + 4 > ends):
+                raise LayoutError("string length beyond the end of a message")
+            length = _u32(buf, pos)
+            if cdr and length.min() < 1:
+                raise LayoutError("CDR string without terminator")
+            end = pos + 4 + length
+        else:
+            end = pos + 8 * op[2]
+            if np.any(end > ends):
+                raise LayoutError("float block beyond the end of a message")
+        yield op, pos, end
+        pos = end
+    yield ("end",), pos, pos
+
+
+def _check_encoding(buf: np.ndarray, starts: np.ndarray, encoding: str) -> bool:
+    """True for CDR (whose 4-byte encapsulation must say plain little-endian CDR)."""
     if encoding not in ("ros1", "cdr"):
         raise LayoutError(f"unknown encoding {encoding!r}")
+    if encoding == "ros1":
+        return False
+    enc = _words(buf, starts, 4, "u1")
+    if not (np.all(enc[:, 0] == 0) and np.all(enc[:, 1] == 1)):
+        raise LayoutError("not little-endian plain CDR")
+    return True
+
+
+def decode(
+    buf: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    msgtype: str,
+    encoding: str,
+    *,
+    trimmed: bool = False,
+) -> Decoded:
+    """Decode messages ``buf[starts[i]:ends[i]]`` of ``msgtype`` (``ros1`` or ``cdr``);
+    ``trimmed``: records cut by a :class:`Trim` (the skipped float blocks and whatever
+    follows the last field read are not there)."""
+    program = (_TRIMMED if trimmed else _PROGRAMS).get(msgtype)
+    if program is None:
+        raise LayoutError(f"{msgtype} has no fixed layout")
     buf = np.asarray(buf)
     if buf.dtype != np.uint8:
         buf = buf.view(np.uint8)
     starts = np.asarray(starts, dtype=np.int64)
     ends = np.asarray(ends, dtype=np.int64)
     n = len(starts)
-    cdr = encoding == "cdr"
-    size = len(buf)
     if n == 0:
+        _check_encoding(buf, starts, encoding)
         return Decoded(np.zeros(0, np.int64), np.zeros((0, 7)), None, "", "")
-    if ends.max() > size or (ends - starts).min() < 8:
+    if ends.max() > len(buf) or (ends - starts).min() < 8:
         raise LayoutError("message bounds outside the buffer or too short")
-    if cdr:
-        enc = _words(buf, starts, 4, "u1")
-        if not (np.all(enc[:, 0] == 0) and np.all(enc[:, 1] == 1)):
-            raise LayoutError("not little-endian plain CDR")
-        base = starts + 4
-        pos = base.copy()
-    else:
-        base = starts
-        pos = starts + 4  # seq
-
+    cdr = _check_encoding(buf, starts, encoding)
     out: dict[str, np.ndarray] = {}
     names: dict[str, str] = {}
     header_ns = np.zeros(n, np.int64)
-    for op in program:
-        if np.any(pos > ends):
-            raise LayoutError("field beyond the end of a message")
+    pos = starts
+    for op, pos, end in _walk(buf, starts, ends, program, cdr):
         if op[0] == "time":
-            if cdr:
-                pos = base + ((pos - base + 3) & ~3)
             t = _words(buf, pos, 2, "<u4").astype(np.int64)
             sec = t[:, 0] - ((t[:, 0] >> 31) << 32) if cdr else t[:, 0]  # int32 in CDR
-            nsec = t[:, 1]
-            header_ns = sec * 1_000_000_000 + nsec
-            pos = pos + 8
+            header_ns = sec * 1_000_000_000 + t[:, 1]
         elif op[0] == "str":
-            if cdr:
-                pos = base + ((pos - base + 3) & ~3)
-            if np.any(pos + 4 > ends):
-                raise LayoutError("string length beyond the end of a message")
-            length = _u32(buf, pos)
-            if cdr and length.min() < 1:
-                raise LayoutError("CDR string without terminator")
-            names[op[1]] = _string0(buf, int(pos[0]) + 4, int(length[0]), cdr)
-            pos = pos + 4 + length
-        else:
-            count = op[2]
-            if cdr:
-                pos = base + ((pos - base + 7) & ~7)
-            if np.any(pos + 8 * count > ends):
-                raise LayoutError("float block beyond the end of a message")
-            if op[1] is not None:
-                out[op[1]] = _words(buf, pos, count, "<f8")
-            pos = pos + 8 * count
+            names[op[1]] = _string0(buf, int(pos[0]) + 4, int(end[0] - pos[0]) - 4, cdr)
+        elif op[0] == "f64" and op[1] is not None:
+            out[op[1]] = _words(buf, pos, op[2], "<f8")
     slack = ends - pos
     if slack.min() < 0 or slack.max() > (3 if cdr else 0):
         raise LayoutError("message length does not match the type's layout")
@@ -185,6 +212,54 @@ def decode(
         frame_id=names.get("frame_id", ""),
         child_frame_id=names.get("child_frame_id", ""),
     )
+
+
+@dataclass(frozen=True)
+class Trim:
+    """What of a fixed-layout message a reader needs, planned on one message.
+
+    ``spans`` are the message's byte ranges ``[a, b)`` a trimmed record keeps, in order:
+    everything up to the last field read (twist, else pose) except the skipped float blocks
+    (covariances), so a trimmed record is the message serialized without those blocks
+    (each starts 8-aligned and is a multiple of 8 long: the alignment of what follows is
+    kept) and decodes with ``decode(..., trimmed=True)``. ``size`` is a record's length.
+    ``fixed`` are the record's byte ranges that every message of the same layout shares
+    with this one: the encapsulation's identifier (CDR) and every string with its length
+    word; a message whose ``fixed`` bytes and total ``length`` equal this one's has every
+    field at this one's offsets, so its record holds exactly its fields.
+    """
+
+    spans: tuple[tuple[int, int], ...]
+    size: int
+    fixed: tuple[tuple[int, int], ...]
+    length: int
+
+
+def plan_trim(message: bytes, msgtype: str, encoding: str) -> Trim:
+    """The :class:`Trim` of the messages laid out as ``message`` (decoded in full first:
+    :class:`LayoutError` if it does not have ``msgtype``'s layout)."""
+    buf = np.frombuffer(message, dtype=np.uint8)
+    starts, ends = np.zeros(1, np.int64), np.full(1, len(buf), np.int64)
+    decode(buf, starts, ends, msgtype, encoding)
+    cdr = encoding == "cdr"
+    spans: list[tuple[int, int]] = []
+    fixed: list[tuple[int, int]] = [(0, 2)] if cdr else []  # ROS1's first word is the seq
+    kept = removed = 0  # message offset where the current span began; bytes cut before it
+    last = 0
+    for op, pos, end in _walk(buf, starts, ends, _PROGRAMS[msgtype], cdr):
+        a, b = int(pos[0]), int(end[0])
+        if op[0] == "str":
+            fixed.append((a - removed, b - removed))
+        elif op[0] == "f64" and op[1] is None:
+            spans.append((kept, a))
+            removed += b - a
+            kept = b
+        if op[0] != "end" and not (op[0] == "f64" and op[1] is None):
+            last = b
+    spans.append((kept, last))
+    spans = [(a, b) for a, b in spans if b > a]
+    size = sum(b - a for a, b in spans)
+    return Trim(spans=tuple(spans), size=size, fixed=tuple(fixed), length=len(buf))
 
 
 def concat(chunks: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -20,13 +20,15 @@ _BATCH_BYTES = 64 << 20  # decompressed bytes decoded at once (bounds memory on 
 
 @dataclass(frozen=True)
 class Batch:
-    """Messages located in one buffer: message ``i`` is ``buf[starts[i]:ends[i]]``."""
+    """Messages located in one buffer: message ``i`` is ``buf[starts[i]:ends[i]]``
+    (``trimmed``: records cut by a :class:`layout.Trim`, not whole messages)."""
 
     buf: np.ndarray
     starts: np.ndarray
     ends: np.ndarray
     log_ns: np.ndarray
     conn: np.ndarray
+    trimmed: bool = False
 
 
 _ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])
