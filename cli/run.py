@@ -47,7 +47,7 @@ def command(
     def on_stage(stage_id: str, status: str, i: int, n: int, reason: str) -> None:
         line = stage_line(stage_id, status, i, n, reason, time.perf_counter() - t0)
         if line is not None:
-            progress.console.print(line, soft_wrap=True, markup=False, highlight=False)
+            progress.note(line)
 
     with RichProgress() as progress:
         result = run(

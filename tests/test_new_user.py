@@ -412,6 +412,25 @@ def test_long_stages_print_lines_when_not_on_a_terminal(capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_box_table_draws_every_cell_whole():
+    """The summary tables: columns as wide as their widest cell (no wrapping at 80 columns),
+    a multi-line cell on lines of its own, rich's box characters."""
+    from qsls.cli.common import box_table
+
+    long = "/a/" + "x" * 120 + "/flight"
+    got = box_table("qsls t", None, [["output", long], ["gaps", "0\n1 s at 3.2 s"]]).split("\n")
+    assert got == [
+        "qsls t",
+        "┌────────┬" + "─" * (len(long) + 2) + "┐",
+        f"│ output │ {long} │",
+        "│ gaps   │ 0" + " " * (len(long) - 1) + " │",
+        "│        │ 1 s at 3.2 s" + " " * (len(long) - 12) + " │",
+        "└────────┴" + "─" * (len(long) + 2) + "┘",
+    ]
+    head = box_table("f", ["a", "bb"], [["1", "2"]]).split("\n")
+    assert head == ["f", "┏━━━┳━━━━┓", "┃ a ┃ bb ┃", "┡━━━╇━━━━┩", "│ 1 │ 2  │", "└───┴────┘"]
+
+
 # --------------------------------------------------------------------------- smaller: palette
 # Machado, Oliveira & Fernandes (2009), severity 1, on linear RGB
 _CVD = {
