@@ -145,8 +145,15 @@ def test_golden_section_lands_where_brent_does_on_the_offset_cost(
     tv, tt = (vio.header_ns - t0) * 1e-9, (mocap.header_ns - t0) * 1e-9
     keep = (tv > tt[0] + 0.5) & (tv < tt[-1] - 0.5)
     gv = gravity_in_body(vio.orientation[keep]) if attitude else None
-    gt = gravity_in_body(mocap.orientation) if attitude else None
-    data = (tv[keep], vio.position[keep], gv, tt, mocap.position, gt, "4dof")
+    truth_rows = np.hstack([mocap.position, gravity_in_body(mocap.orientation)])
+    data = (
+        tv[keep],
+        vio.position[keep],
+        gv,
+        tt,
+        truth_rows if attitude else mocap.position,
+        "4dof",
+    )
     tau = truth["time_offset_s"]
     lo, hi = tau - 0.02, tau + 0.02
     x, fx = golden_section(lambda s: _cost(s, *data), lo, hi, 1e-6)
@@ -157,3 +164,17 @@ def test_golden_section_lands_where_brent_does_on_the_offset_cost(
     assert abs(x - ref.x) < (2e-6 if attitude else 2e-3), (x, ref.x, fx, ref.fun)
     assert lo + 1e-3 < x < hi - 1e-3  # an inner minimum, not the bracket's edge
     assert abs(x - tau) < (0.002 if attitude else 0.015)
+
+
+def test_interp_rows_is_np_interp_per_column() -> None:
+    """One bracket search for all columns gives ``np.interp``'s values, at the knots, between
+    them and held outside the samples."""
+    from qsls.pipeline.ingest.resample import interp_rows
+
+    rng = np.random.default_rng(3)
+    xp = np.cumsum(rng.uniform(0.001, 0.01, 500))
+    fp = rng.normal(size=(500, 6))
+    x = np.concatenate([rng.uniform(xp[0] - 0.5, xp[-1] + 0.5, 300), xp[::7], xp[[0, -1]]])
+    want = np.column_stack([np.interp(x, xp, fp[:, k]) for k in range(6)])
+    np.testing.assert_allclose(interp_rows(x, xp, fp), want, rtol=0, atol=1e-14)
+    np.testing.assert_array_equal(interp_rows(x, xp[:1], fp[:1]), np.repeat(fp[:1], len(x), 0))

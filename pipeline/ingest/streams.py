@@ -19,6 +19,7 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import Progress
+from qsls.pipeline.ingest.resample import interp_rows
 
 if TYPE_CHECKING:
     from qsls.pipeline.ingest.stage import IngestOptions
@@ -304,8 +305,7 @@ def interp(
     valid = exact | bracket
     x = (grid - t[0]).astype(float)
     tt = (t - t[0]).astype(float)
-    out = np.column_stack([np.interp(x, tt, values[:, k]) for k in range(values.shape[1])])
-    return out, valid
+    return interp_rows(x, tt, values), valid
 
 
 def gaps(s: Prepared, lo: int, hi: int, max_gap_ns: int, t_first: int) -> list[dict[str, Any]]:

@@ -82,6 +82,7 @@ import numpy as np
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.rotations import gravity_in_body
 from qsls.pipeline.ingest.align import fit_alignment
+from qsls.pipeline.ingest.resample import interp_rows
 
 
 @dataclass(frozen=True)
@@ -95,37 +96,25 @@ class OffsetEstimate:
     uses_attitude: bool = False  # the cost includes the gravity-direction term
 
 
-def _interp(q: np.ndarray, tt: np.ndarray, a: np.ndarray) -> np.ndarray:
-    return np.column_stack([np.interp(q, tt, a[:, k]) for k in range(a.shape[1])])
-
-
-def _columns(a: np.ndarray) -> np.ndarray:
-    """``a`` stored column by column: ``np.interp`` copies a strided column on every call,
-    and the search interpolates the whole truth stream ~80 times (same values, so the same
-    interpolated samples)."""
-    return np.asfortranarray(a, dtype=float)
-
-
 def _terms(
     tau_s: float,
     tv: np.ndarray,
     pv: np.ndarray,
     gv: np.ndarray | None,
     tt: np.ndarray,
-    pt: np.ndarray,
-    gt: np.ndarray | None,
+    truth: np.ndarray,
     method: str,
 ) -> tuple[float, float | None]:
-    """``P(tau)`` (m^2) and ``G(tau)`` (None without attitudes), module docstring (the truth's
-    ``pt`` and ``gt`` are best stored by column, :func:`_columns`)."""
-    q = tv - tau_s
-    truth = _interp(q, tt, pt)
-    al = fit_alignment(pv, truth, method)
-    r = al.apply(pv) - truth
+    """``P(tau)`` (m^2) and ``G(tau)`` (None without attitudes), module docstring; ``truth``
+    holds the truth's positions, then its ``g_b`` when ``gv`` is given (one interpolation
+    for both)."""
+    at = interp_rows(tv - tau_s, tt, truth)
+    al = fit_alignment(pv, at[:, :3], method)
+    r = al.apply(pv) - at[:, :3]
     pos = float(np.mean(np.sum(r * r, axis=1)))
-    if gv is None or gt is None:
+    if gv is None:
         return pos, None
-    d = gv - _interp(q, tt, gt)
+    d = gv - at[:, 3:]
     d -= d.mean(axis=0)
     return pos, float(np.mean(np.sum(d * d, axis=1)))
 
@@ -226,15 +215,15 @@ def estimate_offset(
         moving = min(float(np.sqrt(np.mean(np.sum((g - g.mean(0)) ** 2, 1)))) for g in (gv, gt))
         if not moving > min_tilt_rad:  # level (or identity) attitudes: nothing to compare
             gv = gt = None
-    args = (gv, tt, _columns(pt), None if gt is None else _columns(gt), method)
+    args = (gv, tt, pt if gt is None else np.hstack([pt, gt]), method)
     # coarse: a grid of step_s on at most coarse_samples of the samples
     sub = np.linspace(0, len(tv) - 1, min(len(tv), coarse_samples)).round().astype(int)
-    gsub = None if gv is None else gv[sub]
+    coarse_args = (tv[sub], pv[sub], None if gv is None else gv[sub], *args[1:])
     n_grid = max(1, int(np.floor(search / step_s)))
     grid = np.arange(-n_grid, n_grid + 1) * step_s
 
     def cost_at(j: np.ndarray) -> np.ndarray:
-        return np.array([_cost(grid[i], tv[sub], pv[sub], gsub, *args[1:]) for i in j])
+        return np.array([_cost(grid[i], *coarse_args) for i in j])
 
     # every COARSE-th grid point first, then the grid around the best of those: the cost
     # varies on the time scale of the motion (seconds), far wider than COARSE * step_s
