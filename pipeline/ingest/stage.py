@@ -28,6 +28,7 @@ Steps (docs/ingest.md#steps):
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -122,6 +123,10 @@ def ingest(
     hasher = ThreadPoolExecutor(max_workers=1)
     with threadpool_limits(limits=1, user_api="blas"):
         hashed = hasher.submit(prime_hashes, [p for p in inputs if p.exists()])
+        # then the parquet writer's import (pyarrow, 40-60 ms of CPU), which the end of the
+        # stage needs, while the main thread waits on the reading (SQLite and the
+        # decompressors run without the GIL)
+        hasher.submit(importlib.import_module, "pyarrow.parquet")
         try:
             return _ingest([Path(p) for p in sources], inputs, o, out, force, progress, hashed)
         finally:

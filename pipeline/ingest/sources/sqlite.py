@@ -136,7 +136,10 @@ def _trimmed(
         return
     trim = layout.plan_trim(bytes(first[0]), msgtype, "cdr")
     ref = np.frombuffer(b"".join(first[0][a:b] for a, b in trim.spans), dtype=np.uint8)
-    record = "||".join(f"substr(data, {a + 1}, {b - a})" for a, b in trim.spans)
+    whole = trim.spans == ((0, trim.length),)  # a message read whole: no copy per row
+    record = (
+        "data" if whole else "||".join(f"substr(data, {a + 1}, {b - a})" for a, b in trim.spans)
+    )
     # concatenation and group_concat give TEXT (the bytes unchanged): CAST makes it a blob
     query = (
         "SELECT count(*), min(length(data)), max(length(data)),"
