@@ -72,19 +72,22 @@ def fit_alignment(src: np.ndarray, dst: np.ndarray, method: str) -> Alignment:
         return Alignment("none", np.eye(3), np.zeros(3))
     mu_s = src.mean(axis=0)
     mu_d = dst.mean(axis=0)
-    a = src - mu_s
-    b = dst - mu_d
-    if method == "4dof":
-        num = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
-        den = float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
-        r = rot_z(np.arctan2(num, den))
-    elif method == "se3":
-        u, _, vt = np.linalg.svd(b.T @ a)
-        d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
-        r = u @ d @ vt
-    else:
-        raise ValueError(f"unknown alignment {method!r}; use one of {', '.join(METHODS)}")
+    r = best_rotation(src - mu_s, dst - mu_d, method)
     return Alignment(method, r, mu_d - r @ mu_s)
+
+
+def best_rotation(a: np.ndarray, b: np.ndarray, method: str) -> np.ndarray:
+    """The rotation ``R`` of ``method`` (``4dof`` or ``se3``) minimizing
+    ``sum_i ||R a_i - b_i||^2`` over the centred point sets ``a``, ``b`` (module docstring),
+    from their correlation ``M = sum_i a_i b_i^T``."""
+    m = a.T @ b
+    if method == "4dof":
+        return rot_z(np.arctan2(m[0, 1] - m[1, 0], m[0, 0] + m[1, 1]))
+    if method == "se3":
+        u, _, vt = np.linalg.svd(m.T)
+        d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
+        return u @ d @ vt
+    raise ValueError(f"unknown alignment {method!r}; use one of {', '.join(METHODS)}")
 
 
 def segments(t_ns: np.ndarray, max_gap_ns: int) -> list[slice]:

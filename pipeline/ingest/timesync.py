@@ -81,7 +81,7 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.rotations import gravity_in_body
-from qsls.pipeline.ingest.align import fit_alignment
+from qsls.pipeline.ingest.align import best_rotation
 from qsls.pipeline.ingest.resample import interp_rows
 
 
@@ -109,14 +109,19 @@ def _terms(
     holds the truth's positions, then its ``g_b`` when ``gv`` is given (one interpolation
     for both)."""
     at = interp_rows(tv - tau_s, tt, truth)
-    al = fit_alignment(pv, at[:, :3], method)
-    r = al.apply(pv) - at[:, :3]
-    pos = float(np.mean(np.sum(r * r, axis=1)))
+    pt = at[:, :3]
+    if method == "none":
+        r = pv - pt
+    else:  # R (pv - mean) + mean(pt) - pt: fit_alignment's transform, its residual
+        a, b = pv - pv.mean(axis=0), pt - pt.mean(axis=0)
+        r = a @ best_rotation(a, b, method).T - b
+    n = len(r)
+    pos = float(np.einsum("ij,ij->", r, r)) / n
     if gv is None:
         return pos, None
     d = gv - at[:, 3:]
     d -= d.mean(axis=0)
-    return pos, float(np.mean(np.sum(d * d, axis=1)))
+    return pos, float(np.einsum("ij,ij->", d, d)) / n
 
 
 def _cost(tau_s: float, *data: Any) -> float:
