@@ -356,7 +356,9 @@ def test_ctrl_c_during_a_parallel_sweep_ends_it_at_once(tmp_path):
     from tests.test_run_cache import _alive, _workers
 
     cfg = yaml.safe_load((REPO / "configs" / "ci_sweep.yaml").read_text())
-    cfg["grid"]["T"] = [150, 200, 250]  # points of a second or more each (the solver got faster)
+    # points of several seconds each (the solver got faster): the sweep is still solving
+    # when Ctrl-C comes, however long its workers took to start
+    cfg["grid"]["T"] = [300, 400, 500]
     (tmp_path / "big.yaml").write_text(yaml.safe_dump(cfg))
     proc = subprocess.Popen(
         [sys.executable, "-m", "qsls.cli.main", "sweep", "--config", tmp_path / "big.yaml",
@@ -366,6 +368,7 @@ def test_ctrl_c_during_a_parallel_sweep_ends_it_at_once(tmp_path):
     try:
         workers = _workers(proc.pid, 2)
         time.sleep(2.0)  # inside the solves
+        assert proc.poll() is None, "the sweep ended before Ctrl-C"
         t0 = time.monotonic()
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=60)
