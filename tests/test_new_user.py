@@ -353,14 +353,12 @@ def test_ctrl_c_during_a_parallel_sweep_ends_it_at_once(tmp_path):
 
     import yaml
 
-    from tests.test_run_cache import _alive, _workers
+    from tests.test_run_cache import _alive, _workers, interruptible
 
     cfg = yaml.safe_load((REPO / "configs" / "ci_sweep.yaml").read_text())
-    # points of several seconds each (the solver got faster): the sweep is still solving
-    # when Ctrl-C comes, however long its workers took to start
-    cfg["grid"]["T"] = [300, 400, 500]
+    cfg["grid"]["T"] = [150, 200, 250]  # points of a second or more each (the solver got faster)
     (tmp_path / "big.yaml").write_text(yaml.safe_dump(cfg))
-    proc = subprocess.Popen(
+    proc = interruptible(
         [sys.executable, "-m", "qsls.cli.main", "sweep", "--config", tmp_path / "big.yaml",
          "--out", tmp_path / "sw", "--jobs", "2"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,

@@ -81,6 +81,17 @@ def _workers(pid: int, n: int = 2, timeout: float = 60) -> list[int]:
     return found
 
 
+def interruptible(cmd: list, **kw: object) -> subprocess.Popen:
+    """``subprocess.Popen(cmd, **kw)`` whose process answers Ctrl-C even when this one
+    ignores SIGINT, as a shell's background job (``pytest &``) does: an ignored signal stays
+    ignored across ``exec``, a handled one is reset to its default there."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return subprocess.Popen(cmd, **kw)  # type: ignore[call-overload]
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _wait_for(pattern: str, proc: subprocess.Popen, timeout: float = 120) -> None:
     deadline = time.monotonic() + timeout
     while not glob.glob(pattern):
@@ -189,7 +200,7 @@ def test_a_signal_during_fly_leaves_no_temporary_and_no_worker(tmp_path, sig):
     run = tmp_path / "runs" / "fly"
     systmp = tmp_path / "systmp"  # the system temporary folder, as this run sees it
     systmp.mkdir()
-    proc = subprocess.Popen(
+    proc = interruptible(
         _cmd("run", cfg), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, env={**os.environ, "TMPDIR": str(systmp)}, start_new_session=True,
     )  # fmt: skip
