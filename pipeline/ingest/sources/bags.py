@@ -29,10 +29,12 @@ Decoding, fastest first:
    A test compares them record for record with the ``mcap`` reader.
 3. ROS2 sqlite3 without compression, fixed-layout types (:mod:`qsls.pipeline.ingest.sources.sqlite`):
    the topics from ``metadata.yaml`` (:mod:`qsls.pipeline.ingest.sources.listing`, as for
-   rosbag2 MCAP folders) and each wanted topic's messages from one SQL query per database
-   file, decoded at once; rosbags' reader is not even opened (its opening scans the whole
-   database to count messages and imports a ROS 2 typestore). MCAP without a usable index:
-   raw messages from the reader, decoded at once.
+   rosbag2 MCAP folders) and each wanted topic from one aggregate SQL query per database
+   file that concatenates the byte ranges holding its fields (:class:`layout.Trim`,
+   planned on the topic's first message and checked on every other), decoded at once;
+   rosbags' reader is not even opened (its opening scans the whole database to count
+   messages and imports a ROS 2 typestore). MCAP without a usable index: raw messages from
+   the reader, decoded at once.
 4. Anything else (``tf2_msgs/msg/TFMessage``, big-endian CDR, unexpected layouts):
    rosbags' (or mcap_ros2's) per-message deserializer.
 """

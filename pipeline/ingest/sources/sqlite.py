@@ -6,7 +6,7 @@ a ROS 2 distribution's types) and then yields one message at a time. For the fix
 pose topics none of that is needed: :mod:`listing` takes the topics, their types and
 counts from the bag's ``metadata.yaml`` (what rosbags reads them from), and this module
 fetches each wanted topic as one :class:`Batch` per database file, which :mod:`layout`
-decodes for the whole topic at once.
+decodes for the whole topic at once (docs/ingest.md#speed).
 
 Handing a row to Python costs more than SQLite's scan of it (a tuple, an int and a bytes
 object per message: 0.15 s for 200 000 rows against 0.03 s for the scans), so the
