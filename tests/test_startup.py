@@ -55,7 +55,7 @@ def test_ingest_loads_neither_solver_nor_plotting(tmp_path, fmt):
     """A real ingest in a fresh interpreter, TUM files (velocity from the differentiator) or
     a bag read through the fast paths, loads none of them, nor pandas (flight.parquet is
     written from a pyarrow table), nor rich off a terminal (the summary is drawn by
-    ``box_table``)."""
+    ``box_table``), nor ``numpy.ma`` (which ``np.median`` and ``np.unique`` import)."""
     f = make_flight(duration=10.0, dropouts=(), noise_m=0.0005)
     if fmt == "tum":
         for name, s in (("est.txt", f.vio), ("gt.txt", f.truth)):
@@ -76,7 +76,7 @@ def test_ingest_loads_neither_solver_nor_plotting(tmp_path, fmt):
         f"    app(['ingest', {args}, '--out', 'o'])\n"
         "except SystemExit as e:\n"
         "    assert not e.code, e.code\n"
-        f"print(sorted(m for m in {(*HEAVY, 'pandas', 'rich')!r} if m in sys.modules))\n",
+        f"print(sorted(m for m in {(*HEAVY, 'pandas', 'rich', 'numpy.ma')!r} if m in sys.modules))\n",
         tmp_path,
     )
     assert (tmp_path / "o" / "flight.parquet").is_file()

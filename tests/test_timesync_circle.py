@@ -178,3 +178,13 @@ def test_interp_rows_is_np_interp_per_column() -> None:
     want = np.column_stack([np.interp(x, xp, fp[:, k]) for k in range(6)])
     np.testing.assert_allclose(interp_rows(x, xp, fp), want, rtol=0, atol=1e-14)
     np.testing.assert_array_equal(interp_rows(x, xp[:1], fp[:1]), np.repeat(fp[:1], len(x), 0))
+
+
+@pytest.mark.parametrize("n", [2, 3, 10, 11, 1000, 1001])
+def test_median_spacing_is_np_median_of_the_steps(n: int) -> None:
+    from qsls.pipeline.ingest.resample import median_spacing
+
+    rng = np.random.default_rng(n)
+    for t in (np.cumsum(rng.integers(1, 10**7, n)), np.cumsum(rng.uniform(0, 1, n))):
+        assert median_spacing(t) == float(np.median(np.diff(t)))
+    assert np.isnan(median_spacing(np.array([5])))

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qsls.pipeline.core.rotations import rot_z
+from qsls.pipeline.ingest.resample import median_spacing
 
 METHODS = ("4dof", "se3", "none")
 
@@ -140,7 +141,7 @@ def differentiate(
         n = len(t)
         if n < 2:
             continue
-        h = float(np.median(np.diff(t)))
+        h = median_spacing(t)
         m = max(5, round(window_s / h) | 1)
         grid_n = round(t[-1] / h) + 1
         if grid_n < m:

@@ -19,7 +19,7 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import Progress
-from qsls.pipeline.ingest.resample import interp_rows
+from qsls.pipeline.ingest.resample import interp_rows, median_spacing
 
 if TYPE_CHECKING:
     from qsls.pipeline.ingest.stage import IngestOptions
@@ -49,7 +49,7 @@ class Prepared:
     def rate_hz(self) -> float:
         if len(self.t_ns) < 2:
             return 0.0
-        return float(1e9 / np.median(np.diff(self.t_ns)))
+        return 1e9 / median_spacing(self.t_ns)
 
     def describe(self) -> dict[str, Any]:
         return {
@@ -282,7 +282,7 @@ def check_streams(vio: Prepared, truth: Prepared, o: IngestOptions) -> None:
             "the errors would all be 0: give the VIO estimate and the ground truth"
         )
     for s in (vio, truth):
-        step = float(np.median(np.diff(s.t_ns))) * 1e-9
+        step = median_spacing(s.t_ns) * 1e-9
         if step > o.max_gap:
             raise InputError(
                 f"the {s.role} stream {s.topic} has one sample every {step:.3g} s "

@@ -232,7 +232,9 @@ def estimate_offset(
 
     # every COARSE-th grid point first, then the grid around the best of those: the cost
     # varies on the time scale of the motion (seconds), far wider than COARSE * step_s
-    coarse = np.unique(np.r_[np.arange(0, len(grid), _COARSE), len(grid) - 1])
+    coarse = np.arange(0, len(grid), _COARSE)
+    if coarse[-1] != len(grid) - 1:
+        coarse = np.append(coarse, len(grid) - 1)
     kc = int(coarse[np.argmin(cost_at(coarse))])
     near = np.arange(max(kc - _COARSE, 0), min(kc + _COARSE + 1, len(grid)))
     k = int(near[np.argmin(cost_at(near))])

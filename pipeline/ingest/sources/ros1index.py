@@ -141,7 +141,8 @@ def ros1_batches(reader1: Any, conn_ids: set[int]) -> Iterator[Batch]:
     if len(idx) == 0:
         return
     chunks = reader1.chunks
-    uniq = np.unique(idx[:, 1])
+    chunk = np.sort(idx[:, 1])
+    uniq = chunk[np.r_[True, chunk[1:] != chunk[:-1]]]  # np.unique would import numpy.ma
     if all(chunks[int(c)].decompressor is decompressors["none"] for c in uniq):
         buf = np.memmap(reader1.path, dtype=np.uint8, mode="r")
         datapos = np.array([chunks[int(c)].datapos for c in uniq], dtype=np.int64)
