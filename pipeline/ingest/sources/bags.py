@@ -172,6 +172,11 @@ def tf_frames_message(name: str, msgs: list[Any], asked: str | None = None) -> s
     return f"{head}; pass --truth-frame PARENT/CHILD, one of: {pairs}"
 
 
+def _joined(arrays: list[np.ndarray]) -> np.ndarray:
+    """``np.concatenate(arrays)``; the array itself when there is one."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
+
+
 def _trajectory(
     name: str,
     msgtype: str,
@@ -507,8 +512,11 @@ class BagSource:
             for batch in batches():
                 for info in infos:
                     m = np.isin(batch.conn, list(ids[info.topic]))
-                    if m.any():
+                    if m.all():  # a batch of one topic (sqlite3): no copies
+                        starts, ends, logs = batch.starts, batch.ends, batch.log_ns
+                    elif m.any():
                         starts, ends, logs = batch.starts[m], batch.ends[m], batch.log_ns[m]
+                    if m.any():
                         d = layout.decode(
                             batch.buf, starts, ends, info.msgtype, encoding, trimmed=batch.trimmed
                         )
@@ -530,14 +538,17 @@ class BagSource:
             ds = parts[info.topic]
             if not ds:
                 continue
-            header = np.concatenate([d.header_ns for d, _ in ds])
-            logs = np.concatenate([lg for _, lg in ds])
-            pose = np.concatenate([d.pose for d, _ in ds])
-            twist = np.concatenate([d.twist for d, _ in ds]) if ds[0][0].twist is not None else None
-            order = np.argsort(logs, kind="stable")  # batches come in chunk order
+            header = _joined([d.header_ns for d, _ in ds])
+            logs = _joined([lg for _, lg in ds])
+            pose = _joined([d.pose for d, _ in ds])
+            twists = [d.twist for d, _ in ds if d.twist is not None]
+            twist = _joined(twists) if twists else None
+            if np.any(logs[1:] < logs[:-1]):  # batches come in chunk order
+                order = np.argsort(logs, kind="stable")
+                header, logs, pose = header[order], logs[order], pose[order]
+                twist = None if twist is None else twist[order]
             out[info.topic] = _trajectory(
-                info.topic, info.msgtype, header[order], logs[order], pose[order],
-                None if twist is None else twist[order], first[info.topic][1],
+                info.topic, info.msgtype, header, logs, pose, twist, first[info.topic][1],
                 first[info.topic][2], "numpy",
             )  # fmt: skip
         return out
