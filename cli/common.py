@@ -276,7 +276,8 @@ def _bars(console: Any) -> Any:
 def print_summary(title: str, rows: Iterable[tuple[str, Any]] | Mapping[str, Any]) -> None:
     """A two-column table on stdout."""
     items = rows.items() if isinstance(rows, Mapping) else rows
-    typer.echo(box_table(title, None, [[str(k), _fmt(v)] for k, v in items]))
+    cells = [[str(k), _fmt(v)] for k, v in items]
+    typer.echo(box_table(title, None, cells, ascii_only=not _unicode_stdout()))
 
 
 def print_verdicts(title: str, verdicts: Iterable[Any]) -> None:
@@ -291,42 +292,71 @@ def print_verdicts(title: str, verdicts: Iterable[Any]) -> None:
 
 def print_table(title: str, columns: list[str], rows: Iterable[Iterable[Any]]) -> None:
     """A table with a header row on stdout."""
-    typer.echo(box_table(title, columns, [[_fmt(v) for v in r] for r in rows]))
+    cells = [[_fmt(v) for v in r] for r in rows]
+    typer.echo(box_table(title, columns, cells, ascii_only=not _unicode_stdout()))
 
 
-def box_table(title: str, header: list[str] | None, rows: list[list[str]]) -> str:
-    """``rows`` (and ``header``) in a box drawn as rich draws its tables, the title above,
-    a cell's lines one below the other. Every column is as wide as its widest cell: a log
-    or a pipe gets whole lines, not rich's cells wrapped to 80 columns, and a command does
-    not load rich (25 ms of its start) to print its summary."""
+_BOXES = {  # top, header rule, body bar, header bar, bottom: (left, fill, mid, right)
+    False: ("┌─┬┐", "┡━╇┩", "│", "┃", "└─┴┘", "┏━┳┓"),
+    True: ("+-++", "+=++", "|", "|", "+-++", "+-++"),
+}
+
+
+def _unicode_stdout() -> bool:
+    """Whether stdout's encoding has the box characters (a Latin-1 terminal has not)."""
+    try:
+        "".join(_BOXES[False]).encode(sys.stdout.encoding or "ascii")
+    except (UnicodeEncodeError, LookupError):
+        return False
+    return True
+
+
+def _width(text: str) -> int:
+    """Columns ``text`` takes on a terminal: wide East Asian characters two, combining
+    marks none."""
+    import unicodedata
+
+    return sum(
+        0 if unicodedata.combining(ch) else 2 if unicodedata.east_asian_width(ch) in "WF" else 1
+        for ch in text
+    )
+
+
+def box_table(
+    title: str, header: list[str] | None, rows: list[list[str]], *, ascii_only: bool = False
+) -> str:
+    """``rows`` (and ``header``) in a box drawn as rich draws its tables (``+-|`` with
+    ``ascii_only``), the title above, a cell's lines one below the other. Every column is as
+    wide as its widest cell: a log or a pipe gets whole lines, not rich's cells wrapped to
+    80 columns, and a command does not load rich (25 ms of its start) to print its
+    summary."""
+    top, head_rule, bar, head_bar, bottom, head_top = _BOXES[ascii_only]
     cells = [[c.splitlines() or [""] for c in r] for r in ([header] if header else []) + rows]
     ncol = max((len(r) for r in cells), default=0)
-    width = [max((len(x) for r in cells for x in r[j]), default=0) for j in range(ncol)]
+    width = [max((_width(x) for r in cells for x in r[j]), default=0) for j in range(ncol)]
 
-    def rule(left: str, fill: str, mid: str, right: str) -> str:
-        return left + mid.join(fill * (w + 2) for w in width) + right
+    def rule(chars: str) -> str:
+        return chars[0] + chars[2].join(chars[1] * (w + 2) for w in width) + chars[3]
 
-    def line(row: list[list[str]], bar: str) -> list[str]:
+    def line(row: list[list[str]], sep: str) -> list[str]:
         row = row + [[""]] * (ncol - len(row))
-        return [
-            bar
-            + bar.join(
-                f" {c[i] if i < len(c) else '':<{w}} " for c, w in zip(row, width, strict=True)
-            )
-            + bar
-            for i in range(max(len(c) for c in row))
-        ]
+        out = []
+        for i in range(max(len(c) for c in row)):
+            texts = [c[i] if i < len(c) else "" for c in row]
+            padded = (f" {x}{' ' * (w - _width(x))} " for x, w in zip(texts, width, strict=True))
+            out.append(sep + sep.join(padded) + sep)
+        return out
 
     out = [title]
     if header:
-        out += [rule("┏", "━", "┳", "┓"), *line(cells[0], "┃"), rule("┡", "━", "╇", "┩")]
+        out += [rule(head_top), *line(cells[0], head_bar), rule(head_rule)]
         body = cells[1:]
     else:
-        out.append(rule("┌", "─", "┬", "┐"))
+        out.append(rule(top))
         body = cells
     for r in body:
-        out += line(r, "│")
-    out.append(rule("└", "─", "┴", "┘"))
+        out += line(r, bar)
+    out.append(rule(bottom))
     return "\n".join(out)
 
 

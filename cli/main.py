@@ -97,7 +97,9 @@ def main() -> None:
         # each module, walking every object the imports made (numpy, pyarrow, pydantic's
         # schemas) again and again: frozen, they are skipped (qsls ingest's exit 48 ->
         # 15 ms). Objects are still released by their reference counts, and atexit
-        # handlers (dask's cluster, temporary folders) still run.
+        # handlers and weakref finalizers (dask's cluster, temporary folders) still run;
+        # only a finalizer on an object left in a reference cycle would not. qsls writes
+        # every output through a writer it closes itself (StageWriter, atomic files).
         gc.freeze()
 
 

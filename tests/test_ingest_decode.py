@@ -166,8 +166,16 @@ def uniform_sqlite(tmp_path_factory: pytest.TempPathFactory) -> Path:
     string and pose lie at different offsets."""
     f = make_flight(duration=6.0, vio_hz=50, truth_hz=100, dropouts=())
     swap = [replace(s, topic="/swap") for s in _split(f.vio, [("ab", "cdef"), ("abcd", "ef")])]
+    # /long: a short first message, then messages 2 kB longer
+    t = replace(f.truth, topic="/long")
+    long = [_part(t, slice(0, 1), frame_id="w"), _part(t, slice(1, None), frame_id="x" * 2000)]
     d = tmp_path_factory.mktemp("uniform")
-    return write_bag(d / "u", [f.vio, f.truth, *swap], "ros2-sqlite")
+    return write_bag(d / "u", [f.vio, f.truth, *swap, *long], "ros2-sqlite")
+
+
+def _part(stream, rows: slice, **fields):
+    keep = ("header_ns", "log_ns", "position", "orientation")
+    return replace(stream, **{k: getattr(stream, k)[rows] for k in keep}, **fields)
 
 
 def _sqlite(bag: Path, topics: list[str], msgtypes: list[str] | None) -> dict[int, list]:
@@ -214,7 +222,8 @@ def test_sqlite_trimmed_read_in_ranges_under_the_length_limit(
     uniform_sqlite: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Under a small SQLite length limit each query covers a range of row ids whose result
-    stays within half the limit: many batches, together the same records and times."""
+    stays within half the limit: many batches, together the same records and times; a
+    topic whose later messages are longer than its first is read row by row there."""
     import sqlite3
 
     from qsls.pipeline.ingest.sources import sqlite as sq
@@ -230,9 +239,57 @@ def test_sqlite_trimmed_read_in_ranges_under_the_length_limit(
         return con
 
     monkeypatch.setattr(sq, "_connect", small)
+    # messages longer than the first one, whose ranges SQLite refuses to concatenate under
+    # the limit: fetched row by row, decoded as the deserializer decodes them
+    (long,) = _sqlite(uniform_sqlite, ["/long"], [POSE_STAMPED]).values()
+    assert len(long) > 1 and not any(b.trimmed for b in long)
+    with BagSource(uniform_sqlite) as src:
+        fast, slow = src.read("/long"), src.read("/long", fast=False)
+    assert fast.decoder == "numpy" and len(fast) == len(slow) > 500
+    for attr in ("header_ns", "log_ns", "position", "orientation"):
+        np.testing.assert_array_equal(getattr(fast, attr), getattr(slow, attr), err_msg=attr)
     many = _sqlite(uniform_sqlite, topics, types)
     for k in (0, 1):
         assert len(one[k]) == 1 and len(many[k]) > 10 and all(b.trimmed for b in many[k])
         assert max(len(b.buf) for b in many[k]) <= 10_000
         assert b"".join(b.buf.tobytes() for b in many[k]) == one[k][0].buf.tobytes()
         np.testing.assert_array_equal(np.concatenate([b.log_ns for b in many[k]]), one[k][0].log_ns)
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "cdr"])
+def test_plan_trim_keeps_every_field_of_every_fixed_type(ros1: bool) -> None:
+    """Each fixed-layout type, in both encodings, trims to a record of the message without
+    its skipped blocks (plan_trim decodes the record and compares it with the message)."""
+    from qsls.pipeline.ingest.sources.write import ODOMETRY, POSE_TYPES, TF, _Builder
+
+    f = make_flight(duration=1.0, vio_hz=20, truth_hz=20, dropouts=())
+    b = _Builder(ros1)
+    for mt in (t for t in POSE_TYPES if t != TF):
+        s = f.vio if mt == ODOMETRY else replace(f.truth, msgtype=mt, frame_id="map_13_chars")
+        raw = b.serialize(b.message(s, 3), mt)
+        trim = layout.plan_trim(raw, mt, "ros1" if ros1 else "cdr")
+        skipped = 8 * sum(op[2] for op in layout._PROGRAMS[mt] if op[0] == "f64" and op[1] is None)
+        assert trim.length == len(raw) and trim.size <= len(raw) - skipped, mt
+        assert trim.spans[0][0] == 0 and all(a < b for a, b in trim.spans), mt
+
+
+def test_plan_trim_refuses_a_cut_that_would_move_a_field(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A skipped block after a string leaves the string's padding in the record, where the
+    next string, aligned to 4 only, would be read from the wrong place: refused."""
+    import struct
+
+    prog = (("time",), ("str", "frame_id"), ("f64", None, 1), ("str", "child_frame_id"),
+            ("f64", "pose", 7))  # fmt: skip
+    monkeypatch.setitem(layout._PROGRAMS, "test/Cut", prog)
+    monkeypatch.setitem(layout._TRIMMED, "test/Cut", tuple(op for op in prog if op[1:2] != (None,)))
+    body = (
+        struct.pack("<iII", 5, 6, 5) + b"abcd\0" + bytes(7)  # stamp, "abcd", padding to 24
+        + struct.pack("<d", 9.0) + struct.pack("<I", 2) + b"b\0" + bytes(2)  # skipped; "b"
+        + struct.pack("<7d", *range(7))  # pose at 40
+    )  # fmt: skip
+    raw = b"\0\1\0\0" + body
+    whole = layout.decode(np.frombuffer(raw, np.uint8), np.array([0]), np.array([len(raw)]),
+                          "test/Cut", "cdr")  # fmt: skip
+    assert whole.child_frame_id == "b" and whole.pose[0, 6] == 6.0
+    with pytest.raises(layout.LayoutError):
+        layout.plan_trim(raw, "test/Cut", "cdr")

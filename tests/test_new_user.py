@@ -430,6 +430,27 @@ def test_box_table_draws_every_cell_whole():
     ]
     head = box_table("f", ["a", "bb"], [["1", "2"]]).split("\n")
     assert head == ["f", "┏━━━┳━━━━┓", "┃ a ┃ bb ┃", "┡━━━╇━━━━┩", "│ 1 │ 2  │", "└───┴────┘"]
+    wide = box_table("f", None, [["名前", "\u00e9"], ["ab", "e\u0301"]]).split("\n")
+    # a wide character takes two columns, a combining accent none
+    assert wide[2:4] == ["│ 名前 │ \u00e9 │", "│ ab   │ e\u0301 │"]
+
+
+def test_summary_tables_in_ascii_where_stdout_cannot_encode_boxes(tmp_path):
+    """On a Latin-1 stdout the summary is drawn with + - | (rich did the same), not a
+    UnicodeEncodeError."""
+    import os
+    import subprocess
+    import sys
+
+    code = "from qsls.cli.common import print_summary; print_summary('t', {'key': 'é 1'})"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, cwd=tmp_path, timeout=60,
+        env={**os.environ, "PYTHONIOENCODING": "latin-1"},
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.decode("latin-1").splitlines() == [
+        "t", "+-----+-----+", "| key | é 1 |", "+-----+-----+"
+    ]  # fmt: skip
 
 
 # --------------------------------------------------------------------------- smaller: palette

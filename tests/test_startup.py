@@ -140,17 +140,21 @@ def test_pydantic_plugins_off_unless_the_user_says(tmp_path):
     assert out.stdout.strip() == "logfire"
 
 
-def test_differentiate_uniform_and_jittered_stamps():
+def test_differentiate_resamples_only_stamps_off_their_grid(monkeypatch):
     """Stamps on their median-spacing grid give the Savitzky-Golay slope of the samples as
-    they are (differentiate no longer resamples them); one stamp 1 us off the grid goes
-    through the resampling, which moves the velocity by micrometres per second only."""
-    from qsls.pipeline.ingest.align import differentiate
+    they are, without resampling; one stamp 1 us off the grid sends the stream through the
+    resampling (to the grid and back), which moves the velocity by micrometres per second."""
+    from qsls.pipeline.ingest import align
 
+    calls = []
+    resample = align.interp_rows
+    monkeypatch.setattr(align, "interp_rows", lambda *a: calls.append(1) or resample(*a))
     t = np.arange(20_000, dtype=np.int64) * 5_000_000 + 1_700_000_000_000_000_000
     p = np.column_stack([np.sin(np.arange(20_000) * 0.001 * k) for k in (1, 2, 3)])
-    v = differentiate(t, p, 0.1, 50_000_000)
+    v = align.differentiate(t, p, 0.1, 50_000_000)
+    assert calls == []
     np.testing.assert_allclose(v, savgol_derivative(p, 21, 0.005), rtol=1e-9, atol=0)
     jitter = t.copy()
     jitter[5000] += 1000
-    w = differentiate(jitter, p, 0.1, 50_000_000)
-    assert 0 < np.abs(w - v).max() < 1e-5
+    w = align.differentiate(jitter, p, 0.1, 50_000_000)
+    assert len(calls) == 2 and 0 < np.abs(w - v).max() < 1e-5

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qsls.pipeline.core.rotations import rot_z
-from qsls.pipeline.ingest.resample import median_spacing
+from qsls.pipeline.ingest.resample import interp_rows, median_spacing
 
 METHODS = ("4dof", "se3", "none")
 
@@ -151,7 +151,6 @@ def differentiate(
         if grid_n == n and np.abs(t - tg).max() <= 1e-6 * h:
             out[sl] = savgol_derivative(x, m, h)  # uniform already: no resampling
             continue
-        xg = np.column_stack([np.interp(tg, t, x[:, k]) for k in range(x.shape[1])])
-        vg = savgol_derivative(xg, m, h)
-        out[sl] = np.column_stack([np.interp(t, tg, vg[:, k]) for k in range(x.shape[1])])
+        vg = savgol_derivative(interp_rows(tg, t, x), m, h)
+        out[sl] = interp_rows(t, tg, vg)
     return out

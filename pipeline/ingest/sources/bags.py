@@ -191,8 +191,9 @@ def _trajectory(
     return Trajectory(
         name=name,
         msgtype=msgtype,
-        header_ns=np.asarray(header_ns, dtype=np.int64),
-        log_ns=np.asarray(log_ns, dtype=np.int64),
+        # contiguous: a column of ROS1's index would keep the whole index alive
+        header_ns=np.ascontiguousarray(header_ns, dtype=np.int64),
+        log_ns=np.ascontiguousarray(log_ns, dtype=np.int64),
         position=np.ascontiguousarray(pose[:, :3], dtype=float),
         orientation=np.ascontiguousarray(pose[:, 3:7], dtype=float),
         velocity=None if twist is None else np.ascontiguousarray(twist[:, :3], dtype=float),
@@ -512,24 +513,25 @@ class BagSource:
             for batch in batches():
                 for info in infos:
                     m = np.isin(batch.conn, list(ids[info.topic]))
+                    if not m.any():
+                        continue
                     if m.all():  # a batch of one topic (sqlite3): no copies
                         starts, ends, logs = batch.starts, batch.ends, batch.log_ns
-                    elif m.any():
+                    else:
                         starts, ends, logs = batch.starts[m], batch.ends[m], batch.log_ns[m]
-                    if m.any():
-                        d = layout.decode(
-                            batch.buf, starts, ends, info.msgtype, encoding, trimmed=batch.trimmed
-                        )
-                        parts[info.topic].append((d, logs))
-                        k = int(np.argmin(logs))
-                        if info.topic not in first or logs[k] < first[info.topic][0]:
-                            if k:
-                                one = slice(k, k + 1)
-                                d = layout.decode(
-                                    batch.buf, starts[one], ends[one], info.msgtype, encoding,
-                                    trimmed=batch.trimmed,
-                                )  # fmt: skip
-                            first[info.topic] = (int(logs[k]), d.frame_id, d.child_frame_id)
+                    d = layout.decode(
+                        batch.buf, starts, ends, info.msgtype, encoding, trimmed=batch.trimmed
+                    )
+                    parts[info.topic].append((d, logs))
+                    k = int(np.argmin(logs))
+                    if info.topic not in first or logs[k] < first[info.topic][0]:
+                        if k:
+                            one = slice(k, k + 1)
+                            d = layout.decode(
+                                batch.buf, starts[one], ends[one], info.msgtype, encoding,
+                                trimmed=batch.trimmed,
+                            )  # fmt: skip
+                        first[info.topic] = (int(logs[k]), d.frame_id, d.child_frame_id)
                 progress.advance(len(batch.starts))
         except layout.LayoutError:
             return {}

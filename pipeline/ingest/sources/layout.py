@@ -18,7 +18,9 @@ Encodings:
 Every message is checked to end where its data ends (CDR: up to 3 padding bytes), so a
 layout that is not what the message type says raises :class:`LayoutError` and the caller
 falls back to rosbags' deserializer. A test compares every field against that
-deserializer.
+deserializer. Trimmed records (:class:`Trim`, what the sqlite3 reader fetches) end after
+their last field; for them that check is the reader's: every message as long as the one
+the trim was planned on, which passed it.
 """
 
 from __future__ import annotations
@@ -220,9 +222,12 @@ class Trim:
 
     ``spans`` are the message's byte ranges ``[a, b)`` a trimmed record keeps, in order:
     everything up to the last field read (twist, else pose) except the skipped float blocks
-    (covariances), so a trimmed record is the message serialized without those blocks
-    (each starts 8-aligned and is a multiple of 8 long: the alignment of what follows is
-    kept) and decodes with ``decode(..., trimmed=True)``. ``size`` is a record's length.
+    (covariances), so a trimmed record decodes with ``decode(..., trimmed=True)``: a skipped
+    block starts 8-aligned and is a multiple of 8 long, so what follows it keeps its
+    alignment; and in every program here it follows a float block, so no padding before it
+    is left in the record for the next field to misread. :func:`plan_trim` checks this on
+    its message (the trimmed record decodes to the same fields). ``size`` is a record's
+    length.
     ``fixed`` are the record's byte ranges that every message of the same layout shares
     with this one: the encapsulation's identifier (CDR) and every string with its length
     word; a message whose ``fixed`` bytes and total ``length`` equal this one's has every
@@ -236,11 +241,12 @@ class Trim:
 
 
 def plan_trim(message: bytes, msgtype: str, encoding: str) -> Trim:
-    """The :class:`Trim` of the messages laid out as ``message`` (decoded in full first:
-    :class:`LayoutError` if it does not have ``msgtype``'s layout)."""
+    """The :class:`Trim` of the messages laid out as ``message``: :class:`LayoutError` if it
+    does not have ``msgtype``'s layout, or if its trimmed record would not decode to its
+    fields."""
     buf = np.frombuffer(message, dtype=np.uint8)
     starts, ends = np.zeros(1, np.int64), np.full(1, len(buf), np.int64)
-    decode(buf, starts, ends, msgtype, encoding)
+    whole = decode(buf, starts, ends, msgtype, encoding)
     cdr = encoding == "cdr"
     spans: list[tuple[int, int]] = []
     fixed: list[tuple[int, int]] = [(0, 2)] if cdr else []  # ROS1's first word is the seq
@@ -258,8 +264,24 @@ def plan_trim(message: bytes, msgtype: str, encoding: str) -> Trim:
             last = b
     spans.append((kept, last))
     spans = [(a, b) for a, b in spans if b > a]
-    size = sum(b - a for a, b in spans)
+    record = np.frombuffer(b"".join(message[a:b] for a, b in spans), dtype=np.uint8)
+    size = len(record)
+    cut = decode(record, starts, np.full(1, size, np.int64), msgtype, encoding, trimmed=True)
+    if not _same(cut, whole):
+        raise LayoutError(f"{msgtype}: its trimmed record does not hold its fields")
     return Trim(spans=tuple(spans), size=size, fixed=tuple(fixed), length=len(buf))
+
+
+def _same(a: Decoded, b: Decoded) -> bool:
+    """Two decodings with the same fields, bit for bit."""
+    arrays = [(a.header_ns, b.header_ns), (a.pose, b.pose)]
+    if a.twist is not None or b.twist is not None:
+        if a.twist is None or b.twist is None:
+            return False
+        arrays.append((a.twist, b.twist))
+    return (a.frame_id, a.child_frame_id) == (b.frame_id, b.child_frame_id) and all(
+        x.tobytes() == y.tobytes() for x, y in arrays
+    )
 
 
 def concat(chunks: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

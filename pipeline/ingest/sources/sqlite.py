@@ -14,17 +14,21 @@ fixed-layout read (:func:`sqlite_batches` with ``msgtypes``) lets SQLite build t
 
 1. the topic's first message is decoded in full and gives the :class:`layout.Trim`, the
    byte ranges of a message that hold the fields read (the covariances and what follows
-   the last field are left out: an Odometry message's 724 bytes become 144);
-2. one aggregate query concatenates those ranges of every message in row order
-   (``group_concat`` of ``substr``), the log times as text (parsed by numpy at once), the
-   message count and the smallest and largest message length;
+   the last field are left out: an Odometry message's 724 bytes become 148);
+2. one aggregate query concatenates those ranges of every message (``group_concat`` of
+   ``substr``), the log times as text (parsed by numpy at once), the message count and the
+   smallest and largest message length. The rows reach the aggregate in the order SQLite
+   scans them (row order for its table scan; SQL promises no order, and none is needed:
+   each record and its log time come from the same row in the same step, and the reader
+   sorts by log time);
 3. the result is checked against the plan: every message as long as the first, and the
    trim's ``fixed`` bytes (encapsulation, every string with its length word) equal to the
    first message's, so every message has its fields at the first one's offsets. A topic
    that fails (its frame names change, say) is fetched row by row instead.
 
 A result longer than SQLite's length limit (1 GB by default) is avoided by querying ranges
-of row ids. The row-by-row fetch (:func:`sqlite_batches` without ``msgtypes``, or a topic
+of row ids sized on the first message (a range whose messages are longer, which SQLite
+refuses to concatenate, is fetched row by row). The row-by-row fetch (:func:`sqlite_batches` without ``msgtypes``, or a topic
 that failed the check) takes each ``(timestamp, data)`` row in one query per topic.
 
 Anything else (compressed bags, another storage, a metadata file rosbags would refuse) is
@@ -66,8 +70,8 @@ def _gc_paused() -> Iterator[None]:
 def sqlite_batches(
     files: list[Path], topics: list[str], msgtypes: Sequence[str] | None = None
 ) -> Iterator[Batch]:
-    """The messages of each of ``topics`` in each database file (in row order, ``conn`` =
-    the topic's index in ``topics``): whole, or, given each topic's fixed-layout
+    """The messages of each of ``topics`` in each database file (``conn`` = the topic's
+    index in ``topics``): whole, or, given each topic's fixed-layout
     ``msgtypes``, as trimmed records (``Batch.trimmed``) where every message has the
     first one's layout (module docstring). A topic's first message that does not have its
     type's layout raises :class:`layout.LayoutError`."""
@@ -155,7 +159,11 @@ def _trimmed(
     step = max(1, con.getlimit(sqlite3.SQLITE_LIMIT_LENGTH) // (2 * (trim.size + _STAMP_CHARS)))
     for a in range(lo, hi + 1, step):
         b = min(a + step - 1, hi)
-        n, shortest, longest, blob, stamps = con.execute(query, [*args, a, b]).fetchone()
+        try:
+            n, shortest, longest, blob, stamps = con.execute(query, [*args, a, b]).fetchone()
+        except sqlite3.DataError:  # "string or blob too big": messages longer than the first
+            yield from _rows(con, where, args, k, (a, b))
+            continue
         if not n:
             continue
         batch = _records(n, shortest, longest, blob, stamps, trim, ref, k)
