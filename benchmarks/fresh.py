@@ -38,30 +38,12 @@ def _once(cmd: list[str], cwd: Path | None, env: dict[str, str]) -> tuple[float,
     return wall, cpu, done.stdout
 
 
-def best_walls(
-    cmds: dict[str, list[str]], repeat: int, cwd: Path | None = None
-) -> dict[str, tuple[float, float, str]]:
-    """``{label: (best wall seconds, least CPU seconds, stdout)}`` over ``repeat`` fresh runs
-    of each command, taken in turns (a machine shared with other work slows both sides of
-    a ratio alike), after one untimed run of each; a failing command ends the benchmark."""
-    env = fresh_env()
-    for cmd in cmds.values():
-        _once(cmd, cwd, env)
-    best = {k: (float("inf"), float("inf"), "") for k in cmds}
-    for _ in range(repeat):
-        for label, cmd in cmds.items():
-            wall, cpu, out = _once(cmd, cwd, env)
-            w, c, _ = best[label]
-            best[label] = (min(w, wall), min(c, cpu), out)
-    return best
-
-
-def median_runs(
-    cmds: dict[str, list[str]], repeat: int, cwd: Path | None = None
-) -> dict[str, tuple[float, float, str]]:
-    """``{label: (median wall seconds, median CPU seconds, stdout)}`` over ``repeat`` fresh
-    runs of each command, taken in turns after one untimed run of each (as
-    :func:`best_walls`); a failing command ends the benchmark."""
+def _runs(
+    cmds: dict[str, list[str]], repeat: int, cwd: Path | None
+) -> dict[str, list[tuple[float, float, str]]]:
+    """``repeat`` fresh runs of each command, taken in turns (a machine shared with other
+    work slows both sides of a ratio alike), after one untimed run of each; a failing
+    command ends the benchmark."""
     env = fresh_env()
     for cmd in cmds.values():
         _once(cmd, cwd, env)
@@ -69,7 +51,27 @@ def median_runs(
     for _ in range(repeat):
         for label, cmd in cmds.items():
             runs[label].append(_once(cmd, cwd, env))
+    return runs
+
+
+def best_walls(
+    cmds: dict[str, list[str]], repeat: int, cwd: Path | None = None
+) -> dict[str, tuple[float, float, str]]:
+    """``{label: (best wall seconds, least CPU seconds, stdout)}`` over ``repeat`` fresh runs
+    of each command (:func:`_runs`); ``inf`` for ``repeat`` 0 (the untimed run only)."""
+    return {
+        k: (min((r[0] for r in v), default=float("inf")),
+            min((r[1] for r in v), default=float("inf")), v[-1][2] if v else "")
+        for k, v in _runs(cmds, repeat, cwd).items()
+    }  # fmt: skip
+
+
+def median_runs(
+    cmds: dict[str, list[str]], repeat: int, cwd: Path | None = None
+) -> dict[str, tuple[float, float, str]]:
+    """``{label: (median wall seconds, median CPU seconds, stdout)}`` over ``repeat`` fresh
+    runs of each command (:func:`_runs`)."""
     return {
         k: (statistics.median(r[0] for r in v), statistics.median(r[1] for r in v), v[-1][2])
-        for k, v in runs.items()
+        for k, v in _runs(cmds, repeat, cwd).items()
     }
