@@ -127,3 +127,39 @@ def test_real_bags_read(real_data: Path, tmp_path: Path) -> None:
         with BagSource(p) as s:
             tf = s.read("/tf", truth_frame="odom/base_footprint")
             assert len(tf) == 517 and np.isfinite(tf.position).all()
+
+
+@pytest.mark.real
+def test_real_bags_as_sqlite3_come_as_trimmed_records(real_data: Path, tmp_path: Path) -> None:
+    """The real ROS1 PoseStamped bag and the ROS2 Odometry MCAP, converted to rosbag2 sqlite3
+    by rosbags' converter: every topic is fetched as trimmed records (84-byte PoseStamped,
+    148-byte Odometry) and decodes as rosbags' deserializer decodes the whole messages."""
+    from rosbags.convert.converter import convert
+
+    from qsls.pipeline.ingest.sources.bags import BagSource
+    from qsls.pipeline.ingest.sources.listing import open_rosbag2
+    from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
+
+    cases = {"ROS_example.bag": ({"ORB-SLAM", "S-PTAM", "groundtruth"}, 84),
+             "nav2_turtlebot.mcap": ({"/odom"}, 148)}  # fmt: skip
+    for name, (topics, size) in cases.items():
+        dst = tmp_path / name.split(".")[0]
+        src = real_data / "bags" / name
+        convert([src], dst, "sqlite3", 8, None, "none", None, None, [], sorted(topics), [], [])
+        with BagSource(dst) as s:
+            types = {t.topic: t.msgtype for t in s.topics() if t.topic in topics}
+            assert set(types) == topics
+            fast = s.read_many([(t, None) for t in sorted(topics)])
+            slow = s.read_many([(t, None) for t in sorted(topics)], fast=False)
+        for a, b in zip(fast, slow, strict=True):
+            assert (a.decoder, b.decoder) == ("numpy", "deserializer") and len(a) > 2000
+            for attr in ("header_ns", "log_ns", "position", "orientation", "velocity"):
+                np.testing.assert_array_equal(getattr(a, attr), getattr(b, attr), err_msg=attr)
+            assert (a.frame_id, a.child_frame_id) == (b.frame_id, b.child_frame_id)
+        listed = open_rosbag2(dst)
+        assert listed is not None
+        batches = list(
+            sqlite_batches(listed.files, sorted(topics), [types[t] for t in sorted(topics)])
+        )
+        assert len(batches) == len(topics) and all(b.trimmed for b in batches)
+        assert set(np.concatenate([b.ends - b.starts for b in batches]).tolist()) == {size}
