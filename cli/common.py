@@ -182,10 +182,9 @@ class RichProgress:
     quiet). rich is loaded only to draw bars (25-35 ms of a command's start)."""
 
     def __init__(self, every: float = 5.0) -> None:
-        self._lines = not sys.stderr.isatty()
         self._console: Any = None
         self._progress: Any = None
-        if not self._lines:
+        if sys.stderr.isatty():
             from rich.console import Console
 
             self._console = Console(stderr=True)
@@ -296,7 +295,9 @@ def print_table(title: str, columns: list[str], rows: Iterable[Iterable[Any]]) -
     typer.echo(box_table(title, columns, cells, ascii_only=not _unicode_stdout()))
 
 
-_BOXES = {  # top, header rule, body bar, header bar, bottom: (left, fill, mid, right)
+# ascii_only: (top, header rule, body bar, header bar, bottom, header top); each rule is
+# left, fill, mid, right
+_BOXES = {
     False: ("┌─┬┐", "┡━╇┩", "│", "┃", "└─┴┘", "┏━┳┓"),
     True: ("+-++", "+=++", "|", "|", "+-++", "+-++"),
 }

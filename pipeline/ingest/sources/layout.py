@@ -226,18 +226,23 @@ class Trim:
     block starts 8-aligned and is a multiple of 8 long, so what follows it keeps its
     alignment; and in every program here it follows a float block, so no padding before it
     is left in the record for the next field to misread. :func:`plan_trim` checks this on
-    its message (the trimmed record decodes to the same fields). ``size`` is a record's
-    length.
+    its message (the trimmed record decodes to the same fields).
     ``fixed`` are the record's byte ranges that every message of the same layout shares
     with this one: the encapsulation's identifier (CDR) and every string with its length
     word; a message whose ``fixed`` bytes and total ``length`` equal this one's has every
-    field at this one's offsets, so its record holds exactly its fields.
+    field at this one's offsets, so its record holds exactly its fields. ``record`` is this
+    message's own trimmed record, the reference for the ``fixed`` bytes.
     """
 
     spans: tuple[tuple[int, int], ...]
-    size: int
     fixed: tuple[tuple[int, int], ...]
     length: int
+    record: bytes
+
+    @property
+    def size(self) -> int:
+        """A trimmed record's length."""
+        return len(self.record)
 
 
 def plan_trim(message: bytes, msgtype: str, encoding: str) -> Trim:
@@ -251,25 +256,27 @@ def plan_trim(message: bytes, msgtype: str, encoding: str) -> Trim:
     spans: list[tuple[int, int]] = []
     fixed: list[tuple[int, int]] = [(0, 2)] if cdr else []  # ROS1's first word is the seq
     kept = removed = 0  # message offset where the current span began; bytes cut before it
-    last = 0
+    last = 0  # one past the last field read
     for op, pos, end in _walk(buf, starts, ends, _PROGRAMS[msgtype], cdr):
         a, b = int(pos[0]), int(end[0])
-        if op[0] == "str":
-            fixed.append((a - removed, b - removed))
-        elif op[0] == "f64" and op[1] is None:
+        if op[0] == "end":
+            break
+        if op[0] == "f64" and op[1] is None:  # skipped: cut out
             spans.append((kept, a))
             removed += b - a
             kept = b
-        if op[0] != "end" and not (op[0] == "f64" and op[1] is None):
-            last = b
+            continue
+        if op[0] == "str":
+            fixed.append((a - removed, b - removed))
+        last = b
     spans.append((kept, last))
     spans = [(a, b) for a, b in spans if b > a]
-    record = np.frombuffer(b"".join(message[a:b] for a, b in spans), dtype=np.uint8)
-    size = len(record)
-    cut = decode(record, starts, np.full(1, size, np.int64), msgtype, encoding, trimmed=True)
+    record = b"".join(message[a:b] for a, b in spans)
+    rec = np.frombuffer(record, dtype=np.uint8)
+    cut = decode(rec, starts, np.full(1, len(rec), np.int64), msgtype, encoding, trimmed=True)
     if not _same(cut, whole):
         raise LayoutError(f"{msgtype}: its trimmed record does not hold its fields")
-    return Trim(spans=tuple(spans), size=size, fixed=tuple(fixed), length=len(buf))
+    return Trim(spans=tuple(spans), fixed=tuple(fixed), length=len(buf), record=record)
 
 
 def _same(a: Decoded, b: Decoded) -> bool:

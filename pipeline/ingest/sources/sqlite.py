@@ -28,8 +28,9 @@ fixed-layout read (:func:`sqlite_batches` with ``msgtypes``) lets SQLite build t
 
 A result longer than SQLite's length limit (1 GB by default) is avoided by querying ranges
 of row ids sized on the first message (a range whose messages are longer, which SQLite
-refuses to concatenate, is fetched row by row). The row-by-row fetch (:func:`sqlite_batches` without ``msgtypes``, or a topic
-that failed the check) takes each ``(timestamp, data)`` row in one query per topic.
+refuses to concatenate, is fetched row by row). The row-by-row fetch
+(:func:`sqlite_batches` without ``msgtypes``, or a topic that failed the check) takes each
+``(timestamp, data)`` row in one query per topic.
 
 Anything else (compressed bags, another storage, a metadata file rosbags would refuse) is
 left to rosbags' reader, which also reports what is wrong with it.
@@ -71,10 +72,10 @@ def sqlite_batches(
     files: list[Path], topics: list[str], msgtypes: Sequence[str] | None = None
 ) -> Iterator[Batch]:
     """The messages of each of ``topics`` in each database file (``conn`` = the topic's
-    index in ``topics``): whole, or, given each topic's fixed-layout
-    ``msgtypes``, as trimmed records (``Batch.trimmed``) where every message has the
-    first one's layout (module docstring). A topic's first message that does not have its
-    type's layout raises :class:`layout.LayoutError`."""
+    index in ``topics``): whole, or, given each topic's fixed-layout ``msgtypes``, as
+    trimmed records (``Batch.trimmed``) where every message has the first one's layout
+    (module docstring). A topic's first message that does not have its type's layout
+    raises :class:`layout.LayoutError`."""
     for db in files:
         con = _connect(Path(db))
         try:
@@ -139,7 +140,6 @@ def _trimmed(
     if first is None:
         return
     trim = layout.plan_trim(bytes(first[0]), msgtype, "cdr")
-    ref = np.frombuffer(b"".join(first[0][a:b] for a, b in trim.spans), dtype=np.uint8)
     whole = trim.spans == ((0, trim.length),)  # a message read whole: no copy per row
     record = (
         "data" if whole else "||".join(f"substr(data, {a + 1}, {b - a})" for a, b in trim.spans)
@@ -166,7 +166,7 @@ def _trimmed(
             continue
         if not n:
             continue
-        batch = _records(n, shortest, longest, blob, stamps, trim, ref, k)
+        batch = _records(n, shortest, longest, blob, stamps, trim, k)
         if batch is None:
             yield from _rows(con, where, args, k, (a, b))
         else:
@@ -180,7 +180,6 @@ def _records(
     blob: bytes,
     stamps: str,
     trim: layout.Trim,
-    ref: np.ndarray,
     k: int,
 ) -> Batch | None:
     """The batch of ``n`` trimmed records in ``blob`` with their log times ``stamps`` (text);
@@ -188,6 +187,7 @@ def _records(
     if shortest != trim.length or longest != trim.length or len(blob) != n * trim.size:
         return None
     rec = np.frombuffer(blob, dtype=np.uint8).reshape(n, trim.size)
+    ref = np.frombuffer(trim.record, dtype=np.uint8)
     for a, b in trim.fixed:
         if not np.array_equal(rec[:, a:b], np.broadcast_to(ref[a:b], (n, b - a))):
             return None
