@@ -60,6 +60,7 @@ def command(
         )
     print_summary("qsls run", result.summary())
     notes = {oc.id: oc.notes for oc in result.outcomes}  # recorded when each stage ran
+    print_verdicts("Calibrated certificates", notes.get("calibrate", {}).get("calibrated", []))
     for stage, title in (("evaluate", "held-out flights"), ("fly", "flown flights")):
         lines = notes.get(stage, {}).get("verdicts", [])
         print_verdicts(f"Certified bound on the {title}", lines)

@@ -206,6 +206,9 @@ class CertificateBody(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     status: Status
+    status_reason: str | None = None
+    """Why the status is not ``certified`` (None when it is, or for a reference or nominal
+    controller, whose status says it all)."""
     norm_phi_xx_h: float
     norm_phi_xy: float
     norm_phi_ux: float
@@ -232,6 +235,40 @@ class CertificateBody(BaseModel):
     perturbation_final: float | None = None
     checks: dict[str, dict[str, Any]] | None = None
     """``name -> {value, limit, passed}`` (none for a reference controller)."""
+
+
+class Calibration(BaseModel):
+    """``certificate.yaml``'s ``calibration``: the flights the premise was calibrated on and
+    what it promises for the next one (docs/calibration.md, :mod:`qsls.pipeline.control.calibration`)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    flights: int
+    """Calibration flights, flown by this controller under ``conditions``."""
+    alpha: float
+    """The stated probability that a new flight of ``conditions`` breaks the calibrated premise."""
+    confidence: float | None
+    """``1 - delta`` of a PAC statement (over the draw of the calibration flights); None for
+    split conformal (a marginal statement)."""
+    method: str
+    conditions: dict[str, Any]
+    duration_s: float
+    seeds: list[int]
+    scores: list[float]
+    """Each flight's ``lambda_f``: the smallest premise inflation it satisfies."""
+    lambda_hat: float
+    """The calibrated inflation: the score of rank ``rank`` (ascending)."""
+    rank: int
+    tested_range: float
+    """The largest ``dist(x_k)`` the calibration flights reached."""
+    nominal: dict[str, float | None]
+    """The design premise before inflation."""
+    parts: dict[str, float]
+    """The largest ratio of each premise quantity over the calibration flights."""
+    tolerances: dict[str, float]
+    """Per premise quantity: the factor it alone could grow by before the condition fails."""
+    holds: bool
+    """The robustness condition under the inflated premise, on the fixed taps."""
 
 
 class Certificate(CertificateBody):
@@ -284,7 +321,9 @@ class Certificate(CertificateBody):
     """sha256 of the ``controller.npz`` this certificate is about."""
     premise: Premise | None = None
     """The premise the guarantee rests on, with the training data's violated shares
-    (:mod:`qsls.pipeline.control.premise`); ``certified`` needs it to hold on all of it."""
+    (:mod:`qsls.pipeline.control.premise`)."""
+    calibration: Calibration | None = None
+    """The calibration behind the numbers above (``qsls calibrate``); None: the design premise."""
 
     @model_serializer(mode="wrap")
     def _in_file_order(self, handler: Any) -> dict[str, Any]:
@@ -336,7 +375,7 @@ class Certificate(CertificateBody):
 
 
 FILE_ORDER = (
-    "controller", "status", "robust", "norm", "cost", "cost_value", "objective", "strictly_proper",
+    "controller", "status", "status_reason", "robust", "norm", "cost", "cost_value", "objective", "strictly_proper",
     "T", "S", "eps_e", "radius", "delta", "eps_w", "R0", "norm_phi_xx_h", "norm_phi_xy",
     "norm_phi_ux", "norm_phi_uy", "robustness_lhs", "margin", "s_times_norm_phi_xy", "a",
     "gamma", "gamma_strict", "rho_star", "norm_N", "norm_N_w", "G_m", "m", "eps_o", "measure",
@@ -344,6 +383,7 @@ FILE_ORDER = (
     "realization_error", "perturbation_peak", "perturbation_final", "checks", "solver_status",
     "solver", "dt", "mass", "Q", "R", "closed_loop_spectral_radius", "closed_loop_norms", "kp",
     "kd", "imitate", "error_model", "error_model_sha256", "controller_sha256", "premise",
+    "calibration",
 )  # fmt: skip
 """The keys of ``certificate.yaml`` in their order: the setting first, then what was found."""
 

@@ -30,7 +30,6 @@ from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, guarantee
 from qsls.pipeline.control.realize import FilterBank, RealizedController, filter_bank
 from qsls.pipeline.control.sls import Taps
 from qsls.pipeline.control.status import (
-    CERTIFIED,
     FAILED,
     REFERENCE,
     RELAXED,
@@ -40,6 +39,11 @@ from qsls.pipeline.control.status import (
 )
 from qsls.pipeline.core.plant import LinearModel
 
+NOT_CALIBRATED = (
+    "not calibrated: the premise describes the design flights only; calibrate it on flights "
+    "this controller flies (qsls calibrate, docs/calibration.md)"
+)
+PREMISE_VIOLATED = "part of the training data violates the premise (its shares under premise)"
 ACHIEVABILITY_TOL = 1e-7
 REALIZATION_TOL = 1e-8
 PERTURBATION_TOL = 1e-8  # final / initial size after the perturbation has had 4T steps
@@ -210,15 +214,19 @@ def certify(
     fields["checks"] = checks
     verified = all(c["passed"] for k, c in checks.items() if k not in ("robustness", "gate"))
     status: Status
+    reason = None
     if solver_status == "inaccurate":
         status = SOLVER_INACCURATE
     elif not verified:
         status = FAILED
     elif checks["robustness"]["passed"] and np.isfinite(g["gamma"]):
-        status = CERTIFIED if premise_holds else RELAXED
+        # a premise fitted on the design flights describes them, not the next flight: only a
+        # calibration (qsls calibrate) makes a certificate 'certified'
+        status = RELAXED
+        reason = NOT_CALIBRATED if premise_holds else NOT_CALIBRATED + "; " + PREMISE_VIOLATED
     else:
         status = UNCERTIFIED
-    return CertificateBody(status=status, **fields)
+    return CertificateBody(status=status, status_reason=reason, **fields)
 
 
 def _unread_gain(taps: Taps, shape: sls.Shape) -> float:

@@ -5,13 +5,20 @@ from __future__ import annotations
 
 from typing import Final, Literal
 
-Status = Literal["certified", "relaxed", "uncertified", "failed", "solver_inaccurate", "reference"]
-"""``certified``: every check passed, ``lhs <= 1 - margin`` and the premise holds on all the
-training data; ``relaxed``: the same, but part of the training data violates the premise (or
-was excluded, or S was not tested); ``uncertified``: realized and verified, but the robustness
+Status = Literal[
+    "certified", "extrapolated", "relaxed", "uncertified", "failed", "solver_inaccurate", "reference"
+]
+"""``certified``: a calibrated premise (docs/calibration.md: at least 19 calibration flights
+flown by the controller itself, ``alpha <= 0.1``) under which every check passed, the
+condition holds with the taps fixed, and the calibration flights reached ``rho*``;
+``extrapolated``: the same, but ``rho*`` lies beyond the distances the calibration flights
+reached; ``relaxed``: every check passed under a premise that is not calibrated for the next
+flight (the design premise of ``qsls synth``, or a percentile one, or too few calibration
+flights), the certificate's ``status_reason`` says which; ``uncertified``: realized and verified, but the robustness
 condition fails; ``failed`` / ``solver_inaccurate``: never certified; ``reference``: not
 synthesized (the PD)."""
 CERTIFIED: Final[Status] = "certified"
+EXTRAPOLATED: Final[Status] = "extrapolated"
 RELAXED: Final[Status] = "relaxed"
 UNCERTIFIED: Final[Status] = "uncertified"
 FAILED: Final[Status] = "failed"

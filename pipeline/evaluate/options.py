@@ -88,3 +88,73 @@ class FlyOptions(EvaluateOptions):
     did in simulation and on hardware "for safety"; pitch and roll stay theirs."""
     keep_bags: bool = False
     """Keep every flight's simulate folder (bag, truth.json) under ``sims/``."""
+
+
+Method = Literal["conformal", "pac"]
+
+
+class CalibrateOptions(Options):
+    """Options of ``qsls calibrate`` (the run's ``calibrate:`` section): each candidate flies
+    its own calibration flights, then fresh validation flights (docs/calibration.md)."""
+
+    flights: int = Field(20, ge=1)
+    """Calibration flights per candidate and condition (19 at least for ``certified``)."""
+    validation: int = Field(20, ge=0)
+    """Validation flights per candidate and condition (fresh seeds, used for nothing else)."""
+    alpha: float = Field(0.1, gt=0, lt=1)
+    """The stated probability that a new flight breaks the calibrated premise."""
+    method: Method = "conformal"
+    """``conformal``: marginal coverage ``1 - alpha``; ``pac``: coverage ``1 - alpha`` with
+    confidence ``1 - delta`` over the calibration draw."""
+    delta: float = Field(0.05, gt=0, lt=1)
+    """``1 - confidence`` of the ``pac`` statement."""
+    seed: int = Field(1000, ge=0)
+    """First calibration seed (seeds ``seed .. seed + flights - 1``)."""
+    validation_seed: int = Field(2000, ge=0)
+    """First validation seed."""
+    conditions: list[Literal["regular", "degraded"]] = Field(
+        default_factory=lambda: ["regular"],  # type: ignore[arg-type]
+        min_length=1,
+    )
+    """Perception conditions: one calibrated certificate per candidate and condition."""
+    duration: float = Field(20.0, gt=0)
+    """Seconds per flight."""
+    tube: float = Field(0.0, ge=0)
+    """Each flight's reference is the design reference with its centre moved by a random
+    horizontal offset of at most ``tube`` metres (and its height by up to ``tube / 2``), so
+    the flights reach distances from the training states toward ``rho*``; 0 flies the design
+    reference itself."""
+    controllers: list[str] | None = None
+    """Candidate controller names; default: every robust controller whose design check passed."""
+    jobs: int = Field(0, ge=0)
+    """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
+    sim: SimOptions = SimOptions()
+    """Vehicle, reference, VIO emulator and crash limits (``qsls run`` lays its ``simulate:``
+    section here); seed, controller, perception and duration are set per flight."""
+    design_seeds: list[int] = Field(default_factory=list)
+    """Seeds of the design flights (``qsls run`` fills them in): a calibration or validation
+    seed among them is refused, as is a validation seed among the calibration ones."""
+
+    def seed_lists(self) -> tuple[list[int], list[int]]:
+        """Calibration and validation seeds, refused (``ConfigError``) where they meet a design
+        seed or each other: a design choice made on a flight would then be tested on it."""
+        from qsls.pipeline.core.errors import ConfigError
+
+        calib = list(range(self.seed, self.seed + self.flights))
+        valid = list(range(self.validation_seed, self.validation_seed + self.validation))
+        design = set(self.design_seeds)
+        for what, key, seeds in (("calibration", "seed", calib), ("validation", "validation_seed", valid)):
+            shared = sorted(design.intersection(seeds))
+            if shared:
+                raise ConfigError(
+                    f"{what} seeds {shared[:5]} are design flights' seeds: a certificate must be "
+                    f"calibrated and validated on flights its design never saw; move "
+                    f"calibrate.{key} past them"
+                )
+        both = sorted(set(calib).intersection(valid))
+        if both:
+            raise ConfigError(
+                f"validation seeds {both[:5]} are also calibration seeds: validation flights must "
+                "be fresh; move calibrate.validation_seed past the calibration seeds"
+            )
+        return calib, valid

@@ -34,6 +34,7 @@ from qsls.pipeline.core.locks import (
 )
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.options import FitOptions
+from qsls.pipeline.evaluate.options import CalibrateOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.report.stage import RUN_FILE
@@ -44,7 +45,7 @@ from qsls.pipeline.sim.options import SimOptions
 
 # (stage id, "running" | "ran" | "skipped", index, count, why it ran)
 OnStage = Callable[[str, str, int, int, str], None]
-STAGE_ORDER = ("simulate", "ingest", "fit", "sweep", "synth", "evaluate", "report")
+STAGE_ORDER = ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "report")
 
 
 class FlightSpec(Options):
@@ -94,7 +95,10 @@ class RunConfig(Options):
     seed: int = 0
     out: str | None = None
     stages: (
-        list[Literal["simulate", "ingest", "fit", "sweep", "synth", "evaluate", "report"]] | None
+        list[
+            Literal["simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "report"]
+        ]
+        | None
     ) = None
     simulate: SimOptions = Field(default_factory=SimOptions)
     flights: list[FlightSpec]
@@ -102,6 +106,9 @@ class RunConfig(Options):
     fit: FitOptions = Field(default_factory=FitOptions)
     sweep: SweepSection | None = None
     synth: SynthOptions | None = None
+    calibrate: CalibrateOptions | None = None
+    """Calibration and validation flights of the candidates (docs/calibration.md); the run's
+    ``simulate:`` section is laid under its ``sim``."""
     evaluate: EvaluateSection | None = None
     report: bool = True
     _given: dict[str, Any] | None = PrivateAttr(None)
@@ -129,15 +136,16 @@ class RunConfig(Options):
         }
 
 
-SECTIONS = ("simulate", "ingest", "fit", "sweep", "synth", "evaluate")
+SECTIONS = ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate")
 """The typed stage sections of a run config (each validated with its stage's name in errors)."""
 MODELS: dict[str, type[Options]] = {
     "simulate": SimOptions, "ingest": IngestOptions, "fit": FitOptions, "sweep": SweepSection,
-    "synth": SynthOptions, "evaluate": EvaluateSection,
+    "synth": SynthOptions, "calibrate": CalibrateOptions, "evaluate": EvaluateSection,
 }  # fmt: skip
 """Each section's model: the one its stage command reads with ``--config``."""
 DEFAULTS: dict[str, Any] = {
-    "simulate": {}, "ingest": {}, "fit": {}, "sweep": None, "synth": None, "evaluate": None,
+    "simulate": {}, "ingest": {}, "fit": {}, "sweep": None, "synth": None, "calibrate": None,
+    "evaluate": None,
 }  # fmt: skip
 
 

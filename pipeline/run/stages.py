@@ -36,7 +36,9 @@ Src = Callable[[str], str]
 
 def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROGRESS) -> StageGraph:
     """Stages for ``cfg`` (a :class:`qsls.pipeline.run.runner.RunConfig`); paths relative to ``base``."""
-    wanted = set(cfg.stages or ("simulate", "ingest", "fit", "sweep", "synth", "evaluate"))
+    wanted = set(
+        cfg.stages or ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate")
+    )
     graph = StageGraph(root)
 
     def src(section: str) -> str:
@@ -73,6 +75,8 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
         return graph
     synth_opts = cfg.synth
     graph.add(Stage("synth", "synth", synth_opts, _synth_exec(synth_opts, progress), deps=("fit",)))
+    if cfg.calibrate is not None and "calibrate" in wanted:
+        _calibrate_stage(graph, cfg, src, progress)
     heldout = ingest_ids["heldout"]
     if "evaluate" not in wanted:
         return graph
@@ -161,6 +165,45 @@ def _evaluate_stages(
         graph.add(
             Stage("fly", "evaluate", fly_opts, execute, deps=("fit", "synth"), notes=_verdicts)
         )
+
+
+def design_seeds(cfg: Any) -> list[int]:
+    """The seeds of the run's simulated flights (every role: the design saw them all)."""
+    seeds = []
+    for i, fl in enumerate(cfg.flights):
+        if fl.simulate is not None:
+            data = merge(cfg.written("simulate"), fl.simulate)
+            seeds.append(int(data.get("seed", cfg.seed + i)))
+    return seeds
+
+
+def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) -> None:
+    """The candidates' calibration and validation flights (docs/calibration.md), under the
+    run's ``simulate:`` conditions, on seeds no design flight used."""
+    from qsls.pipeline.evaluate.options import CalibrateOptions
+
+    given = cfg.written("calibrate") or {}
+    data = merge(given, {"sim": merge(cfg.written("simulate"), given.get("sim") or {})})
+    data["design_seeds"] = sorted(set(design_seeds(cfg)) | set(given.get("design_seeds") or []))
+    opts = validate(CalibrateOptions, data, src("calibrate"))
+    try:
+        opts.seed_lists()
+    except ConfigError as exc:
+        raise ConfigError(f"{src('calibrate')}: {exc}") from None
+
+    def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        from qsls.pipeline.evaluate.calibrate import calibrate
+
+        return calibrate(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
+
+    graph.add(Stage("calibrate", "calibrate", opts, execute, deps=("fit", "synth"), notes=_calibrated))
+
+
+def _calibrated(out: Path) -> dict[str, Any]:
+    """One line per calibrated certificate, kept in the run state for the console."""
+    from qsls.pipeline.evaluate.calibrate import summary_lines
+
+    return {"calibrated": summary_lines(out)}
 
 
 def _verdicts(out: Path) -> dict[str, Any]:

@@ -1,0 +1,218 @@
+"""The calibrated premise: what a certificate promises for the next flight (docs/calibration.md).
+
+A candidate controller has fixed taps and a nominal premise ``P = (eps, S, eps_w, Delta, m)``
+fitted on design flights. Each calibration flight ``f``, flown by the candidate itself under
+the stated conditions, gets a score ``lambda_f``: the smallest inflation of the premise that
+the flight satisfies,
+
+    lambda_f = max( max_k |d_k|_e / (eps + S dist(x_k))       over dist(x_k) <= r,
+                    max_k ||H^-1 w_k||_inf / eps_w,
+                    max_k dist(x_ref,k) / Delta,
+                    max window count / m ),
+
+so the flight satisfies ``P(lambda) = (lambda eps, lambda S, lambda eps_w, lambda Delta,
+floor(lambda m))`` for every ``lambda >= lambda_f`` (the outlier magnitude is bounded by the gate,
+``eps_o = 2V - beta``, and is not inflated). With ``n`` exchangeable calibration flights and
+scores sorted ``s_(1) <= ... <= s_(n)``:
+
+- split conformal (marginal): ``lambda_hat = s_(k)``, ``k = ceil((n + 1)(1 - alpha))``; a new
+  flight of the same conditions satisfies ``P(lambda_hat)`` with probability at least
+  ``1 - alpha`` (over the calibration draw and the new flight together); ``k > n`` means ``n``
+  flights are too few for that ``alpha``;
+- PAC (training-conditional): ``lambda_hat`` is the ``j``-th largest score with ``j`` the largest
+  integer such that ``P[Bin(n, alpha) <= j - 1] <= delta``; with probability ``1 - delta`` over
+  the calibration flights, a new flight breaks ``P(lambda_hat)`` with probability at most
+  ``alpha``. ``j = 1`` (the maximum) needs ``(1 - alpha)^n <= delta``.
+
+The certificate holds iff the fixed taps meet the robustness condition under ``P(lambda_hat)``
+(:func:`qsls.pipeline.control.guarantee.guarantee` with ``G_m`` recomputed for the inflated
+``m``, and the gate's ``rho_v <= V``). The tolerance of each premise quantity is the factor by
+which it alone could grow before that condition fails.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+
+from qsls.pipeline.control.guarantee import (
+    Guarantee,
+    Norms,
+    PremiseNumbers,
+    guarantee,
+    sparse_gain,
+    velocity_deviation,
+)
+
+Method = Literal["conformal", "pac"]
+SCORED = ("dense", "disturbance", "reference", "outliers")
+"""The premise quantities a flight's score inflates, in the order the score table lists them."""
+MIN_FLIGHTS = 19
+"""The fewest calibration flights behind a ``certified`` status (a 95 % marginal statement)."""
+MAX_ALPHA = 0.1
+"""The largest stated probability of breaking the premise behind a ``certified`` status."""
+
+
+def conformal_rank(n: int, alpha: float) -> int:
+    """``ceil((n + 1)(1 - alpha))``: the rank (1-based, ascending) of the split-conformal
+    quantile; above ``n`` when ``n`` flights cannot support ``alpha``."""
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha must lie in (0, 1), got {alpha}")
+    # the small tolerance keeps (n + 1)(1 - alpha) integral where it is so in exact arithmetic
+    return max(1, math.ceil((n + 1) * (1.0 - alpha) - 1e-9))
+
+
+def pac_rank(n: int, alpha: float, delta: float) -> int:
+    """The rank (1-based, ascending) of the PAC order statistic: ``n - j + 1`` for the largest
+    ``j`` with ``P[Bin(n, alpha) <= j - 1] <= delta``; ``n + 1`` when even the maximum is not
+    enough (``(1 - alpha)^n > delta``)."""
+    from scipy.stats import binom
+
+    if not (0.0 < alpha < 1.0 and 0.0 < delta < 1.0):
+        raise ValueError(f"alpha and delta must lie in (0, 1), got {alpha}, {delta}")
+    j = 0
+    while j < n and float(binom.cdf(j, n, alpha)) <= delta:
+        j += 1
+    return n - j + 1
+
+
+def calibration_rank(n: int, alpha: float, method: Method, delta: float = 0.05) -> int:
+    """The rank of the calibrated score (:func:`conformal_rank` or :func:`pac_rank`)."""
+    return conformal_rank(n, alpha) if method == "conformal" else pac_rank(n, alpha, delta)
+
+
+def calibrated_quantile(
+    scores: Sequence[float], alpha: float, method: Method, delta: float = 0.05
+) -> float:
+    """``lambda_hat``: the score at :func:`calibration_rank` (inf when the flights are too few)."""
+    s = np.sort(np.asarray(scores, dtype=float))
+    k = calibration_rank(len(s), alpha, method, delta)
+    return float(s[k - 1]) if 1 <= k <= len(s) else math.inf
+
+
+def smallest_flights(alpha: float, method: Method, delta: float = 0.05) -> int:
+    """The fewest flights for which the calibrated score is finite at ``alpha``."""
+    n = 1
+    while calibration_rank(n, alpha, method, delta) > n:
+        n += 1
+    return n
+
+
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Two-sided Clopper-Pearson interval of ``k`` breaking flights out of ``n``."""
+    from qsls.pipeline.errormodel.honest import clopper_pearson as cp
+
+    return cp(k, n, level)
+
+
+# --------------------------------------------------------------------------- scores
+def ratio(value: float, limit: float) -> float:
+    """``value / limit`` with ``0 / 0 = 0`` and ``v / 0 = inf`` for ``v > 0``."""
+    if value <= 0.0:
+        return 0.0
+    return value / limit if limit > 0.0 else math.inf
+
+
+def flight_score(parts: dict[str, float]) -> float:
+    """``lambda_f``: the largest of a flight's per-quantity ratios (module docstring)."""
+    return max((float(parts[k]) for k in SCORED if k in parts), default=0.0)
+
+
+# --------------------------------------------------------------------------- the condition
+@dataclass(frozen=True)
+class Taps:
+    """What the condition needs of a controller's responses (``Phi_xy`` and ``Phi_xx H``)."""
+
+    phi_xy: np.ndarray
+    phi_xx_h: np.ndarray
+    state_scale: tuple[float, ...]
+    error_scale: tuple[float, ...]
+    measured: tuple[int, ...]
+    outlier: tuple[int, ...]
+    norms: Norms
+    """``N``, ``N_w`` (``G_m`` is recomputed per ``m``)."""
+
+
+@dataclass(frozen=True)
+class Check:
+    """The robustness condition of a premise on fixed taps."""
+
+    premise: PremiseNumbers
+    guarantee: Guarantee
+    G_m: float
+    rho_v: float | None
+    holds: bool
+
+
+def inflate(p: PremiseNumbers, lam: float) -> PremiseNumbers:
+    """``P(lambda)``: ``eps``, ``S``, ``eps_w``, ``Delta`` times ``lambda``, ``m -> floor(lambda m)``."""
+    m = math.floor(lam * p.m + 1e-9) if math.isfinite(lam) else p.m
+    return replace(
+        p, eps=p.eps * lam, S=p.S * lam, eps_w=p.eps_w * lam, delta=p.delta * lam, m=m
+    )
+
+
+def check(p: PremiseNumbers, taps: Taps) -> Check:
+    """The condition ``lhs <= 1``, ``rho* <= r`` and (with a gate) ``rho_v <= V`` under ``p``."""
+    values = (p.eps, p.S, p.eps_w, p.delta)
+    if not all(math.isfinite(v) for v in values):
+        g = guarantee(replace(p, eps=0.0, S=0.0, eps_w=0.0, delta=0.0), taps.norms)
+        return Check(p, replace(g, robustness_lhs=math.inf, rho_star=math.inf), math.inf, None, False)
+    gm = sparse_gain(taps.phi_xy, taps.state_scale, taps.outlier, p.m)
+    norms = replace(taps.norms, G_m=gm)
+    g = guarantee(p, norms)
+    ok = g.robustness_lhs <= 1.0 and g.rho_star <= p.radius
+    rho_v = None
+    if p.gate is not None:
+        rho_v = velocity_deviation(
+            taps.phi_xy, taps.phi_xx_h, p, error_scale=taps.error_scale,
+            measured=taps.measured, outlier_channels=taps.outlier,
+        )  # fmt: skip
+        ok = ok and rho_v <= p.gate
+    return Check(p, g, gm, rho_v, bool(ok))
+
+
+Quantity = Literal["eps", "S", "eps_w", "delta", "m"]
+QUANTITIES: tuple[Quantity, ...] = ("eps", "S", "eps_w", "delta", "m")
+
+
+def tolerance(p: PremiseNumbers, taps: Taps, quantity: Quantity) -> float:
+    """The factor by which ``quantity`` alone could grow before the condition fails (1 or less:
+    it fails already; inf: it never fails from this quantity). ``m`` counts whole outliers:
+    the largest ``m' / m`` that still holds (``m' >= m``); with ``m = 0``, ``m' + 1``."""
+    base = check(p, taps)
+    if not base.holds:
+        return 0.0
+    if quantity == "m":
+        m = p.m
+        while m < 10_000 and check(replace(p, m=m + 1), taps).holds:
+            m += 1
+            if m >= taps.phi_xy.shape[0]:
+                return math.inf  # every tap may carry an outlier
+        return m / p.m if p.m > 0 else float(m + 1)
+    value = float(getattr(p, quantity))
+    if value == 0.0:
+        return math.inf
+
+    def holds(f: float) -> bool:
+        return check(replace(p, **{quantity: value * f}), taps).holds
+
+    return _largest(holds, 1.0)
+
+
+def _largest(holds: Callable[[float], bool], lo: float) -> float:
+    """The largest ``f >= lo`` with ``holds(f)`` (monotone: every quantity enters the condition
+    with a non-negative coefficient), to 1e-6 relative."""
+    hi = 2.0 * lo
+    while holds(hi):
+        lo, hi = hi, 2.0 * hi
+        if hi > 1e12:
+            return math.inf
+    while hi - lo > 1e-6 * lo:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if holds(mid) else (lo, mid)
+    return lo

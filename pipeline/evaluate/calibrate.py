@@ -1,0 +1,516 @@
+"""``qsls calibrate``: a certificate calibrated on flights its design never saw, then validated
+on fresh ones (docs/calibration.md).
+
+For each candidate (a robust controller whose design check passed in ``qsls synth``) and each
+perception condition:
+
+1. **Calibration flights**: the candidate itself flies ``flights`` flights with seeds
+   ``seed, seed + 1, ...`` (never a design flight's seed) under the stated conditions (the
+   design's vehicle, reference and estimator; with ``tube > 0`` each reference moved by a
+   random offset). Each flight keeps the controller's own tick log (``ticks.parquet``: ``t``,
+   ``x_*``, ``y_*``, ``u_*``, ``r_*``, ``uff_*``) and gets its score ``lambda_f``
+   (:func:`score_flight`, :mod:`qsls.pipeline.control.calibration`).
+2. **The calibrated certificate**: ``lambda_hat`` from the scores (split conformal or PAC), the
+   premise inflated by it, the robustness condition re-checked on the fixed taps, the tested
+   range (the largest ``dist(x_k)`` the calibration flights reached) against the inflated
+   ``rho*``, and the tolerance of each premise quantity. ``status: certified`` needs the
+   condition, ``flights >= 19``, ``alpha <= 0.1`` and the tested range to reach ``rho*``
+   (else ``extrapolated``); anything else is ``relaxed``, with the reason.
+3. **Validation flights**: fresh seeds, flown by the calibrated controller and checked against
+   every assumption of the calibrated premise; the share that breaks one, with its
+   Clopper-Pearson interval, beside ``alpha``.
+
+Output (``OUT``): ``<condition>/<controller>/`` (``certificate.yaml`` with its ``calibration``
+record and ``controller.npz``: a controller folder every other command reads),
+``scores.parquet`` (one row per calibration flight: the per-quantity ratios and the score),
+``validation.parquet`` (one row per validation flight: every assumption),
+``calibration.json`` (the summary per candidate and condition) and ``flights/<name>/ticks.parquet``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from qsls.pipeline.control import calibration as cal
+from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED
+from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.evaluate.assumptions import CertifiedPremise, FlownLog, gated_errors
+from qsls.pipeline.evaluate.options import CalibrateOptions as CalibrateOptions
+
+STAGE = "calibrate"
+SCORES_FILE = "scores.parquet"
+VALIDATION_FILE = "validation.parquet"
+SUMMARY_FILE = "calibration.json"
+TICKS_FILE = "ticks.parquet"
+"""The controller's own log of a flight, at its ticks."""
+STATE = ("px", "py", "pz", "vx", "vy", "vz")
+INPUT = ("pitch", "roll", "thrust")
+
+
+# --------------------------------------------------------------------------- flights
+@dataclass(frozen=True)
+class Job:
+    """One flight of a candidate."""
+
+    name: str
+    controller: str
+    folder: str
+    condition: str
+    seed: int
+    role: str  # "calibration" | "validation"
+    sim: dict[str, Any]
+    offset: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Ticks:
+    """A flight at the controller's ticks: ``t`` (k,), ``x``/``y``/``ref`` (k, 6), ``u``/``uff``
+    (k, 3) (absolute input and the reference's feedforward, the paper's signs)."""
+
+    t: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    ref: np.ndarray
+    uff: np.ndarray
+    crashed: bool = False
+    crash_reason: str = ""
+
+    def log(self) -> FlownLog:
+        return FlownLog(self.t, self.x, self.y, self.u, self.ref)
+
+    def frame(self) -> pd.DataFrame:
+        cols: dict[str, np.ndarray] = {"t": self.t}
+        for prefix, a, names in (("x", self.x, STATE), ("y", self.y, STATE), ("u", self.u, INPUT),
+                                 ("r", self.ref, STATE), ("uff", self.uff, INPUT)):  # fmt: skip
+            for j, n in enumerate(names):
+                cols[f"{prefix}_{n}"] = a[:, j]
+        return pd.DataFrame(cols)
+
+    @classmethod
+    def read(cls, path: Path) -> Ticks:
+        """A ``ticks.parquet`` (or the folder holding it)."""
+        f = path / TICKS_FILE if path.is_dir() else path
+        df = pd.read_parquet(f)
+
+        def block(prefix: str, names: Sequence[str]) -> np.ndarray:
+            return df[[f"{prefix}_{n}" for n in names]].to_numpy(float)
+
+        return cls(df["t"].to_numpy(float), block("x", STATE), block("y", STATE),
+                   block("u", INPUT), block("r", STATE), block("uff", INPUT))  # fmt: skip
+
+
+def fly_job(job: Job) -> Ticks:
+    """Fly ``job`` (no bag: the tick log is what the scores read)."""
+    from qsls.pipeline.core.config import merge
+    from qsls.pipeline.core.references import Reference
+    from qsls.pipeline.core.units import NS
+    from qsls.pipeline.sim.closedloop import fly
+    from qsls.pipeline.sim.controllers import feedforward
+    from qsls.pipeline.sim.options import SimOptions
+
+    ref = dict(job.sim.get("reference") or {})
+    cx, cy = ref.get("center", (0.0, 0.0))
+    over: dict[str, Any] = {
+        "seed": job.seed,
+        "controller": {"kind": job.folder},
+        "vio": {"perception": job.condition},
+    }
+    if any(job.offset):
+        over["reference"] = {
+            "center": [float(cx) + job.offset[0], float(cy) + job.offset[1]],
+            "height": float(ref.get("height", 1.0)) + job.offset[2],
+        }
+    opts = SimOptions.model_validate(merge(job.sim, over))
+    f = fly(opts)
+    t = f.ctrl_t_ns / NS
+    n_sub = max(1, round(f.dt * NS / (f.t_ns[1] - f.t_ns[0]))) if len(f.t_ns) > 1 else 1
+    idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
+    reference = Reference(opts.reference)
+    uff = np.array([feedforward(reference.sample(float(s)), f.mass) for s in t]).reshape(-1, 3)
+    return Ticks(t, f.x[idx], f.ctrl_y, f.ctrl_u, f.ctrl_ref, uff, bool(f.crashed),
+                 str(f.crash_reason or ""))  # fmt: skip
+
+
+# --------------------------------------------------------------------------- scores
+def score_flight(
+    log: FlownLog, c: CertifiedPremise, distance: Callable[[np.ndarray], np.ndarray]
+) -> dict[str, float]:
+    """The flight's ratio for each premise quantity and its score ``lambda_f``
+    (:mod:`qsls.pipeline.control.calibration`), with what the flight reached:
+
+    - ``dense``: ``max |d_k|_e / (eps + S dist(x_k))`` over the samples within ``r``;
+    - ``disturbance``: ``max ||H^-1 w_k||_inf / eps_w``;
+    - ``reference``: ``max dist(x_ref,k) / Delta``;
+    - ``outliers``: the largest outlier count in ``T`` consecutive ticks over ``m`` (inf when
+      an outlier exceeds ``eps_o``, which the gate fixes and no inflation moves);
+    - ``reached``: ``max dist(x_k)``, the distance at which the flight tested the premise.
+    """
+    from qsls.pipeline.control.guarantee import measured_channels
+    from qsls.pipeline.errormodel import honest
+    from qsls.pipeline.errormodel.disturbance import realized_disturbance, shaped_norm
+
+    e = gated_errors(log, c.gate)
+    ch = list(measured_channels(c.measure))
+    e_read = np.zeros_like(e)
+    e_read[:, ch] = e[:, ch]
+    d, o = honest.split_errors(e_read, c.beta, c.measure)
+    dense = honest.weighted_norm(d, c.error_scale)
+    mag = np.abs(o).max(axis=1)
+    dist = distance(log.x)
+    inside = dist <= c.radius
+    allowed = c.eps + c.S * dist
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(dense > 0, dense / allowed, 0.0)
+    w = shaped_norm(realized_disturbance(log.x, log.u, c.A, c.B, c.u_hover), c.H)
+    counts = honest.window_counts(mag > 0, np.zeros(len(mag), int), c.window)
+    parts = {
+        "dense": float(rel[inside].max()) if inside.any() else 0.0,
+        "disturbance": cal.ratio(float(w.max()) if len(w) else 0.0, c.eps_w),
+        "reference": cal.ratio(float(distance(log.ref).max()), c.delta),
+        "outliers": math.inf if mag.max() > c.eps_o else cal.ratio(float(counts.max()), c.m),
+    }
+    return {**parts, "score": cal.flight_score(parts), "reached": float(dist.max()),
+            "w_max": float(w.max()) if len(w) else 0.0, "window_max": float(counts.max())}  # fmt: skip
+
+
+def offsets(seed: int, tube: float) -> tuple[float, float, float]:
+    """The reference offset of flight ``seed`` in a tube of radius ``tube``: uniform in the
+    horizontal disc of radius ``tube``, height uniform in ``+-tube/2`` (its own seeded stream)."""
+    if tube <= 0:
+        return (0.0, 0.0, 0.0)
+    rng = np.random.default_rng([seed, 7919])
+    r = tube * math.sqrt(rng.uniform())
+    th = rng.uniform(0, 2 * math.pi)
+    return (r * math.cos(th), r * math.sin(th), rng.uniform(-tube / 2, tube / 2))
+
+
+# --------------------------------------------------------------------------- the certificate
+def premise_numbers(c: CertifiedPremise, gate: float | None) -> PremiseNumbers:
+    return PremiseNumbers(
+        eps=c.eps, S=c.S, radius=c.radius, eps_w=c.eps_w, delta=c.delta, eps_o=c.eps_o,
+        m=c.m, gate=gate,
+    )  # fmt: skip
+
+
+def taps_of(folder: Path) -> cal.Taps:
+    """What the condition needs of the candidate's taps, in its certificate's weights."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.guarantee import measured_channels, outlier_channels, system_norms
+
+    d = load_controller_dir(folder)
+    c = d.certificate
+    p = c.premise
+    sx = tuple(p.state_scale) if p is not None else (1.0,) * 6
+    se = tuple(p.error_scale) if p is not None else (1.0,) * 6
+    taps, model = d.controller.taps, d.controller.model
+    measured = measured_channels(c.measure)
+    outlier = outlier_channels(c.measure, 1)  # G_m is recomputed per m
+    phi_xx_h = taps.Phi_xx @ model.H
+    norms = system_norms(taps.Phi_xy, phi_xx_h, state_scale=sx, error_scale=se, measured=measured)
+    return cal.Taps(taps.Phi_xy, phi_xx_h, sx, se, measured, outlier, norms)
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One candidate's calibration in one condition."""
+
+    controller: str
+    condition: str
+    status: str
+    reason: str
+    lambda_hat: float
+    rank: int
+    check: cal.Check | None
+    tested_range: float
+    tolerances: dict[str, float]
+    scores: list[float]
+
+
+def decide(
+    scores: Sequence[float],
+    reached: Sequence[float],
+    nominal: PremiseNumbers,
+    taps: cal.Taps,
+    options: CalibrateOptions,
+    crashed: int = 0,
+) -> tuple[str, str, float, int, cal.Check | None, float, dict[str, float]]:
+    """``(status, reason, lambda_hat, rank, check, tested range, tolerances)`` (module docstring)."""
+    n = len(scores)
+    rank = cal.calibration_rank(n, options.alpha, options.method, options.delta)
+    lam = cal.calibrated_quantile(scores, options.alpha, options.method, options.delta)
+    tested = float(max(reached, default=0.0))
+    if not math.isfinite(lam):
+        need = cal.smallest_flights(options.alpha, options.method, options.delta)
+        why = (f"{n} calibration flights cannot support alpha {options.alpha:g}" if rank > n
+               else "a calibration flight broke a premise quantity no inflation covers")
+        if rank > n:
+            why += f" ({options.method} needs {need})"
+        return RELAXED, why, lam, rank, None, tested, {}  # fmt: skip
+    inflated = cal.inflate(nominal, lam)
+    chk = cal.check(inflated, taps)
+    tol = {q: cal.tolerance(inflated, taps, q) for q in cal.QUANTITIES} if chk.holds else {}
+    reasons = []
+    if crashed:
+        reasons.append(f"{crashed} calibration flight(s) crashed")
+    if not chk.holds:
+        reasons.append(
+            f"the taps fail the robustness condition under the premise inflated by "
+            f"lambda_hat {lam:.3g} (lhs {chk.guarantee.robustness_lhs:.3g}, rho* "
+            f"{chk.guarantee.rho_star:.3g} against r {nominal.radius:g}"
+            + (f", rho_v {chk.rho_v:.3g} against the gate {nominal.gate:g})" if chk.rho_v is not None else ")")
+        )  # fmt: skip
+    if n < cal.MIN_FLIGHTS:
+        reasons.append(f"{n} calibration flights (certified needs {cal.MIN_FLIGHTS})")
+    if options.alpha > cal.MAX_ALPHA:
+        reasons.append(f"alpha {options.alpha:g} > {cal.MAX_ALPHA:g}")
+    if reasons:
+        return RELAXED, "; ".join(reasons), lam, rank, chk, tested, tol
+    rho = chk.guarantee.rho_star
+    if tested < rho:
+        why = (f"the calibration flights reached dist {tested:.3g} while the certificate uses the "
+               f"premise out to rho* {rho:.3g}: fly them over a wider tube (calibrate.tube)")  # fmt: skip
+        return EXTRAPOLATED, why, lam, rank, chk, tested, tol
+    return CERTIFIED, "", lam, rank, chk, tested, tol
+
+
+def calibrated_certificate(
+    folder: Path, out: Path, o: Outcome, options: CalibrateOptions, seeds: Sequence[int],
+    score_rows: Sequence[dict[str, float]], conditions: dict[str, Any],
+) -> Path:
+    """Write ``out`` (a controller folder): the candidate's controller and its certificate with
+    the inflated premise's numbers and the ``calibration`` record."""
+    from qsls.pipeline.control.artifacts import (
+        CERTIFICATE_FILE,
+        CONTROLLER_FILE,
+        Calibration,
+        Certificate,
+    )
+    from qsls.pipeline.core.artifacts import atomic_write_bytes
+
+    cert = Certificate.load(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out / CONTROLLER_FILE, (folder / CONTROLLER_FILE).read_bytes())
+    record = Calibration(
+        flights=len(o.scores), alpha=options.alpha,
+        confidence=1.0 - options.delta if options.method == "pac" else None,
+        method=options.method, conditions=conditions, duration_s=options.duration,
+        seeds=list(seeds), scores=[float(s) for s in o.scores], lambda_hat=o.lambda_hat,
+        rank=o.rank, tested_range=o.tested_range,
+        nominal={"eps_e": cert.eps_e, "S": cert.S, "eps_w": cert.eps_w, "delta": cert.delta,
+                 "m": float(cert.m), "rho_star": cert.rho_star},
+        parts={k: float(max((r[k] for r in score_rows), default=0.0)) for k in cal.SCORED},
+        tolerances=o.tolerances, holds=bool(o.check is not None and o.check.holds),
+    )  # fmt: skip
+    update: dict[str, Any] = {"status": o.status, "status_reason": o.reason or None,
+                              "calibration": record, "tested_range": o.tested_range}  # fmt: skip
+    if o.check is not None:
+        p, g = o.check.premise, o.check.guarantee
+        update |= {
+            "eps_e": p.eps, "S": p.S, "eps_w": p.eps_w, "delta": p.delta, "m": p.m,
+            "robustness_lhs": g.robustness_lhs, "margin": g.margin, "a": g.a,
+            "rho_star": g.rho_star, "gamma": g.dense_bound, "gamma_strict": g.gamma_strict,
+            "s_times_norm_phi_xy": g.s_times_n, "G_m": o.check.G_m,
+            "rho_v": o.check.rho_v if o.check.rho_v is not None else cert.rho_v,
+        }  # fmt: skip
+    new = cert.model_copy(update=update)
+    Certificate.model_validate(new.model_dump())  # the record must read back
+    atomic_write_bytes(out / CERTIFICATE_FILE, new.to_yaml().encode())
+    return out
+
+
+# --------------------------------------------------------------------------- the stage
+@dataclass(frozen=True)
+class CalibrateResult:
+    out: Path
+    outcomes: tuple[Outcome, ...]
+    validation: pd.DataFrame
+    summary_rows: tuple[dict[str, Any], ...]
+
+    def summary(self) -> dict[str, Any]:
+        return {"output": self.out.as_posix(), "certificates": len(self.outcomes)}
+
+
+def candidates(synth_dir: Path, names: Sequence[str] | None) -> list[Path]:
+    """Robust controllers of ``synth_dir`` whose design check passed (or ``names``)."""
+    from qsls.pipeline.control.artifacts import Certificate
+    from qsls.pipeline.evaluate.certified import expand_controllers
+
+    folders = expand_controllers([synth_dir])
+    by = {f.name: f for f in folders}
+    if names is not None:
+        missing = [n for n in names if n not in by]
+        if missing:
+            raise InputError(
+                f"calibrate: no controller {', '.join(missing)} in {synth_dir} "
+                f"(have: {', '.join(sorted(by))})"
+            )
+        return [by[n] for n in names]
+    out = []
+    for f in folders:
+        c = Certificate.load(f)
+        if c.robust and c.rho_star is not None and (c.checks or {}).get("robustness", {}).get("passed"):
+            out.append(f)
+    return out
+
+
+def calibrate(
+    error_model: Path,
+    synth_dir: Path,
+    options: CalibrateOptions,
+    out: Path,
+    *,
+    force: bool = False,
+    progress: Progress = NULL_PROGRESS,
+) -> CalibrateResult:
+    """Fly, score, calibrate and validate every candidate (module docstring)."""
+    from qsls.pipeline.core.artifacts import StageWriter, check_output
+    from qsls.pipeline.core.pools import run_tasks
+    from qsls.pipeline.errormodel.model import load_error_model
+    from qsls.pipeline.evaluate.assumptions import check_assumptions, crashed
+    from qsls.pipeline.evaluate.bound import load_training, resolve_model
+    from qsls.pipeline.evaluate.certified import certified_premise
+
+    check_output(Path(out), force)
+    calib_seeds, valid_seeds = options.seed_lists()
+    model_file, fit_dir = resolve_model(error_model)
+    model = load_error_model(model_file)
+    training = load_training(fit_dir, model, None)
+    folders = candidates(Path(synth_dir), options.controllers)
+    if not folders:
+        raise InputError(
+            f"calibrate: {synth_dir} holds no robust controller whose design check passed; "
+            "nothing to calibrate (see its certificates' checks)"
+        )
+    premises = {f.name: certified_premise(f) for f in folders}
+    for name, p in premises.items():
+        if p is None:
+            raise InputError(f"calibrate: {name} has no premise to calibrate (a nominal or failed controller)")
+    sim = options.sim.model_dump(mode="json")
+    sim["duration"] = options.duration
+    workers = options.jobs or os.cpu_count() or 1
+    conditions_of = {
+        "estimator": str(getattr(options.sim.vio, "kind", "emulator")), "reference": sim["reference"], "tube_m": options.tube,
+        "duration_s": options.duration, "vehicle": sim["vehicle"],
+    }  # fmt: skip
+
+    with StageWriter(out, STAGE, options=options, inputs=[model_file, *folders], force=force) as w:
+        def jobs_for(role: str, seeds: Sequence[int], folder_of: Callable[[str, str], Path]) -> list[Job]:
+            return [
+                Job(name=f"{role}_{cond}_{f.name}_s{s}", controller=f.name,
+                    folder=str(folder_of(cond, f.name).resolve()), condition=cond, seed=s,
+                    role=role, sim=sim, offset=offsets(s, options.tube))
+                for cond in options.conditions for f in folders for s in seeds
+            ]  # fmt: skip
+
+        by_name = {f.name: f for f in folders}
+        cjobs = jobs_for("calibration", calib_seeds, lambda cond, n: by_name[n])
+        progress.start("calibration flights", total=len(cjobs))
+        ticks = run_tasks([(fly_job, j) for j in cjobs], min(workers, len(cjobs)),
+                          lambda i: progress.advance())  # fmt: skip
+        progress.finish()
+        rows = []
+        for j, tk in zip(cjobs, ticks, strict=True):
+            w.write_parquet(f"flights/{j.name}/{TICKS_FILE}", tk.frame())
+            parts = score_flight(tk.log(), premises[j.controller], training.distance)
+            rows.append({"flight": j.name, "controller": j.controller, "condition": j.condition,
+                         "seed": j.seed, "offset_m": float(np.hypot(*j.offset[:2])),
+                         "crashed": tk.crashed, **parts})  # fmt: skip
+        scores = pd.DataFrame(rows)
+        outcomes = []
+        for cond in options.conditions:
+            for f in folders:
+                sel = scores[(scores["condition"] == cond) & (scores["controller"] == f.name)]
+                s = sel["score"].to_list()
+                nominal = premise_numbers(premises[f.name], premises[f.name].gate)
+                status, reason, lam, rank, chk, tested, tol = decide(
+                    s, sel["reached"].to_list(), nominal, taps_of(f), options,
+                    crashed=int(sel["crashed"].sum()),
+                )
+                o = Outcome(f.name, cond, status, reason, lam, rank, chk, tested, tol, s)
+                outcomes.append(o)
+                calibrated_certificate(
+                    f, w.path(f"{cond}/{f.name}"), o, options, calib_seeds,
+                    sel.to_dict(orient="records"), {**conditions_of, "perception": cond},
+                )
+        vjobs = jobs_for("validation", valid_seeds, lambda cond, n: w.path(f"{cond}/{n}"))
+        vrows = []
+        if vjobs:
+            progress.start("validation flights", total=len(vjobs))
+            vticks = run_tasks([(fly_job, j) for j in vjobs], min(workers, len(vjobs)),
+                               lambda i: progress.advance())  # fmt: skip
+            progress.finish()
+            cal_premise = {(o.condition, o.controller): certified_premise(w.path(f"{o.condition}/{o.controller}"))
+                           for o in outcomes}  # fmt: skip
+            for j, tk in zip(vjobs, vticks, strict=True):
+                w.write_parquet(f"flights/{j.name}/{TICKS_FILE}", tk.frame())
+                c = cal_premise[(j.condition, j.controller)]
+                if c is None:
+                    continue
+                row = check_assumptions(tk.log(), c, training.distance)
+                if tk.crashed:
+                    row = crashed(row, float(tk.t[-1]), tk.crash_reason)
+                vrows.append({"flight": j.name, "controller": j.controller, "condition": j.condition,
+                              "seed": j.seed, **row})  # fmt: skip
+        validation = pd.DataFrame(vrows)
+        summary = [summary_row(o, validation, options) for o in outcomes]
+        w.write_parquet(SCORES_FILE, scores)
+        w.write_parquet(VALIDATION_FILE, validation)
+        w.write_json(SUMMARY_FILE, {"alpha": options.alpha, "method": options.method,
+                                    "delta": options.delta, "certificates": summary})  # fmt: skip
+        w.results.update({"certificates": summary})
+    return CalibrateResult(Path(out), tuple(outcomes), validation, tuple(summary))
+
+
+def summary_row(o: Outcome, validation: pd.DataFrame, options: CalibrateOptions) -> dict[str, Any]:
+    """One candidate's line: its calibration and its validation share against ``alpha``."""
+    g = o.check.guarantee if o.check is not None else None
+    row: dict[str, Any] = {
+        "controller": o.controller, "condition": o.condition, "status": o.status,
+        "reason": o.reason, "flights": len(o.scores), "lambda_hat": o.lambda_hat,
+        "rho_star": g.rho_star if g else None, "tested_range": o.tested_range,
+        "alpha": options.alpha, "method": options.method,
+    }  # fmt: skip
+    sel = validation
+    if len(sel):
+        sel = sel[(sel["controller"] == o.controller) & (sel["condition"] == o.condition)]
+    n = len(sel)
+    k = int((~sel["assumptions_hold"].astype(bool)).sum()) if n else 0
+    lo, hi = cal.clopper_pearson(k, n) if n else (math.nan, math.nan)
+    broken = sel[~sel["assumptions_hold"].astype(bool)]["first_failed"].value_counts().to_dict() if n else {}
+    row |= {"validation_flights": n, "validation_broken": k,
+            "validation_share": k / n if n else math.nan, "validation_ci": [lo, hi],
+            "validation_first_failed": {str(a): int(b) for a, b in broken.items()},
+            "validation_agrees": bool(n and lo <= options.alpha)}  # fmt: skip
+    return row
+
+
+def summary_lines(out: Path) -> list[str]:
+    """The console's line per calibrated certificate (from ``calibration.json``)."""
+    import json
+
+    data = json.loads((Path(out) / SUMMARY_FILE).read_text())
+    lines = []
+    for r in data["certificates"]:
+        head = (f"{r['controller']} ({r['condition']}): {r['status']}, {r['flights']} calibration "
+                f"flights, alpha {r['alpha']:g}, lambda_hat {r['lambda_hat']:.3g}")  # fmt: skip
+        if r["rho_star"] is not None:
+            head += f", rho* {r['rho_star']:.3g} (tested to {r['tested_range']:.3g})"
+        if r["validation_flights"]:
+            lo, hi = r["validation_ci"]
+            head += (f"; validation: {r['validation_broken']} of {r['validation_flights']} broke "
+                     f"an assumption ({100 * lo:.0f}-{100 * hi:.0f} %)")  # fmt: skip
+        if r["reason"]:
+            head += f"; {r['reason']}"
+        lines.append(head)
+    return lines
