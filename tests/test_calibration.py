@@ -1,0 +1,146 @@
+"""The calibrated premise (docs/calibration.md): the order statistics against hand computations,
+the stated alpha met by exchangeable flights in repeated draws, the inflated condition on real
+taps, the seed rule, and the tick log reproducing the scores."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from qsls.pipeline.control import calibration as cal
+from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.evaluate.options import CalibrateOptions
+
+
+def test_conformal_rank_is_the_hand_computed_order_statistic() -> None:
+    # ceil((n + 1)(1 - alpha)): n = 19, alpha 0.05 -> 19 (the maximum); n = 20, alpha 0.1 ->
+    # ceil(18.9) = 19; n = 9, alpha 0.1 -> ceil(9.0) = 9; n = 8, alpha 0.1 -> ceil(8.1) = 9 > 8
+    assert cal.conformal_rank(19, 0.05) == 19
+    assert cal.conformal_rank(20, 0.1) == 19
+    assert cal.conformal_rank(9, 0.1) == 9
+    assert cal.conformal_rank(8, 0.1) == 9
+    scores = [5.0, 1.0, 4.0, 2.0, 3.0, 9.0, 8.0, 7.0, 6.0, 10.0] * 2  # 20 flights
+    # sorted: 1,1,2,2,...,10,10; rank 19 -> 10
+    assert cal.calibrated_quantile(scores, 0.1, "conformal") == 10.0
+    assert cal.calibrated_quantile(scores, 0.2, "conformal") == 9.0  # ceil(16.8) = 17 -> 9
+    assert math.isinf(cal.calibrated_quantile(scores[:8], 0.1, "conformal"))
+
+
+def test_pac_rank_is_the_hand_computed_order_statistic() -> None:
+    # the maximum of n flights (j = 1) needs (1 - alpha)^n <= delta: 29 flights for 90/95
+    # ((0.9)^29 = 0.047), 28 are not enough ((0.9)^28 = 0.052)
+    assert cal.pac_rank(29, 0.1, 0.05) == 29
+    assert cal.pac_rank(28, 0.1, 0.05) == 29  # n + 1: not enough
+    assert cal.smallest_flights(0.1, "pac", 0.05) == 29
+    assert cal.smallest_flights(0.05, "pac", 0.05) == 59
+    assert cal.smallest_flights(0.05, "conformal") == 19
+    # n = 100, alpha 0.1, delta 0.05: the largest j with P[Bin(100, .1) <= j - 1] <= .05
+    j = max(j for j in range(1, 101) if binom.cdf(j - 1, 100, 0.1) <= 0.05)
+    assert j == 5  # P[Bin <= 4] = 0.024, P[Bin <= 5] = 0.058
+    assert cal.pac_rank(100, 0.1, 0.05) == 100 - j + 1
+
+
+@pytest.mark.parametrize("method,alpha", [("conformal", 0.1), ("pac", 0.1)])
+def test_stated_alpha_is_met_by_exchangeable_flights(method: cal.Method, alpha: float) -> None:
+    """1000 draws of 29 calibration flights and one new flight from a heavy-tailed family: the
+    new flight exceeds lambda_hat at a rate within the binomial interval of alpha (conformal:
+    marginal, so the rate is at most alpha; PAC: each draw's own coverage is at least
+    1 - alpha in at least 1 - delta of the draws)."""
+    rng = np.random.default_rng(7)
+    n, draws = 29, 1000
+    dist = lambda size: np.exp(rng.standard_t(3, size=size))  # noqa: E731
+    misses = 0
+    bad_draws = 0
+    for _ in range(draws):
+        lam = cal.calibrated_quantile(dist(n), alpha, method)
+        misses += bool(dist(1)[0] > lam)
+        if method == "pac":
+            coverage = float(np.mean(dist(2000) <= lam))
+            bad_draws += coverage < 1 - alpha
+    lo, hi = binom.ppf([0.0005, 0.9995], draws, alpha) / draws
+    rate = misses / draws
+    assert rate <= hi, (rate, hi)
+    if method == "conformal":
+        # exact for continuous scores: 1 - ceil(30 * 0.9) / 30 = 0.1
+        assert rate >= lo
+    else:
+        assert bad_draws / draws <= 0.05 + 3 * math.sqrt(0.05 * 0.95 / draws)
+
+
+def test_a_family_that_breaks_exchangeability_is_caught_by_the_same_check() -> None:
+    """The check above can fail: new flights drawn wider than the calibration flights exceed
+    lambda_hat far more often than alpha."""
+    rng = np.random.default_rng(3)
+    misses = sum(
+        bool(rng.normal(0, 2.0) > cal.calibrated_quantile(rng.normal(0, 1, 29), 0.1, "conformal"))
+        for _ in range(1000)
+    )
+    assert misses / 1000 > 0.2
+
+
+def _taps() -> cal.Taps:
+    from qsls.pipeline.control.guarantee import Norms
+
+    rng = np.random.default_rng(0)
+    phi_xy = rng.uniform(-0.05, 0.05, (11, 6, 6))
+    phi_xx_h = rng.uniform(-0.05, 0.05, (11, 6, 6))
+    from qsls.pipeline.control.sls import l1_norm
+
+    return cal.Taps(phi_xy, phi_xx_h, (1.0,) * 6, (1.0,) * 6, tuple(range(6)), (3, 4, 5),
+                    Norms(N=l1_norm(phi_xy), N_w=l1_norm(phi_xx_h), G_m=0.0))  # fmt: skip
+
+
+def test_inflated_condition_and_tolerances_against_direct_arithmetic() -> None:
+    taps = _taps()
+    p = PremiseNumbers(eps=0.1, S=0.2, radius=1.0, eps_w=0.05, delta=0.1, eps_o=0.5, m=2)
+    c = cal.check(p, taps)
+    N, Nw = taps.norms.N, taps.norms.N_w
+    per_tap = np.abs(taps.phi_xy[:, :, [3, 4, 5]]).sum(axis=2)
+    gm = float(np.sort(per_tap, axis=0)[::-1][:2].sum(axis=0).max())
+    lhs = (0.2 + 0.1) * N + (0.05 * Nw + 0.1 + 0.5 * gm) / 1.0
+    assert c.G_m == pytest.approx(gm)
+    assert c.guarantee.robustness_lhs == pytest.approx(lhs)
+    assert c.holds == (lhs <= 1)
+    lam = 1.7
+    q = cal.inflate(p, lam)
+    assert (q.eps, q.S, q.eps_w, q.delta, q.m) == pytest.approx((0.17, 0.34, 0.085, 0.17, 3))
+    # tolerance of eps_w: lhs is linear in it, so the factor is 1 + slack / (eps_w N_w), and
+    # rho* <= r is the same condition here (rho* <= r <=> lhs <= 1 when S N < 1)
+    tol = cal.tolerance(p, taps, "eps_w")
+    assert tol == pytest.approx(1 + (1 - lhs) / (0.05 * Nw), rel=1e-5)
+    grown = cal.check(PremiseNumbers(**{**p.__dict__, "eps_w": 0.05 * tol * 1.001}), taps)
+    assert not grown.holds
+
+
+def test_calibration_seeds_shared_with_design_flights_are_refused() -> None:
+    opts = CalibrateOptions(flights=20, seed=1000, validation=20, validation_seed=2000,
+                            design_seeds=[1, 2, 1005])  # fmt: skip
+    with pytest.raises(ConfigError, match=r"calibration seeds \[1005\] are design flights"):
+        opts.seed_lists()
+    opts = CalibrateOptions(flights=20, seed=1000, validation=5, validation_seed=1010)
+    with pytest.raises(ConfigError, match=r"validation seeds .* are also calibration seeds"):
+        opts.seed_lists()
+    calib, valid = CalibrateOptions(design_seeds=[0, 1, 2]).seed_lists()
+    assert calib == list(range(1000, 1020)) and valid == list(range(2000, 2020))
+
+
+def test_run_refuses_a_calibration_that_shares_a_design_seed(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "name: c\nflights:\n  - {name: a, simulate: {seed: 1001}}\n"
+        "synth: {T: 10}\ncalibrate: {flights: 19, seed: 1000}\n"
+    )
+    r = subprocess.run([sys.executable, "-m", "qsls.cli.main", "run", str(cfg), "--out",
+                        str(tmp_path / "out")], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode != 0
+    assert "calibration seeds [1001] are design flights' seeds" in r.stderr
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "out" / "simulate").exists()
