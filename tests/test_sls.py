@@ -10,7 +10,7 @@ from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, robustness_lh
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.realize import RealizedController, filter_bank
-from qsls.pipeline.control.status import CERTIFIED, FAILED
+from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED
 from qsls.pipeline.core.plant import quadrotor_model
 from tests.lqg_reference import lqg_h2_squared
 
@@ -194,7 +194,7 @@ def test_certificate_checks_catch_a_wrong_response():
     )
     setting = PremiseNumbers(eps=0.05, S=0.1, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
     c = certify.certify(sol.taps, MODEL, setting)
-    assert c.status == CERTIFIED and c.realization_error < 1e-12
+    assert c.status == RELAXED and c.realization_error < 1e-12
     bad_uy = sol.taps.Phi_uy.copy()
     bad_uy[4, 0, 0] += 1e-5
     c = certify.certify(replace(sol.taps, Phi_uy=bad_uy), MODEL, setting)

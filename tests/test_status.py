@@ -8,14 +8,14 @@ from typing import get_args
 
 import pytest
 
-from qsls.pipeline.control import certify as C
+from qsls.pipeline.control import status as C
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.report.facts import STATUS_WORDS, read_facts, status_words
 from tests.controllerfixtures import synthesized
 
 
 def test_constants_name_every_status_once_and_the_report_has_words_for_each():
-    constants = [C.CERTIFIED, C.RELAXED, C.UNCERTIFIED, C.FAILED, C.SOLVER_INACCURATE, C.REFERENCE]
+    constants = [C.CERTIFIED, C.EXTRAPOLATED, C.RELAXED, C.UNCERTIFIED, C.FAILED, C.SOLVER_INACCURATE, C.REFERENCE]
     assert sorted(constants) == sorted(get_args(C.Status))
     assert set(STATUS_WORDS) == set(get_args(C.Status))
     assert status_words(C.CERTIFIED) == ("certified", "ok")
@@ -25,15 +25,15 @@ def test_constants_name_every_status_once_and_the_report_has_words_for_each():
 
 def test_report_reads_certificates_through_the_typed_loader(tmp_path):
     cdir = synthesized(T=8)
-    assert cdir.certificate.status == C.CERTIFIED  # the fixture's robust L1 controller
+    assert cdir.certificate.status == C.RELAXED  # the fixture's robust L1 controller, uncalibrated
     folder = tmp_path / "synth" / "l1_robust"
     cdir.certificate.save(folder)
     facts = read_facts(tmp_path, {"synth": [tmp_path / "synth"]})
     (c,) = facts.controllers
-    assert (c.name, c.folder, c.status, c.certified) == ("l1_robust", "synth", C.CERTIFIED, True)
+    assert (c.name, c.folder, c.status, c.certified) == ("l1_robust", "synth", C.RELAXED, False)
     assert c.cert["gamma"] == pytest.approx(cdir.certificate.gamma, rel=0, abs=0)
 
     f = folder / "certificate.yaml"
-    f.write_text(f.read_text().replace("status: certified", "status: certified_maybe"))
+    f.write_text(f.read_text().replace("status: relaxed", "status: certified_maybe"))
     with pytest.raises(InputError, match=r"not a certificate of this qsls version \(status"):
         read_facts(tmp_path, {"synth": [tmp_path / "synth"]})

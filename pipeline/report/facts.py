@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from qsls.pipeline.control.status import (
     CERTIFIED,
+    EXTRAPOLATED,
     FAILED,
     REFERENCE,
     RELAXED,
@@ -90,6 +91,7 @@ def _parquet(path: Path) -> Any:
 # --------------------------------------------------------------------------- status words
 STATUS_WORDS: dict[Status, tuple[str, str]] = {
     CERTIFIED: ("certified", "ok"),
+    EXTRAPOLATED: ("extrapolated beyond the tested range, not certified", "warn"),
     RELAXED: ("relaxed premise, not certified", "warn"),
     UNCERTIFIED: ("no guarantee", "muted"),
     REFERENCE: ("reference, no guarantee", "muted"),

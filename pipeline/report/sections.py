@@ -11,7 +11,13 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from qsls.pipeline.control.status import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
+from qsls.pipeline.control.status import (
+    CERTIFIED,
+    EXTRAPOLATED,
+    REFERENCE,
+    RELAXED,
+    UNCERTIFIED,
+)
 from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
 from qsls.pipeline.report.facts import (
     Facts,
@@ -82,10 +88,14 @@ def section_paper_figures(f: Facts, counter: list[int]) -> Section | None:
 # --------------------------------------------------------------------------- certificates
 _STATUS_NOTES = {
     CERTIFIED: "certified: every check passed (solver, achievability <= 1e-7, realization "
-    "<= 1e-8, internal stability, robustness lhs <= 1) on the premise shown.",
-    RELAXED: "relaxed premise, not certified: the checks passed, but part of the training "
-    "data lies outside the premise (a percentile, a number below the measured one, excluded "
-    "samples or an untested S: shares below); no guarantee is claimed from it.",
+    "<= 1e-8, internal stability, robustness lhs <= 1) on a premise calibrated on the "
+    "controller's own flights (at least 19, alpha <= 0.1) that reached rho*.",
+    EXTRAPOLATED: "extrapolated, not certified: calibrated, and the condition holds, but rho* "
+    "lies beyond the distances the calibration flights reached.",
+    RELAXED: "relaxed premise, not certified: the checks passed on a premise that is not "
+    "calibrated for the next flight (the design flights' premise before qsls calibrate, a "
+    "percentile, excluded samples or an untested S: the reason and shares below); no "
+    "guarantee is claimed from it.",
     UNCERTIFIED: "no guarantee: a nominal controller whose robustness lhs exceeds 1; gamma "
     "is the formula's value, shown for comparison only.",
     REFERENCE: "reference, no guarantee: PD given as a closed loop, compared with the "
