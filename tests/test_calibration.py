@@ -144,3 +144,54 @@ def test_run_refuses_a_calibration_that_shares_a_design_seed(tmp_path: Path) -> 
     assert "calibration seeds [1001] are design flights' seeds" in r.stderr
     assert "Traceback" not in r.stderr
     assert not (tmp_path / "out" / "simulate").exists()
+
+
+def test_one_flight_twice_is_refused_and_the_model_records_its_dt(tmp_path: Path) -> None:
+    """A flight counts once (issue 32): the same folder twice, a symlink to it, or one flight
+    ingested with a second estimator (the same ground truth) is refused as separate folds; the
+    error model records its dt and synth refuses a controller of another dt."""
+    import shutil
+
+    from qsls.pipeline.control.synth import SynthOptions, synth
+    from qsls.pipeline.core.errors import InputError
+    from qsls.pipeline.errormodel.fit import FitOptions, fit
+    from qsls.pipeline.errormodel.model import load_error_model
+    from tests.test_fit import vio_flights, write_flight
+
+    folders, _ = vio_flights(tmp_path / "f", n=2)
+    opts = FitOptions(radius=1.0)
+    (tmp_path / "link").symlink_to(folders[0])
+    twin = tmp_path / "twin"  # the first flight's truth with another estimate: one flight
+    from qsls.pipeline.ingest.flight import Flight
+
+    fl = Flight.load(folders[0]).frame
+    from qsls.pipeline.evaluate.training import states
+
+    x = states(fl)
+    write_flight(twin, fl["t"].to_numpy(float), x, x + 0.01)
+    # the same flight's truth from another export: 2 mm apart, in another frame (rotated and
+    # moved), on stamps 0.05 s shifted
+    rng = np.random.default_rng(1)
+    c, s_ = np.cos(0.4), np.sin(0.4)
+    rot = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]])
+    xs = x + rng.normal(0, 0.002, x.shape)
+    xs[:, :3] = xs[:, :3] @ rot.T + [0.5, -0.2, 0.1]
+    xs[:, 3:] = xs[:, 3:] @ rot.T
+    from qsls.pipeline.ingest.flight import make_flight_frame
+
+    stamps = np.round((fl["t"].to_numpy(float) + 0.05) * 1e9).astype(np.int64)
+    from qsls.pipeline.core.artifacts import StageWriter
+
+    with StageWriter(tmp_path / "reexport", "ingest") as w:
+        w.write_parquet("flight.parquet", make_flight_frame(stamps, xs, xs + 0.02))
+    for second, how in ((folders[0], "the same folder"), (tmp_path / "link", "the same folder"),
+                        (twin, "the same ground truth"),
+                        (tmp_path / "reexport", "the same motion at the same times")):  # fmt: skip
+        with pytest.raises(InputError, match=rf"are one flight \({how}\)"):
+            fit([folders[0], folders[1], second], opts, tmp_path / "fit_bad", force=True)
+    fit(folders, opts, tmp_path / "fit")
+    model = load_error_model(tmp_path / "fit" / "error_model.yaml")
+    assert model.dt == pytest.approx(0.1)
+    with pytest.raises(InputError, match=r"dt 0.05 s: the error model was fitted on flights sampled every 0.1 s"):
+        synth(tmp_path / "fit", SynthOptions(T=8, dt=0.05, controllers="single"), tmp_path / "s")
+    shutil.rmtree(tmp_path / "fit")

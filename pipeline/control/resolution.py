@@ -185,6 +185,12 @@ def resolve(
         radius = float(em.radius)
     else:
         raise InputError("radius: give a number (no error model to take it from)")
+    if em is not None and em.dt is not None and abs(em.dt - opts.dt) > 1e-9 * max(em.dt, 1.0):
+        raise InputError(
+            f"dt {opts.dt:g} s: the error model was fitted on flights sampled every {em.dt:g} s "
+            "(its windows, outlier counts and eps_w are per step of that length); synthesize "
+            f"with --dt {em.dt:g}, or ingest the training flights at {opts.dt:g} s and refit"
+        )
     if opts.H is not None and abs(np.linalg.det(np.asarray(opts.H))) < 1e-12:
         raise InputError("H must be invertible: eps_w bounds ||H^-1 w|| of the realized disturbance")
     state_scale = tuple(em.state_scale) if em is not None else (1.0,) * 6

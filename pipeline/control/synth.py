@@ -52,6 +52,7 @@ from qsls.pipeline.core.artifacts import StageWriter
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
 from qsls.pipeline.core.plant import NU, NX
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.errormodel.disturbance import RESIDUAL
 from qsls.pipeline.errormodel.model import ErrorModel
 
 
@@ -122,8 +123,18 @@ def _built(
     name: str, ctrl: Controller, body: CertificateBody, setting: dict[str, Any],
     timings: dict[str, float],
 ) -> Built:  # fmt: skip
+    premise = setting.get("premise")
+    if body.status_reason and premise is not None and premise.eps_w_source == RESIDUAL:
+        body = body.model_copy(update={"status_reason": body.status_reason + "; " + NO_INPUTS})
     cert = Certificate.of(body, **setting, controller_sha256=ctrl.sha256())
     return Built(name, ctrl, cert, timings)
+
+
+NO_INPUTS = (
+    "eps_w cannot be measured: the flights logged no inputs, and the input-free residual is a "
+    "lower bound on any controller's disturbance; certifiable with the commands flown logged "
+    "(qsls fit --inputs) on flights this controller flies (qsls calibrate)"
+)
 
 
 def certified_controller(

@@ -170,11 +170,12 @@ def _other_section(f: Facts, kind: str, counter: list[int]) -> Section:
     return sec
 
 
-_KNOWN = {"simulate", "ingest", "fit", "sweep", "synth", "evaluate"}
+_KNOWN = {"simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate"}
 
 
 def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Section]:
     """Summary first, the paper's figures, the evidence, the appendix last."""
+    from qsls.pipeline.report import calibration as calib
     from qsls.pipeline.report import camera as cam
     from qsls.pipeline.report import flights as fl
     from qsls.pipeline.report import sections as rs
@@ -187,6 +188,7 @@ def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Se
     builders = [
         rs.section_paper_figures,
         rs.section_controllers,
+        calib.section_calibration,
         rs.section_heldout,
         rs.section_flown,
         rs.section_error_model,

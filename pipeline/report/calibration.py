@@ -1,0 +1,94 @@
+"""The report's section on the calibrated certificates (docs/calibration.md): what each
+candidate's own calibration flights gave, how far each premise quantity could grow, and how
+the fresh validation flights fared against the stated ``alpha``."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from qsls.pipeline.control.artifacts import Certificate
+from qsls.pipeline.report.document import Section
+from qsls.pipeline.report.facts import Facts, g4, pct, status_words
+
+SUMMARY_FILE = "calibration.json"  # written by qsls.pipeline.evaluate.calibrate (not imported: pandas)
+QUANTITIES = ("eps", "S", "eps_w", "delta", "m")
+PARTS = ("dense", "disturbance", "reference", "outliers")
+
+
+def read_calibration(f: Facts) -> list[tuple[dict[str, Any], Certificate | None]]:
+    """Each calibrated certificate's summary row with its certificate (None if missing)."""
+    out: list[tuple[dict[str, Any], Certificate | None]] = []
+    for folder in f.stages.get("calibrate", []):
+        path = folder / SUMMARY_FILE
+        if not path.is_file():
+            continue
+        for row in json.loads(path.read_text())["certificates"]:
+            cdir = folder / row["condition"] / row["controller"]
+            cert = Certificate.load(cdir) if (cdir / "certificate.yaml").is_file() else None
+            out.append((row, cert))
+    return out
+
+
+def section_calibration(f: Facts, counter: list[int]) -> Section | None:
+    rows = read_calibration(f)
+    if not rows:
+        return None
+    sec = Section("Calibrated certificates", id="calibration")
+    sec.text(
+        "Each robust candidate flew its own calibration flights under the stated conditions, on "
+        "seeds no design flight used. A flight's score is the smallest inflation of the design "
+        "premise (eps, S, eps_w, Delta, m) it satisfies; the calibrated premise is the design "
+        "premise inflated by the conformal (or PAC) order statistic lambda_hat of the scores, "
+        "and the candidate's fixed taps are checked against it. A new flight of the same "
+        "conditions breaks the calibrated premise with probability at most alpha. Fresh "
+        "validation flights then count how often it did (docs/calibration.md).",
+        lead=True,
+    )
+    main, tol, valid = [], [], []
+    for r, cert in rows:
+        cal = cert.calibration if cert is not None else None
+        parts = cal.parts if cal is not None else {}
+        how = r["method"] + (f" {100 * cal.confidence:.0f}% conf." if cal and cal.confidence else "")
+        main.append([
+            r["controller"], r["condition"], status_words(r["status"])[0], r["flights"],
+            f"{g4(r['alpha'])} ({how})", g4(r["lambda_hat"]),
+            ", ".join(f"{k} {g4(parts.get(k))}" for k in PARTS if k in parts),
+            g4(r["rho_star"]), g4(r["tested_range"]),
+        ])  # fmt: skip
+        tol.append([r["controller"], r["condition"],
+                    *(g4(cal.tolerances.get(q)) if cal and cal.tolerances else "-" for q in QUANTITIES)])  # fmt: skip
+        lo, hi = r["validation_ci"]
+        failed = ", ".join(f"{k} {v}" for k, v in sorted(r["validation_first_failed"].items()))
+        valid.append([
+            r["controller"], r["condition"], r["validation_flights"], r["validation_broken"],
+            pct(r["validation_share"]), f"{pct(lo)} to {pct(hi)}", g4(r["alpha"]),
+            failed or "-", "yes" if r["validation_agrees"] else "NO",
+        ])  # fmt: skip
+    sec.table(
+        ["controller", "condition", "status", "calibration flights", "alpha", "lambda_hat",
+         "largest ratio per quantity", "calibrated rho*", "flights reached dist"],
+        main,
+        "The calibration: lambda_hat inflates every premise quantity; the largest ratio shows which "
+        "quantity drives it; rho* under the calibrated premise beside the distance the calibration "
+        "flights reached (certified needs it to reach rho*)",
+        notes=[f"{r['controller']} ({r['condition']}): {r['reason']}" for r, _ in rows if r["reason"]],
+        text_cols=[2, 4, 6],
+    )  # fmt: skip
+    if any(any(c != "-" for c in t[2:]) for t in tol):
+        sec.table(
+            ["controller", "condition", *(f"{q} x" for q in QUANTITIES)],
+            tol,
+            "Tolerances: the factor by which each calibrated premise quantity alone could grow "
+            "before the robustness condition fails (m: in whole outliers)",
+        )
+    sec.table(
+        ["controller", "condition", "validation flights", "broke an assumption", "share",
+         "95% interval (Clopper-Pearson)", "alpha", "first assumption broken", "consistent with alpha"],
+        valid,
+        "Validation on fresh flights: every assumption (disturbance, dist(x_hat) <= a, invariance, "
+        "dense, outliers) checked against the calibrated premise; consistent when the interval's "
+        "lower end does not exceed alpha",
+        text_cols=[5, 7, 8],
+    )  # fmt: skip
+    return sec
