@@ -155,6 +155,20 @@ def test_quickstart_assumptions_on_the_flown_flights(quickstart):
     for _, r in bad.iterrows():
         assert r["verdict"].startswith(f"assumption '{r['first_failed']}' fails first")
         assert not r[f"{r['first_failed']}_holds"]
+    # the flight's own tick log reproduces its row (issue 32: an auditor recomputes it)
+    from qsls.pipeline.errormodel.model import load_error_model
+    from qsls.pipeline.evaluate.assumptions import check_assumptions
+    from qsls.pipeline.evaluate.calibrate import Ticks
+    from qsls.pipeline.evaluate.certified import certified_premise
+    from qsls.pipeline.evaluate.training import load_training
+
+    root = work / "runs" / "quickstart"
+    training = load_training(root / "fit", load_error_model(root / "fit" / "error_model.yaml"), None)
+    ticks = Ticks.read(root / "fly" / "flights" / row["flight"])
+    again = check_assumptions(ticks.log(), certified_premise(root / "synth" / "l1_robust"),
+                              training.distance)  # fmt: skip
+    for name in ("disturbance", "nominal", "invariance", "dense", "outliers"):
+        assert again[f"{name}_value"] == pytest.approx(row[f"{name}_value"], rel=1e-12), name
     degraded = a[(a["controller"] == "l1_robust") & (a["condition"] == "degraded")].iloc[0]
     assert not degraded["assumptions_hold"]
     findings = json.loads((work / "runs" / "quickstart" / "fly" / "findings.json").read_text())

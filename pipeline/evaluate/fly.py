@@ -58,6 +58,7 @@ from qsls.pipeline.evaluate.bound import (
     resolve_model,
     write_tables,
 )
+from qsls.pipeline.evaluate.calibrate import TICKS_FILE
 from qsls.pipeline.evaluate.figures import write_fly_figures
 from qsls.pipeline.evaluate.findings import (
     PAPER_CONTROLLERS,
@@ -114,6 +115,8 @@ class FlyOutcome:
     t_vio: np.ndarray  # (m,) s
     e_norm: np.ndarray  # (m,) ||e||_inf of the emulator
     u_pd: np.ndarray  # (k, 3) what PD would command from the same estimate
+    uff_ctrl: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """(k, 3) the reference's feedforward at the controller ticks (paper signs)."""
     extra: dict[str, Any] = field(default_factory=dict)
     estimator: str = "emulator"
 
@@ -121,7 +124,9 @@ class FlyOutcome:
 def run_job(job: FlyJob) -> FlyOutcome:
     """Fly one controller (simulate: closed loop + bag), then ingest the bag."""
     from qsls.pipeline.core.config import merge
+    from qsls.pipeline.core.references import Reference
     from qsls.pipeline.ingest.stage import ingest
+    from qsls.pipeline.sim.controllers import feedforward
     from qsls.pipeline.sim.simulate import simulate
 
     data = merge(
@@ -150,6 +155,8 @@ def run_job(job: FlyJob) -> FlyOutcome:
     u_off = command_offset(opts, f.mass, t_ctrl)
     n_sub = max(1, round(f.dt * NS / (f.t_ns[1] - f.t_ns[0]))) if len(f.t_ns) > 1 else 1
     idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
+    reference = Reference(opts.reference)
+    uff = np.array([feedforward(reference.sample(float(s)), f.mass) for s in t_ctrl]).reshape(-1, 3)
     return FlyOutcome(
         name=job.name,
         controller=job.controller,
@@ -170,9 +177,17 @@ def run_job(job: FlyJob) -> FlyOutcome:
         t_vio=f.vio_t_ns / NS,
         e_norm=np.abs(f.vio_e).max(axis=1),
         u_pd=u_pd,
+        uff_ctrl=uff,
         extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass},
         estimator=job.estimator,
     )
+
+
+def tick_frame(o: FlyOutcome) -> pd.DataFrame:
+    """``ticks.parquet`` of a flown flight (:class:`qsls.pipeline.evaluate.calibrate.Ticks`)."""
+    from qsls.pipeline.evaluate.calibrate import Ticks
+
+    return Ticks(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl).frame()
 
 
 def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[FlyOutcome]:
@@ -521,6 +536,8 @@ def fly_evaluate(
                 flights=w.path("flights"), pd_gain=_pd_gain_of(folders),
             )  # fmt: skip
             outcomes = run_jobs(jobs, min(workers, len(jobs)), progress)
+            for o in outcomes:  # the controller's own log, for an auditor to recompute from
+                w.write_parquet(f"flights/{o.name}/{TICKS_FILE}", tick_frame(o))
             for o in outcomes:
                 if o.metrics["crashed"]:
                     warnings.append(
