@@ -83,7 +83,7 @@ def test_a_family_that_breaks_exchangeability_is_caught_by_the_same_check() -> N
     assert misses / 1000 > 0.2
 
 
-def _taps() -> cal.Taps:
+def _taps() -> cal.Responses:
     from qsls.pipeline.control.guarantee import Norms
 
     rng = np.random.default_rng(0)
@@ -91,7 +91,7 @@ def _taps() -> cal.Taps:
     phi_xx_h = rng.uniform(-0.05, 0.05, (11, 6, 6))
     from qsls.pipeline.control.sls import l1_norm
 
-    return cal.Taps(phi_xy, phi_xx_h, (1.0,) * 6, (1.0,) * 6, tuple(range(6)), (3, 4, 5),
+    return cal.Responses(phi_xy, phi_xx_h, (1.0,) * 6, (1.0,) * 6, tuple(range(6)), (3, 4, 5),
                     Norms(N=l1_norm(phi_xy), N_w=l1_norm(phi_xx_h), G_m=0.0))  # fmt: skip
 
 
@@ -123,7 +123,7 @@ def test_calibration_seeds_shared_with_design_flights_are_refused() -> None:
     with pytest.raises(ConfigError, match=r"calibration seeds \[1005\] are design flights"):
         opts.seed_lists()
     opts = CalibrateOptions(flights=20, seed=1000, validation=5, validation_seed=1010)
-    with pytest.raises(ConfigError, match=r"validation seeds .* are also calibration seeds"):
+    with pytest.raises(ConfigError, match=r"validation seeds .* are also calibration or range seeds"):
         opts.seed_lists()
     calib, valid = CalibrateOptions(design_seeds=[0, 1, 2]).seed_lists()
     assert calib == list(range(1000, 1020)) and valid == list(range(2000, 2020))

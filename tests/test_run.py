@@ -91,7 +91,7 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
     from qsls.pipeline.control import calibration as cal
     from qsls.pipeline.errormodel.model import load_error_model
     from qsls.pipeline.evaluate.assumptions import check_assumptions
-    from qsls.pipeline.evaluate.calibrate import Ticks, score_flight
+    from qsls.pipeline.evaluate.calibrate import TickLog, score_flight
     from qsls.pipeline.evaluate.certified import certified_premise
     from qsls.pipeline.evaluate.training import load_training
 
@@ -108,7 +108,7 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
         assert len(sel) == 20
         premise = certified_premise(root / "synth" / name)
         for _, r in sel.head(4).iterrows():
-            ticks = Ticks.read(root / "calibrate" / "flights" / r["flight"])
+            ticks = TickLog.read(root / "calibrate" / "flights" / r["flight"])
             again = score_flight(ticks.log(), premise, training.distance)
             for k in ("dense", "disturbance", "reference", "outliers", "score"):
                 assert again[k] == pytest.approx(r[k], rel=1e-12), (name, k)
@@ -130,7 +130,7 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
         c = certified_premise(root / "calibrate" / "regular" / name)
         valid = pd.read_parquet(root / "calibrate" / "validation.parquet")
         v = valid[valid["controller"] == name].iloc[0]
-        row = check_assumptions(Ticks.read(root / "calibrate" / "flights" / v["flight"]).log(), c,
+        row = check_assumptions(TickLog.read(root / "calibrate" / "flights" / v["flight"]).log(), c,
                                 training.distance)  # fmt: skip
         for a in ("disturbance", "nominal", "invariance", "dense", "outliers"):
             assert row[f"{a}_value"] == pytest.approx(v[f"{a}_value"], rel=1e-12)
@@ -158,13 +158,13 @@ def test_quickstart_assumptions_on_the_flown_flights(quickstart):
     # the flight's own tick log reproduces its row (issue 32: an auditor recomputes it)
     from qsls.pipeline.errormodel.model import load_error_model
     from qsls.pipeline.evaluate.assumptions import check_assumptions
-    from qsls.pipeline.evaluate.calibrate import Ticks
+    from qsls.pipeline.evaluate.calibrate import TickLog
     from qsls.pipeline.evaluate.certified import certified_premise
     from qsls.pipeline.evaluate.training import load_training
 
     root = work / "runs" / "quickstart"
     training = load_training(root / "fit", load_error_model(root / "fit" / "error_model.yaml"), None)
-    ticks = Ticks.read(root / "fly" / "flights" / row["flight"])
+    ticks = TickLog.read(root / "fly" / "flights" / row["flight"])
     again = check_assumptions(ticks.log(), certified_premise(root / "synth" / "l1_robust"),
                               training.distance)  # fmt: skip
     for name in ("disturbance", "nominal", "invariance", "dense", "outliers"):

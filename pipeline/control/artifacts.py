@@ -269,6 +269,10 @@ class Calibration(BaseModel):
     """Per premise quantity: the factor it alone could grow by before the condition fails."""
     holds: bool
     """The robustness condition under the inflated premise, on the fixed taps."""
+    range_flights: int = 0
+    """Range flights (the reference offset within a tube): scored on the perception premise
+    only, their calibrated score can only raise ``lambda_hat``."""
+    range_scores: list[float] = []
 
 
 class Certificate(CertificateBody):

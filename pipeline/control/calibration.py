@@ -124,7 +124,7 @@ def flight_score(parts: dict[str, float]) -> float:
 
 # --------------------------------------------------------------------------- the condition
 @dataclass(frozen=True)
-class Taps:
+class Responses:
     """What the condition needs of a controller's responses (``Phi_xy`` and ``Phi_xx H``)."""
 
     phi_xy: np.ndarray
@@ -156,7 +156,7 @@ def inflate(p: PremiseNumbers, lam: float) -> PremiseNumbers:
     )
 
 
-def check(p: PremiseNumbers, taps: Taps) -> Check:
+def check(p: PremiseNumbers, taps: Responses) -> Check:
     """The condition ``lhs <= 1``, ``rho* <= r`` and (with a gate) ``rho_v <= V`` under ``p``."""
     values = (p.eps, p.S, p.eps_w, p.delta)
     if not all(math.isfinite(v) for v in values):
@@ -180,7 +180,7 @@ Quantity = Literal["eps", "S", "eps_w", "delta", "m"]
 QUANTITIES: tuple[Quantity, ...] = ("eps", "S", "eps_w", "delta", "m")
 
 
-def tolerance(p: PremiseNumbers, taps: Taps, quantity: Quantity) -> float:
+def tolerance(p: PremiseNumbers, taps: Responses, quantity: Quantity) -> float:
     """The factor by which ``quantity`` alone could grow before the condition fails (1 or less:
     it fails already; inf: it never fails from this quantity). ``m`` counts whole outliers:
     the largest ``m' / m`` that still holds (``m' >= m``); with ``m = 0``, ``m' + 1``."""
@@ -199,7 +199,8 @@ def tolerance(p: PremiseNumbers, taps: Taps, quantity: Quantity) -> float:
         return math.inf
 
     def holds(f: float) -> bool:
-        return check(replace(p, **{quantity: value * f}), taps).holds
+        grown = {"eps": p.eps, "S": p.S, "eps_w": p.eps_w, "delta": p.delta} | {quantity: value * f}
+        return check(replace(p, **grown), taps).holds
 
     return _largest(holds, 1.0)
 

@@ -122,14 +122,18 @@ def check_flight(
     ratio, ratio_strict, premise_ratio = _ratios(e_norm, gamma_k, gamma_strict, premise_k)
     k_ratio, k_err, k_dist = int(np.argmax(ratio)), int(np.argmax(e_norm)), int(np.argmax(d))
     k_prem = int(np.argmax(premise_ratio))
-    premise_holds = bool(np.all(premise_ratio <= 1.0))
+    dense_holds = bool(np.all(premise_ratio <= 1.0))
     frac_premise = float(np.mean(premise_ratio <= 1.0))
+    windows = outlier_windows(bound, e)
+    premise_holds = dense_holds and windows.holds
     within_radius = bool(np.all(inside))
     max_slope = _max_slope_to_training(e, d, idx, inside, training)
     problems = _premise_problems(
-        bound, premise_holds, within_radius, float(premise_ratio[k_prem]), float(t[k_prem]),
+        bound, dense_holds, within_radius, float(premise_ratio[k_prem]), float(t[k_prem]),
         max_slope, frac_premise,
     )  # fmt: skip
+    if not windows.holds:
+        problems.append(windows.text())
     why_not = _why_theorem_not(bound, flown_by, t_all)
     d_hat = np.full(len(t), np.nan)
     if why_not is None:
@@ -186,9 +190,12 @@ def check_flight(
         "max_premise_ratio": float(premise_ratio[k_prem]),
         "max_premise_ratio_t": float(t[k_prem]),
         "max_slope_to_training": max_slope,
+        "max_outliers_in_window": windows.largest,
+        "frac_windows_over_m": windows.share_over,
         "local_bound_holds": bool(np.all(e_norm <= gamma_k)) if bound.finite else False,
         "strict_bound_holds": bool(np.all(e_norm <= gamma_strict)),
         "assumption_holds": premise_holds and within_radius,
+        "premise_holds": premise_holds,
         "verdict": "; ".join([head, *problems]),
     }
     samples = pd.DataFrame(
@@ -206,6 +213,43 @@ def check_flight(
         }
     )
     return row, samples
+
+
+@dataclass(frozen=True)
+class OutlierWindows:
+    """The sparse part of the premise on a flight: outliers (velocity errors beyond ``beta``)
+    counted in every window of ``T`` samples against ``m``; it does not depend on the
+    controller, so it is checked on every flight, recorded ones included."""
+
+    m: int
+    window: int
+    largest: int
+    share_over: float
+
+    @property
+    def holds(self) -> bool:
+        return self.largest <= self.m
+
+    def text(self) -> str:
+        return (
+            f"outlier count broken: up to {self.largest} outliers in a window of {self.window} "
+            f"samples > m = {self.m} ({100 * self.share_over:.1f}% of windows)"
+        )
+
+
+def outlier_windows(bound: ControllerBound, e: np.ndarray) -> OutlierWindows:
+    """:class:`OutlierWindows` of the errors ``e`` under ``bound``'s premise (none to count
+    without a ``beta``: the premise then has no sparse part and ``m = 0``)."""
+    from qsls.pipeline.errormodel import honest
+
+    window = int(bound.certificate.get("T") or 0)
+    m = int(bound.certificate.get("m") or 0)
+    if not math.isfinite(bound.beta) or window <= 0:
+        return OutlierWindows(m, window, 0, 0.0)
+    _, o = honest.split_errors(e, bound.beta, bound.measure)
+    counts = honest.window_counts(np.abs(o).max(axis=1) > 0, np.zeros(len(e), int), window)
+    full = counts[window - 1 :] if len(counts) >= window else counts
+    return OutlierWindows(m, window, int(counts.max()), float(np.mean(full > m)))
 
 
 def _why_theorem_not(bound: ControllerBound, flown_by: str | None, t: np.ndarray) -> str | None:

@@ -6,8 +6,9 @@ perception condition:
 
 1. **Calibration flights**: the candidate itself flies ``flights`` flights with seeds
    ``seed, seed + 1, ...`` (never a design flight's seed) under the stated conditions (the
-   design's vehicle, reference and estimator; with ``tube > 0`` each reference moved by a
-   random offset). Each flight keeps the controller's own tick log (``ticks.parquet``: ``t``,
+   design's vehicle, reference and estimator). With ``range_flights``, it also flies the
+   reference moved by random offsets within ``tube``: those flights reach distances toward
+   ``rho*`` and are scored on the perception premise only. Each flight keeps the controller's own tick log (``ticks.parquet``: ``t``,
    ``x_*``, ``y_*``, ``u_*``, ``r_*``, ``uff_*``) and gets its score ``lambda_f``
    (:func:`score_flight`, :mod:`qsls.pipeline.control.calibration`).
 2. **The calibrated certificate**: ``lambda_hat`` from the scores (split conformal or PAC), the
@@ -73,7 +74,7 @@ class Job:
 
 
 @dataclass(frozen=True)
-class Ticks:
+class TickLog:
     """A flight at the controller's ticks: ``t`` (k,), ``x``/``y``/``ref`` (k, 6), ``u``/``uff``
     (k, 3) (absolute input and the reference's feedforward, the paper's signs)."""
 
@@ -98,7 +99,7 @@ class Ticks:
         return pd.DataFrame(cols)
 
     @classmethod
-    def read(cls, path: Path) -> Ticks:
+    def read(cls, path: Path) -> TickLog:
         """A ``ticks.parquet`` (or the folder holding it)."""
         f = path / TICKS_FILE if path.is_dir() else path
         df = pd.read_parquet(f)
@@ -110,7 +111,7 @@ class Ticks:
                    block("u", INPUT), block("r", STATE), block("uff", INPUT))  # fmt: skip
 
 
-def fly_job(job: Job) -> Ticks:
+def fly_job(job: Job) -> TickLog:
     """Fly ``job`` (no bag: the tick log is what the scores read)."""
     from qsls.pipeline.core.config import merge
     from qsls.pipeline.core.references import Reference
@@ -138,7 +139,7 @@ def fly_job(job: Job) -> Ticks:
     idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
     reference = Reference(opts.reference)
     uff = np.array([feedforward(reference.sample(float(s)), f.mass) for s in t]).reshape(-1, 3)
-    return Ticks(t, f.x[idx], f.ctrl_y, f.ctrl_u, f.ctrl_ref, uff, bool(f.crashed),
+    return TickLog(t, f.x[idx], f.ctrl_y, f.ctrl_u, f.ctrl_ref, uff, bool(f.crashed),
                  str(f.crash_reason or ""))  # fmt: skip
 
 
@@ -203,7 +204,7 @@ def premise_numbers(c: CertifiedPremise, gate: float | None) -> PremiseNumbers:
     )  # fmt: skip
 
 
-def taps_of(folder: Path) -> cal.Taps:
+def taps_of(folder: Path) -> cal.Responses:
     """What the condition needs of the candidate's taps, in its certificate's weights."""
     from qsls.pipeline.control.artifacts import load_controller_dir
     from qsls.pipeline.control.guarantee import measured_channels, outlier_channels, system_norms
@@ -218,7 +219,7 @@ def taps_of(folder: Path) -> cal.Taps:
     outlier = outlier_channels(c.measure, 1)  # G_m is recomputed per m
     phi_xx_h = taps.Phi_xx @ model.H
     norms = system_norms(taps.Phi_xy, phi_xx_h, state_scale=sx, error_scale=se, measured=measured)
-    return cal.Taps(taps.Phi_xy, phi_xx_h, sx, se, measured, outlier, norms)
+    return cal.Responses(taps.Phi_xy, phi_xx_h, sx, se, measured, outlier, norms)
 
 
 @dataclass(frozen=True)
@@ -241,25 +242,32 @@ def decide(
     scores: Sequence[float],
     reached: Sequence[float],
     nominal: PremiseNumbers,
-    taps: cal.Taps,
+    taps: cal.Responses,
     options: CalibrateOptions,
     crashed: int = 0,
+    range_scores: Sequence[float] = (),
 ) -> tuple[str, str, float, int, cal.Check | None, float, dict[str, float]]:
-    """``(status, reason, lambda_hat, rank, check, tested range, tolerances)`` (module docstring)."""
+    """``(status, reason, lambda_hat, rank, check, tested range, tolerances)`` (module
+    docstring); ``reached`` covers the calibration and the range flights, ``range_scores`` are
+    the range flights' perception scores (their quantile can only raise ``lambda_hat``)."""
     n = len(scores)
     rank = cal.calibration_rank(n, options.alpha, options.method, options.delta)
     lam = cal.calibrated_quantile(scores, options.alpha, options.method, options.delta)
+    if len(range_scores):
+        lam = max(lam, cal.calibrated_quantile(range_scores, options.alpha, options.method, options.delta))
     tested = float(max(reached, default=0.0))
     if not math.isfinite(lam):
         need = cal.smallest_flights(options.alpha, options.method, options.delta)
-        why = (f"{n} calibration flights cannot support alpha {options.alpha:g}" if rank > n
-               else "a calibration flight broke a premise quantity no inflation covers")
-        if rank > n:
-            why += f" ({options.method} needs {need})"
+        short = [f"{k} {what} flights" for k, what in ((n, "calibration"), (len(range_scores), "range"))
+                 if k and cal.calibration_rank(k, options.alpha, options.method, options.delta) > k]
+        why = (f"{' and '.join(short)} cannot support alpha {options.alpha:g} ({options.method} needs {need})"
+               if short else "a calibration flight broke a premise quantity no inflation covers")
         return RELAXED, why, lam, rank, None, tested, {}  # fmt: skip
     inflated = cal.inflate(nominal, lam)
     chk = cal.check(inflated, taps)
-    tol = {q: cal.tolerance(inflated, taps, q) for q in cal.QUANTITIES} if chk.holds else {}
+    tol: dict[str, float] = (
+        {q: cal.tolerance(inflated, taps, q) for q in cal.QUANTITIES} if chk.holds else {}
+    )
     reasons = []
     if crashed:
         reasons.append(f"{crashed} calibration flight(s) crashed")
@@ -278,8 +286,9 @@ def decide(
         return RELAXED, "; ".join(reasons), lam, rank, chk, tested, tol
     rho = chk.guarantee.rho_star
     if tested < rho:
-        why = (f"the calibration flights reached dist {tested:.3g} while the certificate uses the "
-               f"premise out to rho* {rho:.3g}: fly them over a wider tube (calibrate.tube)")  # fmt: skip
+        why = (f"the flights reached dist {tested:.3g} from the training states while the "
+               f"certificate uses the premise out to rho* {rho:.3g}: add range flights over a "
+               "tube that reaches it (calibrate.range_flights, calibrate.tube)")  # fmt: skip
         return EXTRAPOLATED, why, lam, rank, chk, tested, tol
     return CERTIFIED, "", lam, rank, chk, tested, tol
 
@@ -287,6 +296,7 @@ def decide(
 def calibrated_certificate(
     folder: Path, out: Path, o: Outcome, options: CalibrateOptions, seeds: Sequence[int],
     score_rows: Sequence[dict[str, float]], conditions: dict[str, Any],
+    range_scores: Sequence[float] = (),
 ) -> Path:
     """Write ``out`` (a controller folder): the candidate's controller and its certificate with
     the inflated premise's numbers and the ``calibration`` record."""
@@ -311,6 +321,7 @@ def calibrated_certificate(
                  "m": float(cert.m), "rho_star": cert.rho_star},
         parts={k: float(max((r[k] for r in score_rows), default=0.0)) for k in cal.SCORED},
         tolerances=o.tolerances, holds=bool(o.check is not None and o.check.holds),
+        range_flights=len(range_scores), range_scores=[float(v) for v in range_scores],
     )  # fmt: skip
     update: dict[str, Any] = {"status": o.status, "status_reason": o.reason or None,
                               "calibration": record, "tested_range": o.tested_range}  # fmt: skip
@@ -400,7 +411,8 @@ def calibrate(
     sim["duration"] = options.duration
     workers = options.jobs or os.cpu_count() or 1
     conditions_of = {
-        "estimator": str(getattr(options.sim.vio, "kind", "emulator")), "reference": sim["reference"], "tube_m": options.tube,
+        "estimator": str(getattr(options.sim.vio, "kind", "emulator")), "reference": sim["reference"],
+        **({"range_tube_m": options.tube} if options.range_flights else {}),
         "duration_s": options.duration, "vehicle": sim["vehicle"],
     }  # fmt: skip
 
@@ -409,12 +421,14 @@ def calibrate(
             return [
                 Job(name=f"{role}_{cond}_{f.name}_s{s}", controller=f.name,
                     folder=str(folder_of(cond, f.name).resolve()), condition=cond, seed=s,
-                    role=role, sim=sim, offset=offsets(s, options.tube))
+                    role=role, sim=sim,
+                    offset=offsets(s, options.tube) if role == "range" else (0.0, 0.0, 0.0))
                 for cond in options.conditions for f in folders for s in seeds
             ]  # fmt: skip
 
         by_name = {f.name: f for f in folders}
         cjobs = jobs_for("calibration", calib_seeds, lambda cond, n: by_name[n])
+        cjobs += jobs_for("range", options.range_seeds, lambda cond, n: by_name[n])
         progress.start("calibration flights", total=len(cjobs))
         ticks = run_tasks([(fly_job, j) for j in cjobs], min(workers, len(cjobs)),
                           lambda i: progress.advance())  # fmt: skip
@@ -423,25 +437,31 @@ def calibrate(
         for j, tk in zip(cjobs, ticks, strict=True):
             w.write_parquet(f"flights/{j.name}/{TICKS_FILE}", tk.frame())
             parts = score_flight(tk.log(), premises[j.controller], training.distance)
-            rows.append({"flight": j.name, "controller": j.controller, "condition": j.condition,
-                         "seed": j.seed, "offset_m": float(np.hypot(*j.offset[:2])),
-                         "crashed": tk.crashed, **parts})  # fmt: skip
+            if j.role == "range":  # the offset is the point: scored on perception only
+                parts["score"] = max(parts["dense"], parts["outliers"])
+            rows.append({"flight": j.name, "role": j.role, "controller": j.controller,
+                         "condition": j.condition, "seed": j.seed,
+                         "offset_m": float(np.hypot(*j.offset[:2])), "crashed": tk.crashed,
+                         **parts})  # fmt: skip
         scores = pd.DataFrame(rows)
         outcomes = []
         for cond in options.conditions:
             for f in folders:
-                sel = scores[(scores["condition"] == cond) & (scores["controller"] == f.name)]
+                mine = scores[(scores["condition"] == cond) & (scores["controller"] == f.name)]
+                sel = mine[mine["role"] == "calibration"]
+                ranged = mine[mine["role"] == "range"]
                 s = sel["score"].to_list()
                 nominal = premise_numbers(premises[f.name], premises[f.name].gate)
                 status, reason, lam, rank, chk, tested, tol = decide(
-                    s, sel["reached"].to_list(), nominal, taps_of(f), options,
-                    crashed=int(sel["crashed"].sum()),
+                    s, mine["reached"].to_list(), nominal, taps_of(f), options,
+                    crashed=int(mine["crashed"].sum()), range_scores=ranged["score"].to_list(),
                 )
                 o = Outcome(f.name, cond, status, reason, lam, rank, chk, tested, tol, s)
                 outcomes.append(o)
                 calibrated_certificate(
                     f, w.path(f"{cond}/{f.name}"), o, options, calib_seeds,
                     sel.to_dict(orient="records"), {**conditions_of, "perception": cond},
+                    ranged["score"].to_list(),
                 )
         vjobs = jobs_for("validation", valid_seeds, lambda cond, n: w.path(f"{cond}/{n}"))
         vrows = []

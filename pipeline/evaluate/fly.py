@@ -184,10 +184,10 @@ def run_job(job: FlyJob) -> FlyOutcome:
 
 
 def tick_frame(o: FlyOutcome) -> pd.DataFrame:
-    """``ticks.parquet`` of a flown flight (:class:`qsls.pipeline.evaluate.calibrate.Ticks`)."""
-    from qsls.pipeline.evaluate.calibrate import Ticks
+    """``ticks.parquet`` of a flown flight (:class:`qsls.pipeline.evaluate.calibrate.TickLog`)."""
+    from qsls.pipeline.evaluate.calibrate import TickLog
 
-    return Ticks(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl).frame()
+    return TickLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl).frame()
 
 
 def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[FlyOutcome]:
@@ -559,6 +559,12 @@ def fly_evaluate(
             flights, checks, samples, assumptions = a.flights, a.checks, a.samples, a.assumptions
             per, comparison, findings = a.per, a.comparison, a.findings
             several = len(analyses) > 1
+            if several:  # every estimator's flights count in the verdicts (and the table)
+                assumptions = pd.concat(
+                    [an.assumptions.assign(estimator=vio) for vio, an in analyses.items()
+                     if len(an.assumptions)],
+                    ignore_index=True,
+                ) if any(len(an.assumptions) for an in analyses.values()) else assumptions  # fmt: skip
             if several:
                 from qsls.pipeline.evaluate.estimators import findings_markdown, write_by_estimator
 

@@ -119,11 +119,17 @@ class CalibrateOptions(Options):
     """Perception conditions: one calibrated certificate per candidate and condition."""
     duration: float = Field(20.0, gt=0)
     """Seconds per flight."""
+    range_flights: int = Field(0, ge=0)
+    """Range flights per candidate and condition: the candidate flies the design reference
+    moved by a random offset within ``tube``, so the flights reach distances from the training
+    states toward ``rho*``; they are scored on the perception premise only (dense part and
+    outlier count: the reference's offset is the point), and the certificate takes the larger
+    of the two calibrated inflations (docs/calibration.md, Tested range)."""
     tube: float = Field(0.0, ge=0)
-    """Each flight's reference is the design reference with its centre moved by a random
-    horizontal offset of at most ``tube`` metres (and its height by up to ``tube / 2``), so
-    the flights reach distances from the training states toward ``rho*``; 0 flies the design
-    reference itself."""
+    """Radius (m) of the range flights' offsets: horizontal, uniform in the disc; the height
+    uniform within ``tube / 2``."""
+    range_seed: int = Field(3000, ge=0)
+    """First range-flight seed."""
     controllers: list[str] | None = None
     """Candidate controller names; default: every robust controller whose design check passed."""
     jobs: int = Field(0, ge=0)
@@ -143,7 +149,11 @@ class CalibrateOptions(Options):
         calib = list(range(self.seed, self.seed + self.flights))
         valid = list(range(self.validation_seed, self.validation_seed + self.validation))
         design = set(self.design_seeds)
-        for what, key, seeds in (("calibration", "seed", calib), ("validation", "validation_seed", valid)):
+        if self.range_flights and self.tube <= 0:
+            raise ConfigError("calibrate.range_flights needs calibrate.tube > 0 (the offsets' radius)")
+        ranged = list(range(self.range_seed, self.range_seed + self.range_flights))
+        for what, key, seeds in (("calibration", "seed", calib), ("validation", "validation_seed", valid),
+                                 ("range", "range_seed", ranged)):
             shared = sorted(design.intersection(seeds))
             if shared:
                 raise ConfigError(
@@ -151,10 +161,14 @@ class CalibrateOptions(Options):
                     f"calibrated and validated on flights its design never saw; move "
                     f"calibrate.{key} past them"
                 )
-        both = sorted(set(calib).intersection(valid))
+        both = sorted(set(calib).union(ranged).intersection(valid))
         if both:
             raise ConfigError(
-                f"validation seeds {both[:5]} are also calibration seeds: validation flights must "
-                "be fresh; move calibrate.validation_seed past the calibration seeds"
+                f"validation seeds {both[:5]} are also calibration or range seeds: validation "
+                "flights must be fresh; move calibrate.validation_seed past them"
             )
         return calib, valid
+
+    @property
+    def range_seeds(self) -> list[int]:
+        return list(range(self.range_seed, self.range_seed + self.range_flights))

@@ -16,7 +16,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from qsls.pipeline.control.status import CERTIFIED, RELAXED, Status
+from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED, Status
+
+CLAIMS = (CERTIFIED, EXTRAPOLATED, RELAXED)
+"""Statuses whose premise is checked on flights (only ``certified`` claims the guarantee)."""
 
 
 @dataclass(frozen=True)
@@ -29,6 +32,9 @@ class Verdict:
     worst_flight: str
     theorem: bool = True  # the theorem applied to at least one flight
     premise_share: float = math.nan  # premise-only rows: mean share of samples under it
+    status: str = CERTIFIED
+    windows_over: float = math.nan  # premise-only rows: largest share of windows over m
+    broken: tuple[str, ...] = ()  # premise-only rows: the flights whose premise broke
 
     @property
     def word(self) -> str:
@@ -44,9 +50,15 @@ class Verdict:
             share = (
                 f"{100 * self.premise_share:.1f}%" if math.isfinite(self.premise_share) else "n/a"
             )
+            status = "" if self.status == CERTIFIED else f" of a {self.status} certificate"
+            windows = (
+                f", outlier windows over m: {100 * self.windows_over:.1f}%"
+                if math.isfinite(self.windows_over) and self.windows_over > 0 else ""
+            )  # fmt: skip
+            broke = f"; premise broken on {', '.join(self.broken)}" if self.broken else ""
             return (
-                f"{self.controller}: {self.word}, premise holds at {share} of samples "
-                f"(not flown by it: the theorem does not apply), {n}"
+                f"{self.controller}: {self.word}{status}, dense premise holds at {share} of "
+                f"samples{windows} (not flown by it: the theorem does not apply){broke}, {n}"
             )
         ratio = f"{self.worst_ratio:.3g}" if math.isfinite(self.worst_ratio) else "n/a"
         where = f" ({self.worst_flight})" if self.worst_flight else ""
@@ -121,8 +133,9 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
         return out
     for name, g in table.groupby("controller", sort=False):
         certified = bool(g["has_guarantee"].all()) if "has_guarantee" in g else True
-        if "status" in g:  # a reference or a relaxed premise claims no guarantee to check
-            certified = certified and bool((g["status"] == CERTIFIED).all())
+        status = str(g["status"].iloc[0]) if "status" in g else CERTIFIED
+        if "status" in g:  # a reference claims no guarantee to check; a premise may be checked
+            certified = certified and bool(g["status"].isin(CLAIMS).all())
         if "theorem_applies" not in g:  # an older table: the per-sample check
             worst, flight = _worst(g, "max_ratio")
             holds = (
@@ -135,7 +148,12 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
         own = g[g["theorem_applies"].astype(bool)]
         if not len(own):
             share = float(pd.to_numeric(g["frac_premise_holds"], errors="coerce").mean())
-            out.append(Verdict(str(name), len(g), certified, False, math.nan, "", False, share))
+            over = (float(pd.to_numeric(g["frac_windows_over_m"], errors="coerce").max())
+                    if "frac_windows_over_m" in g else math.nan)  # fmt: skip
+            broken = (tuple(str(f) for f in g.loc[~g["premise_holds"].astype(bool), "flight"])
+                      if "premise_holds" in g else ())  # fmt: skip
+            out.append(Verdict(str(name), len(g), certified, False, math.nan, "", False, share,
+                               status, over, broken))  # fmt: skip
             continue
         worst, flight = _worst(own, "nominal_ratio")
         holds = bool(own["bound_holds"].astype(bool).all())
