@@ -40,7 +40,7 @@ from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.references import ReferenceOptions, parse_reference
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.export.attitude import AttitudeLimits, LimitOptions
-from qsls.pipeline.export.rosout import TickLog, Topics
+from qsls.pipeline.export.rosout import Ticks, Topics
 
 
 class ReplayOptions(LimitOptions):
@@ -260,7 +260,7 @@ def command_ticks(
     parts: list[slice],
     mass: float,
     hover_thrust: float,
-) -> TickLog:
+) -> Ticks:
     """Run the controller over each segment (reset at its start) and convert to commands."""
     from qsls.pipeline.core.plant import GRAVITY
     from qsls.pipeline.export.attitude import absolute_input
@@ -275,10 +275,10 @@ def command_ticks(
             th, qq = attitude(u[k].tolist(), acc[k].tolist())
             thrust[k], q[k] = th, qq
     u_abs = absolute_input(u, acc, mass)
-    return TickLog(stamps, y_dev, u, u_abs, thrust, q, hover_thrust * thrust / (mass * GRAVITY))
+    return Ticks(stamps, y_dev, u, u_abs, thrust, q, hover_thrust * thrust / (mass * GRAVITY))
 
 
-def limits(ticks: TickLog, mass: float, o: ReplayOptions) -> dict[str, Any]:
+def limits(ticks: Ticks, mass: float, o: ReplayOptions) -> dict[str, Any]:
     """Largest commanded tilt, thrust range against hover, the shares (%) beyond the report's
     thresholds, and how often the exported helper's limits acted on the demand."""
     from qsls.pipeline.core.plant import GRAVITY

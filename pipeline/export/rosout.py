@@ -66,7 +66,7 @@ class Topics:
 
 
 @dataclass(frozen=True)
-class TickLog:
+class Ticks:
     """What the replay commanded, one row per tick."""
 
     stamp_ns: np.ndarray  # (n,) int64
@@ -78,7 +78,7 @@ class TickLog:
     thrust_normalized: np.ndarray  # (n,) mavros AttitudeTarget.thrust
 
 
-def write_mcap(path: Path, ticks: TickLog, topics: Topics, report_json: str) -> Path:
+def write_mcap(path: Path, ticks: Ticks, topics: Topics, report_json: str) -> Path:
     """Write ``ticks`` as a ROS 2 MCAP file at ``path`` (module docstring)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 

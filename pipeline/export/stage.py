@@ -105,7 +105,7 @@ class ExportOptions(LimitOptions):
     verify_ticks: int = Field(10_000, ge=0)
     """Random ticks of the check against the Python realization (0: no check)."""
     closed_loop_ticks: int = Field(2_000, ge=0)
-    """TickLog of the float-vs-double closed-loop check (``precision: float``)."""
+    """Ticks of the float-vs-double closed-loop check (``precision: float``)."""
     seed: int = Field(0, ge=0)
     compiler: str | None = None
     """C compiler for the check (default ``$CC``, ``cc``, ``gcc``, ``clang``)."""
