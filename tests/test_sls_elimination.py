@@ -101,7 +101,7 @@ BASIC = list(itertools.product(("l1", "h2"), ("qr", "imitation"), (True, False),
 def test_same_optimum_and_certificate(T, norm, cost, robust, timing):
     status = _case(T, norm, cost, robust, timing)
     if robust:
-        assert status == "certified"
+        assert status == "relaxed"  # every check passed; not calibrated
 
 
 @pytest.mark.slow
@@ -114,13 +114,13 @@ def test_same_optimum_and_certificate_at_T50(norm, cost, robust, timing):
 @pytest.mark.parametrize("shape", list(SHAPES))
 @pytest.mark.parametrize(("cost", "timing"), [("qr", False), ("imitation", True)])
 def test_same_optimum_and_certificate_with_the_premise_norms(T, shape, cost, timing):
-    assert _case(T, "l1", cost, True, timing, SHAPES[shape]) == "certified"
+    assert _case(T, "l1", cost, True, timing, SHAPES[shape]) == "relaxed"
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("shape", list(SHAPES))
 def test_same_optimum_with_the_premise_norms_at_T50(shape):
-    assert _case(50, "l1", "qr", True, False, SHAPES[shape]) == "certified"
+    assert _case(50, "l1", "qr", True, False, SHAPES[shape]) == "relaxed"
 
 
 @pytest.mark.parametrize("shape", ["weights", "position", "all"])

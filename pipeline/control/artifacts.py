@@ -429,8 +429,8 @@ def load_controller_dir(folder: Path) -> ControllerDir:
             )
     failed = [k for k, v in (cert.checks or {}).items() if not v.get("passed", True)]
     why = f"failed checks {', '.join(failed)}" if failed else ""
-    if not why and cert.premise is not None and not cert.premise.holds:
-        why = cert.premise.shares()
+    if not why and cert.premise is not None and not cert.premise.holds and cert.calibration is None:
+        why = cert.premise.shares()  # a calibrated certificate rests on its calibration instead
     if cert.status == CERTIFIED and why:
         raise InputError(
             f"{folder}: {CERTIFICATE_FILE} says 'certified' against its own record ({why}); "

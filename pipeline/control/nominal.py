@@ -57,8 +57,16 @@ def static_gain_responses(model: LinearModel, K: np.ndarray, T: int) -> Taps:
 
 def pd_responses(model: LinearModel, gains: PDGains, T: int) -> tuple[np.ndarray, Taps]:
     """``(K, taps)`` of the PD controller with ``gains`` on ``model``."""
-    K = pd_gain(gains, model.mass)
+    K = model_gain(pd_gain(gains, model.mass), model.ny)
     return K, static_gain_responses(model, K, T)
+
+
+def model_gain(K: np.ndarray, ny: int) -> np.ndarray:
+    """``K`` on the first measurement channels of an ``ny``-channel model, 0 on the others
+    (the attitude plant's extra states: the PD does not read them)."""
+    out = np.zeros((K.shape[0], ny))
+    out[:, : K.shape[1]] = K
+    return out
 
 
 def spectral_radius(model: LinearModel, K: np.ndarray) -> float:

@@ -15,7 +15,7 @@ from pydantic import Field, field_validator, model_validator
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError
-from qsls.pipeline.core.plant import NU, NX, PAPER_DT_S, PAPER_MASS_KG
+from qsls.pipeline.core.plant import NU, NX, PAPER_DT_S, PAPER_MASS_KG, Plant
 
 
 def psd_sqrt(m: np.ndarray, what: str = "matrix") -> np.ndarray:
@@ -67,6 +67,12 @@ class ProblemOptions(Options):
         "flights' realized disturbance; default: its max (0.01 without an error model)",
     )
     H: list[list[float]] | None = None
+    plant: Plant = Field(
+        "hover",
+        description="the linear model synthesized for: hover (the paper's 6 states) or "
+        "attitude (with the attitude loop and the rotor lag as states, docs/model.md); the "
+        "error model's disturbance must be measured through the same",
+    )
     mass: float = Field(PAPER_MASS_KG, gt=0)
     dt: float = Field(PAPER_DT_S, gt=0)
     S: Number = Field(

@@ -109,7 +109,7 @@ class RealizedController:
 
     def step(self, y: np.ndarray) -> np.ndarray:
         """``u[k]`` from ``y[k]`` (and the memory); then advance ``beta``."""
-        y = np.asarray(y, dtype=float)
+        y = pad_measurement(np.asarray(y, dtype=float), self._ny)
         single = y.ndim == 1
         col = y.reshape(self._ny, -1)
         if col.shape[1] != self.beta.shape[1]:
@@ -140,4 +140,13 @@ class StaticGainController:
         pass
 
     def step(self, y: np.ndarray) -> np.ndarray:
-        return self.K @ np.asarray(y, dtype=float)
+        return self.K @ pad_measurement(np.asarray(y, dtype=float), self.K.shape[1])
+
+
+def pad_measurement(y: np.ndarray, ny: int) -> np.ndarray:
+    """``y`` with zeros for the channels past its own: a controller of the attitude plant has
+    ``ny`` channels, the physical ones first, and never reads the others (docs/model.md)."""
+    if y.shape[0] >= ny:
+        return y
+    pad = np.zeros((ny - y.shape[0], *y.shape[1:]))
+    return np.concatenate([y, pad], axis=0)

@@ -19,7 +19,7 @@ from qsls.pipeline.control.options import ProblemOptions
 from qsls.pipeline.control.premise import Measured, Premise, TrainingStates, training_beside
 from qsls.pipeline.core.artifacts import sha256_file
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.plant import LinearModel, quadrotor_model
+from qsls.pipeline.core.plant import LinearModel, plant_model
 from qsls.pipeline.errormodel.model import (
     TRAINING_FILE,
     ErrorModel,
@@ -185,6 +185,11 @@ def resolve(
         radius = float(em.radius)
     else:
         raise InputError("radius: give a number (no error model to take it from)")
+    if em is not None and em.plant != opts.plant:
+        raise InputError(
+            f"plant {opts.plant}: the error model's disturbance was measured through the "
+            f"{em.plant} plant; synthesize with plant: {em.plant}, or refit with plant: {opts.plant}"
+        )
     if em is not None and em.dt is not None and abs(em.dt - opts.dt) > 1e-9 * max(em.dt, 1.0):
         raise InputError(
             f"dt {opts.dt:g} s: the error model was fitted on flights sampled every {em.dt:g} s "
@@ -263,12 +268,31 @@ def resolve(
     chosen = Chosen(eps_e, S, radius, delta, eps_w, m, eps_o, how, opts.gate)
     premise = premise_record(chosen, meas, em, where)
     H = None if opts.H is None else np.asarray(opts.H)
-    model = quadrotor_model(dt=opts.dt, mass=opts.mass, H=H)
-    shape = sls.Shape(state_scale, tuple(opts.error_scale), opts.measure, m, opts.gate is not None)
-    return Resolved(
-        model, np.asarray(opts.Q), np.asarray(opts.R), S, eps_e, radius, delta, R0, eps_w,
-        m, eps_o, shape, premise, opts.gate,
+    model = plant_model(opts.plant, dt=opts.dt, mass=opts.mass, H=H)
+    extra = model.nx - len(state_scale)  # the attitude plant's states: unweighted, unmeasured
+    shape = sls.Shape(
+        (*state_scale, *(0.0,) * extra), (*opts.error_scale, *(1.0,) * extra), opts.measure, m,
+        opts.gate is not None,
     )  # fmt: skip
+    return Resolved(
+        model, pad_weight(np.asarray(opts.Q), model.nx), np.asarray(opts.R), S, eps_e, radius,
+        delta, R0, eps_w, m, eps_o, shape, premise, opts.gate,
+    )  # fmt: skip
+
+
+EXTRA_STATE_WEIGHT = 1e-6
+"""The cost's weight on the attitude plant's extra states: Q stays positive definite, the
+cost is the user's on the physical states."""
+
+
+def pad_weight(Q: np.ndarray, n: int) -> np.ndarray:
+    """``Q`` (6 x 6) on the first states of an ``n``-state plant, :data:`EXTRA_STATE_WEIGHT`
+    on the rest of the diagonal."""
+    if Q.shape[0] == n:
+        return Q
+    out = np.eye(n) * EXTRA_STATE_WEIGHT
+    out[: Q.shape[0], : Q.shape[1]] = Q
+    return out
 
 
 @dataclass(frozen=True)

@@ -118,6 +118,7 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
                 "measure": r.shape.measure,
                 "dt": opts.dt,
                 "mass": opts.mass,
+                "plant": opts.plant,
                 "H": opts.H,
                 "kp": list(opts.pd.kp),
                 "kd": list(opts.pd.kd),
@@ -166,6 +167,7 @@ def structure_key(p: dict[str, Any]) -> tuple:
         p["strictly_proper"],
         p["dt"],
         p["mass"],
+        p["plant"],
         str(p["H"]),
     )
 
@@ -233,10 +235,10 @@ def make_chunks(points: list[dict[str, Any]], n_chunks: int) -> list[list[dict[s
 
 # --------------------------------------------------------------------------- worker
 def _model(p: dict[str, Any]) -> Any:
-    from qsls.pipeline.core.plant import quadrotor_model
+    from qsls.pipeline.core.plant import plant_model
 
     H = None if p["H"] is None else np.asarray(p["H"])
-    return quadrotor_model(dt=p["dt"], mass=p["mass"], H=H)
+    return plant_model(p["plant"], dt=p["dt"], mass=p["mass"], H=H)
 
 
 def run_point(p: dict[str, Any]) -> dict[str, Any]:
@@ -380,7 +382,7 @@ SETTING_KEYS = ("T", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass"
 def setting_key(p: dict[str, Any]) -> tuple:
     """What the robustness constraint's feasibility depends on besides ``S`` and ``eps_e``."""
     return (*(p[x] for x in SETTING_KEYS), str(p["H"]), str(p["state_scale"]),
-            str(p["error_scale"]))  # fmt: skip
+            str(p["error_scale"]), p["plant"])  # fmt: skip
 
 
 def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -391,7 +393,7 @@ def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
         k = setting_key(p)
         if k not in seen:
             seen[k] = {
-                **{x: p[x] for x in keys}, "H": p["H"], "solver": p["solver"],
+                **{x: p[x] for x in keys}, "H": p["H"], "plant": p["plant"], "solver": p["solver"],
                 "state_scale": p["state_scale"], "error_scale": p["error_scale"], "eps_e": [],
                 "key": k,
             }  # fmt: skip

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Literal
 
 import numpy as np
 
@@ -92,3 +93,97 @@ def quadrotor_model(
     a, b = (m.copy() for m in _discrete(float(dt), float(mass), float(g)))
     h = np.eye(NX) if H is None else np.asarray(H, dtype=float)
     return LinearModel(A=a, B=b, C=np.eye(NY, NX), H=h, dt=float(dt), mass=float(mass))
+
+
+# --------------------------------------------------------------------------- the attitude plant
+Plant = Literal["hover", "attitude"]
+"""``hover``: the paper's 6-state model (the attitude follows the command at once);
+``attitude``: the same with the vehicle's attitude loop and rotor lag as states (docs/model.md,
+The attitude plant)."""
+ATTITUDE_KP = 544.0
+"""The attitude loop's proportional gain (RotorPy's Hummingbird ``kp_att``, 1/s^2)."""
+ATTITUDE_KD = 46.64
+"""Its derivative gain (``kd_att``, 1/s): critically damped at sqrt(544) = 23.3 rad/s."""
+THRUST_TAU_S = 0.02
+"""The rotors' time constant (``tau_m``): collective thrust follows its command with this lag."""
+NA = 5
+"""Extra states of the attitude plant: pitch, pitch rate, roll, roll rate, thrust."""
+
+
+def attitude_continuous(
+    mass: float = PAPER_MASS_KG,
+    g: float = GRAVITY,
+    kp: float = ATTITUDE_KP,
+    kd: float = ATTITUDE_KD,
+    tau: float = THRUST_TAU_S,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(Ac, Bc)`` of the hover model with the attitude loop and the rotor lag as states,
+    ``z = [x, theta_p, theta_p', theta_r, theta_r', f]`` (11), the input ``u`` the commanded
+    pitch, roll and thrust (deviations, paper signs)::
+
+        vx' = -g theta_p,   vy' = g theta_r,   vz' = f / m,
+        theta'' = kp (u_att - theta) - kd theta',   f' = (u_f - f) / tau.
+
+    With ``kp, kd, tau -> fast`` it is the hover model."""
+    ac6, _ = continuous_model(mass, g)
+    n = NX + NA
+    ac = np.zeros((n, n))
+    bc = np.zeros((n, NU))
+    ac[:NX, :NX] = ac6
+    ac[3, 6] = -g
+    ac[4, 8] = g
+    ac[5, 10] = 1.0 / mass
+    for i, j in ((6, 0), (8, 1)):
+        ac[i, i + 1] = 1.0
+        ac[i + 1, i] = -kp
+        ac[i + 1, i + 1] = -kd
+        bc[i + 1, j] = kp
+    ac[10, 10] = -1.0 / tau
+    bc[10, 2] = 1.0 / tau
+    return ac, bc
+
+
+def plant_model(
+    plant: Plant = "hover",
+    dt: float = PAPER_DT_S,
+    mass: float = PAPER_MASS_KG,
+    H: np.ndarray | None = None,
+    g: float = GRAVITY,
+) -> LinearModel:
+    """The discrete model of ``plant``. The attitude plant's extra states are the model's own
+    response to the inputs (:func:`input_states`), which the controller computes from its
+    commands: ``C = I``, and the premise puts no error on them (only the first ``NY``
+    channels are measured). ``H`` (6 x 6) acts on the physical states."""
+    if plant == "hover":
+        return quadrotor_model(dt, mass, H, g)
+    if dt <= 0:
+        raise ValueError(f"dt must be positive, got {dt}")
+    a, b = zoh(*attitude_continuous(float(mass), float(g)), float(dt))
+    n = NX + NA
+    # the attitude rates in units of the loop's natural frequency (theta' / sqrt(kp)): the
+    # same plant, its matrices of one scale (the rates' rows were 20x the rest, and the
+    # solver's tolerance grew with them)
+    s = np.ones(n)
+    s[[7, 9]] = 1.0 / np.sqrt(ATTITUDE_KP)
+    a = (s[:, None] * a) / s[None, :]
+    b = s[:, None] * b
+    h = np.zeros((n, n))
+    h[:NX, :NX] = np.eye(NX) if H is None else np.asarray(H, dtype=float)
+    return LinearModel(A=a, B=b, C=np.eye(n), H=h, dt=float(dt), mass=float(mass))
+
+
+def input_states(A: np.ndarray, B: np.ndarray, du: np.ndarray) -> np.ndarray:
+    """The model's extra states ``a_k`` (``(n, nx - NX)``) driven by the input deviations ``du``
+    ``(n, nu)`` from rest: ``a_{k+1} = A_aa a_k + B_a du_k`` (they do not depend on the
+    physical states). Empty for the hover plant."""
+    du = np.nan_to_num(np.asarray(du, dtype=float))  # an unlogged step: no command change
+    na = A.shape[0] - NX
+    out = np.zeros((len(du), na))
+    if na == 0:
+        return out
+    a_aa, b_a = A[NX:, NX:], B[NX:]
+    a = np.zeros(na)
+    for k in range(len(du)):
+        out[k] = a
+        a = a_aa @ a + b_a @ du[k]
+    return out

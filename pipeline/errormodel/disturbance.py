@@ -28,10 +28,21 @@ RESIDUAL = "input_free_residual"
 def realized_disturbance(
     x: np.ndarray, u: np.ndarray, A: np.ndarray, B: np.ndarray, u_hover: np.ndarray
 ) -> np.ndarray:
-    """``w_k = x_{k+1} - A x_k - B (u_k - u_hover)``, ``(n - 1, nx)`` for ``n`` samples."""
+    """``w_k = x_{k+1} - A x_k - B (u_k - u_hover)``, ``(n - 1, 6)`` for ``n`` samples.
+
+    For the attitude plant (``A`` larger than the states ``x``) the model's extra states come
+    from the inputs alone (:func:`qsls.pipeline.core.plant.input_states`), and ``w`` is what
+    the model leaves unexplained on the physical states: ``w_k = x_{k+1} - [A z_k + B du_k]_x``
+    with ``z_k = [x_k, a_k]``."""
+    from qsls.pipeline.core.plant import input_states
+
     x = np.asarray(x, float)
     du = np.asarray(u, float) - np.asarray(u_hover, float)
-    return x[1:] - x[:-1] @ A.T - du[:-1] @ B.T
+    n = x.shape[1]
+    if A.shape[0] == n:
+        return x[1:] - x[:-1] @ A.T - du[:-1] @ B.T
+    z = np.hstack([x, input_states(A, B, du)])
+    return x[1:] - (z[:-1] @ A.T + du[:-1] @ B.T)[:, :n]
 
 
 def input_free_residual(x: np.ndarray, dt: float) -> np.ndarray:

@@ -248,7 +248,7 @@ def _disturbance(
 ) -> tuple[np.ndarray, str]:
     """``w_k`` of every sample (:mod:`qsls.pipeline.errormodel.disturbance`) and how it was
     measured."""
-    from qsls.pipeline.core.plant import GRAVITY, quadrotor_model
+    from qsls.pipeline.core.plant import GRAVITY, plant_model
     from qsls.pipeline.errormodel.disturbance import INPUTS, RESIDUAL, flight_disturbance
 
     if options.inputs is not None and len(options.inputs) != len(loaded):
@@ -256,7 +256,7 @@ def _disturbance(
             f"inputs: {len(options.inputs)} control logs for {len(loaded)} flights; give one "
             "per flight, in the flights' order"
         )
-    plant = quadrotor_model(dt=dt, mass=options.mass)
+    plant = plant_model(options.plant, dt=dt, mass=options.mass)
     hover = np.array([0.0, 0.0, options.mass * GRAVITY])
     out = []
     for k, fl in enumerate(loaded):
@@ -513,6 +513,7 @@ def fit_model(data: FitData, options: FitOptions, progress: Progress = NULL_PROG
         flights=tr.names,
         disturbance=_disturbance_stats(tr, idx, options.percentiles),
         dt=float(tr.dt),
+        plant=options.plant,
     )
     return Fitted(model, idx, ps)
 

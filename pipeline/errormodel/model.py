@@ -106,6 +106,8 @@ class ErrorModel(_Frozen):
     flights: list[str] = Field(default_factory=list)
     disturbance: DisturbanceStats | None = None
     """``eps_w`` measured on the training flights (None: an error model from before it was)."""
+    plant: str = "hover"
+    """The model the disturbance ``eps_w`` was measured through (``FitOptions.plant``)."""
     dt: float | None = None
     """The training flights' sample period (s): windows, ``eps_w`` and the outlier counts are
     measured on steps of this length, so a controller of another ``dt`` cannot use them."""

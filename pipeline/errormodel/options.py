@@ -10,7 +10,7 @@ from typing import Any, Literal
 from pydantic import Field, field_validator
 
 from qsls.pipeline.core.config import Options
-from qsls.pipeline.core.plant import PAPER_MASS_KG
+from qsls.pipeline.core.plant import PAPER_MASS_KG, Plant
 from qsls.pipeline.core.references import ReferenceOptions
 
 
@@ -64,6 +64,10 @@ class FitOptions(Options):
     them it is the input-free residual, a lower bound (docs/guarantee.md)."""
     mass: float = Field(PAPER_MASS_KG, gt=0)
     """Vehicle mass (kg) of the model the disturbance is measured through (hover thrust, B)."""
+    plant: Plant = "hover"
+    """The model the disturbance is measured through (docs/model.md): ``hover``, the paper's
+    6 states, or ``attitude``, with the attitude loop and the rotor lag as states. Synthesis
+    must use the same plant (synth refuses another)."""
 
     @field_validator("percentiles")
     @classmethod

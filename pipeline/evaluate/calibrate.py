@@ -185,15 +185,22 @@ def score_flight(
             "w_max": float(w.max()) if len(w) else 0.0, "window_max": float(counts.max())}  # fmt: skip
 
 
-def offsets(seed: int, tube: float) -> tuple[float, float, float]:
+def offsets(seed: int, tube: float, height: float = 1.0) -> tuple[float, float, float]:
     """The reference offset of flight ``seed`` in a tube of radius ``tube``: uniform in the
-    horizontal disc of radius ``tube``, height uniform in ``+-tube/2`` (its own seeded stream)."""
+    horizontal disc of radius ``tube``, the height uniform within ``tube / 2`` but never
+    below :data:`MIN_HEIGHT` (its own seeded stream)."""
     if tube <= 0:
         return (0.0, 0.0, 0.0)
     rng = np.random.default_rng([seed, 7919])
     r = tube * math.sqrt(rng.uniform())
     th = rng.uniform(0, 2 * math.pi)
-    return (r * math.cos(th), r * math.sin(th), rng.uniform(-tube / 2, tube / 2))
+    dz = rng.uniform(max(-tube / 2, MIN_HEIGHT - height), tube / 2)
+    return (r * math.cos(th), r * math.sin(th), dz)
+
+
+MIN_HEIGHT = 0.6
+"""Lowest reference height of a range flight (m): lower, the circle's ground effect and the
+floor-crash rule decide the flight, not perception."""
 
 
 # --------------------------------------------------------------------------- the certificate
@@ -212,9 +219,10 @@ def taps_of(folder: Path) -> cal.Responses:
     d = load_controller_dir(folder)
     c = d.certificate
     p = c.premise
-    sx = tuple(p.state_scale) if p is not None else (1.0,) * 6
-    se = tuple(p.error_scale) if p is not None else (1.0,) * 6
     taps, model = d.controller.taps, d.controller.model
+    extra = model.nx - 6  # the attitude plant's states: unweighted, error-free
+    sx = (*(p.state_scale if p is not None else (1.0,) * 6), *(0.0,) * extra)
+    se = (*(p.error_scale if p is not None else (1.0,) * 6), *(1.0,) * extra)
     measured = measured_channels(c.measure)
     outlier = outlier_channels(c.measure, 1)  # G_m is recomputed per m
     phi_xx_h = taps.Phi_xx @ model.H
@@ -409,6 +417,7 @@ def calibrate(
             raise InputError(f"calibrate: {name} has no premise to calibrate (a nominal or failed controller)")
     sim = options.sim.model_dump(mode="json")
     sim["duration"] = options.duration
+    height = float(options.sim.reference.height)
     workers = options.jobs or os.cpu_count() or 1
     conditions_of = {
         "estimator": str(getattr(options.sim.vio, "kind", "emulator")), "reference": sim["reference"],
@@ -422,7 +431,8 @@ def calibrate(
                 Job(name=f"{role}_{cond}_{f.name}_s{s}", controller=f.name,
                     folder=str(folder_of(cond, f.name).resolve()), condition=cond, seed=s,
                     role=role, sim=sim,
-                    offset=offsets(s, options.tube) if role == "range" else (0.0, 0.0, 0.0))
+                    offset=(offsets(s, options.tube, height) if role == "range"
+                            else (0.0, 0.0, 0.0)))
                 for cond in options.conditions for f in folders for s in seeds
             ]  # fmt: skip
 

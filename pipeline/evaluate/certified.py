@@ -24,6 +24,7 @@ from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_di
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import NX
 
 
 @dataclass(frozen=True)
@@ -154,9 +155,16 @@ def certified_premise(folder: Path) -> Any:
         beta=math.inf if p is None or p.beta is None else p.beta,
         measure=c.measure,
         error_scale=tuple(p.error_scale) if p is not None else (1.0,) * 6,
-        gate=c.gate, phi_xy=d.controller.taps.Phi_xy, A=model.A, B=model.B, H=model.H,
+        gate=c.gate, phi_xy=physical(d.controller.taps.Phi_xy), A=model.A, B=model.B,
+        H=model.H[:NX, :NX],
         u_hover=np.array([0.0, 0.0, model.mass * GRAVITY]),
     )  # fmt: skip
+
+
+def physical(phi_xy: np.ndarray) -> np.ndarray:
+    """``Phi_xy`` from the measured errors to the physical states: the attitude plant's extra
+    states and error-free channels dropped (docs/model.md)."""
+    return phi_xy[:, :NX, :NX]
 
 
 def load_controller_bound(folder: Path) -> ControllerBound:
@@ -193,7 +201,7 @@ def load_controller_bound(folder: Path) -> ControllerBound:
         model_sha256=c.error_model_sha256,
         robustness_lhs=c.robustness_lhs,
         certificate=c.model_dump(),
-        phi_xy=phi_xy,
+        phi_xy=physical(phi_xy),
         phi_xy_tail=tail,
         dt=float(ctrl.dt),
         beta=math.inf if c.premise is None or c.premise.beta is None else c.premise.beta,

@@ -384,8 +384,8 @@ def _pd_gain_of(folders: Sequence[Path]) -> tuple[tuple[float, ...], ...] | None
     for f in folders:
         if f.name == "pd":
             K = load_controller_dir(f).controller.K
-            if K is not None:
-                return tuple(tuple(float(v) for v in row) for row in K)
+            if K is not None:  # on the measured channels (the attitude plant's are padded)
+                return tuple(tuple(float(v) for v in row[:6]) for row in K)
     return None
 
 
