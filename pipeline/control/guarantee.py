@@ -304,7 +304,10 @@ def monitor_spec(
     the error of the tick itself, per measured channel; velocity channels with ``beta`` and
     ``m > 0`` count outliers (``kind`` :data:`COUNT`), the others trip (:data:`TRIP`). A channel
     whose threshold is at least the gate can never be exceeded through the gate: it is
-    :data:`OFF`. Thresholds are widened by :data:`MONITOR_RTOL`."""
+    :data:`OFF`. A velocity channel counts only where an outlier can meet the dense bound
+    (``beta <= dense / w_e,j``); where ``dense / w_e,j < beta``, an error beyond ``dense / w_e,j``
+    breaks the dense premise whether or not it is an outlier (its clipped part is then
+    ``beta``), so the channel trips. Thresholds are widened by :data:`MONITOR_RTOL`."""
     measured = measured_channels(measure)
     sparse = outlier_channels(measure, m) if math.isfinite(beta) else ()
     env = deviation_envelope(
@@ -321,8 +324,10 @@ def monitor_spec(
             kind.append(OFF)
         elif i in VELOCITY and gate is not None and thr[i] >= gate:
             kind.append(OFF)  # the gated deviation never exceeds V
+        elif i in sparse and dense * error_weights(error_scale, measured)[i] >= beta:
+            kind.append(COUNT)  # beyond: |e_i| > beta, an outlier the premise allows m of
         else:
-            kind.append(COUNT if i in sparse else TRIP)
+            kind.append(TRIP)  # beyond: the dense bound is broken (with o != 0, |d_i| = beta too)
     return MonitorSpec(
         threshold=tuple(float(v) for v in thr),
         kind=tuple(kind),
