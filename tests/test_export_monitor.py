@@ -14,7 +14,7 @@ import yaml
 
 from qsls.pipeline.control.artifacts import load_runtime
 from qsls.pipeline.control.guarantee import COUNT, OFF, TRIP
-from qsls.pipeline.export.bank import monitor_of
+from qsls.pipeline.control.monitor import monitor_flags, monitor_of
 from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
 from qsls.pipeline.export.python import load_module
 from qsls.pipeline.export.stage import ExportOptions, export
@@ -158,7 +158,7 @@ def test_position_only_claims_no_velocity_bound_and_calibration_is_stated(tmp_pa
 
     text = "\n".join(facts(d).statement)
     assert text.splitlines()[0].startswith("CERTIFIED")
-    assert "position only" in text and "velocity is neither measured nor bounded" in text
+    assert "position only" in text and "velocity is neither measured nor its error bounded" in text
     assert "rho_v" not in text and "gate:" not in text
     assert "on the positions (the velocity error is not bounded)" in text
     assert "calibration: flights 59; alpha 0.05; confidence 0.95; conditions regular" in text
@@ -253,12 +253,15 @@ def test_monitor_trips_on_the_tick_the_measurement_reveals_a_broken_premise(ctrl
         rng = np.random.default_rng(5)
         d, w = _inside(rng, 80, db * 0.999, c.eps_w)
         rt.reset()
-        x, flags = np.zeros(6), []
+        x, flags, ys = np.zeros(6), [], []
         for k in range(80):
             y = x + d[k] + extra(k)
             u = np.asarray(rt.step(y), dtype=float)
             flags.append(rt.flags)
+            ys.append(y)
             x = model.A @ x + model.B @ u + model.H @ w[k]
+        # the exported code applies the rule of monitor_flags (the numpy form the fly checks use)
+        np.testing.assert_array_equal(flags, monitor_flags(spec, np.array(ys), V))
         return np.array(flags)
 
     # a position bias beyond the envelope from tick 30: tripped at tick 30; then the loop

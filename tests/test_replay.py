@@ -330,7 +330,7 @@ def test_the_report_lists_where_the_monitor_would_have_tripped(tmp_path, control
     docs/monitor.md, recomputed here from the written deviations; a reference moved 1 m away
     (beyond every position threshold) trips on the first tick."""
     from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.export.bank import monitor_of
+    from qsls.pipeline.control.monitor import monitor_of
 
     _, bag, _ = flown
     spec = monitor_of(load_controller_dir(controllers["proper"]))

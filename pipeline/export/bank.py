@@ -19,7 +19,8 @@ from typing import Literal
 import numpy as np
 
 from qsls.pipeline.control.artifacts import Certificate, ControllerDir
-from qsls.pipeline.control.guarantee import OFF, MonitorSpec, monitor_spec
+from qsls.pipeline.control.guarantee import MonitorSpec
+from qsls.pipeline.control.monitor import NO_MONITOR, monitor_of
 from qsls.pipeline.control.status import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.export.attitude import AttitudeLimits
@@ -135,10 +136,6 @@ def sizes(bank: ExportBank, precision: Precision = "double") -> Sizes:
 
 
 # --------------------------------------------------------------------------- facts
-NO_MONITOR = MonitorSpec((0.0,) * 6, (OFF,) * 6, 0, 1, (0.0,) * 6, (0.0,) * 6)
-"""The monitor of a controller without a guarantee: every channel off."""
-
-
 @dataclass(frozen=True)
 class ExportFacts:
     """What a generated file states about its controller."""
@@ -165,31 +162,6 @@ def _shares(cert: Certificate) -> str:
     if cert.premise is None:
         return "premise shares not recorded"
     return cert.premise.shares()
-
-
-def monitor_of(cdir: ControllerDir) -> MonitorSpec:
-    """The monitor of a controller whose certificate states a premise and ``rho*`` (certified
-    or relaxed, robust): :func:`qsls.pipeline.control.guarantee.monitor_spec` on its taps, with
-    the dense bound ``gamma = eps + S rho*``; otherwise the monitor is off."""
-    cert, c = cdir.certificate, cdir.controller
-    if (
-        cert.status not in (CERTIFIED, RELAXED)
-        or not cert.robust
-        or cert.rho_star is None
-        or not np.isfinite(cert.rho_star)
-        or c.kind != "filter_bank"
-    ):
-        return NO_MONITOR
-    p = cert.premise
-    taps = c.taps
-    phi_xx_h = np.einsum("tij,jk->tik", taps.Phi_xx, c.model.H)
-    return monitor_spec(
-        taps.Phi_xy, phi_xx_h, eps_w=cert.eps_w, dense=cert.gamma,
-        error_scale=p.error_scale if p is not None else (1.0,) * 6,
-        measure=cert.measure, m=cert.m, eps_o=cert.eps_o,
-        beta=p.beta if p is not None and p.beta is not None else np.inf,
-        gate=cert.gate, realization_error=cert.realization_error or 0.0,
-    )  # fmt: skip
 
 
 def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> ExportFacts:

@@ -306,7 +306,7 @@ def monitor_report(cdir: Any, flags: np.ndarray, stamps: np.ndarray) -> dict[str
     kind, the first one's time, and the thresholds it checked. One-sided: a trip proves the
     certificate's premise broken on this recording; no trip proves nothing."""
     from qsls.pipeline.control.guarantee import COUNT, TRIP
-    from qsls.pipeline.export.bank import monitor_of
+    from qsls.pipeline.control.monitor import monitor_of
     from qsls.pipeline.export.statement import CHANNELS
 
     spec = monitor_of(cdir)

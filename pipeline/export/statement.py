@@ -138,8 +138,8 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
         + (
             "full: y = x + e on all six channels"
             if full
-            else "position only: y = p + e; the velocity is neither measured nor bounded "
-            "by this certificate (no velocity error bound)"
+            else "position only: y = p + e; the velocity is neither measured nor its error "
+            "bounded by this certificate (the vehicle's velocity deviation is bounded, below)"
         ),
         "premise: e_k = d_k + o_k"
         + (
