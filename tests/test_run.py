@@ -149,8 +149,8 @@ def test_quickstart_certified_controllers_export_with_their_gate_and_monitor(qui
         got = np.array([c.step(y) for y in ys])
         assert np.abs(got - want).max() <= 1e-12
         ungated = load_runtime(folder)
-        # the quickstart's controllers barely read the velocity (their velocity gains are about
-        # 1e-9): the clip changes u by about 1e-8, still a thousand times the 1e-12 compared
+        # l1_robust barely reads the velocity (its Phi_uy velocity taps are about 1e-9): the
+        # clip changes its u by about 1e-8, still a thousand times the 1e-12 compared
         assert np.abs(want - np.array([ungated.step(y) for y in ys])).max() > 1e-9
     a = pd.read_parquet(run_dir / "fly" / "assumptions.parquet")
     held = a[a["assumptions_hold"].astype(bool)]
