@@ -165,7 +165,10 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
         f"  (iii) ||H^-1 w_k||_inf <= eps_w = {_g(cert.eps_w)}, H = {h}, eps_w from: {src}; "
         f"dist(x_ref,k) <= Delta = {_g(cert.delta)}"
     )
-    out.append("  the flight starts on the reference (x_0 = r_0) with the state reset")
+    out.append(
+        "  the flight starts on the reference (||H^-1 (x_0 - r_0)||_inf <= eps_w) with the "
+        "controller reset"
+    )
     if cert.gate is not None:
         out.append(
             f"gate: _step clips the velocity deviation to +/- V = {cert.gate:g} m/s before the "
