@@ -329,7 +329,7 @@ def monitor_spec(
         else:
             kind.append(TRIP)  # beyond: the dense bound is broken (with o != 0, |d_i| = beta too)
     return MonitorSpec(
-        threshold=tuple(float(v) for v in thr),
+        threshold=tuple(float(v) if k != OFF else 0.0 for v, k in zip(thr, kind, strict=True)),
         kind=tuple(kind),
         m=int(m) if sparse else 0,
         window=T,

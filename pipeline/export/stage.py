@@ -6,7 +6,9 @@ but ``certified`` unless ``allow_uncertified``, writes the generated files with
 :class:`~qsls.pipeline.core.artifacts.StageWriter` (stage ``export``), and checks what it
 wrote against the Python realization (:func:`~qsls.pipeline.control.artifacts.load_runtime`):
 
-- ``python``: the generated module, executed, over ``verify_ticks`` random bounded ``y``;
+- ``python``: the generated module, executed, over ``verify_ticks`` random bounded ``y``
+  (velocities beyond a gate on about half the entries), against the realization fed the
+  same deviations through the certificate's gate (the Python controller as it flies);
 - ``c`` (when a C compiler is on PATH): the generated double-precision C, compiled with the
   strict flags and loaded with ctypes, over the same ticks. With ``precision: float`` the
   float build is also compared with the double build: over the random ticks (``u``) and in
@@ -90,7 +92,8 @@ C_KEYWORDS = frozenset(
 """C99 and C11 keywords, refused as ``--prefix``: the prefix alone is the state's struct tag
 (``struct PREFIX``), so a keyword fails to compile."""
 Y_BOUND = 1.0
-"""Random test inputs: ``y`` uniform in ``[-Y_BOUND, Y_BOUND]`` (m, m/s)."""
+"""Random test inputs: ``y`` uniform in ``[-Y_BOUND, Y_BOUND]`` (m, m/s); with a velocity gate
+``V`` the velocities uniform in ``[-2V, 2V]``, so the check exercises the clip."""
 
 
 class ExportOptions(LimitOptions):
