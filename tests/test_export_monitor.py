@@ -126,7 +126,10 @@ def test_header_states_the_generalized_theorem_in_the_certificates_numbers(ctrl,
     h = (exported["double"].out / "qsls_ctrl.h").read_text()
     c = ctrl.certificate
     flat = " ".join(line.lstrip(" *") for line in h.splitlines())
-    assert h.splitlines()[0] == "/* CERTIFIED controller l1_gated: the guarantee below holds under its premise"
+    assert (
+        h.splitlines()[0]
+        == "/* CERTIFIED controller l1_gated: the guarantee below holds under its premise"
+    )
     for want in [
         "W_x = diag(1, 1, 1, 1, 1, 1)",
         "W_e = diag(1, 1, 1, 0.5, 0.5, 0.5)",
@@ -286,3 +289,25 @@ def test_monitor_trips_on_the_tick_the_measurement_reveals_a_broken_premise(ctrl
     # NaN is not consistent with the premise
     f = fly(lambda k: np.array([np.nan if k == 10 else 0.0, 0, 0, 0, 0, 0]))
     assert f[10] == 1 and rt.first_trip == 10
+
+
+def test_float_thresholds_are_never_below_the_double_ones(ctrl, exported):
+    """The float build stores each threshold widened by FLOAT_MONITOR_RTOL and rounded up to a
+    float32: never below the double threshold, never more than that widening plus one ulp above;
+    the literal in the float source reads back as that float32."""
+    import re
+
+    from qsls.pipeline.export.c import FLOAT_MONITOR_RTOL, monitor_thresholds
+
+    spec = monitor_of(ctrl)
+    d = np.array(monitor_thresholds(spec, "double"))
+    f = np.array(monitor_thresholds(spec, "float"))
+    assert (d == np.array(spec.threshold)).all()
+    on = np.array(spec.kind) != OFF
+    assert (f[on] >= d[on] * (1 + FLOAT_MONITOR_RTOL)).all()
+    assert (f[on] <= d[on] * (1 + FLOAT_MONITOR_RTOL) * (1 + 2.0**-23)).all()
+    assert (np.float32(f).astype(float) == f).all()
+    src = (exported["float"].out / "qsls_ctrl.c").read_text()
+    line = next(x for x in src.splitlines() if x.startswith("static const qsls_ctrl_real_t MON_THR"))
+    lits = re.findall(r"(-?\d[\d.e+-]*)f", line)
+    assert [float(np.float32(x)) for x in lits] == list(f)

@@ -194,8 +194,9 @@ def monitor_thresholds(mon: MonitorSpec, precision: Precision) -> list[float]:
     thr = np.asarray(mon.threshold, dtype=float)
     if precision != "float":
         return [float(v) for v in thr]
-    f = (thr * (1.0 + FLOAT_MONITOR_RTOL)).astype(np.float32)
-    f = np.where(f.astype(float) < thr, np.nextafter(f, np.float32(np.inf)), f)
+    wide = thr * (1.0 + FLOAT_MONITOR_RTOL)
+    f = wide.astype(np.float32)
+    f = np.where(f.astype(float) < wide, np.nextafter(f, np.float32(np.inf)), f)
     return [float(v) for v in f]
 
 

@@ -75,7 +75,9 @@ def first_line(cert: Certificate, reason: str) -> str:
     """``CERTIFIED ...`` or ``NOT CERTIFIED ... no guarantee; missing: ...`` (``reason`` from
     :func:`qsls.pipeline.export.bank.status_reason`)."""
     if has_guarantee(cert):
-        return f"CERTIFIED controller {cert.controller}: the guarantee below holds under its premise"
+        return (
+            f"CERTIFIED controller {cert.controller}: the guarantee below holds under its premise"
+        )
     return (
         f"NOT CERTIFIED (status {cert.status}, exported with --allow-uncertified): "
         f"NO GUARANTEE; missing: {reason}"
@@ -99,7 +101,9 @@ def monitor_lines(spec: MonitorSpec) -> list[str]:
     if not spec.active:
         return ["monitor: off (no guarantee to monitor)"]
     trip = [f"{CHANNELS[i]} {spec.threshold[i]:.6g}" for i, k in enumerate(spec.kind) if k == TRIP]
-    count = [f"{CHANNELS[i]} {spec.threshold[i]:.6g}" for i, k in enumerate(spec.kind) if k == COUNT]
+    count = [
+        f"{CHANNELS[i]} {spec.threshold[i]:.6g}" for i, k in enumerate(spec.kind) if k == COUNT
+    ]
     off = [CHANNELS[i] for i, k in enumerate(spec.kind) if k == OFF]
     out = ["monitor (docs/monitor.md): a tick trips when the premise is proven broken:"]
     if trip:
