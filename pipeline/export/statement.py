@@ -158,6 +158,8 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
             f"  (i) at most m = {cert.m} nonzero o_k in any T = {cert.T} consecutive ticks, "
             f"||o_k||_inf <= eps_o = {_g(cert.eps_o)} ({src})"
         )
+    else:
+        out.append("  (i) no outliers: o_k = 0 at every tick")
     out.append(
         f"  (ii) |d_k|_e <= eps + S dist(x_k) while dist(x_k) <= r: eps = {_g(cert.eps_e)}, "
         f"S = {_g(cert.S)}, r = {_g(cert.radius)}"
