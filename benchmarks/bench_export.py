@@ -1,7 +1,8 @@
 """Benchmark of the export (issue 12): ``python benchmarks/bench_export.py``.
 
-For certified L1 robust controllers synthesized at T = 20 and T = 50 (the synth tests' error
-model, S = p50):
+For certified L1 robust controllers synthesized at T = 20 and T = 50 (the export tests' error
+model: eps_e, S and eps_w their maxima, so the premise holds on all of it and the controllers
+are plainly certified; with S = p50 they came out relaxed and export refused them):
 
 1. Ticks per second of one controller step, against the budget of a 500 Hz flight-controller
    loop (2 ms per tick):
@@ -10,7 +11,9 @@ model, S = p50):
    - the exported C through ctypes (what ``--backend c`` pays per call from Python);
    - the exported stdlib Python module (no numpy);
    - the naive ways: qsls' numpy realization (``RealizedController.step``) and a
-     straightforward pure-Python filter bank (nested loops over taps, shifting lists).
+     straightforward pure-Python filter bank (nested loops over taps, shifting lists);
+   - the cost of the onboard premise monitor (docs/monitor.md): the exported C step against
+     the same source with the monitor's call removed (the step alone), timed by the same harness.
 2. State and constant sizes (double and float) against a 192 KB RAM / 1 MB flash
    microcontroller; flops per tick.
 3. Float vs double: largest ``|u|`` deviation over 10 000 random ticks and largest position
@@ -31,7 +34,7 @@ import numpy as np
 from qsls.pipeline.control.artifacts import load_controller_dir, load_runtime
 from qsls.pipeline.control.synth import SynthOptions, synth
 from qsls.pipeline.core.artifacts import dump_yaml
-from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
+from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
 from qsls.pipeline.export.bank import LOOP_HZ, MCU_FLASH_BYTES, MCU_RAM_BYTES, export_bank
 from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
 from qsls.pipeline.export.python import load_module
@@ -74,24 +77,70 @@ int main(void)
 
 def controller(root: Path, T: int) -> Path:
     em = ErrorModel(
+        disturbance=DisturbanceStats(max=0.01, source="inputs", n_steps=100),
         eps_e=0.05, eps_e_percentiles={"p95": 0.04}, radius=1.0,
-        s_slope=SlopeStats(max=11.7, percentiles={"p50": 0.13, "p95": 0.4}),
+        s_slope=SlopeStats(max=0.13, percentiles={"p50": 0.1, "p95": 0.12}),
         R0=0.05, delta=0.05, n_samples=100, n_pairs=1000,
     )  # fmt: skip
     (root / "fit").mkdir(exist_ok=True)
     (root / "fit" / "error_model.yaml").write_text(dump_yaml(em))
-    opts = SynthOptions(T=T, S="p50", controllers="single")
+    opts = SynthOptions(T=T, S="max", controllers="single")
     synth(root / "fit", opts, root / f"synth{T}")
     return root / f"synth{T}" / "l1_robust"
 
 
-def c_ns_per_tick(cc: str, export_dir: Path, n: int) -> float:
-    (export_dir / "bench.c").write_text(HARNESS % {"N": n})
-    exe = export_dir / "bench"
-    cmd = [cc, "-std=c99", "-O2", "-o", str(exe), str(export_dir / "bench.c")]
+MONITOR_CALL = "flags = qsls_ctrl_monitor_tick(c, yg);"
+
+
+def step_alone(export_dir: Path) -> Path:
+    """A copy of the export whose step skips the monitor (its call replaced by ``flags = 0``):
+    the filter bank and the gate alone, for the monitor's cost."""
+    d = export_dir.parent / f"{export_dir.name}-nomonitor"
+    d.mkdir(exist_ok=True)
+    (d / "qsls_ctrl.h").write_text((export_dir / "qsls_ctrl.h").read_text())
+    src = (export_dir / "qsls_ctrl.c").read_text()
+    assert src.count(MONITOR_CALL) == 1
+    (d / "qsls_ctrl.c").write_text(src.replace(MONITOR_CALL, "flags = 0; (void)qsls_ctrl_monitor_tick;"))
+    return d
+
+
+def c_harness(cc: str, export_dir: Path, n: int, name: str = "bench") -> Path:
+    (export_dir / f"{name}.c").write_text(HARNESS % {"N": n})
+    exe = export_dir / name
+    cmd = [cc, "-std=c99", "-O2", "-o", str(exe), str(export_dir / f"{name}.c")]
     subprocess.run([*cmd, str(export_dir / "qsls_ctrl.c"), "-lm"], check=True)
-    return min(float(subprocess.run([str(exe)], capture_output=True, text=True, check=True)
-                     .stdout) for _ in range(3))  # fmt: skip
+    return exe
+
+
+def instructions_per_tick(cc: str, export_dir: Path, n: int = 20_000) -> float | None:
+    """Instructions one step executes, counted by valgrind (deterministic, unlike the wall
+    clock of a shared machine): the harness at ``n`` and ``2 n`` ticks, the difference over
+    ``n``. None without valgrind."""
+    import re
+    import shutil
+
+    if shutil.which("valgrind") is None:
+        return None
+    counts = []
+    for k in (n, 2 * n):
+        exe = c_harness(cc, export_dir, k, f"count{k}")
+        res = subprocess.run(
+            ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null", str(exe)],
+            capture_output=True, text=True, check=True,
+        )  # fmt: skip
+        counts.append(int(re.search(r"Collected : (\d+)", res.stderr).group(1)))  # type: ignore[union-attr]
+    return (counts[1] - counts[0]) / n
+
+
+def c_ns_per_tick(*exes: Path, repeat: int = 3) -> list[float]:
+    """The best of ``repeat`` runs of each harness, the harnesses run in turn (so a busy
+    moment of a shared machine hits them alike)."""
+    best = [np.inf] * len(exes)
+    for _ in range(repeat):
+        for i, exe in enumerate(exes):
+            out = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout
+            best[i] = min(best[i], float(out))
+    return best
 
 
 def py_ns_per_tick(step, ys: list, repeat: int = 3) -> float:
@@ -153,7 +202,11 @@ def run(T: int, root: Path, cc: str | None, c_ticks: int, py_ticks: int) -> dict
         res = export(folder, ExportOptions(target="c", precision=prec), d)
         out[prec] = res.results
         if cc:
-            out[prec]["c_ns"] = c_ns_per_tick(cc, d, c_ticks)
+            exes = c_harness(cc, d, c_ticks), c_harness(cc, step_alone(d), c_ticks)
+            with_monitor, alone = c_ns_per_tick(*exes, repeat=9)
+            out[prec]["c_ns"], out[prec]["c_ns_no_monitor"] = with_monitor, alone
+            out[prec]["c_instr"] = instructions_per_tick(cc, d)
+            out[prec]["c_instr_no_monitor"] = instructions_per_tick(cc, step_alone(d))
     ys = np.random.default_rng(0).uniform(-1, 1, (py_ticks, 6))
     ylists = ys.tolist()
     py = root / f"py{T}"
@@ -211,6 +264,24 @@ def table(results: list[dict]) -> None:
                 f"{r['T']:4d} {prec:>9s} {s['state_bytes']:9d} {100 * s['state_bytes'] / MCU_RAM_BYTES:6.2f}% "
                 f"{s['const_bytes']:9d} {100 * s['const_bytes'] / MCU_FLASH_BYTES:7.2f}% {s['flops_per_tick']:11d}"
             )
+    print("\nThe premise monitor's cost per tick (exported C -O2, docs/monitor.md): instructions")
+    print("counted by valgrind (deterministic); wall clock, best of 9 runs taken in turn")
+    print(
+        f"{'T':>4s} {'precision':>9s} {'step instr':>11s} {'alone instr':>12s} {'monitor':>8s} "
+        f"{'share':>6s} {'step ns':>8s} {'alone ns':>9s}"
+    )
+    for r in results:
+        for prec in ("double", "float"):
+            s = r[prec]
+            if s.get("c_ns") is None:
+                continue
+            ins, alone = s.get("c_instr"), s.get("c_instr_no_monitor")
+            cnt = (
+                f"{ins:11.0f} {alone:12.0f} {ins - alone:8.0f} {100 * (ins - alone) / ins:5.1f}%"
+                if ins is not None and alone is not None
+                else f"{'n/a (no valgrind)':>40s}"
+            )
+            print(f"{r['T']:4d} {prec:>9s} {cnt} {s['c_ns']:8.1f} {s['c_ns_no_monitor']:9.1f}")
     print("\nFloat vs double (qsls export --precision float)")
     print(
         f"{'T':>4s} {'max|du| random':>15s} {'max|u|':>8s} {'max|dx| closed loop (m)':>24s} {'double vs realization':>22s}"

@@ -70,3 +70,70 @@ def synthesized(
         **RECORD,
     )
     return ControllerDir(Path("/nowhere") / name, Controller(sol.taps, model), cert)
+
+
+def gated(
+    folder: Path,
+    *,
+    T: int = 20,
+    eps_w: float = 0.01,
+    radius: float = 2.0,
+    gate: float | None = 1.5,
+    beta: float | None = 0.2,
+    m: int = 3,
+    measure: str = "full",
+    error_scale: tuple[float, ...] = (1, 1, 1, 0.5, 0.5, 0.5),
+    H: tuple[float, ...] = (0.1, 0.1, 0.1, 1.0, 1.0, 1.0),
+    name: str = "l1_gated",
+    extra: dict | None = None,
+) -> ControllerDir:
+    """A certified robust L1 controller in the quickstart's shape (its ``H``, ``W_e``, ``beta``,
+    gate and ``m``; ``eps`` 0.1, ``S`` 0, ``Delta`` 0), solved, certified and written to
+    ``folder`` (``controller.npz`` and ``certificate.yaml`` with its premise record); ``extra``
+    adds keys to the certificate file (a calibration block)."""
+    import yaml
+
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.premise import Premise, PremiseEntry
+
+    model = quadrotor_model(H=np.diag(H))
+    sparse = m if beta is not None and measure == "full" else 0
+    eps_o = 2 * gate - beta if gate is not None and sparse else 0.0
+    numbers = PremiseNumbers(
+        eps=0.1, S=0.0, radius=radius, eps_w=eps_w, delta=0.0, eps_o=eps_o, m=sparse, gate=gate
+    )
+    shape = sls.Shape((1.0,) * 6, tuple(map(float, error_scale)), measure, sparse, gate is not None)
+    st = sls.replace(shape.structure(T, "qr", False), robust=True)
+    values = sls.Values(
+        S=0.0, eps_e=0.1, radius=radius, eps_w=eps_w, delta=0.0, eps_o=eps_o, gate=gate
+    )
+    sol = sls.solve(model, st, values)
+    assert sol.taps is not None, sol.solver_status
+    body = certify(sol.taps, model, numbers, shape)
+    assert body.status == "certified", body.checks
+
+    def entry(v: float) -> PremiseEntry:
+        return PremiseEntry(value=v, chosen="number")
+
+    premise = Premise(
+        eps_e=entry(0.1), S=entry(0.0), r=entry(radius), Delta=entry(0.0), eps_w=entry(eps_w),
+        m=entry(sparse) if sparse else None, eps_o=entry(eps_o) if sparse else None,
+        measure=measure, beta=beta, error_scale=list(map(float, error_scale)), gate=gate,
+        eps_w_source="inputs", tested_range=0.3,
+    )  # fmt: skip
+    ctrl = Controller(sol.taps, model)
+    cert = Certificate.of(
+        body, controller=name, robust=True, norm="l1", cost="qr", strictly_proper=False, T=T,
+        dt=model.dt, mass=model.mass, controller_sha256=ctrl.sha256(), S=0.0, eps_e=0.1,
+        radius=radius, delta=0.0, eps_w=eps_w, R0=0.1, m=sparse, eps_o=eps_o, measure=measure,
+        gate=gate, tested_range=0.3, premise=premise,
+    )  # fmt: skip
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    ctrl.save(folder)
+    cert.save(folder)
+    if extra:
+        f = folder / "certificate.yaml"
+        f.write_text(f.read_text() + yaml.safe_dump(extra, sort_keys=False))
+        return ControllerDir(folder, ctrl, cert)  # the certificate model does not know the keys
+    return load_controller_dir(folder)

@@ -109,7 +109,8 @@ def test_c_equals_python_realization(tmp_path, controllers, compiler, timing):
     cert = yaml.safe_load((folder / "certificate.yaml").read_text())
     hdr = (out / "qsls_ctrl.h").read_text()
     assert cert["controller_sha256"] in hdr and "status certified" in hdr
-    assert f"gamma = {cert['gamma']:.6g}" in hdr and f"T = {T} taps" in hdr
+    flat = " ".join(line.lstrip(" *") for line in hdr.splitlines())  # wrapped comment
+    assert f"gamma = eps + S rho* = {cert['gamma']:.6g}" in flat and f"T = {T} taps" in hdr
     assert "dt = 0.1 s, mass = 0.256 kg" in hdr
     ys = random_y()
     want = python_u(folder, ys)
@@ -117,7 +118,7 @@ def test_c_equals_python_realization(tmp_path, controllers, compiler, timing):
     for cc in COMPILERS or [compiler]:
         lib = build(cc, out)
         c = CController(lib, dt=0.1)
-        assert c.size == manifest["state_bytes"] == (T * 6 + (T + 1) * 6) * 8 + 8
+        assert c.size == manifest["state_bytes"] == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5) * 4
         got = np.array([c.step(y) for y in ys])
         assert np.abs(got - want).max() <= 1e-12, cc
         assert np.abs(want).max() > 1.0  # the test drives the controller hard
@@ -136,7 +137,7 @@ def test_float_precision_deviation_is_reported_and_small(tmp_path, controllers, 
     assert res.exit_code == 0, res.output
     assert "float vs double" in res.output
     r = json.loads((tmp_path / "f" / "manifest.json").read_text())["results"]
-    assert r["state_bytes"] == (T * 6 + (T + 1) * 6) * 4 + 8
+    assert r["state_bytes"] == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5) * 4
     lib = build(compiler, tmp_path / "f")
     cf = CController(lib, precision="float", dt=0.1)
     ys = random_y(2000)
@@ -320,7 +321,7 @@ def test_exports_are_deterministic_and_prefix_renames(tmp_path, controllers, com
     for name in ("quad7.c", "quad7.h"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     text = (tmp_path / "a" / "quad7.h").read_text()
-    assert "void quad7_step(quad7_t *c" in text and "QUAD7_T 15" in text
+    assert "int quad7_step(quad7_t *c" in text and "QUAD7_T 15" in text
     c = CController(build(compiler, tmp_path / "a", prefix="quad7"), "quad7", dt=0.1)
     ys = random_y(300)
     assert np.abs(np.array([c.step(y) for y in ys]) - python_u(folder, ys)).max() <= 1e-12
@@ -343,7 +344,9 @@ def test_bad_input(tmp_path, controllers):
     assert not (tmp_path / "u").exists()
     res = invoke("export", nominal, "-t", "c", "--out", tmp_path / "u", "--allow-uncertified")
     assert res.exit_code == 0, res.output
-    assert "guarantee: none: status uncertified" in (tmp_path / "u" / "qsls_ctrl.h").read_text()
+    first = (tmp_path / "u" / "qsls_ctrl.h").read_text().splitlines()[0]
+    assert first.startswith("/* NOT CERTIFIED (status uncertified, exported with --allow-uncertified")
+    assert "NO GUARANTEE; missing: robustness condition fails: robustness_lhs = " in first
     # a relaxed premise is not certified
     relaxed = tmp_path / "relaxed"
     shutil.copytree(good, relaxed)

@@ -92,12 +92,13 @@ def test_counts_and_sizes_against_independent_counts(proper, strict):
         assert bank.constants() == n == (846 if first == 0 else 828)
         assert bank.multiply_adds() == n
         d, f = B.sizes(bank, "double"), B.sizes(bank, "float")
-        assert d.state_bytes == (T * 6 + (T + 1) * 6) * 8 + 8 == 824
-        assert f.state_bytes == (T * 6 + (T + 1) * 6) * 4 + 8 == 416
+        # two ring heads and the monitor's T + 5 counters (unsigned int), padded to the real
+        assert d.state_bytes == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5) * 4 + 4 == 880
+        assert f.state_bytes == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5) * 4 == 468
         assert (d.const_bytes, f.const_bytes) == (8 * n, 4 * n)
         assert d.flops_per_tick == f.flops_per_tick == 2 * n
         shares = d.as_dict()
-        assert shares["state_share_of_192KB_ram"] == 824 / (192 * 1024)
+        assert shares["state_share_of_192KB_ram"] == 880 / (192 * 1024)
         assert shares["const_share_of_1MB_flash"] == 8 * n / (1024 * 1024)
 
 
@@ -158,20 +159,26 @@ def test_refuses_static_gain_and_nonfinite_taps(proper):
         B.export_bank(broken)
 
 
-def test_facts_and_guarantee_line(proper, strict):
+def test_facts_and_the_generalized_theorem(proper, strict):
+    """The facts a file states: the theorem in the certificate's numbers (the special case
+    W = I, no outliers: gamma = eps + S rho* = (eps + S a) / (1 - S N), recomputed)."""
     f = B.facts(proper)
     c = proper.certificate
     assert (f.name, f.status, f.T, f.strictly_proper) == ("l1_robust", "certified", T, False)
     assert B.facts(strict).strictly_proper is True
     assert f.dt == 0.1 and f.mass == 0.256 and f.sha256 == proper.controller.sha256()
-    assert f.guarantee == (
-        f"||e||_inf <= gamma = {c.gamma:.6g} while ||e_k|| <= eps_e + S d(x_k) holds within r of "
-        "the training states (eps_e = 0.05, S = 0.05, r = 1, Delta = 0.05, ||w|| <= eps_w = 0.01)"
-    )
-    # gamma = (eps_e + S a) / (1 - S ||Phi_xy||), a = eps_w ||Phi_xx H|| + Delta, recomputed
+    assert f.gate is None and f.monitor.active
+    text = "\n".join(f.statement)
+    assert f.statement[0] == "CERTIFIED controller l1_robust: the guarantee below holds under its premise"
     a = 0.01 * c.norm_phi_xx_h + 0.05
-    assert c.gamma == pytest.approx((0.05 + 0.05 * a) / (1 - 0.05 * c.norm_phi_xy), rel=1e-12)
-    assert f"gamma = {(0.05 + 0.05 * a) / (1 - 0.05 * c.norm_phi_xy):.6g}" in f.guarantee
+    gamma = (0.05 + 0.05 * a) / (1 - 0.05 * c.norm_phi_xy)
+    assert c.gamma == pytest.approx(gamma, rel=1e-12)
+    assert f"|d_k|_e <= gamma = eps + S rho* = {gamma:.6g}" in text
+    assert "eps = 0.05, S = 0.05, r = 1" in text and "Delta = 0.05" in text
+    assert "eps_w = 0.01, H = diag(1, 1, 1, 1, 1, 1), eps_w from: not recorded" in text
+    assert "with o = 0 (no sparse part)" in text and "gate:" not in text
+    assert "tested range: S was not tested on left-out data" in text
+    assert "calibration: no calibration" in text
 
 
 def test_gate_words_for_each_status(proper):
@@ -182,8 +189,11 @@ def test_gate_words_for_each_status(proper):
     failing = {**c.checks, "robustness": {**c.checks["robustness"], "passed": False}}
     unc = c.model_copy(update={"status": "uncertified", "robustness_lhs": 1.25, "checks": failing})
     assert B.status_reason(unc) == "robustness condition fails: robustness_lhs = 1.25 >= 1"
-    assert B.guarantee_line(unc) == (
-        "none: status uncertified (robustness condition fails: robustness_lhs = 1.25 >= 1)"
+    from qsls.pipeline.export.statement import first_line
+
+    assert first_line(unc, B.status_reason(unc)) == (
+        "NOT CERTIFIED (status uncertified, exported with --allow-uncertified): NO GUARANTEE; "
+        "missing: robustness condition fails: robustness_lhs = 1.25 >= 1"
     )
     d = dataclasses.replace(proper, certificate=unc)
     with pytest.raises(InputError, match=r"status is 'uncertified'.*--allow-uncertified"):
@@ -195,7 +205,10 @@ def test_gate_words_for_each_status(proper):
     assert B.status_reason(bad) == "failed checks: realization"
 
     relaxed = c.model_copy(update={"status": "relaxed"})
-    assert B.guarantee_line(relaxed).endswith("; RELAXED premise: premise shares not recorded")
+    assert first_line(relaxed, B.status_reason(relaxed)).endswith(
+        "part of the training data lies outside it); this is not plainly certified: premise "
+        "shares not recorded"
+    )
     assert "not plainly certified" in B.status_reason(relaxed)
     with pytest.raises(InputError, match="relaxed"):
         B.check_exportable(
@@ -206,12 +219,11 @@ def test_gate_words_for_each_status(proper):
     assert B.status_reason(ref) == "a reference controller (not synthesized), with no guarantee"
 
 
-def test_a_gated_certificate_is_not_exported_without_its_gate():
-    """The exported filter bank does not clip the velocity: a certificate that rests on the
-    gate is refused (one line naming the gate), unless --allow-uncertified."""
+def test_a_gated_certificate_exports_with_its_gate():
+    """The exported step applies the gate, so a gated certified controller needs no flag and its
+    facts carry the gate."""
     d = synthesized()
     gated = d.certificate.model_copy(update={"gate": 1.5})
     cdir = dataclasses.replace(d, certificate=gated)
-    with pytest.raises(InputError, match=r"velocity gate .* clip\(y_v - v_ref, -1.5, 1.5\)"):
-        B.check_exportable(cdir, allow_uncertified=False)
-    B.check_exportable(cdir, allow_uncertified=True)
+    B.check_exportable(cdir, allow_uncertified=False)
+    assert B.facts(cdir).gate == 1.5

@@ -142,7 +142,10 @@ def test_tables_are_the_bank_and_header_states_the_facts(ctrls, which):
     assert defines["QC_DT"] == "0.1" and defines["QC_MASS"] == "0.256"
     assert defines["QC_GRAVITY"] == "9.81" and defines["QC_STATUS"] == '"certified"'
     assert defines["QC_SHA256"] == f'"{cdir.controller.sha256()}"'
-    assert f" * guarantee: {fx.guarantee}\n" in hdr
+    assert hdr.startswith(f"/* CERTIFIED controller {cdir.certificate.controller}: the guarantee")
+    assert " * GUARANTEE (docs/guarantee.md; every number is the certificate's):\n" in hdr
+    assert f"rho* = {cdir.certificate.rho_star:.6g} <= r" in hdr
+    assert "#define QC_GATED 0" in hdr and "no QC_GATE" in hdr
     assert "typedef double qc_real_t;" in hdr
     assert "typedef float qc_real_t;" in header(bank, fx, "qc", "float")
 
@@ -153,7 +156,8 @@ def test_compiled_step_is_the_realization(tmp_path, gcc, ctrls, which):
     bank = export_bank(cdir)
     lib = _compile(gcc, tmp_path, c_files(bank, facts(cdir), "qc", "double"))
     c = Bound(lib, "qc")
-    assert c.size == (T * 6 + (T + 1) * 6) * 8 + 8  # two unsigned heads, no padding
+    # two unsigned heads and the monitor's T + 5 counters, padded to 8
+    assert c.size == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5) * 4 + 4
     ys = np.random.default_rng(11).uniform(-1, 1, (400, 6))
     rt = RealizedController(cdir.controller.bank, cdir.controller.dt)
     want = np.array([rt.step(y) for y in ys])
@@ -200,7 +204,7 @@ def test_float_build_is_close_but_not_double(tmp_path, gcc, ctrls):
     bank = export_bank(cdir)
     lib = _compile(gcc, tmp_path, c_files(bank, facts(cdir), "qf", "float"))
     c = Bound(lib, "qf", "float")
-    assert c.size == (T * 6 + (T + 1) * 6) * 4 + 8
+    assert c.size == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5) * 4
     ys = np.random.default_rng(2).uniform(-1, 1, (400, 6))
     rt = RealizedController(cdir.controller.bank, 0.1)
     want = np.array([rt.step(y) for y in ys])

@@ -323,3 +323,36 @@ def test_the_vio_frame_is_aligned_to_the_reference(tmp_path, controllers, flown)
     assert reps["turned"]["first_deviation_m"] < 0.5
     assert reps["turned"]["limits"]["pct_tilt_exceeded"] < lim["pct_tilt_exceeded"]
     assert reps["none"]["warnings"] and not reps["turned"]["warnings"]
+
+
+def test_the_report_lists_where_the_monitor_would_have_tripped(tmp_path, controllers, flown):  # noqa: F811
+    """The monitor's ticks in the report are the ticks whose deviation exceeds a threshold of
+    docs/monitor.md, recomputed here from the written deviations; a reference moved 1 m away
+    (beyond every position threshold) trips on the first tick."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.monitor import monitor_of
+
+    _, bag, _ = flown
+    spec = monitor_of(load_controller_dir(controllers["proper"]))
+    thr = np.array(spec.threshold)
+    assert spec.active and thr[:3].min() > 0.05 and thr[:3].max() < 1.0
+    for center, name in (("[0,0]", "on"), ("[1,0]", "off")):
+        out = tmp_path / f"{name}.mcap"
+        res = invoke(
+            "replay", controllers["proper"], bag, "--vio-topic", "/vio/odometry",
+            "--reference", f"circle:center={center}", "--align", "none", "--out", out,
+        )  # fmt: skip
+        assert res.exit_code == 0, res.output
+        stamps, dev = deviations(read_mcap(out)[1]["/qsls/deviation"])
+        beyond = (np.abs(dev[:, :6]) > thr).any(axis=1)  # every channel trips (no beta)
+        mon = report_of(out)["monitor"]
+        assert mon["ticks_tripped"] == mon["envelope_ticks"] == int(beyond.sum())
+        assert mon["outlier_count_ticks"] == 0
+        t = (stamps - stamps[0]) / 1e9
+        np.testing.assert_allclose(mon["trip_t_s"], t[beyond][:100], atol=1e-9)
+        if name == "off":
+            assert mon["first_trip_t_s"] == 0.0 and "premise broken" in res.output
+        else:
+            # the flight the controller flew inside its premise's numbers: whatever tripped is
+            # listed; the summary says what a quiet monitor means
+            assert mon["ticks_tripped"] == 0 and "no trip (one-sided" in res.output

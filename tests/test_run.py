@@ -177,6 +177,61 @@ def test_quickstart_assumptions_on_the_flown_flights(quickstart):
     assert "l1_robust: FAILS on 1 of 2 flights: degraded_s0_l1_robust: assumption" in proc.stdout
 
 
+@pytest.mark.slow
+def test_quickstart_certified_controllers_export_with_their_gate_and_monitor(quickstart, tmp_path):
+    """Issue 33 on the quickstart itself: every certified controller (gated) exports to C
+    (double, float) and Python without --allow-uncertified; the C compiled here with the strict
+    flags matches the Python controller with its gate on inputs that clip, to 1e-12; on the
+    flights, the monitor never tripped where every assumption held."""
+    import numpy as np
+
+    from qsls.pipeline.control.artifacts import load_runtime
+    from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
+    from qsls.pipeline.sim.controllers import gated_deviation
+
+    work = quickstart[0]
+    run_dir = work / "runs" / "quickstart"
+    certified = [
+        p.parent
+        for p in sorted((run_dir / "synth").glob("*/certificate.yaml"))
+        if yaml.safe_load(p.read_text())["status"] == "certified"
+    ]
+    assert [p.name for p in certified] == ["l1_robust", "l1_robust_imitation"]
+    cc = find_compiler("gcc")
+    rng = np.random.default_rng(1)
+    ys = np.c_[rng.uniform(-1, 1, (2000, 3)), rng.uniform(-4.5, 4.5, (2000, 3))]
+    for folder in certified:
+        gate = yaml.safe_load((folder / "certificate.yaml").read_text())["gate"]
+        assert gate == 1.5
+        ref = load_runtime(folder)
+        want = np.array([ref.step(y) for y in gated_deviation(ys, gate)])
+        for target, extra in (("c", []), ("c", ["--precision", "float"]), ("python", [])):
+            out = tmp_path / f"{folder.name}-{target}{''.join(extra)}"
+            proc = _qsls("export", str(folder), "--target", target, *extra, "--out", str(out),
+                         "--verify-ticks", "2000", cwd=work)  # fmt: skip
+            assert proc.returncode == 0, proc.stderr[-2000:]
+            v = json.loads((out / "manifest.json").read_text())["results"]["verify"]
+            assert v["max_abs_diff"] <= 1e-12 and v["clipped_ticks"] > 0.8, v
+        if cc is None:
+            continue
+        lib = tmp_path / f"{folder.name}.so"
+        c_file = tmp_path / f"{folder.name}-c" / "qsls_ctrl.c"
+        res = subprocess.run([cc, *STRICT, "-O2", "-fPIC", "-shared", "-o", str(lib), str(c_file),
+                              "-lm"], capture_output=True, text=True)  # fmt: skip
+        assert res.returncode == 0 and res.stderr == "", res.stderr
+        c = CController(lib, dt=0.1)
+        got = np.array([c.step(y) for y in ys])
+        assert np.abs(got - want).max() <= 1e-12
+        ungated = load_runtime(folder)
+        # l1_robust barely reads the velocity (its Phi_uy velocity taps are about 1e-9): the
+        # clip changes its u by about 1e-8, still a thousand times the 1e-12 compared
+        assert np.abs(want - np.array([ungated.step(y) for y in ys])).max() > 1e-9
+    a = pd.read_parquet(run_dir / "fly" / "assumptions.parquet")
+    held = a[a["assumptions_hold"].astype(bool)]
+    assert len(held) >= 1 and (held["monitor_trips"] == 0).all()
+    assert set(a["monitor_first"]) <= {"", "envelope", "outlier count"}
+
+
 def _data_files(work: Path) -> dict[str, bytes]:
     """Every file of the run and its report but the manifests (they hold the wall time) and
     the run's own bookkeeping (run state: mtimes). The code's git commit (provenance in

@@ -451,15 +451,40 @@ def _check_flights(
     return checks, samples, ref_j
 
 
+def monitor_columns(spec: Any, log: Any, gate: float | None) -> dict[str, Any]:
+    """What the onboard premise monitor (docs/monitor.md) would have said on a flown log: the
+    ticks it trips on (``y - r`` at the controller's ticks, from the reset at take-off), the
+    first one's time, and whether the envelope or the outlier count tripped first."""
+    from qsls.pipeline.control.monitor import monitor_flags
+
+    flags = monitor_flags(spec, np.asarray(log.y) - np.asarray(log.ref), gate)
+    hit = np.flatnonzero(flags)
+    first = int(hit[0]) if len(hit) else None
+    return {
+        "monitor_trips": len(hit),
+        "monitor_t": float(log.t[first]) if first is not None else float("nan"),
+        "monitor_first": (
+            "" if first is None else ("envelope" if flags[first] & 1 else "outlier count")
+        ),
+    }
+
+
 def assumption_table(
     outcomes: Sequence[FlyOutcome], bounds: Sequence[ControllerBound], training: Any
 ) -> pd.DataFrame:
     """:func:`qsls.pipeline.evaluate.assumptions.check_assumptions` on every flight a certified
     (or relaxed) robust controller flew, from its own log at its own ticks."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.monitor import monitor_of
     from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions, crashed
     from qsls.pipeline.evaluate.certified import certified_premise
 
     premises = {b.name: certified_premise(b.folder) for b in bounds}
+    monitors = {
+        b.name: monitor_of(load_controller_dir(b.folder))
+        for b in bounds
+        if premises[b.name] is not None
+    }
     status = {b.name: b.status for b in bounds}
     rows = []
     for o in outcomes:
@@ -468,6 +493,7 @@ def assumption_table(
             continue  # a crashed flight is checked on the ticks it flew: a crash is no excuse
         log = FlownLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl)
         row = check_assumptions(log, c, training.distance)
+        row.update(monitor_columns(monitors[o.controller], log, c.gate))
         if o.metrics.get("crashed"):
             row = crashed(row, o.extra.get("crash_time_s"), o.metrics.get("crash_reason"))
         rows.append({"flight": o.name, "controller": o.controller, "status": status[o.controller],

@@ -19,6 +19,8 @@ from typing import Literal
 import numpy as np
 
 from qsls.pipeline.control.artifacts import Certificate, ControllerDir
+from qsls.pipeline.control.guarantee import MonitorSpec
+from qsls.pipeline.control.monitor import NO_MONITOR, monitor_of
 from qsls.pipeline.control.status import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.export.attitude import AttitudeLimits
@@ -26,7 +28,10 @@ from qsls.pipeline.export.attitude import AttitudeLimits
 Precision = Literal["double", "float"]
 REAL_BYTES = {"double": 8, "float": 4}
 INDEX_BYTES = 4
-"""``unsigned int`` ring-buffer heads (two of them)."""
+"""``unsigned int`` ring-buffer heads (two of them) and the monitor's counters."""
+MONITOR_COUNTERS = 5
+"""The monitor's ``unsigned int`` counters besides its ``T`` outlier flags: the window's head
+and count, ticks, trips and the first trip's tick."""
 
 PREFIX_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,40}$")
 
@@ -120,11 +125,12 @@ class Sizes:
 
 
 def sizes(bank: ExportBank, precision: Precision = "double") -> Sizes:
-    """``sizeof`` the C state struct (``T nx + (T+1) ny`` reals and two ring heads, padded
-    to the real's alignment), the ``static const`` taps, and 2 flops per multiply-add."""
+    """``sizeof`` the C state struct (``T nx + (T+1) ny`` reals, two ring heads and the
+    monitor's ``T + 5`` counters, ``unsigned int`` each, padded to the real's alignment), the
+    ``static const`` taps, and 2 flops per multiply-add."""
     r = REAL_BYTES[precision]
     reals = bank.T * bank.nx + (bank.T + 1) * bank.ny
-    state = reals * r + 2 * INDEX_BYTES
+    state = reals * r + (2 + MONITOR_COUNTERS + bank.T) * INDEX_BYTES
     state += -state % max(r, INDEX_BYTES)
     return Sizes(state, bank.constants() * r, 2 * bank.multiply_adds(), precision)
 
@@ -141,24 +147,15 @@ class ExportFacts:
     mass: float
     T: int
     strictly_proper: bool
-    guarantee: str
     limits: AttitudeLimits = field(default_factory=AttitudeLimits)
     """The attitude helper's tilt and thrust limits."""
-
-
-def guarantee_line(cert: Certificate) -> str:
-    """The guarantee in one line, with its premise (or why there is none); a relaxed
-    premise says so, with the shares of the training data that violate it."""
-    if cert.status not in (CERTIFIED, RELAXED):
-        return f"none: status {cert.status} ({status_reason(cert)})"
-    line = (
-        f"||e||_inf <= gamma = {cert.gamma:.6g} while ||e_k|| <= eps_e + S d(x_k) holds within "
-        f"r of the training states (eps_e = {cert.eps_e:.6g}, S = {cert.S:.6g}, "
-        f"r = {cert.radius:.6g}, Delta = {cert.delta:.6g}, ||w|| <= eps_w = {cert.eps_w:.6g})"
-    )
-    if cert.status == RELAXED:
-        line += f"; RELAXED premise: {_shares(cert)}"
-    return line
+    gate: float | None = None
+    """Velocity gate ``V``: ``_step`` clips the velocity deviation to ``[-V, V]``."""
+    monitor: MonitorSpec = NO_MONITOR
+    """The onboard premise monitor's thresholds (docs/monitor.md)."""
+    statement: tuple[str, ...] = ()
+    """The guarantee as the file states it, the first line naming the status
+    (:mod:`qsls.pipeline.export.statement`)."""
 
 
 def _shares(cert: Certificate) -> str:
@@ -168,7 +165,10 @@ def _shares(cert: Certificate) -> str:
 
 
 def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> ExportFacts:
+    from qsls.pipeline.export.statement import statement
+
     c, cert = cdir.controller, cdir.certificate
+    mon = monitor_of(cdir)
     return ExportFacts(
         name=cdir.name,
         status=cert.status,
@@ -177,8 +177,10 @@ def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> Exp
         mass=c.mass,
         T=c.T,
         strictly_proper=c.strictly_proper,
-        guarantee=guarantee_line(cert),
         limits=limits,
+        gate=cert.gate,
+        monitor=mon,
+        statement=tuple(statement(cdir, mon, status_reason(cert))),
     )
 
 
@@ -204,18 +206,9 @@ def status_reason(cert: Certificate) -> str:
 
 
 def check_exportable(cdir: ControllerDir, allow_uncertified: bool) -> None:
-    """Refuse anything but ``certified`` unless ``allow_uncertified`` (exit 2). A certificate
-    whose controller reads its velocity through a gate (docs/guarantee.md, Velocity gate) is
-    refused too: the exported filter bank does not clip, and without the clip the guarantee
-    does not hold."""
+    """Refuse anything but ``certified`` unless ``allow_uncertified`` (exit 2). A gated
+    certificate exports like any other: the exported step applies its gate."""
     cert = cdir.certificate
-    if cert.gate is not None and not allow_uncertified:
-        raise InputError(
-            f"{cdir.folder}: its guarantee needs the velocity gate (the controller reads "
-            f"clip(y_v - v_ref, -{cert.gate:g}, {cert.gate:g})), which the exported code does "
-            "not apply; clip the velocity deviation before _step yourself and pass "
-            "--allow-uncertified, or synthesize without a gate"
-        )
     if cert.status == CERTIFIED or allow_uncertified:
         return
     raise InputError(

@@ -85,8 +85,14 @@ class CController:
         self._reset = getattr(self._lib, f"{prefix}_reset")
         self._reset.restype, self._reset.argtypes = None, [ctypes.c_void_p]
         self._step = getattr(self._lib, f"{prefix}_step")
-        self._step.restype = None
+        self._step.restype = ctypes.c_int
         self._step.argtypes = [ctypes.c_void_p, ctypes.POINTER(real), ctypes.POINTER(real)]
+        self._trips = getattr(self._lib, f"{prefix}_trips")
+        self._trips.restype, self._trips.argtypes = ctypes.c_uint, [ctypes.c_void_p]
+        self._first = getattr(self._lib, f"{prefix}_first_trip")
+        self._first.restype, self._first.argtypes = ctypes.c_long, [ctypes.c_void_p]
+        self.flags = 0
+        """The monitor's bits of the last tick (docs/monitor.md)."""
         self._att = getattr(self._lib, f"{prefix}_attitude")
         self._att.restype = None
         ptr = ctypes.POINTER(real)
@@ -97,12 +103,24 @@ class CController:
 
     def reset(self) -> None:
         self._reset(self._state)
+        self.flags = 0
 
     def step(self, y: np.ndarray) -> np.ndarray:
-        """``u[k]`` (3,) from ``y[k]`` (6,)."""
+        """``u[k]`` (3,) from ``y[k]`` (6,); the monitor's bits go to :attr:`flags`."""
         self._y[:] = [float(v) for v in np.asarray(y, dtype=float).reshape(6)]
-        self._step(self._state, self._y, self._u)
+        self.flags = int(self._step(self._state, self._y, self._u))
         return np.array(self._u[:], dtype=float)
+
+    @property
+    def trips(self) -> int:
+        """Ticks on which the monitor tripped since reset."""
+        return int(self._trips(self._state))
+
+    @property
+    def first_trip(self) -> int | None:
+        """The first tick (0 = the first after reset) on which the monitor tripped."""
+        t = int(self._first(self._state))
+        return None if t < 0 else t
 
     def attitude(
         self, u: np.ndarray, acc_ref: np.ndarray, yaw: float = 0.0

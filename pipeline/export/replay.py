@@ -23,6 +23,8 @@ at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
    ``pitch, roll, thrust = hover + feedforward + u`` -> thrust and quaternion.
 5. Command limits: largest tilt, thrust range against hover ``m g``, the fraction of ticks
    with tilt beyond ``max_tilt_deg`` and with thrust outside ``thrust_band`` (times hover).
+6. The premise monitor of the exported code (docs/monitor.md): the ticks where it would have
+   tripped (the measurement proves the certificate's premise broken), by kind, the first.
 """
 
 from __future__ import annotations
@@ -106,12 +108,25 @@ class ReplayResult:
                 f"{lim['pct_thrust_outside']:.1f} %"
             ),
             f"ticks limited by the export ({lim['export_limits']})": f"{lim['pct_limited']:.1f} %",
+            "premise monitor (docs/monitor.md)": _monitor_text(r["monitor"]),
             "gaps": (
                 "none"
                 if not gaps
                 else "; ".join(f"{g['t_start_s']:.3f} s (+{g['duration_s']:.3f} s)" for g in gaps)
             ),
         }
+
+
+def _monitor_text(m: dict[str, Any]) -> str:
+    if not m["active"]:
+        return "off (no guarantee to monitor)"
+    if not m["ticks_tripped"]:
+        return "no trip (one-sided: this proves nothing about the premise)"
+    return (
+        f"premise broken: {m['ticks_tripped']} ticks tripped, the first at "
+        f"{m['first_trip_t_s']:.2f} s (envelope {m['envelope_ticks']}, outlier count "
+        f"{m['outlier_count_ticks']})"
+    )
 
 
 def _alignment_text(al: dict[str, Any]) -> str:
@@ -260,22 +275,58 @@ def command_ticks(
     parts: list[slice],
     mass: float,
     hover_thrust: float,
-) -> Ticks:
-    """Run the controller over each segment (reset at its start) and convert to commands."""
+) -> tuple[Ticks, np.ndarray]:
+    """Run the controller over each segment (reset at its start) and convert to commands;
+    also the monitor's bits per tick (docs/monitor.md)."""
     from qsls.pipeline.core.plant import GRAVITY
     from qsls.pipeline.export.attitude import absolute_input
 
     n = len(stamps)
     u = np.zeros((n, 3))
     thrust, q = np.zeros(n), np.zeros((n, 4))
+    flags = np.zeros(n, dtype=int)
     for sl in parts:
         ctrl.reset()
         for k in range(sl.start, sl.stop):
             u[k] = np.asarray(ctrl.step(y_dev[k].tolist()), dtype=float)
+            flags[k] = int(ctrl.flags)
             th, qq = attitude(u[k].tolist(), acc[k].tolist())
             thrust[k], q[k] = th, qq
     u_abs = absolute_input(u, acc, mass)
-    return Ticks(stamps, y_dev, u, u_abs, thrust, q, hover_thrust * thrust / (mass * GRAVITY))
+    ticks = Ticks(stamps, y_dev, u, u_abs, thrust, q, hover_thrust * thrust / (mass * GRAVITY))
+    return ticks, flags
+
+
+MAX_LISTED_TRIPS = 100
+"""The report lists the times of at most this many tripped ticks (it counts all of them)."""
+
+
+def monitor_report(cdir: Any, flags: np.ndarray, stamps: np.ndarray) -> dict[str, Any]:
+    """Where the exported premise monitor would have tripped (docs/monitor.md): the ticks, by
+    kind, the first one's time, and the thresholds it checked. One-sided: a trip proves the
+    certificate's premise broken on this recording; no trip proves nothing."""
+    from qsls.pipeline.control.guarantee import COUNT, TRIP
+    from qsls.pipeline.control.monitor import monitor_of
+    from qsls.pipeline.export.statement import CHANNELS
+
+    spec = monitor_of(cdir)
+    t = (stamps - stamps[0]) / NS
+    hit = np.flatnonzero(flags)
+    kinds = {TRIP: "envelope", COUNT: "outlier count"}
+    return {
+        "active": spec.active,
+        "ticks_tripped": len(hit),
+        "envelope_ticks": int(np.count_nonzero(flags & 1)),
+        "outlier_count_ticks": int(np.count_nonzero(flags & 2)),
+        "first_trip_t_s": float(t[hit[0]]) if len(hit) else None,
+        "trip_t_s": [float(x) for x in t[hit[:MAX_LISTED_TRIPS]]],
+        "thresholds": {
+            CHANNELS[i]: {"threshold": spec.threshold[i], "kind": kinds[k]}
+            for i, k in enumerate(spec.kind)
+            if k in kinds
+        },
+        "outliers_allowed": {"m": spec.m, "window": spec.window},
+    }
 
 
 def limits(ticks: Ticks, mass: float, o: ReplayOptions) -> dict[str, Any]:
@@ -346,7 +397,7 @@ def replay(
     y_dev = yv - np.hstack([p_r, v_r])
     with tempfile.TemporaryDirectory(prefix="qsls-replay-") as tmp:
         ctrl, attitude = exported_runtime(cdir, options.backend, Path(tmp), options.limits)
-        ticks = command_ticks(
+        ticks, flags = command_ticks(
             ctrl, attitude, stamps, y_dev, acc, parts, c.mass, options.hover_thrust
         )
     report: dict[str, Any] = {
@@ -369,6 +420,7 @@ def replay(
         "alignment": {**al.as_dict(), "yaw_deg": float(np.degrees(al.yaw_rad))},
         "first_deviation_m": float(np.linalg.norm(y_dev[0, :3])),
         "limits": limits(ticks, c.mass, options),
+        "monitor": monitor_report(cdir, flags, stamps),
         "topics": {"command": options.command_topic, "deviation": Topics.deviation},
     }
     report["warnings"] = warnings(report, options)

@@ -6,7 +6,9 @@ but ``certified`` unless ``allow_uncertified``, writes the generated files with
 :class:`~qsls.pipeline.core.artifacts.StageWriter` (stage ``export``), and checks what it
 wrote against the Python realization (:func:`~qsls.pipeline.control.artifacts.load_runtime`):
 
-- ``python``: the generated module, executed, over ``verify_ticks`` random bounded ``y``;
+- ``python``: the generated module, executed, over ``verify_ticks`` random bounded ``y``
+  (velocities beyond a gate on about half the entries), against the realization fed the
+  same deviations through the certificate's gate (the Python controller as it flies);
 - ``c`` (when a C compiler is on PATH): the generated double-precision C, compiled with the
   strict flags and loaded with ctypes, over the same ticks. With ``precision: float`` the
   float build is also compared with the double build: over the random ticks (``u``) and in
@@ -90,7 +92,8 @@ C_KEYWORDS = frozenset(
 """C99 and C11 keywords, refused as ``--prefix``: the prefix alone is the state's struct tag
 (``struct PREFIX``), so a keyword fails to compile."""
 Y_BOUND = 1.0
-"""Random test inputs: ``y`` uniform in ``[-Y_BOUND, Y_BOUND]`` (m, m/s)."""
+"""Random test inputs: ``y`` uniform in ``[-Y_BOUND, Y_BOUND]`` (m, m/s); with a velocity gate
+``V`` the velocities uniform in ``[-2V, 2V]``, so the check exercises the clip."""
 
 
 class ExportOptions(LimitOptions):
@@ -154,7 +157,14 @@ class ExportResult:
         }
         v = r.get("verify", {})
         if "max_abs_diff" in v:
-            out["max |u - realization|"] = f"{v['max_abs_diff']:.3g} over {v['ticks']} ticks"
+            gated = (
+                f", gate {v['gate']:g}: {100 * v['clipped_ticks']:.0f} % of ticks clipped"
+                if v.get("gate") is not None
+                else ""
+            )
+            out["max |u - realization|"] = (
+                f"{v['max_abs_diff']:.3g} over {v['ticks']} ticks{gated}"
+            )
         elif "skipped" in v:
             out["check against realization"] = f"skipped: {v['skipped']}"
         f = r.get("float_vs_double")
@@ -167,8 +177,24 @@ class ExportResult:
         return out
 
 
-def _random_y(ticks: int, seed: int) -> np.ndarray:
-    return np.random.default_rng(seed).uniform(-Y_BOUND, Y_BOUND, (ticks, 6))
+def _random_y(ticks: int, seed: int, gate: float | None = None) -> np.ndarray:
+    """Random deviations: positions in ``[-Y_BOUND, Y_BOUND]``, velocities in ``[-2V, 2V]``
+    with a gate ``V`` (about half the velocity entries are clipped), else ``[-Y_BOUND, Y_BOUND]``."""
+    rng = np.random.default_rng(seed)
+    ys = rng.uniform(-Y_BOUND, Y_BOUND, (ticks, 6))
+    if gate is not None:
+        ys[:, 3:] = rng.uniform(-2 * gate, 2 * gate, (ticks, 3))
+    return ys
+
+
+def reference_u(cdir: Any, ys: np.ndarray) -> np.ndarray:
+    """``u`` of the Python controller as it flies (:class:`~qsls.pipeline.sim.controllers.
+    LinearController`'s input): the realization fed the deviations through the certificate's
+    gate (:func:`~qsls.pipeline.sim.controllers.gated_deviation`)."""
+    from qsls.pipeline.control.artifacts import load_runtime
+    from qsls.pipeline.sim.controllers import gated_deviation
+
+    return run_ticks(load_runtime(cdir.folder), gated_deviation(ys, cdir.certificate.gate))
 
 
 def run_ticks(runtime: Any, ys: np.ndarray) -> np.ndarray:
@@ -219,6 +245,7 @@ def _verify_c(
         u_d = run_ticks(builds["double"], ys)
         verify = {
             "ticks": len(ys),
+            **_clipped(ys, cdir.certificate.gate),
             "compiler": Path(cc).name,
             "max_abs_diff": float(np.abs(u_d - ref_u).max(initial=0.0)),
             "max_abs_u": float(np.abs(ref_u).max(initial=0.0)),
@@ -243,13 +270,23 @@ def _verify_c(
         return verify, fvd
 
 
-def _verify_python(text: str, ys: np.ndarray, ref_u: np.ndarray) -> dict[str, Any]:
+def _clipped(ys: np.ndarray, gate: float | None) -> dict[str, Any]:
+    """The gate the check exercised: the share of ticks with a velocity entry clipped."""
+    if gate is None:
+        return {"gate": None}
+    return {"gate": gate, "clipped_ticks": float((np.abs(ys[:, 3:]) > gate).any(axis=1).mean())}
+
+
+def _verify_python(
+    text: str, ys: np.ndarray, ref_u: np.ndarray, gate: float | None
+) -> dict[str, Any]:
     from qsls.pipeline.export.python import load_module
 
     mod: Any = load_module(text)
     u = run_ticks(mod.Controller(), ys)
     return {
         "ticks": len(ys),
+        **_clipped(ys, gate),
         "max_abs_diff": float(np.abs(u - ref_u).max(initial=0.0)),
         "max_abs_u": float(np.abs(ref_u).max(initial=0.0)),
     }
@@ -269,7 +306,7 @@ def generate(bank: ExportBank, cdir: Any, options: ExportOptions) -> dict[str, s
 
 def export(folder: Path, options: ExportOptions, out: Path, *, force: bool = False) -> ExportResult:
     """Export one controller folder (module docstring)."""
-    from qsls.pipeline.control.artifacts import load_controller_dir, load_runtime
+    from qsls.pipeline.control.artifacts import load_controller_dir
     from qsls.pipeline.core.artifacts import StageWriter, check_output
 
     check_output(Path(out), force)
@@ -286,10 +323,12 @@ def export(folder: Path, options: ExportOptions, out: Path, *, force: bool = Fal
         "strictly_proper": cdir.controller.strictly_proper,
         **sizes(bank, options.precision).as_dict(),
     }
-    ys = _random_y(options.verify_ticks, options.seed)
-    ref_u = run_ticks(load_runtime(cdir.folder), ys)
+    ys = _random_y(options.verify_ticks, options.seed, cdir.certificate.gate)
+    ref_u = reference_u(cdir, ys)
     if options.target == "python":
-        results["verify"] = _verify_python(next(iter(files.values())), ys, ref_u)
+        results["verify"] = _verify_python(
+            next(iter(files.values())), ys, ref_u, cdir.certificate.gate
+        )
     else:
         verify, fvd = _verify_c(files, cdir, options, ys, ref_u)
         results["verify"] = verify

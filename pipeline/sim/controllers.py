@@ -159,6 +159,15 @@ class PDController:
         return hover_input(self.mass) + feedforward(ref, self.mass) + u
 
 
+def gated_deviation(dev: np.ndarray, gate: float | None) -> np.ndarray:
+    """The deviation a gated controller reads (docs/guarantee.md, Velocity gate): the velocity
+    deviation clipped to ``[-V, V]``, ``clip(y_v - v_ref, -V, V)``; a copy, rows or one tick."""
+    dev = np.array(dev, dtype=float)
+    if gate is not None:
+        dev[..., 3:] = np.clip(dev[..., 3:], -gate, gate)
+    return dev
+
+
 class LinearController:
     """A synthesized controller: ``u = hover + u_ff + K.step(y - r)``, ``K`` from realize."""
 
@@ -177,10 +186,7 @@ class LinearController:
         self.runtime.reset()
 
     def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample) -> np.ndarray:
-        dev = np.asarray(y - ref.state, dtype=float)
-        if self.gate is not None:  # docs/guarantee.md, Velocity gate
-            dev = dev.copy()
-            dev[3:] = np.clip(dev[3:], -self.gate, self.gate)
+        dev = gated_deviation(np.asarray(y - ref.state, dtype=float), self.gate)
         u = np.asarray(self.runtime.step(dev), dtype=float)
         return hover_input(self.mass) + feedforward(ref, self.mass) + u.reshape(3)
 

@@ -1,0 +1,223 @@
+"""What a generated file says about its guarantee: the generalized theorem in the certificate's
+own weights (docs/guarantee.md, The claim), or, for a controller without one, that it has none
+and why, in the first line.
+
+The lines are plain text; :mod:`qsls.pipeline.export.c` and :mod:`qsls.pipeline.export.python`
+put them in a comment and a docstring.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate, ControllerDir
+from qsls.pipeline.control.guarantee import COUNT, OFF, TRIP, MonitorSpec
+from qsls.pipeline.control.status import CERTIFIED, RELAXED
+
+CHANNELS = ("px", "py", "pz", "vx", "vy", "vz")
+
+
+def _g(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.6g}"
+
+
+def _diag(v: Any) -> str:
+    return "diag(" + ", ".join(f"{float(x):g}" for x in v) + ")"
+
+
+def wrap_lines(lines: tuple[str, ...] | list[str], lead: str, width: int = 96) -> str:
+    """``lines`` wrapped to ``width``, each output line starting with ``lead`` (continuations
+    indented four more than their line)."""
+    import textwrap
+
+    out: list[str] = []
+    for line in lines:
+        indent = " " * (len(line) - len(line.lstrip()))
+        out += textwrap.wrap(
+            line, width - len(lead), subsequent_indent=indent + "    ",
+            break_long_words=False, break_on_hyphens=False,
+        ) or [""]  # fmt: skip
+    return "\n".join((lead + x).rstrip() for x in out)
+
+
+def calibration_of(folder: Path) -> dict[str, Any] | None:
+    """The certificate's ``calibration`` block, read from the file itself (the key is newer than
+    this module's certificate model); None when there is none."""
+    import yaml
+
+    f = Path(folder) / CERTIFICATE_FILE
+    if not f.is_file():
+        return None
+    try:
+        data = yaml.safe_load(f.read_text())
+    except yaml.YAMLError:
+        return None
+    cal = data.get("calibration") if isinstance(data, dict) else None
+    return cal if isinstance(cal, dict) else None
+
+
+def has_guarantee(cert: Certificate) -> bool:
+    """A certificate that states a guarantee: certified, robust, ``rho*`` finite and within ``r``."""
+    return (
+        cert.status == CERTIFIED
+        and cert.robust
+        and cert.rho_star is not None
+        and math.isfinite(cert.rho_star)
+        and cert.rho_star <= cert.radius * (1 + 1e-12)
+    )
+
+
+def first_line(cert: Certificate, reason: str) -> str:
+    """``CERTIFIED ...`` or ``NOT CERTIFIED ... no guarantee; missing: ...`` (``reason`` from
+    :func:`qsls.pipeline.export.bank.status_reason`)."""
+    if has_guarantee(cert):
+        return (
+            f"CERTIFIED controller {cert.controller}: the guarantee below holds under its premise"
+        )
+    return (
+        f"NOT CERTIFIED (status {cert.status}, exported with --allow-uncertified): "
+        f"NO GUARANTEE; missing: {reason}"
+    )
+
+
+def _calibration_lines(cal: dict[str, Any] | None) -> list[str]:
+    if cal is None:
+        return [
+            "calibration: no calibration (the premise describes the training flights; no "
+            "calibration flights were flown by this controller)"
+        ]
+    known = ("flights", "alpha", "confidence", "conditions")
+    parts = [f"{k} {cal[k]}" for k in known if k in cal]
+    rest = [f"{k} {v}" for k, v in cal.items() if k not in known and not isinstance(v, dict | list)]
+    return ["calibration: " + "; ".join(parts + rest)]
+
+
+def monitor_lines(spec: MonitorSpec) -> list[str]:
+    """What the onboard monitor checks (docs/monitor.md)."""
+    if not spec.active:
+        return ["monitor: off (no guarantee to monitor)"]
+    trip = [f"{CHANNELS[i]} {spec.threshold[i]:.6g}" for i, k in enumerate(spec.kind) if k == TRIP]
+    count = [
+        f"{CHANNELS[i]} {spec.threshold[i]:.6g}" for i, k in enumerate(spec.kind) if k == COUNT
+    ]
+    off = [CHANNELS[i] for i, k in enumerate(spec.kind) if k == OFF]
+    out = ["monitor (docs/monitor.md): a tick trips when the premise is proven broken:"]
+    if trip:
+        out.append("  |y_i - r_i| beyond " + ", ".join(trip) + " (envelope + error bound)")
+    if count:
+        out.append(
+            f"  more than m = {spec.m} ticks in any {spec.window} with |y_v - v_ref| (gated) "
+            "beyond " + ", ".join(count)
+        )
+    if off:
+        out.append(
+            "  not checked: " + ", ".join(off) + " (not measured, or the threshold is at or "
+            "beyond the gate, so the gated deviation cannot exceed it)"
+        )
+    out.append(
+        "  it cannot see a premise broken without the measurement showing it (an error that "
+        "hides the deviation, a bias inside the envelope)"
+    )
+    return out
+
+
+def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
+    """The generalized theorem (docs/guarantee.md) in the certificate's own numbers."""
+    cert = cdir.certificate
+    p = cert.premise
+    wx = p.state_scale if p is not None else [1.0] * 6
+    we = p.error_scale if p is not None else [1.0] * 6
+    beta = p.beta if p is not None else None
+    H = cdir.controller.model.H
+    h = _diag(np.diag(H)) if np.allclose(H, np.diag(np.diag(H))) else "a full 6x6 matrix"
+    full = cert.measure == "full"
+    out = [
+        f"norms: |z|_x = ||W_x z||_inf, W_x = {_diag(wx)}; |e|_e = ||W_e e||_inf, "
+        f"W_e = {_diag(we)}; dist(x) = min over the training states x_d of |x - x_d|_x",
+        "measurement: "
+        + (
+            "full: y = x + e on all six channels"
+            if full
+            else "position only: y = p + e; the velocity is neither measured nor its error "
+            "bounded by this certificate (the vehicle's velocity deviation is bounded, below)"
+        ),
+        "premise: e_k = d_k + o_k"
+        + (
+            f", d = clip(e, -beta, beta) on the velocities (beta = {beta:g}), o the rest"
+            if beta is not None and full
+            else " with o = 0 (no sparse part)"
+        ),
+    ]
+    if cert.m > 0 and beta is not None and full:
+        src = "2 V - beta, the gate" if cert.gate is not None else "given"
+        out.append(
+            f"  (i) at most m = {cert.m} nonzero o_k in any T = {cert.T} consecutive ticks, "
+            f"||o_k||_inf <= eps_o = {_g(cert.eps_o)} ({src})"
+        )
+    else:
+        out.append("  (i) no outliers: o_k = 0 at every tick")
+    out.append(
+        f"  (ii) |d_k|_e <= eps + S dist(x_k) while dist(x_k) <= r: eps = {_g(cert.eps_e)}, "
+        f"S = {_g(cert.S)}, r = {_g(cert.radius)}"
+    )
+    src = (p.eps_w_source if p is not None else None) or "not recorded"
+    if src == "input_free_residual":
+        src += " (a LOWER bound on any controller's realized w: inputs were not logged)"
+    out.append(
+        f"  (iii) ||H^-1 w_k||_inf <= eps_w = {_g(cert.eps_w)}, H = {h}, eps_w from: {src}; "
+        f"dist(x_ref,k) <= Delta = {_g(cert.delta)}"
+    )
+    out.append(
+        "  the flight starts on the reference (||H^-1 (x_0 - r_0)||_inf <= eps_w) with the "
+        "controller reset"
+    )
+    if cert.gate is not None:
+        out.append(
+            f"gate: _step clips the velocity deviation to +/- V = {cert.gate:g} m/s before the "
+            "filter bank (the guarantee needs it)"
+        )
+    out.append(
+        f"condition: (S + eps/r) N + (a + eps_o G_m)/r = {_g(cert.robustness_lhs)} < 1 with "
+        f"N = {_g(cert.norm_N)}, N_w = {_g(cert.norm_N_w)}, G_m = {_g(cert.G_m)}, "
+        f"a = eps_w N_w + Delta = {_g(cert.a)}"
+    )
+    err = f"|d_k|_e <= gamma = eps + S rho* = {_g(cert.gamma)}"
+    if full and cert.m > 0 and beta is not None:
+        err += ", ||e_k||_inf at most that plus eps_o on the velocity channels"
+    elif not full:
+        err += " on the positions (the velocity error is not bounded)"
+    out.append(f"then at every tick: dist(x_k) <= rho* = {_g(cert.rho_star)} <= r; {err}")
+    env = ", ".join(f"{CHANNELS[i]} {spec.envelope[i]:.4g}" for i in range(len(spec.envelope)))
+    out.append(f"  and |x_k - r_k| per channel <= {env} (docs/monitor.md)")
+    if cert.gate is not None and cert.rho_v is not None:
+        out.append(f"  |v_k - v_ref,k| <= rho_v = {_g(cert.rho_v)} <= V = {cert.gate:g}")
+    tr = cert.tested_range
+    if tr is None:
+        out.append("tested range: S was not tested on left-out data")
+    else:
+        beyond = (
+            f" (rho* = {_g(cert.rho_star)} extrapolates beyond it)"
+            if cert.rho_star is not None and cert.rho_star > tr
+            else ""
+        )
+        out.append(f"tested range: S tested on left-out data out to {_g(tr)}{beyond}")
+    out += _calibration_lines(calibration_of(cdir.folder))
+    return out
+
+
+def statement(cdir: ControllerDir, spec: MonitorSpec, reason: str) -> list[str]:
+    """Every line a generated file states about the guarantee, the first naming the status."""
+    cert = cdir.certificate
+    lines = [first_line(cert, reason)]
+    if cert.status in (CERTIFIED, RELAXED) and cert.robust and cert.rho_star is not None:
+        if not has_guarantee(cert):
+            lines.append("the numbers it was synthesized against (NOT a guarantee):")
+        lines += theorem_lines(cdir, spec)
+    else:
+        lines.append(f"no theorem: status {cert.status} ({reason})")
+    lines += monitor_lines(spec)
+    return lines
