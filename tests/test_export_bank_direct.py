@@ -26,13 +26,15 @@ T = 8
 
 
 @pytest.fixture(scope="module")
-def proper() -> ControllerDir:
-    return synthesized(T, strictly_proper=False)
+def proper(tmp_path_factory: pytest.TempPathFactory) -> ControllerDir:
+    return synthesized(T, strictly_proper=False, calibrated=tmp_path_factory.mktemp("proper"))
 
 
 @pytest.fixture(scope="module")
-def strict() -> ControllerDir:
-    return synthesized(T, strictly_proper=True, name="l1_strict")
+def strict(tmp_path_factory: pytest.TempPathFactory) -> ControllerDir:
+    return synthesized(
+        T, strictly_proper=True, name="l1_strict", calibrated=tmp_path_factory.mktemp("strict")
+    )
 
 
 def run_bank(bank: B.ExportBank, ys: np.ndarray) -> np.ndarray:
@@ -177,8 +179,8 @@ def test_facts_and_the_generalized_theorem(proper, strict):
     assert "eps = 0.05, S = 0.05, r = 1" in text and "Delta = 0.05" in text
     assert "eps_w = 0.01, H = diag(1, 1, 1, 1, 1, 1), eps_w from: not recorded" in text
     assert "with o = 0 (no sparse part)" in text and "gate:" not in text
-    assert "tested range: S was not tested on left-out data" in text
-    assert "calibration: no calibration" in text
+    assert f"tested range: the calibration flights reached dist {c.tested_range:.6g}" in text
+    assert "calibration: 20 flights flown by this controller (conformal); alpha 0.1" in text
 
 
 def test_gate_words_for_each_status(proper):
@@ -219,10 +221,10 @@ def test_gate_words_for_each_status(proper):
     assert B.status_reason(ref) == "a reference controller (not synthesized), with no guarantee"
 
 
-def test_a_gated_certificate_exports_with_its_gate():
+def test_a_gated_certificate_exports_with_its_gate(tmp_path):
     """The exported step applies the gate, so a gated certified controller needs no flag and its
     facts carry the gate."""
-    d = synthesized()
+    d = synthesized(calibrated=tmp_path)
     gated = d.certificate.model_copy(update={"gate": 1.5})
     cdir = dataclasses.replace(d, certificate=gated)
     B.check_exportable(cdir, allow_uncertified=False)

@@ -32,10 +32,11 @@ def gcc() -> str:
 
 
 @pytest.fixture(scope="module")
-def ctrls() -> dict[str, ControllerDir]:
+def ctrls(tmp_path_factory: pytest.TempPathFactory) -> dict[str, ControllerDir]:
+    root = tmp_path_factory.mktemp("ctrls")
     return {
-        "proper": synthesized(T, strictly_proper=False),
-        "strict": synthesized(T, strictly_proper=True, name="l1_strict"),
+        "proper": synthesized(T, strictly_proper=False, calibrated=root),
+        "strict": synthesized(T, strictly_proper=True, name="l1_strict", calibrated=root),
     }
 
 

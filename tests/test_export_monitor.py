@@ -143,8 +143,8 @@ def test_header_states_the_generalized_theorem_in_the_certificates_numbers(ctrl,
         f"gamma = eps + S rho* = {c.gamma:.6g}",
         f"N = {c.norm_N:.6g}, N_w = {c.norm_N_w:.6g}, G_m = {c.G_m:.6g}",
         f"rho_v = {c.rho_v:.6g} <= V = 1.5",
-        "tested on left-out data out to 0.3",
-        "calibration: no calibration",
+        f"tested range: the calibration flights reached dist {c.tested_range:.6g}",
+        "calibration: 20 flights flown by this controller (conformal); alpha 0.1",
         "#define QSLS_CTRL_GATE 1.5",
         "#define QSLS_CTRL_MONITOR_M 3",
     ]:
@@ -153,10 +153,8 @@ def test_header_states_the_generalized_theorem_in_the_certificates_numbers(ctrl,
 
 
 def test_position_only_claims_no_velocity_bound_and_calibration_is_stated(tmp_path):
-    cal = {"calibration": {"flights": 59, "alpha": 0.05, "confidence": 0.95,
-                           "conditions": "regular"}}  # fmt: skip
     d = gated(tmp_path / "pos", T=10, measure="position", gate=None, beta=None, m=0,
-              error_scale=(1,) * 6, extra=cal)  # fmt: skip
+              error_scale=(1,) * 6)  # fmt: skip
     from qsls.pipeline.export.bank import facts
 
     text = "\n".join(facts(d).statement)
@@ -164,7 +162,7 @@ def test_position_only_claims_no_velocity_bound_and_calibration_is_stated(tmp_pa
     assert "position only" in text and "velocity is neither measured nor its error bounded" in text
     assert "rho_v" not in text and "gate:" not in text
     assert "on the positions (the velocity error is not bounded)" in text
-    assert "calibration: flights 59; alpha 0.05; confidence 0.95; conditions regular" in text
+    assert "calibration: 20 flights flown by this controller (conformal); alpha 0.1" in text
     assert "not checked: vx, vy, vz" in text
 
 

@@ -167,7 +167,7 @@ def structure_key(p: dict[str, Any]) -> tuple:
         p["strictly_proper"],
         p["dt"],
         p["mass"],
-        p["plant"],
+        p.get("plant", "hover"),
         str(p["H"]),
     )
 
@@ -238,7 +238,7 @@ def _model(p: dict[str, Any]) -> Any:
     from qsls.pipeline.core.plant import plant_model
 
     H = None if p["H"] is None else np.asarray(p["H"])
-    return plant_model(p["plant"], dt=p["dt"], mass=p["mass"], H=H)
+    return plant_model(p.get("plant", "hover"), dt=p["dt"], mass=p["mass"], H=H)
 
 
 def run_point(p: dict[str, Any]) -> dict[str, Any]:
@@ -382,7 +382,7 @@ SETTING_KEYS = ("T", "radius", "eps_w", "delta", "strictly_proper", "dt", "mass"
 def setting_key(p: dict[str, Any]) -> tuple:
     """What the robustness constraint's feasibility depends on besides ``S`` and ``eps_e``."""
     return (*(p[x] for x in SETTING_KEYS), str(p["H"]), str(p["state_scale"]),
-            str(p["error_scale"]), p["plant"])  # fmt: skip
+            str(p["error_scale"]), p.get("plant", "hover"))  # fmt: skip
 
 
 def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -393,7 +393,7 @@ def s_max_specs(points: list[dict[str, Any]]) -> list[dict[str, Any]]:
         k = setting_key(p)
         if k not in seen:
             seen[k] = {
-                **{x: p[x] for x in keys}, "H": p["H"], "plant": p["plant"], "solver": p["solver"],
+                **{x: p[x] for x in keys}, "H": p["H"], "plant": p.get("plant", "hover"), "solver": p["solver"],
                 "state_scale": p["state_scale"], "error_scale": p["error_scale"], "eps_e": [],
                 "key": k,
             }  # fmt: skip

@@ -21,7 +21,7 @@ import numpy as np
 from qsls.pipeline.control.artifacts import Certificate, ControllerDir
 from qsls.pipeline.control.guarantee import MonitorSpec
 from qsls.pipeline.control.monitor import NO_MONITOR, monitor_of
-from qsls.pipeline.control.status import CERTIFIED, REFERENCE, RELAXED, UNCERTIFIED
+from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.export.attitude import AttitudeLimits
 
@@ -191,6 +191,8 @@ def status_reason(cert: Certificate) -> str:
     s = cert.status
     if s == CERTIFIED:
         return f"robustness_lhs = {cert.robustness_lhs:.6g} < 1, all checks passed"
+    if s in (RELAXED, EXTRAPOLATED) and cert.status_reason:  # the certificate says why
+        return f"{cert.status_reason}; premise on the training data: {_shares(cert)}"
     if s == RELAXED:
         return (
             "the premise is relaxed (eps_e or S set below the training data's maximum, so "

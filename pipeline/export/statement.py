@@ -9,12 +9,11 @@ put them in a comment and a docstring.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate, ControllerDir
+from qsls.pipeline.control.artifacts import Calibration, Certificate, ControllerDir
 from qsls.pipeline.control.guarantee import COUNT, OFF, TRIP, MonitorSpec
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
 
@@ -44,22 +43,6 @@ def wrap_lines(lines: tuple[str, ...] | list[str], lead: str, width: int = 96) -
     return "\n".join((lead + x).rstrip() for x in out)
 
 
-def calibration_of(folder: Path) -> dict[str, Any] | None:
-    """The certificate's ``calibration`` block, read from the file itself (the key is newer than
-    this module's certificate model); None when there is none."""
-    import yaml
-
-    f = Path(folder) / CERTIFICATE_FILE
-    if not f.is_file():
-        return None
-    try:
-        data = yaml.safe_load(f.read_text())
-    except yaml.YAMLError:
-        return None
-    cal = data.get("calibration") if isinstance(data, dict) else None
-    return cal if isinstance(cal, dict) else None
-
-
 def has_guarantee(cert: Certificate) -> bool:
     """A certificate that states a guarantee: certified, robust, ``rho*`` finite and within ``r``."""
     return (
@@ -84,16 +67,21 @@ def first_line(cert: Certificate, reason: str) -> str:
     )
 
 
-def _calibration_lines(cal: dict[str, Any] | None) -> list[str]:
+def _calibration_lines(cal: Calibration | None) -> list[str]:
     if cal is None:
         return [
             "calibration: no calibration (the premise describes the training flights; no "
             "calibration flights were flown by this controller)"
         ]
-    known = ("flights", "alpha", "confidence", "conditions")
-    parts = [f"{k} {cal[k]}" for k in known if k in cal]
-    rest = [f"{k} {v}" for k, v in cal.items() if k not in known and not isinstance(v, dict | list)]
-    return ["calibration: " + "; ".join(parts + rest)]
+    conf = (f"confidence {cal.confidence:g}" if cal.confidence is not None
+            else "marginal over the calibration draw")  # fmt: skip
+    cond = ", ".join(f"{k} {v}" for k, v in cal.conditions.items() if not isinstance(v, dict | list))
+    return [
+        f"calibration: {cal.flights} flights flown by this controller ({cal.method}); alpha "
+        f"{cal.alpha:g}, the probability that a new flight of these conditions breaks the "
+        f"premise, {conf}; lambda_hat {cal.lambda_hat:.4g}; flights reached dist "
+        f"{cal.tested_range:.4g}; conditions: {cond}"
+    ]
 
 
 def monitor_lines(spec: MonitorSpec) -> list[str]:
@@ -204,8 +192,10 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
             if cert.rho_star is not None and cert.rho_star > tr
             else ""
         )
-        out.append(f"tested range: S tested on left-out data out to {_g(tr)}{beyond}")
-    out += _calibration_lines(calibration_of(cdir.folder))
+        how = ("the calibration flights reached dist" if cert.calibration is not None
+               else "S tested on left-out data out to")  # fmt: skip
+        out.append(f"tested range: {how} {_g(tr)}{beyond}")
+    out += _calibration_lines(cert.calibration)
     return out
 
 
