@@ -15,6 +15,7 @@ import numpy as np
 from qsls.pipeline.control.artifacts import ControllerDir
 from qsls.pipeline.control.guarantee import COUNT, OFF, TRIP, MonitorSpec, monitor_spec
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
+from qsls.pipeline.core.plant import NX
 
 NO_MONITOR = MonitorSpec((0.0,) * 6, (OFF,) * 6, 0, 1, (0.0,) * 6, (0.0,) * 6)
 """The monitor of a controller without a guarantee: every channel off."""
@@ -38,9 +39,11 @@ def monitor_of(cdir: ControllerDir) -> MonitorSpec:
         return NO_MONITOR
     p = cert.premise
     taps = c.taps
-    phi_xx_h = np.einsum("tij,jk->tik", taps.Phi_xx, c.model.H)
+    # the physical rows and measured columns (the attitude plant's extra states are neither
+    # measured nor disturbed: docs/model.md)
+    phi_xx_h = np.einsum("tij,jk->tik", taps.Phi_xx, c.model.H)[:, :NX, :]
     return monitor_spec(
-        taps.Phi_xy, phi_xx_h, eps_w=cert.eps_w, dense=cert.gamma,
+        taps.Phi_xy[:, :NX, :NX], phi_xx_h, eps_w=cert.eps_w, dense=cert.gamma,
         error_scale=p.error_scale if p is not None else (1.0,) * 6,
         measure=cert.measure, m=cert.m, eps_o=cert.eps_o,
         beta=p.beta if p is not None and p.beta is not None else np.inf,

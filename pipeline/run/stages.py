@@ -75,8 +75,9 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
         return graph
     synth_opts = cfg.synth
     graph.add(Stage("synth", "synth", synth_opts, _synth_exec(synth_opts, progress), deps=("fit",)))
+    calibrated = None
     if cfg.calibrate is not None and "calibrate" in wanted:
-        _calibrate_stage(graph, cfg, src, progress)
+        calibrated = _calibrate_stage(graph, cfg, src, progress)
     heldout = ingest_ids["heldout"]
     if "evaluate" not in wanted:
         return graph
@@ -87,7 +88,9 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
         )
     # a held-out flight is checked with the default options when the section is left out
     if cfg.evaluate is not None or heldout:
-        _evaluate_stages(graph, cfg.evaluate or EvaluateSection(), heldout, src, progress)
+        _evaluate_stages(
+            graph, cfg.evaluate or EvaluateSection(), heldout, src, progress, calibrated
+        )
     return graph
 
 
@@ -150,21 +153,37 @@ def _sweep_stage(graph: StageGraph, sec: SweepSection, progress: Progress) -> No
 
 
 def _evaluate_stages(
-    graph: StageGraph, sec: EvaluateSection, heldout: list[str], src: Src, progress: Progress
+    graph: StageGraph, sec: EvaluateSection, heldout: list[str], src: Src, progress: Progress,
+    calibrated: str | None = None,
 ) -> None:
     """The bound check on the held-out flights (when there are some) and the flights flown
-    (when the section has ``fly``)."""
+    (when the section has ``fly``); with a calibration (``calibrated``: its first condition),
+    each calibrated controller is checked against its calibrated certificate."""
+    cal = ("calibrate",) if calibrated is not None else ()
     if heldout:
         eval_opts = sec.bound()
-        execute = _evaluate_exec(eval_opts, heldout, progress)
-        deps = ("fit", "synth", *heldout)
+        execute = _evaluate_exec(eval_opts, heldout, progress, calibrated)
+        deps = ("fit", "synth", *cal, *heldout)
         graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps, notes=_verdicts))
     if sec.fly is not None:
         fly_opts = sec.flying(source=src("evaluate.fly"))
-        execute = _fly_exec(fly_opts, progress)
+        execute = _fly_exec(fly_opts, progress, calibrated)
         graph.add(
-            Stage("fly", "evaluate", fly_opts, execute, deps=("fit", "synth"), notes=_verdicts)
-        )
+            Stage("fly", "evaluate", fly_opts, execute, deps=("fit", "synth", *cal),
+                  notes=_verdicts)
+        )  # fmt: skip
+
+
+def controller_folders(deps: Mapping[str, Path], calibrated: str | None) -> list[Path]:
+    """The run's controllers: synth's, each replaced by its calibrated certificate's folder
+    (``calibrate/<condition>/<name>``) where the calibration wrote one."""
+    from qsls.pipeline.evaluate.certified import expand_controllers
+
+    if calibrated is None:
+        return [deps["synth"]]
+    folder = deps["calibrate"] / calibrated
+    done = {p.name: p for p in expand_controllers([folder])} if folder.is_dir() else {}
+    return [done.get(p.name, p) for p in expand_controllers([deps["synth"]])]
 
 
 def design_seeds(cfg: Any) -> list[int]:
@@ -177,7 +196,7 @@ def design_seeds(cfg: Any) -> list[int]:
     return seeds
 
 
-def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) -> None:
+def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) -> str:
     """The candidates' calibration and validation flights (docs/calibration.md), under the
     run's ``simulate:`` conditions, on seeds no design flight used."""
     from qsls.pipeline.evaluate.options import CalibrateOptions
@@ -197,6 +216,7 @@ def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) 
         return calibrate(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
 
     graph.add(Stage("calibrate", "calibrate", opts, execute, deps=("fit", "synth"), notes=_calibrated))
+    return str(opts.conditions[0])
 
 
 def _calibrated(out: Path) -> dict[str, Any]:
@@ -291,24 +311,26 @@ def _synth_exec(opts: Any, progress: Progress) -> Any:
     return execute
 
 
-def _evaluate_exec(opts: Any, heldout: list[str], progress: Progress) -> Any:
+def _evaluate_exec(
+    opts: Any, heldout: list[str], progress: Progress, calibrated: str | None = None
+) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.evaluate.bound import evaluate
 
         flights = [deps[d] for d in heldout]
-        return evaluate(
-            flights, deps["fit"], [deps["synth"]], opts, out, force=True, progress=progress
-        )
+        ctrls = controller_folders(deps, calibrated)
+        return evaluate(flights, deps["fit"], ctrls, opts, out, force=True, progress=progress)
 
     return execute
 
 
-def _fly_exec(opts: Any, progress: Progress) -> Any:
+def _fly_exec(opts: Any, progress: Progress, calibrated: str | None = None) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.evaluate.fly import fly_evaluate
 
-        return fly_evaluate(deps["fit"], [deps["synth"]], opts, out, force=True, progress=progress)
+        ctrls = controller_folders(deps, calibrated)
+        return fly_evaluate(deps["fit"], ctrls, opts, out, force=True, progress=progress)
 
     return execute
