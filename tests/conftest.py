@@ -78,3 +78,26 @@ def _nothing_written_into_the_checkout():
     yield
     new = sorted(e for e in entries() - before if not e.startswith((".", "__")))
     assert not new, f"the test suite wrote into the checkout: {new}"
+
+
+# --------------------------------------------------------------------------- the quickstart
+@pytest.fixture(scope="session")
+def quickstart_session(tmp_path_factory):
+    """The README's main job, ``qsls run configs/quickstart.yaml``, run once per session from a
+    clean folder and shared (the report's tests read it first, then test_run's reruns it):
+    ``(work, config, process, seconds)``."""
+    import subprocess
+    import sys
+    import time
+
+    work = tmp_path_factory.mktemp("qs")
+    cfg = work / "quickstart.yaml"
+    cfg.write_text((REPO / "configs" / "quickstart.yaml").read_text())
+    t0 = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "qsls.cli.main", "run", str(cfg)], cwd=work,
+        capture_output=True, text=True,
+    )  # fmt: skip
+    elapsed = time.perf_counter() - t0
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return work, cfg, proc, elapsed

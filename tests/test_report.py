@@ -156,12 +156,9 @@ def _run(config: Path, cwd: Path) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def quickstart(tmp_path_factory):
-    work = tmp_path_factory.mktemp("qs")
-    cfg = work / "quickstart.yaml"
-    cfg.write_text((REPO / "configs" / "quickstart.yaml").read_text())
-    proc = _run(cfg, work)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+def quickstart(quickstart_session):
+    """The session's quickstart run (conftest), read before test_run reruns it."""
+    work = quickstart_session[0]
     return work / "runs" / "quickstart", work / "runs" / "quickstart" / "report"
 
 

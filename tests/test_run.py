@@ -36,16 +36,9 @@ def _statuses(stderr: str) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def quickstart(tmp_path_factory):
-    """The README's main job, run once from a clean folder."""
-    work = tmp_path_factory.mktemp("qs")
-    cfg = work / "quickstart.yaml"
-    cfg.write_text(QUICKSTART.read_text())
-    t0 = time.perf_counter()
-    proc = _qsls("run", str(cfg), cwd=work)
-    elapsed = time.perf_counter() - t0
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return work, cfg, proc, elapsed
+def quickstart(quickstart_session):
+    """The README's main job, run once per session (conftest): this module reruns it in place."""
+    return quickstart_session
 
 
 @pytest.mark.slow
@@ -193,10 +186,10 @@ def test_quickstart_certified_controllers_export_with_their_gate_and_monitor(qui
     run_dir = work / "runs" / "quickstart"
     certified = [
         p.parent
-        for p in sorted((run_dir / "synth").glob("*/certificate.yaml"))
+        for p in sorted((run_dir / "calibrate").glob("*/*/certificate.yaml"))
         if yaml.safe_load(p.read_text())["status"] == "certified"
     ]
-    assert [p.name for p in certified] == ["l1_robust", "l1_robust_imitation"]
+    assert [p.name for p in certified] == ["l1_robust"]
     cc = find_compiler("gcc")
     rng = np.random.default_rng(1)
     ys = np.c_[rng.uniform(-1, 1, (2000, 3)), rng.uniform(-4.5, 4.5, (2000, 3))]

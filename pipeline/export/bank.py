@@ -23,6 +23,7 @@ from qsls.pipeline.control.guarantee import MonitorSpec
 from qsls.pipeline.control.monitor import NO_MONITOR, monitor_of
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import NX
 from qsls.pipeline.export.attitude import AttitudeLimits
 
 Precision = Literal["double", "float"]
@@ -94,13 +95,17 @@ def export_bank(cdir: ControllerDir) -> ExportBank:
         if not np.all(np.isfinite(a)):
             raise InputError(f"{cdir.folder}: {name} holds non-finite taps; refusing to export")
     first = 1 if c.strictly_proper else 0
+    # the attitude plant's extra channels (docs/model.md) carry no measurement: the Python
+    # runtime feeds them zeros (realize.pad_measurement), so the exported step, which takes
+    # the 6 measured channels only, drops their columns and computes the same u
+    ny = min(NX, taps.Phi_uy.shape[2])
     return ExportBank(
         T=c.T,
         uy_first=first,
-        uy=np.ascontiguousarray(taps.Phi_uy[first:], dtype=float),
+        uy=np.ascontiguousarray(taps.Phi_uy[first:, :, :ny], dtype=float),
         ux=np.ascontiguousarray(taps.Phi_ux[1:], dtype=float),
         bb=np.ascontiguousarray(-taps.Phi_xx[2:], dtype=float),
-        by=np.ascontiguousarray(-taps.Phi_xy[1:], dtype=float),
+        by=np.ascontiguousarray(-taps.Phi_xy[1:, :, :ny], dtype=float),
     )
 
 
