@@ -128,7 +128,7 @@ def command(
     for w in checked.warnings:
         typer.echo(f"warning: {w}", err=True)
     print_summary("qsls evaluate", checked.summary())
-    print_verdicts("Certified bound on the held-out flights", combined(checked.table, None))
+    print_verdicts("Certified bound on the held-out flights", combined(checked.table, checked.assumptions))
 
 
 def _fly(model: Path, controllers: list[Path], out: Path, options: Any, force: bool) -> None:

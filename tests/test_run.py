@@ -384,3 +384,27 @@ def test_euroc_config_on_the_real_flights(real_data, tmp_path):
     page = (run_dir / "report" / "index.html").read_text()
     assert "rho*" in page and "tested" in page
     assert (tmp_path / "runs" / "euroc" / "report" / "index.html").is_file()
+
+
+@pytest.mark.slow
+def test_flown_by_checks_every_assumption_from_the_controllers_own_log(quickstart, tmp_path):
+    """``evaluate --flown-by`` on the certified controller's own recorded flight reads its tick
+    log and checks every assumption (issue 32); a flight without one is named with the log it
+    needs."""
+    work = quickstart[0]
+    root = work / "runs" / "quickstart"
+    ctrl = root / "calibrate" / "regular" / "l1_robust"
+    own = root / "fly" / "flights" / "regular_s0_l1_robust"
+    proc = _qsls("evaluate", "--model", str(root / "fit"), "--controller", str(ctrl),
+                 "--flights", str(own), str(root / "ingest" / "heldout_1"),
+                 "--flown-by", "l1_robust", "--no-figures", "--out", str(tmp_path / "ev"),
+                 cwd=work)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    a = pd.read_parquet(tmp_path / "ev" / "assumptions.parquet")
+    assert list(a["flight"]) == ["regular_s0_l1_robust"]
+    flown = pd.read_parquet(root / "fly" / "assumptions.parquet")
+    row = flown[flown["flight"] == "regular_s0_l1_robust"].iloc[0]
+    for name in ("disturbance", "nominal", "invariance", "dense", "outliers"):
+        assert a.iloc[0][f"{name}_value"] == pytest.approx(row[f"{name}_value"], rel=1e-12)
+    assert "heldout_1: no ticks.parquet" in proc.stderr.replace(str(root / "ingest") + "/", "")
+    assert "l1_robust: every assumption holds on 1 flight" in proc.stdout

@@ -327,6 +327,9 @@ class EvaluateResult:
     out: Path
     table: pd.DataFrame
     warnings: tuple[str, ...]
+    assumptions: pd.DataFrame | None = None
+    """Every assumption on the flights a controller flew itself (``--flown-by``, from their
+    tick logs); None when there are none."""
 
     def summary(self) -> dict[str, Any]:
         t = self.table
@@ -479,6 +482,11 @@ def evaluate(
     table, samples = bound_check(
         held_out, bounds, training, flown_by=[options.flown_by] * len(held_out), progress=progress
     )
+    assumptions = None
+    if options.flown_by is not None:
+        bound = next(b for b in bounds if b.name == options.flown_by)
+        assumptions, missing = own_log_assumptions(flights, bound, training)
+        warnings += missing
     return write_evaluation(
         out,
         table,
@@ -488,7 +496,38 @@ def evaluate(
         inputs=[model_file, *folders, *[Path(f) for f in flights]],
         model=model,
         force=force,
+        assumptions=assumptions,
     )
+
+
+def own_log_assumptions(
+    flights: Sequence[Path], bound: ControllerBound, training: TrainingData
+) -> tuple[pd.DataFrame | None, list[str]]:
+    """Every assumption of ``bound``'s guarantee (:mod:`qsls.pipeline.evaluate.assumptions`) on
+    each flight that keeps the controller's own tick log (``ticks.parquet`` beside
+    ``flight.parquet``: ``qsls evaluate --fly`` and ``qsls calibrate`` write it); a flight
+    without one is named, with the log it needs."""
+    from qsls.pipeline.evaluate.assumptions import check_assumptions
+    from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
+    from qsls.pipeline.evaluate.certified import certified_premise
+
+    premise = certified_premise(bound.folder)
+    if premise is None:
+        return None, [f"--flown-by {bound.name}: its certificate states no premise to check"]
+    rows, missing = [], []
+    for f in flights:
+        folder = Path(f) if Path(f).is_dir() else Path(f).parent
+        if not (folder / TICKS_FILE).is_file():
+            missing.append(
+                f"{folder}: no {TICKS_FILE} (the controller's own log at its ticks: t, x_*, y_*, "
+                f"u_*, r_*, uff_*), so the assumptions of {bound.name}'s guarantee cannot be "
+                "checked on it; its premise is checked on the ingested flight"
+            )
+            continue
+        row = check_assumptions(TickLog.read(folder).log(), premise, training.distance)
+        rows.append({"flight": folder.name, "controller": bound.name, "status": bound.status,
+                     "crashed": False, **row})  # fmt: skip
+    return (pd.DataFrame(rows) if rows else None), missing
 
 
 def write_evaluation(
@@ -501,10 +540,15 @@ def write_evaluation(
     inputs: Sequence[Path],
     model: ErrorModel,
     force: bool,
+    assumptions: pd.DataFrame | None = None,
 ) -> EvaluateResult:
     """Write the stage folder: ``evaluation.parquet``, ``evaluation.json``,
-    ``samples.parquet`` and figures."""
+    ``samples.parquet``, figures and, with ``assumptions``, ``assumptions.parquet``."""
+    from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
+
     with StageWriter(out, "evaluate", options=options, inputs=inputs, force=force) as w:
+        if assumptions is not None:
+            w.write_parquet(ASSUMPTIONS_FILE, assumptions)
         totals = write_tables(w, table, samples, warnings, model, options)
         w.results.update(
             {
@@ -513,7 +557,9 @@ def write_evaluation(
                 "warnings": len(warnings),
             }
         )
-    return EvaluateResult(out=Path(out), table=table, warnings=tuple(warnings))
+    return EvaluateResult(
+        out=Path(out), table=table, warnings=tuple(warnings), assumptions=assumptions
+    )
 
 
 def write_tables(
