@@ -30,6 +30,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
+from qsls.pipeline.core.plant import NX
 from qsls.pipeline.export.attitude import LimitOptions
 from qsls.pipeline.export.bank import (
     PREFIX_RE,
@@ -209,7 +210,9 @@ def closed_loop(runtime: Any, model: Any, w: np.ndarray, e: np.ndarray) -> np.nd
     x = np.zeros(model.A.shape[0])
     xs = [x]
     for wk, ek in zip(w, e, strict=True):
-        u = np.asarray(runtime.step(model.C @ x + ek), dtype=float)
+        # the measured channels (an attitude-plant model's extra channels carry no error and
+        # the exported step does not take them: docs/model.md)
+        u = np.asarray(runtime.step((model.C @ x)[:NX] + ek[:NX]), dtype=float)
         x = model.A @ x + model.B @ u + model.H @ wk
         xs.append(x)
     return np.array(xs)

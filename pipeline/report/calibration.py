@@ -54,7 +54,7 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
             r["controller"], r["condition"], status_words(r["status"])[0], r["flights"],
             f"{g4(r['alpha'])} ({how})", g4(r["lambda_hat"]),
             ", ".join(f"{k} {g4(parts.get(k))}" for k in PARTS if k in parts),
-            g4(r["rho_star"]), g4(r["tested_range"]),
+            f"{g4(r['rho_star'])} / {g4(r['tested_range'])}",
         ])  # fmt: skip
         tol.append([r["controller"], r["condition"],
                     *(g4(cal.tolerances.get(q)) if cal and cal.tolerances else "-" for q in QUANTITIES)])  # fmt: skip
@@ -62,18 +62,18 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
         failed = ", ".join(f"{k} {v}" for k, v in sorted(r["validation_first_failed"].items()))
         valid.append([
             r["controller"], r["condition"], r["validation_flights"], r["validation_broken"],
-            pct(r["validation_share"]), f"{pct(lo)} to {pct(hi)}", g4(r["alpha"]),
+            f"{pct(r['validation_share'])} ({pct(lo)} to {pct(hi)})", g4(r["alpha"]),
             failed or "-", "yes" if r["validation_agrees"] else "NO",
         ])  # fmt: skip
     sec.table(
         ["controller", "condition", "status", "calibration flights", "alpha", "lambda_hat",
-         "largest ratio per quantity", "calibrated rho*", "flights reached dist"],
+         "largest ratio per quantity", "calibrated rho* / flights reached"],
         main,
         "The calibration: lambda_hat inflates every premise quantity; the largest ratio shows which "
         "quantity drives it; rho* under the calibrated premise beside the distance the calibration "
         "flights reached (certified needs it to reach rho*)",
         notes=[f"{r['controller']} ({r['condition']}): {r['reason']}" for r, _ in rows if r["reason"]],
-        text_cols=[2, 4, 6],
+        text_cols=[2, 4, 6, 7],
     )  # fmt: skip
     if any(any(c != "-" for c in t[2:]) for t in tol):
         sec.table(
@@ -83,12 +83,12 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
             "before the robustness condition fails (m: in whole outliers)",
         )
     sec.table(
-        ["controller", "condition", "validation flights", "broke an assumption", "share",
-         "95% interval (Clopper-Pearson)", "alpha", "first assumption broken", "consistent with alpha"],
+        ["controller", "condition", "validation flights", "broke an assumption",
+         "share (95% Clopper-Pearson)", "alpha", "first assumption broken", "consistent with alpha"],
         valid,
         "Validation on fresh flights: every assumption (disturbance, dist(x_hat) <= a, invariance, "
         "dense, outliers) checked against the calibrated premise; consistent when the interval's "
         "lower end does not exceed alpha",
-        text_cols=[5, 7, 8],
+        text_cols=[4, 6, 7],
     )  # fmt: skip
     return sec

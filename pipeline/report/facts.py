@@ -178,9 +178,13 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
     for folder in stages.get("synth", []):
         from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
 
+        calibrated = _calibrated_folders(stages)
         for cert_file in sorted(folder.glob(f"*/{CERTIFICATE_FILE}")):
-            cert = Certificate.load(cert_file)
-            f.controllers.append(ControllerFacts.of(cert, f.rel(folder), cert_file.parent.name))
+            # a calibrated certificate is the controller's (docs/calibration.md)
+            own = calibrated.get(cert_file.parent.name)
+            where = own.parent if own is not None else folder
+            cert = Certificate.load(own if own is not None else cert_file)
+            f.controllers.append(ControllerFacts.of(cert, f.rel(where), cert_file.parent.name))
     for folder in stages.get("sweep", []):
         if f.sweep is None:
             f.sweep = _parquet(folder / "sweep.parquet")
@@ -189,6 +193,20 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
     for folder in stages.get("evaluate", []):
         _read_evaluation(f, folder)
     return f
+
+
+def _calibrated_folders(stages: dict[str, list[Path]]) -> dict[str, Path]:
+    """Controller name -> its calibrated certificate's folder, in the calibration's first
+    condition (the one the run's flights are checked against), from ``calibration.json``."""
+    out: dict[str, Path] = {}
+    for folder in stages.get("calibrate", []):
+        doc = _json(folder / "calibration.json")
+        for row in doc.get("certificates", []) if isinstance(doc, dict) else []:
+            first = doc["certificates"][0]["condition"]
+            cdir = folder / str(row["condition"]) / str(row["controller"])
+            if row["condition"] == first and (cdir / "certificate.yaml").is_file():
+                out.setdefault(str(row["controller"]), cdir)
+    return out
 
 
 def _read_evaluation(f: Facts, folder: Path) -> None:
@@ -296,6 +314,8 @@ def heldout_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict:
         if len(bad):
             r = bad.iloc[0]
             text += f"; first failure: {r['first_failed']} on {r['flight']}"
+        if not c.certified:
+            text += f" ({c.status} premise: no guarantee claimed)"
         return HeldoutVerdict(text, "ok" if ok == n else "bad", n, ok, float(n - ok), True)
     rows, theorem = own_rows(f, c.name)
     if rows is None:

@@ -209,6 +209,8 @@ def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) 
         opts.seed_lists()
     except ConfigError as exc:
         raise ConfigError(f"{src('calibrate')}: {exc}") from None
+    # checked here, against every simulated flight; the stage's outputs do not depend on them
+    opts = opts.model_copy(update={"design_seeds": list(given.get("design_seeds") or [])})
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         from qsls.pipeline.evaluate.calibrate import calibrate
