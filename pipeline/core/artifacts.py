@@ -40,8 +40,12 @@ from qsls.pipeline.core.locks import (  # clean_stale: re-exported for the repor
     check_writable,
     clean_stale,
     hold_output,
+    is_temporary,
     make_parent,
+    make_temporary,
+    mark_temporary,
     release_output,
+    temporary_name,
 )
 
 MANIFEST = "manifest.json"
@@ -158,7 +162,8 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder and a rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}{_TMP_MARK}{os.getpid()}")
+    folder = make_temporary(path)  # a signed temporary folder: the next writer may remove it
+    tmp = folder / path.name
     try:
         with open(tmp, "wb") as fh:
             fh.write(data)
@@ -166,8 +171,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def dump_yaml(obj: Any) -> str:
@@ -320,10 +324,7 @@ class StageWriter:
         make_parent(self.out, "output folder")
         hold_output(self.out)
         clean_stale(self.out)
-        self.tmp = self.out.with_name(f".{self.out.name}{_TMP_MARK}{os.getpid()}")
-        if self.tmp.exists():
-            shutil.rmtree(self.tmp)
-        self.tmp.mkdir()
+        self.tmp = make_temporary(self.out)
         self._inputs = describe_inputs(self.inputs)
         return self
 
@@ -408,10 +409,14 @@ def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
 
 
-def refuse_overlap(out: Path, inputs: Iterable[Path], what: str = "output folder") -> None:
+def refuse_overlap(
+    out: Path, inputs: Iterable[Path], what: str = "output folder", *, contains: bool = True
+) -> None:
     """An output (``what``: folder or file) that is, contains or lies inside an input would
     destroy it on publish: refused with one line, whatever ``--force`` says (resolved,
-    symlinks followed). The ``--config`` files the command read are inputs too."""
+    symlinks followed). The ``--config`` files the command read are inputs too.
+    ``contains=False`` allows an output folder holding an input (a run folder, which is
+    never replaced as a whole)."""
     from qsls.pipeline.core.config import config_files
 
     o = Path(out).resolve()
@@ -419,7 +424,7 @@ def refuse_overlap(out: Path, inputs: Iterable[Path], what: str = "output folder
         i = Path(given).resolve()
         if o == i:
             how = "is"
-        elif o in i.parents:
+        elif o in i.parents and contains:
             how = "contains"
         elif i in o.parents:
             how = "lies inside"
@@ -434,9 +439,22 @@ def refuse_overlap(out: Path, inputs: Iterable[Path], what: str = "output folder
 def publish(tmp: Path, out: Path) -> None:
     """Move a finished temporary folder to ``out``, replacing an old one by renames only."""
     old = None
-    if out.exists():
-        old = out.with_name(f".{out.name}{_OLD_MARK}{os.getpid()}")
+    if out.is_symlink():  # --force onto a link: the link is replaced, its target left alone
+        old = temporary_name(out, _OLD_MARK)
         os.replace(out, old)
+        os.replace(tmp, out)
+        old.unlink()
+        return
+    if out.exists():
+        old = temporary_name(out, _OLD_MARK)
+        if old.exists() or old.is_symlink():
+            if not is_temporary(old):
+                raise OutputExistsError(
+                    f"{old} is in the way and was not written by qsls; move it away and retry"
+                )
+            shutil.rmtree(old)
+        os.replace(out, old)
+        mark_temporary(old)  # signed, so a run killed before the rmtree below has it removed
     os.replace(tmp, out)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)

@@ -14,7 +14,6 @@ files written beside it, with the wide tables as CSV files.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +25,8 @@ from qsls.pipeline.core.artifacts import (
     clean_stale,
     dump_yaml,
     hold_output,
+    make_parent,
+    make_temporary,
     publish,
     read_manifest,
     release_output,
@@ -241,10 +242,10 @@ def report(
     subtitle = _subtitle(info, name)
     page = render_html(title, subtitle, sections)
     md, files = render_markdown(title, subtitle, sections)
-    clean_stale(out)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    tmp.mkdir(parents=True, exist_ok=False)
+    make_parent(out, "output folder")
     hold_output(out)
+    clean_stale(out)
+    tmp = make_temporary(out)
     try:
         (tmp / "index.html").write_text(page)
         (tmp / "report.md").write_text(md)

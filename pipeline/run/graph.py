@@ -89,7 +89,8 @@ class StageGraph:
     def folder(self, stage_id: str) -> Path:
         return self.root / stage_id
 
-    def _out(self, s: Stage) -> Path:
+    def out(self, s: Stage) -> Path:
+        """The folder stage ``s`` writes."""
         return s.folder if s.folder is not None else self.folder(s.id)
 
     def key(self, s: Stage, keys: Mapping[str, str]) -> str:
@@ -203,7 +204,7 @@ class StageGraph:
     def _stale(self, state: RunState, s: Stage, key: str) -> tuple[str | None, RunState]:
         """Why ``s`` must run (or None), and ``state`` with its touched files restamped
         (saved at once: the next run then hashes them no more)."""
-        why, checked = state.check(s.id, key, self._out(s), self.versions)
+        why, checked = state.check(s.id, key, self.out(s), self.versions)
         if checked is not state:
             checked.save(self.root)
         return why, checked
@@ -211,7 +212,7 @@ class StageGraph:
     def _run_one(
         self, state: RunState, s: Stage, key: str, why: str | None
     ) -> tuple[RunState, StageOutcome]:
-        out = self._out(s)
+        out = self.out(s)
         if why is None:
             rec = state.stages[s.id]
             return state, StageOutcome(s.id, s.kind, "skipped", key, out, notes=rec.notes)

@@ -13,6 +13,7 @@ Relative paths in the config are relative to the config file's folder.
 
 from __future__ import annotations
 
+import os
 import subprocess
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -23,7 +24,13 @@ from pydantic import Field, PrivateAttr, field_validator
 
 from qsls.pipeline import __version__
 from qsls.pipeline.control.options import SweepSection, SynthOptions
-from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_json, sha256_file, to_plain
+from qsls.pipeline.core.artifacts import (
+    atomic_write_bytes,
+    dump_json,
+    refuse_overlap,
+    sha256_file,
+    to_plain,
+)
 from qsls.pipeline.core.config import Options, read_yaml, validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.locks import (
@@ -214,18 +221,63 @@ def run(
         raise ConfigError(
             f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)}, fly)"
         )
+    if root.name in ("", ".", ".."):  # --out . / --out ..: the folder's own name
+        root = Path(os.path.abspath(root))
+    check_run_root(root)
     check_writable(root, "run folder")
     # options checked before anything is written; an unchanged config is not planned again
     versions = run_versions()
     fp = fingerprint(cfg, config_path.parent, root, versions)
     graph = planned_graph(root, fp, lambda: plan(cfg, config_path, root, progress), versions)
+    refuse_run_overlap(root, graph)
+    check_foreign_folder(root)
     try:
         root.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise unwritable(root, exc, "run folder") from None
     with FolderLock(root, "run folder"):
-        clean_dead_temporaries(root)
+        # the levels a run writes: the run folder and the parents of its stage folders
+        clean_dead_temporaries([root, *(graph.out(s).parent for s in graph.stages)])
         return _run_locked(cfg, config_path, root, graph, force, from_stage, on_stage)
+
+
+def check_run_root(root: Path) -> None:
+    """Refuse a filesystem root or a file as the run folder (before anything is read)."""
+    resolved = Path(root).resolve()
+    if resolved == resolved.parent:
+        raise ConfigError(
+            f"run folder {root}: a filesystem root cannot be a run folder; "
+            "pass --out with a folder of its own (e.g. --out runs/NAME)"
+        )
+    if resolved.exists() and not resolved.is_dir():
+        raise ConfigError(
+            f"run folder {root} exists and is not a folder; pass --out with a folder of its own"
+        )
+
+
+def check_foreign_folder(root: Path) -> None:
+    """Refuse an existing folder that holds files and is not a run folder (no run.json nor
+    run_state.json): a run writes stage folders (``fit``, ``report``, ...) into it and
+    would replace the user's own (``--out .``, ``--out ..``, a project folder)."""
+    from qsls.pipeline.run.state import STATE_FILE
+
+    root = Path(root)
+    if not root.is_dir() or (root / RUN_FILE).exists() or (root / STATE_FILE).exists():
+        return
+    if next(iter(os.scandir(root)), None) is not None:
+        raise ConfigError(
+            f"run folder {root} holds files and is not a qsls run folder (no {RUN_FILE}); "
+            "pass --out with a new or empty folder (e.g. --out runs/NAME)"
+        )
+
+
+def refuse_run_overlap(root: Path, graph: StageGraph) -> None:
+    """Refuse, before anything is written, a run folder that is or lies inside an input
+    (a bag folder, a log file; symlinks followed) or whose stage folders would overlap one."""
+    inputs = [p for s in graph.stages for p in s.external]
+    refuse_overlap(root, inputs, "run folder", contains=False)
+    for s in graph.stages:
+        refuse_overlap(graph.out(s), inputs, "stage folder")
 
 
 def _run_locked(
