@@ -238,7 +238,7 @@ class BagSource:
             from mcap.reader import make_reader
 
             self._fh = open(self.path, "rb")  # noqa: SIM115 (closed in close())
-            self._mcap = make_reader(self._fh)
+            self._mcap = make_reader(self._fh, validate_crcs=True)
             summary = self._mcap.get_summary()
             if summary is None:
                 raise InputError(
@@ -427,6 +427,8 @@ class BagSource:
                 found = self._indexed_fast(list({i.topic: i for i in fixed}.values()), progress)
             rest = list({i.topic: i for i in infos if i.topic not in found}.values())
             raws = self._raw_pass(rest, progress) if rest else {}
+            for info in rest:
+                self._check_count(info, len(raws[info.topic][0]))
             return [
                 found[t] if t in found else self._decode(known[t], raws[t], frame, fast)
                 for t, frame in requests
@@ -440,6 +442,16 @@ class BagSource:
             ) from None
         finally:
             progress.finish()
+
+    def _check_count(self, info: TopicInfo, n: int) -> None:
+        """Refuse a topic read with fewer (or more) messages than the bag's own index or
+        statistics list: a damaged record silently ends the per-message readers' chunk."""
+        if info.count > 0 and n != info.count:
+            raise InputError(
+                f"{self.path}: topic {info.topic}: {n} messages read where the bag's index "
+                f"lists {info.count} (a damaged record ends the rest of its chunk); "
+                f"{damaged_hint(self.kind)}"
+            )
 
     def _indexed_fast(self, infos: list[TopicInfo], progress: Progress) -> dict[str, Trajectory]:
         """Fixed-layout topics through the bag's own index: ROS1 (:mod:`ros1index`), sqlite3
