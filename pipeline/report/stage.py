@@ -23,13 +23,16 @@ from qsls.pipeline.core.artifacts import (
     MANIFEST,
     check_output,
     clean_stale,
+    dump_json,
     dump_yaml,
     hold_output,
     make_parent,
     make_temporary,
+    package_versions,
     publish,
     read_manifest,
     release_output,
+    sha256_file,
 )
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
@@ -114,6 +117,8 @@ def _stage_dirs(run_dir: Path) -> dict[str, list[Path]]:
         try:
             stage = json.loads(m.read_text()).get("stage", "?")
         except json.JSONDecodeError:
+            continue
+        if stage == "report":  # a report (its own, or another) is no evidence of the run
             continue
         found.setdefault(stage, []).append(m.parent)
     return found
@@ -222,6 +227,26 @@ def _subtitle(info: dict[str, Any], name: str) -> str:
     )
 
 
+def _write_manifest(tmp: Path, name: str) -> None:
+    """``manifest.json``, as every stage folder has: the stage, the run, each file's sha256
+    and the package versions (no wall time: the report's files are byte-identical)."""
+    from qsls.pipeline import __version__
+
+    files = {
+        f.relative_to(tmp).as_posix(): sha256_file(f)
+        for f in sorted(tmp.rglob("*"))
+        if f.is_file() and not f.name.startswith(".")
+    }
+    manifest = {
+        "stage": "report",
+        "qsls_version": __version__,
+        "run": name,
+        "files": files,
+        "packages": package_versions(),
+    }
+    (tmp / MANIFEST).write_text(dump_json(manifest))
+
+
 def report(
     run_dir: Path,
     out: Path | None = None,
@@ -251,6 +276,7 @@ def report(
         (tmp / "report.md").write_text(md)
         for fname, data in files.items():
             (tmp / fname).write_bytes(data)
+        _write_manifest(tmp, name)
         publish(tmp, out)
     finally:
         if tmp.exists():
