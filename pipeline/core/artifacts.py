@@ -17,6 +17,7 @@ YAML, JSON, NPZ and PNG files. Only ``manifest.json`` records the wall time.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
@@ -454,7 +455,8 @@ def publish(tmp: Path, out: Path) -> None:
                 )
             shutil.rmtree(old)
         os.replace(out, old)
-        mark_temporary(old)  # signed, so a run killed before the rmtree below has it removed
+        with contextlib.suppress(OSError):  # signed, so a run killed before the rmtree
+            mark_temporary(old)  # below has it removed (a full disk: it stays unsigned)
     os.replace(tmp, out)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)

@@ -41,10 +41,25 @@ def pid_alive(pid: int) -> bool:
     return True
 
 
+FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+"""The errors of a full disk (or quota, or file size limit)."""
+
+
+def full_message(exc: OSError, target: Path | None = None) -> str:
+    """One line for a write that found the disk full."""
+    where = f" {exc.filename}" if exc.filename else (f" {target}" if target else "")
+    return (
+        f"cannot write{where}: {exc.strerror or 'no space left on device'}; nothing partial "
+        "was kept: free some space (or choose an --out on another disk) and run again"
+    )
+
+
 def unwritable(target: Path, exc: OSError, what: str = "output") -> UnwritableError:
     """One line for an output location that cannot be written: which folder, and why."""
     where = Path(exc.filename).parent if exc.filename else Path(target).parent
     why = exc.strerror or type(exc).__name__
+    if exc.errno in FULL:
+        return UnwritableError(full_message(exc, target))
     return UnwritableError(
         f"cannot write the {what} {target}: folder {where} is not writable ({why}); "
         "choose another --out"
@@ -125,8 +140,15 @@ class FolderLock:
             if same:
                 break
             os.close(fd)
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        except OSError as exc:  # a full disk: no empty lock file is left behind
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+            os.close(fd)
+            raise unwritable(self.target, OSError(exc.errno, exc.strerror, str(self.path)),
+                             self.what) from None  # fmt: skip
         self._fd = fd
         self._owner = os.getpid()
         return self
