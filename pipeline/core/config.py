@@ -53,8 +53,22 @@ def read_yaml(path: Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: config file not found")
+    raw = path.read_bytes()
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"{path}: {len(raw)} bytes, more than a config may hold ({MAX_CONFIG_BYTES}); "
+            "pass the YAML config, not a data file"
+        )
     try:
-        data = yaml.safe_load(path.read_text())
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line}); "
+            "save the config as UTF-8 and try again"
+        ) from None
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
@@ -64,7 +78,31 @@ def read_yaml(path: Path) -> dict[str, Any]:
         return {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of option names to values at the top level")
+    if _expanded_size(data, MAX_CONFIG_VALUES) > MAX_CONFIG_VALUES:
+        raise ConfigError(
+            f"{path}: expands to more than {MAX_CONFIG_VALUES} values (YAML aliases that "
+            "repeat each other, or refer to themselves); write the values out"
+        )
     return data
+
+
+MAX_CONFIG_BYTES = 4 << 20
+"""A config file's size limit (configs are a few kB)."""
+MAX_CONFIG_VALUES = 200_000
+"""How many values a config may expand to once its YAML aliases are followed (a 1 kB alias
+"bomb" expands to billions; every stage walks the options, so it would never return)."""
+def _expanded_size(obj: Any, cap: int) -> int:
+    """How many values ``obj`` holds with shared (aliased) parts counted each time they
+    occur, counting no further than just past ``cap``."""
+    n, stack = 0, [obj]
+    while stack and n <= cap:
+        item = stack.pop()
+        n += 1
+        if isinstance(item, Mapping):
+            stack.extend(item.values())
+        elif isinstance(item, list | tuple):
+            stack.extend(item)
+    return n
 
 
 def merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:

@@ -75,8 +75,8 @@ def _json(path: Path) -> dict[str, Any]:
     if not path.is_file():
         return {}
     try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError:
+        doc = json.loads(path.read_bytes())
+    except ValueError:  # not JSON, or not UTF-8
         return {}
     return doc if isinstance(doc, dict) else {}
 

@@ -227,6 +227,20 @@ def _subtitle(info: dict[str, Any], name: str) -> str:
     )
 
 
+def _run_info(run_dir: Path) -> dict[str, Any]:
+    """The run's ``run.json`` (empty when absent); one line when it is not JSON."""
+    path = run_dir / RUN_FILE
+    if not path.is_file():
+        return {}
+    try:
+        info = json.loads(path.read_bytes())
+    except ValueError:
+        raise InputError(
+            f"{path}: not the JSON file qsls writes; run 'qsls run CONFIG' again to rewrite it"
+        ) from None
+    return info if isinstance(info, dict) else {}
+
+
 def _write_manifest(tmp: Path, name: str) -> None:
     """``manifest.json``, as every stage folder has: the stage, the run, each file's sha256
     and the package versions (no wall time: the report's files are byte-identical)."""
@@ -258,7 +272,7 @@ def report(
     the report belongs to its run, so two runs of one config never share one)."""
     run_dir = Path(run_dir)
     check_run_folder(run_dir)
-    info = json.loads((run_dir / RUN_FILE).read_text()) if (run_dir / RUN_FILE).is_file() else {}
+    info = _run_info(run_dir)
     name = info.get("name", run_dir.name)
     out = Path(out) if out is not None else run_dir / REPORT_DIR
     check_output(out, force, _run_inputs(run_dir, out))

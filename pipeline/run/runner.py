@@ -54,6 +54,22 @@ OnStage = Callable[[str, str, int, int, str], None]
 STAGE_ORDER = ("simulate", "ingest", "fit", "sweep", "synth", "evaluate", "report")
 
 
+def plain_name(v: str, what: str) -> str:
+    """``v`` when it is a plain folder name: not empty, no ``/`` or ``\\``, not starting
+    with ``.`` (no ``..``, no hidden folder), no control character (a newline)."""
+    if (
+        not v
+        or any(c in v for c in "/\\")
+        or v.startswith(".")
+        or any(ord(c) < 0x20 or ord(c) == 0x7F for c in v)
+    ):
+        raise ValueError(
+            f"{what} must be a plain folder name (no '/', '\\', leading '.' or control "
+            f"characters such as a newline), got {v!r}"
+        )
+    return v
+
+
 class FlightSpec(Options):
     """One flight: simulated (``simulate`` options) or a real log (``sources`` / ``vio``+``truth``)."""
 
@@ -68,9 +84,7 @@ class FlightSpec(Options):
     @field_validator("name")
     @classmethod
     def _safe_name(cls, v: str) -> str:
-        if not v or any(c in v for c in "/\\") or v.startswith("."):
-            raise ValueError("a flight name must be a plain folder name")
-        return v
+        return plain_name(v, "a flight name")
 
 
 class RunConfig(Options):
@@ -112,6 +126,11 @@ class RunConfig(Options):
     evaluate: EvaluateSection | None = None
     report: bool = True
     _given: dict[str, Any] | None = PrivateAttr(None)
+
+    @field_validator("name")
+    @classmethod
+    def _safe_name(cls, v: str) -> str:
+        return plain_name(v, "the run name")
 
     def written(self, key: str) -> Any:
         """Section ``key`` as it was written: the file's mapping when the config was read
@@ -253,6 +272,14 @@ def check_run_root(root: Path) -> None:
         raise ConfigError(
             f"run folder {root} exists and is not a folder; pass --out with a folder of its own"
         )
+    from qsls.pipeline.run.state import STATE_FILE
+
+    for name in (RUN_FILE, STATE_FILE):
+        own = Path(root) / name
+        if own.is_symlink() or (own.exists() and not own.is_file()):
+            raise ConfigError(
+                f"{own} is not a file qsls wrote (a folder or a link); move it away and run again"
+            )
 
 
 def check_foreign_folder(root: Path) -> None:
