@@ -29,10 +29,13 @@ is the only thing that differs between runs)
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import os
 from collections import Counter
+from collections.abc import Callable
+from concurrent.futures import CancelledError
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -404,7 +407,9 @@ def s_max_table(results: list[list[dict[str, Any]]]) -> Any:
     """The tasks' rows in one table, ordered by ``T`` and setting (``eps_e`` before ``radius``)."""
     import pandas as pd
 
-    rows = sorted((r for res in results for r in res), key=lambda r: tuple(r[k] for k in S_MAX_KEYS))
+    rows = sorted(
+        (r for res in results for r in res), key=lambda r: tuple(r[k] for k in S_MAX_KEYS)
+    )
     return pd.DataFrame(rows, columns=[*S_MAX_KEYS, "s_max", "min_norm_phi_xy"])
 
 
@@ -436,50 +441,98 @@ def _run_dask(
 ) -> list[Any]:
     """The tasks on a Dask cluster; one line when the workers never come or all leave (their
     tasks would wait forever) or a worker dies on a task three times (``KilledWorker``)."""
-    import time
-
     try:
-        from distributed import Client, KilledWorker, wait
+        from distributed import Client
     except ImportError as exc:  # pragma: no cover - dask is a dependency
         raise InputError(f"--scheduler needs dask.distributed ({exc})") from None
     try:
         client = Client(scheduler, timeout="10s", set_as_default=False)
     except (OSError, TimeoutError) as exc:
         raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+    quiet = _quiet_dask()  # its client logs a traceback when the scheduler goes away
     try:
-        _await_workers(client, scheduler, worker_timeout, progress)
-        futs = [client.submit(fn, arg, pure=False) for fn, arg in tasks]
-        index = {f.key: i for i, f in enumerate(futs)}
-        results: list[Any] = [None] * len(tasks)
-        pending, alone_since = set(futs), None
-        while pending:
-            try:
-                with client.as_current():  # wait() finds its client there
-                    done, pending = wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
-            except TimeoutError:
-                done = set()
-            for fut in done:
-                i = index[fut.key]
-                try:
-                    results[i] = fut.result()
-                except KilledWorker as exc:
-                    raise InputError(
-                        f"Dask workers at {scheduler} died running a task ({exc}); "
-                        "check the workers' memory and logs"
-                    ) from None
-                progress.advance(weights[i])
-            if done or _n_workers(client):
-                alone_since = None
-                continue
-            alone_since = alone_since or time.monotonic()
-            if time.monotonic() - alone_since > worker_timeout:
-                raise InputError(
-                    f"every Dask worker at {scheduler} left ({len(pending)} of {len(tasks)} "
-                    f"tasks unfinished, none back within {worker_timeout:g} s); restart the workers"
-                )
-        return results
+        return _gather_dask(client, tasks, scheduler, progress, weights, worker_timeout)
+    except (CancelledError, OSError) as exc:  # FuturesCancelledError, CommClosedError
+        what = (
+            "cancelled the sweep's tasks"
+            if client.status == "running"
+            else "is gone: lost the Dask scheduler"
+        )
+        raise InputError(
+            f"the Dask scheduler at {scheduler} {what} mid-sweep ({type(exc).__name__}); "
+            "check that it is still running (or restart it and its workers) and rerun the sweep"
+        ) from None
     finally:
-        client.close()
+        with contextlib.suppress(Exception):
+            client.close(timeout=2)
+        quiet()
+
+
+def _quiet_dask() -> Callable[[], None]:
+    """Silence ``distributed``'s own error logging (the lost scheduler becomes one line);
+    returns what restores it."""
+    import logging
+
+    names = [
+        "distributed",
+        *(n for n in logging.root.manager.loggerDict if n.startswith("distributed.")),
+    ]
+    logs = [logging.getLogger(n) for n in names]
+    levels = [log.level for log in logs]
+    for log in logs:
+        log.setLevel(logging.CRITICAL)
+
+    def restore() -> None:
+        for log, level in zip(logs, levels, strict=True):
+            log.setLevel(level)
+
+    return restore
+
+
+def _gather_dask(
+    client: Any,
+    tasks: list[tuple[Any, Any]],
+    scheduler: str,
+    progress: Progress,
+    weights: list[int],
+    worker_timeout: float,
+) -> list[Any]:
+    """The tasks' results (``_run_dask``'s loop: a lost scheduler raises out of it)."""
+    import time
+
+    from distributed import KilledWorker, wait
+
+    _await_workers(client, scheduler, worker_timeout, progress)
+    futs = [client.submit(fn, arg, pure=False) for fn, arg in tasks]
+    index = {f.key: i for i, f in enumerate(futs)}
+    results: list[Any] = [None] * len(tasks)
+    pending, alone_since = set(futs), None
+    while pending:
+        try:
+            with client.as_current():  # wait() finds its client there
+                done, pending = wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            done = set()
+        for fut in done:
+            i = index[fut.key]
+            try:
+                results[i] = fut.result()
+            except KilledWorker as exc:
+                raise InputError(
+                    f"Dask workers at {scheduler} died running a task ({exc}); "
+                    "check the workers' memory and logs"
+                ) from None
+            progress.advance(weights[i])
+        if done or _n_workers(client):
+            alone_since = None
+            continue
+        alone_since = alone_since or time.monotonic()
+        if time.monotonic() - alone_since > worker_timeout:
+            raise InputError(
+                f"every Dask worker at {scheduler} left ({len(pending)} of {len(tasks)} "
+                f"tasks unfinished, none back within {worker_timeout:g} s); restart the workers"
+            )
+    return results
 
 
 # --------------------------------------------------------------------------- sweep
