@@ -212,3 +212,11 @@ def test_run_out_root_or_a_folder_of_other_files_is_one_line(tmp_path, out):
     line = _one_line_refusal(_qsls("run", cfg, "--out", out, "--force", cwd=cwd))
     assert "--out" in line
     assert _tree(tmp_path) == before
+
+
+def test_a_published_folder_holds_only_what_the_stage_wrote(tmp_path):
+    out = tmp_path / "stage"
+    for force in (False, True):
+        with StageWriter(out, "test", force=force) as w:
+            w.write_text("a.txt", "a")
+        assert sorted(p.name for p in out.iterdir()) == ["a.txt", "manifest.json"]

@@ -36,6 +36,7 @@ from qsls.pipeline import __version__
 from qsls.pipeline.core.errors import InputError, OutputExistsError
 from qsls.pipeline.core.locks import (  # clean_stale: re-exported for the report stage
     OLD_MARK,
+    TEMP_MARKER,
     TMP_MARK,
     check_unlocked,
     check_writable,
@@ -395,11 +396,16 @@ class StageWriter:
         (self.tmp / MANIFEST).write_text(dump_json(manifest))
 
 
-def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
+def check_output(
+    out: Path, force: bool, inputs: Iterable[Path] = (), known: Sequence[str] = ()
+) -> None:
     """Refuse an output folder that overlaps an input, cannot be written (a read-only or
     missing location, :func:`check_writable`), is being written by another process (its
     lock, :func:`check_unlocked`; :class:`StageWriter` holds it while it writes), or exists
-    (unless ``force``)."""
+    (unless ``force``). ``--force`` replaces only a folder qsls wrote: one holding files its
+    ``manifest.json`` does not list (the user's notes) is refused, never deleted
+    (:func:`foreign_files`; ``known``: name patterns taken as qsls's in a folder without a
+    manifest, as older reports had)."""
     out = Path(out)
     refuse_overlap(out, inputs)
     check_writable(out, "output folder")
@@ -408,6 +414,38 @@ def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
         raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
+    foreign = foreign_files(out, known) if out.exists() else []
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise OutputExistsError(
+            f"{out} holds files qsls did not write ({shown}); --force replaces only a folder "
+            "a qsls command wrote: move them away or choose another --out"
+        )
+
+
+def foreign_files(folder: Path, known: Sequence[str] = ()) -> list[str]:
+    """The files of ``folder`` (relative paths) that its ``manifest.json`` does not list:
+    what ``--force`` would delete that qsls did not write. Without a readable manifest every
+    file is foreign, unless its name matches a pattern of ``known``."""
+    import fnmatch
+
+    folder = Path(folder)
+    listed: set[str] = {MANIFEST, TEMP_MARKER}  # the marker: a publish killed half-way
+    try:
+        files = json.loads((folder / MANIFEST).read_bytes()).get("files", {})
+        listed |= set(files) if isinstance(files, dict) else set()
+        patterns: Sequence[str] = ()
+    except (OSError, ValueError, AttributeError):
+        patterns = known
+    out = []
+    for f in sorted(folder.rglob("*")):
+        if f.is_dir() and not f.is_symlink():
+            continue
+        rel = f.relative_to(folder).as_posix()
+        if rel in listed or any(fnmatch.fnmatchcase(rel, p) for p in patterns):
+            continue
+        out.append(rel)
+    return out
 
 
 def refuse_overlap(
@@ -444,6 +482,7 @@ def publish(tmp: Path, out: Path) -> None:
         old = temporary_name(out, _OLD_MARK)
         os.replace(out, old)
         os.replace(tmp, out)
+        (out / TEMP_MARKER).unlink(missing_ok=True)
         old.unlink()
         return
     if out.exists():
@@ -458,5 +497,6 @@ def publish(tmp: Path, out: Path) -> None:
         with contextlib.suppress(OSError):  # signed, so a run killed before the rmtree
             mark_temporary(old)  # below has it removed (a full disk: it stays unsigned)
     os.replace(tmp, out)
+    (out / TEMP_MARKER).unlink(missing_ok=True)  # a finished folder, no longer a temporary
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)

@@ -227,6 +227,9 @@ def _subtitle(info: dict[str, Any], name: str) -> str:
     )
 
 
+_REPORT_FILES = ("index.html", "report.md", "*.png", "*.csv")
+
+
 def _run_info(run_dir: Path) -> dict[str, Any]:
     """The run's ``run.json`` (empty when absent); one line when it is not JSON."""
     path = run_dir / RUN_FILE
@@ -275,7 +278,8 @@ def report(
     info = _run_info(run_dir)
     name = info.get("name", run_dir.name)
     out = Path(out) if out is not None else run_dir / REPORT_DIR
-    check_output(out, force, _run_inputs(run_dir, out))
+    # a report written before reports had a manifest: its own files only
+    check_output(out, force, _run_inputs(run_dir, out), known=_REPORT_FILES)
     sections = build_sections(run_dir, progress)
     title = f"qsls report: {name}"
     subtitle = _subtitle(info, name)
