@@ -204,3 +204,25 @@ def test_a_truth_jump_is_found_and_becomes_a_gap():
     np.testing.assert_array_equal(truth_jumps(t, step, 100.0), [119])
     bad = drop_around(t, np.array([119]), 25_000_000)  # half of a 0.05 s gap
     np.testing.assert_array_equal(np.flatnonzero(bad), [117, 118, 119, 120, 121, 122])
+
+
+@pytest.fixture(scope="module")
+def simulated_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("sim")
+    res = runner.invoke(app, ["simulate", "--duration", "8", "--out", str(d / "sim")])
+    assert res.exit_code == 0, res.output
+    return d / "sim" / "flight.bag"
+
+
+@pytest.mark.parametrize(
+    "topics",
+    [
+        ["--vio-topic", "/vicon/quad/pose", "--truth-topic", "/vio/odometry"],
+        ["--vio-topic", "/vicon/quad/pose"],
+    ],
+    ids=["swapped", "vio-is-the-pose"],
+)
+def test_swapped_topics_are_one_line(tmp_path: Path, simulated_bag: Path, topics) -> None:
+    """Issue 35: the VIO odometry as truth lost every sample to the jump filter, then
+    IndexError at ingest/stage.py:143."""
+    _fails(tmp_path, [str(simulated_bag), *topics], "truth stream /vio/odometry", "swapped?")

@@ -213,6 +213,13 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
             bad = drop_around(t, jumps, int(o.max_gap * 1e9 / 2) + 1)
             t, p, q = t[~bad], p[~bad], q[~bad]
             v = v[~bad] if v is not None else None
+            if len(t) < max(10, n // 2):
+                raise InputError(
+                    f"{name}: {glitches} jumps no vehicle could fly (accelerations above "
+                    f"max_truth_accel, {o.max_truth_accel:g} m/s^2) leave {len(t)} of {n} "
+                    "messages; is it the motion-capture topic? Check --truth-topic and "
+                    "--vio-topic (swapped?), or raise ingest.max_truth_accel in the config"
+                )
     return Prepared(
         role,
         source,
