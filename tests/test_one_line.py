@@ -89,3 +89,42 @@ def test_a_binary_run_state_is_read_as_no_state(tmp_path):
     (root / "run.json").write_bytes(b"\xff\xfe\x00binary")
     line = _one_line_refusal(_qsls("report", root, "--out", tmp_path / "rep", cwd=tmp_path))
     assert "run.json: not the JSON file qsls writes" in line
+
+
+def test_a_flight_both_simulated_and_logged_is_refused(tmp_path):
+    flight = {"name": "f1", "simulate": {"seed": 1}, "sources": ["missing.bag"]}
+    cfg = tmp_path / "both.yaml"
+    cfg.write_text(yaml.safe_dump({**TINY, "flights": [flight]}))
+    line = _one_line_refusal(_qsls("run", cfg, cwd=tmp_path))
+    assert "flight 'f1' has both simulate: and sources" in line
+
+
+@pytest.mark.parametrize(
+    "change",
+    [{"stages": ["simulate", "ingest", "fit", "synth", "evaluate"]}, {"evaluate": {}}],
+    ids=["stages", "section"],
+)
+def test_evaluate_without_heldout_flights_is_refused(tmp_path, change):
+    data = {**TINY, "stages": None, "synth": {"T": 5}, **change}
+    data["evaluate"] = {"smooth_s": 0.5} if "stages" in change else data.get("evaluate")
+    data = {k: v for k, v in data.items() if v is not None}
+    cfg = tmp_path / "noheld.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    line = _one_line_refusal(_qsls("run", cfg, cwd=tmp_path))
+    assert "nothing to evaluate" in line and "held-out flight" in line
+    assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.slow
+def test_an_infeasible_synth_names_its_stage_and_the_report_shows_what_finished(tmp_path):
+    data = {**TINY, "stages": ["simulate", "ingest", "fit", "synth", "report"],
+            "synth": {"T": 5, "S": 1.5, "controllers": "single"}, "report": True}  # fmt: skip
+    cfg = tmp_path / "infeasible.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    proc = _qsls("run", cfg, "--out", tmp_path / "run", cwd=tmp_path, timeout=300)
+    assert proc.returncode == 3 and "Traceback" not in proc.stderr, proc.stderr
+    (line,) = [ln for ln in proc.stderr.splitlines() if ln.startswith("error")]
+    assert line.startswith("error: stage synth failed: ")
+    report = tmp_path / "run" / "report" / "index.html"
+    assert f"the report of the stages that finished: {report}" in line
+    assert report.is_file() and (tmp_path / "run" / "fit" / "manifest.json").is_file()

@@ -27,7 +27,7 @@ from typing import Any
 
 from qsls.pipeline import __version__
 from qsls.pipeline.core.artifacts import package_versions, sha256_json, to_plain
-from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.errors import ConfigError, QslsError
 from qsls.pipeline.run.state import InputHashes, Plan, PlannedStage, RunState, StageRecord
 
 
@@ -218,7 +218,11 @@ class StageGraph:
             return state, StageOutcome(s.id, s.kind, "skipped", key, out, notes=rec.notes)
         state = state.without({s.id})
         state.save(self.root)  # a stage being redone is not up to date until it ends
-        result = s.execute(out, {d: self.folder(d) for d in s.deps})
+        try:
+            result = s.execute(out, {d: self.folder(d) for d in s.deps})
+        except QslsError as exc:  # the one line names the stage that failed
+            exc.args = (f"stage {s.id} failed: {exc}", *exc.args[1:])
+            raise
         notes = dict(s.notes(out)) if s.notes is not None else {}
         state = state.with_stage(s.id, StageRecord.of_folder(key, out, self.versions, notes))
         state.save(self.root)

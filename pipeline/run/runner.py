@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, PrivateAttr, field_validator
+from pydantic import Field, PrivateAttr, field_validator, model_validator
 
 from qsls.pipeline import __version__
 from qsls.pipeline.control.options import SweepSection, SynthOptions
@@ -32,7 +32,7 @@ from qsls.pipeline.core.artifacts import (
     to_plain,
 )
 from qsls.pipeline.core.config import Options, read_yaml, validate
-from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.errors import ConfigError, QslsError
 from qsls.pipeline.core.locks import (
     FolderLock,
     check_writable,
@@ -85,6 +85,16 @@ class FlightSpec(Options):
     @classmethod
     def _safe_name(cls, v: str) -> str:
         return plain_name(v, "a flight name")
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> FlightSpec:
+        logged = [k for k in ("sources", "vio", "truth") if getattr(self, k)]
+        if self.simulate is not None and logged:
+            raise ValueError(
+                f"flight '{self.name}' has both simulate: and {', '.join(logged)}: a flight is "
+                f"either simulated or read from logs; remove one"
+            )
+        return self
 
 
 class RunConfig(Options):
@@ -341,9 +351,14 @@ def _run_locked(
     # the report runs after every stage (not counted among them): when one ran, when its
     # folder or run.json changed, or when asked (--force, --from report, which reruns only it)
     from_kind = None if from_stage == "report" else from_stage
-    outcomes = graph.run(force=force, from_kind=from_kind, on_start=started, on_done=done)
-    report_dir = None
     wanted = set(cfg.stages or STAGE_ORDER)
+    try:
+        outcomes = graph.run(force=force, from_kind=from_kind, on_start=started, on_done=done)
+    except QslsError as exc:
+        if cfg.report and "report" in wanted:
+            _partial_report(root, exc)
+        raise
+    report_dir = None
     if cfg.report and "report" in wanted:
         from qsls.pipeline.report.stage import REPORT_DIR
 
@@ -358,6 +373,21 @@ def _run_locked(
         stage = _report_stage(root, report_dir, info, tuple(graph.ids))
         graph.run_last(stage, outcomes, redo=redo, on_start=report_started)
     return RunResult(root=root, outcomes=tuple(outcomes), report=report_dir)
+
+
+def _partial_report(root: Path, exc: QslsError) -> None:
+    """After a stage failed: the report of the stages that finished (when there are some),
+    its place added to the error's one line. A report that cannot be made adds nothing."""
+    from qsls.pipeline.report.stage import REPORT_DIR, report
+
+    try:
+        done = report(root, root / REPORT_DIR, force=True)
+    except QslsError:
+        return
+    exc.args = (
+        f"{exc}; the report of the stages that finished: {done.out / 'index.html'}",
+        *exc.args[1:],
+    )
 
 
 def _report_stage(root: Path, out: Path, info: dict[str, Any], deps: tuple[str, ...]) -> Stage:
