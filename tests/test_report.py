@@ -384,3 +384,22 @@ def test_the_report_folder_has_a_manifest_and_stays_byte_identical(report_dir, t
     again = tmp_path / "again"
     assert CliRunner().invoke(app, ["report", str(root), "--out", str(again)]).exit_code == 0
     assert (again / "manifest.json").read_bytes() == (out / "manifest.json").read_bytes()
+
+
+def test_s_max_line_takes_the_best_radius_and_says_infeasible():
+    """Issue 35: the line took the minimum over radii but labelled the first radius, printed
+    -inf as 'inf' and showed negative S without saying it means infeasible."""
+    from qsls.pipeline.report.facts import Facts
+    from qsls.pipeline.report.summary import s_max_line
+
+    sm = pd.DataFrame({
+        "T": [10, 10, 20, 20, 30, 30], "eps_e": [0.1] * 6,
+        "radius": [1.25, 2.0, 1.25, 2.0, 1.25, 2.0],
+        "s_max": [0.05, 0.2, -float("inf"), -0.3, 0.4, 0.1],
+    })  # fmt: skip
+    line = s_max_line(Facts(Path("."), {}, {}, s_max=sm))
+    assert line.startswith("Largest feasible S (eps_e 0.1): ")
+    assert "0.2 at T = 10 (radius 2)" in line
+    assert "none (infeasible even at S = 0) at T = 20" in line
+    assert "0.4 at T = 30 (radius 1.25)" in line
+    assert " inf" not in line

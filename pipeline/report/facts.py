@@ -60,7 +60,7 @@ def g4(v: Any) -> str:
     if math.isnan(x):
         return "-"
     if math.isinf(x):
-        return "inf"
+        return "inf" if x > 0 else "-inf"
     return f"{x:.3g}"
 
 
