@@ -136,6 +136,11 @@ def parse_list(text: str | None, what: str, kind: str = "float") -> list[Any] | 
                 f"(expected comma-separated {'integers' if kind == 'int' else 'numbers'}, "
                 f"got '{text}')"
             ) from None
+    if not out:  # "--seeds ''" would silently mean the default
+        raise ConfigError(
+            f"{what}: empty list; give comma-separated "
+            f"{'integers' if kind == 'int' else 'values'}, or leave the option out for the default"
+        )
     return out
 
 

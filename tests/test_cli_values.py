@@ -1,0 +1,72 @@
+"""Values given on the command line (issue 35): refused in one line naming the flag (not the
+config file beside it), absurd sizes refused before any work, an empty list never silently
+the default."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from qsls.cli.main import app
+
+runner = CliRunner()
+
+
+def _refused(args: list[str], *expect: str, absent: str = "") -> str:
+    res = runner.invoke(app, args)
+    text = res.output.strip()
+    assert res.exit_code != 0 and text.startswith("error: ") and "\n" not in text, text
+    for e in expect:
+        assert e in text, text
+    if absent:
+        assert absent not in text, text
+    return text
+
+
+def test_a_bad_command_line_value_is_blamed_on_its_flag_not_the_config(tmp_path):
+    cfg = tmp_path / "fix.yaml"
+    cfg.write_text("m: 1\n")
+    out = str(tmp_path / "o")
+    _refused(["synth", "--config", str(cfg), "--m", "2.5", "--out", out],
+             "command line: 'm': must be a whole number >= 0 or 'auto'",
+             absent="fix.yaml")  # fmt: skip
+    cfg.write_text("m: 2.5\n")  # the file's own mistake is the file's
+    _refused(["synth", "--config", str(cfg), "--out", out], "fix.yaml: 'm': must be a whole")
+
+
+def test_negative_m_and_a_short_error_scale_are_refused(tmp_path):
+    out = str(tmp_path / "o")
+    _refused(["synth", "--m", "-1", "--out", out], "'m': must be a whole number >= 0")
+    _refused(["synth", "--error-scale", "1,1,1,1,1", "--out", out],
+             "'error_scale': needs 6 weights (x, y, z, vx, vy, vz), got 5")  # fmt: skip
+
+
+def test_an_empty_seed_list_is_refused(tmp_path):
+    _refused(
+        ["evaluate", "--fly", "--model", str(tmp_path), "--controller", str(tmp_path),
+         "--seeds", "", "--out", str(tmp_path / "o")],
+        "--seeds: empty list",
+    )  # fmt: skip
+
+
+def test_an_absurd_simulation_length_is_refused_at_once(tmp_path):
+    _refused(["simulate", "--duration", "1e9", "--out", str(tmp_path / "s")], "duration")
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory) -> Path:
+    from tests.bagfixtures import write_flight
+
+    return write_flight(tmp_path_factory.mktemp("b") / "f.bag", "ros1", duration=12.0)
+
+
+def test_a_dt_far_finer_than_the_data_is_refused(tmp_path, bag):
+    out = tmp_path / "o"
+    _refused(["ingest", str(bag), "--dt", "1e-6", "--out", str(out)],
+             "times finer than the VIO's own sampling step", "choose --dt of at least")  # fmt: skip
+    assert not out.exists()
+    res = runner.invoke(app, ["ingest", str(bag), "--dt", "0.01", "--out", str(out)])
+    assert res.exit_code == 0, res.output
