@@ -70,3 +70,23 @@ def test_a_dt_far_finer_than_the_data_is_refused(tmp_path, bag):
     assert not out.exists()
     res = runner.invoke(app, ["ingest", str(bag), "--dt", "0.01", "--out", str(out)])
     assert res.exit_code == 0, res.output
+
+
+def test_help_texts_say_what_the_commands_do():
+    """Issue 35: export --help said '(default: c) [required]', replay's example was refused,
+    run --help left fly out of --from, the README's topics were not the simulated bags'."""
+    import re
+
+    from qsls.cli import replay
+    from qsls.pipeline.sim.options import LogOptions
+
+    export = runner.invoke(app, ["export", "--help"], terminal_width=200).output
+    target = next(ln for ln in export.splitlines() if "--target" in ln)
+    assert "(default: c)" in target and "[required]" not in target
+    run = " ".join(runner.invoke(app, ["run", "--help"], terminal_width=200).output.split())
+    assert re.search(r"--from.*evaluate, fly or report", run)
+    assert replay.EXAMPLE.split("--out ")[1].split()[0].endswith(".mcap")
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert "--vio-topic /vio/odom " not in readme
+    assert f"--vio-topic {LogOptions().vio_topic} " in readme
+    assert f"--truth-topic {LogOptions().mocap_topic} " in readme
