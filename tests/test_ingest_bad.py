@@ -226,3 +226,27 @@ def test_swapped_topics_are_one_line(tmp_path: Path, simulated_bag: Path, topics
     """Issue 35: the VIO odometry as truth lost every sample to the jump filter, then
     IndexError at ingest/stage.py:143."""
     _fails(tmp_path, [str(simulated_bag), *topics], "truth stream /vio/odometry", "swapped?")
+
+
+def test_a_locked_sqlite_bag_is_called_locked_not_damaged(tmp_path: Path, flight) -> None:
+    """Issue 35: a database another program holds locked was "truncated or damaged"."""
+    import sqlite3
+
+    bag = write_bag(tmp_path / "locked", [flight.vio, flight.truth], "ros2-sqlite")
+    holder = sqlite3.connect(next(bag.glob("*.db3")), isolation_level=None)
+    holder.execute("BEGIN EXCLUSIVE")  # a recorder in the middle of a write
+    try:
+        text = _fails(tmp_path, [str(bag)], "locked by another program")
+    finally:
+        holder.close()
+    assert "damaged" not in text
+
+
+def test_a_metadata_yaml_with_the_wrong_type_says_so(tmp_path: Path, flight) -> None:
+    """Issue 35: a metadata.yaml listing the VIO topic as another type was a damaged bag."""
+    bag = write_bag(tmp_path / "retyped", [flight.vio, flight.truth], "ros2-sqlite")
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped"))
+    _fails(tmp_path, [str(bag), "--vio-topic", "/vio/odom", "--truth-topic", "/mocap/pose"],
+           "do not decode as the types its metadata.yaml lists",
+           "/vio/odom as geometry_msgs/msg/PoseStamped")  # fmt: skip
