@@ -250,3 +250,13 @@ def test_a_metadata_yaml_with_the_wrong_type_says_so(tmp_path: Path, flight) -> 
     _fails(tmp_path, [str(bag), "--vio-topic", "/vio/odom", "--truth-topic", "/mocap/pose"],
            "do not decode as the types its metadata.yaml lists",
            "/vio/odom as geometry_msgs/msg/PoseStamped")  # fmt: skip
+
+
+def test_a_clock_that_jumps_back_is_named(tmp_path: Path, flight) -> None:
+    """Issue 35: a 5 s backward jump of the truth's clock was 'the streams do not match at
+    any clock offset'; the TUM reader names the line, the bag reader now the message."""
+    h = flight.truth.header_ns.copy()
+    k = len(h) // 2
+    h[k:] -= 5_000_000_000
+    bag = write_bag(tmp_path / "jump.bag", [flight.vio, replace(flight.truth, header_ns=h)], "ros1")
+    _fails(tmp_path, [str(bag)], f"its clock jumps back 4.99 s at message {k}", "--stamp log")

@@ -192,6 +192,13 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     # the usual stream is sorted and without duplicates: nothing to reorder or drop then
     step = np.diff(t)
     unsorted = int(np.sum(step < 0))
+    if unsorted and step.min() < -o.max_gap * 1e9:  # a clock reset, not reordered messages
+        k = int(np.argmin(step)) + 1
+        raise InputError(
+            f"{name}: its clock jumps back {-step.min() * 1e-9:.3g} s at message {k} "
+            f"(--stamp {o.stamp}); a clock that was reset or set mid-flight: cut the log "
+            "there, or try --stamp " + ("log" if o.stamp == "header" else "header")
+        )
     if unsorted:
         order = np.argsort(t, kind="stable")
         t, p, q, qn = t[order], p[order], q[order], qn[order]
