@@ -503,3 +503,19 @@ def test_the_scheduler_lost_mid_sweep_fails_with_one_line(tmp_path):
     line = _one_error_line(err)
     assert f"the Dask scheduler at {cluster.address}" in line and "rerun the sweep" in line
     assert not (tmp_path / "o").exists()
+
+
+def test_jobs_zero_means_every_core_and_no_more_processes_than_cores(tmp_path):
+    """Issue 35: --jobs 0 (which evaluate accepts) was refused, --jobs 64 started 64
+    processes on 2 cores. Both now run on the available cores, with the same table."""
+    from qsls.pipeline.core.pools import available_cores
+
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text(SMALL)
+    cores = available_cores()
+    for jobs in (0, 64):
+        res = _sweep("-c", cfg, "-o", tmp_path / f"j{jobs}", "--jobs", jobs)
+        assert res.exit_code == 0, res.output
+        assert f"local, {cores} process" in res.output, res.output
+    a, b = (tmp_path / "j0" / "sweep.parquet").read_bytes(), (tmp_path / "j64" / "sweep.parquet")
+    assert b.read_bytes() == a

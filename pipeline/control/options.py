@@ -214,7 +214,7 @@ class SweepSection(SweepOptions):
     ``qsls run``: the sweep's options plus where it runs (which changes no result, so only
     :meth:`options` is the stage's record and cache key)."""
 
-    jobs: int | None = Field(None, ge=1)
+    jobs: int | None = Field(None, ge=0)
     """Local worker processes (default: all cores)."""
     scheduler: str | None = None
     """Dask scheduler address ``SCHEME://HOST:PORT`` (instead of ``jobs``)."""

@@ -54,7 +54,7 @@ from qsls.pipeline.control.resolution import read_model, resolve
 from qsls.pipeline.control.synth import warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
-from qsls.pipeline.core.pools import run_tasks
+from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import error_model_file
 
@@ -577,9 +577,9 @@ def compute(
         scheduler = check_scheduler(scheduler)
     mi = read_model(error_model)
     points = grid_points(options, mi.model, mi.training)
-    jobs = jobs if jobs is not None else (os.cpu_count() or 1)
-    if jobs < 1:
-        raise ConfigError(f"--jobs must be at least 1, got {jobs}")
+    if jobs is not None and jobs < 0:
+        raise ConfigError(f"--jobs must be 0 (every core) or more, got {jobs}")
+    jobs = jobs or (os.cpu_count() or 1)  # the chunking follows what was asked
     workers = jobs if scheduler is None else 8
     specs = s_max_specs(points) if options.s_max_curve else []
     warn_size(max(int(p["T"]) for p in points), len(points), progress)
@@ -590,7 +590,7 @@ def compute(
             return []
         if scheduler is not None:
             return _run_dask(tasks, scheduler, progress, weights, worker_timeout)
-        return run_tasks(tasks, jobs, lambda i: progress.advance(weights[i]))
+        return run_tasks(tasks, pool_size(jobs), lambda i: progress.advance(weights[i]))
 
     # first the largest feasible S of every setting: it answers the points above it
     s_results = execute([(s_max_task, s) for s in specs], [1] * len(specs))
@@ -600,7 +600,8 @@ def compute(
     if scheduler is not None:
         executor = f"dask {scheduler}"
     else:
-        executor = f"local, {jobs} process{'es' if jobs > 1 else ''}"
+        n = pool_size(jobs)
+        executor = f"local, {n} process{'es' if n > 1 else ''}"
     progress.finish()
     rows = [r for res in results for r in res]
     table = pd.DataFrame(rows).sort_values("index", kind="stable").reset_index(drop=True)
