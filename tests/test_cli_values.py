@@ -90,3 +90,25 @@ def test_help_texts_say_what_the_commands_do():
     assert "--vio-topic /vio/odom " not in readme
     assert f"--vio-topic {LogOptions().vio_topic} " in readme
     assert f"--truth-topic {LogOptions().mocap_topic} " in readme
+
+
+def test_sweep_takes_eps_w_max_as_synth_does(tmp_path):
+    """Issue 35: sweep's --eps-w refused 'max', which synth accepts."""
+    from qsls.pipeline.core.artifacts import dump_yaml
+    from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
+
+    em = ErrorModel(
+        disturbance=DisturbanceStats(max=0.01, source="inputs", n_steps=100),
+        eps_e=0.05, eps_e_percentiles={"p95": 0.04}, radius=1.0,
+        s_slope=SlopeStats(max=0.13, percentiles={"p50": 0.1, "p95": 0.12}),
+        R0=0.05, delta=0.05, n_samples=100, n_pairs=1000,
+    )  # fmt: skip
+    (tmp_path / "fit").mkdir()
+    (tmp_path / "fit" / "error_model.yaml").write_text(dump_yaml(em))
+    res = runner.invoke(app, ["sweep", "--model", str(tmp_path / "fit"), "--eps-w", "max",
+                              "-g", "T=6", "-g", "S=0.05", "--jobs", "1",
+                              "--out", str(tmp_path / "o")])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    import pandas as pd
+
+    assert (pd.read_parquet(tmp_path / "o" / "sweep.parquet")["eps_w_value"] == 0.01).all()
