@@ -260,3 +260,12 @@ def test_a_clock_that_jumps_back_is_named(tmp_path: Path, flight) -> None:
     h[k:] -= 5_000_000_000
     bag = write_bag(tmp_path / "jump.bag", [flight.vio, replace(flight.truth, header_ns=h)], "ros1")
     _fails(tmp_path, [str(bag)], f"its clock jumps back 4.99 s at message {k}", "--stamp log")
+
+
+def test_a_twist_frame_the_positions_contradict_is_refused(tmp_path: Path, simulated_bag: Path) -> None:
+    """Issue 35: --vio-velocity-frame world on a body-frame bag gave a large velocity error
+    without a word; the VIO's own positions tell which frame its twist is in."""
+    _fails(tmp_path, [str(simulated_bag), "--vio-velocity-frame", "world"],
+           "its twist read in the world frame", "pass --vio-velocity-frame body")  # fmt: skip
+    ok = runner.invoke(app, ["ingest", str(simulated_bag), "--out", str(tmp_path / "ok")])
+    assert ok.exit_code == 0, ok.output
