@@ -3,10 +3,11 @@
 A folder is written by one process at a time: :class:`FolderLock` holds an exclusive
 ``flock`` on ``.NAME.lock`` beside the folder, with the holder's PID in it. The kernel drops
 the lock when its process dies (SIGKILL included), so a stale lock file is taken over by
-the next process. Temporaries are folders named ``.NAME.tmp-PID`` / ``.NAME.old-PID`` holding a marker
-file signed ``qsls temporary PID`` (:data:`TEMP_MARKER`): one whose process is gone is
-removed by the next writer (a live process's are its work in progress). A name alone is
-never enough: a user's ``.env.old-prod`` or ``.draft.tmp-123`` is never touched.
+the next process. Temporaries are folders named ``.NAME.tmp-PID`` / ``.NAME.old-PID``
+holding a marker file signed ``qsls temporary PID`` (:data:`TEMP_MARKER`): one whose
+process is gone is removed by the next writer (a live process's are its work in progress).
+A name alone is never enough: a user's ``.env.old-prod`` or ``.draft.tmp-123`` is never
+touched.
 """
 
 from __future__ import annotations
