@@ -242,14 +242,16 @@ def test_a_locked_sqlite_bag_is_called_locked_not_damaged(tmp_path: Path, flight
     assert "damaged" not in text
 
 
-def test_a_metadata_yaml_with_the_wrong_type_says_so(tmp_path: Path, flight) -> None:
+@pytest.mark.parametrize(
+    "wrong", ["geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped"]
+)
+def test_a_metadata_yaml_with_the_wrong_type_says_so(tmp_path: Path, flight, wrong) -> None:
     """Issue 35: a metadata.yaml listing the VIO topic as another type was a damaged bag."""
     bag = write_bag(tmp_path / "retyped", [flight.vio, flight.truth], "ros2-sqlite")
     meta = bag / "metadata.yaml"
-    meta.write_text(meta.read_text().replace("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped"))
+    meta.write_text(meta.read_text().replace("nav_msgs/msg/Odometry", wrong))
     _fails(tmp_path, [str(bag), "--vio-topic", "/vio/odom", "--truth-topic", "/mocap/pose"],
-           "do not decode as the types its metadata.yaml lists",
-           "/vio/odom as geometry_msgs/msg/PoseStamped")  # fmt: skip
+           "do not decode as the types its metadata.yaml lists", f"/vio/odom as {wrong}")  # fmt: skip
 
 
 def test_a_clock_that_jumps_back_is_named(tmp_path: Path, flight) -> None:

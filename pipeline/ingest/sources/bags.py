@@ -460,7 +460,11 @@ class BagSource:
         from rosbags.serde import SerdeError
 
         mismatch = "size mismatch" in str(exc) or isinstance(exc, SerdeError)
-        if not (isinstance(exc, SerdeError | AnyReaderError) and mismatch):
+        # a type the bag's own definitions do not hold: rosbags' typestore lookup fails
+        unknown = isinstance(exc, KeyError) and str(exc.args[0] if exc.args else "") in {
+            i.msgtype for i in infos
+        }
+        if not (unknown or (isinstance(exc, SerdeError | AnyReaderError) and mismatch)):
             return None
         listed = ", ".join(f"{i.topic} as {i.msgtype}" for i in infos)
         where = "its metadata.yaml" if self._listed is not None else "the bag"
