@@ -117,7 +117,7 @@ def test_run_keeps_user_files_named_like_temporaries(tmp_path):
     killed.mkdir()
     (killed / ".qsls-temporary").write_text(f"qsls temporary {killed.name.rsplit('-', 1)[1]}\n")
     before = {f: f.read_bytes() for f in user}
-    again = _qsls("run", cfg, "--out", root, "--force", cwd=tmp_path)
+    again = _qsls("run", cfg, "--out", root, cwd=tmp_path)  # cleans up, then up to date
     assert again.returncode == 0, again.stderr[-2000:]
     assert {f: f.read_bytes() for f in user if f.exists()} == before
     assert not killed.exists()
