@@ -77,6 +77,13 @@ def cli_errors(fn: F) -> F:
             msg = " ".join(str(exc).split("\n"))
             typer.echo(f"error: {msg}", err=True)
             raise typer.Exit(exc.exit_code) from None
+        except OSError as exc:  # a full disk, anywhere a stage writes (its temporaries go)
+            from qsls.pipeline.core.locks import FULL, full_message
+
+            if exc.errno not in FULL:
+                raise
+            typer.echo(f"error: {full_message(exc)}", err=True)
+            raise typer.Exit(2) from None
         except KeyboardInterrupt as exc:
             _end_children()
             what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
@@ -129,6 +136,11 @@ def parse_list(text: str | None, what: str, kind: str = "float") -> list[Any] | 
                 f"(expected comma-separated {'integers' if kind == 'int' else 'numbers'}, "
                 f"got '{text}')"
             ) from None
+    if not out:  # "--seeds ''" would silently mean the default
+        raise ConfigError(
+            f"{what}: empty list; give comma-separated "
+            f"{'integers' if kind == 'int' else 'values'}, or leave the option out for the default"
+        )
     return out
 
 

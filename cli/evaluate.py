@@ -112,7 +112,7 @@ def command(
     source = str(config or "options")
     if fly:
         fly_given = overrides(
-            seeds=parse_list(seeds, "--seeds", "int") or None, duration=duration, jobs=jobs,
+            seeds=parse_list(seeds, "--seeds", "int"), duration=duration, jobs=jobs,
             conditions=parse_list(conditions, "--conditions", "value"),
             vio=parse_list(vio, "--vio", "value") if vio and "," in vio else vio,
             sim={"controller": {"backend": backend}} if backend else None,

@@ -16,7 +16,7 @@ def command(
     controller: Path = typer.Argument(
         ..., help="Controller folder written by 'qsls synth' (controller.npz + certificate.yaml)."
     ),
-    target: str = typer.Option(..., "--target", "-t", help="c or python. (default: c)"),
+    target: str | None = typer.Option(None, "--target", "-t", help="c or python. (default: c)"),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder for the generated files."),
     precision: str | None = typer.Option(
         None,

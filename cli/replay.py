@@ -8,7 +8,7 @@ import typer
 
 from qsls.cli.common import cli_errors, overrides, parse_list, print_summary
 
-EXAMPLE = "qsls replay controllers/l1_robust flight.bag --out replay"
+EXAMPLE = "qsls replay controllers/l1_robust flight.bag --out replay.mcap"
 
 
 @cli_errors

@@ -34,7 +34,7 @@ def command(
     from_stage: str | None = typer.Option(
         None,
         "--from",
-        help="Redo from this stage on: simulate, ingest, fit, sweep, synth, evaluate or report.",
+        help="Redo from this stage on: simulate, ingest, fit, sweep, synth, evaluate, fly or report.",
     ),
 ) -> None:
     """Run the pipeline a config names (simulate, ingest, fit, sweep, synth, evaluate, report)."""

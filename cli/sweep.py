@@ -59,8 +59,11 @@ def command(
     delta: float | None = typer.Option(
         None, "--delta", help="Base Delta. (default: the error model's)"
     ),
-    eps_w: float | None = typer.Option(
-        None, "--eps-w", help="Base process noise bound eps_w. (default: 0.01)"
+    eps_w: str | None = typer.Option(
+        None,
+        "--eps-w",
+        help="Base disturbance bound eps_w: a number, max or pNN of the training flights' "
+        "realized disturbance. (default: max; 0.01 without an error model)",
     ),
     q: str | None = typer.Option(
         None, "--Q", help="Base state weight diagonal. (default: 10,10,10,1,1,1)"
@@ -105,7 +108,7 @@ def command(
     axes = dict(grid_axis(g) for g in grid or [])
     given = overrides(
         T=horizon, norm=norm, cost=cost, S=number_or_name(s), eps_e=number_or_name(eps_e),
-        radius=radius, delta=delta, eps_w=eps_w, grid=axes or None,
+        radius=radius, delta=delta, eps_w=number_or_name(eps_w), grid=axes or None,
         Q=parse_list(q, "--Q"), R=parse_list(r, "--R"), jobs=jobs,
         scheduler=None if scheduler is None else check_scheduler(scheduler),
         wait_workers=wait_workers,

@@ -382,6 +382,17 @@ def test_bad_input(tmp_path, controllers):
     assert list((tmp_path / "exists").iterdir()) == []
     res = invoke("export", good, "-t", "c", "--out", tmp_path / "exists", "--force")
     assert res.exit_code == 0, res.output
+    # --force replaces only what qsls wrote: the user's files beside an export are refused
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("the user's")
+    res = invoke("export", good, "-t", "c", "--out", tmp_path / "mine", "--force")
+    _one_line_error(res, "holds files qsls did not write (notes.txt)")
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "the user's"
+    (tmp_path / "exists" / "sub").mkdir()
+    (tmp_path / "exists" / "sub" / "mine.c").write_text("int x;")
+    res = invoke("export", good, "-t", "c", "--out", tmp_path / "exists", "--force")
+    _one_line_error(res, "holds files qsls did not write (sub/mine.c)")
+    assert (tmp_path / "exists" / "sub" / "mine.c").is_file()
     res = invoke("export", tmp_path / "nope", "-t", "c", "--out", tmp_path / "y")
     _one_line_error(res, "no such controller folder")
     pd_folder = good.parent / "pd"

@@ -204,3 +204,70 @@ def test_a_truth_jump_is_found_and_becomes_a_gap():
     np.testing.assert_array_equal(truth_jumps(t, step, 100.0), [119])
     bad = drop_around(t, np.array([119]), 25_000_000)  # half of a 0.05 s gap
     np.testing.assert_array_equal(np.flatnonzero(bad), [117, 118, 119, 120, 121, 122])
+
+
+@pytest.fixture(scope="module")
+def simulated_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("sim")
+    res = runner.invoke(app, ["simulate", "--duration", "8", "--out", str(d / "sim")])
+    assert res.exit_code == 0, res.output
+    return d / "sim" / "flight.bag"
+
+
+@pytest.mark.parametrize(
+    "topics",
+    [
+        ["--vio-topic", "/vicon/quad/pose", "--truth-topic", "/vio/odometry"],
+        ["--vio-topic", "/vicon/quad/pose"],
+    ],
+    ids=["swapped", "vio-is-the-pose"],
+)
+def test_swapped_topics_are_one_line(tmp_path: Path, simulated_bag: Path, topics) -> None:
+    """Issue 35: the VIO odometry as truth lost every sample to the jump filter, then
+    IndexError at ingest/stage.py:143."""
+    _fails(tmp_path, [str(simulated_bag), *topics], "truth stream /vio/odometry", "swapped?")
+
+
+def test_a_locked_sqlite_bag_is_called_locked_not_damaged(tmp_path: Path, flight) -> None:
+    """Issue 35: a database another program holds locked was "truncated or damaged"."""
+    import sqlite3
+
+    bag = write_bag(tmp_path / "locked", [flight.vio, flight.truth], "ros2-sqlite")
+    holder = sqlite3.connect(next(bag.glob("*.db3")), isolation_level=None)
+    holder.execute("BEGIN EXCLUSIVE")  # a recorder in the middle of a write
+    try:
+        text = _fails(tmp_path, [str(bag)], "locked by another program")
+    finally:
+        holder.close()
+    assert "damaged" not in text
+
+
+@pytest.mark.parametrize(
+    "wrong", ["geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped"]
+)
+def test_a_metadata_yaml_with_the_wrong_type_says_so(tmp_path: Path, flight, wrong) -> None:
+    """Issue 35: a metadata.yaml listing the VIO topic as another type was a damaged bag."""
+    bag = write_bag(tmp_path / "retyped", [flight.vio, flight.truth], "ros2-sqlite")
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("nav_msgs/msg/Odometry", wrong))
+    _fails(tmp_path, [str(bag), "--vio-topic", "/vio/odom", "--truth-topic", "/mocap/pose"],
+           "do not decode as the types its metadata.yaml lists", f"/vio/odom as {wrong}")  # fmt: skip
+
+
+def test_a_clock_that_jumps_back_is_named(tmp_path: Path, flight) -> None:
+    """Issue 35: a 5 s backward jump of the truth's clock was 'the streams do not match at
+    any clock offset'; the TUM reader names the line, the bag reader now the message."""
+    h = flight.truth.header_ns.copy()
+    k = len(h) // 2
+    h[k:] -= 5_000_000_000
+    bag = write_bag(tmp_path / "jump.bag", [flight.vio, replace(flight.truth, header_ns=h)], "ros1")
+    _fails(tmp_path, [str(bag)], f"its clock jumps back 4.99 s at message {k}", "--stamp log")
+
+
+def test_a_twist_frame_the_positions_contradict_is_refused(tmp_path: Path, simulated_bag: Path) -> None:
+    """Issue 35: --vio-velocity-frame world on a body-frame bag gave a large velocity error
+    without a word; the VIO's own positions tell which frame its twist is in."""
+    _fails(tmp_path, [str(simulated_bag), "--vio-velocity-frame", "world"],
+           "its twist read in the world frame", "pass --vio-velocity-frame body")  # fmt: skip
+    ok = runner.invoke(app, ["ingest", str(simulated_bag), "--out", str(tmp_path / "ok")])
+    assert ok.exit_code == 0, ok.output

@@ -412,3 +412,103 @@ def test_a_chunk_index_whose_size_lies_is_a_layout_error(bags: dict[str, Path]) 
         wanted = {c.id: 0 for c in summary.channels.values() if c.topic == "/vio/odom"}
         with pytest.raises(layout.LayoutError, match="another size than its index says"):
             list(mcapchunks.mcap_batches(_mcap_file(bag), summary, wanted))
+
+
+# ------------------------------------------------------- damage the summary cannot hide (issue 35)
+def _chunks(f: Path) -> list[Any]:
+    return sorted(mcapchunks.read_summary(f).chunk_indexes, key=lambda c: c.chunk_start_offset)
+
+
+def _vio_x_positions(f: Path, n: int) -> list[tuple[int, float]]:
+    """(file offset of the ``pose.position.x`` double, x) of ``n`` VIO messages in the
+    middle of the file, found by their unique serialized bytes."""
+    from mcap.reader import make_reader
+
+    ts = typestore(ros1=False)
+    data = f.read_bytes()
+    out = []
+    with open(f, "rb") as fh:
+        msgs = list(make_reader(fh).iter_messages(topics=["/vio/odom"]))
+    for _, _, message in msgs[len(msgs) // 2 : len(msgs) // 2 + n]:
+        raw = bytes(message.data)
+        x = ts.deserialize_cdr(raw, ODOMETRY).pose.pose.position.x
+        at = data.find(raw)
+        assert at > 0 and data.find(raw, at + 1) < 0
+        inner = raw.find(np.float64(x).tobytes())
+        assert inner > 0
+        out.append((at + inner, float(x)))
+    return out
+
+
+def test_a_chunk_whose_crc_fails_is_refused_naming_it(tmp_path: Path) -> None:
+    """20 VIO x positions moved by 0.5 m inside uncompressed chunks: every record still
+    where the index says, only the chunk CRCs tell (the ``mcap`` reader raises on them)."""
+    f = write_plain(tmp_path / "crc.mcap", "none", 1 << 20)
+    data = bytearray(f.read_bytes())
+    for at, x in _vio_x_positions(f, 20):
+        data[at : at + 8] = np.float64(x + 0.5).tobytes()
+    f.write_bytes(bytes(data))
+    ch = _chunks(f)[0]
+    with pytest.raises(InputError) as err, BagSource(f) as src:
+        src.read("/vio/odom")
+    msg = str(err.value)
+    assert "\n" not in msg and "CRC" in msg
+    assert f"MCAP chunk 1 (at byte {ch.chunk_start_offset})" in msg and "mcap recover" in msg
+
+
+def test_a_compressed_chunk_whose_crc_fails_is_refused(tmp_path: Path) -> None:
+    """A zstd chunk whose data decompresses fine but whose stored CRC does not match it."""
+    f = write_plain(tmp_path / "crcz.mcap", "zstd", 3_000)
+    data = bytearray(f.read_bytes())
+    ch = _chunks(f)[3]
+    at = ch.chunk_start_offset + mcapchunks._CRC_AT
+    data[at] ^= 0x01
+    f.write_bytes(bytes(data))
+    with pytest.raises(InputError) as err, BagSource(f) as src:
+        src.read("/vio/odom")
+    assert "MCAP chunk 4 " in str(err.value) and "CRC" in str(err.value)
+
+
+def test_the_cli_refuses_a_crc_failure_in_one_line(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from qsls.cli.main import app
+
+    f = write_plain(tmp_path / "crc.mcap", "none", 1 << 20)
+    data = bytearray(f.read_bytes())
+    for at, x in _vio_x_positions(f, 20):
+        data[at : at + 8] = np.float64(x + 0.5).tobytes()
+    f.write_bytes(bytes(data))
+    res = CliRunner().invoke(
+        app, ["ingest", str(f), "--vio-topic", "/vio/odom", "--truth-topic", "/mocap/pose",
+              "--out", str(tmp_path / "out")],
+    )  # fmt: skip
+    text = res.output.strip()
+    assert res.exit_code != 0 and "\n" not in text and text.startswith("error: "), text
+    assert "CRC" in text and not (tmp_path / "out").exists()
+
+
+def test_a_damaged_record_that_ends_its_chunk_early_is_refused(tmp_path: Path) -> None:
+    """No CRCs stored (a writer may leave them out): a message record claiming 2 GB makes
+    the per-message reader drop the rest of the chunk silently; the summary's per-channel
+    counts tell, and the read is refused."""
+    f = write_plain(tmp_path / "rec.mcap", "none", 1 << 20, enable_crcs=False)
+    data = bytearray(f.read_bytes())
+    # the record head of that message: find its MESSAGE opcode before the data
+    from mcap.reader import make_reader
+
+    with open(f, "rb") as fh:
+        msgs = list(make_reader(fh).iter_messages(topics=["/vio/odom"]))
+    raw = bytes(msgs[len(msgs) // 2][2].data)
+    head = data.find(raw) - mcapchunks._MSG_HEAD
+    assert data[head] == 0x05  # Opcode.MESSAGE
+    data[head + 1 : head + 9] = (2 << 30).to_bytes(8, "little")
+    f.write_bytes(bytes(data))
+    with open(f, "rb") as fh:  # what the reader alone gives: a silent loss
+        kept = sum(1 for _ in make_reader(fh).iter_messages(topics=["/vio/odom"]))
+    assert kept < N
+    with pytest.raises(InputError) as err, BagSource(f) as src:
+        src.read("/vio/odom")
+    msg = str(err.value)
+    assert "\n" not in msg and f"where the bag's index lists {N}" in msg, msg
+    assert "truncated or damaged" in msg

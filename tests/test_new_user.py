@@ -42,7 +42,7 @@ def one_line(res, code: int = 2) -> str:
 )  # fmt: skip
 def test_non_finite_numbers_are_refused_by_the_options_model(tmp_path, args, field, value):
     res = invoke(*args, "--out", tmp_path / "out")
-    assert one_line(res) == f"error: options: '{field}': must be a finite number (got {value})"
+    assert one_line(res) == f"error: command line: '{field}': must be a finite number (got {value})"
     assert not (tmp_path / "out").exists()
 
 
@@ -155,7 +155,7 @@ def test_export_prefix_must_be_a_usable_identifier(tmp_path, prefix, why):
     res = invoke(
         "export", tmp_path / "ctrl", "-t", "c", "--prefix", prefix, "--out", tmp_path / "x"
     )
-    assert one_line(res).startswith(f"error: options: 'prefix': {why}")
+    assert one_line(res).startswith(f"error: command line: 'prefix': {why}")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -329,8 +329,9 @@ def test_evaluate_listed_with_nothing_to_evaluate_is_refused_before_any_stage(tm
     stages = ["simulate", "ingest", "fit", "synth", "evaluate"]
     res = invoke("run", _run_config(tmp_path, stages=stages), "--out", tmp_path / "run")
     assert one_line(res) == (
-        f"error: {tmp_path}: stages: evaluate is listed but there is nothing to evaluate: no "
-        "flight has role 'heldout' and there is no evaluate: section with fly:"
+        f"error: {tmp_path}: stages: evaluate is asked for but there is nothing to evaluate: "
+        "no flight has role 'heldout' and the evaluate: section has no fly:; add a held-out "
+        "flight or evaluate.fly, or leave evaluate out"
     )
     res = invoke("run", _run_config(tmp_path, stages=stages, synth=None), "--out", tmp_path / "run")
     assert one_line(res) == (

@@ -329,3 +329,78 @@ def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(t
     page = render_html("t", "", [summary_section(f)])
     assert "relaxed premise, not certified" in page  # a percentile premise is not rounded up
     assert "per-sample check" in page and "gamma(d) = 9" in page
+
+
+EVIL = "[x](javascript:alert(1))"
+EVIL_HTML = "<img src=x onerror=alert(2)>"
+
+
+def test_names_never_become_live_script_links_or_raw_html(tmp_path):
+    """Flight and run names holding a markdown link to ``javascript:`` or raw HTML (issue 35):
+    the page shows them as text, report.md escapes them; http(s) and relative links live on."""
+    import json
+
+    from qsls.pipeline.report.document import Section, render_html, render_markdown
+
+    root = tmp_path / "evil"
+    rng = np.random.default_rng(0)
+    for name in (EVIL, EVIL_HTML):
+        t = np.arange(300, dtype=np.int64) * 100_000_000
+        x = np.c_[np.cos(t * 1e-9), np.sin(t * 1e-9), np.ones(300), np.zeros((300, 3))]
+        with StageWriter(root / "ingest" / name, "ingest", options={"dt": 0.1}) as w:
+            w.write_parquet("flight.parquet", make_flight_frame(t, x, x + 0.01 * rng.random(x.shape)))
+            w.results["time_offset_s"] = 0.0
+    (root / "run.json").write_text(json.dumps({"name": f"run {EVIL} {EVIL_HTML}"}))
+    out = tmp_path / "rep"
+    res = CliRunner().invoke(app, ["report", str(root), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    page = (out / "index.html").read_text()
+    md = (out / "report.md").read_text()
+    assert "javascript:" in page  # the name is shown...
+    assert not re.search(r"href\s*=\s*[\"']?\s*javascript:", page, re.I)  # ...never a link
+    assert "<img src=x" not in page and "<img src=x" not in md
+    assert "](javascript:" not in md
+    # the renderer's own links stay links
+    sec = Section("S", id="s")
+    sec.text("[docs](https://example.org/a) [csv](table.csv) [top](#s) [bad](JavaScript:x) "
+             "[data](data:text/html,hi) [proto](//evil.example/x)")  # fmt: skip
+    html_ = render_html("t", "", [sec])
+    assert '<a href="https://example.org/a">' in html_ and '<a href="table.csv">' in html_
+    assert '<a href="#s">' in html_
+    assert not re.search(r'href="(JavaScript|data|//)', html_)
+    md2, _ = render_markdown("t", "", [sec])
+    assert "[docs](https://example.org/a)" in md2 and "](JavaScript:" not in md2
+    assert "](data:" not in md2 and "](//evil" not in md2
+    from qsls.pipeline.report.document import safe_href
+
+    assert safe_href("\x01javascript:alert(1)") is None and safe_href("a/b:c") == "a/b:c"
+
+
+def test_the_report_folder_has_a_manifest_and_stays_byte_identical(report_dir, tmp_path):
+    import json
+
+    root, out = report_dir
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["stage"] == "report" and set(manifest["files"]) >= {"index.html", "report.md"}
+    again = tmp_path / "again"
+    assert CliRunner().invoke(app, ["report", str(root), "--out", str(again)]).exit_code == 0
+    assert (again / "manifest.json").read_bytes() == (out / "manifest.json").read_bytes()
+
+
+def test_s_max_line_takes_the_best_radius_and_says_infeasible():
+    """Issue 35: the line took the minimum over radii but labelled the first radius, printed
+    -inf as 'inf' and showed negative S without saying it means infeasible."""
+    from qsls.pipeline.report.facts import Facts
+    from qsls.pipeline.report.summary import s_max_line
+
+    sm = pd.DataFrame({
+        "T": [10, 10, 20, 20, 30, 30], "eps_e": [0.1] * 6,
+        "radius": [1.25, 2.0, 1.25, 2.0, 1.25, 2.0],
+        "s_max": [0.05, 0.2, -float("inf"), -0.3, 0.4, 0.1],
+    })  # fmt: skip
+    line = s_max_line(Facts(Path("."), {}, {}, s_max=sm))
+    assert line.startswith("Largest feasible S (eps_e 0.1): ")
+    assert "0.2 at T = 10 (radius 2)" in line
+    assert "none (infeasible even at S = 0) at T = 20" in line
+    assert "0.4 at T = 30 (radius 1.25)" in line
+    assert " inf" not in line

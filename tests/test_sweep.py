@@ -474,3 +474,48 @@ def test_a_sweep_row_is_the_certificate_synth_writes_for_the_same_options():
             assert getattr(row, col) == getattr(cert, field), (name, col)
     assert made["l1_robust_imitation"].imitate == "l1_nominal"
     assert table["cost_value"][1] != made["l1_robust"].cost_value  # a different problem
+
+
+@pytest.mark.slow
+def test_the_scheduler_lost_mid_sweep_fails_with_one_line(tmp_path):
+    """The Dask scheduler killed while a worker solves (issue 35: FuturesCancelledError)."""
+    from distributed import Client
+
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text(SMALL.replace("T: [6, 10]", "T: [20, 30, 40]"))
+    cluster = _Cluster(tmp_path)
+    try:
+        cluster.worker()
+        _wait_for_workers(cluster.address, 1)
+        proc = _qsls_sweep(
+            "-c", cfg, "-o", tmp_path / "o", "--scheduler", cluster.address, "--wait-workers", 3
+        )
+        with Client(cluster.address, timeout="20s", set_as_default=False) as client:
+            deadline = time.monotonic() + 60
+            while not client.processing() or not any(client.processing().values()):
+                assert proc.poll() is None and time.monotonic() < deadline
+                time.sleep(0.05)
+        cluster.procs[0].kill()  # the scheduler dies while its worker solves
+        _, err = proc.communicate(timeout=120)
+    finally:
+        cluster.stop()
+    assert proc.returncode == 2, err
+    line = _one_error_line(err)
+    assert f"the Dask scheduler at {cluster.address}" in line and "rerun the sweep" in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_jobs_zero_means_every_core_and_no_more_processes_than_cores(tmp_path):
+    """Issue 35: --jobs 0 (which evaluate accepts) was refused, --jobs 64 started 64
+    processes on 2 cores. 0 now means every core; no pool has more processes than cores."""
+    from qsls.pipeline.control.options import SweepSection
+    from qsls.pipeline.core.pools import available_cores, pool_size
+
+    cores = available_cores()
+    assert SweepSection(jobs=0).jobs == 0 and pool_size(0) == cores == pool_size(None)
+    assert pool_size(64) == cores and pool_size(1) == 1
+    cfg = tmp_path / "sweep.yaml"
+    cfg.write_text(SMALL)
+    res = _sweep("-c", cfg, "-o", tmp_path / "j64", "--jobs", 64)
+    assert res.exit_code == 0, res.output
+    assert f"local, {cores} process" in res.output, res.output

@@ -141,6 +141,22 @@ class ProblemOptions(Options):
             raise ValueError(f"must be a finite number >= 0, got {v}")
         return v
 
+    @field_validator("error_scale", mode="before")
+    @classmethod
+    def _scale_count(cls, v: Any) -> Any:
+        if isinstance(v, list | tuple) and len(v) != NX:
+            raise ValueError(f"needs {NX} weights (x, y, z, vx, vy, vz), got {len(v)}")
+        return v
+
+    @field_validator("m", mode="before")
+    @classmethod
+    def _m(cls, v: Any) -> Any:
+        if v == "auto":
+            return v
+        if isinstance(v, bool) or not isinstance(v, int | float) or v < 0 or v != int(v):
+            raise ValueError("must be a whole number >= 0 or 'auto'")
+        return int(v)
+
     @field_validator("error_scale")
     @classmethod
     def _scale(cls, v: Any) -> Any:
@@ -204,7 +220,7 @@ class SweepSection(SweepOptions):
     ``qsls run``: the sweep's options plus where it runs (which changes no result, so only
     :meth:`options` is the stage's record and cache key)."""
 
-    jobs: int | None = Field(None, ge=1)
+    jobs: int | None = Field(None, ge=0)
     """Local worker processes (default: all cores)."""
     scheduler: str | None = None
     """Dask scheduler address ``SCHEME://HOST:PORT`` (instead of ``jobs``)."""

@@ -29,10 +29,13 @@ is the only thing that differs between runs)
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import os
 from collections import Counter
+from collections.abc import Callable
+from concurrent.futures import CancelledError
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -51,7 +54,7 @@ from qsls.pipeline.control.resolution import read_model, resolve
 from qsls.pipeline.control.synth import warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import ConfigError, InputError
-from qsls.pipeline.core.pools import run_tasks
+from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import error_model_file
 
@@ -406,7 +409,9 @@ def s_max_table(results: list[list[dict[str, Any]]]) -> Any:
     """The tasks' rows in one table, ordered by ``T`` and setting (``eps_e`` before ``radius``)."""
     import pandas as pd
 
-    rows = sorted((r for res in results for r in res), key=lambda r: tuple(r[k] for k in S_MAX_KEYS))
+    rows = sorted(
+        (r for res in results for r in res), key=lambda r: tuple(r[k] for k in S_MAX_KEYS)
+    )
     return pd.DataFrame(rows, columns=[*S_MAX_KEYS, "s_max", "min_norm_phi_xy"])
 
 
@@ -438,50 +443,98 @@ def _run_dask(
 ) -> list[Any]:
     """The tasks on a Dask cluster; one line when the workers never come or all leave (their
     tasks would wait forever) or a worker dies on a task three times (``KilledWorker``)."""
-    import time
-
     try:
-        from distributed import Client, KilledWorker, wait
+        from distributed import Client
     except ImportError as exc:  # pragma: no cover - dask is a dependency
         raise InputError(f"--scheduler needs dask.distributed ({exc})") from None
     try:
         client = Client(scheduler, timeout="10s", set_as_default=False)
     except (OSError, TimeoutError) as exc:
         raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+    quiet = _quiet_dask()  # its client logs a traceback when the scheduler goes away
     try:
-        _await_workers(client, scheduler, worker_timeout, progress)
-        futs = [client.submit(fn, arg, pure=False) for fn, arg in tasks]
-        index = {f.key: i for i, f in enumerate(futs)}
-        results: list[Any] = [None] * len(tasks)
-        pending, alone_since = set(futs), None
-        while pending:
-            try:
-                with client.as_current():  # wait() finds its client there
-                    done, pending = wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
-            except TimeoutError:
-                done = set()
-            for fut in done:
-                i = index[fut.key]
-                try:
-                    results[i] = fut.result()
-                except KilledWorker as exc:
-                    raise InputError(
-                        f"Dask workers at {scheduler} died running a task ({exc}); "
-                        "check the workers' memory and logs"
-                    ) from None
-                progress.advance(weights[i])
-            if done or _n_workers(client):
-                alone_since = None
-                continue
-            alone_since = alone_since or time.monotonic()
-            if time.monotonic() - alone_since > worker_timeout:
-                raise InputError(
-                    f"every Dask worker at {scheduler} left ({len(pending)} of {len(tasks)} "
-                    f"tasks unfinished, none back within {worker_timeout:g} s); restart the workers"
-                )
-        return results
+        return _gather_dask(client, tasks, scheduler, progress, weights, worker_timeout)
+    except (CancelledError, OSError) as exc:  # FuturesCancelledError, CommClosedError
+        what = (
+            "cancelled the sweep's tasks"
+            if client.status == "running"
+            else "is gone: lost the Dask scheduler"
+        )
+        raise InputError(
+            f"the Dask scheduler at {scheduler} {what} mid-sweep ({type(exc).__name__}); "
+            "check that it is still running (or restart it and its workers) and rerun the sweep"
+        ) from None
     finally:
-        client.close()
+        with contextlib.suppress(Exception):
+            client.close(timeout=2)
+        quiet()
+
+
+def _quiet_dask() -> Callable[[], None]:
+    """Silence ``distributed``'s own error logging (the lost scheduler becomes one line);
+    returns what restores it."""
+    import logging
+
+    names = [
+        "distributed",
+        *(n for n in logging.root.manager.loggerDict if n.startswith("distributed.")),
+    ]
+    logs = [logging.getLogger(n) for n in names]
+    levels = [log.level for log in logs]
+    for log in logs:
+        log.setLevel(logging.CRITICAL)
+
+    def restore() -> None:
+        for log, level in zip(logs, levels, strict=True):
+            log.setLevel(level)
+
+    return restore
+
+
+def _gather_dask(
+    client: Any,
+    tasks: list[tuple[Any, Any]],
+    scheduler: str,
+    progress: Progress,
+    weights: list[int],
+    worker_timeout: float,
+) -> list[Any]:
+    """The tasks' results (``_run_dask``'s loop: a lost scheduler raises out of it)."""
+    import time
+
+    from distributed import KilledWorker, wait
+
+    _await_workers(client, scheduler, worker_timeout, progress)
+    futs = [client.submit(fn, arg, pure=False) for fn, arg in tasks]
+    index = {f.key: i for i, f in enumerate(futs)}
+    results: list[Any] = [None] * len(tasks)
+    pending, alone_since = set(futs), None
+    while pending:
+        try:
+            with client.as_current():  # wait() finds its client there
+                done, pending = wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            done = set()
+        for fut in done:
+            i = index[fut.key]
+            try:
+                results[i] = fut.result()
+            except KilledWorker as exc:
+                raise InputError(
+                    f"Dask workers at {scheduler} died running a task ({exc}); "
+                    "check the workers' memory and logs"
+                ) from None
+            progress.advance(weights[i])
+        if done or _n_workers(client):
+            alone_since = None
+            continue
+        alone_since = alone_since or time.monotonic()
+        if time.monotonic() - alone_since > worker_timeout:
+            raise InputError(
+                f"every Dask worker at {scheduler} left ({len(pending)} of {len(tasks)} "
+                f"tasks unfinished, none back within {worker_timeout:g} s); restart the workers"
+            )
+    return results
 
 
 # --------------------------------------------------------------------------- sweep
@@ -526,9 +579,9 @@ def compute(
         scheduler = check_scheduler(scheduler)
     mi = read_model(error_model)
     points = grid_points(options, mi.model, mi.training)
-    jobs = jobs if jobs is not None else (os.cpu_count() or 1)
-    if jobs < 1:
-        raise ConfigError(f"--jobs must be at least 1, got {jobs}")
+    if jobs is not None and jobs < 0:
+        raise ConfigError(f"--jobs must be 0 (every core) or more, got {jobs}")
+    jobs = jobs or (os.cpu_count() or 1)  # the chunking follows what was asked
     workers = jobs if scheduler is None else 8
     specs = s_max_specs(points) if options.s_max_curve else []
     warn_size(max(int(p["T"]) for p in points), len(points), progress)
@@ -539,7 +592,7 @@ def compute(
             return []
         if scheduler is not None:
             return _run_dask(tasks, scheduler, progress, weights, worker_timeout)
-        return run_tasks(tasks, jobs, lambda i: progress.advance(weights[i]))
+        return run_tasks(tasks, pool_size(jobs), lambda i: progress.advance(weights[i]))
 
     # first the largest feasible S of every setting: it answers the points above it
     s_results = execute([(s_max_task, s) for s in specs], [1] * len(specs))
@@ -549,7 +602,8 @@ def compute(
     if scheduler is not None:
         executor = f"dask {scheduler}"
     else:
-        executor = f"local, {jobs} process{'es' if jobs > 1 else ''}"
+        n = pool_size(jobs)
+        executor = f"local, {n} process{'es' if n > 1 else ''}"
     progress.finish()
     rows = [r for res in results for r in res]
     table = pd.DataFrame(rows).sort_values("index", kind="stable").reset_index(drop=True)

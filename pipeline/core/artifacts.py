@@ -17,6 +17,7 @@ YAML, JSON, NPZ and PNG files. Only ``manifest.json`` records the wall time.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
@@ -35,13 +36,18 @@ from qsls.pipeline import __version__
 from qsls.pipeline.core.errors import InputError, OutputExistsError
 from qsls.pipeline.core.locks import (  # clean_stale: re-exported for the report stage
     OLD_MARK,
+    TEMP_MARKER,
     TMP_MARK,
     check_unlocked,
     check_writable,
     clean_stale,
     hold_output,
+    is_temporary,
     make_parent,
+    make_temporary,
+    mark_temporary,
     release_output,
+    temporary_name,
 )
 
 MANIFEST = "manifest.json"
@@ -158,7 +164,8 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder and a rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}{_TMP_MARK}{os.getpid()}")
+    folder = make_temporary(path)  # a signed temporary folder: the next writer may remove it
+    tmp = folder / path.name
     try:
         with open(tmp, "wb") as fh:
             fh.write(data)
@@ -166,8 +173,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def dump_yaml(obj: Any) -> str:
@@ -320,10 +326,7 @@ class StageWriter:
         make_parent(self.out, "output folder")
         hold_output(self.out)
         clean_stale(self.out)
-        self.tmp = self.out.with_name(f".{self.out.name}{_TMP_MARK}{os.getpid()}")
-        if self.tmp.exists():
-            shutil.rmtree(self.tmp)
-        self.tmp.mkdir()
+        self.tmp = make_temporary(self.out)
         self._inputs = describe_inputs(self.inputs)
         return self
 
@@ -393,11 +396,16 @@ class StageWriter:
         (self.tmp / MANIFEST).write_text(dump_json(manifest))
 
 
-def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
+def check_output(
+    out: Path, force: bool, inputs: Iterable[Path] = (), known: Sequence[str] = ()
+) -> None:
     """Refuse an output folder that overlaps an input, cannot be written (a read-only or
     missing location, :func:`check_writable`), is being written by another process (its
     lock, :func:`check_unlocked`; :class:`StageWriter` holds it while it writes), or exists
-    (unless ``force``)."""
+    (unless ``force``). ``--force`` replaces only a folder qsls wrote: one holding files its
+    ``manifest.json`` does not list (the user's notes) is refused, never deleted
+    (:func:`foreign_files`; ``known``: name patterns taken as qsls's in a folder without a
+    manifest, as older reports had)."""
     out = Path(out)
     refuse_overlap(out, inputs)
     check_writable(out, "output folder")
@@ -406,12 +414,48 @@ def check_output(out: Path, force: bool, inputs: Iterable[Path] = ()) -> None:
         raise OutputExistsError(f"{out} already exists; pass --force to overwrite it")
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
+    foreign = foreign_files(out, known) if out.exists() else []
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise OutputExistsError(
+            f"{out} holds files qsls did not write ({shown}); --force replaces only a folder "
+            "a qsls command wrote: move them away or choose another --out"
+        )
 
 
-def refuse_overlap(out: Path, inputs: Iterable[Path], what: str = "output folder") -> None:
+def foreign_files(folder: Path, known: Sequence[str] = ()) -> list[str]:
+    """The files of ``folder`` (relative paths) that its ``manifest.json`` does not list:
+    what ``--force`` would delete that qsls did not write. Without a readable manifest every
+    file is foreign, unless its name matches a pattern of ``known``."""
+    import fnmatch
+
+    folder = Path(folder)
+    listed: set[str] = {MANIFEST, TEMP_MARKER}  # the marker: a publish killed half-way
+    try:
+        files = json.loads((folder / MANIFEST).read_bytes()).get("files", {})
+        listed |= set(files) if isinstance(files, dict) else set()
+        patterns: Sequence[str] = ()
+    except (OSError, ValueError, AttributeError):
+        patterns = known
+    out = []
+    for f in sorted(folder.rglob("*")):
+        if f.is_dir() and not f.is_symlink():
+            continue
+        rel = f.relative_to(folder).as_posix()
+        if rel in listed or any(fnmatch.fnmatchcase(rel, p) for p in patterns):
+            continue
+        out.append(rel)
+    return out
+
+
+def refuse_overlap(
+    out: Path, inputs: Iterable[Path], what: str = "output folder", *, contains: bool = True
+) -> None:
     """An output (``what``: folder or file) that is, contains or lies inside an input would
     destroy it on publish: refused with one line, whatever ``--force`` says (resolved,
-    symlinks followed). The ``--config`` files the command read are inputs too."""
+    symlinks followed). The ``--config`` files the command read are inputs too.
+    ``contains=False`` allows an output folder holding an input (a run folder, which is
+    never replaced as a whole)."""
     from qsls.pipeline.core.config import config_files
 
     o = Path(out).resolve()
@@ -419,7 +463,7 @@ def refuse_overlap(out: Path, inputs: Iterable[Path], what: str = "output folder
         i = Path(given).resolve()
         if o == i:
             how = "is"
-        elif o in i.parents:
+        elif o in i.parents and contains:
             how = "contains"
         elif i in o.parents:
             how = "lies inside"
@@ -434,9 +478,25 @@ def refuse_overlap(out: Path, inputs: Iterable[Path], what: str = "output folder
 def publish(tmp: Path, out: Path) -> None:
     """Move a finished temporary folder to ``out``, replacing an old one by renames only."""
     old = None
-    if out.exists():
-        old = out.with_name(f".{out.name}{_OLD_MARK}{os.getpid()}")
+    if out.is_symlink():  # --force onto a link: the link is replaced, its target left alone
+        old = temporary_name(out, _OLD_MARK)
         os.replace(out, old)
+        os.replace(tmp, out)
+        (out / TEMP_MARKER).unlink(missing_ok=True)
+        old.unlink()
+        return
+    if out.exists():
+        old = temporary_name(out, _OLD_MARK)
+        if old.exists() or old.is_symlink():
+            if not is_temporary(old):
+                raise OutputExistsError(
+                    f"{old} is in the way and was not written by qsls; move it away and retry"
+                )
+            shutil.rmtree(old)
+        os.replace(out, old)
+        with contextlib.suppress(OSError):  # signed, so a run killed before the rmtree
+            mark_temporary(old)  # below has it removed (a full disk: it stays unsigned)
     os.replace(tmp, out)
+    (out / TEMP_MARKER).unlink(missing_ok=True)  # a finished folder, no longer a temporary
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)

@@ -53,8 +53,22 @@ def read_yaml(path: Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: config file not found")
+    raw = path.read_bytes()
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"{path}: {len(raw)} bytes, more than a config may hold ({MAX_CONFIG_BYTES}); "
+            "pass the YAML config, not a data file"
+        )
     try:
-        data = yaml.safe_load(path.read_text())
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line}); "
+            "save the config as UTF-8 and try again"
+        ) from None
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
@@ -64,7 +78,33 @@ def read_yaml(path: Path) -> dict[str, Any]:
         return {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of option names to values at the top level")
+    if _expanded_size(data, MAX_CONFIG_VALUES) > MAX_CONFIG_VALUES:
+        raise ConfigError(
+            f"{path}: expands to more than {MAX_CONFIG_VALUES} values (YAML aliases that "
+            "repeat each other, or refer to themselves); write the values out"
+        )
     return data
+
+
+MAX_CONFIG_BYTES = 4 << 20
+"""A config file's size limit (configs are a few kB)."""
+MAX_CONFIG_VALUES = 200_000
+"""How many values a config may expand to once its YAML aliases are followed (a 1 kB alias
+"bomb" expands to billions; every stage walks the options, so it would never return)."""
+
+
+def _expanded_size(obj: Any, cap: int) -> int:
+    """How many values ``obj`` holds with shared (aliased) parts counted each time they
+    occur, counting no further than just past ``cap``."""
+    n, stack = 0, [obj]
+    while stack and n <= cap:
+        item = stack.pop()
+        n += 1
+        if isinstance(item, Mapping):
+            stack.extend(item.values())
+        elif isinstance(item, list | tuple):
+            stack.extend(item)
+    return n
 
 
 def merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
@@ -89,8 +129,19 @@ def load_options(
 ) -> T:
     """Validate ``model`` from a YAML file (optionally one ``section`` of it) and overrides."""
     data = read_section(config, section)
-    data = merge(data, overrides or {})
-    return validate(model, data, str(config) if config is not None else "options")
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    data = merge(data, given)
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        # blame the command line for what it gave, the file for the rest
+        tops = {str(e["loc"][0]) for e in exc.errors() if e.get("loc")}
+        cli = tops & set(given)
+        if config is None or (cli and cli == tops):
+            source = "command line" if cli else "options"
+        else:
+            source = str(config)
+        raise ConfigError(f"{source}: {describe_validation_error(model, exc)}") from None
 
 
 # The --config files this process read: inputs of the stage like any other, so an output
@@ -133,11 +184,26 @@ def validate(model: type[T], data: Mapping[str, Any], source: str = "options") -
         raise ConfigError(f"{source}: {describe_validation_error(model, exc)}") from None
 
 
+_TYPE_TAGS = frozenset({"int", "float", "str", "bool", "list", "tuple", "dict", "none"})
+
+
+def _plain_loc(loc: tuple[Any, ...]) -> tuple[Any, ...]:
+    """``loc`` without pydantic's union-member tags (``('m', 'int')`` -> ``('m',)``)."""
+    return loc[:1] + tuple(
+        p for p in loc[1:] if not (isinstance(p, str) and ("[" in p or p in _TYPE_TAGS))
+    )
+
+
 def describe_validation_error(model: type[BaseModel], exc: ValidationError) -> str:
-    """One line per problem, joined by '; ', with suggestions for unknown keys."""
+    """One line per problem (per option: a union's members are not listed), joined by '; ',
+    with suggestions for unknown keys."""
     parts = []
+    seen: set[tuple[Any, ...]] = set()
     for err in exc.errors():
-        loc = tuple(err.get("loc", ()))
+        loc = _plain_loc(tuple(err.get("loc", ())))
+        if loc in seen and err.get("type") != "extra_forbidden":
+            continue  # one line per option (a union reports each member)
+        seen.add(loc)
         dotted = ".".join(str(p) for p in loc) or "(top level)"
         if err.get("type") == "extra_forbidden":
             valid = _field_names(model, loc[:-1])

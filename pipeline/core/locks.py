@@ -3,8 +3,11 @@
 A folder is written by one process at a time: :class:`FolderLock` holds an exclusive
 ``flock`` on ``.NAME.lock`` beside the folder, with the holder's PID in it. The kernel drops
 the lock when its process dies (SIGKILL included), so a stale lock file is taken over by
-the next process. Temporaries are named ``.NAME.tmp-PID`` / ``.NAME.old-PID``: one whose
+the next process. Temporaries are folders named ``.NAME.tmp-PID`` / ``.NAME.old-PID``
+holding a marker file signed ``qsls temporary PID`` (:data:`TEMP_MARKER`): one whose
 process is gone is removed by the next writer (a live process's are its work in progress).
+A name alone is never enough: a user's ``.env.old-prod`` or ``.draft.tmp-123`` is never
+touched.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import errno
 import fcntl
 import os
 import shutil
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -38,10 +42,25 @@ def pid_alive(pid: int) -> bool:
     return True
 
 
+FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+"""The errors of a full disk (or quota, or file size limit)."""
+
+
+def full_message(exc: OSError, target: Path | None = None) -> str:
+    """One line for a write that found the disk full."""
+    where = f" {exc.filename}" if exc.filename else (f" {target}" if target else "")
+    return (
+        f"cannot write{where}: {exc.strerror or 'no space left on device'}; nothing partial "
+        "was kept: free some space (or choose an --out on another disk) and run again"
+    )
+
+
 def unwritable(target: Path, exc: OSError, what: str = "output") -> UnwritableError:
     """One line for an output location that cannot be written: which folder, and why."""
     where = Path(exc.filename).parent if exc.filename else Path(target).parent
     why = exc.strerror or type(exc).__name__
+    if exc.errno in FULL:
+        return UnwritableError(full_message(exc, target))
     return UnwritableError(
         f"cannot write the {what} {target}: folder {where} is not writable ({why}); "
         "choose another --out"
@@ -122,8 +141,15 @@ class FolderLock:
             if same:
                 break
             os.close(fd)
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        except OSError as exc:  # a full disk: no empty lock file is left behind
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+            os.close(fd)
+            raise unwritable(self.target, OSError(exc.errno, exc.strerror, str(self.path)),
+                             self.what) from None  # fmt: skip
         self._fd = fd
         self._owner = os.getpid()
         return self
@@ -182,8 +208,17 @@ def check_unlocked(out: Path) -> None:
 
 def release_output(out: Path) -> None:
     lock = _HELD.pop(os.path.realpath(out), None)
+    if lock is None:  # held through a symlink that publish has since replaced
+        key = next((k for k, v in _HELD.items() if v.target == Path(out)), None)
+        lock = _HELD.pop(key) if key is not None else None
     if lock is not None:
         lock.release()
+
+
+TEMP_MARKER = ".qsls-temporary"
+"""The file inside every temporary folder qsls creates: ``qsls temporary PID``. Only a
+folder holding it (with the PID of its name) is ever removed as a dead process's temporary."""
+_SIGNATURE = "qsls temporary"
 
 
 def _mark_pid(name: str) -> int | None:
@@ -192,9 +227,60 @@ def _mark_pid(name: str) -> int | None:
     return int(tail) if tail.isdigit() else None
 
 
+def temporary_name(target: Path, mark: str = TMP_MARK, pid: int | None = None) -> Path:
+    """``.NAME.tmp-PID`` (or ``.old-PID``) beside ``target``: this process's temporary."""
+    target = Path(target)
+    return target.with_name(f".{target.name}{mark}{os.getpid() if pid is None else pid}")
+
+
+def mark_temporary(folder: Path) -> None:
+    """Sign ``folder`` as a qsls temporary of this process (see :data:`TEMP_MARKER`)."""
+    (Path(folder) / TEMP_MARKER).write_text(f"{_SIGNATURE} {os.getpid()}\n")
+
+
+def is_temporary(path: Path) -> bool:
+    """Whether ``path`` is a temporary qsls created: a real folder named ``.NAME.tmp-PID`` /
+    ``.NAME.old-PID`` holding the marker signed with that PID. Nothing else (a user's
+    ``.env.old-prod``, a file, a symlink) ever counts, whatever its name."""
+    path = Path(path)
+    pid = _mark_pid(path.name)
+    if pid is None or not path.name.startswith(".") or path.is_symlink() or not path.is_dir():
+        return False
+    if TMP_MARK not in path.name and OLD_MARK not in path.name:
+        return False
+    marker = path / TEMP_MARKER
+    if marker.is_symlink() or not marker.is_file():
+        return False
+    try:
+        with open(marker, "rb") as fh:
+            text = fh.read(64).decode("ascii", "replace").strip()
+    except OSError:
+        return False
+    return text == f"{_SIGNATURE} {pid}"
+
+
+def make_temporary(target: Path, mark: str = TMP_MARK) -> Path:
+    """Create and sign this process's temporary folder beside ``target`` (its parent must
+    exist). A leftover of ours is replaced; anything else in the way is refused, not removed."""
+    tmp = temporary_name(target, mark)
+    if tmp.exists() or tmp.is_symlink():
+        if not is_temporary(tmp):
+            raise UnwritableError(
+                f"{tmp} is in the way and was not written by qsls; move it away and retry"
+            )
+        shutil.rmtree(tmp)
+    try:
+        tmp.mkdir()
+        mark_temporary(tmp)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise unwritable(target, exc) from None
+    return tmp
+
+
 def clean_stale(out: Path) -> None:
-    """Remove the temporaries that dead processes left beside ``out`` (a live process's
-    temporaries are its work in progress and are kept)."""
+    """Remove the temporaries that dead qsls processes left beside ``out`` (signed folders
+    only, :func:`is_temporary`; a live process's temporaries are its work in progress)."""
     out = Path(out)
     if not out.parent.is_dir():
         return
@@ -203,22 +289,26 @@ def clean_stale(out: Path) -> None:
             _remove_if_dead(stale)
 
 
-def clean_dead_temporaries(root: Path) -> list[Path]:
-    """Remove every ``.*.tmp-PID`` / ``.*.old-PID`` under ``root`` whose process is gone."""
+def clean_dead_temporaries(folders: Iterable[Path]) -> list[Path]:
+    """Remove the temporaries of dead qsls processes directly in ``folders`` (the levels a
+    run writes: the run folder and its stage folders' parents; never deeper, never a
+    folder or file qsls did not sign)."""
     removed = []
-    for mark in (TMP_MARK, OLD_MARK):
-        for stale in sorted(Path(root).rglob(f".*{mark}*")):
-            if _remove_if_dead(stale):
-                removed.append(stale)
+    for folder in dict.fromkeys(Path(f) for f in folders):
+        if folder.is_symlink() or not folder.is_dir():
+            continue
+        for mark in (TMP_MARK, OLD_MARK):
+            for stale in sorted(folder.glob(f".*{mark}*")):
+                if _remove_if_dead(stale):
+                    removed.append(stale)
     return removed
 
 
 def _remove_if_dead(stale: Path) -> bool:
+    if not is_temporary(stale):
+        return False
     pid = _mark_pid(stale.name)
     if pid is not None and (pid == os.getpid() or pid_alive(pid)):
         return False
-    if stale.is_dir() and not stale.is_symlink():
-        shutil.rmtree(stale, ignore_errors=True)
-    elif stale.exists() or stale.is_symlink():
-        stale.unlink(missing_ok=True)
+    shutil.rmtree(stale, ignore_errors=True)
     return True

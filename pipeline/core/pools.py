@@ -38,6 +38,23 @@ def run_pool(
     pool.shutdown()
 
 
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity; ``os.cpu_count()`` elsewhere)."""
+    import os
+
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def pool_size(jobs: int | None) -> int:
+    """Worker processes for ``jobs``: 0 or None means every available core, and never more
+    processes than cores (``--jobs 64`` on 2 cores would only make them wait for each other)."""
+    cores = available_cores()
+    return cores if not jobs else max(1, min(int(jobs), cores))
+
+
 def run_tasks(
     tasks: Sequence[tuple[Callable[[Any], Any], Any]],
     jobs: int,

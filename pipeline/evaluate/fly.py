@@ -33,7 +33,6 @@ findings (paper, Results), each paired by seed with a 95% interval and a verdict
 from __future__ import annotations
 
 import itertools
-import os
 import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -44,7 +43,7 @@ import numpy as np
 import pandas as pd
 
 from qsls.pipeline.core.errors import InputError, QslsError
-from qsls.pipeline.core.pools import run_tasks
+from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.evaluate.bound import (
@@ -547,7 +546,7 @@ def fly_evaluate(
     specs: list[tuple[str, str]] = [(b.name, str(b.folder.resolve())) for b in bounds]
     if options.se3:
         specs.append(("se3", "se3"))
-    workers = options.jobs or os.cpu_count() or 1
+    workers = pool_size(options.jobs)
 
     with StageWriter(
         out, "evaluate", options=options, inputs=[model_file, *folders], force=force

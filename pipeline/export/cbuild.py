@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.locks import make_temporary
 from qsls.pipeline.sim.controllers import register_runtime
 
 STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
@@ -45,14 +46,17 @@ def compile_shared(
         raise InputError("no C compiler found (tried $CC, cc, gcc, clang); install gcc or clang")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    cmd = [cc, *STRICT, opt, "-fPIC", "-shared", "-o", str(tmp), str(c_file), "-lm"]
-    res = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    if res.returncode != 0:
-        tmp.unlink(missing_ok=True)
-        first = (res.stderr.strip().splitlines() or ["(no message)"])[0]
-        raise InputError(f"{Path(cc).name} failed on {c_file}: {first}")
-    os.replace(tmp, out)
+    folder = make_temporary(out)
+    tmp = folder / out.name
+    try:
+        cmd = [cc, *STRICT, opt, "-fPIC", "-shared", "-o", str(tmp), str(c_file), "-lm"]
+        res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if res.returncode != 0:
+            first = (res.stderr.strip().splitlines() or ["(no message)"])[0]
+            raise InputError(f"{Path(cc).name} failed on {c_file}: {first}")
+        os.replace(tmp, out)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
     return out
 
 

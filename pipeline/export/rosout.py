@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.core.locks import make_temporary
+
 ATTITUDE_TARGET = "mavros_msgs/msg/AttitudeTarget"
 MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
 VECTOR3_STAMPED = "geometry_msgs/msg/Vector3Stamped"
@@ -91,9 +93,8 @@ def write_mcap(path: Path, ticks: Ticks, topics: Topics, report_json: str) -> Pa
     Layout, Dim = t["std_msgs/msg/MultiArrayLayout"], t["std_msgs/msg/MultiArrayDimension"]
     V3S = t[VECTOR3_STAMPED]
     layout = Layout(dim=[Dim(label="y_minus_r[6],u[3]", size=9, stride=9)], data_offset=0)
-    tmpdir = path.parent / f".{path.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmpdir, ignore_errors=True)
-    tmpdir.mkdir(parents=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmpdir = make_temporary(path)
     bag = tmpdir / "replay"
     try:
         w = Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP)

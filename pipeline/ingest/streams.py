@@ -192,6 +192,13 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     # the usual stream is sorted and without duplicates: nothing to reorder or drop then
     step = np.diff(t)
     unsorted = int(np.sum(step < 0))
+    if unsorted and step.min() < -o.max_gap * 1e9:  # a clock reset, not reordered messages
+        k = int(np.argmin(step)) + 1
+        raise InputError(
+            f"{name}: its clock jumps back {-step.min() * 1e-9:.3g} s at message {k} "
+            f"(--stamp {o.stamp}); a clock that was reset or set mid-flight: cut the log "
+            "there, or try --stamp " + ("log" if o.stamp == "header" else "header")
+        )
     if unsorted:
         order = np.argsort(t, kind="stable")
         t, p, q, qn = t[order], p[order], q[order], qn[order]
@@ -213,6 +220,13 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
             bad = drop_around(t, jumps, int(o.max_gap * 1e9 / 2) + 1)
             t, p, q = t[~bad], p[~bad], q[~bad]
             v = v[~bad] if v is not None else None
+            if len(t) < max(10, n // 2):
+                raise InputError(
+                    f"{name}: {glitches} jumps no vehicle could fly (accelerations above "
+                    f"max_truth_accel, {o.max_truth_accel:g} m/s^2) leave {len(t)} of {n} "
+                    "messages; is it the motion-capture topic? Check --truth-topic and "
+                    "--vio-topic (swapped?), or raise ingest.max_truth_accel in the config"
+                )
     return Prepared(
         role,
         source,

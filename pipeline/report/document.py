@@ -3,7 +3,10 @@ appendices, rendered to one self-contained HTML page (figures embedded as base64
 to Markdown with the same structure (figures and CSV files beside it).
 
 Text may hold links written as ``[label](#section-id)`` or ``[label](file.csv)``; both
-renderings keep them. Tables stay narrow: long texts go to numbered notes under the table,
+renderings keep them. Only ``http``/``https`` and relative targets become links
+(:func:`safe_href`): a name that holds ``[x](javascript:...)`` is shown as text. The
+Markdown twin escapes ``<``, ``>`` and ``&`` in every text it carries, so no name is raw HTML
+there. Tables stay narrow: long texts go to numbered notes under the table,
 wide data to a CSV file beside the report (``Table.csv``).
 """
 
@@ -205,6 +208,22 @@ def fmt(v: Any, digits: int = 4) -> str:
     return str(v)
 
 
+# --------------------------------------------------------------------------- links
+_SCHEME = re.compile(r"([A-Za-z][A-Za-z0-9+.\-]*):")
+
+
+def safe_href(target: str) -> str | None:
+    """``target`` when it may be a link: ``http``/``https``, or relative (a section
+    ``#id``, a file beside the report); None for anything else (``javascript:``,
+    ``data:``, ``//host``, control characters or backslashes a browser would strip)."""
+    if not target or "\\" in target or any(ord(c) < 0x21 or ord(c) == 0x7F for c in target):
+        return None
+    m = _SCHEME.match(target)
+    if m:
+        return target if m.group(1).lower() in ("http", "https") else None
+    return None if target.startswith("//") else target
+
+
 # --------------------------------------------------------------------------- HTML
 def _escape(s: str) -> str:
     return _BOLD.sub(r"<strong>\1</strong>", html.escape(s))
@@ -215,7 +234,11 @@ def _inline(s: str) -> str:
     out, pos = [], 0
     for m in _LINK.finditer(s):
         out.append(_escape(s[pos : m.start()]))
-        out.append(f'<a href="{html.escape(m.group(2))}">{html.escape(m.group(1))}</a>')
+        href = safe_href(m.group(2))
+        if href is None:  # shown as written, never a live link
+            out.append(_escape(m.group(0)))
+        else:
+            out.append(f'<a href="{html.escape(href)}">{html.escape(m.group(1))}</a>')
         pos = m.end()
     out.append(_escape(s[pos:]))
     return "".join(out)
@@ -249,7 +272,12 @@ def _html_table(t: Table) -> str:
 
 def _html_card(c: Card) -> str:
     items = "".join(f"<dt>{html.escape(k)}</dt><dd>{html.escape(v)}</dd>" for k, v in c.items)
-    links = " · ".join(f'<a href="{html.escape(h)}">{html.escape(t)}</a>' for t, h in c.links)
+    links = " · ".join(
+        f'<a href="{html.escape(h)}">{html.escape(t)}</a>'
+        if safe_href(h) is not None
+        else html.escape(t)
+        for t, h in c.links
+    )
     return (
         f'<div class="card" style="--c:{html.escape(c.colour)}">'
         f"<h3>{html.escape(c.title)}</h3>"
@@ -298,7 +326,7 @@ def _html_block(kind: str, payload: Any) -> str:
 
 
 def render_html(title: str, subtitle: str, sections: Sequence[Section]) -> str:
-    nav = "".join(f'<a href="#{s.id}">{html.escape(s.title)}</a>' for s in sections if s.id)
+    nav = "".join(f'<a href="#{html.escape(s.id)}">{html.escape(s.title)}</a>' for s in sections if s.id)
     out = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
@@ -309,31 +337,49 @@ def render_html(title: str, subtitle: str, sections: Sequence[Section]) -> str:
     ]
     for s in sections:
         body = "\n".join(_html_block(k, p) for k, p in s.blocks)
+        sid = html.escape(s.id)
         if s.collapsed:
             out.append(
-                f'<section id="{s.id}"><details><summary>{html.escape(s.title)}</summary>\n'
+                f'<section id="{sid}"><details><summary>{html.escape(s.title)}</summary>\n'
                 f"{body}\n</details></section>"
             )
         else:
-            out.append(f'<section id="{s.id}"><h2>{html.escape(s.title)}</h2>\n{body}\n</section>')
+            out.append(f'<section id="{sid}"><h2>{html.escape(s.title)}</h2>\n{body}\n</section>')
     out.append("</main></body></html>\n")
     return "\n".join(out)
 
 
 # --------------------------------------------------------------------------- Markdown
+def _md(s: Any) -> str:
+    """Text for the Markdown twin: ``<``, ``>`` and ``&`` escaped (no name is raw HTML), a
+    link whose target is not :func:`safe_href` with its brackets escaped (shown as text)."""
+    text = html.escape(str(s), quote=False)
+    out, pos = [], 0
+    for m in _LINK.finditer(text):
+        out.append(text[pos : m.start()])
+        target = html.unescape(m.group(2))
+        if safe_href(target) is None:
+            out.append(m.group(0).replace("[", "\\[").replace("]", "\\]").replace("(", "\\("))
+        else:
+            out.append(m.group(0))
+        pos = m.end()
+    out.append(text[pos:])
+    return "".join(out)
+
+
 def _md_cell(v: Any) -> str:
-    return fmt(v).replace("|", "\\|").replace("\n", " ")
+    return _md(fmt(v)).replace("|", "\\|").replace("\n", " ")
 
 
 def _md_table(t: Table) -> list[str]:
-    lines = [f"**{t.caption}**", ""] if t.caption else []
+    lines = [f"**{_md(t.caption)}**", ""] if t.caption else []
     left = set(t.text_cols) | set(t.wrap_cols)
     align = ["---" if j == 0 or j in left else "---:" for j in range(len(t.columns))]
-    lines.append("| " + " | ".join(str(c).replace("|", "\\|") for c in t.columns) + " |")
+    lines.append("| " + " | ".join(_md(c).replace("|", "\\|") for c in t.columns) + " |")
     lines.append("| " + " | ".join(align) + " |")
     lines += ["| " + " | ".join(_md_cell(v) for v in r) + " |" for r in t.rows]
     lines.append("")
-    lines += [f"{i}. {n}" for i, n in enumerate(t.notes, 1)]
+    lines += [f"{i}. {_md(n)}" for i, n in enumerate(t.notes, 1)]
     if t.notes:
         lines.append("")
     if t.csv:
@@ -343,7 +389,7 @@ def _md_table(t: Table) -> list[str]:
 
 def _md_cards(cards: Sequence[Card]) -> list[str]:
     cols = ["controller", "status", *(k for k, _ in cards[0].items), "verdict"]
-    lines = ["| " + " | ".join(c.replace("|", "\\|") for c in cols) + " |"]
+    lines = ["| " + " | ".join(_md(c).replace("|", "\\|") for c in cols) + " |"]
     lines.append("| " + " | ".join(["---", "---", *["---:"] * len(cards[0].items), "---"]) + " |")
     for c in cards:
         values = dict(c.items)
@@ -356,9 +402,10 @@ def _md_cards(cards: Sequence[Card]) -> list[str]:
                 for label, text, _ in [(c.verdict_label, c.verdict, c.verdict_kind), *c.more]
             ),
         ]
-        lines.append("| " + " | ".join(x.replace("|", "\\|") for x in cells) + " |")
+        lines.append("| " + " | ".join(_md(x).replace("|", "\\|") for x in cells) + " |")
     links = sorted({(t, h) for c in cards for t, h in c.links}, key=lambda x: x[1])
-    lines += ["", "Backing sections: " + ", ".join(f"[{t}]({h})" for t, h in links), ""]
+    shown = [f"[{_md(t)}]({h})" if safe_href(h) else _md(t) for t, h in links]
+    lines += ["", "Backing sections: " + ", ".join(shown), ""]
     return lines
 
 
@@ -366,11 +413,11 @@ def _md_block(kind: str, payload: Any) -> list[str]:
     if kind == "file":
         return []
     if kind in ("text", "lead"):
-        return [payload, ""]
+        return [_md(payload), ""]
     if kind == "h3":
-        return [f"### {payload}", ""]
+        return [f"### {_md(payload)}", ""]
     if kind == "list":
-        return [*(f"- {x}" for x in payload), ""]
+        return [*(f"- {_md(x)}" for x in payload), ""]
     if kind == "cards":
         return _md_cards(payload)
     if kind == "table":
@@ -379,7 +426,7 @@ def _md_block(kind: str, payload: Any) -> list[str]:
         return [
             line
             for f in payload
-            for line in (f"![{f.caption}]({f.name})", "", f"*{f.caption}*", "")
+            for line in (f"![{_md(f.caption)}]({f.name})", "", f"*{_md(f.caption)}*", "")
         ]
     if kind == "code":
         return ["```yaml", payload.rstrip("\n"), "```", ""]
@@ -390,15 +437,15 @@ def render_markdown(
     title: str, subtitle: str, sections: Sequence[Section]
 ) -> tuple[str, dict[str, bytes]]:
     """The Markdown twin (GitHub-flavoured) and the figure files it links, by name."""
-    lines = [f"# {title}", "", subtitle, ""]
-    lines += [" · ".join(f"[{s.title}](#{s.id})" for s in sections if s.id), ""]
+    lines = [f"# {_md(title)}", "", _md(subtitle), ""]
+    lines += [" · ".join(f"[{_md(s.title)}](#{s.id})" for s in sections if s.id), ""]
     files: dict[str, bytes] = {}
     for s in sections:
-        lines.append(f'<a id="{s.id}"></a>')
+        lines.append(f'<a id="{html.escape(s.id)}"></a>')
         if s.collapsed:
-            lines += ["", f"<details><summary><b>{s.title}</b></summary>", ""]
+            lines += ["", f"<details><summary><b>{_md(s.title)}</b></summary>", ""]
         else:
-            lines += ["", f"## {s.title}", ""]
+            lines += ["", f"## {_md(s.title)}", ""]
         for kind, payload in s.blocks:
             lines += _md_block(kind, payload)
         if s.collapsed:

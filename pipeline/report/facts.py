@@ -61,7 +61,7 @@ def g4(v: Any) -> str:
     if math.isnan(x):
         return "-"
     if math.isinf(x):
-        return "inf"
+        return "inf" if x > 0 else "-inf"
     return f"{x:.3g}"
 
 
@@ -76,8 +76,8 @@ def _json(path: Path) -> dict[str, Any]:
     if not path.is_file():
         return {}
     try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError:
+        doc = json.loads(path.read_bytes())
+    except ValueError:  # not JSON, or not UTF-8
         return {}
     return doc if isinstance(doc, dict) else {}
 

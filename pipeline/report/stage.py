@@ -14,7 +14,6 @@ files written beside it, with the wide tables as CSV files.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,11 +23,16 @@ from qsls.pipeline.core.artifacts import (
     MANIFEST,
     check_output,
     clean_stale,
+    dump_json,
     dump_yaml,
     hold_output,
+    make_parent,
+    make_temporary,
+    package_versions,
     publish,
     read_manifest,
     release_output,
+    sha256_file,
 )
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
@@ -113,6 +117,8 @@ def _stage_dirs(run_dir: Path) -> dict[str, list[Path]]:
         try:
             stage = json.loads(m.read_text()).get("stage", "?")
         except json.JSONDecodeError:
+            continue
+        if stage == "report":  # a report (its own, or another) is no evidence of the run
             continue
         found.setdefault(stage, []).append(m.parent)
     return found
@@ -223,6 +229,43 @@ def _subtitle(info: dict[str, Any], name: str) -> str:
     )
 
 
+_REPORT_FILES = ("index.html", "report.md", "*.png", "*.csv")
+
+
+def _run_info(run_dir: Path) -> dict[str, Any]:
+    """The run's ``run.json`` (empty when absent); one line when it is not JSON."""
+    path = run_dir / RUN_FILE
+    if not path.is_file():
+        return {}
+    try:
+        info = json.loads(path.read_bytes())
+    except ValueError:
+        raise InputError(
+            f"{path}: not the JSON file qsls writes; run 'qsls run CONFIG' again to rewrite it"
+        ) from None
+    return info if isinstance(info, dict) else {}
+
+
+def _write_manifest(tmp: Path, name: str) -> None:
+    """``manifest.json``, as every stage folder has: the stage, the run, each file's sha256
+    and the package versions (no wall time: the report's files are byte-identical)."""
+    from qsls.pipeline import __version__
+
+    files = {
+        f.relative_to(tmp).as_posix(): sha256_file(f)
+        for f in sorted(tmp.rglob("*"))
+        if f.is_file() and not f.name.startswith(".")
+    }
+    manifest = {
+        "stage": "report",
+        "qsls_version": __version__,
+        "run": name,
+        "files": files,
+        "packages": package_versions(),
+    }
+    (tmp / MANIFEST).write_text(dump_json(manifest))
+
+
 def report(
     run_dir: Path,
     out: Path | None = None,
@@ -234,24 +277,26 @@ def report(
     the report belongs to its run, so two runs of one config never share one)."""
     run_dir = Path(run_dir)
     check_run_folder(run_dir)
-    info = json.loads((run_dir / RUN_FILE).read_text()) if (run_dir / RUN_FILE).is_file() else {}
+    info = _run_info(run_dir)
     name = info.get("name", run_dir.name)
     out = Path(out) if out is not None else run_dir / REPORT_DIR
-    check_output(out, force, _run_inputs(run_dir, out))
+    # a report written before reports had a manifest: its own files only
+    check_output(out, force, _run_inputs(run_dir, out), known=_REPORT_FILES)
     sections = build_sections(run_dir, progress)
     title = f"qsls report: {name}"
     subtitle = _subtitle(info, name)
     page = render_html(title, subtitle, sections)
     md, files = render_markdown(title, subtitle, sections)
-    clean_stale(out)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    tmp.mkdir(parents=True, exist_ok=False)
+    make_parent(out, "output folder")
     hold_output(out)
+    clean_stale(out)
+    tmp = make_temporary(out)
     try:
         (tmp / "index.html").write_text(page)
         (tmp / "report.md").write_text(md)
         for fname, data in files.items():
             (tmp / fname).write_bytes(data)
+        _write_manifest(tmp, name)
         publish(tmp, out)
     finally:
         if tmp.exists():

@@ -175,16 +175,28 @@ def error_model_line(f: Facts) -> str:
 
 
 def s_max_line(f: Facts) -> str:
+    """The largest feasible S at each horizon T: the best over the sweep's other settings
+    (radius, eps_e, ...), labelled by the setting that gives it; a negative or -inf value
+    (infeasible even at S = 0) is said in words."""
     sm, sw = f.s_max, f.sweep
     parts = []
     if sm is not None and len(sm) and "s_max" in sm:
-        per_t = sm.groupby("T")["s_max"].min()
-        eps = g4(sm["eps_e"].iloc[0]) if "eps_e" in sm else "-"
-        r = g4(sm["radius"].iloc[0]) if "radius" in sm else "-"
-        parts.append(
-            f"Largest feasible S (eps_e {eps}, r {r}): "
-            + ", ".join(f"{g4(s)} at T = {int(t)}" for t, s in per_t.items())
-        )
+        keys = [k for k in ("eps_e", "radius", "eps_w", "delta") if k in sm]
+        fixed = [k for k in keys if sm[k].nunique(dropna=False) == 1]
+        varying = [k for k in keys if k not in fixed]
+        head = ", ".join(f"{k} {g4(sm[k].iloc[0])}" for k in fixed)
+        items = []
+        for t, group in sm.groupby("T"):
+            values = group["s_max"].astype(float)
+            if values.isna().all():
+                items.append(f"- at T = {int(t)}")
+                continue
+            row = group.loc[values.idxmax()]
+            best = float(row["s_max"])
+            text = "none (infeasible even at S = 0)" if best < 0 else g4(best)
+            at = ", ".join(f"{k} {g4(row[k])}" for k in varying)
+            items.append(f"{text} at T = {int(t)}" + (f" ({at})" if at and best >= 0 else ""))
+        parts.append(f"Largest feasible S{f' ({head})' if head else ''}: " + ", ".join(items))
     if sw is not None and len(sw) and "feasible" in sw:
         parts.append(f"{int(sw['feasible'].sum())} of {len(sw)} sweep points feasible")
     return "; ".join(parts) + " ([sweep](#sweep))." if parts else ""

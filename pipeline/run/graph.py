@@ -27,7 +27,7 @@ from typing import Any
 
 from qsls.pipeline import __version__
 from qsls.pipeline.core.artifacts import package_versions, sha256_json, to_plain
-from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.errors import ConfigError, QslsError
 from qsls.pipeline.run.state import InputHashes, Plan, PlannedStage, RunState, StageRecord
 
 
@@ -89,7 +89,8 @@ class StageGraph:
     def folder(self, stage_id: str) -> Path:
         return self.root / stage_id
 
-    def _out(self, s: Stage) -> Path:
+    def out(self, s: Stage) -> Path:
+        """The folder stage ``s`` writes."""
         return s.folder if s.folder is not None else self.folder(s.id)
 
     def key(self, s: Stage, keys: Mapping[str, str]) -> str:
@@ -203,7 +204,7 @@ class StageGraph:
     def _stale(self, state: RunState, s: Stage, key: str) -> tuple[str | None, RunState]:
         """Why ``s`` must run (or None), and ``state`` with its touched files restamped
         (saved at once: the next run then hashes them no more)."""
-        why, checked = state.check(s.id, key, self._out(s), self.versions)
+        why, checked = state.check(s.id, key, self.out(s), self.versions)
         if checked is not state:
             checked.save(self.root)
         return why, checked
@@ -211,13 +212,17 @@ class StageGraph:
     def _run_one(
         self, state: RunState, s: Stage, key: str, why: str | None
     ) -> tuple[RunState, StageOutcome]:
-        out = self._out(s)
+        out = self.out(s)
         if why is None:
             rec = state.stages[s.id]
             return state, StageOutcome(s.id, s.kind, "skipped", key, out, notes=rec.notes)
         state = state.without({s.id})
         state.save(self.root)  # a stage being redone is not up to date until it ends
-        result = s.execute(out, {d: self.folder(d) for d in s.deps})
+        try:
+            result = s.execute(out, {d: self.folder(d) for d in s.deps})
+        except QslsError as exc:  # the one line names the stage that failed
+            exc.args = (f"stage {s.id} failed: {exc}", *exc.args[1:])
+            raise
         notes = dict(s.notes(out)) if s.notes is not None else {}
         state = state.with_stage(s.id, StageRecord.of_folder(key, out, self.versions, notes))
         state.save(self.root)

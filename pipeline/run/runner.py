@@ -13,19 +13,26 @@ Relative paths in the config are relative to the config file's folder.
 
 from __future__ import annotations
 
+import os
 import subprocess
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, PrivateAttr, field_validator
+from pydantic import Field, PrivateAttr, field_validator, model_validator
 
 from qsls.pipeline import __version__
 from qsls.pipeline.control.options import SweepSection, SynthOptions
-from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_json, sha256_file, to_plain
+from qsls.pipeline.core.artifacts import (
+    atomic_write_bytes,
+    dump_json,
+    refuse_overlap,
+    sha256_file,
+    to_plain,
+)
 from qsls.pipeline.core.config import Options, read_yaml, validate
-from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.errors import ConfigError, QslsError
 from qsls.pipeline.core.locks import (
     FolderLock,
     check_writable,
@@ -48,6 +55,22 @@ OnStage = Callable[[str, str, int, int, str], None]
 STAGE_ORDER = ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "report")
 
 
+def plain_name(v: str, what: str) -> str:
+    """``v`` when it is a plain folder name: not empty, no ``/`` or ``\\``, not starting
+    with ``.`` (no ``..``, no hidden folder), no control character (a newline)."""
+    if (
+        not v
+        or any(c in v for c in "/\\")
+        or v.startswith(".")
+        or any(ord(c) < 0x20 or ord(c) == 0x7F for c in v)
+    ):
+        raise ValueError(
+            f"{what} must be a plain folder name (no '/', '\\', leading '.' or control "
+            f"characters such as a newline), got {v!r}"
+        )
+    return v
+
+
 class FlightSpec(Options):
     """One flight: simulated (``simulate`` options) or a real log (``sources`` / ``vio``+``truth``)."""
 
@@ -62,9 +85,17 @@ class FlightSpec(Options):
     @field_validator("name")
     @classmethod
     def _safe_name(cls, v: str) -> str:
-        if not v or any(c in v for c in "/\\") or v.startswith("."):
-            raise ValueError("a flight name must be a plain folder name")
-        return v
+        return plain_name(v, "a flight name")
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> FlightSpec:
+        logged = [k for k in ("sources", "vio", "truth") if getattr(self, k)]
+        if self.simulate is not None and logged:
+            raise ValueError(
+                f"flight '{self.name}' has both simulate: and {', '.join(logged)}: a flight is "
+                f"either simulated or read from logs; remove one"
+            )
+        return self
 
 
 class RunConfig(Options):
@@ -112,6 +143,11 @@ class RunConfig(Options):
     evaluate: EvaluateSection | None = None
     report: bool = True
     _given: dict[str, Any] | None = PrivateAttr(None)
+
+    @field_validator("name")
+    @classmethod
+    def _safe_name(cls, v: str) -> str:
+        return plain_name(v, "the run name")
 
     def written(self, key: str) -> Any:
         """Section ``key`` as it was written: the file's mapping when the config was read
@@ -222,18 +258,71 @@ def run(
         raise ConfigError(
             f"--from {from_stage}: not a stage (choose from {', '.join(STAGE_ORDER)}, fly)"
         )
+    if root.name in ("", ".", ".."):  # --out . / --out ..: the folder's own name
+        root = Path(os.path.abspath(root))
+    check_run_root(root)
     check_writable(root, "run folder")
     # options checked before anything is written; an unchanged config is not planned again
     versions = run_versions()
     fp = fingerprint(cfg, config_path.parent, root, versions)
     graph = planned_graph(root, fp, lambda: plan(cfg, config_path, root, progress), versions)
+    refuse_run_overlap(root, graph)
+    check_foreign_folder(root)
     try:
         root.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise unwritable(root, exc, "run folder") from None
     with FolderLock(root, "run folder"):
-        clean_dead_temporaries(root)
+        # the levels a run writes: the run folder and the parents of its stage folders
+        clean_dead_temporaries([root, *(graph.out(s).parent for s in graph.stages)])
         return _run_locked(cfg, config_path, root, graph, force, from_stage, on_stage)
+
+
+def check_run_root(root: Path) -> None:
+    """Refuse a filesystem root or a file as the run folder (before anything is read)."""
+    resolved = Path(root).resolve()
+    if resolved == resolved.parent:
+        raise ConfigError(
+            f"run folder {root}: a filesystem root cannot be a run folder; "
+            "pass --out with a folder of its own (e.g. --out runs/NAME)"
+        )
+    if resolved.exists() and not resolved.is_dir():
+        raise ConfigError(
+            f"run folder {root} exists and is not a folder; pass --out with a folder of its own"
+        )
+    from qsls.pipeline.run.state import STATE_FILE
+
+    for name in (RUN_FILE, STATE_FILE):
+        own = Path(root) / name
+        if own.is_symlink() or (own.exists() and not own.is_file()):
+            raise ConfigError(
+                f"{own} is not a file qsls wrote (a folder or a link); move it away and run again"
+            )
+
+
+def check_foreign_folder(root: Path) -> None:
+    """Refuse an existing folder that holds files and is not a run folder (no run.json nor
+    run_state.json): a run writes stage folders (``fit``, ``report``, ...) into it and
+    would replace the user's own (``--out .``, ``--out ..``, a project folder)."""
+    from qsls.pipeline.run.state import STATE_FILE
+
+    root = Path(root)
+    if not root.is_dir() or (root / RUN_FILE).exists() or (root / STATE_FILE).exists():
+        return
+    if next(iter(os.scandir(root)), None) is not None:
+        raise ConfigError(
+            f"run folder {root} holds files and is not a qsls run folder (no {RUN_FILE}); "
+            "pass --out with a new or empty folder (e.g. --out runs/NAME)"
+        )
+
+
+def refuse_run_overlap(root: Path, graph: StageGraph) -> None:
+    """Refuse, before anything is written, a run folder that is or lies inside an input
+    (a bag folder, a log file; symlinks followed) or whose stage folders would overlap one."""
+    inputs = [p for s in graph.stages for p in s.external]
+    refuse_overlap(root, inputs, "run folder", contains=False)
+    for s in graph.stages:
+        refuse_overlap(graph.out(s), inputs, "stage folder")
 
 
 def _run_locked(
@@ -270,9 +359,14 @@ def _run_locked(
     # the report runs after every stage (not counted among them): when one ran, when its
     # folder or run.json changed, or when asked (--force, --from report, which reruns only it)
     from_kind = None if from_stage == "report" else from_stage
-    outcomes = graph.run(force=force, from_kind=from_kind, on_start=started, on_done=done)
-    report_dir = None
     wanted = set(cfg.stages or STAGE_ORDER)
+    try:
+        outcomes = graph.run(force=force, from_kind=from_kind, on_start=started, on_done=done)
+    except QslsError as exc:
+        if cfg.report and "report" in wanted:
+            _partial_report(root, exc)
+        raise
+    report_dir = None
     if cfg.report and "report" in wanted:
         from qsls.pipeline.report.stage import REPORT_DIR
 
@@ -287,6 +381,21 @@ def _run_locked(
         stage = _report_stage(root, report_dir, info, tuple(graph.ids))
         graph.run_last(stage, outcomes, redo=redo, on_start=report_started)
     return RunResult(root=root, outcomes=tuple(outcomes), report=report_dir)
+
+
+def _partial_report(root: Path, exc: QslsError) -> None:
+    """After a stage failed: the report of the stages that finished (when there are some),
+    its place added to the error's one line. A report that cannot be made adds nothing."""
+    from qsls.pipeline.report.stage import REPORT_DIR, report
+
+    try:
+        done = report(root, root / REPORT_DIR, force=True)
+    except QslsError:
+        return
+    exc.args = (
+        f"{exc}; the report of the stages that finished: {done.out / 'index.html'}",
+        *exc.args[1:],
+    )
 
 
 def _report_stage(root: Path, out: Path, info: dict[str, Any], deps: tuple[str, ...]) -> Stage:

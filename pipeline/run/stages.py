@@ -81,10 +81,13 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
     heldout = ingest_ids["heldout"]
     if "evaluate" not in wanted:
         return graph
-    if cfg.evaluate is None and not heldout and "evaluate" in listed:
+    flies = cfg.evaluate is not None and cfg.evaluate.fly is not None
+    if not heldout and not flies and ("evaluate" in listed or cfg.evaluate is not None):
+        where = src("stages") if "evaluate" in listed else src("evaluate")
         raise ConfigError(
-            f"{src('stages')}: evaluate is listed but there is nothing to evaluate: no flight "
-            "has role 'heldout' and there is no evaluate: section with fly:"
+            f"{where}: evaluate is asked for but there is nothing to evaluate: no flight "
+            "has role 'heldout' and the evaluate: section has no fly:; add a held-out flight "
+            "or evaluate.fly, or leave evaluate out"
         )
     # a held-out flight is checked with the default options when the section is left out
     if cfg.evaluate is not None or heldout:

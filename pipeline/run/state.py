@@ -193,12 +193,12 @@ class RunState(_Frozen):
         if not p.is_file():
             return cls()
         try:
-            data = json.loads(p.read_text())
+            data = json.loads(p.read_bytes())
             if data.get("version") != STATE_VERSION:
                 return cls()
             return cls.model_validate(data)
-        except (json.JSONDecodeError, ValidationError, AttributeError):
-            return cls()
+        except (ValueError, ValidationError, AttributeError, OSError):
+            return cls()  # not JSON, not UTF-8 (a binary file), unreadable: run everything
 
     def save(self, root: Path) -> None:
         body = json.dumps(self.model_dump(mode="json"), indent=2, sort_keys=True) + "\n"

@@ -301,8 +301,9 @@ class FlightOptions(Options):
     """Everything that shapes one simulated flight."""
 
     seed: int = Field(0, ge=0)
-    duration: float | None = Field(None, gt=0)
-    """Flight length (s); default: the reference's ramp / 2 + laps * period."""
+    duration: float | None = Field(None, gt=0, le=86_400)
+    """Flight length (s), at most a day (a simulated day takes hours and about 140 MB);
+    default: the reference's ramp / 2 + laps * period."""
     vehicle: VehicleOptions = VehicleOptions()
     reference: ReferenceOptions = ReferenceOptions()
     controller: ControllerOptions = ControllerOptions()

@@ -76,6 +76,16 @@ def damaged_hint(kind: str) -> str:
     )
 
 
+def locked_hint(exc: BaseException) -> str | None:
+    """What to do about an sqlite3 database another program holds locked (None: not that)."""
+    if isinstance(exc, sqlite3.OperationalError) and "locked" in str(exc).lower():
+        return (
+            "the bag's database is locked by another program (a recorder still writing it?); "
+            "wait for it to finish, or copy the bag folder, and try again"
+        )
+    return None
+
+
 def normalize_type(name: str) -> str:
     """``pkg/Type`` -> ``pkg/msg/Type`` (ROS2 naming, as rosbags uses)."""
     parts = name.strip("/").split("/")
@@ -228,9 +238,8 @@ class BagSource:
         except Exception as exc:
             self.close()
             msg = " ".join(str(exc).split()) or exc.__class__.__name__
-            raise InputError(
-                f"{self.path}: cannot read the bag ({msg}); {damaged_hint(self.kind)}"
-            ) from None
+            hint = locked_hint(exc) or damaged_hint(self.kind)
+            raise InputError(f"{self.path}: cannot read the bag ({msg}); {hint}") from None
 
     # ---- opening
     def _open(self) -> None:
@@ -238,7 +247,7 @@ class BagSource:
             from mcap.reader import make_reader
 
             self._fh = open(self.path, "rb")  # noqa: SIM115 (closed in close())
-            self._mcap = make_reader(self._fh)
+            self._mcap = make_reader(self._fh, validate_crcs=True)
             summary = self._mcap.get_summary()
             if summary is None:
                 raise InputError(
@@ -314,6 +323,8 @@ class BagSource:
             finally:
                 con.close()
         except sqlite3.Error as exc:
+            if hint := locked_hint(exc):
+                raise InputError(f"{db}: {hint}") from None
             raise InputError(
                 f"{db}: not a readable rosbag2 sqlite3 file ({exc}); {BAG_HINT}"
             ) from None
@@ -427,6 +438,8 @@ class BagSource:
                 found = self._indexed_fast(list({i.topic: i for i in fixed}.values()), progress)
             rest = list({i.topic: i for i in infos if i.topic not in found}.values())
             raws = self._raw_pass(rest, progress) if rest else {}
+            for info in rest:
+                self._check_count(info, len(raws[info.topic][0]))
             return [
                 found[t] if t in found else self._decode(known[t], raws[t], frame, fast)
                 for t, frame in requests
@@ -435,11 +448,40 @@ class BagSource:
             raise
         except Exception as exc:
             msg = " ".join(str(exc).split()) or exc.__class__.__name__
-            raise InputError(
-                f"{self.path}: error while reading {names} ({msg}); {damaged_hint(self.kind)}"
-            ) from None
+            hint = locked_hint(exc) or self._type_hint(exc, infos) or damaged_hint(self.kind)
+            raise InputError(f"{self.path}: error while reading {names} ({msg}); {hint}") from None
         finally:
             progress.finish()
+
+    def _type_hint(self, exc: BaseException, infos: list[TopicInfo]) -> str | None:
+        """When the messages do not decode as the type the bag lists (a ``metadata.yaml``
+        naming the wrong type), say so: the bag need not be damaged."""
+        from rosbags.highlevel.anyreader import AnyReaderError
+        from rosbags.serde import SerdeError
+
+        mismatch = "size mismatch" in str(exc) or isinstance(exc, SerdeError)
+        # a type the bag's own definitions do not hold: rosbags' typestore lookup fails
+        unknown = isinstance(exc, KeyError) and str(exc.args[0] if exc.args else "") in {
+            i.msgtype for i in infos
+        }
+        if not (unknown or (isinstance(exc, SerdeError | AnyReaderError) and mismatch)):
+            return None
+        listed = ", ".join(f"{i.topic} as {i.msgtype}" for i in infos)
+        where = "its metadata.yaml" if self._listed is not None else "the bag"
+        return (
+            f"the messages do not decode as the types {where} lists ({listed}); check those "
+            f"types (a hand-edited metadata.yaml?), else {damaged_hint(self.kind)}"
+        )
+
+    def _check_count(self, info: TopicInfo, n: int) -> None:
+        """Refuse a topic read with fewer (or more) messages than the bag's own index or
+        statistics list: a damaged record silently ends the per-message readers' chunk."""
+        if info.count > 0 and n != info.count:
+            raise InputError(
+                f"{self.path}: topic {info.topic}: {n} messages read where the bag's index "
+                f"lists {info.count} (a damaged record ends the rest of its chunk); "
+                f"{damaged_hint(self.kind)}"
+            )
 
     def _indexed_fast(self, infos: list[TopicInfo], progress: Progress) -> dict[str, Trajectory]:
         """Fixed-layout topics through the bag's own index: ROS1 (:mod:`ros1index`), sqlite3

@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.core.locks import make_temporary
+
 FORMATS = ("ros1", "ros2-sqlite", "ros2-mcap", "mcap")
 
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -373,10 +375,7 @@ def write_bag(
         raise ValueError(f"compression {compression!r} not available for {fmt}; use {allowed}")
     _check(streams)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmpdir = path.parent / f".{path.name}.tmp-{os.getpid()}"
-    if tmpdir.exists():
-        shutil.rmtree(tmpdir)
-    tmpdir.mkdir()
+    tmpdir = make_temporary(path)
     tmp = tmpdir / path.name
     try:
         if fmt == "ros1":
