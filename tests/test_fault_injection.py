@@ -2,7 +2,8 @@
 moments (mid simulate; during fly, with its worker processes), then rerun: each rerun redoes
 only what was unfinished, leaves no temporary and no lock, and the finished run's data files
 are byte-identical to those of a clean forced run of the same config in the same folder.
-About 45 s (the quickstart twice, plus the killed parts)."""
+About 60 s (the quickstart, its calibration cut to a few flights, twice, plus the killed
+parts)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_run import QUICKSTART, _data_files, _statuses
+from tests.test_run import _data_files, _statuses, light_quickstart
 
 
 def _cmd(*args: str) -> list[str]:
@@ -57,7 +58,7 @@ def _leftovers(run: Path) -> list[str]:
 @pytest.mark.slow
 def test_sigkill_mid_run_then_rerun_gives_byte_identical_data(tmp_path):
     work = tmp_path
-    (work / "quickstart.yaml").write_text(QUICKSTART.read_text())
+    (work / "quickstart.yaml").write_text(light_quickstart())
     run = work / "runs" / "quickstart"
 
     # 1. mid simulate: train_2's bag is being written after train_1 published

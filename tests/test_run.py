@@ -20,6 +20,15 @@ REPO = Path(__file__).resolve().parents[1]
 QUICKSTART = REPO / "configs" / "quickstart.yaml"
 
 
+def light_quickstart() -> str:
+    """The quickstart with a calibration of a few flights and a one-point sweep: every stage,
+    in a third of the time, for tests of the run's machinery rather than its numbers."""
+    data = yaml.safe_load(QUICKSTART.read_text())
+    data["calibrate"].update(flights=3, validation=1, range_flights=0, tube=0.0)
+    data["sweep"]["grid"] = {"radius": [1.5], "T": [40]}
+    return yaml.safe_dump(data, sort_keys=False)
+
+
 def _qsls(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "qsls.cli.main", *args], cwd=cwd, capture_output=True, text=True
