@@ -23,6 +23,7 @@ COMMANDS: tuple[tuple[str, str], ...] = (
     ("fit", "fit"),
     ("synth", "synth"),
     ("sweep", "sweep"),
+    ("calibrate", "calibrate"),
     ("evaluate", "evaluate"),
     ("export", "export"),
     ("replay", "replay"),

@@ -71,6 +71,11 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "fmt": "log.format",
         },
     ),
+    "calibrate": (
+        "qsls.pipeline.evaluate.options:CalibrateOptions",
+        {"model": None, "controllers": None, "out": None, "config": None, "force": None,
+         "only": "controllers"},
+    ),
     "evaluate": (
         "qsls.pipeline.evaluate.options:FlyOptions",
         {

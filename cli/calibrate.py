@@ -1,0 +1,98 @@
+"""``qsls calibrate``: a certificate calibrated on the candidate's own flights (docs/calibration.md)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from qsls.cli.common import cli_errors, overrides, parse_list
+
+EXAMPLE = "qsls calibrate --model fit --controllers synth --out calibrate --flights 20"
+
+
+@cli_errors
+def command(
+    model: Path = typer.Option(
+        ..., "--model", "-m", help="error_model.yaml or the fit folder holding it (qsls fit)."
+    ),
+    controllers: Path = typer.Option(
+        ..., "--controllers", help="The synth folder (qsls synth) holding the candidates."
+    ),
+    out: Path = typer.Option(
+        ..., "--out", "-o",
+        help="Output folder: <condition>/<controller>/ (the calibrated certificates), the "
+        "scores, the validation and each flight's tick log.",
+    ),
+    flights: int = typer.Option(
+        None, "--flights", help="Calibration flights per candidate and condition. (default: 20)"
+    ),
+    validation: int = typer.Option(
+        None, "--validation", help="Fresh validation flights per candidate. (default: 20)"
+    ),
+    range_flights: int = typer.Option(
+        None, "--range-flights",
+        help="Flights over a tube of references (the perception premise out to rho*). (default: 0)",
+    ),
+    tube: float = typer.Option(
+        None, "--tube", help="Radius (m) of the range flights' reference offsets. (default: 0)"
+    ),
+    alpha: float = typer.Option(
+        None, "--alpha",
+        help="The stated probability that a new flight breaks the premise. (default: 0.1)",
+    ),
+    method: str = typer.Option(
+        None, "--method", help="conformal (marginal) or pac (with --delta). (default: conformal)"
+    ),
+    delta: float = typer.Option(
+        None, "--delta", help="1 - confidence of the pac statement. (default: 0.05)"
+    ),
+    seed: int = typer.Option(None, "--seed", help="First calibration seed. (default: 1000)"),
+    validation_seed: int = typer.Option(
+        None, "--validation-seed", help="First validation seed. (default: 2000)"
+    ),
+    range_seed: int = typer.Option(
+        None, "--range-seed", help="First range-flight seed. (default: 3000)"
+    ),
+    design_seeds: str = typer.Option(
+        None, "--design-seeds",
+        help="Comma-separated seeds of the design flights: refused as calibration or "
+        "validation seeds. (default: )",
+    ),
+    conditions: str = typer.Option(
+        None, "--conditions",
+        help="Comma-separated perception conditions, one certificate each. (default: regular)",
+    ),
+    only: str = typer.Option(
+        None, "--only", help="Comma-separated candidate names. (default: every robust one)"
+    ),
+    duration: float = typer.Option(None, "--duration", help="Seconds per flight. (default: 20)"),
+    jobs: int = typer.Option(
+        None, "--jobs", "-j", help="Flights in parallel; 0 = all cores. (default: 0)"
+    ),
+    config: Path = typer.Option(
+        None, "--config", "-c",
+        help="YAML file of these options (its 'calibrate' section, or all; 'sim' holds the "
+        "vehicle, reference and estimator the flights fly).",
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
+) -> None:
+    """Calibrate the candidates' premise on flights they fly themselves, then validate it."""
+    from qsls.cli.common import RichProgress, print_summary, print_verdicts
+    from qsls.pipeline.core.config import load_options
+    from qsls.pipeline.evaluate.calibrate import calibrate, summary_lines
+    from qsls.pipeline.evaluate.options import CalibrateOptions
+
+    given = overrides(
+        flights=flights, validation=validation, range_flights=range_flights, tube=tube,
+        alpha=alpha, method=method, delta=delta, seed=seed, validation_seed=validation_seed,
+        range_seed=range_seed, design_seeds=parse_list(design_seeds, "--design-seeds", "int"),
+        conditions=parse_list(conditions, "--conditions", "value"),
+        controllers=parse_list(only, "--only", "value"), duration=duration, jobs=jobs,
+    )  # fmt: skip
+    options = load_options(CalibrateOptions, config, given, section="calibrate")
+    options.seed_lists()
+    with RichProgress() as progress:
+        result = calibrate(model, controllers, options, out, force=force, progress=progress)
+    print_summary("qsls calibrate", result.summary())
+    print_verdicts("Calibrated certificates", summary_lines(out))
