@@ -156,9 +156,14 @@ def test_one_flight_twice_is_refused_and_the_model_records_its_dt(tmp_path: Path
     from qsls.pipeline.core.errors import InputError
     from qsls.pipeline.errormodel.fit import FitOptions, fit
     from qsls.pipeline.errormodel.model import load_error_model
-    from tests.test_fit import vio_flights, write_flight
+    from qsls.pipeline.sim.vio import VioEmulator, VioParams
+    from tests.test_fit import MOTION_OFF, circle_states, write_flight
 
-    folders, _ = vio_flights(tmp_path / "f", n=2)
+    folders = []  # 40 s circle flights (a motion twin is recognized over 30 s or more)
+    for seed in (0, 1):
+        t, x = circle_states(seed, laps=8.0)
+        e = VioEmulator(VioParams(**MOTION_OFF), seed).errors(x)
+        folders.append(write_flight(tmp_path / "f" / f"flight{seed}", t, x, x + e))
     opts = FitOptions(radius=1.0)
     (tmp_path / "link").symlink_to(folders[0])
     twin = tmp_path / "twin"  # the first flight's truth with another estimate: one flight

@@ -244,7 +244,7 @@ def test_from_fly_reruns_fly_only_and_an_unknown_stage_names_the_choices(tmp_pat
     )
     assert one_line(res) == (
         "error: --from flying: not a stage (choose from simulate, ingest, fit, sweep, synth, "
-        "evaluate, report, fly)"
+        "calibrate, evaluate, report, fly)"
     )
     assert not (tmp_path / "r").exists()
 
