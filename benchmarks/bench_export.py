@@ -1,8 +1,8 @@
 """Benchmark of the export (issue 12): ``python benchmarks/bench_export.py``.
 
-For certified L1 robust controllers synthesized at T = 20 and T = 50 (the export tests' error
-model: eps_e, S and eps_w their maxima, so the premise holds on all of it and the controllers
-are plainly certified; with S = p50 they came out relaxed and export refused them):
+For L1 robust controllers synthesized at T = 20 and T = 50 (the export tests' error model:
+eps_e, S and eps_w their maxima, so the design premise holds on all of it; not calibrated, so
+'relaxed', exported with allow_uncertified: the speed is the same code's):
 
 1. Ticks per second of one controller step, against the budget of a 500 Hz flight-controller
    loop (2 ms per tick):
@@ -199,7 +199,7 @@ def run(T: int, root: Path, cc: str | None, c_ticks: int, py_ticks: int) -> dict
     out: dict = {"T": T}
     for prec in ("double", "float"):
         d = root / f"c{T}{prec}"
-        res = export(folder, ExportOptions(target="c", precision=prec), d)
+        res = export(folder, ExportOptions(target="c", precision=prec, allow_uncertified=True), d)
         out[prec] = res.results
         if cc:
             exes = c_harness(cc, d, c_ticks), c_harness(cc, step_alone(d), c_ticks)
@@ -210,7 +210,7 @@ def run(T: int, root: Path, cc: str | None, c_ticks: int, py_ticks: int) -> dict
     ys = np.random.default_rng(0).uniform(-1, 1, (py_ticks, 6))
     ylists = ys.tolist()
     py = root / f"py{T}"
-    export(folder, ExportOptions(target="python", verify_ticks=0), py)
+    export(folder, ExportOptions(target="python", verify_ticks=0, allow_uncertified=True), py)
     mod = load_module((py / "qsls_ctrl.py").read_text())
     out["stdlib_ns"] = py_ns_per_tick(mod.Controller().step, ylists)
     out["numpy_ns"] = py_ns_per_tick(load_runtime(folder).step, list(ys))

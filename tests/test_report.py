@@ -238,7 +238,7 @@ def test_quickstart_report_in_chromium_at_1280(quickstart):
 # --------------------------------------------------------------------------- euroc
 @pytest.mark.slow
 @needs_chromium
-def test_euroc_report_states_the_certified_position_only_controller(real_data, tmp_path):
+def test_euroc_report_states_the_position_only_controller_honestly(real_data, tmp_path):
     cfg = tmp_path / "configs" / "euroc.yaml"
     cfg.parent.mkdir()
     text = (REPO / "configs" / "euroc.yaml").read_text()
@@ -247,10 +247,11 @@ def test_euroc_report_states_the_certified_position_only_controller(real_data, t
     assert proc.returncode == 0, proc.stderr[-2000:]
     run_dir, out = tmp_path / "runs" / "euroc", tmp_path / "runs" / "euroc" / "report"
     cert = yaml.safe_load((run_dir / "synth" / "l1_robust" / "certificate.yaml").read_text())
-    assert cert["status"] == "certified"
+    # honestly not certified (issue 32): two physical flights, no inputs, nothing calibrated
+    assert cert["status"] == "relaxed" and "eps_w cannot be measured" in cert["status_reason"]
     lay = _check_layout(*_visit(out), "euroc")
     summary = lay["summaryText"]
-    assert "certified: " in summary and "l1_robust" in summary
+    assert "l1_robust" in summary and "certified: " not in summary
     card = next(c["text"] for c in lay["cards"] if c["text"].startswith("l1_robust\n"))
     assert "rho*" in card and f"{cert['rho_star']:.3g} (premise tested to {cert['tested_range']:.3g})" in card
     assert f"{cert['gamma']:.3g}" in card
