@@ -11,6 +11,31 @@ SHARED_REAL = REPO.parent / "shared" / "data" / "real"
 
 
 @pytest.fixture(scope="session")
+def quickstart_session(tmp_path_factory):
+    """``qsls run configs/quickstart.yaml`` once per session, from a clean folder: (work
+    folder, config, the process, seconds, its data files as they were when it ended, keyed
+    ``runs/quickstart/...``). The work folder belongs to test_run.py's tests (they rerun and
+    edit it); others use only the snapshot."""
+    import subprocess
+    import sys
+    import time
+
+    from tests.test_run import QUICKSTART, _data_files
+
+    work = tmp_path_factory.mktemp("qs")
+    cfg = work / "quickstart.yaml"
+    cfg.write_text(QUICKSTART.read_text())
+    t0 = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "qsls.cli.main", "run", str(cfg)],
+        cwd=work, capture_output=True, text=True,
+    )  # fmt: skip
+    elapsed = time.perf_counter() - t0
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return work, cfg, proc, elapsed, _data_files(work)
+
+
+@pytest.fixture(scope="session")
 def real_data() -> Path:
     """``../shared/data/real``; tests that use it skip cleanly when it is absent."""
     if not SHARED_REAL.is_dir():
@@ -78,26 +103,3 @@ def _nothing_written_into_the_checkout():
     yield
     new = sorted(e for e in entries() - before if not e.startswith((".", "__")))
     assert not new, f"the test suite wrote into the checkout: {new}"
-
-
-# --------------------------------------------------------------------------- the quickstart
-@pytest.fixture(scope="session")
-def quickstart_session(tmp_path_factory):
-    """The README's main job, ``qsls run configs/quickstart.yaml``, run once per session from a
-    clean folder and shared (the report's tests read it first, then test_run's reruns it):
-    ``(work, config, process, seconds)``."""
-    import subprocess
-    import sys
-    import time
-
-    work = tmp_path_factory.mktemp("qs")
-    cfg = work / "quickstart.yaml"
-    cfg.write_text((REPO / "configs" / "quickstart.yaml").read_text())
-    t0 = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, "-m", "qsls.cli.main", "run", str(cfg)], cwd=work,
-        capture_output=True, text=True,
-    )  # fmt: skip
-    elapsed = time.perf_counter() - t0
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return work, cfg, proc, elapsed

@@ -1,9 +1,8 @@
 """Fault injection (issue 35): ``qsls run configs/quickstart.yaml`` killed with SIGKILL at two
 moments (mid simulate; during fly, with its worker processes), then rerun: each rerun redoes
 only what was unfinished, leaves no temporary and no lock, and the finished run's data files
-are byte-identical to those of a clean forced run of the same config in the same folder.
-About 60 s (the quickstart, its calibration cut to a few flights, twice, plus the killed
-parts)."""
+are byte-identical to those of the session's clean quickstart run (``quickstart_session``,
+shared with test_run.py; paths normalized). About 30 s (one quickstart and the killed parts)."""
 
 from __future__ import annotations
 
@@ -18,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_run import _data_files, _statuses, light_quickstart
+from tests.test_run import QUICKSTART, _data_files, _statuses
 
 
 def _cmd(*args: str) -> list[str]:
@@ -28,7 +27,7 @@ def _cmd(*args: str) -> list[str]:
 def _kill_when(work: Path, pattern: str, delay: float) -> None:
     """Start the run, SIGKILL its process group ``delay`` s after ``pattern`` exists."""
     proc = subprocess.Popen(
-        _cmd("run", "quickstart.yaml"), cwd=work, stdout=subprocess.DEVNULL,
+        _cmd("run", str(work / "quickstart.yaml")), cwd=work, stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL, start_new_session=True,
     )  # fmt: skip
     try:
@@ -55,10 +54,20 @@ def _leftovers(run: Path) -> list[str]:
     ) + [p.name for p in run.parent.glob(".*.lock")]
 
 
+def _normalized(files: dict[str, bytes], cfg: Path, work: Path) -> dict[str, bytes]:
+    """Data files with the run's own config path and work folder written as placeholders."""
+    return {
+        k: v.replace(str(cfg).encode(), b"CONFIG").replace(str(work).encode(), b"WORK")
+        for k, v in files.items()
+    }
+
+
 @pytest.mark.slow
-def test_sigkill_mid_run_then_rerun_gives_byte_identical_data(tmp_path):
+def test_sigkill_mid_run_then_rerun_gives_byte_identical_data(tmp_path, quickstart_session):
+    clean_work, clean_cfg, _, _, clean_files = quickstart_session
     work = tmp_path
-    (work / "quickstart.yaml").write_text(light_quickstart())
+    cfg = work / "quickstart.yaml"
+    cfg.write_text(QUICKSTART.read_text())
     run = work / "runs" / "quickstart"
 
     # 1. mid simulate: train_2's bag is being written after train_1 published
@@ -72,21 +81,17 @@ def test_sigkill_mid_run_then_rerun_gives_byte_identical_data(tmp_path):
     assert not (run / "fly").exists()
 
     # 3. the rerun finishes exactly what was unfinished and cleans up after the killed runs
-    done = subprocess.run(_cmd("run", "quickstart.yaml"), cwd=work, capture_output=True,
+    done = subprocess.run(_cmd("run", str(cfg)), cwd=work, capture_output=True,
                           text=True)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     statuses = _statuses(done.stderr)
     ran = {k for k, v in statuses.items() if v == "ran"}
     assert ran == {"fly"}, statuses
     assert _leftovers(run) == []
-    resumed = _data_files(work)
+    resumed = _normalized(_data_files(work), cfg, work)
     assert len(resumed) > 40
 
-    # 4. a clean forced run of the same config in the same folder: the same bytes
-    forced = subprocess.run(_cmd("run", "quickstart.yaml", "--force"), cwd=work,
-                            capture_output=True, text=True)  # fmt: skip
-    assert forced.returncode == 0, forced.stderr[-3000:]
-    clean = _data_files(work)
+    # 4. the same bytes as a clean run of the same config
+    clean = _normalized(clean_files, clean_cfg, clean_work)
     assert sorted(clean) == sorted(resumed)
     assert [k for k in clean if clean[k] != resumed[k]] == []
-    assert _leftovers(run) == []

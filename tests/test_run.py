@@ -20,14 +20,6 @@ REPO = Path(__file__).resolve().parents[1]
 QUICKSTART = REPO / "configs" / "quickstart.yaml"
 
 
-def light_quickstart() -> str:
-    """The quickstart with a calibration of a few flights and a one-point sweep: every stage,
-    in a third of the time, for tests of the run's machinery rather than its numbers."""
-    data = yaml.safe_load(QUICKSTART.read_text())
-    data["calibrate"].update(flights=3, validation=1, range_flights=0, tube=0.0)
-    data["sweep"]["grid"] = {"radius": [1.5], "T": [40]}
-    return yaml.safe_dump(data, sort_keys=False)
-
 
 def _qsls(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
@@ -46,8 +38,9 @@ def _statuses(stderr: str) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def quickstart(quickstart_session):
-    """The README's main job, run once per session (conftest): this module reruns it in place."""
-    return quickstart_session
+    """The README's main job, run once from a clean folder (once per session: the fault
+    injection compares its reruns with this run's data files)."""
+    return quickstart_session[:4]
 
 
 @pytest.mark.slow
