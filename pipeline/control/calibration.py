@@ -159,9 +159,9 @@ def inflate(p: PremiseNumbers, lam: float) -> PremiseNumbers:
 def check(p: PremiseNumbers, taps: Responses) -> Check:
     """The condition ``lhs <= 1``, ``rho* <= r`` and (with a gate) ``rho_v <= V`` under ``p``."""
     values = (p.eps, p.S, p.eps_w, p.delta)
-    if not all(math.isfinite(v) for v in values):
-        g = guarantee(replace(p, eps=0.0, S=0.0, eps_w=0.0, delta=0.0), taps.norms)
-        return Check(p, replace(g, robustness_lhs=math.inf, rho_star=math.inf), math.inf, None, False)
+    if not all(math.isfinite(v) for v in values):  # an infinite inflation: nothing holds
+        inf = math.inf
+        return Check(p, Guarantee(inf, -inf, inf, inf, inf, inf, inf), inf, None, False)
     gm = sparse_gain(taps.phi_xy, taps.state_scale, taps.outlier, p.m)
     norms = replace(taps.norms, G_m=gm)
     g = guarantee(p, norms)

@@ -84,23 +84,49 @@ def gated_errors(log: FlownLog, gate: float | None) -> np.ndarray:
     return y - log.x
 
 
-def check_assumptions(
+@dataclass(frozen=True)
+class Signals:
+    """What a flight shows of each premise quantity, per tick: the error acted on (``e_read``,
+    through the gate, the measured channels), ``|d_k|_e``, ``||o_k||_inf``, ``dist(x_k)``,
+    ``||H^-1 w_k||_inf`` and the outlier count of the ``T`` ticks ending at ``k``."""
+
+    e_read: np.ndarray
+    dense: np.ndarray
+    mag: np.ndarray
+    dist: np.ndarray
+    w: np.ndarray
+    counts: np.ndarray
+
+
+def signals(
     log: FlownLog, c: CertifiedPremise, distance: Callable[[np.ndarray], np.ndarray]
-) -> dict[str, Any]:
-    """The table row of one flight (module docstring); ``distance(q)`` is ``dist`` to the
-    training states in the certificate's ``W_x`` norm."""
+) -> Signals:
+    """:class:`Signals` of a flight under premise ``c`` (the checks here and the calibration's
+    scores read the same ones)."""
     e = gated_errors(log, c.gate)
     ch = list(measured_channels(c.measure))
     e_read = np.zeros_like(e)
     e_read[:, ch] = e[:, ch]
     d, o = honest.split_errors(e_read, c.beta, c.measure)
-    dense = honest.weighted_norm(d, c.error_scale)
     mag = np.abs(o).max(axis=1)
-    dist = distance(log.x)
-    w = shaped_norm(realized_disturbance(log.x, log.u, c.A, c.B, c.u_hover), c.H)
-    x_hat = nominal_states(log.x, e_read, c.phi_xy)
-    d_hat = distance(x_hat)
-    counts = honest.window_counts(mag > 0, np.zeros(len(mag), int), c.window)
+    return Signals(
+        e_read=e_read,
+        dense=honest.weighted_norm(d, c.error_scale),
+        mag=mag,
+        dist=distance(log.x),
+        w=shaped_norm(realized_disturbance(log.x, log.u, c.A, c.B, c.u_hover), c.H),
+        counts=honest.window_counts(mag > 0, np.zeros(len(mag), int), c.window),
+    )
+
+
+def check_assumptions(
+    log: FlownLog, c: CertifiedPremise, distance: Callable[[np.ndarray], np.ndarray]
+) -> dict[str, Any]:
+    """The table row of one flight (module docstring); ``distance(q)`` is ``dist`` to the
+    training states in the certificate's ``W_x`` norm."""
+    sig = signals(log, c, distance)
+    dense, mag, dist, w, counts = sig.dense, sig.mag, sig.dist, sig.w, sig.counts
+    d_hat = distance(nominal_states(log.x, sig.e_read, c.phi_xy))
     allowed = c.eps + c.S * dist
     inside = dist <= c.radius
     values = {

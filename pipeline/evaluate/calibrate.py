@@ -45,7 +45,7 @@ from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.evaluate.assumptions import CertifiedPremise, FlownLog, gated_errors
+from qsls.pipeline.evaluate.assumptions import CertifiedPremise, FlownLog, signals
 from qsls.pipeline.evaluate.options import CalibrateOptions as CalibrateOptions
 
 STAGE = "calibrate"
@@ -157,24 +157,12 @@ def score_flight(
       an outlier exceeds ``eps_o``, which the gate fixes and no inflation moves);
     - ``reached``: ``max dist(x_k)``, the distance at which the flight tested the premise.
     """
-    from qsls.pipeline.control.guarantee import measured_channels
-    from qsls.pipeline.errormodel import honest
-    from qsls.pipeline.errormodel.disturbance import realized_disturbance, shaped_norm
-
-    e = gated_errors(log, c.gate)
-    ch = list(measured_channels(c.measure))
-    e_read = np.zeros_like(e)
-    e_read[:, ch] = e[:, ch]
-    d, o = honest.split_errors(e_read, c.beta, c.measure)
-    dense = honest.weighted_norm(d, c.error_scale)
-    mag = np.abs(o).max(axis=1)
-    dist = distance(log.x)
+    sig = signals(log, c, distance)
+    dense, mag, dist, w, counts = sig.dense, sig.mag, sig.dist, sig.w, sig.counts
     inside = dist <= c.radius
     allowed = c.eps + c.S * dist
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(dense > 0, dense / allowed, 0.0)
-    w = shaped_norm(realized_disturbance(log.x, log.u, c.A, c.B, c.u_hover), c.H)
-    counts = honest.window_counts(mag > 0, np.zeros(len(mag), int), c.window)
     parts = {
         "dense": float(rel[inside].max()) if inside.any() else 0.0,
         "disturbance": cal.ratio(float(w.max()) if len(w) else 0.0, c.eps_w),
