@@ -13,7 +13,8 @@ from qsls.pipeline.report.facts import Facts, g4, pct, status_words
 
 SUMMARY_FILE = "calibration.json"  # written by qsls.pipeline.evaluate.calibrate (not imported: pandas)
 QUANTITIES = ("eps", "S", "eps_w", "delta", "m")
-PARTS = ("dense", "disturbance", "reference", "outliers")
+PARTS = {"dense": "eps", "disturbance": "eps_w", "reference": "Delta", "outliers": "m"}
+"""A score's parts by the premise quantity each inflates."""
 
 
 def read_calibration(f: Facts) -> list[tuple[dict[str, Any], Certificate | None]]:
@@ -53,7 +54,7 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
         main.append([
             r["controller"], r["condition"], status_words(r["status"])[0], r["flights"],
             f"{g4(r['alpha'])} ({how})", g4(r["lambda_hat"]),
-            ", ".join(f"{k} {g4(parts.get(k))}" for k in PARTS if k in parts),
+            ", ".join(f"{q} {g4(parts.get(k))}" for k, q in PARTS.items() if k in parts),
             f"{g4(r['rho_star'])} / {g4(r['tested_range'])}",
         ])  # fmt: skip
         tol.append([r["controller"], r["condition"],
@@ -66,12 +67,12 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
             failed or "-", "yes" if r["validation_agrees"] else "NO",
         ])  # fmt: skip
     sec.table(
-        ["controller", "condition", "status", "calibration flights", "alpha", "lambda_hat",
-         "largest ratio per quantity", "calibrated rho* / flights reached"],
+        ["controller", "condition", "status", "flights", "alpha", "lambda_hat",
+         "largest ratio", "rho* / reached"],
         main,
-        "The calibration: lambda_hat inflates every premise quantity; the largest ratio shows which "
-        "quantity drives it; rho* under the calibrated premise beside the distance the calibration "
-        "flights reached (certified needs it to reach rho*)",
+        "The calibration: lambda_hat inflates every premise quantity; the largest ratio over the "
+        "calibration flights shows which quantity drives it; rho* under the calibrated premise "
+        "beside the distance the flights reached (certified needs it to reach rho*)",
         notes=[f"{r['controller']} ({r['condition']}): {r['reason']}" for r, _ in rows if r["reason"]],
         text_cols=[2, 4, 6, 7],
     )  # fmt: skip
@@ -83,12 +84,12 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
             "before the robustness condition fails (m: in whole outliers)",
         )
     sec.table(
-        ["controller", "condition", "validation flights", "broke an assumption",
-         "share (95% Clopper-Pearson)", "alpha", "first assumption broken", "consistent with alpha"],
+        ["controller", "condition", "flights", "broke one", "share (95% CP)", "alpha",
+         "first broken", "within alpha"],
         valid,
         "Validation on fresh flights: every assumption (disturbance, dist(x_hat) <= a, invariance, "
-        "dense, outliers) checked against the calibrated premise; consistent when the interval's "
-        "lower end does not exceed alpha",
+        "dense, outliers) checked against the calibrated premise; the share that broke one with "
+        "its Clopper-Pearson interval, within alpha when the interval's lower end does not exceed it",
         text_cols=[4, 6, 7],
     )  # fmt: skip
     return sec
