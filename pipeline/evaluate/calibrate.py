@@ -155,7 +155,8 @@ def score_flight(
     - ``reference``: ``max dist(x_ref,k) / Delta``;
     - ``outliers``: the largest outlier count in ``T`` consecutive ticks over ``m`` (inf when
       an outlier exceeds ``eps_o``, which the gate fixes and no inflation moves);
-    - ``reached``: ``max dist(x_k)``, the distance at which the flight tested the premise.
+    - ``reached``: the largest ``dist(x_k)`` within ``r``, where the flight tested the dense
+      premise (beyond ``r`` the premise claims nothing).
     """
     sig = signals(log, c, distance)
     dense, mag, dist, w, counts = sig.dense, sig.mag, sig.dist, sig.w, sig.counts
@@ -169,7 +170,10 @@ def score_flight(
         "reference": cal.ratio(float(distance(log.ref).max()), c.delta),
         "outliers": math.inf if mag.max() > c.eps_o else cal.ratio(float(counts.max()), c.m),
     }
-    return {**parts, "score": cal.flight_score(parts), "reached": float(dist.max()),
+    # reached: where the dense premise was scored (within r; a flight that went further passed
+    # through every distance up to r on the way)
+    reached = float(dist[inside].max()) if inside.any() else 0.0
+    return {**parts, "score": cal.flight_score(parts), "reached": reached,
             "w_max": float(w.max()) if len(w) else 0.0, "window_max": float(counts.max())}  # fmt: skip
 
 
