@@ -324,3 +324,52 @@ def test_fit_model_on_arrays_in_memory_matches_the_stage(tmp_path):
     assert res.model.eps_e == pytest.approx(m.eps_e, abs=1e-12)
     assert res.model.s_slope.max == pytest.approx(m.s_slope.max, rel=1e-9)
     assert res.model.n_pairs == m.n_pairs
+
+
+def test_environments_keep_distances_and_pairs_within_one_room(tmp_path):
+    """Two flights in two rooms share no state space: with ``environments`` no pair crosses
+    them (the pair count is the sum of each flight's own, against the all-pairs count per
+    flight), leave-one-flight-out has nothing to leave out (S NaN, tested range 0), and a
+    third flight in the first room is compared with that room's flight only."""
+    from qsls.pipeline.control.premise import Spec, TrainingStates
+    from qsls.pipeline.errormodel.fit import FitData, fit_model, load_fit_data
+    from qsls.pipeline.errormodel.slopes import brute_force_slopes
+
+    rng = np.random.default_rng(5)
+    parts = []
+    for seed in range(3):
+        t, x = circle_states(seed, laps=1.0)
+        parts.append((t, x, 0.02 * np.sin(x) + rng.normal(0, 0.002, x.shape)))
+    n = [len(p[0]) for p in parts]
+    data = FitData(
+        names=["a", "b", "c"], flight_idx=np.repeat([0, 1, 2], n),
+        t=np.concatenate([p[0] for p in parts]), x=np.concatenate([p[1] for p in parts]),
+        e=np.concatenate([p[2] for p in parts]), keep=np.ones(sum(n), bool), exclusions={}, dt=0.1,
+    )  # fmt: skip
+    base = {"radius": 0.3, "min_separation": 0.01, "bootstrap": 0, "figures": False}
+    together = fit_model(data, FitOptions(**base)).model
+    apart_ = fit_model(data, FitOptions(**base, environments=["room", "hall", "room"])).model
+    own = [brute_force_slopes(p[1], p[2], 0.3, min_separation=0.01)[2] for p in parts]
+    pair_ac = brute_force_slopes(
+        np.concatenate([parts[0][1], parts[2][1]]), np.concatenate([parts[0][2], parts[2][2]]),
+        0.3, min_separation=0.01,
+    )[2]  # fmt: skip
+    assert apart_.n_pairs == pair_ac + own[1] < together.n_pairs
+    # the premise's leave-one-flight-out distances: b alone in its room (inf), a and c paired
+    env = np.repeat([0, 1, 0], n)
+    ts = TrainingStates(data.x, data.e, data.flight_idx, environment=env)
+    meas = ts.measured(Spec(radius=1.0))
+    assert np.isinf(meas.dist_other[data.flight_idx == 1]).all()
+    a = data.flight_idx == 0
+    from scipy.spatial import cKDTree
+
+    want = cKDTree(parts[2][1]).query(parts[0][1], p=np.inf)[0]
+    np.testing.assert_allclose(meas.dist_other[a], want, rtol=1e-12)
+    alone = TrainingStates(data.x[data.flight_idx < 2], data.e[data.flight_idx < 2],
+                           data.flight_idx[data.flight_idx < 2], environment=env[: n[0] + n[1]])  # fmt: skip
+    fit_alone = alone.measured(Spec(radius=1.0)).slope
+    assert np.isnan(fit_alone.S) and fit_alone.tested_range == 0.0
+    # one name per flight, or a clear error
+    folders = [write_flight(tmp_path / k, p[0], p[1], p[1] + p[2]) for k, p in zip("ab", parts, strict=False)]
+    with pytest.raises(InputError, match="one environment per flight"):
+        load_fit_data(folders, FitOptions(**base, environments=["room"]))

@@ -389,10 +389,12 @@ def test_euroc_config_on_the_real_flights(real_data, tmp_path):
     assert mh["results"]["streams"]["truth"]["discontinuities"] == 6
     assert mh["results"]["streams"]["vio"]["discontinuities"] == 0
     table = pd.read_csv(run_dir / "sweep" / "sweep.csv")
-    assert len(table) == 4 and (table["premise_holds"]).all()
+    # two rooms, one flight each: S cannot be tested, so no premise holds on the training data
+    assert len(table) == 4 and not (table["premise_holds"]).any()
     assert set(table["status"]) <= {"relaxed", "infeasible"}
-    # position-only at r <= 1: feasible under a premise every training sample satisfies, and
-    # honestly not certified: two physical flights, no inputs, nothing calibrated (issue 32)
+    assert (table["tested_range"] == 0).all()
+    # position-only at r <= 1: feasible under the assumed S = 0, and honestly not certified:
+    # two physical flights in two rooms, no inputs, nothing calibrated (issue 32)
     cert = yaml.safe_load((run_dir / "synth" / "l1_robust" / "certificate.yaml").read_text())
     assert cert["status"] == "relaxed" and cert["measure"] == "position", cert["premise"]
     assert cert["checks"]["robustness"]["passed"]
@@ -400,7 +402,9 @@ def test_euroc_config_on_the_real_flights(real_data, tmp_path):
     assert "eps_w cannot be measured: the flights logged no inputs" in cert["status_reason"]
     assert cert["radius"] <= 1.0 and cert["rho_star"] <= cert["radius"]
     assert cert["premise"]["eps_w_source"] == "input_free_residual"
-    assert 0.25 < cert["eps_e"] < 0.35 and cert["tested_range"] > 0.5
+    assert "S cannot be tested: no two training flights share an environment" in cert["status_reason"]
+    assert cert["premise"]["S"]["chosen"] == "number" and cert["premise"]["S"]["violated"] is None
+    assert 0.25 < cert["eps_e"] < 0.35 and cert["tested_range"] == 0.0
     page = (run_dir / "report" / "index.html").read_text()
     assert "rho*" in page and "tested" in page
     assert (tmp_path / "runs" / "euroc" / "report" / "index.html").is_file()

@@ -165,11 +165,12 @@ class Measured:
 
 
 def measure(x: np.ndarray, e: np.ndarray, flight: np.ndarray, w_norm: np.ndarray | None,
-            spec: Spec) -> Measured:  # fmt: skip
-    """Split the errors, take their weighted norms and fit ``S`` and ``m`` (pure: arrays in)."""
+            spec: Spec, environment: np.ndarray | None = None) -> Measured:  # fmt: skip
+    """Split the errors, take their weighted norms and fit ``S`` and ``m`` (pure: arrays in;
+    distances only within an ``environment``, :func:`honest.other_flight_distances`)."""
     d, o = honest.split_errors(e, spec.beta, spec.measure)
     dense = honest.weighted_norm(d, spec.error_scale)
-    dist = honest.other_flight_distances(x, flight, spec.state_scale)
+    dist = honest.other_flight_distances(x, flight, spec.state_scale, environment)
     slope = honest.lofo_slope(dense, flight, dist, spec.radius)
     mag = np.abs(o).max(axis=1)
     outl = honest.fit_outliers(o, flight, spec.window, spec.risk)
@@ -192,6 +193,8 @@ class TrainingStates:
     flight: np.ndarray
     w: np.ndarray | None = None
     source: str = "training data in memory"
+    environment: np.ndarray | None = None
+    """Environment code per sample (None: one environment): no distance crosses two."""
     _measured: dict[Spec, Measured] = field(default_factory=dict, repr=False, init=False, compare=False)
 
     def measured(self, spec: Spec) -> Measured:
@@ -203,13 +206,13 @@ class TrainingStates:
 
                 H = None if spec.H is None else np.asarray(spec.H, float)
                 w = shaped_norm(self.w, H)
-            self._measured[spec] = measure(self.x, self.e, self.flight, w, spec)
+            self._measured[spec] = measure(self.x, self.e, self.flight, w, spec, self.environment)
         return self._measured[spec]
 
     @classmethod
     def from_frame(cls, df: Any, source: str = "training data in memory") -> TrainingStates:
-        """From a table with the flight columns ``x_*``, ``e_*``, optionally ``flight`` and the
-        disturbance ``w_*`` (the fit's ``training_states.parquet``)."""
+        """From a table with the flight columns ``x_*``, ``e_*``, optionally ``flight``,
+        ``environment`` and the disturbance ``w_*`` (the fit's ``training_states.parquet``)."""
         import pandas as pd
 
         from qsls.pipeline.ingest.flight import E_COLS, X_COLS
@@ -217,7 +220,8 @@ class TrainingStates:
         x, e = df[list(X_COLS)].to_numpy(float), df[list(E_COLS)].to_numpy(float)
         codes = pd.factorize(df["flight"])[0] if "flight" in df.columns else np.zeros(len(df), int)
         w = df[list(W_COLS)].to_numpy(float) if all(c in df.columns for c in W_COLS) else None
-        return cls(x, e, codes, w, source)
+        env = pd.factorize(df["environment"])[0] if "environment" in df.columns else None
+        return cls(x, e, codes, w, source, env)
 
 
 def training_beside(em_file: Path) -> TrainingStates | None:

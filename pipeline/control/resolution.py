@@ -125,8 +125,9 @@ def _slope(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None) -
         )
     if math.isnan(meas.slope.S):
         raise InputError(
-            "S = lofo leaves one training flight out at a time and needs at least two; fit on "
-            "more flights, or give S as a number (the premise is then untested: relaxed)"
+            "S = lofo leaves one training flight out at a time and needs at least two in one "
+            "environment; fit on more flights, or give S as a number (the premise is then "
+            "untested: relaxed)"
         )
     if not math.isfinite(meas.slope.S):
         raise InputError(

@@ -124,12 +124,25 @@ def _built(
     timings: dict[str, float],
 ) -> Built:  # fmt: skip
     premise = setting.get("premise")
+    if body.status_reason and premise is not None and premise.S.violated is None:
+        from qsls.pipeline.control.certify import PREMISE_VIOLATED
+
+        others = [e for k, e in premise.entries().items() if k != "S"]
+        reason = body.status_reason
+        if premise.n_excluded == 0 and all(e.violated == 0.0 for e in others):
+            reason = reason.replace("; " + PREMISE_VIOLATED, "")  # nothing violated: untested
+        body = body.model_copy(update={"status_reason": reason + "; " + S_UNTESTED})
     if body.status_reason and premise is not None and premise.eps_w_source == RESIDUAL:
         body = body.model_copy(update={"status_reason": body.status_reason + "; " + NO_INPUTS})
     cert = Certificate.of(body, **setting, controller_sha256=ctrl.sha256())
     return Built(name, ctrl, cert, timings)
 
 
+S_UNTESTED = (
+    "S cannot be tested: no two training flights share an environment (leave-one-flight-out "
+    "needs a second flight of the same room and frame), so its value is assumed; certifiable "
+    "with a second flight there"
+)
 NO_INPUTS = (
     "eps_w cannot be measured: the flights logged no inputs, and the input-free residual is a "
     "lower bound on any controller's disturbance; certifiable with the commands flown logged "

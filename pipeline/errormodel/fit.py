@@ -37,6 +37,7 @@ from qsls.pipeline.core.artifacts import StageWriter, check_output, require_stag
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.references import parse_reference
+from qsls.pipeline.errormodel.honest import apart
 from qsls.pipeline.errormodel.model import (
     ERROR_MODEL_FILE,
     TRAINING_FILE,
@@ -154,6 +155,11 @@ def load_fit_data(flights: list[Path], options: FitOptions) -> FitData:
         require_stage(f, "ingest")
         loaded.append(Flight.load(f))
     names = _flight_names(flights)
+    if options.environments is not None and len(options.environments) != len(flights):
+        raise InputError(
+            f"environments: {len(options.environments)} names for {len(flights)} flights; give "
+            "one environment per flight, in the flights' order"
+        )
     _refuse_twins(flights, loaded, names)
     dt = _common_dt(loaded, names)
     tables = [fl.frame for fl in loaded]
@@ -476,8 +482,9 @@ def fit_model(data: FitData, options: FitOptions, progress: Progress = NULL_PROG
         W = bootstrap_weights(
             tr.flight_idx[idx], options.bootstrap, options.bootstrap_block, options.seed
         )
+    env = environment_codes(options, tr.flight_idx[idx])
     ps = pair_slopes(
-        x, e, options.radius, min_separation=min_sep, state_scale=scale,
+        apart(x, env, scale), e, options.radius, min_separation=min_sep, state_scale=scale,
         percentiles=options.percentiles, top_k=options.top_pairs, bootstrap_weights=W,
         jobs=options.jobs, progress=progress,
     )  # fmt: skip
@@ -628,6 +635,11 @@ def _write(
         | {c: x[:, k] for k, c in enumerate(X_COLS)}
         | {c: e[:, k] for k, c in enumerate(E_COLS)}
         | ({c: tr.w[idx, k] for k, c in enumerate(W_COLS)} if tr.w is not None else {})
+        | (
+            {"environment": [options.environments[k] for k in tr.flight_idx[idx]]}
+            if options.environments is not None
+            else {}
+        )
     )
     results = {
         "eps_e": model.eps_e,
@@ -649,6 +661,15 @@ def _write(
             for name, fig in figs.items():
                 w.write_figure(name, fig)
         w.results.update(results)
+
+
+def environment_codes(options: FitOptions, flight_idx: np.ndarray) -> np.ndarray | None:
+    """The environment code of every sample (None without ``options.environments``)."""
+    if options.environments is None:
+        return None
+    codes = {name: k for k, name in enumerate(dict.fromkeys(options.environments))}
+    per_flight = np.array([codes[n] for n in options.environments], dtype=np.int64)
+    return per_flight[flight_idx]
 
 
 def _resolve_r0(r0: float | str, eps_e: float, pcts: dict[str, float]) -> float:

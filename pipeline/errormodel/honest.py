@@ -69,21 +69,47 @@ def weighted_norm(v: np.ndarray, weights: Sequence[float]) -> np.ndarray:
 
 
 def other_flight_distances(
-    x: np.ndarray, flight: np.ndarray, state_scale: Sequence[float]
+    x: np.ndarray,
+    flight: np.ndarray,
+    state_scale: Sequence[float],
+    environment: np.ndarray | None = None,
 ) -> np.ndarray:
     """``dist_{-f}(x_k) = min over samples i of other flights of ||W_x (x_k - x_i)||_inf``
-    (inf with a single flight)."""
+    (inf with a single flight). With ``environment`` (a code per sample), only flights of the
+    sample's own environment count: states of another room or frame are another state space,
+    and no distance is taken across them (inf for a flight alone in its environment)."""
     from scipy.spatial import cKDTree
 
     w = np.asarray(state_scale, float)
     xs = np.asarray(x, float) * w
+    env = np.zeros(len(xs), dtype=np.int64) if environment is None else np.asarray(environment)
     out = np.full(len(xs), np.inf)
     for f in np.unique(flight):
         mine = flight == f
-        if mine.all():
+        others = ~mine & (env == env[mine][0])
+        if not others.any():
             continue
-        d, _ = cKDTree(xs[~mine]).query(xs[mine], k=1, p=np.inf)
+        d, _ = cKDTree(xs[others]).query(xs[mine], k=1, p=np.inf)
         out[mine] = d
+    return out
+
+
+ENVIRONMENT_SEPARATION = 1e6
+"""How far apart (in the weighted state norm) :func:`apart` lays two environments: farther than
+any radius a premise uses, so no pair within ``r`` crosses environments."""
+
+
+def apart(x: np.ndarray, environment: np.ndarray | None, state_scale: Sequence[float]) -> np.ndarray:
+    """The states with environment ``k``'s positions shifted by ``k`` times
+    :data:`ENVIRONMENT_SEPARATION` (weighted): a pair search within ``r`` then never pairs
+    states of two environments (``x`` itself when there is one)."""
+    x = np.asarray(x, float)
+    if environment is None or not np.any(environment):
+        return x
+    w = np.asarray(state_scale, float)
+    shift = np.asarray(environment, float)[:, None] * (ENVIRONMENT_SEPARATION / w[None, :3])
+    out = x.copy()
+    out[:, :3] += shift
     return out
 
 
@@ -93,7 +119,7 @@ class SlopeFit:
 
     S: float
     """``max_f S_f`` (inf where a left-out sample exceeds ``eps_{-f}`` at distance 0; NaN with
-    fewer than two flights: nothing was left out)."""
+    fewer than two flights, or no two in one environment: nothing was left out)."""
     per_flight: tuple[float, ...]
     tested_range: float
     """Largest ``dist_{-f}(x_k)`` within ``r`` (0 when no sample is within ``r`` of another flight)."""
@@ -106,7 +132,7 @@ def lofo_slope(
 ) -> SlopeFit:
     """Leave-one-flight-out ``S`` (module docstring) from ``dense = |d_k|_e``."""
     flights = np.unique(flight)
-    if len(flights) < 2:
+    if len(flights) < 2 or not np.isfinite(dist_other).any():  # nothing to leave out
         return SlopeFit(math.nan, (), 0.0, 0)
     within = dist_other <= radius
     per = []

@@ -33,6 +33,10 @@ class FitOptions(Options):
     """Robust z-score ``|e - median| / (1.4826 MAD)`` above which a sample is an outlier."""
     skip_start: float = Field(0.0, ge=0)
     """Seconds left out at the start of every flight (estimator start-up)."""
+    environments: list[str] | None = None
+    """One name per flight, in the flights' order: states of two environments (another room,
+    another motion-capture frame) are never compared, so pairs, leave-one-flight-out distances
+    and the tested range stay within one (default: all flights share one)."""
     reference: ReferenceOptions | str | None = None
     """For ``delta``: a reference (``circle:radius=1,height=1,period=5`` or a mapping of
     the simulator's reference options) or a flight folder whose truth states are the
