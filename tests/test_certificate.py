@@ -123,7 +123,17 @@ def test_premise_shares_match_a_brute_force_count(tmp_path, fit_dir):
     assert c["premise"]["eps_e"]["violated"] == 0.0
     lofo = c["S"]
     assert _brute_lofo(x, e, float(enorm.max()), lofo, 1.0)[0] == 0
-    assert _brute_lofo(x, e, float(enorm.max()), lofo * 0.999, 1.0)[0] >= 1
+    # S lofo is the largest of the channel groups' slopes, each the smallest its own left-out
+    # samples allow (issue 32: a group's level cannot mask the other's growth)
+    groups = c["premise"]["groups"]
+    assert lofo == max(g["S"] for g in groups.values())
+    for name, ch in (("position", [0, 1, 2]), ("velocity", [3, 4, 5])):
+        eg, Sg = e[:, ch], groups[name]["S"]
+        assert groups[name]["eps"] == pytest.approx(float(np.abs(eg).max()), rel=1e-12)
+        top = float(np.abs(eg).max())
+        assert _brute_lofo(x, eg, top, Sg, 1.0)[0] == 0
+        if Sg > 0:
+            assert _brute_lofo(x, eg, top, Sg * 0.999, 1.0)[0] >= 1
 
     # a premise no sample satisfies is refused in one line
     res = _invoke("synth", "-m", root, "-T", T, "--eps-e", "0", "-o", tmp_path / "zero")

@@ -81,6 +81,10 @@ class Premise(BaseModel):
     """Training samples the fit left out (each one counts against the premise)."""
     training_data: str | None = None
     """Where the shares were computed, why they could not be, or None without an error model."""
+    groups: dict[str, dict[str, float]] | None = None
+    """Per channel group (``position``, ``velocity``) on the training data: ``eps`` (its largest
+    dense error ``|d_g|_e``) and ``S`` (its leave-one-flight-out slope, NaN when nothing was
+    left out); the premise's training ``eps_e`` and ``S = lofo`` are their maxima."""
 
     def entries(self) -> dict[str, PremiseEntry]:
         out = {"eps_e": self.eps_e, "S": self.S, "eps_w": self.eps_w}
@@ -148,7 +152,11 @@ class Measured:
     dist_other: np.ndarray
     w_norm: np.ndarray | None
     slope: honest.SlopeFit
+    """``S = max_g S_g`` (:func:`honest.grouped_slope`)."""
     outliers: honest.OutlierFit
+    groups: dict[str, np.ndarray] = field(default_factory=dict)
+    """``|d_k,g|_e`` per channel group."""
+    group_slopes: dict[str, honest.SlopeFit] = field(default_factory=dict)
 
     @property
     def eps(self) -> float:
@@ -166,15 +174,17 @@ class Measured:
 
 def measure(x: np.ndarray, e: np.ndarray, flight: np.ndarray, w_norm: np.ndarray | None,
             spec: Spec, environment: np.ndarray | None = None) -> Measured:  # fmt: skip
-    """Split the errors, take their weighted norms and fit ``S`` and ``m`` (pure: arrays in;
-    distances only within an ``environment``, :func:`honest.other_flight_distances`)."""
+    """Split the errors, take their weighted norms and fit ``S`` (per channel group) and ``m``
+    (pure: arrays in; distances only within an ``environment``,
+    :func:`honest.other_flight_distances`)."""
     d, o = honest.split_errors(e, spec.beta, spec.measure)
     dense = honest.weighted_norm(d, spec.error_scale)
     dist = honest.other_flight_distances(x, flight, spec.state_scale, environment)
-    slope = honest.lofo_slope(dense, flight, dist, spec.radius)
+    groups = honest.group_norms(d, spec.error_scale, spec.measure)
+    slope, per_group = honest.grouped_slope(groups, flight, dist, spec.radius)
     mag = np.abs(o).max(axis=1)
     outl = honest.fit_outliers(o, flight, spec.window, spec.risk)
-    return Measured(spec, dense, mag, flight, dist, w_norm, slope, outl)
+    return Measured(spec, dense, mag, flight, dist, w_norm, slope, outl, groups, per_group)
 
 
 @dataclass(frozen=True, eq=False)
@@ -321,7 +331,18 @@ def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
         tested_range=tested,
         n_excluded=em.n_excluded if em is not None else 0,
         training_data=where,
+        groups=_group_record(meas),
     )  # fmt: skip
+
+
+def _group_record(meas: Measured | None) -> dict[str, dict[str, float]] | None:
+    if meas is None or not meas.groups:
+        return None
+    out = {}
+    for g, v in meas.groups.items():
+        fit = meas.group_slopes[g]
+        out[g] = {"eps": float(v.max()), "S": float(fit.S)}
+    return out
 
 
 FLIGHT_STEPS = (100, 300, 1000, 3000)
