@@ -18,13 +18,11 @@ import scipy.sparse as sp
 from qsls.pipeline.control.sls import (
     SLSProblem,
     Structure,
-    Taps,
     Values,
-    from_side_by_side,
     is_diagonal,
     psd_sqrt,
-    side_by_side,
 )
+from qsls.pipeline.control.taps import Taps, from_side_by_side, side_by_side
 from qsls.pipeline.core.plant import LinearModel
 
 

@@ -29,10 +29,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from qsls.pipeline.control.sls import l1_norm
+from qsls.pipeline.control.taps import l1_norm
 from qsls.pipeline.errormodel.honest import VELOCITY, measured_channels
 
 ONES = (1.0,) * 6
@@ -108,9 +109,41 @@ class PremiseNumbers:
     """Velocity gate ``V`` (None: no gate)."""
 
 
+def a_value(eps_w: float, N_w: float, delta: float) -> float:
+    """``a = eps_w N_w + Delta``."""
+    return eps_w * N_w + delta
+
+
 def a_prior(p: PremiseNumbers, n: Norms) -> float:
     """``a = eps_w N_w + Delta``: the a-priori bound on ``dist(x_hat_k)``."""
-    return p.eps_w * n.N_w + p.delta
+    return a_value(p.eps_w, n.N_w, p.delta)
+
+
+def denominator(S: float, N: float) -> float:
+    """``1 - S N``: the theorem's bounds are finite only while it is positive."""
+    return 1.0 - S * N
+
+
+def premise_bound(eps: float, S: float, distance: Any) -> Any:
+    """``eps + S d``: the dense premise's bound at distance ``d`` (a number or an array)."""
+    if np.isscalar(distance):
+        return eps + S * distance
+    return eps + S * np.asarray(distance, dtype=float)
+
+
+def gamma_of(eps: float, S: float, N: float, a: Any) -> Any:
+    """``gamma = (eps + S a) / (1 - S N)`` (inf when ``S N >= 1``): Dean et al.'s bound on
+    ``|e|`` for an a-priori (or measured) ``a`` (a number or an array)."""
+    den = denominator(S, N)
+    a = np.asarray(a, dtype=float)
+    out = np.full(a.shape, math.inf) if den <= 0 else (eps + S * a) / den
+    return float(out) if out.ndim == 0 else out
+
+
+def gamma_strict_of(R0: float, S: float, N: float) -> float:
+    """``gamma_strict = R0 / (1 - S N)`` (inf when ``S N >= 1``): the paper's comparison."""
+    den = denominator(S, N)
+    return R0 / den if den > 0 else math.inf
 
 
 def robustness_lhs(p: PremiseNumbers, n: Norms) -> float:
@@ -136,10 +169,18 @@ def necessary_condition(
     return (p.S + p.eps / p.radius) * min_norm_bound(state_scale, error_scale)
 
 
+def largest_slope(n: Norms, *, eps_w: float, delta: float, eps_o: float, radius: float,
+                  backoff: float = 0.0) -> float:  # fmt: skip
+    """``rho = (1 - backoff - Delta/r - (eps_w N_w + eps_o G_m)/r) / N``: the largest
+    ``S + eps/r`` the robustness condition leaves these responses (``eps`` aside, so one
+    ratio serves every ``eps``)."""
+    return (1.0 - backoff - delta / radius - (eps_w * n.N_w + eps_o * n.G_m) / radius) / n.N
+
+
 def rho_star(p: PremiseNumbers, n: Norms, a: float | None = None) -> float:
     """``(a + N eps + eps_o G_m) / (1 - S N)`` (inf when ``S N >= 1``); ``a`` defaults to the
     a-priori :func:`a_prior` (on a flight, the measured ``max dist(x_hat)``)."""
-    den = 1.0 - p.S * n.N
+    den = denominator(p.S, n.N)
     if den <= 0:
         return math.inf
     a = a_prior(p, n) if a is None else a
@@ -148,7 +189,7 @@ def rho_star(p: PremiseNumbers, n: Norms, a: float | None = None) -> float:
 
 def dense_bound(p: PremiseNumbers, rho: float) -> float:
     """``eps + S rho``: the bound on ``|d_k|_e`` while ``dist(x_k) <= rho``."""
-    return p.eps + p.S * rho if math.isfinite(rho) else math.inf
+    return premise_bound(p.eps, p.S, rho) if math.isfinite(rho) else math.inf
 
 
 def velocity_deviation(
@@ -176,7 +217,7 @@ def velocity_deviation(
         if p.m > 0 and len(outlier_channels):
             per_tap = np.abs(phi_xy[:, i, list(outlier_channels)]).sum(axis=1)
             sparse = float(np.sort(per_tap)[::-1][: p.m].sum())
-        out = max(out, p.eps_w * dist + (p.eps + p.S * p.radius) * dense + p.eps_o * sparse)
+        out = max(out, p.eps_w * dist + premise_bound(p.eps, p.S, p.radius) * dense + p.eps_o * sparse)
     return out
 
 
@@ -198,7 +239,6 @@ def guarantee(p: PremiseNumbers, n: Norms) -> Guarantee:
     """Every number of the guarantee for premise ``p`` and system quantities ``n``."""
     lhs = robustness_lhs(p, n)
     rho = rho_star(p, n)
-    den = 1.0 - p.S * n.N
     r0 = p.eps if p.R0 is None else p.R0
     return Guarantee(
         robustness_lhs=float(lhs),
@@ -206,7 +246,7 @@ def guarantee(p: PremiseNumbers, n: Norms) -> Guarantee:
         a=float(a_prior(p, n)),
         rho_star=float(rho),
         dense_bound=float(dense_bound(p, rho)),
-        gamma_strict=float(r0 / den) if den > 0 else math.inf,
+        gamma_strict=gamma_strict_of(r0, p.S, n.N),
         s_times_n=float(p.S * n.N),
     )
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+from qsls.pipeline.control.guarantee import largest_slope
 from qsls.pipeline.control.sls import (
     ROBUST_BACKOFF,
     Shape,
@@ -88,7 +89,6 @@ def max_ratio(
     monotonically and converges superlinearly. ``eps_e`` plays no part: one ratio serves
     every ``eps_e`` (:func:`max_feasible_s`)."""
     structure = shape.structure(T, "ratio", strictly_proper)
-    c0 = 1.0 - ROBUST_BACKOFF - delta / radius
     lam, total, it, gap = 0.0, 0.0, 0, math.inf
     nxy = nxx = float("nan")
     for it in range(1, max_iter + 1):
@@ -99,7 +99,9 @@ def max_ratio(
             raise SolverError(f"the largest-feasible-S subproblem failed ({sol.solver_status})")
         n = shape.norms(sol.taps, model)
         nxy, nxx = n.N, n.N_w
-        new = (c0 - (eps_w * n.N_w + eps_o * n.G_m) / radius) / n.N
+        new = largest_slope(
+            n, eps_w=eps_w, delta=delta, eps_o=eps_o, radius=radius, backoff=ROBUST_BACKOFF
+        )
         if it == 1 and new <= 0:
             # lam = 0 minimized eps_w N_w + eps_o G_m: even then (a + eps_o G_m) / r leaves
             # nothing for S: no S >= 0 is feasible

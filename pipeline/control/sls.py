@@ -52,7 +52,22 @@ import numpy as np
 import scipy.sparse as sp
 
 from qsls.pipeline.control.achievable import Affine, block_pattern, eliminate, implied_zero_taps
+from qsls.pipeline.control.guarantee import (
+    Norms,
+    error_weights,
+    measured_channels,
+    outlier_channels,
+    premise_bound,
+    system_norms,
+)
 from qsls.pipeline.control.options import psd_sqrt
+from qsls.pipeline.control.taps import (  # re-exported: the responses are the problem's variables
+    RESPONSES,
+    Taps,
+    h2_norm,
+    l1_norm,
+    side_by_side,
+)
 from qsls.pipeline.core.plant import NX, LinearModel
 
 Norm = Literal["l1", "h2"]
@@ -64,60 +79,6 @@ with responses ten times larger than the hover plant's, and the default 1e-8 lef
 realization check (1e-8) failing by a factor of 3; these pass it by 2. Where Clarabel cannot
 reach them (near the feasibility boundary) the default tolerances are used and the
 certificate's checks decide as for any solution."""
-RESPONSES = ("Phi_xx", "Phi_ux", "Phi_xy", "Phi_uy")
-
-
-# --------------------------------------------------------------------------- taps
-@dataclass(frozen=True)
-class Taps:
-    """The four responses, each ``(T+1, rows, cols)`` with tap ``k`` at index ``k``."""
-
-    Phi_xx: np.ndarray
-    Phi_ux: np.ndarray
-    Phi_xy: np.ndarray
-    Phi_uy: np.ndarray
-
-    @property
-    def T(self) -> int:
-        return self.Phi_xx.shape[0] - 1
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        return {name: getattr(self, name) for name in RESPONSES}
-
-    def truncated(self, T: int) -> Taps:
-        """The first ``T+1`` taps (zero-padded when shorter)."""
-        out = {}
-        for name, a in self.arrays().items():
-            b = np.zeros((T + 1, *a.shape[1:]))
-            n = min(T + 1, a.shape[0])
-            b[:n] = a[:n]
-            out[name] = b
-        return Taps(**out)
-
-
-def side_by_side(taps: np.ndarray) -> np.ndarray:
-    """``(K, r, c)`` taps -> ``(r, K c)``: ``[Phi(0) Phi(1) ... ]``."""
-    k, r, c = taps.shape
-    return np.transpose(taps, (1, 0, 2)).reshape(r, k * c)
-
-
-def from_side_by_side(mat: np.ndarray, cols: int) -> np.ndarray:
-    """Inverse of :func:`side_by_side`."""
-    r = mat.shape[0]
-    return np.transpose(mat.reshape(r, -1, cols), (1, 0, 2))
-
-
-def l1_norm(taps: np.ndarray, right: np.ndarray | None = None) -> float:
-    """Induced inf-to-inf norm of an FIR operator: the largest absolute row sum over all
-    taps side by side (of ``Phi(k) @ right`` when ``right`` is given)."""
-    t = taps if right is None else taps @ right
-    return float(np.abs(t).sum(axis=(0, 2)).max())
-
-
-def h2_norm(taps: np.ndarray) -> float:
-    """H2 norm of an FIR operator: the Frobenius norm over all taps."""
-    return float(np.sqrt(np.sum(taps * taps)))
-
 
 def cost_blocks(
     taps: Taps,
@@ -255,12 +216,6 @@ class SLSProblem:
 
     def __init__(self, model: LinearModel, structure: Structure) -> None:
         import cvxpy as cp
-
-        from qsls.pipeline.control.guarantee import (
-            error_weights,
-            measured_channels,
-            outlier_channels,
-        )
 
         t0 = time.perf_counter()
         s = structure
@@ -446,7 +401,7 @@ class SLSProblem:
                 if v.gate is None:
                     raise ValueError("this problem was built with a velocity gate: give its V")
                 p["g_w"].value = float(v.eps_w)
-                p["g_d"].value = float(v.eps_e + v.S * v.radius)
+                p["g_d"].value = float(premise_bound(v.eps_e, v.S, v.radius))
                 p["g_o"].value = float(v.eps_o)
                 p["g_V"].value = float(v.gate)
         if s.cost in ("qr", "imitation"):
@@ -610,13 +565,7 @@ class Shape:
             error_scale=self.error_scale, measure=self.measure, m=self.m, gate=self.gate,
         )  # fmt: skip
 
-    def norms(self, taps: Taps, model: LinearModel) -> Any:
-        from qsls.pipeline.control.guarantee import (
-            measured_channels,
-            outlier_channels,
-            system_norms,
-        )
-
+    def norms(self, taps: Taps, model: LinearModel) -> Norms:
         return system_norms(
             taps.Phi_xy, taps.Phi_xx @ model.H, state_scale=self.state_scale,
             error_scale=self.error_scale, measured=measured_channels(self.measure),

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.guarantee import measured_channels
 from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.disturbance import realized_disturbance, shaped_norm
@@ -127,7 +128,7 @@ def check_assumptions(
     sig = signals(log, c, distance)
     dense, mag, dist, w, counts = sig.dense, sig.mag, sig.dist, sig.w, sig.counts
     d_hat = distance(nominal_states(log.x, sig.e_read, c.phi_xy))
-    allowed = c.eps + c.S * dist
+    allowed = guarantee.premise_bound(c.eps, c.S, dist)
     inside = dist <= c.radius
     values = {
         "disturbance": (float(w.max()) if len(w) else 0.0, c.eps_w, _first(w > c.eps_w, log.t)),
@@ -148,7 +149,7 @@ def check_assumptions(
         row[f"{name}_t"] = t_fail
         if not holds and failed is None:
             failed = name
-    bound = c.eps + c.S * c.rho_star
+    bound = float(guarantee.premise_bound(c.eps, c.S, c.rho_star))
     row |= {
         "max_outlier": float(mag.max()),
         "eps_o": c.eps_o,

@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 
 from qsls.pipeline.control import calibration as cal
+from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED
 from qsls.pipeline.core.errors import InputError
@@ -161,7 +162,7 @@ def score_flight(
     sig = signals(log, c, distance)
     dense, mag, dist, w, counts = sig.dense, sig.mag, sig.dist, sig.w, sig.counts
     inside = dist <= c.radius
-    allowed = c.eps + c.S * dist
+    allowed = guarantee.premise_bound(c.eps, c.S, dist)
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(dense > 0, dense / allowed, 0.0)
     parts = {

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
@@ -76,12 +77,12 @@ class ControllerBound:
     @property
     def a_certificate(self) -> float:
         """The certificate's a-priori ``a = eps_w ||Phi_xx H|| + Delta``."""
-        return self.eps_w * self.norm_phi_xx_h + self.delta
+        return guarantee.a_value(self.eps_w, self.norm_phi_xx_h, self.delta)
 
     @property
     def denominator(self) -> float:
         """``1 - S ||Phi_xy||``; the bound's formula is finite only when positive."""
-        return 1.0 - self.S * self.norm_phi_xy
+        return guarantee.denominator(self.S, self.norm_phi_xy)
 
     @property
     def finite(self) -> bool:
@@ -108,19 +109,16 @@ class ControllerBound:
     @property
     def gamma_strict(self) -> float:
         """``R0 / (1 - S ||Phi_xy||)`` (inf when ``S ||Phi_xy|| >= 1``)."""
-        return self.R0 / self.denominator if self.finite else math.inf
+        return guarantee.gamma_strict_of(self.R0, self.S, self.norm_phi_xy)
 
     def gamma_at(self, distance: np.ndarray) -> np.ndarray:
         """``gamma_k = (eps_e + S (eps_w ||Phi_xx H|| + d_k)) / (1 - S ||Phi_xy||)``."""
-        d = np.asarray(distance, dtype=float)
-        if not self.finite:
-            return np.full(d.shape, math.inf)
-        a = self.eps_w * self.norm_phi_xx_h + d
-        return (self.eps_e + self.S * a) / self.denominator
+        a = guarantee.a_value(self.eps_w, self.norm_phi_xx_h, np.asarray(distance, dtype=float))
+        return np.asarray(guarantee.gamma_of(self.eps_e, self.S, self.norm_phi_xy, a))
 
     def premise_at(self, distance: np.ndarray) -> np.ndarray:
         """The S-slope premise ``eps_e + S d_k``: the error the assumption allows at ``x_k``."""
-        return self.eps_e + self.S * np.asarray(distance, dtype=float)
+        return np.asarray(guarantee.premise_bound(self.eps_e, self.S, np.asarray(distance, dtype=float)))
 
 
 def check_unweighted(em: Any, to: str = "check certified controllers") -> None:

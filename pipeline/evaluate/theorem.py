@@ -40,7 +40,8 @@ from typing import Any
 
 import numpy as np
 
-from qsls.pipeline.control.sls import l1_norm
+from qsls.pipeline.control import guarantee
+from qsls.pipeline.control.taps import l1_norm
 
 THEOREM_COLUMNS: tuple[str, ...] = (
     "theorem_applies",
@@ -132,8 +133,7 @@ def theorem_check(
         a, a_t = float(d_hat[k]), float(t[k])
     else:
         a, a_t = math.nan, math.nan
-    denominator = 1.0 - premise.S * norm_w
-    gamma = (premise.eps_e + premise.S * a) / denominator if denominator > 0 else math.inf
+    gamma = float(guarantee.gamma_of(premise.eps_e, premise.S, norm_w, a))
     holds = bool(math.isfinite(gamma) and max_e <= gamma)
     cols: dict[str, Any] = {
         "theorem_applies": True,
