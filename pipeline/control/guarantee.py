@@ -109,8 +109,8 @@ class PremiseNumbers:
     """Velocity gate ``V`` (None: no gate)."""
 
 
-def a_value(eps_w: float, N_w: float, delta: float) -> float:
-    """``a = eps_w N_w + Delta``."""
+def a_value(eps_w: float, N_w: float, delta: Any) -> Any:
+    """``a = eps_w N_w + Delta`` (``Delta`` a number, or measured distances: an array)."""
     return eps_w * N_w + delta
 
 
@@ -126,7 +126,7 @@ def denominator(S: float, N: float) -> float:
 
 def premise_bound(eps: float, S: float, distance: Any) -> Any:
     """``eps + S d``: the dense premise's bound at distance ``d`` (a number or an array)."""
-    if np.isscalar(distance):
+    if isinstance(distance, int | float):
         return eps + S * distance
     return eps + S * np.asarray(distance, dtype=float)
 

@@ -99,7 +99,9 @@ ENVIRONMENT_SEPARATION = 1e6
 any radius a premise uses, so no pair within ``r`` crosses environments."""
 
 
-def apart(x: np.ndarray, environment: np.ndarray | None, state_scale: Sequence[float]) -> np.ndarray:
+def apart(
+    x: np.ndarray, environment: np.ndarray | None, state_scale: Sequence[float] | np.ndarray
+) -> np.ndarray:
     """The states with environment ``k``'s positions shifted by ``k`` times
     :data:`ENVIRONMENT_SEPARATION` (weighted): a pair search within ``r`` then never pairs
     states of two environments (``x`` itself when there is one)."""
