@@ -70,6 +70,15 @@ def command(
     jobs: int = typer.Option(
         None, "--jobs", "-j", help="Flights in parallel; 0 = all cores. (default: 0)"
     ),
+    scheduler: str = typer.Option(
+        None, "--scheduler",
+        help="Dask scheduler address (tcp://host:8786): the flights run on its workers, with "
+        "the same tables as the local pool. (default: the local pool)",
+    ),
+    wait_workers: float = typer.Option(
+        None, "--wait-workers",
+        help="With --scheduler: seconds to wait for a worker before failing. (default: 60)",
+    ),
     config: Path = typer.Option(
         None, "--config", "-c",
         help="YAML file of these options (its 'calibrate' section, or all; 'sim' holds the "
@@ -89,6 +98,7 @@ def command(
         range_seed=range_seed, design_seeds=parse_list(design_seeds, "--design-seeds", "int"),
         conditions=parse_list(conditions, "--conditions", "value"),
         controllers=parse_list(only, "--only", "value"), duration=duration, jobs=jobs,
+        scheduler=scheduler, wait_workers=wait_workers,
     )  # fmt: skip
     options = load_options(CalibrateOptions, config, given, section="calibrate")
     options.seed_lists()

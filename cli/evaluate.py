@@ -79,6 +79,11 @@ def command(
     jobs: int = typer.Option(
         None, "--jobs", help="--fly: parallel flights, 0 = all cores. (default: 0)"
     ),
+    scheduler: str = typer.Option(
+        None, "--scheduler",
+        help="--fly: Dask scheduler address (tcp://host:8786); the flights run on its workers, "
+        "with the same tables as the local pool. (default: the local pool)",
+    ),
     vio: str = typer.Option(
         None,
         "--vio",
@@ -113,6 +118,7 @@ def command(
     if fly:
         fly_given = overrides(
             seeds=parse_list(seeds, "--seeds", "int"), duration=duration, jobs=jobs,
+            scheduler=scheduler,
             conditions=parse_list(conditions, "--conditions", "value"),
             vio=parse_list(vio, "--vio", "value") if vio and "," in vio else vio,
             sim={"controller": {"backend": backend}} if backend else None,

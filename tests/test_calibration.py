@@ -200,3 +200,57 @@ def test_one_flight_twice_is_refused_and_the_model_records_its_dt(tmp_path: Path
     with pytest.raises(InputError, match=r"dt 0.05 s: the error model was fitted on flights sampled every 0.1 s"):
         synth(tmp_path / "fit", SynthOptions(T=8, dt=0.05, controllers="single"), tmp_path / "s")
     shutil.rmtree(tmp_path / "fit")
+
+
+def test_calibration_on_a_dask_cluster_writes_the_local_pools_bytes_and_survives_a_lost_worker(
+    quickstart_session, tmp_path: Path
+) -> None:
+    """Issue 37: the calibration and validation flights on a real `dask scheduler` with two
+    `dask worker` processes on loopback, one killed while it flies; the scores, validation,
+    tick logs and calibrated certificates are byte-identical to the local pool's."""
+    import shutil
+    import subprocess
+    import sys
+    import time
+
+    from distributed import Client
+
+    from tests.test_sweep import _Cluster, _wait_for_workers
+
+    run = quickstart_session[0] / "runs" / "quickstart"
+    for stage in ("fit", "synth"):
+        shutil.copytree(run / stage, tmp_path / stage)
+    args = [
+        sys.executable, "-m", "qsls.cli.main", "calibrate", "-m", str(tmp_path / "fit"),
+        "--controllers", str(tmp_path / "synth"), "--only", "l1_robust", "--flights", "4",
+        "--range-flights", "2", "--tube", "2", "--validation", "2", "--duration", "4",
+        "--seed", "91000", "--range-seed", "93000", "--validation-seed", "92000",
+    ]  # fmt: skip
+    local = subprocess.run([*args, "-o", str(tmp_path / "local"), "--jobs", "2"],
+                           capture_output=True, text=True)  # fmt: skip
+    assert local.returncode == 0, local.stderr[-2000:]
+    cluster = _Cluster(tmp_path)
+    try:
+        doomed = cluster.worker()
+        cluster.worker()
+        _wait_for_workers(cluster.address, 2)
+        proc = subprocess.Popen([*args, "-o", str(tmp_path / "dask"), "--scheduler", cluster.address],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+        with Client(cluster.address, timeout="20s", set_as_default=False) as client:
+            deadline = time.monotonic() + 120
+            while not any(client.processing().values()):
+                assert proc.poll() is None and time.monotonic() < deadline
+                time.sleep(0.05)
+        doomed.kill()  # a worker lost while it flies: its flight goes to the other one
+        _, err = proc.communicate(timeout=300)
+    finally:
+        cluster.stop()
+    assert proc.returncode == 0, err[-2000:]
+    files = sorted(
+        p.relative_to(tmp_path / "local")
+        for p in (tmp_path / "local").rglob("*")
+        if p.is_file() and p.name != "manifest.json"
+    )
+    assert len([f for f in files if f.name == "ticks.parquet"]) == 8
+    for f in files:
+        assert (tmp_path / "dask" / f).read_bytes() == (tmp_path / "local" / f).read_bytes(), f

@@ -13,8 +13,10 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.control.pdgain import PDGains
+from qsls.pipeline.core.cluster import DASK_SCHEMES as DASK_SCHEMES
+from qsls.pipeline.core.cluster import SchedulerAddress
+from qsls.pipeline.core.cluster import check_scheduler as check_scheduler
 from qsls.pipeline.core.config import Options
-from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.plant import NU, NX, PAPER_DT_S, PAPER_MASS_KG, Plant
 
 
@@ -222,21 +224,11 @@ class SweepSection(SweepOptions):
 
     jobs: int | None = Field(None, ge=0)
     """Local worker processes (default: all cores)."""
-    scheduler: str | None = None
+    scheduler: SchedulerAddress | None = None
     """Dask scheduler address ``SCHEME://HOST:PORT`` (instead of ``jobs``)."""
     wait_workers: float = Field(60.0, gt=0)
     """With ``scheduler``: seconds to wait for a first worker, and for one to come back when
     all have left, before giving up."""
-
-    @field_validator("scheduler")
-    @classmethod
-    def _scheduler(cls, v: str | None) -> str | None:
-        if v is None:
-            return None
-        try:
-            return check_scheduler(v)
-        except ConfigError as exc:
-            raise ValueError(str(exc).removeprefix("--scheduler ")) from None
 
     @model_validator(mode="after")
     def _one_executor(self) -> SweepSection:
@@ -247,33 +239,3 @@ class SweepSection(SweepOptions):
     def options(self) -> SweepOptions:
         """The sweep's own options (without ``jobs``, ``scheduler``, ``wait_workers``)."""
         return SweepOptions.model_validate({k: getattr(self, k) for k in SweepOptions.model_fields})
-
-
-
-# --------------------------------------------------------------------------- where a sweep runs
-DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
-
-
-def check_scheduler(address: str) -> str:
-    """A Dask scheduler address ``SCHEME://HOST:PORT`` (``tcp://`` when no scheme), checked
-    before anything runs: a missing port or an unknown scheme is one line, not a traceback
-    after the connection timeout."""
-    from distributed.comm.addressing import parse_address, parse_host_port
-
-    example = "e.g. tcp://127.0.0.1:8786"
-    try:
-        scheme, loc = parse_address(address.strip())
-        host, port = parse_host_port(loc)
-    except ValueError as exc:
-        raise ConfigError(
-            f"--scheduler {address}: {exc}; expected SCHEME://HOST:PORT, {example}"
-        ) from None
-    if scheme not in DASK_SCHEMES:
-        raise ConfigError(
-            f"--scheduler {address}: unknown scheme '{scheme}' (use {', '.join(DASK_SCHEMES)}), {example}"
-        )
-    if not host or not 0 < int(port) < 65536:
-        raise ConfigError(f"--scheduler {address}: expected SCHEME://HOST:PORT, {example}")
-    return f"{scheme}://{host}:{port}"
-
-

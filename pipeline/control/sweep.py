@@ -29,13 +29,10 @@ is the only thing that differs between runs)
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import math
 import os
 from collections import Counter
-from collections.abc import Callable
-from concurrent.futures import CancelledError
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -53,6 +50,7 @@ from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_columns
 from qsls.pipeline.control.resolution import read_model, resolve
 from qsls.pipeline.control.synth import warn_size
 from qsls.pipeline.core.artifacts import StageWriter, check_output
+from qsls.pipeline.core.cluster import run_dask
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
@@ -415,128 +413,6 @@ def s_max_table(results: list[list[dict[str, Any]]]) -> Any:
     return pd.DataFrame(rows, columns=[*S_MAX_KEYS, "s_max", "min_norm_phi_xy"])
 
 
-# --------------------------------------------------------------------------- executors
-def _n_workers(client: Any) -> int:
-    return len(client.scheduler_info().get("workers", {}))
-
-
-def _await_workers(client: Any, address: str, timeout: float, progress: Progress) -> None:
-    """Return once the scheduler has a worker; one line when none comes within ``timeout``."""
-    if _n_workers(client):
-        return
-    progress.note(f"waiting for workers at {address} (up to {timeout:g} s)")
-    try:
-        client.wait_for_workers(1, timeout=timeout)
-    except TimeoutError:
-        raise InputError(
-            f"no Dask worker joined the scheduler at {address} within {timeout:g} s; "
-            f"start one with 'dask worker {address}' or raise --wait-workers"
-        ) from None
-
-
-def _run_dask(
-    tasks: list[tuple[Any, Any]],
-    scheduler: str,
-    progress: Progress,
-    weights: list[int],
-    worker_timeout: float = 60.0,
-) -> list[Any]:
-    """The tasks on a Dask cluster; one line when the workers never come or all leave (their
-    tasks would wait forever) or a worker dies on a task three times (``KilledWorker``)."""
-    try:
-        from distributed import Client
-    except ImportError as exc:  # pragma: no cover - dask is a dependency
-        raise InputError(f"--scheduler needs dask.distributed ({exc})") from None
-    try:
-        client = Client(scheduler, timeout="10s", set_as_default=False)
-    except (OSError, TimeoutError) as exc:
-        raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
-    quiet = _quiet_dask()  # its client logs a traceback when the scheduler goes away
-    try:
-        return _gather_dask(client, tasks, scheduler, progress, weights, worker_timeout)
-    except (CancelledError, OSError) as exc:  # FuturesCancelledError, CommClosedError
-        what = (
-            "cancelled the sweep's tasks"
-            if client.status == "running"
-            else "is gone: lost the Dask scheduler"
-        )
-        raise InputError(
-            f"the Dask scheduler at {scheduler} {what} mid-sweep ({type(exc).__name__}); "
-            "check that it is still running (or restart it and its workers) and rerun the sweep"
-        ) from None
-    finally:
-        with contextlib.suppress(Exception):
-            client.close(timeout=2)
-        quiet()
-
-
-def _quiet_dask() -> Callable[[], None]:
-    """Silence ``distributed``'s own error logging (the lost scheduler becomes one line);
-    returns what restores it."""
-    import logging
-
-    names = [
-        "distributed",
-        *(n for n in logging.root.manager.loggerDict if n.startswith("distributed.")),
-    ]
-    logs = [logging.getLogger(n) for n in names]
-    levels = [log.level for log in logs]
-    for log in logs:
-        log.setLevel(logging.CRITICAL)
-
-    def restore() -> None:
-        for log, level in zip(logs, levels, strict=True):
-            log.setLevel(level)
-
-    return restore
-
-
-def _gather_dask(
-    client: Any,
-    tasks: list[tuple[Any, Any]],
-    scheduler: str,
-    progress: Progress,
-    weights: list[int],
-    worker_timeout: float,
-) -> list[Any]:
-    """The tasks' results (``_run_dask``'s loop: a lost scheduler raises out of it)."""
-    import time
-
-    from distributed import KilledWorker, wait
-
-    _await_workers(client, scheduler, worker_timeout, progress)
-    futs = [client.submit(fn, arg, pure=False) for fn, arg in tasks]
-    index = {f.key: i for i, f in enumerate(futs)}
-    results: list[Any] = [None] * len(tasks)
-    pending, alone_since = set(futs), None
-    while pending:
-        try:
-            with client.as_current():  # wait() finds its client there
-                done, pending = wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
-        except TimeoutError:
-            done = set()
-        for fut in done:
-            i = index[fut.key]
-            try:
-                results[i] = fut.result()
-            except KilledWorker as exc:
-                raise InputError(
-                    f"Dask workers at {scheduler} died running a task ({exc}); "
-                    "check the workers' memory and logs"
-                ) from None
-            progress.advance(weights[i])
-        if done or _n_workers(client):
-            alone_since = None
-            continue
-        alone_since = alone_since or time.monotonic()
-        if time.monotonic() - alone_since > worker_timeout:
-            raise InputError(
-                f"every Dask worker at {scheduler} left ({len(pending)} of {len(tasks)} "
-                f"tasks unfinished, none back within {worker_timeout:g} s); restart the workers"
-            )
-    return results
-
-
 # --------------------------------------------------------------------------- sweep
 @dataclass(frozen=True)
 class SweepResult:
@@ -591,7 +467,10 @@ def compute(
         if not tasks:
             return []
         if scheduler is not None:
-            return _run_dask(tasks, scheduler, progress, weights, worker_timeout)
+            return run_dask(
+                tasks, scheduler, lambda i: progress.advance(weights[i]), progress.note,
+                worker_timeout, what="sweep",
+            )  # fmt: skip
         return run_tasks(tasks, pool_size(jobs), lambda i: progress.advance(weights[i]))
 
     # first the largest feasible S of every setting: it answers the points above it

@@ -59,11 +59,21 @@ def run_tasks(
     tasks: Sequence[tuple[Callable[[Any], Any], Any]],
     jobs: int,
     done: Callable[[int], None] | None = None,
+    *,
+    scheduler: str | None = None,
+    note: Callable[[str], None] | None = None,
+    worker_timeout: float = 60.0,
+    what: str = "run",
 ) -> list[Any]:
-    """``[fn(arg) for fn, arg in tasks]`` in the order of ``tasks``: on ``jobs`` forked
-    workers (:func:`run_pool`: stopped at once when interrupted), or in this process when
+    """``[fn(arg) for fn, arg in tasks]`` in the order of ``tasks``: on the Dask cluster at
+    ``scheduler`` (:func:`qsls.pipeline.core.cluster.run_dask`), on ``jobs`` forked workers
+    (:func:`run_pool`: stopped at once when interrupted), or in this process when
     ``jobs <= 1`` or there is a single task. ``done(i)`` is called in this process when task
-    ``i`` has finished (for progress)."""
+    ``i`` has finished (for progress). The results are the same whichever runs them."""
+    if scheduler is not None and tasks:
+        from qsls.pipeline.core.cluster import run_dask
+
+        return run_dask(list(tasks), scheduler, done, note, worker_timeout, what)
     results: list[Any] = [None] * len(tasks)
     if jobs <= 1 or len(tasks) <= 1:
         for i, (fn, arg) in enumerate(tasks):

@@ -31,7 +31,6 @@ record and ``controller.npz``: a controller folder every other command reads),
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -387,7 +386,7 @@ def calibrate(
 ) -> CalibrateResult:
     """Fly, score, calibrate and validate every candidate (module docstring)."""
     from qsls.pipeline.core.artifacts import StageWriter, check_output
-    from qsls.pipeline.core.pools import run_tasks
+    from qsls.pipeline.core.pools import pool_size, run_tasks
     from qsls.pipeline.errormodel.model import load_error_model
     from qsls.pipeline.evaluate.assumptions import check_assumptions, crashed
     from qsls.pipeline.evaluate.bound import load_training, resolve_model
@@ -411,7 +410,15 @@ def calibrate(
     sim = options.sim.model_dump(mode="json")
     sim["duration"] = options.duration
     height = float(options.sim.reference.height)
-    workers = options.jobs or os.cpu_count() or 1
+    workers = pool_size(options.jobs)
+
+    def fly_all(jobs: list[Job]) -> list[TickLog]:
+        return run_tasks(
+            [(fly_job, j) for j in jobs], min(workers, len(jobs)), lambda i: progress.advance(),
+            scheduler=options.scheduler, note=progress.note, worker_timeout=options.wait_workers,
+            what="calibration",
+        )  # fmt: skip
+
     conditions_of = {
         "estimator": str(getattr(options.sim.vio, "kind", "emulator")), "reference": sim["reference"],
         **({"range_tube_m": options.tube} if options.range_flights else {}),
@@ -433,8 +440,7 @@ def calibrate(
         cjobs = jobs_for("calibration", calib_seeds, lambda cond, n: by_name[n])
         cjobs += jobs_for("range", options.range_seeds, lambda cond, n: by_name[n])
         progress.start("calibration flights", total=len(cjobs))
-        ticks = run_tasks([(fly_job, j) for j in cjobs], min(workers, len(cjobs)),
-                          lambda i: progress.advance())  # fmt: skip
+        ticks = fly_all(cjobs)
         progress.finish()
         rows = []
         for j, tk in zip(cjobs, ticks, strict=True):
@@ -470,8 +476,7 @@ def calibrate(
         vrows = []
         if vjobs:
             progress.start("validation flights", total=len(vjobs))
-            vticks = run_tasks([(fly_job, j) for j in vjobs], min(workers, len(vjobs)),
-                               lambda i: progress.advance())  # fmt: skip
+            vticks = fly_all(vjobs)
             progress.finish()
             cal_premise = {(o.condition, o.controller): certified_premise(w.path(f"{o.condition}/{o.controller}"))
                            for o in outcomes}  # fmt: skip

@@ -189,10 +189,20 @@ def tick_frame(o: FlyOutcome) -> pd.DataFrame:
     return TickLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl).frame()
 
 
-def run_jobs(jobs: Sequence[FlyJob], workers: int, progress: Progress) -> list[FlyOutcome]:
-    """All flights, on a process pool of ``workers`` (in order of ``jobs``)."""
+def run_jobs(
+    jobs: Sequence[FlyJob],
+    workers: int,
+    progress: Progress,
+    scheduler: str | None = None,
+    wait_workers: float = 60.0,
+) -> list[FlyOutcome]:
+    """All flights, on a process pool of ``workers`` or the Dask cluster at ``scheduler`` (in
+    order of ``jobs``)."""
     progress.start("flying", total=len(jobs))
-    results = run_tasks([(run_job, j) for j in jobs], workers, lambda i: progress.advance())
+    results = run_tasks(
+        [(run_job, j) for j in jobs], workers, lambda i: progress.advance(),
+        scheduler=scheduler, note=progress.note, worker_timeout=wait_workers, what="fly",
+    )  # fmt: skip
     progress.finish()
     return results
 
@@ -560,7 +570,9 @@ def fly_evaluate(
                 specs, options, sims=w.path("sims") if options.keep_bags else tmp_root,
                 flights=w.path("flights"), pd_gain=_pd_gain_of(folders),
             )  # fmt: skip
-            outcomes = run_jobs(jobs, min(workers, len(jobs)), progress)
+            outcomes = run_jobs(
+                jobs, min(workers, len(jobs)), progress, options.scheduler, options.wait_workers
+            )
             for o in outcomes:  # the controller's own log, for an auditor to recompute from
                 w.write_parquet(f"flights/{o.name}/{TICKS_FILE}", tick_frame(o))
             for o in outcomes:

@@ -10,6 +10,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
+from qsls.pipeline.core.cluster import SchedulerAddress
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.sim.options import SimOptions
@@ -74,6 +75,12 @@ class FlyOptions(EvaluateOptions):
     """Also fly RotorPy's SE3 controller (the training flights' controller)."""
     jobs: int = Field(0, ge=0)
     """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
+    scheduler: SchedulerAddress | None = None
+    """A Dask scheduler (``tcp://host:8786``): the flights run on its workers instead of the
+    local pool, with the same tables (workers on other machines need this one's filesystem)."""
+    wait_workers: float = Field(60.0, gt=0)
+    """With ``scheduler``: seconds to wait for a first worker, and for one to come back after
+    every worker left, before failing."""
     sim: SimOptions = SimOptions()
     """Vehicle, reference, VIO emulator, crash limits and the log's format (seed, duration,
     controller and perception are set per flight)."""
@@ -134,6 +141,12 @@ class CalibrateOptions(Options):
     """Candidate controller names; default: every robust controller whose design check passed."""
     jobs: int = Field(0, ge=0)
     """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
+    scheduler: SchedulerAddress | None = None
+    """A Dask scheduler (``tcp://host:8786``): the flights run on its workers instead of the
+    local pool, with the same tables (workers on other machines need this one's filesystem)."""
+    wait_workers: float = Field(60.0, gt=0)
+    """With ``scheduler``: seconds to wait for a first worker, and for one to come back after
+    every worker left, before failing."""
     sim: SimOptions = SimOptions()
     """Vehicle, reference, VIO emulator and crash limits (``qsls run`` lays its ``simulate:``
     section here); seed, controller, perception and duration are set per flight."""
