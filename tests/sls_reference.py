@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from qsls.pipeline.control.costs import cost_of
 from qsls.pipeline.control.sls import (
     SLSProblem,
     Structure,
@@ -37,6 +38,7 @@ class VectorizedProblem(SLSProblem):
         if s.T < 2:
             raise ValueError(f"horizon T must be at least 2, got {s.T}")
         self.model, self.structure = model, s
+        self.cost = cost_of(s.cost)
         # With C = I the Phi_xy equations follow from the others: Phi_xy(k) = Phi_xx(k+1) -
         # Phi_xx(k) A and Phi_uy(k) = Phi_ux(k+1) - Phi_ux(k) A (right equations), and then
         # A Phi_xy(k) + B Phi_uy(k) = [A Phi_xx(k+1) + B Phi_ux(k+1)] - [A Phi_xx(k) + B
@@ -189,7 +191,7 @@ class VectorizedProblem(SLSProblem):
         return out
 
     # ---- parameters
-    def _set_weights(self, v: Values) -> None:
+    def set_weights(self, v: Values, cost: Any = None) -> None:
         s, p = self.structure, self.params
         qh = psd_sqrt(v.Q, "Q")
         rh = psd_sqrt(v.R, "R")

@@ -52,6 +52,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from qsls.pipeline.control.achievable import Affine, block_pattern, eliminate, implied_zero_taps
+from qsls.pipeline.control.costs import PremiseNorms, WeightedCost, cost_of
 from qsls.pipeline.control.guarantee import (
     Norms,
     error_weights,
@@ -71,7 +72,8 @@ from qsls.pipeline.control.taps import (  # re-exported: the responses are the p
 from qsls.pipeline.core.plant import NX, LinearModel
 
 Norm = Literal["l1", "h2"]
-Cost = Literal["qr", "imitation", "min_phi_xy", "ratio", "none"]
+Cost = str
+"""A cost's name in :data:`qsls.pipeline.control.costs.COSTS`."""
 ROBUST_BACKOFF = 1e-6
 TIGHT = {"tol_feas": 1e-10, "tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10}
 """Clarabel's tolerances for the attitude plant: its optimum sits on the robustness constraint
@@ -240,8 +242,9 @@ class SLSProblem:
         self.E = E[rows]
         self._cons: list[Any] = [self.E @ z + e[rows] == 0]
         self._epi: dict[str, tuple[np.ndarray, np.ndarray, Any]] = {}
+        self.cost = cost = cost_of(s.cost)
         n_xy = n_xx = g_m = per_tap = None
-        if s.robust or s.cost in ("min_phi_xy", "ratio"):  # N, N_w, G_m (docs/guarantee.md)
+        if s.robust or cost.needs_norms:  # N, N_w, G_m (docs/guarantee.md)
             wx = np.asarray(s.state_scale, float)
             inv_e = error_weights(s.error_scale, measured)
             rs_xh = self._sums("Phi_xx_H", lambda t, i, j: 1.0)
@@ -278,21 +281,8 @@ class SLSProblem:
                             per_tap[i * T : (i + 1) * T], min(s.m, T)
                         )
                     cons.append(row <= p["g_V"])
-        if s.cost in ("qr", "imitation"):
-            objective = self._weighted_cost(p)
-        elif s.cost == "min_phi_xy":
-            objective = n_xy
-        elif s.cost == "ratio":  # Dinkelbach: min lambda N + (eps_w / r) N_w + (eps_o / r) G_m
-            p["lam"] = cp.Parameter(nonneg=True, name="lambda")
-            p["c_xx_ratio"] = cp.Parameter(nonneg=True, name="eps_w_over_r_ratio")
-            objective = p["lam"] * n_xy + p["c_xx_ratio"] * n_xx
-            if g_m is not None:
-                p["c_o_ratio"] = cp.Parameter(nonneg=True, name="eps_o_over_r_ratio")
-                objective = objective + p["c_o_ratio"] * g_m
-        elif s.cost == "none":
-            objective = cp.Constant(0.0)
-        else:
-            raise ValueError(f"unknown cost {s.cost!r}")
+        norms = PremiseNorms(n_xy, n_xx, g_m) if n_xy is not None else None
+        objective = cost.objective(self, p, norms)
         self.params = p
         self.problem = cp.Problem(cp.Minimize(objective), cons)
         self.construct_time_s = time.perf_counter() - t0
@@ -330,7 +320,7 @@ class SLSProblem:
         agg = sp.csr_matrix((w, (out, np.arange(len(i)))), shape=(n_out, len(i)))
         return agg[:, varies] @ t + agg @ const
 
-    def _weighted_cost(self, p: dict[str, Any]) -> Any:
+    def weighted_cost(self, p: dict[str, Any], cost: WeightedCost) -> Any:
         """``c_QR`` or ``c_im`` (module docstring), L1 or H2, with the weights as Parameters:
         per-row vectors when ``Q`` and ``R`` are diagonal (``c_QR``'s L1 then reads the shared
         epigraphs), full matrices otherwise."""
@@ -338,9 +328,9 @@ class SLSProblem:
 
         s, mp = self.structure, self.maps
         names = {"xx": "Phi_xx", "xy": "Phi_xy", "ux": "Phi_ux", "uy": "Phi_uy"}
-        if s.cost == "qr":
+        if cost.reads_H:
             names.update(xx="Phi_xx_H", ux="Phi_ux_H")
-        if s.cost == "qr" and s.norm == "l1" and s.diagonal_weights:
+        if self._shared_rows(cost):
             rows = []
             for block in ("x", "u"):
                 n = self.model.nx if block == "x" else self.model.nu
@@ -361,14 +351,14 @@ class SLSProblem:
                 self._support[key] = support
                 p["L" + key] = cp.Parameter(int(support.sum()), nonneg=True, name="L" + key)
                 expr = cp.multiply(p["L" + key], aff.M[support] @ self.z + aff.f[support])
-                if s.cost == "imitation":
+                if cost.imitates:
                     p["N" + key] = cp.Parameter(int(support.sum()), name="N" + key)
                     expr = expr - p["N" + key]
             else:
                 mat = cp.reshape(aff.M @ self.z + aff.f, (aff.rows, aff.taps * aff.cols), order="F")
                 p["L" + key] = cp.Parameter((aff.rows, aff.rows), name="L" + key)
                 expr = p["L" + key] @ mat
-                if s.cost == "imitation":
+                if cost.imitates:
                     p["N" + key] = cp.Parameter(mat.shape, name="N" + key)
                     expr = expr - p["N" + key]
             blocks[key] = expr
@@ -404,23 +394,20 @@ class SLSProblem:
                 p["g_d"].value = float(premise_bound(v.eps_e, v.S, v.radius))
                 p["g_o"].value = float(v.eps_o)
                 p["g_V"].value = float(v.gate)
-        if s.cost in ("qr", "imitation"):
-            self._set_weights(v)
-        if s.cost == "ratio":
-            p["lam"].value = float(v.ratio_lambda)
-            p["c_xx_ratio"].value = float(v.eps_w / v.radius)
-            if "c_o_ratio" in p:
-                p["c_o_ratio"].value = float(v.eps_o / v.radius)
+        self.cost.set_values(self, p, v)
 
-    def _set_weights(self, v: Values) -> None:
+    def _shared_rows(self, cost: WeightedCost) -> bool:
+        """``c_QR``'s L1 with diagonal weights reads the shared epigraphs' row sums."""
+        s = self.structure
+        return cost.reads_H and not cost.imitates and s.norm == "l1" and s.diagonal_weights
+
+    def set_weights(self, v: Values, cost: WeightedCost) -> None:
         s, p, mp = self.structure, self.params, self.maps
         if s.diagonal_weights and not (is_diagonal(v.Q) and is_diagonal(v.R)):
             raise ValueError("this problem was built for diagonal Q and R")
         qh, rh = psd_sqrt(v.Q, "Q"), psd_sqrt(v.R, "R")
-        if s.cost == "qr":
-            scale = {"xx": v.eps_w, "xy": v.eps_e, "ux": v.eps_w, "uy": v.eps_e}
-        else:
-            scale = dict.fromkeys(("xx", "xy", "ux", "uy"), 1.0)
+        scale = cost.scale(v)
+        if cost.imitates:
             if v.nominal is None:
                 raise ValueError("the imitation cost needs nominal responses")
             nom = v.nominal.truncated(s.T)
@@ -430,13 +417,13 @@ class SLSProblem:
             aff: Affine = getattr(mp, name)
             if s.diagonal_weights:
                 w = scale[key] * np.diag(half)
-                if s.cost == "qr" and s.norm == "l1":
+                if self._shared_rows(cost):
                     p["L" + key].value = w  # per row of the shared epigraph's sums
                     continue
                 tap, i, j = aff.entry()
                 sup = self._support[key]
                 p["L" + key].value = w[i[sup]]
-                if s.cost == "imitation":
+                if cost.imitates:
                     taps = getattr(nom, name)[aff.first : aff.first + aff.taps]
                     vals = taps[tap, i, j]
                     if np.any(vals[~sup] != 0):
@@ -446,7 +433,7 @@ class SLSProblem:
                     p["N" + key].value = w[i[sup]] * vals[sup]
             else:
                 p["L" + key].value = scale[key] * half
-                if s.cost == "imitation":
+                if cost.imitates:
                     taps = getattr(nom, name)[aff.first : aff.first + aff.taps]
                     p["N" + key].value = half @ side_by_side(taps)
 

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.control.costs import cost_of
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
 from qsls.pipeline.control.guarantee import necessary_condition
 from qsls.pipeline.control.options import AXES as AXES
@@ -307,7 +308,7 @@ def _nominal(p: dict[str, Any]) -> Any:
     (:func:`qsls.pipeline.control.synth.imitation_target`): the PD's responses, the nominal
     controller of the point's own options (``l1_nominal`` / ``h2_nominal``, solved here
     first), or a controller folder's."""
-    if p["cost"] != "imitation":
+    if not cost_of(p["cost"]).imitates:
         return None
     from qsls.pipeline.control.synth import IMITATE_NAMED, imitation_target, nominal_from_folder
 

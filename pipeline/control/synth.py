@@ -36,6 +36,7 @@ from qsls.pipeline.control.artifacts import (
     CertificateBody,
     Controller,
 )
+from qsls.pipeline.control.costs import cost_of
 from qsls.pipeline.control.feasibility import MaxFeasibleSResult as MaxFeasibleSResult
 from qsls.pipeline.control.feasibility import diagnose, diagnosis_message
 from qsls.pipeline.control.feasibility import max_feasible_s as max_feasible_s
@@ -96,7 +97,7 @@ def design(
         body = check(sol.taps, r.model, r.numbers(), shape, reference=True)
     cost = sls.cost_value(
         structure.norm, sol.taps, r.model, sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R), r.eps_w,
-        r.eps_e, nominal if structure.cost == "imitation" else None,
+        r.eps_e, nominal if cost_of(structure.cost).imitates else None,
     )  # fmt: skip
     return Design(structure, sol, body, cost)
 
@@ -358,7 +359,7 @@ def synthesize(
     for name, st in plan:
         nominal = None
         extra = dict(base_extra)
-        if st.cost == "imitation":
+        if cost_of(st.cost).imitates:
             done = {n: c.taps for n, c in ctrls.items()}
             nominal = imitation_target(options.imitate, options.T, done, imitate)
             extra["imitate"] = options.imitate
@@ -395,7 +396,7 @@ def synth(
     mi = read_model(error_model)
     folder = None
     if options.imitate not in IMITATE_NAMED and any(
-        st.cost == "imitation" for _, st in controller_plan(options)
+        cost_of(st.cost).imitates for _, st in controller_plan(options)
     ):
         folder = nominal_from_folder(Path(options.imitate), options.T)
     result = synthesize(
