@@ -37,7 +37,7 @@ from qsls.pipeline.control.realize import (
 )
 from qsls.pipeline.control.sls import RESPONSES, Taps, l1_norm
 from qsls.pipeline.control.status import CERTIFIED, Status
-from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_yaml, npz_bytes
+from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_yaml, load_yaml, npz_bytes
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import LinearModel
 
@@ -362,7 +362,7 @@ class Certificate(CertificateBody):
                 "'qsls synth' (one folder per controller inside the synth output)"
             )
         try:
-            data = yaml.safe_load(f.read_text())
+            data = load_yaml(f.read_text())
         except yaml.YAMLError:
             raise InputError(f"{f}: not valid YAML; regenerate it with 'qsls synth'") from None
         if not isinstance(data, dict):

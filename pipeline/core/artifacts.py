@@ -182,6 +182,14 @@ def dump_yaml(obj: Any) -> str:
     return yaml.safe_dump(to_plain(obj), sort_keys=False, default_flow_style=None, width=100)
 
 
+def load_yaml(text: str) -> Any:
+    """``yaml.safe_load`` through libyaml's parser where PyYAML was built with it (the same
+    objects, 10 to 20 times faster: a flight loads its controller's certificate)."""
+    import yaml
+
+    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+
+
 def dump_json(obj: Any) -> str:
     return json.dumps(to_plain(obj), indent=2, sort_keys=False, allow_nan=True) + "\n"
 

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from qsls.pipeline.core.artifacts import load_yaml
 from qsls.pipeline.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -181,7 +182,7 @@ def load_error_model(path: Path) -> ErrorModel:
 
     f = error_model_file(path)
     try:
-        data = yaml.safe_load(f.read_text())
+        data = load_yaml(f.read_text())
     except yaml.YAMLError:
         raise InputError(f"{f}: not valid YAML; regenerate it with 'qsls fit'") from None
     if not isinstance(data, dict):
