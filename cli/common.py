@@ -175,11 +175,6 @@ def _plain(v: Any) -> str:
     return f"{v:g}" if isinstance(v, float) else str(v)
 
 
-def model_help(model: Any, field: str, text: str, flags: tuple[str, str] | None = None) -> str:
-    """``text`` plus the model's default: the options model is the one source of defaults."""
-    return f"{text} (default: {default_text(model, field, flags)})"
-
-
 def overrides(**kwargs: Any) -> dict[str, Any]:
     """The options given on the command line (``None`` means not given)."""
     return {k: v for k, v in kwargs.items() if v is not None}

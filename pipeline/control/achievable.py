@@ -1,5 +1,5 @@
-"""Every achievable FIR response as an affine map of free taps (issue 27; DESIGN.md, Robust
-synthesis).
+"""Every achievable FIR response as an affine map of free taps (issue 27; docs/synthesis.md,
+FIR responses and achievability).
 
 With ``C = I`` and ``B`` of full column rank the achievability equations (paper eq.
 sls_constraints) determine everything from the taps ``Phi_xx(2..T)``::

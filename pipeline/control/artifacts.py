@@ -405,10 +405,6 @@ class ControllerDir:
         return self.folder.name
 
 
-def is_controller_dir(folder: Path) -> bool:
-    return (Path(folder) / CERTIFICATE_FILE).is_file()
-
-
 def load_controller_dir(folder: Path) -> ControllerDir:
     """Both files of ``folder`` (a ``controller.npz`` path is taken as its folder); refuses a
     controller whose sha256 is not the one its certificate records, or whose gains do not

@@ -371,9 +371,6 @@ class StageWriter:
     def write_json(self, name: str, obj: Any) -> Path:
         return self.write_text(name, dump_json(obj))
 
-    def write_npz(self, name: str, arrays: Mapping[str, np.ndarray]) -> Path:
-        return self.write_bytes(name, npz_bytes(arrays))
-
     def write_figure(self, name: str, fig: Any, dpi: int = 110) -> Path:
         import matplotlib.pyplot as plt
 

@@ -18,6 +18,10 @@ A constant error (a frame or bias offset) cancels in the difference, so RPE meas
 fast the error changes: drift, noise and outliers. This is the world-frame RPE (the flight
 has no orientations); evo's ``evo_rpe`` expresses the same difference in the body frame of
 the window's start, which adds the attitude error times the displacement.
+
+No stage calls it: it is the measure behind ``benchmarks/bench_rpe.py`` and the camera
+loop's RPE in ``benchmarks/bench_camera_euroc.py`` (docs/performance.md, docs/camera.md),
+kept in the library so that both benchmarks and their tests share one definition.
 """
 
 from __future__ import annotations

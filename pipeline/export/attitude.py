@@ -150,12 +150,6 @@ def thrust_attitude(
     return thrust, q
 
 
-def tilt_rad(u_abs: np.ndarray) -> np.ndarray:
-    """Angle (n,) between the commanded body z axis and world z: ``acos(cos(pitch) cos(roll))``."""
-    u_abs = np.atleast_2d(np.asarray(u_abs, dtype=float))
-    return np.arccos(np.clip(np.cos(u_abs[:, 0]) * np.cos(u_abs[:, 1]), -1.0, 1.0))
-
-
 def quat_tilt_rad(q: np.ndarray) -> np.ndarray:
     """Angle (n,) between body z of ``q`` ([x, y, z, w]) and world z: ``acos(1 - 2(x^2 + y^2))``."""
     q = np.atleast_2d(np.asarray(q, dtype=float))

@@ -301,9 +301,3 @@ def trajectory_states(t: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[np.n
         s[i, 10:13] = so3_log(rs[i].T @ rs[i + 1]) / h
     s[-1, 10:13] = s[-2, 10:13]
     return s, round(h * NS)
-
-
-def frame_period_ok(rate_hz: float, physics_hz: float) -> bool:
-    """Whether frames fall on physics steps."""
-    k = physics_hz / rate_hz
-    return abs(k - round(k)) < 1e-9 and round(k) >= 1 and math.isfinite(k)
