@@ -102,7 +102,6 @@ def command(
     ),
 ) -> None:
     """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
-    import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.core.errors import InputError
     from qsls.pipeline.evaluate.section import EvaluateSection

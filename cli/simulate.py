@@ -59,7 +59,6 @@ def command(
     force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
 ) -> None:
     """Simulate a quadrotor flight with a VIO emulator and write it as a ROS1/ROS2/MCAP bag."""
-    import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.sim.simulate import SimOptions, simulate
 

@@ -13,12 +13,12 @@ import pytest
 import yaml
 
 from qsls.pipeline.control.artifacts import load_runtime
+from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.control.guarantee import COUNT, OFF, TRIP
 from qsls.pipeline.control.monitor import monitor_flags, monitor_of
 from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
 from qsls.pipeline.export.python import load_module
 from qsls.pipeline.export.stage import ExportOptions, export
-from qsls.pipeline.sim.controllers import gated_deviation
 from tests.controllerfixtures import gated
 
 V = 1.5

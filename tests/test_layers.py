@@ -7,7 +7,7 @@ import ast
 from pathlib import Path
 
 PIPELINE = Path(__file__).resolve().parents[1] / "pipeline"
-LAYERS = ("core", "ingest", "errormodel", "control", "sim", "evaluate", "export", "report", "run")
+LAYERS = ("core", "ingest", "errormodel", "control", "export", "sim", "evaluate", "report", "run")
 """Bottom to top."""
 
 
@@ -123,21 +123,27 @@ def test_stage_packages_import_only_downward_and_never_in_a_cycle():
     assert {"ingest", "errormodel", "control", "sim", "evaluate", "report"} <= set(graph["run"])
 
 
-def test_the_simulator_flies_the_exported_c_through_a_runtime_export_registers():
-    """sim sits below export: the compiled-C runtime is registered by export, not imported."""
+def test_the_simulator_imports_the_c_backend_it_flies():
+    """export sits below sim (issue 36): the simulator imports the compiled-C runtime where it
+    flies it, with no registry a caller has to fill by a side-effect import first."""
     import subprocess
     import sys
 
     code = (
-        "from qsls.pipeline.sim.controllers import _runtime_loader\n"
-        "from qsls.pipeline.core.errors import InputError\n"
-        "try:\n    _runtime_loader('c')\nexcept InputError as e:\n    print(e)\n"
+        "import sys\n"
+        "import qsls.pipeline.sim.controllers as sc\n"
         "import qsls.pipeline.export.cbuild as cb\n"
-        "print(_runtime_loader('c') is cb.c_runtime)\n"
+        "print(sc.c_runtime is cb.c_runtime, hasattr(sc, '_RUNTIMES'))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.splitlines() == [
-        "controller backend 'c' is not available: import qsls.pipeline.export.cbuild first "
-        "(the qsls commands do)",
-        "True",
+    assert out.stdout.split() == ["True", "False"]
+    graph = package_graph()
+    assert graph["sim"]["export"] == ["sim/controllers.py"]
+    assert "sim" not in graph.get("export", {})
+    callers = [
+        f.relative_to(PIPELINE.parent).as_posix()
+        for d in (PIPELINE, PIPELINE.parent / "cli")
+        for f in sorted(d.rglob("*.py"))
+        if "registers the 'c' controller runtime" in f.read_text()
     ]
+    assert callers == []

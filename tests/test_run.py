@@ -195,8 +195,8 @@ def test_quickstart_certified_controllers_export_with_their_gate_and_monitor(qui
     import numpy as np
 
     from qsls.pipeline.control.artifacts import load_runtime
+    from qsls.pipeline.control.gate import gated_deviation
     from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
-    from qsls.pipeline.sim.controllers import gated_deviation
 
     work = quickstart[0]
     run_dir = work / "runs" / "quickstart"

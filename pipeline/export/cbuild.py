@@ -22,7 +22,6 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.locks import make_temporary
-from qsls.pipeline.sim.controllers import register_runtime
 
 STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
 COMPILERS = ("cc", "gcc", "clang")
@@ -172,5 +171,3 @@ def c_runtime(folder: Path, *, precision: str = "double", prefix: str = "qsls_ct
         certificate=cdir.certificate.model_dump(),
     )
 
-
-register_runtime("c", c_runtime)

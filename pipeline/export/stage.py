@@ -191,9 +191,9 @@ def _random_y(ticks: int, seed: int, gate: float | None = None) -> np.ndarray:
 def reference_u(cdir: Any, ys: np.ndarray) -> np.ndarray:
     """``u`` of the Python controller as it flies (:class:`~qsls.pipeline.sim.controllers.
     LinearController`'s input): the realization fed the deviations through the certificate's
-    gate (:func:`~qsls.pipeline.sim.controllers.gated_deviation`)."""
+    gate (:func:`~qsls.pipeline.control.gate.gated_deviation`)."""
     from qsls.pipeline.control.artifacts import load_runtime
-    from qsls.pipeline.sim.controllers import gated_deviation
+    from qsls.pipeline.control.gate import gated_deviation
 
     return run_ticks(load_runtime(cdir.folder), gated_deviation(ys, cdir.certificate.gate))
 

@@ -250,7 +250,6 @@ def _simulate_stage(
     stage_id = f"simulate/{fl.name}"
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
-        import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.sim.simulate import simulate
 
         return simulate(opts, out, force=True, progress=progress)
@@ -320,7 +319,6 @@ def _evaluate_exec(
     opts: Any, heldout: list[str], progress: Progress, calibrated: str | None = None
 ) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
-        import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.evaluate.bound import evaluate
 
         flights = [deps[d] for d in heldout]
@@ -332,7 +330,6 @@ def _evaluate_exec(
 
 def _fly_exec(opts: Any, progress: Progress, calibrated: str | None = None) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
-        import qsls.pipeline.export.cbuild  # noqa: F401  (registers the 'c' controller runtime)
         from qsls.pipeline.evaluate.fly import fly_evaluate
 
         ctrls = controller_folders(deps, calibrated)

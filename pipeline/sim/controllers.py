@@ -23,16 +23,17 @@ through the paper's ``B``: ``u_ff = [-a_x / g, a_y / g, m a_z]``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
+from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.control.pdgain import PDGains, pd_gain
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import GRAVITY, PAPER_DT_S
 from qsls.pipeline.core.references import RefSample
+from qsls.pipeline.export.cbuild import c_runtime
 from qsls.pipeline.sim.options import ControllerOptions
 from qsls.pipeline.sim.vehicle import ctatt_to_paper, quad_params
 
@@ -159,15 +160,6 @@ class PDController:
         return hover_input(self.mass) + feedforward(ref, self.mass) + u
 
 
-def gated_deviation(dev: np.ndarray, gate: float | None) -> np.ndarray:
-    """The deviation a gated controller reads (docs/guarantee.md, Velocity gate): the velocity
-    deviation clipped to ``[-V, V]``, ``clip(y_v - v_ref, -V, V)``; a copy, rows or one tick."""
-    dev = np.array(dev, dtype=float)
-    if gate is not None:
-        dev[..., 3:] = np.clip(dev[..., 3:], -gate, gate)
-    return dev
-
-
 class LinearController:
     """A synthesized controller: ``u = hover + u_ff + K.step(y - r)``, ``K`` from realize."""
 
@@ -204,29 +196,6 @@ def controller_folder(spec: str | Path) -> Path:
     return path
 
 
-RuntimeLoader = Callable[[Path], Any]
-"""A controller folder to a runtime with ``dt``, ``reset()``, ``step(y - r) -> u``."""
-_RUNTIMES: dict[str, RuntimeLoader] = {}
-
-
-def register_runtime(backend: str, loader: RuntimeLoader) -> None:
-    """Make ``ControllerOptions.backend == backend`` fly the runtime ``loader(folder)``.
-
-    The simulator sits below ``export``, so the compiled-C runtime registers itself from
-    :mod:`qsls.pipeline.export.cbuild` (imported by the commands that fly controllers)."""
-    _RUNTIMES[backend] = loader
-
-
-def _runtime_loader(backend: str) -> RuntimeLoader:
-    loader = _RUNTIMES.get(backend)
-    if loader is None:
-        raise InputError(
-            f"controller backend '{backend}' is not available: import "
-            "qsls.pipeline.export.cbuild first (the qsls commands do)"
-        )
-    return loader
-
-
 def make_controller(options: ControllerOptions, mass: float) -> PositionController:
     """Build the controller named by ``options.kind``."""
     kind = options.kind
@@ -244,8 +213,8 @@ def make_controller(options: ControllerOptions, mass: float) -> PositionControll
     from qsls.pipeline.control.realize import StaticGainController
 
     runtime: Any = load_runtime(folder)
-    if options.backend != "python" and not isinstance(runtime, StaticGainController):
-        runtime = _runtime_loader(options.backend)(folder)
+    if options.backend == "c" and not isinstance(runtime, StaticGainController):
+        runtime = c_runtime(folder)  # the code 'qsls export' writes, compiled, through ctypes
     name = str(getattr(runtime, "name", None) or folder.name)
     if rate_dt is not None and abs(rate_dt - runtime.dt) > 1e-9:
         raise InputError(
