@@ -1,9 +1,9 @@
-"""Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
+"""Check certified bounds on held-out flights (``qsls fly`` flies the controllers; ``--fly`` is its
+old alias)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import typer
 
@@ -13,7 +13,6 @@ from qsls.cli.common import (
     overrides,
     parse_list,
     print_summary,
-    print_table,
     print_verdicts,
 )
 
@@ -37,8 +36,7 @@ def command(
     flights: list[Path] = typer.Option(
         None,
         "--flights",
-        help="Held-out flight folder written by 'qsls ingest'. Repeatable. "
-        "Not used with --fly (the flights are flown).",
+        help="Held-out flight folder written by 'qsls ingest'. Repeatable.",
     ),
     out: Path = typer.Option(
         ..., "--out", help="Output folder (evaluation.json, .parquet, figures)."
@@ -46,8 +44,9 @@ def command(
     fly: bool = typer.Option(
         False,
         "--fly",
-        help="Fly every controller plus SE3 on the simulator with the VIO "
-        "emulator in the loop, ingest each flight, check bounds and compare with the paper.",
+        hidden=True,
+        help="The old spelling of 'qsls fly' (says so on stderr): fly the controllers "
+        "instead of checking --flights.",
     ),
     config: Path = typer.Option(
         None, "--config", help="YAML file of options (the command line wins)."
@@ -55,7 +54,7 @@ def command(
     smooth_s: float = typer.Option(
         None,
         "--smooth-s",
-        help="Time constant (s) of the average drawn over ||e|| in the bound check's figures, not --fly's (0: none). (default: 1)",
+        help="Time constant (s) of the average drawn over ||e|| in the figures (0: none). (default: 1)",
     ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     flown_by: str = typer.Option(
@@ -66,18 +65,18 @@ def command(
         "recorded flights, premise only)",
     ),
     seeds: str = typer.Option(
-        None, "--seeds", help="--fly: comma-separated seeds. (default: 0,1,2)"
+        None, "--seeds", hidden=True, help="With --fly (qsls fly): comma-separated seeds. (default: 0,1,2)"
     ),
     duration: float = typer.Option(
-        None, "--duration", help="--fly: seconds per flight. (default: 30)"
+        None, "--duration", hidden=True, help="With --fly (qsls fly): seconds per flight. (default: 30)"
     ),
     conditions: str = typer.Option(
         None,
-        "--conditions",
-        help="--fly: comma-separated perception conditions. (default: regular,degraded)",
+        "--conditions", hidden=True,
+        help="With --fly (qsls fly): comma-separated perception conditions. (default: regular,degraded)",
     ),
     jobs: int = typer.Option(
-        None, "--jobs", help="--fly: parallel flights, 0 = all cores. (default: 0)"
+        None, "--jobs", hidden=True, help="With --fly (qsls fly): parallel flights, 0 = all cores. (default: 0)"
     ),
     scheduler: str = typer.Option(
         None, "--scheduler",
@@ -86,44 +85,48 @@ def command(
     ),
     vio: str = typer.Option(
         None,
-        "--vio",
-        help="--fly: where the estimate comes from: 'emulator' (the VIO error model) or "
+        "--vio", hidden=True,
+        help="With --fly (qsls fly): where the estimate comes from: 'emulator' (the VIO error model) or "
         "'camera' (rendered camera, IMU and MSCKF); 'camera,emulator' flies both, paired "
         "by seed. (default: emulator)",
     ),
     backend: str = typer.Option(
         None,
-        "--backend",
-        help="--fly: python or c: fly the synthesized controllers as the C of "
+        "--backend", hidden=True,
+        help="With --fly (qsls fly): python or c: fly the synthesized controllers as the C of "
         "'qsls export' (compiled, through ctypes). (default: python)",
     ),
     force: bool = typer.Option(
         False, "--force", help="Overwrite --out; another error model's controller only warns."
     ),
 ) -> None:
-    """Check certified bounds on held-out flights, or fly the controllers side by side (--fly)."""
+    """Check the certified bounds on held-out flights (to fly the controllers: qsls fly)."""
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.core.errors import InputError
     from qsls.pipeline.evaluate.section import EvaluateSection
     from qsls.pipeline.evaluate.verdict import combined
 
     ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None, flown_by=flown_by)
-    if fly and flights:
-        raise InputError("--flights is not used with --fly (the flights are flown); drop one")
-    if fly and flown_by:
-        raise InputError("--flown-by is not used with --fly (each flight records its own)")
-    section = load_options(EvaluateSection, config, ov, section="evaluate")
-    source = str(config or "options")
     if fly:
-        fly_given = overrides(
+        from qsls.cli.fly import fly as fly_command
+
+        typer.echo("warning: 'qsls evaluate --fly' is the old spelling of 'qsls fly'; "
+                   "it runs 'qsls fly' and will go", err=True)  # fmt: skip
+        if flights:
+            raise InputError("--flights is not used with --fly (the flights are flown); drop one")
+        if flown_by:
+            raise InputError("--flown-by is not used with --fly (each flight records its own)")
+        given = overrides(
+            smooth_s=smooth_s, figures=False if no_figures else None,
             seeds=parse_list(seeds, "--seeds", "int"), duration=duration, jobs=jobs,
             scheduler=scheduler,
             conditions=parse_list(conditions, "--conditions", "value"),
             vio=parse_list(vio, "--vio", "value") if vio and "," in vio else vio,
             sim={"controller": {"backend": backend}} if backend else None,
         )  # fmt: skip
-        _fly(model, controller, out, section.flying({**ov, **fly_given}, source), force)
+        fly_command(model, controller, out, config, force, given, "qsls evaluate --fly")
         return
+    section = load_options(EvaluateSection, config, ov, section="evaluate")
     from qsls.pipeline.evaluate.bound import evaluate
 
     with RichProgress() as progress:
@@ -134,16 +137,3 @@ def command(
         typer.echo(f"warning: {w}", err=True)
     print_summary("qsls evaluate", checked.summary())
     print_verdicts("Certified bound on the held-out flights", combined(checked.table, checked.assumptions))
-
-
-def _fly(model: Path, controllers: list[Path], out: Path, options: Any, force: bool) -> None:
-    """``evaluate --fly``: fly, then the summary, the paper comparison and the verdicts."""
-    from qsls.pipeline.evaluate.fly import fly_evaluate
-    from qsls.pipeline.evaluate.verdict import combined
-
-    with RichProgress() as progress:
-        result = fly_evaluate(model, controllers, options, out, force=force, progress=progress)
-    print_summary("qsls evaluate --fly", result.summary())
-    cols, rows = result.comparison_rows()
-    print_table("Against the paper's findings", cols, rows)
-    print_verdicts("Certified bound on the flown flights", combined(result.table, result.assumptions))

@@ -25,6 +25,7 @@ COMMANDS: tuple[tuple[str, str], ...] = (
     ("sweep", "sweep"),
     ("calibrate", "calibrate"),
     ("evaluate", "evaluate"),
+    ("fly", "fly"),
     ("export", "export"),
     ("replay", "replay"),
     ("report", "report"),

@@ -139,7 +139,7 @@ def test_cli_refuses_a_bad_estimator_list(trained, tmp_path, vio, message):
     import sys
 
     proc = subprocess.run(
-        [sys.executable, "-m", "qsls.cli.main", "evaluate", "--fly", "--model",
+        [sys.executable, "-m", "qsls.cli.main", "fly", "--model",
          str(trained / "fit"), "--controller", str(trained / "synth"), "--vio", vio,
          "--out", "out"],
         cwd=tmp_path, capture_output=True, text=True,

@@ -90,6 +90,18 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "backend": "sim.controller.backend",
         },
     ),
+    "fly": (
+        "qsls.pipeline.evaluate.options:FlyOptions",
+        {
+            "model": None,
+            "controller": None,
+            "out": None,
+            "config": None,
+            "force": None,
+            "no_figures": None,
+            "backend": "sim.controller.backend",
+        },
+    ),
 }
 
 

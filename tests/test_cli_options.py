@@ -26,6 +26,11 @@ MODELS = {
         {"--model", "--controller", "--flights", "--fly"},
         {"--no-figures": "figures", "--backend": "sim.controller.backend"},
     ),
+    "fly": (
+        "qsls.pipeline.evaluate.options:FlyOptions",
+        {"--model", "--controller"},
+        {"--no-figures": "figures", "--backend": "sim.controller.backend"},
+    ),
     "simulate": ("qsls.pipeline.sim.simulate:SimOptions", {"--format"}, {}),
 }
 COMMON = {"--out", "--config", "--force"}

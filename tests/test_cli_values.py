@@ -45,7 +45,7 @@ def test_negative_m_and_a_short_error_scale_are_refused(tmp_path):
 
 def test_an_empty_seed_list_is_refused(tmp_path):
     _refused(
-        ["evaluate", "--fly", "--model", str(tmp_path), "--controller", str(tmp_path),
+        ["fly", "--model", str(tmp_path), "--controller", str(tmp_path),
          "--seeds", "", "--out", str(tmp_path / "o")],
         "--seeds: empty list",
     )  # fmt: skip

@@ -390,7 +390,7 @@ def test_tampered_or_foreign_controller_is_refused(setup):
     # fly and export refuse both folders the same way, before any work
     for folder, why in ((bad, "K_by does not match"), (foreign, "certificate.yaml certifies")):
         for args in (
-            ["evaluate", "--fly", "--model", model, "--controller", folder, "--out", tmp / "o3"],
+            ["fly", "--model", model, "--controller", folder, "--out", tmp / "o3"],
             ["export", folder, "--target", "c", "--out", tmp / "o4"],
         ):
             r = CliRunner().invoke(app, [str(a) for a in args])
@@ -455,7 +455,7 @@ def test_damaged_altered_pd_or_overclaiming_controllers_are_refused(setup):
     for k, (folder, why) in enumerate(cases):
         for args in (
             ["evaluate", "--model", model, "--controller", folder, "--flights", flight],
-            ["evaluate", "--fly", "--model", model, "--controller", folder],
+            ["fly", "--model", model, "--controller", folder],
             ["export", folder, "--target", "c"],
         ):
             out = tmp / f"o{k}_{args[0]}{len(args)}"

@@ -418,7 +418,7 @@ def test_evaluate_fly_flies_the_exported_c(tmp_path, compiler):
     for backend in ("python", "c"):
         out = tmp_path / f"ev_{backend}"
         res = invoke(
-            "evaluate", "--fly", "--model", tmp_path / "fit", "--controller", tmp_path / "syn",
+            "fly", "--model", tmp_path / "fit", "--controller", tmp_path / "syn",
             "--seeds", 0, "--duration", 8, "--conditions", "regular", "--jobs", 1,
             "--no-figures", "--config", tmp_path / "ev.yaml", "--backend", backend, "--out", out,
         )  # fmt: skip

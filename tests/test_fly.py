@@ -159,7 +159,7 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
         )
     )
     out = tmp_path / "ev"
-    args = ["evaluate", "--fly", "--model", root / "fit", "--controller", root / "synth",
+    args = ["fly", "--model", root / "fit", "--controller", root / "synth",
             "--out", out, "--config", cfg, "--seeds", "3", "--jobs", "2"]  # fmt: skip
     r = CliRunner().invoke(app, [str(a) for a in args])
     assert r.exit_code == 0, r.output
@@ -187,11 +187,12 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
     assert "Against the paper" in r.output
     md = (out / "comparison.md").read_text()
     assert sum(md.count(f"\n| {i}. ") for i in (1, 2, 3)) == 3
-    # --flights makes no sense with --fly: one-line error, nothing written
-    r = CliRunner().invoke(
-        app, [str(a) for a in [*args[:-4], "--flights", root / "train", "--out", tmp_path / "x"]]
-    )
+    # 'evaluate --fly', the old spelling, says so on stderr; --flights makes no sense with
+    # it: one-line error, nothing written
+    old = ["evaluate", "--fly", *args[1:-4], "--flights", root / "train", "--out", tmp_path / "x"]
+    r = CliRunner().invoke(app, [str(a) for a in old])
     assert r.exit_code == 2 and "--flights is not used with --fly" in r.output
+    assert "'qsls evaluate --fly' is the old spelling of 'qsls fly'" in r.output
     assert not (tmp_path / "x").exists()
 
 

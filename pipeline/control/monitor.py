@@ -4,7 +4,7 @@ certificate and the taps, and the rule applied to a logged flight.
 The thresholds' arithmetic is :func:`qsls.pipeline.control.guarantee.monitor_spec`; the
 exported step applies the same rule on the vehicle (:mod:`qsls.pipeline.export.c`,
 :mod:`qsls.pipeline.export.python`); :func:`monitor_flags` applies it to deviations logged in
-flight, for the checks of ``qsls evaluate --fly`` and the tests' cross-check of the exported
+flight, for the checks of ``qsls fly`` and the tests' cross-check of the exported
 code.
 """
 

@@ -505,7 +505,7 @@ def own_log_assumptions(
 ) -> tuple[pd.DataFrame | None, list[str]]:
     """Every assumption of ``bound``'s guarantee (:mod:`qsls.pipeline.evaluate.assumptions`) on
     each flight that keeps the controller's own tick log (``ticks.parquet`` beside
-    ``flight.parquet``: ``qsls evaluate --fly`` and ``qsls calibrate`` write it); a flight
+    ``flight.parquet``: ``qsls fly`` and ``qsls calibrate`` write it); a flight
     without one is named, with the log it needs."""
     from qsls.pipeline.evaluate.assumptions import check_assumptions
     from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog

@@ -21,7 +21,7 @@ class EvaluateOptions(Options):
 
     smooth_s: float = 1.0
     """Time constant (s) of the first-order average drawn over ``||e||`` in the bound check's
-    figures (the paper's figure used 1 s; ``--fly`` draws the raw signal); 0 draws the raw
+    figures (the paper's figure used 1 s; ``qsls fly`` draws the raw signal); 0 draws the raw
     signal only. Numbers are never smoothed."""
     state_scale: tuple[float, float, float, float, float, float] | None = None
     """Per-coordinate weights of the state distance; must equal the error model's (its
@@ -39,7 +39,7 @@ Vio = Literal["emulator", "camera"]
 
 
 class FlyOptions(EvaluateOptions):
-    """Options of ``qsls evaluate --fly`` (and those of the bound check)."""
+    """Options of ``qsls fly`` (and those of the bound check)."""
 
     seeds: list[int] = Field(default_factory=lambda: [0, 1, 2], min_length=1)
     """Seeds of the VIO emulator (and of the log's noise); one flight per seed."""

@@ -13,10 +13,10 @@ from qsls.pipeline.evaluate.options import EvaluateOptions, FlyOptions
 
 
 class EvaluateSection(EvaluateOptions):
-    """``evaluate:``: the bound check's options, plus ``fly`` for ``evaluate --fly``."""
+    """``evaluate:``: the bound check's options, plus ``fly`` for ``qsls fly``."""
 
     fly: dict[str, Any] | None = None
-    """Options of ``qsls evaluate --fly`` (the run's ``fly`` stage) over the section's own:
+    """Options of ``qsls fly`` (the run's ``fly`` stage) over the section's own:
     seeds, duration, conditions, jobs, sim, ... (:class:`FlyOptions`); absent: the run flies
     nothing."""
 

@@ -8,7 +8,7 @@ Folder layout under the run folder (one stage folder each, with its manifest)::
     sweep/               sweep.parquet
     synth/<controller>/  controller.npz, certificate.yaml
     evaluate/            bound check on the held-out flights
-    fly/                 the controllers flown (evaluate --fly)
+    fly/                 the controllers flown (qsls fly)
 
 Every stage's options are validated before anything runs, with the stage's own model, so a
 misspelled option is reported with the config's section and the nearest valid name: the typed
