@@ -79,3 +79,48 @@ def test_reference_errors_are_one_line_and_name_the_option():
     with pytest.raises(ConfigError, match="unknown option 'radus'; did you mean 'radius'"):
         parse_reference("hover:radus=2")
     assert parse_reference("figure8").kind == "figure8"
+
+
+ARTIFACT_FILES = {
+    "flight.parquet": "ingest/flight.py",
+    "error_model.yaml": "errormodel/model.py",
+    "controller.npz": "control/artifacts.py",
+    "certificate.yaml": "control/artifacts.py",
+}
+"""Each file that passes between stages, and the one module that spells its name."""
+
+
+def _prose(tree: ast.AST) -> set[int]:
+    """The string constants that are docstrings (module, class, function, attribute)."""
+    out: set[int] = set()
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        for stmt in body if isinstance(body, list) else []:
+            if (
+                isinstance(stmt, ast.Expr)
+                and isinstance(stmt.value, ast.Constant)
+                and isinstance(stmt.value.value, str)
+            ):
+                out.add(id(stmt.value))
+    return out
+
+
+def test_each_artifact_file_name_is_spelled_in_its_owner_module_only():
+    """Issue 36: readers ask the owner (``CERTIFICATE_FILE``, ``Certificate.load``, ...) instead
+    of spelling the name again; docstrings may name the file."""
+    found = []
+    for f in sorted(PIPELINE.rglob("*.py")):
+        rel = f.relative_to(PIPELINE).as_posix()
+        tree = ast.parse(f.read_text())
+        prose = _prose(tree)
+        for node in ast.walk(tree):
+            if not (isinstance(node, ast.Constant) and isinstance(node.value, str)):
+                continue
+            if id(node) in prose:
+                continue
+            found += [
+                f"{rel}:{node.lineno}: {name}"
+                for name, owner in ARTIFACT_FILES.items()
+                if name in node.value and rel != owner
+            ]
+    assert found == []

@@ -309,7 +309,7 @@ class StageWriter:
     Use as a context manager::
 
         with StageWriter(out, "ingest", options=cfg, inputs=[bag], force=force) as w:
-            w.write_parquet("flight.parquet", df)
+            w.write_parquet(FLIGHT_FILE, df)
             w.results["time_offset_s"] = offset
 
     On success the folder appears at ``out`` with ``manifest.json``; on any exception the

@@ -30,6 +30,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, CONTROLLER_FILE
 from qsls.pipeline.core.plant import NX
 from qsls.pipeline.export.attitude import LimitOptions
 from qsls.pipeline.export.bank import (
@@ -337,7 +338,7 @@ def export(folder: Path, options: ExportOptions, out: Path, *, force: bool = Fal
         results["verify"] = verify
         if fvd is not None:
             results["float_vs_double"] = fvd
-    inputs = [cdir.folder / "controller.npz", cdir.folder / "certificate.yaml"]
+    inputs = [cdir.folder / CONTROLLER_FILE, cdir.folder / CERTIFICATE_FILE]
     with StageWriter(Path(out), STAGE, options=options, inputs=inputs, force=force) as w:
         for name, text in files.items():
             w.write_text(name, text)

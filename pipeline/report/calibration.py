@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from qsls.pipeline.control.artifacts import Certificate
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
 from qsls.pipeline.report.document import Section
 from qsls.pipeline.report.facts import Facts, g4, pct, status_words
 
@@ -26,7 +26,7 @@ def read_calibration(f: Facts) -> list[tuple[dict[str, Any], Certificate | None]
             continue
         for row in json.loads(path.read_text())["certificates"]:
             cdir = folder / row["condition"] / row["controller"]
-            cert = Certificate.load(cdir) if (cdir / "certificate.yaml").is_file() else None
+            cert = Certificate.load(cdir) if (cdir / CERTIFICATE_FILE).is_file() else None
             out.append((row, cert))
     return out
 

@@ -198,13 +198,15 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
 def _calibrated_folders(stages: dict[str, list[Path]]) -> dict[str, Path]:
     """Controller name -> its calibrated certificate's folder, in the calibration's first
     condition (the one the run's flights are checked against), from ``calibration.json``."""
+    from qsls.pipeline.control.artifacts import CERTIFICATE_FILE
+
     out: dict[str, Path] = {}
     for folder in stages.get("calibrate", []):
         doc = _json(folder / "calibration.json")
         for row in doc.get("certificates", []) if isinstance(doc, dict) else []:
             first = doc["certificates"][0]["condition"]
             cdir = folder / str(row["condition"]) / str(row["controller"])
-            if row["condition"] == first and (cdir / "certificate.yaml").is_file():
+            if row["condition"] == first and (cdir / CERTIFICATE_FILE).is_file():
                 out.setdefault(str(row["controller"]), cdir)
     return out
 

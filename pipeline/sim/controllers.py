@@ -185,13 +185,15 @@ class LinearController:
 
 def controller_folder(spec: str | Path) -> Path:
     """The folder of a synthesized controller given as a folder or its ``controller.npz``."""
+    from qsls.pipeline.control.artifacts import CONTROLLER_FILE
+
     path = Path(spec)
     if path.is_file() and path.suffix == ".npz":
         path = path.parent
     if not path.is_dir():
         raise InputError(
             f"controller '{spec}': expected 'se3', 'pd' or a synthesized controller folder "
-            "(one holding controller.npz, written by qsls synth)"
+            f"(one holding {CONTROLLER_FILE}, written by qsls synth)"
         )
     return path
 
@@ -221,7 +223,7 @@ def make_controller(options: ControllerOptions, mass: float) -> PositionControll
             f"controller {folder}: synthesized for dt = {runtime.dt} s, "
             f"cannot run at rate_hz = {options.rate_hz}"
         )
-    from qsls.pipeline.control.artifacts import Certificate
+    from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
 
-    gate = Certificate.load(folder).gate if (folder / "certificate.yaml").is_file() else None
+    gate = Certificate.load(folder).gate if (folder / CERTIFICATE_FILE).is_file() else None
     return LinearController(runtime, mass, name, gate=gate)
