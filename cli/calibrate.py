@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, overrides, parse_list
+from qsls.cli.common import cli_errors, model_option, overrides, parse_list
+from qsls.pipeline.evaluate.options import CalibrateOptions
 
 EXAMPLE = "qsls calibrate --model fit --controllers synth --out calibrate --flights 20"
 
@@ -24,51 +25,62 @@ def command(
         help="Output folder: <condition>/<controller>/ (the calibrated certificates), the "
         "scores, the validation and each flight's tick log.",
     ),
-    flights: int = typer.Option(
-        None, "--flights", help="Calibration flights per candidate and condition. (default: 20)"
+    flights: int = model_option(
+        CalibrateOptions, "flights", "--flights",
+        help="Calibration flights per candidate and condition.",
     ),
-    validation: int = typer.Option(
-        None, "--validation", help="Fresh validation flights per candidate. (default: 20)"
+    validation: int = model_option(
+        CalibrateOptions, "validation", "--validation",
+        help="Fresh validation flights per candidate.",
     ),
-    range_flights: int = typer.Option(
-        None, "--range-flights",
-        help="Flights over a tube of references (the perception premise out to rho*). (default: 0)",
+    range_flights: int = model_option(
+        CalibrateOptions, "range_flights", "--range-flights",
+        help="Flights over a tube of references (the perception premise out to rho*).",
     ),
-    tube: float = typer.Option(
-        None, "--tube", help="Radius (m) of the range flights' reference offsets. (default: 0)"
+    tube: float = model_option(
+        CalibrateOptions, "tube", "--tube",
+        help="Radius (m) of the range flights' reference offsets.",
     ),
-    alpha: float = typer.Option(
-        None, "--alpha",
-        help="The stated probability that a new flight breaks the premise. (default: 0.1)",
+    alpha: float = model_option(
+        CalibrateOptions, "alpha", "--alpha",
+        help="The stated probability that a new flight breaks the premise.",
     ),
-    method: str = typer.Option(
-        None, "--method", help="conformal (marginal) or pac (with --delta). (default: conformal)"
+    method: str = model_option(
+        CalibrateOptions, "method", "--method",
+        help="conformal (marginal) or pac (with --delta).",
     ),
-    delta: float = typer.Option(
-        None, "--delta", help="1 - confidence of the pac statement. (default: 0.05)"
+    delta: float = model_option(
+        CalibrateOptions, "delta", "--delta",
+        help="1 - confidence of the pac statement.",
     ),
-    seed: int = typer.Option(None, "--seed", help="First calibration seed. (default: 1000)"),
-    validation_seed: int = typer.Option(
-        None, "--validation-seed", help="First validation seed. (default: 2000)"
+    seed: int = model_option(CalibrateOptions, "seed", "--seed", help="First calibration seed."),
+    validation_seed: int = model_option(
+        CalibrateOptions, "validation_seed", "--validation-seed",
+        help="First validation seed.",
     ),
-    range_seed: int = typer.Option(
-        None, "--range-seed", help="First range-flight seed. (default: 3000)"
+    range_seed: int = model_option(
+        CalibrateOptions, "range_seed", "--range-seed",
+        help="First range-flight seed.",
     ),
-    design_seeds: str = typer.Option(
-        None, "--design-seeds",
-        help="Comma-separated seeds of the design flights: refused as calibration or "
-        "validation seeds. (default: )",
+    design_seeds: str = model_option(
+        CalibrateOptions, "design_seeds", "--design-seeds",
+        help="Comma-separated seeds of the design flights: refused as calibration or validation seeds.",
     ),
-    conditions: str = typer.Option(
-        None, "--conditions",
-        help="Comma-separated perception conditions, one certificate each. (default: regular)",
+    conditions: str = model_option(
+        CalibrateOptions, "conditions", "--conditions",
+        help="Comma-separated perception conditions, one certificate each.",
     ),
-    only: str = typer.Option(
-        None, "--only", help="Comma-separated candidate names. (default: every robust one)"
+    only: str = model_option(
+        CalibrateOptions, "controllers", "--only", none="every robust one",
+        help="Comma-separated candidate names.",
     ),
-    duration: float = typer.Option(None, "--duration", help="Seconds per flight. (default: 20)"),
-    jobs: int = typer.Option(
-        None, "--jobs", "-j", help="Flights in parallel; 0 = all cores. (default: 0)"
+    duration: float = model_option(
+        CalibrateOptions, "duration", "--duration",
+        help="Seconds per flight.",
+    ),
+    jobs: int = model_option(
+        CalibrateOptions, "jobs", "--jobs", "-j",
+        help="Flights in parallel; 0 = all cores.",
     ),
     scheduler: str = typer.Option(
         None, "--scheduler",

@@ -10,11 +10,14 @@ import typer
 from qsls.cli.common import (
     RichProgress,
     cli_errors,
+    model_option,
     overrides,
     parse_list,
     print_summary,
     print_verdicts,
 )
+from qsls.pipeline.evaluate.options import FlyOptions
+from qsls.pipeline.sim.options import ControllerOptions
 
 EXAMPLE = "qsls evaluate --model fit --controller synth --flights flights/f3 --out ev"
 
@@ -51,50 +54,47 @@ def command(
     config: Path = typer.Option(
         None, "--config", help="YAML file of options (the command line wins)."
     ),
-    smooth_s: float = typer.Option(
-        None,
-        "--smooth-s",
-        help="Time constant (s) of the average drawn over ||e|| in the figures (0: none). (default: 1)",
+    smooth_s: float = model_option(
+        FlyOptions, "smooth_s", "--smooth-s",
+        help="Time constant (s) of the average drawn over ||e|| in the figures (0: none).",
     ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
-    flown_by: str = typer.Option(
-        None,
-        "--flown-by",
-        help="Name of the --controller that flew the --flights: the theorem is checked "
-        "on its flights; every other pair checks the premise only. (default: none: "
-        "recorded flights, premise only)",
+    flown_by: str = model_option(
+        FlyOptions, "flown_by", "--flown-by", none="none: recorded flights, premise only",
+        help="Name of the --controller that flew the --flights: the theorem is checked on its flights; "
+        "every other pair checks the premise only.",
     ),
-    seeds: str = typer.Option(
-        None, "--seeds", hidden=True, help="With --fly (qsls fly): comma-separated seeds. (default: 0,1,2)"
+    seeds: str = model_option(
+        FlyOptions, "seeds", "--seeds", hidden=True,
+        help="With --fly (qsls fly): comma-separated seeds.",
     ),
-    duration: float = typer.Option(
-        None, "--duration", hidden=True, help="With --fly (qsls fly): seconds per flight. (default: 30)"
+    duration: float = model_option(
+        FlyOptions, "duration", "--duration", hidden=True,
+        help="With --fly (qsls fly): seconds per flight.",
     ),
-    conditions: str = typer.Option(
-        None,
-        "--conditions", hidden=True,
-        help="With --fly (qsls fly): comma-separated perception conditions. (default: regular,degraded)",
+    conditions: str = model_option(
+        FlyOptions, "conditions", "--conditions", hidden=True,
+        help="With --fly (qsls fly): comma-separated perception conditions.",
     ),
-    jobs: int = typer.Option(
-        None, "--jobs", hidden=True, help="With --fly (qsls fly): parallel flights, 0 = all cores. (default: 0)"
+    jobs: int = model_option(
+        FlyOptions, "jobs", "--jobs", hidden=True,
+        help="With --fly (qsls fly): parallel flights, 0 = all cores.",
     ),
-    scheduler: str = typer.Option(
-        None, "--scheduler",
-        help="--fly: Dask scheduler address (tcp://host:8786); the flights run on its workers, "
-        "with the same tables as the local pool. (default: the local pool)",
+    scheduler: str = model_option(
+        FlyOptions, "scheduler", "--scheduler", hidden=True, none="the local pool",
+        help="With --fly (qsls fly): Dask scheduler address (tcp://host:8786); the flights run on "
+        "its workers, with the same tables as the local pool.",
     ),
-    vio: str = typer.Option(
-        None,
-        "--vio", hidden=True,
-        help="With --fly (qsls fly): where the estimate comes from: 'emulator' (the VIO error model) or "
-        "'camera' (rendered camera, IMU and MSCKF); 'camera,emulator' flies both, paired "
-        "by seed. (default: emulator)",
+    vio: str = model_option(
+        FlyOptions, "vio", "--vio", hidden=True,
+        help="With --fly (qsls fly): where the estimate comes from: 'emulator' (the VIO error model) "
+        "or 'camera' (rendered camera, IMU and MSCKF); 'camera,emulator' flies both, paired by "
+        "seed.",
     ),
-    backend: str = typer.Option(
-        None,
-        "--backend", hidden=True,
-        help="With --fly (qsls fly): python or c: fly the synthesized controllers as the C of "
-        "'qsls export' (compiled, through ctypes). (default: python)",
+    backend: str = model_option(
+        ControllerOptions, "backend", "--backend", hidden=True,
+        help="With --fly (qsls fly): python or c: fly the synthesized controllers as the C of 'qsls "
+        "export' (compiled, through ctypes).",
     ),
     force: bool = typer.Option(
         False, "--force", help="Overwrite --out; another error model's controller only warns."

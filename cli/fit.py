@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, overrides, parse_list
+from qsls.cli.common import cli_errors, model_option, overrides, parse_list
+from qsls.pipeline.errormodel.options import FitOptions
 
 EXAMPLE = "qsls fit flights/f1 flights/f2 --out fit --radius 1.0"
 
@@ -21,71 +22,48 @@ def command(
     out: Path = typer.Option(
         ..., "--out", "-o", help="Output folder (error_model.yaml, training_states.parquet, PNGs)."
     ),
-    radius: float = typer.Option(
-        None,
-        "--radius",
-        "-r",
-        help="S-slope radius r: pairs with ||W(x_i - x_j)||_inf < r count (m, m/s). (default: 0.5)",
+    radius: float = model_option(FitOptions, "radius", "--radius", "-r"),
+    percentiles: str = model_option(
+        FitOptions, "percentiles", "--percentiles",
+        help="Comma-separated percentiles of ||e||, pair slopes and per-sample largest slopes.",
     ),
-    percentiles: str = typer.Option(
-        None,
-        "--percentiles",
-        help="Comma-separated percentiles of ||e||, pair slopes and per-sample largest slopes. "
-        "(default: 50,90,95,99)",
-    ),
-    min_separation: str = typer.Option(
-        None,
-        "--min-separation",
+    min_separation: str = model_option(
+        FitOptions, "min_separation", "--min-separation",
         help="Leave out pairs closer than this (a number, or 'auto' = 3 x the noise floor of e "
         "estimated from the data): below the measurement noise, slopes are noise / distance and "
-        "blow up. 0 keeps every pair at a positive distance. (default: auto)",
+        "blow up. 0 keeps every pair at a positive distance.",
     ),
-    state_scale: str = typer.Option(
-        None,
-        "--state-scale",
-        help="Six comma-separated weights of px,py,pz,vx,vy,vz in the state distance. "
-        "(default: 1,1,1,1,1,1)",
+    state_scale: str = model_option(
+        FitOptions, "state_scale", "--state-scale",
+        help="Six comma-separated weights of px,py,pz,vx,vy,vz in the state distance.",
     ),
-    exclude_outliers: bool = typer.Option(
-        None,
-        "--exclude-outliers/--keep-outliers",
+    exclude_outliers: bool = model_option(
+        FitOptions, "exclude_outliers", "--exclude-outliers/--keep-outliers",
         help="Leave out samples whose robust z-score of e (median/MAD) exceeds --outlier-z on "
-        "some axis; the count is reported. (default: --keep-outliers)",
+        "some axis; the count is reported.",
     ),
-    outlier_z: float = typer.Option(None, "--outlier-z", help="Robust z threshold. (default: 3.5)"),
-    skip_start: float = typer.Option(
-        None, "--skip-start", help="Seconds left out at the start of every flight. (default: 0)"
-    ),
-    reference: str = typer.Option(
-        None,
-        "--reference",
+    outlier_z: float = model_option(FitOptions, "outlier_z", "--outlier-z"),
+    skip_start: float = model_option(FitOptions, "skip_start", "--skip-start"),
+    reference: str = model_option(
+        FitOptions, "reference", "--reference", none="none, delta = 0",
         help="Reference for delta (max distance from its states to the nearest training state): "
         "'circle:radius=1,height=1,period=5' (the simulator's reference options: kind circle, "
-        "hover or figure8; radius, height, period, laps, ramp_s, center=X;Y) or a flight folder. "
-        "(default: none, delta = 0)",
+        "hover or figure8; radius, height, period, laps, ramp_s, center=X;Y) or a flight folder.",
     ),
-    reference_lead_in: bool = typer.Option(
-        None,
-        "--reference-lead-in/--reference-pattern-only",
+    reference_lead_in: bool = model_option(
+        FitOptions, "reference_lead_in", "--reference-lead-in/--reference-pattern-only",
         help="Include a parametric reference's take-off and approach in delta, or only its "
-        "pattern. (default: --reference-pattern-only)",
+        "pattern.",
     ),
-    r0: str = typer.Option(
-        None, "--r0", help="R0 of the guarantee: max (= eps_e), pNN or a number. (default: max)"
-    ),
-    bootstrap: int = typer.Option(
-        None,
-        "--bootstrap",
+    r0: str = model_option(FitOptions, "r0", "--r0"),
+    bootstrap: int = model_option(
+        FitOptions, "bootstrap", "--bootstrap",
         help="Bootstrap replicates for confidence intervals (moving blocks within each flight; "
-        "costs about N times the pair pass). (default: 0)",
+        "costs about N times the pair pass).",
     ),
-    bootstrap_block: int = typer.Option(
-        None, "--bootstrap-block", help="Bootstrap block length in samples. (default: 10)"
-    ),
-    seed: int = typer.Option(None, "--seed", help="Seed of the bootstrap. (default: 0)"),
-    jobs: int = typer.Option(
-        None, "--jobs", "-j", help="Threads for the pair pass (same result for any). (default: 1)"
-    ),
+    bootstrap_block: int = model_option(FitOptions, "bootstrap_block", "--bootstrap-block"),
+    seed: int = model_option(FitOptions, "seed", "--seed"),
+    jobs: int = model_option(FitOptions, "jobs", "--jobs", "-j"),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     config: Path = typer.Option(
         None, "--config", "-c", help="YAML file of these options (its 'fit' section, or all)."
@@ -95,7 +73,7 @@ def command(
     """Estimate the perception error model (eps_e, S-slope, delta) from ingested flights."""
     from qsls.cli.common import RichProgress, print_summary
     from qsls.pipeline.core.config import load_options
-    from qsls.pipeline.errormodel.fit import FitOptions, fit
+    from qsls.pipeline.errormodel.fit import fit
 
     given = overrides(
         radius=radius, percentiles=parse_list(percentiles, "--percentiles"),

@@ -9,12 +9,15 @@ import typer
 from qsls.cli.common import (
     RichProgress,
     cli_errors,
+    model_option,
     overrides,
     parse_list,
     print_summary,
     print_table,
     print_verdicts,
 )
+from qsls.pipeline.evaluate.options import FlyOptions
+from qsls.pipeline.sim.options import ControllerOptions
 
 EXAMPLE = "qsls fly --model fit --controller synth --out fly --seeds 0,1,2"
 
@@ -43,29 +46,28 @@ def command(
         help="YAML file of options: its 'evaluate:' section and the 'fly:' under it, as in "
         "a run config (the command line wins).",
     ),
-    seeds: str = typer.Option(
-        None, "--seeds", help="Comma-separated seeds, one flight per seed, controller and "
-        "condition. (default: 0,1,2)"
+    seeds: str = model_option(
+        FlyOptions, "seeds", "--seeds",
+        help="Comma-separated seeds, one flight per seed, controller and condition.",
     ),
-    duration: float = typer.Option(None, "--duration", help="Seconds per flight. (default: 30)"),
-    conditions: str = typer.Option(
-        None,
-        "--conditions",
-        help="Comma-separated perception conditions. (default: regular,degraded)",
+    duration: float = model_option(
+        FlyOptions, "duration", "--duration",
+        help="Seconds per flight.",
     ),
-    jobs: int = typer.Option(None, "--jobs", help="Parallel flights, 0 = all cores. (default: 0)"),
-    vio: str = typer.Option(
-        None,
-        "--vio",
-        help="Where the estimate comes from: 'emulator' (the VIO error model) or 'camera' "
-        "(rendered camera, IMU and MSCKF); 'camera,emulator' flies both, paired by seed. "
-        "(default: emulator)",
+    conditions: str = model_option(
+        FlyOptions, "conditions", "--conditions",
+        help="Comma-separated perception conditions.",
     ),
-    backend: str = typer.Option(
-        None,
-        "--backend",
-        help="python or c: fly the synthesized controllers as the C of 'qsls export' "
-        "(compiled, through ctypes). (default: python)",
+    jobs: int = model_option(FlyOptions, "jobs", "--jobs", help="Parallel flights, 0 = all cores."),
+    vio: str = model_option(
+        FlyOptions, "vio", "--vio",
+        help="Where the estimate comes from: 'emulator' (the VIO error model) or 'camera' (rendered "
+        "camera, IMU and MSCKF); 'camera,emulator' flies both, paired by seed.",
+    ),
+    backend: str = model_option(
+        ControllerOptions, "backend", "--backend",
+        help="python or c: fly the synthesized controllers as the C of 'qsls export' (compiled, "
+        "through ctypes).",
     ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     force: bool = typer.Option(

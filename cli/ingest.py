@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, overrides
+from qsls.cli.common import cli_errors, model_option, overrides
+from qsls.pipeline.ingest.options import IngestOptions
 
 EXAMPLE = "qsls ingest --vio vio.tum --truth data.csv --out flights/f1 --dt 0.1"
 
@@ -22,63 +23,67 @@ def command(
     out: Path = typer.Option(
         ..., "--out", "-o", help="Output folder (flight.parquet, manifest.json)."
     ),
-    vio_topic: str = typer.Option(
-        None,
-        help="VIO topic (nav_msgs/Odometry, or a pose topic). (default: chosen when unambiguous)",
+    vio_topic: str = model_option(
+        IngestOptions, "vio_topic", none="chosen when unambiguous",
+        help="VIO topic (nav_msgs/Odometry, or a pose topic).",
     ),
-    truth_topic: str = typer.Option(
-        None,
-        help="Ground-truth topic (PoseStamped, PoseWithCovarianceStamped, TransformStamped, "
-        "Odometry, or a TF topic with --truth-frame). (default: chosen when unambiguous)",
+    truth_topic: str = model_option(
+        IngestOptions, "truth_topic", none="chosen when unambiguous",
+        help="Ground-truth topic (PoseStamped, PoseWithCovarianceStamped, TransformStamped, Odometry, "
+        "or a TF topic with --truth-frame).",
     ),
-    vio: Path = typer.Option(
-        None, help="File with the VIO stream: a bag, or a TUM trajectory. (default: the SOURCES)"
+    vio: Path = model_option(
+        IngestOptions, "vio", none="the SOURCES",
+        help="File with the VIO stream: a bag, or a TUM trajectory.",
     ),
-    truth: Path = typer.Option(
-        None,
-        help="File with the truth stream: a bag, a TUM file or a EuRoC csv. (default: the SOURCES)",
+    truth: Path = model_option(
+        IngestOptions, "truth", none="the SOURCES",
+        help="File with the truth stream: a bag, a TUM file or a EuRoC csv.",
     ),
-    dt: float = typer.Option(None, help="Resampling period in seconds. (default: 0.1)"),
-    align: str = typer.Option(
-        None,
-        help="Frame alignment of the VIO to the truth: 4dof (yaw + translation), se3, none. (default: 4dof)",
+    dt: float = model_option(IngestOptions, "dt", help="Resampling period in seconds."),
+    align: str = model_option(
+        IngestOptions, "align",
+        help="Frame alignment of the VIO to the truth: 4dof (yaw + translation), se3, none.",
     ),
-    time_offset: str = typer.Option(
-        None,
-        help="Seconds added to truth stamps to put them on the VIO clock, or 'auto' to "
-        "estimate it. (default: auto)",
+    time_offset: str = model_option(
+        IngestOptions, "time_offset",
+        help="Seconds added to truth stamps to put them on the VIO clock, or 'auto' to estimate it.",
     ),
-    vio_velocity_frame: str = typer.Option(
-        None,
-        help="Frame of the Odometry twist: body (ROS convention) or world (VINS-style). (default: body)",
+    vio_velocity_frame: str = model_option(
+        IngestOptions, "vio_velocity_frame",
+        help="Frame of the Odometry twist: body (ROS convention) or world (VINS-style).",
     ),
-    stamp: str = typer.Option(
-        None, help="Time of a message: header stamp or bag log time. (default: header)"
+    stamp: str = model_option(
+        IngestOptions, "stamp",
+        help="Time of a message: header stamp or bag log time.",
     ),
-    max_gap: float = typer.Option(
-        None, help="Never interpolate across a gap longer than this, in seconds. (default: 0.25)"
+    max_gap: float = model_option(
+        IngestOptions, "max_gap",
+        help="Never interpolate across a gap longer than this, in seconds.",
     ),
-    truth_frame: str = typer.Option(
-        None, help="PARENT/CHILD transform of a TF topic. (default: none; a TF-only bag lists them)"
+    truth_frame: str = model_option(
+        IngestOptions, "truth_frame", none="none; a TF-only bag lists them",
+        help="PARENT/CHILD transform of a TF topic.",
     ),
-    export_tum: bool = typer.Option(
-        None,
-        "--export-tum",
-        help="Also write both aligned trajectories as TUM files (for evo). (default: off)",
+    export_tum: bool = model_option(
+        IngestOptions, "export_tum", "--export-tum",
+        help="Also write both aligned trajectories as TUM files (for evo).",
     ),
-    max_time_offset: float = typer.Option(
-        None, help="Search range of --time-offset auto, in seconds. (default: 2)"
+    max_time_offset: float = model_option(
+        IngestOptions, "max_time_offset",
+        help="Search range of --time-offset auto, in seconds.",
     ),
-    min_overlap: float = typer.Option(
-        None, help="Least common time of the two streams, in seconds. (default: 3)"
+    min_overlap: float = model_option(
+        IngestOptions, "min_overlap",
+        help="Least common time of the two streams, in seconds.",
     ),
-    velocity_window: float = typer.Option(
-        None, help="Window of the smoothing differentiator, in seconds. (default: 0.1)"
+    velocity_window: float = model_option(
+        IngestOptions, "velocity_window",
+        help="Window of the smoothing differentiator, in seconds.",
     ),
-    drop_nonfinite: bool = typer.Option(
-        None,
-        "--drop-nonfinite",
-        help="Skip messages with NaN/inf values instead of stopping. (default: off)",
+    drop_nonfinite: bool = model_option(
+        IngestOptions, "drop_nonfinite", "--drop-nonfinite",
+        help="Skip messages with NaN/inf values instead of stopping.",
     ),
     config: Path = typer.Option(
         None, "--config", "-c", help="YAML file with any of these options."

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import RichProgress, cli_errors, overrides, print_summary
+from qsls.cli.common import RichProgress, cli_errors, model_option, overrides, print_summary
+from qsls.pipeline.sim.options import ControllerOptions, LogOptions, SimOptions, VioParams
 
 EXAMPLE = "qsls simulate --out flights/sim1 --seed 1 --format mcap"
 
@@ -26,35 +27,31 @@ def command(
         help="YAML file of options (see configs/simulate.yaml; a 'simulate:' section is "
         "used when present). The command line wins.",
     ),
-    seed: int = typer.Option(
-        None, "--seed", help="Random seed of the VIO emulator and logs. (default: 0)"
+    seed: int = model_option(
+        SimOptions, "seed", "--seed",
+        help="Random seed of the VIO emulator and logs.",
     ),
-    duration: float = typer.Option(
-        None,
-        "--duration",
-        help="Flight length in seconds (default: take-off, approach and the reference's "
-        "laps: 23 s for 3 laps of the 5 s circle).",
+    duration: float = model_option(
+        SimOptions, "duration", "--duration",
+        none="take-off, approach and the reference's laps: 23 s for 3 laps of the 5 s circle",
+        help="Flight length in seconds.",
     ),
-    perception: str = typer.Option(
-        None,
-        "--perception",
-        help="VIO conditions: 'regular' or 'degraded' (less light and texture). (default: regular)",
+    perception: str = model_option(
+        VioParams, "perception", "--perception",
+        help="VIO conditions: 'regular' or 'degraded' (less light and texture).",
     ),
-    vio: str = typer.Option(
-        None,
-        "--vio",
-        help="Where the estimate comes from: 'emulator' (the VIO error model) or 'camera' "
-        "(a rendered camera, an IMU and an MSCKF; vio.camera in the config). (default: emulator)",
+    vio: str = model_option(
+        VioParams, "kind", "--vio",
+        help="Where the estimate comes from: 'emulator' (the VIO error model) or 'camera' (a rendered "
+        "camera, an IMU and an MSCKF; vio.camera in the config).",
     ),
-    controller: str = typer.Option(
-        None,
-        "--controller",
-        help="'se3' (RotorPy's SE3), 'pd', or a controller folder from 'qsls synth'. (default: se3)",
+    controller: str = model_option(
+        ControllerOptions, "kind", "--controller",
+        help="'se3' (RotorPy's SE3), 'pd', or a controller folder from 'qsls synth'.",
     ),
-    fmt: str = typer.Option(
-        None,
-        "--format",
-        help="Bag format: ros1, ros2-sqlite, ros2-mcap or mcap. (default: ros1)",
+    fmt: str = model_option(
+        LogOptions, "format", "--format",
+        help="Bag format: ros1, ros2-sqlite, ros2-mcap or mcap.",
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
 ) -> None:

@@ -6,7 +6,15 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, number_or_name, overrides, parse_list, print_summary
+from qsls.cli.common import (
+    cli_errors,
+    model_option,
+    number_or_name,
+    overrides,
+    parse_list,
+    print_summary,
+)
+from qsls.pipeline.control.options import SweepSection
 
 
 def grid_axis(text: str) -> tuple[str, list]:
@@ -33,44 +41,42 @@ def command(
         "-c",
         help="YAML file: base synth options plus 'grid' (axis: list of values).",
     ),
-    grid: list[str] | None = typer.Option(
-        None,
-        "--grid",
-        "-g",
-        help="A grid axis, AXIS=V1,V2,.. (repeatable; replaces that axis of the config). "
-        "(default: S=0.05,0.1,0.2; T=10,20)",
+    grid: list[str] | None = model_option(
+        SweepSection, "grid", "--grid", "-g",
+        help="A grid axis, AXIS=V1,V2,.. (repeatable; replaces that axis of the config).",
     ),
-    horizon: int | None = typer.Option(
-        None, "--T", "-T", help="Base horizon T (when T is not a grid axis). (default: 20)"
+    horizon: int | None = model_option(
+        SweepSection, "T", "--T", "-T",
+        help="Base horizon T (when T is not a grid axis).",
     ),
-    norm: str | None = typer.Option(None, "--norm", help="Base norm: l1 or h2. (default: l1)"),
-    cost: str | None = typer.Option(
-        None, "--cost", help="Base cost: qr or imitation. (default: qr)"
+    norm: str | None = model_option(SweepSection, "norm", "--norm", help="Base norm: l1 or h2."),
+    cost: str | None = model_option(
+        SweepSection, "cost", "--cost",
+        help="Base cost: qr or imitation.",
     ),
-    s: str | None = typer.Option(
-        None, "--S", help="Base S: a number, lofo (leave-one-flight-out) or an error-model name. (default: lofo)"
+    s: str | None = model_option(
+        SweepSection, "S", "--S",
+        help="Base S: a number, lofo (leave-one-flight-out) or an error-model name.",
     ),
-    eps_e: str | None = typer.Option(
-        None, "--eps-e", help="Base eps_e: a number or a name. (default: max)"
+    eps_e: str | None = model_option(
+        SweepSection, "eps_e", "--eps-e",
+        help="Base eps_e: a number or a name.",
     ),
-    radius: float | None = typer.Option(
-        None, "--radius", "-r", help="Base radius r. (default: the error model's)"
+    radius: float | None = model_option(
+        SweepSection, "radius", "--radius", "-r", none="the error model's",
+        help="Base radius r.",
     ),
-    delta: float | None = typer.Option(
-        None, "--delta", help="Base Delta. (default: the error model's)"
+    delta: float | None = model_option(
+        SweepSection, "delta", "--delta", none="the error model's",
+        help="Base Delta.",
     ),
-    eps_w: str | None = typer.Option(
-        None,
-        "--eps-w",
-        help="Base disturbance bound eps_w: a number, max or pNN of the training flights' "
-        "realized disturbance. (default: max; 0.01 without an error model)",
+    eps_w: str | None = model_option(
+        SweepSection, "eps_w", "--eps-w", none="max; 0.01 without an error model",
+        help="Base disturbance bound eps_w: a number, max or pNN of the training flights' realized "
+        "disturbance.",
     ),
-    q: str | None = typer.Option(
-        None, "--Q", help="Base state weight diagonal. (default: 10,10,10,1,1,1)"
-    ),
-    r: str | None = typer.Option(
-        None, "--R", help="Base input weight diagonal. (default: 1,1,0.1)"
-    ),
+    q: str | None = model_option(SweepSection, "Q", "--Q", help="Base state weight diagonal."),
+    r: str | None = model_option(SweepSection, "R", "--R", help="Base input weight diagonal."),
     out: Path = typer.Option(
         ..., "--out", "-o", help="Output folder (sweep.parquet, sweep.csv, figures)."
     ),
@@ -80,20 +86,17 @@ def command(
         "-m",
         help="error_model.yaml or fit folder (needed when S/eps_e are names).",
     ),
-    jobs: int | None = typer.Option(
-        None, "--jobs", "-j", help="Local worker processes (default: all cores)."
+    jobs: int | None = model_option(
+        SweepSection, "jobs", "--jobs", "-j", none="all cores", help="Local worker processes."
     ),
-    scheduler: str | None = typer.Option(
-        None,
-        "--scheduler",
-        help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 (instead of --jobs). "
-        "(default: none: local processes)",
+    scheduler: str | None = model_option(
+        SweepSection, "scheduler", "--scheduler", none="none: local processes",
+        help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 (instead of --jobs).",
     ),
-    wait_workers: float | None = typer.Option(
-        None,
-        "--wait-workers",
-        help="With --scheduler: seconds to wait for a first worker, and for one to come back "
-        "when all have left, before giving up. (default: 60)",
+    wait_workers: float | None = model_option(
+        SweepSection, "wait_workers", "--wait-workers",
+        help="With --scheduler: seconds to wait for a first worker, and for one to come back when all "
+        "have left, before giving up.",
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
 ) -> None:

@@ -7,7 +7,15 @@ from typing import Any
 
 import typer
 
-from qsls.cli.common import cli_errors, number_or_name, overrides, parse_list, print_summary
+from qsls.cli.common import (
+    cli_errors,
+    model_option,
+    number_or_name,
+    overrides,
+    parse_list,
+    print_summary,
+)
+from qsls.pipeline.control.options import SynthOptions
 
 EXAMPLE = "qsls synth --model fit --out controllers --T 20 --S p50 --eps-e p95"
 
@@ -22,82 +30,87 @@ def command(
         None, "--out", "-o", help="Output folder (one sub-folder per controller)."
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
-    horizon: int | None = typer.Option(
-        None, "--T", "-T", help="FIR horizon T (taps 0..T), 2 to 500. (default: 20)"
+    horizon: int | None = model_option(
+        SynthOptions, "T", "--T", "-T",
+        help="FIR horizon T (taps 0..T), 2 to 500.",
     ),
-    norm: str | None = typer.Option(
-        None, "--norm", help="l1, h2 or both (the H2 variants too). (default: l1)"
+    norm: str | None = model_option(
+        SynthOptions, "norm", "--norm",
+        help="l1, h2 or both (the H2 variants too).",
     ),
-    controllers: str | None = typer.Option(
-        None,
-        "--controllers",
-        help="paper (pd + nominal, robust, robust imitation) or single. (default: paper)",
+    controllers: str | None = model_option(
+        SynthOptions, "controllers", "--controllers",
+        help="paper (pd + nominal, robust, robust imitation) or single.",
     ),
-    cost: str | None = typer.Option(
-        None, "--cost", help="qr or imitation (controllers: single). (default: qr)"
+    cost: str | None = model_option(
+        SynthOptions, "cost", "--cost",
+        help="qr or imitation (controllers: single).",
     ),
-    robust: bool | None = typer.Option(
-        None,
-        "--robust/--no-robust",
-        help="Impose the robustness constraint (controllers: single). (default: --robust)",
+    robust: bool | None = model_option(
+        SynthOptions, "robust", "--robust/--no-robust",
+        help="Impose the robustness constraint (controllers: single).",
     ),
-    strictly_proper: bool | None = typer.Option(
-        None,
-        "--strictly-proper/--not-strictly-proper",
-        help="u[k] from y up to k-1 only (Phi_uy(0) = 0). (default: --not-strictly-proper)",
+    strictly_proper: bool | None = model_option(
+        SynthOptions, "strictly_proper", "--strictly-proper/--not-strictly-proper",
+        help="u[k] from y up to k-1 only (Phi_uy(0) = 0).",
     ),
-    s: str | None = typer.Option(
-        None,
-        "--S",
-        help="S-slope: a number, lofo (leave-one-flight-out) or an error-model name (max, p95, local_p99). (default: lofo)",
+    s: str | None = model_option(
+        SynthOptions, "S", "--S",
+        help="S-slope: a number, lofo (leave-one-flight-out) or an error-model name (max, p95, "
+        "local_p99).",
     ),
-    eps_e: str | None = typer.Option(
-        None, "--eps-e", help="Error bound: a number or a name (max, p99, R0). (default: max)"
+    eps_e: str | None = model_option(
+        SynthOptions, "eps_e", "--eps-e",
+        help="Error bound: a number or a name (max, p99, R0).",
     ),
-    radius: float | None = typer.Option(
-        None, "--radius", "-r", help="Radius r. (default: the error model's)"
+    radius: float | None = model_option(
+        SynthOptions, "radius", "--radius", "-r", none="the error model's",
+        help="Radius r.",
     ),
-    delta: float | None = typer.Option(None, "--delta", help="Delta. (default: the error model's)"),
-    eps_w: str | None = typer.Option(
-        None,
-        "--eps-w",
+    delta: float | None = model_option(
+        SynthOptions, "delta", "--delta", none="the error model's",
+        help="Delta.",
+    ),
+    eps_w: str | None = model_option(
+        SynthOptions, "eps_w", "--eps-w", none="max; 0.01 without an error model",
         help="Disturbance bound eps_w: a number, max or pNN of the training flights' realized "
-        "disturbance. (default: max; 0.01 without an error model)",
+        "disturbance.",
     ),
-    measure: str | None = typer.Option(
-        None, "--measure", help="Error channels read: full or position. (default: full)"
+    measure: str | None = model_option(
+        SynthOptions, "measure", "--measure",
+        help="Error channels read: full or position.",
     ),
-    beta: float | None = typer.Option(
-        None,
-        "--beta",
-        help="Clip of the velocity errors' dense part; what it clips off is an outlier. "
-        "(default: none)",
+    beta: float | None = model_option(
+        SynthOptions, "beta", "--beta",
+        help="Clip of the velocity errors' dense part; what it clips off is an outlier.",
     ),
-    eps_o: float | None = typer.Option(
-        None, "--eps-o", help="Bound on one outlier (a physical bound). (default: none)"
+    eps_o: float | None = model_option(
+        SynthOptions, "eps_o", "--eps-o",
+        help="Bound on one outlier (a physical bound).",
     ),
-    gate: float | None = typer.Option(
-        None, "--gate", help="Velocity gate V: eps_o = 2V - beta. (default: none)"
+    gate: float | None = model_option(
+        SynthOptions, "gate", "--gate",
+        help="Velocity gate V: eps_o = 2V - beta.",
     ),
-    m: str | None = typer.Option(
-        None, "--m", help="Outliers per window of T steps: a number or auto. (default: auto)"
+    m: str | None = model_option(
+        SynthOptions, "m", "--m",
+        help="Outliers per window of T steps: a number or auto.",
     ),
-    error_scale: str | None = typer.Option(
-        None, "--error-scale", help="W_e: 6 weights of the error norm. (default: 1,1,1,1,1,1)"
+    error_scale: str | None = model_option(
+        SynthOptions, "error_scale", "--error-scale",
+        help="W_e: 6 weights of the error norm.",
     ),
-    q: str | None = typer.Option(
-        None, "--Q", help="State weight diagonal. (default: 10,10,10,1,1,1)"
+    q: str | None = model_option(SynthOptions, "Q", "--Q", help="State weight diagonal."),
+    r: str | None = model_option(SynthOptions, "R", "--R", help="Input weight diagonal."),
+    mass: float | None = model_option(SynthOptions, "mass", "--mass", help="Vehicle mass in kg."),
+    dt: float | None = model_option(SynthOptions, "dt", "--dt", help="Controller period in s."),
+    imitate: str | None = model_option(
+        SynthOptions, "imitate", "--imitate",
+        help="Imitation target: pd, l1_nominal, h2_nominal or a controller folder.",
     ),
-    r: str | None = typer.Option(None, "--R", help="Input weight diagonal. (default: 1,1,0.1)"),
-    mass: float | None = typer.Option(None, "--mass", help="Vehicle mass in kg. (default: 0.256)"),
-    dt: float | None = typer.Option(None, "--dt", help="Controller period in s. (default: 0.1)"),
-    imitate: str | None = typer.Option(
-        None,
-        "--imitate",
-        help="Imitation target: pd, l1_nominal, h2_nominal or a controller folder. (default: pd)",
-    ),
-    solver: str | None = typer.Option(
-        None, "--solver", help="cvxpy solver name. (default: CLARABEL)"
+    solver: str | None = model_option(
+        SynthOptions, "solver", "--solver",
+        help="cvxpy solver name.",
     ),
     max_feasible_s: bool = typer.Option(
         False,
@@ -107,8 +120,8 @@ def command(
 ) -> None:
     """Robust SLS controllers from an error model, each with a certificate."""
     from qsls.cli.common import RichProgress
-    from qsls.pipeline.control.synth import SynthOptions, synth
     from qsls.pipeline.control.synth import max_feasible_s as compute_max_s
+    from qsls.pipeline.control.synth import synth
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.core.errors import ConfigError
 
