@@ -7,6 +7,7 @@ is the same one-line error from both."""
 from __future__ import annotations
 
 import json
+import re
 
 import pandas as pd
 import pytest
@@ -252,3 +253,32 @@ def test_a_bad_fly_subsection_is_refused_when_the_config_is_read(work):
     cfg = _write(work / "cfg", evaluate={"fly": {"vio": ["camera", "camera"]}})
     with pytest.raises(ConfigError, match="give each estimator once"):
         load_run_config(cfg)
+
+
+def test_the_problem_section_is_laid_under_sweep_and_synth(work):
+    """Issue 36: a run config states the settings sweep and synth share once, in ``problem:``;
+    each section's own keys win. The run and the stage commands read the same options, and the
+    run's record (its cache keys) is that of a config repeating them."""
+    shared = {"T": 6, "eps_e": 0.05, "radius": 1.0, "measure": "position", "R": [10, 10, 1]}
+    sweep = {"grid": {"S": [0.0, 0.01]}, "s_max_curve": False}
+    synth = {"T": 8, "S": 0.01, "delta": 0.05, "radius": 3.0}
+    folder = work / "cfg"
+    once = _write(folder, problem=shared, sweep=sweep, synth=synth)
+    cfg = load_run_config(once)
+    assert cfg.sweep.T == 6 and cfg.synth.T == 8  # the section wins
+    assert cfg.sweep.measure == cfg.synth.measure == "position"
+    assert cfg.synth.R == cfg.sweep.R == [[10, 0, 0], [0, 10, 0], [0, 0, 1]]
+    record = cfg.record()
+    twice = folder / "twice.yaml"
+    twice.write_text(yaml.safe_dump({**BASE, "sweep": {**shared, **sweep},
+                                     "synth": {**shared, **synth}}, sort_keys=False))  # fmt: skip
+    assert "problem" not in record and load_run_config(twice).record() == record
+    # qsls synth --config reads its section with the problem under it
+    res = _cli("synth", "--config", once, "--max-feasible-s")
+    assert res.exit_code == 0, res.output
+    assert re.search(r"T\s+│ 8 ", res.output)
+    assert _cli("synth", "--config", twice, "--max-feasible-s").output == res.output
+    # a misspelled key names the problem section
+    bad = _write(folder, problem={"mesure": "full"}, synth=synth)
+    with pytest.raises(ConfigError, match=r"problem: unknown option 'mesure'; did you mean 'measure'"):
+        load_run_config(bad)

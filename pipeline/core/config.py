@@ -159,14 +159,44 @@ def forget_config_files() -> None:
     _CONFIG_FILES.clear()
 
 
+SHARED = "problem"
+"""A run config's section of the synthesis problem's settings that ``sweep:`` and ``synth:``
+share (``R``, ``measure``, ``beta``, ``gate``, ``error_scale``, ``H``, ``plant``, ...: the fields
+of :class:`qsls.pipeline.control.options.ProblemOptions`), laid under both so a config states
+them once; each section's own keys win (docs/run.md#the-config)."""
+SHARED_UNDER = ("sweep", "synth")
+"""The sections the ``problem:`` section is laid under."""
+
+
+def with_shared(data: Mapping[str, Any], source: str | Path = "config") -> dict[str, Any]:
+    """``data`` (a whole config file) with its ``problem:`` section laid under its ``sweep:``
+    and ``synth:`` sections, those it has (merged: the section's keys win), and removed."""
+    out = dict(data)
+    shared = out.pop(SHARED, None)
+    if shared is None:
+        return out
+    if not isinstance(shared, Mapping):
+        raise ConfigError(f"{source}: section '{SHARED}' must be a mapping")
+    for key in SHARED_UNDER:
+        if key in out:
+            sub = out[key]
+            if sub is not None and not isinstance(sub, Mapping):
+                raise ConfigError(f"{source}: section '{key}' must be a mapping")
+            out[key] = merge(shared, sub or {})
+    return out
+
+
 def read_section(config: Path | None, section: str | None) -> dict[str, Any]:
     """A command's options in a YAML file, the same way for every command: the file's
     ``section`` mapping when it has one (a ``qsls run`` config holds every stage's), else
-    the whole file. No file: no options."""
+    the whole file; ``sweep`` and ``synth`` with the file's ``problem:`` laid under them
+    (:func:`with_shared`). No file: no options."""
     if config is None:
         return {}
     data = read_yaml(config)
     _CONFIG_FILES.append(Path(config))
+    if section in SHARED_UNDER and SHARED in data:
+        data = with_shared({**data, section: data.get(section) or {}}, config)
     if section is None or section not in data:
         return data
     sub = data[section]

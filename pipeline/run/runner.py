@@ -23,7 +23,7 @@ from typing import Any, Literal
 from pydantic import Field, PrivateAttr, field_validator, model_validator
 
 from qsls.pipeline import __version__
-from qsls.pipeline.control.options import SweepSection, SynthOptions
+from qsls.pipeline.control.options import ProblemOptions, SweepSection, SynthOptions
 from qsls.pipeline.core.artifacts import (
     atomic_write_bytes,
     dump_json,
@@ -31,7 +31,7 @@ from qsls.pipeline.core.artifacts import (
     sha256_file,
     to_plain,
 )
-from qsls.pipeline.core.config import Options, read_yaml, validate
+from qsls.pipeline.core.config import SHARED, Options, read_yaml, validate, with_shared
 from qsls.pipeline.core.errors import ConfigError, QslsError
 from qsls.pipeline.core.locks import (
     FolderLock,
@@ -107,7 +107,9 @@ class RunConfig(Options):
     :class:`~qsls.pipeline.ingest.options.IngestOptions`, ``fit``
     :class:`~qsls.pipeline.errormodel.options.FitOptions`, ``sweep``
     :class:`~qsls.pipeline.control.options.SweepSection` (with ``jobs``, ``scheduler``,
-    ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions`,
+    ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions` (both
+    with the config's ``problem:`` laid under them, :func:`~qsls.pipeline.core.config.with_shared`:
+    the settings they share, stated once),
     ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (with ``fly``, whose
     options, :class:`~qsls.pipeline.evaluate.options.FlyOptions`, are the section's keys with
 ``fly``'s laid over them: validated when the config is read too). These
@@ -210,6 +212,9 @@ def load_run_config(path: Path) -> RunConfig:
     stage command's ``--config`` does."""
     raw = read_yaml(path)
     base = Path(path).resolve().parent
+    if isinstance(raw.get(SHARED), Mapping):  # its own errors name it, before it is laid under
+        validate(ProblemOptions, raw[SHARED], f"{base}: {SHARED}")
+    raw = with_shared(raw, f"{base}")
     typed = dict(raw)
     for key, model in MODELS.items():
         if isinstance(raw.get(key), Mapping):
