@@ -11,7 +11,7 @@ from qsls.pipeline.core.api import lazy_api
 __all__, __getattr__ = lazy_api(
     __name__,
     {
-        "ExportOptions": "stage",
+        "ExportOptions": "options",
         "export": "stage",
         "c_runtime": "cbuild",
         "CController": "cbuild",

@@ -12,7 +12,6 @@ so the state is the last ``T`` values of ``beta`` and the last ``T + 1`` values 
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -33,8 +32,6 @@ INDEX_BYTES = 4
 MONITOR_COUNTERS = 5
 """The monitor's ``unsigned int`` counters besides its ``T`` outlier flags: the window's head
 and count, ticks, trips and the first trip's tick."""
-
-PREFIX_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,40}$")
 
 MCU_RAM_BYTES = 192 * 1024
 MCU_FLASH_BYTES = 1024 * 1024
