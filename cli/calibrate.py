@@ -82,14 +82,14 @@ def command(
         CalibrateOptions, "jobs", "--jobs", "-j",
         help="Flights in parallel; 0 = all cores.",
     ),
-    scheduler: str = typer.Option(
-        None, "--scheduler",
-        help="Dask scheduler address (tcp://host:8786): the flights run on its workers, with "
-        "the same tables as the local pool. (default: the local pool)",
+    scheduler: str = model_option(
+        CalibrateOptions, "scheduler", "--scheduler", none="the local pool",
+        help="Dask scheduler address (tcp://host:8786): the flights run on its workers, with the same "
+        "tables as the local pool.",
     ),
-    wait_workers: float = typer.Option(
-        None, "--wait-workers",
-        help="With --scheduler: seconds to wait for a worker before failing. (default: 60)",
+    wait_workers: float = model_option(
+        CalibrateOptions, "wait_workers", "--wait-workers",
+        help="With --scheduler: seconds to wait for a worker before failing.",
     ),
     config: Path = typer.Option(
         None, "--config", "-c",

@@ -59,6 +59,16 @@ def command(
         help="Comma-separated perception conditions.",
     ),
     jobs: int = model_option(FlyOptions, "jobs", "--jobs", help="Parallel flights, 0 = all cores."),
+    scheduler: str = model_option(
+        FlyOptions, "scheduler", "--scheduler", none="the local pool",
+        help="Dask scheduler address (tcp://host:8786): the flights run on its workers, with "
+        "the same tables as the local pool.",
+    ),
+    wait_workers: float = model_option(
+        FlyOptions, "wait_workers", "--wait-workers",
+        help="With --scheduler: seconds to wait for a first worker, and for one to come back "
+        "after every worker left, before failing.",
+    ),
     vio: str = model_option(
         FlyOptions, "vio", "--vio",
         help="Where the estimate comes from: 'emulator' (the VIO error model) or 'camera' (rendered "
@@ -80,6 +90,7 @@ def command(
         overrides(
             figures=False if no_figures else None,
             seeds=parse_list(seeds, "--seeds", "int"), duration=duration, jobs=jobs,
+            scheduler=scheduler, wait_workers=wait_workers,
             conditions=parse_list(conditions, "--conditions", "value"),
             vio=parse_list(vio, "--vio", "value") if vio and "," in vio else vio,
             sim={"controller": {"backend": backend}} if backend else None,

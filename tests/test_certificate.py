@@ -170,12 +170,12 @@ def _weighted_model(tmp_path, em):
     return f.parent
 
 
-@pytest.mark.parametrize("command", ["evaluate", "evaluate --fly"])
+@pytest.mark.parametrize("command", ["evaluate", "fly"])
 def test_weighted_error_model_is_refused(tmp_path, fit_dir, command):
     """A weighted ``S`` with the unweighted ``||Phi_xy||`` is never mixed: one line, exit 2
     (evaluate: the certificates state unweighted norms, so their gamma would mix them)."""
     model = _weighted_model(tmp_path, fit_dir[3])
-    ev = "evaluate" in command
+    ev = command in ("evaluate", "fly")
     args = ["--model" if ev else "-m", model, "--out" if ev else "-o", tmp_path / "out"]
     if command == "synth":
         args += ["-T", T]
