@@ -65,7 +65,7 @@ def test_quickstart_end_to_end(quickstart):
     # design choices with room for the calibration (numbers), S left out on the design flights
     for key in ("eps_e", "S", "m", "eps_o"):
         assert premise[key]["violated"] == 0.0, (key, premise[key])
-    assert premise["S"]["chosen"] == "lofo" and premise["eps_w"]["chosen"] == "number"
+    assert premise["S"]["chosen"] == "number" and premise["eps_w"]["chosen"] == "number"
     assert premise["eps_w"]["violated"] < 0.01  # the markers' velocity noise on a few steps
     assert premise["eps_o"]["chosen"].startswith("gate") and c["eps_o"] == 2 * c["gate"] - 0.2
     assert premise["n_excluded"] == 0 and premise["eps_w_source"] == "inputs"
