@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 
-from qsls.cli.common import cli_errors, overrides, parse_list, print_summary
+from qsls.cli.common import cli_errors, model_option, overrides, parse_list, print_summary
+from qsls.pipeline.export.options import ReplayOptions
 
 EXAMPLE = "qsls replay controllers/l1_robust flight.bag --out replay.mcap"
 
@@ -18,58 +19,68 @@ def command(
         ..., help="The recorded VIO: any source 'qsls ingest' reads (bag, MCAP, TUM, EuRoC)."
     ),
     out: Path = typer.Option(..., "--out", "-o", help="Output ROS 2 MCAP file (*.mcap)."),
-    vio_topic: str | None = typer.Option(
-        None, "--vio-topic", help="VIO topic (default: the only nav_msgs/Odometry topic)."
+    vio_topic: str | None = model_option(
+        ReplayOptions, "vio_topic", "--vio-topic", none="the only nav_msgs/Odometry topic",
+        help="VIO topic.",
     ),
-    reference: str | None = typer.Option(
-        None,
-        "--reference",
+    reference: str | None = model_option(
+        ReplayOptions, "reference", "--reference",
         help="Reference as KIND[:key=value,...] (circle, hover, figure8 with the simulator's "
-        "options, e.g. circle:radius=1,period=5,height=1) or a YAML file. Default hover.",
+        "options, e.g. circle:radius=1,period=5,height=1) or a YAML file.",
     ),
-    reference_t0: float | None = typer.Option(
-        None, "--reference-t0", help="Reference time (s) at the first tick (default 0)."
+    reference_t0: float | None = model_option(
+        ReplayOptions, "reference_t0", "--reference-t0",
+        help="Reference time (s) at the first tick.",
     ),
-    backend: str | None = typer.Option(
-        None, "--backend", help="Exported code that runs: python (default) or c (compiled)."
+    backend: str | None = model_option(
+        ReplayOptions, "backend", "--backend",
+        help="Exported code that runs: python or c (compiled).",
     ),
-    max_tilt_deg: float | None = typer.Option(
-        None, "--max-tilt-deg", help="Tilt limit for the report (default 20)."
+    max_tilt_deg: float | None = model_option(
+        ReplayOptions, "max_tilt_deg", "--max-tilt-deg", help="Tilt limit for the report (deg)."
     ),
-    thrust_band: str | None = typer.Option(
-        None, "--thrust-band", help="LOW,HIGH thrust band in multiples of hover (default 0.5,1.5)."
+    thrust_band: str | None = model_option(
+        ReplayOptions, "thrust_band", "--thrust-band",
+        help="LOW,HIGH thrust band in multiples of hover.",
     ),
-    hover_thrust: float | None = typer.Option(
-        None, "--hover-thrust", help="Normalized thrust at hover for AttitudeTarget (default 0.5)."
+    hover_thrust: float | None = model_option(
+        ReplayOptions, "hover_thrust", "--hover-thrust",
+        help="Normalized thrust at hover for AttitudeTarget.",
     ),
-    max_gap: float | None = typer.Option(
-        None, "--max-gap", help="Never interpolate across a gap longer than this (s, default 0.25)."
+    max_gap: float | None = model_option(
+        ReplayOptions, "max_gap", "--max-gap",
+        help="Never interpolate across a gap longer than this (s).",
     ),
-    stamp: str | None = typer.Option(None, "--stamp", help="header (default) or log time."),
-    vio_velocity_frame: str | None = typer.Option(
-        None, "--vio-velocity-frame", help="Frame of the Odometry twist: body (default) or world."
+    stamp: str | None = model_option(
+        ReplayOptions, "stamp", "--stamp", help="Time of a message: header stamp or bag log time."
     ),
-    drop_nonfinite: bool = typer.Option(
-        False, "--drop-nonfinite", help="Skip messages with NaN/inf values instead of stopping."
+    vio_velocity_frame: str | None = model_option(
+        ReplayOptions, "vio_velocity_frame", "--vio-velocity-frame",
+        help="Frame of the Odometry twist: body or world.",
     ),
-    allow_uncertified: bool = typer.Option(
-        False, "--allow-uncertified", help="Replay a controller whose status is not 'certified'."
+    drop_nonfinite: bool = model_option(
+        ReplayOptions, "drop_nonfinite", "--drop-nonfinite",
+        help="Skip messages with NaN/inf values instead of stopping.",
     ),
-    align: str | None = typer.Option(
-        None,
-        "--align",
-        help="Put the VIO into the reference's frame: 4dof (fit yaw + offset, default) or none.",
+    allow_uncertified: bool = model_option(
+        ReplayOptions, "allow_uncertified", "--allow-uncertified",
+        help="Replay a controller whose status is not 'certified'.",
     ),
-    vio_to_reference: str | None = typer.Option(
-        None,
-        "--vio-to-reference",
+    align: str | None = model_option(
+        ReplayOptions, "align", "--align",
+        help="Put the VIO into the reference's frame: 4dof (fit yaw + offset) or none.",
+    ),
+    vio_to_reference: str | None = model_option(
+        ReplayOptions, "vio_to_reference", "--vio-to-reference", none="none: --align",
         help="A known transform instead of the fit: X,Y,Z,YAW_DEG (p_ref = Rz(yaw) p_vio + xyz).",
     ),
-    tilt_limit_deg: float | None = typer.Option(
-        None, "--tilt-limit-deg", help="The exported helper's tilt limit (deg, default 30)."
+    tilt_limit_deg: float | None = model_option(
+        ReplayOptions, "tilt_limit_deg", "--tilt-limit-deg",
+        help="The exported helper's tilt limit (deg).",
     ),
-    thrust_limits: str | None = typer.Option(
-        None, "--thrust-limits", help="The exported helper's LOW,HIGH thrust x hover (0.5,2)."
+    thrust_limits: str | None = model_option(
+        ReplayOptions, "thrust_limits", "--thrust-limits",
+        help="The exported helper's LOW,HIGH thrust x hover.",
     ),
     config: Path | None = typer.Option(None, "--config", help="YAML file of replay options."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output file."),
@@ -77,7 +88,7 @@ def command(
     """Dry-run the exported controller on a recorded VIO stream; commands to a ROS 2 MCAP."""
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.core.errors import ConfigError
-    from qsls.pipeline.export.replay import ReplayOptions, replay
+    from qsls.pipeline.export.replay import replay
 
     band = None
     if thrust_band is not None:

@@ -32,6 +32,8 @@ MODELS = {
         {"--no-figures": "figures", "--backend": "sim.controller.backend"},
     ),
     "simulate": ("qsls.pipeline.sim.simulate:SimOptions", {"--format"}, {}),
+    "export": ("qsls.pipeline.export.options:ExportOptions", set(), {}),
+    "replay": ("qsls.pipeline.export.options:ReplayOptions", set(), {}),
 }
 COMMON = {"--out", "--config", "--force"}
 

@@ -15,6 +15,6 @@ __all__, __getattr__ = lazy_api(
         "export": "stage",
         "c_runtime": "cbuild",
         "CController": "cbuild",
-        "ReplayOptions": "replay",
+        "ReplayOptions": "options",
     },
 )

@@ -33,57 +33,16 @@ import json
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import Field, model_validator
 
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.references import ReferenceOptions, parse_reference
 from qsls.pipeline.core.units import NS
-from qsls.pipeline.export.attitude import AttitudeLimits, LimitOptions
+from qsls.pipeline.export.attitude import AttitudeLimits
+from qsls.pipeline.export.options import ReplayOptions
 from qsls.pipeline.export.rosout import Ticks, Topics
-
-
-class ReplayOptions(LimitOptions):
-    """Options of ``qsls replay``."""
-
-    vio_topic: str | None = None
-    """The VIO topic (``nav_msgs/Odometry`` or a pose type); automatic when there is one."""
-    reference: str = "hover"
-    """``KIND[:key=value,...]`` (kinds and keys of the simulator's references) or a YAML file."""
-    reference_t0: float = 0.0
-    """The reference's time at the first tick (s)."""
-    backend: Literal["python", "c"] = "python"
-    """Which exported code runs: the stdlib Python module or the compiled C (ctypes)."""
-    allow_uncertified: bool = False
-    stamp: Literal["header", "log"] = "header"
-    vio_velocity_frame: Literal["body", "world"] = "body"
-    max_gap: float = Field(0.25, gt=0)
-    """Never interpolate across a gap longer than this (s)."""
-    velocity_window: float = Field(0.1, gt=0)
-    drop_nonfinite: bool = False
-    max_tilt_deg: float = Field(20.0, gt=0, lt=90)
-    thrust_band: tuple[float, float] = (0.5, 1.5)
-    """Thrust band, in multiples of the hover thrust ``m g``."""
-    hover_thrust: float = Field(0.5, gt=0, le=1)
-    """mavros' normalized thrust at hover (PX4's MPC_THR_HOVER): ``thrust = this * T / (m g)``."""
-    command_topic: str = "/mavros/setpoint_raw/attitude"
-    frame_id: str = "map"
-    align: Literal["4dof", "none"] = "4dof"
-    """How the VIO stream is put into the reference's frame: ``4dof`` fits a yaw and a
-    translation (VIO's unobservable gauge, as ``qsls ingest --align 4dof``) of the whole
-    recording onto the reference; ``none`` takes the VIO frame as the reference's."""
-    vio_to_reference: tuple[float, float, float, float] | None = None
-    """A known transform instead: ``x, y, z, yaw_deg`` with ``p_ref = Rz(yaw) p_vio + [x y z]``."""
-    warn_deviation_m: float = Field(0.5, gt=0)
-    """Warn when the first tick's position deviation from the reference exceeds this (m)."""
-    @model_validator(mode="after")
-    def _band(self) -> ReplayOptions:
-        lo, hi = self.thrust_band
-        if not 0 <= lo < hi:
-            raise ValueError(f"thrust_band must be 0 <= low < high, got {self.thrust_band}")
-        return self
 
 
 @dataclass(frozen=True)
