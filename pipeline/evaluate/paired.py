@@ -153,7 +153,7 @@ def _decide(
     verdict, the overall verdict (module docstring) and the entry that decides it."""
     level = level if level is not None else 1.0 - (1.0 - LEVEL) / max(len(per_seed), 1)
     ivs = {c: ratio_interval(r.to_numpy(float), level) for c, r in per_seed.items()}
-    says = {c: verdict(iv, 1.0, direction) for c, iv in ivs.items()}
+    says: dict[str, str] = {c: verdict(iv, 1.0, direction) for c, iv in ivs.items()}
     overall = (
         "contradicted"
         if "contradicted" in says.values()
@@ -622,7 +622,7 @@ def _replicate(
                 "verdict": sub["verdict"] if sub else "inconclusive",
             }
         )
-    final = replicated(hs[0]["verdict"], hs[1]["verdict"])
+    final = replicated(str(hs[0]["verdict"]), str(hs[1]["verdict"]))
     item["verdict_all_seeds"] = item["verdict"]
     item["verdict"] = final
     item["halves"] = hs
@@ -673,7 +673,7 @@ def _assumption_halves(item: dict[str, Any], assumptions: pd.DataFrame) -> dict[
     final = (
         "contradicted"
         if item["verdict"] == "contradicted"
-        else replicated(hs[0]["verdict"], hs[1]["verdict"])
+        else replicated(str(hs[0]["verdict"]), str(hs[1]["verdict"]))
     )
     item["verdict_all_seeds"], item["verdict"], item["halves"] = item["verdict"], final, hs
     item["detail"] += (

@@ -36,8 +36,6 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.evaluate.stats import Verdict
-
 SMOOTHING_TAU_S = 1.0
 """The paper's figures' smoothing time constant (s)."""
 PAPER_S_SIM = 11.7
@@ -121,7 +119,7 @@ def halves(seeds: Sequence[int]) -> tuple[list[int], list[int]]:
     return s[:k], s[k:]
 
 
-def replicated(first: Verdict, second: Verdict) -> Verdict:
+def replicated(first: str, second: str) -> str:
     """``reproduced`` / ``contradicted`` only when both halves say it, else ``inconclusive``."""
     if first == second and first in ("reproduced", "contradicted"):
         return first

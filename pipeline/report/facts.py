@@ -378,6 +378,11 @@ def findings_list(f: Facts) -> list[dict[str, Any]]:
                 "ci": item.get("ci"),
                 "n_seeds": item.get("n_seeds", f.findings.get("n_seeds")),
                 "detail": str(first(item, "mechanism", "detail", "qsls", default="")),
+                "halves": item.get("halves") or [],
+                "verdict_all_seeds": item.get("verdict_all_seeds"),
+                "whole_flight": item.get("whole_flight"),
+                "by_controller": item.get("by_controller"),
+                "strict_bound": item.get("strict_bound"),
             }
         )
     if out:
