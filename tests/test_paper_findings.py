@@ -151,3 +151,26 @@ def test_camera_blur_column_is_the_cameras_own_exposure_model():
     assert math.isnan(emu["features_per_frame"])
     assert emu["blur_px_mean"] > 0 and abs(emu["blur_px_mean"] / cam["blur_px_mean"] - 1) > 0.2
     assert emu["angular_rate_rms"] == got["angular_rate_rms"]
+
+
+def test_degradation_check_needs_the_interval_above_two():
+    """PD's estimator error degraded / regular per seed: 3x with a small spread doubles; 1.5x
+    does not, although it is clearly above 1."""
+    rng = np.random.default_rng(5)
+
+    def flights(factor):
+        rows = []
+        for s in range(10):
+            base = 0.02 * (1 + s)
+            for cond, f in (("regular", 1.0), ("degraded", factor * rng.lognormal(0, 0.1))):
+                rows.append({"flight": f"{cond}{s}", "controller": "pd", "condition": cond,
+                             "seed": s, "perception_error_rms": base * f})  # fmt: skip
+        return pd.DataFrame(rows)
+
+    from qsls.pipeline.evaluate.paired import degradation_check
+
+    yes = degradation_check(flights(3.0))
+    assert yes["doubles"] and 2.7 < yes["effect"] < 3.3 and yes["ci"][0] > 2
+    assert [h["doubles"] for h in yes["halves"]] == [True, True]
+    no = degradation_check(flights(1.5))
+    assert not no["doubles"] and no["ci"][0] > 1 and "does not degrade enough" in no["text"]

@@ -765,6 +765,65 @@ def degraded_rms(flights: pd.DataFrame, names: Sequence[str]) -> dict[str, dict[
     return out
 
 
+def degradation_check(
+    flights: pd.DataFrame, controller: str = "pd", factor: float = 2.0
+) -> dict[str, Any] | None:
+    """Does the degraded condition degrade? Per seed, ``controller``'s estimator error RMS
+    (over the circle with 1 s smoothing where flown) in degraded over regular perception;
+    the geometric mean with the 95% t-interval of the logs. ``doubles`` (``factor`` 2) when
+    the interval lies above ``factor``, also checked on each half of the seeds. Without the
+    named controller, the first flown in both conditions is used."""
+    if flights.empty or "condition" not in flights:
+        return None
+    both = [
+        c
+        for c in dict.fromkeys(flights["controller"])
+        if {"regular", "degraded"} <= set(flights.loc[flights["controller"] == c, "condition"])
+    ]
+    if not both:
+        return None
+    who = controller if controller in both else both[0]
+    col = _col(flights, "perception_error_rms", "circle")
+    mine = flights[flights["controller"] == who]
+    piv = mine.pivot_table(index="seed", columns="condition", values=col, aggfunc="first")
+    piv = piv.dropna()
+    r = (piv["degraded"] / piv["regular"]).astype(float)
+    iv = ratio_interval(r.to_numpy(float))
+    hs = []
+    for half in halves(r.index):
+        h = ratio_interval(r.loc[half].to_numpy(float)) if half else None
+        hs.append(
+            {
+                "seeds": half,
+                "effect": h.mean if h else None,
+                "ci": h.ci if h else [None, None],
+                "doubles": bool(h is not None and np.isfinite(h.lo) and h.lo > factor),
+            }
+        )
+    doubles = bool(np.isfinite(iv.lo) and iv.lo > factor)
+    return {
+        "controller": who,
+        "metric": col,
+        "factor": factor,
+        "effect": iv.mean,
+        "ci": iv.ci,
+        "n_seeds": iv.n,
+        "doubles": doubles,
+        "halves": hs,
+        "per_seed": {str(int(s)): float(v) for s, v in r.items()},
+        "text": (
+            f"degraded over regular estimator error ({who}'s flights, {_window_name(col)}, "
+            f"paired by seed): {_iv_text(iv)} over {iv.n} seeds; "
+            + (
+                f"the interval lies above {factor:g}: the degraded condition degrades"
+                if doubles
+                else f"the interval does not lie above {factor:g}: the degraded condition does not "
+                "degrade enough for finding 4 to be read as the paper's"
+            )
+        ),
+    }
+
+
 def paired_findings(
     flights: pd.DataFrame,
     checks: pd.DataFrame,
@@ -803,6 +862,7 @@ def paired_findings(
         "smoothing; a verdict reads reproduced or contradicted only when both halves of the "
         "seeds say so",
         "findings": [f for f in found if f is not None],
+        "perception_check": degradation_check(flights),
         "mechanism": mechanism_table(flights, norms),
         "degraded_perception_rms": degraded_rms(flights, names),
     }
@@ -855,6 +915,9 @@ def findings_markdown(doc: dict[str, Any], comparison: Sequence[dict[str, Any]] 
             f"{cell(f['paper_direction'])}) | {f['verdict']} | {cell(halves_text(f))} "
             f"| {cell(f.get('mechanism', f['detail']))} | {cell(means)} |"
         )
+    check = doc.get("perception_check")
+    if check:
+        lines += ["", f"Perception check: {check['text']}."]
     mech = doc.get("mechanism") or []
     if mech:
         lines += ["", "The mechanism, per controller and condition (means over seeds):", ""]
@@ -878,6 +941,7 @@ def findings_markdown(doc: dict[str, Any], comparison: Sequence[dict[str, Any]] 
 
 __all__ = [
     "FINDINGS_FILE",
+    "degradation_check",
     "finding3",
     "findings_markdown",
     "mechanism_table",

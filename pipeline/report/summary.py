@@ -265,6 +265,9 @@ def findings_table(f: Facts, sec: Any) -> bool:
             f"{_effect(whole)} ({whole.get('verdict', '-')})" if whole else "-",
             _per_controller(it),
         ])  # fmt: skip
+    check = f.findings.get("perception_check")
+    if check:
+        sec.text(f"Perception check before the findings: {check['text']}.")
     sec.table(
         ["#", "the paper's finding", "verdict (both halves)", "first half of the seeds",
          "second half", "all seeds (circle, 1 s smoothing)", "whole flight", "per controller"],
