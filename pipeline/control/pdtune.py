@@ -76,7 +76,7 @@ def tune_pd(
     rate = float(ctrl.get("rate_hz") or 10.0)
     vio = {**(flight.get("vio") or {}), "perception": "regular"}
     pairs = [(float(kp), float(kd)) for kp in kp_grid for kd in kd_grid]
-    jobs = []
+    jobs: list[tuple[dict[str, Any], int]] = []
     for kp, kd in pairs:
         pd = {"kp": (kp, kp, kp_z), "kd": (kd, kd, kd_z)}
         data = {**flight, "vio": vio, "controller": {"kind": "pd", "rate_hz": rate, "pd": pd}}
