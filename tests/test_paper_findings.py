@@ -174,3 +174,29 @@ def test_degradation_check_needs_the_interval_above_two():
     assert [h["doubles"] for h in yes["halves"]] == [True, True]
     no = degradation_check(flights(1.5))
     assert not no["doubles"] and no["ci"][0] > 1 and "does not degrade enough" in no["text"]
+
+
+def test_pd_height_for_the_named_controllers_only():
+    from qsls.pipeline.evaluate.options import FlyOptions
+
+    o = FlyOptions(pd_z_control=["l1_robust_imitation"])
+    assert o.pd_z_for("l1_robust_imitation") and not o.pd_z_for("l1_robust")
+    assert FlyOptions(pd_z_control=True).pd_z_for("l1_nominal")
+    assert not FlyOptions().pd_z_for("l1_robust_imitation")
+
+
+def test_pd_tuning_picks_the_lowest_circle_tracking():
+    """Two gain pairs on one short emulator flight: the tuned pair is the one with the lower
+    circle tracking RMS, each pair's score kept in grid order."""
+    from qsls.pipeline.control.pdtune import tune_pd
+
+    flight = {
+        "duration": 6.0,
+        "reference": {"kind": "circle", "hold_s": 0.0, "takeoff_s": 0.0, "approach_s": 0.0,
+                      "takeoff_height": 1.0, "ramp_s": 1.0},
+    }  # fmt: skip
+    res = tune_pd(flight, kp_grid=(1.0, 8.0), kd_grid=(5.5,), seeds=(3,))
+    assert [g[:2] for g in res.grid] == [(1.0, 5.5), (8.0, 5.5)]
+    best = min(res.grid, key=lambda g: g[2])
+    assert res.kp == (best[0], best[0], 4.0) and res.kd == (5.5, 5.5, 3.0)
+    assert res.score_m == best[2] and res.rate_hz == 10.0 and res.estimator == "emulator"
