@@ -243,7 +243,8 @@ def comparison_markdown(
         "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
         "perception_error_rms", "perception_error_max", "control_effort_rms",
         "control_smoothness_rms", "smoothness_vs_pd", "reaction_vs_pd", "angular_rate_rms",
-        "blur_px_mean", "gamma_strict", "frac_under_gamma", "max_ratio",
+        "blur_px_mean", "features_per_frame", "tracking_rms_m_circle",
+        "perception_error_rms_circle", "gamma_strict", "frac_under_gamma", "max_ratio",
     ]  # fmt: skip
     cols = [c for c in cols if c in per.columns]
     lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]
