@@ -732,7 +732,8 @@ def mechanism_table(
     cols = [
         c
         for c in (
-            "reaction_vs_pd", "angular_rate_rms", "blur_px_mean", "features_per_frame",
+            "reaction_vs_pd_circle", "reaction_vs_pd", "angular_rate_rms", "blur_px_mean",
+            "features_per_frame",
             "perception_error_rms_circle", "perception_error_rms", "tracking_rms_m_circle",
         )
         if c in flights

@@ -425,7 +425,7 @@ def section_flown(f: Facts, counter: list[int]) -> Section | None:
 MECHANISM_COLUMNS = {
     "norm_phi_xe": "gain error to state ||Phi_xe||",
     "norm_phi_ue": "gain error to input ||Phi_ue||",
-    "reaction_vs_pd": "feedback command vs PD",
+    "reaction_vs_pd_circle": "feedback command vs PD (circle)",
     "angular_rate_rms": "body rate RMS (rad/s)",
     "blur_px_mean": "blur (px)",
     "features_per_frame": "features / frame",
