@@ -474,6 +474,8 @@ def _make_jobs(
         sim["duration"] = options.duration
         if vio != "emulator" or several:
             sim["vio"] = {**sim["vio"], "kind": vio}
+        if vio == "camera":  # an emulator's dump leaves out the camera's parameters
+            sim["vio"]["camera"] = options.sim.vio.camera.model_dump(mode="json")
         grid = itertools.product(options.conditions, options.seeds, specs)
         for cond, seed, (cname, spec) in grid:
             name = f"{vio}_{cond}_s{seed}_{cname}" if several else f"{cond}_s{seed}_{cname}"
