@@ -200,3 +200,25 @@ def test_pd_tuning_picks_the_lowest_circle_tracking():
     best = min(res.grid, key=lambda g: g[2])
     assert res.kp == (best[0], best[0], 4.0) and res.kd == (5.5, 5.5, 3.0)
     assert res.score_m == best[2] and res.rate_hz == 10.0 and res.estimator == "emulator"
+
+
+def test_camera_flights_keep_the_cameras_parameters(tmp_path):
+    """With the options' vio kind the emulator (the default) and ``vio: [camera, emulator]``,
+    a camera job keeps ``sim.vio.camera`` (an emulator's dump leaves it out): its degraded
+    level is the camera's own."""
+    from qsls.pipeline.evaluate.fly import FlyOptions, _make_jobs
+    from qsls.pipeline.sim.simulate import SimOptions
+
+    o = FlyOptions.model_validate(
+        {"vio": ["camera", "emulator"], "seeds": [0], "conditions": ["degraded"],
+         "sim": {"vio": {"camera": {"degraded_light": 0.15, "degraded_texture": 0.25}}}}
+    )  # fmt: skip
+    cam, emu = _make_jobs([("pd", "x")], o, sims=tmp_path, flights=tmp_path, pd_gain=None)
+    level = SimOptions.model_validate(
+        {**cam.sim, "vio": {**cam.sim["vio"], "perception": "degraded"}}
+    ).vio.level
+    assert (cam.estimator, level.light, level.texture) == ("camera", 0.15, 0.25)
+    emu_level = SimOptions.model_validate(
+        {**emu.sim, "vio": {**emu.sim["vio"], "perception": "degraded"}}
+    ).vio.level
+    assert (emu_level.light, emu_level.texture) == (0.35, 0.45)  # the emulator's preset
