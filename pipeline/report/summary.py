@@ -270,10 +270,11 @@ def findings_table(f: Facts, sec: Any) -> bool:
         sec.text(f"Perception check before the findings: {check['text']}.")
     sec.table(
         ["#", "the paper's finding", "verdict (both halves)", "first half of the seeds",
-         "second half", "all seeds (circle, 1 s smoothing)", "whole flight", "per controller"],
+         "second half", "all seeds", "whole flight (unsmoothed)", "per controller"],
         rows,
-        "The paper's four findings: reproduced or contradicted only when both halves of the "
-        "seeds say so on their own ([details and the mechanism](#findings))",
+        "The paper's four findings (metrics over the circle with 1 s smoothing): reproduced or "
+        "contradicted only when both halves of the seeds say so on their own ([details and the "
+        "mechanism](#findings))",
         wrap_cols=[1, 7],
         text_cols=[2, 3, 4, 5, 6],
     )  # fmt: skip
@@ -379,8 +380,10 @@ def infeasible_lines(f: Facts) -> list[str]:
 # --------------------------------------------------------------------------- the section
 def summary_section(f: Facts) -> Section:
     sec = Section("Summary", id="summary")
+    tabled = False
     if f.controllers:
         sec.text(lead_sentence(f), lead=True)
+        tabled = findings_table(f, sec)  # the report's first table: the paper's findings
         sec.cards([controller_card(f, c) for c in f.controllers])
     else:
         lines = infeasible_lines(f)
@@ -392,7 +395,7 @@ def summary_section(f: Facts) -> Section:
     if line := s_max_line(f):
         facts.append(line)
     sec.bullets(facts)
-    if not findings_table(f, sec):
+    if not tabled and not findings_table(f, sec):
         found = findings_lines(f)
         if found:
             sec.text("The paper's findings ([comparison](#findings)):")
