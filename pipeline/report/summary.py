@@ -243,7 +243,19 @@ def _per_controller(item: dict[str, Any]) -> str:
                 + (f"bound {g4(b)}" if b is not None else
                    f"undefined (S ||Phi_xe|| = {g4(r.get('S_norm_phi_xe'))} >= 1)")
             )  # fmt: skip
-        return f"paper's strict bound: {sb.get('verdict')}; " + "; ".join(parts)
+        rows = sb.get("controllers", [])
+        paper = [r for r in rows if r.get("paper_S_norm_phi_xe") is not None]
+        if paper and all(r.get("bound_at_paper_S") is None for r in paper):
+            lo = min(r["paper_S_norm_phi_xe"] for r in paper)
+            hi = max(r["paper_S_norm_phi_xe"] for r in paper)
+            parts.append(
+                f"at the paper's S = {g4(paper[0]['paper_S'])}: S ||Phi_xe|| = {g4(lo)} to "
+                f"{g4(hi)} >= 1, undefined, so the paper's 1.602 cannot come from "
+                "R0 / (1 - S ||Phi_xe||) at that S"
+            )
+        return f"paper's strict bound R0 / (1 - S ||Phi_xe||): {sb.get('verdict')}; " + "; ".join(
+            parts
+        )
     return "-"
 
 
