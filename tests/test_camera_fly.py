@@ -200,7 +200,13 @@ def test_fly_both_estimators_keyed_and_paired(trained, tmp_path):
 
     doc = json.loads((out / "findings.json").read_text())
     assert doc["estimator"] == "camera" and set(doc["by_estimator"]) == {"camera", "emulator"}
-    assert doc["findings"] == doc["by_estimator"]["camera"]["findings"]
+    # the primary's findings, but finding 3 counts every estimator's flights (issue 32)
+    cam_doc = doc["by_estimator"]["camera"]["findings"]
+    assert [f for f in doc["findings"] if f["id"] != 3] == [f for f in cam_doc if f["id"] != 3]
+    f3 = next(f for f in doc["findings"] if f["id"] == 3)
+    assert f3["n_flights"] == len(ass) and f3["n_violating"] == int((~ass["assumptions_hold"]
+                                                                     | ~ass["bound_held"]).sum())  # fmt: skip
+    assert "camera" in f3["detail"] and "emulator" in f3["detail"]
     emu_doc = json.loads((tmp_path / "emu" / "findings.json").read_text())
     assert "by_estimator" not in emu_doc and "estimator" not in emu_doc
     assert not (tmp_path / "emu" / "paired_by_estimator.parquet").exists()

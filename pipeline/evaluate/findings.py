@@ -1,4 +1,6 @@
-"""The paper's findings (paper, Experiments), one function each, and the comparison table.
+"""The paper's findings (paper, Experiments), one function each, and the comparison table:
+the point comparison (means over seeds), numbered in the paper's order like
+:mod:`qsls.pipeline.evaluate.paired` (1 tracking, 2 softness, 3 bound, 4 degraded).
 
 Each ``finding_*`` returns ``{"finding", "qsls", "agrees"}`` (what the paper claims, what qsls
 measured, whether it agrees) or ``None`` when the flights needed for it were not flown.
@@ -63,7 +65,7 @@ def finding_tracking(per: pd.DataFrame, threshold: float, tie_rel: float) -> dic
 
 
 def finding_degraded_perception(per: pd.DataFrame, tie_rel: float) -> dict[str, Any] | None:
-    """Finding 2, degraded perception: the robust qr-cost controller has the lowest perception error (a spread below ``tie_rel`` is a tie)."""
+    """Finding 4, degraded perception: the robust qr-cost controller has the lowest perception error (a spread below ``tie_rel`` is a tie)."""
     paper4 = [c for c in PAPER_CONTROLLERS if c in set(per["controller"])]
     deg = per[(per["condition"] == "degraded") & per["controller"].isin(paper4)]
     if len(deg):
@@ -88,7 +90,7 @@ def finding_degraded_perception(per: pd.DataFrame, tie_rel: float) -> dict[str, 
             f"spread {100 * spread:.2f}% (a tie below {100 * tie_rel:g}%)"
         )
         return {
-            "finding": "2. degraded perception: the robust qr-cost controller has the "
+            "finding": "4. degraded perception: the robust qr-cost controller has the "
             "lowest perception error",
             "qsls": detail,
             "agrees": agrees,
@@ -167,7 +169,7 @@ def finding_bound(
 
 
 def finding_softness(per: pd.DataFrame) -> dict[str, Any] | None:
-    """Finding 4 (qualitative, the paper's input figure): the robust controllers react more softly than PD would on the same estimate (RMS of the feedback attitude command against PD's, ``reaction_vs_pd``; the step change's ratio ``smoothness_vs_pd`` beside it)."""
+    """Finding 2 (qualitative, the paper's input figure): the robust controllers react more softly than PD would on the same estimate (RMS of the feedback attitude command against PD's, ``reaction_vs_pd``; the step change's ratio ``smoothness_vs_pd`` beside it)."""
     rob = per[per["controller"].isin(["l1_robust", "l1_robust_imitation"])]
     col = "reaction_vs_pd" if "reaction_vs_pd" in rob.columns else "smoothness_vs_pd"
     if len(rob) and col in rob.columns:
@@ -185,7 +187,7 @@ def finding_softness(per: pd.DataFrame) -> dict[str, Any] | None:
         )
         agrees = "yes" if np.all(ratios < 1) else "no" if np.all(ratios >= 1) else "partly"
         return {
-            "finding": "4. (qualitative) the robust controllers react more softly than PD "
+            "finding": "2. (qualitative) the robust controllers react more softly than PD "
             "would on the same estimate",
             "qsls": f"{what} relative to PD's on the same estimate, mean over seeds "
             f"(< 1: softer): {nums}",
@@ -208,9 +210,9 @@ def compare_with_paper(
     count as a tie: qsls then does not reproduce a claimed ranking."""
     found = (
         finding_tracking(per, threshold, tie_rel),
-        finding_degraded_perception(per, tie_rel),
-        finding_bound(checks, ref_bound, true_lipschitz),
         finding_softness(per),
+        finding_bound(checks, ref_bound, true_lipschitz),
+        finding_degraded_perception(per, tie_rel),
     )
     return [f for f in found if f is not None]
 
@@ -241,7 +243,8 @@ def comparison_markdown(
         "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
         "perception_error_rms", "perception_error_max", "control_effort_rms",
         "control_smoothness_rms", "smoothness_vs_pd", "reaction_vs_pd", "angular_rate_rms",
-        "blur_px_mean", "gamma_strict", "frac_under_gamma", "max_ratio",
+        "blur_px_mean", "features_per_frame", "tracking_rms_m_circle",
+        "perception_error_rms_circle", "gamma_strict", "frac_under_gamma", "max_ratio",
     ]  # fmt: skip
     cols = [c for c in cols if c in per.columns]
     lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]

@@ -33,6 +33,7 @@ findings (paper, Results), each paired by seed with a 95% interval and a verdict
 from __future__ import annotations
 
 import itertools
+import math
 import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -76,7 +77,13 @@ from qsls.pipeline.evaluate.inputs import (
 from qsls.pipeline.evaluate.options import FlyOptions as FlyOptions
 from qsls.pipeline.evaluate.options import IngestOptions, SimOptions
 from qsls.pipeline.evaluate.options import Vio as Vio
-from qsls.pipeline.evaluate.paired import FINDINGS_FILE, paired_findings
+from qsls.pipeline.evaluate.paired import (
+    FINDINGS_FILE,
+    finding3,
+    paired_findings,
+    replace_finding,
+)
+from qsls.pipeline.evaluate.paper import circle_metrics
 from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.ingest.flight import read_flight
 
@@ -156,6 +163,14 @@ def run_job(job: FlyJob) -> FlyOutcome:
     idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
     reference = Reference(opts.reference)
     uff = np.array([feedforward(reference.sample(float(s)), f.mass) for s in t_ctrl]).reshape(-1, 3)
+    start = float(opts.reference.start_s)
+    on = t_ctrl >= start
+    circle = circle_metrics(
+        f.t_ns / NS, np.linalg.norm(f.x[:, :3] - f.ref[:, :3], axis=1), f.vio_t_ns / NS,
+        np.abs(f.vio_e).max(axis=1) if len(f.vio_e) else np.zeros(0), start,
+    )  # fmt: skip
+    react = input_comparison(f.ctrl_u[on], u_pd[on], u_off[on])
+    circle["reaction_vs_pd_circle"] = react["reaction_vs_pd"]
     return FlyOutcome(
         name=job.name,
         controller=job.controller,
@@ -164,8 +179,9 @@ def run_job(job: FlyJob) -> FlyOutcome:
         metrics={
             **f.metrics(),
             **input_comparison(f.ctrl_u, u_pd, u_off),
-            **motion_metrics(opts, job.seed, f.vio_x, f.vio_w),
+            **motion_metrics(opts, job.seed, f.vio_x, f.vio_w, f.emulator),
             **error_reaction(opts, f.mass, f.ctrl_y - f.x[idx], job.pd_gain),
+            **circle,
         },
         ingest_error=ingest_error,
         t_ctrl=t_ctrl,
@@ -292,8 +308,45 @@ def _analyse(
     findings = paired_findings(
         flights, checks, ref_bound.name if ref_bound else None, PAPER_CONTROLLERS,
         options.track_threshold_m, _motion_parts(options.sim), assumptions,
+        estimator=jobs[0].estimator if jobs else "emulator", strict=premise_rows(bounds),
+        norms=gain_norms(bounds),
     )  # fmt: skip
     return Analysis(flights, checks, samples, assumptions, per, comparison, findings)
+
+
+CIRCLE_COLUMNS = (
+    "tracking_rms_m_circle",
+    "tracking_max_m_circle",
+    "perception_error_rms_circle",
+    "perception_error_max_circle",
+    "reaction_vs_pd_circle",
+)
+"""The metrics over the circle with the paper's 1 s smoothing
+(:func:`qsls.pipeline.evaluate.paper.circle_metrics`)."""
+
+
+def premise_rows(bounds: Sequence[ControllerBound]) -> list[dict[str, Any]]:
+    """Each controller's premise for the paper's strict bound (``R0``, ``S``, ``||Phi_xe||``,
+    ``||Phi_ue||``; :func:`qsls.pipeline.evaluate.paired.strict_bounds`)."""
+    return [
+        {"name": b.name, "status": b.status, "R0": b.R0, "S": b.S,
+         "norm_phi_xe": b.norm_phi_xy, "norm_phi_ue": b.certificate.get("norm_phi_uy")}
+        for b in bounds
+        if math.isfinite(b.S) and math.isfinite(b.norm_phi_xy) and math.isfinite(b.R0)
+    ]  # fmt: skip
+
+
+def gain_norms(bounds: Sequence[ControllerBound]) -> dict[str, dict[str, float]]:
+    """``{controller: {phi_xe, phi_ue}}``: the gains from perception error to state and to
+    input of each controller's taps."""
+    out = {}
+    for b in bounds:
+        ue = b.certificate.get("norm_phi_uy")
+        out[b.name] = {
+            "phi_xe": float(b.norm_phi_xy),
+            "phi_ue": float(ue) if ue is not None else math.nan,
+        }
+    return out
 
 
 def flight_table(outcomes: Sequence[FlyOutcome]) -> pd.DataFrame:
@@ -320,6 +373,8 @@ def flight_table(outcomes: Sequence[FlyOutcome]) -> pd.DataFrame:
                 "attitude_diff_from_pd_rms": m["attitude_diff_from_pd_rms"],
                 "angular_rate_rms": m["angular_rate_rms"],
                 "blur_px_mean": m["blur_px_mean"],
+                "features_per_frame": m.get("features_per_frame", math.nan),
+                **{k: m.get(k, math.nan) for k in CIRCLE_COLUMNS},
                 "crashed": bool(m["crashed"]),
                 "crash_reason": m["crash_reason"] or "",
                 "ingest_error": o.ingest_error or "",
@@ -343,9 +398,12 @@ def per_controller_table(flights: pd.DataFrame) -> pd.DataFrame:
         "attitude_diff_from_pd_rms": "mean",
         "angular_rate_rms": "mean",
         "blur_px_mean": "mean",
+        "features_per_frame": "mean",
+        **{k: ("max" if "_max_" in k else "mean") for k in CIRCLE_COLUMNS},
         "crashed": "sum",
         "seed": "count",
     }
+    agg = {k: v for k, v in agg.items() if k in flights}
     g = flights.groupby(["condition", "controller"], sort=False).agg(agg).reset_index()
     return g.rename(columns={"seed": "flights"})
 
@@ -416,13 +474,15 @@ def _make_jobs(
         sim["duration"] = options.duration
         if vio != "emulator" or several:
             sim["vio"] = {**sim["vio"], "kind": vio}
+        if vio == "camera":  # an emulator's dump leaves out the camera's parameters
+            sim["vio"]["camera"] = options.sim.vio.camera.model_dump(mode="json")
         grid = itertools.product(options.conditions, options.seeds, specs)
         for cond, seed, (cname, spec) in grid:
             name = f"{vio}_{cond}_s{seed}_{cname}" if several else f"{cond}_s{seed}_{cname}"
             jobs.append(FlyJob(
                 name=name, controller=cname, spec=spec, condition=cond, seed=int(seed), sim=sim,
                 ingest=ingest_opts, sim_dir=str(sims / name), flight_dir=str(flights / name),
-                pd_gain=pd_gain, pd_z=options.pd_z_control, estimator=vio,
+                pd_gain=pd_gain, pd_z=options.pd_z_for(cname), estimator=vio,
             ))  # fmt: skip
     return jobs
 
@@ -606,6 +666,15 @@ def fly_evaluate(
                 from qsls.pipeline.evaluate.estimators import findings_markdown, write_by_estimator
 
                 findings = write_by_estimator(w, analyses)
+                # finding 3 counts every estimator's flights (the assumptions of all of them)
+                every = pd.concat([an.flights for an in analyses.values()], ignore_index=True)
+                findings = replace_finding(
+                    findings,
+                    finding3(
+                        checks, every, None, assumptions if len(assumptions) else None,
+                        premise_rows(bounds),
+                    ),
+                )  # fmt: skip
 
             w.write_parquet("flights.parquet", flights)
             w.write_parquet(ASSUMPTIONS_FILE, assumptions)

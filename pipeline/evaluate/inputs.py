@@ -9,6 +9,7 @@ estimate ``y`` commands ``u_PD = hover + u_ff + K (y - r)``. Arrays in, numbers 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -104,18 +105,37 @@ def error_reaction(
     return {"error_reaction_vs_pd": a / b if b > 0 else math.nan}
 
 
-def motion_metrics(opts: SimOptions, seed: int, x: np.ndarray, w: np.ndarray) -> dict[str, float]:
-    """At the VIO samples: RMS of the body rate ``||omega||_2`` (rad/s) and the mean image
-    blur (px) that motion makes with this condition's exposure (the emulator's ``b_k``,
-    whether or not its blur part is switched on)."""
+def motion_metrics(
+    opts: SimOptions,
+    seed: int,
+    x: np.ndarray,
+    w: np.ndarray,
+    described: Mapping[str, Any] | None = None,
+) -> dict[str, float]:
+    """At the VIO samples: RMS of the body rate ``||omega||_2`` (rad/s), and the mean image
+    blur (px) and features per frame of the estimator that flew. For the camera loop
+    (``described``, its ``truth.json`` record, names the ``msckf``) the blur is the camera's
+    own: its renderer's ``b`` over its own auto exposure ``t = min(t0 / L, t_max)``, averaged
+    over the frames (docs/camera.md), with the features it tracked per frame. Otherwise the
+    emulator's ``b_k`` with this condition's exposure (whether or not its blur part is
+    switched on), and no features (``nan``)."""
     from qsls.pipeline.sim.vio import VioEmulator
 
     if len(x) == 0:
-        return {"angular_rate_rms": math.nan, "blur_px_mean": math.nan}
+        return {"angular_rate_rms": math.nan, "blur_px_mean": math.nan,
+                "features_per_frame": math.nan}  # fmt: skip
+    rate = float(np.sqrt(np.mean(np.sum(w * w, axis=1))))
+    if described is not None and described.get("estimator") == "msckf":
+        return {
+            "angular_rate_rms": rate,
+            "blur_px_mean": float(described.get("blur_px_mean", math.nan)),
+            "features_per_frame": float(described.get("features_per_frame", math.nan)),
+        }
     blur = VioEmulator(opts.vio, seed).blur(x, w)
     return {
-        "angular_rate_rms": float(np.sqrt(np.mean(np.sum(w * w, axis=1)))),
+        "angular_rate_rms": rate,
         "blur_px_mean": float(np.mean(blur)),
+        "features_per_frame": math.nan,
     }
 
 

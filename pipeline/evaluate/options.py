@@ -90,9 +90,16 @@ class FlyOptions(EvaluateOptions):
     """A controller 'tracks' when it does not crash and its tracking RMS is below this (m)."""
     tie_rel: float = Field(0.02, ge=0)
     """Relative difference below which two controllers' numbers count as a tie (findings)."""
-    pd_z_control: bool = False
-    """Fly the synthesized controllers with the PD's height (thrust) channel, as the paper
-    did in simulation and on hardware "for safety"; pitch and roll stay theirs."""
+    pd_z_control: bool | list[str] = False
+    """Fly synthesized controllers with the PD's height (thrust) channel, pitch and roll
+    staying theirs: ``true`` for every synthesized controller, or the list of those that do
+    (the paper: the imitation controller only, ``[l1_robust_imitation]``, "for safety" on
+    hardware and matched in simulation)."""
+
+    def pd_z_for(self, controller: str) -> bool:
+        """Whether ``controller`` flies with the PD's height channel (``pd_z_control``)."""
+        z = self.pd_z_control
+        return z if isinstance(z, bool) else controller in z
     keep_bags: bool = False
     """Keep every flight's simulate folder (bag, truth.json) under ``sims/``."""
 

@@ -311,11 +311,16 @@ def heldout_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict:
     if a is not None:
         n = len(a)
         ok = int((a["assumptions_hold"].astype(bool) & a["bound_held"].astype(bool)).sum())
-        bad = a[~a["assumptions_hold"].astype(bool)]
+        bad = a[~(a["assumptions_hold"].astype(bool) & a["bound_held"].astype(bool))]
         text = f"every assumption held on {ok} of {n} own flights"
+        if "estimator" in a and a["estimator"].nunique() > 1:  # every estimator counted
+            text += " (" + ", ".join(
+                f"{est} {len(g)}" for est, g in a.groupby("estimator", sort=False)
+            ) + ")"  # fmt: skip
         if len(bad):
-            r = bad.iloc[0]
-            text += f"; first failure: {r['first_failed']} on {r['flight']}"
+            named = [f"{r['flight']} ({r['first_failed'] or 'bound'})" for _, r in bad.iterrows()]
+            more = f" and {len(named) - 6} more" if len(named) > 6 else ""
+            text += "; failed: " + ", ".join(named[:6]) + more
         if not c.certified:
             text += f" ({c.status} premise: no guarantee claimed)"
         return HeldoutVerdict(text, "ok" if ok == n else "bad", n, ok, float(n - ok), True)
@@ -380,6 +385,11 @@ def findings_list(f: Facts) -> list[dict[str, Any]]:
                 "ci": item.get("ci"),
                 "n_seeds": item.get("n_seeds", f.findings.get("n_seeds")),
                 "detail": str(first(item, "mechanism", "detail", "qsls", default="")),
+                "halves": item.get("halves") or [],
+                "verdict_all_seeds": item.get("verdict_all_seeds"),
+                "whole_flight": item.get("whole_flight"),
+                "by_controller": item.get("by_controller"),
+                "strict_bound": item.get("strict_bound"),
             }
         )
     if out:

@@ -394,6 +394,7 @@ def section_flown(f: Facts, counter: list[int]) -> Section | None:
             wrap_cols=[1],
             text_cols=[2],
         )
+    _mechanism_table(f, sec)
     if pc is not None and len(pc):
         cols = [
             ("condition", "condition"),
@@ -419,6 +420,36 @@ def section_flown(f: Facts, counter: list[int]) -> Section | None:
         )
     _assumptions_table(f, sec)
     return sec
+
+
+MECHANISM_COLUMNS = {
+    "norm_phi_xe": "gain error to state ||Phi_xe||",
+    "norm_phi_ue": "gain error to input ||Phi_ue||",
+    "reaction_vs_pd_circle": "feedback command vs PD (circle)",
+    "angular_rate_rms": "body rate RMS (rad/s)",
+    "blur_px_mean": "blur (px)",
+    "features_per_frame": "features / frame",
+    "perception_error_rms_circle": "||e|| RMS (circle)",
+}
+
+
+def _mechanism_table(f: Facts, sec: Section) -> None:
+    """What drives the findings, measured per controller and condition (``findings.json``'s
+    ``mechanism``): the gains from perception error to state and input, the reaction against
+    PD's, the body rate, the blur and features of the estimator that flew, the error."""
+    rows = f.findings.get("mechanism") or []
+    if not rows:
+        return
+    keys = [k for k in MECHANISM_COLUMNS if any(r.get(k) is not None for r in rows)]
+    est = f.findings.get("estimator") or f.findings.get("estimator_flown") or "the estimator"
+    sec.table(
+        ["controller", "condition", *(MECHANISM_COLUMNS[k] for k in keys)],
+        [[r["controller"], r["condition"], *(r.get(k) if r.get(k) is not None else "-"
+          for k in keys)] for r in rows],
+        f"The mechanism, measured ({est}'s flights; blur and features from the estimator that "
+        "flew, means over seeds)",
+        text_cols=[0, 1],
+    )  # fmt: skip
 
 
 def _assumptions_table(f: Facts, sec: Section) -> None:

@@ -232,8 +232,21 @@ class VioParams(Options):
 
     @property
     def level(self) -> PerceptionLevel:
-        """The active perception level (``regular`` or ``degraded`` preset)."""
-        return self.degraded if self.perception == "degraded" else self.regular
+        """The active perception level (``regular`` or ``degraded`` preset); the camera loop's
+        degraded level takes ``camera.degraded_light`` / ``camera.degraded_texture`` where set."""
+        if self.perception != "degraded":
+            return self.regular
+        cam = self.camera
+        if self.kind == "camera" and (
+            cam.degraded_light is not None or cam.degraded_texture is not None
+        ):
+            return PerceptionLevel(
+                light=cam.degraded_light if cam.degraded_light is not None else self.degraded.light,
+                texture=cam.degraded_texture
+                if cam.degraded_texture is not None
+                else self.degraded.texture,
+            )
+        return self.degraded
 
 
 class VehicleOptions(Options):

@@ -78,6 +78,14 @@ class CameraOptions(Options):
     blur_max_substeps: int = Field(6, ge=1, le=32)
     """Most sub-frame renders of one frame."""
 
+    degraded_light: float | None = Field(None, gt=0, le=1)
+    """The camera's own degraded light level (None: ``vio.degraded.light``, shared with the
+    emulator). The shared 0.35 does not degrade the camera loop (docs/camera.md, "A degraded
+    condition that degrades"); ``configs/paper_sim_camera.yaml`` sets the calibrated 0.15."""
+    degraded_texture: float | None = Field(None, gt=0, le=1)
+    """The camera's own degraded texture level (None: ``vio.degraded.texture``); the
+    calibrated value is 0.25 (with ``degraded_light`` 0.15)."""
+
     # ---------------------------------------------------------------- world
     texture_seed: int = Field(7, ge=0)
     """Seed of the procedural textures (the world, not the flight's noise)."""
