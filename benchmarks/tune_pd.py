@@ -1,4 +1,4 @@
-"""Tune the PD for tracking at 10 Hz in regular perception (pipeline/control/pdtune.py).
+"""Tune the PD for tracking at 10 Hz in regular perception (pipeline/evaluate/pdtune.py).
 
     python benchmarks/tune_pd.py                 # the camera loop, tuning seeds 100 and 101
     python benchmarks/tune_pd.py --vio emulator  # the VIO emulator instead
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import sys
 
-from qsls.pipeline.control.pdtune import tune_pd
+from qsls.pipeline.evaluate.pdtune import tune_pd
 
 KP = (2.0, 5.0, 8.0, 11.0, 14.0, 17.0)
 KD = (2.2, 4.0, 5.5, 7.0)

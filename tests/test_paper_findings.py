@@ -188,7 +188,7 @@ def test_pd_height_for_the_named_controllers_only():
 def test_pd_tuning_picks_the_lowest_circle_tracking():
     """Two gain pairs on one short emulator flight: the tuned pair is the one with the lower
     circle tracking RMS, each pair's score kept in grid order."""
-    from qsls.pipeline.control.pdtune import tune_pd
+    from qsls.pipeline.evaluate.pdtune import tune_pd
 
     flight = {
         "duration": 6.0,

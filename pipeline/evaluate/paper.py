@@ -36,6 +36,8 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from qsls.pipeline.control import guarantee
+
 SMOOTHING_TAU_S = 1.0
 """The paper's figures' smoothing time constant (s)."""
 PAPER_S_SIM = 11.7
@@ -92,10 +94,8 @@ def circle_metrics(
 
 def strict_bound(R0: float, S: float, norm_phi_xe: float) -> float | None:
     """``R0 / (1 - S ||Phi_xe||)``, or ``None`` when ``S ||Phi_xe|| >= 1`` (no bound)."""
-    den = 1.0 - S * norm_phi_xe
-    if not (math.isfinite(den) and den > 0):
-        return None
-    return R0 / den
+    g = guarantee.gamma_strict_of(R0, S, norm_phi_xe)
+    return g if math.isfinite(g) else None
 
 
 def two_group_contrast(piv: pd.DataFrame, better: Sequence[str], worse: Sequence[str]) -> pd.Series:
