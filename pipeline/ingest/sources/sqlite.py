@@ -14,7 +14,8 @@ fixed-layout read (:func:`sqlite_batches` with ``msgtypes``) lets SQLite build t
 
 1. the topic's first message is decoded in full and gives the :class:`layout.Trim`, the
    byte ranges of a message that hold the fields read (the covariances and what follows
-   the last field are left out: an Odometry message's 724 bytes become 148);
+   the last field are left out, of an Odometry's covariances all but their diagonals: its
+   724 bytes become 244);
 2. one aggregate query concatenates those ranges of every message (``group_concat`` of
    ``substr``), the log times as text (parsed by numpy at once), the message count and the
    smallest and largest message length. The rows reach the aggregate in the order SQLite
@@ -26,7 +27,8 @@ fixed-layout read (:func:`sqlite_batches` with ``msgtypes``) lets SQLite build t
    first message's, so every message has its fields at the first one's offsets. A topic
    that fails (its frame names change, say) is fetched row by row instead.
 
-A result longer than SQLite's length limit (1 GB by default) is avoided by querying ranges
+A result longer than 4 MB (``_QUERY_BYTES``: the reader's memory stays bounded whatever the
+bag's length) or than SQLite's length limit (1 GB by default) is avoided by querying ranges
 of row ids sized on the first message (a range whose messages are longer, which SQLite
 refuses to concatenate, is fetched row by row). The row-by-row fetch
 (:func:`sqlite_batches` without ``msgtypes``, or a topic that failed the check) takes each
@@ -52,6 +54,8 @@ from qsls.pipeline.ingest.sources.ros1index import Batch
 
 _MMAP_BYTES = 1 << 40
 _STAMP_CHARS = 21  # a log time as text (up to 19 digits and a sign) and its comma
+_QUERY_BYTES = 4 << 20
+"""Bytes of trimmed records (and their log times as text) one query returns at most."""
 
 
 @contextlib.contextmanager
@@ -100,6 +104,14 @@ def _connect(db: Path) -> sqlite3.Connection:
     con = sqlite3.connect(f"file:{db.resolve()}?mode=ro", uri=True)
     con.execute(f"PRAGMA mmap_size = {_MMAP_BYTES}")
     return con
+
+
+def _unmap(con: sqlite3.Connection) -> None:
+    """Drop SQLite's memory map of the database (remapped by the next query): the pages a
+    query read leave the resident set with it, so a scan of the whole file in ranges holds
+    one range's pages, not the file's."""
+    con.execute("PRAGMA mmap_size = 0")
+    con.execute(f"PRAGMA mmap_size = {_MMAP_BYTES}")
 
 
 def _rows(
@@ -155,8 +167,10 @@ def _trimmed(
     lo, hi = con.execute(
         "SELECT (SELECT min(id) FROM messages), (SELECT max(id) FROM messages)"
     ).fetchone()
-    # ids per query: the record and stamp texts stay within half SQLite's length limit
-    step = max(1, con.getlimit(sqlite3.SQLITE_LIMIT_LENGTH) // (2 * (trim.size + _STAMP_CHARS)))
+    # ids per query: the record and stamp texts stay within half SQLite's length limit, and
+    # within _QUERY_BYTES (the reader's memory is bounded whatever the bag's length)
+    limit = min(con.getlimit(sqlite3.SQLITE_LIMIT_LENGTH) // 2, _QUERY_BYTES)
+    step = max(1, limit // (trim.size + _STAMP_CHARS))
     for a in range(lo, hi + 1, step):
         b = min(a + step - 1, hi)
         try:
@@ -167,10 +181,13 @@ def _trimmed(
         if not n:
             continue
         batch = _records(n, shortest, longest, blob, stamps, trim, k)
+        del blob, stamps
         if batch is None:
             yield from _rows(con, where, args, k, (a, b))
         else:
             yield batch
+        del batch
+        _unmap(con)
 
 
 def _records(
