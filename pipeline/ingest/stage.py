@@ -337,7 +337,7 @@ def _ingest(
     from qsls.pipeline.core.artifacts import StageWriter, parquet_bytes
     from qsls.pipeline.core.rotations import matrix_to_quat, quat_to_matrix
     from qsls.pipeline.ingest.align import fit_alignment
-    from qsls.pipeline.ingest.flight import FLIGHT_FILE, flight_table
+    from qsls.pipeline.ingest.flight import FLIGHT_FILE, VAR_COLS, flight_table
     from qsls.pipeline.ingest.streams import check_streams, gaps, interp, prepare, read_streams
 
     vio_t, truth_t, where = read_streams(sources, o, progress)
@@ -408,6 +408,7 @@ def _ingest(
     )
     yv, xv = np.hstack([yp, yvv]), np.hstack([xp, xvv])
     del yp, yvv, xp, xvv
+    var = interp(grid, vio.t_ns, vio.variance, gap_ns)[0] if vio.variance is not None else None
     valid = ok_v & ok_t
     if valid.sum() < 10:
         raise InputError(
@@ -415,7 +416,7 @@ def _ingest(
             "the streams overlap too little (check --max-gap, --dt and the topics)"
         )
     stamps = grid[valid]
-    table = flight_table(stamps, xv[valid], yv[valid])
+    table = flight_table(stamps, xv[valid], yv[valid], None if var is None else var[valid])
     err = yv[valid] - xv[valid]
     rms_p = float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
     rms_v = float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1))))
@@ -440,6 +441,8 @@ def _ingest(
         "gaps": found_gaps,
         "streams": streams,
     }
+    if var is not None:  # only then: a flight without them keeps its manifest as before
+        results["covariance_columns"] = list(VAR_COLS)
     files: dict[str, bytes] = {}
     if o.export_tum:
         q_vio = matrix_to_quat(al.rotation[None] @ quat_to_matrix(vio.orientation))

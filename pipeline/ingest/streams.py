@@ -48,6 +48,10 @@ class Prepared:
     nonfinite: int
     glitches: int = 0
     """Truth discontinuities turned into gaps (:func:`truth_jumps`)."""
+    variance: np.ndarray | None = None
+    """An Odometry's covariance diagonals as recorded, ``(n, 12)``: pose (``x y z`` in its
+    world frame, rotation about its ``x y z``), then twist (linear ``x y z``, angular, in
+    its child frame); None when the stream has none (docs/ingest.md#covariances)."""
 
     @property
     def rate_hz(self) -> float:
@@ -174,6 +178,9 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     t = traj.log_ns if o.stamp == "log" else traj.header_ns
     t = np.asarray(t, dtype=np.int64)
     p, q, v = traj.position, traj.orientation, traj.velocity
+    var = None
+    if getattr(traj, "pose_var", None) is not None and getattr(traj, "twist_var", None) is not None:
+        var = np.hstack([traj.pose_var, traj.twist_var])
     n = len(t)
     name = f"{role} stream {traj.name}"
     if n == 0:
@@ -196,6 +203,7 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     if nonfinite:
         t, p, q, qn = t[ok], p[ok], q[ok], qn[ok]
         v = v[ok] if v is not None else None
+        var = var[ok] if var is not None else None
     # the usual stream is sorted and without duplicates: nothing to reorder or drop then
     step = np.diff(t)
     unsorted = int(np.sum(step < 0))
@@ -210,12 +218,14 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
         order = np.argsort(t, kind="stable")
         t, p, q, qn = t[order], p[order], q[order], qn[order]
         v = v[order] if v is not None else None
+        var = var[order] if var is not None else None
         step = np.diff(t)
     keep = np.concatenate([[True], step != 0])
     duplicates = int(len(t) - keep.sum())
     if duplicates:
         t, p, q, qn = t[keep], p[keep], q[keep], qn[keep]
         v = v[keep] if v is not None else None
+        var = var[keep] if var is not None else None
     if len(t) < 10:
         raise InputError(f"{name}: only {len(t)} usable messages; at least 10 are needed")
     q /= qn[:, None]  # the norms of the finite quaternions kept (in place: the stream's own)
@@ -227,6 +237,7 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
             bad = drop_around(t, jumps, int(o.max_gap * 1e9 / 2) + 1)
             t, p, q = t[~bad], p[~bad], q[~bad]
             v = v[~bad] if v is not None else None
+            var = var[~bad] if var is not None else None
             if len(t) < max(10, n // 2):
                 raise InputError(
                     f"{name}: {glitches} jumps no vehicle could fly (accelerations above "
@@ -249,6 +260,7 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
         unsorted,
         nonfinite,
         glitches,
+        var,
     )
 
 
