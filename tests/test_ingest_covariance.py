@@ -113,3 +113,28 @@ def test_position_nees_by_hand(flight, tmp_path: Path) -> None:
     assert got.mean == pytest.approx(float(np.mean(hand)), rel=1e-12)
     assert got.share_above_95 == pytest.approx(float(np.mean(np.array(hand) > CHI2_3_95)))
     assert "consistent: 3" in got.text()
+
+
+def test_covariances_that_start_later_are_kept(
+    flight, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """sqlite3 reads each range of rows lean when its covariances are all zero, with their
+    diagonals otherwise: a VIO that reports covariances only after 10 s keeps them."""
+    from qsls.pipeline.ingest.sources import sqlite
+    from qsls.pipeline.ingest.stage import IngestOptions, ingest
+
+    vio = with_covariances(flight.vio)
+    late = (vio.header_ns - T0_NS) * 1e-9 >= 10.0
+    vio = replace(
+        vio,
+        pose_covariance=vio.pose_covariance * late[:, None],
+        twist_covariance=vio.twist_covariance * late[:, None],
+    )
+    bag = write_bag(tmp_path / "late", [vio, flight.truth], "ros2-sqlite")
+    monkeypatch.setattr(sqlite, "_QUERY_BYTES", 20_000)  # many ranges, lean ones first
+    ingest([bag], IngestOptions(), tmp_path / "out")
+    df = read_flight(tmp_path / "out")
+    t = (df["stamp_ns"].to_numpy() - T0_NS) * 1e-9
+    got = df[list(VAR_COLS)].to_numpy()
+    assert np.all(got[t < 9.9] == 0)
+    np.testing.assert_allclose(got[t > 10.1], diagonals(t[t > 10.1]), rtol=1e-12, atol=0)

@@ -133,7 +133,7 @@ def test_real_bags_read(real_data: Path, tmp_path: Path) -> None:
 def test_real_bags_as_sqlite3_come_as_trimmed_records(real_data: Path, tmp_path: Path) -> None:
     """The real ROS1 PoseStamped bag and the ROS2 Odometry MCAP, converted to rosbag2 sqlite3
     by rosbags' converter: every topic is fetched as trimmed records (84-byte PoseStamped,
-    244-byte Odometry: its covariances' diagonals kept) and decodes as rosbags' deserializer
+    148-byte Odometry: its covariances are all zero) and decodes as rosbags' deserializer
     decodes the whole messages."""
     from rosbags.convert.converter import convert
 
@@ -142,7 +142,7 @@ def test_real_bags_as_sqlite3_come_as_trimmed_records(real_data: Path, tmp_path:
     from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
 
     cases = {"ROS_example.bag": ({"ORB-SLAM", "S-PTAM", "groundtruth"}, 84),
-             "nav2_turtlebot.mcap": ({"/odom"}, 244)}  # fmt: skip
+             "nav2_turtlebot.mcap": ({"/odom"}, 148)}  # fmt: skip
     for name, (topics, size) in cases.items():
         dst = tmp_path / name.split(".")[0]
         src = real_data / "bags" / name

@@ -70,6 +70,12 @@ _TRIMMED = {
     for k, p in _PROGRAMS.items()
 }
 
+# the programs of lean trimmed records: the covariances cut out whole, as the skipped blocks
+_LEAN = {
+    k: tuple(op for op in p if op[0] != "cov" and (op[0] != "f64" or op[1] is not None))
+    for k, p in _PROGRAMS.items()
+}
+
 FIXED_TYPES = tuple(_PROGRAMS)
 
 
@@ -185,12 +191,12 @@ def decode(
     msgtype: str,
     encoding: str,
     *,
-    trimmed: bool = False,
+    trimmed: bool | str = False,
 ) -> Decoded:
     """Decode messages ``buf[starts[i]:ends[i]]`` of ``msgtype`` (``ros1`` or ``cdr``);
     ``trimmed``: records cut by a :class:`Trim` (the skipped float blocks and whatever
-    follows the last field read are not there)."""
-    program = (_TRIMMED if trimmed else _PROGRAMS).get(msgtype)
+    follows the last field read are not there; ``"lean"``: the covariances cut whole too)."""
+    program = (_LEAN if trimmed == "lean" else _TRIMMED if trimmed else _PROGRAMS).get(msgtype)
     if program is None:
         raise LayoutError(f"{msgtype} has no fixed layout")
     buf = np.asarray(buf)
@@ -261,7 +267,7 @@ class Trim:
     ``decode(..., trimmed=True)``: every cut starts 8-aligned and is a multiple of 8 long,
     so what follows it keeps its alignment; and in every program here it follows a float,
     so no padding before it is left in the record for the next field to misread (an
-    Odometry message's 724 bytes become 244). :func:`plan_trim` checks this on
+    Odometry message's 724 bytes become 244; 148 with ``lean``, the covariances cut whole). :func:`plan_trim` checks this on
     its message (the trimmed record decodes to the same fields).
     ``fixed`` are the record's byte ranges that every message of the same layout shares
     with this one: the encapsulation's identifier (CDR) and every string with its length
@@ -274,6 +280,10 @@ class Trim:
     fixed: tuple[tuple[int, int], ...]
     length: int
     record: bytes
+    covariances: tuple[tuple[int, int], ...] = ()
+    """The message's covariance blocks ``[a, b)`` (Odometry): cut whole from a lean trim."""
+    lean: bool = False
+    """The covariances are cut whole (records decode with ``trimmed="lean"``)."""
 
     @property
     def size(self) -> int:
@@ -281,16 +291,17 @@ class Trim:
         return len(self.record)
 
 
-def plan_trim(message: bytes, msgtype: str, encoding: str) -> Trim:
-    """The :class:`Trim` of the messages laid out as ``message``: :class:`LayoutError` if it
-    does not have ``msgtype``'s layout, or if its trimmed record would not decode to its
-    fields."""
+def plan_trim(message: bytes, msgtype: str, encoding: str, *, lean: bool = False) -> Trim:
+    """The :class:`Trim` of the messages laid out as ``message`` (``lean``: without the
+    covariances, not even their diagonals): :class:`LayoutError` if it does not have
+    ``msgtype``'s layout, or if its trimmed record would not decode to its fields."""
     buf = np.frombuffer(message, dtype=np.uint8)
     starts, ends = np.zeros(1, np.int64), np.full(1, len(buf), np.int64)
     whole = decode(buf, starts, ends, msgtype, encoding)
     cdr = encoding == "cdr"
     cuts: list[tuple[int, int]] = []  # message byte ranges left out, in order
     strings: list[tuple[int, int]] = []
+    blocks: list[tuple[int, int]] = []
     last = 0  # one past the last field read
     for op, pos, end in _walk(buf, starts, ends, _PROGRAMS[msgtype], cdr):
         a, b = int(pos[0]), int(end[0])
@@ -299,7 +310,12 @@ def plan_trim(message: bytes, msgtype: str, encoding: str) -> Trim:
         if op[0] == "f64" and op[1] is None:  # skipped: cut out
             cuts.append((a, b))
             continue
-        if op[0] == "cov":  # the diagonal kept, the 6 x 7 doubles between its items cut
+        if op[0] == "cov":
+            blocks.append((a, b))
+            if lean:  # cut whole, as a skipped block
+                cuts.append((a, b))
+                continue
+            # the diagonal kept, the 6 x 7 doubles between its items cut
             step = 8 * COV_STEP
             cuts += [(a + step * i + 8, a + step * (i + 1)) for i in range(COV_DIAG - 1)]
         elif op[0] == "str":
@@ -320,10 +336,17 @@ def plan_trim(message: bytes, msgtype: str, encoding: str) -> Trim:
     fixed += [(in_record(a), in_record(b)) for a, b in strings]
     record = b"".join(message[a:b] for a, b in spans)
     rec = np.frombuffer(record, dtype=np.uint8)
-    cut = decode(rec, starts, np.full(1, len(rec), np.int64), msgtype, encoding, trimmed=True)
+    kind = "lean" if lean else True
+    cut = decode(rec, starts, np.full(1, len(rec), np.int64), msgtype, encoding, trimmed=kind)
+    if lean:  # the covariances are not in it: compare the rest
+        whole = Decoded(whole.header_ns, whole.pose, whole.twist, whole.frame_id,
+                        whole.child_frame_id)  # fmt: skip
     if not _same(cut, whole):
         raise LayoutError(f"{msgtype}: its trimmed record does not hold its fields")
-    return Trim(spans=tuple(spans), fixed=tuple(fixed), length=len(buf), record=record)
+    return Trim(
+        spans=tuple(spans), fixed=tuple(fixed), length=len(buf), record=record,
+        covariances=tuple(blocks), lean=lean,
+    )  # fmt: skip
 
 
 def _same(a: Decoded, b: Decoded) -> bool:

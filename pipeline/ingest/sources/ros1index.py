@@ -22,14 +22,15 @@ _BATCH_BYTES = 8 << 20
 @dataclass(frozen=True)
 class Batch:
     """Messages located in one buffer: message ``i`` is ``buf[starts[i]:ends[i]]``
-    (``trimmed``: records cut by a :class:`layout.Trim`, not whole messages)."""
+    (``trimmed``: records cut by a :class:`layout.Trim`, not whole messages; ``"lean"``:
+    cut by a lean one, without the covariances)."""
 
     buf: np.ndarray
     starts: np.ndarray
     ends: np.ndarray
     log_ns: np.ndarray
     conn: np.ndarray
-    trimmed: bool = False
+    trimmed: bool | str = False
 
 
 _ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])
