@@ -19,7 +19,16 @@ process. Both sides are what a user types, interpreter start and imports include
 The bags are those of ``bench_ingest.py`` (poses only, built once under benchmarks/_work/).
 Each cell is the median of ``--repeat`` fresh processes (5), taken in turns; wall and CPU
 seconds (user + system, all threads) are both printed, CPU moving less on a shared machine.
-Run: python benchmarks/bench_ingest_process.py [--quick] [--repeat N]
+
+Memory (issue 37's target: peak RSS independent of the bag's length, a 2 000 000-message bag
+in at most 300 MB, still at least 3x faster than the reader): the same two processes on a
+long bag of each format (``--long`` messages, 2 000 000 by default: 1 000 000 Odometry and
+1 000 000 PoseStamped at 200 Hz, 5000 s; built once, 0.2 to 1.1 GB) and on the short one,
+one fresh run each, with the peak resident set of each process (``os.wait4``'s
+``ru_maxrss``: file pages mapped and touched count too).
+
+Run: python benchmarks/bench_ingest_process.py [--quick] [--repeat N] [--long N | --long 0]
+[--memory-only]
 """
 
 from __future__ import annotations
@@ -32,7 +41,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_ingest import WORK, build
-from fresh import median_runs
+from fresh import median_runs, peak_run
 
 READER = r"""
 import sys
@@ -97,7 +106,19 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="20k messages instead of 200k")
     ap.add_argument("--repeat", type=int, default=5, help="fresh processes per cell (median)")
+    ap.add_argument(
+        "--long",
+        type=int,
+        default=2_000_000,
+        help="messages of the memory run's long bags (0: none)",
+    )
+    ap.add_argument("--memory-only", action="store_true", help="the memory runs alone")
     args = ap.parse_args()
+    if args.memory_only:
+        WORK.mkdir(parents=True, exist_ok=True)
+        tag = "quick" if args.quick else "full"
+        memory(10_000 if args.quick else 100_000, args.long // 2, tag)
+        return
     n_pose = 10_000 if args.quick else 100_000
     tag = "quick" if args.quick else "full"
     WORK.mkdir(parents=True, exist_ok=True)
@@ -134,6 +155,8 @@ def main() -> None:
             f"{label}: qsls ingest {r / q:.1f}x faster than the reader in wall time,"
             f" {rc / qc:.1f}x in CPU time (target >= 3x: {met})"
         )
+    if args.long:
+        memory(n_pose, args.long // 2, tag)
     print(
         "\nreader: the two topics read message by message with rosbags' deserializer (issue"
         " 27's target: qsls ingest >= 3x faster); ingest, deser.: qsls ingest with"
@@ -141,6 +164,51 @@ def main() -> None:
         " sha256 of the whole bag for the manifest, computed in a second thread. Wall times"
         " on a machine shared with other jobs move more than CPU times."
     )
+
+
+MEMORY_TARGET_MB = 300.0
+
+
+def memory(n_short: int, n_long: int, tag: str) -> None:
+    """Peak RSS, wall and CPU seconds of ``qsls ingest`` and of the reader, one fresh run
+    each, on the short and the long bag of every format (module docstring)."""
+    rows = []
+    for label, (fmt, ext, plain) in FORMATS.items():
+        kind, _, comp = fmt.partition("-") if plain else (fmt, "", "")
+        for n in (n_short, n_long):
+            name = f"a_{tag}_{fmt}{ext}" if n == n_short else f"long{2 * n}_{fmt}{ext}"
+            bag = build(n, 0.0, comp or None, name, kind)
+            cmds = commands(bag, plain)
+            peak_run(cmds["qsls"])  # untimed: the bag into the page cache, for both sides
+            q = peak_run(cmds["qsls"])
+            r = peak_run(cmds["reader"])
+            if int(r[3].strip()) != 2 * n:
+                raise SystemExit(f"the reader read {r[3].strip()} messages of {bag.name}")
+            rows.append((label, 2 * n, q[:3], r[:3]))
+            for d in WORK.glob(f"cli_{bag.stem}*"):
+                shutil.rmtree(d, ignore_errors=True)
+    print("\nmemory: one fresh process each; wall seconds (CPU seconds), peak resident set (MB)\n")
+    head = (
+        f"{'bag':14s} {'messages':>9s} | {'qsls ingest':>13s} {'RSS':>6s} | {'reader':>14s}"
+        f" {'RSS':>6s} | {'faster, wall':>12s} {'CPU':>5s}"
+    )
+    print(head)
+    print("-" * len(head))
+    for label, n, (q, qc, qm), (r, rc, rm) in rows:
+        print(
+            f"{label:14s} {n:9d} | {q:6.2f} ({qc:5.2f}) {qm:6.0f} | {r:6.2f} ({rc:6.2f}) {rm:6.0f}"
+            f" | {r / q:11.1f}x {rc / qc:4.1f}x"
+        )
+    print()
+    for label, n, (q, qc, qm), (r, rc, _) in rows:
+        if n != 2 * n_long:
+            continue
+        met = "met" if qm <= MEMORY_TARGET_MB and min(r / q, rc / qc) >= 3 else "NOT met"
+        print(
+            f"{label}: {n} messages in {qm:.0f} MB peak RSS (target <= {MEMORY_TARGET_MB:.0f} MB),"
+            f" {r / q:.1f}x faster than the reader in wall time, {rc / qc:.1f}x in CPU time"
+            f" (target >= 3x): {met}"
+        )
 
 
 if __name__ == "__main__":

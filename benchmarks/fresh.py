@@ -14,6 +14,7 @@ import os
 import resource
 import statistics
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -75,3 +76,38 @@ def median_runs(
         k: (statistics.median(r[0] for r in v), statistics.median(r[1] for r in v), v[-1][2])
         for k, v in _runs(cmds, repeat, cwd).items()
     }
+
+
+_LAUNCHER = r"""
+import os, subprocess, sys, time
+t0 = time.perf_counter()
+with open(sys.argv[1], "wb") as out, open(sys.argv[2], "wb") as err:
+    proc = subprocess.Popen(sys.argv[3:], stdout=out, stderr=err)
+    _, status, ru = os.wait4(proc.pid, 0)
+print(time.perf_counter() - t0, ru.ru_utime + ru.ru_stime, ru.ru_maxrss,
+      os.waitstatus_to_exitcode(status))
+"""
+
+
+def peak_run(cmd: list[str], cwd: Path | None = None) -> tuple[float, float, float, str]:
+    """One fresh run of ``cmd``: ``(wall s, CPU s, peak RSS MB, stdout)``, the peak resident
+    set of that process alone (``os.wait4``'s ``ru_maxrss``).
+
+    Through a small launcher process: Linux folds the memory map's high-water mark a
+    process had when it forked into its child's ``ru_maxrss`` at ``exec``, so a child of
+    this (large) benchmark process would report at least this process's own size; the
+    launcher is small when it forks the command."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out, err = Path(tmp) / "out", Path(tmp) / "err"
+        done = subprocess.run(
+            [sys.executable, "-c", _LAUNCHER, str(out), str(err), *cmd],
+            capture_output=True, text=True, cwd=cwd, env=fresh_env(),
+        )  # fmt: skip
+        if done.returncode:
+            raise SystemExit(f"launcher failed: {done.stderr.strip()[-400:]}")
+        wall, cpu, maxrss_kb, code = done.stdout.split()
+        if int(code):
+            raise SystemExit(f"{' '.join(cmd[:4])} ... failed: {err.read_text().strip()[-400:]}")
+        return float(wall), float(cpu), int(maxrss_kb) / 1024, out.read_text()

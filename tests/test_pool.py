@@ -52,3 +52,40 @@ def test_a_failing_task_cancels_the_tasks_not_started(tmp_path):
     # the workers are terminated at once (run_pool): at most the tasks already running or in
     # the executor's call queue may have finished; without the cancel all eleven would run
     assert finished <= 6
+
+
+SPY = """
+import sys
+from qsls.pipeline.control import sweep
+from qsls.pipeline.control.options import SweepOptions
+
+seen = []
+
+
+def spy(tasks, jobs, done=None):  # what the pool would be given; no solve
+    seen.append([jobs, all(m in sys.modules for m in sweep.WORKER_MODULES)])
+    return [[{"index": p["index"], **p["grid"]} for p in chunk] for _, chunk in tasks]
+
+
+sweep.run_tasks = spy
+assert "cvxpy" not in sys.modules
+opts = SweepOptions(T=4, S=0.05, eps_e=0.05, radius=1.0, delta=0.05, eps_w=0.01,
+                    grid={"S": [0.01, 0.05]}, s_max_curve=False)
+sweep.compute(opts, jobs=2)
+print(seen)
+"""
+
+
+@pytest.mark.skipif(
+    len(os.sched_getaffinity(0)) < 2 if hasattr(os, "sched_getaffinity") else True,
+    reason="a pool of two needs two cores",
+)
+def test_the_sweep_imports_what_its_workers_need_before_forking_them():
+    """``qsls sweep --jobs 2``: the workers are forked after the parent imported the solver
+    and the synthesis (issue 37), so no worker imports them again in each pool phase."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", SPY], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[[2, True]]"

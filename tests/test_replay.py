@@ -356,3 +356,28 @@ def test_the_report_lists_where_the_monitor_would_have_tripped(tmp_path, control
             # the flight the controller flew inside its premise's numbers: whatever tripped is
             # listed; the summary says what a quiet monitor means
             assert mon["ticks_tripped"] == 0 and "no trip (one-sided" in res.output
+
+
+def test_the_vios_own_uncertainty_is_shown_beside_the_monitor(tmp_path, controllers, flown):  # noqa: F811
+    """Odometry covariances (issue 33): the replay's summary and report give the recorded
+    position sigma (its largest axis), median and largest."""
+    _, bag, _ = flown
+    with BagSource(bag) as src:
+        (vio,) = src.read_many([("/vio/odometry", None)])
+    n = len(vio)
+    pose_cov = np.zeros((n, 36))
+    pose_cov[:, [0, 7, 14]] = np.column_stack([np.full(n, 1e-4), np.linspace(1e-4, 4e-4, n),
+                                               np.full(n, 2e-4)])  # fmt: skip
+    stream = OdometryStream(
+        topic="/vio/odometry", header_ns=vio.header_ns, log_ns=vio.log_ns,
+        position=vio.position, orientation=vio.orientation, linear_velocity=vio.velocity,
+        pose_covariance=pose_cov,
+    )  # fmt: skip
+    out = tmp_path / "replay.mcap"
+    src = write_bag(tmp_path / "cov.mcap", [stream], "mcap")
+    res = invoke("replay", controllers["proper"], src, "--reference", "circle", "--out", out)
+    assert res.exit_code == 0, res.output
+    assert "VIO's own position sigma (m)" in res.output
+    sigma = np.sqrt(np.maximum(np.linspace(1e-4, 4e-4, n), 2e-4))
+    got = report_of(out)["vio_uncertainty"]["position_sigma_m"]
+    assert got["max"] == pytest.approx(0.02) and got["median"] == pytest.approx(np.median(sigma))

@@ -56,21 +56,43 @@ def cell_grid(xs: np.ndarray, radius: float) -> CellGrid:
         offs = np.zeros((len(prod), dim), dtype=np.int64)
         offs[:, live] = prod
     okey = offs @ mult
-    okey = okey[okey > 0]
-    ca, cb = [], []
-    for o in okey:
+    okey = np.sort(okey[okey > 0])
+    ptr, nb = _links(uk, okey)
+    return CellGrid(order=order, start=start, count=count, nb_ptr=ptr, nb_cell=nb)
+
+
+def _links(uk: np.ndarray, okey: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The forward neighbours of every cell as CSR ``(ptr, cells)``: cell ``a``'s are
+    ``cells[ptr[a]:ptr[a + 1]]``, the cells whose key is ``uk[a] + o`` for an offset ``o`` of
+    ``okey`` (increasing), in increasing order.
+
+    Two passes over the offsets, a count per cell and then the fill, so the links are
+    written once into the one array they end in (int32 while the cells fit): no list of
+    ``(a, b)`` int64 pairs and no sort of them (1.27 GB of a 1.5 GB fit at 1e6 samples).
+    The order is the sorted ``(a, b)`` one: for a cell, a larger offset gives a larger key,
+    so a larger neighbour index.
+    """
+    n = len(uk)
+
+    def hits(o: int) -> tuple[np.ndarray, np.ndarray]:
         target = uk + o
         pos = np.searchsorted(uk, target)
-        pos[pos >= len(uk)] = 0
+        pos[pos >= n] = 0
         hit = np.flatnonzero(uk[pos] == target)
-        ca.append(hit)
-        cb.append(pos[hit])
-    a = np.concatenate(ca) if ca else np.zeros(0, dtype=np.int64)
-    b = np.concatenate(cb) if cb else np.zeros(0, dtype=np.int64)
-    srt = np.lexsort((b, a))
-    a, b = a[srt], b[srt]
-    ptr = np.searchsorted(a, np.arange(len(uk) + 1))
-    return CellGrid(order=order, start=start, count=count, nb_ptr=ptr, nb_cell=b)
+        return hit, pos[hit]
+
+    count = np.zeros(n, dtype=np.int64)
+    for o in okey.tolist():
+        count[hits(o)[0]] += 1  # a cell once per offset: no repeated index
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(count, out=ptr[1:])
+    nb = np.empty(int(ptr[-1]), dtype=np.int32 if n < 2**31 else np.int64)
+    fill = ptr[:-1].copy()
+    for o in okey.tolist():
+        a, b = hits(o)
+        nb[fill[a]] = b
+        fill[a] += 1
+    return ptr, nb
 
 
 def pair_blocks(g: CellGrid, block_elems: int, min_block: int = 8192, inflation: int = 4):

@@ -61,6 +61,7 @@ from qsls.pipeline.evaluate.certified import (
     load_controller_bound,
 )
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
+from qsls.pipeline.evaluate.nees import Nees
 from qsls.pipeline.evaluate.options import EvaluateOptions
 from qsls.pipeline.evaluate.table import Evaluation
 from qsls.pipeline.evaluate.theorem import (
@@ -330,6 +331,8 @@ class EvaluateResult:
     assumptions: pd.DataFrame | None = None
     """Every assumption on the flights a controller flew itself (``--flown-by``, from their
     tick logs); None when there are none."""
+    nees: tuple[Nees, ...] = ()
+    """The position NEES of each flight whose VIO recorded covariances (:mod:`.nees`)."""
 
     def summary(self) -> dict[str, Any]:
         t = self.table
@@ -347,6 +350,8 @@ class EvaluateResult:
                 f"gamma_strict {g['gamma_strict'].iloc[0]:.4g} (under "
                 f"{100 * g['frac_under_gamma_strict'].mean():.1f}%)"
             )
+        for n in self.nees:  # the estimator's own uncertainty, beside the bound
+            out[f"VIO position NEES, {n.flight}"] = n.text()
         if self.warnings:
             out["warnings"] = len(self.warnings)
         return out
@@ -487,6 +492,7 @@ def evaluate(
         bound = next(b for b in bounds if b.name == options.flown_by)
         assumptions, missing = own_log_assumptions(flights, bound, training)
         warnings += missing
+    nees = vio_nees(flights, held_out)
     return write_evaluation(
         out,
         table,
@@ -497,7 +503,30 @@ def evaluate(
         model=model,
         force=force,
         assumptions=assumptions,
+        nees=nees,
     )
+
+
+def vio_nees(
+    folders: Sequence[Path], flights: Sequence[tuple[str, pd.DataFrame]]
+) -> tuple[Nees, ...]:
+    """The position NEES (:mod:`.nees`) of every flight whose VIO recorded covariances, with
+    the alignment its ingest manifest keeps."""
+    from qsls.pipeline.core.artifacts import read_manifest
+    from qsls.pipeline.evaluate.nees import flight_nees
+
+    out = []
+    for f, (name, frame) in zip(folders, flights, strict=True):
+        folder = Path(f) if Path(f).is_dir() else Path(f).parent
+        if "var_px" not in frame.columns:
+            continue
+        try:
+            results = dict(read_manifest(folder).get("results") or {})
+        except InputError:
+            continue
+        if (n := flight_nees(name, frame, results)) is not None:
+            out.append(n)
+    return tuple(out)
 
 
 def own_log_assumptions(
@@ -541,6 +570,7 @@ def write_evaluation(
     model: ErrorModel,
     force: bool,
     assumptions: pd.DataFrame | None = None,
+    nees: tuple[Nees, ...] = (),
 ) -> EvaluateResult:
     """Write the stage folder: ``evaluation.parquet``, ``evaluation.json``,
     ``samples.parquet``, figures and, with ``assumptions``, ``assumptions.parquet``."""
@@ -557,8 +587,10 @@ def write_evaluation(
                 "warnings": len(warnings),
             }
         )
+        if nees:
+            w.results["vio_position_nees"] = [n.as_dict() for n in nees]
     return EvaluateResult(
-        out=Path(out), table=table, warnings=tuple(warnings), assumptions=assumptions
+        out=Path(out), table=table, warnings=tuple(warnings), assumptions=assumptions, nees=nees
     )
 
 

@@ -24,7 +24,11 @@ at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
 5. Command limits: largest tilt, thrust range against hover ``m g``, the fraction of ticks
    with tilt beyond ``max_tilt_deg`` and with thrust outside ``thrust_band`` (times hover).
 6. The premise monitor of the exported code (docs/monitor.md): the ticks where it would have
-   tripped (the measurement proves the certificate's premise broken), by kind, the first.
+   tripped (the measurement proves the certificate's premise broken), by kind, the first;
+   beside it, when the VIO recorded covariances (docs/ingest.md#covariances), its own
+   position uncertainty: ``sigma_k = sqrt(max_i var_i,k)`` over the position axes ``i``,
+   its median and largest value over the stream (the recording has no truth, so no NEES:
+   ``qsls evaluate`` gives that on an ingested flight, docs/evaluation.md).
 """
 
 from __future__ import annotations
@@ -68,6 +72,11 @@ class ReplayResult:
             ),
             f"ticks limited by the export ({lim['export_limits']})": f"{lim['pct_limited']:.1f} %",
             "premise monitor (docs/monitor.md)": _monitor_text(r["monitor"]),
+            **(
+                {"VIO's own position sigma (m)": _sigma_text(r["vio_uncertainty"])}
+                if "vio_uncertainty" in r
+                else {}
+            ),
             "gaps": (
                 "none"
                 if not gaps
@@ -86,6 +95,20 @@ def _monitor_text(m: dict[str, Any]) -> str:
         f"{m['first_trip_t_s']:.2f} s (envelope {m['envelope_ticks']}, outlier count "
         f"{m['outlier_count_ticks']})"
     )
+
+
+def _sigma_text(u: dict[str, Any]) -> str:
+    s = u["position_sigma_m"]
+    return f"median {s['median']:.4g}, largest {s['max']:.4g} (its largest axis, as recorded)"
+
+
+def vio_uncertainty(vio: Any) -> dict[str, Any] | None:
+    """The VIO's recorded position uncertainty (module docstring, step 6); None without
+    covariances."""
+    if vio.variance is None:
+        return None
+    sigma = np.sqrt(np.clip(vio.variance[:, :3], 0.0, None).max(axis=1))
+    return {"position_sigma_m": {"median": float(np.median(sigma)), "max": float(sigma.max())}}
 
 
 def _alignment_text(al: dict[str, Any]) -> str:
@@ -382,6 +405,8 @@ def replay(
         "monitor": monitor_report(cdir, flags, stamps),
         "topics": {"command": options.command_topic, "deviation": Topics.deviation},
     }
+    if (u := vio_uncertainty(vio)) is not None:  # only then: other replays keep their bytes
+        report["vio_uncertainty"] = u
     report["warnings"] = warnings(report, options)
     topics = Topics(command=options.command_topic, frame_id=options.frame_id)
     make_parent(out, "output file")

@@ -36,6 +36,7 @@ from qsls.pipeline.core.rotations import rot_z
 from qsls.pipeline.ingest.resample import interp_rows, median_spacing
 
 METHODS = ("4dof", "se3", "none")
+_ROWS = 1 << 16  # rows computed at once (bounded temporaries on long flights)
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,9 @@ class Alignment:
         return float(np.arctan2(self.rotation[1, 0], self.rotation[0, 0]))
 
     def apply(self, p: np.ndarray) -> np.ndarray:
-        return p @ self.rotation.T + self.translation
+        out = p @ self.rotation.T
+        out += self.translation  # in place: the same sums, one array
+        return out
 
     def rotate(self, v: np.ndarray) -> np.ndarray:
         return v @ self.rotation.T
@@ -65,15 +68,22 @@ class Alignment:
         }
 
 
-def fit_alignment(src: np.ndarray, dst: np.ndarray, method: str) -> Alignment:
-    """The transform of ``method`` that maps ``src`` (VIO) best onto ``dst`` (truth)."""
+def fit_alignment(
+    src: np.ndarray, dst: np.ndarray, method: str, *, scratch_dst: bool = False
+) -> Alignment:
+    """The transform of ``method`` that maps ``src`` (VIO) best onto ``dst`` (truth);
+    ``scratch_dst``: ``dst`` may be centred in place (the same values, no copy of it)."""
     src = np.asarray(src, dtype=float)
     dst = np.asarray(dst, dtype=float)
     if method == "none":
         return Alignment("none", np.eye(3), np.zeros(3))
     mu_s = src.mean(axis=0)
     mu_d = dst.mean(axis=0)
-    r = best_rotation(src - mu_s, dst - mu_d, method)
+    if scratch_dst:
+        dst -= mu_d
+        r = best_rotation(src - mu_s, dst, method)
+    else:
+        r = best_rotation(src - mu_s, dst - mu_d, method)
     return Alignment(method, r, mu_d - r @ mu_s)
 
 
@@ -98,7 +108,9 @@ def segments(t_ns: np.ndarray, max_gap_ns: int) -> list[slice]:
     return [slice(a, b) for a, b in itertools.pairwise(edges) if b > a]
 
 
-def savgol_derivative(x: np.ndarray, m: int, h: float, order: int = 2) -> np.ndarray:
+def savgol_derivative(
+    x: np.ndarray, m: int, h: float, order: int = 2, out: np.ndarray | None = None
+) -> np.ndarray:
     """First derivative of the rows of ``x`` (uniform step ``h``) by Savitzky-Golay smoothing:
     a least-squares polynomial of ``order`` over each window of ``m`` (odd) samples, its slope
     at the window's centre; the first and last ``m // 2`` samples take the slope of the
@@ -107,16 +119,19 @@ def savgol_derivative(x: np.ndarray, m: int, h: float, order: int = 2) -> np.nda
 
     With the Vandermonde matrix ``V[i, j] = s_i^j`` of offsets ``s = -k..k`` (``k = m // 2``),
     the fit is ``c = pinv(V) x``, so the centre slope is the convolution with ``pinv(V)[1] / h``.
+    The interior is computed on blocks of rows (each row's value is its own: the same as at
+    once), written into ``out`` (a new array if None).
     """
     x = np.asarray(x, dtype=float)
     k = m // 2
     s = np.arange(-k, k + 1, dtype=float)
     pinv = np.linalg.pinv(np.vander(s, order + 1, increasing=True))  # (order+1, m)
     n = len(x)
-    out = np.empty_like(x)
+    out = np.empty_like(x) if out is None else out
     # interior: out[i] = sum_j pinv[1, j] x[i - k + j]
     win = np.lib.stride_tricks.sliding_window_view(x, m, axis=0)  # (n - m + 1, cols, m)
-    out[k : n - k] = win @ pinv[1] / h
+    for a in range(0, len(win), _ROWS):
+        out[k + a : k + min(a + _ROWS, len(win))] = win[a : a + _ROWS] @ pinv[1] / h
     # edges: slope d/ds sum_p c_p s^p = sum_p p c_p s^(p-1) at the edge samples' offsets
     powers = np.arange(1, order + 1)
     for rows, offsets in ((slice(0, m), s[:k]), (slice(n - m, n), s[k + 1 :])):
@@ -149,8 +164,19 @@ def differentiate(
             continue
         tg = np.arange(grid_n) * h
         if grid_n == n and np.abs(t - tg).max() <= 1e-6 * h:
-            out[sl] = savgol_derivative(x, m, h)  # uniform already: no resampling
+            savgol_derivative(x, m, h, out=out[sl])  # uniform already: no resampling
             continue
-        vg = savgol_derivative(interp_rows(tg, t, x), m, h)
-        out[sl] = interp_rows(t, tg, vg)
+        vg = savgol_derivative(_interp_blocks(tg, t, x), m, h)
+        _interp_blocks(t, tg, vg, out=out[sl])
+    return out
+
+
+def _interp_blocks(
+    x: np.ndarray, xp: np.ndarray, fp: np.ndarray, out: np.ndarray | None = None
+) -> np.ndarray:
+    """``interp_rows(x, xp, fp)`` on blocks of ``x`` (each row's value is its own: the same
+    as at once), into ``out`` (a new array if None): bounded temporaries."""
+    out = np.empty((len(x), fp.shape[1])) if out is None else out
+    for a in range(0, len(x), _ROWS):
+        out[a : a + _ROWS] = interp_rows(x[a : a + _ROWS], xp, fp)
     return out

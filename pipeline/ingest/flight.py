@@ -2,7 +2,11 @@
 
 One row per sample on a common ``dt`` grid, VIO clock:
 ``t`` (s since the first sample), ``stamp_ns`` (int64), truth ``x_px .. x_vz``,
-measurement ``y_px .. y_vz`` and perception error ``e_* = y_* - x_*``.
+measurement ``y_px .. y_vz`` and perception error ``e_* = y_* - x_*``; when the VIO stream
+is ``nav_msgs/Odometry`` with covariances (not all zero), their diagonals as recorded, in
+the VIO's own frames, interpolated like ``y``: ``var_px .. var_rz`` (pose: position in
+the odometry world frame, m^2; rotation about its axes, rad^2) and ``var_vx .. var_wz``
+(twist, in the child frame: m^2/s^2, rad^2/s^2) (docs/ingest.md#covariances).
 """
 
 from __future__ import annotations
@@ -24,12 +28,18 @@ X_COLS = tuple(f"x_{a}" for a in AXES)
 Y_COLS = tuple(f"y_{a}" for a in AXES)
 E_COLS = tuple(f"e_{a}" for a in AXES)
 COLUMNS = ("t", "stamp_ns", *X_COLS, *Y_COLS, *E_COLS)
+VAR_COLS = tuple(f"var_{a}" for a in ("px", "py", "pz", "rx", "ry", "rz",
+                                      "vx", "vy", "vz", "wx", "wy", "wz"))  # fmt: skip
+"""The VIO's covariance diagonals (pose, then twist), present only when it recorded them."""
 FLIGHT_FILE = "flight.parquet"
 
 
-def flight_columns(stamp_ns: np.ndarray, x: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
+def flight_columns(
+    stamp_ns: np.ndarray, x: np.ndarray, y: np.ndarray, var: np.ndarray | None = None
+) -> dict[str, np.ndarray]:
     """The flight table's columns, in ``COLUMNS`` order, from stamps ``(n,)`` and
-    truth/measurement ``(n, 6)``: ``t = (stamp_ns - stamp_ns[0]) 1e-9``, ``e = y - x``."""
+    truth/measurement ``(n, 6)``: ``t = (stamp_ns - stamp_ns[0]) 1e-9``, ``e = y - x``; then
+    the ``VAR_COLS`` from ``var`` ``(n, 12)`` when given."""
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -48,6 +58,10 @@ def flight_columns(stamp_ns: np.ndarray, x: np.ndarray, y: np.ndarray) -> dict[s
         data[f"y_{a}"] = y[:, i]
     for i, a in enumerate(AXES):
         data[f"e_{a}"] = e[:, i]
+    if var is not None:
+        var = np.asarray(var, dtype=float)
+        for i, c in enumerate(VAR_COLS):
+            data[c] = var[:, i]
     return data
 
 
@@ -58,7 +72,9 @@ def make_flight_frame(stamp_ns: np.ndarray, x: np.ndarray, y: np.ndarray) -> pd.
     return pd.DataFrame(flight_columns(stamp_ns, x, y), columns=list(COLUMNS))
 
 
-def flight_table(stamp_ns: np.ndarray, x: np.ndarray, y: np.ndarray) -> pa.Table:
+def flight_table(
+    stamp_ns: np.ndarray, x: np.ndarray, y: np.ndarray, var: np.ndarray | None = None
+) -> pa.Table:
     """The flight table as a pyarrow Table (:func:`flight_columns`): what ingest writes.
 
     Importing pandas costs 0.15 s of a ``qsls ingest`` process; the table reads back with
@@ -69,7 +85,7 @@ def flight_table(stamp_ns: np.ndarray, x: np.ndarray, y: np.ndarray) -> pa.Table
     import pyarrow as pa
 
     arrays = []
-    cols = flight_columns(stamp_ns, x, y)
+    cols = flight_columns(stamp_ns, x, y, var)
     for c in cols.values():
         c = np.ascontiguousarray(c)
         typ = pa.from_numpy_dtype(c.dtype)
@@ -108,6 +124,13 @@ def measurements(df: pd.DataFrame) -> np.ndarray:
 
 def errors(df: pd.DataFrame) -> np.ndarray:
     return df.loc[:, list(E_COLS)].to_numpy(dtype=float)
+
+
+def variances(df: pd.DataFrame) -> np.ndarray | None:
+    """The VIO's recorded covariance diagonals ``(n, 12)`` (``VAR_COLS``), None without them."""
+    if not all(c in df.columns for c in VAR_COLS):
+        return None
+    return df.loc[:, list(VAR_COLS)].to_numpy(dtype=float)
 
 
 @dataclass(frozen=True)

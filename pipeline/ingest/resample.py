@@ -15,14 +15,24 @@ def interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     column searches ``xp`` ``k`` times (the clock-offset search interpolates the truth's
     six columns some 80 times: 26 -> 8 ms).
     """
-    fp = np.asarray(fp, dtype=float)
+    return interp_rows_many(x, xp, [fp])[0]
+
+
+def interp_rows_many(x: np.ndarray, xp: np.ndarray, fps: list[np.ndarray]) -> list[np.ndarray]:
+    """:func:`interp_rows` of several tables sampled at the same ``xp``, with one bracket
+    search: the same values as each on its own (every column is interpolated alone), and no
+    stacked copy of the tables."""
+    fps = [np.asarray(fp, dtype=float) for fp in fps]
     if len(xp) == 1:
-        return np.repeat(fp, len(x), axis=0)
+        return [np.repeat(fp, len(x), axis=0) for fp in fps]
     j = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, len(xp) - 2)
     x0 = xp[j]
-    w = np.clip((x - x0) / (xp[j + 1] - x0), 0.0, 1.0)
-    f0 = fp[j]
-    return f0 + w[:, None] * (fp[j + 1] - f0)
+    w = np.clip((x - x0) / (xp[j + 1] - x0), 0.0, 1.0)[:, None]
+    out = []
+    for fp in fps:
+        f0 = fp[j]
+        out.append(f0 + w * (fp[j + 1] - f0))
+    return out
 
 
 def median_spacing(t: np.ndarray) -> float:

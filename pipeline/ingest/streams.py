@@ -24,6 +24,10 @@ from qsls.pipeline.ingest.resample import interp_rows, median_spacing
 if TYPE_CHECKING:
     from qsls.pipeline.ingest.stage import IngestOptions
 
+CHUNK = 1 << 16
+"""Rows computed at once where a stream-long computation is local to each row: its
+temporaries stay bounded whatever the flight's length."""
+
 
 @dataclass(frozen=True)
 class Prepared:
@@ -44,6 +48,10 @@ class Prepared:
     nonfinite: int
     glitches: int = 0
     """Truth discontinuities turned into gaps (:func:`truth_jumps`)."""
+    variance: np.ndarray | None = None
+    """An Odometry's covariance diagonals as recorded, ``(n, 12)``: pose (``x y z`` in its
+    world frame, rotation about its ``x y z``), then twist (linear ``x y z``, angular, in
+    its child frame); None when the stream has none (docs/ingest.md#covariances)."""
 
     @property
     def rate_hz(self) -> float:
@@ -170,6 +178,9 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     t = traj.log_ns if o.stamp == "log" else traj.header_ns
     t = np.asarray(t, dtype=np.int64)
     p, q, v = traj.position, traj.orientation, traj.velocity
+    var = None
+    if getattr(traj, "pose_var", None) is not None and getattr(traj, "twist_var", None) is not None:
+        var = np.hstack([traj.pose_var, traj.twist_var])
     n = len(t)
     name = f"{role} stream {traj.name}"
     if n == 0:
@@ -177,7 +188,10 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     ok = np.isfinite(p).all(axis=1) & np.isfinite(q).all(axis=1)
     if v is not None:
         ok &= np.isfinite(v).all(axis=1)
-    qn = np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1)
+    qn = np.empty(n)
+    for a in range(0, n, CHUNK):  # row by row: the same norms, without copies of q
+        qa = q[a : a + CHUNK]
+        qn[a : a + CHUNK] = np.linalg.norm(np.where(np.isfinite(qa), qa, 0.0), axis=1)
     ok &= qn > 1e-9
     nonfinite = int(n - ok.sum())
     if nonfinite and not o.drop_nonfinite:
@@ -189,6 +203,7 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     if nonfinite:
         t, p, q, qn = t[ok], p[ok], q[ok], qn[ok]
         v = v[ok] if v is not None else None
+        var = var[ok] if var is not None else None
     # the usual stream is sorted and without duplicates: nothing to reorder or drop then
     step = np.diff(t)
     unsorted = int(np.sum(step < 0))
@@ -203,15 +218,17 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
         order = np.argsort(t, kind="stable")
         t, p, q, qn = t[order], p[order], q[order], qn[order]
         v = v[order] if v is not None else None
+        var = var[order] if var is not None else None
         step = np.diff(t)
     keep = np.concatenate([[True], step != 0])
     duplicates = int(len(t) - keep.sum())
     if duplicates:
         t, p, q, qn = t[keep], p[keep], q[keep], qn[keep]
         v = v[keep] if v is not None else None
+        var = var[keep] if var is not None else None
     if len(t) < 10:
         raise InputError(f"{name}: only {len(t)} usable messages; at least 10 are needed")
-    q = q / qn[:, None]  # the norms of the finite quaternions kept
+    q /= qn[:, None]  # the norms of the finite quaternions kept (in place: the stream's own)
     glitches = 0
     if role == "truth":  # a discontinuity of the truth becomes a gap, never interpolated motion
         jumps = truth_jumps(t, p, o.max_truth_accel)
@@ -220,6 +237,7 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
             bad = drop_around(t, jumps, int(o.max_gap * 1e9 / 2) + 1)
             t, p, q = t[~bad], p[~bad], q[~bad]
             v = v[~bad] if v is not None else None
+            var = var[~bad] if var is not None else None
             if len(t) < max(10, n // 2):
                 raise InputError(
                     f"{name}: {glitches} jumps no vehicle could fly (accelerations above "
@@ -242,6 +260,7 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
         unsorted,
         nonfinite,
         glitches,
+        var,
     )
 
 
@@ -255,18 +274,39 @@ def truth_jumps(t_ns: np.ndarray, p: np.ndarray, max_accel: float) -> np.ndarray
     interval's velocity differs from both neighbouring intervals' by an acceleration above
     ``max_accel`` (m/s^2) and moves the position at least :data:`GLITCH_JUMP_M` off their
     mean velocity (a tracker that jumps and comes back makes two such intervals, one that
-    re-acquires with an offset makes one)."""
-    t = (np.asarray(t_ns, np.int64) - int(t_ns[0])) / 1e9
-    if len(t) < 4:
+    re-acquires with an offset makes one).
+
+    Computed on windows of :data:`CHUNK` intervals and their neighbours (every quantity is
+    local to an interval and its two neighbours): the same intervals as at once, in
+    memory bounded by the window."""
+    n = len(t_ns)
+    if n < 4:
         return np.zeros(0, dtype=np.int64)
+    t_ns = np.asarray(t_ns, np.int64)
+    m = n - 1  # intervals
+    found = []
+    for a in range(0, m, CHUNK):
+        b = min(a + CHUNK, m)
+        lo, hi = max(a - 1, 0), min(b + 1, m)  # with the neighbouring intervals
+        flags = _jump_flags(t_ns[lo : hi + 1], int(t_ns[0]), p[lo : hi + 1], max_accel)
+        found.append(np.flatnonzero(flags[a - lo : b - lo]) + a)
+    return np.concatenate(found)
+
+
+def _jump_flags(t_ns: np.ndarray, t0: int, p: np.ndarray, max_accel: float) -> np.ndarray:
+    """:func:`truth_jumps`' test of every interval of ``t_ns`` (the first and last taken as
+    the stream's ends: their own velocity stands in for the missing neighbour's)."""
+    t = (t_ns - t0) / 1e9
     h = np.diff(t)
     v = np.diff(p, axis=0) / h[:, None]
+    if len(v) < 2:
+        return np.zeros(len(v), dtype=bool)
     dv = np.abs(np.diff(v, axis=0)).max(axis=1) / (0.5 * (h[:-1] + h[1:]))  # between intervals
     before = np.concatenate([[0.0], dv])  # interval i against i-1
     after = np.concatenate([dv, [0.0]])  # interval i against i+1
     mean_nb = 0.5 * (np.vstack([v[:1], v[:-1]]) + np.vstack([v[1:], v[-1:]]))
     off = np.abs(v - mean_nb).max(axis=1) * h
-    return np.flatnonzero((before > max_accel) & (after > max_accel) & (off >= GLITCH_JUMP_M))
+    return (before > max_accel) & (after > max_accel) & (off >= GLITCH_JUMP_M)
 
 
 def drop_around(t_ns: np.ndarray, intervals: np.ndarray, half_gap_ns: int) -> np.ndarray:
@@ -309,7 +349,19 @@ def check_streams(vio: Prepared, truth: Prepared, o: IngestOptions) -> None:
 def interp(
     grid: np.ndarray, t: np.ndarray, values: np.ndarray, max_gap_ns: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation at ``grid``; mask of grid points not bracketing a long gap."""
+    """Linear interpolation at ``grid``; mask of grid points not bracketing a long gap.
+
+    Computed on :data:`CHUNK` grid points at a time (each point's value is its own: the
+    same as at once), so a grid as long as the stream costs its output, not ten times it."""
+    values = np.asarray(values, dtype=float)
+    if len(grid) > CHUNK:
+        out = np.empty((len(grid), values.shape[1]))
+        ok = np.empty(len(grid), dtype=bool)
+        for a in range(0, len(grid), CHUNK):
+            out[a : a + CHUNK], ok[a : a + CHUNK] = interp(
+                grid[a : a + CHUNK], t, values, max_gap_ns
+            )
+        return out, ok
     i = np.searchsorted(t, grid, side="right") - 1
     inside = (i >= 0) & (i < len(t))
     i = np.clip(i, 0, len(t) - 1)
@@ -318,8 +370,12 @@ def interp(
     bracket = inside & (i + 1 < len(t)) & ((t[j] - t[i]) <= max_gap_ns)
     valid = exact | bracket
     x = (grid - t[0]).astype(float)
-    tt = (t - t[0]).astype(float)
-    return interp_rows(x, tt, values), valid
+    # the stream's stamps around the grid's only (the same brackets and weights)
+    a = max(int(i.min()) if len(i) else 0, 0)
+    b = min(int(j.max()) + 1 if len(j) else len(t), len(t))
+    a, b = (0, len(t)) if b - a < 2 else (a, b)
+    tt = (t[a:b] - t[0]).astype(float)
+    return interp_rows(x, tt, values[a:b]), valid
 
 
 def gaps(s: Prepared, lo: int, hi: int, max_gap_ns: int, t_first: int) -> list[dict[str, Any]]:

@@ -82,7 +82,7 @@ import numpy as np
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.rotations import gravity_in_body
 from qsls.pipeline.ingest.align import best_rotation
-from qsls.pipeline.ingest.resample import interp_rows
+from qsls.pipeline.ingest.resample import interp_rows_many
 
 
 @dataclass(frozen=True)
@@ -102,13 +102,15 @@ def _terms(
     pv: np.ndarray,
     gv: np.ndarray | None,
     tt: np.ndarray,
-    truth: np.ndarray,
+    truth: np.ndarray | tuple[np.ndarray, ...],
     method: str,
 ) -> tuple[float, float | None]:
     """``P(tau)`` (m^2) and ``G(tau)`` (None without attitudes), module docstring; ``truth``
-    holds the truth's positions, then its ``g_b`` when ``gv`` is given (one interpolation
-    for both)."""
-    at = interp_rows(tv - tau_s, tt, truth)
+    holds the truth's positions, then its ``g_b`` when ``gv`` is given: as the columns of
+    one array, or as the tuple ``(positions, g_b)`` (one interpolation for both, the same
+    values)."""
+    tables = list(truth) if isinstance(truth, tuple) else [truth]
+    at = np.hstack(interp_rows_many(tv - tau_s, tt, tables))
     pt = at[:, :3]
     if method == "none":
         r = pv - pt
@@ -169,6 +171,24 @@ def golden_section(
     return (c, fc) if fc <= fd else (d, fd)
 
 
+_ROWS = 1 << 16  # rows computed at once (bounded temporaries on long flights)
+
+
+def gravity_rows(q: np.ndarray) -> np.ndarray:
+    """:func:`gravity_in_body` ``(n, 3)``, computed block by block into one array."""
+    out = np.empty((len(q), 3))
+    for a in range(0, len(q), _ROWS):
+        out[a : a + _ROWS] = gravity_in_body(q[a : a + _ROWS])
+    return out
+
+
+def _tilt_rms(g: np.ndarray) -> float:
+    """RMS of ``g - mean(g)`` over the rows (how much the attitude moves), summed in blocks."""
+    mu = g.mean(axis=0)
+    total = sum(float(np.sum((g[a : a + _ROWS] - mu) ** 2)) for a in range(0, len(g), _ROWS))
+    return float(np.sqrt(total / len(g)))
+
+
 _COARSE = 5
 """Grid steps between the points of the first, coarser pass of the offset search."""
 
@@ -191,7 +211,9 @@ def estimate_offset(
 ) -> OffsetEstimate:
     """The offset ``tau`` (s) minimizing the aligned position RMS, with the gravity
     direction in the body frame when both orientations ``vio_q``, ``truth_q`` (``x y z w``)
-    are given, move, and ``method`` is ``4dof`` or ``none`` (module docstring)."""
+    are given, move, and ``method`` is ``4dof`` or ``none`` (module docstring). ``truth_q``
+    may also be the truth's gravity directions ``(n, 3)`` (:func:`gravity_rows`), the same
+    values."""
     # work in seconds relative to a common origin (float64 keeps sub-microsecond precision)
     t0 = int(min(vio_ns[0], truth_ns[0]))
     tv_all = (np.asarray(vio_ns, np.int64) - t0) * 1e-9
@@ -213,14 +235,19 @@ def estimate_offset(
         idx = idx[np.linspace(0, len(idx) - 1, max_samples).round().astype(int)]
     tv = tv_all[idx]
     pv = np.asarray(vio_p, float)[idx]
-    gv = gt = None
+    gv = None
+    table: np.ndarray | tuple[np.ndarray, ...] = pt  # and the truth's g_b with attitudes
     if vio_q is not None and truth_q is not None and method in ("4dof", "none"):
         gv = gravity_in_body(np.asarray(vio_q)[idx])
-        gt = gravity_in_body(truth_q)
-        moving = min(float(np.sqrt(np.mean(np.sum((g - g.mean(0)) ** 2, 1)))) for g in (gv, gt))
-        if not moving > min_tilt_rad:  # level (or identity) attitudes: nothing to compare
-            gv = gt = None
-    args = (gv, tt, pt if gt is None else np.hstack([pt, gt]), method)
+        truth_q = np.asarray(truth_q)
+        gt = truth_q if truth_q.shape[1] == 3 else gravity_rows(truth_q)
+        moving = min(_tilt_rms(gv), _tilt_rms(gt))
+        if moving > min_tilt_rad:  # else level (or identity) attitudes: nothing to compare
+            table = (pt, gt)
+        else:
+            gv = None
+        del gt
+    args = (gv, tt, table, method)
     # coarse: a grid of step_s on at most coarse_samples of the samples
     sub = np.linspace(0, len(tv) - 1, min(len(tv), coarse_samples)).round().astype(int)
     coarse_args = (tv[sub], pv[sub], None if gv is None else gv[sub], *args[1:])

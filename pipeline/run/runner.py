@@ -330,6 +330,22 @@ def refuse_run_overlap(root: Path, graph: StageGraph) -> None:
         refuse_overlap(graph.out(s), inputs, "stage folder")
 
 
+def run_info(cfg: RunConfig, config_path: Path, stage_ids: list[str]) -> dict[str, Any]:
+    """What ``run.json`` records. The config by its resolved absolute path: the same file
+    named relatively, absolutely or from another working directory gives the same record,
+    so a run with nothing to do leaves ``run.json`` and the report as they are."""
+    return {
+        "name": cfg.name,
+        "seed": cfg.seed,
+        "qsls_version": __version__,
+        "git_commit": _git_commit(),
+        "config_path": Path(config_path).resolve().as_posix(),
+        "config_sha256": sha256_file(config_path),
+        "config": cfg.record(),
+        "stages": list(stage_ids),
+    }
+
+
 def _run_locked(
     cfg: RunConfig,
     config_path: Path,
@@ -339,16 +355,7 @@ def _run_locked(
     from_stage: str | None,
     on_stage: OnStage | None,
 ) -> RunResult:
-    info = {
-        "name": cfg.name,
-        "seed": cfg.seed,
-        "qsls_version": __version__,
-        "git_commit": _git_commit(),
-        "config_path": config_path.as_posix(),
-        "config_sha256": sha256_file(config_path),
-        "config": cfg.record(),
-        "stages": graph.ids,
-    }
+    info = run_info(cfg, config_path, graph.ids)
     body = dump_json(info).encode()
     if not (root / RUN_FILE).is_file() or (root / RUN_FILE).read_bytes() != body:
         atomic_write_bytes(root / RUN_FILE, body)

@@ -48,7 +48,7 @@ import sqlite3
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -115,12 +115,17 @@ def _stamp(header: Any) -> int:
 
 def objects_to_arrays(
     msgs: list[Any], logs: list[int], msgtype: str, truth_frame: str | None, name: str
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, str, str]:
-    """(header_ns, log_ns, pose (n,7), twist (n,6)|None, frame, child) from message objects."""
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, str, str, np.ndarray | None,
+    np.ndarray | None,
+]:  # fmt: skip
+    """(header_ns, log_ns, pose (n,7), twist (n,6)|None, frame, child, pose covariance
+    diagonal (n,6)|None, twist covariance diagonal (n,6)|None) from message objects."""
     rows: list[tuple[float, ...]] = []
     stamps: list[int] = []
     out_logs: list[int] = []
     twists: list[tuple[float, ...]] = []
+    variances: list[np.ndarray] = []
     frame = child = ""
     if msgtype == TF or msgtype.endswith("TransformStamped"):
         if msgtype == TF:
@@ -152,11 +157,14 @@ def objects_to_arrays(
             if msgtype == ODOMETRY:
                 lin, ang = msg.twist.twist.linear, msg.twist.twist.angular
                 twists.append((lin.x, lin.y, lin.z, ang.x, ang.y, ang.z))
+                cov = (np.asarray(msg.pose.covariance), np.asarray(msg.twist.covariance))
+                variances.append(np.concatenate([c.reshape(6, 6).diagonal() for c in cov]))
         if msgs:
             frame = msgs[0].header.frame_id
             child = getattr(msgs[0], "child_frame_id", "")
     pose = np.array(rows, dtype=float).reshape(-1, 7)
     twist = np.array(twists, dtype=float).reshape(-1, 6) if msgtype == ODOMETRY else None
+    var = np.array(variances, dtype=float).reshape(-1, 12) if msgtype == ODOMETRY else None
     return (
         np.array(stamps, dtype=np.int64),
         np.array(out_logs, dtype=np.int64),
@@ -164,6 +172,8 @@ def objects_to_arrays(
         twist,
         frame,
         child,
+        None if var is None else var[:, :6],
+        None if var is None else var[:, 6:],
     )
 
 
@@ -182,11 +192,6 @@ def tf_frames_message(name: str, msgs: list[Any], asked: str | None = None) -> s
     return f"{head}; pass --truth-frame PARENT/CHILD, one of: {pairs}"
 
 
-def _joined(arrays: list[np.ndarray]) -> np.ndarray:
-    """``np.concatenate(arrays)``; the array itself when there is one."""
-    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
-
-
 def _trajectory(
     name: str,
     msgtype: str,
@@ -197,7 +202,11 @@ def _trajectory(
     frame: str,
     child: str,
     decoder: str,
+    pose_var: np.ndarray | None = None,
+    twist_var: np.ndarray | None = None,
 ) -> Trajectory:
+    known = [v for v in (pose_var, twist_var) if v is not None]
+    recorded = any(np.any(v != 0) for v in known)  # all zero: unknown (ROS convention)
     return Trajectory(
         name=name,
         msgtype=msgtype,
@@ -210,7 +219,84 @@ def _trajectory(
         frame_id=frame,
         child_frame_id=child,
         decoder=decoder,
+        pose_var=_variances(pose_var, len(header_ns)) if recorded else None,
+        twist_var=_variances(twist_var, len(header_ns)) if recorded else None,
     )
+
+
+def _variances(v: np.ndarray | None, n: int) -> np.ndarray:
+    """A covariance diagonal ``(n, 6)``; zeros where the message had none."""
+    return np.zeros((n, 6)) if v is None else np.ascontiguousarray(v, dtype=float)
+
+
+class _Columns:
+    """One topic's fields, filled batch by batch into arrays allocated once (for the count
+    the bag's index or statistics give; doubled if more arrive): the read holds the
+    topic's fields and one batch, never a list of batches to concatenate. The covariance
+    diagonals are allocated at their first non-zero value (zeros before it)."""
+
+    WIDTH: ClassVar[dict[str, int]] = {"header_ns": 0, "log_ns": 0, "position": 3, "orientation": 4, "velocity": 3,
+             "pose_var": 6, "twist_var": 6}  # fmt: skip
+
+    def __init__(self, count: int, twist: bool) -> None:
+        cap = max(int(count), 16)
+        self.n = 0
+        self.cols: dict[str, np.ndarray] = {
+            k: np.empty((cap, w) if w else cap, np.int64 if not w else float)
+            for k, w in self.WIDTH.items()
+            if k not in ("pose_var", "twist_var") and (twist or k != "velocity")
+        }
+
+    def add(self, d: layout.Decoded, logs: np.ndarray) -> None:
+        m = len(logs)
+        a, b = self.n, self.n + m
+        cap = len(self.cols["log_ns"])
+        if b > cap:
+            for k, old in self.cols.items():
+                grown = np.zeros((max(b, 2 * cap), *old.shape[1:]), old.dtype)
+                grown[:a] = old[:a]
+                self.cols[k] = grown
+            cap = len(self.cols["log_ns"])
+        c = self.cols
+        c["header_ns"][a:b] = d.header_ns
+        c["log_ns"][a:b] = logs
+        c["position"][a:b] = d.pose[:, :3]
+        c["orientation"][a:b] = d.pose[:, 3:7]
+        if "velocity" in c and d.twist is not None:
+            c["velocity"][a:b] = d.twist[:, :3]
+        for k in ("pose_var", "twist_var"):
+            v = getattr(d, k)
+            if v is None or (k not in c and not np.any(v != 0)):
+                continue
+            if k not in c:  # the first covariance recorded: zeros before it
+                c["pose_var"], c["twist_var"] = np.zeros((cap, 6)), np.zeros((cap, 6))
+            c[k][a:b] = v
+        self.n = b
+
+    def trajectory(self, info: TopicInfo, frame: str, child: str) -> Trajectory:
+        """The topic in log-time order (stable: batches come in chunk order)."""
+        n = self.n
+        cols, self.cols = self.cols, {}
+        for k, v in cols.items():  # allocated for more: keep only what was read
+            cols[k] = v if len(v) == n else v[:n].copy()
+        if np.any(cols["log_ns"][1:] < cols["log_ns"][:-1]):
+            order = np.argsort(cols["log_ns"], kind="stable")
+            for k in cols:  # one array at a time: one copy alive at once
+                cols[k] = cols[k][order]
+        return Trajectory(
+            name=info.topic,
+            msgtype=info.msgtype,
+            header_ns=cols["header_ns"],
+            log_ns=cols["log_ns"],
+            position=cols["position"],
+            orientation=cols["orientation"],
+            velocity=cols.get("velocity"),
+            frame_id=frame,
+            child_frame_id=child,
+            decoder="numpy",
+            pose_var=cols.get("pose_var"),
+            twist_var=cols.get("twist_var"),
+        )
 
 
 # --------------------------------------------------------------------------- sources
@@ -547,7 +633,7 @@ class BagSource:
         """Decode ``batches`` (``Batch.conn`` in ``ids[topic]``) per topic, in log-time order
         (stable: batches come in chunk order); an empty dict on a ``LayoutError``."""
         encoding = "cdr" if self._cdr else "ros1"
-        parts: dict[str, list[tuple[layout.Decoded, np.ndarray]]] = {t: [] for t in ids}
+        cols = {i.topic: _Columns(i.count, i.msgtype == ODOMETRY) for i in infos}
         # (log time, frame_id, child_frame_id) of each topic's first message in log-time order
         # (the per-message path's): chunks need not be in time order
         first: dict[str, tuple[int, str, str]] = {}
@@ -564,7 +650,7 @@ class BagSource:
                     d = layout.decode(
                         batch.buf, starts, ends, info.msgtype, encoding, trimmed=batch.trimmed
                     )
-                    parts[info.topic].append((d, logs))
+                    cols[info.topic].add(d, logs)
                     k = int(np.argmin(logs))
                     if info.topic not in first or logs[k] < first[info.topic][0]:
                         if k:
@@ -574,28 +660,16 @@ class BagSource:
                                 trimmed=batch.trimmed,
                             )  # fmt: skip
                         first[info.topic] = (int(logs[k]), d.frame_id, d.child_frame_id)
+                    del d
                 progress.advance(len(batch.starts))
+                del batch  # a memory-mapped window is unmapped before the next is mapped
         except layout.LayoutError:
             return {}
-        out = {}
-        for info in infos:
-            ds = parts[info.topic]
-            if not ds:
-                continue
-            header = _joined([d.header_ns for d, _ in ds])
-            logs = _joined([lg for _, lg in ds])
-            pose = _joined([d.pose for d, _ in ds])
-            twists = [d.twist for d, _ in ds if d.twist is not None]
-            twist = _joined(twists) if twists else None
-            if np.any(logs[1:] < logs[:-1]):  # batches come in chunk order
-                order = np.argsort(logs, kind="stable")
-                header, logs, pose = header[order], logs[order], pose[order]
-                twist = None if twist is None else twist[order]
-            out[info.topic] = _trajectory(
-                info.topic, info.msgtype, header, logs, pose, twist, first[info.topic][1],
-                first[info.topic][2], "numpy",
-            )  # fmt: skip
-        return out
+        return {
+            i.topic: cols[i.topic].trajectory(i, first[i.topic][1], first[i.topic][2])
+            for i in infos
+            if i.topic in first
+        }
 
     def _raw_pass(self, infos: list[TopicInfo], progress: Progress) -> dict[str, tuple]:
         """``{topic: (raw messages, log stamps, schema)}`` in one pass over the bag."""
@@ -676,7 +750,7 @@ class BagSource:
                 d = layout.decode(buf, starts, ends, mt, "cdr" if cdr else "ros1")
                 return _trajectory(
                     info.topic, mt, d.header_ns, np.array(logs, np.int64), d.pose, d.twist,
-                    d.frame_id, d.child_frame_id, "numpy",
+                    d.frame_id, d.child_frame_id, "numpy", d.pose_var, d.twist_var,
                 )  # fmt: skip
             except layout.LayoutError:
                 pass  # the deserializer below
@@ -692,5 +766,7 @@ class BagSource:
         else:
             reader = self._rosbags()
             msgs = [reader.deserialize(x, mt) for x in raws]
-        arrays = objects_to_arrays(msgs, logs, mt, truth_frame, info.topic)
-        return _trajectory(info.topic, mt, *arrays, "deserializer")
+        h, lg, pose, twist, frame, child, pv, tv = objects_to_arrays(
+            msgs, logs, mt, truth_frame, info.topic
+        )
+        return _trajectory(info.topic, mt, h, lg, pose, twist, frame, child, "deserializer", pv, tv)

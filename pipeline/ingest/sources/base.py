@@ -35,7 +35,11 @@ class Trajectory:
     """One stream as arrays, in the order the source stored it (not yet sorted).
 
     ``velocity`` is the message's linear velocity as stored (an Odometry twist: in the child
-    frame by the ROS convention), ``None`` when the message type has none.
+    frame by the ROS convention), ``None`` when the message type has none. ``pose_var`` and
+    ``twist_var`` are the diagonals ``(n, 6)`` of an Odometry's pose covariance (``x y z``
+    in ``frame_id``, then the rotation about its ``x y z`` axes) and twist covariance
+    (linear ``x y z``, angular ``x y z``, in ``child_frame_id``), as recorded; ``None`` when
+    the type has none or every one of them is zero (ROS: unknown).
     """
 
     name: str
@@ -48,6 +52,8 @@ class Trajectory:
     frame_id: str = ""
     child_frame_id: str = ""
     decoder: str = ""  # "numpy" | "deserializer" | "text"
+    pose_var: np.ndarray | None = None
+    twist_var: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.header_ns)

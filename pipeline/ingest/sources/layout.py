@@ -38,25 +38,42 @@ class LayoutError(ValueError):
 
 
 # Field programs. ("time",) stamp; ("str", name) string; ("f64", name, count) doubles
-# (name None: skipped). Every pose-like type has 7 contiguous doubles: x y z qx qy qz qw.
+# (name None: skipped); ("cov", name) a row-major 6x6 covariance of doubles, of which the
+# diagonal is read. Every pose-like type has 7 contiguous doubles: x y z qx qy qz qw.
 _PROGRAMS: dict[str, tuple[tuple, ...]] = {
     ODOMETRY: (
         ("time",),
         ("str", "frame_id"),
         ("str", "child_frame_id"),
         ("f64", "pose", 7),
-        ("f64", None, 36),
+        ("cov", "pose_var"),
         ("f64", "twist", 6),
-        ("f64", None, 36),
+        ("cov", "twist_var"),
     ),
     POSE_STAMPED: (("time",), ("str", "frame_id"), ("f64", "pose", 7)),
     POSE_COV: (("time",), ("str", "frame_id"), ("f64", "pose", 7), ("f64", None, 36)),
     TRANSFORM: (("time",), ("str", "frame_id"), ("str", "child_frame_id"), ("f64", "pose", 7)),
 }
 
-# the programs of trimmed records (:class:`Trim`): the skipped blocks cut out
+COV_DIAG = 6
+"""Doubles on a 6x6 covariance's diagonal, ``COV_STEP`` doubles apart (row-major)."""
+COV_STEP = 7
+
+# the programs of trimmed records (:class:`Trim`): the skipped blocks cut out, a covariance
+# reduced to its diagonal
 _TRIMMED = {
-    k: tuple(op for op in p if op[0] != "f64" or op[1] is not None) for k, p in _PROGRAMS.items()
+    k: tuple(
+        ("f64", op[1], COV_DIAG) if op[0] == "cov" else op
+        for op in p
+        if op[0] != "f64" or op[1] is not None
+    )
+    for k, p in _PROGRAMS.items()
+}
+
+# the programs of lean trimmed records: the covariances cut out whole, as the skipped blocks
+_LEAN = {
+    k: tuple(op for op in p if op[0] != "cov" and (op[0] != "f64" or op[1] is not None))
+    for k, p in _PROGRAMS.items()
 }
 
 FIXED_TYPES = tuple(_PROGRAMS)
@@ -64,13 +81,16 @@ FIXED_TYPES = tuple(_PROGRAMS)
 
 @dataclass(frozen=True)
 class Decoded:
-    """Fields of ``n`` messages: stamps, 7-double pose, optional twist and frame names."""
+    """Fields of ``n`` messages: stamps, 7-double pose, optional twist, frame names and
+    (Odometry) the diagonals of the pose and twist covariances."""
 
     header_ns: np.ndarray  # int64 (n,)
     pose: np.ndarray  # (n, 7): x y z qx qy qz qw
     twist: np.ndarray | None  # (n, 6): linear, angular (Odometry only)
     frame_id: str
     child_frame_id: str
+    pose_var: np.ndarray | None = None  # (n, 6): x y z, rotation about x y z (Odometry)
+    twist_var: np.ndarray | None = None  # (n, 6): linear x y z, angular x y z (Odometry)
 
 
 def _words(buf: np.ndarray, pos: np.ndarray, count: int, dtype: str) -> np.ndarray:
@@ -132,7 +152,7 @@ def _walk(
         if np.any(pos > ends):
             raise LayoutError("field beyond the end of a message")
         if cdr:
-            align = 7 if op[0] == "f64" else 3
+            align = 7 if op[0] in ("f64", "cov") else 3
             pos = base + ((pos - base + align) & ~align)
         if op[0] == "time":
             end = pos + 8
@@ -144,7 +164,7 @@ def _walk(
                 raise LayoutError("CDR string without terminator")
             end = pos + 4 + length
         else:
-            end = pos + 8 * op[2]
+            end = pos + 8 * (op[2] if op[0] == "f64" else COV_DIAG * COV_DIAG)
             if np.any(end > ends):
                 raise LayoutError("float block beyond the end of a message")
         yield op, pos, end
@@ -171,12 +191,12 @@ def decode(
     msgtype: str,
     encoding: str,
     *,
-    trimmed: bool = False,
+    trimmed: bool | str = False,
 ) -> Decoded:
     """Decode messages ``buf[starts[i]:ends[i]]`` of ``msgtype`` (``ros1`` or ``cdr``);
     ``trimmed``: records cut by a :class:`Trim` (the skipped float blocks and whatever
-    follows the last field read are not there)."""
-    program = (_TRIMMED if trimmed else _PROGRAMS).get(msgtype)
+    follows the last field read are not there; ``"lean"``: the covariances cut whole too)."""
+    program = (_LEAN if trimmed == "lean" else _TRIMMED if trimmed else _PROGRAMS).get(msgtype)
     if program is None:
         raise LayoutError(f"{msgtype} has no fixed layout")
     buf = np.asarray(buf)
@@ -204,6 +224,8 @@ def decode(
             names[op[1]] = _string0(buf, int(pos[0]) + 4, int(end[0] - pos[0]) - 4, cdr)
         elif op[0] == "f64" and op[1] is not None:
             out[op[1]] = _words(buf, pos, op[2], "<f8")
+        elif op[0] == "cov":
+            out[op[1]] = _diagonals(buf, pos)
     slack = ends - pos
     if slack.min() < 0 or slack.max() > (3 if cdr else 0):
         raise LayoutError("message length does not match the type's layout")
@@ -213,7 +235,25 @@ def decode(
         twist=out.get("twist"),
         frame_id=names.get("frame_id", ""),
         child_frame_id=names.get("child_frame_id", ""),
+        pose_var=out.get("pose_var"),
+        twist_var=out.get("twist_var"),
     )
+
+
+def _diagonals(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """The diagonal ``(n, 6)`` of the row-major 6x6 float64 matrix at byte ``pos[i]`` of
+    ``buf``, for every ``i``: one gather through a view whose rows start at every byte and
+    whose six items are ``8 * COV_STEP`` bytes apart."""
+    span = 8 * (COV_STEP * (COV_DIAG - 1) + 1)
+    n = len(pos)
+    if n == 0:
+        return np.zeros((0, COV_DIAG))
+    if int(pos.min()) < 0 or int(pos.max()) + span > len(buf):
+        raise LayoutError("a field beyond the end of the data")
+    view = np.ndarray(
+        (len(buf) - span + 1, COV_DIAG), np.dtype("<f8"), buffer=buf, strides=(1, 8 * COV_STEP)
+    )
+    return np.array(view[pos], dtype=float)
 
 
 @dataclass(frozen=True)
@@ -221,11 +261,13 @@ class Trim:
     """What of a fixed-layout message a reader needs, planned on one message.
 
     ``spans`` are the message's byte ranges ``[a, b)`` a trimmed record keeps, in order:
-    everything up to the last field read (twist, else pose) except the skipped float blocks
-    (covariances), so a trimmed record decodes with ``decode(..., trimmed=True)``: a skipped
-    block starts 8-aligned and is a multiple of 8 long, so what follows it keeps its
-    alignment; and in every program here it follows a float block, so no padding before it
-    is left in the record for the next field to misread. :func:`plan_trim` checks this on
+    everything up to the last field read (an Odometry's twist covariance, else the pose)
+    except the skipped float blocks (a PoseWithCovarianceStamped's covariance) and, of an
+    Odometry's two covariances, all but their diagonals, so a trimmed record decodes with
+    ``decode(..., trimmed=True)``: every cut starts 8-aligned and is a multiple of 8 long,
+    so what follows it keeps its alignment; and in every program here it follows a float,
+    so no padding before it is left in the record for the next field to misread (an
+    Odometry message's 724 bytes become 244; 148 with ``lean``, the covariances cut whole). :func:`plan_trim` checks this on
     its message (the trimmed record decodes to the same fields).
     ``fixed`` are the record's byte ranges that every message of the same layout shares
     with this one: the encapsulation's identifier (CDR) and every string with its length
@@ -238,6 +280,10 @@ class Trim:
     fixed: tuple[tuple[int, int], ...]
     length: int
     record: bytes
+    covariances: tuple[tuple[int, int], ...] = ()
+    """The message's covariance blocks ``[a, b)`` (Odometry): cut whole from a lean trim."""
+    lean: bool = False
+    """The covariances are cut whole (records decode with ``trimmed="lean"``)."""
 
     @property
     def size(self) -> int:
@@ -245,47 +291,72 @@ class Trim:
         return len(self.record)
 
 
-def plan_trim(message: bytes, msgtype: str, encoding: str) -> Trim:
-    """The :class:`Trim` of the messages laid out as ``message``: :class:`LayoutError` if it
-    does not have ``msgtype``'s layout, or if its trimmed record would not decode to its
-    fields."""
+def plan_trim(message: bytes, msgtype: str, encoding: str, *, lean: bool = False) -> Trim:
+    """The :class:`Trim` of the messages laid out as ``message`` (``lean``: without the
+    covariances, not even their diagonals): :class:`LayoutError` if it does not have
+    ``msgtype``'s layout, or if its trimmed record would not decode to its fields."""
     buf = np.frombuffer(message, dtype=np.uint8)
     starts, ends = np.zeros(1, np.int64), np.full(1, len(buf), np.int64)
     whole = decode(buf, starts, ends, msgtype, encoding)
     cdr = encoding == "cdr"
-    spans: list[tuple[int, int]] = []
-    fixed: list[tuple[int, int]] = [(0, 2)] if cdr else []  # ROS1's first word is the seq
-    kept = removed = 0  # message offset where the current span began; bytes cut before it
+    cuts: list[tuple[int, int]] = []  # message byte ranges left out, in order
+    strings: list[tuple[int, int]] = []
+    blocks: list[tuple[int, int]] = []
     last = 0  # one past the last field read
     for op, pos, end in _walk(buf, starts, ends, _PROGRAMS[msgtype], cdr):
         a, b = int(pos[0]), int(end[0])
         if op[0] == "end":
             break
         if op[0] == "f64" and op[1] is None:  # skipped: cut out
-            spans.append((kept, a))
-            removed += b - a
-            kept = b
+            cuts.append((a, b))
             continue
-        if op[0] == "str":
-            fixed.append((a - removed, b - removed))
+        if op[0] == "cov":
+            blocks.append((a, b))
+            if lean:  # cut whole, as a skipped block
+                cuts.append((a, b))
+                continue
+            # the diagonal kept, the 6 x 7 doubles between its items cut
+            step = 8 * COV_STEP
+            cuts += [(a + step * i + 8, a + step * (i + 1)) for i in range(COV_DIAG - 1)]
+        elif op[0] == "str":
+            strings.append((a, b))
         last = b
+    spans: list[tuple[int, int]] = []
+    kept = 0
+    for a, b in cuts:
+        spans.append((kept, a))
+        kept = b
     spans.append((kept, last))
     spans = [(a, b) for a, b in spans if b > a]
+
+    def in_record(x: int) -> int:  # a message offset inside a kept span, in the record
+        return sum(min(b, x) - a for a, b in spans if a < x)
+
+    fixed = [(0, 2)] if cdr else []  # ROS1's first word is the seq
+    fixed += [(in_record(a), in_record(b)) for a, b in strings]
     record = b"".join(message[a:b] for a, b in spans)
     rec = np.frombuffer(record, dtype=np.uint8)
-    cut = decode(rec, starts, np.full(1, len(rec), np.int64), msgtype, encoding, trimmed=True)
+    kind = "lean" if lean else True
+    cut = decode(rec, starts, np.full(1, len(rec), np.int64), msgtype, encoding, trimmed=kind)
+    if lean:  # the covariances are not in it: compare the rest
+        whole = Decoded(whole.header_ns, whole.pose, whole.twist, whole.frame_id,
+                        whole.child_frame_id)  # fmt: skip
     if not _same(cut, whole):
         raise LayoutError(f"{msgtype}: its trimmed record does not hold its fields")
-    return Trim(spans=tuple(spans), fixed=tuple(fixed), length=len(buf), record=record)
+    return Trim(
+        spans=tuple(spans), fixed=tuple(fixed), length=len(buf), record=record,
+        covariances=tuple(blocks), lean=lean,
+    )  # fmt: skip
 
 
 def _same(a: Decoded, b: Decoded) -> bool:
     """Two decodings with the same fields, bit for bit."""
     arrays = [(a.header_ns, b.header_ns), (a.pose, b.pose)]
-    if a.twist is not None or b.twist is not None:
-        if a.twist is None or b.twist is None:
-            return False
-        arrays.append((a.twist, b.twist))
+    for x, y in ((a.twist, b.twist), (a.pose_var, b.pose_var), (a.twist_var, b.twist_var)):
+        if x is not None or y is not None:
+            if x is None or y is None:
+                return False
+            arrays.append((x, y))
     return (a.frame_id, a.child_frame_id) == (b.frame_id, b.child_frame_id) and all(
         x.tobytes() == y.tobytes() for x, y in arrays
     )

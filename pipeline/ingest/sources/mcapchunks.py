@@ -39,6 +39,7 @@ and the per-message fallback stops with one ``InputError`` line naming the repai
 
 from __future__ import annotations
 
+import contextlib
 import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -51,7 +52,9 @@ from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.ingest.sources import layout
 from qsls.pipeline.ingest.sources.ros1index import Batch
 
-_BATCH_BYTES = 64 << 20  # decompressed bytes decoded at once (bounds memory on big bags)
+_BATCH_BYTES = 8 << 20
+"""Bytes of chunk records decoded at once (a window of the file, or decompressed): bounds
+the reader's memory."""
 _COMPRESSIONS = ("", "zstd", "lz4")
 _MSG_HEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, length, channel_id, sequence, log, publish
 _IDX_HEAD = 1 + 8 + 2 + 4  # opcode, length, channel_id, records_length
@@ -59,14 +62,24 @@ _IDX_HEAD = 1 + 8 + 2 + 4  # opcode, length, channel_id, records_length
 
 @dataclass(frozen=True)
 class Located:
-    """The wanted messages of one chunk: offsets in its records, log times, labels."""
+    """One chunk holding wanted messages: where its wanted channels' message indexes are
+    (``(channel id, label, index record offset)``, read when the chunk is decoded, so the
+    index entries of the whole file are never held at once)."""
 
     chunk: Any  # mcap.records.ChunkIndex
-    offsets: np.ndarray  # int64, in offset order
-    log_ns: np.ndarray
-    channel: np.ndarray  # int64 MCAP channel id
-    label: np.ndarray  # int64 caller's label of the channel
+    indexes: tuple[tuple[int, int, int], ...]
     number: int = 0  # the chunk's number in file order (1-based, for messages)
+
+    def rows(self, buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(offsets, log_ns, channel, label)`` of the chunk's wanted messages, in offset
+        order (int64; ``buf`` the file)."""
+        parts = []
+        for cid, label, at in self.indexes:
+            idx = message_index(buf, at, cid)
+            parts.append(np.column_stack([idx, np.full((len(idx), 2), (cid, label))]))
+        r = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        r = r[np.argsort(r[:, 1], kind="stable")]
+        return r[:, 1], r[:, 0], r[:, 2], r[:, 3]
 
 
 def read_summary(path: Path) -> Any:
@@ -85,6 +98,15 @@ def read_summary(path: Path) -> Any:
 
 def message_index(buf: np.ndarray, offset: int, channel_id: int) -> np.ndarray:
     """``(n, 2)`` int64 ``(log_time, offset)`` of the ``MessageIndex`` record at ``offset``."""
+    n = _index_count(buf, offset, channel_id)
+    start = offset + _IDX_HEAD
+    entries = np.frombuffer(buf[start : start + 16 * n].tobytes(), dtype="<u8")
+    return entries.astype(np.int64).reshape(-1, 2)
+
+
+def _index_count(buf: np.ndarray, offset: int, channel_id: int) -> int:
+    """The number of entries of the ``MessageIndex`` record at ``offset`` (its head checked
+    as :func:`message_index` checks it; the entries are not read)."""
     from mcap.opcode import Opcode
 
     head = bytes(buf[offset : offset + _IDX_HEAD])
@@ -95,16 +117,16 @@ def message_index(buf: np.ndarray, offset: int, channel_id: int) -> np.ndarray:
     nbytes = int.from_bytes(head[11:15], "little")
     if cid != channel_id or nbytes % 16 or length != 2 + 4 + nbytes:
         raise layout.LayoutError("message index record of another channel or size")
-    start = offset + _IDX_HEAD
-    if start + nbytes > len(buf):
+    if offset + _IDX_HEAD + nbytes > len(buf):
         raise layout.LayoutError("message index beyond the end of the file")
-    entries = np.frombuffer(buf[start : start + nbytes].tobytes(), dtype="<u8")
-    return entries.astype(np.int64).reshape(-1, 2)
+    return nbytes // 16
 
 
 def locate(buf: np.ndarray, summary: Any, wanted: dict[int, int]) -> list[Located]:
     """The chunks (file order) holding a channel of ``wanted`` (``{channel id: label}``)
-    and where its messages are; ``LayoutError`` when the summary cannot say."""
+    and where their message indexes are; ``LayoutError`` when the summary cannot say (the
+    message counts the index records declare are checked against the statistics here,
+    before any message is read)."""
     chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
     if not chunks:
         raise layout.LayoutError("MCAP file without chunk indexes")
@@ -118,14 +140,10 @@ def locate(buf: np.ndarray, summary: Any, wanted: dict[int, int]) -> list[Locate
             continue
         if ch.compression not in _COMPRESSIONS:
             raise layout.LayoutError(f"chunk compression {ch.compression!r}")
-        parts = []
         for cid in present:
-            idx = message_index(buf, ch.message_index_offsets[cid], cid)
-            counts[cid] += len(idx)
-            parts.append(np.column_stack([idx, np.full((len(idx), 2), (cid, wanted[cid]))]))
-        rows = np.concatenate(parts)
-        rows = rows[np.argsort(rows[:, 1], kind="stable")]
-        out.append(Located(ch, rows[:, 1], rows[:, 0], rows[:, 2], rows[:, 3], number))
+            counts[cid] += _index_count(buf, ch.message_index_offsets[cid], cid)
+        indexes = tuple((cid, wanted[cid], ch.message_index_offsets[cid]) for cid in present)
+        out.append(Located(ch, indexes, number))
     stats = summary.statistics.channel_message_counts if summary.statistics else {}
     for cid, n in counts.items():
         if cid in stats and int(stats[cid]) != n:
@@ -164,13 +182,15 @@ def _records(
     return starts, ends
 
 
-def _batch(buf: np.ndarray, base: list[int], locs: list[Located]) -> Batch:
-    """One batch over ``buf``, chunk ``k``'s records starting at byte ``base[k]``."""
-    rec = np.concatenate([b + loc.offsets for b, loc in zip(base, locs, strict=True)])
-    log_ns = np.concatenate([loc.log_ns for loc in locs])
-    channel = np.concatenate([loc.channel for loc in locs])
+def _batch(buf: np.ndarray, base: list[int], locs: list[Located], file: np.ndarray) -> Batch:
+    """One batch over ``buf``, chunk ``k``'s records starting at byte ``base[k]`` (``file``:
+    the whole file, where the message indexes are)."""
+    rows = [loc.rows(file) for loc in locs]
+    rec = np.concatenate([b + r[0] for b, r in zip(base, rows, strict=True)])
+    log_ns = np.concatenate([r[1] for r in rows])
+    channel = np.concatenate([r[2] for r in rows])
     starts, ends = _records(buf, rec, channel, log_ns)
-    return Batch(buf, starts, ends, log_ns, np.concatenate([loc.label for loc in locs]))
+    return Batch(buf, starts, ends, log_ns, np.concatenate([r[3] for r in rows]))
 
 
 def _data_start(buf: np.ndarray, ch: Any) -> int:
@@ -237,25 +257,69 @@ def _decompressed(fh: Any, ch: Any, path: Path | None = None, loc: Located | Non
 
 def mcap_batches(path: Path, summary: Any, wanted: dict[int, int]) -> Iterator[Batch]:
     """The messages of the channels in ``wanted`` (``{channel id: label}``; ``Batch.conn``
-    holds the label), chunk by chunk in file order (module docstring).
+    holds the label), chunk by chunk in file order (module docstring), in batches of about
+    ``_BATCH_BYTES``: memory stays bounded whatever the file's length.
 
-    All chunks uncompressed: one batch over a memory map of the file. Otherwise the chunks
-    are decompressed once each and copied into batches of about 64 MB in one reused buffer
-    (fresh memory per batch costs more in page faults than the decompression): a batch's
-    ``buf`` is only valid until the next batch is asked for. Raises
-    :class:`layout.LayoutError` (before yielding) when the summary cannot locate the
+    All chunks uncompressed: one batch per window of consecutive chunks, read through a
+    memory map of the file (only the pages holding wanted records are read; a window's
+    pages leave the resident set when the next batch is asked for: the map's views are
+    dropped). Otherwise the chunks are decompressed once each and copied into batches in
+    one reused buffer (fresh memory per batch costs more in page faults than the
+    decompression): a batch's ``buf`` is only valid until the next batch is asked for.
+    Raises :class:`layout.LayoutError` (before yielding) when the summary cannot locate the
     messages, or later when a record is not where the index says.
     """
+    import mmap
+
+    with open(path, "rb") as fh:
+        if fh.seek(0, 2) == 0:
+            raise layout.LayoutError("empty MCAP file")
+        mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    try:
+        yield from _mcap_batches(path, mm, summary, wanted)
+    finally:
+        # release the pages read (and the map once nothing views it any more)
+        with contextlib.suppress(BufferError):
+            mm.close()
+
+
+def _release(mm: Any, lo: int, hi: int) -> None:
+    """Drop the pages of ``mm[lo:hi]`` from the resident set (read again from the file if
+    touched again): ``madvise(MADV_DONTNEED)`` where the platform has it."""
+    import mmap
+
+    advice = getattr(mmap, "MADV_DONTNEED", None)
+    if advice is None:
+        return
+    lo -= lo % mmap.PAGESIZE
+    if hi > lo:
+        mm.madvise(advice, lo, min(hi, len(mm)) - lo)
+
+
+def _mcap_batches(path: Path, mm: Any, summary: Any, wanted: dict[int, int]) -> Iterator[Batch]:
     # a plain ndarray over the map: memmap's __getitem__ costs more than the gathers
-    buf = np.memmap(path, dtype=np.uint8, mode="r").view(np.ndarray)
+    buf = np.frombuffer(mm, dtype=np.uint8)
     locs = locate(buf, summary, wanted)
     if not locs:
         return
     if all(loc.chunk.compression == "" for loc in locs):
-        starts = [_data_start(buf, loc.chunk) for loc in locs]
-        for loc, start in zip(locs, starts, strict=True):
-            _check_mapped_crc(path, buf, loc, start)
-        yield _batch(buf, starts, locs)
+        k = 0
+        while k < len(locs):
+            window = [locs[k]]
+            lo = window[0].chunk.chunk_start_offset
+            k += 1
+            while k < len(locs):
+                ch = locs[k].chunk
+                if ch.chunk_start_offset + ch.chunk_length - lo > _BATCH_BYTES:
+                    break
+                window.append(locs[k])
+                k += 1
+            starts = [_data_start(buf, loc.chunk) for loc in window]
+            for loc, start in zip(window, starts, strict=True):
+                _check_mapped_crc(path, buf, loc, start)
+            yield _batch(buf, starts, window, buf)
+            last = window[-1].chunk
+            _release(mm, lo, last.chunk_start_offset + last.chunk_length)
         return
     # at most one batch up front; grown from the data actually decompressed, never from the
     # index's (unverified) sizes alone
@@ -268,7 +332,8 @@ def mcap_batches(path: Path, summary: Any, wanted: dict[int, int]) -> Iterator[B
         for loc in locs:
             data = _decompressed(fh, loc.chunk, path, loc)
             if group and size + len(data) > _BATCH_BYTES:
-                yield _batch(work[:size], base, group)
+                yield _batch(work[:size], base, group, buf)
+                _release(mm, 0, loc.chunk.chunk_start_offset)  # the indexes read so far
                 base, group, size = [], [], 0
             if size + len(data) > len(work):
                 grown = np.empty(max(size + len(data), min(2 * len(work), _BATCH_BYTES)), np.uint8)
@@ -279,4 +344,4 @@ def mcap_batches(path: Path, summary: Any, wanted: dict[int, int]) -> Iterator[B
             group.append(loc)
             size += len(data)
     if group:
-        yield _batch(work[:size], base, group)
+        yield _batch(work[:size], base, group, buf)

@@ -15,20 +15,22 @@ import numpy as np
 
 from qsls.pipeline.ingest.sources import layout
 
-_BATCH_BYTES = 64 << 20  # decompressed bytes decoded at once (bounds memory on big bags)
+_BATCH_BYTES = 8 << 20
+"""Bytes of chunk data (decompressed) decoded at once: bounds the reader's memory."""
 
 
 @dataclass(frozen=True)
 class Batch:
     """Messages located in one buffer: message ``i`` is ``buf[starts[i]:ends[i]]``
-    (``trimmed``: records cut by a :class:`layout.Trim`, not whole messages)."""
+    (``trimmed``: records cut by a :class:`layout.Trim`, not whole messages; ``"lean"``:
+    cut by a lean one, without the covariances)."""
 
     buf: np.ndarray
     starts: np.ndarray
     ends: np.ndarray
     log_ns: np.ndarray
     conn: np.ndarray
-    trimmed: bool = False
+    trimmed: bool | str = False
 
 
 _ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])
@@ -72,25 +74,43 @@ def open_ros1(path: Path) -> Any:
     return reader
 
 
-def _index(reader1: Any, conn_ids: set[int]) -> np.ndarray:
-    """rows ``(time, chunk_pos, offset, conn)`` of the reader's index, in time order: the
-    arrays of :func:`open_ros1`, or rosbags' ``IndexData`` of a plain rosbags reader."""
-    parts = []
+_Entries = dict[int, list[tuple[int, np.ndarray]]]
+
+
+def _chunk_entries(reader1: Any, conn_ids: set[int]) -> _Entries:
+    """``{chunk position: [(conn, entries), ...]}`` of the wanted connections: the arrays of
+    :func:`open_ros1` (by reference: :func:`_chunk_rows` reads them chunk by chunk), or rows
+    ``(time, offset)`` from rosbags' ``IndexData`` of a plain rosbags reader."""
+    out: _Entries = {}
     arrays = getattr(reader1, "index_arrays", None)
     for c in sorted(conn_ids):
         if arrays is not None:
             for pos, e in arrays.get(c, []):
-                t = e["sec"].astype(np.int64) * 1_000_000_000 + e["nsec"]
-                parts.append(np.column_stack([t, np.full(len(e), pos, np.int64),
-                                              e["offset"].astype(np.int64),
-                                              np.full(len(e), c, np.int64)]))  # fmt: skip
+                out.setdefault(int(pos), []).append((c, e))
             continue
         entries = reader1.indexes[c]
         a = np.fromiter(chain.from_iterable(entries), dtype=np.int64, count=3 * len(entries))
-        a = a.reshape(-1, 3)
-        parts.append(np.column_stack([a, np.full(len(a), c, dtype=np.int64)]))
-    idx = np.concatenate(parts) if parts else np.zeros((0, 4), np.int64)
-    return idx[np.lexsort((idx[:, 2], idx[:, 1], idx[:, 0]))]
+        a = a.reshape(-1, 3)  # time, chunk position, offset
+        a = a[np.argsort(a[:, 1], kind="stable")]
+        cut = np.flatnonzero(a[1:, 1] != a[:-1, 1]) + 1
+        for part in np.split(a, cut) if len(a) else []:
+            out.setdefault(int(part[0, 1]), []).append((c, part[:, [0, 2]]))
+    return out
+
+
+def _chunk_rows(parts: list[tuple[int, np.ndarray]]) -> np.ndarray:
+    """The rows ``(time, offset, conn)`` of one chunk in ``(time, offset)`` order, from its
+    :func:`_chunk_entries` list."""
+    rows = []
+    for c, e in parts:
+        if e.dtype == _ENTRY:
+            t = e["sec"].astype(np.int64) * 1_000_000_000 + e["nsec"]
+            off = e["offset"].astype(np.int64)
+        else:
+            t, off = e[:, 0], e[:, 1]
+        rows.append(np.column_stack([t, off, np.full(len(e), c, np.int64)]))
+    r = rows[0] if len(rows) == 1 else np.concatenate(rows)
+    return r[np.lexsort((r[:, 1], r[:, 0]))]
 
 
 def _records(
@@ -129,35 +149,30 @@ def _records(
 
 
 def ros1_batches(reader1: Any, conn_ids: set[int]) -> Iterator[Batch]:
-    """The messages of ``conn_ids``, located through rosbags' ROS1 index (module docstring).
+    """The messages of ``conn_ids``, located through rosbags' ROS1 index (module docstring),
+    chunk by chunk in file order (within a chunk in ``(time, offset)`` order), in batches of
+    about ``_BATCH_BYTES``: memory stays bounded whatever the bag's length.
 
-    Uncompressed bags give one batch over a memory map of the file; compressed chunks are
-    decompressed once each and grouped into batches of about 64 MB. Raises
-    :class:`layout.LayoutError` when a record is not where the index says.
+    Uncompressed bags are read through memory maps of windows of the file (about
+    ``_BATCH_BYTES`` each, unmapped when the next is asked for: only the pages holding
+    wanted records are read, and they leave the resident set with their window); compressed
+    chunks are decompressed once each into one reused buffer. A batch's ``buf`` is only
+    valid until the next batch is asked for. Raises :class:`layout.LayoutError` when a
+    record is not where the index says.
     """
     from rosbags.rosbag1.reader import decompressors
 
-    idx = _index(reader1, conn_ids)
-    if len(idx) == 0:
+    entries = _chunk_entries(reader1, conn_ids)
+    if not entries:
         return
     chunks = reader1.chunks
-    chunk = np.sort(idx[:, 1])
-    uniq = chunk[np.r_[True, chunk[1:] != chunk[:-1]]]  # np.unique would import numpy.ma
-    if all(chunks[int(c)].decompressor is decompressors["none"] for c in uniq):
-        buf = np.memmap(reader1.path, dtype=np.uint8, mode="r")
-        datapos = np.array([chunks[int(c)].datapos for c in uniq], dtype=np.int64)
-        rec = datapos[np.searchsorted(uniq, idx[:, 1])] + idx[:, 2]
-        starts, ends = _records(buf, rec, idx[:, 0], idx[:, 3])
-        yield Batch(buf, starts, ends, idx[:, 0], idx[:, 3])
+    order = sorted(entries)  # chunk positions: file order
+    if all(chunks[c].decompressor is decompressors["none"] for c in order):
+        yield from _mapped_batches(reader1, entries, order)
         return
-    # messages grouped by chunk (stable: time order within a chunk), chunks in file order
-    by_chunk = np.argsort(idx[:, 1], kind="stable")
-    sidx = idx[by_chunk]
-    bounds = np.searchsorted(sidx[:, 1], uniq)
-    bounds = np.append(bounds, len(sidx))
     # decompressed chunks are copied into one reused buffer (fresh memory for every batch
     # would cost more in page faults than the decompression itself)
-    work = np.empty(_BATCH_BYTES + max(chunks[int(c)].datasize for c in uniq) * 4, np.uint8)
+    work = np.empty(_BATCH_BYTES + max(chunks[c].datasize for c in order) * 4, np.uint8)
     base: list[int] = []
     rows: list[np.ndarray] = []
     size = 0
@@ -165,16 +180,16 @@ def ros1_batches(reader1: Any, conn_ids: set[int]) -> Iterator[Batch]:
     def flush() -> Batch:
         buf = work[:size]
         part = np.concatenate(rows)
-        rec = np.repeat(np.array(base), [len(r) for r in rows]) + part[:, 2]
-        starts, ends = _records(buf, rec, part[:, 0], part[:, 3])
-        return Batch(buf, starts, ends, part[:, 0], part[:, 3])
+        rec = np.repeat(np.array(base), [len(r) for r in rows]) + part[:, 1]
+        starts, ends = _records(buf, rec, part[:, 0], part[:, 2])
+        return Batch(buf, starts, ends, part[:, 0], part[:, 2])
 
     with open(reader1.path, "rb") as fh:
-        for k, c in enumerate(uniq.tolist()):
+        for c in order:
             ch = chunks[c]
             fh.seek(ch.datapos)
             raw = ch.decompressor(fh.read(ch.datasize))
-            if size + len(raw) > len(work):
+            if size + len(raw) > len(work) or (rows and size >= _BATCH_BYTES):
                 if rows:
                     yield flush()
                 base, rows, size = [], [], 0
@@ -182,10 +197,41 @@ def ros1_batches(reader1: Any, conn_ids: set[int]) -> Iterator[Batch]:
                     work = np.empty(len(raw), np.uint8)
             work[size : size + len(raw)] = np.frombuffer(raw, np.uint8)
             base.append(size)
-            rows.append(sidx[bounds[k] : bounds[k + 1]])
+            rows.append(_chunk_rows(entries.pop(c)))
             size += len(raw)
     if rows:
         yield flush()
+
+
+def _mapped_batches(reader1: Any, entries: _Entries, order: list[int]) -> Iterator[Batch]:
+    """Uncompressed chunks: one batch per window of consecutive chunks spanning about
+    ``_BATCH_BYTES`` of the file, read through a memory map of that window alone."""
+    chunks = reader1.chunks
+    k = 0
+    while k < len(order):
+        lo = chunks[order[k]].datapos
+        group = [order[k]]
+        k += 1
+        while (
+            k < len(order)
+            and chunks[order[k]].datapos + chunks[order[k]].datasize - lo <= _BATCH_BYTES
+        ):
+            group.append(order[k])
+            k += 1
+        last = chunks[group[-1]]
+        span = last.datapos + last.datasize - lo
+        if lo + span > reader1.path.stat().st_size:
+            raise layout.LayoutError("chunk data beyond the end of the file")
+        # a plain ndarray over the map: cheaper gathers
+        buf = np.memmap(reader1.path, np.uint8, "r", offset=lo, shape=(span,)).view(np.ndarray)
+        parts = [_chunk_rows(entries.pop(c)) for c in group]
+        rows = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        base = np.repeat(
+            np.array([chunks[c].datapos - lo for c in group], np.int64), [len(p) for p in parts]
+        )
+        starts, ends = _records(buf, base + rows[:, 1], rows[:, 0], rows[:, 2])
+        yield Batch(buf, starts, ends, rows[:, 0], rows[:, 2])
+        del buf, starts, ends, rows, parts
 
 
 def ros1_slices(

@@ -14,7 +14,9 @@ fixed-layout read (:func:`sqlite_batches` with ``msgtypes``) lets SQLite build t
 
 1. the topic's first message is decoded in full and gives the :class:`layout.Trim`, the
    byte ranges of a message that hold the fields read (the covariances and what follows
-   the last field are left out: an Odometry message's 724 bytes become 148);
+   the last field are left out: an Odometry's 724 bytes become 148; where its covariances
+   are not all zero, the query (which also returns each covariance block's largest value)
+   is run again with their diagonals kept: 244 bytes);
 2. one aggregate query concatenates those ranges of every message (``group_concat`` of
    ``substr``), the log times as text (parsed by numpy at once), the message count and the
    smallest and largest message length. The rows reach the aggregate in the order SQLite
@@ -26,7 +28,8 @@ fixed-layout read (:func:`sqlite_batches` with ``msgtypes``) lets SQLite build t
    first message's, so every message has its fields at the first one's offsets. A topic
    that fails (its frame names change, say) is fetched row by row instead.
 
-A result longer than SQLite's length limit (1 GB by default) is avoided by querying ranges
+A result longer than 4 MB (``_QUERY_BYTES``: the reader's memory stays bounded whatever the
+bag's length) or than SQLite's length limit (1 GB by default) is avoided by querying ranges
 of row ids sized on the first message (a range whose messages are longer, which SQLite
 refuses to concatenate, is fetched row by row). The row-by-row fetch
 (:func:`sqlite_batches` without ``msgtypes``, or a topic that failed the check) takes each
@@ -52,6 +55,8 @@ from qsls.pipeline.ingest.sources.ros1index import Batch
 
 _MMAP_BYTES = 1 << 40
 _STAMP_CHARS = 21  # a log time as text (up to 19 digits and a sign) and its comma
+_QUERY_BYTES = 4 << 20
+"""Bytes of trimmed records (and their log times as text) one query returns at most."""
 
 
 @contextlib.contextmanager
@@ -102,6 +107,14 @@ def _connect(db: Path) -> sqlite3.Connection:
     return con
 
 
+def _unmap(con: sqlite3.Connection) -> None:
+    """Drop SQLite's memory map of the database (remapped by the next query): the pages a
+    query read leave the resident set with it, so a scan of the whole file in ranges holds
+    one range's pages, not the file's."""
+    con.execute("PRAGMA mmap_size = 0")
+    con.execute(f"PRAGMA mmap_size = {_MMAP_BYTES}")
+
+
 def _rows(
     con: sqlite3.Connection, where: str, args: list[int], k: int, ids: tuple[int, int] | None
 ) -> Iterator[Batch]:
@@ -139,38 +152,65 @@ def _trimmed(
     ).fetchone()
     if first is None:
         return
-    trim = layout.plan_trim(bytes(first[0]), msgtype, "cdr")
-    whole = trim.spans == ((0, trim.length),)  # a message read whole: no copy per row
-    record = (
-        "data" if whole else "||".join(f"substr(data, {a + 1}, {b - a})" for a, b in trim.spans)
-    )
-    # concatenation and group_concat give TEXT (the bytes unchanged): CAST makes it a blob
-    query = (
-        "SELECT count(*), min(length(data)), max(length(data)),"
-        f" CAST(group_concat({record}, x'') AS BLOB), group_concat(timestamp)"
-        f" FROM messages WHERE {where} AND id BETWEEN ? AND ?"
-    )
+    # lean records (no covariances) unless the range's covariances are not all zero: the
+    # lean query also returns the largest of each covariance block (blobs compare bytewise,
+    # so only all-zero blocks give an all-zero largest), and a range with one that is not
+    # is fetched again with their diagonals (244 of an Odometry's 724 bytes against 148)
+    lean = layout.plan_trim(bytes(first[0]), msgtype, "cdr", lean=True)
+    full = layout.plan_trim(bytes(first[0]), msgtype, "cdr") if lean.covariances else lean
+    query = _aggregate(lean, where, lean.covariances)
+    query_full = _aggregate(full, where, ())
     # two subqueries: min and max in one aggregate would scan the table instead of two
     # lookups at the ends of its b-tree
     lo, hi = con.execute(
         "SELECT (SELECT min(id) FROM messages), (SELECT max(id) FROM messages)"
     ).fetchone()
-    # ids per query: the record and stamp texts stay within half SQLite's length limit
-    step = max(1, con.getlimit(sqlite3.SQLITE_LIMIT_LENGTH) // (2 * (trim.size + _STAMP_CHARS)))
+    # ids per query: the record and stamp texts stay within half SQLite's length limit, and
+    # within _QUERY_BYTES (the reader's memory is bounded whatever the bag's length)
+    limit = min(con.getlimit(sqlite3.SQLITE_LIMIT_LENGTH) // 2, _QUERY_BYTES)
+    step = max(1, limit // (full.size + _STAMP_CHARS))
     for a in range(lo, hi + 1, step):
         b = min(a + step - 1, hi)
+        trim = lean
         try:
-            n, shortest, longest, blob, stamps = con.execute(query, [*args, a, b]).fetchone()
+            n, shortest, longest, blob, stamps, *largest = con.execute(
+                query, [*args, a, b]
+            ).fetchone()
+            if any(m is not None and any(bytes(m)) for m in largest):
+                trim = full
+                n, shortest, longest, blob, stamps = con.execute(
+                    query_full, [*args, a, b]
+                ).fetchone()
         except sqlite3.DataError:  # "string or blob too big": messages longer than the first
             yield from _rows(con, where, args, k, (a, b))
             continue
         if not n:
             continue
         batch = _records(n, shortest, longest, blob, stamps, trim, k)
+        del blob, stamps
         if batch is None:
             yield from _rows(con, where, args, k, (a, b))
         else:
             yield batch
+        del batch
+        _unmap(con)
+
+
+def _aggregate(trim: layout.Trim, where: str, largest: tuple[tuple[int, int], ...]) -> str:
+    """The aggregate query of a range of row ids: count, shortest and longest message, the
+    trimmed records concatenated, the log times as text, and the largest value of each
+    message byte range in ``largest``."""
+    whole = trim.spans == ((0, trim.length),)  # a message read whole: no copy per row
+    record = (
+        "data" if whole else "||".join(f"substr(data, {a + 1}, {b - a})" for a, b in trim.spans)
+    )
+    extra = "".join(f", max(substr(data, {a + 1}, {b - a}))" for a, b in largest)
+    # concatenation and group_concat give TEXT (the bytes unchanged): CAST makes it a blob
+    return (
+        "SELECT count(*), min(length(data)), max(length(data)),"
+        f" CAST(group_concat({record}, x'') AS BLOB), group_concat(timestamp){extra}"
+        f" FROM messages WHERE {where} AND id BETWEEN ? AND ?"
+    )
 
 
 def _records(
@@ -206,5 +246,5 @@ def _records(
         ends=ends,
         log_ns=log_ns,
         conn=np.full(n, k, dtype=np.int64),
-        trimmed=True,
+        trimmed="lean" if trim.lean else True,
     )

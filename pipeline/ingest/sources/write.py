@@ -75,6 +75,11 @@ class OdometryStream:
     angular_velocity: np.ndarray | None = None
     frame_id: str = "odom"
     child_frame_id: str = "base_link"
+    pose_covariance: np.ndarray | None = None
+    """``(n, 36)`` row-major 6x6 pose covariances (``x y z``, rotation about ``x y z``), or
+    None: zeros (ROS: unknown)."""
+    twist_covariance: np.ndarray | None = None
+    """``(n, 36)`` twist covariances (linear, angular), or None: zeros."""
 
     @property
     def msgtype(self) -> str:
@@ -216,18 +221,23 @@ class _Builder:
             )
         pose = self.pose(s.position[i], s.orientation[i])
         if mt == ODOMETRY:
+            pcov = tcov = self.zero36
             if isinstance(s, OdometryStream):
                 lin = s.linear_velocity[i]
                 ang = s.angular_velocity[i] if s.angular_velocity is not None else np.zeros(3)
+                if s.pose_covariance is not None:
+                    pcov = np.asarray(s.pose_covariance[i], dtype=np.float64)
+                if s.twist_covariance is not None:
+                    tcov = np.asarray(s.twist_covariance[i], dtype=np.float64)
             else:
                 lin = ang = np.zeros(3)
             return self.types[ODOMETRY](
                 header=hdr,
                 child_frame_id=s.child_frame_id,
-                pose=self.PoseCov(pose=pose, covariance=self.zero36),
+                pose=self.PoseCov(pose=pose, covariance=pcov),
                 twist=self.TwistCov(
                     twist=self.Twist(linear=self.vec(lin), angular=self.vec(ang)),
-                    covariance=self.zero36,
+                    covariance=tcov,
                 ),
             )
         if mt == POSE_STAMPED:
@@ -262,6 +272,9 @@ def _check(streams: Sequence[Stream]) -> None:
             _arr(s.linear_velocity, (n, 3))
             if s.angular_velocity is not None:
                 _arr(s.angular_velocity, (n, 3))
+            for cov in (s.pose_covariance, s.twist_covariance):
+                if cov is not None:
+                    _arr(cov, (n, 36))
         elif s.msgtype not in POSE_TYPES:
             raise ValueError(f"{s.topic}: unsupported message type {s.msgtype!r}")
 
