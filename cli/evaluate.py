@@ -97,6 +97,18 @@ def command(
         help="--fly: python or c: fly the synthesized controllers as the C of "
         "'qsls export' (compiled, through ctypes). (default: python)",
     ),
+    assured: bool = typer.Option(
+        False,
+        "--assured",
+        help="--fly: also fly each monitored controller runtime-assured: it flies until its "
+        "onboard monitor trips, then --fallback flies (docs/monitor.md). (default: off)",
+    ),
+    fallback: str = typer.Option(
+        None,
+        "--fallback",
+        help="--fly --assured: 'pd' (PD on the reference) or 'hold' (PD holding the "
+        "estimated position of the trip tick). (default: pd)",
+    ),
     force: bool = typer.Option(
         False, "--force", help="Overwrite --out; another error model's controller only warns."
     ),
@@ -111,6 +123,8 @@ def command(
     ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None, flown_by=flown_by)
     if fly and flights:
         raise InputError("--flights is not used with --fly (the flights are flown); drop one")
+    if not fly and (assured or fallback):
+        raise InputError("--assured and --fallback fly the controllers: add --fly")
     if fly and flown_by:
         raise InputError("--flown-by is not used with --fly (each flight records its own)")
     section = load_options(EvaluateSection, config, ov, section="evaluate")
@@ -122,6 +136,7 @@ def command(
             conditions=parse_list(conditions, "--conditions", "value"),
             vio=parse_list(vio, "--vio", "value") if vio and "," in vio else vio,
             sim={"controller": {"backend": backend}} if backend else None,
+            assured=True if assured else None, fallback=fallback,
         )  # fmt: skip
         _fly(model, controller, out, section.flying({**ov, **fly_given}, source), force)
         return
