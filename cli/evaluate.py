@@ -97,13 +97,14 @@ def command(
         help="--fly: python or c: fly the synthesized controllers as the C of "
         "'qsls export' (compiled, through ctypes). (default: python)",
     ),
-    assured: bool = typer.Option(
-        False,
-        "--assured",
+    assured: bool | None = typer.Option(
+        None,
+        "--assured/--not-assured",
         help="--fly: also fly each monitored controller runtime-assured: it flies until its "
-        "onboard monitor trips, then --fallback flies (docs/monitor.md). (default: off)",
+        "onboard monitor trips, then --fallback flies (docs/monitor.md). "
+        "(default: --not-assured)",
     ),
-    fallback: str = typer.Option(
+    fallback: str | None = typer.Option(
         None,
         "--fallback",
         help="--fly --assured: 'pd' (PD on the reference) or 'hold' (PD holding the "
@@ -123,7 +124,7 @@ def command(
     ov = overrides(smooth_s=smooth_s, figures=False if no_figures else None, flown_by=flown_by)
     if fly and flights:
         raise InputError("--flights is not used with --fly (the flights are flown); drop one")
-    if not fly and (assured or fallback):
+    if not fly and (assured is not None or fallback):
         raise InputError("--assured and --fallback fly the controllers: add --fly")
     if fly and flown_by:
         raise InputError("--flown-by is not used with --fly (each flight records its own)")
@@ -136,7 +137,7 @@ def command(
             conditions=parse_list(conditions, "--conditions", "value"),
             vio=parse_list(vio, "--vio", "value") if vio and "," in vio else vio,
             sim={"controller": {"backend": backend}} if backend else None,
-            assured=True if assured else None, fallback=fallback,
+            assured=assured, fallback=fallback,
         )  # fmt: skip
         _fly(model, controller, out, section.flying({**ov, **fly_given}, source), force)
         return
