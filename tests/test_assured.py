@@ -84,3 +84,32 @@ def test_trip_columns_from_the_tick_record():
                    "trip_first": "outlier count", "fallback_share": 0.5}  # fmt: skip
     none = trip_columns(["c"] * 3, [0, 0, 0], t[:3])
     assert not none["tripped"] and none["trip_tick"] == -1 and none["fallback_share"] == 0.0
+
+
+def test_report_section_reads_the_fly_stages_tables(tmp_path):
+    """The report's monitor section from a fly folder: the catch share per scope and the
+    assured comparison with its switching rate, each at most 8 columns."""
+    from qsls.pipeline.report.facts import Facts
+    from qsls.pipeline.report.monitor import section_monitor
+
+    fly = tmp_path / "fly"
+    fly.mkdir()
+    pd.DataFrame([
+        _row("a", "degraded", 0, NAN, {"outliers": 2.0}),
+        _row("b", "degraded", 2, 3.0, {"dense": 2.5}),
+    ]).to_parquet(fly / "assumptions.parquet")  # fmt: skip
+    pd.DataFrame([_flight("pd", 0, 0.1), _flight("l1_robust", 0, 0.2)]).to_parquet(
+        fly / "flights.parquet"
+    )
+    extra = {"status": "relaxed", "fallback": "pd", "tripped": True, "trip_t": 3.0}
+    pd.DataFrame([{**_flight("l1_robust", 0, 0.15), **extra}]).to_parquet(fly / "assured.parquet")
+    sec = section_monitor(Facts(tmp_path, {}, {}, fly_folder="fly"), [0])
+    assert sec is not None
+    tables = [b for kind, b in sec.blocks if kind == "table"]
+    assert len(tables) == 2 and all(len(t.columns) <= 8 for t in tables)
+    assert tables[0].rows[0][:5] == ["all", 2, 2, 1, "50%"]
+    assured = {r[2]: r for r in tables[1].rows}
+    assert set(assured) == {"alone", "assured", "PD alone"}
+    assert assured["assured"][1] == "l1_robust (relaxed)"
+    assert assured["assured"][7].startswith("1 of 1 (100%), mean trip 3")
+    assert section_monitor(Facts(tmp_path, {}, {}, fly_folder=""), [0]) is None
