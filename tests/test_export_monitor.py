@@ -370,6 +370,11 @@ def test_assured_mode_hands_over_on_the_tick_the_monitor_sees_a_fault(ctrl, tmp_
     # the clean flight: no trip, the certified controller every tick, inside its thresholds
     assert not clean_ticks["monitor_bits"].any() and set(clean_ticks["flew"]) == {"l1_gated"}
     assert not clean.metrics["crashed"]
+    from qsls.pipeline.control.monitor import envelope_peak
+
+    spec = monitor_of(ctrl)
+    assert envelope_peak(spec, o.y_ctrl - o.ref_ctrl, V) > 1.0
+    assert 0 < envelope_peak(spec, clean.y_ctrl - clean.ref_ctrl, V) < 1.0
     np.testing.assert_array_equal(clean.x_ctrl[: trip + 1], o.x_ctrl[: trip + 1])
     np.testing.assert_array_equal(clean.u_ctrl[:trip], o.u_ctrl[:trip])
     # the bias: the loop then steers the estimate, so the vehicle sits about 1 m off in x

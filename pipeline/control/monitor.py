@@ -103,3 +103,16 @@ class RuntimeMonitor:
                 self.first_trip = self.tick
         self.tick += 1
         return bits
+
+
+def envelope_peak(spec: MonitorSpec, dev: np.ndarray, gate: float | None = None) -> float:
+    """How close a logged flight came to an envelope trip: the largest ``|dev_i| /
+    threshold_i`` over its ticks and :data:`TRIP` channels (velocity through the gate; above
+    1 where bit 1 was set; NaN without such a channel)."""
+    d = np.array(dev, dtype=float).reshape(-1, 6)
+    if gate is not None:
+        d[:, 3:] = np.clip(d[:, 3:], -gate, gate)
+    live = np.asarray(spec.kind) == TRIP
+    if not live.any() or not len(d):
+        return float("nan")
+    return float(np.max(np.abs(d[:, live]) / np.asarray(spec.threshold, dtype=float)[live]))

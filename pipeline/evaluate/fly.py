@@ -575,18 +575,28 @@ def monitored(folder: Path) -> bool:
 
 
 def assured_table(
-    outcomes: Sequence[FlyOutcome], status: dict[str, str], fallback: str
-) -> pd.DataFrame:
+    outcomes: Sequence[FlyOutcome], status: dict[str, str], fallback: str,
+    folders: dict[str, Path],
+) -> pd.DataFrame:  # fmt: skip
     """One row per runtime-assured flight: its flight-table columns (``controller`` the
-    monitored controller's name), the certificate's status, the fallback and the handover
-    (:func:`qsls.pipeline.evaluate.assured.trip_columns`)."""
+    monitored controller's name), the certificate's status, the fallback, the handover
+    (:func:`qsls.pipeline.evaluate.assured.trip_columns`) and ``envelope_peak``, the largest
+    ``|y_i - r_i| / threshold_i`` over the flight's ticks and envelope channels
+    (:func:`qsls.pipeline.control.monitor.envelope_peak`: how close it came to a trip)."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.monitor import envelope_peak, monitor_of
+
     if not outcomes:
         return pd.DataFrame()
     table = flight_table(outcomes)
     base = [o.controller.removesuffix(ASSURED_SUFFIX) for o in outcomes]
-    trips = pd.DataFrame(
-        [trip_columns(o.extra["flew"], o.extra["bits"], o.t_ctrl) for o in outcomes]
-    )
+    cdirs = {b: load_controller_dir(folders[b]) for b in dict.fromkeys(base)}
+    spec = {b: monitor_of(c) for b, c in cdirs.items()}
+    trips = pd.DataFrame([
+        {**trip_columns(o.extra["flew"], o.extra["bits"], o.t_ctrl),
+         "envelope_peak": envelope_peak(spec[b], o.y_ctrl - o.ref_ctrl, cdirs[b].certificate.gate)}
+        for o, b in zip(outcomes, base, strict=True)
+    ])  # fmt: skip
     table["controller"] = base
     table.insert(2, "status", [status.get(b, "") for b in base])
     table.insert(3, "fallback", fallback)
@@ -711,6 +721,7 @@ def fly_evaluate(
                     [o for o, j in zip(flown, jobs_flown, strict=True)
                      if j.assured is not None and o.estimator == options.estimators[0]],
                     {b.name: b.status for b in bounds}, options.fallback,
+                    {b.name: b.folder for b in bounds},
                 )  # fmt: skip
                 w.write_parquet(ASSURED_FILE, table)
                 comp = assured_comparison(flights, table)

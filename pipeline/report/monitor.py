@@ -68,6 +68,10 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
                 switched = f"{r.switched:.0f} of {r.flights} ({pct(r.switching_rate)})"
                 if r.switched:
                     switched += f", mean trip {g4(r.mean_trip_s)} s"
+                if "envelope_peak" in assured:
+                    mine = assured[(assured["condition"] == r.condition)
+                                   & (assured["controller"] == r.controller)]  # fmt: skip
+                    switched += f"; peak {g4(mine['envelope_peak'].max())} of a threshold"
             rows.append([
                 r.condition, f"{r.controller} ({status.get(r.controller, '')})", r.flown,
                 r.flights, r.crashed, g4(r.tracking_rms_m), g4(r.tracking_max_m), switched,
@@ -78,7 +82,8 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
             rows,
             f"Runtime-assured flights (fallback: {fallback}) against the controller alone and "
             "PD alone on the same seeds (tracking: mean of the RMS, max of the max; handed "
-            "over: the flights whose monitor tripped, their mean trip time)",
+            "over: the flights whose monitor tripped, their mean trip time, and the largest "
+            "|y_i - r_i| / threshold_i on the envelope channels: above 1 trips)",
             text_cols=[0, 1, 2, 7],
         )  # fmt: skip
     return sec
