@@ -255,6 +255,8 @@ class FlyResult(EvaluateResult):
     comparison: list[dict[str, Any]] = field(default_factory=list)
     findings: dict[str, Any] = field(default_factory=dict)
     wall_time_s: float = 0.0
+    assured: pd.DataFrame = field(default_factory=pd.DataFrame)
+    """The runtime-assured flights (``assured.parquet``), if flown."""
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -267,6 +269,12 @@ class FlyResult(EvaluateResult):
             out[f"{r['condition']}/{r['controller']}"] = (
                 f"tracking RMS {r['tracking_rms_m']:.3f} m, ||e|| RMS {r['perception_error_rms']:.3f}, "
                 f"max {r['perception_error_max']:.3f}, crashed {int(r['crashed'])}"
+            )
+        if len(self.assured):
+            out["runtime-assured"] = (
+                f"{int(self.assured['tripped'].sum())} of {len(self.assured)} flights handed "
+                f"over to {self.assured['fallback'].iloc[0]}, "
+                f"{int(self.assured['crashed'].sum())} crashed"
             )
         if self.warnings:
             more = (
@@ -716,6 +724,7 @@ def fly_evaluate(
                 primary = [o for o in outcomes if o.estimator == options.estimators[0]]
                 write_fly_figures(w, primary, options, checks)
             assured_json: dict[str, Any] = {}
+            table = pd.DataFrame()
             if options.assured:
                 table = assured_table(
                     [o for o, j in zip(flown, jobs_flown, strict=True)
@@ -767,6 +776,7 @@ def fly_evaluate(
         comparison=comparison,
         findings=findings,
         wall_time_s=time.perf_counter() - t0,
+        assured=table,
     )
 
 
