@@ -84,6 +84,11 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
             "PD alone on the same seeds (tracking: mean of the RMS, max of the max; handed "
             "over: the flights whose monitor tripped, their mean trip time, and the largest "
             "|y_i - r_i| / threshold_i on the envelope channels: above 1 trips)",
+            notes=[
+                f"{n} is {st}, not certified: it flew with the monitor of its {st} premise, "
+                "which the checks above found broken; no guarantee is claimed for it"
+                for n, st in status.items() if st != "certified"
+            ],
             text_cols=[0, 1, 2, 7],
         )  # fmt: skip
     return sec
