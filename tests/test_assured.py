@@ -101,7 +101,8 @@ def test_report_section_reads_the_fly_stages_tables(tmp_path):
     pd.DataFrame([_flight("pd", 0, 0.1), _flight("l1_robust", 0, 0.2)]).to_parquet(
         fly / "flights.parquet"
     )
-    extra = {"status": "relaxed", "fallback": "pd", "tripped": True, "trip_t": 3.0}
+    extra = {"status": "relaxed", "calibrated_perception": "regular", "fallback": "pd",
+             "tripped": True, "trip_t": 3.0}  # fmt: skip
     pd.DataFrame([{**_flight("l1_robust", 0, 0.15), **extra}]).to_parquet(fly / "assured.parquet")
     sec = section_monitor(Facts(tmp_path, {}, {}, fly_folder="fly"), [0])
     assert sec is not None
@@ -112,4 +113,7 @@ def test_report_section_reads_the_fly_stages_tables(tmp_path):
     assert set(assured) == {"alone", "assured", "PD alone"}
     assert assured["assured"][1] == "l1_robust (relaxed)"
     assert assured["assured"][7].startswith("1 of 1 (100%), mean trip 3")
+    notes = tables[1].notes
+    assert len(notes) == 2 and "l1_robust is relaxed, not certified" in notes[0]
+    assert "calibrated in regular perception" in notes[1] and "in degraded perception" in notes[1]
     assert section_monitor(Facts(tmp_path, {}, {}, fly_folder=""), [0]) is None

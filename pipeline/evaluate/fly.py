@@ -587,7 +587,8 @@ def assured_table(
     folders: dict[str, Path],
 ) -> pd.DataFrame:  # fmt: skip
     """One row per runtime-assured flight: its flight-table columns (``controller`` the
-    monitored controller's name), the certificate's status, the fallback, the handover
+    monitored controller's name), the certificate's status and the perception its calibration
+    flew in (``calibrated_perception``, empty if not calibrated), the fallback, the handover
     (:func:`qsls.pipeline.evaluate.assured.trip_columns`) and ``envelope_peak``, the largest
     ``|y_i - r_i| / threshold_i`` over the flight's ticks and envelope channels
     (:func:`qsls.pipeline.control.monitor.envelope_peak`: how close it came to a trip)."""
@@ -607,7 +608,12 @@ def assured_table(
     ])  # fmt: skip
     table["controller"] = base
     table.insert(2, "status", [status.get(b, "") for b in base])
-    table.insert(3, "fallback", fallback)
+    # a calibrated certificate speaks for flights of its calibration's perception only
+    cal = {b: c.certificate.calibration for b, c in cdirs.items()}
+    table.insert(3, "calibrated_perception", [
+        str(cal[b].conditions.get("perception", "")) if cal[b] is not None else "" for b in base
+    ])  # fmt: skip
+    table.insert(4, "fallback", fallback)
     return pd.concat([table, trips], axis=1)
 
 

@@ -17,6 +17,24 @@ def _share(v: Any) -> str:
     return "-" if v != v else pct(v)  # NaN: no broken flight, no share
 
 
+def _calibration_notes(assured: Any) -> list[str]:
+    """A calibrated certificate flown in another perception condition than its calibration's
+    promises nothing there (docs/calibration.md): one note per such controller."""
+    if "calibrated_perception" not in assured:
+        return []
+    notes = []
+    for name, g in assured.groupby("controller", sort=False):
+        cal = str(g["calibrated_perception"].iloc[0])
+        other = sorted({str(c) for c in g["condition"]} - {cal})
+        if cal and other:
+            notes.append(
+                f"{name} was calibrated in {cal} perception: its certificate promises nothing "
+                f"about the flights in {', '.join(other)} perception (its monitor is still sound "
+                "for its premise)"
+            )
+    return notes
+
+
 def section_monitor(f: Facts, counter: list[int]) -> Section | None:
     import pandas as pd
 
@@ -85,9 +103,10 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
             "over: the flights whose monitor tripped, their mean trip time, and the largest "
             "|y_i - r_i| / threshold_i on the envelope channels: above 1 trips)",
             notes=[
-                f"{n} is {st}, not certified: it flew with the monitor of its {st} premise, "
-                "and no guarantee is claimed for it"
-                for n, st in status.items() if st != "certified"
+                *(f"{n} is {st}, not certified: it flew with the monitor of its {st} premise, "
+                  "and no guarantee is claimed for it"
+                  for n, st in status.items() if st != "certified"),
+                *_calibration_notes(assured),
             ],
             text_cols=[0, 1, 2, 7],
         )  # fmt: skip
