@@ -9,6 +9,12 @@ feedforward (:class:`qsls.pipeline.sim.controllers.LinearController`). ``vio`` p
 estimator (the emulator or the camera loop); a list flies every controller with each, the
 results keyed by estimator (:mod:`qsls.pipeline.evaluate.estimators`).
 
+With ``assured`` each controller that has an onboard monitor also flies runtime-assured on
+the same seeds (:class:`qsls.pipeline.sim.assured.AssuredController`: until its monitor
+trips, then the fallback), without a bag and apart from every other table: ``assured.parquet``,
+and beside it the comparison with the controller alone and PD alone and the monitor's catch
+share (:mod:`qsls.pipeline.evaluate.assured`; docs/monitor.md, The fallback).
+
 Each flight is written as a bag like a real log and goes through ``ingest`` exactly as a
 real flight does; the ingested ``flight.parquet`` is what the bound check
 (:mod:`qsls.pipeline.evaluate.bound`) reads. Flights run in parallel on a process pool.
