@@ -39,7 +39,7 @@ def trip_columns(flew: Sequence[str], bits: Sequence[int], t: np.ndarray) -> dic
     b = np.asarray(bits, dtype=int)
     hit = np.flatnonzero(b)
     first = int(hit[0]) if len(hit) else None
-    fallback = sum(1 for i in range(len(flew)) if first is not None and i >= first)
+    fallback = 0 if first is None else len(flew) - first
     return {
         "tripped": first is not None,
         "trip_tick": -1 if first is None else first,
