@@ -615,10 +615,11 @@ def assured_table(
     table["controller"] = base
     table.insert(2, "status", [status.get(b, "") for b in base])
     # a calibrated certificate speaks for flights of its calibration's perception only
-    cal = {b: c.certificate.calibration for b, c in cdirs.items()}
-    table.insert(3, "calibrated_perception", [
-        str(cal[b].conditions.get("perception", "")) if cal[b] is not None else "" for b in base
-    ])  # fmt: skip
+    perception = {
+        b: str(cal.conditions.get("perception", "")) if (cal := c.certificate.calibration) else ""
+        for b, c in cdirs.items()
+    }
+    table.insert(3, "calibrated_perception", [perception[b] for b in base])
     table.insert(4, "fallback", fallback)
     return pd.concat([table, trips], axis=1)
 
