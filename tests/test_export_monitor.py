@@ -309,3 +309,85 @@ def test_float_thresholds_are_never_below_the_double_ones(ctrl, exported):
     line = next(x for x in src.splitlines() if x.startswith("static const qsls_ctrl_real_t MON_THR"))
     lits = re.findall(r"(-?\d[\d.e+-]*)f", line)
     assert [float(np.float32(x)) for x in lits] == list(f)
+
+
+def test_runtime_monitor_matches_the_rule_on_the_whole_log(ctrl):
+    """The tick-by-tick monitor the assured mode flies with gives the bits of monitor_flags,
+    tick for tick, on deviations that cross both kinds of threshold, and latches its count."""
+    from qsls.pipeline.control.monitor import RuntimeMonitor
+
+    spec = monitor_of(ctrl)
+    rng = np.random.default_rng(7)
+    dev = rng.normal(0.0, 1.0, (400, 6)) * np.r_[[0.25] * 3, [0.9] * 3]
+    want = monitor_flags(spec, dev, V)
+    mon = RuntimeMonitor(spec, V)
+    got = np.array([mon.step(d) for d in dev])
+    np.testing.assert_array_equal(got, want)
+    assert 0 < np.count_nonzero(want & 1) < 400 and np.count_nonzero(want & 2) > 0
+    assert mon.trips == np.count_nonzero(want) and mon.first_trip == int(np.flatnonzero(want)[0])
+
+
+def _assured_flight(folder, tmp_path, name, fault=None, fallback="pd"):
+    """A 4 s runtime-assured flight of ``folder`` on the circle, ideal perception but for
+    ``fault`` (run_job's path: the assured controller, no bag), and its tick log."""
+    from qsls.pipeline.evaluate.fly import FlyJob, run_job, tick_frame
+    from qsls.pipeline.ingest.options import IngestOptions
+    from qsls.pipeline.sim.options import SimOptions
+
+    off = dict.fromkeys(("bias", "drift", "noise", "outliers", "blur", "motion_drift",
+                         "feature_loss"), False)  # fmt: skip
+    sim = SimOptions.model_validate({"vio": {**off, "fault": fault}}).model_dump(mode="json")
+    sim["duration"] = 4.0
+    job = FlyJob(
+        name, "l1_gated_assured", str(folder), "regular", 0, sim,
+        IngestOptions().model_dump(mode="json"), str(tmp_path / name), str(tmp_path / name),
+        assured=fallback,
+    )  # fmt: skip
+    o = run_job(job)
+    return o, tick_frame(o)
+
+
+def test_assured_mode_hands_over_on_the_tick_the_monitor_sees_a_fault(ctrl, tmp_path):
+    """A 1 m position bias from t = 1.5 s (tick 15: far beyond the 0.59 m threshold) trips the
+    monitor on the tick it appears; PD flies from that tick, the tick log says so, the flight
+    does not crash; without the fault the certified controller flies every tick, and the two
+    flights are the same flight up to the fault."""
+    thr = monitor_of(ctrl).threshold[0]
+    fault = {"start_s": 1.5, "bias": [1.0, 0, 0, 0, 0, 0]}
+    o, ticks = _assured_flight(ctrl.folder, tmp_path, "fault", fault)
+    clean, clean_ticks = _assured_flight(ctrl.folder, tmp_path, "clean")
+    k_fault = int(np.flatnonzero(ticks["t"].to_numpy() >= 1.5 - 1e-9)[0])
+    assert k_fault == 15 and thr < 1.0
+    bits = ticks["monitor_bits"].to_numpy()
+    trip = int(np.flatnonzero(bits)[0])
+    assert trip == k_fault  # within one tick: on the very tick the biased sample is read
+    assert bits[trip] & 1  # the envelope, not the outlier count
+    flew = ticks["flew"].tolist()
+    assert flew[:trip] == ["l1_gated"] * trip and set(flew[trip:]) == {"pd"}
+    assert not o.metrics["crashed"] and len(ticks) == 40
+    # PD's command from the tick of the handover (hover + feedforward + K (y - r))
+    np.testing.assert_allclose(o.u_ctrl[trip:], o.u_pd[trip:], rtol=1e-12)
+    # the clean flight: no trip, the certified controller every tick, inside its thresholds
+    assert not clean_ticks["monitor_bits"].any() and set(clean_ticks["flew"]) == {"l1_gated"}
+    assert not clean.metrics["crashed"]
+    from qsls.pipeline.control.monitor import envelope_peak
+
+    spec = monitor_of(ctrl)
+    assert envelope_peak(spec, o.y_ctrl - o.ref_ctrl, V) > 1.0
+    assert 0 < envelope_peak(spec, clean.y_ctrl - clean.ref_ctrl, V) < 1.0
+    np.testing.assert_array_equal(clean.x_ctrl[: trip + 1], o.x_ctrl[: trip + 1])
+    np.testing.assert_array_equal(clean.u_ctrl[:trip], o.u_ctrl[:trip])
+    # the bias: the loop then steers the estimate, so the vehicle sits about 1 m off in x
+    assert np.abs(o.x_ctrl[-1, 0] - o.ref_ctrl[-1, 0] + 1.0) < 0.3
+
+
+def test_assured_hold_stops_where_the_estimate_was_at_the_trip(ctrl, tmp_path):
+    """``hold``: from the trip tick PD flies to the estimated position of that tick at rest."""
+    fault = {"start_s": 1.0, "bias": [0, 1.0, 0, 0, 0, 0]}
+    o, ticks = _assured_flight(ctrl.folder, tmp_path, "hold", fault, fallback="hold")
+    trip = int(np.flatnonzero(ticks["monitor_bits"].to_numpy())[0])
+    assert trip == 10 and set(ticks["flew"][trip:]) == {"hold"}
+    assert not o.metrics["crashed"]
+    hold = o.y_ctrl[trip, :3]
+    # at rest near the hold point (in the estimate) by the end: 3 s of PD
+    assert np.abs(o.y_ctrl[-1, :3] - hold).max() < 0.15 and np.abs(o.y_ctrl[-1, 3:]).max() < 0.3

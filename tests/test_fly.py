@@ -242,3 +242,29 @@ def test_pd_height_channel_option(trained, tmp_path):
     o = run_job(job)
     np.testing.assert_allclose(o.u_ctrl[:, 2], o.u_pd[:, 2], rtol=1e-12)
     assert np.abs(o.u_ctrl[:, :2] - o.u_pd[:, :2]).max() > 1e-3
+
+
+def test_assured_flights_are_kept_apart(trained, tmp_path):
+    """``assured: true`` adds the monitored controller's runtime-assured flight (its tick log
+    says who flew each tick, ``assured.parquet`` its handover) and leaves every other table
+    byte-identical to the stage without it."""
+    root, _ = trained
+    kw = dict(seeds=[0], duration=3.0, conditions=["regular"], controllers=["l1_robust"],
+              se3=False, jobs=1, figures=False)  # fmt: skip
+    plain = fly_evaluate(root / "fit", [root / "synth"], FlyOptions(**kw), tmp_path / "plain")
+    res = fly_evaluate(
+        root / "fit", [root / "synth"], FlyOptions(**kw, assured=True), tmp_path / "assured"
+    )
+    for name in ("flights.parquet", "assumptions.parquet", "per_controller.parquet"):
+        assert (tmp_path / "plain" / name).read_bytes() == (tmp_path / "assured" / name).read_bytes()
+    assert len(plain.flights) == len(res.flights) == 1
+    a = pd.read_parquet(tmp_path / "assured" / "assured.parquet")
+    assert a["flight"].tolist() == ["regular_s0_l1_robust_assured"]
+    assert a["controller"].tolist() == ["l1_robust"] and a["fallback"].tolist() == ["pd"]
+    ticks = pd.read_parquet(tmp_path / "assured" / "flights" / a["flight"][0] / "ticks.parquet")
+    alone = pd.read_parquet(tmp_path / "assured" / "flights" / "regular_s0_l1_robust" / "ticks.parquet")
+    # no trip: the certified controller's own flight, tick for tick
+    assert not a["tripped"][0] and a["trip_tick"][0] == -1 and 0 < a["envelope_peak"][0] < 1
+    assert set(ticks["flew"]) == {"l1_robust"} and not ticks["monitor_bits"].any()
+    pd.testing.assert_frame_equal(ticks[alone.columns], alone)
+    assert not (tmp_path / "plain" / "assured.parquet").exists()

@@ -66,3 +66,53 @@ def monitor_flags(spec: MonitorSpec, dev: np.ndarray, gate: float | None = None)
     outlier = (beyond & (kind == COUNT)).any(axis=1).astype(int)
     in_window = np.convolve(outlier, np.ones(spec.window, dtype=int))[: len(outlier)]
     return envelope * TRIP_ENVELOPE | (in_window > spec.m) * TRIP_OUTLIERS
+
+
+class RuntimeMonitor:
+    """:func:`monitor_flags` one tick at a time, as the exported step applies it on the
+    vehicle (docs/monitor.md, The rule): from :meth:`reset`, :meth:`step` takes the raw
+    deviation ``y_k - r_k`` and returns the tick's bits; the trip count and the first trip's
+    tick are never cleared before a reset. Tick for tick the bits equal
+    ``monitor_flags(spec, dev, gate)`` on the whole log."""
+
+    def __init__(self, spec: MonitorSpec, gate: float | None = None) -> None:
+        self.spec, self.gate = spec, gate
+        self._thr = np.asarray(spec.threshold, dtype=float)
+        kind = np.asarray(spec.kind)
+        self._trip, self._count = kind == TRIP, kind == COUNT
+        self.reset()
+
+    def reset(self) -> None:
+        self._window = np.zeros(self.spec.window, dtype=int)
+        self.tick = 0
+        self.trips = 0
+        self.first_trip: int | None = None
+
+    def step(self, dev: np.ndarray) -> int:
+        d = np.array(dev, dtype=float).reshape(6)
+        if self.gate is not None:
+            d[3:] = np.clip(d[3:], -self.gate, self.gate)
+        beyond = ~((d <= self._thr) & (d >= -self._thr))
+        self._window[self.tick % self.spec.window] = int((beyond & self._count).any())
+        bits = int((beyond & self._trip).any()) * TRIP_ENVELOPE
+        if int(self._window.sum()) > self.spec.m:
+            bits |= TRIP_OUTLIERS
+        if bits:
+            self.trips += 1
+            if self.first_trip is None:
+                self.first_trip = self.tick
+        self.tick += 1
+        return bits
+
+
+def envelope_peak(spec: MonitorSpec, dev: np.ndarray, gate: float | None = None) -> float:
+    """How close a logged flight came to an envelope trip: the largest ``|dev_i| /
+    threshold_i`` over its ticks and :data:`TRIP` channels (velocity through the gate; above
+    1 where bit 1 was set; NaN without such a channel)."""
+    d = np.array(dev, dtype=float).reshape(-1, 6)
+    if gate is not None:
+        d[:, 3:] = np.clip(d[:, 3:], -gate, gate)
+    live = np.asarray(spec.kind) == TRIP
+    if not live.any() or not len(d):
+        return float("nan")
+    return float(np.max(np.abs(d[:, live]) / np.asarray(spec.threshold, dtype=float)[live]))

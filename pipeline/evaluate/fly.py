@@ -9,6 +9,12 @@ feedforward (:class:`qsls.pipeline.sim.controllers.LinearController`). ``vio`` p
 estimator (the emulator or the camera loop); a list flies every controller with each, the
 results keyed by estimator (:mod:`qsls.pipeline.evaluate.estimators`).
 
+With ``assured`` each controller that has an onboard monitor also flies runtime-assured on
+the same seeds (:class:`qsls.pipeline.sim.assured.AssuredController`: until its monitor
+trips, then the fallback), without a bag and apart from every other table: ``assured.parquet``,
+and beside it the comparison with the controller alone and PD alone and the monitor's catch
+share (:mod:`qsls.pipeline.evaluate.assured`; docs/monitor.md, The fallback).
+
 Each flight is written as a bag like a real log and goes through ``ingest`` exactly as a
 real flight does; the ingested ``flight.parquet`` is what the bound check
 (:mod:`qsls.pipeline.evaluate.bound`) reads. Flights run in parallel on a process pool.
@@ -47,6 +53,13 @@ from qsls.pipeline.core.errors import InputError, QslsError
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.units import NS
+from qsls.pipeline.evaluate.assured import (
+    ASSURED_FILE,
+    ASSURED_SUFFIX,
+    assured_comparison,
+    catch_share,
+    trip_columns,
+)
 from qsls.pipeline.evaluate.bound import (
     ControllerBound,
     EvaluateResult,
@@ -103,6 +116,7 @@ class FlyJob:
     pd_gain: tuple[tuple[float, ...], ...] | None = None  # K of the flown PD, if any
     pd_z: bool = False  # thrust from PD (paper's setup), for synthesized controllers
     estimator: str = "emulator"  # the vio kind of sim (what the results are keyed by)
+    assured: str | None = None  # a runtime-assured flight: its fallback (pd | hold)
 
 
 @dataclass
@@ -128,10 +142,12 @@ class FlyOutcome:
 
 
 def run_job(job: FlyJob) -> FlyOutcome:
-    """Fly one controller (simulate: closed loop + bag), then ingest the bag."""
+    """Fly one controller (simulate: closed loop + bag), then ingest the bag. A runtime-assured
+    flight (``job.assured``) is flown without a bag: its tick log is its record."""
     from qsls.pipeline.core.config import merge
     from qsls.pipeline.core.references import Reference
     from qsls.pipeline.ingest.stage import ingest
+    from qsls.pipeline.sim.closedloop import fly
     from qsls.pipeline.sim.controllers import feedforward
     from qsls.pipeline.sim.simulate import simulate
 
@@ -144,18 +160,23 @@ def run_job(job: FlyJob) -> FlyOutcome:
         },
     )
     opts = SimOptions.model_validate(data)
-    ctrl = None
+    ctrl: Any = None
     if job.pd_z and job.spec not in ("se3", "pd") and job.controller != "pd":
         ctrl = PdHeightController.build(opts, job.pd_gain)
-    res = simulate(opts, Path(job.sim_dir), force=True, controller=ctrl)
-    f = res.flight
     ingest_error = None
-    try:
-        ingest(
-            [res.bag], IngestOptions.model_validate(job.ingest), Path(job.flight_dir), force=True
-        )
-    except QslsError as exc:
-        ingest_error = str(exc)
+    if job.assured is not None:
+        ctrl = _assured(job, opts, ctrl)
+        f = fly(opts, ctrl)
+    else:
+        res = simulate(opts, Path(job.sim_dir), force=True, controller=ctrl)
+        f = res.flight
+        try:
+            ingest(
+                [res.bag], IngestOptions.model_validate(job.ingest), Path(job.flight_dir),
+                force=True,
+            )  # fmt: skip
+        except QslsError as exc:
+            ingest_error = str(exc)
     t_ctrl = f.ctrl_t_ns / NS
     u_pd = pd_on_same_estimate(opts, f.mass, t_ctrl, f.ctrl_y, f.ctrl_ref, job.pd_gain)
     u_off = command_offset(opts, f.mass, t_ctrl)
@@ -193,16 +214,39 @@ def run_job(job: FlyJob) -> FlyOutcome:
         e_norm=np.abs(f.vio_e).max(axis=1),
         u_pd=u_pd,
         uff_ctrl=uff,
-        extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass},
+        extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass,
+               **({"flew": list(ctrl.flew), "bits": list(ctrl.bits)} if job.assured else {})},
         estimator=job.estimator,
+    )  # fmt: skip
+
+
+def _assured(job: FlyJob, opts: SimOptions, primary: Any) -> Any:
+    """The runtime-assured form of ``job``'s controller (flown as ``primary`` if given, e.g.
+    with PD's height channel): :func:`qsls.pipeline.sim.assured.assured_controller`."""
+    from qsls.pipeline.sim.assured import assured_controller
+    from qsls.pipeline.sim.controllers import make_controller
+    from qsls.pipeline.sim.vehicle import Vehicle
+
+    mass = Vehicle(opts.vehicle).mass
+    if primary is None:
+        primary = make_controller(opts.controller, mass)
+    return assured_controller(
+        Path(job.spec), primary, mass, opts.controller.pd, job.pd_gain, job.assured  # type: ignore[arg-type]
     )
 
 
 def tick_frame(o: FlyOutcome) -> pd.DataFrame:
-    """``ticks.parquet`` of a flown flight (:class:`qsls.pipeline.evaluate.calibrate.TickLog`)."""
+    """``ticks.parquet`` of a flown flight (:class:`qsls.pipeline.evaluate.calibrate.TickLog`);
+    a runtime-assured flight's adds, per tick, the monitor's bits (``monitor_bits``, 0 while
+    consistent) and which controller flew (``flew``: the controller's name, then ``pd`` or
+    ``hold`` from the trip tick on)."""
     from qsls.pipeline.evaluate.calibrate import TickLog
 
-    return TickLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl).frame()
+    frame = TickLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl).frame()
+    if "flew" in o.extra:
+        frame["monitor_bits"] = np.asarray(o.extra["bits"], dtype=np.int64)
+        frame["flew"] = list(o.extra["flew"])
+    return frame
 
 
 def run_jobs(
@@ -233,6 +277,8 @@ class FlyResult(EvaluateResult):
     comparison: list[dict[str, Any]] = field(default_factory=list)
     findings: dict[str, Any] = field(default_factory=dict)
     wall_time_s: float = 0.0
+    assured: pd.DataFrame = field(default_factory=pd.DataFrame)
+    """The runtime-assured flights (``assured.parquet``), if flown."""
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -245,6 +291,12 @@ class FlyResult(EvaluateResult):
             out[f"{r['condition']}/{r['controller']}"] = (
                 f"tracking RMS {r['tracking_rms_m']:.3f} m, ||e|| RMS {r['perception_error_rms']:.3f}, "
                 f"max {r['perception_error_max']:.3f}, crashed {int(r['crashed'])}"
+            )
+        if len(self.assured):
+            out["runtime-assured"] = (
+                f"{int(self.assured['tripped'].sum())} of {len(self.assured)} flights handed "
+                f"over to {self.assured['fallback'].iloc[0]}, "
+                f"{int(self.assured['crashed'].sum())} crashed"
             )
         if self.warnings:
             more = (
@@ -463,9 +515,12 @@ def _make_jobs(
     sims: Path,
     flights: Path,
     pd_gain: tuple[tuple[float, ...], ...] | None,
+    assured: Sequence[str] = (),
 ) -> list[FlyJob]:
     """One job per estimator, condition, seed and controller (``specs``:
-    ``(name, se3 | folder)``); with several estimators a flight's name starts with its own."""
+    ``(name, se3 | folder)``); with several estimators a flight's name starts with its own.
+    Then, per estimator, one runtime-assured job per condition, seed and controller named in
+    ``assured`` (its name and controller end in ``_assured``)."""
     several = len(options.estimators) > 1
     ingest_opts = options.ingest.model_dump(mode="json")
     jobs = []
@@ -483,6 +538,18 @@ def _make_jobs(
                 name=name, controller=cname, spec=spec, condition=cond, seed=int(seed), sim=sim,
                 ingest=ingest_opts, sim_dir=str(sims / name), flight_dir=str(flights / name),
                 pd_gain=pd_gain, pd_z=options.pd_z_for(cname), estimator=vio,
+            ))  # fmt: skip
+        grid = itertools.product(options.conditions, options.seeds, specs)
+        for cond, seed, (cname, spec) in grid:
+            if cname not in assured:
+                continue
+            name = f"{vio}_{cond}_s{seed}_{cname}" if several else f"{cond}_s{seed}_{cname}"
+            name += ASSURED_SUFFIX
+            jobs.append(FlyJob(
+                name=name, controller=cname + ASSURED_SUFFIX, spec=spec, condition=cond,
+                seed=int(seed), sim=sim, ingest=ingest_opts, sim_dir=str(sims / name),
+                flight_dir=str(flights / name), pd_gain=pd_gain, pd_z=options.pd_z_control,
+                estimator=vio, assured=options.fallback,
             ))  # fmt: skip
     return jobs
 
@@ -571,6 +638,52 @@ def assumption_table(
     return pd.DataFrame(rows)
 
 
+def monitored(folder: Path) -> bool:
+    """Whether the controller in ``folder`` has an onboard monitor (docs/monitor.md: a robust
+    certificate, certified or relaxed, with ``rho*``), so it can fly runtime-assured."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.guarantee import OFF
+    from qsls.pipeline.control.monitor import monitor_of
+
+    return any(k != OFF for k in monitor_of(load_controller_dir(folder)).kind)
+
+
+def assured_table(
+    outcomes: Sequence[FlyOutcome], status: dict[str, str], fallback: str,
+    folders: dict[str, Path],
+) -> pd.DataFrame:  # fmt: skip
+    """One row per runtime-assured flight: its flight-table columns (``controller`` the
+    monitored controller's name), the certificate's status and the perception its calibration
+    flew in (``calibrated_perception``, empty if not calibrated), the fallback, the handover
+    (:func:`qsls.pipeline.evaluate.assured.trip_columns`) and ``envelope_peak``, the largest
+    ``|y_i - r_i| / threshold_i`` over the flight's ticks and envelope channels
+    (:func:`qsls.pipeline.control.monitor.envelope_peak`: how close it came to a trip)."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.monitor import envelope_peak, monitor_of
+
+    if not outcomes:
+        return pd.DataFrame()
+    table = flight_table(outcomes)
+    base = [o.controller.removesuffix(ASSURED_SUFFIX) for o in outcomes]
+    cdirs = {b: load_controller_dir(folders[b]) for b in dict.fromkeys(base)}
+    spec = {b: monitor_of(c) for b, c in cdirs.items()}
+    trips = pd.DataFrame([
+        {**trip_columns(o.extra["flew"], o.extra["bits"], o.t_ctrl),
+         "envelope_peak": envelope_peak(spec[b], o.y_ctrl - o.ref_ctrl, cdirs[b].certificate.gate)}
+        for o, b in zip(outcomes, base, strict=True)
+    ])  # fmt: skip
+    table["controller"] = base
+    table.insert(2, "status", [status.get(b, "") for b in base])
+    # a calibrated certificate speaks for flights of its calibration's perception only
+    perception = {
+        b: str(cal.conditions.get("perception", "")) if (cal := c.certificate.calibration) else ""
+        for b, c in cdirs.items()
+    }
+    table.insert(3, "calibrated_perception", [perception[b] for b in base])
+    table.insert(4, "fallback", fallback)
+    return pd.concat([table, trips], axis=1)
+
+
 def _motion_parts(sim: SimOptions) -> list[str]:
     """The VIO emulator's motion-dependent parts switched on for the flights."""
     return [k for k in ("blur", "motion_drift", "feature_loss") if getattr(sim.vio, k, False)]
@@ -614,6 +727,7 @@ def fly_evaluate(
     training = load_training(fit_dir, model, options.state_scale)
 
     specs: list[tuple[str, str]] = [(b.name, str(b.folder.resolve())) for b in bounds]
+    assured = [b.name for b in bounds if monitored(b.folder)] if options.assured else []
     if options.se3:
         specs.append(("se3", "se3"))
     workers = pool_size(options.jobs)
@@ -628,14 +742,18 @@ def fly_evaluate(
         try:
             jobs = _make_jobs(
                 specs, options, sims=w.path("sims") if options.keep_bags else tmp_root,
-                flights=w.path("flights"), pd_gain=_pd_gain_of(folders),
+                flights=w.path("flights"), pd_gain=_pd_gain_of(folders), assured=assured,
             )  # fmt: skip
-            outcomes = run_jobs(
+            flown = run_jobs(
                 jobs, min(workers, len(jobs)), progress, options.scheduler, options.wait_workers
             )
-            for o in outcomes:  # the controller's own log, for an auditor to recompute from
+            for o in flown:  # the controller's own log, for an auditor to recompute from
                 w.write_parquet(f"flights/{o.name}/{TICKS_FILE}", tick_frame(o))
-            for o in outcomes:
+            # the assured flights are kept apart: every other table is what a run without
+            # them writes
+            outcomes = [o for o, j in zip(flown, jobs, strict=True) if j.assured is None]
+            jobs_flown, jobs = jobs, [j for j in jobs if j.assured is None]
+            for o in flown:
                 if o.metrics["crashed"]:
                     warnings.append(
                         f"{o.name}: crashed, flight ended safely ({o.metrics['crash_reason']})"
@@ -687,12 +805,30 @@ def fly_evaluate(
             if options.figures:
                 primary = [o for o in outcomes if o.estimator == options.estimators[0]]
                 write_fly_figures(w, primary, options, checks)
+            assured_json: dict[str, Any] = {}
+            table = pd.DataFrame()
+            if options.assured:
+                table = assured_table(
+                    [o for o, j in zip(flown, jobs_flown, strict=True)
+                     if j.assured is not None and o.estimator == options.estimators[0]],
+                    {b.name: b.status for b in bounds}, options.fallback,
+                    {b.name: b.folder for b in bounds},
+                )  # fmt: skip
+                w.write_parquet(ASSURED_FILE, table)
+                comp = assured_comparison(flights, table)
+                tripped = int(table["tripped"].sum()) if len(table) else 0
+                w.results["assured"] = f"{tripped} of {len(table)} flights handed over"
+                assured_json = {
+                    "assured": comp.to_dict(orient="records"),
+                    "monitor_catch": catch_share(assumptions).to_dict(orient="records"),
+                }
             extra_json = {
                 "mode": "fly",
                 "flights_table": flights.to_dict(orient="records"),
                 "per_controller": per.to_dict(orient="records"),
                 "comparison": comparison,
                 "assumptions": assumptions.to_dict(orient="records"),
+                **assured_json,
             }
             totals = write_tables(
                 w, checks, samples, warnings, model, options, extra_json, own_only=True
@@ -722,6 +858,7 @@ def fly_evaluate(
         comparison=comparison,
         findings=findings,
         wall_time_s=time.perf_counter() - t0,
+        assured=table,
     )
 
 

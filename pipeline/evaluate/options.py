@@ -102,6 +102,14 @@ class FlyOptions(EvaluateOptions):
         return z if isinstance(z, bool) else controller in z
     keep_bags: bool = False
     """Keep every flight's simulate folder (bag, truth.json) under ``sims/``."""
+    assured: bool = False
+    """Also fly each controller that has an onboard monitor (a robust certificate, certified or
+    relaxed) in runtime-assured mode: it flies until its monitor trips, then ``fallback``
+    flies (docs/monitor.md, The fallback); beside the controller alone and PD alone, same
+    seeds. Written to ``assured.parquet`` and the flights' tick logs."""
+    fallback: Literal["pd", "hold"] = "pd"
+    """The assured mode's fallback: ``pd``, the PD reference on the reference from the current
+    estimate; ``hold``, PD holding the estimated position of the trip tick."""
 
 
 Method = Literal["conformal", "pac"]

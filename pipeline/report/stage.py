@@ -184,6 +184,7 @@ def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Se
     from qsls.pipeline.report import calibration as calib
     from qsls.pipeline.report import camera as cam
     from qsls.pipeline.report import flights as fl
+    from qsls.pipeline.report import monitor as mon
     from qsls.pipeline.report import sections as rs
 
     stages = _stage_dirs(run_dir)
@@ -197,6 +198,7 @@ def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Se
         calib.section_calibration,
         rs.section_heldout,
         rs.section_flown,
+        mon.section_monitor,
         rs.section_error_model,
         rs.section_sweep,
         fl.section_flights,

@@ -20,6 +20,9 @@ pose and tracked, and a VIO sample is the filter's latest estimate (``e = estima
 and the estimated attitude in ``vio_q_est``). The camera must see a textured plane from the
 start pose (checked before flying).
 
+A fault (``vio.fault``) adds a step ``bias`` to the error of every VIO sample from
+``start_s`` on (the logged ``vio_e`` includes it).
+
 A crash (position below ``crash.floor_z``, farther than ``crash.max_deviation`` from the
 reference in any axis, tilt beyond ``crash.max_tilt_deg``, or a non-finite state) ends the
 flight: the log holds everything up to it and says why.
@@ -242,6 +245,8 @@ def _fly(
     cam = _camera_loop(options, seed, veh) if options.vio.kind == "camera" else None
     crash = options.crash
     truth_feedback = options.controller.feedback == "truth"
+    fault = np.asarray(options.vio.fault.bias, float) if options.vio.fault is not None else None
+    fault_ns = round(options.vio.fault.start_s * NS) if options.vio.fault is not None else 0
 
     h_ns = round(NS / options.vehicle.physics_hz)
     h = h_ns / NS
@@ -285,6 +290,8 @@ def _fly(
         cam.start(s)
         est, rec.vio_qe[0] = cam.estimate()
         vio_e[0] = est - s[0:6]
+    if fault is not None and fault_ns <= 0:
+        vio_e[0] += fault
     m = 1
     next_vio = vio_ns
     y_latest = vio_x[0] + vio_e[0]
@@ -322,6 +329,8 @@ def _fly(
             else:
                 est, rec.vio_qe[m] = cam.estimate()
                 vio_e[m] = est - xv
+            if fault is not None and next_vio >= fault_ns:
+                vio_e[m] += fault
             y_latest = xv + vio_e[m]
             m += 1
             next_vio += vio_ns

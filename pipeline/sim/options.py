@@ -45,6 +45,17 @@ class Ripple(Options):
     amplitude: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
+class VioFault(Options):
+    """A perception fault injected into the estimate (to test the onboard monitor and the
+    runtime-assured mode, docs/monitor.md): from ``start_s`` on, ``bias`` is added to every
+    VIO sample's error ``e`` (emulator or camera loop), so ``y = x + e + bias``."""
+
+    start_s: float = Field(0.0, ge=0)
+    """Simulation time (s) of the first faulty sample."""
+    bias: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    """The step added to ``e_px .. e_vz`` (m, m/s)."""
+
+
 class PerceptionLevel(Options):
     """Light level and texture richness, each in (0, 1] (1 = ideal)."""
 
@@ -121,6 +132,8 @@ class VioParams(Options):
     light and texture keep their meaning, the error-model parameters below are not used)."""
     camera: CameraOptions = CameraOptions()
     """The camera loop's parameters (``kind: camera``)."""
+    fault: VioFault | None = None
+    """A step fault added to the estimate from a given time (none by default)."""
 
     rate_hz: float = Field(100.0, ge=30.0, le=200.0)
     """VIO output rate (Hz), 30 to 200 like real VIO pipelines."""
@@ -213,6 +226,8 @@ class VioParams(Options):
         if self.kind == "emulator":
             out.pop("kind", None)
             out.pop("camera", None)
+        if self.fault is None:
+            out.pop("fault", None)
         return out
 
     @field_validator("outlier_max")

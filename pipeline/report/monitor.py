@@ -1,0 +1,113 @@
+"""The report's section on the onboard premise monitor (docs/monitor.md): its catch share on
+the flown flights (:func:`qsls.pipeline.evaluate.assured.catch_share` on the fly stage's
+``assumptions.parquet``) and, when the fly stage flew runtime-assured controllers
+(``assured: true``), how they flew against the controller alone and PD alone
+(:func:`qsls.pipeline.evaluate.assured.assured_comparison` on ``assured.parquet`` and
+``flights.parquet``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from qsls.pipeline.report.document import Section
+from qsls.pipeline.report.facts import Facts, g4, pct
+
+
+def _share(v: Any) -> str:
+    return "-" if v != v else pct(v)  # NaN: no broken flight, no share
+
+
+def _calibration_notes(assured: Any) -> list[str]:
+    """A calibrated certificate flown in another perception condition than its calibration's
+    promises nothing there (docs/calibration.md): one note per such controller."""
+    if "calibrated_perception" not in assured:
+        return []
+    notes = []
+    for name, g in assured.groupby("controller", sort=False):
+        cal = str(g["calibrated_perception"].iloc[0])
+        other = sorted({str(c) for c in g["condition"]} - {cal})
+        if cal and other:
+            notes.append(
+                f"{name} was calibrated in {cal} perception: its certificate promises nothing "
+                f"about the flights in {', '.join(other)} perception (its monitor is still sound "
+                "for its premise)"
+            )
+    return notes
+
+
+def section_monitor(f: Facts, counter: list[int]) -> Section | None:
+    import pandas as pd
+
+    from qsls.pipeline.evaluate.assured import (
+        ASSURED,
+        ASSURED_FILE,
+        assured_comparison,
+        catch_share,
+    )
+
+    if not f.fly_folder:
+        return None
+    fly = f.run_dir / f.fly_folder
+    a_path, s_path = fly / "assumptions.parquet", fly / ASSURED_FILE
+    assumptions = pd.read_parquet(a_path) if a_path.is_file() else pd.DataFrame()
+    assured = pd.read_parquet(s_path) if s_path.is_file() else pd.DataFrame()
+    if not len(assumptions) and not len(assured):
+        return None
+    sec = Section("Onboard monitor and runtime assurance", id="monitor")
+    sec.text(
+        "The onboard monitor (docs/monitor.md) reads only what the controller reads, y - r, and "
+        "trips when that measurement proves the certificate's premise broken on this flight. It "
+        "is sound (it never trips while the premise holds) and one-sided: most broken premises "
+        "do not show in the measurement. In runtime-assured mode the certified controller flies "
+        "until its monitor trips, then the PD reference flies (or holds) from that tick on.",
+        lead=True,
+    )
+    if len(assumptions):
+        c = catch_share(assumptions)
+        sec.table(
+            ["scope", "controllers' own flights", "premise broken", "monitor tripped",
+             "catch share", "trips with every check held", "mean delay (s)"],
+            [[r.scope, r.flights, r.broken, r.caught, _share(r.catch_share),
+              r.trips_premise_held, g4(r.mean_delay_s)] for r in c.itertuples()],
+            "Catch share: of the flights on which the post-flight checks found a broken "
+            "assumption, the share on which the monitor tripped (delay: trip time minus the "
+            "first failing assumption's)",
+            text_cols=[0, 4],
+        )  # fmt: skip
+    if len(assured):
+        flights = pd.read_parquet(fly / "flights.parquet")
+        comp = assured_comparison(flights, assured)
+        status = dict(zip(assured["controller"], assured["status"], strict=False))
+        fallback = str(assured["fallback"].iloc[0])
+        rows = []
+        for r in comp.itertuples():
+            switched = "-"
+            if r.flown == ASSURED:
+                switched = f"{r.switched:.0f} of {r.flights} ({pct(r.switching_rate)})"
+                if r.switched:
+                    switched += f", mean trip {g4(r.mean_trip_s)} s"
+                if "envelope_peak" in assured:
+                    mine = assured[(assured["condition"] == r.condition)
+                                   & (assured["controller"] == r.controller)]  # fmt: skip
+                    switched += f"; peak {g4(mine['envelope_peak'].max())} of a threshold"
+            rows.append([
+                r.condition, f"{r.controller} ({status.get(r.controller, '')})", r.flown,
+                r.flights, r.crashed, g4(r.tracking_rms_m), g4(r.tracking_max_m), switched,
+            ])  # fmt: skip
+        sec.table(
+            ["condition", "controller (status)", "flown", "flights", "crashed",
+             "tracking RMS (m)", "tracking max (m)", "handed over"],
+            rows,
+            f"Runtime-assured flights (fallback: {fallback}) against the controller alone and "
+            "PD alone on the same seeds (tracking: mean of the RMS, max of the max; handed "
+            "over: the flights whose monitor tripped, their mean trip time, and the largest "
+            "|y_i - r_i| / threshold_i on the envelope channels: above 1 trips)",
+            notes=[
+                *(f"{n} is {st}, not certified: it flew with the monitor of its {st} premise, "
+                  "and no guarantee is claimed for it"
+                  for n, st in status.items() if st != "certified"),
+                *_calibration_notes(assured),
+            ],
+            text_cols=[0, 1, 2, 7],
+        )  # fmt: skip
+    return sec

@@ -1,0 +1,94 @@
+"""The runtime-assured controller (docs/monitor.md, The fallback): the certified controller
+flies until the onboard premise monitor trips, then a fallback flies to the end.
+
+At every tick ``k`` the monitor (:class:`qsls.pipeline.control.monitor.RuntimeMonitor`, the
+rule of docs/monitor.md on the raw deviation ``y_k - r_k``, velocity through the gate ``V``)
+reads the tick's measurement **before** a command is chosen, so the tick that trips is
+already flown by the fallback: the handover tick is the trip tick. The handover latches (no
+hand-back: a trip proves the premise broken on this flight, and nothing the vehicle measures
+proves it whole again).
+
+The fallbacks are static, so nothing needs initializing at the handover (bumpless in the
+controller's state; the command steps from the certified controller's feedback to the
+fallback's on the same deviation, and the attitude loop smooths the step):
+
+- ``pd``: the PD reference ``u = hover + u_ff + K (y_k - r_k)`` on the current estimate and
+  the same reference (the synth folder's ``K`` where given);
+- ``hold``: the same PD toward a fixed hover point, the estimated position at the trip tick
+  with zero velocity and no feedforward (``r_hold = [y_p,trip, 0]``): the vehicle stops
+  where it believes it is, and the position deviation is zero at the handover.
+
+Per tick it records the monitor's bits and which controller flew (:attr:`flew`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from qsls.pipeline.control.monitor import RuntimeMonitor
+from qsls.pipeline.core.references import RefSample
+from qsls.pipeline.sim.controllers import PDController, PositionController
+
+Fallback = Literal["pd", "hold"]
+FALLBACKS: tuple[Fallback, ...] = ("pd", "hold")
+
+
+class AssuredController:
+    """``primary`` until ``monitor`` trips, then ``fallback`` (PD on the reference, or PD
+    holding the trip tick's estimated position: module docstring)."""
+
+    def __init__(
+        self, primary: PositionController, fallback: PDController, monitor: RuntimeMonitor,
+        mode: Fallback = "pd",
+    ) -> None:  # fmt: skip
+        if mode not in FALLBACKS:
+            raise ValueError(f"fallback '{mode}': expected one of {', '.join(FALLBACKS)}")
+        self.primary, self.fallback, self.monitor, self.mode = primary, fallback, monitor, mode
+        self.name = f"{primary.name}+assured"
+        self.dt = primary.dt
+        self.reset()
+
+    def reset(self) -> None:
+        self.primary.reset()
+        self.fallback.reset()
+        self.monitor.reset()
+        self.trip_tick: int | None = None
+        self.bits: list[int] = []
+        self.flew: list[str] = []
+        """Per tick: the primary's name, or ``pd`` / ``hold`` once handed over."""
+        self._hold: RefSample | None = None
+
+    def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample) -> np.ndarray:
+        k = len(self.bits)
+        bits = self.monitor.step(np.asarray(y, dtype=float) - ref.state)
+        self.bits.append(bits)
+        if bits and self.trip_tick is None:
+            self.trip_tick = k
+            if self.mode == "hold":
+                zero = np.zeros(3)
+                self._hold = RefSample(p=np.array(y[:3], dtype=float), v=zero, a=zero)
+        if self.trip_tick is None:
+            self.flew.append(str(self.primary.name))
+            return self.primary.command(t, y, q, ref)
+        self.flew.append(self.mode)
+        return self.fallback.command(t, y, q, self._hold if self._hold is not None else ref)
+
+
+def assured_controller(
+    folder: Path, primary: PositionController, mass: float, pd: Any,
+    K: Any = None, mode: Fallback = "pd",
+) -> AssuredController:  # fmt: skip
+    """The runtime-assured form of the synthesized controller in ``folder`` (flown as
+    ``primary``): its own monitor (:func:`qsls.pipeline.control.monitor.monitor_of`, gate from
+    its certificate) and a PD fallback with gains ``pd`` (``K`` overrides the gain)."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.monitor import monitor_of
+
+    cdir = load_controller_dir(folder)
+    fallback = PDController(pd, mass, primary.dt)
+    if K is not None:
+        fallback.K = np.asarray(K, dtype=float)
+    return AssuredController(primary, fallback, RuntimeMonitor(monitor_of(cdir), cdir.certificate.gate), mode)
