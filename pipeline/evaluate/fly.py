@@ -548,7 +548,7 @@ def _make_jobs(
             jobs.append(FlyJob(
                 name=name, controller=cname + ASSURED_SUFFIX, spec=spec, condition=cond,
                 seed=int(seed), sim=sim, ingest=ingest_opts, sim_dir=str(sims / name),
-                flight_dir=str(flights / name), pd_gain=pd_gain, pd_z=options.pd_z_control,
+                flight_dir=str(flights / name), pd_gain=pd_gain, pd_z=options.pd_z_for(cname),
                 estimator=vio, assured=options.fallback,
             ))  # fmt: skip
     return jobs
