@@ -235,7 +235,7 @@ def test_quickstart_report_in_chromium_at_1280(quickstart):
     names = sorted(p.parent.name for p in (run_dir / "synth").glob("*/certificate.yaml"))
     assert {c["text"].splitlines()[0] for c in lay["cards"]} == set(names)
     for card in lay["cards"]:
-        assert card["top"] < HEIGHT, card["text"][:40]  # on the first screen
+        assert card["top"] < 2 * HEIGHT, card["text"][:40]  # below the paper's findings (issue 34)
         assert "Flown flights:" in card["text"]
     assert len(lay["figures"]) >= 8
 
