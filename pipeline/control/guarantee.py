@@ -27,14 +27,14 @@ necessary because ``N >= N_lower = max_i w_x,i / w_e,i`` over the positions on t
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from qsls.pipeline.control.taps import l1_norm
-from qsls.pipeline.errormodel.honest import VELOCITY, measured_channels
+from qsls.pipeline.errormodel.honest import GROUPS, VELOCITY, measured_channels
 
 ONES = (1.0,) * 6
 __all__ = ["VELOCITY", "measured_channels"]  # re-exported: one definition, in the premise's fit
@@ -61,6 +61,30 @@ def sparse_gain(phi_xy: np.ndarray, state_scale: Sequence[float], channels: Sequ
     per_tap = np.abs(phi_xy[:, :, list(channels)]).sum(axis=2)  # (taps, nx)
     top = -np.sort(-per_tap, axis=0)[:m]  # the m largest taps of every row
     return float((np.asarray(state_scale, float) * top.sum(axis=0)).max())
+
+
+def grouped_premise(
+    error_scale: Sequence[float], bounds: Mapping[str, float], S: float
+) -> tuple[float, float, tuple[float, ...]]:
+    """The premise with a vector of bounds as the scalar premise in per-group weights
+    (docs/guarantee.md, Channel groups). The vector premise, one bound per channel group ``g``
+    (:data:`GROUPS`), is ``|d_k,g|_e <= eps_g + S dist(x_k)``; returned are ``(eps, S', W_e')``::
+
+        eps = max_g eps_g      w'_e,j = w_e,j eps / eps_g(j)      S' = S eps / min_g eps_g
+
+    so that ``|d_k|_e' = max_g (eps / eps_g) |d_k,g|_e <= eps + S' dist(x_k)``. With ``S = 0``
+    the two premises are one set and the robustness condition in ``W_e'`` is the row-wise
+    vector condition ``max_i sum_g N_ig eps_g / r + (a + eps_o G_m) / r <= 1`` with
+    ``N_ig = sum_t sum_{j in g} w_x,i |Phi_xy(t)_ij| / w_e,j``; with ``S > 0`` it is a sound
+    cover of it. Channels of no named group keep their weight."""
+    if not bounds:
+        return float("nan"), S, tuple(float(w) for w in error_scale)
+    eps = max(bounds.values())
+    out = [float(w) for w in error_scale]
+    for g, b in bounds.items():
+        for j in GROUPS[g]:
+            out[j] = out[j] * eps / b
+    return float(eps), float(S * eps / min(bounds.values())), tuple(out)
 
 
 @dataclass(frozen=True)

@@ -85,6 +85,13 @@ class ProblemOptions(Options):
     eps_e: Number = Field(
         "max", description="bound on the dense error |d|_e: max (training maximum), pNN or a number"
     )
+    eps_groups: dict[Literal["position", "velocity"], float | Literal["max", "clip"]] | None = Field(
+        None,
+        description="a bound on the dense error per channel group (the theorem with a vector of "
+        "bounds, docs/guarantee.md#channel-groups): a number, max (the group's training maximum) "
+        "or clip (velocities: w_e,v beta, which d = clip_beta(e) never exceeds); a group not "
+        "named keeps eps_e",
+    )
     measure: Literal["full", "position"] = Field(
         "full", description="error channels the controller reads: full, or position only"
     )
@@ -141,6 +148,14 @@ class ProblemOptions(Options):
     def _nonneg(cls, v: Any) -> Any:
         if isinstance(v, int | float) and not (math.isfinite(v) and v >= 0):
             raise ValueError(f"must be a finite number >= 0, got {v}")
+        return v
+
+    @field_validator("eps_groups")
+    @classmethod
+    def _groups(cls, v: Any) -> Any:
+        for g, b in (v or {}).items():
+            if isinstance(b, int | float) and not (math.isfinite(b) and b > 0):
+                raise ValueError(f"{g}: a group's bound must be a finite number > 0, got {b}")
         return v
 
     @field_validator("error_scale", mode="before")

@@ -83,8 +83,11 @@ class Premise(BaseModel):
     """Where the shares were computed, why they could not be, or None without an error model."""
     groups: dict[str, dict[str, float]] | None = None
     """Per channel group (``position``, ``velocity``) on the training data: ``eps`` (its largest
-    dense error ``|d_g|_e``) and ``S`` (its leave-one-flight-out slope, NaN when nothing was
-    left out); the premise's training ``eps_e`` and ``S = lofo`` are their maxima."""
+    dense error ``|d_g|_e`` in the user's ``W_e``) and ``S`` (its leave-one-flight-out slope, NaN
+    when nothing was left out); the premise's training ``eps_e`` and ``S = lofo`` are their
+    maxima. With a vector of bounds (``eps_groups``) each group's ``bound`` ``eps_g``: the
+    premise's ``eps_e``, ``S`` and ``error_scale`` are then those of
+    :func:`qsls.pipeline.control.guarantee.grouped_premise`."""
 
     def entries(self) -> dict[str, PremiseEntry]:
         out = {"eps_e": self.eps_e, "S": self.S, "eps_w": self.eps_w}
@@ -274,9 +277,11 @@ class Chosen:
 
 
 def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
-                   where: str | None) -> Premise:  # fmt: skip
+                   where: str | None,
+                   groups: dict[str, dict[str, float]] | None = None) -> Premise:  # fmt: skip
     """The certificate's :class:`Premise`: every number with the share of the training data
-    violating it (counted on ``meas``)."""
+    violating it (counted on ``meas``); ``groups``: the channel groups' record (default: that
+    of ``meas``, :func:`group_record`)."""
     h = chosen.how
     spec = meas.spec if meas is not None else None
     if meas is None:
@@ -331,17 +336,25 @@ def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
         tested_range=tested,
         n_excluded=em.n_excluded if em is not None else 0,
         training_data=where,
-        groups=_group_record(meas),
+        groups=groups if groups is not None else group_record(meas),
     )  # fmt: skip
 
 
-def _group_record(meas: Measured | None) -> dict[str, dict[str, float]] | None:
+def group_record(
+    meas: Measured | None, bounds: dict[str, float] | None = None
+) -> dict[str, dict[str, float]] | None:
+    """Per channel group: the training maximum ``eps`` of ``|d_g|_e`` and the leave-one-flight-out
+    ``S`` (in the user's ``W_e``), and with a vector of bounds the group's ``bound`` ``eps_g``."""
     if meas is None or not meas.groups:
-        return None
+        if not bounds:
+            return None
+        return {g: {"bound": b} for g, b in bounds.items()}
     out = {}
     for g, v in meas.groups.items():
         fit = meas.group_slopes[g]
         out[g] = {"eps": float(v.max()), "S": float(fit.S)}
+        if bounds and g in bounds:
+            out[g]["bound"] = bounds[g]
     return out
 
 

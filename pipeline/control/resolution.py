@@ -7,19 +7,27 @@ stage reads for it."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.control.guarantee import PremiseNumbers, grouped_premise
 from qsls.pipeline.control.options import ProblemOptions
-from qsls.pipeline.control.premise import Measured, Premise, TrainingStates, training_beside
+from qsls.pipeline.control.premise import (
+    Measured,
+    Premise,
+    Spec,
+    TrainingStates,
+    group_record,
+    training_beside,
+)
 from qsls.pipeline.core.artifacts import sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import LinearModel, plant_model
+from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.model import (
     TRAINING_FILE,
     ErrorModel,
@@ -163,6 +171,43 @@ def _disturbance(
     return em.resolve_eps_w(name), name
 
 
+def _group_bounds(
+    opts: ProblemOptions, eps: float, meas: Measured | None, spec: Spec
+) -> dict[str, float]:
+    """``eps_g`` for every measured channel group (docs/guarantee.md, Channel groups) when
+    ``eps_groups`` is set: a number, ``max`` (the group's training maximum of ``|d_g|_e``) or
+    ``clip`` (velocities: ``max_j w_e,j beta``, which ``d = clip_beta(e)`` never exceeds); a
+    group not named keeps ``eps``. Empty when ``eps_groups`` is not set."""
+    if not opts.eps_groups:
+        return {}
+    measured = honest.measured_channels(opts.measure)
+    out: dict[str, float] = {}
+    for g, channels in honest.GROUPS.items():
+        if not set(channels) <= set(measured):
+            if g in opts.eps_groups:
+                raise InputError(f"eps_groups: {g} is not measured (measure: {opts.measure}); drop it")
+            continue
+        v = opts.eps_groups.get(g, eps)  # type: ignore[call-overload]
+        if v == "clip":
+            if g != "velocity" or opts.beta is None:
+                raise InputError(
+                    f"eps_groups: {g}: clip is the velocity group's clip level w_e,v beta; "
+                    "it needs beta (and applies to velocity only)"
+                )
+            v = max(spec.error_scale[j] for j in channels) * float(opts.beta)
+        elif v == "max":
+            if meas is None:
+                raise InputError(
+                    f"eps_groups: {g}: max is measured on the training states beside the error "
+                    "model, which are missing; pass the fit folder or give a number"
+                )
+            v = float(meas.groups[g].max())
+        if not float(v) > 0:
+            raise InputError(f"eps_groups: {g}'s bound is {v}; need a number > 0")
+        out[g] = float(v)
+    return out
+
+
 def _percentile(name: str, what: str) -> float:
     try:
         if name.startswith("p"):
@@ -178,7 +223,7 @@ def resolve(
     """Numbers for every setting, names (``max``, ``lofo``, ``p95``...) looked up on the error
     model and its training states, and the premise they form with its violated shares (pure:
     no file is read)."""
-    from qsls.pipeline.control.premise import Chosen, Spec, premise_record
+    from qsls.pipeline.control.premise import Chosen, premise_record
 
     if opts.radius is not None:
         radius = float(opts.radius)
@@ -219,6 +264,12 @@ def resolve(
     for name, val in (("S", S), ("eps_e", eps_e)):
         if not (math.isfinite(val) and val >= 0):
             raise InputError(f"{name} = '{getattr(opts, name)}' is {val}; need a finite number >= 0")
+    bounds = _group_bounds(opts, eps_e, meas, spec)
+    groups_at = meas
+    if bounds:
+        eps_e, S, scale = grouped_premise(spec.error_scale, bounds, S)
+        spec = replace(spec, error_scale=scale)
+        meas = training.measured(spec) if meas is not None and training is not None else None
     eps_w, how_w = _disturbance(opts, em, meas)
     outlier_ch = opts.measure == "full" and opts.beta is not None
     if not outlier_ch:
@@ -260,19 +311,19 @@ def resolve(
     )  # fmt: skip
     from_em = "error model" if em is not None else "default"
     how = {
-        "eps_e": _how(opts.eps_e), "S": _how(opts.S), "eps_w": how_w,
+        "eps_e": _how(opts.eps_e) if not bounds else "groups", "S": _how(opts.S), "eps_w": how_w,
         "m": "binomial" if opts.m == "auto" else "number",
         "eps_o": "gate (2V - beta)" if opts.gate is not None else "given",
         "r": from_em if opts.radius is None else "number",
         "Delta": from_em if opts.delta is None else _how(opts.delta),
     }  # fmt: skip
     chosen = Chosen(eps_e, S, radius, delta, eps_w, m, eps_o, how, opts.gate)
-    premise = premise_record(chosen, meas, em, where)
+    premise = premise_record(chosen, meas, em, where, group_record(groups_at, bounds))
     H = None if opts.H is None else np.asarray(opts.H)
     model = plant_model(opts.plant, dt=opts.dt, mass=opts.mass, H=H)
     extra = model.nx - len(state_scale)  # the attitude plant's states: unweighted, unmeasured
     shape = sls.Shape(
-        (*state_scale, *(0.0,) * extra), (*opts.error_scale, *(1.0,) * extra), opts.measure, m,
+        (*state_scale, *(0.0,) * extra), (*spec.error_scale, *(1.0,) * extra), opts.measure, m,
         opts.gate is not None,
     )  # fmt: skip
     return Resolved(
