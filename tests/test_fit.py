@@ -331,8 +331,8 @@ def test_environments_keep_distances_and_pairs_within_one_room(tmp_path):
     them (the pair count is the sum of each flight's own, against the all-pairs count per
     flight), leave-one-flight-out has nothing to leave out (S NaN, tested range 0), and a
     third flight in the first room is compared with that room's flight only."""
-    from qsls.pipeline.control.premise import Spec, TrainingStates
     from qsls.pipeline.errormodel.fit import FitData, fit_model, load_fit_data
+    from qsls.pipeline.errormodel.premise import Spec, TrainingStates
     from qsls.pipeline.errormodel.slopes import brute_force_slopes
 
     rng = np.random.default_rng(5)

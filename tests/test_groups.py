@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.control.guarantee import grouped_premise, system_norms
-from qsls.pipeline.control.premise import TrainingStates
 from qsls.pipeline.control.synth import SynthOptions, synthesize
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
+from qsls.pipeline.errormodel.premise import TrainingStates
 
 W_X = (1.0, 1.0, 1.0, 0.5, 0.5, 0.5)
 W_E = (1.0, 1.0, 1.0, 0.5, 0.5, 0.5)

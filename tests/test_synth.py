@@ -306,7 +306,7 @@ def test_certificates_do_not_depend_on_where_the_run_lives(tmp_path, error_model
 
 
 def _training(n=400, seed=0):
-    from qsls.pipeline.control.premise import TrainingStates
+    from qsls.pipeline.errormodel.premise import TrainingStates
 
     rng = np.random.default_rng(seed)
     x = rng.uniform(-1, 1, (n, 6))

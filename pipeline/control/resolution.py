@@ -16,14 +16,7 @@ import numpy as np
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.guarantee import PremiseNumbers, grouped_premise
 from qsls.pipeline.control.options import ProblemOptions
-from qsls.pipeline.control.premise import (
-    Measured,
-    Premise,
-    Spec,
-    TrainingStates,
-    group_record,
-    training_beside,
-)
+from qsls.pipeline.control.premise import Premise, group_record
 from qsls.pipeline.core.artifacts import sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import LinearModel, plant_model
@@ -34,6 +27,7 @@ from qsls.pipeline.errormodel.model import (
     error_model_file,
     load_error_model,
 )
+from qsls.pipeline.errormodel.premise import Measured, Spec, TrainingStates, training_beside
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,6 @@ from qsls.pipeline.control.feasibility import max_feasible_s as max_feasible_s
 from qsls.pipeline.control.options import ProblemOptions as ProblemOptions
 from qsls.pipeline.control.options import SynthOptions
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.control.premise import TrainingStates
 from qsls.pipeline.control.resolution import ModelInput as ModelInput
 from qsls.pipeline.control.resolution import Resolved as Resolved
 from qsls.pipeline.control.resolution import read_model as read_model
@@ -55,6 +54,7 @@ from qsls.pipeline.core.plant import NU, NX
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.disturbance import RESIDUAL
 from qsls.pipeline.errormodel.model import ErrorModel
+from qsls.pipeline.errormodel.premise import TrainingStates
 
 
 # --------------------------------------------------------------------------- one controller
