@@ -162,7 +162,6 @@ def as_calibrated(folder: Path, n: int = 20) -> Path:
         Outcome,
         calibrated_certificate,
         decide,
-        premise_numbers,
         taps_of,
     )
     from qsls.pipeline.evaluate.certified import certified_premise
@@ -174,7 +173,7 @@ def as_calibrated(folder: Path, n: int = 20) -> Path:
     opts = CalibrateOptions(flights=n)
     scores = [1.0] * n
     status, reason, lam, rank, chk, tested, tol = decide(
-        scores, [c.rho_star] * n, premise_numbers(c, c.gate), taps_of(folder), opts
+        scores, [c.rho_star] * n, c.numbers, taps_of(folder), opts
     )
     assert status == "certified", reason
     o = Outcome(folder.name, "regular", status, reason, lam, rank, chk, tested, tol, scores)

@@ -44,9 +44,10 @@ def certified():
     c = certify(sol.taps, model, NUMBERS, SHAPE)
     assert c.status == RELAXED and c.checks['robustness']['passed'], c.checks
     premise = CertifiedPremise(
-        eps=0.1, S=0.0, radius=R, eps_w=0.01, delta=0.0, a=c.a, rho_star=c.rho_star,
-        m=2, eps_o=NUMBERS.eps_o, beta=BETA, measure="full", error_scale=SHAPE.error_scale,
-        gate=V, phi_xy=sol.taps.Phi_xy, A=model.A, B=model.B, H=model.H,
+        numbers=PremiseNumbers(eps=0.1, S=0.0, radius=R, eps_w=0.01, delta=0.0, m=2,
+                               eps_o=NUMBERS.eps_o, gate=V),
+        a=c.a, rho_star=c.rho_star, beta=BETA, measure="full", error_scale=SHAPE.error_scale,
+        phi_xy=sol.taps.Phi_xy, A=model.A, B=model.B, H=model.H,
         u_hover=np.array([0.0, 0.0, model.mass * GRAVITY]),
     )  # fmt: skip
     return model, sol.taps, premise

@@ -23,6 +23,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, model_serializer
 
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import (
     ClosedLoopNorm,
     static_gain_norms,
@@ -333,6 +334,14 @@ class Certificate(CertificateBody):
     def _in_file_order(self, handler: Any) -> dict[str, Any]:
         data = handler(self)
         return {k: data[k] for k in FILE_ORDER if k in data}
+
+    def numbers(self) -> PremiseNumbers:
+        """The premise's numbers as the guarantee's arithmetic reads them (the one form every
+        reader of a certificate takes: evaluate, calibrate, export and the monitor)."""
+        return PremiseNumbers(
+            eps=self.eps_e, S=self.S, radius=self.radius, eps_w=self.eps_w, delta=self.delta,
+            eps_o=self.eps_o, m=self.m, R0=self.R0, gate=self.gate,
+        )  # fmt: skip
 
     @classmethod
     def of(cls, body: CertificateBody, **setting: Any) -> Certificate:

@@ -21,12 +21,12 @@ that no training sample satisfies is refused.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.model import ErrorModel
@@ -149,28 +149,14 @@ def _entry(value: float, chosen: str, counted: tuple[int, int] | None) -> Premis
     )
 
 
-@dataclass(frozen=True)
-class Chosen:
-    """The premise's numbers as synthesis uses them, with how each was chosen."""
-
-    eps: float
-    S: float
-    radius: float
-    delta: float
-    eps_w: float
-    m: int
-    eps_o: float
-    how: dict[str, str]
-    gate: float | None = None
-
-
-def premise_record(chosen: Chosen, meas: Measured | None, em: ErrorModel | None,
-                   where: str | None,
+def premise_record(chosen: PremiseNumbers, how: dict[str, str], meas: Measured | None,
+                   em: ErrorModel | None, where: str | None,
                    groups: dict[str, dict[str, float]] | None = None) -> Premise:  # fmt: skip
-    """The certificate's :class:`Premise`: every number with the share of the training data
-    violating it (counted on ``meas``); ``groups``: the channel groups' record (default: that
-    of ``meas``, :func:`group_record`)."""
-    h = chosen.how
+    """The certificate's :class:`Premise`: the numbers synthesis uses (``chosen``), how each was
+    chosen (``how``: ``eps_e``, ``S``, ``eps_w``, ``m``, ``eps_o``, ``r``, ``Delta``) and the
+    share of the training data violating each (counted on ``meas``); ``groups``: the channel
+    groups' record (default: that of ``meas``, :func:`group_record`)."""
+    h = how
     spec = meas.spec if meas is not None else None
     if meas is None:
         # without the training states a share is known only where the number is at least
@@ -288,7 +274,7 @@ PREMISE_COLUMNS = ("premise_holds", "eps_e_violated", "S_violated", "tested_rang
 """The premise's columns of a sweep table (one row per grid point)."""
 
 
-def premise_columns(p: Premise, chosen: Chosen) -> dict[str, Any]:
+def premise_columns(p: Premise, chosen: PremiseNumbers) -> dict[str, Any]:
     nan = math.nan
     return {
         "premise_holds": p.holds,

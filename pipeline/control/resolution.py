@@ -217,7 +217,7 @@ def resolve(
     """Numbers for every setting, names (``max``, ``lofo``, ``p95``...) looked up on the error
     model and its training states, and the premise they form with its violated shares (pure:
     no file is read)."""
-    from qsls.pipeline.control.premise import Chosen, premise_record
+    from qsls.pipeline.control.premise import premise_record
 
     if opts.radius is not None:
         radius = float(opts.radius)
@@ -311,8 +311,8 @@ def resolve(
         "r": from_em if opts.radius is None else "number",
         "Delta": from_em if opts.delta is None else _how(opts.delta),
     }  # fmt: skip
-    chosen = Chosen(eps_e, S, radius, delta, eps_w, m, eps_o, how, opts.gate)
-    premise = premise_record(chosen, meas, em, where, group_record(groups_at, bounds))
+    chosen = PremiseNumbers(eps_e, S, radius, eps_w, delta, eps_o, m, R0, opts.gate)
+    premise = premise_record(chosen, how, meas, em, where, group_record(groups_at, bounds))
     H = None if opts.H is None else np.asarray(opts.H)
     model = plant_model(opts.plant, dt=opts.dt, mass=opts.mass, H=H)
     extra = model.nx - len(state_scale)  # the attitude plant's states: unweighted, unmeasured

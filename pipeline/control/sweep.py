@@ -127,16 +127,10 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
                 "imitate": opts.imitate,
                 "solver": opts.solver,
                 "certify": options.certify,
-                **(premise_columns(r.premise, _chosen(r)) if r.premise else _no_premise(r)),
+                **(premise_columns(r.premise, r.numbers()) if r.premise else _no_premise(r)),
             }
         )
     return points
-
-
-def _chosen(r: Any) -> Any:
-    from qsls.pipeline.control.premise import Chosen
-
-    return Chosen(r.eps_e, r.S, r.radius, r.delta, r.eps_w, r.m, r.eps_o, {})
 
 
 def _no_premise(r: Any) -> dict[str, Any]:

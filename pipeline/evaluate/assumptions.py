@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import guarantee
-from qsls.pipeline.control.guarantee import measured_channels
+from qsls.pipeline.control.guarantee import PremiseNumbers, measured_channels
 from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.disturbance import realized_disturbance, shaped_norm
 from qsls.pipeline.evaluate.theorem import nominal_states
@@ -51,21 +51,16 @@ class FlownLog:
 
 @dataclass(frozen=True)
 class CertifiedPremise:
-    """What a certificate promises and the premise it rests on, as the checks need it."""
+    """What a certificate promises and the premise it rests on, as the checks need it: the
+    certificate's premise numbers (:meth:`qsls.pipeline.control.artifacts.Certificate.numbers`),
+    its ``a`` and ``rho*``, how the error is split and weighted, and the taps and plant."""
 
-    eps: float
-    S: float
-    radius: float
-    eps_w: float
-    delta: float
+    numbers: PremiseNumbers
     a: float
     rho_star: float
-    m: int
-    eps_o: float
     beta: float
     measure: str
     error_scale: tuple[float, ...]
-    gate: float | None
     phi_xy: np.ndarray
     A: np.ndarray
     B: np.ndarray
@@ -104,7 +99,7 @@ def signals(
 ) -> Signals:
     """:class:`Signals` of a flight under premise ``c`` (the checks here and the calibration's
     scores read the same ones)."""
-    e = gated_errors(log, c.gate)
+    e = gated_errors(log, c.numbers.gate)
     ch = list(measured_channels(c.measure))
     e_read = np.zeros_like(e)
     e_read[:, ch] = e[:, ch]
@@ -128,15 +123,15 @@ def check_assumptions(
     sig = signals(log, c, distance)
     dense, mag, dist, w, counts = sig.dense, sig.mag, sig.dist, sig.w, sig.counts
     d_hat = distance(nominal_states(log.x, sig.e_read, c.phi_xy))
-    allowed = guarantee.premise_bound(c.eps, c.S, dist)
-    inside = dist <= c.radius
+    allowed = guarantee.premise_bound(c.numbers.eps, c.numbers.S, dist)
+    inside = dist <= c.numbers.radius
     values = {
-        "disturbance": (float(w.max()) if len(w) else 0.0, c.eps_w, _first(w > c.eps_w, log.t)),
+        "disturbance": (float(w.max()) if len(w) else 0.0, c.numbers.eps_w, _first(w > c.numbers.eps_w, log.t)),
         "nominal": (float(d_hat.max()), c.a, _first(d_hat > c.a, log.t)),
-        "invariance": (float(dist.max()), min(c.rho_star, c.radius),
-                       _first(dist > min(c.rho_star, c.radius), log.t)),
+        "invariance": (float(dist.max()), min(c.rho_star, c.numbers.radius),
+                       _first(dist > min(c.rho_star, c.numbers.radius), log.t)),
         "dense": (float(np.max(dense - allowed)), 0.0, _first(inside & (dense > allowed), log.t)),
-        "outliers": (float(counts.max()), float(c.m), _first((counts > c.m) | (mag > c.eps_o), log.t)),
+        "outliers": (float(counts.max()), float(c.numbers.m), _first((counts > c.numbers.m) | (mag > c.numbers.eps_o), log.t)),
     }  # fmt: skip
     row: dict[str, Any] = {}
     failed = None
@@ -149,10 +144,10 @@ def check_assumptions(
         row[f"{name}_t"] = t_fail
         if not holds and failed is None:
             failed = name
-    bound = float(guarantee.premise_bound(c.eps, c.S, c.rho_star))
+    bound = float(guarantee.premise_bound(c.numbers.eps, c.numbers.S, c.rho_star))
     row |= {
         "max_outlier": float(mag.max()),
-        "eps_o": c.eps_o,
+        "eps_o": c.numbers.eps_o,
         "max_dense": float(dense.max()),
         "dense_bound": bound,
         "bound_held": bool(dense.max() <= bound),

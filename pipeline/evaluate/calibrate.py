@@ -160,15 +160,15 @@ def score_flight(
     """
     sig = signals(log, c, distance)
     dense, mag, dist, w, counts = sig.dense, sig.mag, sig.dist, sig.w, sig.counts
-    inside = dist <= c.radius
-    allowed = guarantee.premise_bound(c.eps, c.S, dist)
+    inside = dist <= c.numbers.radius
+    allowed = guarantee.premise_bound(c.numbers.eps, c.numbers.S, dist)
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(dense > 0, dense / allowed, 0.0)
     parts = {
         "dense": float(rel[inside].max()) if inside.any() else 0.0,
-        "disturbance": cal.ratio(float(w.max()) if len(w) else 0.0, c.eps_w),
-        "reference": cal.ratio(float(distance(log.ref).max()), c.delta),
-        "outliers": math.inf if mag.max() > c.eps_o else cal.ratio(float(counts.max()), c.m),
+        "disturbance": cal.ratio(float(w.max()) if len(w) else 0.0, c.numbers.eps_w),
+        "reference": cal.ratio(float(distance(log.ref).max()), c.numbers.delta),
+        "outliers": math.inf if mag.max() > c.numbers.eps_o else cal.ratio(float(counts.max()), c.numbers.m),
     }
     # reached: where the dense premise was scored (within r; a flight that went further passed
     # through every distance up to r on the way)
@@ -196,13 +196,6 @@ floor-crash rule decide the flight, not perception."""
 
 
 # --------------------------------------------------------------------------- the certificate
-def premise_numbers(c: CertifiedPremise, gate: float | None) -> PremiseNumbers:
-    return PremiseNumbers(
-        eps=c.eps, S=c.S, radius=c.radius, eps_w=c.eps_w, delta=c.delta, eps_o=c.eps_o,
-        m=c.m, gate=gate,
-    )  # fmt: skip
-
-
 def taps_of(folder: Path) -> cal.Responses:
     """What the condition needs of the candidate's taps, in its certificate's weights."""
     from qsls.pipeline.control.artifacts import load_controller_dir
@@ -460,7 +453,7 @@ def calibrate(
                 sel = mine[mine["role"] == "calibration"]
                 ranged = mine[mine["role"] == "range"]
                 s = sel["score"].to_list()
-                nominal = premise_numbers(premises[f.name], premises[f.name].gate)
+                nominal = premises[f.name].numbers
                 status, reason, lam, rank, chk, tested, tol = decide(
                     s, mine["reached"].to_list(), nominal, taps_of(f), options,
                     crashed=int(mine["crashed"].sum()), range_scores=ranged["score"].to_list(),

@@ -148,12 +148,11 @@ def certified_premise(folder: Path) -> Any:
     p = c.premise
     model = d.controller.model
     return CertifiedPremise(
-        eps=c.eps_e, S=c.S, radius=c.radius, eps_w=c.eps_w, delta=c.delta, a=c.a,
-        rho_star=c.rho_star, m=c.m, eps_o=c.eps_o,
+        numbers=c.numbers(), a=c.a, rho_star=c.rho_star,
         beta=math.inf if p is None or p.beta is None else p.beta,
         measure=c.measure,
         error_scale=tuple(p.error_scale) if p is not None else (1.0,) * 6,
-        gate=c.gate, phi_xy=physical(d.controller.taps.Phi_xy), A=model.A, B=model.B,
+        phi_xy=physical(d.controller.taps.Phi_xy), A=model.A, B=model.B,
         H=model.H[:NX, :NX],
         u_hover=np.array([0.0, 0.0, model.mass * GRAVITY]),
     )  # fmt: skip

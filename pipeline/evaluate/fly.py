@@ -629,7 +629,7 @@ def assumption_table(
             continue  # a crashed flight is checked on the ticks it flew: a crash is no excuse
         log = FlownLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl)
         row = check_assumptions(log, c, training.distance)
-        row.update(monitor_columns(monitors[o.controller], log, c.gate))
+        row.update(monitor_columns(monitors[o.controller], log, c.numbers.gate))
         if o.metrics.get("crashed"):
             row = crashed(row, o.extra.get("crash_time_s"), o.metrics.get("crash_reason"))
         rows.append({"flight": o.name, "controller": o.controller, "status": status[o.controller],
