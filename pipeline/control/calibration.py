@@ -149,10 +149,12 @@ class Check:
 
 
 def inflate(p: PremiseNumbers, lam: float) -> PremiseNumbers:
-    """``P(lambda)``: ``eps``, ``S``, ``eps_w``, ``Delta`` times ``lambda``, ``m -> floor(lambda m)``."""
+    """``P(lambda)``: ``eps``, ``S``, ``eps_w``, ``Delta`` (and the paper's ``R0``, an error bound
+    too) times ``lambda``, ``m -> floor(lambda m)``."""
     m = math.floor(lam * p.m + 1e-9) if math.isfinite(lam) else p.m
+    R0 = None if p.R0 is None else p.R0 * lam
     return replace(
-        p, eps=p.eps * lam, S=p.S * lam, eps_w=p.eps_w * lam, delta=p.delta * lam, m=m
+        p, eps=p.eps * lam, S=p.S * lam, eps_w=p.eps_w * lam, delta=p.delta * lam, m=m, R0=R0
     )
 
 
