@@ -31,25 +31,35 @@ the handover tick are those of the Python monitor (the same rule and thresholds,
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
 from qsls.pipeline.control.monitor import RuntimeMonitor
 from qsls.pipeline.core.references import RefSample
-from qsls.pipeline.export.cbuild import CController
 from qsls.pipeline.sim.controllers import PDController, PositionController
 
 Fallback = Literal["pd", "hold"]
 FALLBACKS: tuple[Fallback, ...] = ("pd", "hold")
 
 
-def exported_runtime(primary: PositionController) -> CController | None:
-    """The exported, compiled controller flying as ``primary`` (``backend: c``; inside a
-    PD-height wrapper's ``inner``), whose step returns the monitor's bits; None otherwise."""
+@runtime_checkable
+class ExportedStep(Protocol):
+    """An exported controller's runtime (the compiled C through ctypes,
+    :class:`qsls.pipeline.export.cbuild.CController`): each ``step`` leaves the monitor's bits
+    of its tick in ``flags``."""
+
+    flags: int
+
+    def step(self, y: np.ndarray) -> np.ndarray: ...
+
+
+def exported_runtime(primary: PositionController) -> ExportedStep | None:
+    """The exported controller flying as ``primary`` (``backend: c``; inside a PD-height
+    wrapper's ``inner``), whose step returns the monitor's bits; None otherwise."""
     inner = getattr(primary, "inner", primary)
     runtime = getattr(inner, "runtime", None)
-    return runtime if isinstance(runtime, CController) else None
+    return runtime if isinstance(runtime, ExportedStep) else None
 
 
 class AssuredController:
