@@ -117,3 +117,41 @@ def test_report_section_reads_the_fly_stages_tables(tmp_path):
     assert len(notes) == 2 and "l1_robust is relaxed, not certified" in notes[0]
     assert "calibrated in regular perception" in notes[1] and "in degraded perception" in notes[1]
     assert section_monitor(Facts(tmp_path, {}, {}, fly_folder=""), [0]) is None
+
+
+def test_per_estimator_each_assured_flight_meets_its_own_estimators_flights():
+    """With an ``estimator`` column (several estimators), the comparison is per estimator:
+    the camera's assured flight against the camera's flights only, and the catch share adds
+    a row per estimator and per estimator and condition."""
+    flights = pd.DataFrame([
+        {**_flight("l1_robust", 0, 0.30), "estimator": "camera"},
+        {**_flight("pd", 0, 0.20), "estimator": "camera"},
+        {**_flight("l1_robust", 0, 0.10), "estimator": "emulator"},
+        {**_flight("pd", 0, 0.05, crashed=True), "estimator": "emulator"},
+    ])  # fmt: skip
+    assured = pd.DataFrame([
+        {**_flight("l1_robust", 0, 0.25), "estimator": "camera", "tripped": True, "trip_t": 1.5},
+        {**_flight("l1_robust", 0, 0.10), "estimator": "emulator", "tripped": False,
+         "trip_t": NAN},
+    ])  # fmt: skip
+    c = assured_comparison(flights, assured)
+    assert c.columns[0] == "estimator" and len(c) == 6
+    got = {(r.estimator, r.flown): (r.tracking_rms_m, r.crashed) for r in c.itertuples()}
+    assert got == {("camera", "alone"): (0.30, 0), ("camera", "assured"): (0.25, 0),
+                   ("camera", "PD alone"): (0.20, 0), ("emulator", "alone"): (0.10, 0),
+                   ("emulator", "assured"): (0.10, 0), ("emulator", "PD alone"): (0.05, 1)}  # fmt: skip
+    rate = c[c["flown"] == "assured"].set_index("estimator")["switching_rate"]
+    assert rate.to_dict() == {"camera": 1.0, "emulator": 0.0}
+    # without the column on both tables: one comparison over every flight, as before
+    assert "estimator" not in assured_comparison(flights.drop(columns="estimator"), assured)
+    a = pd.DataFrame([
+        {**_row("c0", "degraded", 1, 2.0, {"dense": 1.0}), "estimator": "camera"},
+        {**_row("c1", "regular", 0, NAN, {"dense": 1.0}), "estimator": "camera"},
+        {**_row("e0", "degraded", 0, NAN, {"outliers": 1.0}), "estimator": "emulator"},
+    ])  # fmt: skip
+    s = catch_share(a).set_index("scope")
+    assert list(s.index) == ["all", "degraded", "regular", "camera: all", "camera: degraded",
+                             "camera: regular", "emulator: all", "emulator: degraded"]  # fmt: skip
+    assert s.loc["camera: all", ["broken", "caught"]].tolist() == [2, 1]
+    assert s.loc["camera: all", "catch_share"] == 0.5 and s.loc["emulator: all", "catch_share"] == 0
+    assert s.loc["degraded", ["broken", "caught"]].tolist() == [2, 1]

@@ -327,16 +327,19 @@ def test_runtime_monitor_matches_the_rule_on_the_whole_log(ctrl):
     assert mon.trips == np.count_nonzero(want) and mon.first_trip == int(np.flatnonzero(want)[0])
 
 
-def _assured_flight(folder, tmp_path, name, fault=None, fallback="pd"):
+def _assured_flight(folder, tmp_path, name, fault=None, fallback="pd", backend="python"):
     """A 4 s runtime-assured flight of ``folder`` on the circle, ideal perception but for
-    ``fault`` (run_job's path: the assured controller, no bag), and its tick log."""
+    ``fault`` (run_job's path: the assured controller, no bag), and its tick log; ``backend``
+    ``c`` flies the exported C, compiled, whose own monitor decides the handover."""
     from qsls.pipeline.evaluate.fly import FlyJob, run_job, tick_frame
     from qsls.pipeline.ingest.options import IngestOptions
     from qsls.pipeline.sim.options import SimOptions
 
     off = dict.fromkeys(("bias", "drift", "noise", "outliers", "blur", "motion_drift",
                          "feature_loss"), False)  # fmt: skip
-    sim = SimOptions.model_validate({"vio": {**off, "fault": fault}}).model_dump(mode="json")
+    sim = SimOptions.model_validate(
+        {"vio": {**off, "fault": fault}, "controller": {"backend": backend}}
+    ).model_dump(mode="json")
     sim["duration"] = 4.0
     job = FlyJob(
         name, "l1_gated_assured", str(folder), "regular", 0, sim,
@@ -391,3 +394,32 @@ def test_assured_hold_stops_where_the_estimate_was_at_the_trip(ctrl, tmp_path):
     hold = o.y_ctrl[trip, :3]
     # at rest near the hold point (in the estimate) by the end: 3 s of PD
     assert np.abs(o.y_ctrl[-1, :3] - hold).max() < 0.15 and np.abs(o.y_ctrl[-1, 3:]).max() < 0.3
+
+
+def test_assured_mode_with_the_exported_c_hands_over_on_the_python_monitors_tick(
+    ctrl, gcc, tmp_path
+):
+    """``backend: c``: the compiled export flies, and its step's own bits decide the handover
+    (the Python monitor is not consulted). A 1 m bias from t = 1.0 s trips it on the same tick
+    as the Python backend's monitor, with the same bits and the same ``flew`` column, and the
+    two flights are the same flight to rounding (the C sums in another order)."""
+    from qsls.pipeline.sim.assured import AssuredController
+
+    fault = {"start_s": 1.0, "bias": [0, 0, 1.0, 0, 0, 0]}
+    c, c_ticks = _assured_flight(ctrl.folder, tmp_path, "c", fault, backend="c")
+    py, py_ticks = _assured_flight(ctrl.folder, tmp_path, "py", fault)
+    bits = c_ticks["monitor_bits"].to_numpy()
+    trip = int(np.flatnonzero(bits)[0])
+    assert trip == 10 and bits[trip] & 1
+    np.testing.assert_array_equal(bits, py_ticks["monitor_bits"].to_numpy())
+    assert c_ticks["flew"].tolist() == py_ticks["flew"].tolist()
+    assert set(c_ticks["flew"][trip:]) == {"pd"} and set(c_ticks["flew"][:trip]) == {"l1_gated"}
+    np.testing.assert_allclose(c.u_ctrl, py.u_ctrl, rtol=0, atol=1e-9)
+    # the controller run_job flies with backend c reads the exported step's bits
+    from qsls.pipeline.sim.assured import assured_controller
+    from qsls.pipeline.sim.controllers import make_controller
+    from qsls.pipeline.sim.options import ControllerOptions
+
+    opts = ControllerOptions(kind=str(ctrl.folder), backend="c")
+    a = assured_controller(ctrl.folder, make_controller(opts, 1.0), 1.0, opts.pd)
+    assert isinstance(a, AssuredController) and a.monitor is None and a.onboard is not None

@@ -268,3 +268,34 @@ def test_assured_flights_are_kept_apart(trained, tmp_path):
     assert set(ticks["flew"]) == {"l1_robust"} and not ticks["monitor_bits"].any()
     pd.testing.assert_frame_equal(ticks[alone.columns], alone)
     assert not (tmp_path / "plain" / "assured.parquet").exists()
+
+
+def test_assured_flights_per_estimator(trained, tmp_path):
+    """Two estimators (camera, emulator): ``assured.parquet`` holds each estimator's assured
+    flight, keyed by it; the comparison pairs each with its own estimator's flight (no trip in
+    3 s: the same tracking, which differs between the estimators); the report's section
+    shows a row per estimator."""
+    from qsls.pipeline.report.facts import Facts
+    from qsls.pipeline.report.monitor import section_monitor
+
+    root, _ = trained
+    opts = FlyOptions.model_validate(
+        {"vio": ["camera", "emulator"], "seeds": [0], "duration": 3.0, "conditions": ["regular"],
+         "controllers": ["l1_robust"], "se3": False, "jobs": 1, "figures": False,
+         "assured": True}
+    )  # fmt: skip
+    fly_evaluate(root / "fit", [root / "synth"], opts, tmp_path / "fly")
+    a = pd.read_parquet(tmp_path / "fly" / "assured.parquet")
+    assert a["estimator"].tolist() == ["camera", "emulator"] and not a["tripped"].any()
+    every = pd.read_parquet(tmp_path / "fly" / "flights_by_estimator.parquet")
+    own = every.set_index("estimator")["tracking_rms_m"]
+    np.testing.assert_array_equal(a["tracking_rms_m"], own[["camera", "emulator"]])
+    assert own["camera"] != own["emulator"]
+    comp = pd.DataFrame(json.loads((tmp_path / "fly" / "evaluation.json").read_text())["assured"])
+    assert comp[["estimator", "flown"]].values.tolist() == [
+        ["camera", "alone"], ["camera", "assured"], ["emulator", "alone"], ["emulator", "assured"]
+    ]
+    np.testing.assert_array_equal(comp["tracking_rms_m"], own[[v for v in comp["estimator"]]])
+    sec = section_monitor(Facts(tmp_path, {}, {}, fly_folder="fly"), [0])
+    rows = [b for kind, b in sec.blocks if kind == "table"][-1].rows
+    assert [r[0] for r in rows] == ["regular (camera)"] * 2 + ["regular (emulator)"] * 2

@@ -1,16 +1,18 @@
 """The runtime-assured flights and the onboard monitor's catch share (docs/monitor.md, The
 fallback; docs/evaluation.md, Runtime-assured flights).
 
-- :func:`assured_comparison`: per condition and monitored controller, the controller alone,
-  runtime-assured (:class:`qsls.pipeline.sim.assured.AssuredController`) and PD alone on the
-  same seeds: flights, crashes, tracking RMS (mean) and max, and for the assured flights the
-  switching rate (the share of flights whose monitor tripped, so the fallback flew) and the
-  mean trip time over the flights that tripped.
+- :func:`assured_comparison`: per condition and monitored controller (and per estimator,
+  when the tables carry an ``estimator`` column: a fly stage with several), the controller
+  alone, runtime-assured (:class:`qsls.pipeline.sim.assured.AssuredController`) and PD alone
+  on the same seeds: flights, crashes, tracking RMS (mean) and max, and for the assured
+  flights the switching rate (the share of flights whose monitor tripped, so the fallback
+  flew) and the mean trip time over the flights that tripped.
 - :func:`catch_share`: of the flights on which the post-flight checks found a broken premise
   (any of the five assumptions of :mod:`qsls.pipeline.evaluate.assumptions` failed), the
   share whose monitor tripped; beside it the trips on flights whose checks all held (zero if
   the monitor is sound and the checks cover its premise) and the mean delay from the first
-  failing assumption to the trip.
+  failing assumption to the trip; over all flights, per condition and, with an ``estimator``
+  column, per estimator and condition.
 
 Arrays and tables in, tables out; nothing is flown or written here.
 """
@@ -31,6 +33,8 @@ ASSURED_SUFFIX = "_assured"
 """An assured flight's controller name: the monitored controller's, then this."""
 
 ALONE, ASSURED, PD_ALONE = "alone", "assured", "PD alone"
+ESTIMATOR = "estimator"
+"""The column that keys a fly stage's rows by estimator when it flew several."""
 
 
 def trip_columns(flew: Sequence[str], bits: Sequence[int], t: np.ndarray) -> dict[str, Any]:
@@ -54,18 +58,26 @@ def assured_comparison(
 ) -> pd.DataFrame:
     """Per condition and monitored controller (``assured``'s ``controller``, the base name),
     three rows on the seeds the assured controller flew: the controller ``alone``
-    (``flights``), ``assured``, and ``PD alone`` (``flights``' ``pd_name``, if flown)."""
+    (``flights``), ``assured``, and ``PD alone`` (``flights``' ``pd_name``, if flown). When
+    both tables have an ``estimator`` column, per estimator too (first column), each assured
+    flight against the flights of its own estimator."""
     rows: list[dict[str, Any]] = []
     if not len(assured):
         return pd.DataFrame(rows)
-    for (cond, name), a in assured.groupby(["condition", "controller"], sort=False):
+    keyed = ESTIMATOR in assured and ESTIMATOR in flights
+    keys = [ESTIMATOR, "condition", "controller"] if keyed else ["condition", "controller"]
+    for key, a in assured.groupby(keys, sort=False):
+        *vio, cond, name = key
         seeds = set(a["seed"])
         same = flights[(flights["condition"] == cond) & flights["seed"].isin(seeds)]
+        if keyed:
+            same = same[same[ESTIMATOR] == vio[0]]
         for flown, df in ((ALONE, same[same["controller"] == name]), (ASSURED, a),
                           (PD_ALONE, same[same["controller"] == pd_name])):  # fmt: skip
             if not len(df):
                 continue
             row: dict[str, Any] = {
+                **({ESTIMATOR: vio[0]} if keyed else {}),
                 "condition": cond, "controller": name, "flown": flown, "flights": len(df),
                 "crashed": int(df["crashed"].sum()),
                 "tracking_rms_m": float(df["tracking_rms_m"].mean()),
@@ -97,7 +109,9 @@ def catch_share(assumptions: pd.DataFrame) -> pd.DataFrame:
     ``monitor_t``): one row for all flights, then one per condition. ``catch_share`` is
     ``caught / broken`` (NaN without a broken flight); ``trips_premise_held`` counts trips on
     flights whose every assumption held; ``mean_delay_s`` is the mean over caught flights of
-    the trip time minus the earliest failing assumption's time."""
+    the trip time minus the earliest failing assumption's time. With an ``estimator`` column
+    (several estimators' flights), one row per estimator (``camera: all``) and per estimator
+    and condition (``camera: degraded``) follow."""
     cols = ["scope", "flights", "broken", "caught", "catch_share", "trips_premise_held",
             "mean_delay_s"]  # fmt: skip
     if not len(assumptions):
@@ -110,6 +124,11 @@ def catch_share(assumptions: pd.DataFrame) -> pd.DataFrame:
     groups: list[tuple[str, pd.DataFrame]] = [("all", a)]
     if "condition" in a:
         groups += [(str(c), g) for c, g in a.groupby("condition", sort=False)]
+    if ESTIMATOR in a:
+        for vio, ga in a.groupby(ESTIMATOR, sort=False):
+            groups.append((f"{vio}: all", ga))
+            if "condition" in ga:
+                groups += [(f"{vio}: {c}", g) for c, g in ga.groupby("condition", sort=False)]
     rows = []
     for scope, g in groups:
         broken = int(g["_broken"].sum())

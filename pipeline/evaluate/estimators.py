@@ -37,6 +37,7 @@ PAIRED_METRICS = [
     "crashed",
 ]
 """The metrics of each flight put side by side per estimator."""
+FLIGHTS_FILE = "flights_by_estimator.parquet"
 PAIRED_FILE = "paired_by_estimator.parquet"
 PER_CONTROLLER_FILE = "per_controller_by_estimator.parquet"
 
@@ -133,9 +134,7 @@ def findings_markdown(analyses: Mapping[str, Analysis]) -> str:
 def write_by_estimator(w: StageWriter, analyses: Mapping[str, Analysis]) -> dict[str, Any]:
     """The keyed and paired tables of the module docstring inside an open writer; returns
     the stage's ``findings.json`` document."""
-    w.write_parquet(
-        "flights_by_estimator.parquet", keyed({v: a.flights for v, a in analyses.items()})
-    )
+    w.write_parquet(FLIGHTS_FILE, keyed({v: a.flights for v, a in analyses.items()}))
     w.write_parquet(PER_CONTROLLER_FILE, keyed({v: a.per for v, a in analyses.items()}))
     w.write_parquet(
         "assumptions_by_estimator.parquet", keyed({v: a.assumptions for v, a in analyses.items()})
@@ -145,6 +144,7 @@ def write_by_estimator(w: StageWriter, analyses: Mapping[str, Analysis]) -> dict
 
 
 __all__ = [
+    "FLIGHTS_FILE",
     "PAIRED_FILE",
     "PER_CONTROLLER_FILE",
     "RATIO_METRICS",

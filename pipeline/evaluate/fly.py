@@ -56,6 +56,7 @@ from qsls.pipeline.core.units import NS
 from qsls.pipeline.evaluate.assured import (
     ASSURED_FILE,
     ASSURED_SUFFIX,
+    ESTIMATOR,
     assured_comparison,
     catch_share,
     trip_columns,
@@ -650,14 +651,15 @@ def monitored(folder: Path) -> bool:
 
 def assured_table(
     outcomes: Sequence[FlyOutcome], status: dict[str, str], fallback: str,
-    folders: dict[str, Path],
+    folders: dict[str, Path], *, by_estimator: bool = False,
 ) -> pd.DataFrame:  # fmt: skip
     """One row per runtime-assured flight: its flight-table columns (``controller`` the
     monitored controller's name), the certificate's status and the perception its calibration
     flew in (``calibrated_perception``, empty if not calibrated), the fallback, the handover
     (:func:`qsls.pipeline.evaluate.assured.trip_columns`) and ``envelope_peak``, the largest
     ``|y_i - r_i| / threshold_i`` over the flight's ticks and envelope channels
-    (:func:`qsls.pipeline.control.monitor.envelope_peak`: how close it came to a trip)."""
+    (:func:`qsls.pipeline.control.monitor.envelope_peak`: how close it came to a trip).
+    ``by_estimator`` (a stage with several estimators) puts the flight's estimator first."""
     from qsls.pipeline.control.artifacts import load_controller_dir
     from qsls.pipeline.control.monitor import envelope_peak, monitor_of
 
@@ -681,6 +683,8 @@ def assured_table(
     }
     table.insert(3, "calibrated_perception", [perception[b] for b in base])
     table.insert(4, "fallback", fallback)
+    if by_estimator:
+        table.insert(0, ESTIMATOR, [o.estimator for o in outcomes])
     return pd.concat([table, trips], axis=1)
 
 
@@ -808,14 +812,19 @@ def fly_evaluate(
             assured_json: dict[str, Any] = {}
             table = pd.DataFrame()
             if options.assured:
+                from qsls.pipeline.evaluate.estimators import keyed
+
                 table = assured_table(
-                    [o for o, j in zip(flown, jobs_flown, strict=True)
-                     if j.assured is not None and o.estimator == options.estimators[0]],
+                    [o for o, j in zip(flown, jobs_flown, strict=True) if j.assured is not None],
                     {b.name: b.status for b in bounds}, options.fallback,
-                    {b.name: b.folder for b in bounds},
+                    {b.name: b.folder for b in bounds}, by_estimator=several,
                 )  # fmt: skip
                 w.write_parquet(ASSURED_FILE, table)
-                comp = assured_comparison(flights, table)
+                # with several estimators each assured flight meets its own estimator's flights
+                comp = assured_comparison(
+                    keyed({v: an.flights for v, an in analyses.items()}) if several else flights,
+                    table,
+                )
                 tripped = int(table["tripped"].sum()) if len(table) else 0
                 w.results["assured"] = f"{tripped} of {len(table)} flights handed over"
                 assured_json = {

@@ -3,7 +3,8 @@ the flown flights (:func:`qsls.pipeline.evaluate.assured.catch_share` on the fly
 ``assumptions.parquet``) and, when the fly stage flew runtime-assured controllers
 (``assured: true``), how they flew against the controller alone and PD alone
 (:func:`qsls.pipeline.evaluate.assured.assured_comparison` on ``assured.parquet`` and
-``flights.parquet``)."""
+``flights.parquet``; per estimator, on the stage's flights of every estimator, when it flew
+several)."""
 
 from __future__ import annotations
 
@@ -41,9 +42,11 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
     from qsls.pipeline.evaluate.assured import (
         ASSURED,
         ASSURED_FILE,
+        ESTIMATOR,
         assured_comparison,
         catch_share,
     )
+    from qsls.pipeline.evaluate.estimators import FLIGHTS_FILE
 
     if not f.fly_folder:
         return None
@@ -75,7 +78,8 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
             text_cols=[0, 4],
         )  # fmt: skip
     if len(assured):
-        flights = pd.read_parquet(fly / "flights.parquet")
+        keyed = ESTIMATOR in assured  # several estimators: each meets its own flights
+        flights = pd.read_parquet(fly / (FLIGHTS_FILE if keyed else "flights.parquet"))
         comp = assured_comparison(flights, assured)
         status = dict(zip(assured["controller"], assured["status"], strict=False))
         fallback = str(assured["fallback"].iloc[0])
@@ -89,9 +93,12 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
                 if "envelope_peak" in assured:
                     mine = assured[(assured["condition"] == r.condition)
                                    & (assured["controller"] == r.controller)]  # fmt: skip
+                    if keyed:
+                        mine = mine[mine[ESTIMATOR] == r.estimator]
                     switched += f"; peak {g4(mine['envelope_peak'].max())} of a threshold"
             rows.append([
-                r.condition, f"{r.controller} ({status.get(r.controller, '')})", r.flown,
+                f"{r.condition} ({r.estimator})" if keyed else r.condition,
+                f"{r.controller} ({status.get(r.controller, '')})", r.flown,
                 r.flights, r.crashed, g4(r.tracking_rms_m), g4(r.tracking_max_m), switched,
             ])  # fmt: skip
         sec.table(
@@ -99,7 +106,9 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
              "tracking RMS (m)", "tracking max (m)", "handed over"],
             rows,
             f"Runtime-assured flights (fallback: {fallback}) against the controller alone and "
-            "PD alone on the same seeds (tracking: mean of the RMS, max of the max; handed "
+            "PD alone on the same seeds"
+            + (", per estimator (in brackets after the condition)" if keyed else "")
+            + " (tracking: mean of the RMS, max of the max; handed "
             "over: the flights whose monitor tripped, their mean trip time, and the largest "
             "|y_i - r_i| / threshold_i on the envelope channels: above 1 trips)",
             notes=[

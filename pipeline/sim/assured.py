@@ -19,12 +19,19 @@ fallback's on the same deviation, and the attitude loop smooths the step):
   where it believes it is, and the position deviation is zero at the handover.
 
 Per tick it records the monitor's bits and which controller flew (:attr:`flew`).
+
+With ``--backend c`` (the exported, compiled controller flying through ctypes:
+:func:`qsls.pipeline.export.cbuild.c_runtime`) the exported step's own monitor decides the
+handover, as on the vehicle: its step reads the tick's measurement, returns the command and
+the monitor's bits together (``PREFIX_step``), so the assured controller steps it every tick,
+reads the bits, and from the trip on discards its command for the fallback's. The bits and
+the handover tick are those of the Python monitor (the same rule and thresholds, in double).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -36,16 +43,40 @@ Fallback = Literal["pd", "hold"]
 FALLBACKS: tuple[Fallback, ...] = ("pd", "hold")
 
 
+@runtime_checkable
+class ExportedStep(Protocol):
+    """An exported controller's runtime (the compiled C through ctypes,
+    :class:`qsls.pipeline.export.cbuild.CController`): each ``step`` leaves the monitor's bits
+    of its tick in ``flags``."""
+
+    flags: int
+
+    def step(self, y: np.ndarray) -> np.ndarray: ...
+
+
+def exported_runtime(primary: PositionController) -> ExportedStep | None:
+    """The exported controller flying as ``primary`` (``backend: c``; inside a PD-height
+    wrapper's ``inner``), whose step returns the monitor's bits; None otherwise."""
+    inner = getattr(primary, "inner", primary)
+    runtime = getattr(inner, "runtime", None)
+    return runtime if isinstance(runtime, ExportedStep) else None
+
+
 class AssuredController:
-    """``primary`` until ``monitor`` trips, then ``fallback`` (PD on the reference, or PD
-    holding the trip tick's estimated position: module docstring)."""
+    """``primary`` until the monitor trips, then ``fallback`` (PD on the reference, or PD
+    holding the trip tick's estimated position: module docstring). The monitor is
+    ``monitor`` (Python, beside the primary), or with ``monitor=None`` the exported step's
+    own (``primary`` flies an exported C controller: :func:`exported_runtime`)."""
 
     def __init__(
-        self, primary: PositionController, fallback: PDController, monitor: RuntimeMonitor,
-        mode: Fallback = "pd",
+        self, primary: PositionController, fallback: PDController,
+        monitor: RuntimeMonitor | None, mode: Fallback = "pd",
     ) -> None:  # fmt: skip
         if mode not in FALLBACKS:
             raise ValueError(f"fallback '{mode}': expected one of {', '.join(FALLBACKS)}")
+        self.onboard = exported_runtime(primary) if monitor is None else None
+        if monitor is None and self.onboard is None:
+            raise ValueError(f"{primary.name}: no monitor, and no exported step to read one from")
         self.primary, self.fallback, self.monitor, self.mode = primary, fallback, monitor, mode
         self.name = f"{primary.name}+assured"
         self.dt = primary.dt
@@ -54,7 +85,8 @@ class AssuredController:
     def reset(self) -> None:
         self.primary.reset()
         self.fallback.reset()
-        self.monitor.reset()
+        if self.monitor is not None:
+            self.monitor.reset()
         self.trip_tick: int | None = None
         self.bits: list[int] = []
         self.flew: list[str] = []
@@ -63,7 +95,12 @@ class AssuredController:
 
     def command(self, t: float, y: np.ndarray, q: np.ndarray, ref: RefSample) -> np.ndarray:
         k = len(self.bits)
-        bits = self.monitor.step(np.asarray(y, dtype=float) - ref.state)
+        u = None
+        if self.monitor is not None:
+            bits = self.monitor.step(np.asarray(y, dtype=float) - ref.state)
+        else:  # the exported step monitors what it reads: it runs every tick, even after a trip
+            u = self.primary.command(t, y, q, ref)
+            bits = self.onboard.flags if self.onboard is not None else 0
         self.bits.append(bits)
         if bits and self.trip_tick is None:
             self.trip_tick = k
@@ -72,7 +109,7 @@ class AssuredController:
                 self._hold = RefSample(p=np.array(y[:3], dtype=float), v=zero, a=zero)
         if self.trip_tick is None:
             self.flew.append(str(self.primary.name))
-            return self.primary.command(t, y, q, ref)
+            return u if u is not None else self.primary.command(t, y, q, ref)
         self.flew.append(self.mode)
         return self.fallback.command(t, y, q, self._hold if self._hold is not None else ref)
 
@@ -83,7 +120,8 @@ def assured_controller(
 ) -> AssuredController:  # fmt: skip
     """The runtime-assured form of the synthesized controller in ``folder`` (flown as
     ``primary``): its own monitor (:func:`qsls.pipeline.control.monitor.monitor_of`, gate from
-    its certificate) and a PD fallback with gains ``pd`` (``K`` overrides the gain)."""
+    its certificate; the exported step's when ``primary`` flies the exported C) and a PD
+    fallback with gains ``pd`` (``K`` overrides the gain)."""
     from qsls.pipeline.control.artifacts import load_controller_dir
     from qsls.pipeline.control.monitor import monitor_of
 
@@ -91,4 +129,7 @@ def assured_controller(
     fallback = PDController(pd, mass, primary.dt)
     if K is not None:
         fallback.K = np.asarray(K, dtype=float)
-    return AssuredController(primary, fallback, RuntimeMonitor(monitor_of(cdir), cdir.certificate.gate), mode)
+    if exported_runtime(primary) is not None:
+        return AssuredController(primary, fallback, None, mode)
+    monitor = RuntimeMonitor(monitor_of(cdir), cdir.certificate.gate)
+    return AssuredController(primary, fallback, monitor, mode)
