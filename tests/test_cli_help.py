@@ -15,6 +15,7 @@ import pytest
 import typer
 
 from qsls.cli.common import default_text
+from qsls.cli.fields import field_help, model_options
 from qsls.cli.main import COMMANDS, app
 
 # command -> (module:Model, {cli parameter: model field (dotted: nested), or None: not an
@@ -149,7 +150,7 @@ def test_every_options_help_states_the_models_default(command):
         want = (
             f"(default: {default_text(owner, field, flags)})"
             if default is not None
-            else "(default:"
+            else "default"
         )
         if want not in " ".join((p.help or "").split()):
             problems.append(f"--{p.name}: help {p.help!r} does not say {want}")
@@ -244,7 +245,7 @@ def test_every_command_reads_its_section_of_one_config_file(tmp_path):
 
 
 def test_no_command_states_a_default_by_hand():
-    """Issue 36: the options are built from the model's fields (``cli.common.model_option``),
+    """Issue 36: the options are built from the model's fields (``cli.fields``),
     which appends the model's default; a hand-written "(default: ...)" would drift from it.
     The models live in light modules (``*/options.py``), so building the options costs the
     command line no solver, generator or bag writer at start."""
@@ -254,6 +255,55 @@ def test_no_command_states_a_default_by_hand():
     by_hand = {
         f.name: f.read_text().count("(default: ")
         for f in sorted(cli.glob("*.py"))
-        if f.name != "common.py"
+        if f.name not in ("common.py", "fields.py")
     }
     assert {k: v for k, v in by_hand.items() if v} == {}
+
+
+def test_a_generated_option_takes_type_default_and_help_from_the_model():
+    """Change a field's default and docstring in a subclass: the generated option shows both,
+    reads the command line as the field's type, and leaves an option not given to the model."""
+    from pydantic import Field
+    from typer.testing import CliRunner
+
+    from qsls.pipeline.control.options import SynthOptions
+    from qsls.pipeline.core.config import load_options
+
+    class Changed(SynthOptions):
+        T: int = Field(7, ge=2, le=500)
+        """Seven taps unless told."""
+
+    seen = []
+
+    @model_options(Changed, {"T": ("--T",), "R": ("--R",), "pd.kd": ("--kd",)})
+    def command(*, given: dict) -> None:
+        seen.append(load_options(Changed, None, given))
+
+    small = typer.Typer()
+    small.command()(command)
+    option = {p.name: p for p in typer.main.get_command(small).params}
+    assert option["T"].help == "Seven taps unless told. (default: 7)"
+    assert option["T"].help == field_help(Changed, "T", ("--T",))
+    assert option["R"].help.endswith("(default: 1,1,0.1)")
+    runner = CliRunner()
+    assert runner.invoke(small, []).exit_code == 0
+    assert runner.invoke(small, ["--T", "9", "--R", "2,2,0.5", "--kd", "1,1,2"]).exit_code == 0
+    assert runner.invoke(small, ["--T", "x"]).exit_code == 2  # an int, as the field
+    default, given = seen
+    assert (default.T, given.T) == (7, 9)
+    assert given.R == [[2.0, 0, 0], [0, 2.0, 0], [0, 0, 0.5]] and given.pd.kd == (1, 1, 2)
+    assert given.pd.kp == default.pd.kp  # the nested model's other fields stay its defaults
+
+
+def test_synth_and_sweep_expose_the_same_problem_options():
+    """The problem's options are declared once (cli/problem.py): both commands have each, with
+    the same help where the field is the same."""
+    from qsls.cli.problem import PROBLEM
+
+    synth = {p.name: p for p in _options("synth")}
+    sweep = {p.name: p for p in _options("sweep")}
+    for name in PROBLEM:
+        flags = synth[name].opts + synth[name].secondary_opts
+        assert flags == sweep[name].opts + sweep[name].secondary_opts, name
+        if name != "norm":  # synth's norm also takes both
+            assert synth[name].help == sweep[name].help, name
