@@ -12,9 +12,6 @@ from typing import Any, TypeVar
 
 import typer
 
-from qsls.cli.fields import default_text as default_text
-from qsls.cli.fields import field_help
-
 F = TypeVar("F", bound=Callable[..., Any])
 
 
@@ -145,27 +142,6 @@ def parse_list(text: str | None, what: str, kind: str = "float") -> list[Any] | 
             f"{'integers' if kind == 'int' else 'values'}, or leave the option out for the default"
         )
     return out
-
-
-def model_option(
-    model: Any, field: str, *flags: str, help: str | None = None, none: str | None = None,
-    **kwargs: Any,
-) -> Any:
-    """The Typer option of ``model.field`` for a command that declares its options one by one:
-    not given (``None``) unless the user sets it, its help the field's
-    (:func:`qsls.cli.fields.field_help`). Commands that expose a table of fields use
-    :func:`qsls.cli.fields.model_options`; ``help`` and ``none`` (what a default of ``None``
-    means) are the commands' not yet moved to their model's docstrings."""
-    text = field_help(model, field, flags)
-    if help is not None or none is not None:
-        from qsls.cli.fields import default_text, doc_text
-
-        info = model.model_fields[field]
-        pair = next((tuple(f.split("/", 1)) for f in flags if "/" in f), None)
-        unset = info.get_default(call_default_factory=True) is None
-        said = (none or "none") if unset else default_text(model, field, pair)  # type: ignore[arg-type]
-        text = f"{help if help is not None else doc_text(info.description or '')} (default: {said})"
-    return typer.Option(None, *flags, help=text, **kwargs)
 
 
 def overrides(**kwargs: Any) -> dict[str, Any]:

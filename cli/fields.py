@@ -13,6 +13,7 @@ import types
 import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 import typer
@@ -23,13 +24,34 @@ F = TypeVar("F", bound=Callable[..., Any])
 @dataclass(frozen=True)
 class Flag:
     """How the command line spells one field: its flags (``"--robust/--no-robust"`` for an
-    on/off pair), and, where the field's annotation does not say it, how the command line's
+    on/off pair), whether ``--help`` hides it, and, where the field's annotation does not say it, how the command line's
     text becomes the model's value (``parse(text, flag)``) and the text's type (``kind``)."""
 
     flags: tuple[str, ...]
     parse: Callable[[Any, str], Any] | None = None
     kind: Any = None
     hidden: bool = False
+    name: str | None = None
+    """The command's parameter (default: the field's last part), where that is taken."""
+
+
+def auto_or_number(text: str, flag: str) -> float | str:
+    """A ``Flag`` parser for a field that is ``auto`` or a number (``--time-offset``,
+    ``--min-separation``): anything else is a one-line error naming the flag."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        from qsls.pipeline.core.errors import ConfigError
+
+        raise ConfigError(f"{flag}: expected 'auto' or a number, got {text!r}") from None
+
+
+def as_given(text: str, flag: str) -> str:
+    """A ``Flag`` parser that hands the model the command line's text (a number-or-name the
+    stage reads itself, a reference spelled as text)."""
+    return text
 
 
 Table = Mapping[str, "Flag | tuple[str, ...]"]
@@ -84,7 +106,7 @@ def _reader(annotation: Any) -> tuple[Any, Callable[[Any, str], Any]]:
     from qsls.cli.common import number_or_name, parse_list
 
     members = _members(annotation)
-    if len(members) == 1 and members[0] in (bool, int, float):
+    if len(members) == 1 and members[0] in (bool, int, float, Path):
         return members[0], lambda v, flag: v
     if all(_is_text(a) for a in members):
         return str, lambda v, flag: v
@@ -181,8 +203,10 @@ def model_options(model: Any, table: Table) -> Callable[[F], F]:
     def wrap(fn: F) -> F:
         sig = inspect.signature(fn)
         own = [p for p in sig.parameters.values() if p.name != "given"]
-        built = {d.rsplit(".", 1)[-1]: (d, *_param(d.rsplit(".", 1)[-1], f, model, d))
-                 for d, f in specs.items()}  # fmt: skip
+        built = {}
+        for dotted, flag in specs.items():
+            name = flag.name or dotted.rsplit(".", 1)[-1]
+            built[name] = (dotted, *_param(name, flag, model, dotted))
 
         from qsls.pipeline.core.config import merge
 

@@ -1,6 +1,6 @@
-"""--help from the options models: every stage option's help states its model's default (the
-model is the one source of defaults; tests/test_cli_options.py checks each option is a field
-that defers to it), the models document their fields one way, flags are shown as flags, each
+"""--help from the options models: every stage option's help is its model field's docstring and
+default (the model is the one source of both; tests/test_cli_options.py checks each option is
+a field that defers to it), the models document their fields one way, flags are shown as flags, each
 command shows an example, and --help fits 80 columns without one word per line."""
 
 from __future__ import annotations
@@ -14,8 +14,7 @@ import sys
 import pytest
 import typer
 
-from qsls.cli.common import default_text
-from qsls.cli.fields import field_help, model_options
+from qsls.cli.fields import default_text, field_help, model_options
 from qsls.cli.main import COMMANDS, app
 
 # command -> (module:Model, {cli parameter: model field (dotted: nested), or None: not an
@@ -33,10 +32,6 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "out": None,
             "force": None,
             "max_feasible_s": None,
-            "horizon": "T",
-            "s": "S",
-            "q": "Q",
-            "r": "R",
         },
     ),
     "sweep": (
@@ -46,10 +41,6 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "out": None,
             "model": None,
             "force": None,
-            "horizon": "T",
-            "s": "S",
-            "q": "Q",
-            "r": "R",
         },
     ),
     "ingest": (
@@ -154,6 +145,9 @@ def test_every_options_help_states_the_models_default(command):
         )
         if want not in " ".join((p.help or "").split()):
             problems.append(f"--{p.name}: help {p.help!r} does not say {want}")
+        pair = (f"{p.opts[0]}/{p.secondary_opts[0]}",) if p.secondary_opts else ()
+        if p.help != field_help(model, dotted, pair):
+            problems.append(f"--{p.name}: help {p.help!r} is not the field's")
     assert problems == [], "\n".join(problems)
 
 
