@@ -18,14 +18,17 @@ from typing import Any, Literal, TypeVar
 
 import typer
 
+from qsls.pipeline.core.config import merge
+
 F = TypeVar("F", bound=Callable[..., Any])
 
 
 @dataclass(frozen=True)
 class Flag:
     """How the command line spells one field: its flags (``"--robust/--no-robust"`` for an
-    on/off pair), whether ``--help`` hides it, and, where the field's annotation does not say it, how the command line's
-    text becomes the model's value (``parse(text, flag)``) and the text's type (``kind``)."""
+    on/off pair), whether ``--help`` hides it, and, where the field's annotation does not say
+    it, how the command line's text becomes the model's value (``parse(text, flag)``) and the
+    text's type (``kind``)."""
 
     flags: tuple[str, ...]
     parse: Callable[[Any, str], Any] | None = None
@@ -207,8 +210,6 @@ def model_options(model: Any, table: Table) -> Callable[[F], F]:
         for dotted, flag in specs.items():
             name = flag.name or dotted.rsplit(".", 1)[-1]
             built[name] = (dotted, *_param(name, flag, model, dotted))
-
-        from qsls.pipeline.core.config import merge
 
         @functools.wraps(fn)
         def command(*args: Any, **kwargs: Any) -> Any:
