@@ -144,67 +144,6 @@ def parse_list(text: str | None, what: str, kind: str = "float") -> list[Any] | 
     return out
 
 
-def default_text(model: Any, field: str, flags: tuple[str, str] | None = None) -> str:
-    """A model field's default as the command line writes it: ``0.5``, ``l1``, ``max``,
-    ``10,10,10,1,1,1`` for a diagonal matrix, ``none``; for an on/off pair of ``flags``,
-    the flag that is the default."""
-    info = model.model_fields[field]
-    value = info.get_default(call_default_factory=True)
-    if hasattr(value, "model_dump"):
-        value = value.model_dump()
-    if isinstance(value, bool):
-        if flags is not None:
-            return flags[0] if value else flags[1]
-        return "on" if value else "off"
-    if value is None:
-        return "none"
-    if isinstance(value, list | tuple) and value and isinstance(value[0], list | tuple):
-        import numpy as np
-
-        m = np.asarray(value, dtype=float)
-        if m.ndim == 2 and m.shape[0] == m.shape[1] and np.allclose(m, np.diag(np.diag(m))):
-            value = list(np.diag(m))
-    if isinstance(value, dict):  # a sweep grid
-        return "; ".join(f"{k}={','.join(_plain(v) for v in vs)}" for k, vs in value.items())
-    if isinstance(value, list | tuple):
-        return ",".join(_plain(v) for v in value)
-    return _plain(value)
-
-
-def _plain(v: Any) -> str:
-    return f"{v:g}" if isinstance(v, float) else str(v)
-
-
-def model_option(
-    model: Any,
-    field: str,
-    *flags: str,
-    help: str | None = None,
-    none: str = "none",
-    **kwargs: Any,
-) -> Any:
-    """The Typer option of ``model.field``: not given (``None``) unless the user sets it, so the
-    model's default (or the config file's value) applies; its help is ``help`` (else the field's
-    attribute docstring) followed by the model's default as the command line writes it. The
-    options model is the one source of defaults: no command states one by hand. ``none``: what
-    a default of ``None`` means (e.g. "the error model's"). An on/off pair of flags
-    (``--robust/--no-robust``) shows the flag that is the default."""
-    info = model.model_fields[field]
-    text = help if help is not None else _doc_text(info.description or "")
-    pair = next((tuple(f.split("/", 1)) for f in flags if "/" in f), None)
-    default = info.get_default(call_default_factory=True)
-    said = none if default is None else default_text(model, field, pair)  # type: ignore[arg-type]
-    return typer.Option(None, *flags, help=f"{text} (default: {said})", **kwargs)
-
-
-def _doc_text(doc: str) -> str:
-    """An attribute docstring as one line of help: roles and literal quotes dropped."""
-    import re
-
-    doc = re.sub(r":\w+:`~?([^`]+)`", r"\1", doc)
-    return " ".join(doc.replace("``", "").split())
-
-
 def overrides(**kwargs: Any) -> dict[str, Any]:
     """The options given on the command line (``None`` means not given)."""
     return {k: v for k, v in kwargs.items() if v is not None}

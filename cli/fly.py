@@ -3,26 +3,47 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from qsls.cli.common import (
     RichProgress,
     cli_errors,
-    model_option,
     overrides,
     parse_list,
     print_summary,
     print_table,
     print_verdicts,
 )
+from qsls.cli.fields import Flag, Table, model_options
 from qsls.pipeline.evaluate.options import FlyOptions
-from qsls.pipeline.sim.options import ControllerOptions
 
 EXAMPLE = "qsls fly --model fit --controller synth --out fly --seeds 0,1,2"
 
 
+def estimators(text: str, flag: str) -> str | list[str] | None:
+    """``--vio``: one estimator, or a comma-separated list flown side by side."""
+    return parse_list(text, flag, "value") if "," in text else text
+
+
+FLY: Table = {
+    "seeds": ("--seeds",),
+    "duration": ("--duration",),
+    "conditions": ("--conditions",),
+    "jobs": ("--jobs",),
+    "scheduler": ("--scheduler",),
+    "wait_workers": ("--wait-workers",),
+    "vio": Flag(("--vio",), parse=estimators),
+    "sim.controller.backend": ("--backend",),
+    "assured": ("--assured/--no-assured",),
+    "fallback": ("--fallback",),
+}
+"""The flying options ``qsls fly`` exposes (``qsls evaluate --fly`` too, hidden)."""
+
+
 @cli_errors
+@model_options(FlyOptions, FLY)
 def command(
     model: Path = typer.Option(
         ...,
@@ -46,56 +67,16 @@ def command(
         help="YAML file of options: its 'evaluate:' section and the 'fly:' under it, as in "
         "a run config (the command line wins).",
     ),
-    seeds: str = model_option(
-        FlyOptions, "seeds", "--seeds",
-        help="Comma-separated seeds, one flight per seed, controller and condition.",
-    ),
-    duration: float = model_option(
-        FlyOptions, "duration", "--duration",
-        help="Seconds per flight.",
-    ),
-    conditions: str = model_option(
-        FlyOptions, "conditions", "--conditions",
-        help="Comma-separated perception conditions.",
-    ),
-    jobs: int = model_option(FlyOptions, "jobs", "--jobs", help="Parallel flights, 0 = all cores."),
-    scheduler: str = model_option(
-        FlyOptions, "scheduler", "--scheduler", none="the local pool",
-        help="Dask scheduler address (tcp://host:8786): the flights run on its workers, with "
-        "the same tables as the local pool.",
-    ),
-    wait_workers: float = model_option(
-        FlyOptions, "wait_workers", "--wait-workers",
-        help="With --scheduler: seconds to wait for a first worker, and for one to come back "
-        "after every worker left, before failing.",
-    ),
-    vio: str = model_option(
-        FlyOptions, "vio", "--vio",
-        help="Where the estimate comes from: 'emulator' (the VIO error model) or 'camera' (rendered "
-        "camera, IMU and MSCKF); 'camera,emulator' flies both, paired by seed.",
-    ),
-    backend: str = model_option(
-        ControllerOptions, "backend", "--backend",
-        help="python or c: fly the synthesized controllers as the C of 'qsls export' (compiled, "
-        "through ctypes).",
-    ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     force: bool = typer.Option(
         False, "--force", help="Overwrite --out; another error model's controller only warns."
     ),
+    *,
+    given: dict[str, Any],
 ) -> None:
     """Fly the controllers side by side in simulation: every assumption checked, the paper's findings."""
-    fly(
-        model, controller, out, config, force,
-        overrides(
-            figures=False if no_figures else None,
-            seeds=parse_list(seeds, "--seeds", "int"), duration=duration, jobs=jobs,
-            scheduler=scheduler, wait_workers=wait_workers,
-            conditions=parse_list(conditions, "--conditions", "value"),
-            vio=parse_list(vio, "--vio", "value") if vio and "," in vio else vio,
-            sim={"controller": {"backend": backend}} if backend else None,
-        ),
-    )  # fmt: skip
+    figures = overrides(figures=False if no_figures else None)
+    fly(model, controller, out, config, force, {**given, **figures})
 
 
 def fly(

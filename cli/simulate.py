@@ -3,16 +3,29 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
-from qsls.cli.common import RichProgress, cli_errors, model_option, overrides, print_summary
-from qsls.pipeline.sim.options import ControllerOptions, LogOptions, SimOptions, VioParams
+from qsls.cli.common import RichProgress, cli_errors, print_summary
+from qsls.cli.fields import Flag, model_options
+from qsls.pipeline.sim.options import SimOptions
 
 EXAMPLE = "qsls simulate --out flights/sim1 --seed 1 --format mcap"
 
 
 @cli_errors
+@model_options(
+    SimOptions,
+    {
+        "seed": ("--seed",),
+        "duration": ("--duration",),
+        "vio.perception": ("--perception",),
+        "vio.kind": Flag(("--vio",), name="vio"),
+        "controller.kind": Flag(("--controller",), name="controller"),
+        "log.format": Flag(("--format",), name="fmt"),
+    },
+)
 def command(
     out: Path = typer.Option(
         ...,
@@ -27,46 +40,15 @@ def command(
         help="YAML file of options (see configs/simulate.yaml; a 'simulate:' section is "
         "used when present). The command line wins.",
     ),
-    seed: int = model_option(
-        SimOptions, "seed", "--seed",
-        help="Random seed of the VIO emulator and logs.",
-    ),
-    duration: float = model_option(
-        SimOptions, "duration", "--duration",
-        none="take-off, approach and the reference's laps: 23 s for 3 laps of the 5 s circle",
-        help="Flight length in seconds.",
-    ),
-    perception: str = model_option(
-        VioParams, "perception", "--perception",
-        help="VIO conditions: 'regular' or 'degraded' (less light and texture).",
-    ),
-    vio: str = model_option(
-        VioParams, "kind", "--vio",
-        help="Where the estimate comes from: 'emulator' (the VIO error model) or 'camera' (a rendered "
-        "camera, an IMU and an MSCKF; vio.camera in the config).",
-    ),
-    controller: str = model_option(
-        ControllerOptions, "kind", "--controller",
-        help="'se3' (RotorPy's SE3), 'pd', or a controller folder from 'qsls synth'.",
-    ),
-    fmt: str = model_option(
-        LogOptions, "format", "--format",
-        help="Bag format: ros1, ros2-sqlite, ros2-mcap or mcap.",
-    ),
     force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+    *,
+    given: dict[str, Any],
 ) -> None:
     """Simulate a quadrotor flight with a VIO emulator and write it as a ROS1/ROS2/MCAP bag."""
     from qsls.pipeline.core.config import load_options
-    from qsls.pipeline.sim.simulate import SimOptions, simulate
+    from qsls.pipeline.sim.simulate import simulate
 
-    ov = overrides(
-        seed=seed,
-        duration=duration,
-        vio=overrides(perception=perception, kind=vio) or None,
-        controller=overrides(kind=controller) or None,
-        log=overrides(format=fmt) or None,
-    )
-    options = load_options(SimOptions, config, ov, section="simulate")
+    options = load_options(SimOptions, config, given, section="simulate")
     with RichProgress() as progress:
         result = simulate(options, out, force=force, progress=progress)
     if result.flight.crashed:

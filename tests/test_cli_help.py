@@ -1,6 +1,6 @@
-"""--help from the options models: every stage option's help states its model's default (the
-model is the one source of defaults; tests/test_cli_options.py checks each option is a field
-that defers to it), the models document their fields one way, flags are shown as flags, each
+"""--help from the options models: every stage option's help is its model field's docstring and
+default (the model is the one source of both; tests/test_cli_options.py checks each option is
+a field that defers to it), the models document their fields one way, flags are shown as flags, each
 command shows an example, and --help fits 80 columns without one word per line."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import sys
 import pytest
 import typer
 
-from qsls.cli.common import default_text
+from qsls.cli.fields import default_text, field_help, model_options
 from qsls.cli.main import COMMANDS, app
 
 # command -> (module:Model, {cli parameter: model field (dotted: nested), or None: not an
@@ -32,10 +32,6 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "out": None,
             "force": None,
             "max_feasible_s": None,
-            "horizon": "T",
-            "s": "S",
-            "q": "Q",
-            "r": "R",
         },
     ),
     "sweep": (
@@ -45,10 +41,6 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "out": None,
             "model": None,
             "force": None,
-            "horizon": "T",
-            "s": "S",
-            "q": "Q",
-            "r": "R",
         },
     ),
     "ingest": (
@@ -149,10 +141,13 @@ def test_every_options_help_states_the_models_default(command):
         want = (
             f"(default: {default_text(owner, field, flags)})"
             if default is not None
-            else "(default:"
+            else "default"
         )
         if want not in " ".join((p.help or "").split()):
             problems.append(f"--{p.name}: help {p.help!r} does not say {want}")
+        pair = (f"{p.opts[0]}/{p.secondary_opts[0]}",) if p.secondary_opts else ()
+        if p.help != field_help(model, dotted, pair):
+            problems.append(f"--{p.name}: help {p.help!r} is not the field's")
     assert problems == [], "\n".join(problems)
 
 
@@ -244,7 +239,7 @@ def test_every_command_reads_its_section_of_one_config_file(tmp_path):
 
 
 def test_no_command_states_a_default_by_hand():
-    """Issue 36: the options are built from the model's fields (``cli.common.model_option``),
+    """Issue 36: the options are built from the model's fields (``cli.fields``),
     which appends the model's default; a hand-written "(default: ...)" would drift from it.
     The models live in light modules (``*/options.py``), so building the options costs the
     command line no solver, generator or bag writer at start."""
@@ -254,6 +249,55 @@ def test_no_command_states_a_default_by_hand():
     by_hand = {
         f.name: f.read_text().count("(default: ")
         for f in sorted(cli.glob("*.py"))
-        if f.name != "common.py"
+        if f.name not in ("common.py", "fields.py")
     }
     assert {k: v for k, v in by_hand.items() if v} == {}
+
+
+def test_a_generated_option_takes_type_default_and_help_from_the_model():
+    """Change a field's default and docstring in a subclass: the generated option shows both,
+    reads the command line as the field's type, and leaves an option not given to the model."""
+    from pydantic import Field
+    from typer.testing import CliRunner
+
+    from qsls.pipeline.control.options import SynthOptions
+    from qsls.pipeline.core.config import load_options
+
+    class Changed(SynthOptions):
+        T: int = Field(7, ge=2, le=500)
+        """Seven taps unless told."""
+
+    seen = []
+
+    @model_options(Changed, {"T": ("--T",), "R": ("--R",), "pd.kd": ("--kd",)})
+    def command(*, given: dict) -> None:
+        seen.append(load_options(Changed, None, given))
+
+    small = typer.Typer()
+    small.command()(command)
+    option = {p.name: p for p in typer.main.get_command(small).params}
+    assert option["T"].help == "Seven taps unless told. (default: 7)"
+    assert option["T"].help == field_help(Changed, "T", ("--T",))
+    assert option["R"].help.endswith("(default: 1,1,0.1)")
+    runner = CliRunner()
+    assert runner.invoke(small, []).exit_code == 0
+    assert runner.invoke(small, ["--T", "9", "--R", "2,2,0.5", "--kd", "1,1,2"]).exit_code == 0
+    assert runner.invoke(small, ["--T", "x"]).exit_code == 2  # an int, as the field
+    default, given = seen
+    assert (default.T, given.T) == (7, 9)
+    assert given.R == [[2.0, 0, 0], [0, 2.0, 0], [0, 0, 0.5]] and given.pd.kd == (1, 1, 2)
+    assert given.pd.kp == default.pd.kp  # the nested model's other fields stay its defaults
+
+
+def test_synth_and_sweep_expose_the_same_problem_options():
+    """The problem's options are declared once (cli/problem.py): both commands have each, with
+    the same help where the field is the same."""
+    from qsls.cli.problem import PROBLEM
+
+    synth = {p.name: p for p in _options("synth")}
+    sweep = {p.name: p for p in _options("sweep")}
+    for name in PROBLEM:
+        flags = synth[name].opts + synth[name].secondary_opts
+        assert flags == sweep[name].opts + sweep[name].secondary_opts, name
+        if name != "norm":  # synth's norm also takes both
+            assert synth[name].help == sweep[name].help, name

@@ -112,3 +112,18 @@ def test_sweep_takes_eps_w_max_as_synth_does(tmp_path):
     import pandas as pd
 
     assert (pd.read_parquet(tmp_path / "o" / "sweep.parquet")["eps_w_value"] == 0.01).all()
+
+
+def test_fly_takes_assured_and_fallback_from_its_model(tmp_path):
+    """Issue 33's leftover: qsls fly --assured/--no-assured and --fallback pd|hold, built from
+    FlyOptions (their defaults there), refused in one line naming the option."""
+    from qsls.pipeline.evaluate.options import FlyOptions
+
+    text = " ".join(runner.invoke(app, ["fly", "--help"], terminal_width=200).output.split())
+    assured = "--no-assured" if not FlyOptions().assured else "--assured"
+    assert "--assured / --no-assured" in text and f"(default: {assured})" in text
+    assert f"(default: {FlyOptions().fallback})" in text.split("--fallback")[1]
+    _refused(["fly", "--model", str(tmp_path), "--controller", str(tmp_path), "--out",
+              str(tmp_path / "o"), "--assured", "--fallback", "land"],
+             "'fallback': Input should be 'pd' or 'hold'")  # fmt: skip
+    assert not (tmp_path / "o").exists()

@@ -282,3 +282,21 @@ def test_the_problem_section_is_laid_under_sweep_and_synth(work):
     bad = _write(folder, problem={"mesure": "full"}, synth=synth)
     with pytest.raises(ConfigError, match=r"problem: unknown option 'mesure'; did you mean 'measure'"):
         load_run_config(bad)
+
+
+def test_no_shipped_run_config_states_a_shared_setting_twice():
+    """The configs state what sweep and synth share once, in ``problem:``: no problem field has
+    the same value in both sections."""
+    from pathlib import Path
+
+    from qsls.pipeline.control.options import ProblemOptions
+
+    configs = Path(__file__).resolve().parents[1] / "configs"
+    twice = {}
+    for path in sorted(configs.glob("*.yaml")):
+        data = yaml.safe_load(path.read_text()) or {}
+        sweep, synth = data.get("sweep") or {}, data.get("synth") or {}
+        same = [k for k in ProblemOptions.model_fields if k in sweep and sweep[k] == synth.get(k)]
+        if same:
+            twice[path.name] = same
+    assert twice == {}

@@ -56,77 +56,76 @@ def _matrix(value: Any, n: int, what: str, psd: bool) -> list[list[float]]:
 class ProblemOptions(Options):
     """One synthesis problem's settings (shared by ``synth`` and ``sweep``)."""
 
-    T: int = Field(20, ge=2, le=500, description="FIR horizon (taps 0..T)")
+    T: int = Field(20, ge=2, le=500)
+    """FIR horizon T: the controller's taps 0..T (2 to 500)."""
     norm: Literal["l1", "h2"] = "l1"
+    """The norm synthesized in: l1 (the paper's, peak to peak) or h2."""
     cost: Literal["qr", "imitation"] = "qr"
+    """The cost: qr (the weights Q and R) or imitation (close to the controller ``imitate``
+    names); with ``controllers: single``."""
     robust: bool = True
+    """Impose the robustness constraint (with ``controllers: single``)."""
     strictly_proper: bool = False
+    """u[k] from y up to k-1 only (Phi_uy(0) = 0)."""
     Q: list[list[float]] = Field(default_factory=lambda: np.diag([10.0, 10, 10, 1, 1, 1]).tolist())
+    """State weight: 6 diagonal entries or a 6x6 matrix."""
     R: list[list[float]] = Field(default_factory=lambda: np.diag([1.0, 1, 0.1]).tolist())
-    eps_w: Number | None = Field(
-        None,
-        description="disturbance bound ||w|| <= eps_w: a number, max or pNN of the training "
-        "flights' realized disturbance; default: its max (0.01 without an error model)",
-    )
+    """Input weight: 3 diagonal entries or a 3x3 matrix."""
+    eps_w: Number | None = None
+    """Disturbance bound ||w|| <= eps_w: a number, max or pNN of the training flights' realized
+    disturbance; default: its max (0.01 without an error model)."""
     H: list[list[float]] | None = None
-    plant: Plant = Field(
-        "hover",
-        description="the linear model synthesized for: hover (the paper's 6 states) or "
-        "attitude (with the attitude loop and the rotor lag as states, docs/model.md); the "
-        "error model's disturbance must be measured through the same",
-    )
+    """The disturbance's input matrix H (x+ = A x + B u + H w): 6 diagonal entries or a 6x6
+    matrix; default: the identity."""
+    plant: Plant = "hover"
+    """The linear model synthesized for: hover (the paper's 6 states) or attitude (with the
+    attitude loop and the rotor lag as states, docs/model.md); the error model's disturbance
+    must be measured through the same."""
     mass: float = Field(PAPER_MASS_KG, gt=0)
+    """Vehicle mass in kg."""
     dt: float = Field(PAPER_DT_S, gt=0)
-    S: Number = Field(
-        "lofo",
-        description="S-slope: lofo (leave-one-flight-out, every left-out sample satisfies the "
-        "premise), max / pNN / local_pNN (pair slopes), or a number",
-    )
-    eps_e: Number = Field(
-        "max", description="bound on the dense error |d|_e: max (training maximum), pNN or a number"
-    )
-    eps_groups: dict[Literal["position", "velocity"], float | Literal["max", "clip"]] | None = Field(
-        None,
-        description="a bound on the dense error per channel group (the theorem with a vector of "
-        "bounds, docs/guarantee.md#channel-groups): a number, max (the group's training maximum) "
-        "or clip (velocities: w_e,v beta, which d = clip_beta(e) never exceeds); a group not "
-        "named keeps eps_e",
-    )
-    measure: Literal["full", "position"] = Field(
-        "full", description="error channels the controller reads: full, or position only"
-    )
-    beta: float | None = Field(
-        None, gt=0, description="velocity clip of the dense part (None: no sparse part)"
-    )
-    error_scale: tuple[float, float, float, float, float, float] = Field(
-        (1.0,) * 6, description="W_e: weights of the error norm |e|_e = ||W_e e||_inf"
-    )
-    m: int | Literal["auto"] = Field(
-        "auto", description="outliers allowed per window of T steps (auto: binomial risk)"
-    )
-    eps_o: float | None = Field(
-        None, ge=0, description="bound on one outlier (a physical bound; never the sample max)"
-    )
-    outlier_risk: float = Field(
-        1e-3, gt=0, lt=1, description="risk of a window holding more than m outliers"
-    )
-    gate: float | None = Field(
-        None,
-        gt=0,
-        description="velocity gate V: the controller reads clip(y_v, v_ref +/- V), so an outlier "
-        "is at most 2V - beta (eps_o); needs beta",
-    )
-    radius: float | None = Field(None, gt=0, description="default: the error model's radius")
-    delta: Number | None = Field(None, description="Delta; default: the error model's delta")
-    R0: Number | None = Field(
-        None,
-        description="R0 for gamma_strict; default: the eps_e in use (so gamma_strict <= gamma)",
-    )
+    """Controller period in s."""
+    S: Number = "lofo"
+    """S-slope: lofo (leave-one-flight-out, every left-out sample satisfies the premise), max /
+    pNN / local_pNN (the error model's pair slopes), or a number."""
+    eps_e: Number = "max"
+    """Bound on the dense error |d|_e: max (training maximum), pNN or a number."""
+    eps_groups: dict[Literal["position", "velocity"], float | Literal["max", "clip"]] | None = None
+    """A bound on the dense error per channel group (the theorem with a vector of bounds,
+    docs/guarantee.md#channel-groups): a number, max (the group's training maximum) or clip
+    (velocities: w_e,v beta, which d = clip_beta(e) never exceeds); a group not named keeps
+    eps_e; default: none (eps_e for every channel)."""
+    measure: Literal["full", "position"] = "full"
+    """Error channels the controller reads: full, or position only."""
+    beta: float | None = Field(None, gt=0)
+    """Velocity clip of the dense part: what it clips off is an outlier; default: none (no
+    sparse part)."""
+    error_scale: tuple[float, float, float, float, float, float] = (1.0,) * 6
+    """W_e: 6 weights (x, y, z, vx, vy, vz) of the error norm |e|_e = ||W_e e||_inf."""
+    m: int | Literal["auto"] = "auto"
+    """Outliers allowed per window of T steps: a number, or auto (from outlier_risk, a binomial
+    risk)."""
+    eps_o: float | None = Field(None, ge=0)
+    """Bound on one outlier (a physical bound; never the sample max); give it or gate when
+    beta is set; default: none (2V - beta with a gate)."""
+    outlier_risk: float = Field(1e-3, gt=0, lt=1)
+    """Risk of a window holding more than m outliers."""
+    gate: float | None = Field(None, gt=0)
+    """Velocity gate V: the controller reads clip(y_v, v_ref +/- V), so an outlier is at most
+    2V - beta (eps_o); needs beta; default: none (no gate)."""
+    radius: float | None = Field(None, gt=0)
+    """Radius r of the premise around the training states; default: the error model's."""
+    delta: Number | None = None
+    """Delta, the reference's largest distance to the training states; default: the error
+    model's."""
+    R0: Number | None = None
+    """R0 for gamma_strict; default: the eps_e in use (so gamma_strict <= gamma)."""
     pd: PDGains = PDGains()
-    imitate: str = Field(
-        "pd", description="imitation target: pd, l1_nominal, h2_nominal or a folder"
-    )
+    """The PD controller's gains (the baseline, and the imitation target pd)."""
+    imitate: str = "pd"
+    """Imitation target: pd, l1_nominal, h2_nominal or a controller folder."""
     solver: str = "CLARABEL"
+    """cvxpy solver name."""
 
     @field_validator("Q", mode="before")
     @classmethod
@@ -186,7 +185,11 @@ class SynthOptions(ProblemOptions):
     """Options of ``qsls synth``."""
 
     norm: Literal["l1", "h2", "both"] = "l1"  # type: ignore[assignment]
+    """The norm synthesized in: l1 (the paper's, peak to peak), h2, or both (the H2 variants
+    too)."""
     controllers: Literal["paper", "single"] = "paper"
+    """paper (pd, then the nominal, robust and robust imitation controllers) or single (one,
+    set by norm, cost and robust)."""
 
     @model_validator(mode="after")
     def _single(self) -> SynthOptions:
@@ -208,7 +211,8 @@ class SweepOptions(ProblemOptions):
         default_factory=lambda: {"S": [0.05, 0.1, 0.2], "T": [10, 20]}  # type: ignore[arg-type]
     )
     """Grid axes (S, eps_e, radius, delta, T, q_scale, r_scale, eps_w, norm, cost, robust,
-    strictly_proper) and their values; every point is one synthesis."""
+    strictly_proper) and their values; every point is one synthesis. On the command line one
+    axis per flag, ``AXIS=V1,V2,..`` (repeatable; replaces that axis of the config)."""
     certify: bool = True
     """Certify every feasible point (else only solve it)."""
     s_max_curve: bool = True
@@ -238,9 +242,10 @@ class SweepSection(SweepOptions):
     :meth:`options` is the stage's record and cache key)."""
 
     jobs: int | None = Field(None, ge=0)
-    """Local worker processes (default: all cores)."""
+    """Local worker processes; default: all cores."""
     scheduler: SchedulerAddress | None = None
-    """Dask scheduler address ``SCHEME://HOST:PORT`` (instead of ``jobs``)."""
+    """Dask scheduler address ``SCHEME://HOST:PORT``, e.g. tcp://127.0.0.1:8786 (instead of
+    ``jobs``); default: none, local processes."""
     wait_workers: float = Field(60.0, gt=0)
     """With ``scheduler``: seconds to wait for a first worker, and for one to come back when
     all have left, before giving up."""

@@ -22,13 +22,16 @@ class FitOptions(Options):
     percentiles: list[float] = Field(default_factory=lambda: [50.0, 90.0, 95.0, 99.0])
     """Percentiles reported for ``||e||``, pair slopes and per-sample largest slopes."""
     min_separation: float | Literal["auto"] = "auto"
-    """Pairs closer than this are left out (noise floor); ``auto``: factor x the noise floor."""
+    """Pairs closer than this are left out: a number, or ``auto`` (``min_separation_factor`` x
+    the noise floor of ``e`` estimated from the data); below the measurement noise, slopes are
+    noise / distance and blow up. 0 keeps every pair at a positive distance."""
     min_separation_factor: float = Field(3.0, gt=0)
     """``auto`` minimum separation = this x the estimated noise floor."""
     state_scale: tuple[float, float, float, float, float, float] = (1.0,) * 6
     """Weights ``W`` of ``px py pz vx vy vz`` in the state distance (1 m/s counts as 1 m)."""
     exclude_outliers: bool = False
-    """Leave out samples whose robust z-score of ``e`` exceeds ``outlier_z`` on some axis."""
+    """Leave out samples whose robust z-score of ``e`` (median/MAD) exceeds ``outlier_z`` on some
+    axis; the count is reported."""
     outlier_z: float = Field(3.5, gt=0)
     """Robust z-score ``|e - median| / (1.4826 MAD)`` above which a sample is an outlier."""
     skip_start: float = Field(0.0, ge=0)
@@ -38,9 +41,10 @@ class FitOptions(Options):
     another motion-capture frame) are never compared, so pairs, leave-one-flight-out distances
     and the tested range stay within one (default: all flights share one)."""
     reference: ReferenceOptions | str | None = None
-    """For ``delta``: a reference (``circle:radius=1,height=1,period=5`` or a mapping of
-    the simulator's reference options) or a flight folder whose truth states are the
-    reference."""
+    """For ``delta`` (the reference's largest distance to the nearest training state): a
+    reference (``circle:radius=1,height=1,period=5``: the simulator's reference options, kind
+    circle, hover or figure8; radius, height, period, laps, ramp_s, center=X;Y; or their
+    mapping) or a flight folder whose truth states are the reference; default: none, delta 0."""
     reference_dt: float = Field(0.01, gt=0)
     """Sampling step of a parametric reference (s)."""
     reference_lead_in: bool = False
@@ -48,7 +52,8 @@ class FitOptions(Options):
     r0: float | str = "max"
     """``R0``: ``max`` (= eps_e), ``pNN`` (a percentile of ``||e||``) or a number."""
     bootstrap: int = Field(0, ge=0)
-    """Bootstrap replicates for confidence intervals (0: none)."""
+    """Bootstrap replicates for confidence intervals (moving blocks within each flight; costs
+    about N times the pair pass); 0: none."""
     bootstrap_block: int = Field(10, ge=1)
     """Block length (samples) of the moving-block bootstrap within each flight."""
     bootstrap_level: float = Field(0.95, gt=0, lt=1)

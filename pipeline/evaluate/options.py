@@ -51,11 +51,11 @@ class FlyOptions(EvaluateOptions):
     )
     """Perception conditions (the emulator's presets)."""
     vio: Vio | list[Vio] = "emulator"
-    """Where each flight's estimate comes from: the VIO emulator or the camera loop (a
-    rendered camera, an IMU and an MSCKF: ``sim.vio.camera`` holds its parameters). A list
-    (``[camera, emulator]``) flies every controller, seed and condition with each estimator;
-    the first is the stage's primary (its tables as a single-estimator run writes them) and
-    every estimator's results are also keyed by estimator (docs/evaluation.md)."""
+    """Where each flight's estimate comes from: ``emulator`` (the VIO error model) or
+    ``camera`` (a rendered camera, an IMU and an MSCKF; ``sim.vio.camera`` holds its
+    parameters). A list (``camera,emulator``) flies every controller, seed and condition with
+    each, paired by seed; the first is the primary (its tables as a single-estimator run
+    writes them), every estimator's results also keyed by estimator (docs/evaluation.md)."""
 
     @field_validator("vio")
     @classmethod
@@ -77,7 +77,8 @@ class FlyOptions(EvaluateOptions):
     """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
     scheduler: SchedulerAddress | None = None
     """A Dask scheduler (``tcp://host:8786``): the flights run on its workers instead of the
-    local pool, with the same tables (workers on other machines need this one's filesystem)."""
+    local pool, with the same tables (workers on other machines need this one's filesystem);
+    default: none, the local pool."""
     wait_workers: float = Field(60.0, gt=0)
     """With ``scheduler``: seconds to wait for a first worker, and for one to come back after
     every worker left, before failing."""
@@ -158,7 +159,8 @@ class CalibrateOptions(Options):
     """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
     scheduler: SchedulerAddress | None = None
     """A Dask scheduler (``tcp://host:8786``): the flights run on its workers instead of the
-    local pool, with the same tables (workers on other machines need this one's filesystem)."""
+    local pool, with the same tables (workers on other machines need this one's filesystem);
+    default: none, the local pool."""
     wait_workers: float = Field(60.0, gt=0)
     """With ``scheduler``: seconds to wait for a first worker, and for one to come back after
     every worker left, before failing."""

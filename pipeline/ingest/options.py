@@ -17,17 +17,19 @@ class IngestOptions(Options):
     """Options of ``qsls ingest`` (defaults are the built-in defaults)."""
 
     vio_topic: str | None = None
-    """VIO topic (nav_msgs/Odometry, or a pose topic); chosen automatically when unambiguous."""
+    """VIO topic (nav_msgs/Odometry, or a pose topic); default: chosen when unambiguous."""
     truth_topic: str | None = None
-    """Ground-truth topic; chosen automatically when unambiguous."""
+    """Ground-truth topic (PoseStamped, PoseWithCovarianceStamped, TransformStamped, Odometry,
+    or a TF topic with ``truth_frame``); default: chosen when unambiguous."""
     vio: Path | None = None
-    """File holding the VIO stream (bag, TUM, EuRoC csv)."""
+    """File holding the VIO stream (bag, TUM, EuRoC csv); default: the sources given."""
     truth: Path | None = None
-    """File holding the truth stream (bag, TUM, EuRoC csv)."""
+    """File holding the truth stream (bag, TUM, EuRoC csv); default: the sources given."""
     dt: float = Field(0.1, gt=0)
     """Resampling period (s)."""
     align: Literal["4dof", "se3", "none"] = "4dof"
-    """Frame alignment of the VIO to the truth: yaw + translation, full SE(3), or none."""
+    """Frame alignment of the VIO to the truth: 4dof (yaw + translation), se3 (full SE(3)), or
+    none."""
     time_offset: Literal["auto"] | float = "auto"
     """Seconds added to truth stamps to reach the VIO clock, or ``auto`` (estimated)."""
     vio_velocity_frame: Literal["body", "world"] = "body"
@@ -41,7 +43,7 @@ class IngestOptions(Options):
     max_gap: float = Field(0.25, gt=0)
     """Never interpolate across a gap longer than this (s)."""
     truth_frame: str | None = None
-    """PARENT/CHILD transform of a TF topic."""
+    """PARENT/CHILD transform of a TF topic; default: none (a TF-only bag lists them)."""
     export_tum: bool = False
     """Also write both aligned trajectories as TUM files (for evo)."""
     max_time_offset: float = Field(2.0, gt=0)

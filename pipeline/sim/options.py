@@ -125,11 +125,12 @@ class VioParams(Options):
     motion_drift: bool = True
     feature_loss: bool = True
     perception: Literal["regular", "degraded"] = "regular"
+    """Perception conditions: regular, or degraded (less light and texture)."""
     kind: Literal["emulator", "camera"] = "emulator"
     """Where the estimate comes from: ``emulator`` (the error model of
     :mod:`qsls.pipeline.sim.vio`) or ``camera`` (a rendered camera, an IMU and an MSCKF:
     :mod:`qsls.pipeline.sim.camera`, parameters in ``camera``; ``perception`` and the presets'
-    light and texture keep their meaning, the error-model parameters below are not used)."""
+    light and texture keep their meaning, the emulator's error-model parameters are not used)."""
     camera: CameraOptions = CameraOptions()
     """The camera loop's parameters (``kind: camera``)."""
     fault: VioFault | None = None
@@ -329,9 +330,11 @@ class FlightOptions(Options):
     """Everything that shapes one simulated flight."""
 
     seed: int = Field(0, ge=0)
+    """Random seed of the VIO emulator and the logs."""
     duration: float | None = Field(None, gt=0, le=86_400)
     """Flight length (s), at most a day (a simulated day takes hours and about 140 MB);
-    default: the reference's ramp / 2 + laps * period."""
+    default: take-off, approach and the reference's laps (ramp / 2 + laps * period: 23 s for
+    3 laps of the 5 s circle)."""
     vehicle: VehicleOptions = VehicleOptions()
     reference: ReferenceOptions = ReferenceOptions()
     controller: ControllerOptions = ControllerOptions()
@@ -348,6 +351,7 @@ class LogOptions(Options):
     """How the flight is recorded: format, topics, clocks, frames, transport delays."""
 
     format: Literal["ros1", "ros2-sqlite", "ros2-mcap", "mcap"] = "ros1"
+    """Bag format: ros1, ros2-sqlite, ros2-mcap or mcap."""
     compression: str | None = None
     """Bag compression (ros1: lz4, bz2; rosbag2: zstd; mcap: zstd, lz4); none by default."""
     vio_topic: str = "/vio/odometry"
