@@ -137,7 +137,7 @@ def read_vio(source: Path, o: ReplayOptions) -> tuple[Any, np.ndarray]:
     from qsls.pipeline.ingest.sources.bags import BagSource
     from qsls.pipeline.ingest.sources.base import detect
     from qsls.pipeline.ingest.sources.select import POSE_TYPES, VIO_TYPES, describe, find_topic
-    from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
+    from qsls.pipeline.ingest.sources.text.reader import read_euroc, read_tum
     from qsls.pipeline.ingest.stage import IngestOptions
     from qsls.pipeline.ingest.streams import prepare
 

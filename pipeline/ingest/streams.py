@@ -82,9 +82,9 @@ def read_streams(
     """(vio Trajectory, truth Trajectory, {role: source path})."""
     from qsls.pipeline.ingest.sources.bags import BagSource
     from qsls.pipeline.ingest.sources.base import detect
+    from qsls.pipeline.ingest.sources.msgtypes import TF
     from qsls.pipeline.ingest.sources.select import choose
-    from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
-    from qsls.pipeline.ingest.sources.write import TF
+    from qsls.pipeline.ingest.sources.text.reader import read_euroc, read_tum
 
     sources = [Path(s) for s in sources]
     if not sources and (o.vio is None or o.truth is None):

@@ -16,10 +16,7 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.ingest.sources.base import Trajectory
-
-TUM = "text/tum"
-EUROC = "text/euroc-csv"
-
+from qsls.pipeline.ingest.sources.msgtypes import EUROC, TUM
 
 # A text trajectory is written in time order; a stamp earlier than one before it by more
 # than this is an error naming its line (re-sorting it silently made a 0.45 m error spike).
