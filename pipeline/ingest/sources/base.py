@@ -60,6 +60,9 @@ class Trajectory:
     decoder: str = ""  # "numpy" | "deserializer" | "text"
     pose_var: np.ndarray | None = None
     twist_var: np.ndarray | None = None
+    source: str = ""
+    """Where the stream was read from (a bag or file path; empty for a stream built in
+    memory), as the manifest names it."""
 
     def __len__(self) -> int:
         return len(self.header_ns)

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -165,3 +166,7 @@ def read_euroc(path: Path) -> Trajectory:
         velocity=a[:, 8:11] if width >= 11 else None,
         decoder="text",
     )
+
+
+TEXT_READERS: dict[str, Callable[[Path], Trajectory]] = {"tum": read_tum, "euroc": read_euroc}
+"""The text kinds :func:`~qsls.pipeline.ingest.sources.base.detect` finds to their readers."""
