@@ -171,6 +171,17 @@ class MessageBuilder:
     def vec(self, v: np.ndarray) -> Any:
         return self.Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
 
+    def write_all(self, writer: Any, streams: Sequence[Stream]) -> None:
+        """Every message of ``streams`` through an open rosbags writer (``rosbag1`` or
+        ``rosbag2``), one connection per topic, in log-time order (:func:`log_order`)."""
+        conns = {
+            t: writer.add_connection(t, mt, typestore=self.ts)
+            for t, mt in stream_types(streams).items()
+        }
+        for k, i, log in log_order(streams):
+            s = streams[k]
+            writer.write(conns[s.topic], log, self.serialize(self.message(s, i), s.msgtype))
+
     def message(self, s: Stream, i: int) -> Any:
         mt = s.msgtype
         hdr = self.header(s.header_ns[i], s.frame_id, i)

@@ -13,6 +13,7 @@ from qsls.pipeline.ingest.sources.messages import MessageBuilder, Stream, log_or
 def write_mcap(
     path: Path, streams: Sequence[Stream], compression: str | None, chunk_size: int | None
 ) -> None:
+    """Write ``streams`` as a plain MCAP file at ``path`` (``chunk_size`` bytes per chunk)."""
     from mcap.writer import CompressionType, Writer
 
     b = MessageBuilder(ros1=False)

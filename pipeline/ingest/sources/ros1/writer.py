@@ -6,12 +6,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from qsls.pipeline.ingest.sources.messages import MessageBuilder, Stream, log_order, stream_types
+from qsls.pipeline.ingest.sources.messages import MessageBuilder, Stream
 
 
 def write_ros1(
     path: Path, streams: Sequence[Stream], compression: str | None, chunk_size: int | None
 ) -> None:
+    """Write ``streams`` as a ROS1 bag at ``path`` (``chunk_size`` bytes per chunk, if given)."""
     from rosbags.rosbag1 import Writer
 
     b = MessageBuilder(ros1=True)
@@ -21,9 +22,4 @@ def write_ros1(
     if compression:
         w.set_compression(Writer.CompressionFormat[compression.upper()])
     with w:
-        conns = {
-            t: w.add_connection(t, mt, typestore=b.ts) for t, mt in stream_types(streams).items()
-        }
-        for k, i, log in log_order(streams):
-            s = streams[k]
-            w.write(conns[s.topic], log, b.serialize(b.message(s, i), s.msgtype))
+        b.write_all(w, streams)

@@ -7,12 +7,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from qsls.pipeline.ingest.sources.messages import MessageBuilder, Stream, log_order, stream_types
+from qsls.pipeline.ingest.sources.messages import MessageBuilder, Stream
 
 
 def write_rosbag2(
     path: Path, streams: Sequence[Stream], storage: str, compression: str | None
 ) -> None:
+    """Write ``streams`` as a rosbag2 folder at ``path`` with ``storage`` (``sqlite3``/``mcap``)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
@@ -22,9 +23,4 @@ def write_rosbag2(
     if compression:
         w.set_compression(CompressionMode.MESSAGE, CompressionFormat[compression.upper()])
     with w:
-        conns = {
-            t: w.add_connection(t, mt, typestore=b.ts) for t, mt in stream_types(streams).items()
-        }
-        for k, i, log in log_order(streams):
-            s = streams[k]
-            w.write(conns[s.topic], log, b.serialize(b.message(s, i), s.msgtype))
+        b.write_all(w, streams)
