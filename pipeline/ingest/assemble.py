@@ -74,7 +74,9 @@ def release_freed_memory() -> None:
 def flight_from_streams(
     vio_stream: Trajectory, truth_stream: Trajectory, options: IngestOptions
 ) -> IngestedFlight:
-    """The flight of a VIO and a truth stream under ``options`` (module docstring); a
+    """The flight of a VIO and a truth stream under ``options``: ``x`` the truth, ``y`` the
+    VIO aligned (``p' = R p + t``, ``v' = R v``), truth stamps shifted by ``tau``, both
+    resampled onto ``t_k = t_0 + k dt`` (module docstring, docs/ingest.md#the-pure-core); a
     one-line :class:`~qsls.pipeline.core.errors.InputError` for streams that give none."""
     o = options
     vio = prepare(vio_stream, "vio", vio_stream.source, o)
