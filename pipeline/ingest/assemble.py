@@ -26,7 +26,7 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.rotations import matrix_to_quat, quat_to_matrix
-from qsls.pipeline.ingest.align import fit_alignment
+from qsls.pipeline.ingest.align import Alignment, fit_alignment
 from qsls.pipeline.ingest.flight import VAR_COLS, flight_table
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.ingest.resample import check_grid, time_grid
@@ -107,25 +107,8 @@ def flight_from_streams(
     release_freed_memory()
     v_truth, truth_vsrc = truth_velocity(truth, o.velocity_window, o.max_gap)
 
-    # ---- alignment on time-matched pairs (VIO stamps inside the truth's coverage)
     lo, hi = max(vio.t_ns[0], tt[0]), min(vio.t_ns[-1], tt[-1])
-    # the stamps are sorted: the VIO samples inside [lo, hi] are one run, a view (no copies)
-    sel = slice(int(np.searchsorted(vio.t_ns, lo)), int(np.searchsorted(vio.t_ns, hi, "right")))
-    p_truth_at_vio, ok = interp(vio.t_ns[sel], tt, truth.position, gap_ns)
-    if ok.sum() < 10:
-        raise InputError(
-            f"only {int(ok.sum())} VIO samples fall where the truth stream has data; "
-            "check the topics, --stamp and --time-offset"
-        )
-    if ok.all():
-        src, dst = vio.position[sel], p_truth_at_vio
-    else:
-        src, dst = vio.position[sel][ok], p_truth_at_vio[ok]
-    del p_truth_at_vio
-    release_freed_memory()
-    al = fit_alignment(src, dst, o.align, scratch_dst=True)  # dst is ours: centred in place
-    del src, dst
-    del ok, sel
+    al = _fit_on_pairs(vio, tt, truth.position, (lo, hi), gap_ns, o.align)
     p_vio = al.apply(vio.position)
     v_vio = al.rotate(v_vio)
     vio = dataclasses.replace(vio, position=np.zeros((0, 3)))  # p_vio from here on
@@ -179,7 +162,7 @@ def flight_from_streams(
     }
     if var is not None:  # only then: a flight without them keeps its manifest as before
         results["covariance_columns"] = list(VAR_COLS)
-    tracks: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    tracks: dict[str, Track] = {}
     if o.export_tum:
         q_vio = matrix_to_quat(al.rotation[None] @ quat_to_matrix(vio.orientation))
         tracks = {"vio": (vio.t_ns, p_vio, q_vio), "truth": (tt, truth.position, truth.orientation)}
@@ -187,6 +170,31 @@ def flight_from_streams(
     del vio, truth, truth_vio_clock, tt, p_vio, v_vio, v_truth
     release_freed_memory()
     return IngestedFlight(table, results, tracks)
+
+
+def _fit_on_pairs(
+    vio: Prepared, tt: np.ndarray, p_truth: np.ndarray, span: tuple[int, int], gap_ns: int,
+    method: str,
+) -> Alignment:  # fmt: skip
+    """The alignment (``method``) fitted on time-matched pairs: the VIO samples inside
+    ``span`` (both streams' coverage) and the truth (stamps ``tt``, VIO clock) interpolated
+    at their stamps, never across a gap longer than ``gap_ns``."""
+    lo, hi = span
+    # the stamps are sorted: the VIO samples inside [lo, hi] are one run, a view (no copies)
+    sel = slice(int(np.searchsorted(vio.t_ns, lo)), int(np.searchsorted(vio.t_ns, hi, "right")))
+    p_truth_at_vio, ok = interp(vio.t_ns[sel], tt, p_truth, gap_ns)
+    if ok.sum() < 10:
+        raise InputError(
+            f"only {int(ok.sum())} VIO samples fall where the truth stream has data; "
+            "check the topics, --stamp and --time-offset"
+        )
+    if ok.all():
+        src, dst = vio.position[sel], p_truth_at_vio
+    else:
+        src, dst = vio.position[sel][ok], p_truth_at_vio[ok]
+    del p_truth_at_vio
+    release_freed_memory()
+    return fit_alignment(src, dst, method, scratch_dst=True)  # dst is ours: centred in place
 
 
 def clock_offset(
