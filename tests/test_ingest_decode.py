@@ -144,7 +144,7 @@ def test_fast_paths_never_open_anyreader(bags: dict[str, Path], fmt: str) -> Non
 
 
 def test_ros1_numpy_index_is_rosbags_index(bags: dict[str, Path]) -> None:
-    """The ROS1 index read by numpy (ros1index.open_ros1) has rosbags' entries: time, chunk,
+    """The ROS1 index read by numpy (ros1.index.open_ros1) has rosbags' entries: time, chunk,
     offset and connection of every message, in rosbags' order."""
     from rosbags.rosbag1 import Reader
 
