@@ -39,7 +39,8 @@ sys.path.insert(0, str(ROOT))
 
 from qsls.pipeline.core.artifacts import _hash_file  # noqa: E402
 from qsls.pipeline.ingest.sources.bags import BagSource  # noqa: E402
-from qsls.pipeline.ingest.sources.write import ImageStream, write_bag  # noqa: E402
+from qsls.pipeline.ingest.sources.messages import ImageStream  # noqa: E402
+from qsls.pipeline.ingest.sources.write import write_bag  # noqa: E402
 from qsls.pipeline.ingest.stage import IngestOptions, ingest  # noqa: E402
 from tests.bagfixtures import make_flight  # noqa: E402
 

@@ -87,7 +87,7 @@ def truth_states(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     from scipy.spatial.transform import Rotation, Slerp
 
     from qsls.pipeline.ingest.align import differentiate
-    from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
+    from qsls.pipeline.ingest.sources.text.reader import read_euroc, read_tum
 
     path = REAL / name / PAIRS[name][0]
     tr = (read_euroc if path.suffix == ".csv" else read_tum)(path)

@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from qsls.pipeline.core.rotations import matrix_to_quat, quat_to_matrix, rot_z
-from qsls.pipeline.ingest.sources.write import TF, OdometryStream, PoseStream, write_bag
+from qsls.pipeline.ingest.sources.messages import OdometryStream, PoseStream
+from qsls.pipeline.ingest.sources.msgtypes import TF
+from qsls.pipeline.ingest.sources.write import write_bag
 
 T0_NS = 1_700_000_000_000_000_000
 

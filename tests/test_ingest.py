@@ -11,8 +11,9 @@ from typer.testing import CliRunner
 
 from qsls.cli.main import app
 from qsls.pipeline.ingest.flight import read_flight
-from qsls.pipeline.ingest.sources.text import read_tum
-from qsls.pipeline.ingest.sources.write import FORMATS, POSE_COV, TRANSFORM, write_bag
+from qsls.pipeline.ingest.sources.msgtypes import POSE_COV, TRANSFORM
+from qsls.pipeline.ingest.sources.text.reader import read_tum
+from qsls.pipeline.ingest.sources.write import FORMATS, write_bag
 from qsls.pipeline.ingest.stage import IngestOptions, ingest
 from tests.bagfixtures import T0_NS, bag_name, make_flight, tf_streams, truth_state, write_flight
 

@@ -11,7 +11,8 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline.ingest.sources.write import ImageStream, OdometryStream, PoseStream, write_bag
+from qsls.pipeline.ingest.sources.messages import ImageStream, OdometryStream, PoseStream
+from qsls.pipeline.ingest.sources.write import write_bag
 from tests.bagfixtures import make_flight
 
 runner = CliRunner()

@@ -120,7 +120,7 @@ def test_covariances_that_start_later_are_kept(
 ) -> None:
     """sqlite3 reads each range of rows lean when its covariances are all zero, with their
     diagonals otherwise: a VIO that reports covariances only after 10 s keeps them."""
-    from qsls.pipeline.ingest.sources import sqlite
+    from qsls.pipeline.ingest.sources.rosbag2 import sqlite
     from qsls.pipeline.ingest.stage import IngestOptions, ingest
 
     vio = with_covariances(flight.vio)

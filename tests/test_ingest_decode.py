@@ -17,7 +17,9 @@ import pytest
 
 from qsls.pipeline.ingest.sources import layout
 from qsls.pipeline.ingest.sources.bags import BagSource
-from qsls.pipeline.ingest.sources.write import FORMATS, POSE_STAMPED, PoseStream, write_bag
+from qsls.pipeline.ingest.sources.messages import PoseStream
+from qsls.pipeline.ingest.sources.msgtypes import POSE_STAMPED
+from qsls.pipeline.ingest.sources.write import FORMATS, write_bag
 from tests.bagfixtures import make_flight
 
 # (frame_id, child_frame_id) per interleaved part of /vio/odom: an empty name, a long one,
@@ -85,8 +87,8 @@ def test_varying_lengths_decode_as_the_deserializer(bags: dict[str, Path], fmt: 
 def test_sqlite_topic_back_to_back_in_one_buffer(bags: dict[str, Path]) -> None:
     """The sqlite3 read gives each topic's messages back to back: a topic of one length
     is equally spaced (the strided view), a topic of varying lengths is not."""
-    from qsls.pipeline.ingest.sources.listing import open_rosbag2
-    from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
+    from qsls.pipeline.ingest.sources.rosbag2.listing import open_rosbag2
+    from qsls.pipeline.ingest.sources.rosbag2.sqlite import sqlite_batches
 
     bag = open_rosbag2(bags["ros2-sqlite"])
     assert bag is not None
@@ -134,19 +136,19 @@ def test_fast_paths_never_open_anyreader(bags: dict[str, Path], fmt: str) -> Non
     with BagSource(bags[fmt]) as src:
         counts = {t.topic: t.count for t in src.topics()}
         fast = src.read("/mocap/pose")
-        assert src._reader is None and fast.decoder == "numpy"
+        assert not src.reader.rosbags_opened and fast.decoder == "numpy"
         assert src.read("/mocap/pose", fast=False).decoder == "deserializer"
-        assert src._reader is not None
+        assert src.reader.rosbags_opened
         assert {t.topic: t.count for t in src.topics()} == counts
     assert counts["/mocap/pose"] == len(fast) and counts["/vio/odom"] > 250
 
 
 def test_ros1_numpy_index_is_rosbags_index(bags: dict[str, Path]) -> None:
-    """The ROS1 index read by numpy (ros1index.open_ros1) has rosbags' entries: time, chunk,
+    """The ROS1 index read by numpy (ros1.index.open_ros1) has rosbags' entries: time, chunk,
     offset and connection of every message, in rosbags' order."""
     from rosbags.rosbag1 import Reader
 
-    from qsls.pipeline.ingest.sources.ros1index import _chunk_entries, _chunk_rows, open_ros1
+    from qsls.pipeline.ingest.sources.ros1.index import _chunk_entries, _chunk_rows, open_ros1
 
     def index(reader: object, conns: set[int]) -> dict[int, np.ndarray]:
         return {pos: _chunk_rows(e) for pos, e in _chunk_entries(reader, conns).items()}
@@ -184,8 +186,8 @@ def _part(stream, rows: slice, **fields):
 
 
 def _sqlite(bag: Path, topics: list[str], msgtypes: list[str] | None) -> dict[int, list]:
-    from qsls.pipeline.ingest.sources.listing import open_rosbag2
-    from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
+    from qsls.pipeline.ingest.sources.rosbag2.listing import open_rosbag2
+    from qsls.pipeline.ingest.sources.rosbag2.sqlite import sqlite_batches
 
     listed = open_rosbag2(bag)
     assert listed is not None
@@ -200,7 +202,7 @@ def test_sqlite_trimmed_records_hold_the_fields(uniform_sqlite: Path) -> None:
     covariances, all zero here: 148 of its 724 bytes), decoded as rosbags' deserializer decodes the whole
     messages; /swap's messages have one length but not one layout (their fixed bytes
     differ), so it comes whole, and decodes the same."""
-    from qsls.pipeline.ingest.sources.write import ODOMETRY
+    from qsls.pipeline.ingest.sources.msgtypes import ODOMETRY
 
     topics = ["/vio/odom", "/mocap/pose", "/swap"]
     whole = _sqlite(uniform_sqlite, topics, None)
@@ -231,8 +233,8 @@ def test_sqlite_trimmed_read_in_ranges_under_the_length_limit(
     topic whose later messages are longer than its first is read row by row there."""
     import sqlite3
 
-    from qsls.pipeline.ingest.sources import sqlite as sq
-    from qsls.pipeline.ingest.sources.write import ODOMETRY
+    from qsls.pipeline.ingest.sources.msgtypes import ODOMETRY
+    from qsls.pipeline.ingest.sources.rosbag2 import sqlite as sq
 
     topics, types = ["/vio/odom", "/mocap/pose"], [ODOMETRY, POSE_STAMPED]
     one = _sqlite(uniform_sqlite, topics, types)
@@ -265,10 +267,11 @@ def test_sqlite_trimmed_read_in_ranges_under_the_length_limit(
 def test_plan_trim_keeps_every_field_of_every_fixed_type(ros1: bool) -> None:
     """Each fixed-layout type, in both encodings, trims to a record of the message without
     its skipped blocks whose fields are the message's: its stamp and position as written."""
-    from qsls.pipeline.ingest.sources.write import ODOMETRY, POSE_TYPES, TF, _Builder
+    from qsls.pipeline.ingest.sources.messages import MessageBuilder
+    from qsls.pipeline.ingest.sources.msgtypes import ODOMETRY, POSE_TYPES, TF
 
     f = make_flight(duration=1.0, vio_hz=20, truth_hz=20, dropouts=())
-    b = _Builder(ros1)
+    b = MessageBuilder(ros1)
     for mt in (t for t in POSE_TYPES if t != TF):
         s = f.vio if mt == ODOMETRY else replace(f.truth, msgtype=mt, frame_id="map_13_chars")
         raw = b.serialize(b.message(s, 3), mt)

@@ -18,8 +18,9 @@ import pytest
 from qsls.pipeline.ingest.align import differentiate, fit_alignment
 from qsls.pipeline.ingest.flight import read_flight
 from qsls.pipeline.ingest.sources.base import Trajectory
-from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
-from qsls.pipeline.ingest.sources.write import PoseStream, write_bag
+from qsls.pipeline.ingest.sources.messages import PoseStream
+from qsls.pipeline.ingest.sources.text.reader import read_euroc, read_tum
+from qsls.pipeline.ingest.sources.write import write_bag
 from qsls.pipeline.ingest.stage import IngestOptions, ingest
 
 PAIRS = {
@@ -138,8 +139,8 @@ def test_real_bags_as_sqlite3_come_as_trimmed_records(real_data: Path, tmp_path:
     from rosbags.convert.converter import convert
 
     from qsls.pipeline.ingest.sources.bags import BagSource
-    from qsls.pipeline.ingest.sources.listing import open_rosbag2
-    from qsls.pipeline.ingest.sources.sqlite import sqlite_batches
+    from qsls.pipeline.ingest.sources.rosbag2.listing import open_rosbag2
+    from qsls.pipeline.ingest.sources.rosbag2.sqlite import sqlite_batches
 
     cases = {"ROS_example.bag": ({"ORB-SLAM", "S-PTAM", "groundtruth"}, 84),
              "nav2_turtlebot.mcap": ({"/odom"}, 148)}  # fmt: skip

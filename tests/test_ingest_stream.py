@@ -50,7 +50,9 @@ def bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 def _small_blocks(monkeypatch: pytest.MonkeyPatch) -> None:
     from qsls.pipeline.ingest import align, streams, timesync
-    from qsls.pipeline.ingest.sources import mcapchunks, ros1index, sqlite
+    from qsls.pipeline.ingest.sources.mcap import chunks as mcapchunks
+    from qsls.pipeline.ingest.sources.ros1 import index as ros1index
+    from qsls.pipeline.ingest.sources.rosbag2 import sqlite
 
     for mod, name, value in (
         (ros1index, "_BATCH_BYTES", 30_000),

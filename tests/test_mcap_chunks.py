@@ -19,9 +19,16 @@ from mcap.writer import IndexType
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS
-from qsls.pipeline.ingest.sources import layout, mcapchunks
+from qsls.pipeline.ingest.sources import layout
 from qsls.pipeline.ingest.sources.bags import BagSource
-from qsls.pipeline.ingest.sources.write import IMAGE, ODOMETRY, POSE_STAMPED, TRANSFORM, typestore
+from qsls.pipeline.ingest.sources.mcap import chunks as mcapchunks
+from qsls.pipeline.ingest.sources.msgtypes import (
+    IMAGE,
+    ODOMETRY,
+    POSE_STAMPED,
+    TRANSFORM,
+    typestore,
+)
 
 N = 400  # messages per pose topic
 TOPICS = {"/vio/odom": ODOMETRY, "/mocap/pose": POSE_STAMPED, "/tf_single": TRANSFORM}

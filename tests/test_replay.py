@@ -14,7 +14,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from qsls.pipeline.control.artifacts import load_runtime
 from qsls.pipeline.ingest.sources.bags import BagSource
-from qsls.pipeline.ingest.sources.write import OdometryStream, write_bag
+from qsls.pipeline.ingest.sources.messages import OdometryStream
+from qsls.pipeline.ingest.sources.write import write_bag
 from tests.test_export import _one_line_error, compiler, controllers, invoke  # noqa: F401
 
 STATE = ["px", "py", "pz", "vx", "vy", "vz"]

@@ -131,7 +131,9 @@ def test_fit_refuses_a_zero_error_model_and_flights_of_different_dt(tmp_path):
 
 # --------------------------------------------------------------------------- smaller: topics
 def test_topic_selection_pose_vio_tf_frames_and_a_too_strict_max_gap(tmp_path):
-    from qsls.pipeline.ingest.sources.write import POSE_STAMPED, PoseStream, write_bag
+    from qsls.pipeline.ingest.sources.messages import PoseStream
+    from qsls.pipeline.ingest.sources.msgtypes import POSE_STAMPED
+    from qsls.pipeline.ingest.sources.write import write_bag
     from tests.bagfixtures import make_flight, tf_streams
 
     f = make_flight(duration=15.0, dropouts=())

@@ -9,18 +9,11 @@ import pytest
 
 from qsls.pipeline.ingest.sources.bags import BagSource
 from qsls.pipeline.ingest.sources.base import detect
-from qsls.pipeline.ingest.sources.ros1index import ros1_slices
-from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
-from qsls.pipeline.ingest.sources.write import (
-    FORMATS,
-    ODOMETRY,
-    POSE_COV,
-    POSE_STAMPED,
-    TRANSFORM,
-    ImageStream,
-    PoseStream,
-    write_bag,
-)
+from qsls.pipeline.ingest.sources.messages import ImageStream, PoseStream
+from qsls.pipeline.ingest.sources.msgtypes import ODOMETRY, POSE_COV, POSE_STAMPED, TRANSFORM
+from qsls.pipeline.ingest.sources.ros1.index import ros1_slices
+from qsls.pipeline.ingest.sources.text.reader import read_euroc, read_tum
+from qsls.pipeline.ingest.sources.write import FORMATS, write_bag
 from tests.bagfixtures import T0_NS, make_flight, tf_streams
 
 TYPES = (POSE_STAMPED, POSE_COV, TRANSFORM, ODOMETRY)
@@ -88,7 +81,7 @@ def test_ros1_index_slices_are_rosbags_bytes(
     """The chunk slicing at rosbags' index offsets gives rosbags' raw messages, byte for byte."""
     from rosbags.rosbag1 import Reader
 
-    from qsls.pipeline.ingest.sources import ros1index as bagmod
+    from qsls.pipeline.ingest.sources.ros1 import index as bagmod
 
     if batch:  # many small batches through the reused decompression buffer
         monkeypatch.setattr(bagmod, "_BATCH_BYTES", batch)
@@ -178,7 +171,7 @@ def test_sqlite_bulk_rows_are_rosbags_messages(bags: dict[str, Path]) -> None:
     bag = bags["ros2-sqlite"]
     (db,) = bag.glob("*.db3")
     with BagSource(bag) as src:
-        assert src._sqlite_files() == [db]
+        assert src.reader.storage() == ("sqlite3", [db])
         infos = [i for i in src.topics() if i.topic in ("/vio/odom", "/p1")]
         got = src._raw_pass(infos, NULL_PROGRESS)
     with Reader(bag) as r:
@@ -188,7 +181,7 @@ def test_sqlite_bulk_rows_are_rosbags_messages(bags: dict[str, Path]) -> None:
             raws, logs, _ = got[topic]
             assert len(want) > 100 and list(zip(logs, raws, strict=True)) == want
     with BagSource(bags["ros2-zstd"]) as src:
-        assert src._sqlite_files() is None
+        assert src.reader.storage() is None
 
 
 def test_sqlite_bag_read_without_opening_rosbags(bags: dict[str, Path]) -> None:
@@ -199,10 +192,10 @@ def test_sqlite_bag_read_without_opening_rosbags(bags: dict[str, Path]) -> None:
     with BagSource(bags["ros2-sqlite"]) as src:
         listed = {t.topic: (t.msgtype, t.count) for t in src.topics()}
         fast = src.read_many([("/vio/odom", None), ("/p0", None)])
-        assert src._reader is None
+        assert not src.reader.rosbags_opened
     with BagSource(bags["ros2-sqlite"]) as src:
         slow = src.read_many([("/vio/odom", None), ("/p0", None)], fast=False)
-        assert src._reader is not None  # opened for the deserializer
+        assert src.reader.rosbags_opened  # opened for the deserializer
     with BagSource(bags["ros1"]) as ros1:
         assert listed == {t.topic: (t.msgtype, t.count) for t in ros1.topics()}
     for f, s in zip(fast, slow, strict=True):
@@ -211,4 +204,4 @@ def test_sqlite_bag_read_without_opening_rosbags(bags: dict[str, Path]) -> None:
         assert np.array_equal(f.log_ns, s.log_ns) and np.array_equal(f.position, s.position)
         assert np.array_equal(f.orientation, s.orientation) and f.frame_id == s.frame_id
     with BagSource(bags["ros2-zstd"]) as src:
-        assert src._reader is not None and src.read("/vio/odom").decoder == "numpy"
+        assert src.reader.rosbags_opened and src.read("/vio/odom").decoder == "numpy"

@@ -7,14 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qsls.pipeline.ingest.sources.write import (
-    FORMATS,
-    TF,
-    TRANSFORM,
-    OdometryStream,
-    PoseStream,
-    write_bag,
-)
+from qsls.pipeline.ingest.sources.messages import OdometryStream, PoseStream
+from qsls.pipeline.ingest.sources.msgtypes import TF, TRANSFORM
+from qsls.pipeline.ingest.sources.write import FORMATS, write_bag
 
 
 def _streams(n: int = 50) -> list:

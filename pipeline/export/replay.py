@@ -8,11 +8,14 @@ at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
    ``allow_uncertified``); the controller that runs is the exported code itself: the stdlib
    Python module (``backend: python``) or the C compiled with the system compiler and loaded
    with ctypes (``backend: c``), ``u`` and the attitude conversion both.
-2. The VIO stream is read by ingest's readers (any source ``qsls ingest`` reads), stamps
-   prepared as ingest does (:func:`qsls.pipeline.ingest.streams.prepare`), velocity rotated to
-   the VIO world frame (``v_w = R(q) v_b``; or differentiated when the stream has none).
-3. Resampled as ingest does: linear interpolation on ``t_k = t_0 + k dt`` (``t_0`` the
-   first multiple of ``dt`` in the stream); ticks between two samples further apart than
+2. The VIO stream is read by ingest's reader (any source ``qsls ingest`` reads,
+   :func:`qsls.pipeline.ingest.streams.read_vio_stream`; the topic chosen as ingest chooses
+   it), stamps prepared as ingest does (:func:`qsls.pipeline.ingest.streams.prepare`),
+   velocity by ingest's step (:func:`qsls.pipeline.ingest.velocity.vio_velocity`: rotated to
+   the VIO world frame, ``v_w = R(q) v_b``, or differentiated when the stream has none).
+3. Resampled as ingest does: linear interpolation on ingest's grid ``t_k = t_0 + k dt``
+   (:func:`qsls.pipeline.ingest.resample.time_grid`; ``t_0`` the first multiple of ``dt``
+   in the stream); ticks between two samples further apart than
    ``max_gap`` are dropped and the gaps listed. The controller is reset at the start of
    each gap-free segment (its memory would otherwise hold samples from before the gap).
 4. ``y - r`` with the reference ``r`` (:class:`qsls.pipeline.core.references.Reference`,
@@ -131,60 +134,40 @@ def reference_options(spec: str) -> ReferenceOptions:
 
 
 def read_vio(source: Path, o: ReplayOptions) -> tuple[Any, np.ndarray]:
-    """The prepared VIO stream (ingest's ``Prepared``) and its world-frame velocity (n, 3)."""
-    from qsls.pipeline.core.rotations import body_to_world
-    from qsls.pipeline.ingest.align import differentiate
-    from qsls.pipeline.ingest.sources.bags import BagSource
-    from qsls.pipeline.ingest.sources.base import detect
-    from qsls.pipeline.ingest.sources.select import POSE_TYPES, VIO_TYPES, describe, find_topic
-    from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
-    from qsls.pipeline.ingest.stage import IngestOptions
-    from qsls.pipeline.ingest.streams import prepare
+    """The prepared VIO stream (ingest's ``Prepared``) and its world-frame velocity (n, 3):
+    ingest's reader (:func:`~qsls.pipeline.ingest.streams.read_vio_stream`), stamps
+    (:func:`~qsls.pipeline.ingest.streams.prepare`) and velocity step
+    (:func:`~qsls.pipeline.ingest.velocity.vio_velocity`, without its twist-frame check)."""
+    from qsls.pipeline.ingest.options import IngestOptions
+    from qsls.pipeline.ingest.sources.msgtypes import EUROC, TUM
+    from qsls.pipeline.ingest.streams import prepare, read_vio_stream
+    from qsls.pipeline.ingest.velocity import vio_velocity
 
     source = Path(source)
     if not source.exists():
         raise InputError(f"{source}: no such file or folder")
-    kind = detect(source)
-    frame = o.vio_velocity_frame
-    if kind in ("tum", "euroc"):
-        traj = (read_tum if kind == "tum" else read_euroc)(source)
-        frame = "world"  # EuRoC's velocity is the dataset's own, world frame
-    else:
-        with BagSource(source) as bag:
-            topics = bag.topics()
-            if o.vio_topic:
-                info = find_topic(topics, o.vio_topic, "vio", POSE_TYPES)
-            else:
-                cands = [t for t in topics if t.msgtype in VIO_TYPES]
-                if len(cands) != 1:
-                    raise InputError(
-                        f"cannot choose the VIO topic automatically ({len(cands)} candidates: "
-                        f"{describe(cands)}); pass --vio-topic"
-                    )
-                info = cands[0]
-            (traj,) = bag.read_many([(info.topic, None)])
+    traj = read_vio_stream(source, o.vio_topic)
+    # EuRoC's velocity is the dataset's own, world frame
+    frame = "world" if traj.msgtype in (TUM, EUROC) else o.vio_velocity_frame
     io = IngestOptions(stamp=o.stamp, drop_nonfinite=o.drop_nonfinite, vio_velocity_frame=frame)
     vio = prepare(traj, "vio", str(source), io)
-    if vio.velocity is None:
-        v = differentiate(vio.t_ns, vio.position, o.velocity_window, round(o.max_gap * NS))
-    elif frame == "body":
-        v = body_to_world(vio.orientation, vio.velocity)
-    else:
-        v = vio.velocity
+    del traj
+    v, _ = vio_velocity(vio, frame, o.velocity_window, o.max_gap, check_frame=False)
     return vio, v
 
 
 def resample(
     vio: Any, v: np.ndarray, dt: float, max_gap: float
 ) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]], list[slice]]:
-    """Ingest's resampling of ``[p, v]`` onto ``t_0 + k dt``: stamps, values, gaps, segments."""
+    """Ingest's resampling of ``[p, v]`` onto its grid ``t_0 + k dt``
+    (:func:`~qsls.pipeline.ingest.resample.time_grid`): stamps, values, gaps, segments."""
     from qsls.pipeline.ingest.align import segments
+    from qsls.pipeline.ingest.resample import time_grid
     from qsls.pipeline.ingest.streams import gaps, interp
 
     dt_ns, gap_ns = round(dt * NS), round(max_gap * NS)
     lo, hi = int(vio.t_ns[0]), int(vio.t_ns[-1])
-    start = -(-lo // dt_ns) * dt_ns
-    grid = np.arange(start, hi + 1, dt_ns, dtype=np.int64)
+    grid = time_grid(lo, hi, dt_ns)
     values, valid = interp(grid, vio.t_ns, np.hstack([vio.position, v]), gap_ns)
     if valid.sum() < 2:
         raise InputError(

@@ -1,8 +1,35 @@
-"""Linear interpolation of sampled signals, every column at once."""
+"""The resampling grid ``t_k = t_0 + k dt`` and linear interpolation of sampled signals,
+every column at once (docs/ingest.md#steps, step 6)."""
 
 from __future__ import annotations
 
 import numpy as np
+
+from qsls.pipeline.core.errors import InputError
+
+FINEST_GRID = 10
+"""How much finer than the VIO's own sampling step ``dt`` may be (finer is interpolation only)."""
+
+
+def time_grid(lo_ns: int, hi_ns: int, dt_ns: int) -> np.ndarray:
+    """``t_k = t_0 + k dt`` (int64 ns) over ``[lo_ns, hi_ns]``, ``t_0`` the first multiple of
+    ``dt_ns`` at or after ``lo_ns``: every stream resampled at ``dt`` lands on the same ticks."""
+    start = -(-lo_ns // dt_ns) * dt_ns
+    return np.arange(start, hi_ns + 1, dt_ns, dtype=np.int64)
+
+
+def check_grid(dt: float, vio_t_ns: np.ndarray, span_ns: int) -> None:
+    """Refuse a ``dt`` far finer than the VIO's own sampling: a flight of interpolated
+    samples that carry no new information, and gigabytes of them (``--dt 1e-6`` on 100 Hz
+    data: 2.7 GB)."""
+    step_s = float(np.median(np.diff(vio_t_ns))) * 1e-9 if len(vio_t_ns) > 1 else 0.0
+    if step_s > 0 and dt * FINEST_GRID < step_s:
+        n = int(span_ns * 1e-9 / dt)
+        raise InputError(
+            f"--dt {dt:g} s is {step_s / dt:,.0f} times finer than the VIO's own sampling step "
+            f"({step_s:.3g} s): {n:,} samples (about {n * 13 * 8 / 1e9:.3g} GB) of interpolation "
+            f"only; choose --dt of at least {step_s / FINEST_GRID:.3g} s (the paper's: 0.1)"
+        )
 
 
 def interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:

@@ -1,16 +1,21 @@
 """The two streams of an ingest: read from bags or text files, then prepared.
 
 - :func:`read_streams`: the VIO and truth trajectories from the sources (topics chosen as
-  the options say, or automatically), one pass per bag.
+  the options say, or automatically), one pass per bag; :func:`read_vio_stream`: the VIO
+  stream of one source (``qsls replay``).
 - :func:`prepare`: stamps (header or log time), non-finite check, stable sort, exact
   duplicates dropped, counted (:class:`Prepared`); :func:`check_streams` refuses a pair
   that would give a meaningless flight.
 - :func:`interp` and :func:`gaps`: linear interpolation onto a grid that never bridges a
   gap longer than ``max_gap``, and the gaps the manifest lists (also used by ``replay``).
+
+The flight itself is made of the two streams by the pure core,
+:func:`qsls.pipeline.ingest.assemble.flight_from_streams`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -18,8 +23,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.progress import Progress
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.ingest.resample import interp_rows, median_spacing
+from qsls.pipeline.ingest.sources.base import Trajectory
 
 if TYPE_CHECKING:
     from qsls.pipeline.ingest.stage import IngestOptions
@@ -76,15 +82,13 @@ class Prepared:
 
 
 # --------------------------------------------------------------------------- reading
-def read_streams(
-    sources: list[Path], o: IngestOptions, progress: Progress
-) -> tuple[Any, Any, dict[str, str]]:
-    """(vio Trajectory, truth Trajectory, {role: source path})."""
+def read_streams(sources: list[Path], o: IngestOptions, progress: Progress) -> list[Trajectory]:
+    """``[vio, truth]`` trajectories, each with the path it was read from (``source``)."""
     from qsls.pipeline.ingest.sources.bags import BagSource
     from qsls.pipeline.ingest.sources.base import detect
+    from qsls.pipeline.ingest.sources.msgtypes import TF
     from qsls.pipeline.ingest.sources.select import choose
-    from qsls.pipeline.ingest.sources.text import read_euroc, read_tum
-    from qsls.pipeline.ingest.sources.write import TF
+    from qsls.pipeline.ingest.sources.text.reader import TEXT_READERS
 
     sources = [Path(s) for s in sources]
     if not sources and (o.vio is None or o.truth is None):
@@ -98,24 +102,24 @@ def read_streams(
             role_files[role] = files
             for f in files:
                 kind = detect(f)
-                if kind in ("tum", "euroc"):
+                if kind in TEXT_READERS:
                     if given is None:
                         raise InputError(
                             f"{f}: a text trajectory; pass text files with --vio FILE --truth FILE"
                         )
-                    texts[role] = (read_tum if kind == "tum" else read_euroc)(f)
+                    texts[role] = TEXT_READERS[kind](f)
                 elif f not in bags:
                     bags[f] = BagSource(f)
         topics = {p: b.topics() for p, b in bags.items()}
         vio_topics = [t for f in role_files["vio"] if f in bags for t in topics[f]]
         truth_topics = [t for f in role_files["truth"] if f in bags for t in topics[f]]
         if "vio" in texts and "truth" in texts:
-            return texts["vio"], texts["truth"], {"vio": str(o.vio), "truth": str(o.truth)}
+            return _placed(texts, {"vio": str(o.vio), "truth": str(o.truth)})
         vio_info = truth_info = None
         if "vio" in texts:
             truth_info = _pick_truth(truth_topics, o)
         elif "truth" in texts:
-            vio_info = _pick_vio(vio_topics, o)
+            vio_info = pick_vio(vio_topics, o.vio_topic)
         else:
             vio_info, truth_info = choose(
                 vio_topics, truth_topics, o.vio_topic, o.truth_topic, o.truth_frame
@@ -137,10 +141,14 @@ def read_streams(
         for source, reqs in wanted.items():  # one pass per bag for both streams
             got = bags[source].read_many([(t, f) for _, t, f in reqs], fast=fast, progress=progress)
             out.update({role: g for (role, _, _), g in zip(reqs, got, strict=True)})
-        return out["vio"], out["truth"], where
+        return _placed(out, where)
     finally:
         for b in bags.values():
             b.close()
+
+
+def _placed(streams: dict[str, Trajectory], where: dict[str, str]) -> list[Trajectory]:
+    return [dataclasses.replace(streams[r], source=where[r]) for r in ("vio", "truth")]
 
 
 def _pick_truth(topics: list[Any], o: IngestOptions) -> Any:
@@ -163,12 +171,32 @@ def _pick_truth(topics: list[Any], o: IngestOptions) -> Any:
     return t
 
 
-def _pick_vio(topics: list[Any], o: IngestOptions) -> Any:
+def pick_vio(topics: list[Any], vio_topic: str | None) -> Any:
+    """The VIO topic of ``topics``: the one named, else chosen (:func:`select.choose_vio`)."""
     from qsls.pipeline.ingest.sources.select import POSE_TYPES, choose_vio, find_topic
 
-    if o.vio_topic:
-        return find_topic(topics, o.vio_topic, "vio", POSE_TYPES)
+    if vio_topic:
+        return find_topic(topics, vio_topic, "vio", POSE_TYPES)
     return choose_vio(topics, set())
+
+
+def read_vio_stream(
+    source: Path, vio_topic: str | None, *, fast: bool = True, progress: Progress = NULL_PROGRESS
+) -> Trajectory:
+    """The VIO stream of one source, as ingest reads it: a text trajectory (TUM, EuRoC csv),
+    or the bag's VIO topic, named or chosen (:func:`pick_vio`). What ``qsls replay`` reads."""
+    from qsls.pipeline.ingest.sources.bags import BagSource
+    from qsls.pipeline.ingest.sources.base import detect
+    from qsls.pipeline.ingest.sources.text.reader import TEXT_READERS
+
+    source = Path(source)
+    kind = detect(source)
+    if kind in TEXT_READERS:
+        return dataclasses.replace(TEXT_READERS[kind](source), source=str(source))
+    with BagSource(source) as bag:
+        info = pick_vio(bag.topics(), vio_topic)
+        (traj,) = bag.read_many([(info.topic, None)], fast=fast, progress=progress)
+    return dataclasses.replace(traj, source=str(source))
 
 
 # --------------------------------------------------------------------------- preparing

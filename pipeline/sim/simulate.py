@@ -118,7 +118,7 @@ def log_streams(
     flight: FlightLog, options: SimOptions, seed: int
 ) -> tuple[list[Any], dict[str, Any]]:
     """The bag's streams (VIO odometry, motion capture) and the clock/frame truth."""
-    from qsls.pipeline.ingest.sources.write import OdometryStream, PoseStream
+    from qsls.pipeline.ingest.sources.messages import OdometryStream, PoseStream
 
     lo = options.log
     rng = np.random.default_rng(np.random.SeedSequence([seed, _LOG_STREAM]))

@@ -1,13 +1,19 @@
-"""What every reader returns, and how a source's kind is recognized."""
+"""What every reader returns, the one protocol every bag format's reader follows, and how a
+source's kind is recognized (docs/ingest.md#formats)."""
 
 from __future__ import annotations
 
+import sqlite3
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.progress import Progress
+from qsls.pipeline.ingest.sources.layout import Batch
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -54,9 +60,76 @@ class Trajectory:
     decoder: str = ""  # "numpy" | "deserializer" | "text"
     pose_var: np.ndarray | None = None
     twist_var: np.ndarray | None = None
+    source: str = ""
+    """Where the stream was read from (a bag or file path; empty for a stream built in
+    memory), as the manifest names it."""
 
     def __len__(self) -> int:
         return len(self.header_ns)
+
+
+RawTopic = tuple[list[bytes], list[int], Any]
+"""One topic's raw messages, their log stamps and its schema (None unless the format has one)."""
+
+IndexPlan = tuple[dict[str, set[int]], Callable[[], Iterable[Batch]]]
+"""``({topic: its connection labels in Batch.conn}, the batches)``: a topic read through the
+bag's own index."""
+
+
+class BagReader(Protocol):
+    """One bag format's reader, opened on ``path`` (``READERS`` in
+    :mod:`qsls.pipeline.ingest.sources.bags` maps a detected kind to it); the format-free
+    part of a read (decoding, counts, errors) is :class:`~qsls.pipeline.ingest.sources.bags.BagSource`'s."""
+
+    path: Path
+    cdr: bool
+    """Messages are CDR (ROS 2, MCAP), not ROS1."""
+    listed_by: str
+    """Where the topics' types come from, as an error names it (``the bag``, ``its metadata.yaml``)."""
+
+    def topics(self) -> list[TopicInfo]:
+        """Every topic, its type and message count, in any order."""
+        ...
+
+    def indexed(self, infos: list[TopicInfo]) -> IndexPlan | None:
+        """The fixed-layout topics ``infos`` through the bag's own index (:data:`IndexPlan`);
+        None when the format or this bag has no such path (compressed messages, say)."""
+        ...
+
+    def raw(self, infos: list[TopicInfo], progress: Progress) -> dict[str, RawTopic]:
+        """``{topic: (raw messages, log stamps, schema)}`` of ``infos`` in one pass."""
+        ...
+
+    def deserialize(self, info: TopicInfo, raws: list[bytes], schema: Any) -> list[Any]:
+        """The messages ``raws`` of ``info`` as message objects (a per-message deserializer)."""
+        ...
+
+    def close(self) -> None: ...
+
+
+_REPAIR = {
+    "ros1": "rosbag reindex BAG",
+    "mcap": "mcap recover IN.mcap -o OUT.mcap",  # a plain MCAP: the mcap CLI, no metadata.yaml
+}
+
+
+def damaged_hint(kind: str) -> str:
+    """What to do about a truncated or damaged bag of ``kind`` (detect()'s names)."""
+    tool = _REPAIR.get(kind, "ros2 bag reindex BAG_FOLDER")
+    return (
+        "it looks truncated or damaged; if the recording was cut off, repair it "
+        f"('{tool}') and try again"
+    )
+
+
+def locked_hint(exc: BaseException) -> str | None:
+    """What to do about an sqlite3 database another program holds locked (None: not that)."""
+    if isinstance(exc, sqlite3.OperationalError) and "locked" in str(exc).lower():
+        return (
+            "the bag's database is locked by another program (a recorder still writing it?); "
+            "wait for it to finish, or copy the bag folder, and try again"
+        )
+    return None
 
 
 def _head(path: Path, n: int = 16) -> bytes:

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qsls.pipeline.ingest.sources.write import ODOMETRY, POSE_COV, POSE_STAMPED, TRANSFORM
+from qsls.pipeline.ingest.sources.msgtypes import ODOMETRY, POSE_COV, POSE_STAMPED, TRANSFORM
 
 
 class LayoutError(ValueError):
@@ -369,3 +369,17 @@ def concat(chunks: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     starts = ends - lengths
     buf = np.frombuffer(b"".join(chunks), dtype=np.uint8)
     return buf, starts, ends
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Messages located in one buffer: message ``i`` is ``buf[starts[i]:ends[i]]``
+    (``trimmed``: records cut by a :class:`Trim`, not whole messages; ``"lean"``:
+    cut by a lean one, without the covariances)."""
+
+    buf: np.ndarray
+    starts: np.ndarray
+    ends: np.ndarray
+    log_ns: np.ndarray
+    conn: np.ndarray
+    trimmed: bool | str = False

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.ingest.sources.base import TopicInfo
-from qsls.pipeline.ingest.sources.write import ODOMETRY, POSE_COV, POSE_STAMPED, TF, TRANSFORM
+from qsls.pipeline.ingest.sources.msgtypes import ODOMETRY, POSE_COV, POSE_STAMPED, TF, TRANSFORM
 
 VIO_TYPES = (ODOMETRY,)
 POSE_ONLY_TYPES = (POSE_STAMPED, POSE_COV, TRANSFORM)

@@ -10,16 +10,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.ingest.sources.base import Trajectory
-
-TUM = "text/tum"
-EUROC = "text/euroc-csv"
-
+from qsls.pipeline.ingest.sources.msgtypes import EUROC, TUM
 
 # A text trajectory is written in time order; a stamp earlier than one before it by more
 # than this is an error naming its line (re-sorting it silently made a 0.45 m error spike).
@@ -168,3 +166,7 @@ def read_euroc(path: Path) -> Trajectory:
         velocity=a[:, 8:11] if width >= 11 else None,
         decoder="text",
     )
+
+
+TEXT_READERS: dict[str, Callable[[Path], Trajectory]] = {"tum": read_tum, "euroc": read_euroc}
+"""The text kinds :func:`~qsls.pipeline.ingest.sources.base.detect` finds to their readers."""

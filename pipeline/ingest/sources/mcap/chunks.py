@@ -1,6 +1,6 @@
 """MCAP at the speed of the disk: whole chunks located through the summary, decompressed
 once each, and the wanted channels' messages sliced out in bulk; the fixed-layout fields
-are then gathered with numpy (:mod:`layout`), as the ROS1 path does (:mod:`ros1index`).
+are then gathered with numpy (:mod:`..layout`), as the ROS1 path does (:mod:`..ros1.index`).
 
 An MCAP file (plain, or the storage file of a rosbag2 bag) ends with a summary: a
 ``ChunkIndex`` per chunk (where the chunk record is, its compression, and where the
@@ -50,7 +50,9 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.ingest.sources import layout
-from qsls.pipeline.ingest.sources.ros1index import Batch
+from qsls.pipeline.ingest.sources.base import TopicInfo
+from qsls.pipeline.ingest.sources.layout import Batch
+from qsls.pipeline.ingest.sources.msgtypes import normalize_type
 
 _BATCH_BYTES = 8 << 20
 """Bytes of chunk records decoded at once (a window of the file, or decompressed): bounds
@@ -345,3 +347,24 @@ def _mcap_batches(path: Path, mm: Any, summary: Any, wanted: dict[int, int]) -> 
             size += len(data)
     if group:
         yield _batch(work[:size], base, group, buf)
+
+
+def topic_batches(
+    files: list[Path], infos: list[TopicInfo], summary: Any = None
+) -> Iterator[Batch]:
+    """The messages of ``infos`` in every MCAP file (plain, or a rosbag2's storage files),
+    labelled by their index in ``infos``; ``summary``: the one file's summary when already
+    read. ``LayoutError`` when a channel is not CDR of the topic's type."""
+    label = {info.topic: k for k, info in enumerate(infos)}
+    for f in files:
+        s = summary if summary is not None else read_summary(f)
+        wanted = {}
+        for cid, ch in s.channels.items():
+            if ch.topic not in label:
+                continue
+            schema = s.schemas.get(ch.schema_id)
+            mt = normalize_type(schema.name) if schema else "?"
+            if ch.message_encoding != "cdr" or mt != infos[label[ch.topic]].msgtype:
+                raise layout.LayoutError(f"channel {ch.topic} is not cdr {mt}")
+            wanted[cid] = label[ch.topic]
+        yield from mcap_batches(f, s, wanted)

@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from qsls.pipeline.ingest.sources import layout
-from qsls.pipeline.ingest.sources.ros1index import Batch
+from qsls.pipeline.ingest.sources.layout import Batch
 
 _MMAP_BYTES = 1 << 40
 _STAMP_CHARS = 21  # a log time as text (up to 19 digits and a sign) and its comma

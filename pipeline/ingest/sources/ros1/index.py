@@ -6,7 +6,6 @@ fixed-layout fields are then gathered with numpy (:mod:`layout`).
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
 from itertools import chain
 from pathlib import Path
 from typing import Any
@@ -14,23 +13,10 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.ingest.sources import layout
+from qsls.pipeline.ingest.sources.layout import Batch
 
 _BATCH_BYTES = 8 << 20
 """Bytes of chunk data (decompressed) decoded at once: bounds the reader's memory."""
-
-
-@dataclass(frozen=True)
-class Batch:
-    """Messages located in one buffer: message ``i`` is ``buf[starts[i]:ends[i]]``
-    (``trimmed``: records cut by a :class:`layout.Trim`, not whole messages; ``"lean"``:
-    cut by a lean one, without the covariances)."""
-
-    buf: np.ndarray
-    starts: np.ndarray
-    ends: np.ndarray
-    log_ns: np.ndarray
-    conn: np.ndarray
-    trimmed: bool | str = False
 
 
 _ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])

@@ -1,0 +1,2 @@
+"""ROS1 ``.bag`` files: the reader (:mod:`.reader`, its numpy index :mod:`.index`) beside the
+writer (:mod:`.writer`)."""
