@@ -54,6 +54,7 @@ import scipy.sparse as sp
 from qsls.pipeline.control.achievable import Affine, block_pattern, eliminate, implied_zero_taps
 from qsls.pipeline.control.costs import PremiseNorms, WeightedCost, cost_of
 from qsls.pipeline.control.guarantee import (
+    VELOCITY,
     Norms,
     error_weights,
     measured_channels,
@@ -224,7 +225,7 @@ class SLSProblem:
         if s.T < 2:
             raise ValueError(f"horizon T must be at least 2, got {s.T}")
         self.model, self.structure = model, s
-        T, nx = s.T, model.nx
+        T = s.T
         self.pattern = block_pattern(model, s.decoupled)
         self.maps = mp = eliminate(model, T, self.pattern)
         self.z = z = cp.Variable(mp.n_free, name="free_taps")
@@ -243,50 +244,74 @@ class SLSProblem:
         self._cons: list[Any] = [self.E @ z + e[rows] == 0]
         self._epi: dict[str, tuple[np.ndarray, np.ndarray, Any]] = {}
         self.cost = cost = cost_of(s.cost)
-        n_xy = n_xx = g_m = per_tap = None
-        if s.robust or cost.needs_norms:  # N, N_w, G_m (docs/guarantee.md)
-            wx = np.asarray(s.state_scale, float)
-            inv_e = error_weights(s.error_scale, measured)
-            rs_xh = self._sums("Phi_xx_H", lambda t, i, j: 1.0)
-            rs_xy_e = self._sums("Phi_xy", lambda t, i, j: inv_e[j])
-            n_xy = cp.max(cp.multiply(wx, rs_xy_e))
-            n_xx = cp.max(cp.multiply(wx, rs_xh))
-            channels = outlier_channels(s.measure, s.m)
-            if channels:  # G_m: per row, the m largest per-tap sums over the outlier channels
-                per_tap = self._sums("Phi_xy", lambda t, i, j: np.isin(j, channels), by_tap=True)
-                k = min(s.m, T)
-                g_m = cp.max(
-                    cp.hstack(
-                        [wx[i] * cp.sum_largest(per_tap[i * T : (i + 1) * T], k) for i in range(nx)]
-                    )
-                )
-        cons = self._cons
+        norms = self._premise_norms() if s.robust or cost.needs_norms else None
         p: dict[str, Any] = {}
         if s.robust:
-            p["c_xy"] = cp.Parameter(nonneg=True, name="S_plus_eps_e_over_r")
-            p["c_xx"] = cp.Parameter(nonneg=True, name="eps_w_over_r")
-            p["c_rhs"] = cp.Parameter(name="one_minus_delta_over_r")
-            lhs = p["c_xy"] * n_xy + p["c_xx"] * n_xx
-            if g_m is not None:
-                p["c_o"] = cp.Parameter(nonneg=True, name="eps_o_over_r")
-                lhs = lhs + p["c_o"] * g_m
-            cons.append(lhs <= p["c_rhs"])
-            if s.gate:  # rho_v <= V per velocity row (guarantee.velocity_deviation)
-                for name in ("g_w", "g_d", "g_o", "g_V"):
-                    p[name] = cp.Parameter(nonneg=True, name="gate_" + name)
-                for i in (3, 4, 5):
-                    row = p["g_w"] * rs_xh[i] + p["g_d"] * rs_xy_e[i]
-                    if per_tap is not None:
-                        row = row + p["g_o"] * cp.sum_largest(
-                            per_tap[i * T : (i + 1) * T], min(s.m, T)
-                        )
-                    cons.append(row <= p["g_V"])
-        norms = PremiseNorms(n_xy, n_xx, g_m) if n_xy is not None else None
+            assert norms is not None
+            self._cons += self._robustness_constraints(p, norms)
         objective = cost.objective(self, p, norms)
         self.params = p
-        self.problem = cp.Problem(cp.Minimize(objective), cons)
+        self.problem = cp.Problem(cp.Minimize(objective), self._cons)
         self.construct_time_s = time.perf_counter() - t0
         self._compiled = False
+
+    # ---- the premise's norms and the robustness constraint
+    def _premise_norms(self) -> PremiseNorms:
+        """The premise's norms (docs/guarantee.md) on the shared epigraphs:
+        ``N = max_i w_x,i sum_tj |Phi_xy(t)_ij| / w_e,j``, ``N_w = max_i w_x,i sum_tj
+        |(Phi_xx(t) H)_ij|`` and ``G_m = max_i w_x,i g_i`` with ``g_i`` the sum of the ``m``
+        largest over taps of ``sum_{j outlier} |Phi_xy(t)_ij|`` (``cp.sum_largest``). Keeps
+        ``N``'s and ``N_w``'s row sums and the per-row ``g_i`` for the velocity gate
+        (:meth:`_robustness_constraints`)."""
+        import cvxpy as cp
+
+        s, T = self.structure, self.structure.T
+        wx = np.asarray(s.state_scale, float)
+        inv_e = error_weights(s.error_scale, measured_channels(s.measure))
+        self._rs_xh = self._sums("Phi_xx_H", lambda t, i, j: 1.0)
+        self._rs_xy = self._sums("Phi_xy", lambda t, i, j: inv_e[j])
+        n_xy = cp.max(cp.multiply(wx, self._rs_xy))
+        n_xx = cp.max(cp.multiply(wx, self._rs_xh))
+        channels = outlier_channels(s.measure, s.m)
+        self._g_rows: dict[int, Any] = {}
+        if not channels:
+            return PremiseNorms(n_xy, n_xx, None)
+        per_tap = self._sums("Phi_xy", lambda t, i, j: np.isin(j, channels), by_tap=True)
+        k = min(s.m, T)
+
+        def g(i: int) -> Any:  # a new expression per use: the compiled problem is unchanged
+            return cp.sum_largest(per_tap[i * T : (i + 1) * T], k)
+
+        g_m = cp.max(cp.hstack([wx[i] * g(i) for i in range(self.model.nx)]))
+        self._g_rows = {i: g(i) for i in VELOCITY}
+        return PremiseNorms(n_xy, n_xx, g_m)
+
+    def _robustness_constraints(self, p: dict[str, Any], norms: PremiseNorms) -> list:
+        """The robustness constraint (module docstring; docs/guarantee.md)
+        ``(S + eps_e/r) N + (eps_w/r) N_w + (eps_o/r) G_m <= 1 - Delta/r - backoff`` with its
+        numbers as Parameters, and with a gate ``rho_v <= V`` per velocity row
+        (``guarantee.velocity_deviation``): ``eps_w |Phi_xx H|_i + (eps + S r) |Phi_xy W_e^-1|_i
+        + eps_o g_i <= V``."""
+        import cvxpy as cp
+
+        s = self.structure
+        p["c_xy"] = cp.Parameter(nonneg=True, name="S_plus_eps_e_over_r")
+        p["c_xx"] = cp.Parameter(nonneg=True, name="eps_w_over_r")
+        p["c_rhs"] = cp.Parameter(name="one_minus_delta_over_r")
+        lhs = p["c_xy"] * norms.N + p["c_xx"] * norms.N_w
+        if norms.G_m is not None:
+            p["c_o"] = cp.Parameter(nonneg=True, name="eps_o_over_r")
+            lhs = lhs + p["c_o"] * norms.G_m
+        cons = [lhs <= p["c_rhs"]]
+        if s.gate:
+            for name in ("g_w", "g_d", "g_o", "g_V"):
+                p[name] = cp.Parameter(nonneg=True, name="gate_" + name)
+            for i in VELOCITY:
+                row = p["g_w"] * self._rs_xh[i] + p["g_d"] * self._rs_xy[i]
+                if i in self._g_rows:
+                    row = row + p["g_o"] * self._g_rows[i]
+                cons.append(row <= p["g_V"])
+        return cons
 
     # ---- building blocks
     def _epigraph(self, name: str) -> list:
