@@ -32,7 +32,7 @@ Vectors: each map gives a response's taps stacked, each tap a column-major (Fort
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -212,3 +212,149 @@ def implied_zero_taps(model: LinearModel, pattern: dict[str, np.ndarray]) -> np.
             out[j] = len(blocks)
             power = a @ power
     return out
+
+
+# --------------------------------------------------------------------------- mirrored axes
+@dataclass(frozen=True)
+class Mirror:
+    """A signed permutation ``sigma`` of states and inputs that maps group ``source`` onto group
+    ``image`` and leaves the plant invariant: ``A[s(i), s(j)] = d_i d_j A[i, j]``,
+    ``B[s(i), s(k)] = d_i d_k B[i, k]``, ``H`` as ``A`` (``C = I``). ``state`` and ``input``
+    give ``s(i)`` on the source group's states and inputs (-1 elsewhere), ``d`` the signs."""
+
+    source: int
+    image: int
+    state: np.ndarray
+    input: np.ndarray
+    d_state: np.ndarray
+    d_input: np.ndarray
+
+
+def _signs(model: LinearModel, st: np.ndarray, si: np.ndarray, ui: np.ndarray, su: np.ndarray):
+    """The signs ``d`` of a candidate map (source states ``st`` onto ``si``, inputs ``ui`` onto
+    ``su``), propagated along the nonzeros of ``A``, ``B``, ``H``; None where it fails."""
+    n = len(st) + len(ui)
+    idx = np.concatenate([st, ui + model.nx])
+    img = np.concatenate([si, su + model.nx])
+    big = np.zeros((model.nx + model.nu, model.nx + model.nu))
+    big[: model.nx, : model.nx] = np.abs(model.A) + np.abs(model.H)
+    big[: model.nx, model.nx :] = model.B
+    full = np.zeros_like(big)
+    full[: model.nx, : model.nx], full[: model.nx, model.nx :] = model.A, model.B
+    d = np.zeros(n)
+    d[0] = 1.0
+    stack = [0]
+    while stack:  # the groups are connected components: every sign is reached
+        a = stack.pop()
+        for b in range(n):
+            pair = (full[idx[a], idx[b]], full[img[a], img[b]])
+            rev = (full[idx[b], idx[a]], full[img[b], img[a]])
+            for x, y in (pair, rev):
+                if x != 0 and d[b] == 0:
+                    d[b] = d[a] * np.sign(y) * np.sign(x)
+                    stack.append(b)
+    if np.any(d == 0):
+        return None
+    return d[: len(st)], d[len(st) :]
+
+
+def find_mirrors(
+    model: LinearModel, state_keys: np.ndarray, input_keys: np.ndarray
+) -> tuple[Mirror, ...]:
+    """Pairs of the plant's groups (:func:`axis_groups`) that a signed permutation maps onto each
+    other (the quadrotor's x and y axes), states and inputs in index order, with equal
+    ``state_keys`` / ``input_keys`` rows (the problem's weights on each state and input, which
+    the map must leave invariant too). Each group is the image of at most one source."""
+    gx, gu = axis_groups(model)
+    out: list[Mirror] = []
+    used: set[int] = set()
+    groups = np.unique(gx)
+    for a in groups:
+        for b in groups:
+            if b <= a or a in used or b in used:
+                continue
+            st, si = np.flatnonzero(gx == a), np.flatnonzero(gx == b)
+            ui, su = np.flatnonzero(gu == a), np.flatnonzero(gu == b)
+            if len(st) != len(si) or len(ui) != len(su):
+                continue
+            if not (
+                np.array_equal(state_keys[st], state_keys[si])
+                and np.array_equal(input_keys[ui], input_keys[su])
+            ):
+                continue
+            signs = _signs(model, st, si, ui, su)
+            if signs is None:
+                continue
+            ds, du = signs
+            ok = all(
+                np.array_equal(m[np.ix_(si, si)], np.outer(ds, ds) * m[np.ix_(st, st)])
+                for m in (model.A, model.H)
+            ) and np.array_equal(model.B[np.ix_(si, su)], np.outer(ds, du) * model.B[np.ix_(st, ui)])
+            if not ok:
+                continue
+            state, inp = -np.ones(model.nx, int), -np.ones(model.nu, int)
+            state[st], inp[ui] = si, su
+            d_state, d_input = np.zeros(model.nx), np.zeros(model.nu)
+            d_state[st], d_input[ui] = ds, du
+            out.append(Mirror(int(a), int(b), state, inp, d_state, d_input))
+            used |= {int(a), int(b)}
+    return tuple(out)
+
+
+def mirrored_free_taps(
+    model: LinearModel, T: int, pattern: dict[str, np.ndarray], mirrors: tuple[Mirror, ...]
+) -> tuple[sp.csr_matrix, np.ndarray]:
+    """``z = P z_kept``: the free taps of :func:`eliminate` (``Phi_xx(2..T)`` on ``pattern``)
+    with every image group's entries the signed copies ``d_i d_j Phi_xx(t)_ij`` of their
+    source's; and which of ``z``'s entries are kept."""
+    nx = model.nx
+    sel = np.flatnonzero(pattern["Phi_xx"].ravel(order="F"))
+    pos = -np.ones(nx * nx, int)
+    pos[sel] = np.arange(len(sel))
+    i, j = sel % nx, sel // nx
+    src = np.arange(len(sel))
+    sign = np.ones(len(sel))
+    gx, _ = axis_groups(model)
+    for m in mirrors:
+        inv = -np.ones(nx, int)
+        inv[m.state[m.state >= 0]] = np.flatnonzero(m.state >= 0)
+        img = gx[i] == m.image
+        si, sj = inv[i[img]], inv[j[img]]
+        src[img] = pos[si + nx * sj]
+        sign[img] = m.d_state[si] * m.d_state[sj]
+    kept = src == np.arange(len(sel))
+    col = np.cumsum(kept) - 1
+    per_tap = sp.csr_matrix((sign, (np.arange(len(sel)), col[src])), shape=(len(sel), int(kept.sum())))
+    return sp.kron(sp.eye(T - 1), per_tap, format="csr"), np.tile(kept, T - 1)
+
+
+def mirror_maps(
+    maps: Maps, model: LinearModel, T: int, pattern: dict[str, np.ndarray], mirrors: tuple[Mirror, ...]
+) -> tuple[Maps, dict[str, np.ndarray]]:
+    """The maps of ``z_kept`` (:func:`mirrored_free_taps`) and, per response, the entries in an
+    image group (copies of their source's up to sign, so every row sum and every absolute
+    value there equals the source's: a problem need not bound them twice). The range
+    equations of the image groups are copies too and are left out.
+
+    Exact: the problem (norms, costs, constraints, all functions of the entries' absolute
+    values row by row, with weights the mirror leaves invariant) is invariant under the
+    mirror, so the average of an optimum and its mirror image is an optimum too, and it is a
+    symmetric response: restricting to symmetric responses keeps the optimal value."""
+    P, _ = mirrored_free_taps(model, T, pattern, mirrors)
+    gx, gu = axis_groups(model)
+    images = [m.image for m in mirrors]
+    in_image = {"x": np.isin(gx, images), "u": np.isin(gu, images)}
+    out: dict[str, Affine] = {}
+    dropped: dict[str, np.ndarray] = {}
+    for name in ("Phi_xx", "Phi_ux", "Phi_xy", "Phi_uy", "Phi_xx_H", "Phi_ux_H"):
+        aff: Affine = getattr(maps, name)
+        out[name] = replace(aff, M=sp.csr_matrix(aff.M @ P))
+        _, i, _ = aff.entry()
+        dropped[name] = in_image["u" if name.startswith("Phi_u") else "x"][i]
+    sel = np.flatnonzero(pattern["Phi_xx"].ravel(order="F"))
+    z_group = np.tile(gx[sel % model.nx], T - 1)
+    E = maps.E.tocsr()
+    first = E.indices[E.indptr[:-1]]  # a range equation reads one group only
+    keep = ~np.isin(z_group[first], images)
+    reduced = Maps(**out, E=sp.csr_matrix(E[keep] @ P), e=maps.e[keep], n_free=P.shape[1])
+    return reduced, dropped

@@ -51,7 +51,15 @@ from typing import Any, Literal
 import numpy as np
 import scipy.sparse as sp
 
-from qsls.pipeline.control.achievable import Affine, block_pattern, eliminate, implied_zero_taps
+from qsls.pipeline.control.achievable import (
+    Affine,
+    Mirror,
+    block_pattern,
+    eliminate,
+    find_mirrors,
+    implied_zero_taps,
+    mirror_maps,
+)
 from qsls.pipeline.control.costs import PremiseNorms, WeightedCost, cost_of
 from qsls.pipeline.control.guarantee import (
     VELOCITY,
@@ -171,6 +179,34 @@ class Structure:
     # when Q, R are diagonal and the nominal has no cross terms (qsls.pipeline.control.
     # achievable); :func:`solve` turns it off otherwise.
     decoupled: bool = True
+    # Mirrored groups (the x and y axes) solved once (issue 37; achievable.mirror_maps): exact
+    # when the weights are invariant under the mirror and there is no nominal to imitate;
+    # :func:`solve` turns it on where it is.
+    mirrored: bool = False
+
+
+def mirrors_of(
+    model: LinearModel, s: Structure, Q: np.ndarray | None = None, R: np.ndarray | None = None
+) -> tuple[Mirror, ...]:
+    """The plant's mirrored groups that leave ``s``'s premise weights (and the diagonals of
+    ``Q``, ``R`` when given) invariant (:func:`qsls.pipeline.control.achievable.find_mirrors`)."""
+    n = model.nx
+    rows = np.arange(n)
+    measured = measured_channels(s.measure)
+    keys = [
+        np.asarray(s.state_scale, float), np.asarray(s.error_scale, float),
+        np.isin(rows, measured), np.isin(rows, outlier_channels(s.measure, s.m)),
+        np.isin(rows, VELOCITY),
+    ]  # fmt: skip
+    ukeys = [np.zeros(model.nu)]
+    if Q is not None and R is not None:
+        keys.append(np.diag(Q))
+        ukeys.append(np.diag(R))
+    return find_mirrors(model, np.column_stack(keys), np.column_stack(ukeys))
+
+
+def _pairs(mirrors: tuple[Mirror, ...]) -> tuple[tuple[int, int], ...]:
+    return tuple((m.source, m.image) for m in mirrors)
 
 
 def is_diagonal(m: np.ndarray) -> bool:
@@ -228,6 +264,11 @@ class SLSProblem:
         T = s.T
         self.pattern = block_pattern(model, s.decoupled)
         self.maps = mp = eliminate(model, T, self.pattern)
+        # entries that copy a mirrored group's (not bounded twice; achievable.mirror_maps)
+        self.dropped: dict[str, np.ndarray] = {}
+        self.mirrors = mirrors_of(model, s) if s.mirrored and s.decoupled else ()
+        if self.mirrors:
+            self.maps, self.dropped = mp, _ = mirror_maps(mp, model, T, self.pattern, self.mirrors)
         self.z = z = cp.Variable(mp.n_free, name="free_taps")
         measured = measured_channels(s.measure)
         # Phi_uy's taps fixed at 0: tap 0 when strictly proper, the unread channels' columns
@@ -236,7 +277,7 @@ class SLSProblem:
         self.fixed_uy = unread | ((tap == 0) if s.strictly_proper else False)
         # the last taps of an unread column follow from the earlier ones: not imposed twice
         implied = unread & (tap > s.T - implied_zero_taps(model, self.pattern)[col])
-        imposed = self.fixed_uy & ~implied
+        imposed = self.fixed_uy & ~implied & ~self._dropped("Phi_uy")
         E = sp.vstack([mp.E, mp.Phi_uy.M[imposed]]).tocsr()
         e = np.concatenate([mp.e, mp.Phi_uy.f[imposed]])
         rows = np.diff(E.indptr) > 0  # a fixed tap outside the block pattern is no equation
@@ -323,13 +364,20 @@ class SLSProblem:
         varies = np.diff(aff.M.indptr) > 0
         if name == "Phi_uy":
             varies &= ~self.fixed_uy
-        const = np.where(varies, 0.0, np.abs(aff.f))
+        drop = self._dropped(name)
+        varies &= ~drop
+        const = np.where(varies | drop, 0.0, np.abs(aff.f))
         if name == "Phi_uy":
             const[self.fixed_uy] = 0.0
         t = cp.Variable(int(varies.sum()), name="abs_" + name)
         ex = aff.M[varies] @ self.z + aff.f[varies]
         self._epi[name] = (varies, const, t)
         return [ex <= t, -ex <= t]
+
+    def _dropped(self, name: str) -> np.ndarray:
+        """The entries of response ``name`` that copy a mirrored group's (none unmirrored)."""
+        aff = getattr(self.maps, name)
+        return self.dropped.get(name, np.zeros(aff.M.shape[0], dtype=bool))
 
     def _sums(self, name: str, weight: Any, *, by_tap: bool = False) -> Any:
         """``sum weight(tap, i, j) |Phi(tap)_ij|`` per row ``i`` (per row and tap, row-major,
@@ -372,7 +420,7 @@ class SLSProblem:
             aff: Affine = getattr(mp, name)
             if s.diagonal_weights:
                 _, i, j = aff.entry()
-                support = self.pattern[name.removesuffix("_H")][i, j]
+                support = self.pattern[name.removesuffix("_H")][i, j] & ~self._dropped(name)
                 self._support[key] = support
                 p["L" + key] = cp.Parameter(int(support.sum()), nonneg=True, name="L" + key)
                 expr = cp.multiply(p["L" + key], aff.M[support] @ self.z + aff.f[support])
@@ -430,6 +478,8 @@ class SLSProblem:
         s, p, mp = self.structure, self.params, self.maps
         if s.diagonal_weights and not (is_diagonal(v.Q) and is_diagonal(v.R)):
             raise ValueError("this problem was built for diagonal Q and R")
+        if self.mirrors and (cost.imitates or _pairs(mirrors_of(self.model, s, v.Q, v.R)) != _pairs(self.mirrors)):
+            raise ValueError("this problem was built for weights its mirrored axes share")
         qh, rh = psd_sqrt(v.Q, "Q"), psd_sqrt(v.R, "R")
         scale = cost.scale(v)
         if cost.imitates:
@@ -551,7 +601,12 @@ def solve(
     (its weights' form and block pattern chosen to suit ``values``)."""
     diag = is_diagonal(values.Q) and is_diagonal(values.R)
     decoupled = diag and (values.nominal is None or _fits_blocks(model, values.nominal))
-    structure = replace(structure, diagonal_weights=diag, decoupled=decoupled)
+    mirrored = (
+        decoupled and values.nominal is None
+        and _pairs(mirrors_of(model, structure, values.Q, values.R))
+        == _pairs(mirrors_of(model, structure))
+    )  # fmt: skip
+    structure = replace(structure, diagonal_weights=diag, decoupled=decoupled, mirrored=mirrored)
     problem = get_problem(model, structure)
     if model.nx > NX and solver == "CLARABEL" and solver_options is None:
         tight = problem.solve(values, solver=solver, solver_options=TIGHT)
