@@ -420,7 +420,9 @@ class SLSProblem:
             aff: Affine = getattr(mp, name)
             if s.diagonal_weights:
                 _, i, j = aff.entry()
-                support = self.pattern[name.removesuffix("_H")][i, j] & ~self._dropped(name)
+                support = self.pattern[name.removesuffix("_H")][i, j]
+                if s.norm == "l1":  # a copy adds nothing to a row's maximum, but to H2's sum
+                    support = support & ~self._dropped(name)
                 self._support[key] = support
                 p["L" + key] = cp.Parameter(int(support.sum()), nonneg=True, name="L" + key)
                 expr = cp.multiply(p["L" + key], aff.M[support] @ self.z + aff.f[support])
