@@ -13,9 +13,16 @@
    times, Clarabel's own time and iterations, and the CPU seconds of build + solve (this
    process; the machine is shared, so CPU time is the load-independent figure).
 2. A 48-point sweep on 2 processes against the same points one after another.
+2b. The quickstart's own honest setting (configs/quickstart.yaml's ``problem:`` and
+   ``synth:`` sections: the attitude plant, W_e, beta, m outliers per window through ``G_m``'s
+   ``sum_largest``, the velocity gate) at T = 50 (issue 37), on one thread: the formulation
+   before issue 37 (every axis its own responses) against the mirrored one (the x and y axes,
+   a signed permutation of each other, solved once), in the same run; objective, the
+   largest tap difference and the certificate's guarantee numbers of both.
 3. The premise's share of training pairs above S (:mod:`qsls.pipeline.control.premise`):
    the cell grid against the chunked all-pairs count, same answer required.
-Targets: build + solve <= 0.15 s on one core at T = 50 (issue 27); sweep >= 1.8x faster.
+Targets: build + solve <= 0.15 s on one core at T = 50 (issue 27; issue 37 in the honest
+setting); sweep >= 1.8x faster.
 """
 
 from __future__ import annotations
@@ -134,6 +141,85 @@ def bench_build(T: int, repeats: int) -> list[tuple]:
     return rows
 
 
+def honest_setting(T: int):
+    """The quickstart's synthesis problem (``problem:`` under ``synth:``), resolved without an
+    error model (its numbers are all given; the fit's state weights are 1), at horizon ``T``."""
+    import yaml
+
+    from qsls.pipeline.control.options import ProblemOptions
+    from qsls.pipeline.control.resolution import resolve
+
+    config = Path(__file__).resolve().parents[1] / "configs/quickstart.yaml"
+    cfg = yaml.safe_load(config.read_text())
+    keys = set(ProblemOptions.model_fields)
+    opts = {k: v for k, v in {**cfg["problem"], **cfg["synth"]}.items() if k in keys}
+    r = resolve(ProblemOptions(**{**opts, "T": T}), None)
+    return r, r.structure(T, "l1", "qr", True, False)
+
+
+def bench_honest(T: int, repeats: int) -> tuple[list[tuple], dict]:
+    """Rows ``(formulation, rep, tree, compile, solve, clarabel, iterations, cpu, objective)``
+    of the honest setting, first solves on one thread; and each formulation's taps and
+    certificate numbers."""
+    from dataclasses import replace
+
+    from threadpoolctl import threadpool_limits
+
+    from qsls.pipeline.control.certify import certify
+
+    r, structure = honest_setting(T)
+    rows, last = [], {}
+    with threadpool_limits(limits=1):
+        for rep in range(repeats):
+            for name, mirrored in (("per axis (before)", False), ("x, y mirrored", True)):
+                c0 = time.process_time()
+                prob = sls.SLSProblem(r.model, replace(structure, mirrored=mirrored))
+                sol = prob.solve(r.values(), solver_options=sls.TIGHT)
+                cpu = time.process_time() - c0
+                st = prob.problem.solver_stats
+                comp = prob.problem.compilation_time or 0.0
+                rows.append(
+                    (name, rep, prob.construct_time_s, comp, sol.solve_time_s, float(st.solve_time),
+                     int(st.num_iters), cpu, sol.objective)
+                )  # fmt: skip
+                last[name] = sol
+    out = {}
+    for name, sol in last.items():
+        assert sol.taps is not None
+        body = certify(sol.taps, r.model, r.numbers(), r.shape, solver_status=sol.status)
+        out[name] = (sol.taps, body)
+    return rows, out
+
+
+def print_rows(rows: list[tuple]) -> None:
+    hdr = (
+        f"{'formulation':28s} {'rep':>3s} {'tree':>6s} {'compile':>7s} {'solve':>6s} "
+        f"{'clarabel':>8s} {'iters':>5s} {'build+solve':>11s} {'cpu':>6s} {'objective':>11s}"
+    )
+    print(hdr)
+    print("-" * len(hdr))
+    for name, rep, tree, comp, solve, own, its, cpu, obj in rows:
+        print(
+            f"{name:28s} {rep:3d} {tree:6.3f} {comp:7.3f} {solve:6.3f} {own:8.3f} {its:5d} "
+            f"{tree + comp + solve:11.3f} {cpu:6.3f} {obj:11.8f}"
+        )
+
+
+def report_honest(T: int, repeats: int) -> None:
+    rows, out = bench_honest(T, repeats)
+    print(f"\nT = {T} quickstart honest setting (attitude plant, W_e, G_m, gate), one thread, s")
+    print_rows(rows)
+    best = {n: min(r[7] for r in rows if r[0] == n) for n in dict.fromkeys(r[0] for r in rows)}
+    (old, (ta, ba)), (new, (tb, bb)) = out.items()
+    print(f"best CPU: {best[old]:.3f} s before, {best[new]:.3f} s mirrored (target <= 0.15 s)")
+    diff = max(float(np.abs(getattr(ta, n) - getattr(tb, n)).max()) for n in sls.RESPONSES)
+    rel = abs(rows[-1][8] / rows[-2][8] - 1)
+    print(f"objective relative difference {rel:.1e}; largest tap difference {diff:.3g}")
+    fields = ("status", "robustness_lhs", "norm_N", "norm_N_w", "G_m", "a", "gamma", "rho_star")
+    for field in (*fields, "rho_v"):
+        print(f"  {field:15s} {getattr(ba, field)!s:>24s} {getattr(bb, field)!s:>24s}")
+
+
 def sweep_options():
     from qsls.pipeline.control.sweep import SweepOptions
 
@@ -225,17 +311,7 @@ def main() -> None:
     args = ap.parse_args()
     rows = [] if args.skip_build else bench_build(args.T, args.repeats)
     print(f"\nT = {args.T} L1 robust output-feedback synthesis (c_QR + robustness), times in s")
-    hdr = (
-        f"{'formulation':28s} {'rep':>3s} {'tree':>6s} {'compile':>7s} {'solve':>6s} "
-        f"{'clarabel':>8s} {'iters':>5s} {'build+solve':>11s} {'cpu':>6s} {'objective':>11s}"
-    )
-    print(hdr)
-    print("-" * len(hdr))
-    for name, rep, tree, comp, solve, own, its, cpu, obj in rows:
-        print(
-            f"{name:28s} {rep:3d} {tree:6.3f} {comp:7.3f} {solve:6.3f} {own:8.3f} {its:5d} "
-            f"{tree + comp + solve:11.3f} {cpu:6.3f} {obj:11.8f}"
-        )
+    print_rows(rows)
     if rows:
         best = {n: min(r[7] for r in rows if r[0] == n) for n in dict.fromkeys(r[0] for r in rows)}
         first = best["eliminated, first solve"]
@@ -244,6 +320,8 @@ def main() -> None:
             f"{best['vectorized, first solve'] / first:.1f}x, naive loops "
             f"{best['naive tap-by-tap loops'] / first:.1f}x that"
         )
+    if not args.skip_build:
+        report_honest(args.T, args.repeats)
     if args.skip_sweep:
         return
     seq = bench_sweep(1)

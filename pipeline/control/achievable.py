@@ -289,7 +289,9 @@ def find_mirrors(
             ok = all(
                 np.array_equal(m[np.ix_(si, si)], np.outer(ds, ds) * m[np.ix_(st, st)])
                 for m in (model.A, model.H)
-            ) and np.array_equal(model.B[np.ix_(si, su)], np.outer(ds, du) * model.B[np.ix_(st, ui)])
+            ) and np.array_equal(
+                model.B[np.ix_(si, su)], np.outer(ds, du) * model.B[np.ix_(st, ui)]
+            )
             if not ok:
                 continue
             state, inp = -np.ones(model.nx, int), -np.ones(model.nu, int)
@@ -324,12 +326,18 @@ def mirrored_free_taps(
         sign[img] = m.d_state[si] * m.d_state[sj]
     kept = src == np.arange(len(sel))
     col = np.cumsum(kept) - 1
-    per_tap = sp.csr_matrix((sign, (np.arange(len(sel)), col[src])), shape=(len(sel), int(kept.sum())))
+    per_tap = sp.csr_matrix(
+        (sign, (np.arange(len(sel)), col[src])), shape=(len(sel), int(kept.sum()))
+    )
     return sp.kron(sp.eye(T - 1), per_tap, format="csr"), np.tile(kept, T - 1)
 
 
 def mirror_maps(
-    maps: Maps, model: LinearModel, T: int, pattern: dict[str, np.ndarray], mirrors: tuple[Mirror, ...]
+    maps: Maps,
+    model: LinearModel,
+    T: int,
+    pattern: dict[str, np.ndarray],
+    mirrors: tuple[Mirror, ...],
 ) -> tuple[Maps, dict[str, np.ndarray]]:
     """The maps of ``z_kept`` (:func:`mirrored_free_taps`) and, per response, the entries in an
     image group (copies of their source's up to sign, so every row sum and every absolute

@@ -480,7 +480,9 @@ class SLSProblem:
         s, p, mp = self.structure, self.params, self.maps
         if s.diagonal_weights and not (is_diagonal(v.Q) and is_diagonal(v.R)):
             raise ValueError("this problem was built for diagonal Q and R")
-        if self.mirrors and (cost.imitates or _pairs(mirrors_of(self.model, s, v.Q, v.R)) != _pairs(self.mirrors)):
+        if self.mirrors and (
+            cost.imitates or _pairs(mirrors_of(self.model, s, v.Q, v.R)) != _pairs(self.mirrors)
+        ):
             raise ValueError("this problem was built for weights its mirrored axes share")
         qh, rh = psd_sqrt(v.Q, "Q"), psd_sqrt(v.R, "R")
         scale = cost.scale(v)
