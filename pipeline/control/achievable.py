@@ -25,6 +25,12 @@ package (all are monotone in the absolute values of the entries under diagonal w
 so the optimum restricted to the block pattern is the optimum. ``pattern`` says which
 entries may be nonzero.
 
+Mirrored groups (issue 37): a signed permutation ``sigma`` (``d`` the signs) mapping one
+group onto another with ``A``, ``B``, ``H`` invariant (:func:`find_mirrors`) maps achievable
+responses to achievable ones, ``Phi(t)_sigma(i)sigma(j) = d_i d_j Phi(t)_ij``; with weights
+invariant too, a problem may be solved over responses equal to their image
+(:func:`mirror_maps`, docs/synthesis.md#fir-responses-and-achievability).
+
 Vectors: each map gives a response's taps stacked, each tap a column-major (Fortran)
 ``vec``, so ``reshape(M z + f, (rows, taps * cols), order="F")`` is the side-by-side matrix
 ``[Phi(k0) Phi(k0+1) ...]``.

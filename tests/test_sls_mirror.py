@@ -1,0 +1,90 @@
+"""Mirrored axes solved once (issue 37, pipeline/control/achievable.py): the quadrotor's x and y
+axes are a signed permutation of each other, so a problem whose weights share that symmetry is
+solved on the x and z axes and y is x's mirror image. The same optimum as the problem on every
+axis, a symmetric response, the same certificate checks passing; no mirror where the weights
+differ between x and y."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from qsls.pipeline.control import certify, sls
+from qsls.pipeline.control.achievable import axis_groups, find_mirrors
+from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.core.plant import plant_model, quadrotor_model
+
+ATTITUDE = plant_model("attitude", H=np.diag([0.1, 0.1, 0.1, 1, 1, 1]))
+HOVER = quadrotor_model()
+EXTRA = (0.0,) * 5
+# the quickstart's premise shape on the attitude plant: W_e, outliers (G_m), velocity gate
+SHAPE = sls.Shape((1.0,) * 6 + EXTRA, (1.0, 1, 1, 0.5, 0.5, 0.5) + (1.0,) * 5, "full", 2, True)
+VALUES = sls.Values(
+    Q=np.diag([10.0, 10, 10, 1, 1, 1] + [1e-6] * 5), R=np.diag([10.0, 10, 1]), eps_w=0.06,
+    eps_e=0.168, S=0.0, radius=1.5, delta=0.121, eps_o=2.8, gate=1.5,
+)  # fmt: skip
+
+
+@pytest.mark.parametrize("model", [ATTITUDE, HOVER], ids=["attitude", "hover"])
+def test_the_mirror_maps_x_onto_y_and_leaves_the_plant_invariant(model):
+    (m,) = find_mirrors(model, np.zeros((model.nx, 1)), np.zeros((model.nu, 1)))
+    src = np.flatnonzero(m.state >= 0)
+    gx, _ = axis_groups(model)
+    assert set(gx[src]) == {0} and set(gx[m.state[src]]) == {1}  # x's states onto y's
+    assert list(m.state[[0, 3]]) == [1, 4]  # position onto position, velocity onto velocity
+    assert list(np.flatnonzero(m.input >= 0)) == [0] and m.input[0] == 1
+    # the signed permutation as a matrix on states and on inputs: P A P^T = A, P B Pu^T = B
+    P, Pu = np.eye(model.nx), np.eye(model.nu)
+    for i in src:
+        P[[i, m.state[i]]] = 0.0
+        P[m.state[i], i] = P[i, m.state[i]] = m.d_state[i]
+    Pu[[0, 1]] = 0.0
+    Pu[1, 0] = Pu[0, 1] = m.d_input[0]
+    for a, b in ((P @ model.A @ P.T, model.A), (P @ model.B @ Pu.T, model.B)):
+        np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(np.abs(P), P)  # a sign flips (pitch moves x as roll moves -y)
+
+
+def test_weights_that_tell_x_from_y_are_not_mirrored():
+    structure = SHAPE.structure(10, "qr", False)
+    assert sls.mirrors_of(ATTITUDE, structure, VALUES.Q, VALUES.R)
+    q = VALUES.Q.copy()
+    q[1, 1] = 5.0
+    assert not sls.mirrors_of(ATTITUDE, structure, q, VALUES.R)
+    skew = replace(structure, error_scale=(1.0, 2.0, *structure.error_scale[2:]))
+    assert not sls.mirrors_of(ATTITUDE, skew)
+    sls._CACHE.clear()
+    sls.solve(ATTITUDE, replace(structure, robust=True), replace(VALUES, Q=q))
+    assert [s.mirrored for _, s in sls._CACHE] == [False]
+
+
+@pytest.mark.parametrize("norm", ["l1", "h2"])
+def test_mirrored_problem_has_the_same_optimum_and_certificate(norm):
+    structure = replace(SHAPE.structure(12, "qr", False), norm=norm, robust=True)
+    full = sls.SLSProblem(ATTITUDE, structure).solve(VALUES, solver_options=sls.TIGHT)
+    mirrored = sls.SLSProblem(ATTITUDE, replace(structure, mirrored=True))
+    assert mirrored.mirrors and mirrored.maps.n_free < full.taps.Phi_xx[2:].size
+    half = mirrored.solve(VALUES, solver_options=sls.TIGHT)
+    assert full.status == half.status == "optimal"
+    assert half.objective == pytest.approx(full.objective, rel=1e-6)
+    (m,) = mirrored.mirrors
+    src = np.flatnonzero(m.state >= 0)
+    xx = half.taps.Phi_xx
+    np.testing.assert_allclose(  # y's block is x's, up to the signs
+        xx[:, m.state[src][:, None], m.state[src][None, :]],
+        xx[:, src[:, None], src[None, :]] * np.outer(m.d_state[src], m.d_state[src]),
+        atol=1e-12,
+    )
+    numbers = PremiseNumbers(
+        eps=VALUES.eps_e, S=0.0, radius=1.5, eps_w=0.06, delta=0.121, eps_o=2.8, m=2, gate=1.5
+    )
+    bodies = [
+        certify.certify(s.taps, ATTITUDE, numbers, SHAPE, solver_status="optimal")
+        for s in (full, half)
+    ]
+    for b in bodies:
+        assert b.checks and all(c["passed"] for c in b.checks.values()), b.checks
+    for name in ("norm_N", "norm_N_w", "robustness_lhs", "rho_v"):
+        assert getattr(bodies[1], name) == pytest.approx(getattr(bodies[0], name), rel=1e-6)
