@@ -196,8 +196,7 @@ def print_rows(rows: list[tuple]) -> None:
         f"{'formulation':28s} {'rep':>3s} {'tree':>6s} {'compile':>7s} {'solve':>6s} "
         f"{'clarabel':>8s} {'iters':>5s} {'build+solve':>11s} {'cpu':>6s} {'objective':>11s}"
     )
-    print(hdr)
-    print("-" * len(hdr))
+    print(hdr, "-" * len(hdr), sep="\n")
     for name, rep, tree, comp, solve, own, its, cpu, obj in rows:
         print(
             f"{name:28s} {rep:3d} {tree:6.3f} {comp:7.3f} {solve:6.3f} {own:8.3f} {its:5d} "
