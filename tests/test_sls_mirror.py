@@ -57,7 +57,7 @@ def test_weights_that_tell_x_from_y_are_not_mirrored():
     skew = replace(structure, error_scale=(1.0, 2.0, *structure.error_scale[2:]))
     assert not sls.mirrors_of(ATTITUDE, skew)
     sls._CACHE.clear()
-    sls.solve(ATTITUDE, replace(structure, robust=True), replace(VALUES, Q=q))
+    sls.solve(ATTITUDE, structure, replace(VALUES, Q=q))
     assert [s.mirrored for _, s in sls._CACHE] == [False]
 
 
