@@ -91,3 +91,25 @@ def test_mirrored_problem_has_the_same_optimum_and_certificate(norm):
         assert b.checks and all(c["passed"] for c in b.checks.values()), b.checks
     for name in ("norm_N", "norm_N_w", "robustness_lhs", "rho_v"):
         assert getattr(bodies[1], name) == pytest.approx(getattr(bodies[0], name), rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("shape", "cost", "strictly_proper"),
+    [
+        (sls.Shape(measure="position"), "qr", True),
+        (sls.Shape((1.0, 1, 2, 0.5, 0.5, 1), (1.0, 1, 1, 4, 4, 2), "full", 2, True), "ratio", False),
+    ],
+    ids=["position-strictly-proper", "weights-outliers-gate-ratio"],
+)
+def test_mirrored_hover_problems_keep_their_optimum(shape, cost, strictly_proper):
+    values = sls.Values(
+        eps_w=0.01, eps_e=0.02, S=0.005, radius=1.0, delta=0.05, eps_o=0.02, gate=2.0,
+        ratio_lambda=0.1,
+    )  # fmt: skip
+    structure = replace(shape.structure(10, cost, strictly_proper), robust=cost == "qr")
+    full = sls.SLSProblem(HOVER, structure).solve(values, solver_options=sls.TIGHT)
+    half = sls.SLSProblem(HOVER, replace(structure, mirrored=True))
+    assert half.mirrors
+    sol = half.solve(values, solver_options=sls.TIGHT)
+    assert full.status == sol.status == "optimal"
+    assert sol.objective == pytest.approx(full.objective, rel=1e-7)

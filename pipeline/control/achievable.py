@@ -236,21 +236,21 @@ class Mirror:
     d_input: np.ndarray
 
 
-def _signs(model: LinearModel, st: np.ndarray, si: np.ndarray, ui: np.ndarray, su: np.ndarray):
+def _signs(
+    model: LinearModel, st: np.ndarray, si: np.ndarray, ui: np.ndarray, su: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
     """The signs ``d`` of a candidate map (source states ``st`` onto ``si``, inputs ``ui`` onto
-    ``su``), propagated along the nonzeros of ``A``, ``B``, ``H``; None where it fails."""
+    ``su``), propagated along the nonzeros of ``A`` and ``B``; None where one is not reached.
+    :func:`find_mirrors` then checks them on every entry."""
     n = len(st) + len(ui)
     idx = np.concatenate([st, ui + model.nx])
     img = np.concatenate([si, su + model.nx])
-    big = np.zeros((model.nx + model.nu, model.nx + model.nu))
-    big[: model.nx, : model.nx] = np.abs(model.A) + np.abs(model.H)
-    big[: model.nx, model.nx :] = model.B
-    full = np.zeros_like(big)
+    full = np.zeros((model.nx + model.nu, model.nx + model.nu))
     full[: model.nx, : model.nx], full[: model.nx, model.nx :] = model.A, model.B
     d = np.zeros(n)
     d[0] = 1.0
     stack = [0]
-    while stack:  # the groups are connected components: every sign is reached
+    while stack:
         a = stack.pop()
         for b in range(n):
             pair = (full[idx[a], idx[b]], full[img[a], img[b]])
