@@ -22,19 +22,19 @@ def diagnose(
     achievable ``N`` at ``T`` and the largest feasible ``S``."""
     from qsls.pipeline.control.guarantee import min_norm_bound, necessary_condition
 
-    nec = necessary_condition(r.numbers(), r.shape.state_scale, r.shape.error_scale)
+    nec = necessary_condition(r.numbers, r.shape.state_scale, r.shape.error_scale)
     n_lower = min_norm_bound(r.shape.state_scale, r.shape.error_scale)
     min_xy = largest_s.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
     ms = largest_s.max_feasible_s(
-        r.model, T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
-        eps_o=r.eps_o, gate=r.gate, strictly_proper=strictly_proper, solver=solver,
+        r.model, T, eps_e=r.numbers.eps, radius=r.numbers.radius, eps_w=r.numbers.eps_w, delta=r.numbers.delta,
+        eps_o=r.numbers.eps_o, gate=r.numbers.gate, strictly_proper=strictly_proper, solver=solver,
         shape=r.shape,
     )  # fmt: skip
     return {
-        "S": r.S,
-        "eps_e": r.eps_e,
-        "radius": r.radius,
-        "S_plus_eps_e_over_r": r.S + r.eps_e / r.radius,
+        "S": r.numbers.S,
+        "eps_e": r.numbers.eps,
+        "radius": r.numbers.radius,
+        "S_plus_eps_e_over_r": r.numbers.S + r.numbers.eps / r.numbers.radius,
         "N_lower": n_lower,
         "necessary": nec,
         "necessary_condition_holds": bool(nec < 1.0),
@@ -108,8 +108,8 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
     opts = options.model_copy(update={"S": 0.0})
     r = resolve(opts, mi.model, mi.training)
     ms = largest_s.max_feasible_s(
-        r.model, options.T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
-        eps_o=r.eps_o, gate=r.gate, strictly_proper=options.strictly_proper,
+        r.model, options.T, eps_e=r.numbers.eps, radius=r.numbers.radius, eps_w=r.numbers.eps_w, delta=r.numbers.delta,
+        eps_o=r.numbers.eps_o, gate=r.numbers.gate, strictly_proper=options.strictly_proper,
         solver=options.solver, shape=r.shape,
     )  # fmt: skip
     min_xy = largest_s.min_phi_xy(
@@ -119,16 +119,16 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
     if not ms.s_max >= 0:
         # at S = 0 the constraint is (eps N + eps_w N_w + Delta + eps_o G_m) / r <= 1, with N
         # at least its minimum at T and N_w >= min w_x (Phi_xx(1) = I)
-        lower = (r.eps_e * min_xy + r.eps_w * min(r.shape.state_scale) + r.delta) / r.radius
+        lower = (r.numbers.eps * min_xy + r.numbers.eps_w * min(r.shape.state_scale) + r.numbers.delta) / r.numbers.radius
         raise InfeasibleError(
             f"none feasible: no S >= 0 is feasible at T = {options.T}: even S = 0 needs "
             f"(eps_e N + eps_w N_w + Delta + eps_o G_m) / r < 1, and with eps_e = "
-            f"{r.eps_e:.4g}, the smallest N = {min_xy:.4g} at this T, eps_w = "
-            f"{r.eps_w:.4g}, Delta = {r.delta:.4g} and r = {r.radius:.4g} it is at least "
+            f"{r.numbers.eps:.4g}, the smallest N = {min_xy:.4g} at this T, eps_w = "
+            f"{r.numbers.eps_w:.4g}, Delta = {r.numbers.delta:.4g} and r = {r.numbers.radius:.4g} it is at least "
             f"{lower:.4g}; lower eps_e (beta, error_scale, measure: position) or Delta, or "
             "raise r or T",
             {"T": options.T, "min_norm_phi_xy": min_xy, "lower_bound_at_S0": lower},
         )
     return MaxFeasibleSResult(
-        ms.s_max, min_xy, options.T, r.eps_e, r.radius, r.eps_w, r.delta, ms.iterations
+        ms.s_max, min_xy, options.T, r.numbers.eps, r.numbers.radius, r.numbers.eps_w, r.numbers.delta, ms.iterations
     )

@@ -32,35 +32,24 @@ from qsls.pipeline.errormodel.premise import Measured, Spec, TrainingStates, tra
 
 @dataclass(frozen=True)
 class Resolved:
-    """A problem's numbers, names resolved against the error model and its training data,
-    with the premise they form (:mod:`qsls.pipeline.control.premise`)."""
+    """A problem's numbers, names resolved against the error model and its training data:
+    the premise's numbers (:class:`PremiseNumbers`, the one form the guarantee's arithmetic,
+    the synthesis and the certificate read) and their record with how each was chosen and the
+    share of the training data violating it (:class:`Premise`), the plant, the cost's weights
+    and the premise's shape (weights, channels)."""
 
     model: LinearModel
     Q: np.ndarray
     R: np.ndarray
-    S: float
-    eps_e: float
-    radius: float
-    delta: float
-    R0: float
-    eps_w: float
-    m: int = 0
-    eps_o: float = 0.0
+    numbers: PremiseNumbers
     shape: sls.Shape = field(default_factory=sls.Shape)
     premise: Premise | None = None
-    gate: float | None = None
 
     def values(self, nominal: sls.Taps | None = None) -> sls.Values:
+        p = self.numbers
         return sls.Values(
-            Q=self.Q, R=self.R, eps_w=self.eps_w, eps_e=self.eps_e, S=self.S,
-            radius=self.radius, delta=self.delta, nominal=nominal, eps_o=self.eps_o,
-            gate=self.gate,
-        )  # fmt: skip
-
-    def numbers(self) -> PremiseNumbers:
-        return PremiseNumbers(
-            eps=self.eps_e, S=self.S, radius=self.radius, eps_w=self.eps_w, delta=self.delta,
-            eps_o=self.eps_o, m=self.m, R0=self.R0, gate=self.gate,
+            Q=self.Q, R=self.R, eps_w=p.eps_w, eps_e=p.eps, S=p.S, radius=p.radius,
+            delta=p.delta, nominal=nominal, eps_o=p.eps_o, gate=p.gate,
         )  # fmt: skip
 
     def structure(self, T: int, norm: sls.Norm, cost: Any, robust: bool, sp_: bool) -> sls.Structure:
@@ -71,10 +60,11 @@ class Resolved:
         )  # fmt: skip
 
     def record(self) -> dict[str, Any]:
+        """The premise's numbers as a certificate states them."""
+        p = self.numbers
         return {
-            "S": self.S, "eps_e": self.eps_e, "radius": self.radius, "delta": self.delta,
-            "eps_w": self.eps_w, "R0": self.R0, "m": self.m, "eps_o": self.eps_o,
-            "measure": self.shape.measure, "gate": self.gate,
+            "S": p.S, "eps_e": p.eps, "radius": p.radius, "delta": p.delta, "eps_w": p.eps_w,
+            "R0": p.R0, "m": p.m, "eps_o": p.eps_o, "measure": self.shape.measure, "gate": p.gate,
         }  # fmt: skip
 
 
@@ -321,9 +311,8 @@ def resolve(
         opts.gate is not None,
     )  # fmt: skip
     return Resolved(
-        model, pad_weight(np.asarray(opts.Q), model.nx), np.asarray(opts.R), S, eps_e, radius,
-        delta, R0, eps_w, m, eps_o, shape, premise, opts.gate,
-    )  # fmt: skip
+        model, pad_weight(np.asarray(opts.Q), model.nx), np.asarray(opts.R), chosen, shape, premise
+    )
 
 
 EXTRA_STATE_WEIGHT = 1e-6

@@ -104,17 +104,17 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
                 "cost": opts.cost,
                 "robust": opts.robust,
                 "strictly_proper": opts.strictly_proper,
-                "S": r.S,
-                "eps_e": r.eps_e,
-                "radius": r.radius,
-                "delta": r.delta,
+                "S": r.numbers.S,
+                "eps_e": r.numbers.eps,
+                "radius": r.numbers.radius,
+                "delta": r.numbers.delta,
                 "necessary": necessary_condition(
-                    r.numbers(), r.shape.state_scale, r.shape.error_scale
+                    r.numbers, r.shape.state_scale, r.shape.error_scale
                 ),
-                "eps_w": r.eps_w,
-                "eps_o_value": r.eps_o,
-                "m_value": r.m,
-                "gate_value": r.gate,
+                "eps_w": r.numbers.eps_w,
+                "eps_o_value": r.numbers.eps_o,
+                "m_value": r.numbers.m,
+                "gate_value": r.numbers.gate,
                 "state_scale": list(r.shape.state_scale),
                 "error_scale": list(r.shape.error_scale),
                 "measure": r.shape.measure,
@@ -127,7 +127,7 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
                 "imitate": opts.imitate,
                 "solver": opts.solver,
                 "certify": options.certify,
-                **(premise_columns(r.premise, r.numbers()) if r.premise else _no_premise(r)),
+                **(premise_columns(r.premise, r.numbers) if r.premise else _no_premise(r)),
             }
         )
     return points
@@ -136,7 +136,7 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
 def _no_premise(r: Any) -> dict[str, Any]:
     return {
         "premise_holds": True, "eps_e_violated": math.nan, "S_violated": math.nan,
-        "tested_range": math.nan, "m": r.m, "eps_o": r.eps_o,
+        "tested_range": math.nan, "m": r.numbers.m, "eps_o": r.numbers.eps_o,
     }  # fmt: skip
 
 

@@ -91,13 +91,13 @@ def design(
     if certify:
         holds = r.premise is None or r.premise.holds
         body = check(
-            sol.taps, r.model, r.numbers(), shape, solver_status=sol.status, premise_holds=holds
+            sol.taps, r.model, r.numbers, shape, solver_status=sol.status, premise_holds=holds
         )
     else:
-        body = check(sol.taps, r.model, r.numbers(), shape, reference=True)
+        body = check(sol.taps, r.model, r.numbers, shape, reference=True)
     cost = sls.cost_value(
-        structure.norm, sol.taps, r.model, sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R), r.eps_w,
-        r.eps_e, nominal if cost_of(structure.cost).imitates else None,
+        structure.norm, sol.taps, r.model, sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R), r.numbers.eps_w,
+        r.numbers.eps, nominal if cost_of(structure.cost).imitates else None,
     )  # fmt: skip
     return Design(structure, sol, body, cost)
 
@@ -167,7 +167,7 @@ def certified_controller(
         "strictly_proper": structure.strictly_proper,
         "T": structure.T,
         **r.record(),
-        "gate": r.gate if structure.gate else None,  # only a gated design reads through the gate
+        "gate": r.numbers.gate if structure.gate else None,  # only a gated design reads through the gate
         "tested_range": r.premise.tested_range if r.premise else None,
         "solver_status": sol.solver_status,
         "dt": r.model.dt,
@@ -190,17 +190,17 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
     from qsls.pipeline.control.nominal import pd_responses, spectral_radius, static_gain_norms
 
     K, taps = pd_responses(r.model, gains, T)
-    body = certify(taps, r.model, r.numbers(), r.shape, reference=True)
+    body = certify(taps, r.model, r.numbers, r.shape, reference=True)
     norms = static_gain_norms(r.model, K, T)
     # weighted norms of the closed loop bounded through its unweighted ones:
     # ||W_x Phi W_e^-1|| <= max w_x ||Phi|| max 1/w_e, and G_m <= max w_x ||Phi_xy||
     wx, we = max(r.shape.state_scale), 1.0 / min(r.shape.error_scale)
     nxy = norms["phi_xy"].value
     true = Norms(
-        N=wx * nxy * we, N_w=wx * norms["phi_xx_h"].value, G_m=wx * nxy if r.m > 0 else 0.0
+        N=wx * nxy * we, N_w=wx * norms["phi_xx_h"].value, G_m=wx * nxy if r.numbers.m > 0 else 0.0
     )
     true_norms = {f"norm_{k}": n.value for k, n in norms.items()}
-    body = body.model_copy(update=true_norms | guarantee_fields(r.numbers(), true))
+    body = body.model_copy(update=true_norms | guarantee_fields(r.numbers, true))
     setting = {
         "controller": "pd",
         "robust": False,
@@ -347,7 +347,7 @@ def synthesize(
     base_extra = {"error_model": None, "error_model_sha256": error_model_sha256,
                   "solver": options.solver}  # fmt: skip
     if any(s.robust for _, s in plan) and necessary_condition(
-        r.numbers(), r.shape.state_scale, r.shape.error_scale
+        r.numbers, r.shape.state_scale, r.shape.error_scale
     ) >= 1.0:
         d = diagnose(r, options.T, options.strictly_proper, options.solver)
         raise InfeasibleError(diagnosis_message(d), d)
