@@ -215,17 +215,23 @@ def fly(
     *,
     vehicle: Vehicle | None = None,
     progress: Progress = NULL_PROGRESS,
+    stepwise: bool = False,
 ) -> FlightLog:
     """Fly ``controller`` (default: ``options.controller``) over the reference; see module doc.
 
     The camera loop's small matrices run on one BLAS thread (threads only add overhead
-    there, and several flights run side by side on a process pool)."""
+    there, and several flights run side by side on a process pool). ``stepwise`` flies the
+    straightforward way, the same bits slower (the tests' and benchmarks' reference): the
+    vehicle in whole-array numpy (:meth:`Vehicle.step_numpy`) and the emulator called once
+    per VIO sample instead of once per controller tick for the samples since the last one."""
     if options.vio.kind != "camera":
-        return _fly(options, controller, seed, vehicle=vehicle, progress=progress)
+        return _fly(options, controller, seed, vehicle=vehicle, progress=progress,
+                    stepwise=stepwise)  # fmt: skip
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1):
-        return _fly(options, controller, seed, vehicle=vehicle, progress=progress)
+        return _fly(options, controller, seed, vehicle=vehicle, progress=progress,
+                    stepwise=stepwise)  # fmt: skip
 
 
 def _fly(
@@ -235,8 +241,14 @@ def _fly(
     *,
     vehicle: Vehicle | None = None,
     progress: Progress = NULL_PROGRESS,
+    stepwise: bool = False,
 ) -> FlightLog:
-    """Fly ``controller`` (default: ``options.controller``) over the reference; see module doc."""
+    """Fly ``controller`` (default: ``options.controller``) over the reference; see module doc.
+
+    The emulator's errors are needed only when the controller reads ``y``: the samples since
+    the previous tick are kept (state, body rate, acceleration) and their errors made in one
+    :meth:`VioEmulator.errors` call, which equals calling :meth:`VioEmulator.sample` on each in
+    order (same random draws, same additions; tests/test_sim_vio.py)."""
     seed = options.seed if seed is None else int(seed)
     veh = vehicle or Vehicle(options.vehicle)
     ctrl = controller or make_controller(options.controller, veh.mass)
@@ -272,6 +284,9 @@ def _fly(
         rec.vio_e,
     )
     c_t, c_y, c_r, c_u = rec.c_t, rec.c_y, rec.c_r, rec.c_u
+    vio_a = np.empty((n_vio_max, 3))  # the physics step's mean acceleration at each sample
+    step = veh.step_numpy if stepwise else veh.step
+    batch = cam is None and not stepwise
 
     ref_p, ref_v, ref_a = ref.arrays(t_ns / NS)
     s = veh.hover_state(ref_p[0], ref_v[0])
@@ -295,6 +310,15 @@ def _fly(
     m = 1
     next_vio = vio_ns
     y_latest = vio_x[0] + vio_e[0]
+    pending = m  # first VIO sample whose error is not made yet (batched emulator)
+
+    def flush() -> np.ndarray:
+        """Errors of the pending samples; the newest estimate ``y``."""
+        e = vio.errors(vio_x[pending:m], vio_w[pending:m], vio_a[pending:m])
+        if fault is not None:
+            e[vio_t[pending:m] >= fault_ns] += fault
+        vio_e[pending:m] = e
+        return vio_x[m - 1] + vio_e[m - 1]
 
     crashed, reason, crash_t = False, None, None
     thrust, cmd_q = 0.0, np.array([0.0, 0.0, 0.0, 1.0])
@@ -303,6 +327,8 @@ def _fly(
     progress.start("flying", total=n_ctrl)
     for i in range(n_steps):
         if i % n_sub == 0:
+            if batch and pending < m:
+                y_latest, pending = flush(), m
             t = i * h
             r = RefSample(p=ref_p[i], v=ref_v[i], a=ref_a[i])
             y = s[0:6].copy() if truth_feedback else y_latest
@@ -315,7 +341,7 @@ def _fly(
             c_t[k], c_y[k], c_r[k], c_u[k] = i * h_ns, y, r.state, u
             k += 1
             progress.advance(1)
-        s_next = veh.step(s, thrust, cmd_q, h)
+        s_next = step(s, thrust, cmd_q, h)
         S[i + 1] = s_next
         if cam is not None:
             cam.step(s, s_next)
@@ -324,6 +350,11 @@ def _fly(
             a = (next_vio - i * h_ns) / h_ns
             xv, qv, wv = _interp(s, s_next, a, h)
             vio_t[m], vio_x[m], vio_q[m], vio_w[m] = next_vio, xv, qv, wv
+            if batch:
+                vio_a[m] = (s_next[3:6] - s[3:6]) / h
+                m += 1
+                next_vio += vio_ns
+                continue
             if cam is None:
                 vio_e[m] = vio.sample(xv, wv, (s_next[3:6] - s[3:6]) / h)
             else:
@@ -341,6 +372,8 @@ def _fly(
             last_step = i + 1
             break
     progress.finish()
+    if batch and pending < m:
+        flush()
 
     n = last_step + 1
     return rec.log(

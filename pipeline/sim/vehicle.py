@@ -174,6 +174,8 @@ class Vehicle:
         self._inertia = [tuple(float(v) for v in row) for row in self.inertia]
         self._inv_inertia = [tuple(float(v) for v in row) for row in self.inv_inertia]
         self.hover_speed = float(np.sqrt(self.mass * self.g / (4 * self.k_eta)))
+        self._r_des_key = b""
+        self._r_des = np.eye(3)
 
     # ---------------------------------------------------------------- states and commands
     def hover_state(self, position: np.ndarray, velocity: np.ndarray | None = None) -> np.ndarray:
@@ -196,7 +198,10 @@ class Vehicle:
     def motor_command(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray) -> np.ndarray:
         """``Multirotor.get_cmd_motor_speeds`` for ``cmd_ctatt``, clipped as in ``step``."""
         r = quat_to_matrix(s[6:10])
-        r_des = quat_to_matrix(cmd_q)
+        key = cmd_q.tobytes()
+        if key != self._r_des_key:  # the command is held over many steps: convert it once
+            self._r_des_key, self._r_des = key, quat_to_matrix(cmd_q)
+        r_des = self._r_des
         s_err = 0.5 * (r_des.T @ r - r.T @ r_des)
         att_err = np.array([-s_err[1, 2], s_err[0, 2], -s_err[0, 1]])
         w = s[10:13]
@@ -307,9 +312,37 @@ class Vehicle:
 
     # ---------------------------------------------------------------- integration
     def step(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
-        """One step of length ``h``: motor command held, RK4 (``substeps``), quaternion renormalized."""
+        """One step of length ``h``: motor command held, RK4 (``substeps``), quaternion renormalized.
+
+        ``k1 = f(s)``, ``k2 = f(s + dt/2 k1)``, ``k3 = f(s + dt/2 k2)``, ``k4 = f(s + dt k3)``,
+        ``s+ = s + dt/6 (k1 + 2 k2 + 2 k3 + k4)`` on plain floats, element by element in the
+        order :meth:`step_numpy` evaluates it (the same bits, docs/performance.md#flights): a
+        20-element numpy expression costs more in call overhead than in arithmetic.
+        """
         if self.options.integrator == "solve_ivp":
             return self.step_rotorpy(s, thrust, cmd_q, h)
+        cmd = self.motor_command(s, thrust, cmd_q).tolist()
+        n = self.options.substeps
+        dt = h / n
+        half, sixth = 0.5 * dt, dt / 6.0
+        f = self._derivative
+        x = s.tolist()
+        for _ in range(n):
+            k1 = f(x, cmd)
+            k2 = f([a + half * b for a, b in zip(x, k1, strict=True)], cmd)
+            k3 = f([a + half * b for a, b in zip(x, k2, strict=True)], cmd)
+            k4 = f([a + dt * b for a, b in zip(x, k3, strict=True)], cmd)
+            x = [
+                a + sixth * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+                for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4, strict=True)
+            ]
+        out = np.array(x)
+        out[6:10] /= np.sqrt(out[6:10] @ out[6:10])  # numpy's dot: its summation order
+        return out
+
+    def step_numpy(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
+        """:meth:`step` as whole-array numpy expressions (the code before the plain-float one;
+        kept as the reference the tests and ``benchmarks/bench_flights.py`` compare with)."""
         cmd = self.motor_command(s, thrust, cmd_q)
         n = self.options.substeps
         dt = h / n
