@@ -30,6 +30,7 @@ flight: the log holds everything up to it and says why.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -397,14 +398,17 @@ def _camera_loop(options: FlightOptions, seed: int, veh: Vehicle) -> CameraVio:
 def _crash_reason(
     s: np.ndarray, p_ref: np.ndarray, t: float, crash: CrashOptions, cos_tilt: float
 ) -> str | None:
-    if not np.all(np.isfinite(s)):
+    """Why the flight ends at state ``s`` (None: it goes on); plain floats, once per step."""
+    v = s.tolist()
+    if not all(map(math.isfinite, v)):
         return "the vehicle state became non-finite (divergence)"
-    if s[2] < crash.floor_z:
-        return f"ground contact at t = {t:.2f} s (height {s[2]:.3f} m)"
-    bz = 1.0 - 2.0 * (s[6] * s[6] + s[7] * s[7])  # R[2, 2]: cosine of the tilt
+    if v[2] < crash.floor_z:
+        return f"ground contact at t = {t:.2f} s (height {v[2]:.3f} m)"
+    bz = 1.0 - 2.0 * (v[6] * v[6] + v[7] * v[7])  # R[2, 2]: cosine of the tilt
     if bz < cos_tilt:
         return f"lost attitude at t = {t:.2f} s (tilt {np.degrees(np.arccos(np.clip(bz, -1, 1))):.0f} deg)"
-    dev = float(np.abs(s[0:3] - p_ref).max())
+    r = p_ref.tolist()
+    dev = max(abs(v[0] - r[0]), abs(v[1] - r[1]), abs(v[2] - r[2]))
     if dev > crash.max_deviation:
         return f"diverged at t = {t:.2f} s ({dev:.2f} m from the reference)"
     return None

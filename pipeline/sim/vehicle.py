@@ -38,6 +38,7 @@ RotorPy does.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -197,23 +198,36 @@ class Vehicle:
 
     def motor_command(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray) -> np.ndarray:
         """``Multirotor.get_cmd_motor_speeds`` for ``cmd_ctatt``, clipped as in ``step``."""
+        return np.array(self._motor_speeds(s, thrust, cmd_q))
+
+    def _motor_speeds(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray) -> list[float]:
+        """:meth:`motor_command` as plain floats. The matrix products stay numpy's (BLAS sums
+        in its own order); the elementwise rest, ``clip(sign(f) sqrt(|f| / k_eta))``, is
+        cheaper on four floats."""
         r = quat_to_matrix(s[6:10])
         key = cmd_q.tobytes()
         if key != self._r_des_key:  # the command is held over many steps: convert it once
             self._r_des_key, self._r_des = key, quat_to_matrix(cmd_q)
         r_des = self._r_des
-        s_err = 0.5 * (r_des.T @ r - r.T @ r_des)
-        att_err = np.array([-s_err[1, 2], s_err[0, 2], -s_err[0, 1]])
+        e = (0.5 * (r_des.T @ r - r.T @ r_des)).tolist()
         w = s[10:13]
-        iw = self.inertia @ w
-        moment = self.inertia @ (-self.kp_att * att_err - self.kd_att * w)
-        moment[0] += w[1] * iw[2] - w[2] * iw[1]
-        moment[1] += w[2] * iw[0] - w[0] * iw[2]
-        moment[2] += w[0] * iw[1] - w[1] * iw[0]
-        f = self.TM_to_f @ np.array([thrust, moment[0], moment[1], moment[2]])
-        speeds = f / self.k_eta
-        speeds = np.sign(speeds) * np.sqrt(np.abs(speeds))
-        return np.clip(speeds, self.speed_min, self.speed_max)
+        w0, w1, w2 = w.tolist()
+        i0, i1, i2 = (self.inertia @ w).tolist()
+        kp, kd = -self.kp_att, self.kd_att
+        pd = np.array([kp * -e[1][2] - kd * w0, kp * e[0][2] - kd * w1, kp * -e[0][1] - kd * w2])
+        m0, m1, m2 = (self.inertia @ pd).tolist()
+        m0 += w1 * i2 - w2 * i1
+        m1 += w2 * i0 - w0 * i2
+        m2 += w0 * i1 - w1 * i0
+        f = self.TM_to_f @ np.array([thrust, m0, m1, m2])
+        k_eta, lo, hi = self.k_eta, self.speed_min, self.speed_max
+        out = []
+        for fk in f.tolist():
+            v = fk / k_eta
+            root = math.sqrt(abs(v))
+            v = root if v > 0 else (-root if v < 0 else (0.0 if v == 0 else v))  # sign(v) sqrt|v|
+            out.append(min(max(v, lo), hi))  # np.clip
+        return out
 
     def derivative(self, s: np.ndarray, cmd_speeds: np.ndarray) -> np.ndarray:
         """``ds/dt`` of ``Multirotor._s_dot_fn`` (RotorPy's equations) for held ``cmd_speeds``.
@@ -321,7 +335,7 @@ class Vehicle:
         """
         if self.options.integrator == "solve_ivp":
             return self.step_rotorpy(s, thrust, cmd_q, h)
-        cmd = self.motor_command(s, thrust, cmd_q).tolist()
+        cmd = self._motor_speeds(s, thrust, cmd_q)
         n = self.options.substeps
         dt = h / n
         half, sixth = 0.5 * dt, dt / 6.0
