@@ -33,7 +33,9 @@ reproduces ``Multirotor._s_dot_fn`` and :meth:`Vehicle.motor_command`
 ``Multirotor.get_cmd_motor_speeds``, both checked against RotorPy in the tests) but
 evaluates it with plain array code and integrates each step with fixed-step classical
 Runge-Kutta 4 (``substeps`` per step), renormalizing the quaternion after the step as
-RotorPy does.
+RotorPy does. The RK4 stages run on plain floats in the order the whole-array form
+(:meth:`Vehicle.step_numpy`) evaluates them, the same bits faster
+(docs/performance.md#flights).
 """
 
 from __future__ import annotations
@@ -357,6 +359,8 @@ class Vehicle:
     def step_numpy(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
         """:meth:`step` as whole-array numpy expressions (the code before the plain-float one;
         kept as the reference the tests and ``benchmarks/bench_flights.py`` compare with)."""
+        if self.options.integrator == "solve_ivp":
+            return self.step_rotorpy(s, thrust, cmd_q, h)
         cmd = self.motor_command(s, thrust, cmd_q)
         n = self.options.substeps
         dt = h / n
