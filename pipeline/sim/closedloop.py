@@ -113,18 +113,24 @@ class FlightLog:
 
 
 def _interp(s0: np.ndarray, s1: np.ndarray, a: float, h: float) -> tuple[np.ndarray, ...]:
-    """State between two physics steps at fraction ``a``: (p, v) Hermite/linear, q nlerp, w."""
+    """State between two physics steps at fraction ``a``: (p, v) Hermite/linear, q nlerp, w.
+
+    ``p = h00 p0 + h10 h v0 + h01 p1 + h11 h v1``, ``v = v0 + a (v1 - v0)``, ``q`` the
+    normalized ``q0 + a (q1 - q0)`` (``q1`` on ``q0``'s side), ``w`` linear: plain floats in
+    the order the array expressions summed them; the quaternion dots stay numpy's."""
     if a >= 1.0:
         return s1[0:6].copy(), s1[6:10].copy(), s1[10:13].copy()
     a2, a3 = a * a, a * a * a
     h00, h10, h01, h11 = 2 * a3 - 3 * a2 + 1, a3 - 2 * a2 + a, -2 * a3 + 3 * a2, a3 - a2
-    p = h00 * s0[0:3] + h10 * h * s0[3:6] + h01 * s1[0:3] + h11 * h * s1[3:6]
-    v = s0[3:6] + a * (s1[3:6] - s0[3:6])
+    h10h, h11h = h10 * h, h11 * h
+    x0, x1 = s0.tolist(), s1.tolist()
+    p = [h00 * x0[i] + h10h * x0[i + 3] + h01 * x1[i] + h11h * x1[i + 3] for i in range(3)]
+    v = [x0[i] + a * (x1[i] - x0[i]) for i in range(3, 6)]
     q1 = s1[6:10] if s0[6:10] @ s1[6:10] >= 0 else -s1[6:10]
     q = s0[6:10] + a * (q1 - s0[6:10])
     q /= np.sqrt(q @ q)
-    w = s0[10:13] + a * (s1[10:13] - s0[10:13])
-    return np.concatenate([p, v]), q, w
+    w = [x0[i] + a * (x1[i] - x0[i]) for i in range(10, 13)]
+    return np.array(p + v), q, np.array(w)
 
 
 def _ticks(period_s: float, h_ns: int, what: str) -> int:
