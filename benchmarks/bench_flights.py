@@ -1,10 +1,17 @@
 """Benchmark: flights for a calibrated certificate (issue 37).
 
-Run: ``python benchmarks/bench_flights.py [--flights 200] [--duration 20] [--jobs 2]``
+Run: ``python benchmarks/bench_flights.py [--flights 200] [--duration 20] [--jobs 2]
+[--controller DIR]``
 
 A calibrated certificate needs hundreds of flights of the candidate. Cases, the same PD
 flights (seeds 0.., regular perception, the default circle) in this run:
 
+0. the closed loop alone (``closedloop.fly``, emulator), the PD and a certified SLS controller
+   (``--controller``, default the quickstart's calibrated ``l1_robust`` under
+   ``runs/quickstart``, made by ``qsls run configs/quickstart.yaml`` into a temporary folder
+   when missing), flown the fast way and the straightforward way (``stepwise=True``: the
+   vehicle in whole-array numpy, one emulator call per VIO sample), taken in turns; the two
+   logs must be identical to the bit;
 1. the fly stage's flight (``evaluate.fly.run_job``): the closed loop, its bag written, the bag
    ingested, the metrics computed: what ``qsls evaluate --fly`` does per flight;
 2. the calibration's flight (``evaluate.calibrate.fly_job``): the closed loop and its tick
@@ -14,17 +21,22 @@ flights (seeds 0.., regular perception, the default circle) in this run:
 4. with ``--scheduler ADDRESS``, the same flights on that Dask cluster, their tick logs
    compared with the pool's (identical required).
 
-Reported: CPU seconds per flight and flights per CPU-second for 1 and 2, the speed-up, and the
-wall time of 3 (and 4).
+Reported: CPU seconds per flight and times real time per core for 0, flights per CPU-second
+for 1 and 2, the speed-up, and the wall time of 3 (and 4).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 
 def _timed(fn):  # type: ignore[no-untyped-def]
@@ -56,6 +68,52 @@ def fly_stage_flights(n: int, duration: float, root: Path) -> float:
     return cpu / n
 
 
+QUICKSTART_L1 = Path("runs/quickstart/calibrate/regular/l1_robust")
+
+
+def certified_controller(given: str | None, root: Path) -> Path:
+    """The SLS controller to fly: ``given``, the quickstart's, or a fresh quickstart's."""
+    if given:
+        return Path(given)
+    if QUICKSTART_L1.is_dir():
+        return QUICKSTART_L1
+    out = root / "quickstart"
+    subprocess.run(
+        [str(Path(sys.executable).parent / "qsls"), "run", "configs/quickstart.yaml", "--out", str(out)],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    return out / "calibrate" / "regular" / "l1_robust"
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Two flight logs equal to the bit."""
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray):
+            if x.shape != y.shape or x.tobytes() != y.tobytes():
+                return False
+        elif f.name != "camera_frame" and x != y:
+            return False
+    return True
+
+
+def closed_loop(controller: str, n: int, duration: float) -> tuple[float, float, bool]:
+    """CPU seconds per flight, fast and stepwise (taken in turns), and whether all logs agree."""
+    from qsls.pipeline.sim.closedloop import FlightOptions, fly
+
+    fast = slow = 0.0
+    same = True
+    fly(FlightOptions.model_validate({"duration": 1.0, "controller": {"kind": controller}}))
+    for s in range(n):
+        opts = FlightOptions.model_validate(
+            {"duration": duration, "controller": {"kind": controller}, "seed": s}
+        )
+        a, _, c_fast = _timed(lambda o=opts: fly(o))
+        b, _, c_slow = _timed(lambda o=opts: fly(o, stepwise=True))
+        fast, slow, same = fast + c_fast, slow + c_slow, same and _same(a, b)
+    return fast / n, slow / n, same
+
+
 def calibration_jobs(n: int, duration: float) -> list[Any]:
     from qsls.pipeline.evaluate.calibrate import Job
 
@@ -73,12 +131,21 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--sample", type=int, default=5, help="flights timed one by one in 1 and 2")
     ap.add_argument("--scheduler", default=None)
+    ap.add_argument("--controller", default=None, help="a certified SLS controller folder")
     a = ap.parse_args()
 
     from qsls.pipeline.core.pools import run_tasks
     from qsls.pipeline.evaluate.calibrate import fly_job
 
     with tempfile.TemporaryDirectory() as tmp:
+        sls = certified_controller(a.controller, Path(tmp))
+        print(f"{a.duration:g} s emulator flights, closed loop alone, CPU s per flight "
+              f"(mean of {a.sample}; stepwise = whole-array vehicle, one emulator call per sample):")  # fmt: skip
+        for name, kind in (("pd", "pd"), (f"SLS {sls}", str(sls))):
+            new, old, same = closed_loop(kind, a.sample, a.duration)
+            print(f"  {name}: {new:.3f} s = {a.duration / new:.1f}x real time per core; stepwise "
+                  f"{old:.3f} s = {a.duration / old:.1f}x; {old / new:.2f}x faster; "
+                  f"identical logs: {same}")  # fmt: skip
         stage = fly_stage_flights(a.sample, a.duration, Path(tmp))
     cal = sum(_timed(lambda j=j: fly_job(j))[2] for j in calibration_jobs(a.sample, a.duration))
     cal /= a.sample

@@ -30,6 +30,7 @@ flight: the log holds everything up to it and says why.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -112,18 +113,24 @@ class FlightLog:
 
 
 def _interp(s0: np.ndarray, s1: np.ndarray, a: float, h: float) -> tuple[np.ndarray, ...]:
-    """State between two physics steps at fraction ``a``: (p, v) Hermite/linear, q nlerp, w."""
+    """State between two physics steps at fraction ``a``: (p, v) Hermite/linear, q nlerp, w.
+
+    ``p = h00 p0 + h10 h v0 + h01 p1 + h11 h v1``, ``v = v0 + a (v1 - v0)``, ``q`` the
+    normalized ``q0 + a (q1 - q0)`` (``q1`` on ``q0``'s side), ``w`` linear: plain floats in
+    the order the array expressions summed them; the quaternion dots stay numpy's."""
     if a >= 1.0:
         return s1[0:6].copy(), s1[6:10].copy(), s1[10:13].copy()
     a2, a3 = a * a, a * a * a
     h00, h10, h01, h11 = 2 * a3 - 3 * a2 + 1, a3 - 2 * a2 + a, -2 * a3 + 3 * a2, a3 - a2
-    p = h00 * s0[0:3] + h10 * h * s0[3:6] + h01 * s1[0:3] + h11 * h * s1[3:6]
-    v = s0[3:6] + a * (s1[3:6] - s0[3:6])
+    h10h, h11h = h10 * h, h11 * h
+    x0, x1 = s0.tolist(), s1.tolist()
+    p = [h00 * x0[i] + h10h * x0[i + 3] + h01 * x1[i] + h11h * x1[i + 3] for i in range(3)]
+    v = [x0[i] + a * (x1[i] - x0[i]) for i in range(3, 6)]
     q1 = s1[6:10] if s0[6:10] @ s1[6:10] >= 0 else -s1[6:10]
     q = s0[6:10] + a * (q1 - s0[6:10])
     q /= np.sqrt(q @ q)
-    w = s0[10:13] + a * (s1[10:13] - s0[10:13])
-    return np.concatenate([p, v]), q, w
+    w = [x0[i] + a * (x1[i] - x0[i]) for i in range(10, 13)]
+    return np.array(p + v), q, np.array(w)
 
 
 def _ticks(period_s: float, h_ns: int, what: str) -> int:
@@ -215,17 +222,23 @@ def fly(
     *,
     vehicle: Vehicle | None = None,
     progress: Progress = NULL_PROGRESS,
+    stepwise: bool = False,
 ) -> FlightLog:
     """Fly ``controller`` (default: ``options.controller``) over the reference; see module doc.
 
     The camera loop's small matrices run on one BLAS thread (threads only add overhead
-    there, and several flights run side by side on a process pool)."""
+    there, and several flights run side by side on a process pool). ``stepwise`` flies the
+    straightforward way, the same bits slower (the tests' and benchmarks' reference): the
+    vehicle in whole-array numpy (:meth:`Vehicle.step_numpy`) and the emulator called once
+    per VIO sample instead of once per controller tick for the samples since the last one."""
     if options.vio.kind != "camera":
-        return _fly(options, controller, seed, vehicle=vehicle, progress=progress)
+        return _fly(options, controller, seed, vehicle=vehicle, progress=progress,
+                    stepwise=stepwise)  # fmt: skip
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1):
-        return _fly(options, controller, seed, vehicle=vehicle, progress=progress)
+        return _fly(options, controller, seed, vehicle=vehicle, progress=progress,
+                    stepwise=stepwise)  # fmt: skip
 
 
 def _fly(
@@ -235,8 +248,14 @@ def _fly(
     *,
     vehicle: Vehicle | None = None,
     progress: Progress = NULL_PROGRESS,
+    stepwise: bool = False,
 ) -> FlightLog:
-    """Fly ``controller`` (default: ``options.controller``) over the reference; see module doc."""
+    """Fly ``controller`` (default: ``options.controller``) over the reference; see module doc.
+
+    The emulator's errors are needed only when the controller reads ``y``: the samples since
+    the previous tick are kept (state, body rate, acceleration) and their errors made in one
+    :meth:`VioEmulator.errors` call, which equals calling :meth:`VioEmulator.sample` on each in
+    order (same random draws, same additions; tests/test_sim_vio.py)."""
     seed = options.seed if seed is None else int(seed)
     veh = vehicle or Vehicle(options.vehicle)
     ctrl = controller or make_controller(options.controller, veh.mass)
@@ -272,6 +291,9 @@ def _fly(
         rec.vio_e,
     )
     c_t, c_y, c_r, c_u = rec.c_t, rec.c_y, rec.c_r, rec.c_u
+    vio_a = np.empty((n_vio_max, 3))  # the physics step's mean acceleration at each sample
+    step = veh.step_numpy if stepwise else veh.step
+    batch = cam is None and not stepwise
 
     ref_p, ref_v, ref_a = ref.arrays(t_ns / NS)
     s = veh.hover_state(ref_p[0], ref_v[0])
@@ -295,6 +317,15 @@ def _fly(
     m = 1
     next_vio = vio_ns
     y_latest = vio_x[0] + vio_e[0]
+    pending = m  # first VIO sample whose error is not made yet (batched emulator)
+
+    def flush() -> np.ndarray:
+        """Errors of the pending samples; the newest estimate ``y``."""
+        e = vio.errors(vio_x[pending:m], vio_w[pending:m], vio_a[pending:m])
+        if fault is not None:
+            e[vio_t[pending:m] >= fault_ns] += fault
+        vio_e[pending:m] = e
+        return vio_x[m - 1] + vio_e[m - 1]
 
     crashed, reason, crash_t = False, None, None
     thrust, cmd_q = 0.0, np.array([0.0, 0.0, 0.0, 1.0])
@@ -303,6 +334,8 @@ def _fly(
     progress.start("flying", total=n_ctrl)
     for i in range(n_steps):
         if i % n_sub == 0:
+            if batch and pending < m:
+                y_latest, pending = flush(), m
             t = i * h
             r = RefSample(p=ref_p[i], v=ref_v[i], a=ref_a[i])
             y = s[0:6].copy() if truth_feedback else y_latest
@@ -315,7 +348,7 @@ def _fly(
             c_t[k], c_y[k], c_r[k], c_u[k] = i * h_ns, y, r.state, u
             k += 1
             progress.advance(1)
-        s_next = veh.step(s, thrust, cmd_q, h)
+        s_next = step(s, thrust, cmd_q, h)
         S[i + 1] = s_next
         if cam is not None:
             cam.step(s, s_next)
@@ -324,6 +357,11 @@ def _fly(
             a = (next_vio - i * h_ns) / h_ns
             xv, qv, wv = _interp(s, s_next, a, h)
             vio_t[m], vio_x[m], vio_q[m], vio_w[m] = next_vio, xv, qv, wv
+            if batch:
+                vio_a[m] = (s_next[3:6] - s[3:6]) / h
+                m += 1
+                next_vio += vio_ns
+                continue
             if cam is None:
                 vio_e[m] = vio.sample(xv, wv, (s_next[3:6] - s[3:6]) / h)
             else:
@@ -341,6 +379,8 @@ def _fly(
             last_step = i + 1
             break
     progress.finish()
+    if batch and pending < m:
+        flush()
 
     n = last_step + 1
     return rec.log(
@@ -364,14 +404,17 @@ def _camera_loop(options: FlightOptions, seed: int, veh: Vehicle) -> CameraVio:
 def _crash_reason(
     s: np.ndarray, p_ref: np.ndarray, t: float, crash: CrashOptions, cos_tilt: float
 ) -> str | None:
-    if not np.all(np.isfinite(s)):
+    """Why the flight ends at state ``s`` (None: it goes on); plain floats, once per step."""
+    v = s.tolist()
+    if not all(map(math.isfinite, v)):
         return "the vehicle state became non-finite (divergence)"
-    if s[2] < crash.floor_z:
-        return f"ground contact at t = {t:.2f} s (height {s[2]:.3f} m)"
-    bz = 1.0 - 2.0 * (s[6] * s[6] + s[7] * s[7])  # R[2, 2]: cosine of the tilt
+    if v[2] < crash.floor_z:
+        return f"ground contact at t = {t:.2f} s (height {v[2]:.3f} m)"
+    bz = 1.0 - 2.0 * (v[6] * v[6] + v[7] * v[7])  # R[2, 2]: cosine of the tilt
     if bz < cos_tilt:
         return f"lost attitude at t = {t:.2f} s (tilt {np.degrees(np.arccos(np.clip(bz, -1, 1))):.0f} deg)"
-    dev = float(np.abs(s[0:3] - p_ref).max())
+    r = p_ref.tolist()
+    dev = max(abs(v[0] - r[0]), abs(v[1] - r[1]), abs(v[2] - r[2]))
     if dev > crash.max_deviation:
         return f"diverged at t = {t:.2f} s ({dev:.2f} m from the reference)"
     return None

@@ -33,11 +33,14 @@ reproduces ``Multirotor._s_dot_fn`` and :meth:`Vehicle.motor_command`
 ``Multirotor.get_cmd_motor_speeds``, both checked against RotorPy in the tests) but
 evaluates it with plain array code and integrates each step with fixed-step classical
 Runge-Kutta 4 (``substeps`` per step), renormalizing the quaternion after the step as
-RotorPy does.
+RotorPy does. The RK4 stages run on plain floats in the order the whole-array form
+(:meth:`Vehicle.step_numpy`) evaluates them, the same bits faster
+(docs/performance.md#flights).
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -174,6 +177,8 @@ class Vehicle:
         self._inertia = [tuple(float(v) for v in row) for row in self.inertia]
         self._inv_inertia = [tuple(float(v) for v in row) for row in self.inv_inertia]
         self.hover_speed = float(np.sqrt(self.mass * self.g / (4 * self.k_eta)))
+        self._r_des_key = b""
+        self._r_des = np.eye(3)
 
     # ---------------------------------------------------------------- states and commands
     def hover_state(self, position: np.ndarray, velocity: np.ndarray | None = None) -> np.ndarray:
@@ -195,20 +200,36 @@ class Vehicle:
 
     def motor_command(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray) -> np.ndarray:
         """``Multirotor.get_cmd_motor_speeds`` for ``cmd_ctatt``, clipped as in ``step``."""
+        return np.array(self._motor_speeds(s, thrust, cmd_q))
+
+    def _motor_speeds(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray) -> list[float]:
+        """:meth:`motor_command` as plain floats. The matrix products stay numpy's (BLAS sums
+        in its own order); the elementwise rest, ``clip(sign(f) sqrt(|f| / k_eta))``, is
+        cheaper on four floats."""
         r = quat_to_matrix(s[6:10])
-        r_des = quat_to_matrix(cmd_q)
-        s_err = 0.5 * (r_des.T @ r - r.T @ r_des)
-        att_err = np.array([-s_err[1, 2], s_err[0, 2], -s_err[0, 1]])
+        key = cmd_q.tobytes()
+        if key != self._r_des_key:  # the command is held over many steps: convert it once
+            self._r_des_key, self._r_des = key, quat_to_matrix(cmd_q)
+        r_des = self._r_des
+        e = (0.5 * (r_des.T @ r - r.T @ r_des)).tolist()
         w = s[10:13]
-        iw = self.inertia @ w
-        moment = self.inertia @ (-self.kp_att * att_err - self.kd_att * w)
-        moment[0] += w[1] * iw[2] - w[2] * iw[1]
-        moment[1] += w[2] * iw[0] - w[0] * iw[2]
-        moment[2] += w[0] * iw[1] - w[1] * iw[0]
-        f = self.TM_to_f @ np.array([thrust, moment[0], moment[1], moment[2]])
-        speeds = f / self.k_eta
-        speeds = np.sign(speeds) * np.sqrt(np.abs(speeds))
-        return np.clip(speeds, self.speed_min, self.speed_max)
+        w0, w1, w2 = w.tolist()
+        i0, i1, i2 = (self.inertia @ w).tolist()
+        kp, kd = -self.kp_att, self.kd_att
+        pd = np.array([kp * -e[1][2] - kd * w0, kp * e[0][2] - kd * w1, kp * -e[0][1] - kd * w2])
+        m0, m1, m2 = (self.inertia @ pd).tolist()
+        m0 += w1 * i2 - w2 * i1
+        m1 += w2 * i0 - w0 * i2
+        m2 += w0 * i1 - w1 * i0
+        f = self.TM_to_f @ np.array([thrust, m0, m1, m2])
+        k_eta, lo, hi = self.k_eta, self.speed_min, self.speed_max
+        out = []
+        for fk in f.tolist():
+            v = fk / k_eta
+            root = math.sqrt(abs(v))
+            v = root if v > 0 else (-root if v < 0 else (0.0 if v == 0 else v))  # sign(v) sqrt|v|
+            out.append(min(max(v, lo), hi))  # np.clip
+        return out
 
     def derivative(self, s: np.ndarray, cmd_speeds: np.ndarray) -> np.ndarray:
         """``ds/dt`` of ``Multirotor._s_dot_fn`` (RotorPy's equations) for held ``cmd_speeds``.
@@ -307,7 +328,37 @@ class Vehicle:
 
     # ---------------------------------------------------------------- integration
     def step(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
-        """One step of length ``h``: motor command held, RK4 (``substeps``), quaternion renormalized."""
+        """One step of length ``h``: motor command held, RK4 (``substeps``), quaternion renormalized.
+
+        ``k1 = f(s)``, ``k2 = f(s + dt/2 k1)``, ``k3 = f(s + dt/2 k2)``, ``k4 = f(s + dt k3)``,
+        ``s+ = s + dt/6 (k1 + 2 k2 + 2 k3 + k4)`` on plain floats, element by element in the
+        order :meth:`step_numpy` evaluates it (the same bits, docs/performance.md#flights): a
+        20-element numpy expression costs more in call overhead than in arithmetic.
+        """
+        if self.options.integrator == "solve_ivp":
+            return self.step_rotorpy(s, thrust, cmd_q, h)
+        cmd = self._motor_speeds(s, thrust, cmd_q)
+        n = self.options.substeps
+        dt = h / n
+        half, sixth = 0.5 * dt, dt / 6.0
+        f = self._derivative
+        x = s.tolist()
+        for _ in range(n):
+            k1 = f(x, cmd)
+            k2 = f([a + half * b for a, b in zip(x, k1, strict=True)], cmd)
+            k3 = f([a + half * b for a, b in zip(x, k2, strict=True)], cmd)
+            k4 = f([a + dt * b for a, b in zip(x, k3, strict=True)], cmd)
+            x = [
+                a + sixth * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+                for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4, strict=True)
+            ]
+        out = np.array(x)
+        out[6:10] /= np.sqrt(out[6:10] @ out[6:10])  # numpy's dot: its summation order
+        return out
+
+    def step_numpy(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
+        """:meth:`step` as whole-array numpy expressions (the code before the plain-float one;
+        kept as the reference the tests and ``benchmarks/bench_flights.py`` compare with)."""
         if self.options.integrator == "solve_ivp":
             return self.step_rotorpy(s, thrust, cmd_q, h)
         cmd = self.motor_command(s, thrust, cmd_q)
