@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.guarantee import Norms, guarantee
+from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, guarantee
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file
 from qsls.pipeline.core.errors import InputError
@@ -29,9 +29,10 @@ from tests.controllerfixtures import SETTING, synthesized
 
 # S ||Phi_xy|| = 0.1 * 4 = 0.4, a = eps_w ||Phi_xx H|| + Delta = 0.02 * 5 + 0.1 = 0.2
 BOUND = ControllerBound(
-    name="c", folder=Path("c"), status=CERTIFIED, robust=True, S=0.1, eps_e=0.05, R0=0.04,
-    eps_w=0.02, norm_phi_xx_h=5.0, norm_phi_xy=4.0, radius=1.0, delta=0.1,
-    gamma_certificate=0.1, model_sha256=None, robustness_lhs=0.7,
+    name="c", folder=Path("c"), status=CERTIFIED, robust=True,
+    numbers=PremiseNumbers(eps=0.05, S=0.1, radius=1.0, eps_w=0.02, delta=0.1, R0=0.04),
+    norm_phi_xx_h=5.0, norm_phi_xy=4.0, gamma_certificate=0.1, model_sha256=None,
+    robustness_lhs=0.7,
 )  # fmt: skip
 
 
@@ -82,7 +83,7 @@ def test_a_controller_folder_gives_the_certificates_gamma_from_its_own_taps(tmp_
     assert b.norm_phi_xy == pytest.approx(sls.l1_norm(taps.Phi_xy), rel=1e-12)
     assert b.norm_phi_xx_h == pytest.approx(sls.l1_norm(taps.Phi_xx), rel=1e-12)
     assert b.phi_xy is not None and b.phi_xy.shape == (9, 6, 6) and b.phi_xy_tail == 0.0
-    assert (b.S, b.eps_e, b.eps_w, b.delta) == (
+    assert (b.numbers.S, b.numbers.eps, b.numbers.eps_w, b.numbers.delta) == (
         SETTING.S,
         SETTING.eps,
         SETTING.eps_w,

@@ -14,6 +14,7 @@ from qsls.pipeline.control import guarantee
 PIPELINE = Path(__file__).resolve().parents[1] / "pipeline"
 FORMULAS = {
     "1 - S N": re.compile(r"\b1(\.0)?\s*-\s*[A-Za-z_.]*\bS\s*\*"),
+    "1 - L N (any slope)": re.compile(r"\b1(\.0)?\s*-\s*[A-Za-z_.]+\s*\*\s*[A-Za-z_.]*(norm_phi_xy|\bN)\b"),
     "eps + S d": re.compile(r"\beps(_e)?\s*\+\s*[A-Za-z_.]*\bS\s*\*"),
     "a = eps_w N_w + Delta": re.compile(r"eps_w\s*\*\s*[A-Za-z_.]*(N_w|norm_phi_xx_h)"),
 }

@@ -119,7 +119,7 @@ def check_flight(
     gamma_k = bound.gamma_at(d)
     gamma_strict = bound.gamma_strict
     premise_k = bound.premise_at(d)
-    inside = d < bound.radius
+    inside = d < bound.numbers.radius
     ratio, ratio_strict, premise_ratio = _ratios(e_norm, gamma_k, gamma_strict, premise_k)
     k_ratio, k_err, k_dist = int(np.argmax(ratio)), int(np.argmax(e_norm)), int(np.argmax(d))
     k_prem = int(np.argmax(premise_ratio))
@@ -140,7 +140,7 @@ def check_flight(
     if why_not is None:
         assert bound.phi_xy is not None
         premise = TheoremNumbers(
-            bound.eps_e, bound.S, bound.radius, bound.a_certificate, bound.phi_xy_tail
+            bound.numbers.eps, bound.numbers.S, bound.numbers.radius, bound.a_certificate, bound.phi_xy_tail
         )
         theorem, d_hat_all = theorem_check(
             x_all, e_all, t_all, bound.phi_xy, premise, training.scale, training.distance
@@ -158,9 +158,9 @@ def check_flight(
         "flown_by": flown_by or "",
         "status": bound.status,
         "robust": bound.robust,
-        "S": bound.S,
-        "eps_e": bound.eps_e,
-        "R0": bound.R0,
+        "S": bound.numbers.S,
+        "eps_e": bound.numbers.eps,
+        "R0": bound.r0,
         "norm_phi_xy": bound.norm_phi_xy,
         "norm_phi_xx_h": bound.norm_phi_xx_h,
         "has_guarantee": bound.has_guarantee,
@@ -185,7 +185,7 @@ def check_flight(
         "max_distance_to_training": float(d[k_dist]),
         "max_distance_t": float(t[k_dist]),
         "mean_distance_to_training": float(d.mean()),
-        "radius": bound.radius,
+        "radius": bound.numbers.radius,
         "frac_within_radius": float(np.mean(inside)),
         "frac_premise_holds": frac_premise,
         "max_premise_ratio": float(premise_ratio[k_prem]),
@@ -309,16 +309,16 @@ def _premise_problems(
             f"no guarantee: {bound.no_guarantee_reason}, the formula's value is shown for comparison"
         )
     if not premise_holds:
-        slope = f", held-out slope to training {max_slope:.3g} > S" if max_slope > bound.S else ""
+        slope = f", held-out slope to training {max_slope:.3g} > S" if max_slope > bound.numbers.S else ""
         problems.append(
             f"premise violated at {100 * (1 - frac_premise):.1f}% of samples: ||e|| reaches "
-            f"{premise_ratio:.3g}x eps_e + S*d at t={premise_t:.2f}s (certified S={bound.S:.3g}, "
-            f"eps_e={bound.eps_e:.3g} are too small for this flight{slope})"
+            f"{premise_ratio:.3g}x eps_e + S*d at t={premise_t:.2f}s (certified S={bound.numbers.S:.3g}, "
+            f"eps_e={bound.numbers.eps:.3g} are too small for this flight{slope})"
         )
     else:
         problems.append("premise holds at every sample")
     if not within_radius:
-        problems.append(f"flight leaves the radius r={bound.radius:.3g} around the training states")
+        problems.append(f"flight leaves the radius r={bound.numbers.radius:.3g} around the training states")
     return problems
 
 

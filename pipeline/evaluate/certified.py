@@ -22,6 +22,7 @@ import numpy as np
 
 from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import InputError
@@ -36,14 +37,10 @@ class ControllerBound:
     folder: Path
     status: str
     robust: bool
-    S: float
-    eps_e: float
-    R0: float
-    eps_w: float
+    numbers: PremiseNumbers
+    """The certificate's premise (:meth:`qsls.pipeline.control.artifacts.Certificate.numbers`)."""
     norm_phi_xx_h: float
     norm_phi_xy: float
-    radius: float
-    delta: float
     gamma_certificate: float
     model_sha256: str | None
     robustness_lhs: float | None = None
@@ -77,12 +74,12 @@ class ControllerBound:
     @property
     def a_certificate(self) -> float:
         """The certificate's a-priori ``a = eps_w ||Phi_xx H|| + Delta``."""
-        return guarantee.a_value(self.eps_w, self.norm_phi_xx_h, self.delta)
+        return guarantee.a_value(self.numbers.eps_w, self.norm_phi_xx_h, self.numbers.delta)
 
     @property
     def denominator(self) -> float:
         """``1 - S ||Phi_xy||``; the bound's formula is finite only when positive."""
-        return guarantee.denominator(self.S, self.norm_phi_xy)
+        return guarantee.denominator(self.numbers.S, self.norm_phi_xy)
 
     @property
     def finite(self) -> bool:
@@ -92,7 +89,7 @@ class ControllerBound:
     def no_guarantee_reason(self) -> str | None:
         """Why the theorem does not apply to this controller (``None``: it does)."""
         if not self.finite:
-            return f"S*||Phi_xy|| = {self.S * self.norm_phi_xy:.3g} >= 1"
+            return f"S*||Phi_xy|| = {self.numbers.S * self.norm_phi_xy:.3g} >= 1"
         if self.status in (FAILED, SOLVER_INACCURATE):
             return f"certificate status '{self.status}'"
         if self.robustness_lhs is not None and self.robustness_lhs >= 1.0:
@@ -107,18 +104,24 @@ class ControllerBound:
         return self.no_guarantee_reason is None
 
     @property
+    def r0(self) -> float:
+        """The paper's error bound ``R0`` (``eps`` when the certificate sets none)."""
+        n = self.numbers
+        return n.eps if n.R0 is None else n.R0
+
+    @property
     def gamma_strict(self) -> float:
         """``R0 / (1 - S ||Phi_xy||)`` (inf when ``S ||Phi_xy|| >= 1``)."""
-        return guarantee.gamma_strict_of(self.R0, self.S, self.norm_phi_xy)
+        return guarantee.gamma_strict_of(self.r0, self.numbers.S, self.norm_phi_xy)
 
     def gamma_at(self, distance: np.ndarray) -> np.ndarray:
         """``gamma_k = (eps_e + S (eps_w ||Phi_xx H|| + d_k)) / (1 - S ||Phi_xy||)``."""
-        a = guarantee.a_value(self.eps_w, self.norm_phi_xx_h, np.asarray(distance, dtype=float))
-        return np.asarray(guarantee.gamma_of(self.eps_e, self.S, self.norm_phi_xy, a))
+        a = guarantee.a_value(self.numbers.eps_w, self.norm_phi_xx_h, np.asarray(distance, dtype=float))
+        return np.asarray(guarantee.gamma_of(self.numbers.eps, self.numbers.S, self.norm_phi_xy, a))
 
     def premise_at(self, distance: np.ndarray) -> np.ndarray:
         """The S-slope premise ``eps_e + S d_k``: the error the assumption allows at ``x_k``."""
-        return np.asarray(guarantee.premise_bound(self.eps_e, self.S, np.asarray(distance, dtype=float)))
+        return np.asarray(guarantee.premise_bound(self.numbers.eps, self.numbers.S, np.asarray(distance, dtype=float)))
 
 
 def check_unweighted(em: Any, to: str = "check certified controllers") -> None:
@@ -186,14 +189,9 @@ def load_controller_bound(folder: Path) -> ControllerBound:
         folder=d.folder,
         status=c.status,
         robust=c.robust,
-        S=c.S,
-        eps_e=c.eps_e,
-        R0=c.R0,
-        eps_w=c.eps_w,
+        numbers=c.numbers(),
         norm_phi_xx_h=norm_xx_h,
         norm_phi_xy=norm_xy,
-        radius=c.radius,
-        delta=c.delta,
         gamma_certificate=c.gamma,
         model_sha256=c.error_model_sha256,
         robustness_lhs=c.robustness_lhs,

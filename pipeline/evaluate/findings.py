@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from qsls.pipeline.control import guarantee
 from qsls.pipeline.evaluate.bound import ControllerBound
 
 PAPER_CONTROLLERS = ("pd", "l1_nominal", "l1_robust", "l1_robust_imitation")
@@ -140,8 +141,7 @@ def finding_bound(
             # the paper computed its bound (1.602) with the true S-slope; the emulator's is known
             parts = []
             for cond, lip in true_lipschitz.items():
-                den = 1.0 - lip * ref_bound.norm_phi_xy
-                g = ref_bound.R0 / den if den > 0 else math.inf
+                g = guarantee.gamma_strict_of(ref_bound.r0, lip, ref_bound.norm_phi_xy)
                 m = float(ref.loc[ref["condition"] == cond, "max_error_norm"].max())
                 parts.append(
                     f"{cond}: L = {lip:.3g}, bound {g:.4g}"

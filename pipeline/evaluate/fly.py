@@ -382,10 +382,10 @@ def premise_rows(bounds: Sequence[ControllerBound]) -> list[dict[str, Any]]:
     """Each controller's premise for the paper's strict bound (``R0``, ``S``, ``||Phi_xe||``,
     ``||Phi_ue||``; :func:`qsls.pipeline.evaluate.paired.strict_bounds`)."""
     return [
-        {"name": b.name, "status": b.status, "R0": b.R0, "S": b.S,
+        {"name": b.name, "status": b.status, "R0": b.r0, "S": b.numbers.S,
          "norm_phi_xe": b.norm_phi_xy, "norm_phi_ue": b.certificate.get("norm_phi_uy")}
         for b in bounds
-        if math.isfinite(b.S) and math.isfinite(b.norm_phi_xy) and math.isfinite(b.R0)
+        if math.isfinite(b.numbers.S) and math.isfinite(b.norm_phi_xy) and math.isfinite(b.r0)
     ]  # fmt: skip
 
 
