@@ -91,12 +91,20 @@ Norm = Literal["l1", "h2"]
 Cost = str
 """A cost's name in :data:`qsls.pipeline.control.costs.COSTS`."""
 ROBUST_BACKOFF = 1e-6
+LIGHT_ROW = 1e-4
+"""A state's row of ``c_QR``'s L1 weighted below this fraction of the largest state weight is
+left out of the problem and checked after the solve (:func:`solve`)."""
 TIGHT = {"tol_feas": 1e-10, "tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10}
 """Clarabel's tolerances for the attitude plant: its optimum sits on the robustness constraint
 with responses ten times larger than the hover plant's, and the default 1e-8 left the
 realization check (1e-8) failing by a factor of 3; these pass it by 2. Where Clarabel cannot
 reach them (near the feasibility boundary) the default tolerances are used and the
 certificate's checks decide as for any solution."""
+FAST = {**TIGHT, "iterative_refinement_enable": False}
+""":data:`TIGHT` without Clarabel's iterative refinement of each KKT solve, tried first (issue
+37): at the quickstart's setting, T = 50, the same iterations at ~55 % of the time, the
+objective within 3e-9 relative and the realization error 3e-10 (limit 1e-8). Where it ends
+inaccurate, :data:`TIGHT` is solved, then the default tolerances."""
 
 def cost_blocks(
     taps: Taps,
@@ -190,6 +198,10 @@ class Structure:
     # when the weights are invariant under the mirror and there is no nominal to imitate;
     # :func:`solve` turns it on where it is.
     mirrored: bool = False
+    # States whose rows of c_QR's L1 are left out of the problem (weights below LIGHT_ROW of
+    # the largest: the attitude plant's extra states) and checked after the solve (issue 37);
+    # :func:`solve` picks them from ``Q`` and re-solves with them where one would bind.
+    light_states: tuple[int, ...] = ()
 
 
 def mirrors_of(
@@ -292,6 +304,7 @@ class SLSProblem:
         self._cons: list[Any] = [self.E @ z + e[rows] == 0]
         self._epi: dict[str, tuple[np.ndarray, np.ndarray, Any]] = {}
         self.cost = cost = cost_of(s.cost)
+        self._read = self._rows_read()
         norms = self._premise_norms() if s.robust or cost.needs_norms else None
         p: dict[str, Any] = {}
         if s.robust:
@@ -304,6 +317,24 @@ class SLSProblem:
         self._compiled = False
 
     # ---- the premise's norms and the robustness constraint
+    def _premise_rows(self) -> np.ndarray:
+        """The state rows the premise's norms read: ``W_x``'s nonzero rows, and the velocity
+        rows under a gate (rows weighted 0 add nothing to a maximum of nonnegative terms)."""
+        s, rows = self.structure, np.arange(self.model.nx)
+        return (np.asarray(s.state_scale) > 0) | (s.gate & np.isin(rows, VELOCITY))
+
+    def _rows_read(self) -> dict[str, np.ndarray]:
+        """Per response, the rows some norm or cost reads through the shared epigraphs; only
+        these get one (:meth:`_epigraph`)."""
+        s, nx, nu = self.structure, self.model.nx, self.model.nu
+        premise = self._premise_rows() if s.robust or self.cost.needs_norms else np.zeros(nx, bool)
+        shared = isinstance(self.cost, WeightedCost) and self._shared_rows(self.cost)
+        cost_x = shared & ~np.isin(np.arange(nx), s.light_states)
+        return {
+            "Phi_xy": premise | cost_x, "Phi_xx_H": premise | cost_x,
+            "Phi_ux_H": np.full(nu, shared), "Phi_uy": np.full(nu, shared),
+        }  # fmt: skip
+
     def _premise_norms(self) -> PremiseNorms:
         """The premise's norms (docs/guarantee.md) on the shared epigraphs:
         ``N = max_i w_x,i sum_tj |Phi_xy(t)_ij| / w_e,j``, ``N_w = max_i w_x,i sum_tj
@@ -318,8 +349,11 @@ class SLSProblem:
         inv_e = error_weights(s.error_scale, measured_channels(s.measure))
         self._rs_xh = self._sums("Phi_xx_H", lambda t, i, j: 1.0)
         self._rs_xy = self._sums("Phi_xy", lambda t, i, j: inv_e[j])
-        n_xy = cp.max(cp.multiply(wx, self._rs_xy))
-        n_xx = cp.max(cp.multiply(wx, self._rs_xh))
+        rows = np.flatnonzero(wx > 0)
+        if not len(rows):  # every state weighted 0: the norms are 0
+            rows = np.arange(1)
+        n_xy = cp.max(cp.multiply(wx[rows], self._rs_xy[rows]))
+        n_xx = cp.max(cp.multiply(wx[rows], self._rs_xh[rows]))
         channels = outlier_channels(s.measure, s.m)
         self._g_rows: dict[int, Any] = {}
         if not channels:
@@ -330,7 +364,7 @@ class SLSProblem:
         def g(i: int) -> Any:  # a new expression per use: the compiled problem is unchanged
             return cp.sum_largest(per_tap[i * T : (i + 1) * T], k)
 
-        g_m = cp.max(cp.hstack([wx[i] * g(i) for i in range(self.model.nx)]))
+        g_m = cp.max(cp.hstack([wx[i] * g(i) for i in rows]))
         self._g_rows = {i: g(i) for i in VELOCITY}
         return PremiseNorms(n_xy, n_xx, g_m)
 
@@ -371,7 +405,8 @@ class SLSProblem:
         varies = np.diff(aff.M.indptr) > 0
         if name == "Phi_uy":
             varies &= ~self.fixed_uy
-        drop = self._dropped(name)
+        _, i, _ = aff.entry()
+        drop = self._dropped(name) | ~self._read[name][i]  # copies, and rows nothing reads
         varies &= ~drop
         const = np.where(varies | drop, 0.0, np.abs(aff.f))
         if name == "Phi_uy":
@@ -420,7 +455,8 @@ class SLSProblem:
                     rows.append(
                         cp.multiply(p["L" + key], self._sums(names[key], lambda t, i, j: 1.0))
                     )
-            return cp.max(cp.hstack([rows[0] + rows[1], rows[2] + rows[3]]))
+            kept = ~np.isin(np.arange(self.model.nx), s.light_states)
+            return cp.max(cp.hstack([(rows[0] + rows[1])[np.flatnonzero(kept)], rows[2] + rows[3]]))
         blocks = {}
         self._support: dict[str, np.ndarray] = {}
         for key, name in names.items():
@@ -617,13 +653,49 @@ def solve(
         and _pairs(mirrors_of(model, structure, values.Q, values.R))
         == _pairs(mirrors_of(model, structure))
     )  # fmt: skip
-    structure = replace(structure, diagonal_weights=diag, decoupled=decoupled, mirrored=mirrored)
+    structure = replace(
+        structure, diagonal_weights=diag, decoupled=decoupled, mirrored=mirrored,
+        light_states=light_states(structure, values) if diag else (),
+    )  # fmt: skip
+    sol = _solve_structure(model, structure, values, solver, solver_options)
+    if sol.taps is not None and not light_rows_hold(sol.taps, model, values, structure):
+        sol = _solve_structure(model, replace(structure, light_states=()), values, solver, solver_options)
+    return sol
+
+
+def _solve_structure(
+    model: LinearModel, structure: Structure, values: Values, solver: str, solver_options: dict | None
+) -> Solution:
     problem = get_problem(model, structure)
     if model.nx > NX and solver == "CLARABEL" and solver_options is None:
-        tight = problem.solve(values, solver=solver, solver_options=TIGHT)
-        if tight.status != "inaccurate":  # else the default tolerances, checked as ever
-            return tight
+        for opts in (FAST, TIGHT):
+            sol = problem.solve(values, solver=solver, solver_options=opts)
+            if sol.status != "inaccurate":  # else the next, the default tolerances last
+                return sol
     return problem.solve(values, solver=solver, solver_options=solver_options)
+
+
+def light_states(structure: Structure, values: Values) -> tuple[int, ...]:
+    """The states whose rows of ``c_QR``'s L1 (diagonal weights) a problem may leave out: ``Q``
+    below :data:`LIGHT_ROW` of its largest diagonal entry (the attitude plant's extra states)."""
+    if structure.cost != "qr" or structure.norm != "l1":
+        return ()
+    q = np.diag(values.Q)
+    return tuple(int(i) for i in np.flatnonzero(q < LIGHT_ROW * q.max()))
+
+
+def light_rows_hold(taps: Taps, model: LinearModel, values: Values, structure: Structure) -> bool:
+    """The left-out rows of ``c_QR`` (:func:`light_states`) lie below the rows kept, so the
+    solution's full cost is the solved problem's optimum: ``c_QR = max_i rowsum_i``, and a
+    problem with fewer rows has an optimum no larger, attained here by a feasible point."""
+    light = np.asarray(structure.light_states, int)
+    if not len(light):
+        return True
+    qh, rh = psd_sqrt(values.Q, "Q"), psd_sqrt(values.R, "R")
+    top, bottom = cost_blocks(taps, model, qh, rh, values.eps_w, values.eps_e)
+    rows = np.abs(top).sum(axis=(0, 2))
+    kept = np.delete(rows, light)
+    return bool(rows[light].max() <= max(kept.max(), np.abs(bottom).sum(axis=(0, 2)).max()))
 
 
 # --------------------------------------------------------------------------- feasibility
