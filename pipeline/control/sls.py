@@ -323,6 +323,12 @@ class SLSProblem:
         s, rows = self.structure, np.arange(self.model.nx)
         return (np.asarray(s.state_scale) > 0) | (s.gate & np.isin(rows, VELOCITY))
 
+    def _copied_rows(self) -> np.ndarray:
+        """The state rows of a mirrored group's image (every row sum there equals its source's:
+        a maximum over rows, or a bound per row, need not read them)."""
+        _, i, _ = self.maps.Phi_xy.entry()
+        return np.isin(np.arange(self.model.nx), i[self._dropped("Phi_xy")])
+
     def _rows_read(self) -> dict[str, np.ndarray]:
         """Per response, the rows some norm or cost reads through the shared epigraphs; only
         these get one (:meth:`_epigraph`)."""
@@ -349,7 +355,7 @@ class SLSProblem:
         inv_e = error_weights(s.error_scale, measured_channels(s.measure))
         self._rs_xh = self._sums("Phi_xx_H", lambda t, i, j: 1.0)
         self._rs_xy = self._sums("Phi_xy", lambda t, i, j: inv_e[j])
-        rows = np.flatnonzero(wx > 0)
+        rows = np.flatnonzero((wx > 0) & ~self._copied_rows())
         if not len(rows):  # every state weighted 0: the norms are 0
             rows = np.arange(1)
         n_xy = cp.max(cp.multiply(wx[rows], self._rs_xy[rows]))
@@ -364,8 +370,8 @@ class SLSProblem:
         def g(i: int) -> Any:  # a new expression per use: the compiled problem is unchanged
             return cp.sum_largest(per_tap[i * T : (i + 1) * T], k)
 
-        g_m = cp.max(cp.hstack([wx[i] * g(i) for i in rows]))
-        self._g_rows = {i: g(i) for i in VELOCITY}
+        g_m = cp.max(cp.hstack([wx[i] * g(int(i)) for i in rows]))
+        self._g_rows = {i: g(i) for i in VELOCITY if not self._copied_rows()[i]}
         return PremiseNorms(n_xy, n_xx, g_m)
 
     def _robustness_constraints(self, p: dict[str, Any], norms: PremiseNorms) -> list:
@@ -388,7 +394,7 @@ class SLSProblem:
         if s.gate:
             for name in ("g_w", "g_d", "g_o", "g_V"):
                 p[name] = cp.Parameter(nonneg=True, name="gate_" + name)
-            for i in VELOCITY:
+            for i in np.flatnonzero(np.isin(np.arange(self.model.nx), VELOCITY) & ~self._copied_rows()):
                 row = p["g_w"] * self._rs_xh[i] + p["g_d"] * self._rs_xy[i]
                 if i in self._g_rows:
                     row = row + p["g_o"] * self._g_rows[i]
