@@ -198,7 +198,7 @@ def bench_honest(T: int, repeats: int) -> tuple[list[tuple], dict]:
     out = {}
     for name, sol in last.items():
         assert sol.taps is not None
-        body = certify(sol.taps, r.model, r.numbers(), r.shape, solver_status=sol.status)
+        body = certify(sol.taps, r.model, r.numbers, r.shape, solver_status=sol.status)
         out[name] = (sol.taps, body)
     return rows, out
 
