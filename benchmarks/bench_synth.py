@@ -16,9 +16,11 @@
 2b. The quickstart's own honest setting (configs/quickstart.yaml's ``problem:`` and
    ``synth:`` sections: the attitude plant, W_e, beta, m outliers per window through ``G_m``'s
    ``sum_largest``, the velocity gate) at T = 50 (issue 37), on one thread: the formulation
-   before issue 37 (every axis its own responses) against the mirrored one (the x and y axes,
-   a signed permutation of each other, solved once), in the same run; objective, the
-   largest tap difference and the certificate's guarantee numbers of both.
+   before issue 37 (every axis its own responses), the mirrored one of its first round (the x
+   and y axes, a signed permutation of each other, solved once), both at ``sls.TIGHT``, and
+   what ``sls.solve`` runs since its second round (mirrored, the light cost rows left out and
+   checked, ``sls.FAST`` first), in the same run; objective, the largest tap difference and
+   the certificate's guarantee numbers and realization error of each.
 3. The premise's share of training pairs above S (:mod:`qsls.pipeline.control.premise`):
    the cell grid against the chunked all-pairs count, same answer required.
 Targets: build + solve <= 0.15 s on one core at T = 50 (issue 27; issue 37 in the honest
