@@ -401,7 +401,8 @@ class SLSProblem:
         if s.gate:
             for name in ("g_w", "g_d", "g_o", "g_V"):
                 p[name] = cp.Parameter(nonneg=True, name="gate_" + name)
-            for i in np.flatnonzero(np.isin(np.arange(self.model.nx), VELOCITY) & ~self._copied_rows()):
+            copied = self._copied_rows()
+            for i in (i for i in VELOCITY if not copied[i]):  # an image's row copies its source's
                 row = p["g_w"] * self._rs_xh[i] + p["g_d"] * self._rs_xy[i]
                 if i in self._g_rows:
                     row = row + p["g_o"] * self._g_rows[i]
