@@ -36,8 +36,8 @@ Only the rows something reads (issue 37, second round): rows that ``W_x`` weight
 mirror's image rows stay out of ``N``, ``N_w``, ``G_m`` and the gate; ``c_QR``'s L1 rows of
 states with a light weight (:data:`LIGHT_ROW`, the attitude plant's extra states) stay out of
 the problem and are checked after the solve (:func:`light_rows_hold`); an epigraph covers only
-the rows read. With Clarabel first without iterative refinement (:data:`FAST`): 0.146 CPU s
-against 0.204 at T = 50, the same optimal value.
+the rows read. With Clarabel first without iterative refinement (:data:`FAST`): 0.137-0.146 CPU s
+against 0.195-0.204 at T = 50, the same optimal value.
 
 Norms: the induced inf-to-inf norm of an FIR operator is the largest row sum of absolute
 values over all its taps side by side (:func:`l1_norm`); H2 is the Frobenius norm over all
