@@ -181,6 +181,19 @@ class ProblemOptions(Options):
         return v
 
 
+class PaperModeOptions(Options):
+    """The paper's design beside the honest one (docs/paper.md,
+    :mod:`qsls.pipeline.control.papermode`): its premise with a hand-picked S."""
+
+    margin: float = Field(0.1, ge=0, lt=1)
+    """``S_paper = min(S_hat, (1 - margin) S_max)``: the measured slope lowered only as far
+    as the synthesis becomes feasible, then by this share of the largest feasible S."""
+    controllers: list[Literal["l1_robust", "l1_robust_imitation"]] = Field(
+        default_factory=lambda: ["l1_robust", "l1_robust_imitation"]
+    )
+    """The robust controllers also synthesized under the paper's premise (named ``*_paper``)."""
+
+
 class SynthOptions(ProblemOptions):
     """Options of ``qsls synth``."""
 
@@ -190,6 +203,8 @@ class SynthOptions(ProblemOptions):
     controllers: Literal["paper", "single"] = "paper"
     """paper (pd, then the nominal, robust and robust imitation controllers) or single (one,
     set by norm, cost and robust)."""
+    paper_mode: PaperModeOptions | None = None
+    """Also synthesize the paper's design (its premise, a chosen S; status ``chosen``)."""
 
     @model_validator(mode="after")
     def _single(self) -> SynthOptions:

@@ -259,6 +259,8 @@ class Synthesized:
 
     resolved: Resolved
     controllers: dict[str, Built]
+    paper: Any = None
+    """The paper mode's :class:`~qsls.pipeline.control.papermode.PaperChoice`, if asked."""
 
     def certificates(self) -> dict[str, Certificate]:
         return {n: c.certificate for n, c in self.controllers.items()}
@@ -376,8 +378,15 @@ def synthesize(
             )
         ctrls[name] = certified_controller(name, dsg, r, extra=extra)
         progress.advance()
+    choice = None
+    if options.paper_mode is not None:
+        from qsls.pipeline.control.papermode import paper_controllers
+
+        done = {n: c.taps for n, c in ctrls.items()}
+        choice, paper = paper_controllers(options, model, training, done, base_extra, imitate)
+        ctrls.update(paper)
     progress.finish()
-    return Synthesized(r, ctrls)
+    return Synthesized(r, ctrls, choice)
 
 
 def synth(
@@ -411,6 +420,8 @@ def synth(
         w.results["controllers"] = result.statuses()
         w.results["timings"] = {n: c.timings for n, c in ctrls.items() if c.timings}
         w.results["error_model_sha256"] = mi.sha256
+        if result.paper is not None:
+            w.results["paper_mode"] = result.paper.record()
     return SynthResult(Path(out), result.statuses(), result.certificates())
 
 

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from qsls.pipeline.control.status import (
     CERTIFIED,
+    CHOSEN,
     EXTRAPOLATED,
     FAILED,
     REFERENCE,
@@ -93,6 +94,7 @@ STATUS_WORDS: dict[Status, tuple[str, str]] = {
     CERTIFIED: ("certified", "ok"),
     EXTRAPOLATED: ("extrapolated beyond the tested range, not certified", "warn"),
     RELAXED: ("relaxed premise, not certified", "warn"),
+    CHOSEN: ("premise chosen by hand (the paper's), not measured", "warn"),
     UNCERTIFIED: ("no guarantee", "muted"),
     REFERENCE: ("reference, no guarantee", "muted"),
     FAILED: ("failed", "bad"),

@@ -13,6 +13,7 @@ from typing import Any
 
 from qsls.pipeline.control.status import (
     CERTIFIED,
+    CHOSEN,
     EXTRAPOLATED,
     REFERENCE,
     RELAXED,
@@ -96,6 +97,9 @@ _STATUS_NOTES = {
     "calibrated for the next flight (the design flights' premise before qsls calibrate, a "
     "percentile, excluded samples or an untested S: the reason and shares below); no "
     "guarantee is claimed from it.",
+    CHOSEN: "chosen, not certified: the paper mode's premise, whose S was picked by hand "
+    "the way the paper did (the largest feasible S less a margin), not measured; every check "
+    "passed on the taps, and no guarantee is claimed for any flight.",
     UNCERTIFIED: "no guarantee: a nominal controller whose robustness lhs exceeds 1; gamma "
     "is the formula's value, shown for comparison only.",
     REFERENCE: "reference, no guarantee: PD given as a closed loop, compared with the "
