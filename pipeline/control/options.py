@@ -192,6 +192,9 @@ class PaperModeOptions(Options):
         default_factory=lambda: ["l1_robust", "l1_robust_imitation"]
     )
     """The robust controllers also synthesized under the paper's premise (named ``*_paper``)."""
+    eps_e: Number = "max"
+    """The paper's norm bound on the whole (unweighted) error: the training maximum, or a
+    number."""
 
 
 class SynthOptions(ProblemOptions):

@@ -65,13 +65,13 @@ class PaperChoice:
         }  # fmt: skip
 
 
-def paper_options(opts: SynthOptions, S: float) -> SynthOptions:
+def paper_options(opts: SynthOptions, S: float, eps_e: float | str = "max") -> SynthOptions:
     """The paper's premise on ``opts``'s problem: S given, ``eps_e`` the training maximum of
-    the unweighted error, no outlier channel (no beta, gate or ``eps_o``); the plant, cost,
+    the unweighted error (or ``eps_e``), no outlier channel (no beta, gate or ``eps_o``); the plant, cost,
     horizon, radius, ``H`` and ``eps_w`` stay the honest design's."""
     return opts.model_copy(
         update={
-            "S": float(S), "eps_e": "max", "measure": "full", "beta": None, "gate": None,
+            "S": float(S), "eps_e": eps_e, "measure": "full", "beta": None, "gate": None,
             "eps_o": None, "error_scale": [1.0] * len(opts.error_scale), "paper_mode": None,
         }
     )  # fmt: skip
@@ -98,7 +98,7 @@ def paper_choice(
 ) -> tuple[PaperChoice, Resolved]:  # fmt: skip
     """The chosen S and the paper's premise resolved at it; :class:`InfeasibleError` when
     no S >= 0 makes the paper's synthesis feasible."""
-    r0 = resolve(paper_options(opts, 0.0), em, training)
+    r0 = resolve(paper_options(opts, 0.0, mode.eps_e), em, training)
     s_max = largest_feasible_s(r0, opts.T, opts.strictly_proper, opts.solver)
     if not s_max >= 0:
         raise InfeasibleError(
@@ -110,7 +110,7 @@ def paper_choice(
     s_hat = em.resolve_s("max") if em is not None else math.inf
     S = choose_s(s_hat, s_max, mode.margin)
     choice = PaperChoice(S, s_max, s_hat, mode.margin, r0.eps_e, r0.radius)
-    return choice, resolve(paper_options(opts, S), em, training)
+    return choice, resolve(paper_options(opts, S, mode.eps_e), em, training)
 
 
 def paper_controllers(
