@@ -233,6 +233,7 @@ def comparison_markdown(
 
     if findings is not None:
         lines += findings_markdown(findings, comparison)
+        lines += state_dependence_markdown(findings.get("state_dependence"))
     else:
         lines += ["| finding (paper) | qsls | agrees |", "|---|---|---|"]
         lines += [
@@ -254,6 +255,74 @@ def comparison_markdown(
             "| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |"
         )
     return "\n".join(lines) + "\n"
+
+
+def state_dependence(
+    flights: pd.DataFrame, reference: str = "pd", window: str = "circle"
+) -> dict[str, Any] | None:
+    """Does a controller that stays closer to the path see better estimates (the paper's
+    mechanism; docs/paper.md)? Per condition: Spearman's rank correlation between the
+    tracking RMS and the estimator error RMS over every flight (``rho > 0``: who strays errs);
+    and per controller against ``reference``, paired by seed, the ratios of tracking RMS and
+    of error RMS (geometric means with the 95 % t-interval of their logs)."""
+    from scipy.stats import spearmanr
+
+    from qsls.pipeline.evaluate.stats import paired_ratio
+
+    tr, er = f"tracking_rms_m_{window}", f"perception_error_rms_{window}"
+    if flights.empty or tr not in flights or er not in flights:
+        return None
+    out: dict[str, Any] = {"metric": [tr, er], "reference": reference, "conditions": {}}
+    for cond, g in flights.groupby("condition", sort=False):
+        g = g[np.isfinite(g[tr]) & np.isfinite(g[er])]
+        if len(g) < 3:
+            continue
+        rho, p = spearmanr(g[tr], g[er])
+        pairs = {}
+        ref = g[g["controller"] == reference].set_index("seed")
+        for c, gc in g.groupby("controller", sort=False):
+            if c == reference or ref.empty:
+                continue
+            both = gc.set_index("seed").join(ref, rsuffix="_ref", how="inner")
+            t_iv = paired_ratio(both[tr], both[tr + "_ref"])
+            e_iv = paired_ratio(both[er], both[er + "_ref"])
+            pairs[str(c)] = {
+                "tracking_ratio": t_iv.mean, "tracking_ci": t_iv.ci,
+                "error_ratio": e_iv.mean, "error_ci": e_iv.ci, "n_seeds": t_iv.n,
+            }  # fmt: skip
+        out["conditions"][str(cond)] = {
+            "spearman_rho": float(rho), "p_value": float(p), "flights": len(g),
+            "vs_reference": pairs,
+        }  # fmt: skip
+    return out
+
+
+def state_dependence_markdown(sd: dict[str, Any] | None) -> list[str]:
+    """The state-dependence table (:func:`state_dependence`) as Markdown lines."""
+    if not sd or not sd["conditions"]:
+        return []
+    ref = sd["reference"]
+    lines = [
+        "",
+        f"## State-dependent perception: who strays errs? (circle, paired with {ref} by seed)",
+        "",
+        "| condition | controller | tracking / " + ref + " | error / " + ref
+        + " | Spearman rho (all flights) |",
+        "|---|---|---|---|---|",
+    ]
+
+    def iv(m: float, ci: list[float | None]) -> str:
+        lo, hi = (f"{v:.3g}" if v is not None else "?" for v in ci)
+        return f"{m:.3g} [{lo}, {hi}]"
+
+    for cond, d in sd["conditions"].items():
+        rho = f"{d['spearman_rho']:.2f} (p {d['p_value']:.2g}, {d['flights']} flights)"
+        for c, r in d["vs_reference"].items():
+            lines.append(
+                f"| {cond} | {c} | {iv(r['tracking_ratio'], r['tracking_ci'])} | "
+                f"{iv(r['error_ratio'], r['error_ci'])} | {rho} |"
+            )
+    return lines
 
 
 # --------------------------------------------------------------------------- stage

@@ -55,6 +55,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from qsls.pipeline.evaluate.findings import state_dependence
 from qsls.pipeline.evaluate.paper import (
     PAPER_BOUND_SIM,
     PAPER_S_SIM,
@@ -866,6 +867,7 @@ def paired_findings(
         "perception_check": degradation_check(flights),
         "mechanism": mechanism_table(flights, norms),
         "degraded_perception_rms": degraded_rms(flights, names),
+        "state_dependence": state_dependence(flights),
     }
 
 

@@ -40,6 +40,22 @@ class Wall(Options):
         return self
 
 
+class TexturePath(Options):
+    """Where the ground's texture is rich: near the reference path (docs/camera.md,
+    "State-dependent perception"). The contrast is full within ``band_m`` of the horizontal
+    circle of ``radius`` about ``centre`` or within ``pad_m`` of the centre (the take-off and
+    approach), and falls linearly over ``ramp_m`` to ``level`` of it farther away, so a
+    vehicle that strays from the path sees a poorer floor."""
+
+    radius: float = Field(1.0, gt=0)
+    centre: tuple[float, float] = (0.0, 0.0)
+    band_m: float = Field(0.3, ge=0)
+    ramp_m: float = Field(0.3, gt=0)
+    pad_m: float = Field(0.3, ge=0)
+    level: float = Field(0.2, ge=0, le=1)
+    """Contrast far from the path, relative to the path's."""
+
+
 class CameraOptions(Options):
     """The camera loop's parameters (``vio.camera`` in a config)."""
 
@@ -99,6 +115,8 @@ class CameraOptions(Options):
     """Height of the ground plane (m)."""
     walls: list[Wall] = Field(default_factory=list)
     """Optional vertical walls (none by default: the paper's camera looks at the floor)."""
+    texture_path: TexturePath | None = None
+    """Poor texture away from the reference path (None: the floor is alike everywhere)."""
 
     # ---------------------------------------------------------------- IMU
     imu_noise: bool = True

@@ -21,7 +21,7 @@ from functools import cached_property
 
 import numpy as np
 
-from qsls.pipeline.sim.camera.options import CameraOptions
+from qsls.pipeline.sim.camera.options import CameraOptions, TexturePath
 from qsls.pipeline.sim.camera.texture import make_texture
 
 MAX_RANGE_M = 12.0
@@ -89,13 +89,38 @@ def scaled(texture: np.ndarray, strength: float) -> np.ndarray:
     return np.clip(np.rint(t), 0, 255).astype(np.uint8)
 
 
+def path_contrast(tp: TexturePath, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The contrast factor of :class:`TexturePath` at ground points ``(x, y)``: with ``d``
+    the distance to the circle and ``c`` to its centre, ``g = level + (1 - level) max(ramp(d
+    - band), ramp(c - pad))``, ``ramp(s) = clip(1 - s / ramp_m, 0, 1)``."""
+    c = np.hypot(x - tp.centre[0], y - tp.centre[1])
+    d = np.abs(c - tp.radius)
+
+    def ramp(s: np.ndarray) -> np.ndarray:
+        return np.clip(1.0 - s / tp.ramp_m, 0.0, 1.0)
+
+    return tp.level + (1.0 - tp.level) * np.maximum(ramp(d - tp.band_m), ramp(c - tp.pad_m))
+
+
+def regional(texture: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """``128 + factor (T - 128)`` texel by texel (:func:`scaled` with a contrast map)."""
+    t = 128.0 + factor.astype(np.float32) * (texture.astype(np.float32) - 128.0)
+    return np.clip(np.rint(t), 0, 255).astype(np.uint8)
+
+
 def build_world(cam: CameraOptions, texture_level: float) -> list[Plane]:
     """The ground (tiled) and the walls of ``cam``, texture contrast ``cam.texture_strength
-    * texture_level``; the ground first, the walls after (a wall stands on the ground and
-    hides what is behind it)."""
+    * texture_level`` (on the ground times :func:`path_contrast` with ``cam.texture_path``);
+    the ground first, the walls after (a wall stands on the ground and hides what is behind
+    it)."""
     n = max(16, round(cam.texture_size_m / cam.texture_m_per_px))
     strength = cam.texture_strength * texture_level
     ground_tex = scaled(_base_texture(cam.texture_seed, n), strength)
+    if cam.texture_path is not None:
+        # texel (u, v) lies at (x0 + m u, y0 + m v): columns along x, rows along y
+        axis = -0.5 * n * cam.texture_m_per_px + cam.texture_m_per_px * np.arange(n)
+        factor = path_contrast(cam.texture_path, axis[None, :], axis[:, None])
+        ground_tex = regional(_base_texture(cam.texture_seed, n), strength * factor)
     planes = [
         Plane(
             # the tile centred on the origin (flights stay well inside; beyond, it mirrors)
