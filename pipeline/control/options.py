@@ -7,7 +7,7 @@ without loading the solver. :mod:`qsls.pipeline.control.synth` and
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 from pydantic import Field, field_validator, model_validator
@@ -181,6 +181,9 @@ class ProblemOptions(Options):
         return v
 
 
+PaperRobust = Literal["l1_robust", "l1_robust_imitation"]
+
+
 class PaperModeOptions(Options):
     """The paper's design beside the honest one (docs/paper.md,
     :mod:`qsls.pipeline.control.papermode`): its premise with a hand-picked S."""
@@ -188,8 +191,8 @@ class PaperModeOptions(Options):
     margin: float = Field(0.1, ge=0, lt=1)
     """``S_paper = min(S_hat, (1 - margin) S_max)``: the measured slope lowered only as far
     as the synthesis becomes feasible, then by this share of the largest feasible S."""
-    controllers: list[Literal["l1_robust", "l1_robust_imitation"]] = Field(
-        default_factory=lambda: ["l1_robust", "l1_robust_imitation"]
+    controllers: list[PaperRobust] = Field(
+        default_factory=lambda: list(get_args(PaperRobust))
     )
     """The robust controllers also synthesized under the paper's premise (named ``*_paper``)."""
     eps_e: Number = "max"
