@@ -222,3 +222,32 @@ def test_camera_flights_keep_the_cameras_parameters(tmp_path):
         {**emu.sim, "vio": {**emu.sim["vio"], "perception": "degraded"}}
     ).vio.level
     assert (emu_level.light, emu_level.texture) == (0.35, 0.45)  # the emulator's preset
+
+
+def test_state_dependence_against_a_hand_computation():
+    """Who strays errs: the paired ratios against PD are geometric means by hand, and the
+    rank correlation is 1 when the error grows with the tracking RMS."""
+    from qsls.pipeline.evaluate.findings import state_dependence
+
+    rows = []
+    for seed, (t_pd, t_r, e_pd, e_r) in enumerate([(1.0, 0.5, 2.0, 1.0), (2.0, 0.5, 4.0, 2.0),
+                                                   (4.0, 2.0, 8.0, 2.0)]):  # fmt: skip
+        rows += [
+            {"seed": seed, "condition": "degraded", "controller": "pd",
+             "tracking_rms_m_circle": t_pd, "perception_error_rms_circle": e_pd},
+            {"seed": seed, "condition": "degraded", "controller": "l1_robust",
+             "tracking_rms_m_circle": t_r, "perception_error_rms_circle": e_r},
+        ]  # fmt: skip
+    sd = state_dependence(pd.DataFrame(rows))
+    assert sd is not None
+    d = sd["conditions"]["degraded"]
+    r = d["vs_reference"]["l1_robust"]
+    assert r["tracking_ratio"] == pytest.approx((0.5 * 0.25 * 0.5) ** (1 / 3), rel=1e-12)
+    assert r["error_ratio"] == pytest.approx((0.5 * 0.5 * 0.25) ** (1 / 3), rel=1e-12)
+    # ranks: tracking 1, 0.5, 0.5, 2, 2, 4 against errors 2, 1, 4, 2, 8, 2 (ties averaged)
+    from scipy.stats import pearsonr, rankdata
+
+    t = [1.0, 0.5, 2.0, 0.5, 4.0, 2.0]
+    e = [2.0, 1.0, 4.0, 2.0, 8.0, 2.0]
+    assert d["spearman_rho"] == pytest.approx(pearsonr(rankdata(t), rankdata(e))[0], rel=1e-12)
+    assert d["flights"] == 6

@@ -283,7 +283,9 @@ def state_dependence(
         for c, gc in g.groupby("controller", sort=False):
             if c == reference or ref.empty:
                 continue
-            both = gc.set_index("seed").join(ref, rsuffix="_ref", how="inner")
+            both = gc.set_index("seed")[[tr, er]].join(
+                ref[[tr, er]].rename(columns=lambda k: k + "_ref"), how="inner"
+            )
             t_iv = paired_ratio(both[tr], both[tr + "_ref"])
             e_iv = paired_ratio(both[er], both[er + "_ref"])
             pairs[str(c)] = {
