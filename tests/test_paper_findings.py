@@ -251,3 +251,20 @@ def test_state_dependence_against_a_hand_computation():
     e = [2.0, 1.0, 4.0, 2.0, 8.0, 2.0]
     assert d["spearman_rho"] == pytest.approx(pearsonr(rankdata(t), rankdata(e))[0], rel=1e-12)
     assert d["flights"] == 6
+
+
+def test_paper_mode_reaction_is_the_geometric_mean_of_its_own_flights_only():
+    from qsls.pipeline.evaluate.findings import paper_mode_reaction
+
+    f = pd.DataFrame(
+        {
+            "seed": [0, 1, 0, 1],
+            "condition": ["regular"] * 4,
+            "controller": ["l1_robust_paper", "l1_robust_paper", "l1_robust", "l1_robust"],
+            "reaction_vs_pd_circle": [0.5, 2.0, 9.0, 9.0],
+        }
+    )
+    pm = paper_mode_reaction(f)
+    assert pm is not None and list(pm["controllers"]) == ["l1_robust_paper"]
+    v = pm["controllers"]["l1_robust_paper"]["regular"]
+    assert v["effect"] == pytest.approx(1.0, rel=1e-12) and v["n_seeds"] == 2

@@ -233,6 +233,15 @@ def comparison_markdown(
 
     if findings is not None:
         lines += findings_markdown(findings, comparison)
+        pm = findings.get("paper_mode")
+        if pm:
+            lines += ["", f"Paper mode, finding 2's measure ({pm['metric']}, < 1: softer than PD):"]
+            lines += [
+                f"- {c} ({cond}): {v['effect']:.3g} [{v['ci'][0]:.3g}, {v['ci'][1]:.3g}]"
+                for c, by in pm["controllers"].items()
+                for cond, v in by.items()
+                if v["ci"][0] is not None and v["ci"][1] is not None
+            ]
         lines += state_dependence_markdown(findings.get("state_dependence"))
     else:
         lines += ["| finding (paper) | qsls | agrees |", "|---|---|---|"]
@@ -297,6 +306,28 @@ def state_dependence(
             "vs_reference": pairs,
         }  # fmt: skip
     return out
+
+
+PAPER_SUFFIX = "_paper"
+"""The paper mode's controllers (:mod:`qsls.pipeline.control.papermode`) end with it."""
+
+
+def paper_mode_reaction(flights: pd.DataFrame, window: str = "circle") -> dict[str, Any] | None:
+    """Finding 2's measure for the paper mode's controllers (docs/paper.md): per controller
+    and condition, the feedback attitude command RMS over PD's on the same estimate
+    (geometric mean over seeds with the 95 % t-interval of the logs; < 1: softer)."""
+    from qsls.pipeline.evaluate.stats import ratio_interval
+
+    col = f"reaction_vs_pd_{window}"
+    col = col if col in flights else "reaction_vs_pd"
+    if flights.empty or col not in flights:
+        return None
+    mine = flights[flights["controller"].astype(str).str.endswith(PAPER_SUFFIX)]
+    out: dict[str, Any] = {}
+    for (c, cond), g in mine.groupby(["controller", "condition"], sort=False):
+        iv = ratio_interval(g[col].to_numpy(float))
+        out.setdefault(str(c), {})[str(cond)] = {"effect": iv.mean, "ci": iv.ci, "n_seeds": iv.n}
+    return {"metric": col, "controllers": out} if out else None
 
 
 def state_dependence_markdown(sd: dict[str, Any] | None) -> list[str]:

@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.evaluate.findings import state_dependence
+from qsls.pipeline.evaluate.findings import paper_mode_reaction, state_dependence
 from qsls.pipeline.evaluate.paper import (
     PAPER_BOUND_SIM,
     PAPER_S_SIM,
@@ -868,6 +868,7 @@ def paired_findings(
         "mechanism": mechanism_table(flights, norms),
         "degraded_perception_rms": degraded_rms(flights, names),
         "state_dependence": state_dependence(flights),
+        "paper_mode": paper_mode_reaction(flights),
     }
 
 
