@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from qsls.pipeline.control import largest_s, sls
 from qsls.pipeline.control.options import PaperModeOptions, SynthOptions
@@ -32,6 +32,9 @@ from qsls.pipeline.control.resolution import Resolved, resolve
 from qsls.pipeline.control.status import CHOSEN, RELAXED
 from qsls.pipeline.core.errors import InfeasibleError
 from qsls.pipeline.errormodel.model import ErrorModel
+
+if TYPE_CHECKING:
+    from qsls.pipeline.control.synth import Built
 
 SUFFIX = "_paper"
 """A paper-mode controller is named after its honest twin with this suffix."""
@@ -120,11 +123,12 @@ def paper_controllers(
     done: Mapping[str, sls.Taps],
     extra: dict[str, Any],
     folder: sls.Taps | None = None,
-) -> tuple[PaperChoice, dict[str, Any]]:
+) -> tuple[PaperChoice, dict[str, Built]]:
     """The paper-mode controllers (``l1_robust_paper``, ...) as :class:`Built`, each
     imitating what its honest twin imitates (``done``: the honest responses by name)."""
     from qsls.pipeline.control.costs import cost_of
     from qsls.pipeline.control.synth import (
+        Built,
         certified_controller,
         controller_plan,
         design,
@@ -134,7 +138,7 @@ def paper_controllers(
     assert opts.paper_mode is not None
     choice, r = paper_choice(opts, opts.paper_mode, em, training)
     plan = dict(controller_plan(opts))
-    out: dict[str, Any] = {}
+    out: dict[str, Built] = {}
     for name in opts.paper_mode.controllers:
         st = plan[name]
         st = r.structure(st.T, st.norm, st.cost, st.robust, st.strictly_proper)
@@ -156,7 +160,7 @@ def paper_controllers(
         )  # fmt: skip
         status = CHOSEN if cert.status == RELAXED else cert.status
         cert = cert.model_copy(update={"status": status, "status_reason": reason})
-        out[name + SUFFIX] = type(built)(built.name, built.controller, cert, built.timings)
+        out[name + SUFFIX] = Built(built.name, built.controller, cert, built.timings)
     return choice, out
 
 
