@@ -19,15 +19,17 @@ OPTS = SynthOptions(
 
 def _feasible(r, S: float) -> bool:
     st = r.structure(OPTS.T, "l1", "qr", True, False)
-    v = sls.Values(Q=r.Q, R=r.R, eps_w=r.eps_w, eps_e=r.eps_e, S=S, radius=r.radius,
-                   delta=r.delta)  # fmt: skip
+    n = r.numbers
+    v = sls.Values(Q=r.Q, R=r.R, eps_w=n.eps_w, eps_e=n.eps, S=S, radius=n.radius,
+                   delta=n.delta)  # fmt: skip
     return sls.solve(r.model, st, v).status == "optimal"
 
 
 def test_the_chosen_s_is_the_largest_feasible_less_the_margin():
     assert OPTS.paper_mode is not None
     choice, r = paper_choice(OPTS, OPTS.paper_mode, None, None)
-    assert (r.S, r.eps_e, r.eps_o, r.m) == (choice.S, 0.03, 0.0, 0)
+    n = r.numbers
+    assert (n.S, n.eps, n.eps_o, n.m) == (choice.S, 0.03, 0.0, 0)
     assert pytest.approx(0.8 * choice.S_max, rel=1e-12) == choice.S
     assert choice.S_max > 0
     assert _feasible(r, choice.S) and _feasible(r, 0.999 * choice.S_max)

@@ -87,9 +87,10 @@ def choose_s(s_hat: float, s_max: float, margin: float) -> float:
 
 def largest_feasible_s(r: Resolved, T: int, strictly_proper: bool, solver: str) -> float:
     """``S_max`` of the resolved premise (its own S plays no part)."""
+    p = r.numbers
     ms = largest_s.max_feasible_s(
-        r.model, T, eps_e=r.eps_e, radius=r.radius, eps_w=r.eps_w, delta=r.delta,
-        eps_o=r.eps_o, gate=r.gate, strictly_proper=strictly_proper, solver=solver,
+        r.model, T, eps_e=p.eps, radius=p.radius, eps_w=p.eps_w, delta=p.delta,
+        eps_o=p.eps_o, gate=p.gate, strictly_proper=strictly_proper, solver=solver,
         shape=r.shape,
     )  # fmt: skip
     return ms.s_max
@@ -102,17 +103,18 @@ def paper_choice(
     """The chosen S and the paper's premise resolved at it; :class:`InfeasibleError` when
     no S >= 0 makes the paper's synthesis feasible."""
     r0 = resolve(paper_options(opts, 0.0, mode.eps_e), em, training)
+    p = r0.numbers
     s_max = largest_feasible_s(r0, opts.T, opts.strictly_proper, opts.solver)
     if not s_max >= 0:
         raise InfeasibleError(
             f"paper mode: no S >= 0 is feasible under the paper's premise (eps_e = "
-            f"{r0.eps_e:.4g}, r = {r0.radius:.4g}, eps_w = {r0.eps_w:.4g}, Delta = "
-            f"{r0.delta:.4g}); raise radius or T, or drop paper_mode",
-            {"eps_e": r0.eps_e, "radius": r0.radius},
+            f"{p.eps:.4g}, r = {p.radius:.4g}, eps_w = {p.eps_w:.4g}, Delta = "
+            f"{p.delta:.4g}); raise radius or T, or drop paper_mode",
+            {"eps_e": p.eps, "radius": p.radius},
         )
     s_hat = em.resolve_s("max") if em is not None else math.inf
     S = choose_s(s_hat, s_max, mode.margin)
-    choice = PaperChoice(S, s_max, s_hat, mode.margin, r0.eps_e, r0.radius)
+    choice = PaperChoice(S, s_max, s_hat, mode.margin, p.eps, p.radius)
     return choice, resolve(paper_options(opts, S, mode.eps_e), em, training)
 
 
