@@ -46,11 +46,7 @@ class Resolved:
     premise: Premise | None = None
 
     def values(self, nominal: sls.Taps | None = None) -> sls.Values:
-        p = self.numbers
-        return sls.Values(
-            Q=self.Q, R=self.R, eps_w=p.eps_w, eps_e=p.eps, S=p.S, radius=p.radius,
-            delta=p.delta, nominal=nominal, eps_o=p.eps_o, gate=p.gate,
-        )  # fmt: skip
+        return sls.Values(Q=self.Q, R=self.R, numbers=self.numbers, nominal=nominal)
 
     def structure(self, T: int, norm: sls.Norm, cost: Any, robust: bool, sp_: bool) -> sls.Structure:
         sh = self.shape

@@ -139,14 +139,12 @@ def check_flight(
     d_hat = np.full(len(t), np.nan)
     if why_not is None:
         assert bound.phi_xy is not None
-        premise = TheoremNumbers(
-            bound.numbers.eps, bound.numbers.S, bound.numbers.radius, bound.a_certificate, bound.phi_xy_tail
-        )
+        certified = TheoremNumbers(bound.numbers, bound.a_certificate, bound.phi_xy_tail)
         theorem, d_hat_all = theorem_check(
-            x_all, e_all, t_all, bound.phi_xy, premise, training.scale, training.distance
+            x_all, e_all, t_all, bound.phi_xy, certified, training.scale, training.distance
         )
         d_hat = d_hat_all[ok]
-        head = theorem_verdict(theorem, float(e_norm[k_err]), premise)
+        head = theorem_verdict(theorem, float(e_norm[k_err]), certified)
         if not theorem["bound_holds"] and premise_holds and within_radius:
             problems.append("although the premise holds on this flight")
     else:
