@@ -26,10 +26,18 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from qsls.pipeline.control import largest_s, sls
+from qsls.pipeline.control.costs import cost_of
 from qsls.pipeline.control.options import PaperModeOptions, SynthOptions
 from qsls.pipeline.control.premise import TrainingStates
 from qsls.pipeline.control.resolution import Resolved, resolve
 from qsls.pipeline.control.status import CHOSEN, RELAXED
+from qsls.pipeline.control.synth import (
+    Built,
+    certified_controller,
+    controller_plan,
+    design,
+    imitation_target,
+)
 from qsls.pipeline.core.errors import InfeasibleError
 from qsls.pipeline.errormodel.model import ErrorModel
 
@@ -128,15 +136,6 @@ def paper_controllers(
 ) -> tuple[PaperChoice, dict[str, Built]]:
     """The paper-mode controllers (``l1_robust_paper``, ...) as :class:`Built`, each
     imitating what its honest twin imitates (``done``: the honest responses by name)."""
-    from qsls.pipeline.control.costs import cost_of
-    from qsls.pipeline.control.synth import (
-        Built,
-        certified_controller,
-        controller_plan,
-        design,
-        imitation_target,
-    )  # fmt: skip
-
     assert opts.paper_mode is not None
     choice, r = paper_choice(opts, opts.paper_mode, em, training)
     plan = dict(controller_plan(opts))

@@ -44,16 +44,21 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.core.artifacts import StageWriter, require_stage
+from qsls.pipeline.core.artifacts import StageWriter, read_manifest, require_stage
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.model import (
     ErrorModel,
-    error_model_file,
     load_error_model,
+    resolve_model,
 )
+from qsls.pipeline.evaluate import figures as plots
+from qsls.pipeline.evaluate.assumptions import check_assumptions
+from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
 from qsls.pipeline.evaluate.certified import (
     ControllerBound,
+    certified_premise,
     check_model_hash,
     check_unweighted,
     expand_controllers,
@@ -61,7 +66,7 @@ from qsls.pipeline.evaluate.certified import (
     load_controller_bound,
 )
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
-from qsls.pipeline.evaluate.nees import Nees
+from qsls.pipeline.evaluate.nees import Nees, flight_nees
 from qsls.pipeline.evaluate.options import EvaluateOptions
 from qsls.pipeline.evaluate.table import Evaluation
 from qsls.pipeline.evaluate.theorem import (
@@ -72,6 +77,7 @@ from qsls.pipeline.evaluate.theorem import (
     uniform_grid,
 )
 from qsls.pipeline.evaluate.training import TrainingData, load_training
+from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.ingest.flight import errors, read_flight, states
 
 __all__ = [
@@ -239,8 +245,6 @@ class OutlierWindows:
 def outlier_windows(bound: ControllerBound, e: np.ndarray) -> OutlierWindows:
     """:class:`OutlierWindows` of the errors ``e`` under ``bound``'s premise (none to count
     without a ``beta``: the premise then has no sparse part and ``m = 0``)."""
-    from qsls.pipeline.errormodel import honest
-
     window = int(bound.certificate.get("T") or 0)
     m = int(bound.certificate.get("m") or 0)
     if not math.isfinite(bound.beta) or window <= 0:
@@ -353,12 +357,6 @@ class EvaluateResult:
         if self.warnings:
             out["warnings"] = len(self.warnings)
         return out
-
-
-def resolve_model(path: Path) -> tuple[Path, Path]:
-    """``(error_model.yaml, fit folder)`` from either."""
-    f = error_model_file(path)
-    return f, f.parent
 
 
 def load_flights(folders: Sequence[Path]) -> list[tuple[str, pd.DataFrame]]:
@@ -510,9 +508,6 @@ def vio_nees(
 ) -> tuple[Nees, ...]:
     """The position NEES (:mod:`.nees`) of every flight whose VIO recorded covariances, with
     the alignment its ingest manifest keeps."""
-    from qsls.pipeline.core.artifacts import read_manifest
-    from qsls.pipeline.evaluate.nees import flight_nees
-
     out = []
     for f, (name, frame) in zip(folders, flights, strict=True):
         folder = Path(f) if Path(f).is_dir() else Path(f).parent
@@ -534,10 +529,6 @@ def own_log_assumptions(
     each flight that keeps the controller's own tick log (``ticks.parquet`` beside
     ``flight.parquet``: ``qsls fly`` and ``qsls calibrate`` write it); a flight
     without one is named, with the log it needs."""
-    from qsls.pipeline.evaluate.assumptions import check_assumptions
-    from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
-    from qsls.pipeline.evaluate.certified import certified_premise
-
     premise = certified_premise(bound.folder)
     if premise is None:
         return None, [f"--flown-by {bound.name}: its certificate states no premise to check"]
@@ -572,8 +563,6 @@ def write_evaluation(
 ) -> EvaluateResult:
     """Write the stage folder: ``evaluation.parquet``, ``evaluation.json``,
     ``samples.parquet``, figures and, with ``assumptions``, ``assumptions.parquet``."""
-    from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
-
     with StageWriter(out, "evaluate", options=options, inputs=inputs, force=force) as w:
         if assumptions is not None:
             w.write_parquet(ASSUMPTIONS_FILE, assumptions)
@@ -622,8 +611,6 @@ def write_tables(
     }
     Evaluation(table, doc).save(w)
     if options.figures and len(samples):
-        from qsls.pipeline.evaluate import figures as plots
-
         sub = samples
         if own_only and "flown_by" in samples.columns:
             sub = samples[samples["controller"] == samples["flown_by"]]

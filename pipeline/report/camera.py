@@ -24,7 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.core import style
 from qsls.pipeline.core.artifacts import figure_bytes, read_manifest
+from qsls.pipeline.evaluate.estimators import PAIRED_FILE, estimator_ratios
 from qsls.pipeline.report.document import Figure, Section
 from qsls.pipeline.report.facts import Facts
 
@@ -82,8 +84,6 @@ def _side_by_side(f: Facts, sec: Section, vios: list[str]) -> None:
     """The fly stage's controllers with each estimator beside each other, over the flights
     paired by controller, condition and seed (module docstring)."""
     import pandas as pd
-
-    from qsls.pipeline.evaluate.estimators import PAIRED_FILE, estimator_ratios
 
     path = f.run_dir / f.fly_folder / PAIRED_FILE
     if not path.is_file():
@@ -159,8 +159,6 @@ def _held_count(h: Any) -> str:
 def _frames_figure(frames: list[tuple[str, Path]], counter: list[int]) -> Figure:
     """The kept frames side by side, tracked features circled."""
     import matplotlib.pyplot as plt
-
-    from qsls.pipeline.core import style
 
     fig, ax = style.subplots(1, len(frames), width=style.WIDTH_IN, height=2.6)
     for a, (cond, path) in zip(ax[0], frames, strict=True):

@@ -178,6 +178,7 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
             f.error_model = load_error_model(folder).model_dump()
             f.error_model_folder = f.rel(folder)
     for folder in stages.get("synth", []):
+        # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
         from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
 
         calibrated = _calibrated_folders(stages)
@@ -200,6 +201,7 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
 def _calibrated_folders(stages: dict[str, list[Path]]) -> dict[str, Path]:
     """Controller name -> its calibrated certificate's folder, in the calibration's first
     condition (the one the run's flights are checked against), from ``calibration.json``."""
+    # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
     from qsls.pipeline.control.artifacts import CERTIFICATE_FILE
 
     out: dict[str, Path] = {}
@@ -214,6 +216,7 @@ def _calibrated_folders(stages: dict[str, list[Path]]) -> dict[str, Path]:
 
 
 def _read_evaluation(f: Facts, folder: Path) -> None:
+    # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
     from qsls.pipeline.evaluate.table import Evaluation
 
     ev = Evaluation.load(folder) if Evaluation.exists(folder) else None
@@ -260,6 +263,7 @@ def recorded_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict | None:
     """The premise check on the recorded held-out flights (the ``evaluate`` stage): the
     theorem does not apply to a flight the controller did not fly, so this tests the error
     model there, apart from the verdict on the flights it flew."""
+    # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
     from qsls.pipeline.evaluate.verdict import verdicts
 
     for ev in f.evaluations:

@@ -10,6 +10,14 @@ from __future__ import annotations
 
 from typing import Any
 
+from qsls.pipeline.evaluate.assured import (
+    ASSURED,
+    ASSURED_FILE,
+    ESTIMATOR,
+    assured_comparison,
+    catch_share,
+)
+from qsls.pipeline.evaluate.estimators import FLIGHTS_FILE
 from qsls.pipeline.report.document import Section
 from qsls.pipeline.report.facts import Facts, g4, pct
 
@@ -38,15 +46,6 @@ def _calibration_notes(assured: Any) -> list[str]:
 
 def section_monitor(f: Facts, counter: list[int]) -> Section | None:
     import pandas as pd
-
-    from qsls.pipeline.evaluate.assured import (
-        ASSURED,
-        ASSURED_FILE,
-        ESTIMATOR,
-        assured_comparison,
-        catch_share,
-    )
-    from qsls.pipeline.evaluate.estimators import FLIGHTS_FILE
 
     if not f.fly_folder:
         return None

@@ -24,12 +24,16 @@ from pathlib import Path
 from typing import Any
 
 from qsls.pipeline.control.options import SweepSection
+from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.core.config import merge, validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.evaluate.options import CalibrateOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
+from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
 from qsls.pipeline.run.paths import resolve_path
+from qsls.pipeline.sim.options import SimOptions
 
 Src = Callable[[str], str]
 
@@ -108,8 +112,6 @@ def _flight_stages(
     progress: Progress,
 ) -> tuple[str, str | None]:
     """The flight's simulate stage (simulated flights) and its ingest stage: their ids."""
-    from qsls.pipeline.ingest.options import IngestOptions
-
     sources: list[Path] = []
     deps: tuple[str, ...] = ()
     ingest_opts: dict[str, Any] = merge(cfg.written("ingest"), fl.ingest)
@@ -180,6 +182,7 @@ def _evaluate_stages(
 def controller_folders(deps: Mapping[str, Path], calibrated: str | None) -> list[Path]:
     """The run's controllers: synth's, each replaced by its calibrated certificate's folder
     (``calibrate/<condition>/<name>``) where the calibration wrote one."""
+    # deferred: a stage's code loads when it runs (a cached run loads none of it)
     from qsls.pipeline.evaluate.certified import expand_controllers
 
     if calibrated is None:
@@ -202,8 +205,6 @@ def design_seeds(cfg: Any) -> list[int]:
 def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) -> str:
     """The candidates' calibration and validation flights (docs/calibration.md), under the
     run's ``simulate:`` conditions, on seeds no design flight used."""
-    from qsls.pipeline.evaluate.options import CalibrateOptions
-
     given = cfg.written("calibrate") or {}
     data = merge(given, {"sim": merge(cfg.written("simulate"), given.get("sim") or {})})
     data["design_seeds"] = sorted(set(design_seeds(cfg)) | set(given.get("design_seeds") or []))
@@ -216,6 +217,7 @@ def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) 
     opts = opts.model_copy(update={"design_seeds": list(given.get("design_seeds") or [])})
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.evaluate.calibrate import calibrate
 
         return calibrate(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
@@ -226,6 +228,7 @@ def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) 
 
 def _calibrated(out: Path) -> dict[str, Any]:
     """One line per calibrated certificate, kept in the run state for the console."""
+    # deferred: a stage's code loads when it runs (a cached run loads none of it)
     from qsls.pipeline.evaluate.calibrate import summary_lines
 
     return {"calibrated": summary_lines(out)}
@@ -234,6 +237,7 @@ def _calibrated(out: Path) -> dict[str, Any]:
 def _verdicts(out: Path) -> dict[str, Any]:
     """An evaluation's verdict lines, one per controller, kept in the run state so that a
     rerun with nothing to do prints them without reading the table."""
+    # deferred: a stage's code loads when it runs (a cached run loads none of it)
     from qsls.pipeline.evaluate.verdict import read_verdicts
 
     return {"verdicts": [v.line() for v in read_verdicts(out)]}
@@ -242,14 +246,13 @@ def _verdicts(out: Path) -> dict[str, Any]:
 def _simulate_stage(
     graph: StageGraph, cfg: Any, fl: Any, i: int, src: Src, progress: Progress
 ) -> str:
-    from qsls.pipeline.sim.options import SimOptions
-
     data = merge(cfg.written("simulate"), fl.simulate or {})
     data.setdefault("seed", cfg.seed + i)
     opts = validate(SimOptions, data, src(f"simulate (flight '{fl.name}')"))
     stage_id = f"simulate/{fl.name}"
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.sim.simulate import simulate
 
         return simulate(opts, out, force=True, progress=progress)
@@ -262,7 +265,7 @@ def _ingest_exec(
     opts: Any, sources: list[Path], sim_deps: tuple[str, ...], progress: Progress
 ) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
-        from qsls.pipeline.core.artifacts import read_manifest
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.ingest.stage import ingest
 
         # a simulated flight's bag, by the name its simulate stage recorded
@@ -274,6 +277,7 @@ def _ingest_exec(
 
 def _fit_exec(opts: Any, train: list[str], logged: list[str], progress: Progress) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.errormodel.fit import fit
         from qsls.pipeline.sim.simulate import CONTROL_FILE
 
@@ -290,6 +294,7 @@ def _sweep_exec(
     opts: Any, jobs: int | None, scheduler: str | None, wait_workers: float, progress: Progress
 ) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.control.sweep import sweep
 
         return sweep(
@@ -308,6 +313,7 @@ def _sweep_exec(
 
 def _synth_exec(opts: Any, progress: Progress) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.control.synth import synth
 
         return synth(deps["fit"], opts, out, force=True, progress=progress)
@@ -319,6 +325,7 @@ def _evaluate_exec(
     opts: Any, heldout: list[str], progress: Progress, calibrated: str | None = None
 ) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.evaluate.bound import evaluate
 
         flights = [deps[d] for d in heldout]
@@ -330,6 +337,7 @@ def _evaluate_exec(
 
 def _fly_exec(opts: Any, progress: Progress, calibrated: str | None = None) -> Any:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.evaluate.fly import fly_evaluate
 
         ctrls = controller_folders(deps, calibrated)
