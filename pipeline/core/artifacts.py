@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline import __version__
-from qsls.pipeline.core.config import config_files
 from qsls.pipeline.core.errors import InputError, OutputExistsError
 from qsls.pipeline.core.locks import (  # clean_stale: re-exported for the report stage
     OLD_MARK,
@@ -462,6 +461,10 @@ def refuse_overlap(
     symlinks followed). The ``--config`` files the command read are inputs too.
     ``contains=False`` allows an output folder holding an input (a run folder, which is
     never replaced as a whole)."""
+    # deferred: core.config builds the option models (~25 ms), which commands that only
+    # read stage folders (qsls run --help, through run.state) need not
+    from qsls.pipeline.core.config import config_files
+
     o = Path(out).resolve()
     for given in [*inputs, *config_files()]:
         i = Path(given).resolve()
