@@ -19,27 +19,33 @@ written) and the flying options (the evaluate section under its ``fly:``) here.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from qsls.pipeline.control.options import SweepSection
+from qsls.pipeline.control.options import SweepOptions, SweepSection, SynthOptions
 from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.core.config import merge, validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.evaluate.options import CalibrateOptions
+from qsls.pipeline.errormodel.options import FitOptions
+from qsls.pipeline.evaluate.options import CalibrateOptions, EvaluateOptions, FlyOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
 from qsls.pipeline.run.paths import resolve_path
 from qsls.pipeline.sim.options import SimOptions
 
+if TYPE_CHECKING:  # the runner imports this module
+    from qsls.pipeline.run.runner import FlightSpec, RunConfig
+
 Src = Callable[[str], str]
+Execute = Callable[[Path, Mapping[str, Path]], Any]
+"""A stage's ``execute(out, deps)`` (:class:`Stage`); it returns the stage's result."""
 
 
-def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROGRESS) -> StageGraph:
-    """Stages for ``cfg`` (a :class:`qsls.pipeline.run.runner.RunConfig`); paths relative to ``base``."""
+def build_graph(cfg: RunConfig, base: Path, root: Path, progress: Progress = NULL_PROGRESS) -> StageGraph:
+    """Stages for ``cfg``; paths relative to ``base``."""
     wanted = set(
         cfg.stages or ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate")
     )
@@ -103,11 +109,11 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
 
 def _flight_stages(
     graph: StageGraph,
-    cfg: Any,
-    fl: Any,
+    cfg: RunConfig,
+    fl: FlightSpec,
     i: int,
     base: Path,
-    wanted: set[str],
+    wanted: Collection[str],
     src: Src,
     progress: Progress,
 ) -> tuple[str, str | None]:
@@ -192,7 +198,7 @@ def controller_folders(deps: Mapping[str, Path], calibrated: str | None) -> list
     return [done.get(p.name, p) for p in expand_controllers([deps["synth"]])]
 
 
-def design_seeds(cfg: Any) -> list[int]:
+def design_seeds(cfg: RunConfig) -> list[int]:
     """The seeds of the run's simulated flights (every role: the design saw them all)."""
     seeds = []
     for i, fl in enumerate(cfg.flights):
@@ -202,7 +208,7 @@ def design_seeds(cfg: Any) -> list[int]:
     return seeds
 
 
-def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) -> str:
+def _calibrate_stage(graph: StageGraph, cfg: RunConfig, src: Src, progress: Progress) -> str:
     """The candidates' calibration and validation flights (docs/calibration.md), under the
     run's ``simulate:`` conditions, on seeds no design flight used."""
     given = cfg.written("calibrate") or {}
@@ -244,7 +250,7 @@ def _verdicts(out: Path) -> dict[str, Any]:
 
 
 def _simulate_stage(
-    graph: StageGraph, cfg: Any, fl: Any, i: int, src: Src, progress: Progress
+    graph: StageGraph, cfg: RunConfig, fl: FlightSpec, i: int, src: Src, progress: Progress
 ) -> str:
     data = merge(cfg.written("simulate"), fl.simulate or {})
     data.setdefault("seed", cfg.seed + i)
@@ -262,8 +268,8 @@ def _simulate_stage(
 
 
 def _ingest_exec(
-    opts: Any, sources: list[Path], sim_deps: tuple[str, ...], progress: Progress
-) -> Any:
+    opts: IngestOptions, sources: list[Path], sim_deps: tuple[str, ...], progress: Progress
+) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.ingest.stage import ingest
@@ -275,7 +281,7 @@ def _ingest_exec(
     return execute
 
 
-def _fit_exec(opts: Any, train: list[str], logged: list[str], progress: Progress) -> Any:
+def _fit_exec(opts: FitOptions, train: list[str], logged: list[str], progress: Progress) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.errormodel.fit import fit
@@ -291,8 +297,9 @@ def _fit_exec(opts: Any, train: list[str], logged: list[str], progress: Progress
 
 
 def _sweep_exec(
-    opts: Any, jobs: int | None, scheduler: str | None, wait_workers: float, progress: Progress
-) -> Any:
+    opts: SweepOptions, jobs: int | None, scheduler: str | None, wait_workers: float,
+    progress: Progress,
+) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.control.sweep import sweep
@@ -311,7 +318,7 @@ def _sweep_exec(
     return execute
 
 
-def _synth_exec(opts: Any, progress: Progress) -> Any:
+def _synth_exec(opts: SynthOptions, progress: Progress) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.control.synth import synth
@@ -322,8 +329,8 @@ def _synth_exec(opts: Any, progress: Progress) -> Any:
 
 
 def _evaluate_exec(
-    opts: Any, heldout: list[str], progress: Progress, calibrated: str | None = None
-) -> Any:
+    opts: EvaluateOptions, heldout: list[str], progress: Progress, calibrated: str | None = None
+) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.evaluate.bound import evaluate
@@ -335,7 +342,7 @@ def _evaluate_exec(
     return execute
 
 
-def _fly_exec(opts: Any, progress: Progress, calibrated: str | None = None) -> Any:
+def _fly_exec(opts: FlyOptions, progress: Progress, calibrated: str | None = None) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.evaluate.fly import fly_evaluate
