@@ -70,6 +70,10 @@ from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import error_model_file
 
+SWEEP_FILE = "sweep.parquet"
+"""One row per grid point (``sweep.csv`` beside it holds the same)."""
+S_MAX_FILE = "s_max.parquet"
+"""The largest feasible ``S`` per setting (``s_max_curve``)."""
 TIMING = ("build_time_s", "solve_time_s")
 RESULT_COLUMNS = (
     "status", "feasible", "skipped", "cost_value", "norm_phi_xy", "norm_N", "norm_phi_xx",
@@ -544,10 +548,10 @@ def sweep(
     table = table.drop(columns=list(TIMING))
     inputs = [error_model_file(error_model)] if error_model is not None else []
     with StageWriter(out, "sweep", options=options, inputs=inputs, force=force) as w:
-        w.write_parquet("sweep.parquet", table)
+        w.write_parquet(SWEEP_FILE, table)
         w.write_text("sweep.csv", table.to_csv(index=False))
         if len(smax):
-            w.write_parquet("s_max.parquet", smax)
+            w.write_parquet(S_MAX_FILE, smax)
             w.write_text("s_max.csv", smax.to_csv(index=False))
         w.write_figure("feasibility.png", feasibility_figure(table, options, smax))
         if len(smax):

@@ -260,7 +260,7 @@ def _why_theorem_not(bound: ControllerBound, flown_by: str | None, t: np.ndarray
     if not flown_by:
         return "a recorded flight"
     if bound.generalized:
-        return "its guarantee is checked on the controller's own log: assumptions.parquet"
+        return f"its guarantee is checked on the controller's own log: {ASSUMPTIONS_FILE}"
     if flown_by != bound.name:
         return f"flown by {flown_by}"
     if bound.phi_xy is None or not math.isfinite(bound.dt):

@@ -365,6 +365,11 @@ def _analyse(
     return Analysis(flights, checks, samples, assumptions, per, comparison, findings)
 
 
+FLOWN_FILE = "flights.parquet"
+"""One row per flight flown (the primary estimator's)."""
+PER_CONTROLLER_TABLE = "per_controller.parquet"
+"""Per controller and condition, means over seeds (the primary estimator's)."""
+
 CIRCLE_COLUMNS = (
     "tracking_rms_m_circle",
     "tracking_max_m_circle",
@@ -774,9 +779,9 @@ def fly_evaluate(
                     ),
                 )  # fmt: skip
 
-            w.write_parquet("flights.parquet", flights)
+            w.write_parquet(FLOWN_FILE, flights)
             w.write_parquet(ASSUMPTIONS_FILE, assumptions)
-            w.write_parquet("per_controller.parquet", per)
+            w.write_parquet(PER_CONTROLLER_TABLE, per)
             w.write_json(FINDINGS_FILE, findings)
             md = comparison_markdown(comparison, per, findings)
             w.write_text(

@@ -29,15 +29,14 @@ from qsls.pipeline.core.artifacts import figure_bytes, read_manifest
 from qsls.pipeline.evaluate.estimators import PAIRED_FILE, estimator_ratios
 from qsls.pipeline.report.document import Figure, Section
 from qsls.pipeline.report.facts import Facts
-
-FRAME_FILE = "camera_frame.npz"
+from qsls.pipeline.sim.simulate import CAMERA_FRAME, TRUTH_FILE
 
 
 def _simulated(f: Facts) -> list[dict[str, Any]]:
     """One record per simulate folder: its estimator, condition, seed and results."""
     rows = []
     for folder in f.stages.get("simulate", []):
-        truth_file = folder / "truth.json"
+        truth_file = folder / TRUTH_FILE
         if not truth_file.is_file():
             continue
         truth = json.loads(truth_file.read_text())
@@ -222,7 +221,7 @@ def section_camera(f: Facts, counter: list[int]) -> Section | None:
         )
     frames: dict[str, Path] = {}
     for r in sims:
-        path = r["folder"] / FRAME_FILE
+        path = r["folder"] / CAMERA_FRAME
         if r["camera"] and path.is_file():
             frames.setdefault(str(r["condition"]), path)
     if frames:

@@ -52,6 +52,8 @@ _LOG_STREAM = 1000
 
 CONTROL_FILE = "control.parquet"
 """What the controller saw and commanded at each tick (``stamp_ns``, ``y_*``, ``r_*``, ``u_*``)."""
+TRUTH_FILE = "truth.json"
+"""What the simulator knows that the log does not (clock offset, VIO frame, perception, crash)."""
 CAMERA_FRAME = "camera_frame.npz"
 """The camera loop's kept frame (``vio.camera.snapshot_s``) and its tracked features."""
 
@@ -260,7 +262,7 @@ def simulate(
             "metrics": metrics,
             "mass": flight.mass,
         }
-        w.write_json("truth.json", truth)
+        w.write_json(TRUTH_FILE, truth)
         if flight.camera_frame is not None:
             w.write_bytes(CAMERA_FRAME, npz_bytes(flight.camera_frame))
         for fname, df in _frames(flight, clocks["vio_clock_start_ns"]).items():
