@@ -24,11 +24,9 @@ def diagnose(
     nec = necessary_condition(r.numbers, r.shape.state_scale, r.shape.error_scale)
     n_lower = min_norm_bound(r.shape.state_scale, r.shape.error_scale)
     min_xy = largest_s.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
-    ms = largest_s.max_feasible_s(
-        r.model, T, eps_e=r.numbers.eps, radius=r.numbers.radius, eps_w=r.numbers.eps_w, delta=r.numbers.delta,
-        eps_o=r.numbers.eps_o, gate=r.numbers.gate, strictly_proper=strictly_proper, solver=solver,
-        shape=r.shape,
-    )  # fmt: skip
+    ms = largest_s.max_feasible_s_under(
+        r.model, T, r.numbers, shape=r.shape, strictly_proper=strictly_proper, solver=solver
+    )
     return {
         "S": r.numbers.S,
         "eps_e": r.numbers.eps,
@@ -107,10 +105,9 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
     mi = read_model(error_model)
     opts = options.model_copy(update={"S": 0.0})
     r = resolve(opts, mi.model, mi.training)
-    ms = largest_s.max_feasible_s(
-        r.model, options.T, eps_e=r.numbers.eps, radius=r.numbers.radius, eps_w=r.numbers.eps_w, delta=r.numbers.delta,
-        eps_o=r.numbers.eps_o, gate=r.numbers.gate, strictly_proper=options.strictly_proper,
-        solver=options.solver, shape=r.shape,
+    ms = largest_s.max_feasible_s_under(
+        r.model, options.T, r.numbers, shape=r.shape, strictly_proper=options.strictly_proper,
+        solver=options.solver,
     )  # fmt: skip
     min_xy = largest_s.min_phi_xy(
         r.model, options.T, strictly_proper=options.strictly_proper, solver=options.solver,

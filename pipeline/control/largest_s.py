@@ -179,3 +179,20 @@ def max_feasible_s(
                     break
             s_max = lo
     return MaxS(s_max, lam, nxy, nxx, it, total)
+
+
+def max_feasible_s_under(
+    model: LinearModel,
+    T: int,
+    numbers: PremiseNumbers,
+    *,
+    shape: Shape = Shape(),
+    strictly_proper: bool = False,
+    solver: str = "CLARABEL",
+) -> MaxS:
+    """:func:`max_feasible_s` under the premise ``numbers`` (its ``S`` aside)."""
+    p = numbers
+    return max_feasible_s(
+        model, T, eps_e=p.eps, radius=p.radius, eps_w=p.eps_w, delta=p.delta, eps_o=p.eps_o,
+        gate=p.gate, strictly_proper=strictly_proper, solver=solver, shape=shape,
+    )  # fmt: skip

@@ -95,12 +95,9 @@ def choose_s(s_hat: float, s_max: float, margin: float) -> float:
 
 def largest_feasible_s(r: Resolved, T: int, strictly_proper: bool, solver: str) -> float:
     """``S_max`` of the resolved premise (its own S plays no part)."""
-    p = r.numbers
-    ms = largest_s.max_feasible_s(
-        r.model, T, eps_e=p.eps, radius=p.radius, eps_w=p.eps_w, delta=p.delta,
-        eps_o=p.eps_o, gate=p.gate, strictly_proper=strictly_proper, solver=solver,
-        shape=r.shape,
-    )  # fmt: skip
+    ms = largest_s.max_feasible_s_under(
+        r.model, T, r.numbers, shape=r.shape, strictly_proper=strictly_proper, solver=solver
+    )
     return ms.s_max
 
 
