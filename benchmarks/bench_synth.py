@@ -33,11 +33,13 @@ import argparse
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from qsls.pipeline.control import sls
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.plant import quadrotor_model
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.sls_reference
@@ -116,8 +118,10 @@ def bench_build(T: int, repeats: int) -> list[tuple]:
 
     model = quadrotor_model()
     rows = []
-    values = sls.Values(Q=Q, R=R, **SETTING)
-    other = sls.Values(Q=Q, R=R, **{**SETTING, "S": 0.19})
+    s = SETTING
+    numbers = PremiseNumbers(s["eps_e"], s["S"], s["radius"], s["eps_w"], s["delta"])
+    values = sls.Values(Q=Q, R=R, numbers=numbers)
+    other = sls.Values(Q=Q, R=R, numbers=replace(numbers, S=0.19))
     for rep in range(repeats):
         for name, cls in (("eliminated", sls.SLSProblem), ("vectorized", VectorizedProblem)):
             sls._CACHE.clear()

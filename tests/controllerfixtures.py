@@ -48,14 +48,9 @@ def synthesized(
     """A robust L1 controller at horizon ``T`` with its certificate, as objects; with
     ``calibrated`` (a folder), written there and calibrated by :func:`as_calibrated`."""
     model = quadrotor_model()
-    values = sls.Values(
-        eps_w=SETTING.eps_w,
-        eps_e=SETTING.eps,
-        S=SETTING.S,
-        radius=SETTING.radius,
-        delta=SETTING.delta,
+    sol = sls.solve(
+        model, sls.Structure(T, "l1", "qr", True, strictly_proper), sls.Values(numbers=SETTING)
     )
-    sol = sls.solve(model, sls.Structure(T, "l1", "qr", True, strictly_proper), values)
     assert sol.status == "optimal" and sol.taps is not None, sol.solver_status
     c = certify(sol.taps, model, SETTING)
     cert = Certificate.of(
@@ -114,10 +109,7 @@ def gated(
     )
     shape = sls.Shape((1.0,) * 6, tuple(map(float, error_scale)), measure, sparse, gate is not None)
     st = sls.replace(shape.structure(T, "qr", False), robust=True)
-    values = sls.Values(
-        S=0.0, eps_e=0.1, radius=radius, eps_w=eps_w, delta=0.0, eps_o=eps_o, gate=gate
-    )
-    sol = sls.solve(model, st, values)
+    sol = sls.solve(model, st, sls.Values(numbers=numbers))
     assert sol.taps is not None, sol.solver_status
     body = certify(sol.taps, model, numbers, shape)
     assert body.status == "relaxed" and body.checks["robustness"]["passed"], body.checks

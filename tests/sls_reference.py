@@ -202,7 +202,8 @@ class VectorizedProblem(SLSProblem):
         qh = psd_sqrt(v.Q, "Q")
         rh = psd_sqrt(v.R, "R")
         if s.cost == "qr":
-            w = {"xx": v.eps_w, "xy": v.eps_e, "ux": v.eps_w, "uy": v.eps_e}
+            n = v.numbers
+            w = {"xx": n.eps_w, "xy": n.eps, "ux": n.eps_w, "uy": n.eps}
         else:
             w = dict.fromkeys(("xx", "xy", "ux", "uy"), 1.0)
         for name, half in (("xx", qh), ("xy", qh), ("ux", rh), ("uy", rh)):

@@ -37,9 +37,7 @@ SHAPE = sls.Shape((1.0,) * 6, (1, 1, 1, 0.5, 0.5, 0.5), "full", 2, True)
 def certified():
     model = quadrotor_model(H=H)
     st = sls.replace(SHAPE.structure(T, "qr", False), robust=True)
-    values = sls.Values(S=0.0, eps_e=0.1, radius=R, eps_w=0.01, delta=0.0, eps_o=NUMBERS.eps_o,
-                        gate=V)  # fmt: skip
-    sol = sls.solve(model, st, values)
+    sol = sls.solve(model, st, sls.Values(numbers=NUMBERS))
     assert sol.taps is not None, sol.solver_status
     c = certify(sol.taps, model, NUMBERS, SHAPE)
     assert c.status == RELAXED and c.checks['robustness']['passed'], c.checks

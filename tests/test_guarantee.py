@@ -145,12 +145,11 @@ def test_special_case_is_dean_et_al():
     """W = I, no outliers: the certificate's numbers are today's formula on a real synthesis."""
     model = quadrotor_model()
     S, eps, r, eps_w, delta = 0.05, 0.1, 1.0, 0.01, 0.05
-    values = sls.Values(S=S, eps_e=eps, radius=r, eps_w=eps_w, delta=delta)
-    sol = sls.solve(model, sls.Structure(20, "l1", "qr", True), values)
+    numbers = PremiseNumbers(eps=eps, S=S, radius=r, eps_w=eps_w, delta=delta)
+    sol = sls.solve(model, sls.Structure(20, "l1", "qr", True), sls.Values(numbers=numbers))
     assert sol.taps is not None
     n_xy = sls.l1_norm(sol.taps.Phi_xy)
     n_xx = sls.l1_norm(sol.taps.Phi_xx, model.H)
-    numbers = PremiseNumbers(eps=eps, S=S, radius=r, eps_w=eps_w, delta=delta)
     c = certify(sol.taps, model, numbers)
     a = eps_w * n_xx + delta
     assert c.status == RELAXED and c.checks['robustness']['passed']
@@ -168,12 +167,12 @@ def test_generalized_synthesis_meets_its_own_constraint():
     model = quadrotor_model()
     for measure, m in (("position", 0), ("full", 3)):
         shape = sls.Shape((1, 1, 1, 0.5, 0.5, 0.5), (1, 1, 1, 0.5, 0.5, 0.5), measure, m)
-        values = sls.Values(S=0.01, eps_e=0.02, radius=1.5, eps_w=0.005, delta=0.05, eps_o=0.2)
-        st = shape.structure(20, "qr", False)
-        sol = sls.solve(model, sls.Structure(**{**st.__dict__, "robust": True}), values)
-        assert sol.taps is not None, (measure, sol.solver_status)
         numbers = PremiseNumbers(eps=0.02, S=0.01, radius=1.5, eps_w=0.005, delta=0.05,
                                  eps_o=0.2, m=m)  # fmt: skip
+        st = shape.structure(20, "qr", False)
+        rob = sls.Structure(**{**st.__dict__, "robust": True})
+        sol = sls.solve(model, rob, sls.Values(numbers=numbers))
+        assert sol.taps is not None, (measure, sol.solver_status)
         c = certify(sol.taps, model, numbers, shape)
         assert c.status == RELAXED and c.checks['robustness']['passed'], c.checks
         assert c.robustness_lhs <= 1 - sls.ROBUST_BACKOFF + 1e-7
@@ -238,5 +237,5 @@ def test_necessary_condition_is_necessary_with_weights(state_scale, error_scale)
         ms = largest_s.max_feasible_s(model, 10, eps_e=0.6, radius=1.0, shape=shape)
         assert ms.s_max > 0.5
         rob = sls.Structure(**{**shape.structure(10, "qr", False).__dict__, "robust": True})
-        values = sls.Values(S=0.5, eps_e=0.6, radius=1.0, eps_w=0.0, delta=0.0)
+        values = sls.Values(numbers=PremiseNumbers(eps=0.6, S=0.5, radius=1.0, eps_w=0.0, delta=0.0))
         assert sls.solve(model, rob, values).solver_status == "optimal"

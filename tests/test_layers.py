@@ -147,3 +147,56 @@ def test_the_simulator_imports_the_c_backend_it_flies():
         if "registers the 'c' controller runtime" in f.read_text()
     ]
     assert callers == []
+
+
+def undeferred_imports(source: str) -> list[int]:
+    """Lines of the imports of qsls modules inside functions that no ``# deferred: <why>``
+    comment explains (on the import's lines, or on the comment and import lines just above
+    it: one comment may head a group)."""
+    tree = ast.parse(source)
+    lines = source.splitlines()
+    found = []
+    for fn in ast.walk(tree):
+        if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+            continue
+        for node in ast.walk(fn):
+            if isinstance(node, ast.ImportFrom):
+                internal = node.level > 0 or (node.module or "").split(".")[0] == "qsls"
+            elif isinstance(node, ast.Import):
+                internal = any(a.name.split(".")[0] == "qsls" for a in node.names)
+            else:
+                continue
+            if not internal:
+                continue
+            own = lines[node.lineno - 1 : node.end_lineno]
+            above, i = [], node.lineno - 2
+            while i >= 0 and lines[i].strip().startswith(("#", "from ", "import ", ")")):
+                above.append(lines[i])
+                i -= 1
+            if not any("# deferred:" in line for line in own + above):
+                found.append(node.lineno)
+    return sorted(set(found))
+
+
+def test_the_walker_finds_imports_in_functions_that_no_comment_defers():
+    src = (
+        "from qsls.pipeline.core import errors\n"
+        "def f():\n    from qsls.pipeline.control import sls\n"
+        "def g():\n    # deferred: a cycle\n    from qsls.pipeline.control import sls\n"
+        "    from qsls.pipeline.control import taps\n"
+        "def h():\n    import numpy\n    from . import sibling  # deferred: a cycle\n"
+        "    x = 1\n\n    from ..core import units\n"
+    )
+    assert undeferred_imports(src) == [3, 13]
+
+
+def test_imports_inside_functions_are_deferred_on_purpose():
+    """The import graph is read at the top of each module (issue 36): an import of a qsls
+    module inside a function stays there only for a cycle or for a heavy import a light
+    entry point must not pay, and a ``# deferred:`` comment says which."""
+    found = {
+        f.relative_to(PIPELINE).as_posix(): lines
+        for f in sorted(PIPELINE.rglob("*.py"))
+        if (lines := undeferred_imports(f.read_text()))
+    }
+    assert found == {}

@@ -86,6 +86,14 @@ ARTIFACT_FILES = {
     "error_model.yaml": "errormodel/model.py",
     "controller.npz": "control/artifacts.py",
     "certificate.yaml": "control/artifacts.py",
+    "sweep.parquet": "control/sweep.py",
+    "s_max.parquet": "control/sweep.py",
+    "calibration.json": "evaluate/calibrate.py",
+    "assumptions.parquet": "evaluate/verdict.py",
+    "findings.json": "evaluate/paired.py",
+    "flights.parquet": "evaluate/fly.py",
+    "per_controller.parquet": "evaluate/fly.py",
+    "camera_frame.npz": "sim/simulate.py",
 }
 """Each file that passes between stages, and the one module that spells its name."""
 

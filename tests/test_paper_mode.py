@@ -4,6 +4,8 @@ the premise was chosen, not measured."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from qsls.pipeline.control import sls
@@ -19,9 +21,7 @@ OPTS = SynthOptions(
 
 def _feasible(r, S: float) -> bool:
     st = r.structure(OPTS.T, "l1", "qr", True, False)
-    n = r.numbers
-    v = sls.Values(Q=r.Q, R=r.R, eps_w=n.eps_w, eps_e=n.eps, S=S, radius=n.radius,
-                   delta=n.delta)  # fmt: skip
+    v = sls.Values(Q=r.Q, R=r.R, numbers=replace(r.numbers, S=S))
     return sls.solve(r.model, st, v).status == "optimal"
 
 

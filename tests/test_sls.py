@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -17,6 +19,8 @@ from tests.lqg_reference import lqg_h2_squared
 Q = np.diag([10.0, 10, 10, 1, 1, 1])
 R = np.diag([1.0, 1, 0.1])
 MODEL = quadrotor_model()
+NOMINAL = replace(sls.NO_PREMISE, eps_w=0.01, eps=0.05)
+ROBUST = PremiseNumbers(eps=0.05, S=0.1, radius=1.0, eps_w=0.01, delta=0.05)
 
 
 @pytest.mark.parametrize(("strictly_proper", "design_value"), [(False, 152.1087), (True, 189.1760)])
@@ -28,7 +32,7 @@ def test_h2_without_robustness_equals_lqg(strictly_proper, design_value):
     sol = sls.solve(
         m,
         sls.Structure(60, "h2", "qr", False, strictly_proper),
-        sls.Values(Q=Q, R=R, eps_w=1.0, eps_e=0.5),
+        sls.Values(Q=Q, R=R, numbers=replace(sls.NO_PREMISE, eps_w=1.0, eps=0.5)),
     )
     assert sol.status == "optimal"
     # the optimum, and the H2 cost recomputed from the taps
@@ -53,7 +57,7 @@ def test_min_phi_xy_at_least_one_and_design_figures():
 
 def test_position_block_dc_gain_is_minus_identity():
     """Why ||Phi_xy|| >= 1: at z = 1 the position block of any achievable Phi_xy is -I."""
-    sol = sls.solve(MODEL, sls.Structure(15, "l1", "qr", False), sls.Values(eps_w=0.01, eps_e=0.05))
+    sol = sls.solve(MODEL, sls.Structure(15, "l1", "qr", False), sls.Values(numbers=NOMINAL))
     dc = sol.taps.Phi_xy.sum(axis=0)[:3, :3]
     np.testing.assert_allclose(dc, -np.eye(3), atol=1e-8)
     assert sls.l1_norm(sol.taps.Phi_xy) >= 1.0
@@ -70,7 +74,7 @@ def test_filter_bank_equals_sls_controller_transfer_function(strictly_proper):
     sol = sls.solve(
         MODEL,
         sls.Structure(12, "l1", "qr", True, strictly_proper),
-        sls.Values(eps_w=0.01, eps_e=0.05, S=0.15, radius=1.0, delta=0.05),
+        sls.Values(numbers=replace(ROBUST, S=0.15)),
     )
     t = sol.taps
     bank = filter_bank(t)
@@ -92,13 +96,13 @@ def test_max_feasible_s_is_feasible_and_one_percent_more_is_not():
     kw = {"eps_e": 0.05, "radius": 1.0, "eps_w": 0.01, "delta": 0.05}
     ms = largest_s.max_feasible_s(MODEL, 12, **kw)
     st = sls.Structure(12, "l1", "qr", True)
-    ok = sls.solve(MODEL, st, sls.Values(S=ms.s_max, **kw))
-    assert ok.status == "optimal"
     numbers = PremiseNumbers(eps=0.05, S=ms.s_max, radius=1.0, eps_w=0.01, delta=0.05)
+    ok = sls.solve(MODEL, st, sls.Values(numbers=numbers))
+    assert ok.status == "optimal"
     norms = Norms(sls.l1_norm(ok.taps.Phi_xy), sls.l1_norm(ok.taps.Phi_xx), 0.0)
     lhs = robustness_lhs(numbers, norms)
     assert lhs < 1.0
-    assert sls.solve(MODEL, st, sls.Values(S=1.01 * ms.s_max, **kw)).status == "infeasible"
+    assert sls.solve(MODEL, st, sls.Values(numbers=replace(numbers, S=1.01 * ms.s_max))).status == "infeasible"
     # no Delta, no process noise: S_max = 1 / min ||Phi_xy|| - eps_e / r
     ms0 = largest_s.max_feasible_s(MODEL, 12, eps_e=0.05, radius=1.0)
     assert ms0.s_max == pytest.approx(1 / largest_s.min_phi_xy(MODEL, 12) - 0.05, rel=1e-5)
@@ -124,7 +128,7 @@ class _StaticBank:
 
 
 def test_realized_controller_single_and_batch_steps_agree():
-    sol = sls.solve(MODEL, sls.Structure(10, "l1", "qr", False), sls.Values(eps_w=0.01, eps_e=0.05))
+    sol = sls.solve(MODEL, sls.Structure(10, "l1", "qr", False), sls.Values(numbers=NOMINAL))
     bank = filter_bank(sol.taps)
     rng = np.random.default_rng(1)
     ys = rng.normal(size=(30, 6, 3))
@@ -157,7 +161,7 @@ def test_l1_cost_optimum_matches_the_cost_recomputed_from_taps(full_q):
     q = Q.copy()
     if full_q:
         q[0, 3] = q[3, 0] = 1.5  # still positive definite
-    v = sls.Values(Q=q, R=R, eps_w=0.02, eps_e=0.05, S=0.1, radius=1.0, delta=0.05)
+    v = sls.Values(Q=q, R=R, numbers=replace(ROBUST, eps_w=0.02))
     sol = sls.solve(MODEL, sls.Structure(8, "l1", "qr", True), v)
     assert sol.status == "optimal"
     t = sol.taps
@@ -173,7 +177,7 @@ def test_l1_cost_optimum_matches_the_cost_recomputed_from_taps(full_q):
 
 
 def test_solver_trouble_is_never_certified():
-    v = sls.Values(eps_w=0.01, eps_e=0.05, S=0.1, radius=1.0, delta=0.05)
+    v = sls.Values(numbers=ROBUST)
     prob = sls.SLSProblem(MODEL, sls.Structure(10, "l1", "qr", True))
     sol = prob.solve(v, solver_options={"max_iter": 3})
     assert sol.status in ("inaccurate", "error")
@@ -190,7 +194,7 @@ def test_certificate_checks_catch_a_wrong_response():
     sol = sls.solve(
         MODEL,
         sls.Structure(10, "l1", "qr", True),
-        sls.Values(eps_w=0.01, eps_e=0.05, S=0.1, delta=0.05),
+        sls.Values(numbers=ROBUST),
     )
     setting = PremiseNumbers(eps=0.05, S=0.1, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
     c = certify.certify(sol.taps, MODEL, setting)
@@ -226,7 +230,7 @@ def test_a_new_cost_is_one_class_registered_by_name(monkeypatch):
     assert sol.status == "optimal"
     gain = l1_norm(sol.taps.Phi_xx, MODEL.H)
     assert sol.objective == pytest.approx(gain, rel=1e-6)
-    qr = sls.solve(MODEL, sls.Structure(10, "l1", "qr", False), sls.Values(Q=Q, R=R, eps_w=1.0, eps_e=0.5))
+    qr = sls.solve(MODEL, sls.Structure(10, "l1", "qr", False), sls.Values(Q=Q, R=R, numbers=replace(sls.NO_PREMISE, eps_w=1.0, eps=0.5)))
     assert gain <= l1_norm(qr.taps.Phi_xx, MODEL.H) + 1e-7
     with pytest.raises(ValueError, match="unknown cost 'nope'; the costs are qr, imitation"):
         costs.cost_of("nope")

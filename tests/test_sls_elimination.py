@@ -22,7 +22,7 @@ from tests.sls_reference import VectorizedProblem
 MODEL = quadrotor_model()
 Q = np.diag([10.0, 10, 10, 1, 1, 1])
 R = np.diag([1.0, 1, 0.1])
-NUMBERS = {"eps_w": 0.01, "eps_e": 0.05, "S": 0.1, "radius": 1.0, "delta": 0.05}
+NUMBERS = PremiseNumbers(eps=0.05, S=0.1, radius=1.0, eps_w=0.01, delta=0.05)
 # Clarabel's default tolerances leave either formulation's optimum ~1e-6 (relative) above
 # the true one; these make both exact to ~1e-9, so that 1e-7 compares the formulations.
 TIGHT = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10, "tol_ktratio": 1e-8}
@@ -49,18 +49,16 @@ def _both(structure: sls.Structure, values: sls.Values) -> tuple[sls.Solution, s
     return new, old
 
 
-def _numbers(shape: sls.Shape) -> dict[str, float]:
-    return {**NUMBERS, "S": S_POSITION, "eps_e": 0.02} if shape.measure == "position" else NUMBERS
+def _numbers(shape: sls.Shape) -> PremiseNumbers:
+    base = replace(NUMBERS, S=S_POSITION, eps=0.02) if shape.measure == "position" else NUMBERS
+    return replace(
+        base, eps_o=EPS_O if shape.m else 0.0, m=shape.m, gate=GATE if shape.gate else None
+    )
 
 
 def _same_certificate(
-    new: sls.Solution, old: sls.Solution, shape: sls.Shape, gate: float | None
+    new: sls.Solution, old: sls.Solution, shape: sls.Shape, numbers: PremiseNumbers
 ) -> str:
-    num = _numbers(shape)
-    numbers = PremiseNumbers(
-        eps=num["eps_e"], S=num["S"], radius=NUMBERS["radius"], eps_w=NUMBERS["eps_w"],
-        delta=NUMBERS["delta"], eps_o=EPS_O if shape.m else 0.0, m=shape.m, gate=gate,
-    )  # fmt: skip
     assert new.taps is not None and old.taps is not None
     c_new = certify.certify(new.taps, MODEL, numbers, shape, solver_status=new.status)
     c_old = certify.certify(old.taps, MODEL, numbers, shape, solver_status=old.status)
@@ -85,12 +83,12 @@ def _case(
     structure = replace(shape.structure(T, cost, timing), norm=norm, robust=robust)  # type: ignore[arg-type]
     values = sls.Values(
         Q=Q, R=R, nominal=_nominal(T) if cost == "imitation" else None,
-        eps_o=EPS_O if shape.m else 0.0, gate=GATE if shape.gate else None, **_numbers(shape),
+        numbers=_numbers(shape),
     )  # fmt: skip
     new, old = _both(structure, values)
     assert new.status == old.status == "optimal"
     assert new.objective == pytest.approx(old.objective, rel=1e-7)
-    return _same_certificate(new, old, shape, values.gate)
+    return _same_certificate(new, old, shape, values.numbers)
 
 
 BASIC = list(itertools.product(("l1", "h2"), ("qr", "imitation"), (True, False), (False, True)))
@@ -128,7 +126,7 @@ def test_same_optimum_with_the_premise_norms_at_T50(shape):
 def test_feasibility_subproblems_agree(shape, cost):
     """The problems behind min_phi_xy and the Dinkelbach step of max_feasible_s."""
     st = SHAPES[shape].structure(20, cost, False)
-    new, old = _both(st, sls.Values(eps_w=0.01, radius=0.8, ratio_lambda=0.3, eps_o=EPS_O))
+    new, old = _both(st, sls.Values(numbers=replace(sls.NO_PREMISE, eps_w=0.01, radius=0.8, eps_o=EPS_O), ratio_lambda=0.3))
     assert new.status == old.status == "optimal"
     assert new.objective == pytest.approx(old.objective, rel=1e-7)
 
@@ -140,11 +138,11 @@ def test_full_weights_and_the_full_pattern_give_the_same_optimum(cost):
     q = Q.copy()
     q[0, 3] = q[3, 0] = 1.5
     nominal = _nominal(12) if cost == "imitation" else None
-    full = sls.Values(Q=q, R=R, nominal=nominal, **NUMBERS)
+    full = sls.Values(Q=q, R=R, nominal=nominal, numbers=NUMBERS)
     st = sls.Structure(12, "l1", cost, True, diagonal_weights=False, decoupled=False)  # type: ignore[arg-type]
     new, old = _both(st, full)
     assert new.objective == pytest.approx(old.objective, rel=1e-7)
-    diag = sls.Values(Q=Q, R=R, nominal=nominal, **NUMBERS)
+    diag = sls.Values(Q=Q, R=R, nominal=nominal, numbers=NUMBERS)
     open_ = sls.SLSProblem(MODEL, replace(st, diagonal_weights=True))
     blocks = sls.SLSProblem(MODEL, replace(st, diagonal_weights=True, decoupled=True))
     a, b = (p.solve(diag, solver_options=TIGHT) for p in (open_, blocks))
@@ -159,7 +157,7 @@ def test_a_nominal_with_cross_terms_is_solved_without_the_block_pattern():
     xx = nominal.Phi_xx.copy()
     xx[3, 0, 1] = 0.3
     coupled = replace(nominal, Phi_xx=xx)
-    values = sls.Values(Q=Q, R=R, nominal=coupled, **NUMBERS)
+    values = sls.Values(Q=Q, R=R, nominal=coupled, numbers=NUMBERS)
     st = sls.Structure(10, "l1", "imitation", True)
     sol = sls.solve(MODEL, st, values, solver_options=TIGHT)
     old = VectorizedProblem(MODEL, st).solve(values, solver_options=TIGHT)

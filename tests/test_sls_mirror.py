@@ -23,8 +23,8 @@ EXTRA = (0.0,) * 5
 SHAPE = sls.Shape((1.0,) * 6 + EXTRA, (1.0, 1, 1, 0.5, 0.5, 0.5) + (1.0,) * 5, "full", 2, True)
 # numbers where the robustness constraint binds at T = 12 (the cost 1.50 instead of 1.21)
 VALUES = sls.Values(
-    Q=np.diag([10.0, 10, 10, 1, 1, 1] + [1e-6] * 5), R=np.diag([10.0, 10, 1]), eps_w=0.03,
-    eps_e=0.08, S=0.0, radius=1.5, delta=0.05, eps_o=1.0, gate=1.5,
+    Q=np.diag([10.0, 10, 10, 1, 1, 1] + [1e-6] * 5), R=np.diag([10.0, 10, 1]),
+    numbers=PremiseNumbers(eps=0.08, S=0.0, radius=1.5, eps_w=0.03, delta=0.05, eps_o=1.0, gate=1.5),
 )  # fmt: skip
 
 
@@ -81,7 +81,7 @@ def test_mirrored_problem_has_the_same_optimum_and_certificate(norm):
         atol=1e-12,
     )
     numbers = PremiseNumbers(
-        eps=VALUES.eps_e, S=0.0, radius=1.5, eps_w=0.03, delta=0.05, eps_o=1.0, m=2, gate=1.5
+        eps=VALUES.numbers.eps, S=0.0, radius=1.5, eps_w=0.03, delta=0.05, eps_o=1.0, m=2, gate=1.5
     )
     bodies = [
         certify.certify(s.taps, ATTITUDE, numbers, SHAPE, solver_status="optimal")
@@ -102,10 +102,8 @@ def test_mirrored_problem_has_the_same_optimum_and_certificate(norm):
     ids=["position-strictly-proper", "weights-outliers-gate-ratio"],
 )
 def test_mirrored_hover_problems_keep_their_optimum(shape, cost, strictly_proper):
-    values = sls.Values(
-        eps_w=0.01, eps_e=0.02, S=0.005, radius=1.0, delta=0.05, eps_o=0.02, gate=2.0,
-        ratio_lambda=0.1,
-    )  # fmt: skip
+    numbers = PremiseNumbers(eps=0.02, S=0.005, radius=1.0, eps_w=0.01, delta=0.05, eps_o=0.02, gate=2.0)
+    values = sls.Values(numbers=numbers, ratio_lambda=0.1)
     structure = replace(shape.structure(10, cost, strictly_proper), robust=cost == "qr")
     full = sls.SLSProblem(HOVER, structure).solve(values, solver_options=sls.TIGHT)
     half = sls.SLSProblem(HOVER, replace(structure, mirrored=True))

@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 
 from qsls.cli.main import app
 from qsls.pipeline.control import largest_s, sls
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.sweep import (
     ABOVE_S_MAX,
     NECESSARY,
@@ -167,7 +168,7 @@ def test_points_above_the_largest_feasible_s_are_exactly_the_infeasible_ones():
         assert mark_above_s_max([above, at], {setting_key(point): upper}) == 1
         assert skip_reason(above) == ABOVE_S_MAX and skip_reason(at) == ""
         for p, want in ((above, "infeasible"), (at, "optimal")):
-            v = sls.Values(S=p["S"], eps_e=0.05, **setting)
+            v = sls.Values(numbers=PremiseNumbers(eps=0.05, S=p["S"], **setting))
             assert sls.solve(model, sls.Structure(T, "l1", "qr", True), v).status == want
 
 

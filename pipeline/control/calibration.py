@@ -47,6 +47,7 @@ from qsls.pipeline.control.guarantee import (
     sparse_gain,
     velocity_deviation,
 )
+from qsls.pipeline.errormodel.honest import clopper_pearson as cp
 
 Method = Literal["conformal", "pac"]
 SCORED = ("dense", "disturbance", "reference", "outliers")
@@ -104,8 +105,6 @@ def smallest_flights(alpha: float, method: Method, delta: float = 0.05) -> int:
 
 def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
     """Two-sided Clopper-Pearson interval of ``k`` breaking flights out of ``n``."""
-    from qsls.pipeline.errormodel.honest import clopper_pearson as cp
-
     return cp(k, n, level)
 
 

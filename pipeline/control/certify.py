@@ -26,7 +26,14 @@ import numpy as np
 
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.artifacts import CertificateBody
-from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, guarantee
+from qsls.pipeline.control.guarantee import (
+    Norms,
+    PremiseNumbers,
+    guarantee,
+    measured_channels,
+    outlier_channels,
+    velocity_deviation,
+)
 from qsls.pipeline.control.realize import FilterBank, RealizedController, filter_bank
 from qsls.pipeline.control.sls import Taps
 from qsls.pipeline.control.status import (
@@ -196,12 +203,6 @@ def certify(
         },
     }
     if numbers.gate is not None and shape.gate:
-        from qsls.pipeline.control.guarantee import (
-            measured_channels,
-            outlier_channels,
-            velocity_deviation,
-        )
-
         rho_v = velocity_deviation(
             taps.Phi_xy, taps.Phi_xx @ model.H, numbers, error_scale=shape.error_scale,
             measured=measured_channels(shape.measure),
@@ -232,7 +233,5 @@ def certify(
 def _unread_gain(taps: Taps, shape: sls.Shape) -> float:
     """Largest ``|Phi_uy|`` entry on the error channels the controller must not read (0 for
     ``measure: full``): position-only output feedback is checked on the taps, not assumed."""
-    from qsls.pipeline.control.guarantee import measured_channels
-
     unread = [j for j in range(taps.Phi_uy.shape[2]) if j not in measured_channels(shape.measure)]
     return float(np.abs(taps.Phi_uy[:, :, unread]).max()) if unread else 0.0

@@ -73,7 +73,8 @@ class QRCost(WeightedCost):
     reads_H = True
 
     def scale(self, v: Values) -> dict[str, float]:
-        return {"xx": v.eps_w, "xy": v.eps_e, "ux": v.eps_w, "uy": v.eps_e}
+        n = v.numbers
+        return {"xx": n.eps_w, "xy": n.eps, "ux": n.eps_w, "uy": n.eps}
 
 
 class ImitationCost(WeightedCost):
@@ -113,9 +114,10 @@ class RatioCost:
 
     def set_values(self, prob: SLSProblem, p: dict[str, Any], v: Values) -> None:
         p["lam"].value = float(v.ratio_lambda)
-        p["c_xx_ratio"].value = float(v.eps_w / v.radius)
+        n = v.numbers
+        p["c_xx_ratio"].value = float(n.eps_w / n.radius)
         if "c_o_ratio" in p:
-            p["c_o_ratio"].value = float(v.eps_o / v.radius)
+            p["c_o_ratio"].value = float(n.eps_o / n.radius)
 
 
 class NoCost:

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from qsls.pipeline.control import largest_s
+from qsls.pipeline.control.guarantee import PremiseNumbers, min_norm_bound, necessary_condition
 from qsls.pipeline.control.options import ProblemOptions
 from qsls.pipeline.control.resolution import Resolved, read_model, resolve
 from qsls.pipeline.core.errors import InfeasibleError
@@ -20,16 +21,12 @@ def diagnose(
 ) -> dict[str, Any]:
     """Why a robust problem is infeasible: the necessary condition, the smallest
     achievable ``N`` at ``T`` and the largest feasible ``S``."""
-    from qsls.pipeline.control.guarantee import min_norm_bound, necessary_condition
-
     nec = necessary_condition(r.numbers, r.shape.state_scale, r.shape.error_scale)
     n_lower = min_norm_bound(r.shape.state_scale, r.shape.error_scale)
     min_xy = largest_s.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
-    ms = largest_s.max_feasible_s(
-        r.model, T, eps_e=r.numbers.eps, radius=r.numbers.radius, eps_w=r.numbers.eps_w, delta=r.numbers.delta,
-        eps_o=r.numbers.eps_o, gate=r.numbers.gate, strictly_proper=strictly_proper, solver=solver,
-        shape=r.shape,
-    )  # fmt: skip
+    ms = largest_s.max_feasible_s_under(
+        r.model, T, r.numbers, shape=r.shape, strictly_proper=strictly_proper, solver=solver
+    )
     return {
         "S": r.numbers.S,
         "eps_e": r.numbers.eps,
@@ -79,23 +76,24 @@ def diagnosis_message(d: dict[str, Any]) -> str:
 # --------------------------------------------------------------------------- max S
 @dataclass(frozen=True)
 class MaxFeasibleSResult:
+    """The largest feasible ``S`` at ``T`` under the premise ``numbers`` (its ``S`` is 0:
+    the one asked for), the smallest ``||Phi_xy||`` at ``T`` and Dinkelbach's iterations."""
+
     s_max: float
     min_norm_phi_xy: float
     T: int
-    eps_e: float
-    radius: float
-    eps_w: float
-    delta: float
+    numbers: PremiseNumbers
     iterations: int
 
     def summary(self) -> dict[str, Any]:
+        n = self.numbers
         return {
             "largest feasible S": self.s_max,
             "T": self.T,
-            "eps_e": self.eps_e,
-            "radius": self.radius,
-            "eps_w": self.eps_w,
-            "delta": self.delta,
+            "eps_e": n.eps,
+            "radius": n.radius,
+            "eps_w": n.eps_w,
+            "delta": n.delta,
             "smallest ||Phi_xy|| at T": self.min_norm_phi_xy,
             "Dinkelbach iterations": self.iterations,
         }
@@ -107,10 +105,9 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
     mi = read_model(error_model)
     opts = options.model_copy(update={"S": 0.0})
     r = resolve(opts, mi.model, mi.training)
-    ms = largest_s.max_feasible_s(
-        r.model, options.T, eps_e=r.numbers.eps, radius=r.numbers.radius, eps_w=r.numbers.eps_w, delta=r.numbers.delta,
-        eps_o=r.numbers.eps_o, gate=r.numbers.gate, strictly_proper=options.strictly_proper,
-        solver=options.solver, shape=r.shape,
+    ms = largest_s.max_feasible_s_under(
+        r.model, options.T, r.numbers, shape=r.shape, strictly_proper=options.strictly_proper,
+        solver=options.solver,
     )  # fmt: skip
     min_xy = largest_s.min_phi_xy(
         r.model, options.T, strictly_proper=options.strictly_proper, solver=options.solver,
@@ -129,6 +126,4 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
             "raise r or T",
             {"T": options.T, "min_norm_phi_xy": min_xy, "lower_bound_at_S0": lower},
         )
-    return MaxFeasibleSResult(
-        ms.s_max, min_xy, options.T, r.numbers.eps, r.numbers.radius, r.numbers.eps_w, r.numbers.delta, ms.iterations
-    )
+    return MaxFeasibleSResult(ms.s_max, min_xy, options.T, r.numbers, ms.iterations)

@@ -118,9 +118,11 @@ def system_norms(
 
 @dataclass(frozen=True)
 class PremiseNumbers:
-    """The numbers of the premise (docs/guarantee.md)."""
+    """The numbers of the premise (docs/guarantee.md), the one numeric form every stage reads."""
 
     eps: float
+    """The dense error bound: ``eps`` of docs/guarantee.md, which the options, the certificate
+    file and the paper call ``eps_e`` (one number, two spellings)."""
     S: float
     radius: float
     eps_w: float

@@ -11,8 +11,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from qsls.pipeline.control.guarantee import largest_slope
+from qsls.pipeline.control.guarantee import PremiseNumbers, largest_slope
 from qsls.pipeline.control.sls import (
+    NO_PREMISE,
     ROBUST_BACKOFF,
     Shape,
     Values,
@@ -91,8 +92,9 @@ def max_ratio(
     structure = shape.structure(T, "ratio", strictly_proper)
     lam, total, it, gap = 0.0, 0.0, 0, math.inf
     nxy = nxx = float("nan")
+    numbers = replace(NO_PREMISE, eps_w=eps_w, radius=radius, eps_o=eps_o)
     for it in range(1, max_iter + 1):
-        values = Values(eps_w=eps_w, radius=radius, ratio_lambda=lam, eps_o=eps_o)
+        values = Values(numbers=numbers, ratio_lambda=lam)
         sol = solve(model, structure, values, solver=solver)
         total += sol.solve_time_s
         if sol.taps is None:
@@ -161,9 +163,10 @@ def max_feasible_s(
         gated = replace(shape.structure(T, "none", strictly_proper), robust=True)
 
         def feasible(S: float) -> bool:
-            v = Values(S=S, eps_e=eps_e, radius=radius, eps_w=eps_w, delta=delta, eps_o=eps_o,
-                       gate=gate)  # fmt: skip
-            return solve(model, gated, v, solver=solver).status == "optimal"
+            numbers = PremiseNumbers(
+                eps=eps_e, S=S, radius=radius, eps_w=eps_w, delta=delta, eps_o=eps_o, gate=gate
+            )
+            return solve(model, gated, Values(numbers=numbers), solver=solver).status == "optimal"
 
         lo, hi = 0.0, s_max
         if not feasible(lo):
@@ -176,3 +179,20 @@ def max_feasible_s(
                     break
             s_max = lo
     return MaxS(s_max, lam, nxy, nxx, it, total)
+
+
+def max_feasible_s_under(
+    model: LinearModel,
+    T: int,
+    numbers: PremiseNumbers,
+    *,
+    shape: Shape = Shape(),
+    strictly_proper: bool = False,
+    solver: str = "CLARABEL",
+) -> MaxS:
+    """:func:`max_feasible_s` under the premise ``numbers`` (its ``S`` aside)."""
+    p = numbers
+    return max_feasible_s(
+        model, T, eps_e=p.eps, radius=p.radius, eps_w=p.eps_w, delta=p.delta, eps_o=p.eps_o,
+        gate=p.gate, strictly_proper=strictly_proper, solver=solver, shape=shape,
+    )  # fmt: skip

@@ -26,10 +26,18 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from qsls.pipeline.control import largest_s, sls
+from qsls.pipeline.control.costs import cost_of
 from qsls.pipeline.control.options import PaperModeOptions, SynthOptions
 from qsls.pipeline.control.premise import TrainingStates
 from qsls.pipeline.control.resolution import Resolved, resolve
 from qsls.pipeline.control.status import CHOSEN, RELAXED
+from qsls.pipeline.control.synth import (
+    Built,
+    certified_controller,
+    controller_plan,
+    design,
+    imitation_target,
+)
 from qsls.pipeline.core.errors import InfeasibleError
 from qsls.pipeline.errormodel.model import ErrorModel
 
@@ -87,12 +95,9 @@ def choose_s(s_hat: float, s_max: float, margin: float) -> float:
 
 def largest_feasible_s(r: Resolved, T: int, strictly_proper: bool, solver: str) -> float:
     """``S_max`` of the resolved premise (its own S plays no part)."""
-    p = r.numbers
-    ms = largest_s.max_feasible_s(
-        r.model, T, eps_e=p.eps, radius=p.radius, eps_w=p.eps_w, delta=p.delta,
-        eps_o=p.eps_o, gate=p.gate, strictly_proper=strictly_proper, solver=solver,
-        shape=r.shape,
-    )  # fmt: skip
+    ms = largest_s.max_feasible_s_under(
+        r.model, T, r.numbers, shape=r.shape, strictly_proper=strictly_proper, solver=solver
+    )
     return ms.s_max
 
 
@@ -128,15 +133,6 @@ def paper_controllers(
 ) -> tuple[PaperChoice, dict[str, Built]]:
     """The paper-mode controllers (``l1_robust_paper``, ...) as :class:`Built`, each
     imitating what its honest twin imitates (``done``: the honest responses by name)."""
-    from qsls.pipeline.control.costs import cost_of
-    from qsls.pipeline.control.synth import (
-        Built,
-        certified_controller,
-        controller_plan,
-        design,
-        imitation_target,
-    )  # fmt: skip
-
     assert opts.paper_mode is not None
     choice, r = paper_choice(opts, opts.paper_mode, em, training)
     plan = dict(controller_plan(opts))

@@ -16,7 +16,7 @@ import numpy as np
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.guarantee import PremiseNumbers, grouped_premise
 from qsls.pipeline.control.options import ProblemOptions
-from qsls.pipeline.control.premise import Premise, group_record
+from qsls.pipeline.control.premise import Premise, group_record, premise_record
 from qsls.pipeline.core.artifacts import sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import LinearModel, plant_model
@@ -46,11 +46,7 @@ class Resolved:
     premise: Premise | None = None
 
     def values(self, nominal: sls.Taps | None = None) -> sls.Values:
-        p = self.numbers
-        return sls.Values(
-            Q=self.Q, R=self.R, eps_w=p.eps_w, eps_e=p.eps, S=p.S, radius=p.radius,
-            delta=p.delta, nominal=nominal, eps_o=p.eps_o, gate=p.gate,
-        )  # fmt: skip
+        return sls.Values(Q=self.Q, R=self.R, numbers=self.numbers, nominal=nominal)
 
     def structure(self, T: int, norm: sls.Norm, cost: Any, robust: bool, sp_: bool) -> sls.Structure:
         sh = self.shape
@@ -207,8 +203,6 @@ def resolve(
     """Numbers for every setting, names (``max``, ``lofo``, ``p95``...) looked up on the error
     model and its training states, and the premise they form with its violated shares (pure:
     no file is read)."""
-    from qsls.pipeline.control.premise import premise_record
-
     if opts.radius is not None:
         radius = float(opts.radius)
     elif em is not None:

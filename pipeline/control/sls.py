@@ -78,6 +78,7 @@ from qsls.pipeline.control.costs import PremiseNorms, WeightedCost, cost_of
 from qsls.pipeline.control.guarantee import (
     VELOCITY,
     Norms,
+    PremiseNumbers,
     error_weights,
     measured_channels,
     outlier_channels,
@@ -240,21 +241,22 @@ def is_diagonal(m: np.ndarray) -> bool:
     return bool(np.array_equal(m, np.diag(np.diag(m))))
 
 
+NO_PREMISE = PremiseNumbers(eps=0.0, S=0.0, radius=1.0, eps_w=0.0, delta=0.0)
+"""The premise of an instance that states none: every number 0, ``r = 1``."""
+
+
 @dataclass(frozen=True)
 class Values:
-    """The numbers of one problem instance (the cvxpy Parameters' values)."""
+    """The numbers of one problem instance (the cvxpy Parameters' values): the cost's
+    weights, the premise's numbers (``eps`` is ``eps_e``; ``eps_o`` read by robust problems
+    with ``m > 0``, ``gate`` by structures with a gate; ``R0`` and ``m`` by none), the
+    nominal responses to imitate and Dinkelbach's ``lambda`` (cost ``ratio`` only)."""
 
     Q: np.ndarray = field(default_factory=lambda: np.diag([10.0, 10, 10, 1, 1, 1]))
     R: np.ndarray = field(default_factory=lambda: np.diag([1.0, 1, 0.1]))
-    eps_w: float = 0.0
-    eps_e: float = 0.0
-    S: float = 0.0
-    radius: float = 1.0
-    delta: float = 0.0
+    numbers: PremiseNumbers = NO_PREMISE
     nominal: Taps | None = None
-    ratio_lambda: float = 0.0  # Dinkelbach's lambda (cost 'ratio' only)
-    eps_o: float = 0.0  # outlier magnitude bound (robust problems with m > 0)
-    gate: float | None = None  # velocity gate V (structures with gate)
+    ratio_lambda: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -512,20 +514,20 @@ class SLSProblem:
 
     # ---- parameters
     def set_values(self, v: Values) -> None:
-        s, p = self.structure, self.params
+        s, p, n = self.structure, self.params, v.numbers
         if s.robust:
-            p["c_xy"].value = float(v.S + v.eps_e / v.radius)
-            p["c_xx"].value = float(v.eps_w / v.radius)
-            p["c_rhs"].value = float(1.0 - v.delta / v.radius - ROBUST_BACKOFF)
+            p["c_xy"].value = float(n.S + n.eps / n.radius)
+            p["c_xx"].value = float(n.eps_w / n.radius)
+            p["c_rhs"].value = float(1.0 - n.delta / n.radius - ROBUST_BACKOFF)
             if "c_o" in p:
-                p["c_o"].value = float(v.eps_o / v.radius)
+                p["c_o"].value = float(n.eps_o / n.radius)
             if "g_V" in p:
-                if v.gate is None:
+                if n.gate is None:
                     raise ValueError("this problem was built with a velocity gate: give its V")
-                p["g_w"].value = float(v.eps_w)
-                p["g_d"].value = float(premise_bound(v.eps_e, v.S, v.radius))
-                p["g_o"].value = float(v.eps_o)
-                p["g_V"].value = float(v.gate)
+                p["g_w"].value = float(n.eps_w)
+                p["g_d"].value = float(premise_bound(n.eps, n.S, n.radius))
+                p["g_o"].value = float(n.eps_o)
+                p["g_V"].value = float(n.gate)
         self.cost.set_values(self, p, v)
 
     def _shared_rows(self, cost: WeightedCost) -> bool:
@@ -706,7 +708,7 @@ def light_rows_hold(taps: Taps, model: LinearModel, values: Values, structure: S
     if not len(light):
         return True
     qh, rh = psd_sqrt(values.Q, "Q"), psd_sqrt(values.R, "R")
-    top, bottom = cost_blocks(taps, model, qh, rh, values.eps_w, values.eps_e)
+    top, bottom = cost_blocks(taps, model, qh, rh, values.numbers.eps_w, values.numbers.eps)
     rows = np.abs(top).sum(axis=(0, 2))
     kept = np.delete(rows, light)
     return bool(rows[light].max() <= max(kept.max(), np.abs(bottom).sum(axis=(0, 2)).max()))

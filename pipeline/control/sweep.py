@@ -39,24 +39,41 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.control import largest_s, sls
 from qsls.pipeline.control.costs import cost_of
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
 from qsls.pipeline.control.guarantee import necessary_condition
+from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.options import AXES as AXES
 from qsls.pipeline.control.options import DASK_SCHEMES as DASK_SCHEMES
 from qsls.pipeline.control.options import ProblemOptions, check_scheduler
 from qsls.pipeline.control.options import SweepOptions as SweepOptions
 from qsls.pipeline.control.options import SweepSection as SweepSection
+from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_columns
 from qsls.pipeline.control.resolution import read_model, resolve
-from qsls.pipeline.control.synth import warn_size
+from qsls.pipeline.control.sls import Shape
+from qsls.pipeline.control.status import SOLVER_INACCURATE
+from qsls.pipeline.control.synth import (
+    IMITATE_NAMED,
+    design,
+    imitation_target,
+    nominal_from_folder,
+    warn_size,
+)
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.cluster import run_dask
+from qsls.pipeline.core.config import validate
 from qsls.pipeline.core.errors import ConfigError, InputError
+from qsls.pipeline.core.plant import plant_model
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import error_model_file
 
+SWEEP_FILE = "sweep.parquet"
+"""One row per grid point (``sweep.csv`` beside it holds the same)."""
+S_MAX_FILE = "s_max.parquet"
+"""The largest feasible ``S`` per setting (``s_max_curve``)."""
 TIMING = ("build_time_s", "solve_time_s")
 RESULT_COLUMNS = (
     "status", "feasible", "skipped", "cost_value", "norm_phi_xy", "norm_N", "norm_phi_xx",
@@ -71,8 +88,6 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
     (:class:`~qsls.pipeline.control.resolution.Resolved`, as ``qsls synth`` resolves it), the
     premise's violated shares (:func:`premise_fields`) and everything a worker needs
     (picklable)."""
-    from qsls.pipeline.core.config import validate
-
     axes = list(options.grid)
     base = options.model_dump(exclude={"grid", "certify", "s_max_curve", "chunks_per_job"})
     points: list[dict[str, Any]] = []
@@ -141,8 +156,6 @@ def _no_premise(r: Any) -> dict[str, Any]:
 
 
 def _shape(p: dict[str, Any]) -> Any:
-    from qsls.pipeline.control.sls import Shape
-
     return Shape(
         tuple(p["state_scale"]), tuple(p["error_scale"]), p["measure"], p["m_value"],
         p["gate_value"] is not None,
@@ -249,8 +262,6 @@ def preload_workers() -> None:
 
 
 def _model(p: dict[str, Any]) -> Any:
-    from qsls.pipeline.core.plant import plant_model
-
     H = None if p["H"] is None else np.asarray(p["H"])
     return plant_model(p.get("plant", "hover"), dt=p["dt"], mass=p["mass"], H=H)
 
@@ -259,9 +270,6 @@ def run_point(p: dict[str, Any]) -> dict[str, Any]:
     """Solve (and certify) one grid point: :func:`qsls.pipeline.control.synth.design`, the
     path ``qsls synth`` takes, its row the projection of that design; never raises for a
     solver outcome."""
-    from qsls.pipeline.control.status import SOLVER_INACCURATE
-    from qsls.pipeline.control.synth import design
-
     row: dict[str, Any] = {"index": p["index"], **p["grid"]}
     row.update({f"{k}_value": p[k] for k in ("S", "eps_e", "radius", "delta", "eps_w")})
     row.update({k: p[k] for k in PREMISE_COLUMNS})
@@ -322,20 +330,14 @@ def _nominal(p: dict[str, Any]) -> Any:
     first), or a controller folder's."""
     if not cost_of(p["cost"]).imitates:
         return None
-    from qsls.pipeline.control.synth import IMITATE_NAMED, imitation_target, nominal_from_folder
 
     r, T, target = p["resolved"], p["T"], p["imitate"]
     if target not in IMITATE_NAMED:
         return nominal_from_folder(Path(target), T)
     done: dict[str, Any] = {}
     if target == "pd":
-        from qsls.pipeline.control.nominal import pd_responses
-        from qsls.pipeline.control.pdgain import PDGains
-
         done["pd"] = pd_responses(r.model, PDGains(kp=p["kp"], kd=p["kd"]), T)[1]
     else:
-        from qsls.pipeline.control import sls
-
         norm = target.removesuffix("_nominal")
         st = r.structure(T, norm, "qr", False, p["strictly_proper"])
         sol = sls.solve(r.model, st, r.values(), solver=p["solver"])
@@ -360,8 +362,6 @@ def s_max_task(spec: dict[str, Any]) -> list[dict[str, Any]]:
     """Largest feasible S (and the smallest ||Phi_xy||) for one ``T`` and error setting and
     every ``eps_e`` of the grid: one Dinkelbach run serves them all (``eps_e`` only shifts
     ``S_max``, :func:`qsls.pipeline.control.largest_s.max_ratio`)."""
-    from qsls.pipeline.control import largest_s
-
     model = _model(spec)
     shape = _shape(spec)
     common = {
@@ -548,10 +548,10 @@ def sweep(
     table = table.drop(columns=list(TIMING))
     inputs = [error_model_file(error_model)] if error_model is not None else []
     with StageWriter(out, "sweep", options=options, inputs=inputs, force=force) as w:
-        w.write_parquet("sweep.parquet", table)
+        w.write_parquet(SWEEP_FILE, table)
         w.write_text("sweep.csv", table.to_csv(index=False))
         if len(smax):
-            w.write_parquet("s_max.parquet", smax)
+            w.write_parquet(S_MAX_FILE, smax)
             w.write_text("s_max.csv", smax.to_csv(index=False))
         w.write_figure("feasibility.png", feasibility_figure(table, options, smax))
         if len(smax):

@@ -36,19 +36,24 @@ from qsls.pipeline.control.artifacts import (
     CertificateBody,
     Controller,
 )
+from qsls.pipeline.control.certify import PREMISE_VIOLATED, certify, guarantee_fields
+from qsls.pipeline.control.certify import certify as check  # design() has a `certify` flag
 from qsls.pipeline.control.costs import cost_of
 from qsls.pipeline.control.feasibility import MaxFeasibleSResult as MaxFeasibleSResult
 from qsls.pipeline.control.feasibility import diagnose, diagnosis_message
 from qsls.pipeline.control.feasibility import max_feasible_s as max_feasible_s
+from qsls.pipeline.control.guarantee import Norms, necessary_condition
+from qsls.pipeline.control.nominal import pd_responses, spectral_radius, static_gain_norms
 from qsls.pipeline.control.options import ProblemOptions as ProblemOptions
 from qsls.pipeline.control.options import SynthOptions
 from qsls.pipeline.control.pdgain import PDGains
+from qsls.pipeline.control.premise import refuse_empty
 from qsls.pipeline.control.resolution import ModelInput as ModelInput
 from qsls.pipeline.control.resolution import Resolved as Resolved
 from qsls.pipeline.control.resolution import read_model as read_model
 from qsls.pipeline.control.resolution import resolve as resolve
 from qsls.pipeline.control.status import RELAXED, Status
-from qsls.pipeline.core.artifacts import StageWriter
+from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
 from qsls.pipeline.core.plant import NU, NX
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
@@ -82,8 +87,6 @@ def design(
     returned, not raised); ``certify=False`` only measures them (a ``reference`` body).
     ``relaxed`` instead of ``certified`` when the premise does not hold on all the training
     data."""
-    from qsls.pipeline.control.certify import certify as check
-
     sol = sls.solve(r.model, structure, r.values(nominal), solver=solver)
     if sol.taps is None:
         return Design(structure, sol)
@@ -126,8 +129,6 @@ def _built(
 ) -> Built:  # fmt: skip
     premise = setting.get("premise")
     if body.status_reason and premise is not None and premise.S.violated is None:
-        from qsls.pipeline.control.certify import PREMISE_VIOLATED
-
         others = [e for k, e in premise.entries().items() if k != "S"]
         reason = body.status_reason
         if premise.n_excluded == 0 and all(e.violated == 0.0 for e in others):
@@ -185,10 +186,6 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
     """The PD reference: its responses truncated to ``T`` taps are stored, but its norms and
     guarantee numbers are the true closed loop's (:func:`nominal.static_gain_norms`), never the
     truncated ones, which underestimate them."""
-    from qsls.pipeline.control.certify import certify, guarantee_fields
-    from qsls.pipeline.control.guarantee import Norms
-    from qsls.pipeline.control.nominal import pd_responses, spectral_radius, static_gain_norms
-
     K, taps = pd_responses(r.model, gains, T)
     body = certify(taps, r.model, r.numbers, r.shape, reference=True)
     norms = static_gain_norms(r.model, K, T)
@@ -337,9 +334,6 @@ def synthesize(
     no data tested). No file is read or written; ``imitate`` is the target's responses when
     ``options.imitate`` names a controller folder. Raises :class:`InfeasibleError` with a
     diagnosis when a robust problem is infeasible."""
-    from qsls.pipeline.control.guarantee import necessary_condition
-    from qsls.pipeline.control.premise import refuse_empty
-
     r = resolve(options, model, training)
     if r.premise is not None:
         refuse_empty(r.premise)
@@ -380,7 +374,9 @@ def synthesize(
         progress.advance()
     choice = None
     if options.paper_mode is not None:
-        from qsls.pipeline.control.papermode import paper_controllers
+        from qsls.pipeline.control.papermode import (
+            paper_controllers,  # deferred: import cycle (papermode builds on this module)
+        )
 
         done = {n: c.taps for n, c in ctrls.items()}
         choice, paper = paper_controllers(options, model, training, done, base_extra, imitate)
@@ -399,8 +395,6 @@ def synth(
 ) -> SynthResult:
     """The stage: read the error model and its training states, :func:`synthesize`, write one
     folder per controller (``controller.npz``, ``certificate.yaml``) and the manifest."""
-    from qsls.pipeline.core.artifacts import check_output
-
     check_output(out, force, [error_model] if error_model is not None else [])
     mi = read_model(error_model)
     folder = None

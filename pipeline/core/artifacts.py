@@ -461,6 +461,8 @@ def refuse_overlap(
     symlinks followed). The ``--config`` files the command read are inputs too.
     ``contains=False`` allows an output folder holding an input (a run folder, which is
     never replaced as a whole)."""
+    # deferred: core.config builds the option models (~25 ms), which commands that only
+    # read stage folders (qsls run --help, through run.state) need not
     from qsls.pipeline.core.config import config_files
 
     o = Path(out).resolve()

@@ -13,6 +13,8 @@ import signal
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+from qsls.pipeline.core.cluster import run_dask
+
 
 def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -71,8 +73,6 @@ def run_tasks(
     ``jobs <= 1`` or there is a single task. ``done(i)`` is called in this process when task
     ``i`` has finished (for progress). The results are the same whichever runs them."""
     if scheduler is not None and tasks:
-        from qsls.pipeline.core.cluster import run_dask
-
         return run_dask(list(tasks), scheduler, done, note, worker_timeout, what)
     results: list[Any] = [None] * len(tasks)
     if jobs <= 1 or len(tasks) <= 1:

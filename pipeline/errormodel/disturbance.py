@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from qsls.pipeline.core.plant import input_states
+
 Source = str
 INPUTS = "inputs"
 """``w`` measured with the flight's logged inputs."""
@@ -34,8 +36,6 @@ def realized_disturbance(
     from the inputs alone (:func:`qsls.pipeline.core.plant.input_states`), and ``w`` is what
     the model leaves unexplained on the physical states: ``w_k = x_{k+1} - [A z_k + B du_k]_x``
     with ``z_k = [x_k, a_k]``."""
-    from qsls.pipeline.core.plant import input_states
-
     x = np.asarray(x, float)
     du = np.asarray(u, float) - np.asarray(u_hover, float)
     n = x.shape[1]

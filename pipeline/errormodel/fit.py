@@ -35,8 +35,11 @@ import pandas as pd
 
 from qsls.pipeline.core.artifacts import StageWriter, check_output, require_stage
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import GRAVITY, plant_model
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.core.references import parse_reference
+from qsls.pipeline.core.references import Reference, parse_reference
+from qsls.pipeline.errormodel import figures as fit_plots
+from qsls.pipeline.errormodel.disturbance import INPUTS, RESIDUAL, flight_disturbance
 from qsls.pipeline.errormodel.honest import apart
 from qsls.pipeline.errormodel.model import (
     ERROR_MODEL_FILE,
@@ -260,9 +263,6 @@ def _disturbance(
 ) -> tuple[np.ndarray, str]:
     """``w_k`` of every sample (:mod:`qsls.pipeline.errormodel.disturbance`) and how it was
     measured."""
-    from qsls.pipeline.core.plant import GRAVITY, plant_model
-    from qsls.pipeline.errormodel.disturbance import INPUTS, RESIDUAL, flight_disturbance
-
     if options.inputs is not None and len(options.inputs) != len(loaded):
         raise InputError(
             f"inputs: {len(options.inputs)} control logs for {len(loaded)} flights; give one "
@@ -367,7 +367,6 @@ def reference_states(options: FitOptions) -> tuple[np.ndarray | None, str | None
                 "'circle:radius=1,height=1,period=5' (kinds: circle, hover, figure8)"
             )
         ref = parse_reference(ref)
-    from qsls.pipeline.core.references import Reference
 
     dur = ref.natural_duration()
     t0 = 0.0 if options.reference_lead_in else float(getattr(ref, "start_s", 0.0))
@@ -655,8 +654,6 @@ def _write(
         w.write_yaml(ERROR_MODEL_FILE, model)
         w.write_parquet(TRAINING_FILE, training)
         if options.figures:
-            from qsls.pipeline.errormodel import figures as fit_plots
-
             figs = fit_plots.make_figures(model, ps, tr, idx, options.percentiles)
             for name, fig in figs.items():
                 w.write_figure(name, fig)

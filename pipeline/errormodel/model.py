@@ -175,6 +175,12 @@ def error_model_file(path: Path) -> Path:
     return f
 
 
+def resolve_model(path: Path) -> tuple[Path, Path]:
+    """``(error_model.yaml, fit folder)`` from either."""
+    f = error_model_file(path)
+    return f, f.parent
+
+
 def load_error_model(path: Path) -> ErrorModel:
     """Read ``error_model.yaml`` (or a fit folder holding it); clear errors when malformed."""
     import yaml

@@ -19,7 +19,9 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.errormodel import honest
+from qsls.pipeline.errormodel.disturbance import shaped_norm
 from qsls.pipeline.errormodel.model import TRAINING_FILE, W_COLS
+from qsls.pipeline.ingest.flight import E_COLS, X_COLS
 
 ONES = (1.0,) * 6
 
@@ -112,8 +114,6 @@ class TrainingStates:
         if spec not in self._measured:
             w = None
             if self.w is not None:
-                from qsls.pipeline.errormodel.disturbance import shaped_norm
-
                 H = None if spec.H is None else np.asarray(spec.H, float)
                 w = shaped_norm(self.w, H)
             self._measured[spec] = measure(self.x, self.e, self.flight, w, spec, self.environment)
@@ -124,8 +124,6 @@ class TrainingStates:
         """From a table with the flight columns ``x_*``, ``e_*``, optionally ``flight``,
         ``environment`` and the disturbance ``w_*`` (the fit's ``training_states.parquet``)."""
         import pandas as pd
-
-        from qsls.pipeline.ingest.flight import E_COLS, X_COLS
 
         x, e = df[list(X_COLS)].to_numpy(float), df[list(E_COLS)].to_numpy(float)
         codes = pd.factorize(df["flight"])[0] if "flight" in df.columns else np.zeros(len(df), int)

@@ -44,16 +44,21 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.core.artifacts import StageWriter, require_stage
+from qsls.pipeline.core.artifacts import StageWriter, read_manifest, require_stage
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.model import (
     ErrorModel,
-    error_model_file,
     load_error_model,
+    resolve_model,
 )
+from qsls.pipeline.evaluate import figures as plots
+from qsls.pipeline.evaluate.assumptions import check_assumptions
+from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
 from qsls.pipeline.evaluate.certified import (
     ControllerBound,
+    certified_premise,
     check_model_hash,
     check_unweighted,
     expand_controllers,
@@ -61,7 +66,7 @@ from qsls.pipeline.evaluate.certified import (
     load_controller_bound,
 )
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
-from qsls.pipeline.evaluate.nees import Nees
+from qsls.pipeline.evaluate.nees import Nees, flight_nees
 from qsls.pipeline.evaluate.options import EvaluateOptions
 from qsls.pipeline.evaluate.table import Evaluation
 from qsls.pipeline.evaluate.theorem import (
@@ -72,6 +77,7 @@ from qsls.pipeline.evaluate.theorem import (
     uniform_grid,
 )
 from qsls.pipeline.evaluate.training import TrainingData, load_training
+from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.ingest.flight import errors, read_flight, states
 
 __all__ = [
@@ -139,14 +145,12 @@ def check_flight(
     d_hat = np.full(len(t), np.nan)
     if why_not is None:
         assert bound.phi_xy is not None
-        premise = TheoremNumbers(
-            bound.numbers.eps, bound.numbers.S, bound.numbers.radius, bound.a_certificate, bound.phi_xy_tail
-        )
+        certified = TheoremNumbers(bound.numbers, bound.a_certificate, bound.phi_xy_tail)
         theorem, d_hat_all = theorem_check(
-            x_all, e_all, t_all, bound.phi_xy, premise, training.scale, training.distance
+            x_all, e_all, t_all, bound.phi_xy, certified, training.scale, training.distance
         )
         d_hat = d_hat_all[ok]
-        head = theorem_verdict(theorem, float(e_norm[k_err]), premise)
+        head = theorem_verdict(theorem, float(e_norm[k_err]), certified)
         if not theorem["bound_holds"] and premise_holds and within_radius:
             problems.append("although the premise holds on this flight")
     else:
@@ -241,8 +245,6 @@ class OutlierWindows:
 def outlier_windows(bound: ControllerBound, e: np.ndarray) -> OutlierWindows:
     """:class:`OutlierWindows` of the errors ``e`` under ``bound``'s premise (none to count
     without a ``beta``: the premise then has no sparse part and ``m = 0``)."""
-    from qsls.pipeline.errormodel import honest
-
     window = int(bound.certificate.get("T") or 0)
     m = int(bound.certificate.get("m") or 0)
     if not math.isfinite(bound.beta) or window <= 0:
@@ -258,7 +260,7 @@ def _why_theorem_not(bound: ControllerBound, flown_by: str | None, t: np.ndarray
     if not flown_by:
         return "a recorded flight"
     if bound.generalized:
-        return "its guarantee is checked on the controller's own log: assumptions.parquet"
+        return f"its guarantee is checked on the controller's own log: {ASSUMPTIONS_FILE}"
     if flown_by != bound.name:
         return f"flown by {flown_by}"
     if bound.phi_xy is None or not math.isfinite(bound.dt):
@@ -355,12 +357,6 @@ class EvaluateResult:
         if self.warnings:
             out["warnings"] = len(self.warnings)
         return out
-
-
-def resolve_model(path: Path) -> tuple[Path, Path]:
-    """``(error_model.yaml, fit folder)`` from either."""
-    f = error_model_file(path)
-    return f, f.parent
 
 
 def load_flights(folders: Sequence[Path]) -> list[tuple[str, pd.DataFrame]]:
@@ -512,9 +508,6 @@ def vio_nees(
 ) -> tuple[Nees, ...]:
     """The position NEES (:mod:`.nees`) of every flight whose VIO recorded covariances, with
     the alignment its ingest manifest keeps."""
-    from qsls.pipeline.core.artifacts import read_manifest
-    from qsls.pipeline.evaluate.nees import flight_nees
-
     out = []
     for f, (name, frame) in zip(folders, flights, strict=True):
         folder = Path(f) if Path(f).is_dir() else Path(f).parent
@@ -536,10 +529,6 @@ def own_log_assumptions(
     each flight that keeps the controller's own tick log (``ticks.parquet`` beside
     ``flight.parquet``: ``qsls fly`` and ``qsls calibrate`` write it); a flight
     without one is named, with the log it needs."""
-    from qsls.pipeline.evaluate.assumptions import check_assumptions
-    from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
-    from qsls.pipeline.evaluate.certified import certified_premise
-
     premise = certified_premise(bound.folder)
     if premise is None:
         return None, [f"--flown-by {bound.name}: its certificate states no premise to check"]
@@ -574,8 +563,6 @@ def write_evaluation(
 ) -> EvaluateResult:
     """Write the stage folder: ``evaluation.parquet``, ``evaluation.json``,
     ``samples.parquet``, figures and, with ``assumptions``, ``assumptions.parquet``."""
-    from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
-
     with StageWriter(out, "evaluate", options=options, inputs=inputs, force=force) as w:
         if assumptions is not None:
             w.write_parquet(ASSUMPTIONS_FILE, assumptions)
@@ -624,8 +611,6 @@ def write_tables(
     }
     Evaluation(table, doc).save(w)
     if options.figures and len(samples):
-        from qsls.pipeline.evaluate import figures as plots
-
         sub = samples
         if own_only and "flown_by" in samples.columns:
             sub = samples[samples["controller"] == samples["flown_by"]]

@@ -41,12 +41,41 @@ import pandas as pd
 
 from qsls.pipeline.control import calibration as cal
 from qsls.pipeline.control import guarantee
-from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.control.artifacts import (
+    CERTIFICATE_FILE,
+    CONTROLLER_FILE,
+    Calibration,
+    Certificate,
+    load_controller_dir,
+)
+from qsls.pipeline.control.guarantee import (
+    PremiseNumbers,
+    measured_channels,
+    outlier_channels,
+    system_norms,
+)
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED
+from qsls.pipeline.core.artifacts import StageWriter, atomic_write_bytes, check_output
+from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.evaluate.assumptions import CertifiedPremise, FlownLog, signals
+from qsls.pipeline.core.references import Reference
+from qsls.pipeline.core.units import NS
+from qsls.pipeline.errormodel.model import load_error_model, resolve_model
+from qsls.pipeline.evaluate.assumptions import (
+    CertifiedPremise,
+    FlownLog,
+    check_assumptions,
+    crashed,
+    signals,
+)
+from qsls.pipeline.evaluate.certified import certified_premise, expand_controllers
 from qsls.pipeline.evaluate.options import CalibrateOptions as CalibrateOptions
+from qsls.pipeline.evaluate.training import load_training
+from qsls.pipeline.sim.closedloop import fly
+from qsls.pipeline.sim.controllers import feedforward
+from qsls.pipeline.sim.options import SimOptions
 
 STAGE = "calibrate"
 SCORES_FILE = "scores.parquet"
@@ -113,13 +142,6 @@ class TickLog:
 
 def fly_job(job: Job) -> TickLog:
     """Fly ``job`` (no bag: the tick log is what the scores read)."""
-    from qsls.pipeline.core.config import merge
-    from qsls.pipeline.core.references import Reference
-    from qsls.pipeline.core.units import NS
-    from qsls.pipeline.sim.closedloop import fly
-    from qsls.pipeline.sim.controllers import feedforward
-    from qsls.pipeline.sim.options import SimOptions
-
     ref = dict(job.sim.get("reference") or {})
     cx, cy = ref.get("center", (0.0, 0.0))
     over: dict[str, Any] = {
@@ -198,9 +220,6 @@ floor-crash rule decide the flight, not perception."""
 # --------------------------------------------------------------------------- the certificate
 def taps_of(folder: Path) -> cal.Responses:
     """What the condition needs of the candidate's taps, in its certificate's weights."""
-    from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.control.guarantee import measured_channels, outlier_channels, system_norms
-
     d = load_controller_dir(folder)
     c = d.certificate
     p = c.premise
@@ -293,14 +312,6 @@ def calibrated_certificate(
 ) -> Path:
     """Write ``out`` (a controller folder): the candidate's controller and its certificate with
     the inflated premise's numbers and the ``calibration`` record."""
-    from qsls.pipeline.control.artifacts import (
-        CERTIFICATE_FILE,
-        CONTROLLER_FILE,
-        Calibration,
-        Certificate,
-    )
-    from qsls.pipeline.core.artifacts import atomic_write_bytes
-
     cert = Certificate.load(folder)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out / CONTROLLER_FILE, (folder / CONTROLLER_FILE).read_bytes())
@@ -347,9 +358,6 @@ class CalibrateResult:
 
 def candidates(synth_dir: Path, names: Sequence[str] | None) -> list[Path]:
     """Robust controllers of ``synth_dir`` whose design check passed (or ``names``)."""
-    from qsls.pipeline.control.artifacts import Certificate
-    from qsls.pipeline.evaluate.certified import expand_controllers
-
     folders = expand_controllers([synth_dir])
     by = {f.name: f for f in folders}
     if names is not None:
@@ -378,12 +386,6 @@ def calibrate(
     progress: Progress = NULL_PROGRESS,
 ) -> CalibrateResult:
     """Fly, score, calibrate and validate every candidate (module docstring)."""
-    from qsls.pipeline.core.artifacts import StageWriter, check_output
-    from qsls.pipeline.core.pools import pool_size, run_tasks
-    from qsls.pipeline.errormodel.model import load_error_model
-    from qsls.pipeline.evaluate.assumptions import check_assumptions, crashed
-    from qsls.pipeline.evaluate.bound import load_training, resolve_model
-    from qsls.pipeline.evaluate.certified import certified_premise
 
     check_output(Path(out), force)
     calib_seeds, valid_seeds = options.seed_lists()

@@ -23,10 +23,13 @@ import numpy as np
 from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
 from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.control.nominal import static_gain_responses
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.plant import NX
+from qsls.pipeline.core.plant import GRAVITY, NX
+from qsls.pipeline.errormodel import honest
+from qsls.pipeline.evaluate.assumptions import CertifiedPremise
 
 
 @dataclass(frozen=True)
@@ -66,8 +69,6 @@ class ControllerBound:
 
     def dense(self, e: np.ndarray) -> np.ndarray:
         """``|d_k|_e``: the part of the error the premise bounds by ``eps_e + S d_k``."""
-        from qsls.pipeline.errormodel import honest
-
         d, _ = honest.split_errors(e, self.beta, self.measure)
         return honest.weighted_norm(d, self.error_scale)
 
@@ -141,9 +142,6 @@ def certified_premise(folder: Path) -> Any:
     """What the certificate in ``folder`` promises, for the checks on its own flights
     (:class:`qsls.pipeline.evaluate.assumptions.CertifiedPremise`); None for a controller
     without a guarantee to check (a reference, a nominal or a failed one)."""
-    from qsls.pipeline.core.plant import GRAVITY
-    from qsls.pipeline.evaluate.assumptions import CertifiedPremise
-
     d = load_controller_dir(folder)
     c = d.certificate
     if c.status not in (CERTIFIED, RELAXED) or not c.robust or c.rho_star is None:
@@ -181,8 +179,6 @@ def load_controller_bound(folder: Path) -> ControllerBound:
     norm_xy, norm_xx_h, tail = xy.value, norms["phi_xx_h"].value, xy.tail_bound
     phi_xy = taps.Phi_xy
     if ctrl.K is not None and ctrl.kind == "static_gain" and math.isfinite(norm_xy):
-        from qsls.pipeline.control.nominal import static_gain_responses
-
         phi_xy = static_gain_responses(ctrl.model, ctrl.K, xy.horizon).Phi_xy
     return ControllerBound(
         name=d.name,

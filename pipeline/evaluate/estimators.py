@@ -23,6 +23,8 @@ from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
+from qsls.pipeline.evaluate.stats import paired_ratio
+
 if TYPE_CHECKING:
     from qsls.pipeline.core.artifacts import StageWriter
     from qsls.pipeline.evaluate.fly import Analysis
@@ -79,8 +81,6 @@ def estimator_ratios(pairs: pd.DataFrame, a: str, b: str) -> pd.DataFrame:
     (:func:`qsls.pipeline.evaluate.stats.paired_ratio`; no difference: 1). ``METRIC_n`` counts
     the pairs used (a crashed flight with a zero or missing metric drops its pair), ``n`` the
     pairs."""
-    from qsls.pipeline.evaluate.stats import paired_ratio
-
     rows = []
     for (cond, ctrl), g in pairs.groupby(["condition", "controller"], sort=False):
         row: dict[str, Any] = {"condition": cond, "controller": ctrl}

@@ -9,7 +9,6 @@ measured, whether it agrees) or ``None`` when the flights needed for it were not
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -17,6 +16,7 @@ import pandas as pd
 
 from qsls.pipeline.control import guarantee
 from qsls.pipeline.evaluate.bound import ControllerBound
+from qsls.pipeline.evaluate.stats import paired_ratio, ratio_interval
 
 PAPER_CONTROLLERS = ("pd", "l1_nominal", "l1_robust", "l1_robust_imitation")
 ROBUST_QR = "l1_robust"
@@ -217,55 +217,6 @@ def compare_with_paper(
     return [f for f in found if f is not None]
 
 
-def comparison_markdown(
-    comparison: Sequence[dict[str, Any]],
-    per: pd.DataFrame,
-    findings: dict[str, Any] | None = None,
-) -> str:
-    """The findings table (paired by seed with intervals when ``findings``, the
-    ``findings.json`` document, is given) and the per-controller metrics as Markdown."""
-    from qsls.pipeline.evaluate.paired import findings_markdown
-
-    lines = ["# qsls against the paper's findings", ""]
-
-    def cell(v: Any) -> str:
-        return str(v).replace("|", "\\|")
-
-    if findings is not None:
-        lines += findings_markdown(findings, comparison)
-        pm = findings.get("paper_mode")
-        if pm:
-            lines += ["", f"Paper mode, finding 2's measure ({pm['metric']}, < 1: softer than PD):"]
-            lines += [
-                f"- {c} ({cond}): {v['effect']:.3g} [{v['ci'][0]:.3g}, {v['ci'][1]:.3g}]"
-                for c, by in pm["controllers"].items()
-                for cond, v in by.items()
-                if v["ci"][0] is not None and v["ci"][1] is not None
-            ]
-        lines += state_dependence_markdown(findings.get("state_dependence"))
-    else:
-        lines += ["| finding (paper) | qsls | agrees |", "|---|---|---|"]
-        lines += [
-            f"| {cell(c['finding'])} | {cell(c['qsls'])} | {cell(c['agrees'])} |"
-            for c in comparison
-        ]
-    cols = [
-        "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
-        "perception_error_rms", "perception_error_max", "control_effort_rms",
-        "control_smoothness_rms", "smoothness_vs_pd", "reaction_vs_pd", "angular_rate_rms",
-        "blur_px_mean", "features_per_frame", "tracking_rms_m_circle",
-        "perception_error_rms_circle", "gamma_strict", "frac_under_gamma", "max_ratio",
-    ]  # fmt: skip
-    cols = [c for c in cols if c in per.columns]
-    lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]
-    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for r in per[cols].itertuples(index=False):
-        lines.append(
-            "| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |"
-        )
-    return "\n".join(lines) + "\n"
-
-
 def state_dependence(
     flights: pd.DataFrame, reference: str = "pd", window: str = "circle"
 ) -> dict[str, Any] | None:
@@ -275,8 +226,6 @@ def state_dependence(
     and per controller against ``reference``, paired by seed, the ratios of tracking RMS and
     of error RMS (geometric means with the 95 % t-interval of their logs)."""
     from scipy.stats import spearmanr
-
-    from qsls.pipeline.evaluate.stats import paired_ratio
 
     tr, er = f"tracking_rms_m_{window}", f"perception_error_rms_{window}"
     if flights.empty or tr not in flights or er not in flights:
@@ -316,8 +265,6 @@ def paper_mode_reaction(flights: pd.DataFrame, window: str = "circle") -> dict[s
     """Finding 2's measure for the paper mode's controllers (docs/paper.md): per controller
     and condition, the feedback attitude command RMS over PD's on the same estimate
     (geometric mean over seeds with the 95 % t-interval of the logs; < 1: softer)."""
-    from qsls.pipeline.evaluate.stats import ratio_interval
-
     col = f"reaction_vs_pd_{window}"
     col = col if col in flights else "reaction_vs_pd"
     if flights.empty or col not in flights:

@@ -49,10 +49,18 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from qsls.pipeline.control.artifacts import load_controller_dir
+from qsls.pipeline.control.guarantee import OFF
+from qsls.pipeline.control.monitor import envelope_peak, monitor_flags, monitor_of
+from qsls.pipeline.core.artifacts import StageWriter, check_output
+from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError, QslsError
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.references import Reference
 from qsls.pipeline.core.units import NS
+from qsls.pipeline.errormodel.model import load_error_model, resolve_model
+from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions, crashed
 from qsls.pipeline.evaluate.assured import (
     ASSURED_FILE,
     ASSURED_SUFFIX,
@@ -69,17 +77,13 @@ from qsls.pipeline.evaluate.bound import (
     expand_controllers,
     load_bounds,
     load_training,
-    resolve_model,
     write_tables,
 )
-from qsls.pipeline.evaluate.calibrate import TICKS_FILE
+from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
+from qsls.pipeline.evaluate.certified import certified_premise, check_unweighted
+from qsls.pipeline.evaluate.estimators import findings_markdown, keyed, write_by_estimator
 from qsls.pipeline.evaluate.figures import write_fly_figures
-from qsls.pipeline.evaluate.findings import (
-    PAPER_CONTROLLERS,
-    ROBUST_QR,
-    compare_with_paper,
-    comparison_markdown,
-)
+from qsls.pipeline.evaluate.findings import PAPER_CONTROLLERS, ROBUST_QR, compare_with_paper
 from qsls.pipeline.evaluate.inputs import (
     PdHeightController,
     command_offset,
@@ -93,6 +97,7 @@ from qsls.pipeline.evaluate.options import IngestOptions, SimOptions
 from qsls.pipeline.evaluate.options import Vio as Vio
 from qsls.pipeline.evaluate.paired import (
     FINDINGS_FILE,
+    comparison_markdown,
     finding3,
     paired_findings,
     replace_finding,
@@ -100,6 +105,12 @@ from qsls.pipeline.evaluate.paired import (
 from qsls.pipeline.evaluate.paper import circle_metrics
 from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.ingest.flight import read_flight
+from qsls.pipeline.ingest.stage import ingest
+from qsls.pipeline.sim.assured import assured_controller
+from qsls.pipeline.sim.closedloop import fly
+from qsls.pipeline.sim.controllers import feedforward, make_controller
+from qsls.pipeline.sim.simulate import simulate
+from qsls.pipeline.sim.vehicle import Vehicle
 
 
 # --------------------------------------------------------------------------- one flight
@@ -145,13 +156,6 @@ class FlyOutcome:
 def run_job(job: FlyJob) -> FlyOutcome:
     """Fly one controller (simulate: closed loop + bag), then ingest the bag. A runtime-assured
     flight (``job.assured``) is flown without a bag: its tick log is its record."""
-    from qsls.pipeline.core.config import merge
-    from qsls.pipeline.core.references import Reference
-    from qsls.pipeline.ingest.stage import ingest
-    from qsls.pipeline.sim.closedloop import fly
-    from qsls.pipeline.sim.controllers import feedforward
-    from qsls.pipeline.sim.simulate import simulate
-
     data = merge(
         job.sim,
         {
@@ -224,10 +228,6 @@ def run_job(job: FlyJob) -> FlyOutcome:
 def _assured(job: FlyJob, opts: SimOptions, primary: Any) -> Any:
     """The runtime-assured form of ``job``'s controller (flown as ``primary`` if given, e.g.
     with PD's height channel): :func:`qsls.pipeline.sim.assured.assured_controller`."""
-    from qsls.pipeline.sim.assured import assured_controller
-    from qsls.pipeline.sim.controllers import make_controller
-    from qsls.pipeline.sim.vehicle import Vehicle
-
     mass = Vehicle(opts.vehicle).mass
     if primary is None:
         primary = make_controller(opts.controller, mass)
@@ -241,8 +241,6 @@ def tick_frame(o: FlyOutcome) -> pd.DataFrame:
     a runtime-assured flight's adds, per tick, the monitor's bits (``monitor_bits``, 0 while
     consistent) and which controller flew (``flew``: the controller's name, then ``pd`` or
     ``hold`` from the trip tick on)."""
-    from qsls.pipeline.evaluate.calibrate import TickLog
-
     frame = TickLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl).frame()
     if "flew" in o.extra:
         frame["monitor_bits"] = np.asarray(o.extra["bits"], dtype=np.int64)
@@ -366,6 +364,11 @@ def _analyse(
     )  # fmt: skip
     return Analysis(flights, checks, samples, assumptions, per, comparison, findings)
 
+
+FLOWN_FILE = "flights.parquet"
+"""One row per flight flown (the primary estimator's)."""
+PER_CONTROLLER_TABLE = "per_controller.parquet"
+"""Per controller and condition, means over seeds (the primary estimator's)."""
 
 CIRCLE_COLUMNS = (
     "tracking_rms_m_circle",
@@ -499,8 +502,6 @@ def _select(folders: list[Path], names: list[str] | None) -> list[Path]:
 
 def _pd_gain_of(folders: Sequence[Path]) -> tuple[tuple[float, ...], ...] | None:
     """``K`` of a static-gain ``pd`` controller among the folders (synth's PD), if any."""
-    from qsls.pipeline.control.artifacts import load_controller_dir
-
     for f in folders:
         if f.name == "pd":
             K = load_controller_dir(f).controller.K
@@ -592,8 +593,6 @@ def monitor_columns(spec: Any, log: Any, gate: float | None) -> dict[str, Any]:
     """What the onboard premise monitor (docs/monitor.md) would have said on a flown log: the
     ticks it trips on (``y - r`` at the controller's ticks, from the reset at take-off), the
     first one's time, and whether the envelope or the outlier count tripped first."""
-    from qsls.pipeline.control.monitor import monitor_flags
-
     flags = monitor_flags(spec, np.asarray(log.y) - np.asarray(log.ref), gate)
     hit = np.flatnonzero(flags)
     first = int(hit[0]) if len(hit) else None
@@ -611,11 +610,6 @@ def assumption_table(
 ) -> pd.DataFrame:
     """:func:`qsls.pipeline.evaluate.assumptions.check_assumptions` on every flight a certified
     (or relaxed) robust controller flew, from its own log at its own ticks."""
-    from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.control.monitor import monitor_of
-    from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions, crashed
-    from qsls.pipeline.evaluate.certified import certified_premise
-
     premises = {b.name: certified_premise(b.folder) for b in bounds}
     monitors = {
         b.name: monitor_of(load_controller_dir(b.folder))
@@ -642,10 +636,6 @@ def assumption_table(
 def monitored(folder: Path) -> bool:
     """Whether the controller in ``folder`` has an onboard monitor (docs/monitor.md: a robust
     certificate, certified or relaxed, with ``rho*``), so it can fly runtime-assured."""
-    from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.control.guarantee import OFF
-    from qsls.pipeline.control.monitor import monitor_of
-
     return any(k != OFF for k in monitor_of(load_controller_dir(folder)).kind)
 
 
@@ -660,9 +650,6 @@ def assured_table(
     ``|y_i - r_i| / threshold_i`` over the flight's ticks and envelope channels
     (:func:`qsls.pipeline.control.monitor.envelope_peak`: how close it came to a trip).
     ``by_estimator`` (a stage with several estimators) puts the flight's estimator first."""
-    from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.control.monitor import envelope_peak, monitor_of
-
     if not outcomes:
         return pd.DataFrame()
     table = flight_table(outcomes)
@@ -715,10 +702,6 @@ def fly_evaluate(
 ) -> FlyResult:
     """Fly, ingest, bound-check and compare (module docstring); writes the stage ``out``."""
     import time
-
-    from qsls.pipeline.core.artifacts import StageWriter, check_output
-    from qsls.pipeline.errormodel.model import load_error_model
-    from qsls.pipeline.evaluate.certified import check_unweighted
 
     t0 = time.perf_counter()
     check_output(Path(out), force)
@@ -785,8 +768,6 @@ def fly_evaluate(
                     ignore_index=True,
                 ) if any(len(an.assumptions) for an in analyses.values()) else assumptions  # fmt: skip
             if several:
-                from qsls.pipeline.evaluate.estimators import findings_markdown, write_by_estimator
-
                 findings = write_by_estimator(w, analyses)
                 # finding 3 counts every estimator's flights (the assumptions of all of them)
                 every = pd.concat([an.flights for an in analyses.values()], ignore_index=True)
@@ -798,9 +779,9 @@ def fly_evaluate(
                     ),
                 )  # fmt: skip
 
-            w.write_parquet("flights.parquet", flights)
+            w.write_parquet(FLOWN_FILE, flights)
             w.write_parquet(ASSUMPTIONS_FILE, assumptions)
-            w.write_parquet("per_controller.parquet", per)
+            w.write_parquet(PER_CONTROLLER_TABLE, per)
             w.write_json(FINDINGS_FILE, findings)
             md = comparison_markdown(comparison, per, findings)
             w.write_text(
@@ -812,8 +793,6 @@ def fly_evaluate(
             assured_json: dict[str, Any] = {}
             table = pd.DataFrame()
             if options.assured:
-                from qsls.pipeline.evaluate.estimators import keyed
-
                 table = assured_table(
                     [o for o, j in zip(flown, jobs_flown, strict=True) if j.assured is not None],
                     {b.name: b.status for b in bounds}, options.fallback,

@@ -15,7 +15,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from qsls.pipeline.control.pdgain import pd_gain
+from qsls.pipeline.core.plant import GRAVITY
+from qsls.pipeline.core.references import Reference
+from qsls.pipeline.sim.controllers import LinearController, PDController, make_controller
 from qsls.pipeline.sim.simulate import SimOptions
+from qsls.pipeline.sim.vehicle import Vehicle
+from qsls.pipeline.sim.vio import VioEmulator
 
 
 def pd_on_same_estimate(
@@ -29,8 +35,6 @@ def pd_on_same_estimate(
     """``u_PD = hover + u_ff + K (y - r)`` (k, 3): what the PD controller would command from
     the estimate another controller saw (the paper's input figure). ``K``: the flown PD's
     gain (from the synth folder's ``pd``); default: the simulator's PD gains."""
-    from qsls.pipeline.control.pdgain import pd_gain
-
     if len(t) == 0:
         return np.zeros((0, 3))
     gain = pd_gain(opts.controller.pd, mass) if K is None else np.asarray(K, dtype=float)
@@ -40,9 +44,6 @@ def pd_on_same_estimate(
 def command_offset(opts: SimOptions, mass: float, t: np.ndarray) -> np.ndarray:
     """``hover + u_ff`` (k, 3): the part of PD's and the synthesized controllers' command
     that does not depend on the estimate (the reference's feedforward)."""
-    from qsls.pipeline.core.plant import GRAVITY
-    from qsls.pipeline.core.references import Reference
-
     if len(t) == 0:
         return np.zeros((0, 3))
     _, _, acc = Reference(opts.reference).arrays(t)
@@ -85,9 +86,6 @@ def error_reaction(
     filter run from rest on the error sequence ``e`` (k, 6) at its ticks) and ``K_PD e``;
     ``error_reaction_vs_pd = RMS(u_e,att) / RMS(K_PD e)_att`` (< 1: it reacts less to
     estimation errors than PD). ``nan`` for a controller that is not a linear filter (SE3)."""
-    from qsls.pipeline.control.pdgain import pd_gain
-    from qsls.pipeline.sim.controllers import LinearController, PDController, make_controller
-
     nan = {"error_reaction_vs_pd": math.nan}
     if len(e) < 2 or opts.controller.kind == "se3":
         return nan
@@ -119,8 +117,6 @@ def motion_metrics(
     over the frames (docs/camera.md), with the features it tracked per frame. Otherwise the
     emulator's ``b_k`` with this condition's exposure (whether or not its blur part is
     switched on), and no features (``nan``)."""
-    from qsls.pipeline.sim.vio import VioEmulator
-
     if len(x) == 0:
         return {"angular_rate_rms": math.nan, "blur_px_mean": math.nan,
                 "features_per_frame": math.nan}  # fmt: skip
@@ -150,9 +146,6 @@ class PdHeightController:
 
     @classmethod
     def build(cls, opts: SimOptions, K: Any = None) -> PdHeightController:
-        from qsls.pipeline.sim.controllers import PDController, make_controller
-        from qsls.pipeline.sim.vehicle import Vehicle
-
         mass = Vehicle(opts.vehicle).mass
         inner = make_controller(opts.controller, mass)
         pd = PDController(opts.controller.pd, mass, inner.dt)

@@ -12,6 +12,7 @@ from pydantic import Field, field_validator
 
 from qsls.pipeline.core.cluster import SchedulerAddress
 from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.sim.options import SimOptions
 
@@ -174,8 +175,6 @@ class CalibrateOptions(Options):
     def seed_lists(self) -> tuple[list[int], list[int]]:
         """Calibration and validation seeds, refused (``ConfigError``) where they meet a design
         seed or each other: a design choice made on a flight would then be tested on it."""
-        from qsls.pipeline.core.errors import ConfigError
-
         calib = list(range(self.seed, self.seed + self.flights))
         valid = list(range(self.validation_seed, self.validation_seed + self.validation))
         design = set(self.design_seeds)

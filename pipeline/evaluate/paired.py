@@ -55,7 +55,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.evaluate.findings import paper_mode_reaction, state_dependence
+from qsls.pipeline.errormodel.honest import clopper_pearson
+from qsls.pipeline.evaluate.findings import (
+    paper_mode_reaction,
+    state_dependence,
+    state_dependence_markdown,
+)
 from qsls.pipeline.evaluate.paper import (
     PAPER_BOUND_SIM,
     PAPER_S_SIM,
@@ -484,8 +489,6 @@ def finding3_assumptions(assumptions: pd.DataFrame) -> dict | None:
     ``contradicted`` if any flight breaks an assumption or the bound, with the share of such
     flights and its Clopper-Pearson 95% interval, each failing flight named; ``reproduced``
     only when none does."""
-    from qsls.pipeline.errormodel.honest import clopper_pearson
-
     if assumptions is None or not len(assumptions):
         return None
     ok = assumptions["assumptions_hold"].astype(bool) & assumptions["bound_held"].astype(bool)
@@ -896,6 +899,53 @@ def halves_text(f: dict[str, Any]) -> str:
     return "; ".join(out) or "-"
 
 
+def comparison_markdown(
+    comparison: Sequence[dict[str, Any]],
+    per: pd.DataFrame,
+    findings: dict[str, Any] | None = None,
+) -> str:
+    """The findings table (paired by seed with intervals when ``findings``, the
+    ``findings.json`` document, is given) and the per-controller metrics as Markdown."""
+    lines = ["# qsls against the paper's findings", ""]
+
+    def cell(v: Any) -> str:
+        return str(v).replace("|", "\\|")
+
+    if findings is not None:
+        lines += findings_markdown(findings, comparison)
+        pm = findings.get("paper_mode")
+        if pm:
+            lines += ["", f"Paper mode, finding 2's measure ({pm['metric']}, < 1: softer than PD):"]
+            lines += [
+                f"- {c} ({cond}): {v['effect']:.3g} [{v['ci'][0]:.3g}, {v['ci'][1]:.3g}]"
+                for c, by in pm["controllers"].items()
+                for cond, v in by.items()
+                if v["ci"][0] is not None and v["ci"][1] is not None
+            ]
+        lines += state_dependence_markdown(findings.get("state_dependence"))
+    else:
+        lines += ["| finding (paper) | qsls | agrees |", "|---|---|---|"]
+        lines += [
+            f"| {cell(c['finding'])} | {cell(c['qsls'])} | {cell(c['agrees'])} |"
+            for c in comparison
+        ]
+    cols = [
+        "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
+        "perception_error_rms", "perception_error_max", "control_effort_rms",
+        "control_smoothness_rms", "smoothness_vs_pd", "reaction_vs_pd", "angular_rate_rms",
+        "blur_px_mean", "features_per_frame", "tracking_rms_m_circle",
+        "perception_error_rms_circle", "gamma_strict", "frac_under_gamma", "max_ratio",
+    ]  # fmt: skip
+    cols = [c for c in cols if c in per.columns]
+    lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]
+    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in per[cols].itertuples(index=False):
+        lines.append(
+            "| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def findings_markdown(doc: dict[str, Any], comparison: Sequence[dict[str, Any]] = ()) -> list[str]:
     """The findings as a Markdown table (``| 1. claim | effect [CI] | verdict | qsls | ... |``),
     with the point comparison (means over seeds, ``agrees``) of the same finding beside."""
@@ -945,6 +995,7 @@ def findings_markdown(doc: dict[str, Any], comparison: Sequence[dict[str, Any]] 
 
 __all__ = [
     "FINDINGS_FILE",
+    "comparison_markdown",
     "degradation_check",
     "finding3",
     "findings_markdown",

@@ -23,6 +23,9 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict
 
 from qsls.pipeline.core.pools import run_tasks
+from qsls.pipeline.core.units import NS
+from qsls.pipeline.evaluate.paper import window_stats
+from qsls.pipeline.sim.closedloop import FlightOptions, fly
 
 
 class TunedPD(BaseModel):
@@ -44,10 +47,6 @@ class TunedPD(BaseModel):
 def _score(job: tuple[dict[str, Any], int]) -> float:
     """One tuning flight's circle tracking RMS (``inf`` if it crashed)."""
     import numpy as np
-
-    from qsls.pipeline.core.units import NS
-    from qsls.pipeline.evaluate.paper import window_stats
-    from qsls.pipeline.sim.closedloop import FlightOptions, fly
 
     data, seed = job
     opts = FlightOptions.model_validate({**data, "seed": seed})

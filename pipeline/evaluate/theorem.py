@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import guarantee
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.taps import l1_norm
 
 THEOREM_COLUMNS: tuple[str, ...] = (
@@ -93,12 +94,11 @@ def uniform_grid(t: np.ndarray, dt: float, rel: float = 1e-3) -> bool:
 
 @dataclass(frozen=True)
 class TheoremNumbers:
-    """The certificate's numbers the theorem uses (the premise as the certificate states it
-    is :class:`qsls.pipeline.control.premise.Premise`)."""
+    """The certificate's numbers the theorem uses: its premise's (``eps`` is ``eps_e``; the
+    premise as the certificate states it is :class:`qsls.pipeline.control.premise.Premise`)
+    and its a-priori ``a``."""
 
-    eps_e: float
-    S: float
-    radius: float
+    numbers: PremiseNumbers
     a_certificate: float
     norm_tail: float = 0.0
     """Bound on ``||Phi_xy||`` beyond the taps given (a closed loop's tail; 0 for a FIR)."""
@@ -109,7 +109,7 @@ def theorem_check(
     e: np.ndarray,
     t: np.ndarray,
     phi_xy: np.ndarray,
-    premise: TheoremNumbers,
+    certified: TheoremNumbers,
     scale: np.ndarray,
     distance: Any,
 ) -> tuple[dict[str, Any], np.ndarray]:
@@ -124,7 +124,7 @@ def theorem_check(
     d_hat = np.full(len(x_hat), np.nan)
     if defined.any():
         d_hat[defined] = distance(x_hat[defined])
-    norm_w = weighted_l1_norm(phi_xy, scale) + float(np.max(scale)) * premise.norm_tail
+    norm_w = weighted_l1_norm(phi_xy, scale) + float(np.max(scale)) * certified.norm_tail
     e_norm = np.abs(e).max(axis=1)
     finite_e = np.isfinite(e_norm)
     max_e = float(e_norm[finite_e].max()) if finite_e.any() else math.nan
@@ -133,17 +133,18 @@ def theorem_check(
         a, a_t = float(d_hat[k]), float(t[k])
     else:
         a, a_t = math.nan, math.nan
-    gamma = float(guarantee.gamma_of(premise.eps_e, premise.S, norm_w, a))
+    p = certified.numbers
+    gamma = float(guarantee.gamma_of(p.eps, p.S, norm_w, a))
     holds = bool(math.isfinite(gamma) and max_e <= gamma)
     cols: dict[str, Any] = {
         "theorem_applies": True,
         "a_nominal": a,
         "a_nominal_t": a_t,
-        "a_certificate": premise.a_certificate,
+        "a_certificate": certified.a_certificate,
         "norm_phi_xy_weighted": norm_w,
         "gamma_nominal": gamma,
         "nominal_ratio": max_e / gamma if math.isfinite(gamma) else math.nan,
-        "nominal_within_radius": bool(a < premise.radius),
+        "nominal_within_radius": bool(a < p.radius),
         "n_nominal_undefined": int((~defined).sum()),
         "bound_holds": holds,
     }
@@ -166,11 +167,11 @@ def premise_only(a_certificate: float) -> dict[str, Any]:
     }
 
 
-def theorem_verdict(cols: dict[str, Any], max_error: float, premise: TheoremNumbers) -> str:
+def theorem_verdict(cols: dict[str, Any], max_error: float, certified: TheoremNumbers) -> str:
     """The head of the verdict for a row where the theorem applies."""
     g = cols["gamma_nominal"]
     if not math.isfinite(g):
-        s_norm = premise.S * cols["norm_phi_xy_weighted"]
+        s_norm = certified.numbers.S * cols["norm_phi_xy_weighted"]
         return f"no bound: S*||W Phi_xy|| = {s_norm:.3g} >= 1 (the theorem gives none)"
     word = "holds" if cols["bound_holds"] else "FAILS"
     text = (
@@ -179,7 +180,7 @@ def theorem_verdict(cols: dict[str, Any], max_error: float, premise: TheoremNumb
         f"t={cols['a_nominal_t']:.2f}s, certificate's a {cols['a_certificate']:.3g})"
     )
     if not cols["nominal_within_radius"]:
-        text += f"; x_hat leaves the radius r={premise.radius:.3g} (a_nominal >= r)"
+        text += f"; x_hat leaves the radius r={certified.numbers.radius:.3g} (a_nominal >= r)"
     if cols["n_nominal_undefined"]:
         text += f"; x_hat undefined at {cols['n_nominal_undefined']} samples (non-finite errors)"
     return text

@@ -17,6 +17,7 @@ from pathlib import Path
 import pandas as pd
 
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED, Status
+from qsls.pipeline.evaluate.table import Evaluation
 
 CLAIMS = (CERTIFIED, EXTRAPOLATED, RELAXED)
 """Statuses whose premise is checked on flights (only ``certified`` claims the guarantee)."""
@@ -177,8 +178,6 @@ def combined(
 
 def read_verdicts(folder: Path) -> list[Verdict | AssumptionVerdict]:
     """The verdicts of an evaluate stage folder (empty when it holds no evaluation)."""
-    from qsls.pipeline.evaluate.table import Evaluation
-
     if not Evaluation.exists(folder):
         return []
     f = Path(folder) / ASSUMPTIONS_FILE

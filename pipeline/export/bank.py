@@ -24,6 +24,7 @@ from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, REFERENCE, REL
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import NX
 from qsls.pipeline.export.attitude import AttitudeLimits
+from qsls.pipeline.export.statement import statement
 
 Precision = Literal["double", "float"]
 REAL_BYTES = {"double": 8, "float": 4}
@@ -167,8 +168,6 @@ def _shares(cert: Certificate) -> str:
 
 
 def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> ExportFacts:
-    from qsls.pipeline.export.statement import statement
-
     c, cert = cdir.controller, cdir.certificate
     mon = monitor_of(cdir)
     return ExportFacts(

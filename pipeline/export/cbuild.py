@@ -20,8 +20,11 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.control.artifacts import load_controller_dir
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.locks import make_temporary
+from qsls.pipeline.export.bank import export_bank, facts
+from qsls.pipeline.export.c import c_files
 
 STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
 COMPILERS = ("cc", "gcc", "clang")
@@ -147,10 +150,6 @@ def c_runtime(folder: Path, *, precision: str = "double", prefix: str = "qsls_ct
     Exports whatever the folder's status (the caller decides what may fly); the folder's
     integrity is checked by :func:`qsls.pipeline.control.artifacts.load_controller_dir`.
     """
-    from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.export.bank import export_bank, facts
-    from qsls.pipeline.export.c import c_files
-
     cdir = load_controller_dir(folder)
     files = c_files(export_bank(cdir), facts(cdir), prefix, precision)  # type: ignore[arg-type]
     key = hashlib.sha256("\0".join(files[k] for k in sorted(files)).encode()).hexdigest()[:24]

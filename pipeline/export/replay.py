@@ -44,12 +44,37 @@ from typing import Any
 
 import numpy as np
 
-from qsls.pipeline.core.errors import ConfigError, InputError
-from qsls.pipeline.core.references import ReferenceOptions, parse_reference
+from qsls.pipeline.control.artifacts import load_controller_dir
+from qsls.pipeline.control.guarantee import COUNT, TRIP
+from qsls.pipeline.control.monitor import monitor_of
+from qsls.pipeline.core.artifacts import refuse_overlap, sha256_path
+from qsls.pipeline.core.config import read_yaml, validate
+from qsls.pipeline.core.errors import ConfigError, InputError, OutputExistsError
+from qsls.pipeline.core.locks import check_writable, make_parent, unwritable
+from qsls.pipeline.core.plant import GRAVITY
+from qsls.pipeline.core.references import Reference, ReferenceOptions, parse_reference
+from qsls.pipeline.core.rotations import rot_z
 from qsls.pipeline.core.units import NS
-from qsls.pipeline.export.attitude import AttitudeLimits
+from qsls.pipeline.export.attitude import (
+    AttitudeLimits,
+    absolute_input,
+    demanded_force,
+    limited,
+    quat_tilt_rad,
+)
+from qsls.pipeline.export.bank import check_exportable, export_bank, facts
+from qsls.pipeline.export.c import c_files
+from qsls.pipeline.export.cbuild import CController, compile_shared
 from qsls.pipeline.export.options import ReplayOptions
-from qsls.pipeline.export.rosout import Ticks, Topics
+from qsls.pipeline.export.python import load_module, module
+from qsls.pipeline.export.rosout import Ticks, Topics, write_mcap
+from qsls.pipeline.export.statement import CHANNELS
+from qsls.pipeline.ingest.align import Alignment, fit_alignment, segments
+from qsls.pipeline.ingest.options import IngestOptions
+from qsls.pipeline.ingest.resample import time_grid
+from qsls.pipeline.ingest.sources.msgtypes import EUROC, TUM
+from qsls.pipeline.ingest.streams import gaps, interp, prepare, read_vio_stream
+from qsls.pipeline.ingest.velocity import vio_velocity
 
 
 @dataclass(frozen=True)
@@ -124,8 +149,6 @@ def reference_options(spec: str) -> ReferenceOptions:
     """``--reference``: a reference in the one text form
     (:func:`~qsls.pipeline.core.references.parse_reference`, e.g.
     ``circle:radius=1.5,period=6,center=[0.5,0]``) or a YAML file of its options."""
-    from qsls.pipeline.core.config import read_yaml, validate
-
     path = Path(spec)
     if path.suffix in (".yaml", ".yml") or path.is_file():
         raw = read_yaml(path)
@@ -138,11 +161,6 @@ def read_vio(source: Path, o: ReplayOptions) -> tuple[Any, np.ndarray]:
     ingest's reader (:func:`~qsls.pipeline.ingest.streams.read_vio_stream`), stamps
     (:func:`~qsls.pipeline.ingest.streams.prepare`) and velocity step
     (:func:`~qsls.pipeline.ingest.velocity.vio_velocity`, without its twist-frame check)."""
-    from qsls.pipeline.ingest.options import IngestOptions
-    from qsls.pipeline.ingest.sources.msgtypes import EUROC, TUM
-    from qsls.pipeline.ingest.streams import prepare, read_vio_stream
-    from qsls.pipeline.ingest.velocity import vio_velocity
-
     source = Path(source)
     if not source.exists():
         raise InputError(f"{source}: no such file or folder")
@@ -161,10 +179,6 @@ def resample(
 ) -> tuple[np.ndarray, np.ndarray, list[dict[str, Any]], list[slice]]:
     """Ingest's resampling of ``[p, v]`` onto its grid ``t_0 + k dt``
     (:func:`~qsls.pipeline.ingest.resample.time_grid`): stamps, values, gaps, segments."""
-    from qsls.pipeline.ingest.align import segments
-    from qsls.pipeline.ingest.resample import time_grid
-    from qsls.pipeline.ingest.streams import gaps, interp
-
     dt_ns, gap_ns = round(dt * NS), round(max_gap * NS)
     lo, hi = int(vio.t_ns[0]), int(vio.t_ns[-1])
     grid = time_grid(lo, hi, dt_ns)
@@ -185,9 +199,6 @@ def reference_frame(p_vio: np.ndarray, p_ref: np.ndarray, o: ReplayOptions) -> A
     :class:`~qsls.pipeline.ingest.align.Alignment`): the given ``vio_to_reference``, or the
     ``align`` fit of the whole recording onto the reference at the same ticks (a reference
     without horizontal motion, hover, fixes no yaw: only the offset is fitted)."""
-    from qsls.pipeline.core.rotations import rot_z
-    from qsls.pipeline.ingest.align import Alignment, fit_alignment
-
     if o.vio_to_reference is not None:
         x, y, z, yaw = o.vio_to_reference
         return Alignment("given", rot_z(np.radians(yaw)), np.array([x, y, z]))
@@ -213,16 +224,10 @@ def exported_runtime(
     cdir: Any, backend: str, workdir: Path, limits: AttitudeLimits = AttitudeLimits()
 ) -> tuple[Any, Any]:
     """``(controller, attitude)`` of the exported code: ``step(y) -> u``, ``(u, acc) -> (T, q)``."""
-    from qsls.pipeline.export.bank import export_bank, facts
-
     bank, fx = export_bank(cdir), facts(cdir, limits)
     if backend == "python":
-        from qsls.pipeline.export.python import load_module, module
-
         mod: Any = load_module(module(bank, fx))
         return mod.Controller(), mod.attitude
-    from qsls.pipeline.export.c import c_files
-    from qsls.pipeline.export.cbuild import CController, compile_shared
 
     for name, text in c_files(bank, fx, "qsls_ctrl", "double").items():
         (workdir / name).write_text(text)
@@ -243,9 +248,6 @@ def command_ticks(
 ) -> tuple[Ticks, np.ndarray]:
     """Run the controller over each segment (reset at its start) and convert to commands;
     also the monitor's bits per tick (docs/monitor.md)."""
-    from qsls.pipeline.core.plant import GRAVITY
-    from qsls.pipeline.export.attitude import absolute_input
-
     n = len(stamps)
     u = np.zeros((n, 3))
     thrust, q = np.zeros(n), np.zeros((n, 4))
@@ -270,10 +272,6 @@ def monitor_report(cdir: Any, flags: np.ndarray, stamps: np.ndarray) -> dict[str
     """Where the exported premise monitor would have tripped (docs/monitor.md): the ticks, by
     kind, the first one's time, and the thresholds it checked. One-sided: a trip proves the
     certificate's premise broken on this recording; no trip proves nothing."""
-    from qsls.pipeline.control.guarantee import COUNT, TRIP
-    from qsls.pipeline.control.monitor import monitor_of
-    from qsls.pipeline.export.statement import CHANNELS
-
     spec = monitor_of(cdir)
     t = (stamps - stamps[0]) / NS
     hit = np.flatnonzero(flags)
@@ -297,9 +295,6 @@ def monitor_report(cdir: Any, flags: np.ndarray, stamps: np.ndarray) -> dict[str
 def limits(ticks: Ticks, mass: float, o: ReplayOptions) -> dict[str, Any]:
     """Largest commanded tilt, thrust range against hover, the shares (%) beyond the report's
     thresholds, and how often the exported helper's limits acted on the demand."""
-    from qsls.pipeline.core.plant import GRAVITY
-    from qsls.pipeline.export.attitude import demanded_force, limited, quat_tilt_rad
-
     tilt = np.degrees(quat_tilt_rad(ticks.q))
     f = demanded_force(ticks.u_abs, mass)
     demanded = np.degrees(np.arctan2(np.hypot(f[:, 0], f[:, 1]), f[:, 2]))
@@ -332,14 +327,6 @@ def replay(
     folder: Path, source: Path, options: ReplayOptions, out: Path, *, force: bool = False
 ) -> ReplayResult:
     """The dry run (module docstring); writes ``out`` (an ``.mcap`` file) atomically."""
-    from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.core.artifacts import refuse_overlap, sha256_path
-    from qsls.pipeline.core.errors import OutputExistsError
-    from qsls.pipeline.core.locks import check_writable, make_parent, unwritable
-    from qsls.pipeline.core.references import Reference
-    from qsls.pipeline.export.bank import check_exportable
-    from qsls.pipeline.export.rosout import write_mcap
-
     out = Path(out)
     if out.suffix != ".mcap":
         raise ConfigError(f"--out {out}: the replay is written as an MCAP file; name it *.mcap")

@@ -28,7 +28,14 @@ from typing import Any
 
 import numpy as np
 
-from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, CONTROLLER_FILE
+from qsls.pipeline.control.artifacts import (
+    CERTIFICATE_FILE,
+    CONTROLLER_FILE,
+    load_controller_dir,
+    load_runtime,
+)
+from qsls.pipeline.control.gate import gated_deviation
+from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.plant import NX
 from qsls.pipeline.export.bank import (
     ExportBank,
@@ -37,7 +44,11 @@ from qsls.pipeline.export.bank import (
     facts,
     sizes,
 )
+from qsls.pipeline.export.bank import facts as facts_of
+from qsls.pipeline.export.c import c_files
+from qsls.pipeline.export.cbuild import CController, compile_shared, find_compiler
 from qsls.pipeline.export.options import ExportOptions
+from qsls.pipeline.export.python import load_module, module
 
 STAGE = "export"
 Y_BOUND = 1.0
@@ -99,9 +110,6 @@ def reference_u(cdir: Any, ys: np.ndarray) -> np.ndarray:
     """``u`` of the Python controller as it flies (:class:`~qsls.pipeline.sim.controllers.
     LinearController`'s input): the realization fed the deviations through the certificate's
     gate (:func:`~qsls.pipeline.control.gate.gated_deviation`)."""
-    from qsls.pipeline.control.artifacts import load_runtime
-    from qsls.pipeline.control.gate import gated_deviation
-
     return run_ticks(load_runtime(cdir.folder), gated_deviation(ys, cdir.certificate.gate))
 
 
@@ -129,10 +137,6 @@ def _verify_c(
     files: dict[str, str], cdir: Any, options: ExportOptions, ys: np.ndarray, ref_u: np.ndarray
 ) -> tuple[dict[str, Any], dict[str, Any] | None]:
     """Compile the double (and float) build and compare (module docstring)."""
-    from qsls.pipeline.export.bank import facts as facts_of
-    from qsls.pipeline.export.c import c_files
-    from qsls.pipeline.export.cbuild import CController, compile_shared, find_compiler
-
     cc = find_compiler(options.compiler)
     if cc is None:
         why = "no C compiler on PATH"
@@ -190,8 +194,6 @@ def _clipped(ys: np.ndarray, gate: float | None) -> dict[str, Any]:
 def _verify_python(
     text: str, ys: np.ndarray, ref_u: np.ndarray, gate: float | None
 ) -> dict[str, Any]:
-    from qsls.pipeline.export.python import load_module
-
     mod: Any = load_module(text)
     u = run_ticks(mod.Controller(), ys)
     return {
@@ -206,19 +208,13 @@ def generate(bank: ExportBank, cdir: Any, options: ExportOptions) -> dict[str, s
     """The files of the export, by name."""
     fx = facts(cdir, options.limits)
     if options.target == "c":
-        from qsls.pipeline.export.c import c_files
-
         return c_files(bank, fx, options.prefix, options.precision)
-    from qsls.pipeline.export.python import module
 
     return {f"{options.prefix}.py": module(bank, fx)}
 
 
 def export(folder: Path, options: ExportOptions, out: Path, *, force: bool = False) -> ExportResult:
     """Export one controller folder (module docstring)."""
-    from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.core.artifacts import StageWriter, check_output
-
     check_output(Path(out), force)
     cdir = load_controller_dir(folder)
     check_exportable(cdir, options.allow_uncertified)

@@ -32,6 +32,7 @@ from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.ingest.resample import check_grid, time_grid
 from qsls.pipeline.ingest.sources.base import Trajectory
 from qsls.pipeline.ingest.streams import Prepared, check_streams, gaps, interp, prepare
+from qsls.pipeline.ingest.timesync import estimate_offset, gravity_rows
 from qsls.pipeline.ingest.velocity import truth_velocity, vio_velocity
 
 if TYPE_CHECKING:
@@ -91,7 +92,6 @@ def flight_from_streams(
     if o.time_offset == "auto" and o.align in ("4dof", "none"):
         # the truth's orientations serve the offset search as its gravity directions only:
         # those (3 columns) replace them (4) from here on, unless the TUM export needs them
-        from qsls.pipeline.ingest.timesync import gravity_rows
 
         truth_g = gravity_rows(truth.orientation)
         truth = drop_columns(truth, o.export_tum)
@@ -204,11 +204,8 @@ def clock_offset(
     given, or the minimum over the offset of the aligned mismatch (:mod:`timesync`);
     ``truth_g``: the truth's gravity directions in its body frame, computed by the caller
     (:func:`qsls.pipeline.ingest.timesync.gravity_rows`), else from its orientations."""
-    from qsls.pipeline.ingest.timesync import gravity_rows
-
     if truth_g is None and o.time_offset == "auto":
         truth_g = gravity_rows(truth.orientation)
-    from qsls.pipeline.ingest.timesync import estimate_offset
 
     def overlap_s(tau_ns: int) -> float:
         return (

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.core.errors import InputError
 
 if TYPE_CHECKING:  # imported where used: ingest writes the table without pandas
@@ -166,8 +167,6 @@ class Flight:
     @classmethod
     def load(cls, folder: Path) -> Flight:
         """Read a flight folder (or its ``flight.parquet``) and its manifest's results."""
-        from qsls.pipeline.core.artifacts import read_manifest
-
         p = Path(folder)
         frame = read_flight(p)
         folder = p if p.is_dir() else p.parent

@@ -36,8 +36,13 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.core.artifacts import StageWriter, check_output, parquet_bytes, prime_hashes
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.ingest.assemble import flight_from_streams
+from qsls.pipeline.ingest.flight import FLIGHT_FILE
 from qsls.pipeline.ingest.options import IngestOptions
+from qsls.pipeline.ingest.sources.text.writer import tum_text
+from qsls.pipeline.ingest.streams import read_streams
 
 STAGE = "ingest"
 TUM_FILES = {"vio": "vio_aligned.tum", "truth": "truth.tum"}
@@ -94,8 +99,6 @@ def ingest(
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    from qsls.pipeline.core.artifacts import check_output, prime_hashes
-
     o = options
     out = Path(out)
     check_output(out, force)  # fail before the (possibly long) reading
@@ -132,12 +135,6 @@ def _ingest(
     progress: Progress,
     hashed: Any,
 ) -> IngestResult:
-    from qsls.pipeline.core.artifacts import StageWriter, parquet_bytes
-    from qsls.pipeline.ingest.assemble import flight_from_streams
-    from qsls.pipeline.ingest.flight import FLIGHT_FILE
-    from qsls.pipeline.ingest.sources.text.writer import tum_text
-    from qsls.pipeline.ingest.streams import read_streams
-
     streams = read_streams(sources, o, progress)
     # the core gets the only references to the streams: it drops their arrays once used
     flight = flight_from_streams(streams.pop(0), streams.pop(), o)

@@ -25,7 +25,18 @@ import numpy as np
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.ingest.resample import interp_rows, median_spacing
-from qsls.pipeline.ingest.sources.base import Trajectory
+from qsls.pipeline.ingest.sources.bags import BagSource
+from qsls.pipeline.ingest.sources.base import Trajectory, detect
+from qsls.pipeline.ingest.sources.msgtypes import TF
+from qsls.pipeline.ingest.sources.select import (
+    POSE_TYPES,
+    TRUTH_TYPES,
+    choose,
+    choose_vio,
+    describe,
+    find_topic,
+)
+from qsls.pipeline.ingest.sources.text.reader import TEXT_READERS
 
 if TYPE_CHECKING:
     from qsls.pipeline.ingest.stage import IngestOptions
@@ -84,12 +95,6 @@ class Prepared:
 # --------------------------------------------------------------------------- reading
 def read_streams(sources: list[Path], o: IngestOptions, progress: Progress) -> list[Trajectory]:
     """``[vio, truth]`` trajectories, each with the path it was read from (``source``)."""
-    from qsls.pipeline.ingest.sources.bags import BagSource
-    from qsls.pipeline.ingest.sources.base import detect
-    from qsls.pipeline.ingest.sources.msgtypes import TF
-    from qsls.pipeline.ingest.sources.select import choose
-    from qsls.pipeline.ingest.sources.text.reader import TEXT_READERS
-
     sources = [Path(s) for s in sources]
     if not sources and (o.vio is None or o.truth is None):
         raise InputError("no input: give a bag (SOURCE...) or both --vio FILE and --truth FILE")
@@ -153,8 +158,6 @@ def _placed(streams: dict[str, Trajectory], where: dict[str, str]) -> list[Traje
 
 def _pick_truth(topics: list[Any], o: IngestOptions) -> Any:
     """The truth topic when the VIO comes from a text file."""
-    from qsls.pipeline.ingest.sources.select import POSE_TYPES, TRUTH_TYPES, describe, find_topic
-
     if o.truth_topic:
         t = find_topic(topics, o.truth_topic, "truth", TRUTH_TYPES)
     else:
@@ -173,8 +176,6 @@ def _pick_truth(topics: list[Any], o: IngestOptions) -> Any:
 
 def pick_vio(topics: list[Any], vio_topic: str | None) -> Any:
     """The VIO topic of ``topics``: the one named, else chosen (:func:`select.choose_vio`)."""
-    from qsls.pipeline.ingest.sources.select import POSE_TYPES, choose_vio, find_topic
-
     if vio_topic:
         return find_topic(topics, vio_topic, "vio", POSE_TYPES)
     return choose_vio(topics, set())
@@ -185,10 +186,6 @@ def read_vio_stream(
 ) -> Trajectory:
     """The VIO stream of one source, as ingest reads it: a text trajectory (TUM, EuRoC csv),
     or the bag's VIO topic, named or chosen (:func:`pick_vio`). What ``qsls replay`` reads."""
-    from qsls.pipeline.ingest.sources.bags import BagSource
-    from qsls.pipeline.ingest.sources.base import detect
-    from qsls.pipeline.ingest.sources.text.reader import TEXT_READERS
-
     source = Path(source)
     kind = detect(source)
     if kind in TEXT_READERS:

@@ -8,10 +8,10 @@ import json
 from typing import Any
 
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
+from qsls.pipeline.evaluate.calibrate import SUMMARY_FILE
 from qsls.pipeline.report.document import Section
 from qsls.pipeline.report.facts import Facts, g4, pct, status_words
 
-SUMMARY_FILE = "calibration.json"  # written by qsls.pipeline.evaluate.calibrate (not imported: pandas)
 QUANTITIES = ("eps", "S", "eps_w", "delta", "m")
 PARTS = {"dense": "eps", "disturbance": "eps_w", "reference": "Delta", "outliers": "m"}
 """A score's parts by the premise quantity each inflates."""

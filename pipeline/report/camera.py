@@ -24,18 +24,19 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.core import style
 from qsls.pipeline.core.artifacts import figure_bytes, read_manifest
+from qsls.pipeline.evaluate.estimators import PAIRED_FILE, estimator_ratios
 from qsls.pipeline.report.document import Figure, Section
 from qsls.pipeline.report.facts import Facts
-
-FRAME_FILE = "camera_frame.npz"
+from qsls.pipeline.sim.simulate import CAMERA_FRAME, TRUTH_FILE
 
 
 def _simulated(f: Facts) -> list[dict[str, Any]]:
     """One record per simulate folder: its estimator, condition, seed and results."""
     rows = []
     for folder in f.stages.get("simulate", []):
-        truth_file = folder / "truth.json"
+        truth_file = folder / TRUTH_FILE
         if not truth_file.is_file():
             continue
         truth = json.loads(truth_file.read_text())
@@ -82,8 +83,6 @@ def _side_by_side(f: Facts, sec: Section, vios: list[str]) -> None:
     """The fly stage's controllers with each estimator beside each other, over the flights
     paired by controller, condition and seed (module docstring)."""
     import pandas as pd
-
-    from qsls.pipeline.evaluate.estimators import PAIRED_FILE, estimator_ratios
 
     path = f.run_dir / f.fly_folder / PAIRED_FILE
     if not path.is_file():
@@ -160,8 +159,6 @@ def _frames_figure(frames: list[tuple[str, Path]], counter: list[int]) -> Figure
     """The kept frames side by side, tracked features circled."""
     import matplotlib.pyplot as plt
 
-    from qsls.pipeline.core import style
-
     fig, ax = style.subplots(1, len(frames), width=style.WIDTH_IN, height=2.6)
     for a, (cond, path) in zip(ax[0], frames, strict=True):
         d = np.load(path)
@@ -224,7 +221,7 @@ def section_camera(f: Facts, counter: list[int]) -> Section | None:
         )
     frames: dict[str, Path] = {}
     for r in sims:
-        path = r["folder"] / FRAME_FILE
+        path = r["folder"] / CAMERA_FRAME
         if r["camera"] and path.is_file():
             frames.setdefault(str(r["condition"]), path)
     if frames:

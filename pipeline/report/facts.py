@@ -171,6 +171,10 @@ class Facts:
 
 
 def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
+    # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
+    from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
+    from qsls.pipeline.control.sweep import S_MAX_FILE, SWEEP_FILE
+
     info = _json(run_dir / RUN_FILE)
     f = Facts(run_dir=run_dir, info=info, stages=stages)
     for folder in stages.get("fit", []):
@@ -178,8 +182,6 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
             f.error_model = load_error_model(folder).model_dump()
             f.error_model_folder = f.rel(folder)
     for folder in stages.get("synth", []):
-        from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
-
         calibrated = _calibrated_folders(stages)
         for cert_file in sorted(folder.glob(f"*/{CERTIFICATE_FILE}")):
             # a calibrated certificate is the controller's (docs/calibration.md)
@@ -189,8 +191,8 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
             f.controllers.append(ControllerFacts.of(cert, f.rel(where), cert_file.parent.name))
     for folder in stages.get("sweep", []):
         if f.sweep is None:
-            f.sweep = _parquet(folder / "sweep.parquet")
-            f.s_max = _parquet(folder / "s_max.parquet")
+            f.sweep = _parquet(folder / SWEEP_FILE)
+            f.s_max = _parquet(folder / S_MAX_FILE)
             f.sweep_options = read_manifest(folder).get("options") or {}
     for folder in stages.get("evaluate", []):
         _read_evaluation(f, folder)
@@ -200,11 +202,13 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
 def _calibrated_folders(stages: dict[str, list[Path]]) -> dict[str, Path]:
     """Controller name -> its calibrated certificate's folder, in the calibration's first
     condition (the one the run's flights are checked against), from ``calibration.json``."""
+    # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
     from qsls.pipeline.control.artifacts import CERTIFICATE_FILE
+    from qsls.pipeline.evaluate.calibrate import SUMMARY_FILE
 
     out: dict[str, Path] = {}
     for folder in stages.get("calibrate", []):
-        doc = _json(folder / "calibration.json")
+        doc = _json(folder / SUMMARY_FILE)
         for row in doc.get("certificates", []) if isinstance(doc, dict) else []:
             first = doc["certificates"][0]["condition"]
             cdir = folder / str(row["condition"]) / str(row["controller"])
@@ -214,12 +218,15 @@ def _calibrated_folders(stages: dict[str, list[Path]]) -> dict[str, Path]:
 
 
 def _read_evaluation(f: Facts, folder: Path) -> None:
+    # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
+    from qsls.pipeline.evaluate.fly import PER_CONTROLLER_TABLE
+    from qsls.pipeline.evaluate.paired import FINDINGS_FILE
     from qsls.pipeline.evaluate.table import Evaluation
 
     ev = Evaluation.load(folder) if Evaluation.exists(folder) else None
     doc = ev.doc if ev is not None else {}
     table = ev.rows if ev is not None else None
-    fly = doc.get("mode") == "fly" or (folder / "per_controller.parquet").is_file()
+    fly = doc.get("mode") == "fly" or (folder / PER_CONTROLLER_TABLE).is_file()
     if table is not None:
         warnings = [str(w) for w in doc.get("warnings") or []]
         f.evaluations.append(
@@ -228,9 +235,9 @@ def _read_evaluation(f: Facts, folder: Path) -> None:
     if fly:
         f.fly_folder = f.fly_folder or f.rel(folder)
         if f.per_controller is None:
-            f.per_controller = _parquet(folder / "per_controller.parquet")
+            f.per_controller = _parquet(folder / PER_CONTROLLER_TABLE)
         f.comparison = f.comparison or list(doc.get("comparison") or [])
-        f.findings = f.findings or _json(folder / "findings.json")
+        f.findings = f.findings or _json(folder / FINDINGS_FILE)
 
 
 # --------------------------------------------------------------------------- verdicts
@@ -260,6 +267,7 @@ def recorded_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict | None:
     """The premise check on the recorded held-out flights (the ``evaluate`` stage): the
     theorem does not apply to a flight the controller did not fly, so this tests the error
     model there, apart from the verdict on the flights it flew."""
+    # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
     from qsls.pipeline.evaluate.verdict import verdicts
 
     for ev in f.evaluations:
@@ -296,9 +304,12 @@ def assumption_rows(f: Facts, name: str) -> Any:
     """The fly stage's assumption checks of controller ``name`` (None without them)."""
     import pandas as pd
 
+    # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
+    from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
+
     if not f.fly_folder:
         return None
-    path = f.run_dir / f.fly_folder / "assumptions.parquet"
+    path = f.run_dir / f.fly_folder / ASSUMPTIONS_FILE
     if not path.is_file():
         return None
     a = pd.read_parquet(path)

@@ -12,6 +12,7 @@ import numpy as np
 
 from qsls.pipeline.core import style
 from qsls.pipeline.core.artifacts import figure_bytes, read_manifest
+from qsls.pipeline.ingest.flight import errors, measurements, read_flight, states
 from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
 from qsls.pipeline.report.facts import Facts
 
@@ -28,8 +29,6 @@ def _drawn(counter: list[int], stem: str, fig: Any, caption: str) -> Figure:
 
 def _flight_figures(data: list[tuple[str, Any]], counter: list[int]) -> list[Figure]:
     """Top view of truth and VIO per flight, and ||e|| over time per flight."""
-    from qsls.pipeline.ingest.flight import errors, measurements, states
-
     fig_xy, ax = style.subplots(width=style.HALF_WIDTH_IN, height=6.0)
     fig_e, ax_e = style.subplots(width=style.WIDTH_IN, height=3.6)
     for i, (name, df) in enumerate(data):
@@ -56,8 +55,6 @@ def _flight_figures(data: list[tuple[str, Any]], counter: list[int]) -> list[Fig
 
 
 def section_flights(f: Facts, counter: list[int]) -> Section | None:
-    from qsls.pipeline.ingest.flight import errors, read_flight
-
     folders: list[Path] = f.stages.get("ingest", [])
     if not folders:
         return None

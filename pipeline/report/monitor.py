@@ -10,6 +10,16 @@ from __future__ import annotations
 
 from typing import Any
 
+from qsls.pipeline.evaluate.assured import (
+    ASSURED,
+    ASSURED_FILE,
+    ESTIMATOR,
+    assured_comparison,
+    catch_share,
+)
+from qsls.pipeline.evaluate.estimators import FLIGHTS_FILE
+from qsls.pipeline.evaluate.fly import FLOWN_FILE
+from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.report.document import Section
 from qsls.pipeline.report.facts import Facts, g4, pct
 
@@ -39,19 +49,10 @@ def _calibration_notes(assured: Any) -> list[str]:
 def section_monitor(f: Facts, counter: list[int]) -> Section | None:
     import pandas as pd
 
-    from qsls.pipeline.evaluate.assured import (
-        ASSURED,
-        ASSURED_FILE,
-        ESTIMATOR,
-        assured_comparison,
-        catch_share,
-    )
-    from qsls.pipeline.evaluate.estimators import FLIGHTS_FILE
-
     if not f.fly_folder:
         return None
     fly = f.run_dir / f.fly_folder
-    a_path, s_path = fly / "assumptions.parquet", fly / ASSURED_FILE
+    a_path, s_path = fly / ASSUMPTIONS_FILE, fly / ASSURED_FILE
     assumptions = pd.read_parquet(a_path) if a_path.is_file() else pd.DataFrame()
     assured = pd.read_parquet(s_path) if s_path.is_file() else pd.DataFrame()
     if not len(assumptions) and not len(assured):
@@ -79,7 +80,7 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
         )  # fmt: skip
     if len(assured):
         keyed = ESTIMATOR in assured  # several estimators: each meets its own flights
-        flights = pd.read_parquet(fly / (FLIGHTS_FILE if keyed else "flights.parquet"))
+        flights = pd.read_parquet(fly / (FLIGHTS_FILE if keyed else FLOWN_FILE))
         comp = assured_comparison(flights, assured)
         status = dict(zip(assured["controller"], assured["status"], strict=False))
         fallback = str(assured["fallback"].iloc[0])

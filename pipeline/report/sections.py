@@ -19,6 +19,7 @@ from qsls.pipeline.control.status import (
     RELAXED,
     UNCERTIFIED,
 )
+from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
 from qsls.pipeline.report.facts import (
     Facts,
@@ -461,7 +462,7 @@ def _assumptions_table(f: Facts, sec: Section) -> None:
     fly stage's ``assumptions.parquet``): the value against its limit, the first to fail."""
     import pandas as pd
 
-    path = f.run_dir / f.fly_folder / "assumptions.parquet" if f.fly_folder else None
+    path = f.run_dir / f.fly_folder / ASSUMPTIONS_FILE if f.fly_folder else None
     if path is None or not path.is_file():
         return
     a = pd.read_parquet(path)

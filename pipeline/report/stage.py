@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from qsls.pipeline import __version__
 from qsls.pipeline.core.artifacts import (
     MANIFEST,
     check_output,
@@ -181,6 +182,8 @@ _KNOWN = {"simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate"
 
 def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Section]:
     """Summary first, the paper's figures, the evidence, the appendix last."""
+    # deferred: the sections load pandas and scipy; qsls run imports this module to validate
+    # a config, which must not (tests/test_config_sections.py)
     from qsls.pipeline.report import calibration as calib
     from qsls.pipeline.report import camera as cam
     from qsls.pipeline.report import flights as fl
@@ -251,8 +254,6 @@ def _run_info(run_dir: Path) -> dict[str, Any]:
 def _write_manifest(tmp: Path, name: str) -> None:
     """``manifest.json``, as every stage folder has: the stage, the run, each file's sha256
     and the package versions (no wall time: the report's files are byte-identical)."""
-    from qsls.pipeline import __version__
-
     files = {
         f.relative_to(tmp).as_posix(): sha256_file(f)
         for f in sorted(tmp.rglob("*"))

@@ -44,10 +44,12 @@ from qsls.pipeline.errormodel.options import FitOptions
 from qsls.pipeline.evaluate.options import CalibrateOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.ingest.options import IngestOptions
-from qsls.pipeline.report.stage import RUN_FILE
+from qsls.pipeline.report.stage import REPORT_DIR, RUN_FILE, report
 from qsls.pipeline.run.graph import Stage, StageGraph, StageOutcome, run_versions
 from qsls.pipeline.run.memo import fingerprint, planned_graph
 from qsls.pipeline.run.paths import resolve_path
+from qsls.pipeline.run.stages import build_graph
+from qsls.pipeline.run.state import STATE_FILE
 from qsls.pipeline.sim.options import SimOptions
 
 # (stage id, "running" | "ran" | "skipped", index, count, why it ran)
@@ -241,8 +243,6 @@ def plan(
     cfg: RunConfig, config_path: Path, root: Path, progress: Progress = NULL_PROGRESS
 ) -> StageGraph:
     """The stage graph of a run config (options validated here, before anything runs)."""
-    from qsls.pipeline.run.stages import build_graph
-
     return build_graph(cfg, Path(config_path).resolve().parent, root, progress)
 
 
@@ -295,7 +295,6 @@ def check_run_root(root: Path) -> None:
         raise ConfigError(
             f"run folder {root} exists and is not a folder; pass --out with a folder of its own"
         )
-    from qsls.pipeline.run.state import STATE_FILE
 
     for name in (RUN_FILE, STATE_FILE):
         own = Path(root) / name
@@ -309,8 +308,6 @@ def check_foreign_folder(root: Path) -> None:
     """Refuse an existing folder that holds files and is not a run folder (no run.json nor
     run_state.json): a run writes stage folders (``fit``, ``report``, ...) into it and
     would replace the user's own (``--out .``, ``--out ..``, a project folder)."""
-    from qsls.pipeline.run.state import STATE_FILE
-
     root = Path(root)
     if not root.is_dir() or (root / RUN_FILE).exists() or (root / STATE_FILE).exists():
         return
@@ -380,8 +377,6 @@ def _run_locked(
         raise
     report_dir = None
     if cfg.report and "report" in wanted:
-        from qsls.pipeline.report.stage import REPORT_DIR
-
         report_dir = root / REPORT_DIR  # inside the run: a run writes only where it was told
         n = len(outcomes)
 
@@ -398,8 +393,6 @@ def _run_locked(
 def _partial_report(root: Path, exc: QslsError) -> None:
     """After a stage failed: the report of the stages that finished (when there are some),
     its place added to the error's one line. A report that cannot be made adds nothing."""
-    from qsls.pipeline.report.stage import REPORT_DIR, report
-
     try:
         done = report(root, root / REPORT_DIR, force=True)
     except QslsError:
@@ -414,8 +407,6 @@ def _report_stage(root: Path, out: Path, info: dict[str, Any], deps: tuple[str, 
     """The report of run folder ``root`` into ``out``: it reads the stage folders and run.json."""
 
     def execute(folder: Path, deps: Any) -> Any:
-        from qsls.pipeline.report.stage import report
-
         return report(root, folder, force=True)
 
     options = {"out": str(out.resolve()), "run": info}

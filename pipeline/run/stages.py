@@ -19,23 +19,33 @@ written) and the flying options (the evaluate section under its ``fly:``) here.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from qsls.pipeline.control.options import SweepSection
+from qsls.pipeline.control.options import SweepOptions, SweepSection, SynthOptions
+from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.core.config import merge, validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.errormodel.options import FitOptions
+from qsls.pipeline.evaluate.options import CalibrateOptions, EvaluateOptions, FlyOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
+from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
 from qsls.pipeline.run.paths import resolve_path
+from qsls.pipeline.sim.options import SimOptions
+
+if TYPE_CHECKING:  # the runner imports this module
+    from qsls.pipeline.run.runner import FlightSpec, RunConfig
 
 Src = Callable[[str], str]
+Execute = Callable[[Path, Mapping[str, Path]], Any]
+"""A stage's ``execute(out, deps)`` (:class:`Stage`); it returns the stage's result."""
 
 
-def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROGRESS) -> StageGraph:
-    """Stages for ``cfg`` (a :class:`qsls.pipeline.run.runner.RunConfig`); paths relative to ``base``."""
+def build_graph(cfg: RunConfig, base: Path, root: Path, progress: Progress = NULL_PROGRESS) -> StageGraph:
+    """Stages for ``cfg``; paths relative to ``base``."""
     wanted = set(
         cfg.stages or ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate")
     )
@@ -99,17 +109,15 @@ def build_graph(cfg: Any, base: Path, root: Path, progress: Progress = NULL_PROG
 
 def _flight_stages(
     graph: StageGraph,
-    cfg: Any,
-    fl: Any,
+    cfg: RunConfig,
+    fl: FlightSpec,
     i: int,
     base: Path,
-    wanted: set[str],
+    wanted: Collection[str],
     src: Src,
     progress: Progress,
 ) -> tuple[str, str | None]:
     """The flight's simulate stage (simulated flights) and its ingest stage: their ids."""
-    from qsls.pipeline.ingest.options import IngestOptions
-
     sources: list[Path] = []
     deps: tuple[str, ...] = ()
     ingest_opts: dict[str, Any] = merge(cfg.written("ingest"), fl.ingest)
@@ -180,6 +188,7 @@ def _evaluate_stages(
 def controller_folders(deps: Mapping[str, Path], calibrated: str | None) -> list[Path]:
     """The run's controllers: synth's, each replaced by its calibrated certificate's folder
     (``calibrate/<condition>/<name>``) where the calibration wrote one."""
+    # deferred: a stage's code loads when it runs (a cached run loads none of it)
     from qsls.pipeline.evaluate.certified import expand_controllers
 
     if calibrated is None:
@@ -189,7 +198,7 @@ def controller_folders(deps: Mapping[str, Path], calibrated: str | None) -> list
     return [done.get(p.name, p) for p in expand_controllers([deps["synth"]])]
 
 
-def design_seeds(cfg: Any) -> list[int]:
+def design_seeds(cfg: RunConfig) -> list[int]:
     """The seeds of the run's simulated flights (every role: the design saw them all)."""
     seeds = []
     for i, fl in enumerate(cfg.flights):
@@ -199,11 +208,9 @@ def design_seeds(cfg: Any) -> list[int]:
     return seeds
 
 
-def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) -> str:
+def _calibrate_stage(graph: StageGraph, cfg: RunConfig, src: Src, progress: Progress) -> str:
     """The candidates' calibration and validation flights (docs/calibration.md), under the
     run's ``simulate:`` conditions, on seeds no design flight used."""
-    from qsls.pipeline.evaluate.options import CalibrateOptions
-
     given = cfg.written("calibrate") or {}
     data = merge(given, {"sim": merge(cfg.written("simulate"), given.get("sim") or {})})
     data["design_seeds"] = sorted(set(design_seeds(cfg)) | set(given.get("design_seeds") or []))
@@ -216,6 +223,7 @@ def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) 
     opts = opts.model_copy(update={"design_seeds": list(given.get("design_seeds") or [])})
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.evaluate.calibrate import calibrate
 
         return calibrate(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
@@ -226,6 +234,7 @@ def _calibrate_stage(graph: StageGraph, cfg: Any, src: Src, progress: Progress) 
 
 def _calibrated(out: Path) -> dict[str, Any]:
     """One line per calibrated certificate, kept in the run state for the console."""
+    # deferred: a stage's code loads when it runs (a cached run loads none of it)
     from qsls.pipeline.evaluate.calibrate import summary_lines
 
     return {"calibrated": summary_lines(out)}
@@ -234,22 +243,22 @@ def _calibrated(out: Path) -> dict[str, Any]:
 def _verdicts(out: Path) -> dict[str, Any]:
     """An evaluation's verdict lines, one per controller, kept in the run state so that a
     rerun with nothing to do prints them without reading the table."""
+    # deferred: a stage's code loads when it runs (a cached run loads none of it)
     from qsls.pipeline.evaluate.verdict import read_verdicts
 
     return {"verdicts": [v.line() for v in read_verdicts(out)]}
 
 
 def _simulate_stage(
-    graph: StageGraph, cfg: Any, fl: Any, i: int, src: Src, progress: Progress
+    graph: StageGraph, cfg: RunConfig, fl: FlightSpec, i: int, src: Src, progress: Progress
 ) -> str:
-    from qsls.pipeline.sim.options import SimOptions
-
     data = merge(cfg.written("simulate"), fl.simulate or {})
     data.setdefault("seed", cfg.seed + i)
     opts = validate(SimOptions, data, src(f"simulate (flight '{fl.name}')"))
     stage_id = f"simulate/{fl.name}"
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.sim.simulate import simulate
 
         return simulate(opts, out, force=True, progress=progress)
@@ -259,10 +268,10 @@ def _simulate_stage(
 
 
 def _ingest_exec(
-    opts: Any, sources: list[Path], sim_deps: tuple[str, ...], progress: Progress
-) -> Any:
+    opts: IngestOptions, sources: list[Path], sim_deps: tuple[str, ...], progress: Progress
+) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
-        from qsls.pipeline.core.artifacts import read_manifest
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.ingest.stage import ingest
 
         # a simulated flight's bag, by the name its simulate stage recorded
@@ -272,8 +281,9 @@ def _ingest_exec(
     return execute
 
 
-def _fit_exec(opts: Any, train: list[str], logged: list[str], progress: Progress) -> Any:
+def _fit_exec(opts: FitOptions, train: list[str], logged: list[str], progress: Progress) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.errormodel.fit import fit
         from qsls.pipeline.sim.simulate import CONTROL_FILE
 
@@ -287,9 +297,11 @@ def _fit_exec(opts: Any, train: list[str], logged: list[str], progress: Progress
 
 
 def _sweep_exec(
-    opts: Any, jobs: int | None, scheduler: str | None, wait_workers: float, progress: Progress
-) -> Any:
+    opts: SweepOptions, jobs: int | None, scheduler: str | None, wait_workers: float,
+    progress: Progress,
+) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.control.sweep import sweep
 
         return sweep(
@@ -306,8 +318,9 @@ def _sweep_exec(
     return execute
 
 
-def _synth_exec(opts: Any, progress: Progress) -> Any:
+def _synth_exec(opts: SynthOptions, progress: Progress) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.control.synth import synth
 
         return synth(deps["fit"], opts, out, force=True, progress=progress)
@@ -316,9 +329,10 @@ def _synth_exec(opts: Any, progress: Progress) -> Any:
 
 
 def _evaluate_exec(
-    opts: Any, heldout: list[str], progress: Progress, calibrated: str | None = None
-) -> Any:
+    opts: EvaluateOptions, heldout: list[str], progress: Progress, calibrated: str | None = None
+) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.evaluate.bound import evaluate
 
         flights = [deps[d] for d in heldout]
@@ -328,8 +342,9 @@ def _evaluate_exec(
     return execute
 
 
-def _fly_exec(opts: Any, progress: Progress, calibrated: str | None = None) -> Any:
+def _fly_exec(opts: FlyOptions, progress: Progress, calibrated: str | None = None) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
+        # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.evaluate.fly import fly_evaluate
 
         ctrls = controller_folders(deps, calibrated)

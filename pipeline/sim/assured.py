@@ -35,7 +35,8 @@ from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from qsls.pipeline.control.monitor import RuntimeMonitor
+from qsls.pipeline.control.artifacts import load_controller_dir
+from qsls.pipeline.control.monitor import RuntimeMonitor, monitor_of
 from qsls.pipeline.core.references import RefSample
 from qsls.pipeline.sim.controllers import PDController, PositionController
 
@@ -122,9 +123,6 @@ def assured_controller(
     ``primary``): its own monitor (:func:`qsls.pipeline.control.monitor.monitor_of`, gate from
     its certificate; the exported step's when ``primary`` flies the exported C) and a PD
     fallback with gains ``pd`` (``K`` overrides the gain)."""
-    from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.control.monitor import monitor_of
-
     cdir = load_controller_dir(folder)
     fallback = PDController(pd, mass, primary.dt)
     if K is not None:

@@ -394,6 +394,7 @@ def _fly(
 
 def _camera_loop(options: FlightOptions, seed: int, veh: Vehicle) -> CameraVio:
     """The camera loop of a flight (``vio.kind: camera``), in the active perception level."""
+    # deferred: the camera loop loads OpenCV, which flights without a camera do not
     from qsls.pipeline.sim.camera.loop import CameraVio
 
     level = options.vio.level

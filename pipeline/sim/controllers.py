@@ -28,8 +28,15 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from qsls.pipeline.control.artifacts import (
+    CERTIFICATE_FILE,
+    CONTROLLER_FILE,
+    Certificate,
+    load_runtime,
+)
 from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.control.pdgain import PDGains, pd_gain
+from qsls.pipeline.control.realize import StaticGainController
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import GRAVITY, PAPER_DT_S
 from qsls.pipeline.core.references import RefSample
@@ -185,8 +192,6 @@ class LinearController:
 
 def controller_folder(spec: str | Path) -> Path:
     """The folder of a synthesized controller given as a folder or its ``controller.npz``."""
-    from qsls.pipeline.control.artifacts import CONTROLLER_FILE
-
     path = Path(spec)
     if path.is_file() and path.suffix == ".npz":
         path = path.parent
@@ -211,8 +216,6 @@ def make_controller(options: ControllerOptions, mass: float) -> PositionControll
     if kind == "pd":
         return PDController(options.pd, mass, rate_dt or PAPER_DT_S)
     folder = controller_folder(kind)
-    from qsls.pipeline.control.artifacts import load_runtime
-    from qsls.pipeline.control.realize import StaticGainController
 
     runtime: Any = load_runtime(folder)
     if options.backend == "c" and not isinstance(runtime, StaticGainController):
@@ -223,7 +226,6 @@ def make_controller(options: ControllerOptions, mass: float) -> PositionControll
             f"controller {folder}: synthesized for dt = {runtime.dt} s, "
             f"cannot run at rate_hz = {options.rate_hz}"
         )
-    from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
 
     gate = Certificate.load(folder).gate if (folder / CERTIFICATE_FILE).is_file() else None
     return LinearController(runtime, mass, name, gate=gate)

@@ -36,8 +36,10 @@ import numpy as np
 from qsls.pipeline.core.artifacts import StageWriter, npz_bytes
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.rotations import quat_mul
+from qsls.pipeline.ingest.sources.messages import OdometryStream, PoseStream
+from qsls.pipeline.ingest.sources.write import write_bag
 from qsls.pipeline.sim.closedloop import NS, FlightLog, fly
-from qsls.pipeline.sim.controllers import PositionController
+from qsls.pipeline.sim.controllers import PositionController, controller_folder
 from qsls.pipeline.sim.mocap import sample_mocap
 from qsls.pipeline.sim.options import LogOptions as LogOptions
 from qsls.pipeline.sim.options import SimOptions
@@ -50,6 +52,8 @@ _LOG_STREAM = 1000
 
 CONTROL_FILE = "control.parquet"
 """What the controller saw and commanded at each tick (``stamp_ns``, ``y_*``, ``r_*``, ``u_*``)."""
+TRUTH_FILE = "truth.json"
+"""What the simulator knows that the log does not (clock offset, VIO frame, perception, crash)."""
 CAMERA_FRAME = "camera_frame.npz"
 """The camera loop's kept frame (``vio.camera.snapshot_s``) and its tracked features."""
 
@@ -118,8 +122,6 @@ def log_streams(
     flight: FlightLog, options: SimOptions, seed: int
 ) -> tuple[list[Any], dict[str, Any]]:
     """The bag's streams (VIO odometry, motion capture) and the clock/frame truth."""
-    from qsls.pipeline.ingest.sources.messages import OdometryStream, PoseStream
-
     lo = options.log
     rng = np.random.default_rng(np.random.SeedSequence([seed, _LOG_STREAM]))
     start_ns = round(lo.vio_clock_start_s * NS)
@@ -232,13 +234,9 @@ def simulate(
     inputs: list[Path] | None = None,
 ) -> SimResult:
     """Fly ``options`` (or the given ``controller``) and write the stage folder ``out``."""
-    from qsls.pipeline.ingest.sources.write import write_bag
-
     out = Path(out)
     ctrl_inputs = list(inputs or [])
     if controller is None and options.controller.kind not in ("se3", "pd"):
-        from qsls.pipeline.sim.controllers import controller_folder
-
         ctrl_inputs.append(controller_folder(options.controller.kind))
     with StageWriter(out, STAGE, options=options, inputs=ctrl_inputs, force=force) as w:
         flight = fly(options, controller, progress=progress)
@@ -264,7 +262,7 @@ def simulate(
             "metrics": metrics,
             "mass": flight.mass,
         }
-        w.write_json("truth.json", truth)
+        w.write_json(TRUTH_FILE, truth)
         if flight.camera_frame is not None:
             w.write_bytes(CAMERA_FRAME, npz_bytes(flight.camera_frame))
         for fname, df in _frames(flight, clocks["vio_clock_start_ns"]).items():

@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+from qsls.pipeline.core.rotations import matrix_to_quat
+
 
 def skew(v: np.ndarray) -> np.ndarray:
     """``[v]x`` with ``[v]x w = v x w``."""
@@ -104,8 +106,6 @@ def matrix_quat(r: np.ndarray) -> np.ndarray:
 def thrust_attitudes(acc: np.ndarray, gravity: float = 9.81) -> np.ndarray:
     """Quaternions (n, 4) xyzw of a multirotor with zero yaw whose thrust axis (body z)
     points along ``acc + g e_z`` (what it must to fly accelerations ``acc`` (n, 3))."""
-    from qsls.pipeline.core.rotations import matrix_to_quat
-
     zb = acc + np.array([0.0, 0.0, gravity])
     zb /= np.linalg.norm(zb, axis=1, keepdims=True)
     yb = np.cross(zb, np.array([1.0, 0.0, 0.0]))
