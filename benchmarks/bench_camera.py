@@ -2,6 +2,7 @@
 
     python benchmarks/bench_camera.py             # regular and degraded, 30 s each
     python benchmarks/bench_camera.py --quick     # 10 s, regular only
+    python benchmarks/bench_camera.py --smoke     # 2 s, regular, one run per row (smokemode.py)
 
 One core (OpenCV and BLAS limited to one thread); times are CPU seconds of this process
 (on an idle core, wall time), so a loaded machine does not inflate them. Rows: the same flight with the VIO
@@ -22,6 +23,7 @@ import sys
 import time
 
 import cv2
+from smokemode import requested, require
 from threadpoolctl import threadpool_limits
 
 
@@ -55,22 +57,24 @@ def _flight(
 
 
 def main(argv: list[str]) -> None:
-    quick = "--quick" in argv
-    seconds = 10.0 if quick else 30.0
+    smoke = requested(argv)
+    quick = "--quick" in argv or smoke
+    seconds = 2.0 if smoke else 10.0 if quick else 30.0
+    repeat = 1 if smoke else 2
     cv2.setNumThreads(1)
     with threadpool_limits(limits=1):
         _flight("camera", "regular", 1.0)  # warm up: imports, the texture (cached per process)
-        print(f"{seconds:g} s flight, one core (best of 2 runs per row)\n")
+        print(f"{seconds:g} s flight, one core (best of {repeat} runs per row)\n")
         head = f"{'row':34s} {'CPU (s)':>9s} {'x real time':>12s} {'frames/s':>9s}"
         print(head)
         print("-" * len(head))
         for perception in ("regular",) if quick else ("regular", "degraded"):
-            emu = min(_flight("emulator", perception, seconds)[0] for _ in range(2))
+            emu = min(_flight("emulator", perception, seconds)[0] for _ in range(repeat))
             print(
                 f"{'emulator ' + perception + ' (whole flight)':34s} {emu:9.2f} {seconds / emu:12.1f} {'-':>9s}"
             )
             runs, before = [], []
-            for _ in range(2):
+            for _ in range(repeat):
                 runs.append(_flight("camera", perception, seconds))
                 before.append(_flight("camera", perception, seconds, stepwise=True))
             wall, parts, frames, bits = min(runs, key=lambda r: r[0])
@@ -99,6 +103,7 @@ def main(argv: list[str]) -> None:
             budget = 3.0 * seconds / 30.0
             verdict = "within" if cam_total <= budget else "OVER"
             print(f"  camera parts {cam_total:.2f} s: {verdict} the {budget:g} s budget\n")
+            require(same, f"camera {perception}: the stepwise flight ends in the same state")
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
     python benchmarks/bench_camera_consistency.py            # NEES replays + 10 degraded flights
     python benchmarks/bench_camera_consistency.py --quick    # 3 seeds each
+    python benchmarks/bench_camera_consistency.py --smoke    # 3 s replays, one 4 s flight
 
 NEES: the 20 s figure eight of tests/test_camera.py replayed (IMU and image noise) in the
 regular light (1.0, texture 1.0) and the degraded one (0.35, texture 0.45): the mean NEES of
@@ -13,7 +14,8 @@ times, the largest estimation error, crashes. Re-initialization: the closed-form
 taken once per second (from 2 s on) of the figure-eight replays, against the truth: the
 velocity and the gravity direction in the current body frame (what it initializes; position
 and yaw it keeps), the share of windows it accepts, and the share of accepted ones whose
-velocity error is within 3 of its reported standard deviations.
+velocity error is within 3 of its reported standard deviations. ``--smoke``
+(``smokemode.py``): one seed each, replays of 3 s, one reset flight of 4 s.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import sys
 
 import numpy as np
 from scipy.stats import chi2
+from smokemode import requested, require
 
 from qsls.pipeline.core.rotations import quat_to_matrix
 from qsls.pipeline.sim.camera.geometry import thrust_attitudes
@@ -42,9 +45,9 @@ def figure_eight(seconds: float, hz: float = 200.0):
     return t, p, thrust_attitudes(acc)
 
 
-def nees_rows(seeds: list[int]) -> None:
+def nees_rows(seeds: list[int], seconds: float = 20.0) -> None:
     lo, hi = chi2.ppf([0.005, 0.995], 6)
-    t, p, q = figure_eight(20.0)
+    t, p, q = figure_eight(seconds)
     print(f"{'condition':10s} {'seed':>4s} {'mean NEES':>10s} {'in band':>8s} {'resets':>7s}")
     for name, light, texture in (("regular", 1.0, 1.0), ("degraded", 0.35, 0.45)):
         means, bands = [], []
@@ -54,11 +57,12 @@ def nees_rows(seeds: list[int]) -> None:
             inside = float(np.mean((nees > lo) & (nees < hi)))
             means.append(float(nees.mean()))
             bands.append(inside)
+            require(bool(np.isfinite(nees).all()), f"{name} seed {seed}: a finite NEES")
             print(f"{name:10s} {seed:4d} {nees.mean():10.2f} {inside:8.2f} {len(loop.resets):7d}")
         print(f"{name:10s} {'all':>4s} {np.mean(means):10.2f} {np.mean(bands):8.2f}")
 
 
-def reset_rows(seeds: list[int]) -> None:
+def reset_rows(seeds: list[int], seconds: float | None = None) -> None:
     print(f"\n{'seed':>4s} {'resets':>7s} {'times (s)':24s} {'max err (m)':>11s} {'crashed':>8s}")
     counts = []
     for seed in seeds:
@@ -66,6 +70,7 @@ def reset_rows(seeds: list[int]) -> None:
             FlightOptions.model_validate(
                 {
                     "seed": seed,
+                    "duration": seconds,
                     "reference": {"kind": "circle", "radius": 1.0, "period": 5.0,
                                   "height": 1.0, "laps": 3},
                     "controller": {"kind": "se3"},
@@ -81,8 +86,8 @@ def reset_rows(seeds: list[int]) -> None:
     print(f"{'all':>4s} {sum(counts):7d} (flights with a reset: {sum(c > 0 for c in counts)})")
 
 
-def init_rows(seeds: list[int]) -> None:
-    t, p, q = figure_eight(20.0)
+def init_rows(seeds: list[int], seconds: float = 20.0) -> None:
+    t, p, q = figure_eight(seconds)
     s, h_ns = trajectory_states(t, p, q)
     rs = quat_to_matrix(s[:, 6:10])
     g = np.array([0.0, 0.0, -9.81])
@@ -114,6 +119,7 @@ def init_rows(seeds: list[int]) -> None:
                 c = float(g_est @ g_true) / 9.81**2
                 tilt.append(float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))))
         a, b = np.array(dv), np.array(tilt)
+        require(len(a) > 0, f"{name}: the initialization accepts a window")
         print(
             f"{name:10s} {tried:7d} {len(a):8d} {np.median(a):9.3f} {np.percentile(a, 90):7.3f} "
             f"{a.max():7.3f} {np.median(b):11.3f} {np.percentile(b, 90):8.3f} {b.max():8.3f} "
@@ -122,6 +128,11 @@ def init_rows(seeds: list[int]) -> None:
 
 
 def main(argv: list[str]) -> None:
+    if requested(argv):
+        nees_rows([3], 3.0)
+        init_rows([3], 3.0)
+        reset_rows([0], 4.0)
+        return
     quick = "--quick" in argv
     seeds = [0, 1, 2] if quick else list(range(10))
     nees_rows([3, 4, 5] if quick else [3, 4, 5, 6, 7])

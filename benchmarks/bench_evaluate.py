@@ -1,12 +1,17 @@
 """Benchmark of qsls evaluate: the bound check's nearest-training-state distances, and flying.
 
-Run: ``python benchmarks/bench_evaluate.py [--fit FITDIR --synth SYNTHDIR | --prepare DIR]``.
+Run: ``python benchmarks/bench_evaluate.py [--fit FITDIR --synth SYNTHDIR | --prepare DIR]
+[--quick] [--smoke]``.
 
 1. Distance of every held-out state to the nearest training state: KD-tree (infinity norm,
    what ``evaluate`` uses) against chunked brute force numpy, same answer checked.
 2. With ``--fit`` and ``--synth`` (outputs of ``qsls fit`` / ``qsls synth``): the default fly
    evaluation (four controllers + SE3, two conditions, three seeds, 30 s flights) on a process
    pool of 2 against the same flights one after another (``--quick``: one seed, 10 s).
+
+``--smoke`` (``smokemode.py``): 2 000 training and 300 held-out states, then both parts on
+two 8 s training flights prepared in a temporary folder, one seed, 3 s flights, regular
+perception.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from smokemode import add_flag, require, scratch
 
 
 def brute_nearest(train: np.ndarray, query: np.ndarray, chunk: int = 256) -> np.ndarray:
@@ -28,12 +34,13 @@ def brute_nearest(train: np.ndarray, query: np.ndarray, chunk: int = 256) -> np.
     return out
 
 
-def bench_distance() -> list[tuple[str, float, str]]:
+def bench_distance(smoke: bool = False) -> list[tuple[str, float, str]]:
     from qsls.pipeline.evaluate.bound import TrainingData
 
     rng = np.random.default_rng(0)
     rows = []
-    for n_train, n_query in ((20_000, 3_000), (100_000, 10_000)):
+    sizes = ((2_000, 300),) if smoke else ((20_000, 3_000), (100_000, 10_000))
+    for n_train, n_query in sizes:
         t = np.linspace(0, 200, n_train)
         train = np.c_[np.cos(t), np.sin(t), 1 + 0.05 * np.sin(7 * t), -np.sin(t), np.cos(t), 0 * t]
         train += rng.normal(scale=0.02, size=train.shape)
@@ -45,7 +52,7 @@ def bench_distance() -> list[tuple[str, float, str]]:
             t0 = time.perf_counter()
             ref = brute_nearest(train, query)
             t_brute = time.perf_counter() - t0
-            assert np.allclose(d, ref)
+            require(np.allclose(d, ref), "the KD-tree's distances equal brute force's")
             rows.append((f"nearest {n_train} x {n_query}: brute numpy", t_brute, ""))
         rows.append(
             (
@@ -57,14 +64,16 @@ def bench_distance() -> list[tuple[str, float, str]]:
     return rows
 
 
-def bench_fly(fit: Path, synth: Path, quick: bool) -> list[tuple[str, float, str]]:
+def bench_fly(fit: Path, synth: Path, quick: bool, smoke: bool = False) -> list[tuple[str, float, str]]:
     from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
 
-    kw = {"seeds": [0], "duration": 10.0} if quick else {}
+    kw: dict = {"seeds": [0], "duration": 10.0} if quick else {}
+    if smoke:
+        kw = {"seeds": [0], "duration": 3.0, "conditions": ["regular"]}
     rows = []
     tmp = Path(tempfile.mkdtemp(prefix="bench-eval-"))
     try:
-        times = {}
+        times, tables = {}, {}
         for jobs in (2, 1):
             t0 = time.perf_counter()
             res = fly_evaluate(
@@ -74,14 +83,19 @@ def bench_fly(fit: Path, synth: Path, quick: bool) -> list[tuple[str, float, str
             rows.append(
                 (f"fly evaluation, {len(res.flights)} flights, jobs={jobs}", times[jobs], "")
             )
+            tables[jobs] = res.flights
         rows[0] = (rows[0][0], rows[0][1], f"{times[1] / times[2]:.2f}x vs sequential")
+        same = tables[2].equals(tables[1])
+        rows[1] = (rows[1][0], rows[1][1], f"the same flights table: {same}")
+        require(same, "the pool's flights table equals the sequential one's")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return rows
 
 
-def prepare(root: Path) -> tuple[Path, Path]:
-    """Training flights (SE3, regular, 2 x 30 s) -> ingest -> fit -> synth (paper's four)."""
+def prepare(root: Path, duration: float = 30.0) -> tuple[Path, Path]:
+    """Training flights (SE3, regular, 2 x ``duration`` s) -> ingest -> fit -> synth (paper's
+    four)."""
     from qsls.pipeline.control.synth import SynthOptions, synth
     from qsls.pipeline.errormodel.fit import FitOptions, fit
     from qsls.pipeline.ingest.stage import IngestOptions, ingest
@@ -89,7 +103,7 @@ def prepare(root: Path) -> tuple[Path, Path]:
 
     flights = []
     for seed in (100, 101):
-        res = simulate(SimOptions(seed=seed, duration=30.0), root / f"sim{seed}", force=True)
+        res = simulate(SimOptions(seed=seed, duration=duration), root / f"sim{seed}", force=True)
         ingest([res.bag], IngestOptions(), root / f"train{seed}", force=True)
         flights.append(root / f"train{seed}")
     fit(flights, FitOptions(radius=1.0), root / "fit", force=True)
@@ -104,12 +118,15 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--prepare", type=Path, help="build --fit/--synth here first (simulate..synth)")
     ap.add_argument("--skip-distance", action="store_true")
+    add_flag(ap)
     a = ap.parse_args()
-    if a.prepare:
+    if a.smoke and not (a.fit and a.synth):
+        a.fit, a.synth = prepare(a.prepare or scratch(), 8.0)
+    elif a.prepare:
         a.fit, a.synth = prepare(a.prepare)
-    rows = [] if a.skip_distance else bench_distance()
+    rows = [] if a.skip_distance else bench_distance(a.smoke)
     if a.fit and a.synth:
-        rows += bench_fly(a.fit, a.synth, a.quick)
+        rows += bench_fly(a.fit, a.synth, a.quick, a.smoke)
     w = max(len(r[0]) for r in rows)
     print(f"{'case':<{w}}  {'seconds':>9}  note")
     for name, sec, note in rows:

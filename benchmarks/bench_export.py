@@ -1,4 +1,4 @@
-"""Benchmark of the export (issue 12): ``python benchmarks/bench_export.py``.
+"""Benchmark of the export (issue 12): ``python benchmarks/bench_export.py [--smoke]``.
 
 For L1 robust controllers synthesized at T = 20 and T = 50 (the export tests' error model:
 eps_e, S and eps_w their maxima, so the design premise holds on all of it; not calibrated, so
@@ -18,6 +18,8 @@ eps_e, S and eps_w their maxima, so the design premise holds on all of it; not c
    microcontroller; flops per tick.
 3. Float vs double: largest ``|u|`` deviation over 10 000 random ticks and largest position
    deviation in closed loop with the linear plant (``qsls export --precision float``).
+
+``--smoke`` (``smokemode.py``): T = 8 only, 2 000 C ticks, 200 Python ticks, one run each.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from smokemode import add_flag, require
 
 from qsls.pipeline.control.artifacts import load_controller_dir, load_runtime
 from qsls.pipeline.control.synth import SynthOptions, synth
@@ -192,7 +195,9 @@ class NaiveBank:
         return u
 
 
-def run(T: int, root: Path, cc: str | None, c_ticks: int, py_ticks: int) -> dict:
+def run(
+    T: int, root: Path, cc: str | None, c_ticks: int, py_ticks: int, repeat: int = 9
+) -> dict:
     folder = controller(root, T)
     cdir = load_controller_dir(folder)
     bank = export_bank(cdir)
@@ -203,27 +208,34 @@ def run(T: int, root: Path, cc: str | None, c_ticks: int, py_ticks: int) -> dict
         out[prec] = res.results
         if cc:
             exes = c_harness(cc, d, c_ticks), c_harness(cc, step_alone(d), c_ticks)
-            with_monitor, alone = c_ns_per_tick(*exes, repeat=9)
+            with_monitor, alone = c_ns_per_tick(*exes, repeat=repeat)
             out[prec]["c_ns"], out[prec]["c_ns_no_monitor"] = with_monitor, alone
-            out[prec]["c_instr"] = instructions_per_tick(cc, d)
-            out[prec]["c_instr_no_monitor"] = instructions_per_tick(cc, step_alone(d))
+            n = min(20_000, c_ticks)
+            out[prec]["c_instr"] = instructions_per_tick(cc, d, n)
+            out[prec]["c_instr_no_monitor"] = instructions_per_tick(cc, step_alone(d), n)
+        verify = res.results["verify"]
+        require(
+            verify["max_abs_diff"] <= 1e-9 * max(1.0, verify["max_abs_u"]),
+            f"T = {T}, {prec}: the exported C step equals the realization",
+        )
     ys = np.random.default_rng(0).uniform(-1, 1, (py_ticks, 6))
     ylists = ys.tolist()
     py = root / f"py{T}"
     export(folder, ExportOptions(target="python", verify_ticks=0, allow_uncertified=True), py)
     mod = load_module((py / "qsls_ctrl.py").read_text())
-    out["stdlib_ns"] = py_ns_per_tick(mod.Controller().step, ylists)
-    out["numpy_ns"] = py_ns_per_tick(load_runtime(folder).step, list(ys))
+    py_repeat = min(3, repeat)
+    out["stdlib_ns"] = py_ns_per_tick(mod.Controller().step, ylists, py_repeat)
+    out["numpy_ns"] = py_ns_per_tick(load_runtime(folder).step, list(ys), py_repeat)
     out["naive_ns"] = py_ns_per_tick(NaiveBank(bank).step, ylists[: max(200, py_ticks // 10)], 1)
     if cc:
         lib = root / f"c{T}double" / "lib.so"
         cmd = [cc, *STRICT, "-O2", "-fPIC", "-shared", "-o", str(lib)]
         subprocess.run([*cmd, str(root / f"c{T}double" / "qsls_ctrl.c"), "-lm"], check=True)
-        out["ctypes_ns"] = py_ns_per_tick(CController(lib, dt=0.1).step, list(ys))
+        out["ctypes_ns"] = py_ns_per_tick(CController(lib, dt=0.1).step, list(ys), py_repeat)
     return out
 
 
-def table(results: list[dict]) -> None:
+def table(results: list[dict], repeat: int = 9) -> None:
     budget_ns = 1e9 / LOOP_HZ
     print(
         f"\nController step, ticks/s and share of a {LOOP_HZ:.0f} Hz loop ({budget_ns / 1e6:g} ms)"
@@ -265,7 +277,7 @@ def table(results: list[dict]) -> None:
                 f"{s['const_bytes']:9d} {100 * s['const_bytes'] / MCU_FLASH_BYTES:7.2f}% {s['flops_per_tick']:11d}"
             )
     print("\nThe premise monitor's cost per tick (exported C -O2, docs/monitor.md): instructions")
-    print("counted by valgrind (deterministic); wall clock, best of 9 runs taken in turn")
+    print(f"counted by valgrind (deterministic); wall clock, best of {repeat} runs taken in turn")
     print(
         f"{'T':>4s} {'precision':>9s} {'step instr':>11s} {'alone instr':>12s} {'monitor':>8s} "
         f"{'share':>6s} {'step ns':>8s} {'alone ns':>9s}"
@@ -303,11 +315,15 @@ def main() -> None:
     ap.add_argument("--c-ticks", type=int, default=1_000_000)
     ap.add_argument("--py-ticks", type=int, default=20_000)
     ap.add_argument("--json", type=Path, help="also write the numbers as JSON")
+    add_flag(ap)
     args = ap.parse_args()
+    repeat = 9
+    if args.smoke:
+        args.T, args.c_ticks, args.py_ticks, repeat = [8], 2_000, 200, 1
     cc = find_compiler()
     with tempfile.TemporaryDirectory(prefix="qsls-bench-export-") as tmp:
-        results = [run(T, Path(tmp), cc, args.c_ticks, args.py_ticks) for T in args.T]
-    table(results)
+        results = [run(T, Path(tmp), cc, args.c_ticks, args.py_ticks, repeat) for T in args.T]
+    table(results, repeat)
     if args.json:
         args.json.write_text(json.dumps(results, indent=2, default=str))
 

@@ -2,6 +2,7 @@
 
     python benchmarks/bench_fit.py            # all cases
     python benchmarks/bench_fit.py --quick    # smaller sizes
+    python benchmarks/bench_fit.py --smoke    # 500 and 2 000 samples (smokemode.py)
 
 Cases (each in its own process, so the peak memory is its own):
 - ``engine 20k``: :func:`qsls.pipeline.errormodel.slopes.pair_slopes` on 20k samples of repeated circle laps;
@@ -29,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from smokemode import requested, require
 
 RADIUS = 0.12
 
@@ -124,6 +126,8 @@ def main() -> None:
         return
     quick = "--quick" in sys.argv
     small, big = (5_000, 20_000) if quick else (20_000, 100_000)
+    if requested():
+        small, big = 500, 2_000
     rows = [
         run("engine", small),
         run("brute", small),
@@ -152,6 +156,12 @@ def main() -> None:
         f"\n{small:,} samples: engine vs brute force: pairs equal {same_pairs}, max equal "
         f"{same_max}, largest percentile difference {rel:.2e} (stated bound {eng['rel_error']:.3g}); "
         f"speed-up {bru['seconds'] / eng['seconds']:.1f}x"
+    )
+    require(same_pairs and same_max, "the engine's pair count and maximum equal brute force's")
+    require(rel <= eng["rel_error"], "the engine's percentiles within its stated bound")
+    require(
+        rows[2]["pairs"] == rows[3]["pairs"] and rows[2]["max"] == rows[3]["max"],
+        "one thread and two find the same pairs and maximum",
     )
     print(
         f"{big:,} samples: {rows[2]['pairs']:,} pairs in {rows[2]['seconds']:.1f} s, "

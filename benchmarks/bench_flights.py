@@ -1,7 +1,7 @@
 """Benchmark: flights for a calibrated certificate (issue 37).
 
 Run: ``python benchmarks/bench_flights.py [--flights 200] [--duration 20] [--jobs 2]
-[--controller DIR]``
+[--controller DIR] [--smoke]``
 
 A calibrated certificate needs hundreds of flights of the candidate. Cases, the same PD
 flights (seeds 0.., regular perception, the default circle) in this run:
@@ -23,6 +23,10 @@ flights (seeds 0.., regular perception, the default circle) in this run:
 
 Reported: CPU seconds per flight and times real time per core for 0, flights per CPU-second
 for 1 and 2, the speed-up, and the wall time of 3 (and 4).
+
+``--smoke`` (``smokemode.py``): 2 s flights, one timed one by one, 2 on the pool, and for the
+SLS controller a certified T = 20 one in the quickstart's shape made in a temporary folder
+(``tests/controllerfixtures.py``: a real solve and certificate, calibrated by a stand-in).
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from smokemode import add_flag, require
 
 
 def _timed(fn):  # type: ignore[no-untyped-def]
@@ -71,10 +76,16 @@ def fly_stage_flights(n: int, duration: float, root: Path) -> float:
 QUICKSTART_L1 = Path("runs/quickstart/calibrate/regular/l1_robust")
 
 
-def certified_controller(given: str | None, root: Path) -> Path:
-    """The SLS controller to fly: ``given``, the quickstart's, or a fresh quickstart's."""
+def certified_controller(given: str | None, root: Path, smoke: bool = False) -> Path:
+    """The SLS controller to fly: ``given``, the quickstart's, or a fresh quickstart's (in
+    smoke mode a small certified one, ``tests/controllerfixtures.gated``)."""
     if given:
         return Path(given)
+    if smoke:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+        from tests.controllerfixtures import gated
+
+        return gated(root / "l1_robust").folder
     if QUICKSTART_L1.is_dir():
         return QUICKSTART_L1
     out = root / "quickstart"
@@ -132,13 +143,16 @@ def main() -> None:
     ap.add_argument("--sample", type=int, default=5, help="flights timed one by one in 1 and 2")
     ap.add_argument("--scheduler", default=None)
     ap.add_argument("--controller", default=None, help="a certified SLS controller folder")
+    add_flag(ap)
     a = ap.parse_args()
+    if a.smoke:
+        a.flights, a.duration, a.sample = 2, 2.0, 1
 
     from qsls.pipeline.core.pools import run_tasks
     from qsls.pipeline.evaluate.calibrate import fly_job
 
     with tempfile.TemporaryDirectory() as tmp:
-        sls = certified_controller(a.controller, Path(tmp))
+        sls = certified_controller(a.controller, Path(tmp), a.smoke)
         print(f"{a.duration:g} s emulator flights, closed loop alone, CPU s per flight "
               f"(mean of {a.sample}; stepwise = whole-array vehicle, one emulator call per sample):")  # fmt: skip
         for name, kind in (("pd", "pd"), (f"SLS {sls}", str(sls))):
@@ -146,6 +160,7 @@ def main() -> None:
             print(f"  {name}: {new:.3f} s = {a.duration / new:.1f}x real time per core; stepwise "
                   f"{old:.3f} s = {a.duration / old:.1f}x; {old / new:.2f}x faster; "
                   f"identical logs: {same}")  # fmt: skip
+            require(same, f"{name}: the fast and the stepwise flights' logs are identical")
         stage = fly_stage_flights(a.sample, a.duration, Path(tmp))
     cal = sum(_timed(lambda j=j: fly_job(j))[2] for j in calibration_jobs(a.sample, a.duration))
     cal /= a.sample
@@ -167,6 +182,7 @@ def main() -> None:
         )  # fmt: skip
         print(f"  the same on the Dask cluster at {a.scheduler}: {wall_d:.1f} s wall; "
               f"tick logs identical: {same}")  # fmt: skip
+        require(same, "the Dask cluster's tick logs equal the local pool's")
 
 
 if __name__ == "__main__":

@@ -19,7 +19,11 @@ For each bag, in the same run:
   - ``qsls ingest`` as a user runs it, a fresh process each time (interpreter start, imports
     and console output included), fast and with ``decoder: deserializer`` from a config.
 
-Run: python benchmarks/bench_ingest.py [--quick]
+Run: python benchmarks/bench_ingest.py [--quick] [--smoke]
+
+``--smoke`` (``smokemode.py``): 2 000 messages per bag (5 s: ingest needs 3 s of overlap)
+and four images, built in a temporary folder, one run per cell, ``qsls ingest`` as a process
+on the two ROS1 bags only.
 """
 
 from __future__ import annotations
@@ -30,11 +34,13 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from smokemode import add_flag, require, work_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-WORK = ROOT / "benchmarks" / "_work"
+WORK = work_dir(ROOT / "benchmarks" / "_work")
 sys.path.insert(0, str(ROOT))
 
 from qsls.pipeline.core.artifacts import _hash_file  # noqa: E402
@@ -81,23 +87,29 @@ def _files(path: Path) -> list[Path]:
     return [path] if path.is_file() else sorted(f for f in path.rglob("*") if f.is_file())
 
 
-def timed(fn, repeat: int = 1) -> float:
-    best = float("inf")
+REPEAT = 3
+"""Runs per timed cell (best of); 1 in smoke mode."""
+
+
+def timed_value(fn, repeat: int = 1) -> tuple[float, Any]:
+    """The best of ``repeat`` wall times of ``fn()`` and its last value."""
+    best, value = float("inf"), None
     for _ in range(repeat):
         t0 = time.perf_counter()
-        fn()
+        value = fn()
         best = min(best, time.perf_counter() - t0)
-    return best
+    return best, value
 
 
-def run_ingest(bag: Path, decoder: str, repeat: int | None = None) -> float:
+def timed(fn, repeat: int = 1) -> float:
+    return timed_value(fn, repeat)[0]
+
+
+def run_ingest(bag: Path, decoder: str, repeat: int | None = None) -> tuple[float, Any]:
+    """Best wall seconds of ``qsls ingest`` in this process, and its result."""
     out = WORK / f"out_{bag.stem}_{decoder}"
     o = IngestOptions(vio_topic="/vio/odom", truth_topic="/mocap/pose", decoder=decoder)
-
-    def go() -> None:
-        ingest([bag], o, out, force=True)
-
-    t = timed(go, repeat=repeat or 3)
+    t = timed_value(lambda: ingest([bag], o, out, force=True), repeat=repeat or REPEAT)
     shutil.rmtree(out, ignore_errors=True)
     return t
 
@@ -107,8 +119,8 @@ def paired(a: Path, b: Path, n: int = 5) -> tuple[float, float, float]:
     for both): (best a, best b, median of the per-pair ratios b_i / a_i)."""
     ta, tb = [], []
     for _ in range(n):
-        ta.append(run_ingest(a, "fast", repeat=1))
-        tb.append(run_ingest(b, "fast", repeat=1))
+        ta.append(run_ingest(a, "fast", repeat=1)[0])
+        tb.append(run_ingest(b, "fast", repeat=1)[0])
     return min(ta), min(tb), float(np.median(np.array(tb) / np.array(ta)))
 
 
@@ -140,7 +152,7 @@ def read_per_message(bag: Path) -> int:
         infos = [t for t in s.topics() if t.topic in ("/vio/odom", "/mocap/pose")]
         raws = s._raw_pass(infos, NULL_PROGRESS)
         trajs = [s._decode(i, raws[i.topic], None, True) for i in infos]
-    assert all(t.decoder == "numpy" for t in trajs)
+    require(all(t.decoder == "numpy" for t in trajs), f"{bag.name}: the numpy decoder read it")
     return sum(len(t) for t in trajs)
 
 
@@ -163,10 +175,15 @@ def raw_iteration(bag: Path) -> int:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="20k messages and 50 MB of images")
+    add_flag(ap)
     args = ap.parse_args()
+    global REPEAT
     n_pose, mb = (10_000, 50.0) if args.quick else (100_000, 520.0)
-    WORK.mkdir(parents=True, exist_ok=True)
     tag = "quick" if args.quick else "full"
+    pairs_n, reads_n, cli_n = 5, 2, 3
+    if args.smoke:
+        n_pose, mb, tag, REPEAT, pairs_n, reads_n, cli_n = 1_000, 1.0, "smoke", 1, 1, 1, 1
+    WORK.mkdir(parents=True, exist_ok=True)
     bags = {}
     for fmt in FORMATS:
         ext = {"ros1": ".bag", "mcap-zstd": ".mcap"}.get(fmt, "")
@@ -181,22 +198,28 @@ def main() -> None:
     # table each bag's runs are minutes apart and follow other bags' (the deserializer's among
     # them), so the two sides of the ratio are timed under different conditions.
     pairs = {
-        fmt: paired(bags[f"{fmt} (a) poses only"], bags[f"{fmt} (b) + images"]) for fmt in FORMATS
+        fmt: paired(bags[f"{fmt} (a) poses only"], bags[f"{fmt} (b) + images"], pairs_n)
+        for fmt in FORMATS
     }
     rows = []
     for label, bag in bags.items():
         size = size_mb(bag)
-        ingest_fast = run_ingest(bag, "fast")
-        ingest_slow = run_ingest(bag, "deserializer")
-        read_fast = timed(lambda bag=bag: read_both(bag, True), repeat=2)
-        read_slow = timed(lambda bag=bag: read_both(bag, False))
+        ingest_fast, fast_res = run_ingest(bag, "fast")
+        ingest_slow, slow_res = run_ingest(bag, "deserializer")
+        require(
+            (fast_res.samples, fast_res.time_offset_s) == (slow_res.samples, slow_res.time_offset_s),
+            f"{label}: both decoders give the same samples and clock offset",
+        )
+        read_fast, n_fast = timed_value(lambda bag=bag: read_both(bag, True), repeat=reads_n)
+        read_slow, n_slow = timed_value(lambda bag=bag: read_both(bag, False))
+        require(n_fast == n_slow == n_msgs, f"{label}: both reads give {n_msgs} messages")
         raw = timed(lambda bag=bag: raw_iteration(bag)) if "mcap-zstd" not in label else np.nan
         before = timed(lambda bag=bag: read_per_message(bag)) if "mcap" in label else np.nan
         sha = timed(lambda bag=bag: sum(len(_hash_file(f)) for f in _files(bag)))
         rows.append((label, size, ingest_fast, ingest_slow, read_fast, read_slow, raw, before, sha))
     print(
         f"\n{n_msgs} Odometry+PoseStamped messages per bag; seconds (messages/s); ingest: best"
-        " of 3 each, reads: fast best of 2, the others one run\n"
+        f" of {REPEAT} each, reads: fast best of {reads_n}, the others one run\n"
     )
     head = (
         f"{'bag':34s} {'MB':>6s} | {'ingest fast':>18s} {'ingest deser.':>18s} {'speed-up':>8s}"
@@ -225,8 +248,8 @@ def main() -> None:
             f"sha256 {b[8]:.2f} s, in parallel with the read)"
         )
     print(
-        "\nwith images / without, the two bags ingested alternately (5 runs each, before the"
-        " table above):\n"
+        f"\nwith images / without, the two bags ingested alternately ({pairs_n} runs each, before"
+        " the table above):\n"
     )
     head = f"{'format':12s} | {'without':>8s} {'with':>8s} | {'best/best':>9s} {'median pair':>11s}"
     print(head)
@@ -237,7 +260,7 @@ def main() -> None:
         print(f"{fmt:12s} | {ta:8.2f} {tb:8.2f} | {tb / ta:8.2f}x {med:10.2f}x{target}")
     print(
         "\nqsls ingest as a process, what a user types (interpreter start, imports and console"
-        " output included; best of 3 each):\n"
+        f" output included; best of {cli_n} each):\n"
     )
     head = (
         f"{'bag':34s} | {'fast':>6s} {'deser.':>7s} {'speed-up':>8s} | "
@@ -247,7 +270,9 @@ def main() -> None:
     print("-" * len(head))
     cli: dict[str, float] = {}
     for label, bag in bags.items():
-        fast, slow = run_cli(bag, "fast", 3), run_cli(bag, "deserializer", 3)
+        if args.smoke and label not in ("ros1 (a) poses only", "ros1 (b) + images"):
+            continue
+        fast, slow = run_cli(bag, "fast", cli_n), run_cli(bag, "deserializer", cli_n)
         cli[label] = fast
         fmt = label.split(" ")[0]
         ratio = ""

@@ -28,7 +28,10 @@ one fresh run each, with the peak resident set of each process (``os.wait4``'s
 ``ru_maxrss``: file pages mapped and touched count too).
 
 Run: python benchmarks/bench_ingest_process.py [--quick] [--repeat N] [--long N | --long 0]
-[--memory-only]
+[--memory-only] [--smoke]
+
+``--smoke`` (``smokemode.py``): bags of 2 000 messages (and a long one of 4 000, ROS1 only) in
+a temporary folder, one run per cell, no untimed runs first.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_ingest import WORK, build
 from fresh import median_runs, peak_run
+from smokemode import add_flag, requested
 
 READER = r"""
 import sys
@@ -113,15 +117,17 @@ def main() -> None:
         help="messages of the memory run's long bags (0: none)",
     )
     ap.add_argument("--memory-only", action="store_true", help="the memory runs alone")
+    add_flag(ap)
     args = ap.parse_args()
-    if args.memory_only:
-        WORK.mkdir(parents=True, exist_ok=True)
-        tag = "quick" if args.quick else "full"
-        memory(10_000 if args.quick else 100_000, args.long // 2, tag)
-        return
     n_pose = 10_000 if args.quick else 100_000
     tag = "quick" if args.quick else "full"
+    memory_formats = list(FORMATS)
+    if args.smoke:
+        n_pose, tag, args.repeat, args.long, memory_formats = 1_000, "smoke", 1, 4_000, ["ros1"]
     WORK.mkdir(parents=True, exist_ok=True)
+    if args.memory_only:
+        memory(n_pose, args.long // 2, tag, memory_formats)
+        return
     rows = []
     for label, (fmt, ext, plain) in FORMATS.items():
         kind, _, comp = fmt.partition("-") if plain else (fmt, "", "")
@@ -156,7 +162,7 @@ def main() -> None:
             f" {rc / qc:.1f}x in CPU time (target >= 3x: {met})"
         )
     if args.long:
-        memory(n_pose, args.long // 2, tag)
+        memory(n_pose, args.long // 2, tag, memory_formats)
     print(
         "\nreader: the two topics read message by message with rosbags' deserializer (issue"
         " 27's target: qsls ingest >= 3x faster); ingest, deser.: qsls ingest with"
@@ -169,17 +175,20 @@ def main() -> None:
 MEMORY_TARGET_MB = 300.0
 
 
-def memory(n_short: int, n_long: int, tag: str) -> None:
+def memory(n_short: int, n_long: int, tag: str, formats: list[str] | None = None) -> None:
     """Peak RSS, wall and CPU seconds of ``qsls ingest`` and of the reader, one fresh run
-    each, on the short and the long bag of every format (module docstring)."""
+    each, on the short and the long bag of every format in ``formats`` (all by default;
+    module docstring)."""
     rows = []
-    for label, (fmt, ext, plain) in FORMATS.items():
+    for label in formats or FORMATS:
+        fmt, ext, plain = FORMATS[label]
         kind, _, comp = fmt.partition("-") if plain else (fmt, "", "")
         for n in (n_short, n_long):
             name = f"a_{tag}_{fmt}{ext}" if n == n_short else f"long{2 * n}_{fmt}{ext}"
             bag = build(n, 0.0, comp or None, name, kind)
             cmds = commands(bag, plain)
-            peak_run(cmds["qsls"])  # untimed: the bag into the page cache, for both sides
+            if not requested():
+                peak_run(cmds["qsls"])  # untimed: the bag into the page cache, for both sides
             q = peak_run(cmds["qsls"])
             r = peak_run(cmds["reader"])
             if int(r[3].strip()) != 2 * n:

@@ -4,6 +4,7 @@
     python benchmarks/bench_rpe.py --quick    # 2 seeds
     python benchmarks/bench_rpe.py FLIGHT...  # the statistic on ingested flight folders only
     python benchmarks/bench_rpe.py --scan     # the calibration of the bias field's position steps
+    python benchmarks/bench_rpe.py --smoke    # 1 seed, one lap per figure eight (smokemode.py)
 
 The statistic (:mod:`qsls.pipeline.evaluate.rpe`): the 1 s relative position error over
 non-overlapping 1 s windows of an aligned flight, the ratio of its mean over the fastest third
@@ -43,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from smokemode import requested, require
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 PAIRS = {  # folder: (truth file, the measurement: ratio, rho)
@@ -122,7 +124,8 @@ def emulated_row(
 
 
 def sim_row(
-    motion: bool, seed: int, perception: str, bias: bool, vio: dict[str, Any] | None = None
+    motion: bool, seed: int, perception: str, bias: bool, vio: dict[str, Any] | None = None,
+    laps: int = 6,
 ) -> dict[str, Any]:
     from qsls.pipeline.evaluate.rpe import rpe_vs_speed
     from qsls.pipeline.sim.closedloop import FlightOptions, fly
@@ -130,7 +133,7 @@ def sim_row(
     o = FlightOptions.model_validate(
         {
             "controller": {"kind": "pd"},
-            "reference": {"kind": "figure8", "radius": 1.5, "period": 10.0, "laps": 6},
+            "reference": {"kind": "figure8", "radius": 1.5, "period": 10.0, "laps": laps},
             "vio": {
                 "perception": perception,
                 "bias": bias,
@@ -145,6 +148,12 @@ def sim_row(
 
 
 def summarize(rows: list[dict[str, Any]]) -> dict[str, str]:
+    for r in rows:
+        require(
+            r["windows"] > 0 and all(np.isfinite(r[k]) for k in ("rpe_mean", "ratio", "rho")),
+            "every flight has RPE windows and finite statistics",
+        )
+
     def cell(key: str, fmt: str) -> str:
         v = np.array([r[key] for r in rows])
         if len(v) == 1:
@@ -215,7 +224,9 @@ def main() -> None:
     if folders:
         print_table([(str(f), "ingested", summarize([flight_row(f)])) for f in folders])
         return
-    seeds = range(2 if "--quick" in sys.argv else 5)
+    smoke = requested()
+    seeds = range(1 if smoke else 2 if "--quick" in sys.argv else 5)
+    laps = 1 if smoke else 6
     if not REAL.is_dir():
         sys.exit(f"{REAL} not found: the real pairs are needed for this benchmark")
     start = time.perf_counter()
@@ -232,7 +243,7 @@ def main() -> None:
             table.append((f"{label} truth", f"emulator, motion {'on' if motion else 'off'}",
                           summarize(rows)))  # fmt: skip
     for perception, motion, bias in SIM_ROWS:
-        rows = [sim_row(motion, s, perception, bias) for s in seeds]
+        rows = [sim_row(motion, s, perception, bias, laps=laps) for s in seeds]
         label = f"PD, {perception}, motion {'on' if motion else 'off'}"
         table.append(("sim figure8", label + ("" if bias else ", bias off"), summarize(rows)))
     print_table(table)

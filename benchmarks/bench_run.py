@@ -17,7 +17,11 @@ Two configs: the quickstart (simulated flights: no external input), and one flig
 from the 200 000-message sqlite3 bag of ``bench_ingest_process.py`` (107 MB), where the
 previous way hashes the bag on every run.
 
-Run: python benchmarks/bench_run.py [--repeat N]
+Run: python benchmarks/bench_run.py [--repeat N] [--clean] [--smoke]
+
+``--smoke`` (``smokemode.py``): instead of the quickstart a run of two 8 s simulated flights
+through simulate, ingest and fit (:data:`SMOKE_CONFIG`), a 2 000-message bag, one run per
+cell, all in a temporary folder.
 """
 
 from __future__ import annotations
@@ -25,13 +29,15 @@ from __future__ import annotations
 import argparse
 import re
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_ingest import build
-from fresh import WORK, best_walls
+from bench_ingest import build, size_mb
+from fresh import WORK, best_walls, fresh_env
+from smokemode import add_flag
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -60,22 +66,38 @@ if cfg.report:
 """
 
 
-def setup(work: Path, bag: Path) -> dict[str, Path]:
+SMOKE_CONFIG = """name: smoke
+stages: [simulate, ingest, fit]
+report: false
+simulate: {duration: 8, controller: {kind: pd}}
+flights:
+  - {name: train_1, role: train, simulate: {seed: 1}}
+  - {name: train_2, role: train, simulate: {seed: 2, log: {format: ros2-mcap}}}
+ingest: {dt: 0.1}
+"""
+"""The smoke mode's stand-in for the quickstart: simulated flights, no external input."""
+
+
+def setup(work: Path, bag: Path, smoke: bool = False) -> dict[str, Path]:
     """The configs, each run once (untimed) so that their run folders are up to date."""
     work.mkdir(parents=True, exist_ok=True)
-    quick = work / "quickstart.yaml"
-    quick.write_text((ROOT / "configs" / "quickstart.yaml").read_text())
+    quick = work / ("smoke.yaml" if smoke else "quickstart.yaml")
+    quick.write_text(SMOKE_CONFIG if smoke else (ROOT / "configs" / "quickstart.yaml").read_text())
     big = work / "bag.yaml"
     big.write_text(
         "name: bag\nstages: [ingest]\nreport: false\n"
         f"flights:\n  - {{name: big, sources: ['{bag}'], "
         "ingest: {vio_topic: /vio/odom, truth_topic: /mocap/pose}}\n"
     )
-    configs = {"quickstart (simulated flights)": quick, "one 107 MB sqlite3 bag": big}
-    cmds = {
-        str(c): [sys.executable, "-m", "qsls.cli.main", "run", str(c)] for c in configs.values()
+    configs = {
+        f"{quick.stem} (simulated flights)": quick,
+        f"one {size_mb(bag):.0f} MB sqlite3 bag": big,
     }
-    best_walls(cmds, 0, work)
+    for c in configs.values():
+        cmd = [sys.executable, "-m", "qsls.cli.main", "run", str(c)]
+        done = subprocess.run(cmd, capture_output=True, text=True, cwd=work, env=fresh_env())
+        if done.returncode:
+            raise SystemExit(f"qsls run {c.name} failed: {done.stderr.strip()[-400:]}")
     return configs
 
 
@@ -83,12 +105,17 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=5, help="fresh processes per cell (best)")
     ap.add_argument("--clean", action="store_true", help="redo the runs from scratch")
+    add_flag(ap)
     args = ap.parse_args()
     work = WORK / "run_bench"
     if args.clean:
         shutil.rmtree(work, ignore_errors=True)
-    bag = build(100_000, 0.0, None, "a_full_ros2-sqlite", "ros2-sqlite")
-    configs = setup(work, bag)
+    if args.smoke:
+        args.repeat = 1
+        bag = build(1_000, 0.0, None, "a_smoke_ros2-sqlite", "ros2-sqlite")
+    else:
+        bag = build(100_000, 0.0, None, "a_full_ros2-sqlite", "ros2-sqlite")
+    configs = setup(work, bag, args.smoke)
     floor = best_walls({"v": [sys.executable, "-m", "qsls.cli.main", "--version"]}, args.repeat)
     rows = []
     for label, cfg in configs.items():

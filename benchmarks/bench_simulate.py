@@ -1,6 +1,7 @@
 """Benchmark: a 60 s flight simulated and written, against RotorPy's stock loop.
 
-Run: ``python benchmarks/bench_simulate.py [--duration 60]``
+Run: ``python benchmarks/bench_simulate.py [--duration 60] [--smoke]`` (``--smoke``,
+``smokemode.py``: a 3 s flight)
 
 Cases (same vehicle, same circle, SE3 at 100 Hz):
 
@@ -25,6 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from smokemode import add_flag, require
 
 
 def _timed(fn):  # type: ignore[no-untyped-def]
@@ -70,8 +72,9 @@ def stock_rotorpy(duration: float, hz: float = 100.0) -> tuple[np.ndarray, np.nd
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=60.0)
+    add_flag(ap)
     args = ap.parse_args()
-    d = args.duration
+    d = 3.0 if args.smoke else args.duration
 
     from qsls.pipeline.sim.closedloop import FlightOptions, fly
     from qsls.pipeline.sim.simulate import SimOptions, simulate
@@ -112,6 +115,7 @@ def main() -> None:
     print(f"like for like (loop only, 100 Hz): {stock[1] / rows[2][1]:.1f}x wall, "
           f"{stock[2] / rows[2][2]:.1f}x cpu")  # fmt: skip
     print(f"max |p_qsls - p_rotorpy| over the same flight: {diff * 1e3:.4f} mm")
+    require(bool(np.isfinite(diff)), "both loops fly the whole flight")
     print(
         f"target: 60 s simulated and written in <= 10 s -> {'met' if rows[0][1] <= 10 * d / 60 else 'MISSED'}"
     )

@@ -9,6 +9,8 @@
    Dinkelbach run per T and radius serving every eps_e (``eps_e`` only shifts ``S_max``) with
    the smallest ||Phi_xy|| solved once per T: solves, CPU seconds, identical answers.
 Target: the 1000-point sweep in <= 30 s on 2 cores.
+
+``--smoke`` (``smokemode.py``): the config's settings on a grid of 6 points (:data:`SMOKE_GRID`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pathlib import Path
 
 import pandas as pd
 import yaml
+from smokemode import add_flag, requested, require
 
 from qsls.pipeline.control import largest_s, sls
 from qsls.pipeline.control.sweep import (
@@ -35,6 +38,8 @@ from qsls.pipeline.core.config import validate
 from qsls.pipeline.core.plant import quadrotor_model
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "bench_sweep.yaml"
+SMOKE_GRID = {"S": [0.05, 0.5, 0.9], "T": [10], "eps_e": [0.02, 0.2], "radius": [1.0], "cost": ["qr"]}
+"""The smoke mode's grid: one point answered by the necessary condition (S 0.9, eps_e 0.2)."""
 
 
 def _cpu() -> float:
@@ -49,7 +54,10 @@ def _worker_cpu() -> float:
 
 
 def options() -> SweepOptions:
-    return validate(SweepOptions, yaml.safe_load(CONFIG.read_text()), str(CONFIG))
+    data = yaml.safe_load(CONFIG.read_text())
+    if requested():
+        data["grid"] = SMOKE_GRID
+    return validate(SweepOptions, data, str(CONFIG))
 
 
 def run_local(jobs: int) -> tuple[float, float, pd.DataFrame, pd.DataFrame]:
@@ -164,6 +172,7 @@ def s_max_both_ways() -> list[tuple[str, int, int, float, pd.Series]]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-dask", action="store_true", help="skip the Dask cluster run")
+    add_flag(ap)
     args = ap.parse_args()
     import cvxpy  # noqa: F401  (import time is not part of any measurement)
 
@@ -176,7 +185,8 @@ def main() -> None:
     t = ref[2]
     necessary = int((t["solver_status"] == NECESSARY).sum())
     above = int((t["solver_status"] == ABOVE_S_MAX).sum())
-    print(f"\n{n}-point sweep ({CONFIG.name}): {feasible} feasible; answered without the solver:")
+    grid = "the smoke grid" if args.smoke else CONFIG.name
+    print(f"\n{n}-point sweep ({grid}): {feasible} feasible; answered without the solver:")
     print(f"{necessary} by the necessary condition S + eps_e/r < 1, {above} by S above the")
     print("setting's largest feasible S (its Dinkelbach run)")
     hdr = f"{'executor':18s} {'wall s':>8s} {'cpu s':>8s} {'table identical':>16s}"
@@ -187,6 +197,7 @@ def main() -> None:
             ref[2].drop(columns=["build_time_s", "solve_time_s"])
         ) and smax.equals(ref[3])
         print(f"{name:18s} {wall:8.2f} {cpu:8.2f} {same!s:>16s}")
+        require(same, f"{name}: the same table and largest S as one process")
     main, total, busiest = cpu_balance(2)
     print(
         f"CPU balance on 2 processes: {total:.2f} CPU s in the workers, the busiest {busiest:.2f};"
@@ -201,6 +212,7 @@ def main() -> None:
     for way, tasks, solves, cpu, got in ways:
         same = bool((got == ways[0][4]).all())
         print(f"{way:18s} {tasks:6d} {solves:7d} {cpu:7.2f} {same!s:>11s}")
+        require(same, f"{way}: the same largest S as per setting")
     print(f"load average after the run: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
 
 

@@ -25,6 +25,9 @@
    the cell grid against the chunked all-pairs count, same answer required.
 Targets: build + solve <= 0.15 s on one core at T = 50 (issue 27; issue 37 in the honest
 setting); sweep >= 1.8x faster.
+
+``--smoke`` (``smokemode.py``): T = 20 (the honest setting at T = 30: infeasible below 28),
+one repeat, a 4-point sweep, 400 premise samples.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from smokemode import add_flag, requested, require
 
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.guarantee import PremiseNumbers
@@ -203,10 +207,18 @@ def bench_honest(T: int, repeats: int) -> tuple[list[tuple], dict]:
                 last[name] = sol
     out = {}
     for name, sol in last.items():
+        require(sol.taps is not None, f"{name}: the honest setting at T = {T} is feasible")
         assert sol.taps is not None
         body = certify(sol.taps, r.model, r.numbers, r.shape, solver_status=sol.status)
         out[name] = (sol.taps, body)
     return rows, out
+
+
+def same_optimum(objectives: list[float], rel: float = 1e-5) -> bool:
+    """All finite and within ``rel`` of each other (the solvers' tolerances are 1e-8 to 1e-10;
+    the formulations' paths differ)."""
+    o = np.asarray(objectives, dtype=float)
+    return bool(np.isfinite(o).all() and np.abs(o / o[0] - 1).max() <= rel)
 
 
 def print_rows(rows: list[tuple]) -> None:
@@ -236,6 +248,7 @@ def report_honest(T: int, repeats: int) -> None:
         objs = [r[8] for r in rows[-len(names) :]]
         rel = abs(objs[names.index(name)] / objs[0] - 1)
         print(f"{name}: objective relative difference {rel:.1e}; largest tap difference {diff:.3g}")
+    require(same_optimum([r[8] for r in rows]), "the honest setting's formulations reach the same optimum")
     fields = ("status", "robustness_lhs", "norm_N", "norm_N_w", "G_m", "a", "gamma", "rho_star")
     for field in (*fields, "rho_v", "realization_error"):
         print(f"  {field:17s}" + "".join(f" {getattr(out[n][1], field)!s:>22s}" for n in names))
@@ -244,6 +257,11 @@ def report_honest(T: int, repeats: int) -> None:
 def sweep_options():
     from qsls.pipeline.control.sweep import SweepOptions
 
+    if requested():
+        return SweepOptions(
+            eps_e=0.05, radius=1.0, delta=0.05, eps_w=0.01, s_max_curve=False,
+            grid={"S": [0.02, 0.2], "T": [10], "cost": ["qr", "imitation"]},
+        )  # fmt: skip
     return SweepOptions(
         eps_e=0.05, radius=1.0, delta=0.05, eps_w=0.01, s_max_curve=False,
         grid={"S": [0.02, 0.05, 0.08, 0.11, 0.14, 0.17, 0.2, 0.25], "T": [10, 20, 30], "cost": ["qr", "imitation"]},
@@ -319,7 +337,7 @@ def bench_premise(n: int = 8000, flights: int = 4) -> list[tuple[str, float, flo
         other = flight != flight[k]
         naive[k] = np.abs(xs[other] - xs[k]).max(axis=1).min()
     slow = time.perf_counter() - t0
-    assert np.array_equal(tree, naive)
+    require(np.array_equal(tree, naive), "the KD-tree's distances equal all pairs'")
     return [("KD-tree (qsls)", fast, float(tree.max())), ("all pairs (naive)", slow, float(naive.max()))]
 
 
@@ -329,7 +347,11 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--skip-build", action="store_true", help="only the sweep part")
     ap.add_argument("--skip-sweep", action="store_true", help="only the synthesis part")
+    add_flag(ap)
     args = ap.parse_args()
+    n_premise, honest_T = 8000, args.T
+    if args.smoke:
+        args.T, args.repeats, n_premise, honest_T = 20, 1, 400, 30
     rows = [] if args.skip_build else bench_build(args.T, args.repeats)
     print(f"\nT = {args.T} L1 robust output-feedback synthesis (c_QR + robustness), times in s")
     print_rows(rows)
@@ -341,21 +363,24 @@ def main() -> None:
             f"{best['vectorized, first solve'] / first:.1f}x, naive loops "
             f"{best['naive tap-by-tap loops'] / first:.1f}x that"
         )
+        require(same_optimum([r[8] for r in rows]), "the three formulations reach the same optimum")
     if not args.skip_build:
-        report_honest(args.T, args.repeats)
+        report_honest(honest_T, args.repeats)
     if args.skip_sweep:
         return
     seq = bench_sweep(1)
     par = bench_sweep(2)
-    print(f"\n{seq[2]}-point sweep (S x T in 10/20/30 x cost qr/imitation), {seq[3]} feasible")
+    grid = " x ".join(f"{k} {'/'.join(map(str, v))}" for k, v in sweep_options().grid.items())
+    print(f"\n{seq[2]}-point sweep ({grid}), {seq[3]} feasible")
+    require(seq[2:] == par[2:], "one process and two find the same points feasible")
     print(f"{'executor':16s} {'wall s':>8s} {'cpu s':>8s}")
     print(f"{'sequential':16s} {seq[0]:8.2f} {seq[1]:8.2f}")
     print(f"{'2 processes':16s} {par[0]:8.2f} {par[1]:8.2f}")
     print(f"speed-up: {seq[0] / par[0]:.2f}x wall (target >= 1.8x)")
     total, bound = cpu_balance(2)
     print(f"CPU-balance: {total:.2f} CPU s over 2 workers -> {bound:.2f}x on 2 idle cores")
-    prem = bench_premise()
-    print("\npremise: distance of each of 8000 samples to the other 3 flights (lofo S)")
+    prem = bench_premise(n_premise)
+    print(f"\npremise: distance of each of {n_premise} samples to the other 3 flights (lofo S)")
     print(f"{'way':20s} {'s':>7s} {'largest':>8s}")
     for way, sec, largest in prem:
         print(f"{way:20s} {sec:7.3f} {largest:8.4f}")
