@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.control import certify, sls
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from tests.test_sls_mirror import ATTITUDE, SHAPE, VALUES
 
 STRUCTURE = replace(SHAPE.structure(12, "qr", False), robust=True)
@@ -38,9 +37,7 @@ def test_solve_leaves_light_rows_out_and_keeps_the_optimum():
     assert sls.cost_value("l1", sol.taps, ATTITUDE, qh, rh, 0.03, 0.08) == pytest.approx(
         full.objective, rel=1e-6
     )
-    numbers = PremiseNumbers(
-        eps=VALUES.eps_e, S=0.0, radius=1.5, eps_w=0.03, delta=0.05, eps_o=1.0, m=2, gate=1.5
-    )
+    numbers = replace(VALUES.numbers, m=2)
     body = certify.certify(sol.taps, ATTITUDE, numbers, SHAPE, solver_status=sol.status)
     assert all(c["passed"] for c in body.checks.values()), body.checks
     assert body.realization_error <= certify.REALIZATION_TOL / 10
