@@ -64,7 +64,9 @@ def bench_distance(smoke: bool = False) -> list[tuple[str, float, str]]:
     return rows
 
 
-def bench_fly(fit: Path, synth: Path, quick: bool, smoke: bool = False) -> list[tuple[str, float, str]]:
+def bench_fly(
+    fit: Path, synth: Path, quick: bool, smoke: bool = False
+) -> list[tuple[str, float, str]]:
     from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
 
     kw: dict = {"seeds": [0], "duration": 10.0} if quick else {}

@@ -103,7 +103,9 @@ def step_alone(export_dir: Path) -> Path:
     (d / "qsls_ctrl.h").write_text((export_dir / "qsls_ctrl.h").read_text())
     src = (export_dir / "qsls_ctrl.c").read_text()
     assert src.count(MONITOR_CALL) == 1
-    (d / "qsls_ctrl.c").write_text(src.replace(MONITOR_CALL, "flags = 0; (void)qsls_ctrl_monitor_tick;"))
+    (d / "qsls_ctrl.c").write_text(
+        src.replace(MONITOR_CALL, "flags = 0; (void)qsls_ctrl_monitor_tick;")
+    )
     return d
 
 
@@ -195,9 +197,7 @@ class NaiveBank:
         return u
 
 
-def run(
-    T: int, root: Path, cc: str | None, c_ticks: int, py_ticks: int, repeat: int = 9
-) -> dict:
+def run(T: int, root: Path, cc: str | None, c_ticks: int, py_ticks: int, repeat: int = 9) -> dict:
     folder = controller(root, T)
     cdir = load_controller_dir(folder)
     bank = export_bank(cdir)

@@ -165,7 +165,9 @@ def main() -> None:
     cal = sum(_timed(lambda j=j: fly_job(j))[2] for j in calibration_jobs(a.sample, a.duration))
     cal /= a.sample
     print(f"{a.duration:g} s flights, CPU seconds per flight (mean of {a.sample}):")
-    print(f"  fly stage (closed loop + bag + ingest): {stage:.3f} s  ({1 / stage:.2f} flights/CPU-s)")
+    print(
+        f"  fly stage (closed loop + bag + ingest): {stage:.3f} s  ({1 / stage:.2f} flights/CPU-s)"
+    )
     print(f"  calibration flight (closed loop + ticks): {cal:.3f} s  ({1 / cal:.2f} flights/CPU-s)")
     print(f"  -> {stage / cal:.2f}x more flights per CPU-second; "
           f"{a.duration / cal:.1f}x real time per core")  # fmt: skip

@@ -207,7 +207,8 @@ def main() -> None:
         ingest_fast, fast_res = run_ingest(bag, "fast")
         ingest_slow, slow_res = run_ingest(bag, "deserializer")
         require(
-            (fast_res.samples, fast_res.time_offset_s) == (slow_res.samples, slow_res.time_offset_s),
+            (fast_res.samples, fast_res.time_offset_s)
+            == (slow_res.samples, slow_res.time_offset_s),
             f"{label}: both decoders give the same samples and clock offset",
         )
         read_fast, n_fast = timed_value(lambda bag=bag: read_both(bag, True), repeat=reads_n)

@@ -124,7 +124,11 @@ def emulated_row(
 
 
 def sim_row(
-    motion: bool, seed: int, perception: str, bias: bool, vio: dict[str, Any] | None = None,
+    motion: bool,
+    seed: int,
+    perception: str,
+    bias: bool,
+    vio: dict[str, Any] | None = None,
     laps: int = 6,
 ) -> dict[str, Any]:
     from qsls.pipeline.evaluate.rpe import rpe_vs_speed

@@ -38,7 +38,13 @@ from qsls.pipeline.core.config import validate
 from qsls.pipeline.core.plant import quadrotor_model
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "bench_sweep.yaml"
-SMOKE_GRID = {"S": [0.05, 0.5, 0.9], "T": [10], "eps_e": [0.02, 0.2], "radius": [1.0], "cost": ["qr"]}
+SMOKE_GRID = {
+    "S": [0.05, 0.5, 0.9],
+    "T": [10],
+    "eps_e": [0.02, 0.2],
+    "radius": [1.0],
+    "cost": ["qr"],
+}
 """The smoke mode's grid: one point answered by the necessary condition (S 0.9, eps_e 0.2)."""
 
 

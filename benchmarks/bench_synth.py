@@ -167,7 +167,11 @@ def honest_setting(T: int):
     return r, r.structure(T, "l1", "qr", True, False)
 
 
-HONEST = (("per axis (before)", False), ("x, y mirrored (round 1)", True), ("qsls (sls.solve)", None))
+HONEST = (
+    ("per axis (before)", False),
+    ("x, y mirrored (round 1)", True),
+    ("qsls (sls.solve)", None),
+)
 """The honest setting's formulations: every axis its own responses and every cost row, at
 :data:`sls.TIGHT`; x and y mirrored, the same; what :func:`sls.solve` runs (mirrored, the
 light cost rows left out and checked, :data:`sls.FAST` first)."""
@@ -240,7 +244,11 @@ def report_honest(T: int, repeats: int) -> None:
     print_rows(rows)
     names = [name for name, _ in HONEST]
     best = [min(r[7] for r in rows if r[0] == n) for n in names]
-    print("best CPU: " + ", ".join(f"{n} {b:.3f} s" for n, b in zip(names, best, strict=True)) + " (target <= 0.15 s)")
+    print(
+        "best CPU: "
+        + ", ".join(f"{n} {b:.3f} s" for n, b in zip(names, best, strict=True))
+        + " (target <= 0.15 s)"
+    )
     ta, _ = out[names[0]]
     for name in names[1:]:
         tb, _ = out[name]
@@ -248,7 +256,10 @@ def report_honest(T: int, repeats: int) -> None:
         objs = [r[8] for r in rows[-len(names) :]]
         rel = abs(objs[names.index(name)] / objs[0] - 1)
         print(f"{name}: objective relative difference {rel:.1e}; largest tap difference {diff:.3g}")
-    require(same_optimum([r[8] for r in rows]), "the honest setting's formulations reach the same optimum")
+    require(
+        same_optimum([r[8] for r in rows]),
+        "the honest setting's formulations reach the same optimum",
+    )
     fields = ("status", "robustness_lhs", "norm_N", "norm_N_w", "G_m", "a", "gamma", "rho_star")
     for field in (*fields, "rho_v", "realization_error"):
         print(f"  {field:17s}" + "".join(f" {getattr(out[n][1], field)!s:>22s}" for n in names))
@@ -338,7 +349,10 @@ def bench_premise(n: int = 8000, flights: int = 4) -> list[tuple[str, float, flo
         naive[k] = np.abs(xs[other] - xs[k]).max(axis=1).min()
     slow = time.perf_counter() - t0
     require(np.array_equal(tree, naive), "the KD-tree's distances equal all pairs'")
-    return [("KD-tree (qsls)", fast, float(tree.max())), ("all pairs (naive)", slow, float(naive.max()))]
+    return [
+        ("KD-tree (qsls)", fast, float(tree.max())),
+        ("all pairs (naive)", slow, float(naive.max())),
+    ]
 
 
 def main() -> None:

@@ -37,8 +37,10 @@ def main() -> None:
     res = tune_pd(flight, kp_grid, kd_grid, seeds=seeds, workers=2)
     for kp, kd, s in res.grid:
         print(f"kp {kp:5.1f}  kd {kd:4.1f}  circle tracking RMS {s:.4f} m")
-    print(f"tuned ({res.estimator}, {res.rate_hz:g} Hz): kp {res.kp} kd {res.kd} "
-          f"score {res.score_m:.4f} m")
+    print(
+        f"tuned ({res.estimator}, {res.rate_hz:g} Hz): kp {res.kp} kd {res.kd} "
+        f"score {res.score_m:.4f} m"
+    )
     require(
         0 < res.score_m < float("inf") and res.score_m == min(s for _, _, s in res.grid),
         "a finite tuned score, the grid's least",

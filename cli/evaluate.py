@@ -88,4 +88,6 @@ def command(
     for w in checked.warnings:
         typer.echo(f"warning: {w}", err=True)
     print_summary("qsls evaluate", checked.summary())
-    print_verdicts("Certified bound on the held-out flights", combined(checked.table, checked.assumptions))
+    print_verdicts(
+        "Certified bound on the held-out flights", combined(checked.table, checked.assumptions)
+    )

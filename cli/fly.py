@@ -102,4 +102,6 @@ def fly(
     print_summary(title, result.summary())
     cols, rows = result.comparison_rows()
     print_table("Against the paper's findings", cols, rows)
-    print_verdicts("Certified bound on the flown flights", combined(result.table, result.assumptions))
+    print_verdicts(
+        "Certified bound on the flown flights", combined(result.table, result.assumptions)
+    )

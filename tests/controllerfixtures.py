@@ -42,7 +42,10 @@ def independent_bank(taps: sls.Taps, ys: np.ndarray) -> np.ndarray:
 
 
 def synthesized(
-    T: int = 8, *, strictly_proper: bool = False, name: str = "l1_robust",
+    T: int = 8,
+    *,
+    strictly_proper: bool = False,
+    name: str = "l1_robust",
     calibrated: Path | None = None,
 ) -> ControllerDir:
     """A robust L1 controller at horizon ``T`` with its certificate, as objects; with

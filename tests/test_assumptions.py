@@ -40,7 +40,7 @@ def certified():
     sol = sls.solve(model, st, sls.Values(numbers=NUMBERS))
     assert sol.taps is not None, sol.solver_status
     c = certify(sol.taps, model, NUMBERS, SHAPE)
-    assert c.status == RELAXED and c.checks['robustness']['passed'], c.checks
+    assert c.status == RELAXED and c.checks["robustness"]["passed"], c.checks
     premise = CertifiedPremise(
         numbers=PremiseNumbers(eps=0.1, S=0.0, radius=R, eps_w=0.01, delta=0.0, m=2,
                                eps_o=NUMBERS.eps_o, gate=V),

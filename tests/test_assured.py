@@ -41,7 +41,12 @@ def test_catch_share_against_a_hand_count():
     ])  # fmt: skip
     c = catch_share(a).set_index("scope")
     assert list(c.index) == ["all", "regular", "degraded"]
-    assert c.loc["all", ["flights", "broken", "caught", "trips_premise_held"]].tolist() == [6, 3, 2, 1]
+    assert c.loc["all", ["flights", "broken", "caught", "trips_premise_held"]].tolist() == [
+        6,
+        3,
+        2,
+        1,
+    ]
     assert c.loc["all", "catch_share"] == pytest.approx(2 / 3)
     assert c.loc["all", "mean_delay_s"] == pytest.approx(0.75)
     assert c.loc["regular", ["broken", "caught", "trips_premise_held"]].tolist() == [0, 0, 1]

@@ -93,7 +93,9 @@ def export(out: str) -> None:
     assert positive(stdlib, naive)
     ((du, u, dx, diff),) = numbers(r"\n\s+8\s+{n}\s+{n}\s+{n}\s+{n}\n", out + "\n")
     assert 0 < du < 1e-3 and positive(u) and 0 <= dx < 1e-3 and 0 <= diff < 1e-9
-    for state, const, flops in numbers(r"8\s+(?:double|float)\s+{n}\s+\S+%\s+{n}\s+\S+%\s+{n}", out, 2):
+    for state, const, flops in numbers(
+        r"8\s+(?:double|float)\s+{n}\s+\S+%\s+{n}\s+\S+%\s+{n}", out, 2
+    ):
         assert positive(state, const, flops)
 
 
@@ -124,15 +126,23 @@ def ingest(out: str) -> None:
 
 
 def ingest_process(out: str) -> None:
-    rows = numbers(r"\n(?:ros1|ros2-sqlite3|ros2-mcap|mcap \(zstd\))\s+\|\s+{n} \({n}\) \|\s+{n} \({n}\)", out, 4)
+    rows = numbers(
+        r"\n(?:ros1|ros2-sqlite3|ros2-mcap|mcap \(zstd\))\s+\|\s+{n} \({n}\) \|\s+{n} \({n}\)",
+        out,
+        4,
+    )
     assert all(positive(*r) for r in rows)
-    for n, qsls_mb, reader_mb in numbers(r"ros1\s+{n} \|\s+\S+ \(\s*\S+\)\s+{n} \|\s+\S+ \(\s*\S+\)\s+{n}", out, 2):
+    for n, qsls_mb, reader_mb in numbers(
+        r"ros1\s+{n} \|\s+\S+ \(\s*\S+\)\s+{n} \|\s+\S+ \(\s*\S+\)\s+{n}", out, 2
+    ):
         assert n in (2000, 4000) and positive(qsls_mb, reader_mb)
 
 
 def rpe(out: str) -> None:
     rows = numbers(r"\|\s+{n}\s+\|\s+{n}\s+\|\s+{n}\s+\|\s+{n}[^|]*\|\s+{n}", out, 12)
-    assert all(positive(w, speed, err, ratio) and -1 <= rho <= 1 for w, speed, err, ratio, rho in rows)
+    assert all(
+        positive(w, speed, err, ratio) and -1 <= rho <= 1 for w, speed, err, ratio, rho in rows
+    )
 
 
 def run(out: str) -> None:
@@ -153,9 +163,13 @@ def simulate(out: str) -> None:
 def sweep(out: str) -> None:
     ((points, feasible),) = numbers(r"{n}-point sweep \(the smoke grid\): {n} feasible", out)
     assert points == 6 and 0 < feasible < points
-    ((necessary, _),) = numbers(r"{n} by the necessary condition S \+ eps_e/r < 1, {n} by S above", out)
+    ((necessary, _),) = numbers(
+        r"{n} by the necessary condition S \+ eps_e/r < 1, {n} by S above", out
+    )
     assert necessary == 1
-    for wall, cpu in numbers(r"(?:1 process|2 processes|Dask, 2 workers)\s+{n}\s+{n}\s+True", out, 3):
+    for wall, cpu in numbers(
+        r"(?:1 process|2 processes|Dask, 2 workers)\s+{n}\s+{n}\s+True", out, 3
+    ):
         assert positive(wall, cpu)
     numbers(r"(?:per setting|per T and radius)\s+\d+\s+\d+\s+\S+\s+True", out, 2)
 
@@ -174,7 +188,9 @@ def synth(out: str) -> None:
 
 
 def fresh(out: str) -> None:
-    for row in numbers(r"(?:cached \(fresh_env\)|compiled on every start)\s+{n}\s+{n}\s+{n}", out, 2):
+    for row in numbers(
+        r"(?:cached \(fresh_env\)|compiled on every start)\s+{n}\s+{n}\s+{n}", out, 2
+    ):
         assert positive(*row)
     ((wall, cpu),) = numbers(r"the cache saves {n}x wall, {n}x CPU", out)
     assert positive(wall, cpu)
@@ -260,7 +276,9 @@ def test_every_script_has_its_figures():
     [
         pytest.param(
             s,
-            marks=[m for m, on in ((pytest.mark.slow, s in SLOW), (pytest.mark.real, s in REAL)) if on],
+            marks=[
+                m for m, on in ((pytest.mark.slow, s in SLOW), (pytest.mark.real, s in REAL)) if on
+            ],
             id=s[:-3],
         )
         for s in SCRIPTS
@@ -272,7 +290,9 @@ def test_benchmark_smoke(script, smoke_runs):
         pytest.skip(reason)
     runs, _ = smoke_runs
     proc = runs[script].result()
-    assert proc.returncode == 0, f"{script} --smoke failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
+    assert proc.returncode == 0, (
+        f"{script} --smoke failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
+    )
     assert script in FIGURES, f"{script}: no figures check in tests/test_benchmarks.py"
     FIGURES[script](proc.stdout)
 

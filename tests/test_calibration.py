@@ -123,7 +123,9 @@ def test_calibration_seeds_shared_with_design_flights_are_refused() -> None:
     with pytest.raises(ConfigError, match=r"calibration seeds \[1005\] are design flights"):
         opts.seed_lists()
     opts = CalibrateOptions(flights=20, seed=1000, validation=5, validation_seed=1010)
-    with pytest.raises(ConfigError, match=r"validation seeds .* are also calibration or range seeds"):
+    with pytest.raises(
+        ConfigError, match=r"validation seeds .* are also calibration or range seeds"
+    ):
         opts.seed_lists()
     calib, valid = CalibrateOptions(design_seeds=[0, 1, 2]).seed_lists()
     assert calib == list(range(1000, 1020)) and valid == list(range(2000, 2020))
@@ -197,7 +199,9 @@ def test_one_flight_twice_is_refused_and_the_model_records_its_dt(tmp_path: Path
     fit(folders, opts, tmp_path / "fit")
     model = load_error_model(tmp_path / "fit" / "error_model.yaml")
     assert model.dt == pytest.approx(0.1)
-    with pytest.raises(InputError, match=r"dt 0.05 s: the error model was fitted on flights sampled every 0.1 s"):
+    with pytest.raises(
+        InputError, match=r"dt 0.05 s: the error model was fitted on flights sampled every 0.1 s"
+    ):
         synth(tmp_path / "fit", SynthOptions(T=8, dt=0.05, controllers="single"), tmp_path / "s")
     shutil.rmtree(tmp_path / "fit")
 

@@ -114,7 +114,9 @@ def test_run_ci_camera_config(tmp_path):
     assert "heldout_1_emulator | emulator" in sec and "heldout_1 | camera (MSCKF)" in sec
     assert "camera_frames.png" in sec
     # the fly stage flew both estimators: the controllers' results side by side, paired by seed
-    assert "Controllers flown with each estimator" in sec and "| finding | camera | emulator |" in sec
+    assert (
+        "Controllers flown with each estimator" in sec and "| finding | camera | emulator |" in sec
+    )
     pairs = pd.read_parquet(run / "fly" / "paired_by_estimator.parquet")
     assert len(pairs) == 10 and pairs["tracking_rms_m_emulator"].notna().all()
     assert json.loads((run / "fly" / "findings.json").read_text())["estimator"] == "camera"

@@ -80,5 +80,7 @@ def test_estimator_ratio_counts_the_pairs_it_dropped():
     r = estimator_ratios(pairs, "camera", "emulator").iloc[0].to_dict()
     assert r["n"] == 4 and r["tracking_rms_m_n"] == 3 and r["perception_error_rms_n"] == 3
     assert r["tracking_rms_m_ratio"] == pytest.approx(0.5)
-    assert r["perception_error_rms_ratio"] == pytest.approx(np.exp(np.mean(np.log([0.25, 0.25, 1 / 3]))))
+    assert r["perception_error_rms_ratio"] == pytest.approx(
+        np.exp(np.mean(np.log([0.25, 0.25, 1 / 3])))
+    )
     assert _ratio_text(r, "tracking_rms_m").endswith("(3 of 4 seeds)")

@@ -69,8 +69,14 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
     ),
     "calibrate": (
         "qsls.pipeline.evaluate.options:CalibrateOptions",
-        {"model": None, "controllers": None, "out": None, "config": None, "force": None,
-         "only": "controllers"},
+        {
+            "model": None,
+            "controllers": None,
+            "out": None,
+            "config": None,
+            "force": None,
+            "only": "controllers",
+        },
     ),
     "evaluate": (
         "qsls.pipeline.evaluate.options:FlyOptions",
@@ -139,9 +145,7 @@ def test_every_options_help_states_the_models_default(command):
             problems.append(f"--{p.name}: Typer default {p.default!r} (leave it to the model)")
         flags = (p.opts[0], p.secondary_opts[0]) if p.secondary_opts else None
         want = (
-            f"(default: {default_text(owner, field, flags)})"
-            if default is not None
-            else "default"
+            f"(default: {default_text(owner, field, flags)})" if default is not None else "default"
         )
         if want not in " ".join((p.help or "").split()):
             problems.append(f"--{p.name}: help {p.help!r} does not say {want}")

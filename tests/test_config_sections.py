@@ -22,7 +22,14 @@ from tests.test_runner_direct import BASE, _flights
 
 SIMULATE = {"duration": 2, "vio": {"noise": False}, "log": {"format": "mcap"}}
 INGEST = {"dt": 0.1, "align": "4dof", "time_offset": -0.137, "min_overlap": 1.0}
-SWEEP = {"grid": {"S": [0.0, 0.01]}, "T": 6, "eps_e": 0.05, "radius": 1.0, "s_max_curve": False, "jobs": 2}
+SWEEP = {
+    "grid": {"S": [0.0, 0.01]},
+    "T": 6,
+    "eps_e": 0.05,
+    "radius": 1.0,
+    "s_max_curve": False,
+    "jobs": 2,
+}
 EVALUATE = {"figures": False, "smooth_s": 0.5, "fly": {"seeds": [3], "jobs": 1, "duration": 5}}
 
 
@@ -239,7 +246,12 @@ def test_a_run_config_made_in_python_lays_each_flight_over_its_sections(tmp_path
     assert rc.record()["ingest"] == {"dt": 0.2} and rc.record()["sweep"] is None
     by = {s.id: s.options for s in plan(rc, tmp_path / "run.yaml", tmp_path / "out").stages}
     sim = by["simulate/s"]
-    assert (sim.duration, sim.seed, sim.vio.noise, sim.vio.perception) == (2.0, 4, False, "degraded")
+    assert (sim.duration, sim.seed, sim.vio.noise, sim.vio.perception) == (
+        2.0,
+        4,
+        False,
+        "degraded",
+    )
     assert sim.vio.outliers and by["ingest/s"]["options"].dt == 0.2
 
 
@@ -248,7 +260,9 @@ def test_a_bad_fly_subsection_is_refused_when_the_config_is_read(work):
     flying options when the config is read, not first when the run is planned; the same
     keys for ``qsls evaluate --fly --config`` name the same problem."""
     cfg = _write(work / "cfg", evaluate={"figures": False, "fly": {"seedz": [1]}})
-    with pytest.raises(ConfigError, match=r"cfg: evaluate.fly: unknown option 'seedz'; did you mean 'seeds'\?"):
+    with pytest.raises(
+        ConfigError, match=r"cfg: evaluate.fly: unknown option 'seedz'; did you mean 'seeds'\?"
+    ):
         load_run_config(cfg)
     cfg = _write(work / "cfg", evaluate={"fly": {"vio": ["camera", "camera"]}})
     with pytest.raises(ConfigError, match="give each estimator once"):
@@ -280,7 +294,9 @@ def test_the_problem_section_is_laid_under_sweep_and_synth(work):
     assert _cli("synth", "--config", twice, "--max-feasible-s").output == res.output
     # a misspelled key names the problem section
     bad = _write(folder, problem={"mesure": "full"}, synth=synth)
-    with pytest.raises(ConfigError, match=r"problem: unknown option 'mesure'; did you mean 'measure'"):
+    with pytest.raises(
+        ConfigError, match=r"problem: unknown option 'mesure'; did you mean 'measure'"
+    ):
         load_run_config(bad)
 
 

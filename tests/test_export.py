@@ -347,7 +347,9 @@ def test_bad_input(tmp_path, controllers):
     res = invoke("export", nominal, "-t", "c", "--out", tmp_path / "u", "--allow-uncertified")
     assert res.exit_code == 0, res.output
     first = (tmp_path / "u" / "qsls_ctrl.h").read_text().splitlines()[0]
-    assert first.startswith("/* NOT CERTIFIED (status uncertified, exported with --allow-uncertified")
+    assert first.startswith(
+        "/* NOT CERTIFIED (status uncertified, exported with --allow-uncertified"
+    )
     assert "NO GUARANTEE; missing: robustness condition fails: robustness_lhs = " in first
     # a relaxed premise is not certified
     relaxed = tmp_path / "relaxed"

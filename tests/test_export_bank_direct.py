@@ -104,7 +104,9 @@ def test_counts_and_sizes_against_independent_counts(proper, strict):
         assert shares["const_share_of_1MB_flash"] == 8 * n / (1024 * 1024)
 
 
-def _c_sizeof(tmp_path: Path, bank: B.ExportBank, facts: B.ExportFacts, precision: B.Precision) -> int:
+def _c_sizeof(
+    tmp_path: Path, bank: B.ExportBank, facts: B.ExportFacts, precision: B.Precision
+) -> int:
     files = c_files(bank, facts, "szt", precision)
     for name, text in files.items():
         (tmp_path / name).write_text(text)
@@ -171,7 +173,10 @@ def test_facts_and_the_generalized_theorem(proper, strict):
     assert f.dt == 0.1 and f.mass == 0.256 and f.sha256 == proper.controller.sha256()
     assert f.gate is None and f.monitor.active
     text = "\n".join(f.statement)
-    assert f.statement[0] == "CERTIFIED controller l1_robust: the guarantee below holds under its premise"
+    assert (
+        f.statement[0]
+        == "CERTIFIED controller l1_robust: the guarantee below holds under its premise"
+    )
     a = 0.01 * c.norm_phi_xx_h + 0.05
     gamma = (0.05 + 0.05 * a) / (1 - 0.05 * c.norm_phi_xy)
     assert c.gamma == pytest.approx(gamma, rel=1e-12)

@@ -306,7 +306,9 @@ def test_float_thresholds_are_never_below_the_double_ones(ctrl, exported):
     assert (f[on] <= d[on] * (1 + FLOAT_MONITOR_RTOL) * (1 + 2.0**-23)).all()
     assert (np.float32(f).astype(float) == f).all()
     src = (exported["float"].out / "qsls_ctrl.c").read_text()
-    line = next(x for x in src.splitlines() if x.startswith("static const qsls_ctrl_real_t MON_THR"))
+    line = next(
+        x for x in src.splitlines() if x.startswith("static const qsls_ctrl_real_t MON_THR")
+    )
     lits = re.findall(r"(-?\d[\d.e+-]*)f", line)
     assert [float(np.float32(x)) for x in lits] == list(f)
 

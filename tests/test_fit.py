@@ -317,7 +317,9 @@ def test_fit_model_on_arrays_in_memory_matches_the_stage(tmp_path):
     folders = []
     for k, name in enumerate(("a", "b")):
         sel = data.flight_idx == k
-        folders.append(write_flight(tmp_path / name, data.t[sel], data.x[sel], data.x[sel] + data.e[sel]))
+        folders.append(
+            write_flight(tmp_path / name, data.t[sel], data.x[sel], data.x[sel] + data.e[sel])
+        )
     loaded = load_fit_data(folders, opts)
     np.testing.assert_allclose(loaded.e, data.e, atol=1e-12)
     res = fit(folders, opts, tmp_path / "fit")
@@ -370,6 +372,9 @@ def test_environments_keep_distances_and_pairs_within_one_room(tmp_path):
     fit_alone = alone.measured(Spec(radius=1.0)).slope
     assert np.isnan(fit_alone.S) and fit_alone.tested_range == 0.0
     # one name per flight, or a clear error
-    folders = [write_flight(tmp_path / k, p[0], p[1], p[1] + p[2]) for k, p in zip("ab", parts, strict=False)]
+    folders = [
+        write_flight(tmp_path / k, p[0], p[1], p[1] + p[2])
+        for k, p in zip("ab", parts, strict=False)
+    ]
     with pytest.raises(InputError, match="one environment per flight"):
         load_fit_data(folders, FitOptions(**base, environments=["room"]))

@@ -256,13 +256,17 @@ def test_assured_flights_are_kept_apart(trained, tmp_path):
         root / "fit", [root / "synth"], FlyOptions(**kw, assured=True), tmp_path / "assured"
     )
     for name in ("flights.parquet", "assumptions.parquet", "per_controller.parquet"):
-        assert (tmp_path / "plain" / name).read_bytes() == (tmp_path / "assured" / name).read_bytes()
+        assert (tmp_path / "plain" / name).read_bytes() == (
+            tmp_path / "assured" / name
+        ).read_bytes()
     assert len(plain.flights) == len(res.flights) == 1
     a = pd.read_parquet(tmp_path / "assured" / "assured.parquet")
     assert a["flight"].tolist() == ["regular_s0_l1_robust_assured"]
     assert a["controller"].tolist() == ["l1_robust"] and a["fallback"].tolist() == ["pd"]
     ticks = pd.read_parquet(tmp_path / "assured" / "flights" / a["flight"][0] / "ticks.parquet")
-    alone = pd.read_parquet(tmp_path / "assured" / "flights" / "regular_s0_l1_robust" / "ticks.parquet")
+    alone = pd.read_parquet(
+        tmp_path / "assured" / "flights" / "regular_s0_l1_robust" / "ticks.parquet"
+    )
     # no trip: the certified controller's own flight, tick for tick
     assert not a["tripped"][0] and a["trip_tick"][0] == -1 and 0 < a["envelope_peak"][0] < 1
     assert set(ticks["flew"]) == {"l1_robust"} and not ticks["monitor_bits"].any()
@@ -293,7 +297,10 @@ def test_assured_flights_per_estimator(trained, tmp_path):
     assert own["camera"] != own["emulator"]
     comp = pd.DataFrame(json.loads((tmp_path / "fly" / "evaluation.json").read_text())["assured"])
     assert comp[["estimator", "flown"]].values.tolist() == [
-        ["camera", "alone"], ["camera", "assured"], ["emulator", "alone"], ["emulator", "assured"]
+        ["camera", "alone"],
+        ["camera", "assured"],
+        ["emulator", "alone"],
+        ["emulator", "assured"],
     ]
     np.testing.assert_array_equal(comp["tracking_rms_m"], own[[v for v in comp["estimator"]]])
     sec = section_monitor(Facts(tmp_path, {}, {}, fly_folder="fly"), [0])

@@ -152,7 +152,7 @@ def test_special_case_is_dean_et_al():
     n_xx = sls.l1_norm(sol.taps.Phi_xx, model.H)
     c = certify(sol.taps, model, numbers)
     a = eps_w * n_xx + delta
-    assert c.status == RELAXED and c.checks['robustness']['passed']
+    assert c.status == RELAXED and c.checks["robustness"]["passed"]
     assert c.robustness_lhs == pytest.approx((S + eps / r) * n_xy + a / r, rel=1e-12)
     assert c.gamma == pytest.approx((eps + S * a) / (1 - S * n_xy), rel=1e-12)
     assert c.gamma_strict == pytest.approx(eps / (1 - S * n_xy), rel=1e-12)
@@ -174,7 +174,7 @@ def test_generalized_synthesis_meets_its_own_constraint():
         sol = sls.solve(model, rob, sls.Values(numbers=numbers))
         assert sol.taps is not None, (measure, sol.solver_status)
         c = certify(sol.taps, model, numbers, shape)
-        assert c.status == RELAXED and c.checks['robustness']['passed'], c.checks
+        assert c.status == RELAXED and c.checks["robustness"]["passed"], c.checks
         assert c.robustness_lhs <= 1 - sls.ROBUST_BACKOFF + 1e-7
         if measure == "position":
             assert np.abs(sol.taps.Phi_uy[:, :, 3:]).max() == 0.0
@@ -215,7 +215,11 @@ def test_outlier_windows_and_m():
 
 @pytest.mark.parametrize(
     ("state_scale", "error_scale"),
-    [((1,) * 6, (4,) * 6), ((1,) * 6, (0.5, 0.5, 0.5, 1, 1, 1)), ((1, 1, 1, 0.5, 0.5, 0.5), (0.3, 2, 1, 1, 1, 1))],
+    [
+        ((1,) * 6, (4,) * 6),
+        ((1,) * 6, (0.5, 0.5, 0.5, 1, 1, 1)),
+        ((1, 1, 1, 0.5, 0.5, 0.5), (0.3, 2, 1, 1, 1, 1)),
+    ],
 )
 def test_necessary_condition_is_necessary_with_weights(state_scale, error_scale):
     """``N_lower = max_i w_x,i / w_e,i`` lies below the smallest achievable ``N`` (the taps of
@@ -237,5 +241,7 @@ def test_necessary_condition_is_necessary_with_weights(state_scale, error_scale)
         ms = largest_s.max_feasible_s(model, 10, eps_e=0.6, radius=1.0, shape=shape)
         assert ms.s_max > 0.5
         rob = sls.Structure(**{**shape.structure(10, "qr", False).__dict__, "robust": True})
-        values = sls.Values(numbers=PremiseNumbers(eps=0.6, S=0.5, radius=1.0, eps_w=0.0, delta=0.0))
+        values = sls.Values(
+            numbers=PremiseNumbers(eps=0.6, S=0.5, radius=1.0, eps_w=0.0, delta=0.0)
+        )
         assert sls.solve(model, rob, values).solver_status == "optimal"

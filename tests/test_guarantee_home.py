@@ -14,7 +14,9 @@ from qsls.pipeline.control import guarantee
 PIPELINE = Path(__file__).resolve().parents[1] / "pipeline"
 FORMULAS = {
     "1 - S N": re.compile(r"\b1(\.0)?\s*-\s*[A-Za-z_.]*\bS\s*\*"),
-    "1 - L N (any slope)": re.compile(r"\b1(\.0)?\s*-\s*[A-Za-z_.]+\s*\*\s*[A-Za-z_.]*(norm_phi_xy|\bN)\b"),
+    "1 - L N (any slope)": re.compile(
+        r"\b1(\.0)?\s*-\s*[A-Za-z_.]+\s*\*\s*[A-Za-z_.]*(norm_phi_xy|\bN)\b"
+    ),
     "eps + S d": re.compile(r"\beps(_e)?\s*\+\s*[A-Za-z_.]*\bS\s*\*"),
     "a = eps_w N_w + Delta": re.compile(r"eps_w\s*\*\s*[A-Za-z_.]*(N_w|norm_phi_xx_h)"),
 }
@@ -27,7 +29,7 @@ def test_the_guarantee_formulas_are_written_only_in_guarantee_py():
             continue
         for n, line in enumerate(f.read_text().splitlines(), 1):
             code = line.split("#")[0]
-            if code.strip().startswith(('"', "f\"", "'")):
+            if code.strip().startswith(('"', 'f"', "'")):
                 continue  # prose in a docstring or message
             for name, pat in FORMULAS.items():
                 if pat.search(code):

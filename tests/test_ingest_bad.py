@@ -265,7 +265,9 @@ def test_a_clock_that_jumps_back_is_named(tmp_path: Path, flight) -> None:
     _fails(tmp_path, [str(bag)], f"its clock jumps back 4.99 s at message {k}", "--stamp log")
 
 
-def test_a_twist_frame_the_positions_contradict_is_refused(tmp_path: Path, simulated_bag: Path) -> None:
+def test_a_twist_frame_the_positions_contradict_is_refused(
+    tmp_path: Path, simulated_bag: Path
+) -> None:
     """Issue 35: --vio-velocity-frame world on a body-frame bag gave a large velocity error
     without a word; the VIO's own positions tell which frame its twist is in."""
     _fails(tmp_path, [str(simulated_bag), "--vio-velocity-frame", "world"],

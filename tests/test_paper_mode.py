@@ -39,7 +39,7 @@ def test_the_chosen_s_is_the_largest_feasible_less_the_margin():
 def test_the_status_says_chosen_not_certified():
     done = {}
     choice, built = paper_controllers(OPTS, None, None, done, {"error_model": None})
-    (name, b), = built.items()
+    ((name, b),) = built.items()
     cert = b.certificate
     assert name == "l1_robust_paper" and cert.status == CHOSEN
     assert "was chosen, not measured" in (cert.status_reason or "")

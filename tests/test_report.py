@@ -98,7 +98,8 @@ def _check_layout(page, shot: Path, name: str) -> dict:
     # the paper's four findings (a numbered row: claim, verdict, each seed half with its
     # interval) wrap to a few lines; every other row stays within 80 px
     tall = [
-        r for r in lay["rows"]
+        r
+        for r in lay["rows"]
         if r["height"] > (260 if r["text"][:2] in ("1\t", "2\t", "3\t", "4\t") else 80)
     ]
     assert tall == [], f"table rows taller than 80 px: {tall[:3]}"
@@ -258,7 +259,10 @@ def test_euroc_report_states_the_position_only_controller_honestly(real_data, tm
     summary = lay["summaryText"]
     assert "l1_robust" in summary and "; certified:" not in summary
     card = next(c["text"] for c in lay["cards"] if c["text"].startswith("l1_robust\n"))
-    assert "rho*" in card and f"{cert['rho_star']:.3g} (premise tested to {cert['tested_range']:.3g})" in card
+    assert (
+        "rho*" in card
+        and f"{cert['rho_star']:.3g} (premise tested to {cert['tested_range']:.3g})" in card
+    )
     assert f"{cert['gamma']:.3g}" in card
     page = (out / "index.html").read_text()
     assert "input-free residual: a lower bound" in page
@@ -354,7 +358,9 @@ def test_names_never_become_live_script_links_or_raw_html(tmp_path):
         t = np.arange(300, dtype=np.int64) * 100_000_000
         x = np.c_[np.cos(t * 1e-9), np.sin(t * 1e-9), np.ones(300), np.zeros((300, 3))]
         with StageWriter(root / "ingest" / name, "ingest", options={"dt": 0.1}) as w:
-            w.write_parquet("flight.parquet", make_flight_frame(t, x, x + 0.01 * rng.random(x.shape)))
+            w.write_parquet(
+                "flight.parquet", make_flight_frame(t, x, x + 0.01 * rng.random(x.shape))
+            )
             w.results["time_offset_s"] = 0.0
     (root / "run.json").write_text(json.dumps({"name": f"run {EVIL} {EVIL_HTML}"}))
     out = tmp_path / "rep"

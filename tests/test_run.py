@@ -20,7 +20,6 @@ REPO = Path(__file__).resolve().parents[1]
 QUICKSTART = REPO / "configs" / "quickstart.yaml"
 
 
-
 def _qsls(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "qsls.cli.main", *args], cwd=cwd, capture_output=True, text=True
@@ -114,12 +113,16 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
                 assert again[k] == pytest.approx(r[k], rel=1e-12), (name, k)
             # the tick log holds the feedforward the controller added
             assert np.abs(ticks.uff).max() > 0
-        cert = yaml.safe_load((root / "calibrate" / "regular" / name / "certificate.yaml").read_text())
+        cert = yaml.safe_load(
+            (root / "calibrate" / "regular" / name / "certificate.yaml").read_text()
+        )
         calib = cert["calibration"]
         lam = max(sorted(sel["score"])[math.ceil(21 * 0.9) - 1],
                   sorted(ranged["score"])[math.ceil(21 * 0.9) - 1])  # fmt: skip
         assert calib["lambda_hat"] == pytest.approx(lam) and calib["flights"] == 20
-        assert calib["tested_range"] == pytest.approx(max(sel["reached"].max(), ranged["reached"].max()))
+        assert calib["tested_range"] == pytest.approx(
+            max(sel["reached"].max(), ranged["reached"].max())
+        )
         assert calib["alpha"] == 0.1 and calib["method"] == "conformal"
         assert cert["eps_w"] == pytest.approx(lam * calib["nominal"]["eps_w"])
         # the status follows the condition and the tested range, never the design premise
@@ -172,7 +175,9 @@ def test_quickstart_assumptions_on_the_flown_flights(quickstart):
     from qsls.pipeline.evaluate.training import load_training
 
     root = work / "runs" / "quickstart"
-    training = load_training(root / "fit", load_error_model(root / "fit" / "error_model.yaml"), None)
+    training = load_training(
+        root / "fit", load_error_model(root / "fit" / "error_model.yaml"), None
+    )
     ticks = TickLog.read(root / "fly" / "flights" / row["flight"])
     cert = root / "calibrate" / "regular" / "l1_robust"  # the flights are checked against it
     again = check_assumptions(ticks.log(), certified_premise(cert), training.distance)
@@ -402,7 +407,9 @@ def test_euroc_config_on_the_real_flights(real_data, tmp_path):
     assert "eps_w cannot be measured: the flights logged no inputs" in cert["status_reason"]
     assert cert["radius"] <= 1.0 and cert["rho_star"] <= cert["radius"]
     assert cert["premise"]["eps_w_source"] == "input_free_residual"
-    assert "S cannot be tested: no two training flights share an environment" in cert["status_reason"]
+    assert (
+        "S cannot be tested: no two training flights share an environment" in cert["status_reason"]
+    )
     assert cert["premise"]["S"]["chosen"] == "number" and cert["premise"]["S"]["violated"] is None
     assert 0.25 < cert["eps_e"] < 0.35 and cert["tested_range"] == 0.0
     page = (run_dir / "report" / "index.html").read_text()

@@ -102,7 +102,10 @@ def test_max_feasible_s_is_feasible_and_one_percent_more_is_not():
     norms = Norms(sls.l1_norm(ok.taps.Phi_xy), sls.l1_norm(ok.taps.Phi_xx), 0.0)
     lhs = robustness_lhs(numbers, norms)
     assert lhs < 1.0
-    assert sls.solve(MODEL, st, sls.Values(numbers=replace(numbers, S=1.01 * ms.s_max))).status == "infeasible"
+    assert (
+        sls.solve(MODEL, st, sls.Values(numbers=replace(numbers, S=1.01 * ms.s_max))).status
+        == "infeasible"
+    )
     # no Delta, no process noise: S_max = 1 / min ||Phi_xy|| - eps_e / r
     ms0 = largest_s.max_feasible_s(MODEL, 12, eps_e=0.05, radius=1.0)
     assert ms0.s_max == pytest.approx(1 / largest_s.min_phi_xy(MODEL, 12) - 0.05, rel=1e-5)
@@ -230,7 +233,11 @@ def test_a_new_cost_is_one_class_registered_by_name(monkeypatch):
     assert sol.status == "optimal"
     gain = l1_norm(sol.taps.Phi_xx, MODEL.H)
     assert sol.objective == pytest.approx(gain, rel=1e-6)
-    qr = sls.solve(MODEL, sls.Structure(10, "l1", "qr", False), sls.Values(Q=Q, R=R, numbers=replace(sls.NO_PREMISE, eps_w=1.0, eps=0.5)))
+    qr = sls.solve(
+        MODEL,
+        sls.Structure(10, "l1", "qr", False),
+        sls.Values(Q=Q, R=R, numbers=replace(sls.NO_PREMISE, eps_w=1.0, eps=0.5)),
+    )
     assert gain <= l1_norm(qr.taps.Phi_xx, MODEL.H) + 1e-7
     with pytest.raises(ValueError, match="unknown cost 'nope'; the costs are qr, imitation"):
         costs.cost_of("nope")

@@ -126,7 +126,12 @@ def test_same_optimum_with_the_premise_norms_at_T50(shape):
 def test_feasibility_subproblems_agree(shape, cost):
     """The problems behind min_phi_xy and the Dinkelbach step of max_feasible_s."""
     st = SHAPES[shape].structure(20, cost, False)
-    new, old = _both(st, sls.Values(numbers=replace(sls.NO_PREMISE, eps_w=0.01, radius=0.8, eps_o=EPS_O), ratio_lambda=0.3))
+    new, old = _both(
+        st,
+        sls.Values(
+            numbers=replace(sls.NO_PREMISE, eps_w=0.01, radius=0.8, eps_o=EPS_O), ratio_lambda=0.3
+        ),
+    )
     assert new.status == old.status == "optimal"
     assert new.objective == pytest.approx(old.objective, rel=1e-7)
 

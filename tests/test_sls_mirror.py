@@ -97,12 +97,18 @@ def test_mirrored_problem_has_the_same_optimum_and_certificate(norm):
     ("shape", "cost", "strictly_proper"),
     [
         (sls.Shape(measure="position"), "qr", True),
-        (sls.Shape((1.0, 1, 2, 0.5, 0.5, 1), (1.0, 1, 1, 4, 4, 2), "full", 2, True), "ratio", False),
+        (
+            sls.Shape((1.0, 1, 2, 0.5, 0.5, 1), (1.0, 1, 1, 4, 4, 2), "full", 2, True),
+            "ratio",
+            False,
+        ),
     ],
     ids=["position-strictly-proper", "weights-outliers-gate-ratio"],
 )
 def test_mirrored_hover_problems_keep_their_optimum(shape, cost, strictly_proper):
-    numbers = PremiseNumbers(eps=0.02, S=0.005, radius=1.0, eps_w=0.01, delta=0.05, eps_o=0.02, gate=2.0)
+    numbers = PremiseNumbers(
+        eps=0.02, S=0.005, radius=1.0, eps_w=0.01, delta=0.05, eps_o=0.02, gate=2.0
+    )
     values = sls.Values(numbers=numbers, ratio_lambda=0.1)
     structure = replace(shape.structure(10, cost, strictly_proper), robust=cost == "qr")
     full = sls.SLSProblem(HOVER, structure).solve(values, solver_options=sls.TIGHT)

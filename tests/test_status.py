@@ -15,7 +15,16 @@ from tests.controllerfixtures import synthesized
 
 
 def test_constants_name_every_status_once_and_the_report_has_words_for_each():
-    constants = [C.CERTIFIED, C.EXTRAPOLATED, C.RELAXED, C.CHOSEN, C.UNCERTIFIED, C.FAILED, C.SOLVER_INACCURATE, C.REFERENCE]
+    constants = [
+        C.CERTIFIED,
+        C.EXTRAPOLATED,
+        C.RELAXED,
+        C.CHOSEN,
+        C.UNCERTIFIED,
+        C.FAILED,
+        C.SOLVER_INACCURATE,
+        C.REFERENCE,
+    ]
     assert sorted(constants) == sorted(get_args(C.Status))
     assert set(STATUS_WORDS) == set(get_args(C.Status))
     assert status_words(C.CERTIFIED) == ("certified", "ok")

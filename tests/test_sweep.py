@@ -446,7 +446,9 @@ def test_none_feasible_is_said_not_a_negative_s(tmp_path):
     """A setting where no S >= 0 is feasible: the summary says 'none feasible' (it printed a
     negative largest S before), the s_max table keeps the number."""
     cfg = tmp_path / "s.yaml"
-    cfg.write_text("eps_e: 0.05\nradius: 1.0\ndelta: 0.99\neps_w: 0.01\ngrid:\n  S: [0.0]\n  T: [6]\n")
+    cfg.write_text(
+        "eps_e: 0.05\nradius: 1.0\ndelta: 0.99\neps_w: 0.01\ngrid:\n  S: [0.0]\n  T: [6]\n"
+    )
     res = _sweep("-c", cfg, "-o", tmp_path / "o", "--jobs", "1")
     assert res.exit_code == 0, res.output
     assert "none feasible" in res.output

@@ -164,8 +164,12 @@ def test_infeasible_is_exit_3_with_diagnosis(tmp_path, error_model):
     res = _synth("-m", error_model, "-T", T, "--S", "max", "-o", out)  # S = max = 11.7
     assert res.exit_code == 3
     assert "necessary condition S + eps_e/r < 1" in res.output
-    found = re.search(r"smallest achievable N = \|\|W_x Phi_xy W_e\^-1\|\| at T=12 is ([0-9.]+)", res.output)
-    assert float(found.group(1)) == pytest.approx(largest_s.min_phi_xy(quadrotor_model(), 12), rel=1e-3)
+    found = re.search(
+        r"smallest achievable N = \|\|W_x Phi_xy W_e\^-1\|\| at T=12 is ([0-9.]+)", res.output
+    )
+    assert float(found.group(1)) == pytest.approx(
+        largest_s.min_phi_xy(quadrotor_model(), 12), rel=1e-3
+    )
     assert "largest feasible S for this setting is" in res.output
     assert not out.exists()
     # the necessary condition holds but ||Phi_xy|| >= 2.x makes S = 0.45 infeasible

@@ -201,7 +201,9 @@ def tolerance(p: PremiseNumbers, taps: Responses, quantity: Quantity) -> float:
 
     def holds(f: float) -> bool:
         g = {"eps": p.eps, "S": p.S, "eps_w": p.eps_w, "delta": p.delta} | {quantity: value * f}
-        return check(replace(p, eps=g["eps"], S=g["S"], eps_w=g["eps_w"], delta=g["delta"]), taps).holds
+        return check(
+            replace(p, eps=g["eps"], S=g["S"], eps_w=g["eps_w"], delta=g["delta"]), taps
+        ).holds
 
     return _largest(holds, 1.0)
 

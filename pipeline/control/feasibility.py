@@ -23,7 +23,9 @@ def diagnose(
     achievable ``N`` at ``T`` and the largest feasible ``S``."""
     nec = necessary_condition(r.numbers, r.shape.state_scale, r.shape.error_scale)
     n_lower = min_norm_bound(r.shape.state_scale, r.shape.error_scale)
-    min_xy = largest_s.min_phi_xy(r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape)
+    min_xy = largest_s.min_phi_xy(
+        r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape
+    )
     ms = largest_s.max_feasible_s_under(
         r.model, T, r.numbers, shape=r.shape, strictly_proper=strictly_proper, solver=solver
     )
@@ -45,7 +47,9 @@ def diagnosis_message(d: dict[str, Any]) -> str:
     """One line: what fails, and what could help (a radius cannot help when ``S N_lower >= 1``)."""
     parts = []
     lower = d["N_lower"]
-    cond = "S + eps_e/r < 1" if lower == 1.0 else f"(S + eps_e/r) N_lower < 1 (N_lower = {lower:.4g})"
+    cond = (
+        "S + eps_e/r < 1" if lower == 1.0 else f"(S + eps_e/r) N_lower < 1 (N_lower = {lower:.4g})"
+    )
     if not d["necessary_condition_holds"]:
         parts.append(
             f"S + eps_e/r = {d['S_plus_eps_e_over_r']:.4g} fails the necessary condition {cond} "
@@ -53,7 +57,9 @@ def diagnosis_message(d: dict[str, Any]) -> str:
         )
     else:
         parts.append(f"the necessary condition {cond} holds ({d['necessary']:.4g})")
-    parts.append(f"the smallest achievable N = ||W_x Phi_xy W_e^-1|| at T={d['T']} is {d['min_norm_phi_xy']:.4g}")
+    parts.append(
+        f"the smallest achievable N = ||W_x Phi_xy W_e^-1|| at T={d['T']} is {d['min_norm_phi_xy']:.4g}"
+    )
     if d["S"] * lower >= 1.0:
         parts.append(
             f"no radius or horizon can help: S N_lower = {d['S'] * lower:.4g} >= 1 alone breaks "
@@ -116,7 +122,9 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
     if not ms.s_max >= 0:
         # at S = 0 the constraint is (eps N + eps_w N_w + Delta + eps_o G_m) / r <= 1, with N
         # at least its minimum at T and N_w >= min w_x (Phi_xx(1) = I)
-        lower = (r.numbers.eps * min_xy + r.numbers.eps_w * min(r.shape.state_scale) + r.numbers.delta) / r.numbers.radius
+        lower = (
+            r.numbers.eps * min_xy + r.numbers.eps_w * min(r.shape.state_scale) + r.numbers.delta
+        ) / r.numbers.radius
         raise InfeasibleError(
             f"none feasible: no S >= 0 is feasible at T = {options.T}: even S = 0 needs "
             f"(eps_e N + eps_w N_w + Delta + eps_o G_m) / r < 1, and with eps_e = "

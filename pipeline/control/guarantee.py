@@ -53,7 +53,9 @@ def error_weights(error_scale: Sequence[float], measured: Sequence[int]) -> np.n
     return inv
 
 
-def sparse_gain(phi_xy: np.ndarray, state_scale: Sequence[float], channels: Sequence[int], m: int) -> float:
+def sparse_gain(
+    phi_xy: np.ndarray, state_scale: Sequence[float], channels: Sequence[int], m: int
+) -> float:
     """``G_m``: the peak gain of ``Phi_xy`` for inputs with at most ``m`` nonzero taps, each of
     infinity norm at most 1, on ``channels``."""
     if m <= 0 or not len(channels):
@@ -177,7 +179,9 @@ def robustness_lhs(p: PremiseNumbers, n: Norms) -> float:
     return (p.S + p.eps / p.radius) * n.N + (a_prior(p, n) + p.eps_o * n.G_m) / p.radius
 
 
-def min_norm_bound(state_scale: Sequence[float] = ONES, error_scale: Sequence[float] = ONES) -> float:
+def min_norm_bound(
+    state_scale: Sequence[float] = ONES, error_scale: Sequence[float] = ONES
+) -> float:
     """``N_lower = max over positions i of w_x,i / w_e,i <= N`` for every achievable response.
 
     The taps of ``Phi_xy`` sum to ``-I`` on the position channels (the achievability equations
@@ -243,7 +247,9 @@ def velocity_deviation(
         if p.m > 0 and len(outlier_channels):
             per_tap = np.abs(phi_xy[:, i, list(outlier_channels)]).sum(axis=1)
             sparse = float(np.sort(per_tap)[::-1][: p.m].sum())
-        out = max(out, p.eps_w * dist + premise_bound(p.eps, p.S, p.radius) * dense + p.eps_o * sparse)
+        out = max(
+            out, p.eps_w * dist + premise_bound(p.eps, p.S, p.radius) * dense + p.eps_o * sparse
+        )
     return out
 
 

@@ -31,7 +31,6 @@ def psd_sqrt(m: np.ndarray, what: str = "matrix") -> np.ndarray:
     return (v * np.sqrt(w)) @ v.T
 
 
-
 Number = float | str
 
 
@@ -191,9 +190,7 @@ class PaperModeOptions(Options):
     margin: float = Field(0.1, ge=0, lt=1)
     """``S_paper = min(S_hat, (1 - margin) S_max)``: the measured slope lowered only as far
     as the synthesis becomes feasible, then by this share of the largest feasible S."""
-    controllers: list[PaperRobust] = Field(
-        default_factory=lambda: list(get_args(PaperRobust))
-    )
+    controllers: list[PaperRobust] = Field(default_factory=lambda: list(get_args(PaperRobust)))
     """The robust controllers also synthesized under the paper's premise (named ``*_paper``)."""
     eps_e: Number = "max"
     """The paper's norm bound on the whole (unweighted) error: the training maximum, or a
@@ -219,11 +216,11 @@ class SynthOptions(ProblemOptions):
         return self
 
 
-
 AXES = (
     "S", "eps_e", "radius", "delta", "T", "q_scale", "r_scale", "eps_w", "norm", "cost",
     "robust", "strictly_proper",
 )  # fmt: skip
+
 
 class SweepOptions(ProblemOptions):
     """Options of ``qsls sweep``: the base problem plus ``grid`` (axis -> list of values)."""
@@ -254,7 +251,6 @@ class SweepOptions(ProblemOptions):
             if not isinstance(values, list) or not values:
                 raise ValueError(f"grid axis '{key}' needs a non-empty list of values")
         return g
-
 
 
 class SweepSection(SweepOptions):

@@ -188,7 +188,9 @@ def premise_record(chosen: PremiseNumbers, how: dict[str, str], meas: Measured |
             counts = honest.window_counts(meas.outlier > 0, meas.flight, spec.window)  # type: ignore[union-attr]
             m = _entry(chosen.m, h["m"], _count(counts > chosen.m))
             out = meas.outlier[meas.outlier > 0]
-            if chosen.gate is not None:  # eps_o = 2V - beta: a guarantee of the gate, not a measurement
+            if (
+                chosen.gate is not None
+            ):  # eps_o = 2V - beta: a guarantee of the gate, not a measurement
                 eps_o = _entry(chosen.eps_o, h["eps_o"], (0, len(out)))
             else:
                 eps_o = _entry(chosen.eps_o, h["eps_o"], _count(out > chosen.eps_o))

@@ -48,7 +48,9 @@ class Resolved:
     def values(self, nominal: sls.Taps | None = None) -> sls.Values:
         return sls.Values(Q=self.Q, R=self.R, numbers=self.numbers, nominal=nominal)
 
-    def structure(self, T: int, norm: sls.Norm, cost: Any, robust: bool, sp_: bool) -> sls.Structure:
+    def structure(
+        self, T: int, norm: sls.Norm, cost: Any, robust: bool, sp_: bool
+    ) -> sls.Structure:
         sh = self.shape
         return sls.Structure(
             T, norm, cost, robust, sp_, state_scale=sh.state_scale, error_scale=sh.error_scale,
@@ -77,7 +79,9 @@ def _needs_model(what: str, v: Any, em: ErrorModel | None) -> ErrorModel:
     return em
 
 
-def _eps(opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None, trivial: bool) -> float:
+def _eps(
+    opts: ProblemOptions, em: ErrorModel | None, meas: Measured | None, trivial: bool
+) -> float:
     v = opts.eps_e
     if isinstance(v, int | float):
         return float(v)
@@ -165,7 +169,9 @@ def _group_bounds(
     for g, channels in honest.GROUPS.items():
         if not set(channels) <= set(measured):
             if g in opts.eps_groups:
-                raise InputError(f"eps_groups: {g} is not measured (measure: {opts.measure}); drop it")
+                raise InputError(
+                    f"eps_groups: {g} is not measured (measure: {opts.measure}); drop it"
+                )
             continue
         v = opts.eps_groups.get(g, eps)  # type: ignore[call-overload]
         if v == "clip":
@@ -221,7 +227,9 @@ def resolve(
             f"with --dt {em.dt:g}, or ingest the training flights at {opts.dt:g} s and refit"
         )
     if opts.H is not None and abs(np.linalg.det(np.asarray(opts.H))) < 1e-12:
-        raise InputError("H must be invertible: eps_w bounds ||H^-1 w|| of the realized disturbance")
+        raise InputError(
+            "H must be invertible: eps_w bounds ||H^-1 w|| of the realized disturbance"
+        )
     state_scale = tuple(em.state_scale) if em is not None else (1.0,) * 6
     spec = Spec(
         measure=opts.measure, beta=math.inf if opts.beta is None else float(opts.beta),
@@ -229,7 +237,9 @@ def resolve(
         window=opts.T, risk=opts.outlier_risk,
         H=None if opts.H is None else tuple(tuple(r) for r in opts.H),
     )  # fmt: skip
-    trivial = opts.measure == "full" and opts.beta is None and all(w == 1.0 for w in opts.error_scale)
+    trivial = (
+        opts.measure == "full" and opts.beta is None and all(w == 1.0 for w in opts.error_scale)
+    )
     meas = training.measured(spec) if em is not None and training is not None else None
     where = None
     if em is not None:
@@ -241,7 +251,9 @@ def resolve(
     S = _slope(opts, em, meas)
     for name, val in (("S", S), ("eps_e", eps_e)):
         if not (math.isfinite(val) and val >= 0):
-            raise InputError(f"{name} = '{getattr(opts, name)}' is {val}; need a finite number >= 0")
+            raise InputError(
+                f"{name} = '{getattr(opts, name)}' is {val}; need a finite number >= 0"
+            )
     bounds = _group_bounds(opts, eps_e, meas, spec)
     groups_at = meas
     if bounds:
@@ -346,5 +358,3 @@ def read_model(path: Path | None) -> ModelInput:
         return ModelInput()
     f = error_model_file(path)
     return ModelInput(load_error_model(f), sha256_file(f), f, training_beside(f))
-
-

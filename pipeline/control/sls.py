@@ -114,6 +114,7 @@ FAST = {**TIGHT, "iterative_refinement_enable": False}
 objective within 3e-9 relative and the realization error 3e-10 (limit 1e-8). Where it ends
 inaccurate, :data:`TIGHT` is solved, then the default tolerances."""
 
+
 def cost_blocks(
     taps: Taps,
     model: LinearModel,
@@ -675,12 +676,18 @@ def solve(
     )  # fmt: skip
     sol = _solve_structure(model, structure, values, solver, solver_options)
     if sol.taps is not None and not light_rows_hold(sol.taps, model, values, structure):
-        sol = _solve_structure(model, replace(structure, light_states=()), values, solver, solver_options)
+        sol = _solve_structure(
+            model, replace(structure, light_states=()), values, solver, solver_options
+        )
     return sol
 
 
 def _solve_structure(
-    model: LinearModel, structure: Structure, values: Values, solver: str, solver_options: dict | None
+    model: LinearModel,
+    structure: Structure,
+    values: Values,
+    solver: str,
+    solver_options: dict | None,
 ) -> Solution:
     problem = get_problem(model, structure)
     if model.nx > NX and solver == "CLARABEL" and solver_options is None:

@@ -6,8 +6,14 @@ from __future__ import annotations
 from typing import Final, Literal
 
 Status = Literal[
-    "certified", "extrapolated", "relaxed", "chosen", "uncertified", "failed",
-    "solver_inaccurate", "reference",
+    "certified",
+    "extrapolated",
+    "relaxed",
+    "chosen",
+    "uncertified",
+    "failed",
+    "solver_inaccurate",
+    "reference",
 ]
 """``certified``: a calibrated premise (docs/calibration.md: at least 19 calibration flights
 flown by the controller itself, ``alpha <= 0.1``) under which every check passed, the

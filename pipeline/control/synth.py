@@ -168,7 +168,9 @@ def certified_controller(
         "strictly_proper": structure.strictly_proper,
         "T": structure.T,
         **r.record(),
-        "gate": r.numbers.gate if structure.gate else None,  # only a gated design reads through the gate
+        "gate": r.numbers.gate
+        if structure.gate
+        else None,  # only a gated design reads through the gate
         "tested_range": r.premise.tested_range if r.premise else None,
         "solver_status": sol.solver_status,
         "dt": r.model.dt,
@@ -342,9 +344,10 @@ def synthesize(
     # the error model by its hash only: a path would differ between two folders of one run
     base_extra = {"error_model": None, "error_model_sha256": error_model_sha256,
                   "solver": options.solver}  # fmt: skip
-    if any(s.robust for _, s in plan) and necessary_condition(
-        r.numbers, r.shape.state_scale, r.shape.error_scale
-    ) >= 1.0:
+    if (
+        any(s.robust for _, s in plan)
+        and necessary_condition(r.numbers, r.shape.state_scale, r.shape.error_scale) >= 1.0
+    ):
         d = diagnose(r, options.T, options.strictly_proper, options.solver)
         raise InfeasibleError(diagnosis_message(d), d)
     warn_size(options.T, len(plan), progress)
@@ -417,5 +420,3 @@ def synth(
         if result.paper is not None:
             w.results["paper_mode"] = result.paper.record()
     return SynthResult(Path(out), result.statuses(), result.certificates())
-
-

@@ -421,7 +421,9 @@ def check_output(
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
     foreign = foreign_files(out, known) if out.exists() else []
     if foreign:
-        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        shown = ", ".join(foreign[:3]) + (
+            f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+        )
         raise OutputExistsError(
             f"{out} holds files qsls did not write ({shown}); --force replaces only a folder "
             "a qsls command wrote: move them away or choose another --out"

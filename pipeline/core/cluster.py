@@ -47,7 +47,6 @@ def check_scheduler(address: str) -> str:
     return f"{scheme}://{host}:{port}"
 
 
-
 def _checked(address: str) -> str:
     try:
         return check_scheduler(address)

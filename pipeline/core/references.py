@@ -72,7 +72,6 @@ class ReferenceOptions(Options):
         return self.start_s + extra + self.laps * self.period
 
 
-
 def parse_reference(spec: str, what: str = "reference") -> ReferenceOptions:
     """The one text form of a reference: ``KIND`` or ``KIND:key=value,key=value`` with any
     :class:`ReferenceOptions` field, values as YAML (``center=[0.5,0]``); the centre may also

@@ -258,9 +258,7 @@ def _same_motion(a: Any, b: Any, tol_m: float = 0.01, max_shift_s: float = 0.3) 
     return False
 
 
-def _disturbance(
-    loaded: list[Flight], options: FitOptions, dt: float
-) -> tuple[np.ndarray, str]:
+def _disturbance(loaded: list[Flight], options: FitOptions, dt: float) -> tuple[np.ndarray, str]:
     """``w_k`` of every sample (:mod:`qsls.pipeline.errormodel.disturbance`) and how it was
     measured."""
     if options.inputs is not None and len(options.inputs) != len(loaded):
@@ -295,8 +293,7 @@ def _read_inputs(path: Path, stamp0_ns: int) -> tuple[np.ndarray, np.ndarray]:
         df = pd.read_parquet(path, columns=["stamp_ns", *U_COLS])
     except Exception:
         raise InputError(
-            f"inputs: {path} is not a control log (parquet with stamp_ns, "
-            f"{', '.join(U_COLS)})"
+            f"inputs: {path} is not a control log (parquet with stamp_ns, {', '.join(U_COLS)})"
         ) from None
     t = (df["stamp_ns"].to_numpy(np.int64) - stamp0_ns) / 1e9
     return t, df[list(U_COLS)].to_numpy(float)

@@ -263,9 +263,7 @@ class OutlierFit:
     """Largest ``||o_k||_inf`` seen (descriptive only: never used as ``eps_o``)."""
 
 
-def fit_outliers(
-    o: np.ndarray, flight: np.ndarray, window: int, risk: float
-) -> OutlierFit:
+def fit_outliers(o: np.ndarray, flight: np.ndarray, window: int, risk: float) -> OutlierFit:
     """Count, rate, its upper bound, the largest window count and ``m`` (:func:`choose_m`;
     with no outlier seen ``m`` may still be positive: the rate's upper bound is not zero)."""
     mag = np.abs(np.nan_to_num(o)).max(axis=1) if len(o) else np.zeros(0)

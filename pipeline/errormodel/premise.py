@@ -107,7 +107,9 @@ class TrainingStates:
     source: str = "training data in memory"
     environment: np.ndarray | None = None
     """Environment code per sample (None: one environment): no distance crosses two."""
-    _measured: dict[Spec, Measured] = field(default_factory=dict, repr=False, init=False, compare=False)
+    _measured: dict[Spec, Measured] = field(
+        default_factory=dict, repr=False, init=False, compare=False
+    )
 
     def measured(self, spec: Spec) -> Measured:
         """:func:`measure` under ``spec`` (once per spec)."""

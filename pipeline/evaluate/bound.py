@@ -311,7 +311,11 @@ def _premise_problems(
             f"no guarantee: {bound.no_guarantee_reason}, the formula's value is shown for comparison"
         )
     if not premise_holds:
-        slope = f", held-out slope to training {max_slope:.3g} > S" if max_slope > bound.numbers.S else ""
+        slope = (
+            f", held-out slope to training {max_slope:.3g} > S"
+            if max_slope > bound.numbers.S
+            else ""
+        )
         problems.append(
             f"premise violated at {100 * (1 - frac_premise):.1f}% of samples: ||e|| reaches "
             f"{premise_ratio:.3g}x eps_e + S*d at t={premise_t:.2f}s (certified S={bound.numbers.S:.3g}, "
@@ -320,7 +324,9 @@ def _premise_problems(
     else:
         problems.append("premise holds at every sample")
     if not within_radius:
-        problems.append(f"flight leaves the radius r={bound.numbers.radius:.3g} around the training states")
+        problems.append(
+            f"flight leaves the radius r={bound.numbers.radius:.3g} around the training states"
+        )
     return problems
 
 

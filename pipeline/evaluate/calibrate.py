@@ -190,7 +190,9 @@ def score_flight(
         "dense": float(rel[inside].max()) if inside.any() else 0.0,
         "disturbance": cal.ratio(float(w.max()) if len(w) else 0.0, c.numbers.eps_w),
         "reference": cal.ratio(float(distance(log.ref).max()), c.numbers.delta),
-        "outliers": math.inf if mag.max() > c.numbers.eps_o else cal.ratio(float(counts.max()), c.numbers.m),
+        "outliers": math.inf
+        if mag.max() > c.numbers.eps_o
+        else cal.ratio(float(counts.max()), c.numbers.m),
     }
     # reached: where the dense premise was scored (within r; a flight that went further passed
     # through every distance up to r on the way)
@@ -266,14 +268,22 @@ def decide(
     rank = cal.calibration_rank(n, options.alpha, options.method, options.delta)
     lam = cal.calibrated_quantile(scores, options.alpha, options.method, options.delta)
     if len(range_scores):
-        lam = max(lam, cal.calibrated_quantile(range_scores, options.alpha, options.method, options.delta))
+        lam = max(
+            lam, cal.calibrated_quantile(range_scores, options.alpha, options.method, options.delta)
+        )
     tested = float(max(reached, default=0.0))
     if not math.isfinite(lam):
         need = cal.smallest_flights(options.alpha, options.method, options.delta)
-        short = [f"{k} {what} flights" for k, what in ((n, "calibration"), (len(range_scores), "range"))
-                 if k and cal.calibration_rank(k, options.alpha, options.method, options.delta) > k]
-        why = (f"{' and '.join(short)} cannot support alpha {options.alpha:g} ({options.method} needs {need})"
-               if short else "a calibration flight broke a premise quantity no inflation covers")
+        short = [
+            f"{k} {what} flights"
+            for k, what in ((n, "calibration"), (len(range_scores), "range"))
+            if k and cal.calibration_rank(k, options.alpha, options.method, options.delta) > k
+        ]
+        why = (
+            f"{' and '.join(short)} cannot support alpha {options.alpha:g} ({options.method} needs {need})"
+            if short
+            else "a calibration flight broke a premise quantity no inflation covers"
+        )
         return RELAXED, why, lam, rank, None, tested, {}  # fmt: skip
     inflated = cal.inflate(nominal, lam)
     chk = cal.check(inflated, taps)
@@ -306,8 +316,13 @@ def decide(
 
 
 def calibrated_certificate(
-    folder: Path, out: Path, o: Outcome, options: CalibrateOptions, seeds: Sequence[int],
-    score_rows: Sequence[dict[str, float]], conditions: dict[str, Any],
+    folder: Path,
+    out: Path,
+    o: Outcome,
+    options: CalibrateOptions,
+    seeds: Sequence[int],
+    score_rows: Sequence[dict[str, float]],
+    conditions: dict[str, Any],
     range_scores: Sequence[float] = (),
 ) -> Path:
     """Write ``out`` (a controller folder): the candidate's controller and its certificate with
@@ -371,7 +386,11 @@ def candidates(synth_dir: Path, names: Sequence[str] | None) -> list[Path]:
     out = []
     for f in folders:
         c = Certificate.load(f)
-        if c.robust and c.rho_star is not None and (c.checks or {}).get("robustness", {}).get("passed"):
+        if (
+            c.robust
+            and c.rho_star is not None
+            and (c.checks or {}).get("robustness", {}).get("passed")
+        ):
             out.append(f)
     return out
 
@@ -401,7 +420,9 @@ def calibrate(
     premises = {f.name: certified_premise(f) for f in folders}
     for name, p in premises.items():
         if p is None:
-            raise InputError(f"calibrate: {name} has no premise to calibrate (a nominal or failed controller)")
+            raise InputError(
+                f"calibrate: {name} has no premise to calibrate (a nominal or failed controller)"
+            )
     sim = options.sim.model_dump(mode="json")
     sim["duration"] = options.duration
     height = float(options.sim.reference.height)
@@ -421,7 +442,10 @@ def calibrate(
     }  # fmt: skip
 
     with StageWriter(out, STAGE, options=options, inputs=[model_file, *folders], force=force) as w:
-        def jobs_for(role: str, seeds: Sequence[int], folder_of: Callable[[str, str], Path]) -> list[Job]:
+
+        def jobs_for(
+            role: str, seeds: Sequence[int], folder_of: Callable[[str, str], Path]
+        ) -> list[Job]:
             return [
                 Job(name=f"{role}_{cond}_{f.name}_s{s}", controller=f.name,
                     folder=str(folder_of(cond, f.name).resolve()), condition=cond, seed=s,
@@ -457,14 +481,24 @@ def calibrate(
                 s = sel["score"].to_list()
                 nominal = premises[f.name].numbers
                 status, reason, lam, rank, chk, tested, tol = decide(
-                    s, mine["reached"].to_list(), nominal, taps_of(f), options,
-                    crashed=int(mine["crashed"].sum()), range_scores=ranged["score"].to_list(),
+                    s,
+                    mine["reached"].to_list(),
+                    nominal,
+                    taps_of(f),
+                    options,
+                    crashed=int(mine["crashed"].sum()),
+                    range_scores=ranged["score"].to_list(),
                 )
                 o = Outcome(f.name, cond, status, reason, lam, rank, chk, tested, tol, s)
                 outcomes.append(o)
                 calibrated_certificate(
-                    f, w.path(f"{cond}/{f.name}"), o, options, calib_seeds,
-                    sel.to_dict(orient="records"), {**conditions_of, "perception": cond},
+                    f,
+                    w.path(f"{cond}/{f.name}"),
+                    o,
+                    options,
+                    calib_seeds,
+                    sel.to_dict(orient="records"),
+                    {**conditions_of, "perception": cond},
                     ranged["score"].to_list(),
                 )
         vjobs = jobs_for("validation", valid_seeds, lambda cond, n: w.path(f"{cond}/{n}"))
@@ -510,7 +544,11 @@ def summary_row(o: Outcome, validation: pd.DataFrame, options: CalibrateOptions)
     n = len(sel)
     k = int((~sel["assumptions_hold"].astype(bool)).sum()) if n else 0
     lo, hi = cal.clopper_pearson(k, n) if n else (math.nan, math.nan)
-    broken = sel[~sel["assumptions_hold"].astype(bool)]["first_failed"].value_counts().to_dict() if n else {}
+    broken = (
+        sel[~sel["assumptions_hold"].astype(bool)]["first_failed"].value_counts().to_dict()
+        if n
+        else {}
+    )
     row |= {"validation_flights": n, "validation_broken": k,
             "validation_share": k / n if n else math.nan, "validation_ci": [lo, hi],
             "validation_first_failed": {str(a): int(b) for a, b in broken.items()},

@@ -63,8 +63,10 @@ class ControllerBound:
     def generalized(self) -> bool:
         """The premise splits or weights the error (docs/guarantee.md): the premise here is on
         the dense part, and the guarantee is checked on the controller's own log."""
-        return self.measure != "full" or math.isfinite(self.beta) or any(
-            w != 1.0 for w in self.error_scale
+        return (
+            self.measure != "full"
+            or math.isfinite(self.beta)
+            or any(w != 1.0 for w in self.error_scale)
         )
 
     def dense(self, e: np.ndarray) -> np.ndarray:
@@ -117,12 +119,18 @@ class ControllerBound:
 
     def gamma_at(self, distance: np.ndarray) -> np.ndarray:
         """``gamma_k = (eps_e + S (eps_w ||Phi_xx H|| + d_k)) / (1 - S ||Phi_xy||)``."""
-        a = guarantee.a_value(self.numbers.eps_w, self.norm_phi_xx_h, np.asarray(distance, dtype=float))
+        a = guarantee.a_value(
+            self.numbers.eps_w, self.norm_phi_xx_h, np.asarray(distance, dtype=float)
+        )
         return np.asarray(guarantee.gamma_of(self.numbers.eps, self.numbers.S, self.norm_phi_xy, a))
 
     def premise_at(self, distance: np.ndarray) -> np.ndarray:
         """The S-slope premise ``eps_e + S d_k``: the error the assumption allows at ``x_k``."""
-        return np.asarray(guarantee.premise_bound(self.numbers.eps, self.numbers.S, np.asarray(distance, dtype=float)))
+        return np.asarray(
+            guarantee.premise_bound(
+                self.numbers.eps, self.numbers.S, np.asarray(distance, dtype=float)
+            )
+        )
 
 
 def check_unweighted(em: Any, to: str = "check certified controllers") -> None:

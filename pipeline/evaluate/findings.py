@@ -286,7 +286,10 @@ def state_dependence_markdown(sd: dict[str, Any] | None) -> list[str]:
         "",
         f"## State-dependent perception: who strays errs? (circle, paired with {ref} by seed)",
         "",
-        "| condition | controller | tracking / " + ref + " | error / " + ref
+        "| condition | controller | tracking / "
+        + ref
+        + " | error / "
+        + ref
         + " | Spearman rho (all flights) |",
         "|---|---|---|---|---|",
     ]

@@ -232,7 +232,12 @@ def _assured(job: FlyJob, opts: SimOptions, primary: Any) -> Any:
     if primary is None:
         primary = make_controller(opts.controller, mass)
     return assured_controller(
-        Path(job.spec), primary, mass, opts.controller.pd, job.pd_gain, job.assured  # type: ignore[arg-type]
+        Path(job.spec),
+        primary,
+        mass,
+        opts.controller.pd,
+        job.pd_gain,
+        job.assured,  # type: ignore[arg-type]
     )
 
 

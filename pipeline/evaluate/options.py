@@ -102,6 +102,7 @@ class FlyOptions(EvaluateOptions):
         """Whether ``controller`` flies with the PD's height channel (``pd_z_control``)."""
         z = self.pd_z_control
         return z if isinstance(z, bool) else controller in z
+
     keep_bags: bool = False
     """Keep every flight's simulate folder (bag, truth.json) under ``sims/``."""
     assured: bool = False
@@ -179,10 +180,15 @@ class CalibrateOptions(Options):
         valid = list(range(self.validation_seed, self.validation_seed + self.validation))
         design = set(self.design_seeds)
         if self.range_flights and self.tube <= 0:
-            raise ConfigError("calibrate.range_flights needs calibrate.tube > 0 (the offsets' radius)")
+            raise ConfigError(
+                "calibrate.range_flights needs calibrate.tube > 0 (the offsets' radius)"
+            )
         ranged = list(range(self.range_seed, self.range_seed + self.range_flights))
-        for what, key, seeds in (("calibration", "seed", calib), ("validation", "validation_seed", valid),
-                                 ("range", "range_seed", ranged)):
+        for what, key, seeds in (
+            ("calibration", "seed", calib),
+            ("validation", "validation_seed", valid),
+            ("range", "range_seed", ranged),
+        ):
             shared = sorted(design.intersection(seeds))
             if shared:
                 raise ConfigError(

@@ -27,7 +27,11 @@ class EvaluateSection(EvaluateOptions):
         """The bound check's options."""
         return EvaluateOptions.model_validate(self._own())
 
-    def flying(self, overrides: Mapping[str, Any] | None = None, source: str = "options") -> FlyOptions:
+    def flying(
+        self, overrides: Mapping[str, Any] | None = None, source: str = "options"
+    ) -> FlyOptions:
         """The flying options: the section's keys, then ``fly``'s, then ``overrides`` (the
         command line's); errors name ``source``."""
-        return validate(FlyOptions, merge(merge(self._own(), self.fly or {}), overrides or {}), source)
+        return validate(
+            FlyOptions, merge(merge(self._own(), self.fly or {}), overrides or {}), source
+        )

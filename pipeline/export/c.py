@@ -361,7 +361,9 @@ int {prefix}_step({prefix}_t *c, const {real} y[{m}_NY], {real} u[{m}_NU])
 {c_function(prefix, real, precision == "float")}"""
 
 
-def c_files(bank: ExportBank, facts: ExportFacts, prefix: str, precision: Precision) -> dict[str, str]:
+def c_files(
+    bank: ExportBank, facts: ExportFacts, prefix: str, precision: Precision
+) -> dict[str, str]:
     """``{PREFIX.h: ..., PREFIX.c: ...}``."""
     return {
         f"{prefix}.h": header(bank, facts, prefix, precision),

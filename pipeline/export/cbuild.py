@@ -169,4 +169,3 @@ def c_runtime(folder: Path, *, precision: str = "double", prefix: str = "qsls_ct
         name=cdir.name,
         certificate=cdir.certificate.model_dump(),
     )
-

@@ -86,6 +86,7 @@ class ExportOptions(LimitOptions):
     """Seed of the check's random ticks."""
     compiler: str | None = None
     """C compiler for the check (default ``$CC``, ``cc``, ``gcc``, ``clang``)."""
+
     @field_validator("prefix")
     @classmethod
     def _prefix(cls, v: str) -> str:
@@ -155,6 +156,7 @@ class ReplayOptions(LimitOptions):
     ``p_ref = Rz(yaw) p_vio + [x y z]``; default: none (``align``)."""
     warn_deviation_m: float = Field(0.5, gt=0)
     """Warn when the first tick's position deviation from the reference exceeds this (m)."""
+
     @model_validator(mode="after")
     def _band(self) -> ReplayOptions:
         lo, hi = self.thrust_band

@@ -81,9 +81,7 @@ class ExportResult:
                 if v.get("gate") is not None
                 else ""
             )
-            out["max |u - realization|"] = (
-                f"{v['max_abs_diff']:.3g} over {v['ticks']} ticks{gated}"
-            )
+            out["max |u - realization|"] = f"{v['max_abs_diff']:.3g} over {v['ticks']} ticks{gated}"
         elif "skipped" in v:
             out["check against realization"] = f"skipped: {v['skipped']}"
         f = r.get("float_vs_double")

@@ -75,7 +75,9 @@ def _calibration_lines(cal: Calibration | None) -> list[str]:
         ]
     conf = (f"confidence {cal.confidence:g}" if cal.confidence is not None
             else "marginal over the calibration draw")  # fmt: skip
-    cond = ", ".join(f"{k} {v}" for k, v in cal.conditions.items() if not isinstance(v, dict | list))
+    cond = ", ".join(
+        f"{k} {v}" for k, v in cal.conditions.items() if not isinstance(v, dict | list)
+    )
     return [
         f"calibration: {cal.flights} flights flown by this controller ({cal.method}); alpha "
         f"{cal.alpha:g}, the probability that a new flight of these conditions breaks the "

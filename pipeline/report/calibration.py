@@ -50,7 +50,9 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
     for r, cert in rows:
         cal = cert.calibration if cert is not None else None
         parts = cal.parts if cal is not None else {}
-        how = r["method"] + (f" {100 * cal.confidence:.0f}% conf." if cal and cal.confidence else "")
+        how = r["method"] + (
+            f" {100 * cal.confidence:.0f}% conf." if cal and cal.confidence else ""
+        )
         main.append([
             r["controller"], r["condition"], status_words(r["status"])[0], r["flights"],
             f"{g4(r['alpha'])} ({how})", g4(r["lambda_hat"]),

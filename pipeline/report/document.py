@@ -326,7 +326,9 @@ def _html_block(kind: str, payload: Any) -> str:
 
 
 def render_html(title: str, subtitle: str, sections: Sequence[Section]) -> str:
-    nav = "".join(f'<a href="#{html.escape(s.id)}">{html.escape(s.title)}</a>' for s in sections if s.id)
+    nav = "".join(
+        f'<a href="#{html.escape(s.id)}">{html.escape(s.title)}</a>' for s in sections if s.id
+    )
     out = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',

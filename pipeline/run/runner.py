@@ -103,35 +103,37 @@ class FlightSpec(Options):
 class RunConfig(Options):
     """The run: flights plus each stage's options (the stage's own option names).
 
-    Each stage section is the same section the stage command reads with ``--config``, typed
-    by the model that command uses: ``simulate``
-    :class:`~qsls.pipeline.sim.options.SimOptions`, ``ingest``
-    :class:`~qsls.pipeline.ingest.options.IngestOptions`, ``fit``
-    :class:`~qsls.pipeline.errormodel.options.FitOptions`, ``sweep``
-    :class:`~qsls.pipeline.control.options.SweepSection` (with ``jobs``, ``scheduler``,
-    ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions` (both
-    with the config's ``problem:`` laid under them, :func:`~qsls.pipeline.core.config.with_shared`:
-    the settings they share, stated once),
-    ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (with ``fly``, whose
-    options, :class:`~qsls.pipeline.evaluate.options.FlyOptions`, are the section's keys with
-``fly``'s laid over them: validated when the config is read too). These
-    models live apart from their stages, so reading a run config loads no solver, pandas or
-    simulator: a run with nothing to do imports nothing heavy.
+        Each stage section is the same section the stage command reads with ``--config``, typed
+        by the model that command uses: ``simulate``
+        :class:`~qsls.pipeline.sim.options.SimOptions`, ``ingest``
+        :class:`~qsls.pipeline.ingest.options.IngestOptions`, ``fit``
+        :class:`~qsls.pipeline.errormodel.options.FitOptions`, ``sweep``
+        :class:`~qsls.pipeline.control.options.SweepSection` (with ``jobs``, ``scheduler``,
+        ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions` (both
+        with the config's ``problem:`` laid under them, :func:`~qsls.pipeline.core.config.with_shared`:
+        the settings they share, stated once),
+        ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (with ``fly``, whose
+        options, :class:`~qsls.pipeline.evaluate.options.FlyOptions`, are the section's keys with
+    ``fly``'s laid over them: validated when the config is read too). These
+        models live apart from their stages, so reading a run config loads no solver, pandas or
+        simulator: a run with nothing to do imports nothing heavy.
 
-    ``simulate`` and ``ingest`` are also the bases of the flights: a flight's own
-    ``simulate:`` / ``ingest:`` is laid over the section as written (:meth:`written`; the
-    flight's keys win, nested mappings merge) and the result is validated per flight when
-    planned, its errors naming the flight. The base must be valid on its own, as it is for
-    ``qsls simulate --config`` / ``qsls ingest --config`` reading the same file: a base
-    ``vio: {outlier_min: 2}`` is refused (above the default ``outlier_max``, 1) even when
-    every flight raises ``outlier_max``; such a pair belongs in the flights."""
+        ``simulate`` and ``ingest`` are also the bases of the flights: a flight's own
+        ``simulate:`` / ``ingest:`` is laid over the section as written (:meth:`written`; the
+        flight's keys win, nested mappings merge) and the result is validated per flight when
+        planned, its errors naming the flight. The base must be valid on its own, as it is for
+        ``qsls simulate --config`` / ``qsls ingest --config`` reading the same file: a base
+        ``vio: {outlier_min: 2}`` is refused (above the default ``outlier_max``, 1) even when
+        every flight raises ``outlier_max``; such a pair belongs in the flights."""
 
     name: str
     seed: int = 0
     out: str | None = None
     stages: (
         list[
-            Literal["simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "report"]
+            Literal[
+                "simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "report"
+            ]
         ]
         | None
     ) = None

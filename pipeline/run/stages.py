@@ -44,7 +44,9 @@ Execute = Callable[[Path, Mapping[str, Path]], Any]
 """A stage's ``execute(out, deps)`` (:class:`Stage`); it returns the stage's result."""
 
 
-def build_graph(cfg: RunConfig, base: Path, root: Path, progress: Progress = NULL_PROGRESS) -> StageGraph:
+def build_graph(
+    cfg: RunConfig, base: Path, root: Path, progress: Progress = NULL_PROGRESS
+) -> StageGraph:
     """Stages for ``cfg``; paths relative to ``base``."""
     wanted = set(
         cfg.stages or ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate")
@@ -164,7 +166,11 @@ def _sweep_stage(graph: StageGraph, sec: SweepSection, progress: Progress) -> No
 
 
 def _evaluate_stages(
-    graph: StageGraph, sec: EvaluateSection, heldout: list[str], src: Src, progress: Progress,
+    graph: StageGraph,
+    sec: EvaluateSection,
+    heldout: list[str],
+    src: Src,
+    progress: Progress,
     calibrated: str | None = None,
 ) -> None:
     """The bound check on the held-out flights (when there are some) and the flights flown
@@ -228,7 +234,9 @@ def _calibrate_stage(graph: StageGraph, cfg: RunConfig, src: Src, progress: Prog
 
         return calibrate(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
 
-    graph.add(Stage("calibrate", "calibrate", opts, execute, deps=("fit", "synth"), notes=_calibrated))
+    graph.add(
+        Stage("calibrate", "calibrate", opts, execute, deps=("fit", "synth"), notes=_calibrated)
+    )
     return str(opts.conditions[0])
 
 
@@ -288,7 +296,9 @@ def _fit_exec(opts: FitOptions, train: list[str], logged: list[str], progress: P
         from qsls.pipeline.sim.simulate import CONTROL_FILE
 
         if logged:
-            opts_ = opts.model_copy(update={"inputs": [str(deps[s] / CONTROL_FILE) for s in logged]})
+            opts_ = opts.model_copy(
+                update={"inputs": [str(deps[s] / CONTROL_FILE) for s in logged]}
+            )
         else:
             opts_ = opts
         return fit([deps[d] for d in train], opts_, out, force=True, progress=progress)
@@ -297,7 +307,10 @@ def _fit_exec(opts: FitOptions, train: list[str], logged: list[str], progress: P
 
 
 def _sweep_exec(
-    opts: SweepOptions, jobs: int | None, scheduler: str | None, wait_workers: float,
+    opts: SweepOptions,
+    jobs: int | None,
+    scheduler: str | None,
+    wait_workers: float,
     progress: Progress,
 ) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
