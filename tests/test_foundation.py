@@ -64,6 +64,9 @@ def test_stage_writer_is_atomic_and_refuses_overwrite(tmp_path):
     assert manifest["inputs"][0]["sha256"] == artifacts.sha256_file(src)
     assert manifest["results"]["n"] == 5
     assert manifest["files"]["t.parquet"] == artifacts.sha256_file(out / "t.parquet")
+    # the manifest lists exactly the published files (not the temporary's PID-signed marker)
+    published = {p.name for p in out.iterdir() if p.is_file()} - {"manifest.json"}
+    assert set(manifest["files"]) == published == {"t.parquet"}
     first = (out / "t.parquet").read_bytes()
 
     with pytest.raises(OutputExistsError):

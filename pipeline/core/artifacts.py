@@ -393,7 +393,7 @@ class StageWriter:
             "files": {
                 f.relative_to(self.tmp).as_posix(): sha256_file(f)
                 for f in sorted(self.tmp.rglob("*"))
-                if f.is_file()
+                if f.is_file() and f.name != TEMP_MARKER  # gone once published
             },
             "packages": package_versions(),
             "wall_time_s": round(time.perf_counter() - self._t0, 3),
