@@ -117,6 +117,37 @@ def test_inflated_condition_and_tolerances_against_direct_arithmetic() -> None:
     assert not grown.holds
 
 
+def test_a_flight_outside_the_calibrations_conditions_says_why() -> None:
+    """The promise is about a new flight of the same conditions: another perception condition
+    or a longer flight lies outside it; the verdict counts such flights."""
+    import pandas as pd
+
+    from qsls.pipeline.evaluate.verdict import assumption_verdicts
+
+    assert cal.outside_conditions("regular", 15.0, "regular", 15.0) == ""
+    assert cal.outside_conditions("regular", 12.0, "regular", 15.0) == ""  # shorter (a crash)
+    assert cal.outside_conditions("degraded", 15.0, "regular", 15.0) == (
+        "perception degraded, calibrated in regular"
+    )
+    assert cal.outside_conditions("regular", 30.0, "regular", 15.0) == (
+        "a 30 s flight, calibrated on 15 s flights"
+    )
+    both = cal.outside_conditions("degraded", 23.0, "regular", 15.0)
+    assert (
+        both
+        == "perception degraded, calibrated in regular; a 23 s flight, calibrated on 15 s flights"
+    )
+    table = pd.DataFrame({
+        "controller": ["c"] * 3, "flight": ["a", "b", "d"], "assumptions_hold": [True, False, False],
+        "first_failed": ["", "dense", "dense"], "verdict": ["", "x", "y"],
+        "bound_held": [True, True, True], "outside_calibration": ["", both, ""],
+    })  # fmt: skip
+    (v,) = assumption_verdicts(table)
+    assert (v.outside, v.outside_why) == (1, both)
+    assert v.line().endswith(f"; 1 of the 3 flown outside its calibration ({both})")
+    assert "outside" not in assumption_verdicts(table.drop(columns="outside_calibration"))[0].line()
+
+
 def test_calibration_seeds_shared_with_design_flights_are_refused() -> None:
     opts = CalibrateOptions(flights=20, seed=1000, validation=20, validation_seed=2000,
                             design_seeds=[1, 2, 1005])  # fmt: skip

@@ -189,6 +189,12 @@ def test_quickstart_assumptions_on_the_flown_flights(quickstart):
     f3 = next(f for f in findings["findings"] if f["id"] == 3)
     assert f3["verdict"] == "contradicted" and f3["n_violating"] == len(bad)
     assert "l1_robust: FAILS on 1 of 2 flights: degraded_s0_l1_robust: assumption" in proc.stdout
+    # the certificate was calibrated in regular perception on 15 s flights: the degraded
+    # flight is outside its calibration, the regular one inside, and the console says so
+    assert degraded["outside_calibration"] == "perception degraded, calibrated in regular"
+    regular = a[(a["controller"] == "l1_robust") & (a["condition"] == "regular")].iloc[0]
+    assert regular["outside_calibration"] == ""
+    assert "1 of the 2 flown outside its calibration (perception degraded" in proc.stdout
 
 
 @pytest.mark.slow

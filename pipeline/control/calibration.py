@@ -116,6 +116,21 @@ def ratio(value: float, limit: float) -> float:
     return value / limit if limit > 0.0 else math.inf
 
 
+def outside_conditions(
+    perception: str, flight_s: float, calibrated_perception: str, calibrated_s: float
+) -> str:
+    """Why a flight lies outside the conditions its certificate was calibrated under ('' when
+    inside): another perception condition, or a flight longer than the calibration flights
+    (the promise ``P(lambda_hat)`` is about a new flight *of the same conditions*, and the
+    premise's quantities grow with a flight's length: docs/calibration.md)."""
+    why = []
+    if calibrated_perception and perception != calibrated_perception:
+        why.append(f"perception {perception}, calibrated in {calibrated_perception}")
+    if flight_s > calibrated_s + 1e-6:
+        why.append(f"a {flight_s:g} s flight, calibrated on {calibrated_s:g} s flights")
+    return "; ".join(why)
+
+
 def flight_score(parts: dict[str, float]) -> float:
     """``lambda_f``: the largest of a flight's per-quantity ratios (module docstring)."""
     return max((float(parts[k]) for k in SCORED if k in parts), default=0.0)

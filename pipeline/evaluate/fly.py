@@ -50,6 +50,7 @@ import numpy as np
 import pandas as pd
 
 from qsls.pipeline.control.artifacts import load_controller_dir
+from qsls.pipeline.control.calibration import outside_conditions
 from qsls.pipeline.control.guarantee import OFF
 from qsls.pipeline.control.monitor import envelope_peak, monitor_flags, monitor_of
 from qsls.pipeline.core.artifacts import StageWriter, check_output
@@ -622,6 +623,11 @@ def assumption_table(
         if premises[b.name] is not None
     }
     status = {b.name: b.status for b in bounds}
+    calibrations = {
+        b.name: load_controller_dir(b.folder).certificate.calibration
+        for b in bounds
+        if premises[b.name] is not None
+    }
     rows = []
     for o in outcomes:
         c = premises.get(o.controller)
@@ -632,6 +638,17 @@ def assumption_table(
         row.update(monitor_columns(monitors[o.controller], log, c.numbers.gate))
         if o.metrics.get("crashed"):
             row = crashed(row, o.extra.get("crash_time_s"), o.metrics.get("crash_reason"))
+        cal = calibrations[o.controller]
+        row["outside_calibration"] = (
+            ""
+            if cal is None
+            else outside_conditions(
+                o.condition,
+                float(o.metrics.get("duration_s", o.t_ctrl[-1])),
+                str(cal.conditions.get("perception", "")),
+                cal.duration_s,
+            )
+        )
         rows.append({"flight": o.name, "controller": o.controller, "status": status[o.controller],
                      "crashed": bool(o.metrics.get("crashed")),
                      "condition": o.condition, "seed": o.seed, **row})  # fmt: skip

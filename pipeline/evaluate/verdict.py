@@ -80,6 +80,8 @@ class AssumptionVerdict:
     detail: str
     bound_held_all: bool
     status: Status = CERTIFIED
+    outside: int = 0  # flights flown outside the conditions of the certificate's calibration
+    outside_why: str = ""  # the first such flight's reason
 
     def line(self) -> str:
         n = f"{self.flights} flight{'s' if self.flights != 1 else ''}"
@@ -91,9 +93,14 @@ class AssumptionVerdict:
                 f"{self.controller}: every assumption holds on {n}; as a consequence the "
                 f"bound {held}"
             )
+        outside = (
+            f"; {self.outside} of the {self.flights} flown outside its calibration ({self.outside_why})"
+            if self.outside
+            else ""
+        )
         return (
             f"{self.controller}: FAILS on {self.flights - self.n_hold} of {n}: "
-            f"{self.worst_flight}: {self.detail}"
+            f"{self.worst_flight}: {self.detail}{outside}"
         )
 
 
@@ -105,6 +112,8 @@ def assumption_verdicts(table: pd.DataFrame) -> list[AssumptionVerdict]:
     for name, g in table.groupby("controller", sort=False):
         bad = g[~g["assumptions_hold"].astype(bool)]
         first = bad.iloc[0] if len(bad) else None
+        away = g["outside_calibration"] if "outside_calibration" in g else pd.Series([], dtype=str)
+        away = away[away.fillna("").astype(str) != ""]
         out.append(
             AssumptionVerdict(
                 str(name),
@@ -114,6 +123,8 @@ def assumption_verdicts(table: pd.DataFrame) -> list[AssumptionVerdict]:
                 str(first["flight"]) if first is not None else "",
                 str(first["verdict"]) if first is not None else "",
                 bool(g["bound_held"].astype(bool).all()),
+                outside=len(away),
+                outside_why=str(away.iloc[0]) if len(away) else "",
             )
         )
     return out
