@@ -125,11 +125,11 @@ def closed_loop(controller: str, n: int, duration: float) -> tuple[float, float,
     return fast / n, slow / n, same
 
 
-def calibration_jobs(n: int, duration: float) -> list[Any]:
+def calibration_jobs(n: int, duration: float, folder: str = "pd") -> list[Any]:
     from qsls.pipeline.evaluate.calibrate import Job
 
     return [
-        Job(name=f"c{s}", controller="pd", folder="pd", condition="regular", seed=s,
+        Job(name=f"c{s}", controller="pd" if folder == "pd" else "sls", folder=folder, condition="regular", seed=s,
             role="calibration", sim=_sim(duration), offset=(0.0, 0.0, 0.0))
         for s in range(n)
     ]  # fmt: skip
@@ -162,6 +162,21 @@ def main() -> None:
                   f"identical logs: {same}")  # fmt: skip
             require(same, f"{name}: the fast and the stepwise flights' logs are identical")
         stage = fly_stage_flights(a.sample, a.duration, Path(tmp))
+
+        # the batch: the certified controller's own calibration flights, as calibrate flies them
+        jobs = calibration_jobs(a.flights, a.duration, str(sls))
+        tasks = [(fly_job, j) for j in jobs]
+        local, wall, _ = _timed(lambda: run_tasks(tasks, a.jobs))
+        print(f"{a.flights} calibration flights of the certified controller on a local pool of "
+              f"{a.jobs}: {wall:.1f} s wall (target: 200 flights of 20 s in 120 s on 2 cores)")  # fmt: skip
+        if a.scheduler:
+            remote, wall_d, _ = _timed(lambda: run_tasks(tasks, a.jobs, scheduler=a.scheduler))
+            same = all(
+                x.frame().equals(y.frame()) for x, y in zip(local, remote, strict=True)
+            )  # fmt: skip
+            print(f"  the same on the Dask cluster at {a.scheduler}: {wall_d:.1f} s wall; "
+                  f"tick logs identical: {same}")  # fmt: skip
+            require(same, "the Dask cluster's tick logs equal the local pool's")
     cal = sum(_timed(lambda j=j: fly_job(j))[2] for j in calibration_jobs(a.sample, a.duration))
     cal /= a.sample
     print(f"{a.duration:g} s flights, CPU seconds per flight (mean of {a.sample}):")
@@ -171,20 +186,6 @@ def main() -> None:
     print(f"  calibration flight (closed loop + ticks): {cal:.3f} s  ({1 / cal:.2f} flights/CPU-s)")
     print(f"  -> {stage / cal:.2f}x more flights per CPU-second; "
           f"{a.duration / cal:.1f}x real time per core")  # fmt: skip
-
-    jobs = calibration_jobs(a.flights, a.duration)
-    tasks = [(fly_job, j) for j in jobs]
-    local, wall, _ = _timed(lambda: run_tasks(tasks, a.jobs))
-    print(f"{a.flights} calibration flights on a local pool of {a.jobs}: {wall:.1f} s wall "
-          f"(target: 200 flights of 20 s in 120 s on 2 cores)")  # fmt: skip
-    if a.scheduler:
-        remote, wall_d, _ = _timed(lambda: run_tasks(tasks, a.jobs, scheduler=a.scheduler))
-        same = all(
-            x.frame().equals(y.frame()) for x, y in zip(local, remote, strict=True)
-        )  # fmt: skip
-        print(f"  the same on the Dask cluster at {a.scheduler}: {wall_d:.1f} s wall; "
-              f"tick logs identical: {same}")  # fmt: skip
-        require(same, "the Dask cluster's tick logs equal the local pool's")
 
 
 if __name__ == "__main__":

@@ -113,7 +113,9 @@ def flights(out: str) -> None:
         assert positive(fast, slow, ratio)
     ((ratio,),) = numbers(r"-> {n}x more flights per CPU-second", out)
     assert ratio > 1  # the calibration flight writes no bag and ingests nothing
-    numbers(r"2 calibration flights on a local pool of 2: {n} s wall", out)
+    numbers(
+        r"2 calibration flights of the certified controller on a local pool of\s+2: {n} s wall", out
+    )
 
 
 def ingest(out: str) -> None:
