@@ -10,6 +10,15 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_REAL = REPO.parent / "shared" / "data" / "real"
 
 
+def pytest_xdist_auto_num_workers(config) -> int:
+    """``-n auto``: one worker per core, at most 4 (many tests fly on a pool of all cores
+    themselves, so more workers only oversubscribe)."""
+    import os
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(4, cores or 1))
+
+
 @pytest.fixture(scope="session")
 def quickstart_session(tmp_path_factory):
     """``qsls run configs/quickstart.yaml`` once per session, from a clean folder: (work
