@@ -41,7 +41,7 @@ from __future__ import annotations
 import itertools
 import math
 import shutil
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -350,12 +350,14 @@ def _analyse(
     bounds: Sequence[ControllerBound],
     training: Any,
     options: FlyOptions,
+    by_condition: Mapping[tuple[str, str], ControllerBound] | None = None,
 ) -> Analysis:
     """Tables, bound checks, assumptions, the paper comparison and the paired findings of one
-    estimator's flights."""
+    estimator's flights (a flight checked against its condition's certificate where
+    ``by_condition`` holds one: :func:`certificate_for`)."""
     flights = flight_table(outcomes)
-    checks, samples, ref_j = _check_flights(outcomes, jobs, flights, bounds, training)
-    assumptions = assumption_table(outcomes, bounds, training)
+    checks, samples, ref_j = _check_flights(outcomes, jobs, flights, bounds, training, by_condition)
+    assumptions = assumption_table(outcomes, bounds, training, by_condition)
     per = _bound_columns(per_controller_table(flights), checks)
     ref_bound = bounds[ref_j] if ref_j is not None else None
     comparison = compare_with_paper(
@@ -524,11 +526,15 @@ def _make_jobs(
     flights: Path,
     pd_gain: tuple[tuple[float, ...], ...] | None,
     assured: Sequence[str] = (),
+    spec_in: Mapping[tuple[str, str], str] | None = None,
 ) -> list[FlyJob]:
     """One job per estimator, condition, seed and controller (``specs``:
-    ``(name, se3 | folder)``); with several estimators a flight's name starts with its own.
+    ``(name, se3 | folder)``; ``spec_in[(condition, name)]`` replaces the folder in that
+    condition: the same taps, certified for it, so an onboard monitor watches that
+    condition's premise); with several estimators a flight's name starts with its own.
     Then, per estimator, one runtime-assured job per condition, seed and controller named in
     ``assured`` (its name and controller end in ``_assured``)."""
+    spec_in = spec_in or {}
     several = len(options.estimators) > 1
     ingest_opts = options.ingest.model_dump(mode="json")
     jobs = []
@@ -543,7 +549,7 @@ def _make_jobs(
         for cond, seed, (cname, spec) in grid:
             name = f"{vio}_{cond}_s{seed}_{cname}" if several else f"{cond}_s{seed}_{cname}"
             jobs.append(FlyJob(
-                name=name, controller=cname, spec=spec, condition=cond, seed=int(seed), sim=sim,
+                name=name, controller=cname, spec=spec_in.get((cond, cname), spec), condition=cond, seed=int(seed), sim=sim,
                 ingest=ingest_opts, sim_dir=str(sims / name), flight_dir=str(flights / name),
                 pd_gain=pd_gain, pd_z=options.pd_z_for(cname), estimator=vio,
             ))  # fmt: skip
@@ -554,12 +560,27 @@ def _make_jobs(
             name = f"{vio}_{cond}_s{seed}_{cname}" if several else f"{cond}_s{seed}_{cname}"
             name += ASSURED_SUFFIX
             jobs.append(FlyJob(
-                name=name, controller=cname + ASSURED_SUFFIX, spec=spec, condition=cond,
+                name=name, controller=cname + ASSURED_SUFFIX,
+                spec=spec_in.get((cond, cname), spec), condition=cond,
                 seed=int(seed), sim=sim, ingest=ingest_opts, sim_dir=str(sims / name),
                 flight_dir=str(flights / name), pd_gain=pd_gain, pd_z=options.pd_z_for(cname),
                 estimator=vio, assured=options.fallback,
             ))  # fmt: skip
     return jobs
+
+
+def certificate_for(
+    name: str,
+    condition: str,
+    bounds: Mapping[str, ControllerBound],
+    by_condition: Mapping[tuple[str, str], ControllerBound] | None,
+) -> ControllerBound | None:
+    """The certificate a flight of controller ``name`` in perception ``condition`` is checked
+    against: the one calibrated for that condition (``calibrate/<condition>/<name>``) where
+    there is one, else the controller's own (docs/calibration.md, "One certificate per
+    condition")."""
+    own = (by_condition or {}).get((condition, name))
+    return own if own is not None else bounds.get(name)
 
 
 def _check_flights(
@@ -568,9 +589,11 @@ def _check_flights(
     flights: pd.DataFrame,
     bounds: Sequence[ControllerBound],
     training: Any,
+    by_condition: Mapping[tuple[str, str], ControllerBound] | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame, int | None]:
-    """Bound check of every ingested flight against its own controller's certificate and the
-    robust reference bound (``l1_robust``, else the first with a guarantee, index returned)."""
+    """Bound check of every ingested flight against its own controller's certificate (its
+    condition's: :func:`certificate_for`) and the robust reference bound (``l1_robust``,
+    else the first with a guarantee, index into ``bounds`` returned; its condition's too)."""
     held = [
         (o.name, read_flight(Path(j.flight_dir)))
         for o, j in zip(outcomes, jobs, strict=True)
@@ -580,17 +603,26 @@ def _check_flights(
     ref_j = index.get(ROBUST_QR)
     if ref_j is None:
         ref_j = next((i for i, b in enumerate(bounds) if b.has_guarantee), None)
+    every = list(bounds) + list((by_condition or {}).values())
+    at = {id(b): j for j, b in enumerate(every)}
+    named = {b.name: b for b in bounds}
     flown = dict(zip(flights["flight"], flights["controller"], strict=True))
+    cond_of = dict(zip(flights["flight"], flights["condition"], strict=True))
     pairs = []
     for i, (name, _) in enumerate(held):
-        own = index.get(flown[name])
-        for j in dict.fromkeys(x for x in (own, ref_j) if x is not None):
+        cond = cond_of[name]
+        mine = certificate_for(flown[name], cond, named, by_condition)
+        ref = (
+            certificate_for(bounds[ref_j].name, cond, named, by_condition)
+            if ref_j is not None
+            else None
+        )
+        for j in dict.fromkeys(at[id(x)] for x in (mine, ref) if x is not None):
             pairs.append((i, j))
     if not pairs:
         return pd.DataFrame(), pd.DataFrame(), ref_j
     by = [flown[name] for name, _ in held]
-    checks, samples = bound_check(held, list(bounds), training, pairs=pairs, flown_by=by)
-    cond_of = dict(zip(flights["flight"], flights["condition"], strict=True))
+    checks, samples = bound_check(held, every, training, pairs=pairs, flown_by=by)
     checks.insert(3, "condition", checks["flight"].map(cond_of))
     return checks, samples, ref_j
 
@@ -612,33 +644,42 @@ def monitor_columns(spec: Any, log: Any, gate: float | None) -> dict[str, Any]:
 
 
 def assumption_table(
-    outcomes: Sequence[FlyOutcome], bounds: Sequence[ControllerBound], training: Any
+    outcomes: Sequence[FlyOutcome],
+    bounds: Sequence[ControllerBound],
+    training: Any,
+    by_condition: Mapping[tuple[str, str], ControllerBound] | None = None,
 ) -> pd.DataFrame:
     """:func:`qsls.pipeline.evaluate.assumptions.check_assumptions` on every flight a certified
-    (or relaxed) robust controller flew, from its own log at its own ticks."""
-    premises = {b.name: certified_premise(b.folder) for b in bounds}
-    monitors = {
-        b.name: monitor_of(load_controller_dir(b.folder))
-        for b in bounds
-        if premises[b.name] is not None
-    }
-    status = {b.name: b.status for b in bounds}
-    calibrations = {
-        b.name: load_controller_dir(b.folder).certificate.calibration
-        for b in bounds
-        if premises[b.name] is not None
-    }
+    (or relaxed) robust controller flew, from its own log at its own ticks, against the
+    certificate of its condition (:func:`certificate_for`)."""
+    named = {b.name: b for b in bounds}
+    loaded: dict[Path, tuple[Any, Any, Any]] = {}
+
+    def premise_of(b: ControllerBound) -> tuple[Any, Any, Any]:
+        """(premise, monitor, calibration) of one certificate, each read once."""
+        if b.folder not in loaded:
+            c = certified_premise(b.folder)
+            d = load_controller_dir(b.folder) if c is not None else None
+            loaded[b.folder] = (
+                c,
+                monitor_of(d) if d is not None else None,
+                d.certificate.calibration if d is not None else None,
+            )
+        return loaded[b.folder]
+
     rows = []
     for o in outcomes:
-        c = premises.get(o.controller)
+        b = certificate_for(o.controller, o.condition, named, by_condition)
+        if b is None:
+            continue
+        c, monitor, cal = premise_of(b)
         if c is None or len(o.t_ctrl) < 2:
             continue  # a crashed flight is checked on the ticks it flew: a crash is no excuse
         log = FlownLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl)
         row = check_assumptions(log, c, training.distance)
-        row.update(monitor_columns(monitors[o.controller], log, c.numbers.gate))
+        row.update(monitor_columns(monitor, log, c.numbers.gate))
         if o.metrics.get("crashed"):
             row = crashed(row, o.extra.get("crash_time_s"), o.metrics.get("crash_reason"))
-        cal = calibrations[o.controller]
         row["outside_calibration"] = (
             ""
             if cal is None
@@ -649,7 +690,7 @@ def assumption_table(
                 cal.duration_s,
             )
         )
-        rows.append({"flight": o.name, "controller": o.controller, "status": status[o.controller],
+        rows.append({"flight": o.name, "controller": o.controller, "status": b.status,
                      "crashed": bool(o.metrics.get("crashed")),
                      "condition": o.condition, "seed": o.seed, **row})  # fmt: skip
     return pd.DataFrame(rows)
@@ -664,6 +705,7 @@ def monitored(folder: Path) -> bool:
 def assured_table(
     outcomes: Sequence[FlyOutcome], status: dict[str, str], fallback: str,
     folders: dict[str, Path], *, by_estimator: bool = False,
+    by_condition: Mapping[tuple[str, str], ControllerBound] | None = None,
 ) -> pd.DataFrame:  # fmt: skip
     """One row per runtime-assured flight: its flight-table columns (``controller`` the
     monitored controller's name), the certificate's status and the perception its calibration
@@ -671,26 +713,38 @@ def assured_table(
     (:func:`qsls.pipeline.evaluate.assured.trip_columns`) and ``envelope_peak``, the largest
     ``|y_i - r_i| / threshold_i`` over the flight's ticks and envelope channels
     (:func:`qsls.pipeline.control.monitor.envelope_peak`: how close it came to a trip).
-    ``by_estimator`` (a stage with several estimators) puts the flight's estimator first."""
+    ``by_estimator`` (a stage with several estimators) puts the flight's estimator first.
+    A flight's certificate is its condition's where ``by_condition`` holds one (the one its
+    monitor watched: :func:`_make_jobs`)."""
     if not outcomes:
         return pd.DataFrame()
     table = flight_table(outcomes)
     base = [o.controller.removesuffix(ASSURED_SUFFIX) for o in outcomes]
-    cdirs = {b: load_controller_dir(folders[b]) for b in dict.fromkeys(base)}
-    spec = {b: monitor_of(c) for b, c in cdirs.items()}
+    by_condition = by_condition or {}
+
+    def folder(b: str, cond: str) -> Path:
+        own = by_condition.get((cond, b))
+        return own.folder if own is not None else folders[b]
+
+    where = [folder(b, o.condition) for o, b in zip(outcomes, base, strict=True)]
+    cdirs = {f: load_controller_dir(f) for f in dict.fromkeys(where)}
+    spec = {f: monitor_of(c) for f, c in cdirs.items()}
     trips = pd.DataFrame([
         {**trip_columns(o.extra["flew"], o.extra["bits"], o.t_ctrl),
-         "envelope_peak": envelope_peak(spec[b], o.y_ctrl - o.ref_ctrl, cdirs[b].certificate.gate)}
-        for o, b in zip(outcomes, base, strict=True)
+         "envelope_peak": envelope_peak(spec[f], o.y_ctrl - o.ref_ctrl, cdirs[f].certificate.gate)}
+        for o, f in zip(outcomes, where, strict=True)
     ])  # fmt: skip
     table["controller"] = base
-    table.insert(2, "status", [status.get(b, "") for b in base])
+    table.insert(2, "status", [
+        own.status if (own := by_condition.get((o.condition, b))) is not None else status.get(b, "")
+        for o, b in zip(outcomes, base, strict=True)
+    ])  # fmt: skip
     # a calibrated certificate speaks for flights of its calibration's perception only
     perception = {
-        b: str(cal.conditions.get("perception", "")) if (cal := c.certificate.calibration) else ""
-        for b, c in cdirs.items()
+        f: str(cal.conditions.get("perception", "")) if (cal := c.certificate.calibration) else ""
+        for f, c in cdirs.items()
     }
-    table.insert(3, "calibrated_perception", [perception[b] for b in base])
+    table.insert(3, "calibrated_perception", [perception[f] for f in where])
     table.insert(4, "fallback", fallback)
     if by_estimator:
         table.insert(0, ESTIMATOR, [o.estimator for o in outcomes])
@@ -721,8 +775,12 @@ def fly_evaluate(
     *,
     force: bool = False,
     progress: Progress = NULL_PROGRESS,
+    by_condition: Mapping[str, Sequence[Path]] | None = None,
 ) -> FlyResult:
-    """Fly, ingest, bound-check and compare (module docstring); writes the stage ``out``."""
+    """Fly, ingest, bound-check and compare (module docstring); writes the stage ``out``.
+    ``by_condition``: per perception condition, controller folders certified for it (a
+    calibration's ``calibrate/<condition>/``): a flight in that condition flies and is checked
+    under that certificate (same taps), every other under the controller's own."""
     import time
 
     t0 = time.perf_counter()
@@ -732,7 +790,17 @@ def fly_evaluate(
     check_unweighted(model, "check certified controllers")
     folders = _select(expand_controllers(controllers), options.controllers)
     bounds = load_bounds(folders)
+    names = {b.name for b in bounds}
+    conditioned: dict[tuple[str, str], ControllerBound] = {
+        (str(cond), b.name): b
+        for cond, fs in (by_condition or {}).items()
+        if cond in options.conditions
+        for b in load_bounds([f for f in fs if f.name in names])
+    }
     warnings = [m for b in bounds if (m := check_model_hash(b, model_file, force=force))]
+    warnings += [
+        m for b in conditioned.values() if (m := check_model_hash(b, model_file, force=force))
+    ]
     training = load_training(fit_dir, model, options.state_scale)
 
     specs: list[tuple[str, str]] = [(b.name, str(b.folder.resolve())) for b in bounds]
@@ -741,9 +809,8 @@ def fly_evaluate(
         specs.append(("se3", "se3"))
     workers = pool_size(options.jobs)
 
-    with StageWriter(
-        out, "evaluate", options=options, inputs=[model_file, *folders], force=force
-    ) as w:
+    inputs = list(dict.fromkeys([model_file, *folders, *(b.folder for b in conditioned.values())]))
+    with StageWriter(out, "evaluate", options=options, inputs=inputs, force=force) as w:
         # scratch inside the stage's temporary folder: removed before it is published, and
         # reclaimed with it by the next writer if this process is killed (SIGKILL included)
         tmp_root = w.tmp / ".scratch"
@@ -752,6 +819,7 @@ def fly_evaluate(
             jobs = _make_jobs(
                 specs, options, sims=w.path("sims") if options.keep_bags else tmp_root,
                 flights=w.path("flights"), pd_gain=_pd_gain_of(folders), assured=assured,
+                spec_in={k: str(b.folder.resolve()) for k, b in conditioned.items()},
             )  # fmt: skip
             flown = run_jobs(
                 jobs, min(workers, len(jobs)), progress, options.scheduler, options.wait_workers
@@ -776,6 +844,7 @@ def fly_evaluate(
                 vio: _analyse(
                     [o for o in outcomes if o.estimator == vio],
                     [j for j in jobs if j.estimator == vio], bounds, training, options,
+                    conditioned,
                 )
                 for vio in options.estimators
             }  # fmt: skip
@@ -819,6 +888,7 @@ def fly_evaluate(
                     [o for o, j in zip(flown, jobs_flown, strict=True) if j.assured is not None],
                     {b.name: b.status for b in bounds}, options.fallback,
                     {b.name: b.folder for b in bounds}, by_estimator=several,
+                    by_condition=conditioned,
                 )  # fmt: skip
                 w.write_parquet(ASSURED_FILE, table)
                 # with several estimators each assured flight meets its own estimator's flights

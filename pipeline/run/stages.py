@@ -204,6 +204,21 @@ def controller_folders(deps: Mapping[str, Path], calibrated: str | None) -> list
     return [done.get(p.name, p) for p in expand_controllers([deps["synth"]])]
 
 
+def condition_folders(deps: Mapping[str, Path]) -> dict[str, list[Path]]:
+    """Per perception condition the calibration certified for, its calibrated certificates
+    (``calibrate/<condition>/<name>``): the fly stage checks a flight against its own
+    condition's (docs/calibration.md, "One certificate per condition")."""
+    # deferred: a stage's code loads when it runs (a cached run loads none of it)
+    from qsls.pipeline.evaluate.certified import expand_controllers
+
+    root = deps["calibrate"]
+    return {
+        d.name: expand_controllers([d])
+        for d in sorted(root.iterdir())
+        if d.is_dir() and d.name in ("regular", "degraded")
+    }
+
+
 def design_seeds(cfg: RunConfig) -> list[int]:
     """The seeds of the run's simulated flights (every role: the design saw them all)."""
     seeds = []
@@ -361,6 +376,9 @@ def _fly_exec(opts: FlyOptions, progress: Progress, calibrated: str | None = Non
         from qsls.pipeline.evaluate.fly import fly_evaluate
 
         ctrls = controller_folders(deps, calibrated)
-        return fly_evaluate(deps["fit"], ctrls, opts, out, force=True, progress=progress)
+        return fly_evaluate(
+            deps["fit"], ctrls, opts, out, force=True, progress=progress,
+            by_condition=condition_folders(deps) if calibrated is not None else None,
+        )  # fmt: skip
 
     return execute
