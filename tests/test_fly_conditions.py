@@ -14,10 +14,12 @@ import pytest
 
 from qsls.pipeline.errormodel.model import load_error_model
 from qsls.pipeline.evaluate.assumptions import check_assumptions
+from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate, load_controller_bound
 from qsls.pipeline.evaluate.calibrate import TickLog
 from qsls.pipeline.evaluate.certified import certified_premise
 from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
 from qsls.pipeline.evaluate.training import load_training
+from qsls.pipeline.evaluate.verdict import verdicts
 
 
 @pytest.fixture(scope="module")
@@ -90,3 +92,48 @@ def test_without_a_conditions_certificate_a_flight_is_marked_outside(flown, tmp_
     row = result.assumptions.iloc[0]
     assert row["outside_calibration"].startswith("perception degraded, calibrated in regular")
     assert row["status"] == "certified"
+
+
+def test_a_heldout_flight_is_checked_against_its_conditions_certificate(
+    flown, tmp_path: Path
+) -> None:
+    """The held-out check (``qsls run``'s evaluate stage) reads the same per-condition
+    certificates: the degraded flight against the degraded one, the regular flight against
+    the regular one; without a degraded certificate the degraded flight is checked against
+    the regular one and marked outside its calibration, in the table and the verdict."""
+    tmp, regular, degraded, result = flown
+    a = result.assumptions.set_index("condition")
+    folders = [tmp / "fly" / "flights" / a.loc[c, "flight"] for c in ("regular", "degraded")]
+    opts = EvaluateOptions(figures=False)
+    by = {"degraded": [degraded]}
+    got = evaluate(
+        folders, tmp / "fit", [regular], opts, tmp_path / "ev", conditions=["regular", "degraded"],
+        by_condition=by,
+    ).table.set_index("condition")  # fmt: skip
+    for cond, folder in (("regular", regular), ("degraded", degraded)):
+        premise = certified_premise(folder)
+        assert premise is not None
+        assert got.loc[cond, "eps_e"] == pytest.approx(premise.numbers.eps, rel=1e-12)
+        assert got.loc[cond, "status"] == load_controller_bound(folder).status
+        assert got.loc[cond, "outside_calibration"] == ""
+    plain = evaluate(
+        folders, tmp / "fit", [regular], opts, tmp_path / "plain",
+        conditions=["regular", "degraded"],
+    ).table.set_index("condition")  # fmt: skip
+    reg_eps = certified_premise(regular).numbers.eps  # type: ignore[union-attr]
+    assert plain.loc["degraded", "eps_e"] == pytest.approx(reg_eps, rel=1e-12)
+    assert plain.loc["degraded", "outside_calibration"].startswith(
+        "perception degraded, calibrated in regular"
+    )
+    assert plain.loc["regular", "outside_calibration"] == ""
+    (line,) = [v.line() for v in verdicts(plain.reset_index())]
+    assert "1 of 2 outside its calibration (perception degraded" in line
+    # the controller's own tick logs: every assumption of the flight's condition's certificate
+    own = evaluate(
+        folders, tmp / "fit", [regular], EvaluateOptions(figures=False, flown_by="l1_robust"),
+        tmp_path / "own", conditions=["regular", "degraded"], by_condition=by,
+    ).assumptions  # fmt: skip
+    assert own is not None and len(own) == 2
+    fly_rows = result.assumptions.set_index("flight")
+    for _, row in own.iterrows():
+        assert row["dense_limit"] == pytest.approx(fly_rows.loc[row["flight"], "dense_limit"])

@@ -36,7 +36,7 @@ Outputs (``evaluate``): ``evaluation.parquet`` (one row per flight and controlle
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -58,12 +58,15 @@ from qsls.pipeline.evaluate.assumptions import check_assumptions
 from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
 from qsls.pipeline.evaluate.certified import (
     ControllerBound,
+    certificate_for,
     certified_premise,
     check_model_hash,
     check_unweighted,
     expand_controllers,
     load_bounds,
+    load_conditioned,
     load_controller_bound,
+    outside_calibration,
 )
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
 from qsls.pipeline.evaluate.nees import Nees, flight_nees
@@ -416,6 +419,25 @@ def bound_check(
     return pd.DataFrame(rows), pd.concat(samples, ignore_index=True)
 
 
+def with_conditions(
+    table: pd.DataFrame,
+    flights: Sequence[tuple[str, pd.DataFrame]],
+    conditions: Sequence[str],
+    pairs: Sequence[tuple[int, int]],
+    bounds: Sequence[ControllerBound],
+) -> pd.DataFrame:
+    """The table with each row's flight ``condition`` and ``outside_calibration`` (why the
+    certificate it was checked against was calibrated under other conditions, ``''`` when
+    not: :func:`qsls.pipeline.evaluate.certified.outside_calibration`)."""
+    span = [float(df["t"].iloc[-1] - df["t"].iloc[0]) if len(df) else 0.0 for _, df in flights]
+    out = table.copy()
+    out.insert(3, "condition", [conditions[i] for i, _ in pairs])
+    out["outside_calibration"] = [
+        outside_calibration(bounds[j].folder, conditions[i], span[i]) for i, j in pairs
+    ]
+    return out
+
+
 def controller_totals(table: pd.DataFrame) -> list[dict[str, Any]]:
     """Per controller over all its flights: the worst case and the fractions."""
     out = []
@@ -462,8 +484,17 @@ def evaluate(
     *,
     force: bool = False,
     progress: Progress = NULL_PROGRESS,
+    conditions: Sequence[str] | None = None,
+    by_condition: Mapping[str, Sequence[Path]] | None = None,
 ) -> EvaluateResult:
-    """The bound check of every held-out flight against every controller's certificate."""
+    """The bound check of every held-out flight against every controller's certificate.
+
+    ``conditions[i]``: flight ``i``'s perception condition (``''`` where not known, as for a
+    recorded log); ``by_condition``: per condition, the certificates a calibration wrote for
+    it (``calibrate/<condition>/``). A flight is checked against its condition's certificate
+    where there is one, else the controller's own, and the table's ``outside_calibration``
+    says when that certificate was calibrated under other conditions (docs/calibration.md,
+    "One certificate per condition")."""
     model_file, fit_dir = resolve_model(error_model)
     model = load_error_model(model_file)
     check_unweighted(model, "check certified controllers")
@@ -486,13 +517,31 @@ def evaluate(
             require_stage(Path(f) if Path(f).is_dir() else Path(f).parent, "ingest")
         except InputError as exc:
             warnings.append(str(exc))
+    conds = list(conditions) if conditions is not None else [""] * len(held_out)
+    if len(conds) != len(held_out):
+        raise InputError(f"{len(conds)} conditions given for {len(held_out)} flights")
+    conditioned = load_conditioned(by_condition, [b.name for b in bounds])
+    warnings += [
+        m for b in conditioned.values() if (m := check_model_hash(b, model_file, force=force))
+    ]
+    every = [*bounds, *conditioned.values()]
+    at = {id(b): j for j, b in enumerate(every)}
+    named = {b.name: b for b in bounds}
+    pairs = [
+        (i, at[id(b)])
+        for i, cond in enumerate(conds)
+        for j in range(len(bounds))
+        if (b := certificate_for(bounds[j].name, cond, named, conditioned)) is not None
+    ]
     table, samples = bound_check(
-        held_out, bounds, training, flown_by=[options.flown_by] * len(held_out), progress=progress
-    )
+        held_out, every, training, pairs=pairs, flown_by=[options.flown_by] * len(held_out),
+        progress=progress,
+    )  # fmt: skip
+    table = with_conditions(table, held_out, conds, pairs, every)
     assumptions = None
     if options.flown_by is not None:
-        bound = next(b for b in bounds if b.name == options.flown_by)
-        assumptions, missing = own_log_assumptions(flights, bound, training)
+        own = [certificate_for(options.flown_by, c, named, conditioned) for c in conds]
+        assumptions, missing = own_log_assumptions(flights, own, training)
         warnings += missing
     nees = vio_nees(flights, held_out)
     return write_evaluation(
@@ -529,17 +578,22 @@ def vio_nees(
 
 
 def own_log_assumptions(
-    flights: Sequence[Path], bound: ControllerBound, training: TrainingData
+    flights: Sequence[Path], bounds: Sequence[ControllerBound | None], training: TrainingData
 ) -> tuple[pd.DataFrame | None, list[str]]:
-    """Every assumption of ``bound``'s guarantee (:mod:`qsls.pipeline.evaluate.assumptions`) on
-    each flight that keeps the controller's own tick log (``ticks.parquet`` beside
-    ``flight.parquet``: ``qsls fly`` and ``qsls calibrate`` write it); a flight
-    without one is named, with the log it needs."""
-    premise = certified_premise(bound.folder)
-    if premise is None:
-        return None, [f"--flown-by {bound.name}: its certificate states no premise to check"]
+    """Every assumption of ``bounds[i]``'s guarantee (:mod:`qsls.pipeline.evaluate.assumptions`)
+    on each flight ``flights[i]`` that keeps the controller's own tick log (``ticks.parquet``
+    beside ``flight.parquet``: ``qsls fly`` and ``qsls calibrate`` write it); a flight
+    without one is named, with the log it needs. ``bounds[i]`` is the certificate of the
+    controller that flew flight ``i`` (its perception condition's, where calibrated per
+    condition)."""
     rows, missing = [], []
-    for f in flights:
+    for f, bound in zip(flights, bounds, strict=True):
+        if bound is None:
+            continue
+        premise = certified_premise(bound.folder)
+        if premise is None:
+            missing.append(f"--flown-by {bound.name}: its certificate states no premise to check")
+            continue
         folder = Path(f) if Path(f).is_dir() else Path(f).parent
         if not (folder / TICKS_FILE).is_file():
             missing.append(
@@ -551,7 +605,7 @@ def own_log_assumptions(
         row = check_assumptions(TickLog.read(folder).log(), premise, training.distance)
         rows.append({"flight": folder.name, "controller": bound.name, "status": bound.status,
                      "crashed": False, **row})  # fmt: skip
-    return (pd.DataFrame(rows) if rows else None), missing
+    return (pd.DataFrame(rows) if rows else None), list(dict.fromkeys(missing))
 
 
 def write_evaluation(

@@ -13,7 +13,7 @@ static-gain reference controller (PD) gets its closed loop's true norms
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,6 +22,7 @@ import numpy as np
 
 from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
+from qsls.pipeline.control.calibration import outside_conditions
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import static_gain_responses
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
@@ -261,3 +262,46 @@ def expand_controllers(folders: Sequence[Path]) -> list[Path]:
             )
         out.extend(inner)
     return out
+
+
+# --------------------------------------------------------------------------- per condition
+def load_conditioned(
+    by_condition: Mapping[str, Sequence[Path]] | None,
+    names: Sequence[str],
+    conditions: Sequence[str] | None = None,
+) -> dict[tuple[str, str], ControllerBound]:
+    """``{(condition, name): bound}``: the certificates calibrated per perception condition
+    (a calibration's ``calibrate/<condition>/``) of the controllers ``names``, for the
+    ``conditions`` flown (every one given when ``None``)."""
+    return {
+        (str(cond), b.name): b
+        for cond, folders in (by_condition or {}).items()
+        if conditions is None or cond in conditions
+        for b in load_bounds([f for f in folders if f.name in set(names)])
+    }
+
+
+def certificate_for(
+    name: str,
+    condition: str,
+    bounds: Mapping[str, ControllerBound],
+    by_condition: Mapping[tuple[str, str], ControllerBound] | None,
+) -> ControllerBound | None:
+    """The certificate a flight of perception ``condition`` is checked against for controller
+    ``name``: the one calibrated for that condition (``calibrate/<condition>/<name>``) where
+    there is one, else the controller's own (docs/calibration.md, "One certificate per
+    condition")."""
+    own = (by_condition or {}).get((condition, name))
+    return own if own is not None else bounds.get(name)
+
+
+def outside_calibration(folder: Path, condition: str, flight_s: float) -> str:
+    """Why a flight of perception ``condition`` (``''``: not known, as for a recorded log)
+    lasting ``flight_s`` lies outside the conditions the certificate in ``folder`` was
+    calibrated under (``''`` when inside, or when the certificate has no calibration):
+    :func:`qsls.pipeline.control.calibration.outside_conditions`."""
+    cal = load_controller_dir(folder).certificate.calibration
+    if cal is None:
+        return ""
+    calibrated = str(cal.conditions.get("perception", ""))
+    return outside_conditions(condition or calibrated, flight_s, calibrated, cal.duration_s)

@@ -81,7 +81,12 @@ from qsls.pipeline.evaluate.bound import (
     write_tables,
 )
 from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
-from qsls.pipeline.evaluate.certified import certified_premise, check_unweighted
+from qsls.pipeline.evaluate.certified import (
+    certificate_for,
+    certified_premise,
+    check_unweighted,
+    load_conditioned,
+)
 from qsls.pipeline.evaluate.estimators import findings_markdown, keyed, write_by_estimator
 from qsls.pipeline.evaluate.figures import write_fly_figures
 from qsls.pipeline.evaluate.findings import PAPER_CONTROLLERS, ROBUST_QR, compare_with_paper
@@ -569,20 +574,6 @@ def _make_jobs(
     return jobs
 
 
-def certificate_for(
-    name: str,
-    condition: str,
-    bounds: Mapping[str, ControllerBound],
-    by_condition: Mapping[tuple[str, str], ControllerBound] | None,
-) -> ControllerBound | None:
-    """The certificate a flight of controller ``name`` in perception ``condition`` is checked
-    against: the one calibrated for that condition (``calibrate/<condition>/<name>``) where
-    there is one, else the controller's own (docs/calibration.md, "One certificate per
-    condition")."""
-    own = (by_condition or {}).get((condition, name))
-    return own if own is not None else bounds.get(name)
-
-
 def _check_flights(
     outcomes: Sequence[FlyOutcome],
     jobs: Sequence[FlyJob],
@@ -790,13 +781,7 @@ def fly_evaluate(
     check_unweighted(model, "check certified controllers")
     folders = _select(expand_controllers(controllers), options.controllers)
     bounds = load_bounds(folders)
-    names = {b.name for b in bounds}
-    conditioned: dict[tuple[str, str], ControllerBound] = {
-        (str(cond), b.name): b
-        for cond, fs in (by_condition or {}).items()
-        if cond in options.conditions
-        for b in load_bounds([f for f in fs if f.name in names])
-    }
+    conditioned = load_conditioned(by_condition, [b.name for b in bounds], options.conditions)
     warnings = [m for b in bounds if (m := check_model_hash(b, model_file, force=force))]
     warnings += [
         m for b in conditioned.values() if (m := check_model_hash(b, model_file, force=force))

@@ -14,7 +14,7 @@ from qsls.pipeline.core.cluster import SchedulerAddress
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.ingest.options import IngestOptions
-from qsls.pipeline.sim.options import SimOptions
+from qsls.pipeline.sim.options import Perception, SimOptions
 
 
 class EvaluateOptions(Options):
@@ -46,7 +46,7 @@ class FlyOptions(EvaluateOptions):
     """Seeds of the VIO emulator (and of the log's noise); one flight per seed."""
     duration: float = Field(30.0, gt=0)
     """Seconds per flight."""
-    conditions: list[Literal["regular", "degraded"]] = Field(
+    conditions: list[Perception] = Field(
         default_factory=lambda: ["regular", "degraded"],  # type: ignore[arg-type]
         min_length=1,
     )
@@ -137,7 +137,7 @@ class CalibrateOptions(Options):
     """First calibration seed (seeds ``seed .. seed + flights - 1``)."""
     validation_seed: int = Field(2000, ge=0)
     """First validation seed."""
-    conditions: list[Literal["regular", "degraded"]] = Field(
+    conditions: list[Perception] = Field(
         default_factory=lambda: ["regular"],  # type: ignore[arg-type]
         min_length=1,
     )

@@ -36,6 +36,8 @@ class Verdict:
     status: str = CERTIFIED
     windows_over: float = math.nan  # premise-only rows: largest share of windows over m
     broken: tuple[str, ...] = ()  # premise-only rows: the flights whose premise broke
+    outside: int = 0  # rows checked against a certificate calibrated under other conditions
+    outside_why: str = ""  # the first such row's reason
 
     @property
     def word(self) -> str:
@@ -57,6 +59,11 @@ class Verdict:
                 if math.isfinite(self.windows_over) and self.windows_over > 0 else ""
             )  # fmt: skip
             broke = f"; premise broken on {', '.join(self.broken)}" if self.broken else ""
+            if self.outside:
+                broke += (
+                    f"; {self.outside} of {self.flights} outside its calibration "
+                    f"({self.outside_why})"
+                )
             return (
                 f"{self.controller}: {self.word}{status}, dense premise holds at {share} of "
                 f"samples{windows} (not flown by it: the theorem does not apply){broke}, {n}"
@@ -112,8 +119,7 @@ def assumption_verdicts(table: pd.DataFrame) -> list[AssumptionVerdict]:
     for name, g in table.groupby("controller", sort=False):
         bad = g[~g["assumptions_hold"].astype(bool)]
         first = bad.iloc[0] if len(bad) else None
-        away = g["outside_calibration"] if "outside_calibration" in g else pd.Series([], dtype=str)
-        away = away[away.fillna("").astype(str) != ""]
+        away = _outside(g)
         out.append(
             AssumptionVerdict(
                 str(name),
@@ -128,6 +134,12 @@ def assumption_verdicts(table: pd.DataFrame) -> list[AssumptionVerdict]:
             )
         )
     return out
+
+
+def _outside(g: pd.DataFrame) -> pd.Series:
+    """The rows' non-empty ``outside_calibration`` reasons (none in an older table)."""
+    away = g["outside_calibration"] if "outside_calibration" in g else pd.Series([], dtype=str)
+    return away[away.fillna("").astype(str) != ""]
 
 
 def _worst(g: pd.DataFrame, col: str) -> tuple[float, str]:
@@ -164,8 +176,10 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
                     if "frac_windows_over_m" in g else math.nan)  # fmt: skip
             broken = (tuple(str(f) for f in g.loc[~g["premise_holds"].astype(bool), "flight"])
                       if "premise_holds" in g else ())  # fmt: skip
+            away = _outside(g)
             out.append(Verdict(str(name), len(g), certified, False, math.nan, "", False, share,
-                               status, over, broken))  # fmt: skip
+                               status, over, broken, len(away),
+                               str(away.iloc[0]) if len(away) else ""))  # fmt: skip
             continue
         worst, flight = _worst(own, "nominal_ratio")
         holds = bool(own["bound_holds"].astype(bool).all())

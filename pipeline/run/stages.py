@@ -34,7 +34,7 @@ from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
 from qsls.pipeline.run.paths import resolve_path
-from qsls.pipeline.sim.options import SimOptions
+from qsls.pipeline.sim.options import PERCEPTIONS, SimOptions
 
 if TYPE_CHECKING:  # the runner imports this module
     from qsls.pipeline.run.runner import FlightSpec, RunConfig
@@ -60,10 +60,13 @@ def build_graph(
         raise ConfigError(f"{src('flights')}: a run needs at least one flight")
     ingest_ids: dict[str, list[str]] = {"train": [], "heldout": []}
     sim_ids: dict[str, list[str | None]] = {"train": [], "heldout": []}
+    perception: dict[str, str] = {}  # a simulated flight's condition ('' for a recorded one)
     for i, fl in enumerate(cfg.flights):
         ingest_id, sim_id = _flight_stages(graph, cfg, fl, i, base, wanted, src, progress)
         ingest_ids[fl.role].append(ingest_id)
         sim_ids[fl.role].append(sim_id)
+        sim = sim_options(cfg, fl, i, src) if fl.simulate is not None else None
+        perception[ingest_id] = sim.vio.perception if sim is not None else ""
     if "fit" not in wanted:
         return graph
     if not ingest_ids["train"]:
@@ -104,8 +107,9 @@ def build_graph(
     # a held-out flight is checked with the default options when the section is left out
     if cfg.evaluate is not None or heldout:
         _evaluate_stages(
-            graph, cfg.evaluate or EvaluateSection(), heldout, src, progress, calibrated
-        )
+            graph, cfg.evaluate or EvaluateSection(), heldout, src, progress, calibrated,
+            [perception[h] for h in heldout],
+        )  # fmt: skip
     return graph
 
 
@@ -172,14 +176,17 @@ def _evaluate_stages(
     src: Src,
     progress: Progress,
     calibrated: str | None = None,
+    conditions: list[str] | None = None,
 ) -> None:
-    """The bound check on the held-out flights (when there are some) and the flights flown
-    (when the section has ``fly``); with a calibration (``calibrated``: its first condition),
-    each calibrated controller is checked against its calibrated certificate."""
+    """The bound check on the held-out flights (when there are some; ``conditions``: their
+    perception, ``''`` for a recorded flight) and the flights flown (when the section has
+    ``fly``); with a calibration (``calibrated``: its first condition), each calibrated
+    controller is checked against its certificate for the flight's condition."""
     cal = ("calibrate",) if calibrated is not None else ()
     if heldout:
         eval_opts = sec.bound()
-        execute = _evaluate_exec(eval_opts, heldout, progress, calibrated)
+        conds = conditions if conditions is not None else [""] * len(heldout)
+        execute = _evaluate_exec(eval_opts, heldout, progress, calibrated, conds)
         deps = ("fit", "synth", *cal, *heldout)
         graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps, notes=_verdicts))
     if sec.fly is not None:
@@ -215,7 +222,7 @@ def condition_folders(deps: Mapping[str, Path]) -> dict[str, list[Path]]:
     return {
         d.name: expand_controllers([d])
         for d in sorted(root.iterdir())
-        if d.is_dir() and d.name in ("regular", "degraded")
+        if d.is_dir() and d.name in PERCEPTIONS
     }
 
 
@@ -272,12 +279,17 @@ def _verdicts(out: Path) -> dict[str, Any]:
     return {"verdicts": [v.line() for v in read_verdicts(out)]}
 
 
+def sim_options(cfg: RunConfig, fl: FlightSpec, i: int, src: Src) -> SimOptions:
+    """The simulate options of the run's ``i``-th flight (simulated: ``fl.simulate`` set)."""
+    data = merge(cfg.written("simulate"), fl.simulate or {})
+    data.setdefault("seed", cfg.seed + i)
+    return validate(SimOptions, data, src(f"simulate (flight '{fl.name}')"))
+
+
 def _simulate_stage(
     graph: StageGraph, cfg: RunConfig, fl: FlightSpec, i: int, src: Src, progress: Progress
 ) -> str:
-    data = merge(cfg.written("simulate"), fl.simulate or {})
-    data.setdefault("seed", cfg.seed + i)
-    opts = validate(SimOptions, data, src(f"simulate (flight '{fl.name}')"))
+    opts = sim_options(cfg, fl, i, src)
     stage_id = f"simulate/{fl.name}"
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
@@ -357,7 +369,11 @@ def _synth_exec(opts: SynthOptions, progress: Progress) -> Execute:
 
 
 def _evaluate_exec(
-    opts: EvaluateOptions, heldout: list[str], progress: Progress, calibrated: str | None = None
+    opts: EvaluateOptions,
+    heldout: list[str],
+    progress: Progress,
+    calibrated: str | None,
+    conditions: list[str],
 ) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
@@ -365,7 +381,11 @@ def _evaluate_exec(
 
         flights = [deps[d] for d in heldout]
         ctrls = controller_folders(deps, calibrated)
-        return evaluate(flights, deps["fit"], ctrls, opts, out, force=True, progress=progress)
+        return evaluate(
+            flights, deps["fit"], ctrls, opts, out, force=True, progress=progress,
+            conditions=conditions,
+            by_condition=condition_folders(deps) if calibrated is not None else None,
+        )  # fmt: skip
 
     return execute
 

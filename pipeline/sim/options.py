@@ -11,7 +11,7 @@ scipy or pandas. The simulator's modules re-export them where they were defined:
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 from pydantic import Field, SerializerFunctionWrapHandler, field_validator, model_serializer
 
@@ -21,6 +21,10 @@ from qsls.pipeline.core.references import ReferenceOptions
 from qsls.pipeline.sim.camera.options import CameraOptions
 
 Six = tuple[float, float, float, float, float, float]
+
+Perception = Literal["regular", "degraded"]
+"""A perception condition: regular, or degraded (less light and texture)."""
+PERCEPTIONS: tuple[Perception, ...] = get_args(Perception)
 
 
 class Ridge(Options):
@@ -124,7 +128,7 @@ class VioParams(Options):
     blur: bool = True
     motion_drift: bool = True
     feature_loss: bool = True
-    perception: Literal["regular", "degraded"] = "regular"
+    perception: Perception = "regular"
     """Perception conditions: regular, or degraded (less light and texture)."""
     kind: Literal["emulator", "camera"] = "emulator"
     """Where the estimate comes from: ``emulator`` (the error model of
