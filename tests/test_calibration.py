@@ -148,6 +148,28 @@ def test_a_flight_outside_the_calibrations_conditions_says_why() -> None:
     assert "outside" not in assumption_verdicts(table.drop(columns="outside_calibration"))[0].line()
 
 
+def test_a_verdict_says_which_flights_were_checked_under_a_relaxed_premise() -> None:
+    """A relaxed certificate promises nothing: the verdict on its flights says so, for every
+    flight or (one condition certified, another relaxed) for those it concerns."""
+    import pandas as pd
+
+    from qsls.pipeline.evaluate.verdict import assumption_verdicts
+
+    table = pd.DataFrame({
+        "controller": ["c"] * 4, "flight": ["a", "b", "d", "e"],
+        "assumptions_hold": [True, False, False, True], "first_failed": ["", "dense", "w", ""],
+        "verdict": ["", "x", "y", ""], "bound_held": [True] * 4,
+        "status": ["certified", "relaxed", "relaxed", "certified"],
+    })  # fmt: skip
+    (v,) = assumption_verdicts(table)
+    assert v.relaxed == 2
+    assert "FAILS on 2 of 4 flights (2 of them under a relaxed premise: no guarantee " in v.line()
+    (v,) = assumption_verdicts(table.assign(status="relaxed"))
+    assert "of 4 flights (relaxed premise: no guarantee claimed)" in v.line()
+    (v,) = assumption_verdicts(table.assign(status="certified"))
+    assert "relaxed" not in v.line()
+
+
 def test_calibration_seeds_shared_with_design_flights_are_refused() -> None:
     opts = CalibrateOptions(flights=20, seed=1000, validation=20, validation_seed=2000,
                             design_seeds=[1, 2, 1005])  # fmt: skip

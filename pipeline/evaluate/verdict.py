@@ -89,11 +89,14 @@ class AssumptionVerdict:
     status: Status = CERTIFIED
     outside: int = 0  # flights flown outside the conditions of the certificate's calibration
     outside_why: str = ""  # the first such flight's reason
+    relaxed: int = 0  # flights checked against a relaxed certificate (one condition's, say)
 
     def line(self) -> str:
         n = f"{self.flights} flight{'s' if self.flights != 1 else ''}"
-        if self.status == RELAXED:  # checked all the same, but nothing was promised
-            n += " (relaxed premise: no guarantee claimed)"
+        if self.status == RELAXED or self.relaxed == self.flights > 0:
+            n += " (relaxed premise: no guarantee claimed)"  # checked, but nothing promised
+        elif self.relaxed:
+            n += f" ({self.relaxed} of them under a relaxed premise: no guarantee claimed there)"
         if self.n_hold == self.flights:
             held = "held" if self.bound_held_all else "did NOT hold"
             return (
@@ -131,6 +134,7 @@ def assumption_verdicts(table: pd.DataFrame) -> list[AssumptionVerdict]:
                 bool(g["bound_held"].astype(bool).all()),
                 outside=len(away),
                 outside_why=str(away.iloc[0]) if len(away) else "",
+                relaxed=int((g["status"] == RELAXED).sum()) if "status" in g else 0,
             )
         )
     return out
