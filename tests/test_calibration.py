@@ -311,3 +311,50 @@ def test_calibration_on_a_dask_cluster_writes_the_local_pools_bytes_and_survives
     assert len([f for f in files if f.name == "ticks.parquet"]) == 8
     for f in files:
         assert (tmp_path / "dask" / f).read_bytes() == (tmp_path / "local" / f).read_bytes(), f
+
+
+@pytest.mark.parametrize(
+    ("edit", "why"),
+    [
+        ({"calibration": None, "premise": None}, "no calibration: only flights the design never"),
+        ({"flights": 5, "scores": [0.5] * 5}, "5 calibration flights with 5 scores (needs 19)"),
+        ({"alpha": 0.3}, "alpha 0.3 > 0.1"),
+        ({"lambda_hat": 0.5}, "lambda_hat 0.5 below its scores' quantile"),
+        ({"holds": False}, "the condition fails under the calibrated premise"),
+        ({"tested_range": 0.2}, "tested to 0.2 < rho*"),
+    ],
+)
+def test_a_certified_status_its_calibration_does_not_back_is_refused_on_read(
+    quickstart_session, tmp_path: Path, edit: dict, why: str
+) -> None:
+    """The quickstart's certified `l1_robust` with one field of its record edited: every
+    command that reads it (export; evaluate once) refuses it in one line, exit 2."""
+    import shutil
+    import subprocess
+    import sys
+
+    from qsls.pipeline.control.artifacts import Certificate
+
+    run = quickstart_session[0] / "runs" / "quickstart"
+    folder = tmp_path / "l1_robust"
+    shutil.copytree(run / "calibrate" / "regular" / "l1_robust", folder)
+    cert = Certificate.load(folder)
+    assert cert.status == "certified" and cert.calibration is not None
+    if "tested_range" in edit or "calibration" in edit:
+        cert = cert.model_copy(update=edit)
+    else:
+        cert = cert.model_copy(update={"calibration": cert.calibration.model_copy(update=edit)})
+    cert.save(folder)
+    commands = [["export", str(folder), "--target", "c", "--out", str(tmp_path / "c")]]
+    if "alpha" in edit:  # one case through a second reader is enough: both load it alike
+        commands.append(["evaluate", "--model", str(run / "fit"), "--controller", str(folder),
+                         "--flights", str(run / "ingest" / "heldout_1"),
+                         "--out", str(tmp_path / "ev")])  # fmt: skip
+    for args in commands:
+        proc = subprocess.run([sys.executable, "-m", "qsls.cli.main", *args],
+                              capture_output=True, text=True)  # fmt: skip
+        out = proc.stdout + proc.stderr
+        assert proc.returncode == 2, out[-2000:]
+        assert len(out.strip().splitlines()) == 1 and why in out, out
+        assert "says 'certified' against its own record" in out
+    assert not (tmp_path / "c").exists() and not (tmp_path / "ev").exists()

@@ -66,6 +66,14 @@ def write_fit(folder, x_train, e_train, *, eps_e=0.05, s_max=3.0, radius=0.5):
     return folder / "error_model.yaml"
 
 
+CALIBRATION = {  # 20 flights, alpha 0.1: the conformal rank 19 of these scores is 1.0
+    "flights": 20, "alpha": 0.1, "confidence": None, "method": "conformal",
+    "conditions": {"perception": "regular"}, "duration_s": 20.0, "seeds": list(range(20)),
+    "scores": [0.5] * 18 + [1.0, 1.0], "lambda_hat": 1.0, "rank": 19, "tested_range": 0.1,
+    "nominal": {}, "parts": {}, "tolerances": {}, "holds": True,
+}  # fmt: skip
+
+
 def write_controller(folder, model_file, **over):
     """A controller folder whose responses have the given norms: ``Phi_xy(1) = ||Phi_xy|| I``,
     ``Phi_xx(1) = ||Phi_xx|| I`` (a filter bank the bound check never runs)."""
@@ -97,6 +105,10 @@ def write_controller(folder, model_file, **over):
         "error_model_sha256": sha256_file(model_file),
     }
     cert.update(over)
+    if cert["status"] == "certified":  # certified only by a calibration record that backs it
+        cert.setdefault("rho_star", 0.25)
+        cert.setdefault("tested_range", cert["radius"])
+        cert.setdefault("calibration", CALIBRATION)
     eye = np.eye(6)
     taps = Taps(
         Phi_xx=np.stack([0 * eye, cert["norm_phi_xx_h"] * eye, 0 * eye]),
@@ -444,7 +456,9 @@ def test_damaged_altered_pd_or_overclaiming_controllers_are_refused(setup):
         eps_w=PremiseEntry(value=0.01, chosen="number"),
         training_data="training_states.parquet",
     )
-    over = _with_matching_hash(tmp / "over", good, raw, status="certified", premise=relaxed)
+    over = _with_matching_hash(
+        tmp / "over", good, raw, status="certified", premise=relaxed, calibration=None
+    )
     cases = (
         (cut, "is not the controller its certificate.yaml certifies"),
         (cut_hashed, "not a readable controller file"),

@@ -23,6 +23,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, model_serializer
 
+from qsls.pipeline.control.calibration import record_problems
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import (
     ClosedLoopNorm,
@@ -436,13 +437,28 @@ def load_controller_dir(folder: Path) -> ControllerDir:
     why = f"failed checks {', '.join(failed)}" if failed else ""
     if not why and cert.premise is not None and not cert.premise.holds and cert.calibration is None:
         why = cert.premise.shares()  # a calibrated certificate rests on its calibration instead
+    if cert.status == CERTIFIED and not why:
+        why = "; ".join(calibration_problems(cert))
     if cert.status == CERTIFIED and why:
         raise InputError(
             f"{folder}: {CERTIFICATE_FILE} says 'certified' against its own record ({why}); "
-            "the file was altered: regenerate it with 'qsls synth'"
+            "the file was altered: regenerate it with 'qsls synth' and 'qsls calibrate'"
         )
     ctrl = Controller.load(folder)
     return ControllerDir(folder, ctrl, cert)
+
+
+def calibration_problems(cert: Certificate) -> list[str]:
+    """Why ``cert``'s calibration record cannot back a ``certified`` status (none recorded,
+    or :func:`qsls.pipeline.control.calibration.record_problems`); empty when it can."""
+    c = cert.calibration
+    if c is None:
+        return ["no calibration: only flights the design never saw certify (qsls calibrate)"]
+    return record_problems(
+        flights=c.flights, alpha=c.alpha, method=c.method, confidence=c.confidence,
+        scores=c.scores, range_scores=c.range_scores, lambda_hat=c.lambda_hat, holds=c.holds,
+        rho_star=cert.rho_star, tested_range=cert.tested_range,
+    )  # fmt: skip
 
 
 def _file(path: Path, name: str) -> Path:

@@ -131,6 +131,44 @@ def outside_conditions(
     return "; ".join(why)
 
 
+def record_problems(
+    *,
+    flights: int,
+    alpha: float,
+    method: str,
+    confidence: float | None,
+    scores: Sequence[float],
+    range_scores: Sequence[float],
+    lambda_hat: float,
+    holds: bool,
+    rho_star: float | None,
+    tested_range: float | None,
+) -> list[str]:
+    """What keeps a recorded calibration from backing a ``certified`` status (empty when
+    nothing does): at least :data:`MIN_FLIGHTS` flights, ``alpha <= MAX_ALPHA``, ``lambda_hat``
+    at least the calibrated quantile of the recorded scores (and of the range flights'), the
+    condition holding under it, and the premise tested out to ``rho*``. Read whenever a
+    certificate is loaded, so a hand-edited record cannot claim what its flights do not."""
+    why = []
+    if flights < MIN_FLIGHTS or len(scores) != flights:
+        why.append(f"{flights} calibration flights with {len(scores)} scores (needs {MIN_FLIGHTS})")
+    if alpha > MAX_ALPHA:
+        why.append(f"alpha {alpha:g} > {MAX_ALPHA:g}")
+    m: Method = "pac" if method == "pac" else "conformal"
+    delta = 1.0 - confidence if confidence is not None else 0.05
+    lam = max(
+        calibrated_quantile(scores, alpha, m, delta),
+        calibrated_quantile(range_scores, alpha, m, delta) if len(range_scores) else 0.0,
+    )
+    if not lambda_hat >= lam * (1 - 1e-12):
+        why.append(f"lambda_hat {lambda_hat:.6g} below its scores' quantile {lam:.6g}")
+    if not holds:
+        why.append("the condition fails under the calibrated premise")
+    if rho_star is None or tested_range is None or tested_range < rho_star * (1 - 1e-9):
+        why.append(f"tested to {tested_range} < rho* {rho_star}")
+    return why
+
+
 def flight_score(parts: dict[str, float]) -> float:
     """``lambda_f``: the largest of a flight's per-quantity ratios (module docstring)."""
     return max((float(parts[k]) for k in SCORED if k in parts), default=0.0)
