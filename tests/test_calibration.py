@@ -322,6 +322,7 @@ def test_calibration_on_a_dask_cluster_writes_the_local_pools_bytes_and_survives
         ({"lambda_hat": 0.5}, "lambda_hat 0.5 below its scores' quantile"),
         ({"holds": False}, "the condition fails under the calibrated premise"),
         ({"tested_range": 0.2}, "tested to 0.2 < rho*"),
+        ({"design_seeds": [21000]}, "calibration seeds [21000] are design flights' seeds"),
     ],
 )
 def test_a_certified_status_its_calibration_does_not_back_is_refused_on_read(
@@ -358,3 +359,30 @@ def test_a_certified_status_its_calibration_does_not_back_is_refused_on_read(
         assert len(out.strip().splitlines()) == 1 and why in out, out
         assert "says 'certified' against its own record" in out
     assert not (tmp_path / "c").exists() and not (tmp_path / "ev").exists()
+
+
+def test_standalone_calibrate_reads_the_design_seeds_from_the_fit(
+    quickstart_session, tmp_path: Path
+) -> None:
+    """Without --design-seeds, `qsls calibrate` finds the seeds of the flights the error model
+    was fitted on (the fit's inputs back to their simulate manifests: the quickstart's 1, 2,
+    4, 5) and refuses calibration seeds among them; the certificate records them."""
+    import subprocess
+    import sys
+
+    from qsls.pipeline.control.artifacts import Certificate
+    from qsls.pipeline.evaluate.calibrate import fitted_seeds
+
+    run = quickstart_session[0] / "runs" / "quickstart"
+    assert fitted_seeds(run / "fit") == [1, 2, 4, 5]
+    proc = subprocess.run(
+        [sys.executable, "-m", "qsls.cli.main", "calibrate", "-m", str(run / "fit"),
+         "--controllers", str(run / "synth"), "--only", "l1_robust", "--seed", "1",
+         "--flights", "2", "--validation", "0", "-o", str(tmp_path / "cal")],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "calibration seeds [1, 2] are design flights' seeds" in proc.stdout + proc.stderr
+    assert not (tmp_path / "cal").exists()
+    cal_record = Certificate.load(run / "calibrate" / "regular" / "l1_robust").calibration
+    assert cal_record is not None and cal_record.design_seeds == [1, 2, 4, 5]

@@ -258,6 +258,9 @@ class Calibration(BaseModel):
     seeds: list[int]
     scores: list[float]
     """Each flight's ``lambda_f``: the smallest premise inflation it satisfies."""
+    design_seeds: list[int] = []
+    """Seeds of the design flights (the fit's simulated flights, and any given): no
+    calibration seed is among them."""
     lambda_hat: float
     """The calibrated inflation: the score of rank ``rank`` (ascending)."""
     rank: int
@@ -457,6 +460,7 @@ def calibration_problems(cert: Certificate) -> list[str]:
     return record_problems(
         flights=c.flights, alpha=c.alpha, method=c.method, confidence=c.confidence,
         scores=c.scores, range_scores=c.range_scores, lambda_hat=c.lambda_hat, holds=c.holds,
+        shared_seeds=sorted(set(c.seeds) & set(c.design_seeds)),
         rho_star=cert.rho_star, tested_range=cert.tested_range,
     )  # fmt: skip
 

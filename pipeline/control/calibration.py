@@ -143,11 +143,13 @@ def record_problems(
     holds: bool,
     rho_star: float | None,
     tested_range: float | None,
+    shared_seeds: Sequence[int] = (),
 ) -> list[str]:
     """What keeps a recorded calibration from backing a ``certified`` status (empty when
     nothing does): at least :data:`MIN_FLIGHTS` flights, ``alpha <= MAX_ALPHA``, ``lambda_hat``
     at least the calibrated quantile of the recorded scores (and of the range flights'), the
-    condition holding under it, and the premise tested out to ``rho*``. Read whenever a
+    condition holding under it, the premise tested out to ``rho*``, and no calibration seed
+    among the design flights' (``shared_seeds``). Read whenever a
     certificate is loaded, so a hand-edited record cannot claim what its flights do not."""
     why = []
     if flights < MIN_FLIGHTS or len(scores) != flights:
@@ -166,6 +168,8 @@ def record_problems(
         why.append("the condition fails under the calibrated premise")
     if rho_star is None or tested_range is None or tested_range < rho_star * (1 - 1e-9):
         why.append(f"tested to {tested_range} < rho* {rho_star}")
+    if len(shared_seeds):
+        why.append(f"calibration seeds {list(shared_seeds)[:5]} are design flights' seeds")
     return why
 
 

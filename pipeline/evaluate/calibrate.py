@@ -55,7 +55,12 @@ from qsls.pipeline.control.guarantee import (
     system_norms,
 )
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED
-from qsls.pipeline.core.artifacts import StageWriter, atomic_write_bytes, check_output
+from qsls.pipeline.core.artifacts import (
+    StageWriter,
+    atomic_write_bytes,
+    check_output,
+    read_manifest,
+)
 from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.pools import pool_size, run_tasks
@@ -315,6 +320,32 @@ def decide(
     return CERTIFIED, "", lam, rank, chk, tested, tol
 
 
+def fitted_seeds(fit_dir: Path) -> list[int]:
+    """The seeds of the simulated flights behind the error model in ``fit_dir``: its inputs
+    (ingest folders, and simulate folders whose logged inputs measured ``eps_w``), each
+    ingest folder's source (a simulate folder's bag), that simulate manifest's seed. A
+    recorded log, or a folder moved since, gives none: give those with ``--design-seeds``."""
+    seeds: set[int] = set()
+
+    def manifest(folder: Path) -> dict[str, Any]:
+        try:
+            return read_manifest(folder)
+        except InputError:
+            return {}
+
+    def inputs(m: dict[str, Any]) -> list[Path]:
+        return [Path(str(i.get("path", ""))) for i in m.get("inputs", []) if isinstance(i, dict)]
+
+    for p in inputs(manifest(fit_dir)):
+        m = manifest(p if p.is_dir() else p.parent)
+        sims = [m] if m.get("stage") == "simulate" else [manifest(q.parent) for q in inputs(m)]
+        for sm in sims:
+            seed = (sm.get("options") or {}).get("seed") if sm.get("stage") == "simulate" else None
+            if isinstance(seed, int):
+                seeds.add(seed)
+    return sorted(seeds)
+
+
 def calibrated_certificate(
     folder: Path,
     out: Path,
@@ -334,7 +365,8 @@ def calibrated_certificate(
         flights=len(o.scores), alpha=options.alpha,
         confidence=1.0 - options.delta if options.method == "pac" else None,
         method=options.method, conditions=conditions, duration_s=options.duration,
-        seeds=list(seeds), scores=[float(s) for s in o.scores], lambda_hat=o.lambda_hat,
+        seeds=list(seeds), design_seeds=list(options.design_seeds),
+        scores=[float(s) for s in o.scores], lambda_hat=o.lambda_hat,
         rank=o.rank, tested_range=o.tested_range,
         nominal={"eps_e": cert.eps_e, "S": cert.S, "eps_w": cert.eps_w, "delta": cert.delta,
                  "m": float(cert.m), "rho_star": cert.rho_star},
@@ -407,8 +439,10 @@ def calibrate(
     """Fly, score, calibrate and validate every candidate (module docstring)."""
 
     check_output(Path(out), force)
-    calib_seeds, valid_seeds = options.seed_lists()
     model_file, fit_dir = resolve_model(error_model)
+    design = sorted(set(options.design_seeds) | set(fitted_seeds(fit_dir)))
+    options = options.model_copy(update={"design_seeds": design})
+    calib_seeds, valid_seeds = options.seed_lists()
     model = load_error_model(model_file)
     training = load_training(fit_dir, model, None)
     folders = candidates(Path(synth_dir), options.controllers)
