@@ -418,6 +418,13 @@ def test_euroc_config_on_the_real_flights(real_data, tmp_path):
     )
     assert cert["premise"]["S"]["chosen"] == "number" and cert["premise"]["S"]["violated"] is None
     assert 0.25 < cert["eps_e"] < 0.35 and cert["tested_range"] == 0.0
+    # the report says it too: which quantity cannot be measured, and what data would do it
+    page = (run_dir / "report" / "report.md").read_text()
+    row = next(
+        ln for ln in page.splitlines() if ln.startswith("| l1_robust |") and "calibrat" in ln
+    )
+    assert "eps_w cannot be measured" in row and "certifiable with the commands flown" in row
+    assert "S cannot be tested" in row and "certifiable with a second flight there" in row
     page = (run_dir / "report" / "index.html").read_text()
     assert "rho*" in page and "tested" in page
     assert (tmp_path / "runs" / "euroc" / "report" / "index.html").is_file()

@@ -217,6 +217,19 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
         notes=notes,
         text_cols=[1],
     )
+    reasons = [
+        [c.name, status_badge(c, em)[0], str(c.cert["status_reason"])]
+        for c in f.controllers
+        if c.cert.get("status_reason")
+    ]
+    if reasons:
+        sec.table(
+            ["controller", "status", "why (the certificate's status_reason)"],
+            reasons,
+            "What keeps each certificate from certified: which premise quantity could not be "
+            "measured or tested, and what data would make it certifiable",
+            text_cols=[1, 2],
+        )
     sec.table(
         [
             "controller",
