@@ -150,3 +150,20 @@ def test_finding3_is_contradicted_by_any_flight_with_its_interval():
     assert bad["verdict"] == "contradicted" and bad["effect"] == pytest.approx(0.1)
     assert "f3 (disturbance)" in bad["detail"] and 0.0025 < bad["ci"][0] < 0.003
     assert math.isclose(bad["ci"][1], 0.445, abs_tol=1e-3)
+
+
+def test_finding3_counts_its_failures_per_status_and_outside_the_calibration():
+    """A relaxed certificate promises nothing: finding 3's detail says how many failures are
+    a relaxed controller's and how many flights lie outside their certificate's calibration."""
+    rows = pd.DataFrame({
+        "flight": [f"f{i}" for i in range(6)], "bound_held": [True] * 6,
+        "assumptions_hold": [True, True, False, False, False, True],
+        "first_failed": ["", "", "dense", "disturbance", "outliers", ""],
+        "status": ["certified"] * 3 + ["relaxed"] * 3,
+        "outside_calibration": ["", "", "perception degraded, calibrated in regular", "", "", ""],
+    })  # fmt: skip
+    got = finding3_assumptions(rows)
+    assert got["verdict"] == "contradicted" and got["n_violating"] == 3
+    assert "3 of 6 flights of the robust controllers break" in got["detail"]
+    assert "by status: certified 1 of 3, relaxed 2 of 3" in got["detail"]
+    assert "1 of the 3 outside their certificate's calibration" in got["detail"]
