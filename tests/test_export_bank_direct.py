@@ -234,3 +234,24 @@ def test_a_gated_certificate_exports_with_its_gate(tmp_path):
     cdir = dataclasses.replace(d, certificate=gated)
     B.check_exportable(cdir, allow_uncertified=False)
     assert B.facts(cdir).gate == 1.5
+
+
+def test_the_header_states_the_reference_and_vehicle_the_calibration_flew() -> None:
+    """A certificate says nothing about another reference family or vehicle: the export's
+    statement names them in full, not only the flat conditions."""
+    from qsls.pipeline.control.artifacts import Calibration
+    from qsls.pipeline.export.statement import _calibration_lines
+
+    cal = Calibration(
+        flights=20, alpha=0.1, confidence=None, method="conformal", duration_s=15.0,
+        conditions={"estimator": "emulator", "perception": "regular", "ivp": None,
+                    "reference": {"kind": "circle", "radius": 1.0, "center": [0.0, 0.5]},
+                    "vehicle": {"mass": 0.256, "aero": True}},
+        seeds=list(range(20)), scores=[1.0] * 20, lambda_hat=1.0, rank=19, tested_range=0.2,
+        nominal={}, parts={}, tolerances={}, holds=True,
+    )  # fmt: skip
+    (line,) = _calibration_lines(cal)
+    assert line.endswith(
+        "conditions: estimator emulator, perception regular, reference (kind circle, radius 1, "
+        "center [0, 0.5]), vehicle (mass 0.256, aero True)"
+    )

@@ -67,6 +67,16 @@ def first_line(cert: Certificate, reason: str) -> str:
     )
 
 
+def _condition(v: Any) -> str:
+    """One calibration condition as text: the reference and the vehicle in full (a
+    certificate says nothing about another reference family or vehicle)."""
+    if isinstance(v, dict):
+        return "(" + ", ".join(f"{k} {_condition(x)}" for k, x in v.items() if x is not None) + ")"
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_condition(x) for x in v) + "]"
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
 def _calibration_lines(cal: Calibration | None) -> list[str]:
     if cal is None:
         return [
@@ -75,9 +85,7 @@ def _calibration_lines(cal: Calibration | None) -> list[str]:
         ]
     conf = (f"confidence {cal.confidence:g}" if cal.confidence is not None
             else "marginal over the calibration draw")  # fmt: skip
-    cond = ", ".join(
-        f"{k} {v}" for k, v in cal.conditions.items() if not isinstance(v, dict | list)
-    )
+    cond = ", ".join(f"{k} {_condition(v)}" for k, v in cal.conditions.items() if v is not None)
     return [
         f"calibration: {cal.flights} flights flown by this controller ({cal.method}); alpha "
         f"{cal.alpha:g}, the probability that a new flight of these conditions breaks the "
