@@ -115,6 +115,13 @@ def test_inflated_condition_and_tolerances_against_direct_arithmetic() -> None:
     assert tol == pytest.approx(1 + (1 - lhs) / (0.05 * Nw), rel=1e-5)
     grown = cal.check(PremiseNumbers(**{**p.__dict__, "eps_w": 0.05 * tol * 1.001}), taps)
     assert not grown.holds
+    # a quantity stated as 0 has an infinite factor; its largest value is the slack over its
+    # coefficient: S enters lhs as S N, so S_max = (1 - lhs(S = 0)) / N
+    p0 = PremiseNumbers(**{**p.__dict__, "S": 0.0})
+    lhs0 = 0.1 * N + (0.05 * Nw + 0.1 + 0.5 * gm) / 1.0
+    assert cal.tolerance(p0, taps, "S") == math.inf
+    assert cal.largest_value(p0, taps, "S") == pytest.approx((1 - lhs0) / N, rel=1e-5)
+    assert cal.largest_value(p, taps, "eps_w") == pytest.approx(0.05 * tol)
 
 
 def test_a_flight_outside_the_calibrations_conditions_says_why() -> None:
@@ -386,3 +393,29 @@ def test_standalone_calibrate_reads_the_design_seeds_from_the_fit(
     assert not (tmp_path / "cal").exists()
     cal_record = Certificate.load(run / "calibrate" / "regular" / "l1_robust").calibration
     assert cal_record is not None and cal_record.design_seeds == [1, 2, 4, 5]
+
+
+def test_a_calibrated_certificate_reads_its_checks_under_the_calibrated_premise(
+    quickstart_session,
+) -> None:
+    """The calibrated certificate's robustness and gate checks are the calibrated condition's
+    (as its status is), the design's kept beside; the paper's comparison gamma_strict reads
+    the calibrated error bound as its R0."""
+    import yaml
+
+    run = quickstart_session[0] / "runs" / "quickstart"
+    cert = yaml.safe_load((run / "calibrate/regular/l1_robust/certificate.yaml").read_text())
+    design = yaml.safe_load((run / "synth/l1_robust/certificate.yaml").read_text())
+    rob, gate = cert["checks"]["robustness"], cert["checks"]["gate"]
+    assert (
+        rob["value"]
+        == cert["robustness_lhs"]
+        == pytest.approx(cert["calibration"]["lambda_hat"] * design["robustness_lhs"], rel=0.05)
+    )  # S 0 and G_m's m unchanged: the condition scales with the inflation
+    assert rob["design_value"] == design["robustness_lhs"] and rob["passed"]
+    assert gate["value"] == cert["rho_v"] < gate["limit"] and gate["passed"]
+    assert gate["design_value"] == design["rho_v"]
+    assert cert["R0"] == cert["eps_e"] != design["R0"]
+    assert cert["gamma_strict"] == pytest.approx(
+        cert["R0"] / (1 - cert["s_times_norm_phi_xy"]), rel=1e-12
+    )

@@ -257,12 +257,35 @@ def tolerance(p: PremiseNumbers, taps: Responses, quantity: Quantity) -> float:
         return math.inf
 
     def holds(f: float) -> bool:
-        g = {"eps": p.eps, "S": p.S, "eps_w": p.eps_w, "delta": p.delta} | {quantity: value * f}
-        return check(
-            replace(p, eps=g["eps"], S=g["S"], eps_w=g["eps_w"], delta=g["delta"]), taps
-        ).holds
+        return check(_with(p, quantity, value * f), taps).holds
 
     return _largest(holds, 1.0)
+
+
+def _with(p: PremiseNumbers, quantity: Quantity, value: float) -> PremiseNumbers:
+    """``p`` with ``quantity`` (``eps``, ``S``, ``eps_w`` or ``delta``) set to ``value``."""
+    g = {"eps": p.eps, "S": p.S, "eps_w": p.eps_w, "delta": p.delta} | {quantity: value}
+    return replace(p, eps=g["eps"], S=g["S"], eps_w=g["eps_w"], delta=g["delta"])
+
+
+def largest_value(p: PremiseNumbers, taps: Responses, quantity: Quantity) -> float:
+    """The largest value ``quantity`` alone could take before the condition fails: what
+    :func:`tolerance` cannot say of a quantity stated as 0 (its factor is inf, yet a small
+    ``S`` may break the condition). 0 when the condition fails already."""
+    if quantity == "m":
+        f = tolerance(p, taps, "m")
+        return float(p.m) * f if p.m > 0 else max(f - 1.0, 0.0)
+    if not check(p, taps).holds:
+        return 0.0
+    value = float(getattr(p, quantity))
+    if value > 0.0:
+        return value * tolerance(p, taps, quantity)
+
+    def holds(v: float) -> bool:
+        return check(_with(p, quantity, v), taps).holds
+
+    lo = 1e-9
+    return _largest(holds, lo) if holds(lo) else 0.0
 
 
 def _largest(holds: Callable[[float], bool], lo: float) -> float:

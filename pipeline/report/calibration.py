@@ -31,6 +31,13 @@ def read_calibration(f: Facts) -> list[tuple[dict[str, Any], Certificate | None]
     return out
 
 
+def _tolerance(tolerances: dict[str, float], q: str) -> str:
+    """A tolerance cell: the factor, or for a quantity stated as 0 the largest value."""
+    if f"{q}_max" in tolerances:
+        return f"stated 0; at most {g4(tolerances[f'{q}_max'])}"
+    return g4(tolerances.get(q))
+
+
 def section_calibration(f: Facts, counter: list[int]) -> Section | None:
     rows = read_calibration(f)
     if not rows:
@@ -60,7 +67,7 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
             f"{g4(r['rho_star'])} / {g4(r['tested_range'])}",
         ])  # fmt: skip
         tol.append([r["controller"], r["condition"],
-                    *(g4(cal.tolerances.get(q)) if cal and cal.tolerances else "-" for q in QUANTITIES)])  # fmt: skip
+                    *(_tolerance(cal.tolerances, q) if cal and cal.tolerances else "-" for q in QUANTITIES)])  # fmt: skip
         lo, hi = r["validation_ci"]
         failed = ", ".join(f"{k} {v}" for k, v in sorted(r["validation_first_failed"].items()))
         valid.append([
@@ -83,7 +90,9 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
             ["controller", "condition", *(f"{q} x" for q in QUANTITIES)],
             tol,
             "Tolerances: the factor by which each calibrated premise quantity alone could grow "
-            "before the robustness condition fails (m: in whole outliers)",
+            "before the robustness condition fails (m: in whole outliers; a quantity stated as 0 "
+            "has no factor: the largest value it alone could take instead)",
+            text_cols=list(range(2, 2 + len(QUANTITIES))),
         )
     sec.table(
         ["controller", "condition", "flights", "broke one", "share (95% CP)", "alpha",
