@@ -151,7 +151,9 @@ def test_a_flight_outside_the_calibrations_conditions_says_why() -> None:
     })  # fmt: skip
     (v,) = assumption_verdicts(table)
     assert (v.outside, v.outside_why) == (1, both)
-    assert v.line().endswith(f"; 1 of the 3 flown outside its calibration ({both})")
+    assert v.line().endswith(
+        f"; also failing: d; 1 of the 3 flown outside its calibration ({both})"
+    )
     assert "outside" not in assumption_verdicts(table.drop(columns="outside_calibration"))[0].line()
 
 

@@ -327,7 +327,8 @@ def test_summary_reads_the_premise_the_theorem_check_and_findings_when_present(t
     page = render_html("t", "", [summary_section(f)])
     assert (
         "<b>Held-out recorded flights:</b> premise ||e_k|| &lt;= eps_e + S d_k holds at 87.4% of "
-        "samples (1 flight; not flown by it: the theorem does not apply)"
+        "samples (1 flight; not flown by it: the theorem does not apply; its disturbance, "
+        "dist(x_hat) and invariance are not read)"
     ) in page
 
     # the same without the newer keys: inferred premise, per-sample verdict, no crash

@@ -39,7 +39,8 @@ def test_evaluate_ends_with_the_verdict_per_controller(setup):  # noqa: F811 (th
     assert tail[0] == "Certified bound on the held-out flights:"
     assert tail[1] == (
         "  l1_robust: premise only, dense premise holds at 99.5% of samples "
-        "(not flown by it: the theorem does not apply); premise broken on held_out, 1 flight"
+        "(not flown by it: the theorem does not apply; its disturbance, dist(x_hat) and "
+        "invariance are not read); premise broken on held_out, 1 flight"
     )
     # flown by it: the planted spike 0.2 against gamma_nominal (x_hat = x - 2.5 e_{k-1})
     res = _evaluate(model, ctrl, spiky, tmp / "ev", "--flown-by", "l1_robust")

@@ -19,6 +19,9 @@ import pandas as pd
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED, Status
 from qsls.pipeline.evaluate.table import Evaluation
 
+UNREAD = "its disturbance, dist(x_hat) and invariance are not read"
+"""What a premise-only check (a flight the controller did not fly) leaves out: those
+assumptions are about the controller's own closed loop (docs/evaluation.md)."""
 CLAIMS = (CERTIFIED, EXTRAPOLATED, RELAXED)
 """Statuses whose premise is checked on flights (only ``certified`` claims the guarantee)."""
 
@@ -66,7 +69,7 @@ class Verdict:
                 )
             return (
                 f"{self.controller}: {self.word}{status}, dense premise holds at {share} of "
-                f"samples{windows} (not flown by it: the theorem does not apply){broke}, {n}"
+                f"samples{windows} (not flown by it: the theorem does not apply; {UNREAD}){broke}, {n}"
             )
         ratio = f"{self.worst_ratio:.3g}" if math.isfinite(self.worst_ratio) else "n/a"
         where = f" ({self.worst_flight})" if self.worst_flight else ""
@@ -90,6 +93,7 @@ class AssumptionVerdict:
     outside: int = 0  # flights flown outside the conditions of the certificate's calibration
     outside_why: str = ""  # the first such flight's reason
     relaxed: int = 0  # flights checked against a relaxed certificate (one condition's, say)
+    failing: tuple[str, ...] = ()  # every failing flight, the first (worst_flight) included
 
     def line(self) -> str:
         n = f"{self.flights} flight{'s' if self.flights != 1 else ''}"
@@ -108,9 +112,16 @@ class AssumptionVerdict:
             if self.outside
             else ""
         )
+        rest = [f for f in self.failing if f != self.worst_flight]
+        also = (
+            f"; also failing: {', '.join(rest[:5])}"
+            + (f" and {len(rest) - 5} more (assumptions.parquet)" if len(rest) > 5 else "")
+            if rest
+            else ""
+        )
         return (
             f"{self.controller}: FAILS on {self.flights - self.n_hold} of {n}: "
-            f"{self.worst_flight}: {self.detail}{outside}"
+            f"{self.worst_flight}: {self.detail}{also}{outside}"
         )
 
 
@@ -135,6 +146,7 @@ def assumption_verdicts(table: pd.DataFrame) -> list[AssumptionVerdict]:
                 outside=len(away),
                 outside_why=str(away.iloc[0]) if len(away) else "",
                 relaxed=int((g["status"] == RELAXED).sum()) if "status" in g else 0,
+                failing=tuple(str(f) for f in bad["flight"]),
             )
         )
     return out

@@ -268,7 +268,7 @@ def recorded_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict | None:
     theorem does not apply to a flight the controller did not fly, so this tests the error
     model there, apart from the verdict on the flights it flew."""
     # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
-    from qsls.pipeline.evaluate.verdict import verdicts
+    from qsls.pipeline.evaluate.verdict import UNREAD, verdicts
 
     for ev in f.evaluations:
         t = ev.table
@@ -293,7 +293,7 @@ def recorded_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict | None:
         share = f"{100 * v.premise_share:.1f}%" if math.isfinite(v.premise_share) else "n/a"
         return HeldoutVerdict(
             f"premise ||e_k|| <= eps_e + S d_k holds at {share} of samples ({n}; not flown "
-            "by it: the theorem does not apply)",
+            f"by it: the theorem does not apply; {UNREAD})",
             "muted",
             v.flights,
         )
