@@ -43,6 +43,11 @@ def test_pac_rank_is_the_hand_computed_order_statistic() -> None:
     j = max(j for j in range(1, 101) if binom.cdf(j - 1, 100, 0.1) <= 0.05)
     assert j == 5  # P[Bin <= 4] = 0.024, P[Bin <= 5] = 0.058
     assert cal.pac_rank(100, 0.1, 0.05) == 100 - j + 1
+    # the quantile itself: the 5th largest of 100 shuffled scores 0.01 .. 1.00 is 0.96
+    scores = np.random.default_rng(1).permutation(np.arange(1, 101) / 100)
+    assert cal.calibrated_quantile(scores, 0.1, "pac", 0.05) == pytest.approx(0.96)
+    assert cal.calibrated_quantile(scores[:29], 0.1, "pac", 0.05) == scores[:29].max()
+    assert cal.calibrated_quantile(scores[:28], 0.1, "pac", 0.05) == math.inf
 
 
 @pytest.mark.parametrize("method,alpha", [("conformal", 0.1), ("pac", 0.1)])

@@ -137,3 +137,14 @@ def test_a_heldout_flight_is_checked_against_its_conditions_certificate(
     fly_rows = result.assumptions.set_index("flight")
     for _, row in own.iterrows():
         assert row["dense_limit"] == pytest.approx(fly_rows.loc[row["flight"], "dense_limit"])
+        assert row["outside_calibration"] == ""
+    # without the degraded certificate, the degraded tick log is read against the regular one
+    # and marked, in the table and in the verdict
+    alone = evaluate(
+        folders, tmp / "fit", [regular], EvaluateOptions(figures=False, flown_by="l1_robust"),
+        tmp_path / "alone", conditions=["regular", "degraded"],
+    ).assumptions  # fmt: skip
+    assert alone is not None
+    marked = alone.set_index("flight")["outside_calibration"]
+    assert marked[folders[0].name] == ""
+    assert marked[folders[1].name].startswith("perception degraded, calibrated in regular")

@@ -541,7 +541,7 @@ def evaluate(
     assumptions = None
     if options.flown_by is not None:
         own = [certificate_for(options.flown_by, c, named, conditioned) for c in conds]
-        assumptions, missing = own_log_assumptions(flights, own, training)
+        assumptions, missing = own_log_assumptions(flights, own, training, conds)
         warnings += missing
     nees = vio_nees(flights, held_out)
     return write_evaluation(
@@ -578,16 +578,21 @@ def vio_nees(
 
 
 def own_log_assumptions(
-    flights: Sequence[Path], bounds: Sequence[ControllerBound | None], training: TrainingData
+    flights: Sequence[Path],
+    bounds: Sequence[ControllerBound | None],
+    training: TrainingData,
+    conditions: Sequence[str] | None = None,
 ) -> tuple[pd.DataFrame | None, list[str]]:
     """Every assumption of ``bounds[i]``'s guarantee (:mod:`qsls.pipeline.evaluate.assumptions`)
     on each flight ``flights[i]`` that keeps the controller's own tick log (``ticks.parquet``
     beside ``flight.parquet``: ``qsls fly`` and ``qsls calibrate`` write it); a flight
     without one is named, with the log it needs. ``bounds[i]`` is the certificate of the
     controller that flew flight ``i`` (its perception condition's, where calibrated per
-    condition)."""
+    condition, ``conditions[i]``: ``''`` where not known); ``outside_calibration`` says when
+    that certificate was calibrated under other conditions."""
     rows, missing = [], []
-    for f, bound in zip(flights, bounds, strict=True):
+    conds = list(conditions) if conditions is not None else [""] * len(flights)
+    for f, bound, condition in zip(flights, bounds, conds, strict=True):
         if bound is None:
             continue
         premise = certified_premise(bound.folder)
@@ -602,7 +607,10 @@ def own_log_assumptions(
                 "checked on it; its premise is checked on the ingested flight"
             )
             continue
-        row = check_assumptions(TickLog.read(folder).log(), premise, training.distance)
+        log = TickLog.read(folder).log()
+        row = check_assumptions(log, premise, training.distance)
+        span = float(log.t[-1] - log.t[0]) if len(log.t) else 0.0
+        row["outside_calibration"] = outside_calibration(bound.folder, condition, span)
         rows.append({"flight": folder.name, "controller": bound.name, "status": bound.status,
                      "crashed": False, **row})  # fmt: skip
     return (pd.DataFrame(rows) if rows else None), list(dict.fromkeys(missing))
