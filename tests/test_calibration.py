@@ -426,3 +426,62 @@ def test_a_calibrated_certificate_reads_its_checks_under_the_calibrated_premise(
     assert cert["gamma_strict"] == pytest.approx(
         cert["R0"] / (1 - cert["s_times_norm_phi_xy"]), rel=1e-12
     )
+
+
+def test_stated_alpha_is_met_by_exchangeable_synthetic_flights(tmp_path: Path) -> None:
+    """Flights, not scores: 1000 draws of 20 calibration flights and one new flight, each a
+    tick log of one family (a random flight-level scale for perception errors with a burst of
+    velocity outliers, for the disturbance through the plant, and a reference offset), scored
+    by the calibration's own ``score_flight`` on a certified controller's premise. The new
+    flight, read by ``check_assumptions`` under the premise inflated by ``lambda_hat``, breaks
+    it (dense, disturbance, outliers, or its reference beyond Delta) at a rate within the
+    binomial interval of alpha 0.1 (split conformal at n = 20: 1 - 19/21 = 0.095); a new
+    flight drawn 1.3 times wider breaks it far more often."""
+    from dataclasses import replace
+
+    from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions
+    from qsls.pipeline.evaluate.calibrate import score_flight
+    from qsls.pipeline.evaluate.certified import certified_premise
+    from tests.controllerfixtures import gated
+
+    folder = gated(tmp_path / "c").folder
+    c = certified_premise(folder)
+    assert c is not None
+    c = replace(c, numbers=replace(c.numbers, delta=0.05))  # a reference to inflate too
+    rng = np.random.default_rng(11)
+    k = 40
+    t = np.arange(k) * 0.1
+
+    def distance(q: np.ndarray) -> np.ndarray:
+        return np.abs(q[:, :3]).max(axis=1)  # to the training states {0}, positions
+
+    def flight(wider: float = 1.0) -> FlownLog:
+        s = np.exp(rng.normal(0.0, 0.35, 3)) * wider  # each flight's own scales
+        ref = np.zeros((k, 6))
+        ref[:, :3] = rng.uniform(-0.04, 0.04, 3) * s[2]
+        x = np.zeros((k, 6))
+        x[0] = ref[0]
+        u = np.tile(c.u_hover, (k, 1))
+        w = (c.H @ rng.uniform(-1, 1, (6, k)) * 0.6 * c.numbers.eps_w * s[1]).T
+        for i in range(k - 1):
+            x[i + 1] = c.A @ x[i] + w[i]
+        e = rng.normal(0.0, 0.3 * c.numbers.eps, (k, 6)) * s[0]
+        burst = rng.integers(0, k - 3)
+        e[burst : burst + rng.integers(0, 4), 3] = 0.5  # velocity outliers within eps_o
+        return FlownLog(t, x, x + e, u, ref)
+
+    def breaks(log: FlownLog, lam: float) -> bool:
+        big = replace(c, numbers=cal.inflate(c.numbers, lam))
+        row = check_assumptions(log, big, distance)
+        held = all(row[f"{a}_holds"] for a in ("dense", "disturbance", "outliers"))
+        return not held or float(distance(log.ref).max()) > big.numbers.delta
+
+    draws, n, misses, wide = 1000, 20, 0, 0
+    for _ in range(draws):
+        scores = [score_flight(flight(), c, distance)["score"] for _ in range(n)]
+        lam = cal.calibrated_quantile(scores, 0.1, "conformal")
+        misses += breaks(flight(), lam)
+        wide += breaks(flight(1.3), lam)  # not exchangeable: the check must see it
+    lo, hi = binom.ppf([0.0005, 0.9995], draws, 0.1) / draws
+    assert lo <= misses / draws <= hi, (misses, lo, hi)
+    assert wide / draws > hi, wide
