@@ -162,6 +162,24 @@ def test_a_flight_outside_the_calibrations_conditions_says_why() -> None:
     assert "outside" not in assumption_verdicts(table.drop(columns="outside_calibration"))[0].line()
 
 
+def test_a_heldout_verdict_counts_rows_under_a_relaxed_conditions_certificate() -> None:
+    """Per-condition certificates mix statuses in one controller's rows: the held-out verdict
+    says how many were checked under the relaxed one, and takes the other's status."""
+    import pandas as pd
+
+    from qsls.pipeline.evaluate.verdict import verdicts
+
+    table = pd.DataFrame({
+        "controller": ["c", "c"], "flight": ["a", "b"], "status": ["relaxed", "certified"],
+        "has_guarantee": [True, True], "theorem_applies": [False, False],
+        "frac_premise_holds": [1.0, 1.0], "premise_holds": [True, True],
+    })  # fmt: skip
+    (v,) = verdicts(table)
+    assert v.status == "certified" and v.relaxed == 1
+    assert "2 flights (1 of them under a relaxed certificate: no guarantee there)" in v.line()
+    assert "of a relaxed certificate," not in v.line()
+
+
 def test_a_verdict_says_which_flights_were_checked_under_a_relaxed_premise() -> None:
     """A relaxed certificate promises nothing: the verdict on its flights says so, for every
     flight or (one condition certified, another relaxed) for those it concerns."""
@@ -337,6 +355,7 @@ def test_calibration_on_a_dask_cluster_writes_the_local_pools_bytes_and_survives
         ({"holds": False}, "the condition fails under the calibrated premise"),
         ({"tested_range": 0.2}, "tested to 0.2 < rho*"),
         ({"design_seeds": [21000]}, "calibration seeds [21000] are design flights' seeds"),
+        ({"eps_e": 0.0135}, "eps_e 0.0135 is not the design's"),
     ],
 )
 def test_a_certified_status_its_calibration_does_not_back_is_refused_on_read(
@@ -355,7 +374,7 @@ def test_a_certified_status_its_calibration_does_not_back_is_refused_on_read(
     shutil.copytree(run / "calibrate" / "regular" / "l1_robust", folder)
     cert = Certificate.load(folder)
     assert cert.status == "certified" and cert.calibration is not None
-    if "tested_range" in edit or "calibration" in edit:
+    if {"tested_range", "calibration", "eps_e"} & set(edit):  # the certificate's own fields
         cert = cert.model_copy(update=edit)
     else:
         cert = cert.model_copy(update={"calibration": cert.calibration.model_copy(update=edit)})

@@ -15,6 +15,7 @@ A controller folder (one per controller inside a ``qsls synth`` output) holds:
 from __future__ import annotations
 
 import hashlib
+import math
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -457,12 +458,26 @@ def calibration_problems(cert: Certificate) -> list[str]:
     c = cert.calibration
     if c is None:
         return ["no calibration: only flights the design never saw certify (qsls calibrate)"]
-    return record_problems(
+    why = record_problems(
         flights=c.flights, alpha=c.alpha, method=c.method, confidence=c.confidence,
         scores=c.scores, range_scores=c.range_scores, lambda_hat=c.lambda_hat, holds=c.holds,
         shared_seeds=sorted(set(c.seeds) & set(c.design_seeds)),
         rho_star=cert.rho_star, tested_range=cert.tested_range,
     )  # fmt: skip
+    # the certificate's numbers are the record's design premise inflated by lambda_hat
+    lam = c.lambda_hat
+    for key, have in (("eps_e", cert.eps_e), ("S", cert.S), ("eps_w", cert.eps_w),
+                      ("delta", cert.delta)):  # fmt: skip
+        want = c.nominal.get(key)
+        if want is not None and not math.isclose(have, want * lam, rel_tol=1e-9, abs_tol=1e-12):
+            why.append(f"{key} {have:.6g} is not the design's {want:.6g} x lambda_hat {lam:.6g}")
+    m0 = c.nominal.get("m")
+    if m0 is not None and cert.m is not None and cert.m != math.floor(lam * m0 + 1e-9):
+        why.append(f"m {cert.m} is not floor(lambda_hat x the design's {m0:g})")
+    if not (cert.robustness_lhs <= 1.0 and cert.rho_star is not None
+            and cert.rho_star <= cert.radius * (1 + 1e-12)):  # fmt: skip
+        why.append(f"robustness lhs {cert.robustness_lhs:.6g} or rho* {cert.rho_star} beyond r")
+    return why
 
 
 def _file(path: Path, name: str) -> Path:

@@ -157,7 +157,8 @@ def record_problems(
     if alpha > MAX_ALPHA:
         why.append(f"alpha {alpha:g} > {MAX_ALPHA:g}")
     m: Method = "pac" if method == "pac" else "conformal"
-    delta = 1.0 - confidence if confidence is not None else 0.05
+    # 1 - (1 - delta) may come back a hair below delta; never refuse on that rounding
+    delta = 1.0 - confidence + 1e-12 if confidence is not None else 0.05
     lam = max(
         calibrated_quantile(scores, alpha, m, delta),
         calibrated_quantile(range_scores, alpha, m, delta) if len(range_scores) else 0.0,

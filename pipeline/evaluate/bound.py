@@ -58,6 +58,7 @@ from qsls.pipeline.evaluate.assumptions import check_assumptions
 from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
 from qsls.pipeline.evaluate.certified import (
     ControllerBound,
+    calibration_of,
     certificate_for,
     certified_premise,
     check_model_hash,
@@ -432,8 +433,9 @@ def with_conditions(
     span = [float(df["t"].iloc[-1] - df["t"].iloc[0]) if len(df) else 0.0 for _, df in flights]
     out = table.copy()
     out.insert(3, "condition", [conditions[i] for i, _ in pairs])
+    cal = {j: calibration_of(bounds[j].folder) for j in dict.fromkeys(j for _, j in pairs)}
     out["outside_calibration"] = [
-        outside_calibration(bounds[j].folder, conditions[i], span[i]) for i, j in pairs
+        outside_calibration(cal[j], conditions[i], span[i]) for i, j in pairs
     ]
     return out
 
@@ -520,7 +522,7 @@ def evaluate(
     conds = list(conditions) if conditions is not None else [""] * len(held_out)
     if len(conds) != len(held_out):
         raise InputError(f"{len(conds)} conditions given for {len(held_out)} flights")
-    conditioned = load_conditioned(by_condition, [b.name for b in bounds])
+    conditioned = load_conditioned(by_condition, [b.name for b in bounds], sorted(set(conds)))
     warnings += [
         m for b in conditioned.values() if (m := check_model_hash(b, model_file, force=force))
     ]
@@ -544,13 +546,15 @@ def evaluate(
         assumptions, missing = own_log_assumptions(flights, own, training, conds)
         warnings += missing
     nees = vio_nees(flights, held_out)
+    cond_folders = [b.folder for b in conditioned.values()]
+    used = list(dict.fromkeys([model_file, *folders, *cond_folders, *map(Path, flights)]))
     return write_evaluation(
         out,
         table,
         samples,
         warnings,
         options=options,
-        inputs=[model_file, *folders, *[Path(f) for f in flights]],
+        inputs=used,
         model=model,
         force=force,
         assumptions=assumptions,
@@ -610,7 +614,9 @@ def own_log_assumptions(
         log = TickLog.read(folder).log()
         row = check_assumptions(log, premise, training.distance)
         span = float(log.t[-1] - log.t[0]) if len(log.t) else 0.0
-        row["outside_calibration"] = outside_calibration(bound.folder, condition, span)
+        row["outside_calibration"] = outside_calibration(
+            calibration_of(bound.folder), condition, span
+        )
         rows.append({"flight": folder.name, "controller": bound.name, "status": bound.status,
                      "crashed": False, **row})  # fmt: skip
     return (pd.DataFrame(rows) if rows else None), list(dict.fromkeys(missing))

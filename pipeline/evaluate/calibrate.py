@@ -46,6 +46,7 @@ from qsls.pipeline.control.artifacts import (
     CONTROLLER_FILE,
     Calibration,
     Certificate,
+    calibration_problems,
     load_controller_dir,
 )
 from qsls.pipeline.control.guarantee import (
@@ -417,6 +418,8 @@ def calibrated_certificate(
         }  # fmt: skip
     new = cert.model_copy(update=update)
     Certificate.model_validate(new.model_dump())  # the record must read back
+    if new.status == CERTIFIED and (why := calibration_problems(new)):
+        raise RuntimeError(f"{out}: a certified record its readers would refuse: {why}")
     atomic_write_bytes(out / CERTIFICATE_FILE, new.to_yaml().encode())
     return out
 

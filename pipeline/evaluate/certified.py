@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import guarantee
-from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Calibration, load_controller_dir
 from qsls.pipeline.control.calibration import outside_conditions
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import static_gain_responses
@@ -295,12 +295,16 @@ def certificate_for(
     return own if own is not None else bounds.get(name)
 
 
-def outside_calibration(folder: Path, condition: str, flight_s: float) -> str:
+def calibration_of(folder: Path) -> Calibration | None:
+    """The calibration record of the certificate in ``folder`` (None: not calibrated)."""
+    return load_controller_dir(folder).certificate.calibration
+
+
+def outside_calibration(cal: Calibration | None, condition: str, flight_s: float) -> str:
     """Why a flight of perception ``condition`` (``''``: not known, as for a recorded log)
-    lasting ``flight_s`` lies outside the conditions the certificate in ``folder`` was
-    calibrated under (``''`` when inside, or when the certificate has no calibration):
+    lasting ``flight_s`` lies outside the conditions a certificate was calibrated under
+    (``cal``, its record; ``''`` when inside, or when it has no calibration):
     :func:`qsls.pipeline.control.calibration.outside_conditions`."""
-    cal = load_controller_dir(folder).certificate.calibration
     if cal is None:
         return ""
     calibrated = str(cal.conditions.get("perception", ""))

@@ -41,6 +41,7 @@ class Verdict:
     broken: tuple[str, ...] = ()  # premise-only rows: the flights whose premise broke
     outside: int = 0  # rows checked against a certificate calibrated under other conditions
     outside_why: str = ""  # the first such row's reason
+    relaxed: int = 0  # rows checked against a relaxed certificate, where others are not
 
     @property
     def word(self) -> str:
@@ -52,6 +53,8 @@ class Verdict:
 
     def line(self) -> str:
         n = f"{self.flights} flight{'s' if self.flights != 1 else ''}"
+        if 0 < self.relaxed < self.flights:
+            n += f" ({self.relaxed} of them under a relaxed certificate: no guarantee there)"
         if self.certified and not self.theorem:
             share = (
                 f"{100 * self.premise_share:.1f}%" if math.isfinite(self.premise_share) else "n/a"
@@ -173,7 +176,10 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
         return out
     for name, g in table.groupby("controller", sort=False):
         certified = bool(g["has_guarantee"].all()) if "has_guarantee" in g else True
+        relaxed = int((g["status"] == RELAXED).sum()) if "status" in g else 0
         status = str(g["status"].iloc[0]) if "status" in g else CERTIFIED
+        if 0 < relaxed < len(g):  # one condition's certificate certified, another's relaxed
+            status = str(g.loc[g["status"] != RELAXED, "status"].iloc[0])
         if "status" in g:  # a reference claims no guarantee to check; a premise may be checked
             certified = certified and bool(g["status"].isin(CLAIMS).all())
         if "theorem_applies" not in g:  # an older table: the per-sample check
@@ -195,11 +201,13 @@ def verdicts(table: pd.DataFrame) -> list[Verdict]:
             away = _outside(g)
             out.append(Verdict(str(name), len(g), certified, False, math.nan, "", False, share,
                                status, over, broken, len(away),
-                               str(away.iloc[0]) if len(away) else ""))  # fmt: skip
+                               str(away.iloc[0]) if len(away) else "", relaxed))  # fmt: skip
             continue
         worst, flight = _worst(own, "nominal_ratio")
         holds = bool(own["bound_holds"].astype(bool).all())
-        out.append(Verdict(str(name), len(own), certified, holds and certified, worst, flight))
+        mixed = int((own["status"] == RELAXED).sum()) if "status" in own else 0
+        out.append(Verdict(str(name), len(own), certified, holds and certified, worst, flight,
+                           status=status, relaxed=mixed))  # fmt: skip
     return out
 
 
