@@ -468,7 +468,7 @@ def test_stated_alpha_is_met_by_exchangeable_synthetic_flights(tmp_path: Path) -
     assert c is not None
     c = replace(c, numbers=replace(c.numbers, delta=0.05))  # a reference to inflate too
     rng = np.random.default_rng(11)
-    k = 40
+    k = 24
     t = np.arange(k) * 0.1
 
     def distance(q: np.ndarray) -> np.ndarray:
