@@ -274,8 +274,7 @@ def largest_value(p: PremiseNumbers, taps: Responses, quantity: Quantity) -> flo
     :func:`tolerance` cannot say of a quantity stated as 0 (its factor is inf, yet a small
     ``S`` may break the condition). 0 when the condition fails already."""
     if quantity == "m":
-        f = tolerance(p, taps, "m")
-        return float(p.m) * f if p.m > 0 else max(f - 1.0, 0.0)
+        raise ValueError("m counts whole outliers: tolerance() gives its largest count")
     if not check(p, taps).holds:
         return 0.0
     value = float(getattr(p, quantity))

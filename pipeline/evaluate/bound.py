@@ -596,10 +596,15 @@ def own_log_assumptions(
     that certificate was calibrated under other conditions."""
     rows, missing = [], []
     conds = list(conditions) if conditions is not None else [""] * len(flights)
+    read = {  # each certificate once: its premise and its calibration record
+        b.folder: (certified_premise(b.folder), calibration_of(b.folder))
+        for b in bounds
+        if b is not None
+    }
     for f, bound, condition in zip(flights, bounds, conds, strict=True):
         if bound is None:
             continue
-        premise = certified_premise(bound.folder)
+        premise, calibration = read[bound.folder]
         if premise is None:
             missing.append(f"--flown-by {bound.name}: its certificate states no premise to check")
             continue
@@ -614,9 +619,7 @@ def own_log_assumptions(
         log = TickLog.read(folder).log()
         row = check_assumptions(log, premise, training.distance)
         span = float(log.t[-1] - log.t[0]) if len(log.t) else 0.0
-        row["outside_calibration"] = outside_calibration(
-            calibration_of(bound.folder), condition, span
-        )
+        row["outside_calibration"] = outside_calibration(calibration, condition, span)
         rows.append({"flight": folder.name, "controller": bound.name, "status": bound.status,
                      "crashed": False, **row})  # fmt: skip
     return (pd.DataFrame(rows) if rows else None), list(dict.fromkeys(missing))

@@ -273,11 +273,12 @@ def load_conditioned(
     """``{(condition, name): bound}``: the certificates calibrated per perception condition
     (a calibration's ``calibrate/<condition>/``) of the controllers ``names``, for the
     ``conditions`` flown (every one given when ``None``)."""
+    wanted = set(names)
     return {
         (str(cond), b.name): b
         for cond, folders in (by_condition or {}).items()
         if conditions is None or cond in conditions
-        for b in load_bounds([f for f in folders if f.name in set(names)])
+        for b in load_bounds([f for f in folders if f.name in wanted])
     }
 
 

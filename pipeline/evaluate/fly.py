@@ -50,7 +50,6 @@ import numpy as np
 import pandas as pd
 
 from qsls.pipeline.control.artifacts import load_controller_dir
-from qsls.pipeline.control.calibration import outside_conditions
 from qsls.pipeline.control.guarantee import OFF
 from qsls.pipeline.control.monitor import envelope_peak, monitor_flags, monitor_of
 from qsls.pipeline.core.artifacts import StageWriter, check_output
@@ -86,6 +85,7 @@ from qsls.pipeline.evaluate.certified import (
     certified_premise,
     check_unweighted,
     load_conditioned,
+    outside_calibration,
 )
 from qsls.pipeline.evaluate.estimators import findings_markdown, keyed, write_by_estimator
 from qsls.pipeline.evaluate.figures import write_fly_figures
@@ -671,15 +671,8 @@ def assumption_table(
         row.update(monitor_columns(monitor, log, c.numbers.gate))
         if o.metrics.get("crashed"):
             row = crashed(row, o.extra.get("crash_time_s"), o.metrics.get("crash_reason"))
-        row["outside_calibration"] = (
-            ""
-            if cal is None
-            else outside_conditions(
-                o.condition,
-                float(o.metrics.get("duration_s", o.t_ctrl[-1])),
-                str(cal.conditions.get("perception", "")),
-                cal.duration_s,
-            )
+        row["outside_calibration"] = outside_calibration(
+            cal, o.condition, float(o.metrics.get("duration_s", o.t_ctrl[-1]))
         )
         rows.append({"flight": o.name, "controller": o.controller, "status": b.status,
                      "crashed": bool(o.metrics.get("crashed")),

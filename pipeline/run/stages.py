@@ -62,11 +62,11 @@ def build_graph(
     sim_ids: dict[str, list[str | None]] = {"train": [], "heldout": []}
     perception: dict[str, str] = {}  # a simulated flight's condition ('' for a recorded one)
     for i, fl in enumerate(cfg.flights):
-        ingest_id, sim_id = _flight_stages(graph, cfg, fl, i, base, wanted, src, progress)
+        ingest_id, sim_id, perception[ingest_id] = _flight_stages(
+            graph, cfg, fl, i, base, wanted, src, progress
+        )
         ingest_ids[fl.role].append(ingest_id)
         sim_ids[fl.role].append(sim_id)
-        sim = sim_options(cfg, fl, i, src) if fl.simulate is not None else None
-        perception[ingest_id] = sim.vio.perception if sim is not None else ""
     if "fit" not in wanted:
         return graph
     if not ingest_ids["train"]:
@@ -122,17 +122,20 @@ def _flight_stages(
     wanted: Collection[str],
     src: Src,
     progress: Progress,
-) -> tuple[str, str | None]:
-    """The flight's simulate stage (simulated flights) and its ingest stage: their ids."""
+) -> tuple[str, str | None, str]:
+    """The flight's simulate stage (simulated flights) and its ingest stage: their ids, and
+    the flight's perception condition (``''`` for a recorded flight)."""
     sources: list[Path] = []
     deps: tuple[str, ...] = ()
+    perception = ""
     ingest_opts: dict[str, Any] = merge(cfg.written("ingest"), fl.ingest)
     if fl.simulate is not None:
         if "simulate" not in wanted and not (graph.root / "simulate" / fl.name).is_dir():
             raise ConfigError(
                 f"flight '{fl.name}' is simulated but the run's stages leave out simulate"
             )
-        deps = (_simulate_stage(graph, cfg, fl, i, src, progress),)
+        sim_id, sim = _simulate_stage(graph, cfg, fl, i, src, progress)
+        deps, perception = (sim_id,), sim.vio.perception
     else:
         sources = [resolve_path(base, s) for s in fl.sources]
         for key in ("vio", "truth"):
@@ -160,7 +163,7 @@ def _flight_stages(
             external=external,
         )
     )
-    return stage_id, deps[0] if deps else None
+    return stage_id, deps[0] if deps else None, perception
 
 
 def _sweep_stage(graph: StageGraph, sec: SweepSection, progress: Progress) -> None:
@@ -279,17 +282,13 @@ def _verdicts(out: Path) -> dict[str, Any]:
     return {"verdicts": [v.line() for v in read_verdicts(out)]}
 
 
-def sim_options(cfg: RunConfig, fl: FlightSpec, i: int, src: Src) -> SimOptions:
-    """The simulate options of the run's ``i``-th flight (simulated: ``fl.simulate`` set)."""
-    data = merge(cfg.written("simulate"), fl.simulate or {})
-    data.setdefault("seed", cfg.seed + i)
-    return validate(SimOptions, data, src(f"simulate (flight '{fl.name}')"))
-
-
 def _simulate_stage(
     graph: StageGraph, cfg: RunConfig, fl: FlightSpec, i: int, src: Src, progress: Progress
-) -> str:
-    opts = sim_options(cfg, fl, i, src)
+) -> tuple[str, SimOptions]:
+    """The flight's simulate stage: its id and its options."""
+    data = merge(cfg.written("simulate"), fl.simulate or {})
+    data.setdefault("seed", cfg.seed + i)
+    opts = validate(SimOptions, data, src(f"simulate (flight '{fl.name}')"))
     stage_id = f"simulate/{fl.name}"
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
@@ -299,7 +298,7 @@ def _simulate_stage(
         return simulate(opts, out, force=True, progress=progress)
 
     graph.add(Stage(stage_id, "simulate", opts, execute))
-    return stage_id
+    return stage_id, opts
 
 
 def _ingest_exec(
