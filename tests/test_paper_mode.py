@@ -45,3 +45,21 @@ def test_the_status_says_chosen_not_certified():
     assert "was chosen, not measured" in (cert.status_reason or "")
     assert cert.S == choice.S and cert.robustness_lhs <= 1.0
     assert cert.S * cert.norm_phi_xy < 1.0  # the paper's strict bound is defined
+
+
+def test_the_papers_premise_has_one_bound_even_when_the_honest_design_has_groups():
+    """An honest design with a bound per channel group (eps_groups) leaves the paper's premise
+    one unweighted bound: the groups' rescaled weights and S' = S eps / min eps_g would
+    otherwise charge the chosen S twice, and the synthesis at 0.9 S_max was infeasible."""
+    grouped = OPTS.model_copy(
+        update={"eps_e": 0.4, "eps_groups": {"position": 0.4, "velocity": 0.1}}
+    )
+    assert grouped.paper_mode is not None
+    choice, r = paper_choice(grouped, grouped.paper_mode, None, None)
+    plain, _ = paper_choice(OPTS, OPTS.paper_mode, None, None)  # type: ignore[arg-type]
+    assert choice.S_max == pytest.approx(plain.S_max, rel=1e-9)
+    assert (r.numbers.S, r.numbers.eps) == (choice.S, 0.03)
+    assert list(r.shape.error_scale) == [1.0] * 6
+    assert _feasible(r, choice.S) and not _feasible(r, 1.01 * choice.S_max)
+    _, built = paper_controllers(grouped, None, None, {}, {"error_model": None})
+    assert built["l1_robust_paper"].certificate.status == CHOSEN

@@ -78,12 +78,14 @@ class PaperChoice:
 
 def paper_options(opts: SynthOptions, S: float, eps_e: float | str = "max") -> SynthOptions:
     """The paper's premise on ``opts``'s problem: S given, ``eps_e`` the training maximum of
-    the unweighted error (or ``eps_e``), no outlier channel (no beta, gate or ``eps_o``); the plant, cost,
-    horizon, radius, ``H`` and ``eps_w`` stay the honest design's."""
+    the unweighted error (or ``eps_e``), one bound on every channel (no ``eps_groups``), no
+    outlier channel (no beta, gate or ``eps_o``); the plant, cost, horizon, radius, ``H`` and
+    ``eps_w`` stay the honest design's."""
     return opts.model_copy(
         update={
             "S": float(S), "eps_e": eps_e, "measure": "full", "beta": None, "gate": None,
-            "eps_o": None, "error_scale": [1.0] * len(opts.error_scale), "paper_mode": None,
+            "eps_o": None, "error_scale": [1.0] * len(opts.error_scale), "eps_groups": None,
+            "paper_mode": None,
         }
     )  # fmt: skip
 
