@@ -144,6 +144,13 @@ def test_a_flight_outside_the_calibrations_conditions_says_why() -> None:
     assert cal.outside_conditions("regular", 30.0, "regular", 15.0) == (
         "a 30 s flight, calibrated on 15 s flights"
     )
+    # another estimator: the camera loop and the emulator err their own ways ('' = not known)
+    assert cal.outside_conditions("regular", 15.0, "regular", 15.0, "emulator", "camera") == (
+        "estimator emulator, calibrated with camera"
+    )
+    assert cal.outside_conditions("regular", 15.0, "regular", 15.0, "camera", "camera") == ""
+    assert cal.outside_conditions("regular", 15.0, "regular", 15.0, "", "camera") == ""
+    assert cal.outside_conditions("regular", 15.0, "regular", 15.0, "emulator", "") == ""
     both = cal.outside_conditions("degraded", 23.0, "regular", 15.0)
     assert (
         both

@@ -148,3 +148,11 @@ def test_a_heldout_flight_is_checked_against_its_conditions_certificate(
     marked = alone.set_index("flight")["outside_calibration"]
     assert marked[folders[0].name] == ""
     assert marked[folders[1].name].startswith("perception degraded, calibrated in regular")
+    # a flight whose estimate another estimator made than the calibration's (the quickstart
+    # calibrates on the emulator) lies outside it too: the camera loop errs its own way
+    cam = evaluate(
+        folders, tmp / "fit", [regular], opts, tmp_path / "cam", conditions=["regular", "degraded"],
+        by_condition=by, estimators=["camera", "emulator"],
+    ).table.set_index("condition")  # fmt: skip
+    assert cam.loc["regular", "outside_calibration"] == "estimator camera, calibrated with emulator"
+    assert cam.loc["degraded", "outside_calibration"] == ""

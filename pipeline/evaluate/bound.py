@@ -426,16 +426,19 @@ def with_conditions(
     conditions: Sequence[str],
     pairs: Sequence[tuple[int, int]],
     bounds: Sequence[ControllerBound],
+    estimators: Sequence[str] | None = None,
 ) -> pd.DataFrame:
     """The table with each row's flight ``condition`` and ``outside_calibration`` (why the
     certificate it was checked against was calibrated under other conditions, ``''`` when
-    not: :func:`qsls.pipeline.evaluate.certified.outside_calibration`)."""
+    not: :func:`qsls.pipeline.evaluate.certified.outside_calibration`; ``estimators[i]``:
+    flight ``i``'s estimator, ``''`` where not known)."""
+    est = list(estimators) if estimators is not None else [""] * len(flights)
     span = [float(df["t"].iloc[-1] - df["t"].iloc[0]) if len(df) else 0.0 for _, df in flights]
     out = table.copy()
     out.insert(3, "condition", [conditions[i] for i, _ in pairs])
     cal = {j: calibration_of(bounds[j].folder) for j in dict.fromkeys(j for _, j in pairs)}
     out["outside_calibration"] = [
-        outside_calibration(cal[j], conditions[i], span[i]) for i, j in pairs
+        outside_calibration(cal[j], conditions[i], span[i], est[i]) for i, j in pairs
     ]
     return out
 
@@ -488,12 +491,14 @@ def evaluate(
     progress: Progress = NULL_PROGRESS,
     conditions: Sequence[str] | None = None,
     by_condition: Mapping[str, Sequence[Path]] | None = None,
+    estimators: Sequence[str] | None = None,
 ) -> EvaluateResult:
     """The bound check of every held-out flight against every controller's certificate.
 
     ``conditions[i]``: flight ``i``'s perception condition (``''`` where not known, as for a
-    recorded log); ``by_condition``: per condition, the certificates a calibration wrote for
-    it (``calibrate/<condition>/``). A flight is checked against its condition's certificate
+    recorded log); ``estimators[i]``: the estimator that made flight ``i``'s estimate
+    (``camera``, ``emulator``; ``''`` where not known); ``by_condition``: per condition, the
+    certificates a calibration wrote for it (``calibrate/<condition>/``). A flight is checked against its condition's certificate
     where there is one, else the controller's own, and the table's ``outside_calibration``
     says when that certificate was calibrated under other conditions (docs/calibration.md,
     "One certificate per condition")."""
@@ -522,6 +527,9 @@ def evaluate(
     conds = list(conditions) if conditions is not None else [""] * len(held_out)
     if len(conds) != len(held_out):
         raise InputError(f"{len(conds)} conditions given for {len(held_out)} flights")
+    ests = list(estimators) if estimators is not None else [""] * len(held_out)
+    if len(ests) != len(held_out):
+        raise InputError(f"{len(ests)} estimators given for {len(held_out)} flights")
     conditioned = load_conditioned(by_condition, [b.name for b in bounds], sorted(set(conds)))
     warnings += [
         m for b in conditioned.values() if (m := check_model_hash(b, model_file, force=force))
@@ -539,11 +547,11 @@ def evaluate(
         held_out, every, training, pairs=pairs, flown_by=[options.flown_by] * len(held_out),
         progress=progress,
     )  # fmt: skip
-    table = with_conditions(table, held_out, conds, pairs, every)
+    table = with_conditions(table, held_out, conds, pairs, every, ests)
     assumptions = None
     if options.flown_by is not None:
         own = [certificate_for(options.flown_by, c, named, conditioned) for c in conds]
-        assumptions, missing = own_log_assumptions(flights, own, training, conds)
+        assumptions, missing = own_log_assumptions(flights, own, training, conds, ests)
         warnings += missing
     nees = vio_nees(flights, held_out)
     cond_folders = [b.folder for b in conditioned.values()]
@@ -586,22 +594,24 @@ def own_log_assumptions(
     bounds: Sequence[ControllerBound | None],
     training: TrainingData,
     conditions: Sequence[str] | None = None,
+    estimators: Sequence[str] | None = None,
 ) -> tuple[pd.DataFrame | None, list[str]]:
     """Every assumption of ``bounds[i]``'s guarantee (:mod:`qsls.pipeline.evaluate.assumptions`)
     on each flight ``flights[i]`` that keeps the controller's own tick log (``ticks.parquet``
     beside ``flight.parquet``: ``qsls fly`` and ``qsls calibrate`` write it); a flight
     without one is named, with the log it needs. ``bounds[i]`` is the certificate of the
     controller that flew flight ``i`` (its perception condition's, where calibrated per
-    condition, ``conditions[i]``: ``''`` where not known); ``outside_calibration`` says when
-    that certificate was calibrated under other conditions."""
+    condition, ``conditions[i]``, and estimator, ``estimators[i]``: ``''`` where not known);
+    ``outside_calibration`` says when that certificate was calibrated under other conditions."""
     rows, missing = [], []
     conds = list(conditions) if conditions is not None else [""] * len(flights)
+    ests = list(estimators) if estimators is not None else [""] * len(flights)
     read = {  # each certificate once: its premise and its calibration record
         b.folder: (certified_premise(b.folder), calibration_of(b.folder))
         for b in bounds
         if b is not None
     }
-    for f, bound, condition in zip(flights, bounds, conds, strict=True):
+    for f, bound, condition, estimator in zip(flights, bounds, conds, ests, strict=True):
         if bound is None:
             continue
         premise, calibration = read[bound.folder]
@@ -619,7 +629,7 @@ def own_log_assumptions(
         log = TickLog.read(folder).log()
         row = check_assumptions(log, premise, training.distance)
         span = float(log.t[-1] - log.t[0]) if len(log.t) else 0.0
-        row["outside_calibration"] = outside_calibration(calibration, condition, span)
+        row["outside_calibration"] = outside_calibration(calibration, condition, span, estimator)
         rows.append({"flight": folder.name, "controller": bound.name, "status": bound.status,
                      "crashed": False, **row})  # fmt: skip
     return (pd.DataFrame(rows) if rows else None), list(dict.fromkeys(missing))

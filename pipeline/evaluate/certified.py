@@ -301,12 +301,18 @@ def calibration_of(folder: Path) -> Calibration | None:
     return load_controller_dir(folder).certificate.calibration
 
 
-def outside_calibration(cal: Calibration | None, condition: str, flight_s: float) -> str:
+def outside_calibration(
+    cal: Calibration | None, condition: str, flight_s: float, estimator: str = ""
+) -> str:
     """Why a flight of perception ``condition`` (``''``: not known, as for a recorded log)
-    lasting ``flight_s`` lies outside the conditions a certificate was calibrated under
-    (``cal``, its record; ``''`` when inside, or when it has no calibration):
+    lasting ``flight_s``, its estimate from ``estimator`` (``camera``, ``emulator``; ``''``:
+    not known), lies outside the conditions a certificate was calibrated under (``cal``, its
+    record; ``''`` when inside, or when it has no calibration):
     :func:`qsls.pipeline.control.calibration.outside_conditions`."""
     if cal is None:
         return ""
     calibrated = str(cal.conditions.get("perception", ""))
-    return outside_conditions(condition or calibrated, flight_s, calibrated, cal.duration_s)
+    return outside_conditions(
+        condition or calibrated, flight_s, calibrated, cal.duration_s,
+        estimator, str(cal.conditions.get("estimator", "")),
+    )  # fmt: skip

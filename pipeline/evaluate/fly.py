@@ -672,7 +672,7 @@ def assumption_table(
         if o.metrics.get("crashed"):
             row = crashed(row, o.extra.get("crash_time_s"), o.metrics.get("crash_reason"))
         row["outside_calibration"] = outside_calibration(
-            cal, o.condition, float(o.metrics.get("duration_s", o.t_ctrl[-1]))
+            cal, o.condition, float(o.metrics.get("duration_s", o.t_ctrl[-1])), o.estimator
         )
         rows.append({"flight": o.name, "controller": o.controller, "status": b.status,
                      "crashed": bool(o.metrics.get("crashed")),

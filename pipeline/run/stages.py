@@ -61,8 +61,9 @@ def build_graph(
     ingest_ids: dict[str, list[str]] = {"train": [], "heldout": []}
     sim_ids: dict[str, list[str | None]] = {"train": [], "heldout": []}
     perception: dict[str, str] = {}  # a simulated flight's condition ('' for a recorded one)
+    estimator: dict[str, str] = {}  # and its estimator (camera, emulator; '' for a recorded one)
     for i, fl in enumerate(cfg.flights):
-        ingest_id, sim_id, perception[ingest_id] = _flight_stages(
+        ingest_id, sim_id, perception[ingest_id], estimator[ingest_id] = _flight_stages(
             graph, cfg, fl, i, base, wanted, src, progress
         )
         ingest_ids[fl.role].append(ingest_id)
@@ -108,7 +109,7 @@ def build_graph(
     if cfg.evaluate is not None or heldout:
         _evaluate_stages(
             graph, cfg.evaluate or EvaluateSection(), heldout, src, progress, calibrated,
-            [perception[h] for h in heldout],
+            [perception[h] for h in heldout], [estimator[h] for h in heldout],
         )  # fmt: skip
     return graph
 
@@ -122,12 +123,12 @@ def _flight_stages(
     wanted: Collection[str],
     src: Src,
     progress: Progress,
-) -> tuple[str, str | None, str]:
+) -> tuple[str, str | None, str, str]:
     """The flight's simulate stage (simulated flights) and its ingest stage: their ids, and
-    the flight's perception condition (``''`` for a recorded flight)."""
+    the flight's perception condition and estimator (``''`` for a recorded flight)."""
     sources: list[Path] = []
     deps: tuple[str, ...] = ()
-    perception = ""
+    perception = estimator = ""
     ingest_opts: dict[str, Any] = merge(cfg.written("ingest"), fl.ingest)
     if fl.simulate is not None:
         if "simulate" not in wanted and not (graph.root / "simulate" / fl.name).is_dir():
@@ -135,7 +136,7 @@ def _flight_stages(
                 f"flight '{fl.name}' is simulated but the run's stages leave out simulate"
             )
         sim_id, sim = _simulate_stage(graph, cfg, fl, i, src, progress)
-        deps, perception = (sim_id,), sim.vio.perception
+        deps, perception, estimator = (sim_id,), sim.vio.perception, sim.vio.kind
     else:
         sources = [resolve_path(base, s) for s in fl.sources]
         for key in ("vio", "truth"):
@@ -163,7 +164,7 @@ def _flight_stages(
             external=external,
         )
     )
-    return stage_id, deps[0] if deps else None, perception
+    return stage_id, deps[0] if deps else None, perception, estimator
 
 
 def _sweep_stage(graph: StageGraph, sec: SweepSection, progress: Progress) -> None:
@@ -180,16 +181,18 @@ def _evaluate_stages(
     progress: Progress,
     calibrated: str | None = None,
     conditions: list[str] | None = None,
+    estimators: list[str] | None = None,
 ) -> None:
     """The bound check on the held-out flights (when there are some; ``conditions``: their
-    perception, ``''`` for a recorded flight) and the flights flown (when the section has
+    perception, ``estimators`` their estimator, ``''`` for a recorded flight) and the flights flown (when the section has
     ``fly``); with a calibration (``calibrated``: its first condition), each calibrated
     controller is checked against its certificate for the flight's condition."""
     cal = ("calibrate",) if calibrated is not None else ()
     if heldout:
         eval_opts = sec.bound()
         conds = conditions if conditions is not None else [""] * len(heldout)
-        execute = _evaluate_exec(eval_opts, heldout, progress, calibrated, conds)
+        ests = estimators if estimators is not None else [""] * len(heldout)
+        execute = _evaluate_exec(eval_opts, heldout, progress, calibrated, conds, ests)
         deps = ("fit", "synth", *cal, *heldout)
         graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps, notes=_verdicts))
     if sec.fly is not None:
@@ -373,6 +376,7 @@ def _evaluate_exec(
     progress: Progress,
     calibrated: str | None,
     conditions: list[str],
+    estimators: list[str],
 ) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
@@ -382,7 +386,7 @@ def _evaluate_exec(
         ctrls = controller_folders(deps, calibrated)
         return evaluate(
             flights, deps["fit"], ctrls, opts, out, force=True, progress=progress,
-            conditions=conditions,
+            conditions=conditions, estimators=estimators,
             by_condition=condition_folders(deps) if calibrated is not None else None,
         )  # fmt: skip
 
