@@ -97,10 +97,10 @@ class CameraOptions(Options):
     degraded_light: float | None = Field(None, gt=0, le=1)
     """The camera's own degraded light level (None: ``vio.degraded.light``, shared with the
     emulator). The shared 0.35 does not degrade the camera loop (docs/camera.md, "A degraded
-    condition that degrades"); ``configs/paper_sim_camera.yaml`` sets the calibrated 0.15."""
+    condition that degrades"); ``configs/paper_sim_camera.yaml`` sets the calibrated 0.2."""
     degraded_texture: float | None = Field(None, gt=0, le=1)
     """The camera's own degraded texture level (None: ``vio.degraded.texture``); the
-    calibrated value is 0.25 (with ``degraded_light`` 0.15)."""
+    calibrated value is 0.3 (with ``degraded_light`` 0.2)."""
 
     # ---------------------------------------------------------------- world
     texture_seed: int = Field(7, ge=0)
