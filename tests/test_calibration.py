@@ -162,9 +162,10 @@ def test_a_flight_outside_the_calibrations_conditions_says_why() -> None:
         "bound_held": [True, True, True], "outside_calibration": ["", both, ""],
     })  # fmt: skip
     (v,) = assumption_verdicts(table)
-    assert (v.outside, v.outside_why) == (1, both)
+    assert (v.outside, v.outside_why, v.outside_failing) == (1, both, 1)
     assert v.line().endswith(
-        f"; also failing: d; 1 of the 3 flown outside its calibration ({both})"
+        f"; also failing: d; 1 of the 3 flown outside its calibration ({both}), 1 of the 2 "
+        "failing among them; inside it 1 of 2 failed"
     )
     assert "outside" not in assumption_verdicts(table.drop(columns="outside_calibration"))[0].line()
 

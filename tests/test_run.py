@@ -195,6 +195,7 @@ def test_quickstart_assumptions_on_the_flown_flights(quickstart):
     regular = a[(a["controller"] == "l1_robust") & (a["condition"] == "regular")].iloc[0]
     assert regular["outside_calibration"] == ""
     assert "1 of the 2 flown outside its calibration (perception degraded" in proc.stdout
+    assert "1 of the 1 failing among them; inside it 0 of 1 failed" in proc.stdout
 
 
 @pytest.mark.slow

@@ -95,6 +95,7 @@ class AssumptionVerdict:
     status: Status = CERTIFIED
     outside: int = 0  # flights flown outside the conditions of the certificate's calibration
     outside_why: str = ""  # the first such flight's reason
+    outside_failing: int = 0  # of the failing flights, those flown outside the calibration
     relaxed: int = 0  # flights checked against a relaxed certificate (one condition's, say)
     failing: tuple[str, ...] = ()  # every failing flight, the first (worst_flight) included
 
@@ -110,8 +111,11 @@ class AssumptionVerdict:
                 f"{self.controller}: every assumption holds on {n}; as a consequence the "
                 f"bound {held}"
             )
+        failed = self.flights - self.n_hold
         outside = (
-            f"; {self.outside} of the {self.flights} flown outside its calibration ({self.outside_why})"
+            f"; {self.outside} of the {self.flights} flown outside its calibration "
+            f"({self.outside_why}), {self.outside_failing} of the {failed} failing among them; "
+            f"inside it {failed - self.outside_failing} of {self.flights - self.outside} failed"
             if self.outside
             else ""
         )
@@ -148,6 +152,7 @@ def assumption_verdicts(table: pd.DataFrame) -> list[AssumptionVerdict]:
                 bool(g["bound_held"].astype(bool).all()),
                 outside=len(away),
                 outside_why=str(away.iloc[0]) if len(away) else "",
+                outside_failing=len(_outside(bad)),
                 relaxed=int((g["status"] == RELAXED).sum()) if "status" in g else 0,
                 failing=tuple(str(f) for f in bad["flight"]),
             )
