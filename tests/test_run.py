@@ -451,5 +451,53 @@ def test_flown_by_checks_every_assumption_from_the_controllers_own_log(quickstar
     row = flown[flown["flight"] == "regular_s0_l1_robust"].iloc[0]
     for name in ("disturbance", "nominal", "invariance", "dense", "outliers"):
         assert a.iloc[0][f"{name}_value"] == pytest.approx(row[f"{name}_value"], rel=1e-12)
-    assert "heldout_1: no ticks.parquet" in proc.stderr.replace(str(root / "ingest") + "/", "")
+    # heldout_1 keeps a tick log (qsls simulate writes one), but PD flew it
+    assert "heldout_1: flown by pd, not l1_robust" in proc.stderr.replace(
+        str(root / "ingest") + "/", ""
+    )
     assert "l1_robust: every assumption holds on 1 flight" in proc.stdout
+
+
+def test_flown_by_reads_the_tick_log_qsls_simulate_kept(quickstart, tmp_path):
+    """``qsls simulate`` flying a synthesized controller keeps its tick log (``ticks.parquet``
+    beside the bag: the reading, input and reference of ``control.parquet``, the true state
+    at each tick); ``evaluate --flown-by`` on the ingested flight finds it through the
+    ingest's source and checks every assumption, the same values the tick log gives."""
+    from qsls.pipeline.errormodel.model import load_error_model
+    from qsls.pipeline.evaluate.assumptions import check_assumptions
+    from qsls.pipeline.evaluate.certified import certified_premise
+    from qsls.pipeline.evaluate.training import load_training
+    from qsls.pipeline.sim.ticks import STATE, TickLog
+
+    work = quickstart[0]
+    root = work / "runs" / "quickstart"
+    ctrl = root / "calibrate" / "regular" / "l1_robust"
+    sim, flight = tmp_path / "sim", tmp_path / "flight"
+    proc = _qsls("simulate", "--controller", str(ctrl), "--seed", "77", "--duration", "12",
+                 "-o", str(sim), cwd=work)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    ticks = TickLog.read(sim)
+    control = pd.read_parquet(sim / "control.parquet")
+    traj = pd.read_parquet(sim / "trajectory.parquet")
+    assert len(ticks.t) == len(control) > 100
+    np.testing.assert_array_equal(ticks.y, control[[f"y_{s}" for s in STATE]].to_numpy())
+    np.testing.assert_array_equal(ticks.u, control[["u_pitch", "u_roll", "u_thrust"]].to_numpy())
+    # the true state at each tick is the physics sample at the tick's time
+    at = traj.set_index("t").loc[ticks.t]
+    np.testing.assert_allclose(ticks.x, at[[f"x_{s}" for s in STATE]].to_numpy(), atol=1e-12)
+    proc = _qsls("ingest", str(sim / "flight.bag"), "-o", str(flight), cwd=work)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    proc = _qsls("evaluate", "--model", str(root / "fit"), "--controller", str(ctrl),
+                 "--flights", str(flight), "--flown-by", "l1_robust", "--no-figures",
+                 "--out", str(tmp_path / "ev"), cwd=work)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    a = pd.read_parquet(tmp_path / "ev" / "assumptions.parquet")
+    assert list(a["flight"]) == ["flight"]
+    premise = certified_premise(ctrl)
+    assert premise is not None
+    training = load_training(
+        root / "fit", load_error_model(root / "fit" / "error_model.yaml"), None
+    )
+    again = check_assumptions(ticks.log(), premise, training.distance)
+    for name in ("disturbance", "nominal", "invariance", "dense", "outliers"):
+        assert a.iloc[0][f"{name}_value"] == pytest.approx(again[f"{name}_value"], rel=1e-12)

@@ -34,19 +34,9 @@ from qsls.pipeline.control.guarantee import PremiseNumbers, measured_channels
 from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.disturbance import realized_disturbance, shaped_norm
 from qsls.pipeline.evaluate.theorem import nominal_states
+from qsls.pipeline.sim.ticks import FlownLog as FlownLog
 
 ASSUMPTIONS = ("disturbance", "nominal", "invariance", "dense", "outliers")
-
-
-@dataclass(frozen=True)
-class FlownLog:
-    """A flight at the controller's ticks (``(k,)`` and ``(k, 6)`` / ``(k, 3)`` arrays)."""
-
-    t: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    u: np.ndarray
-    ref: np.ndarray
 
 
 @dataclass(frozen=True)

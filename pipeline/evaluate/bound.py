@@ -35,6 +35,7 @@ Outputs (``evaluate``): ``evaluation.parquet`` (one row per flight and controlle
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -55,7 +56,6 @@ from qsls.pipeline.errormodel.model import (
 )
 from qsls.pipeline.evaluate import figures as plots
 from qsls.pipeline.evaluate.assumptions import check_assumptions
-from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
 from qsls.pipeline.evaluate.certified import (
     ControllerBound,
     calibration_of,
@@ -83,6 +83,8 @@ from qsls.pipeline.evaluate.theorem import (
 from qsls.pipeline.evaluate.training import TrainingData, load_training
 from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.ingest.flight import errors, read_flight, states
+from qsls.pipeline.sim.simulate import TRUTH_FILE
+from qsls.pipeline.sim.ticks import TICKS_FILE, TickLog
 
 __all__ = [
     "ControllerBound",
@@ -589,6 +591,26 @@ def vio_nees(
     return tuple(out)
 
 
+def own_log_of(folder: Path) -> tuple[Path | None, str]:
+    """Where flight ``folder``'s tick log is, and the controller that flew it (``''`` when not
+    recorded): the folder's own ``ticks.parquet`` (the fly stage's and the calibration's
+    flights), else the one beside the bag its ingest read (``qsls simulate``), whose
+    ``truth.json`` names the controller."""
+    if (folder / TICKS_FILE).is_file():
+        return folder / TICKS_FILE, ""
+    try:
+        inputs = read_manifest(folder).get("inputs") or []
+    except InputError:
+        return None, ""
+    for i in inputs:
+        src = Path(str(i.get("path", ""))).parent if isinstance(i, dict) else None
+        if src is not None and (src / TICKS_FILE).is_file():
+            truth = src / TRUTH_FILE
+            who = json.loads(truth.read_text()).get("controller", "") if truth.is_file() else ""
+            return src / TICKS_FILE, str(who or "")
+    return None, ""
+
+
 def own_log_assumptions(
     flights: Sequence[Path],
     bounds: Sequence[ControllerBound | None],
@@ -619,14 +641,21 @@ def own_log_assumptions(
             missing.append(f"--flown-by {bound.name}: its certificate states no premise to check")
             continue
         folder = Path(f) if Path(f).is_dir() else Path(f).parent
-        if not (folder / TICKS_FILE).is_file():
+        ticks, who = own_log_of(folder)
+        if ticks is None:
             missing.append(
                 f"{folder}: no {TICKS_FILE} (the controller's own log at its ticks: t, x_*, y_*, "
                 f"u_*, r_*, uff_*), so the assumptions of {bound.name}'s guarantee cannot be "
                 "checked on it; its premise is checked on the ingested flight"
             )
             continue
-        log = TickLog.read(folder).log()
+        if who and who != bound.name:
+            missing.append(
+                f"{folder}: flown by {who}, not {bound.name} ({ticks.parent / TRUTH_FILE}): the "
+                f"assumptions of {bound.name}'s guarantee are checked on its own flights only"
+            )
+            continue
+        log = TickLog.read(ticks).log()
         row = check_assumptions(log, premise, training.distance)
         span = float(log.t[-1] - log.t[0]) if len(log.t) else 0.0
         row["outside_calibration"] = outside_calibration(calibration, condition, span, estimator)

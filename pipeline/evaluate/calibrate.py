@@ -66,8 +66,6 @@ from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.core.references import Reference
-from qsls.pipeline.core.units import NS
 from qsls.pipeline.errormodel.model import load_error_model, resolve_model
 from qsls.pipeline.evaluate.assumptions import (
     CertifiedPremise,
@@ -80,17 +78,15 @@ from qsls.pipeline.evaluate.certified import certified_premise, expand_controlle
 from qsls.pipeline.evaluate.options import CalibrateOptions as CalibrateOptions
 from qsls.pipeline.evaluate.training import load_training
 from qsls.pipeline.sim.closedloop import fly
-from qsls.pipeline.sim.controllers import feedforward
 from qsls.pipeline.sim.options import SimOptions
+from qsls.pipeline.sim.ticks import TICKS_FILE as TICKS_FILE
+from qsls.pipeline.sim.ticks import TickLog as TickLog
+from qsls.pipeline.sim.ticks import tick_log
 
 STAGE = "calibrate"
 SCORES_FILE = "scores.parquet"
 VALIDATION_FILE = "validation.parquet"
 SUMMARY_FILE = "calibration.json"
-TICKS_FILE = "ticks.parquet"
-"""The controller's own log of a flight, at its ticks."""
-STATE = ("px", "py", "pz", "vx", "vy", "vz")
-INPUT = ("pitch", "roll", "thrust")
 
 
 # --------------------------------------------------------------------------- flights
@@ -108,44 +104,6 @@ class Job:
     offset: tuple[float, float, float]
 
 
-@dataclass(frozen=True)
-class TickLog:
-    """A flight at the controller's ticks: ``t`` (k,), ``x``/``y``/``ref`` (k, 6), ``u``/``uff``
-    (k, 3) (absolute input and the reference's feedforward, the paper's signs)."""
-
-    t: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    u: np.ndarray
-    ref: np.ndarray
-    uff: np.ndarray
-    crashed: bool = False
-    crash_reason: str = ""
-
-    def log(self) -> FlownLog:
-        return FlownLog(self.t, self.x, self.y, self.u, self.ref)
-
-    def frame(self) -> pd.DataFrame:
-        cols: dict[str, np.ndarray] = {"t": self.t}
-        for prefix, a, names in (("x", self.x, STATE), ("y", self.y, STATE), ("u", self.u, INPUT),
-                                 ("r", self.ref, STATE), ("uff", self.uff, INPUT)):  # fmt: skip
-            for j, n in enumerate(names):
-                cols[f"{prefix}_{n}"] = a[:, j]
-        return pd.DataFrame(cols)
-
-    @classmethod
-    def read(cls, path: Path) -> TickLog:
-        """A ``ticks.parquet`` (or the folder holding it)."""
-        f = path / TICKS_FILE if path.is_dir() else path
-        df = pd.read_parquet(f)
-
-        def block(prefix: str, names: Sequence[str]) -> np.ndarray:
-            return df[[f"{prefix}_{n}" for n in names]].to_numpy(float)
-
-        return cls(df["t"].to_numpy(float), block("x", STATE), block("y", STATE),
-                   block("u", INPUT), block("r", STATE), block("uff", INPUT))  # fmt: skip
-
-
 def fly_job(job: Job) -> TickLog:
     """Fly ``job`` (no bag: the tick log is what the scores read)."""
     ref = dict(job.sim.get("reference") or {})
@@ -161,14 +119,7 @@ def fly_job(job: Job) -> TickLog:
             "height": float(ref.get("height", 1.0)) + job.offset[2],
         }
     opts = SimOptions.model_validate(merge(job.sim, over))
-    f = fly(opts)
-    t = f.ctrl_t_ns / NS
-    n_sub = max(1, round(f.dt * NS / (f.t_ns[1] - f.t_ns[0]))) if len(f.t_ns) > 1 else 1
-    idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
-    reference = Reference(opts.reference)
-    uff = np.array([feedforward(reference.sample(float(s)), f.mass) for s in t]).reshape(-1, 3)
-    return TickLog(t, f.x[idx], f.ctrl_y, f.ctrl_u, f.ctrl_ref, uff, bool(f.crashed),
-                 str(f.crash_reason or ""))  # fmt: skip
+    return tick_log(fly(opts), opts.reference)
 
 
 # --------------------------------------------------------------------------- scores

@@ -57,7 +57,6 @@ from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError, QslsError
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.core.references import Reference
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.errormodel.model import load_error_model, resolve_model
 from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions, crashed
@@ -79,7 +78,6 @@ from qsls.pipeline.evaluate.bound import (
     load_training,
     write_tables,
 )
-from qsls.pipeline.evaluate.calibrate import TICKS_FILE, TickLog
 from qsls.pipeline.evaluate.certified import (
     certificate_for,
     certified_premise,
@@ -114,8 +112,9 @@ from qsls.pipeline.ingest.flight import read_flight
 from qsls.pipeline.ingest.stage import ingest
 from qsls.pipeline.sim.assured import assured_controller
 from qsls.pipeline.sim.closedloop import fly
-from qsls.pipeline.sim.controllers import feedforward, make_controller
+from qsls.pipeline.sim.controllers import make_controller
 from qsls.pipeline.sim.simulate import simulate
+from qsls.pipeline.sim.ticks import TICKS_FILE, TickLog, tick_feedforward, tick_states
 from qsls.pipeline.sim.vehicle import Vehicle
 
 
@@ -191,10 +190,7 @@ def run_job(job: FlyJob) -> FlyOutcome:
     t_ctrl = f.ctrl_t_ns / NS
     u_pd = pd_on_same_estimate(opts, f.mass, t_ctrl, f.ctrl_y, f.ctrl_ref, job.pd_gain)
     u_off = command_offset(opts, f.mass, t_ctrl)
-    n_sub = max(1, round(f.dt * NS / (f.t_ns[1] - f.t_ns[0]))) if len(f.t_ns) > 1 else 1
-    idx = np.minimum(np.arange(len(f.ctrl_t_ns)) * n_sub, len(f.x) - 1)
-    reference = Reference(opts.reference)
-    uff = np.array([feedforward(reference.sample(float(s)), f.mass) for s in t_ctrl]).reshape(-1, 3)
+    x_ctrl = tick_states(f)
     start = float(opts.reference.start_s)
     on = t_ctrl >= start
     circle = circle_metrics(
@@ -212,19 +208,19 @@ def run_job(job: FlyJob) -> FlyOutcome:
             **f.metrics(),
             **input_comparison(f.ctrl_u, u_pd, u_off),
             **motion_metrics(opts, job.seed, f.vio_x, f.vio_w, f.emulator),
-            **error_reaction(opts, f.mass, f.ctrl_y - f.x[idx], job.pd_gain),
+            **error_reaction(opts, f.mass, f.ctrl_y - x_ctrl, job.pd_gain),
             **circle,
         },
         ingest_error=ingest_error,
         t_ctrl=t_ctrl,
-        x_ctrl=f.x[idx],
+        x_ctrl=x_ctrl,
         ref_ctrl=f.ctrl_ref,
         u_ctrl=f.ctrl_u,
         y_ctrl=f.ctrl_y,
         t_vio=f.vio_t_ns / NS,
         e_norm=np.abs(f.vio_e).max(axis=1),
         u_pd=u_pd,
-        uff_ctrl=uff,
+        uff_ctrl=tick_feedforward(opts.reference, t_ctrl, f.mass),
         extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass,
                **({"flew": list(ctrl.flew), "bits": list(ctrl.bits)} if job.assured else {})},
         estimator=job.estimator,
@@ -248,7 +244,7 @@ def _assured(job: FlyJob, opts: SimOptions, primary: Any) -> Any:
 
 
 def tick_frame(o: FlyOutcome) -> pd.DataFrame:
-    """``ticks.parquet`` of a flown flight (:class:`qsls.pipeline.evaluate.calibrate.TickLog`);
+    """``ticks.parquet`` of a flown flight (:class:`qsls.pipeline.sim.ticks.TickLog`);
     a runtime-assured flight's adds, per tick, the monitor's bits (``monitor_bits``, 0 while
     consistent) and which controller flew (``flew``: the controller's name, then ``pd`` or
     ``hold`` from the trip tick on)."""

@@ -12,8 +12,11 @@ Output folder (stage ``simulate``, written through :class:`StageWriter`):
 - ``errors.parquet``: the emulator's error at every VIO sample, in the motion-capture
   (world) frame before the VIO frame's transform: ``stamp_ns`` (VIO clock), ``e_px`` ..
   ``e_vz``, and the true state ``x_px`` .. ``x_vz`` there;
-- ``trajectory.parquet`` (truth and reference at the physics rate, VIO clock) and
-  ``control.parquet`` (what the controller saw and commanded at each tick);
+- ``trajectory.parquet`` (truth and reference at the physics rate, VIO clock),
+  ``control.parquet`` (what the controller saw and commanded at each tick, VIO clock) and
+  ``ticks.parquet``: the controller's own log (:mod:`qsls.pipeline.sim.ticks`: the true state,
+  the reading, the input, the reference and its feedforward at each tick, flight time), from
+  which ``qsls evaluate --flown-by`` checks every assumption of the controller's guarantee;
 - ``camera_frame.npz`` (camera loop only): one frame and the features tracked on it.
 
 Clocks (docs/conventions.md#clocks): ``time_offset_s`` is added to motion-capture stamps to put
@@ -43,6 +46,7 @@ from qsls.pipeline.sim.controllers import PositionController, controller_folder
 from qsls.pipeline.sim.mocap import sample_mocap
 from qsls.pipeline.sim.options import LogOptions as LogOptions
 from qsls.pipeline.sim.options import SimOptions
+from qsls.pipeline.sim.ticks import TICKS_FILE, tick_log
 
 STAGE = "simulate"
 FORMATS = ("ros1", "ros2-sqlite", "ros2-mcap", "mcap")
@@ -267,6 +271,7 @@ def simulate(
             w.write_bytes(CAMERA_FRAME, npz_bytes(flight.camera_frame))
         for fname, df in _frames(flight, clocks["vio_clock_start_ns"]).items():
             w.write_parquet(fname, df)
+        w.write_parquet(TICKS_FILE, tick_log(flight, options.reference).frame())
         w.results.update(
             {
                 "bag": name,
