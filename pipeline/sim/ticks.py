@@ -40,15 +40,10 @@ class FlownLog:
 
 
 @dataclass(frozen=True)
-class TickLog:
+class TickLog(FlownLog):
     """A flight at the controller's ticks: ``t`` (k,), ``x``/``y``/``ref`` (k, 6), ``u``/``uff``
     (k, 3) (absolute input and the reference's feedforward, the paper's signs)."""
 
-    t: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    u: np.ndarray
-    ref: np.ndarray
     uff: np.ndarray
     crashed: bool = False
     crash_reason: str = ""
