@@ -320,6 +320,30 @@ def test_run_report_is_reproducible(quickstart):
     assert (first / "index.html").read_bytes() == (second / "index.html").read_bytes()
 
 
+def test_the_reports_calibration_table_shows_where_lambda_hat_comes_from(quickstart):
+    """The report's calibration table gives the calibration flights' largest ratios and the
+    range flights' own quantile; ``lambda_hat`` is the larger of the two quantiles, each the
+    order statistic of the certificate's recorded scores."""
+    from qsls.pipeline.control.artifacts import Certificate
+    from qsls.pipeline.control.calibration import calibrated_quantile
+
+    root = quickstart[0] / "runs" / "quickstart"
+    cal = Certificate.load(root / "calibrate" / "regular" / "l1_robust").calibration
+    assert cal is not None and len(cal.range_scores) == cal.range_flights == 20
+    own = calibrated_quantile(cal.scores, cal.alpha, "conformal")
+    rng = calibrated_quantile(cal.range_scores, cal.alpha, "conformal")
+    assert cal.lambda_hat == pytest.approx(max(own, rng), rel=1e-12)
+    md = (root / "report" / "report.md").read_text()
+    head = next(ln for ln in md.splitlines() if ln.startswith("| controller | condition | status"))
+    cols = [c.strip() for c in head.strip("|").split("|")]
+    row = next(ln for ln in md.splitlines() if ln.startswith("| l1_robust | regular | certified"))
+    cells = dict(zip(cols, (c.strip() for c in row.strip("|").split("|")), strict=True))
+    assert float(cells["lambda_hat"]) == pytest.approx(cal.lambda_hat, rel=1e-3)
+    assert cells["range flights"] == (
+        f"{rng:.3g} (20 flights, largest {max(cal.range_scores):.3g})"
+    )
+
+
 def test_bad_run_config_is_one_clear_error(tmp_path):
     cfg = tmp_path / "bad.yaml"
     cfg.write_text(

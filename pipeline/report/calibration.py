@@ -7,7 +7,8 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Calibration, Certificate
+from qsls.pipeline.control.calibration import calibrated_quantile
 from qsls.pipeline.evaluate.calibrate import SUMMARY_FILE
 from qsls.pipeline.report.document import Section
 from qsls.pipeline.report.facts import Facts, g4, pct, status_words
@@ -38,6 +39,17 @@ def _tolerance(tolerances: dict[str, float], q: str) -> str:
     return g4(tolerances.get(q))
 
 
+def _range_cell(cal: Calibration | None) -> str:
+    """The range flights' calibrated quantile (the certificate's ``lambda_hat`` is the larger of
+    it and the calibration flights'), with how many flew; ``-`` without range flights."""
+    if cal is None or not cal.range_scores:
+        return "-"
+    method = "pac" if cal.method == "pac" else "conformal"
+    delta = 1.0 - cal.confidence if cal.confidence else 0.05
+    q = calibrated_quantile(cal.range_scores, cal.alpha, method, delta)
+    return f"{g4(q)} ({len(cal.range_scores)} flights, largest {g4(max(cal.range_scores))})"
+
+
 def section_calibration(f: Facts, counter: list[int]) -> Section | None:
     rows = read_calibration(f)
     if not rows:
@@ -64,7 +76,7 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
             r["controller"], r["condition"], status_words(r["status"])[0], r["flights"],
             f"{g4(r['alpha'])} ({how})", g4(r["lambda_hat"]),
             ", ".join(f"{q} {g4(parts.get(k))}" for k, q in PARTS.items() if k in parts),
-            f"{g4(r['rho_star'])} / {g4(r['tested_range'])}",
+            _range_cell(cal), f"{g4(r['rho_star'])} / {g4(r['tested_range'])}",
         ])  # fmt: skip
         tol.append([r["controller"], r["condition"],
                     *(_tolerance(cal.tolerances, q) if cal and cal.tolerances else "-" for q in QUANTITIES)])  # fmt: skip
@@ -77,13 +89,15 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
         ])  # fmt: skip
     sec.table(
         ["controller", "condition", "status", "flights", "alpha", "lambda_hat",
-         "largest ratio", "rho* / reached"],
+         "largest ratio", "range flights", "rho* / reached"],
         main,
         "The calibration: lambda_hat inflates every premise quantity; the largest ratio over the "
-        "calibration flights shows which quantity drives it; rho* under the calibrated premise "
-        "beside the distance the flights reached (certified needs it to reach rho*)",
+        "calibration flights shows which quantity drives it; the range flights (the reference "
+        "offset toward rho*, scored on the perception premise) give their own quantile, and "
+        "lambda_hat is the larger of the two; rho* under the calibrated premise beside the "
+        "distance the flights reached (certified needs it to reach rho*)",
         notes=[f"{r['controller']} ({r['condition']}): {r['reason']}" for r, _ in rows if r["reason"]],
-        text_cols=[2, 4, 6, 7],
+        text_cols=[2, 4, 6, 7, 8],
     )  # fmt: skip
     if any(any(c != "-" for c in t[2:]) for t in tol):
         sec.table(
