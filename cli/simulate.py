@@ -32,7 +32,8 @@ def command(
         "--out",
         "-o",
         help="Output folder: the bag (flight.bag, flight/ or flight.mcap), truth.json, "
-        "errors.parquet, trajectory.parquet, control.parquet, manifest.json.",
+        "errors.parquet, trajectory.parquet, control.parquet, ticks.parquet (the "
+        "controller's own log), manifest.json.",
     ),
     config: Path = typer.Option(
         None,

@@ -512,3 +512,16 @@ def test_stated_alpha_is_met_by_exchangeable_synthetic_flights(tmp_path: Path) -
     lo, hi = binom.ppf([0.0005, 0.9995], draws, 0.1) / draws
     assert lo <= misses / draws <= hi, (misses, lo, hi)
     assert wide / draws > hi, wide
+
+
+def test_a_range_flights_score_keeps_the_disturbance_and_drops_the_reference() -> None:
+    """A range flight flies an offset reference on purpose (its reference term is left out),
+    but the disturbance bound is assumed out to rho*: a range flight whose realized
+    disturbance exceeds eps_w raises its score (paper_sim_camera's first degraded calibration
+    had one at 1.10, left out by a perception-only score)."""
+    from qsls.pipeline.evaluate.calibrate import range_score
+
+    parts = {"dense": 0.9, "disturbance": 1.098, "reference": 13.4, "outliers": 0.0}
+    assert range_score(parts) == 1.098
+    assert range_score({**parts, "disturbance": 0.5}) == 0.9
+    assert range_score({**parts, "outliers": 2.0}) == 2.0

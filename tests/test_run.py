@@ -113,6 +113,13 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
                 assert again[k] == pytest.approx(r[k], rel=1e-12), (name, k)
             # the tick log holds the feedforward the controller added
             assert np.abs(ticks.uff).max() > 0
+        # a range flight's score: every part of its own tick log but the reference's
+        for _, r in ranged.head(3).iterrows():
+            ticks = TickLog.read(root / "calibrate" / "flights" / r["flight"])
+            again = score_flight(ticks.log(), premise, training.distance)
+            assert again["reference"] > 1  # offset on purpose: left out of its score
+            want = max(again["dense"], again["disturbance"], again["outliers"])
+            assert r["score"] == pytest.approx(want, rel=1e-12)
         cert = yaml.safe_load(
             (root / "calibrate" / "regular" / name / "certificate.yaml").read_text()
         )

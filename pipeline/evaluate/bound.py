@@ -605,8 +605,10 @@ def own_log_of(folder: Path) -> tuple[Path | None, str]:
     for i in inputs:
         src = Path(str(i.get("path", ""))).parent if isinstance(i, dict) else None
         if src is not None and (src / TICKS_FILE).is_file():
-            truth = src / TRUTH_FILE
-            who = json.loads(truth.read_text()).get("controller", "") if truth.is_file() else ""
+            try:
+                who = json.loads((src / TRUTH_FILE).read_text()).get("controller", "")
+            except (OSError, ValueError, AttributeError):
+                who = ""  # no readable truth.json: who flew it is not recorded
             return src / TICKS_FILE, str(who or "")
     return None, ""
 

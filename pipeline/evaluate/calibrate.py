@@ -8,7 +8,8 @@ perception condition:
    ``seed, seed + 1, ...`` (never a design flight's seed) under the stated conditions (the
    design's vehicle, reference and estimator). With ``range_flights``, it also flies the
    reference moved by random offsets within ``tube``: those flights reach distances toward
-   ``rho*`` and are scored on the perception premise only. Each flight keeps the controller's own tick log (``ticks.parquet``: ``t``,
+   ``rho*`` and are scored on every premise quantity but the reference's distance
+   (:func:`range_score`). Each flight keeps the controller's own tick log (``ticks.parquet``: ``t``,
    ``x_*``, ``y_*``, ``u_*``, ``r_*``, ``uff_*``) and gets its score ``lambda_f``
    (:func:`score_flight`, :mod:`qsls.pipeline.control.calibration`).
 2. **The calibrated certificate**: ``lambda_hat`` from the scores (split conformal or PAC), the
@@ -158,6 +159,14 @@ def score_flight(
             "w_max": float(w.max()) if len(w) else 0.0, "window_max": float(counts.max())}  # fmt: skip
 
 
+def range_score(parts: dict[str, float]) -> float:
+    """A range flight's score: ``max(dense, disturbance, outliers)``. Its reference is offset on
+    purpose, so the reference term (``dist(x_ref) / Delta``) is left out; the disturbance stays
+    in: ``||H^-1 w_k|| <= eps_w`` is assumed at every state out to ``rho*``, and a range flight
+    is where the states far from the training data are (docs/calibration.md, Tested range)."""
+    return max(parts["dense"], parts["disturbance"], parts["outliers"])
+
+
 def offsets(seed: int, tube: float, height: float = 1.0) -> tuple[float, float, float]:
     """The reference offset of flight ``seed`` in a tube of radius ``tube``: uniform in the
     horizontal disc of radius ``tube``, the height uniform within ``tube / 2`` but never
@@ -220,7 +229,7 @@ def decide(
 ) -> tuple[str, str, float, int, cal.Check | None, float, dict[str, float]]:
     """``(status, reason, lambda_hat, rank, check, tested range, tolerances)`` (module
     docstring); ``reached`` covers the calibration and the range flights, ``range_scores`` are
-    the range flights' perception scores (their quantile can only raise ``lambda_hat``)."""
+    the range flights' scores (:func:`range_score`) (their quantile can only raise ``lambda_hat``)."""
     n = len(scores)
     rank = cal.calibration_rank(n, options.alpha, options.method, options.delta)
     lam = cal.calibrated_quantile(scores, options.alpha, options.method, options.delta)
@@ -483,8 +492,8 @@ def calibrate(
         for j, tk in zip(cjobs, ticks, strict=True):
             w.write_parquet(f"flights/{j.name}/{TICKS_FILE}", tk.frame())
             parts = score_flight(tk.log(), premises[j.controller], training.distance)
-            if j.role == "range":  # the offset is the point: scored on perception only
-                parts["score"] = max(parts["dense"], parts["outliers"])
+            if j.role == "range":  # the offset is the point: every part but the reference's
+                parts["score"] = range_score(parts)
             rows.append({"flight": j.name, "role": j.role, "controller": j.controller,
                          "condition": j.condition, "seed": j.seed,
                          "offset_m": float(np.hypot(*j.offset[:2])), "crashed": tk.crashed,

@@ -147,9 +147,10 @@ class CalibrateOptions(Options):
     range_flights: int = Field(0, ge=0)
     """Range flights per candidate and condition: the candidate flies the design reference
     moved by a random offset within ``tube``, so the flights reach distances from the training
-    states toward ``rho*``; they are scored on the perception premise only (dense part and
-    outlier count: the reference's offset is the point), and the certificate takes the larger
-    of the two calibrated inflations (docs/calibration.md, Tested range)."""
+    states toward ``rho*``; they are scored on every premise quantity but the reference's
+    distance (dense part, disturbance, outlier count: the reference's offset is the point), and
+    the certificate takes the larger of the two calibrated inflations (docs/calibration.md,
+    Tested range)."""
     tube: float = Field(0.0, ge=0)
     """Radius (m) of the range flights' offsets: horizontal, uniform in the disc; the height
     uniform within ``tube / 2``."""

@@ -8,7 +8,7 @@ import json
 from typing import Any
 
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Calibration, Certificate
-from qsls.pipeline.control.calibration import calibrated_quantile
+from qsls.pipeline.control.calibration import Method, calibrated_quantile
 from qsls.pipeline.evaluate.calibrate import SUMMARY_FILE
 from qsls.pipeline.report.document import Section
 from qsls.pipeline.report.facts import Facts, g4, pct, status_words
@@ -44,7 +44,7 @@ def _range_cell(cal: Calibration | None) -> str:
     it and the calibration flights'), with how many flew; ``-`` without range flights."""
     if cal is None or not cal.range_scores:
         return "-"
-    method = "pac" if cal.method == "pac" else "conformal"
+    method: Method = "pac" if cal.method == "pac" else "conformal"
     delta = 1.0 - cal.confidence if cal.confidence else 0.05
     q = calibrated_quantile(cal.range_scores, cal.alpha, method, delta)
     return f"{g4(q)} ({len(cal.range_scores)} flights, largest {g4(max(cal.range_scores))})"
