@@ -168,6 +168,11 @@ def test_a_flight_outside_the_calibrations_conditions_says_why() -> None:
         "failing among them; inside it 1 of 2 failed"
     )
     assert "outside" not in assumption_verdicts(table.drop(columns="outside_calibration"))[0].line()
+    # every flight outside: no count of the flights inside
+    (away,) = assumption_verdicts(table.assign(outside_calibration=both))
+    assert away.line().endswith(
+        f"; 3 of the 3 flown outside its calibration ({both}), 2 of the 2 failing among them"
+    )
 
 
 def test_a_heldout_verdict_counts_rows_under_a_relaxed_conditions_certificate() -> None:

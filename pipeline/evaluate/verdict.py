@@ -111,11 +111,11 @@ class AssumptionVerdict:
                 f"{self.controller}: every assumption holds on {n}; as a consequence the "
                 f"bound {held}"
             )
-        failed = self.flights - self.n_hold
+        failed, inside = self.flights - self.n_hold, self.flights - self.outside
         outside = (
             f"; {self.outside} of the {self.flights} flown outside its calibration "
-            f"({self.outside_why}), {self.outside_failing} of the {failed} failing among them; "
-            f"inside it {failed - self.outside_failing} of {self.flights - self.outside} failed"
+            f"({self.outside_why}), {self.outside_failing} of the {failed} failing among them"
+            + (f"; inside it {failed - self.outside_failing} of {inside} failed" if inside else "")
             if self.outside
             else ""
         )
