@@ -64,7 +64,7 @@ def test_each_flight_is_checked_against_its_own_conditions_certificate(flown) ->
         ticks = TickLog.read(tmp / "fly" / "flights" / row["flight"])
         premise = certified_premise(folder)
         assert premise is not None
-        again = check_assumptions(ticks.log(), premise, training.distance)
+        again = check_assumptions(ticks, premise, training.distance)
         for name in ("disturbance", "dense", "outliers"):
             assert row[f"{name}_limit"] == pytest.approx(again[f"{name}_limit"], rel=1e-12)
             assert row[f"{name}_value"] == pytest.approx(again[f"{name}_value"], rel=1e-12)

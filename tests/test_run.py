@@ -108,7 +108,7 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
         premise = certified_premise(root / "synth" / name)
         for _, r in sel.head(4).iterrows():
             ticks = TickLog.read(root / "calibrate" / "flights" / r["flight"])
-            again = score_flight(ticks.log(), premise, training.distance)
+            again = score_flight(ticks, premise, training.distance)
             for k in ("dense", "disturbance", "reference", "outliers", "score"):
                 assert again[k] == pytest.approx(r[k], rel=1e-12), (name, k)
             # the tick log holds the feedforward the controller added
@@ -116,7 +116,7 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
         # a range flight's score: every part of its own tick log but the reference's
         for _, r in ranged.head(3).iterrows():
             ticks = TickLog.read(root / "calibrate" / "flights" / r["flight"])
-            again = score_flight(ticks.log(), premise, training.distance)
+            again = score_flight(ticks, premise, training.distance)
             assert again["reference"] > 1  # offset on purpose: left out of its score
             want = max(again["dense"], again["disturbance"], again["outliers"])
             assert r["score"] == pytest.approx(want, rel=1e-12)
@@ -146,7 +146,7 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
         c = certified_premise(root / "calibrate" / "regular" / name)
         valid = pd.read_parquet(root / "calibrate" / "validation.parquet")
         v = valid[valid["controller"] == name].iloc[0]
-        row = check_assumptions(TickLog.read(root / "calibrate" / "flights" / v["flight"]).log(), c,
+        row = check_assumptions(TickLog.read(root / "calibrate" / "flights" / v["flight"]), c,
                                 training.distance)  # fmt: skip
         for a in ("disturbance", "nominal", "invariance", "dense", "outliers"):
             assert row[f"{a}_value"] == pytest.approx(v[f"{a}_value"], rel=1e-12)
@@ -187,7 +187,7 @@ def test_quickstart_assumptions_on_the_flown_flights(quickstart):
     )
     ticks = TickLog.read(root / "fly" / "flights" / row["flight"])
     cert = root / "calibrate" / "regular" / "l1_robust"  # the flights are checked against it
-    again = check_assumptions(ticks.log(), certified_premise(cert), training.distance)
+    again = check_assumptions(ticks, certified_premise(cert), training.distance)
     for name in ("disturbance", "nominal", "invariance", "dense", "outliers"):
         assert again[f"{name}_value"] == pytest.approx(row[f"{name}_value"], rel=1e-12), name
     degraded = a[(a["controller"] == "l1_robust") & (a["condition"] == "degraded")].iloc[0]
@@ -529,6 +529,6 @@ def test_flown_by_reads_the_tick_log_qsls_simulate_kept(quickstart, tmp_path):
     training = load_training(
         root / "fit", load_error_model(root / "fit" / "error_model.yaml"), None
     )
-    again = check_assumptions(ticks.log(), premise, training.distance)
+    again = check_assumptions(ticks, premise, training.distance)
     for name in ("disturbance", "nominal", "invariance", "dense", "outliers"):
         assert a.iloc[0][f"{name}_value"] == pytest.approx(again[f"{name}_value"], rel=1e-12)

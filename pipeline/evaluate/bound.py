@@ -500,8 +500,9 @@ def evaluate(
     ``conditions[i]``: flight ``i``'s perception condition (``''`` where not known, as for a
     recorded log); ``estimators[i]``: the estimator that made flight ``i``'s estimate
     (``camera``, ``emulator``; ``''`` where not known); ``by_condition``: per condition, the
-    certificates a calibration wrote for it (``calibrate/<condition>/``). A flight is checked against its condition's certificate
-    where there is one, else the controller's own, and the table's ``outside_calibration``
+    certificates a calibration wrote for it (``calibrate/<condition>/``). A flight is checked
+    against its condition's certificate where there is one, else the controller's own, and the
+    table's ``outside_calibration``
     says when that certificate was calibrated under other conditions (docs/calibration.md,
     "One certificate per condition")."""
     model_file, fit_dir = resolve_model(error_model)
@@ -657,7 +658,7 @@ def own_log_assumptions(
                 f"assumptions of {bound.name}'s guarantee are checked on its own flights only"
             )
             continue
-        log = TickLog.read(ticks).log()
+        log = TickLog.read(ticks)
         row = check_assumptions(log, premise, training.distance)
         span = float(log.t[-1] - log.t[0]) if len(log.t) else 0.0
         row["outside_calibration"] = outside_calibration(calibration, condition, span, estimator)

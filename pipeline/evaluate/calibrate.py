@@ -491,7 +491,7 @@ def calibrate(
         rows = []
         for j, tk in zip(cjobs, ticks, strict=True):
             w.write_parquet(f"flights/{j.name}/{TICKS_FILE}", tk.frame())
-            parts = score_flight(tk.log(), premises[j.controller], training.distance)
+            parts = score_flight(tk, premises[j.controller], training.distance)
             if j.role == "range":  # the offset is the point: every part but the reference's
                 parts["score"] = range_score(parts)
             rows.append({"flight": j.name, "role": j.role, "controller": j.controller,
@@ -541,7 +541,7 @@ def calibrate(
                 c = cal_premise[(j.condition, j.controller)]
                 if c is None:
                     continue
-                row = check_assumptions(tk.log(), c, training.distance)
+                row = check_assumptions(tk, c, training.distance)
                 if tk.crashed:
                     row = crashed(row, float(tk.t[-1]), tk.crash_reason)
                 vrows.append({"flight": j.name, "controller": j.controller, "condition": j.condition,

@@ -114,7 +114,7 @@ from qsls.pipeline.sim.assured import assured_controller
 from qsls.pipeline.sim.closedloop import fly
 from qsls.pipeline.sim.controllers import make_controller
 from qsls.pipeline.sim.simulate import simulate
-from qsls.pipeline.sim.ticks import TICKS_FILE, TickLog, tick_feedforward, tick_states
+from qsls.pipeline.sim.ticks import TICKS_FILE, TickLog, tick_log
 from qsls.pipeline.sim.vehicle import Vehicle
 
 
@@ -177,9 +177,10 @@ def run_job(job: FlyJob) -> FlyOutcome:
     if job.assured is not None:
         ctrl = _assured(job, opts, ctrl)
         f = fly(opts, ctrl)
+        ticks = tick_log(f, opts.reference)
     else:
         res = simulate(opts, Path(job.sim_dir), force=True, controller=ctrl)
-        f = res.flight
+        f, ticks = res.flight, res.ticks
         try:
             ingest(
                 [res.bag], IngestOptions.model_validate(job.ingest), Path(job.flight_dir),
@@ -190,7 +191,6 @@ def run_job(job: FlyJob) -> FlyOutcome:
     t_ctrl = f.ctrl_t_ns / NS
     u_pd = pd_on_same_estimate(opts, f.mass, t_ctrl, f.ctrl_y, f.ctrl_ref, job.pd_gain)
     u_off = command_offset(opts, f.mass, t_ctrl)
-    x_ctrl = tick_states(f)
     start = float(opts.reference.start_s)
     on = t_ctrl >= start
     circle = circle_metrics(
@@ -208,19 +208,19 @@ def run_job(job: FlyJob) -> FlyOutcome:
             **f.metrics(),
             **input_comparison(f.ctrl_u, u_pd, u_off),
             **motion_metrics(opts, job.seed, f.vio_x, f.vio_w, f.emulator),
-            **error_reaction(opts, f.mass, f.ctrl_y - x_ctrl, job.pd_gain),
+            **error_reaction(opts, f.mass, f.ctrl_y - ticks.x, job.pd_gain),
             **circle,
         },
         ingest_error=ingest_error,
         t_ctrl=t_ctrl,
-        x_ctrl=x_ctrl,
+        x_ctrl=ticks.x,
         ref_ctrl=f.ctrl_ref,
         u_ctrl=f.ctrl_u,
         y_ctrl=f.ctrl_y,
         t_vio=f.vio_t_ns / NS,
         e_norm=np.abs(f.vio_e).max(axis=1),
         u_pd=u_pd,
-        uff_ctrl=tick_feedforward(opts.reference, t_ctrl, f.mass),
+        uff_ctrl=ticks.uff,
         extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass,
                **({"flew": list(ctrl.flew), "bits": list(ctrl.bits)} if job.assured else {})},
         estimator=job.estimator,

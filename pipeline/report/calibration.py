@@ -93,7 +93,8 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
         main,
         "The calibration: lambda_hat inflates every premise quantity; the largest ratio over the "
         "calibration flights shows which quantity drives it; the range flights (the reference "
-        "offset toward rho*, scored on the perception premise) give their own quantile, and "
+        "offset toward rho*, scored on every premise quantity but the reference's distance) give "
+        "their own quantile, and "
         "lambda_hat is the larger of the two; rho* under the calibrated premise beside the "
         "distance the flights reached (certified needs it to reach rho*)",
         notes=[f"{r['controller']} ({r['condition']}): {r['reason']}" for r, _ in rows if r["reason"]],

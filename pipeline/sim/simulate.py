@@ -46,7 +46,7 @@ from qsls.pipeline.sim.controllers import PositionController, controller_folder
 from qsls.pipeline.sim.mocap import sample_mocap
 from qsls.pipeline.sim.options import LogOptions as LogOptions
 from qsls.pipeline.sim.options import SimOptions
-from qsls.pipeline.sim.ticks import TICKS_FILE, tick_log
+from qsls.pipeline.sim.ticks import TICKS_FILE, TickLog, tick_log
 
 STAGE = "simulate"
 FORMATS = ("ros1", "ros2-sqlite", "ros2-mcap", "mcap")
@@ -69,6 +69,8 @@ class SimResult:
     flight: FlightLog
     metrics: dict[str, Any]
     truth: dict[str, Any]
+    ticks: TickLog
+    """The controller's own log of the flight (``ticks.parquet``)."""
 
     def summary(self) -> dict[str, Any]:
         m = self.metrics
@@ -271,7 +273,8 @@ def simulate(
             w.write_bytes(CAMERA_FRAME, npz_bytes(flight.camera_frame))
         for fname, df in _frames(flight, clocks["vio_clock_start_ns"]).items():
             w.write_parquet(fname, df)
-        w.write_parquet(TICKS_FILE, tick_log(flight, options.reference).frame())
+        ticks = tick_log(flight, options.reference)
+        w.write_parquet(TICKS_FILE, ticks.frame())
         w.results.update(
             {
                 "bag": name,
@@ -283,4 +286,6 @@ def simulate(
                 **{k: v for k, v in metrics.items() if k not in ("crashed", "crash_reason")},
             }
         )
-    return SimResult(out=out, bag=out / name, flight=flight, metrics=metrics, truth=truth)
+    return SimResult(
+        out=out, bag=out / name, flight=flight, metrics=metrics, truth=truth, ticks=ticks
+    )

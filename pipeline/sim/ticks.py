@@ -42,14 +42,12 @@ class FlownLog:
 @dataclass(frozen=True)
 class TickLog(FlownLog):
     """A flight at the controller's ticks: ``t`` (k,), ``x``/``y``/``ref`` (k, 6), ``u``/``uff``
-    (k, 3) (absolute input and the reference's feedforward, the paper's signs)."""
+    (k, 3) (absolute input and the reference's feedforward, the paper's signs); a
+    :class:`FlownLog`, so every assumption check reads it as it is."""
 
     uff: np.ndarray
     crashed: bool = False
     crash_reason: str = ""
-
-    def log(self) -> FlownLog:
-        return FlownLog(self.t, self.x, self.y, self.u, self.ref)
 
     def frame(self) -> pd.DataFrame:
         cols: dict[str, np.ndarray] = {"t": self.t}
@@ -72,7 +70,7 @@ class TickLog(FlownLog):
                    block("u", INPUT), block("r", STATE), block("uff", INPUT))  # fmt: skip
 
 
-def tick_states(flight: FlightLog) -> np.ndarray:
+def _tick_states(flight: FlightLog) -> np.ndarray:
     """``x_k``: the physics sample at each controller tick (``(k, 6)``)."""
     ticks = flight.ctrl_t_ns
     if len(flight.t_ns) > 1:
@@ -83,7 +81,7 @@ def tick_states(flight: FlightLog) -> np.ndarray:
     return np.asarray(flight.x[idx])
 
 
-def tick_feedforward(reference: ReferenceOptions, t: np.ndarray, mass: float) -> np.ndarray:
+def _tick_feedforward(reference: ReferenceOptions, t: np.ndarray, mass: float) -> np.ndarray:
     """``uff_k = feedforward(r(t_k), mass)`` at the tick times ``t`` (s): ``(k, 3)``."""
     ref = Reference(reference)
     return np.array([feedforward(ref.sample(float(s)), mass) for s in t]).reshape(-1, 3)
@@ -93,6 +91,6 @@ def tick_log(flight: FlightLog, reference: ReferenceOptions) -> TickLog:
     """The flight's tick log (module docstring)."""
     t = flight.ctrl_t_ns / NS
     return TickLog(
-        t, tick_states(flight), flight.ctrl_y, flight.ctrl_u, flight.ctrl_ref,
-        tick_feedforward(reference, t, flight.mass), flight.crashed, flight.crash_reason or "",
+        t, _tick_states(flight), flight.ctrl_y, flight.ctrl_u, flight.ctrl_ref,
+        _tick_feedforward(reference, t, flight.mass), flight.crashed, flight.crash_reason or "",
     )  # fmt: skip
