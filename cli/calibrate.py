@@ -11,7 +11,10 @@ from qsls.cli.common import cli_errors
 from qsls.cli.fields import Flag, model_options
 from qsls.pipeline.evaluate.options import CalibrateOptions
 
-EXAMPLE = "qsls calibrate --model fit --controllers synth --out calibrate --flights 20"
+EXAMPLE = (
+    "qsls calibrate --model fit --controllers synth --out calibrate "
+    "--recorded flights/c01 --recorded flights/c02 ... --recorded-validation flights/v01 ..."
+)
 
 
 @cli_errors
@@ -35,6 +38,9 @@ EXAMPLE = "qsls calibrate --model fit --controllers synth --out calibrate --flig
         "jobs": ("--jobs", "-j"),
         "scheduler": ("--scheduler",),
         "wait_workers": ("--wait-workers",),
+        "recorded.calibration": Flag(("--recorded",), name="recorded"),
+        "recorded.range": Flag(("--recorded-range",), name="recorded_range"),
+        "recorded.validation": Flag(("--recorded-validation",), name="recorded_validation"),
     },
 )
 def command(
@@ -65,11 +71,20 @@ def command(
     """Calibrate the candidates' premise on flights they fly themselves, then validate it."""
     from qsls.cli.common import RichProgress, print_summary, print_verdicts
     from qsls.pipeline.core.config import load_options
-    from qsls.pipeline.evaluate.calibrate import calibrate, summary_lines
+    from qsls.pipeline.evaluate.calibrate import calibrate, simulated_notice, summary_lines
 
     options = load_options(CalibrateOptions, config, given, section="calibrate")
-    options.seed_lists()
-    with RichProgress() as progress:
-        result = calibrate(model, controllers, options, out, force=force, progress=progress)
+    if options.recorded.given:
+        from qsls.pipeline.evaluate.calibrate_recorded import calibrate_recorded
+
+        with RichProgress() as progress:
+            result = calibrate_recorded(
+                model, controllers, options, out, force=force, progress=progress
+            )
+    else:
+        options.seed_lists()
+        typer.echo(simulated_notice(options))
+        with RichProgress() as progress:
+            result = calibrate(model, controllers, options, out, force=force, progress=progress)
     print_summary("qsls calibrate", result.summary())
     print_verdicts("Calibrated certificates", summary_lines(out))

@@ -34,6 +34,8 @@ EXAMPLE = "qsls ingest --vio vio.tum --truth data.csv --out flights/f1 --dt 0.1"
         "min_overlap": ("--min-overlap",),
         "velocity_window": ("--velocity-window",),
         "drop_nonfinite": ("--drop-nonfinite",),
+        "mass": ("--mass",),
+        "hover_thrust": ("--hover-thrust",),
     },
 )
 def command(

@@ -76,6 +76,9 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "config": None,
             "force": None,
             "only": "controllers",
+            "recorded": "recorded.calibration",
+            "recorded_range": "recorded.range",
+            "recorded_validation": "recorded.validation",
         },
     ),
     "evaluate": (

@@ -187,3 +187,10 @@ def input_states(A: np.ndarray, B: np.ndarray, du: np.ndarray) -> np.ndarray:
         out[k] = a
         a = a_aa @ a + b_a @ du[k]
     return out
+
+
+def feedforward_input(acc: np.ndarray, mass: float, g: float = GRAVITY) -> np.ndarray:
+    """``u_ff = [-a_x / g, a_y / g, m a_z]``: the reference acceleration ``acc`` ((3,) or
+    (n, 3)) through the paper's ``B`` (its inverse on the velocity rows)."""
+    a = np.asarray(acc, dtype=float)
+    return np.stack([-a[..., 0] / g, a[..., 1] / g, mass * a[..., 2]], axis=-1)

@@ -211,7 +211,7 @@ def _refuse_twins(flights: list[Path], loaded: list[Flight], names: list[str]) -
             raise _one_flight(flights, names, j, k, how)
     for j in range(len(loaded)):
         for k in range(j + 1, len(loaded)):
-            if _same_motion(loaded[j].frame, loaded[k].frame):
+            if same_motion(loaded[j].frame, loaded[k].frame):
                 raise _one_flight(flights, names, j, k, "the same motion at the same times")
 
 
@@ -228,7 +228,7 @@ MIN_TWIN_OVERLAP_S = 30.0
 clock agree to millimetres during their take-off (8 s flights were taken for one)."""
 
 
-def _same_motion(a: Any, b: Any, tol_m: float = 0.01, max_shift_s: float = 0.3) -> bool:
+def same_motion(a: Any, b: Any, tol_m: float = 0.01, max_shift_s: float = 0.3) -> bool:
     """Two ingests of one physical flight (another estimator, another export of the truth):
     on the stamps both cover (at least half of the shorter), after the best rigid motion (the
     two ingests' frames differ) and the best clock shift within ``max_shift_s`` (their offset

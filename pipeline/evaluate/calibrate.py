@@ -342,6 +342,9 @@ def calibrated_certificate(
     score_rows: Sequence[dict[str, float]],
     conditions: dict[str, Any],
     range_scores: Sequence[float] = (),
+    *,
+    logs: Sequence[str] = (),
+    duration: float | None = None,
 ) -> Path:
     """Write ``out`` (a controller folder): the candidate's controller and its certificate with
     the inflated premise's numbers and the ``calibration`` record."""
@@ -351,7 +354,8 @@ def calibrated_certificate(
     record = Calibration(
         flights=len(o.scores), alpha=options.alpha,
         confidence=1.0 - options.delta if options.method == "pac" else None,
-        method=options.method, conditions=conditions, duration_s=options.duration,
+        method=options.method, conditions=conditions,
+        duration_s=options.duration if duration is None else duration,
         seeds=list(seeds), design_seeds=list(options.design_seeds),
         scores=[float(s) for s in o.scores], lambda_hat=o.lambda_hat,
         rank=o.rank, tested_range=o.tested_range,
@@ -360,6 +364,7 @@ def calibrated_certificate(
         parts={k: float(max((r[k] for r in score_rows), default=0.0)) for k in cal.SCORED},
         tolerances=o.tolerances, holds=bool(o.check is not None and o.check.holds),
         range_flights=len(range_scores), range_scores=[float(v) for v in range_scores],
+        logs=list(logs),
     )  # fmt: skip
     update: dict[str, Any] = {"status": o.status, "status_reason": o.reason or None,
                               "calibration": record, "tested_range": o.tested_range}  # fmt: skip
@@ -581,6 +586,18 @@ def summary_row(o: Outcome, validation: pd.DataFrame, options: CalibrateOptions)
             "validation_first_failed": {str(a): int(b) for a, b in broken.items()},
             "validation_agrees": bool(n and lo <= options.alpha)}  # fmt: skip
     return row
+
+
+def simulated_notice(options: CalibrateOptions) -> str:
+    """The first line a simulated calibration prints: these are not the user's flights."""
+    n = options.flights + options.range_flights + options.validation
+    est = str(getattr(options.sim.vio, "kind", "emulator"))
+    return (
+        f"calibrate: flying {n} SIMULATED flights per candidate and condition (RotorPy, "
+        f"{est} estimator, the configured reference and vehicle of {options.sim.vehicle.mass:g} "
+        "kg), not your vehicle; to calibrate on your own flights give --recorded FOLDER "
+        "(docs/vehicle.md)"
+    )
 
 
 def summary_lines(out: Path) -> list[str]:

@@ -6,6 +6,7 @@ and :mod:`qsls.pipeline.evaluate.fly` re-export them."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal
 
 from pydantic import Field, field_validator
@@ -118,6 +119,22 @@ class FlyOptions(EvaluateOptions):
 Method = Literal["conformal", "pac"]
 
 
+class RecordedFlights(Options):
+    """Recorded flights of the user's vehicle (ingest folders with a tick log, ``qsls ingest
+    LOG --mass KG``) by role, in place of simulated ones (docs/vehicle.md)."""
+
+    calibration: list[Path] = Field(default_factory=list)
+    """Calibration flights: each flown by the candidate (proved from its log)."""
+    range: list[Path] = Field(default_factory=list)
+    """Range flights: the reference moved away from the design's, scored without its term."""
+    validation: list[Path] = Field(default_factory=list)
+    """Fresh flights checked against the calibrated premise."""
+
+    @property
+    def given(self) -> bool:
+        return bool(self.calibration or self.range or self.validation)
+
+
 class CalibrateOptions(Options):
     """Options of ``qsls calibrate`` (the run's ``calibrate:`` section): each candidate flies
     its own calibration flights, then fresh validation flights (docs/calibration.md)."""
@@ -170,6 +187,8 @@ class CalibrateOptions(Options):
     sim: SimOptions = SimOptions()
     """Vehicle, reference, VIO emulator and crash limits (``qsls run`` lays its ``simulate:``
     section here); seed, controller, perception and duration are set per flight."""
+    recorded: RecordedFlights = RecordedFlights()
+    """Recorded flights by role; given, no flight is simulated (docs/vehicle.md)."""
     design_seeds: list[int] = Field(default_factory=list)
     """Seeds of the design flights (``qsls run`` fills them in): a calibration or validation
     seed among them is refused, as is a validation seed among the calibration ones."""

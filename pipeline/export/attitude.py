@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import Field, field_validator
 
+from qsls.pipeline.core.attitude import absolute_input, demanded_force
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.plant import GRAVITY
 
@@ -86,22 +87,6 @@ class LimitOptions(Options):
     @property
     def limits(self) -> AttitudeLimits:
         return AttitudeLimits(self.tilt_limit_deg, *self.thrust_limits)
-
-
-def absolute_input(u: np.ndarray, acc: np.ndarray, mass: float, g: float = GRAVITY) -> np.ndarray:
-    """``[pitch, roll, thrust]`` (n, 3): hover + feedforward of ``acc`` (n, 3) + ``u`` (n, 3)."""
-    u = np.atleast_2d(np.asarray(u, dtype=float))
-    acc = np.atleast_2d(np.asarray(acc, dtype=float))
-    return np.column_stack(
-        [u[:, 0] - acc[:, 0] / g, u[:, 1] + acc[:, 1] / g, mass * (g + acc[:, 2]) + u[:, 2]]
-    )
-
-
-def demanded_force(u_abs: np.ndarray, mass: float, g: float = GRAVITY) -> np.ndarray:
-    """``f = m (a_ref + a_u + g e3)`` (n, 3) before any limit, from the absolute paper input
-    ``[pitch, roll, thrust]`` (:func:`absolute_input`): ``[-m g pitch, m g roll, thrust]``."""
-    u_abs = np.atleast_2d(np.asarray(u_abs, dtype=float))
-    return np.column_stack([-mass * g * u_abs[:, 0], mass * g * u_abs[:, 1], u_abs[:, 2]])
 
 
 def limited(f: np.ndarray, mass: float, limits: AttitudeLimits, g: float = GRAVITY) -> np.ndarray:

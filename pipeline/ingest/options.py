@@ -54,6 +54,13 @@ class IngestOptions(Options):
     """Window of the smoothing differentiator (s)."""
     drop_nonfinite: bool = False
     """Skip messages with NaN/inf values instead of stopping."""
+    mass: float | None = Field(None, gt=0)
+    """The vehicle's mass (kg). Given, ingest also reads the controller's commands (a PX4
+    ULog's attitude setpoints and position setpoints) back to the model's input and writes
+    the flight's tick log, ``ticks.parquet`` (docs/vehicle.md); the log does not hold it."""
+    hover_thrust: float | None = Field(None, gt=0, lt=1)
+    """The normalized thrust that hovers the vehicle, overriding the log's (PX4: its
+    ``hover_thrust_estimate`` where valid, else ``MPC_THR_HOVER``); with ``mass`` only."""
     decoder: Literal["fast", "deserializer"] = "fast"
     """Message decoding: the fast field reader, or rosbags' full deserializer (a check)."""
 

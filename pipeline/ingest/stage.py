@@ -37,12 +37,16 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.core.artifacts import StageWriter, check_output, parquet_bytes, prime_hashes
+from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.ticks import TICKS_FILE
 from qsls.pipeline.ingest.assemble import flight_from_streams
 from qsls.pipeline.ingest.flight import FLIGHT_FILE
 from qsls.pipeline.ingest.options import IngestOptions
+from qsls.pipeline.ingest.sources.base import Trajectory
 from qsls.pipeline.ingest.sources.text.writer import tum_text
 from qsls.pipeline.ingest.streams import read_streams
+from qsls.pipeline.ingest.ticks import RecordedTicks, recorded_ticks
 
 STAGE = "ingest"
 TUM_FILES = {"vio": "vio_aligned.tum", "truth": "truth.tum"}
@@ -79,6 +83,31 @@ class IngestResult:
 def _describe_stream(s: dict[str, Any]) -> str:
     kind = str(s["msgtype"]).rsplit("/", 1)[-1]
     return f"{s['topic']} ({kind}, {s['messages']} msgs, {s['rate_hz']:.1f} Hz)"
+
+
+def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> RecordedTicks:
+    """The tick log of a flight whose log holds the controller's commands (``o.mass`` given):
+    read from the estimate's log (:mod:`qsls.pipeline.ingest.ticks`), with the controller's
+    identity where the log stamps it."""
+    from qsls.pipeline.ingest.sources.base import detect
+
+    assert o.mass is not None
+    src = Path(vio.source)
+    if not src.is_file() or detect(src) != "ulog":
+        raise InputError(
+            f"--mass: the controller's commands are read from a PX4 ULog; {src} is not one "
+            "(drop --mass to ingest the estimate and the truth alone)"
+        )
+    from qsls.pipeline.ingest.sources.ulog.reader import read_commands, read_setpoints, ulog_info
+
+    made = recorded_ticks(
+        vio, truth, read_commands(src), read_setpoints(src), o.mass,
+        hover_thrust=o.hover_thrust, max_gap_s=o.max_gap,
+    )  # fmt: skip
+    info = ulog_info(src)
+    stamps = {k: v for k, v in (info.get("info") or {}).items() if str(k).startswith("qsls_")}
+    facts = {**made.facts, "stamps": stamps, "log": src.name}
+    return RecordedTicks(made.log, facts)
 
 
 # --------------------------------------------------------------------------- entry point
@@ -136,13 +165,18 @@ def _ingest(
     hashed: Any,
 ) -> IngestResult:
     streams = read_streams(sources, o, progress)
+    ticks = commanded_ticks(streams[0], streams[1], o) if o.mass is not None else None
     # the core gets the only references to the streams: it drops their arrays once used
     flight = flight_from_streams(streams.pop(0), streams.pop(), o)
     files = {TUM_FILES[role]: tum_text(*track).encode() for role, track in flight.tracks.items()}
     # the files are serialized while the input hash may still run; the writer needs it
     files = {FLIGHT_FILE: parquet_bytes(flight.table), **files}
+    if ticks is not None:
+        files[TICKS_FILE] = parquet_bytes(ticks.log.frame())
     hashed.result()
-    r = flight.results
+    r = dict(flight.results)
+    if ticks is not None:
+        r["ticks"] = ticks.facts
     with StageWriter(out, STAGE, options=o, inputs=inputs, force=force) as w:
         for name, data in files.items():
             w.write_bytes(name, data)

@@ -38,7 +38,7 @@ from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.control.pdgain import PDGains, pd_gain
 from qsls.pipeline.control.realize import StaticGainController
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.plant import GRAVITY, PAPER_DT_S
+from qsls.pipeline.core.plant import GRAVITY, PAPER_DT_S, feedforward_input
 from qsls.pipeline.core.references import RefSample
 from qsls.pipeline.export.cbuild import c_runtime
 from qsls.pipeline.sim.options import ControllerOptions
@@ -65,8 +65,9 @@ def hover_input(mass: float, g: float = GRAVITY) -> np.ndarray:
 
 
 def feedforward(ref: RefSample, mass: float, g: float = GRAVITY) -> np.ndarray:
-    """``[-a_x / g, a_y / g, m a_z]``: the reference acceleration through the paper's ``B``."""
-    return np.array([-ref.a[0] / g, ref.a[1] / g, mass * ref.a[2]])
+    """``[-a_x / g, a_y / g, m a_z]``: the reference acceleration through the paper's ``B``
+    (:func:`qsls.pipeline.core.plant.feedforward_input`)."""
+    return feedforward_input(ref.a, mass, g)
 
 
 class SE3Controller:

@@ -1,0 +1,173 @@
+"""``qsls calibrate --recorded``: the candidates' premise calibrated on the user's own recorded
+flights (docs/vehicle.md), with the simulated calibration's scores, quantile, status rules and
+record (:mod:`qsls.pipeline.evaluate.calibrate`).
+
+Each recorded flight (:mod:`qsls.pipeline.evaluate.recorded`) must be the candidate's own:
+replayed through its taps and gate it gives the logged commands (else the command stops,
+naming the flight and the first tick that differs). Calibration flights give the scores
+``lambda_f`` (:func:`~qsls.pipeline.evaluate.calibrate.score_flight`), range flights theirs
+without the reference's term (:func:`~qsls.pipeline.evaluate.calibrate.range_score`), and the
+validation flights are checked against every assumption of the calibrated premise. The
+conditions are the logs' (vehicle mass and hover thrust, estimator, tick, flight length);
+the record lists each calibration flight's log sha256 (``calibration.logs``) in place of seeds.
+
+Output: as ``qsls calibrate`` (``<condition>/<controller>/``, ``scores.parquet``,
+``validation.parquet``, ``calibration.json``); the tick logs stay in their ingest folders.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from qsls.pipeline.core.artifacts import StageWriter, check_output
+from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.errormodel.model import load_error_model, resolve_model
+from qsls.pipeline.evaluate.assumptions import check_assumptions
+from qsls.pipeline.evaluate.calibrate import (
+    SCORES_FILE,
+    STAGE,
+    SUMMARY_FILE,
+    VALIDATION_FILE,
+    CalibrateOptions,
+    CalibrateResult,
+    Outcome,
+    calibrated_certificate,
+    candidates,
+    decide,
+    range_score,
+    score_flight,
+    summary_row,
+    taps_of,
+)
+from qsls.pipeline.evaluate.certified import certified_premise
+from qsls.pipeline.evaluate.recorded import RecordedFlight, load_all, prove, refuse_design
+from qsls.pipeline.evaluate.training import load_training
+
+DT_TOLERANCE = 0.01
+"""A flight's tick may differ from the certificate's ``dt`` by this fraction (jitter)."""
+
+
+def _check_dt(flights: list[RecordedFlight], folder: Path, dt: float) -> None:
+    for f in flights:
+        have = float(f.conditions["dt_s"])
+        if abs(have - dt) > DT_TOLERANCE * dt:
+            raise InputError(
+                f"recorded flight {f.folder}: its controller ticked every {have:.4g} s, "
+                f"{folder.name} is synthesized for dt {dt:g} s: not flown by this controller"
+            )
+
+
+def _conditions(flights: list[RecordedFlight], condition: str) -> dict[str, Any]:
+    """What the certificate states of its calibration flights (their logs' conditions)."""
+    first = flights[0].conditions
+    return {
+        "source": "recorded", "perception": condition, "estimator": first["estimator"],
+        "truth": first["truth"], "vehicle": first["vehicle"], "dt_s": first["dt_s"],
+        "duration_s": max(float(f.conditions["duration_s"]) for f in flights),
+        "logs": {f.name: f.log_sha256 for f in flights},
+    }  # fmt: skip
+
+
+def calibrate_recorded(
+    error_model: Path,
+    synth_dir: Path,
+    options: CalibrateOptions,
+    out: Path,
+    *,
+    force: bool = False,
+    progress: Progress = NULL_PROGRESS,
+) -> CalibrateResult:
+    """Prove, score, calibrate and validate every candidate on the recorded flights (module
+    docstring)."""
+    rec = options.recorded
+    if not rec.calibration:
+        raise InputError(
+            "calibrate: recorded range or validation flights need recorded calibration "
+            "flights (--recorded FOLDER, repeated)"
+        )
+    check_output(Path(out), force)
+    model_file, fit_dir = resolve_model(error_model)
+    flights = load_all({"calibration": rec.calibration, "range": rec.range,
+                        "validation": rec.validation})  # fmt: skip
+    refuse_design(flights, fit_dir)
+    model = load_error_model(model_file)
+    training = load_training(fit_dir, model, None)
+    folders = candidates(Path(synth_dir), options.controllers)
+    if not folders:
+        raise InputError(
+            f"calibrate: {synth_dir} holds no robust controller whose design check passed; "
+            "nothing to calibrate (see its certificates' checks)"
+        )
+    condition = options.conditions[0]
+    if len(options.conditions) > 1:
+        raise InputError(
+            "calibrate: recorded flights are flown under the conditions they met: give one "
+            "condition (--conditions NAME) to name them"
+        )
+    calib = [f for f in flights if f.role == "calibration"]
+    ranged = [f for f in flights if f.role == "range"]
+    valid = [f for f in flights if f.role == "validation"]
+    conditions = _conditions(calib + ranged, condition)
+    outcomes, rows, vrows, summary = [], [], [], []
+    with StageWriter(out, STAGE, options=options, inputs=[model_file, *folders,
+                     *(f.folder for f in flights)], force=force) as w:  # fmt: skip
+        progress.start("recorded flights", total=len(folders) * len(flights))
+        for folder in folders:
+            premise = certified_premise(folder)
+            if premise is None:
+                raise InputError(f"calibrate: {folder.name} has no premise to calibrate")
+            _check_dt(flights, folder, float(taps_of_dt(folder)))
+            prove(flights, folder)
+            mine = []
+            for f in calib + ranged:
+                parts = score_flight(f.log, premise, training.distance)
+                if f.role == "range":
+                    parts["score"] = range_score(parts)
+                row = {"flight": f.name, "role": f.role, "controller": folder.name,
+                       "condition": condition, "log_sha256": f.log_sha256, "crashed": False,
+                       **parts}  # fmt: skip
+                mine.append(row)
+                progress.advance()
+            rows += mine
+            s = [r["score"] for r in mine if r["role"] == "calibration"]
+            rs = [r["score"] for r in mine if r["role"] == "range"]
+            status, reason, lam, rank, chk, tested, tol = decide(
+                s, [r["reached"] for r in mine], premise.numbers, taps_of(folder), options,
+                range_scores=rs,
+            )  # fmt: skip
+            o = Outcome(folder.name, condition, status, reason, lam, rank, chk, tested, tol, s)
+            outcomes.append(o)
+            target = w.path(f"{condition}/{folder.name}")
+            calibrated_certificate(
+                folder, target, o, options, [],
+                [r for r in mine if r["role"] == "calibration"], conditions, rs,
+                logs=[f.log_sha256 for f in calib], duration=conditions["duration_s"],
+            )  # fmt: skip
+            c = certified_premise(target)
+            for f in valid:
+                if c is not None:
+                    vrows.append({"flight": f.name, "controller": folder.name,
+                                  "condition": condition, "log_sha256": f.log_sha256,
+                                  **check_assumptions(f.log, c, training.distance)})  # fmt: skip
+                progress.advance()
+        progress.finish()
+        scores, validation = pd.DataFrame(rows), pd.DataFrame(vrows)
+        summary = [summary_row(o, validation, options) for o in outcomes]
+        w.write_parquet(SCORES_FILE, scores)
+        w.write_parquet(VALIDATION_FILE, validation)
+        w.write_json(SUMMARY_FILE, {"alpha": options.alpha, "method": options.method,
+                                    "delta": options.delta, "source": "recorded",
+                                    "certificates": summary})  # fmt: skip
+        w.results.update({"certificates": summary})
+    return CalibrateResult(Path(out), tuple(outcomes), validation, tuple(summary))
+
+
+def taps_of_dt(folder: Path) -> float:
+    """The candidate's tick (s)."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+
+    return float(load_controller_dir(folder).controller.dt)
