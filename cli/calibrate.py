@@ -11,10 +11,7 @@ from qsls.cli.common import cli_errors
 from qsls.cli.fields import Flag, model_options
 from qsls.pipeline.evaluate.options import CalibrateOptions
 
-EXAMPLE = (
-    "qsls calibrate --model fit --controllers synth --out calibrate "
-    "--recorded flights/c01 --recorded flights/c02 ... --recorded-validation flights/v01 ..."
-)
+EXAMPLE = "qsls calibrate -m fit --controllers synth -o cal --recorded flights/c01"
 
 
 @cli_errors

@@ -22,6 +22,7 @@ from typing import Any
 
 import pandas as pd
 
+from qsls.pipeline.control.artifacts import load_controller_dir
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
@@ -168,6 +169,4 @@ def calibrate_recorded(
 
 def taps_of_dt(folder: Path) -> float:
     """The candidate's tick (s)."""
-    from qsls.pipeline.control.artifacts import load_controller_dir
-
     return float(load_controller_dir(folder).controller.dt)

@@ -23,6 +23,7 @@ import pandas as pd
 from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import TICKS_FILE, TickLog
+from qsls.pipeline.errormodel.fit import same_motion
 from qsls.pipeline.evaluate.flownby import Provenance, flown_by
 
 ROLES = ("calibration", "range", "validation")
@@ -148,11 +149,9 @@ def refuse_design(flights: Sequence[RecordedFlight], fit_dir: Path) -> None:
                 "validated on flights its design never saw"
             )
     try:
-        from qsls.pipeline.errormodel.fit import same_motion
-
         train = [Path(str(i.get("path"))) for i in read_manifest(fit_dir).get("inputs", [])
                  if isinstance(i, dict) and str(i.get("path", "")).endswith(".parquet")]  # fmt: skip
-    except (InputError, ImportError):
+    except InputError:
         return
     frames = {p: pd.read_parquet(p) for p in train if p.is_file() and p.name == "flight.parquet"}
     for f in flights:

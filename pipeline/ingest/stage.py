@@ -43,7 +43,7 @@ from qsls.pipeline.core.ticks import TICKS_FILE
 from qsls.pipeline.ingest.assemble import flight_from_streams
 from qsls.pipeline.ingest.flight import FLIGHT_FILE
 from qsls.pipeline.ingest.options import IngestOptions
-from qsls.pipeline.ingest.sources.base import Trajectory
+from qsls.pipeline.ingest.sources.base import Trajectory, detect
 from qsls.pipeline.ingest.sources.text.writer import tum_text
 from qsls.pipeline.ingest.streams import read_streams
 from qsls.pipeline.ingest.ticks import RecordedTicks, recorded_ticks
@@ -89,8 +89,6 @@ def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> Rec
     """The tick log of a flight whose log holds the controller's commands (``o.mass`` given):
     read from the estimate's log (:mod:`qsls.pipeline.ingest.ticks`), with the controller's
     identity where the log stamps it."""
-    from qsls.pipeline.ingest.sources.base import detect
-
     assert o.mass is not None
     src = Path(vio.source)
     if not src.is_file() or detect(src) != "ulog":
@@ -98,6 +96,7 @@ def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> Rec
             f"--mass: the controller's commands are read from a PX4 ULog; {src} is not one "
             "(drop --mass to ingest the estimate and the truth alone)"
         )
+    # deferred: pyulog loads only for a log that holds commands
     from qsls.pipeline.ingest.sources.ulog.reader import read_commands, read_setpoints, ulog_info
 
     made = recorded_ticks(
