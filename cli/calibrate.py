@@ -71,7 +71,7 @@ def command(
     from qsls.pipeline.evaluate.calibrate import calibrate, simulated_notice, summary_lines
 
     options = load_options(CalibrateOptions, config, given, section="calibrate")
-    if options.recorded.given:
+    if options.recorded.given or options.source == "standin":
         from qsls.pipeline.evaluate.calibrate_recorded import calibrate_recorded
 
         with RichProgress() as progress:

@@ -17,6 +17,7 @@ Output: as ``qsls calibrate`` (``<condition>/<controller>/``, ``scores.parquet``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,13 +40,17 @@ from qsls.pipeline.evaluate.calibrate import (
     calibrated_certificate,
     candidates,
     decide,
+    fitted_seeds,
+    offsets,
     range_score,
     score_flight,
     summary_row,
     taps_of,
 )
 from qsls.pipeline.evaluate.certified import certified_premise
-from qsls.pipeline.evaluate.recorded import RecordedFlight, load_all, prove, refuse_design
+from qsls.pipeline.evaluate.flownby import flown_by
+from qsls.pipeline.evaluate.recorded import RecordedFlight, load_all, refuse_design
+from qsls.pipeline.evaluate.standin import standin_flights
 from qsls.pipeline.evaluate.training import load_training
 
 DT_TOLERANCE = 0.01
@@ -83,79 +88,64 @@ def calibrate_recorded(
     progress: Progress = NULL_PROGRESS,
 ) -> CalibrateResult:
     """Prove, score, calibrate and validate every candidate on the recorded flights (module
-    docstring)."""
-    rec = options.recorded
-    if not rec.calibration:
+    docstring); with ``options.source == "standin"`` the stand-in vehicle flies them first
+    (:mod:`qsls.pipeline.evaluate.standin`)."""
+    standin = options.source == "standin" and not options.recorded.given
+    if not standin and not options.recorded.calibration:
         raise InputError(
             "calibrate: recorded range or validation flights need recorded calibration "
             "flights (--recorded FOLDER, repeated)"
         )
+    if len(options.conditions) > 1:
+        raise InputError(
+            "calibrate: recorded flights are flown under the conditions they met: give one "
+            "condition (--conditions NAME) to name them"
+        )
     check_output(Path(out), force)
     model_file, fit_dir = resolve_model(error_model)
-    flights = load_all({"calibration": rec.calibration, "range": rec.range,
-                        "validation": rec.validation})  # fmt: skip
-    refuse_design(flights, fit_dir)
-    model = load_error_model(model_file)
-    training = load_training(fit_dir, model, None)
     folders = candidates(Path(synth_dir), options.controllers)
     if not folders:
         raise InputError(
             f"calibrate: {synth_dir} holds no robust controller whose design check passed; "
             "nothing to calibrate (see its certificates' checks)"
         )
-    condition = options.conditions[0]
-    if len(options.conditions) > 1:
-        raise InputError(
-            "calibrate: recorded flights are flown under the conditions they met: give one "
-            "condition (--conditions NAME) to name them"
-        )
-    calib = [f for f in flights if f.role == "calibration"]
-    ranged = [f for f in flights if f.role == "range"]
-    valid = [f for f in flights if f.role == "validation"]
-    conditions = _conditions(calib + ranged, condition)
-    outcomes, rows, vrows, summary = [], [], [], []
-    with StageWriter(out, STAGE, options=options, inputs=[model_file, *folders,
-                     *(f.folder for f in flights)], force=force) as w:  # fmt: skip
-        progress.start("recorded flights", total=len(folders) * len(flights))
+    if standin:
+        design = sorted(set(options.design_seeds) | set(fitted_seeds(fit_dir)))
+        options = options.model_copy(update={"design_seeds": design})
+        options.seed_lists()
+    model = load_error_model(model_file)
+    training = load_training(fit_dir, model, None)
+    inputs = [model_file, *folders, *options.recorded.calibration, *options.recorded.range,
+              *options.recorded.validation]  # fmt: skip
+    with StageWriter(out, STAGE, options=options, inputs=inputs, force=force) as w:
+        recorded = options.recorded
+        if standin:
+            dt = min(taps_of_dt(f) for f in folders)
+            recorded = standin_flights(
+                folders, options, w.path("standin"), dt,
+                lambda s: offsets(s, options.tube, float(options.sim.reference.height)),
+                progress,
+            )  # fmt: skip
+        flights = load_all({"calibration": recorded.calibration, "range": recorded.range,
+                            "validation": recorded.validation})  # fmt: skip
+        refuse_design(flights, fit_dir)
+        owners = assign(flights, folders)
+        rows, vrows, outcomes = [], [], []
+        progress.start("recorded flights", total=len(flights))
         for folder in folders:
-            premise = certified_premise(folder)
-            if premise is None:
-                raise InputError(f"calibrate: {folder.name} has no premise to calibrate")
-            _check_dt(flights, folder, float(taps_of_dt(folder)))
-            prove(flights, folder)
-            mine = []
-            for f in calib + ranged:
-                parts = score_flight(f.log, premise, training.distance)
-                if f.role == "range":
-                    parts["score"] = range_score(parts)
-                row = {"flight": f.name, "role": f.role, "controller": folder.name,
-                       "condition": condition, "log_sha256": f.log_sha256, "crashed": False,
-                       **parts}  # fmt: skip
-                mine.append(row)
-                progress.advance()
-            rows += mine
-            s = [r["score"] for r in mine if r["role"] == "calibration"]
-            rs = [r["score"] for r in mine if r["role"] == "range"]
-            status, reason, lam, rank, chk, tested, tol = decide(
-                s, [r["reached"] for r in mine], premise.numbers, taps_of(folder), options,
-                range_scores=rs,
-            )  # fmt: skip
-            o = Outcome(folder.name, condition, status, reason, lam, rank, chk, tested, tol, s)
+            mine = [f for f in flights if owners[f.name] == folder.name]
+            if not any(f.role == "calibration" for f in mine):
+                continue
+            o, scored, checked = _one(folder, mine, options, training, w.path)
             outcomes.append(o)
-            target = w.path(f"{condition}/{folder.name}")
-            calibrated_certificate(
-                folder, target, o, options, [],
-                [r for r in mine if r["role"] == "calibration"], conditions, rs,
-                logs=[f.log_sha256 for f in calib], duration=conditions["duration_s"],
-            )  # fmt: skip
-            c = certified_premise(target)
-            for f in valid:
-                if c is not None:
-                    vrows.append({"flight": f.name, "controller": folder.name,
-                                  "condition": condition, "log_sha256": f.log_sha256,
-                                  **check_assumptions(f.log, c, training.distance)})  # fmt: skip
-                progress.advance()
+            rows += scored
+            vrows += checked
+            progress.advance(len(mine))
         progress.finish()
+        if not outcomes:
+            raise InputError(
+                "calibrate: none of the candidates flew a calibration flight among those given"
+            )
         scores, validation = pd.DataFrame(rows), pd.DataFrame(vrows)
         summary = [summary_row(o, validation, options) for o in outcomes]
         w.write_parquet(SCORES_FILE, scores)
@@ -163,8 +153,72 @@ def calibrate_recorded(
         w.write_json(SUMMARY_FILE, {"alpha": options.alpha, "method": options.method,
                                     "delta": options.delta, "source": "recorded",
                                     "certificates": summary})  # fmt: skip
-        w.results.update({"certificates": summary})
+        w.results.update({"certificates": summary, "flown_by": owners})
     return CalibrateResult(Path(out), tuple(outcomes), validation, tuple(summary))
+
+
+def assign(flights: Sequence[RecordedFlight], folders: Sequence[Path]) -> dict[str, str]:
+    """Which candidate flew each flight (:func:`~qsls.pipeline.evaluate.flownby.flown_by`); a
+    flight none of them flew is refused in one line, with the first candidate's reason."""
+    owners: dict[str, str] = {}
+    for f in flights:
+        why = ""
+        for folder in folders:
+            p = flown_by(f.log, folder, f.mass, f.stamps)
+            if p.flown:
+                owners[f.name] = folder.name
+                break
+            why = why or f"{folder.name}: {p.reason}"
+        if f.name not in owners:
+            raise InputError(
+                f"recorded flight {f.folder} ({f.role}): not flown by "
+                f"{'any candidate' if len(folders) > 1 else 'this controller'} ({why})"
+            )
+    return owners
+
+
+def _one(
+    folder: Path,
+    flights: list[RecordedFlight],
+    options: CalibrateOptions,
+    training: Any,
+    path: Any,
+) -> tuple[Outcome, list[dict[str, Any]], list[dict[str, Any]]]:
+    """One candidate on its own flights: scores, the decision, the certificate, validation."""
+    condition = options.conditions[0]
+    premise = certified_premise(folder)
+    if premise is None:
+        raise InputError(f"calibrate: {folder.name} has no premise to calibrate")
+    _check_dt(flights, folder, taps_of_dt(folder))
+    scored = []
+    for f in (f for f in flights if f.role != "validation"):
+        parts = score_flight(f.log, premise, training.distance)
+        if f.role == "range":
+            parts["score"] = range_score(parts)
+        scored.append({"flight": f.name, "role": f.role, "controller": folder.name,
+                       "condition": condition, "log_sha256": f.log_sha256, "crashed": False,
+                       **parts})  # fmt: skip
+    s = [r["score"] for r in scored if r["role"] == "calibration"]
+    rs = [r["score"] for r in scored if r["role"] == "range"]
+    status, reason, lam, rank, chk, tested, tol = decide(
+        s, [r["reached"] for r in scored], premise.numbers, taps_of(folder), options,
+        range_scores=rs,
+    )  # fmt: skip
+    o = Outcome(folder.name, condition, status, reason, lam, rank, chk, tested, tol, s)
+    calib = [f for f in flights if f.role == "calibration"]
+    conditions = _conditions([f for f in flights if f.role != "validation"], condition)
+    target = path(f"{condition}/{folder.name}")
+    calibrated_certificate(
+        folder, target, o, options, [], [r for r in scored if r["role"] == "calibration"],
+        conditions, rs, logs=[f.log_sha256 for f in calib], duration=conditions["duration_s"],
+    )  # fmt: skip
+    c = certified_premise(target)
+    checked = [
+        {"flight": f.name, "controller": folder.name, "condition": condition,
+         "log_sha256": f.log_sha256, **check_assumptions(f.log, c, training.distance)}
+        for f in flights if f.role == "validation" and c is not None
+    ]  # fmt: skip
+    return o, scored, checked
 
 
 def taps_of_dt(folder: Path) -> float:

@@ -187,6 +187,11 @@ class CalibrateOptions(Options):
     sim: SimOptions = SimOptions()
     """Vehicle, reference, VIO emulator and crash limits (``qsls run`` lays its ``simulate:``
     section here); seed, controller, perception and duration are set per flight."""
+    source: Literal["simulated", "standin"] = "simulated"
+    """Who flies the calibration, range and validation flights: ``simulated`` (the Python
+    realization in the simulator, its tick log kept), or ``standin``: the stand-in for a PX4
+    vehicle (the exported C behind the PX4 interface, each flight a ULog ingested with the
+    vehicle's mass and calibrated as a recorded flight; docs/vehicle.md)."""
     recorded: RecordedFlights = RecordedFlights()
     """Recorded flights by role; given, no flight is simulated (docs/vehicle.md)."""
     design_seeds: list[int] = Field(default_factory=list)

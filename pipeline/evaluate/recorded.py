@@ -24,7 +24,6 @@ from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import TICKS_FILE, TickLog
 from qsls.pipeline.errormodel.fit import same_motion
-from qsls.pipeline.evaluate.flownby import Provenance, flown_by
 
 ROLES = ("calibration", "range", "validation")
 
@@ -165,18 +164,3 @@ def refuse_design(flights: Sequence[RecordedFlight], fit_dir: Path) -> None:
                     f"recorded flight {f.folder} ({f.role}) is the design flight {p.parent}: "
                     "the same motion at the same times; a flight counts once"
                 )
-
-
-def prove(flights: Sequence[RecordedFlight], folder: Path) -> list[Provenance]:
-    """Each flight's proof that the candidate in ``folder`` flew it; the first that fails is
-    refused in one line (docs/vehicle.md#proof)."""
-    out = []
-    for f in flights:
-        p = flown_by(f.log, folder, f.mass, f.stamps)
-        if not p.flown:
-            raise InputError(
-                f"recorded flight {f.folder} ({f.role}): not flown by this controller "
-                f"({folder.name}): {p.reason}"
-            )
-        out.append(p)
-    return out

@@ -259,8 +259,10 @@ def _calibrate_stage(graph: StageGraph, cfg: RunConfig, src: Src, progress: Prog
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.evaluate.calibrate import calibrate
+        from qsls.pipeline.evaluate.calibrate_recorded import calibrate_recorded
 
-        return calibrate(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
+        run = calibrate_recorded if opts.recorded.given or opts.source == "standin" else calibrate
+        return run(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
 
     graph.add(
         Stage("calibrate", "calibrate", opts, execute, deps=("fit", "synth"), notes=_calibrated)

@@ -1,0 +1,108 @@
+"""The stand-in vehicle's calibration flights (docs/vehicle.md, docs/simulation.md#the-px4-stand-in).
+
+``calibrate.source: standin`` flies a candidate's calibration, range and validation flights
+the way a user's vehicle would, so the recorded-flights loop runs and is tested without one:
+the EXPORTED C controller (compiled, through ctypes; ``controller.backend: c``) behind the
+PX4 interface (an attitude setpoint and a normalized thrust, the estimate read by its arrival
+time), each flight written as the ULog PX4 would write (``flight.ulg``), then ingested like
+any vehicle's log with the vehicle's mass (``qsls ingest LOG --mass``, which rebuilds the
+tick log from the log alone). The simulator's own tick log stays beside the ULog
+(``ticks.parquet``), so what the log gives can be compared with the truth.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from qsls.pipeline.core.config import merge
+from qsls.pipeline.core.pools import pool_size, run_tasks
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.evaluate.options import CalibrateOptions, RecordedFlights
+from qsls.pipeline.ingest.options import IngestOptions
+from qsls.pipeline.sim.options import SimOptions
+
+LOG_FILE = "flight.ulg"
+
+
+@dataclass(frozen=True)
+class StandinJob:
+    """One stand-in flight: where it is written and what it flies."""
+
+    name: str
+    role: str
+    sim: dict[str, Any]
+    log_dir: str
+    ingest_dir: str
+    ingest: dict[str, Any]
+
+
+def standin_sim(options: CalibrateOptions, folder: Path, seed: int,
+                offset: tuple[float, float, float]) -> dict[str, Any]:  # fmt: skip
+    """The flight's simulate options: the run's vehicle, reference and estimator, the
+    candidate's exported C behind the PX4 interface, logged as a ULog."""
+    sim = options.sim.model_dump(mode="json")
+    ref = dict(sim.get("reference") or {})
+    over: dict[str, Any] = {
+        "seed": seed,
+        "duration": options.duration,
+        "controller": {"kind": str(folder.resolve()), "backend": "c"},
+        "vio": {"perception": options.conditions[0]},
+        "px4": {"interface": "px4"},
+        "log": {"format": "ulog"},
+    }
+    if any(offset):
+        cx, cy = ref.get("center", (0.0, 0.0))
+        over["reference"] = {
+            "center": [float(cx) + offset[0], float(cy) + offset[1]],
+            "height": float(ref.get("height", 1.0)) + offset[2],
+        }
+    return SimOptions.model_validate(merge(sim, over)).model_dump(mode="json")
+
+
+def fly_standin(job: StandinJob) -> str:
+    """Fly one stand-in flight and ingest its ULog (in a worker: paths in, path out)."""
+    from qsls.pipeline.ingest.stage import ingest
+    from qsls.pipeline.sim.simulate import simulate
+
+    opts = SimOptions.model_validate(job.sim)
+    simulate(opts, Path(job.log_dir), force=True)
+    ingest([Path(job.log_dir) / LOG_FILE], IngestOptions.model_validate(job.ingest),
+           Path(job.ingest_dir), force=True)  # fmt: skip
+    return job.ingest_dir
+
+
+def standin_flights(
+    folders: Sequence[Path],
+    options: CalibrateOptions,
+    root: Path,
+    dt: float,
+    offsets: Callable[[int], tuple[float, float, float]],
+    progress: Progress = NULL_PROGRESS,
+) -> RecordedFlights:
+    """Fly every candidate's stand-in flights into ``root`` (``logs/<name>/flight.ulg`` and
+    ``flights/<name>/``, the ingest folder) on the pool; the ingest folders by role."""
+    calib, valid = options.seed_lists()
+    roles = (("calibration", calib), ("range", options.range_seeds), ("validation", valid))
+    ingest = {"dt": dt, "align": "none", "time_offset": 0.0,
+              "mass": float(options.sim.vehicle.mass)}  # fmt: skip
+    jobs = [
+        StandinJob(
+            name := f"{role}_{f.name}_s{s}", role,
+            standin_sim(options, f, s, offsets(s) if role == "range" else (0.0, 0.0, 0.0)),
+            str(root / "logs" / name), str(root / "flights" / name), ingest,
+        )
+        for role, seeds in roles for f in folders for s in seeds
+    ]  # fmt: skip
+    progress.start("stand-in flights", total=len(jobs))
+    run_tasks(
+        [(fly_standin, j) for j in jobs], min(pool_size(options.jobs), len(jobs)),
+        lambda i: progress.advance(), scheduler=options.scheduler, note=progress.note,
+        worker_timeout=options.wait_workers, what="stand-in",
+    )  # fmt: skip
+    progress.finish()
+    by = {r: [Path(j.ingest_dir) for j in jobs if j.role == r] for r, _ in roles}
+    return RecordedFlights(calibration=by["calibration"], range=by["range"],
+                           validation=by["validation"])  # fmt: skip
