@@ -23,6 +23,17 @@ start pose (checked before flying).
 A fault (``vio.fault``) adds a step ``bias`` to the error of every VIO sample from
 ``start_s`` on (the logged ``vio_e`` includes it).
 
+The PX4 stand-in (``px4``, :mod:`qsls.pipeline.sim.px4`, docs/simulation.md#the-px4-stand-in):
+
+- with ``px4.interface: px4`` the controller's input goes through the export's attitude map
+  to PX4's attitude setpoint (an attitude and a normalized thrust, logged in
+  ``ctrl_sp``), which the vehicle flies (:meth:`Vehicle.command_px4`);
+- with the PX4 interface, or any estimator latency, jitter or drop, each VIO sample arrives
+  at ``ceil((t + latency + jitter) / 1 us)`` (in order; some never, the first, the initial
+  state, at ``t = 0``), and the controller reads the newest sample that has arrived at its
+  tick (a whole number of µs). Without latency, jitter or drops that is the newest sample
+  captured at or before the tick, as without the stand-in.
+
 A crash (position below ``crash.floor_z``, farther than ``crash.max_deviation`` from the
 reference in any axis, tilt beyond ``crash.max_tilt_deg``, or a non-finite state) ends the
 flight: the log holds everything up to it and says why.
@@ -42,6 +53,7 @@ from qsls.pipeline.core.references import Reference, RefSample
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.sim.controllers import PositionController, make_controller
 from qsls.pipeline.sim.options import CrashOptions, FlightOptions
+from qsls.pipeline.sim.px4 import US, Px4Interface, arrivals
 from qsls.pipeline.sim.vehicle import Vehicle
 from qsls.pipeline.sim.vio import VioEmulator
 
@@ -80,6 +92,17 @@ class FlightLog:
     vio_q_est: np.ndarray | None = None  # (m, 4) estimated attitude (camera loop only)
     camera_frame: dict[str, np.ndarray] | None = None
     """The camera loop's kept frame and its tracked features (``Snapshot.arrays``), if any."""
+    ctrl_acc: np.ndarray | None = None  # (k, 3) reference acceleration at the ticks
+    ctrl_sp: np.ndarray | None = None
+    """(k, 5) PX4's attitude setpoint at each tick, ``[T, qx, qy, qz, qw]`` (normalized
+    thrust; attitude of the z-up body in the z-up world): the PX4 interface only."""
+    vio_arrival_us: np.ndarray | None = None
+    """(m,) when each VIO sample reached the controller (µs of simulation time), where
+    samples are read by arrival (:attr:`Px4Options.timed`)."""
+    vio_dropped: np.ndarray | None = None
+    """(m,) the VIO samples that never arrived (same condition)."""
+    controller_mass: float | None = None
+    """The mass the controller and the interface assumed, where it is not :attr:`mass`."""
 
     @property
     def vio_y(self) -> np.ndarray:
@@ -133,6 +156,11 @@ def _interp(s0: np.ndarray, s1: np.ndarray, a: float, h: float) -> tuple[np.ndar
     return np.array(p + v), q, np.array(w)
 
 
+_ESTIMATOR_STREAM = 2000
+"""SeedSequence stream of the estimate's transport (jitter, drops); the VIO and the logs use
+their own."""
+
+
 def _ticks(period_s: float, h_ns: int, what: str) -> int:
     """Physics steps per period; the period must be a whole number of steps."""
     n = period_s * NS / h_ns
@@ -161,6 +189,8 @@ class _Record:
     c_y: np.ndarray
     c_r: np.ndarray
     c_u: np.ndarray
+    c_a: np.ndarray
+    c_sp: np.ndarray
 
     @classmethod
     def allocate(cls, n_steps: int, n_vio: int, n_ctrl: int) -> _Record:
@@ -176,6 +206,8 @@ class _Record:
             c_y=np.empty((n_ctrl, 6)),
             c_r=np.empty((n_ctrl, 6)),
             c_u=np.empty((n_ctrl, 3)),
+            c_a=np.empty((n_ctrl, 3)),
+            c_sp=np.empty((n_ctrl, 5)),
         )
 
     def log(
@@ -184,6 +216,8 @@ class _Record:
         crashed: bool, reason: str | None, crash_t: float | None,
         lipschitz: float | None, described: dict[str, Any], camera: bool,
         camera_frame: dict[str, np.ndarray] | None = None,
+        px4: bool = False, arrival: tuple[np.ndarray, np.ndarray] | None = None,
+        controller_mass: float | None = None,
     ) -> FlightLog:  # fmt: skip
         """The first ``n`` physics steps, ``m`` VIO samples and ``k`` controller ticks."""
         S = self.S[:n]
@@ -212,6 +246,11 @@ class _Record:
             emulator=described,
             vio_q_est=self.vio_qe[:m].copy() if camera else None,
             camera_frame=camera_frame,
+            ctrl_acc=self.c_a[:k].copy(),
+            ctrl_sp=self.c_sp[:k].copy() if px4 else None,
+            vio_arrival_us=arrival[0][:m].copy() if arrival is not None else None,
+            vio_dropped=arrival[1][:m].copy() if arrival is not None else None,
+            controller_mass=controller_mass,
         )
 
 
@@ -258,7 +297,11 @@ def _fly(
     order (same random draws, same additions; tests/test_sim_vio.py)."""
     seed = options.seed if seed is None else int(seed)
     veh = vehicle or Vehicle(options.vehicle)
-    ctrl = controller or make_controller(options.controller, veh.mass)
+    px4 = options.px4
+    m_ctrl = veh.mass if px4.controller_mass is None else float(px4.controller_mass)
+    ctrl = controller or make_controller(options.controller, m_ctrl)
+    m_ctrl = float(getattr(ctrl, "mass", m_ctrl))
+    iface = Px4Interface(px4, m_ctrl) if px4.interface == "px4" else None
     ref = Reference(options.reference)
     vio = VioEmulator(options.vio, seed)
     cam = _camera_loop(options, seed, veh) if options.vio.kind == "camera" else None
@@ -279,6 +322,21 @@ def _fly(
     n_steps = n_ctrl * n_sub
     vio_ns = round(NS / options.vio.rate_hz)
     n_vio_max = n_steps * h_ns // vio_ns + 1
+    arrival: tuple[np.ndarray, np.ndarray] | None = None
+    arrival_ns, dropped = np.zeros(0, dtype=np.int64), []
+    if px4.timed:
+        if (n_sub * h_ns) % US:
+            raise ConfigError(
+                f"the control period ({n_sub * h_ns} ns) is not a whole number of "
+                "microseconds, PX4's clock unit; choose vehicle.physics_hz so that it is"
+            )
+        rng = np.random.default_rng(np.random.SeedSequence([seed, _ESTIMATOR_STREAM]))
+        arrival = arrivals(
+            np.arange(n_vio_max, dtype=np.int64) * vio_ns, px4.estimator_latency_s,
+            px4.estimator_jitter_s, px4.estimator_drop, rng, keep_first=True,
+        )  # fmt: skip
+        arrival_ns, dropped = arrival[0] * US, arrival[1].tolist()
+    read = cursor = 0  # the sample the controller reads, the last one looked at
 
     t_ns = np.arange(n_steps + 1, dtype=np.int64) * h_ns
     rec = _Record.allocate(n_steps, n_vio_max, n_ctrl)
@@ -290,7 +348,7 @@ def _fly(
         rec.vio_w,
         rec.vio_e,
     )
-    c_t, c_y, c_r, c_u = rec.c_t, rec.c_y, rec.c_r, rec.c_u
+    c_t, c_y, c_r, c_u, c_a, c_sp = rec.c_t, rec.c_y, rec.c_r, rec.c_u, rec.c_a, rec.c_sp
     vio_a = np.empty((n_vio_max, 3))  # the physics step's mean acceleration at each sample
     step = veh.step_numpy if stepwise else veh.step
     batch = cam is None and not stepwise
@@ -338,14 +396,26 @@ def _fly(
                 y_latest, pending = flush(), m
             t = i * h
             r = RefSample(p=ref_p[i], v=ref_v[i], a=ref_a[i])
+            if arrival is not None:  # the newest sample arrived by the tick
+                tick_ns = i * h_ns
+                while cursor + 1 < m and (dropped[cursor + 1] or arrival_ns[cursor + 1] <= tick_ns):
+                    cursor += 1
+                    if not dropped[cursor]:
+                        read = cursor
+                y_latest = vio_x[read] + vio_e[read]
             y = s[0:6].copy() if truth_feedback else y_latest
             u = np.asarray(ctrl.command(t, y, s[6:10], r), dtype=float)
             if not np.all(np.isfinite(u)):
                 crashed, reason, crash_t = True, "controller output is not finite", t
                 last_step = i
                 break
-            thrust, cmd_q = veh.command(u)
-            c_t[k], c_y[k], c_r[k], c_u[k] = i * h_ns, y, r.state, u
+            if iface is None:
+                thrust, cmd_q = veh.command(u)
+            else:
+                t_sp, q_d = iface.setpoint(u, r)
+                thrust, cmd_q = veh.command_px4(t_sp, q_d, px4.hover_thrust)
+                c_sp[k, 0], c_sp[k, 1:] = t_sp, q_d
+            c_t[k], c_y[k], c_r[k], c_u[k], c_a[k] = i * h_ns, y, r.state, u, r.a
             k += 1
             progress.advance(1)
         s_next = step(s, thrust, cmd_q, h)
@@ -389,6 +459,8 @@ def _fly(
         lipschitz=None if cam else vio.lipschitz,
         described=cam.describe() if cam else vio.describe(), camera=cam is not None,
         camera_frame=cam.snapshot.arrays() if cam is not None and cam.snapshot else None,
+        px4=iface is not None, arrival=arrival,
+        controller_mass=m_ctrl if m_ctrl != veh.mass else None,
     )  # fmt: skip
 
 

@@ -13,7 +13,13 @@ from __future__ import annotations
 
 from typing import Any, Literal, get_args
 
-from pydantic import Field, SerializerFunctionWrapHandler, field_validator, model_serializer
+from pydantic import (
+    Field,
+    SerializerFunctionWrapHandler,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.core.config import Options
@@ -330,6 +336,58 @@ class CrashOptions(Options):
     """Loss of control: tilt of the body z axis beyond this (degrees)."""
 
 
+class Px4Options(Options):
+    """The PX4 stand-in (docs/simulation.md#the-px4-stand-in): how the controller's command
+    reaches the vehicle, and how the estimate and the motion capture reach the controller and
+    the log. The defaults change nothing: the paper's interface, every message on time."""
+
+    interface: Literal["paper", "px4"] = "paper"
+    """``paper``: the vehicle flies the paper's ``[pitch, roll, thrust]`` (small-angle map);
+    ``px4``: the export's exact attitude map to an attitude ``q_d`` and a normalized thrust
+    ``hover_estimate * thrust / (m g)``, which the vehicle flies as
+    ``T m_true g / hover_thrust``, as PX4 would."""
+    hover_thrust: float = Field(0.5, gt=0, lt=1)
+    """The vehicle's true hover throttle (PX4's ``MPC_THR_HOVER``)."""
+    hover_estimate: float | None = Field(None, gt=0, lt=1)
+    """The hover throttle the interface assumes (default: ``hover_thrust``); a wrong one is
+    a thrust error the controller sees as a disturbance."""
+    thr_mdl_fac: float = Field(0.0, ge=0, le=1)
+    """PX4's ``THR_MDL_FAC`` (thrust curve), recorded in the log only."""
+    controller_mass: float | None = Field(None, gt=0)
+    """The mass the controller and the interface assume (kg; default: ``vehicle.mass``)."""
+    estimator_latency_s: float = Field(0.0, ge=0, le=1)
+    """Transport latency of each estimate, capture to arrival (s); the controller reads the
+    newest estimate that has arrived at its tick."""
+    estimator_jitter_s: float = Field(0.0, ge=0, le=0.5)
+    """Uniform extra latency in ``[0, jitter]`` per estimate (s, seeded); messages stay in
+    order (a later one never arrives before an earlier one)."""
+    estimator_drop: float = Field(0.0, ge=0, lt=1)
+    """Probability that an estimate never arrives (seeded)."""
+    mocap_latency_s: float = Field(0.0, ge=0, le=1)
+    """Transport latency of each motion-capture message (s; the log only)."""
+    mocap_jitter_s: float = Field(0.0, ge=0, le=0.5)
+    """Uniform extra latency in ``[0, jitter]`` per motion-capture message (s, seeded)."""
+    mocap_drop: float = Field(0.0, ge=0, lt=1)
+    """Probability that a motion-capture message never arrives (seeded)."""
+    boot_s: float = Field(20.0, ge=0, le=1_000_000)
+    """PX4's boot clock at the flight's ``t = 0`` (s): the log's timestamps are µs since boot."""
+    logger_dropouts: int = Field(0, ge=0, le=1000)
+    """Logger dropouts in the ULog (each loses 5 to 50 ms of every topic; seeded)."""
+
+    @property
+    def estimate(self) -> float:
+        """The hover throttle the interface assumes."""
+        return self.hover_thrust if self.hover_estimate is None else self.hover_estimate
+
+    @property
+    def timed(self) -> bool:
+        """Whether the controller reads estimates by their arrival time (the PX4 interface, or
+        any latency, jitter or drop); otherwise by capture time, as before the stand-in."""
+        return self.interface == "px4" or bool(
+            self.estimator_latency_s or self.estimator_jitter_s or self.estimator_drop
+        )
+
+
 class FlightOptions(Options):
     """Everything that shapes one simulated flight."""
 
@@ -344,6 +402,18 @@ class FlightOptions(Options):
     controller: ControllerOptions = ControllerOptions()
     vio: VioParams = VioParams()
     crash: CrashOptions = CrashOptions()
+    px4: Px4Options = Px4Options()
+    """The PX4 stand-in: the interface, the hover throttle, the estimate's and the motion
+    capture's transport (none by default, and then absent from the options' dump)."""
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """A flight's options dump without ``px4`` when it is the default, as before the
+        stand-in existed: every artifact of such a flight stays byte-identical."""
+        out: dict[str, Any] = handler(self)
+        if self.px4 == Px4Options():
+            out.pop("px4", None)
+        return out
 
     def flight_duration(self) -> float:
         return (
@@ -354,8 +424,9 @@ class FlightOptions(Options):
 class LogOptions(Options):
     """How the flight is recorded: format, topics, clocks, frames, transport delays."""
 
-    format: Literal["ros1", "ros2-sqlite", "ros2-mcap", "mcap"] = "ros1"
-    """Bag format: ros1, ros2-sqlite, ros2-mcap or mcap."""
+    format: Literal["ros1", "ros2-sqlite", "ros2-mcap", "mcap", "ulog"] = "ros1"
+    """Bag format: ros1, ros2-sqlite, ros2-mcap or mcap; or ulog, the log PX4 writes
+    (``flight.ulg``; needs ``px4.interface: px4``)."""
     compression: str | None = None
     """Bag compression (ros1: lz4, bz2; rosbag2: zstd; mcap: zstd, lz4); none by default."""
     vio_topic: str = "/vio/odometry"
@@ -385,3 +456,12 @@ class SimOptions(FlightOptions):
 
     mocap: MocapOptions = MocapOptions()
     log: LogOptions = LogOptions()
+
+    @model_validator(mode="after")
+    def _ulog_is_px4(self) -> SimOptions:
+        if self.log.format == "ulog" and self.px4.interface != "px4":
+            raise ValueError(
+                "log.format ulog records a PX4 vehicle: set px4.interface: px4 (the ULog's "
+                "attitude setpoints are the PX4 interface's)"
+            )
+        return self

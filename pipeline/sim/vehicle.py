@@ -198,6 +198,18 @@ class Vehicle:
         thrust = float(np.clip(u[2], 0.0, 4 * self.k_eta * self.speed_max**2))
         return paper_to_ctatt(np.array([pitch, roll, thrust]))
 
+    def command_px4(
+        self, thrust_sp: float, q_d: np.ndarray, hover_thrust: float
+    ) -> tuple[float, np.ndarray]:
+        """PX4's attitude setpoint -> ``(cmd_thrust, cmd_q)``: the normalized thrust
+        ``thrust_sp`` (clipped to ``[0, 1]``) is ``thrust_sp m g / hover_thrust`` newtons (a
+        linear thrust curve, ``THR_MDL_FAC = 0``: ``hover_thrust`` is the throttle that holds
+        this vehicle's weight), within the rotors' limit; the attitude ``q_d`` ``[x, y, z, w]``
+        (z up) as it is, its tilt already limited by the interface."""
+        t = min(max(float(thrust_sp), 0.0), 1.0)
+        thrust = min(t * self.mass * self.g / hover_thrust, 4 * self.k_eta * self.speed_max**2)
+        return thrust, np.asarray(q_d, dtype=float)
+
     def motor_command(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray) -> np.ndarray:
         """``Multirotor.get_cmd_motor_speeds`` for ``cmd_ctatt``, clipped as in ``step``."""
         return np.array(self._motor_speeds(s, thrust, cmd_q))
