@@ -84,3 +84,74 @@ def rot_z(psi: float) -> np.ndarray:
 def body_to_world(q: np.ndarray, v_body: np.ndarray) -> np.ndarray:
     """``R(q) v`` per sample: a child-frame (body) vector in the parent (world) frame."""
     return np.einsum("nij,nj->ni", quat_to_matrix(q), v_body)
+
+
+def world_to_body(q: np.ndarray, v_world: np.ndarray) -> np.ndarray:
+    """``R(q)^T v`` per sample: a parent-frame (world) vector in the child (body) frame, the
+    inverse of :func:`body_to_world`."""
+    return np.einsum("nji,nj->ni", quat_to_matrix(q), v_world)
+
+
+# --------------------------------------------------------------------------- NED/FRD <-> ENU/FLU
+# PX4 (and aerospace) frames: world NED (x north, y east, z down), body FRD (x forward, y right,
+# z down), quaternions ``[w, x, y, z]``; the project's: world ENU (x east, y north, z up), body
+# FLU (x forward, y left, z up), quaternions ``[x, y, z, w]``.
+
+_S = float(np.sqrt(0.5))
+Q_ENU_NED = np.array([_S, _S, 0.0, 0.0])
+"""``q(ENU<-NED)`` ``[x, y, z, w]``: a half turn about ``(1, 1, 0) / sqrt(2)``,
+``R = [[0, 1, 0], [1, 0, 0], [0, 0, -1]]`` (its own inverse)."""
+Q_FRD_FLU = np.array([1.0, 0.0, 0.0, 0.0])
+"""``q(FRD<-FLU)`` ``[x, y, z, w]``: a half turn about x, ``R = diag(1, -1, -1)``."""
+
+
+def ned_to_enu(v: np.ndarray) -> np.ndarray:
+    """World vectors ``(..., 3)`` NED -> ENU: ``[v_n[1], v_n[0], -v_n[2]]`` (east = NED's y,
+    north = NED's x, up = -down); the same map takes ENU to NED (its own inverse)."""
+    v = np.asarray(v, dtype=float)
+    return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
+
+
+def frd_to_flu(v: np.ndarray) -> np.ndarray:
+    """Body vectors ``(..., 3)`` FRD -> FLU: ``[v_x, -v_y, -v_z]`` (its own inverse)."""
+    v = np.asarray(v, dtype=float)
+    return np.stack([v[..., 0], -v[..., 1], -v[..., 2]], axis=-1)
+
+
+def wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
+    """Quaternions ``(..., 4)`` from PX4's ``[w, x, y, z]`` order to ``[x, y, z, w]``."""
+    q = np.asarray(q, dtype=float)
+    return np.concatenate([q[..., 1:4], q[..., 0:1]], axis=-1)
+
+
+def frd_ned_to_flu_enu(q: np.ndarray) -> np.ndarray:
+    """Attitudes ``(..., 4)`` ``[x, y, z, w]`` of an FRD body in NED -> of the FLU body in ENU.
+
+    ``q_enu_flu = q(ENU<-NED) q_ned_frd q(FRD<-FLU)`` (:data:`Q_ENU_NED`, :data:`Q_FRD_FLU`),
+    i.e. ``R_enu_flu = P R_ned_frd D`` with ``P = [[0, 1, 0], [1, 0, 0], [0, 0, -1]]`` and
+    ``D = diag(1, -1, -1)``. Multiplied out, with ``(x, y, z, w)`` the NED quaternion::
+
+        q_enu_flu = [x + y, x - y, w - z, w + z] / sqrt(2)
+
+    (the product itself is the negative of this: the same rotation). Heading north in NED
+    (the identity) is yaw ``pi/2`` in ENU; heading east (yaw_ned ``pi/2``) is the identity.
+    Not normalized beyond what the input is (the map is orthogonal: norms are kept); NaN
+    stays NaN."""
+    q = np.asarray(q, dtype=float)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([x + y, x - y, w - z, w + z], axis=-1) * _S
+
+
+def yaw_ned_to_enu(yaw: np.ndarray) -> np.ndarray:
+    """Headings NED (rad from north, clockwise seen from above) -> ENU (rad from east,
+    counter-clockwise about z up): ``pi/2 - yaw``, wrapped to ``[-pi, pi)``; NaN stays NaN."""
+    y = np.pi / 2 - np.asarray(yaw, dtype=float)
+    return (y + np.pi) % (2 * np.pi) - np.pi
+
+
+def yaw_quat(yaw: np.ndarray) -> np.ndarray:
+    """Quaternions ``(n, 4)`` ``[x, y, z, w]`` of rotations by ``yaw`` ``(n,)`` about z:
+    ``[0, 0, sin(yaw / 2), cos(yaw / 2)]``."""
+    h = 0.5 * np.asarray(yaw, dtype=float)
+    zero = np.zeros_like(h)
+    return np.stack([zero, zero, np.sin(h), np.cos(h)], axis=-1)

@@ -18,11 +18,12 @@ from qsls.pipeline.ingest.sources.layout import Batch
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
+ULOG_MAGIC = b"ULog\x01\x12\x35"
 
-KINDS = ("ros1", "rosbag2", "db3", "mcap", "tum", "euroc")
+KINDS = ("ros1", "rosbag2", "db3", "mcap", "ulog", "tum", "euroc")
 BAG_HINT = (
     "give a ROS1 .bag, a rosbag2 folder (or its .db3/.mcap file), a plain .mcap, "
-    "a TUM trajectory or a EuRoC ground-truth csv"
+    "a PX4 ULog (.ulg), a TUM trajectory or a EuRoC ground-truth csv"
 )
 
 
@@ -157,6 +158,8 @@ def detect(path: Path) -> str:
         return "rosbag2" if _listed_in_metadata(path) else "mcap"
     if head.startswith(SQLITE_MAGIC):
         return "rosbag2" if _listed_in_metadata(path) else "db3"
+    if head.startswith(ULOG_MAGIC):
+        return "ulog"
     return _text_kind(path)
 
 
