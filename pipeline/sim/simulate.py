@@ -19,6 +19,12 @@ Output folder (stage ``simulate``, written through :class:`StageWriter`):
   which ``qsls evaluate --flown-by`` checks every assumption of the controller's guarantee;
 - ``camera_frame.npz`` (camera loop only): one frame and the features tracked on it.
 
+With ``log.format: ulog`` (and ``px4.interface: px4``) the log is ``flight.ulg`` instead of
+a bag: the flight as PX4 would log it (:mod:`qsls.pipeline.sim.px4log`, PX4's boot clock in
+µs, NED), and ``truth.json`` and the manifest's results gain ``px4`` (hover thrust and its
+estimate, the estimate's and the motion capture's latency, jitter, drops and message counts,
+the logger dropouts, the controller's sha256 and gate).
+
 Clocks (docs/conventions.md#clocks): ``time_offset_s`` is added to motion-capture stamps to put
 them on the VIO clock, so ``mocap_stamp = vio_clock(t) - time_offset_s``. The bag's log time
 is the recorder's clock, here the VIO computer's: ``log = (stamp on the VIO clock) +
@@ -40,12 +46,14 @@ from qsls.pipeline.core.artifacts import StageWriter, npz_bytes
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.rotations import quat_mul
 from qsls.pipeline.ingest.sources.messages import OdometryStream, PoseStream
+from qsls.pipeline.ingest.sources.ulog.writer import write_ulog
 from qsls.pipeline.ingest.sources.write import write_bag
 from qsls.pipeline.sim.closedloop import NS, FlightLog, fly
 from qsls.pipeline.sim.controllers import PositionController, controller_folder
 from qsls.pipeline.sim.mocap import sample_mocap
 from qsls.pipeline.sim.options import LogOptions as LogOptions
 from qsls.pipeline.sim.options import SimOptions
+from qsls.pipeline.sim.px4log import ULOG_NAME, Identity, px4_log
 from qsls.pipeline.sim.ticks import TICKS_FILE, TickLog, tick_log
 
 STAGE = "simulate"
@@ -96,7 +104,7 @@ class SimResult:
 
 def bag_name(fmt: str) -> str:
     """The bag's name inside the output folder for a format."""
-    return {"ros1": "flight.bag", "mcap": "flight.mcap"}.get(fmt, "flight")
+    return {"ros1": "flight.bag", "mcap": "flight.mcap", "ulog": ULOG_NAME}.get(fmt, "flight")
 
 
 def _rz(yaw: float) -> np.ndarray:
@@ -230,6 +238,44 @@ def _frames(flight: FlightLog, start_ns: int) -> dict[str, Any]:
     return {"errors.parquet": errors, "trajectory.parquet": traj, CONTROL_FILE: control}
 
 
+def controller_identity(
+    options: SimOptions, flight: FlightLog, controller: PositionController | None
+) -> Identity:
+    """The flown controller's name, and its certificate's sha256 and gate where it has one."""
+    kind = options.controller.kind
+    if controller is not None or kind in ("se3", "pd"):
+        return Identity(flight.controller)
+    from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
+
+    folder = controller_folder(kind)
+    if not (folder / CERTIFICATE_FILE).is_file():
+        return Identity(flight.controller)
+    cert = Certificate.load(folder)
+    return Identity(flight.controller, cert.controller_sha256, cert.gate)
+
+
+def ulog_streams(
+    flight: FlightLog, options: SimOptions, seed: int, path: Path, controller: Any = None
+) -> dict[str, Any]:
+    """Write the flight's ULog to ``path``; the clock truth (as :func:`log_streams`'s, on
+    PX4's boot clock, in the simulator's world: no VIO frame) with the log's ``px4`` block."""
+    content, px4 = px4_log(flight, options, seed, controller_identity(options, flight, controller))
+    write_ulog(path, content)
+    boot_ns = px4["boot_us"] * 1000
+    return {
+        "time_offset_s": 0.0,
+        "vio_frame": {"yaw_rad": 0.0, "translation": [0.0, 0.0, 0.0]},
+        "vio_clock_start_ns": int(boot_ns),
+        "vio_topic": px4["estimator"]["topic"],
+        "mocap_topic": px4["mocap"]["topic"],
+        "vio_rate_hz": options.vio.rate_hz,
+        "mocap_rate_hz": options.mocap.rate_hz,
+        "vio_messages": px4["estimator"]["samples"] - px4["estimator"]["dropped"],
+        "mocap_messages": px4["mocap"]["samples"] - px4["mocap"]["dropped"],
+        "px4": px4,
+    }
+
+
 def simulate(
     options: SimOptions,
     out: Path,
@@ -247,9 +293,14 @@ def simulate(
     with StageWriter(out, STAGE, options=options, inputs=ctrl_inputs, force=force) as w:
         flight = fly(options, controller, progress=progress)
         progress.start("writing the bag", total=None)
-        streams, clocks = log_streams(flight, options, options.seed)
         name = bag_name(options.log.format)
-        write_bag(w.path(name), streams, options.log.format, compression=options.log.compression)
+        if options.log.format == "ulog":
+            clocks = ulog_streams(flight, options, options.seed, w.path(name), controller)
+        else:
+            streams, clocks = log_streams(flight, options, options.seed)
+            write_bag(
+                w.path(name), streams, options.log.format, compression=options.log.compression
+            )
         progress.finish()
         metrics = flight.metrics()
         truth = {
@@ -282,7 +333,8 @@ def simulate(
                 "crashed": flight.crashed,
                 "crash_reason": flight.crash_reason,
                 "lipschitz": flight.lipschitz,
-                "time_offset_s": options.log.time_offset_s,
+                "time_offset_s": clocks["time_offset_s"],
+                **({"px4": clocks["px4"]} if "px4" in clocks else {}),
                 **{k: v for k, v in metrics.items() if k not in ("crashed", "crash_reason")},
             }
         )
