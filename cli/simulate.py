@@ -24,6 +24,8 @@ EXAMPLE = "qsls simulate --out flights/sim1 --seed 1 --format mcap"
         "vio.kind": Flag(("--vio",), name="vio"),
         "controller.kind": Flag(("--controller",), name="controller"),
         "log.format": Flag(("--format",), name="fmt"),
+        "controller.backend": Flag(("--backend",), name="backend"),
+        "px4.interface": Flag(("--interface",), name="interface"),
     },
 )
 def command(
@@ -31,7 +33,7 @@ def command(
         ...,
         "--out",
         "-o",
-        help="Output folder: the bag (flight.bag, flight/ or flight.mcap), truth.json, "
+        help="Output folder: the log (flight.bag, flight/, flight.mcap or flight.ulg), truth.json, "
         "errors.parquet, trajectory.parquet, control.parquet, ticks.parquet (the "
         "controller's own log), manifest.json.",
     ),

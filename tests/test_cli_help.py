@@ -65,6 +65,8 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "vio": "vio.kind",
             "controller": "controller.kind",
             "fmt": "log.format",
+            "backend": "controller.backend",
+            "interface": "px4.interface",
         },
     ),
     "calibrate": (

@@ -69,6 +69,7 @@ from qsls.pipeline.evaluate.certified import (
     load_controller_bound,
     outside_calibration,
 )
+from qsls.pipeline.evaluate.flownby import flown_by
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
 from qsls.pipeline.evaluate.nees import Nees, flight_nees
 from qsls.pipeline.evaluate.options import EvaluateOptions
@@ -614,6 +615,17 @@ def own_log_of(folder: Path) -> tuple[Path | None, str]:
     return None, ""
 
 
+def recorded_ticks_facts(folder: Path) -> dict[str, Any]:
+    """What the ingest of a vehicle's log recorded of its tick log (``results.ticks``:
+    ``qsls ingest LOG --mass``, docs/vehicle.md); empty for any other folder."""
+    try:
+        m = read_manifest(folder)
+    except InputError:
+        return {}
+    facts = (m.get("results") or {}).get("ticks") if m.get("stage") == "ingest" else None
+    return dict(facts) if isinstance(facts, dict) and "mass_kg" in facts else {}
+
+
 def own_log_assumptions(
     flights: Sequence[Path],
     bounds: Sequence[ControllerBound | None],
@@ -659,6 +671,15 @@ def own_log_assumptions(
             )
             continue
         log = TickLog.read(ticks)
+        if recorded := recorded_ticks_facts(folder):  # a vehicle's log: prove who flew it
+            proof = flown_by(log, bound.folder, float(recorded["mass_kg"]),
+                             dict(recorded.get("stamps") or {}))  # fmt: skip
+            if not proof.flown:
+                missing.append(
+                    f"{folder}: not flown by {bound.name} ({proof.reason}): the assumptions of "
+                    f"{bound.name}'s guarantee are checked on its own flights only"
+                )
+                continue
         row = check_assumptions(log, premise, training.distance)
         span = float(log.t[-1] - log.t[0]) if len(log.t) else 0.0
         row["outside_calibration"] = outside_calibration(calibration, condition, span, estimator)
