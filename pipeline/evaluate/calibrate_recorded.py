@@ -67,11 +67,15 @@ def _check_dt(flights: list[RecordedFlight], folder: Path, dt: float) -> None:
             )
 
 
-def _conditions(flights: list[RecordedFlight], condition: str) -> dict[str, Any]:
-    """What the certificate states of its calibration flights (their logs' conditions)."""
+def _conditions(
+    flights: list[RecordedFlight], condition: str, estimator: str = ""
+) -> dict[str, Any]:
+    """What the certificate states of its calibration flights (their logs' conditions); the
+    estimator is the estimate's topic unless named (the stand-in's: its simulated one)."""
     first = flights[0].conditions
     return {
-        "source": "recorded", "perception": condition, "estimator": first["estimator"],
+        "source": "standin" if estimator else "recorded", "perception": condition,
+        "estimator": estimator or first["estimator"], "estimate_topic": first["estimator"],
         "truth": first["truth"], "vehicle": first["vehicle"], "dt_s": first["dt_s"],
         "duration_s": max(float(f.conditions["duration_s"]) for f in flights),
         "logs": {f.name: f.log_sha256 for f in flights},
@@ -136,7 +140,7 @@ def calibrate_recorded(
             mine = [f for f in flights if owners[f.name] == folder.name]
             if not any(f.role == "calibration" for f in mine):
                 continue
-            o, scored, checked = _one(folder, mine, options, training, w.path)
+            o, scored, checked = _one(folder, mine, options, training, w.path, standin)
             outcomes.append(o)
             rows += scored
             vrows += checked
@@ -183,6 +187,7 @@ def _one(
     options: CalibrateOptions,
     training: Any,
     path: Any,
+    standin: bool = False,
 ) -> tuple[Outcome, list[dict[str, Any]], list[dict[str, Any]]]:
     """One candidate on its own flights: scores, the decision, the certificate, validation."""
     condition = options.conditions[0]
@@ -206,7 +211,8 @@ def _one(
     )  # fmt: skip
     o = Outcome(folder.name, condition, status, reason, lam, rank, chk, tested, tol, s)
     calib = [f for f in flights if f.role == "calibration"]
-    conditions = _conditions([f for f in flights if f.role != "validation"], condition)
+    estimator = str(options.sim.vio.kind) if standin else ""
+    conditions = _conditions([f for f in flights if f.role != "validation"], condition, estimator)
     target = path(f"{condition}/{folder.name}")
     calibrated_certificate(
         folder, target, o, options, [], [r for r in scored if r["role"] == "calibration"],
