@@ -11,7 +11,7 @@ from qsls.cli.common import cli_errors
 from qsls.cli.fields import Flag, model_options
 from qsls.pipeline.evaluate.options import CalibrateOptions
 
-EXAMPLE = "qsls calibrate -m fit --controllers synth -o cal --recorded flights/c01"
+EXAMPLE = "qsls calibrate -m fit --controllers synth -o cal --recorded flights/cal"
 
 
 @cli_errors

@@ -78,7 +78,6 @@ def _conditions(
         "estimator": estimator or first["estimator"], "estimate_topic": first["estimator"],
         "truth": first["truth"], "vehicle": first["vehicle"], "dt_s": first["dt_s"],
         "duration_s": max(float(f.conditions["duration_s"]) for f in flights),
-        "logs": {f.name: f.log_sha256 for f in flights},
     }  # fmt: skip
 
 

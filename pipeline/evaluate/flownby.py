@@ -10,15 +10,20 @@ so the estimator's latency is the log's own):
 then through the export's attitude map with its limits (the command a vehicle can be sent)
 and back to the paper's input (:mod:`qsls.pipeline.core.attitude`), and compared with the
 recorded ``u_k``. The flight is refused at the first tick where a channel differs by more than
-:data:`TOLERANCE` (rad for pitch and roll; for thrust, that fraction of ``m g``).
+its tolerance (rad for pitch and roll; for thrust, a fraction of ``m g``).
 
-The tolerance covers what a log does to exact numbers, nothing a controller does: a ULog keeps
-float32 (relative 2^-24 = 6e-8), so estimates of a few metres carry 1e-6 m of rounding, which
-the controller's gain (an induced norm of a few tens) turns into 1e-5 of input; the command's
-own rounding is 1e-7. A different controller, or the same taps behind another gate at a tick
-where the gate binds, differs by the gain times that difference (0.01 of input and more). An
-identity stamped in the log (``qsls_controller_sha256``, ``qsls_gate``) is compared first,
-where present.
+The tolerance is what a log's rounding can do, derived per flight, nothing a controller does.
+A ULog keeps float32 (unit roundoff ``eps = 2^-24``): each ``y_i`` and ``r_i`` carries at most
+``eps (|y_i| + |r_i|)`` of rounding, which reaches input ``j`` through at most
+``G_ji = sum_t |Phi_uy(t)_ji|`` (the taps' gain from channel ``i``), and the command itself
+(the quaternion, the normalized thrust and the hover thrust) is rounded once more::
+
+    tol_j = 4 eps (sum_i G_ji max_k(|y_ik| + |r_ik|) + max_k |u_jk| / s_j + 1)
+
+(``s_j`` = 1 rad for pitch and roll, ``m g`` for thrust; the 4 covers the few roundings of
+each conversion). Latency needs none: ``y_k`` is the estimate that had arrived, by the log's
+own stamps. An identity stamped in the log (``qsls_controller_sha256``, ``qsls_gate``) is
+compared first, where present.
 """
 
 from __future__ import annotations
@@ -37,8 +42,10 @@ from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.core.ticks import INPUT, TickLog
 from qsls.pipeline.export.attitude import AttitudeLimits, thrust_attitude
 
+EPS32 = 2.0**-24
+"""float32's unit roundoff: a log's numbers."""
 TOLERANCE = 1e-4
-"""Largest difference between a replayed and a recorded command (module docstring)."""
+"""The largest tolerance any flight gets: beyond it no rounding explains a difference."""
 
 
 @dataclass(frozen=True)
@@ -68,6 +75,17 @@ def replayed_inputs(
     acc = np.column_stack([-log.uff[:, 0] * g, log.uff[:, 1] * g, log.uff[:, 2] / mass])
     thrust, q = thrust_attitude(out, acc, mass, limits)
     return input_from_force(force_from_attitude(q, thrust), mass)
+
+
+def tolerances(log: TickLog, folder: Path, scale: np.ndarray) -> np.ndarray:
+    """``tol_j`` (3,) of the module docstring: what float32 rounding of the log can change in
+    each replayed input, capped at :data:`TOLERANCE`."""
+    taps = load_controller_dir(folder).controller.taps
+    gain = np.abs(taps.Phi_uy).sum(axis=0)[:, : log.y.shape[1]]  # (nu, 6)
+    size = (np.abs(log.y).max(axis=0) + np.abs(log.ref).max(axis=0)) if len(log.t) else 0.0
+    u = np.abs(log.u).max(axis=0) / scale if len(log.t) else np.zeros(3)
+    tol = 4 * EPS32 * (gain @ size + u + 1.0)
+    return np.minimum(tol, TOLERANCE)
 
 
 def check_identity(stamps: dict[str, Any], folder: Path) -> str:
@@ -105,7 +123,8 @@ def flown_by(
     scale = np.array([1.0, 1.0, mass * GRAVITY])
     diff = np.abs(replay - log.u) / scale
     worst = float(np.nanmax(diff)) if diff.size else 0.0
-    bad = ~(diff <= TOLERANCE)
+    tol = tolerances(log, Path(folder), scale)
+    bad = ~(diff <= tol)
     if not bad.any():
         return Provenance(name, True, max_difference=worst)
     k, j = (int(v[0]) for v in np.nonzero(bad))
@@ -113,7 +132,7 @@ def flown_by(
     return Provenance(
         name, False,
         f"tick {k} (t = {log.t[k]:.3f} s): {INPUT[j]} {log.u[k, j]:.6g} {unit} recorded, "
-        f"{replay[k, j]:.6g} {unit} replayed through {name} (tolerance {TOLERANCE:g}"
-        + (" x m g)" if j == 2 else " rad)"),
+        f"{replay[k, j]:.6g} {unit} replayed through {name} (tolerance {tol[j]:.2g}"
+        + (" x m g, the log's rounding)" if j == 2 else " rad, the log's rounding)"),
         k, worst,
     )  # fmt: skip

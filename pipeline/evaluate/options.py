@@ -124,11 +124,13 @@ class RecordedFlights(Options):
     LOG --mass KG``) by role, in place of simulated ones (docs/vehicle.md)."""
 
     calibration: list[Path] = Field(default_factory=list)
-    """Calibration flights: each flown by the candidate (proved from its log)."""
+    """Calibration flights (ingest folders, or folders of them; comma-separated on the
+    command line), each proved flown by the candidate from its log."""
     range: list[Path] = Field(default_factory=list)
-    """Range flights: the reference moved away from the design's, scored without its term."""
+    """Range flights (as ``calibration``): the reference moved away from the design's, scored
+    without the reference's term."""
     validation: list[Path] = Field(default_factory=list)
-    """Fresh flights checked against the calibrated premise."""
+    """Fresh flights (as ``calibration``) checked against the calibrated premise."""
 
     @property
     def given(self) -> bool:

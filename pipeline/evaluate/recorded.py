@@ -86,10 +86,27 @@ def load_recorded(folder: Path, role: str) -> RecordedFlight:
     )
 
 
+def expand(given: Sequence[Path]) -> list[Path]:
+    """The flight folders ``given`` names: each an ingest folder, or a folder of them (its
+    subfolders holding a manifest, by name)."""
+    out: list[Path] = []
+    for g in map(Path, given):
+        if g.is_dir() and not (g / "manifest.json").is_file():
+            inner = sorted(d for d in g.iterdir() if (d / "manifest.json").is_file())
+            if not inner:
+                raise InputError(
+                    f"recorded flights {g}: neither an ingest folder nor a folder of them"
+                )
+            out += inner
+        else:
+            out.append(g)
+    return out
+
+
 def load_all(by_role: dict[str, Sequence[Path]]) -> list[RecordedFlight]:
     """Every recorded flight, refused in one line where two are one flight, or where they are
     not of one vehicle and one estimator (docs/vehicle.md#what-voids-it)."""
-    flights = [load_recorded(Path(f), role) for role in ROLES for f in by_role.get(role, ())]
+    flights = [load_recorded(f, role) for role in ROLES for f in expand(by_role.get(role, ()))]
     seen: dict[str, RecordedFlight] = {}
     for f in flights:
         key = f.log_sha256 or str(f.folder.resolve())
