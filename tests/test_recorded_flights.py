@@ -74,6 +74,8 @@ def test_certified_from_ulog_flights_alone(px4_run: Path) -> None:
     assert cond["vehicle"]["hover_source"] == "hover_thrust_estimate"
     assert abs(cond["vehicle"]["hover_thrust"] - 0.45) < 1e-7  # the log's float32
     assert cert["status"] == "certified"
+    report = (px4_run / "report" / "report.md").read_text()
+    assert "calibration flights are recorded flights of the vehicle" in report
 
 
 @pytest.mark.slow

@@ -55,9 +55,19 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
     if not rows:
         return None
     sec = Section("Calibrated certificates", id="calibration")
+    sources = {str((c.calibration.conditions if c and c.calibration else {}).get("source", ""))
+               for _, c in rows}  # fmt: skip
+    flown = (
+        "Each robust candidate's calibration flights are recorded flights of the vehicle (PX4 "
+        "logs; of the stand-in vehicle where the conditions say standin), each proved flown by "
+        "the candidate by replaying its log through the candidate's taps and gate, none a "
+        "design flight (docs/vehicle.md). "
+        if sources & {"recorded", "standin"}
+        else "Each robust candidate flew its own calibration flights under the stated "
+        "conditions, on seeds no design flight used. "
+    )
     sec.text(
-        "Each robust candidate flew its own calibration flights under the stated conditions, on "
-        "seeds no design flight used. A flight's score is the smallest inflation of the design "
+        f"{flown}A flight's score is the smallest inflation of the design "
         "premise (eps, S, eps_w, Delta, m) it satisfies; the calibrated premise is the design "
         "premise inflated by the conformal (or PAC) order statistic lambda_hat of the scores, "
         "and the candidate's fixed taps are checked against it. A new flight of the same "
