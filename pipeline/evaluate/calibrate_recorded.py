@@ -77,8 +77,17 @@ def _conditions(
         "source": "standin" if estimator else "recorded", "perception": condition,
         "estimator": estimator or first["estimator"], "estimate_topic": first["estimator"],
         "truth": first["truth"], "vehicle": first["vehicle"], "dt_s": first["dt_s"],
+        "frame": first["frame"], "reference": _reference_family(flights),
         "duration_s": max(float(f.conditions["duration_s"]) for f in flights),
     }  # fmt: skip
+
+
+def _reference_family(flights: list[RecordedFlight]) -> dict[str, list[float]]:
+    """The range of each reference number over the flights (``[low, high]``): the references
+    the calibration flew (:func:`qsls.pipeline.ingest.ticks.reference_summary`)."""
+    refs = [f.conditions["reference"] for f in flights if f.conditions.get("reference")]
+    keys = sorted({k for r in refs for k in r})
+    return {k: [min(r[k] for r in refs), max(r[k] for r in refs)] for k in keys}
 
 
 def calibrate_recorded(

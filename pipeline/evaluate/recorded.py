@@ -79,6 +79,8 @@ def load_recorded(folder: Path, role: str) -> RecordedFlight:
                     "hover_source": facts.get("hover_source"),
                     "thr_mdl_fac": facts.get("thr_mdl_fac")},
         "dt_s": float(facts["dt_s"]),
+        "frame": str(facts.get("frame", "")),
+        "reference": dict(facts.get("reference") or {}),
         "duration_s": float(log.t[-1]) if len(log.t) else 0.0,
     }  # fmt: skip
     return RecordedFlight(
@@ -116,7 +118,8 @@ def load_all(by_role: dict[str, Sequence[Path]]) -> list[RecordedFlight]:
                 f"({f.role}) come from one log: a flight counts once; pass it once"
             )
         seen[key] = f
-    for what, key in (("vehicle mass", "mass"), ("estimator", "estimator"), ("tick", "dt_s")):
+    for what, key in (("vehicle mass", "mass"), ("estimator", "estimator"), ("tick", "dt_s"),
+                      ("frame", "frame")):  # fmt: skip
         values = {f.name: (f.mass if key == "mass" else f.conditions[key]) for f in flights}
         first = flights[0] if flights else None
         for f in flights[1:]:
@@ -165,11 +168,12 @@ def refuse_design(flights: Sequence[RecordedFlight], fit_dir: Path) -> None:
                 "validated on flights its design never saw"
             )
     try:
-        train = [Path(str(i.get("path"))) for i in read_manifest(fit_dir).get("inputs", [])
-                 if isinstance(i, dict) and str(i.get("path", "")).endswith(".parquet")]  # fmt: skip
+        given = [Path(str(i.get("path", ""))) for i in read_manifest(fit_dir).get("inputs", [])
+                 if isinstance(i, dict)]  # fmt: skip
     except InputError:
         return
-    frames = {p: pd.read_parquet(p) for p in train if p.is_file() and p.name == "flight.parquet"}
+    train = [(p / "flight.parquet" if p.is_dir() else p) for p in given]
+    frames = {p: pd.read_parquet(p) for p in train if p.name == "flight.parquet" and p.is_file()}
     for f in flights:
         mine = f.folder / "flight.parquet"
         if not mine.is_file():

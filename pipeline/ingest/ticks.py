@@ -89,6 +89,19 @@ def _truth_at(truth: Trajectory, t: np.ndarray, max_gap_ns: int) -> np.ndarray:
     return (1 - a) * xs[jj - 1] + a * xs[jj]
 
 
+def reference_summary(ref: np.ndarray) -> dict[str, float]:
+    """What a flight's reference ``r_k`` (k, 6) was, in numbers a certificate can state and a
+    later flight be compared with: its horizontal centre and mean radius about it, its mean
+    height, and its largest speed."""
+    c = ref[:, :2].mean(axis=0)
+    radius = np.hypot(ref[:, 0] - c[0], ref[:, 1] - c[1])
+    return {
+        "center_x": float(c[0]), "center_y": float(c[1]), "radius_m": float(radius.mean()),
+        "height_m": float(ref[:, 2].mean()),
+        "speed_max_mps": float(np.linalg.norm(ref[:, 3:6], axis=1).max()),
+    }  # fmt: skip
+
+
 def recorded_ticks(
     vio: Trajectory,
     truth: Trajectory,
@@ -162,5 +175,6 @@ def recorded_ticks(
         "hover_source": "given" if hover_thrust is not None else commands.hover_source,
         "thr_mdl_fac": commands.thr_mdl_fac,
         "estimate_age_s": float(np.max(t - vs[iy]) / NS),
+        "reference": reference_summary(ref),
     }
     return RecordedTicks(log, facts)
