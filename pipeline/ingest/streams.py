@@ -24,6 +24,7 @@ import numpy as np
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.rotations import world_to_body
 from qsls.pipeline.ingest.resample import interp_rows, median_spacing
 from qsls.pipeline.ingest.sources.bags import BagSource
 from qsls.pipeline.ingest.sources.base import Trajectory, detect
@@ -37,6 +38,7 @@ from qsls.pipeline.ingest.sources.select import (
     find_topic,
 )
 from qsls.pipeline.ingest.sources.text.reader import TEXT_READERS
+from qsls.pipeline.ingest.sources.ulog.px4 import MSGTYPE_PREFIX
 
 if TYPE_CHECKING:
     from qsls.pipeline.ingest.stage import IngestOptions
@@ -94,11 +96,19 @@ class Prepared:
 
 # --------------------------------------------------------------------------- reading
 def read_streams(sources: list[Path], o: IngestOptions, progress: Progress) -> list[Trajectory]:
-    """``[vio, truth]`` trajectories, each with the path it was read from (``source``)."""
+    """``[vio, truth]`` trajectories, each with the path it was read from (``source``).
+
+    A role read from a PX4 ULog (the only source, or ``--vio FILE`` / ``--truth FILE``)
+    takes its topic ``NAME[:INSTANCE]`` from ``--vio-topic`` / ``--truth-topic``, by default
+    :data:`~qsls.pipeline.ingest.sources.ulog.px4.DEFAULT_VIO_TOPIC` /
+    :data:`~qsls.pipeline.ingest.sources.ulog.px4.DEFAULT_TRUTH_TOPIC` (:func:`_read_ulogs`;
+    both roles from one log in one pass)."""
     sources = [Path(s) for s in sources]
     if not sources and (o.vio is None or o.truth is None):
         raise InputError("no input: give a bag (SOURCE...) or both --vio FILE and --truth FILE")
     texts: dict[str, Any] = {}
+    ready: dict[str, str] = {}  # role -> where a stream read whole (text, ULog) came from
+    ulogs: dict[str, Path] = {}
     bags: dict[Path, BagSource] = {}
     try:
         role_files: dict[str, list[Path]] = {}
@@ -113,13 +123,23 @@ def read_streams(sources: list[Path], o: IngestOptions, progress: Progress) -> l
                             f"{f}: a text trajectory; pass text files with --vio FILE --truth FILE"
                         )
                     texts[role] = TEXT_READERS[kind](f)
+                    ready[role] = str(given)
+                elif kind == "ulog":
+                    if len(files) > 1:
+                        raise InputError(
+                            f"{f}: a PX4 ULog among several sources; give it alone, or pass "
+                            "it with --vio FILE / --truth FILE"
+                        )
+                    ulogs[role] = f
+                    ready[role] = str(f)
                 elif f not in bags:
                     bags[f] = BagSource(f)
+        texts.update(_read_ulogs(ulogs, o))
         topics = {p: b.topics() for p, b in bags.items()}
         vio_topics = [t for f in role_files["vio"] if f in bags for t in topics[f]]
         truth_topics = [t for f in role_files["truth"] if f in bags for t in topics[f]]
         if "vio" in texts and "truth" in texts:
-            return _placed(texts, {"vio": str(o.vio), "truth": str(o.truth)})
+            return _placed(texts, ready)
         vio_info = truth_info = None
         if "vio" in texts:
             truth_info = _pick_truth(truth_topics, o)
@@ -138,7 +158,7 @@ def read_streams(sources: list[Path], o: IngestOptions, progress: Progress) -> l
         wanted: dict[Path, list[tuple[str, str, str | None]]] = {}
         for role, info in (("vio", vio_info), ("truth", truth_info)):
             if info is None:
-                where[role] = str(o.vio if role == "vio" else o.truth)
+                where[role] = ready[role]
                 continue
             frame = o.truth_frame if role == "truth" else None
             wanted.setdefault(info.source, []).append((role, info.topic, frame))
@@ -150,6 +170,26 @@ def read_streams(sources: list[Path], o: IngestOptions, progress: Progress) -> l
     finally:
         for b in bags.values():
             b.close()
+
+
+def _read_ulogs(ulogs: dict[str, Path], o: IngestOptions) -> dict[str, Trajectory]:
+    """The roles read from PX4 ULogs (``{role: log}``), each log read once for the roles it
+    serves (:func:`~qsls.pipeline.ingest.sources.ulog.reader.read_odometries`)."""
+    if not ulogs:
+        return {}
+    from qsls.pipeline.ingest.sources.ulog import px4
+    from qsls.pipeline.ingest.sources.ulog.reader import parse_topic, read_odometries
+
+    spec = {
+        "vio": o.vio_topic or px4.DEFAULT_VIO_TOPIC,
+        "truth": o.truth_topic or px4.DEFAULT_TRUTH_TOPIC,
+    }
+    out: dict[str, Trajectory] = {}
+    for log in dict.fromkeys(ulogs.values()):
+        roles = [r for r, f in ulogs.items() if f == log]
+        got = read_odometries(log, [parse_topic(spec[r]) for r in roles])
+        out.update(zip(roles, got, strict=True))
+    return out
 
 
 def _placed(streams: dict[str, Trajectory], where: dict[str, str]) -> list[Trajectory]:
@@ -185,11 +225,18 @@ def read_vio_stream(
     source: Path, vio_topic: str | None, *, fast: bool = True, progress: Progress = NULL_PROGRESS
 ) -> Trajectory:
     """The VIO stream of one source, as ingest reads it: a text trajectory (TUM, EuRoC csv),
-    or the bag's VIO topic, named or chosen (:func:`pick_vio`). What ``qsls replay`` reads."""
+    a PX4 ULog's topic (``vio_topic``, default ``vehicle_visual_odometry``), or the bag's VIO
+    topic, named or chosen (:func:`pick_vio`). What ``qsls replay`` reads."""
     source = Path(source)
     kind = detect(source)
     if kind in TEXT_READERS:
         return dataclasses.replace(TEXT_READERS[kind](source), source=str(source))
+    if kind == "ulog":
+        from qsls.pipeline.ingest.sources.ulog import px4
+        from qsls.pipeline.ingest.sources.ulog.reader import parse_topic, read_odometry
+
+        traj = read_odometry(source, *parse_topic(vio_topic or px4.DEFAULT_VIO_TOPIC))
+        return dataclasses.replace(traj, source=str(source))
     with BagSource(source) as bag:
         info = pick_vio(bag.topics(), vio_topic)
         (traj,) = bag.read_many([(info.topic, None)], fast=fast, progress=progress)
@@ -203,6 +250,8 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     t = traj.log_ns if o.stamp == "log" else traj.header_ns
     t = np.asarray(t, dtype=np.int64)
     p, q, v = traj.position, traj.orientation, traj.velocity
+    if v is not None and traj.msgtype.startswith(MSGTYPE_PREFIX):
+        v = world_velocity(traj, role, o)
     var = None
     if getattr(traj, "pose_var", None) is not None and getattr(traj, "twist_var", None) is not None:
         var = np.hstack([traj.pose_var, traj.twist_var])
@@ -287,6 +336,30 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
         glitches,
         var,
     )
+
+
+def world_velocity(traj: Any, role: str, o: IngestOptions) -> np.ndarray | None:
+    """A PX4 ULog stream's velocity, which its reader gives in the world frame (ENU), as the
+    velocity step will take it (docs/ingest.md#px4-ulog):
+
+    - None (the positions differentiated instead) when it is not finite on every message
+      whose pose is (a VIO or mocap source that sends velocity on some messages only);
+    - for the VIO under ``vio_velocity_frame: body`` (the default, the ROS convention the
+      step applies, ``v_w = R(q) v_b``): expressed in the body frame, ``v_b = R(q)^T v_w``,
+      so that the step gives the logged world velocity back (to rounding);
+    - otherwise as read.
+    """
+    v = traj.velocity
+    posed = np.isfinite(traj.position).all(axis=1) & np.isfinite(traj.orientation).all(axis=1)
+    if not np.isfinite(v[posed]).all():
+        return None
+    if role != "vio" or o.vio_velocity_frame != "body":
+        return v
+    out = np.empty_like(v, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):  # zero quaternions: dropped later
+        for a in range(0, len(v), CHUNK):
+            out[a : a + CHUNK] = world_to_body(traj.orientation[a : a + CHUNK], v[a : a + CHUNK])
+    return out
 
 
 GLITCH_JUMP_M = 0.01

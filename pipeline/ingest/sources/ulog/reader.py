@@ -147,9 +147,11 @@ class _WithTail(io.RawIOBase):
         return n
 
     def seek(self, offset: int, whence: int = 0) -> int:
-        base = {0: 0, 1: self._pos, 2: self._size + len(self._tail)}[whence]
-        self._pos = max(0, base + offset)
-        return self._pos
+        pos = {0: 0, 1: self._pos, 2: self._size + len(self._tail)}[whence] + offset
+        if pos < 0:  # as a file does (pyulog seeks back by a garbled size)
+            raise OSError(22, "Invalid argument")
+        self._pos = pos
+        return pos
 
     def tell(self) -> int:
         return self._pos
@@ -186,7 +188,11 @@ def load(path: Path, topics: Sequence[str] | None, *, header_only: bool = False)
     except InputError:
         raise
     except Exception as exc:  # pyulog's own, or what a garbled file makes it raise
-        what = " ".join(str(exc).split()) or type(exc).__name__
+        what = (
+            "a message's size points before the file's start"
+            if isinstance(exc, OSError)
+            else " ".join(str(exc).split()) or type(exc).__name__
+        )
         raise _damaged(path, f"damaged ({what})") from None
     finally:
         stream.close()
