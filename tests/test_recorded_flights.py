@@ -193,3 +193,36 @@ def test_recorded_calibration_refusals(px4_run: Path, tmp_path: Path) -> None:
     proc = qsls("ingest", "--vio", str(text), "--truth", str(text), "--mass", "0.3", "--out",
                 str(tmp_path / "x"), cwd=tmp_path)  # fmt: skip
     assert proc.returncode != 0 and "PX4 ULog" in proc.stderr
+
+
+@pytest.mark.slow
+def test_evaluate_flown_by_reads_a_recorded_flight_as_a_simulated_one(
+    px4_run: Path, tmp_path: Path
+) -> None:
+    """``qsls evaluate --flown-by`` on recorded flights: the candidate's own validation flight
+    gets every assumption checked from its tick log, the values equal to those the calibration
+    wrote; the PD's flight is named as not flown by it, not blamed on it."""
+    flights = px4_run / "calibrate" / "standin" / "flights"
+    own = flights / standin(px4_run, "validation")[0]
+    pd_dir = tmp_path / "pd_flight"
+    ulg = px4_run / "simulate" / "heldout_1" / "flight.ulg"
+    assert qsls("ingest", str(ulg), "--mass", str(MASS), "--align", "none", "--time-offset",
+                "0", "--out", str(pd_dir), cwd=tmp_path).returncode == 0  # fmt: skip
+    cert = px4_run / "calibrate" / "regular" / "l1_robust"
+    out = tmp_path / "ev"
+    proc = qsls("evaluate", "--model", str(px4_run / "fit"), "--controller", str(cert),
+                "--flights", str(own), "--flights", str(pd_dir), "--flown-by", "l1_robust",
+                "--no-figures", "--out", str(out), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = pd.read_parquet(out / "assumptions.parquet")
+    assert list(rows["flight"]) == [own.name]
+    mine = rows.iloc[0]
+    validation = pd.read_parquet(px4_run / "calibrate" / "validation.parquet")
+    want = validation[validation["flight"] == own.name].iloc[0]
+    assert bool(mine["assumptions_hold"]) == bool(want["assumptions_hold"])
+    shared = [c for c in validation.columns if c in rows.columns and c.endswith("_value")]
+    assert len(shared) >= 3, (list(rows.columns), list(validation.columns))
+    for col in shared:
+        assert mine[col] == pytest.approx(want[col], rel=1e-12, nan_ok=True), col
+    warnings = json.dumps(json.loads((out / "evaluation.json").read_text()))
+    assert f"{pd_dir}: not flown by l1_robust" in warnings
