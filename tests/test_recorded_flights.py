@@ -18,6 +18,7 @@ import pandas as pd
 import pytest
 import yaml
 
+from qsls.pipeline.core.artifacts import parquet_bytes
 from qsls.pipeline.core.ticks import TICKS_FILE, TickLog
 from qsls.pipeline.errormodel.model import load_error_model, resolve_model
 from qsls.pipeline.evaluate.calibrate import score_flight
@@ -226,3 +227,36 @@ def test_evaluate_flown_by_reads_a_recorded_flight_as_a_simulated_one(
         assert mine[col] == pytest.approx(want[col], rel=1e-12, nan_ok=True), col
     warnings = json.dumps(json.loads((out / "evaluation.json").read_text()))
     assert f"{pd_dir}: not flown by l1_robust" in warnings
+
+
+@pytest.mark.slow
+def test_a_tick_log_names_its_controller_and_its_ticks_must_be_the_controllers(
+    px4_run: Path, tmp_path: Path
+) -> None:
+    """``--flown-by`` refuses a tick log that names another controller (or another
+    controller.npz), or whose ticks are not the controller's dt."""
+    from qsls.pipeline.evaluate.bound import own_log
+    from qsls.pipeline.evaluate.certified import load_bounds
+
+    (bound,) = load_bounds([px4_run / "calibrate" / "regular" / "l1_robust"])
+    sim = px4_run / "calibrate" / "standin" / "logs" / standin(px4_run, "validation")[0]
+    log = TickLog.read(sim / TICKS_FILE)
+    assert log.controller == "l1_robust"
+    assert own_log(sim, sim / TICKS_FILE, "", bound)[0] is not None
+    cases = {
+        "flown by pd": dict(controller="pd", controller_sha256=""),
+        "its log's sha256": dict(controller_sha256="0" * 64),
+    }
+    for said, change in cases.items():
+        folder = tmp_path / said.replace(" ", "_").replace("'", "")
+        folder.mkdir()
+        other = TickLog(log.t, log.x, log.y, log.u, log.ref, log.uff, **change)
+        (folder / TICKS_FILE).write_bytes(parquet_bytes(other.frame()))
+        got, why = own_log(folder, folder / TICKS_FILE, "", bound)
+        assert got is None and said in why, why
+    half = tmp_path / "every_other"
+    half.mkdir()
+    sub = TickLog(*(a[::2] for a in (log.t, log.x, log.y, log.u, log.ref, log.uff)))
+    (half / TICKS_FILE).write_bytes(parquet_bytes(sub.frame()))
+    got, why = own_log(half, half / TICKS_FILE, "", bound)
+    assert got is None and "0.2 s apart" in why, why

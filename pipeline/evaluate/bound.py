@@ -615,6 +615,34 @@ def own_log_of(folder: Path) -> tuple[Path | None, str]:
     return None, ""
 
 
+def own_log(
+    folder: Path, ticks: Path, who: str, bound: ControllerBound
+) -> tuple[TickLog | None, str]:
+    """Flight ``folder``'s tick log if ``bound``'s controller flew it, else why not: the
+    controller ``truth.json`` names (``who``), the one the log names (name and sha256), its
+    ticks at the controller's ``dt``, and for a vehicle's log the replay
+    (:func:`~qsls.pipeline.evaluate.flownby.flown_by`). A log that cannot be read is named."""
+    if who and who != bound.name:
+        return None, f"flown by {who}, not {bound.name} ({ticks.parent / TRUTH_FILE})"
+    try:
+        log = TickLog.read(ticks)
+    except InputError as exc:
+        return None, str(exc)
+    sha = str(bound.certificate.get("controller_sha256", ""))
+    if log.controller_sha256 and log.controller_sha256 != sha:
+        return None, f"flown by {log.controller or 'another controller'} (its log's sha256)"
+    if log.controller and log.controller != bound.name and not log.controller_sha256:
+        return None, f"flown by {log.controller}, not {bound.name} (its log)"
+    if math.isfinite(bound.dt) and (why := log.off_rate(bound.dt)):
+        return None, f"not {bound.name}'s ticks: {why}"
+    if recorded := recorded_ticks_facts(folder):  # a vehicle's log: prove who flew it
+        proof = flown_by(log, bound.folder, float(recorded["mass_kg"]),
+                         dict(recorded.get("stamps") or {}))  # fmt: skip
+        if not proof.flown:
+            return None, f"not flown by {bound.name} ({proof.reason})"
+    return log, ""
+
+
 def recorded_ticks_facts(folder: Path) -> dict[str, Any]:
     """What the ingest of a vehicle's log recorded of its tick log (``results.ticks``:
     ``qsls ingest LOG --mass``, docs/vehicle.md); empty for any other folder."""
@@ -664,22 +692,13 @@ def own_log_assumptions(
                 "checked on it; its premise is checked on the ingested flight"
             )
             continue
-        if who and who != bound.name:
+        log, why = own_log(folder, ticks, who, bound)
+        if log is None:
             missing.append(
-                f"{folder}: flown by {who}, not {bound.name} ({ticks.parent / TRUTH_FILE}): the "
-                f"assumptions of {bound.name}'s guarantee are checked on its own flights only"
+                f"{folder}: {why}: the assumptions of {bound.name}'s guarantee are checked on "
+                "its own flights only"
             )
             continue
-        log = TickLog.read(ticks)
-        if recorded := recorded_ticks_facts(folder):  # a vehicle's log: prove who flew it
-            proof = flown_by(log, bound.folder, float(recorded["mass_kg"]),
-                             dict(recorded.get("stamps") or {}))  # fmt: skip
-            if not proof.flown:
-                missing.append(
-                    f"{folder}: not flown by {bound.name} ({proof.reason}): the assumptions of "
-                    f"{bound.name}'s guarantee are checked on its own flights only"
-                )
-                continue
         row = check_assumptions(log, premise, training.distance)
         span = float(log.t[-1] - log.t[0]) if len(log.t) else 0.0
         row["outside_calibration"] = outside_calibration(calibration, condition, span, estimator)

@@ -120,7 +120,8 @@ def fly_job(job: Job) -> TickLog:
             "height": float(ref.get("height", 1.0)) + job.offset[2],
         }
     opts = SimOptions.model_validate(merge(job.sim, over))
-    return tick_log(fly(opts), opts.reference)
+    sha = Certificate.load(Path(job.folder)).controller_sha256
+    return tick_log(fly(opts), opts.reference, sha)
 
 
 # --------------------------------------------------------------------------- scores

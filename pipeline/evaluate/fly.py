@@ -248,7 +248,8 @@ def tick_frame(o: FlyOutcome) -> pd.DataFrame:
     a runtime-assured flight's adds, per tick, the monitor's bits (``monitor_bits``, 0 while
     consistent) and which controller flew (``flew``: the controller's name, then ``pd`` or
     ``hold`` from the trip tick on)."""
-    frame = TickLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl).frame()
+    frame = TickLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl,
+                    controller=o.controller).frame()  # fmt: skip
     if "flew" in o.extra:
         frame["monitor_bits"] = np.asarray(o.extra["bits"], dtype=np.int64)
         frame["flew"] = list(o.extra["flew"])

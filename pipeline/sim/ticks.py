@@ -40,10 +40,12 @@ def _tick_feedforward(reference: ReferenceOptions, t: np.ndarray, mass: float) -
     return np.array([feedforward(ref.sample(float(s)), mass) for s in t]).reshape(-1, 3)
 
 
-def tick_log(flight: FlightLog, reference: ReferenceOptions) -> TickLog:
-    """The flight's tick log (module docstring)."""
+def tick_log(flight: FlightLog, reference: ReferenceOptions, sha256: str = "") -> TickLog:
+    """The flight's tick log (module docstring), naming the controller that flew (and its
+    ``controller.npz``'s ``sha256`` where the caller knows it)."""
     t = flight.ctrl_t_ns / NS
     return TickLog(
         t, _tick_states(flight), flight.ctrl_y, flight.ctrl_u, flight.ctrl_ref,
         _tick_feedforward(reference, t, flight.mass), flight.crashed, flight.crash_reason or "",
+        controller=flight.controller, controller_sha256=sha256,
     )  # fmt: skip
