@@ -120,7 +120,9 @@ def test_c_equals_python_realization(tmp_path, controllers, compiler, timing):
     for cc in COMPILERS or [compiler]:
         lib = build(cc, out)
         c = CController(lib, dt=0.1)
-        assert c.size == manifest["state_bytes"] == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5) * 4
+        assert (
+            c.size == manifest["state_bytes"] == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5 + 1) * 4 + 4
+        )
         got = np.array([c.step(y) for y in ys])
         assert np.abs(got - want).max() <= 1e-12, cc
         assert np.abs(want).max() > 1.0  # the test drives the controller hard
@@ -139,7 +141,7 @@ def test_float_precision_deviation_is_reported_and_small(tmp_path, controllers, 
     assert res.exit_code == 0, res.output
     assert "float vs double" in res.output
     r = json.loads((tmp_path / "f" / "manifest.json").read_text())["results"]
-    assert r["state_bytes"] == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5) * 4
+    assert r["state_bytes"] == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5 + 1) * 4
     lib = build(compiler, tmp_path / "f")
     cf = CController(lib, precision="float", dt=0.1)
     ys = random_y(2000)

@@ -94,9 +94,10 @@ def test_counts_and_sizes_against_independent_counts(proper, strict):
         assert bank.constants() == n == (846 if first == 0 else 828)
         assert bank.multiply_adds() == n
         d, f = B.sizes(bank, "double"), B.sizes(bank, "float")
-        # two ring heads and the monitor's T + 5 counters (unsigned int), padded to the real
-        assert d.state_bytes == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5) * 4 + 4 == 880
-        assert f.state_bytes == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5) * 4 == 468
+        # two ring heads, the monitor's T + 5 counters and the refusal count (unsigned int),
+        # padded to the real
+        assert d.state_bytes == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5 + 1) * 4 == 880
+        assert f.state_bytes == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5 + 1) * 4 == 472
         assert (d.const_bytes, f.const_bytes) == (8 * n, 4 * n)
         assert d.flops_per_tick == f.flops_per_tick == 2 * n
         shares = d.as_dict()

@@ -157,8 +157,8 @@ def test_compiled_step_is_the_realization(tmp_path, gcc, ctrls, which):
     bank = export_bank(cdir)
     lib = _compile(gcc, tmp_path, c_files(bank, facts(cdir), "qc", "double"))
     c = Bound(lib, "qc")
-    # two unsigned heads and the monitor's T + 5 counters, padded to 8
-    assert c.size == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5) * 4 + 4
+    # two unsigned heads, the monitor's T + 5 counters and the refusal count (no padding)
+    assert c.size == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5 + 1) * 4
     ys = np.random.default_rng(11).uniform(-1, 1, (400, 6))
     rt = RealizedController(cdir.controller.bank, cdir.controller.dt)
     want = np.array([rt.step(y) for y in ys])
@@ -205,7 +205,7 @@ def test_float_build_is_close_but_not_double(tmp_path, gcc, ctrls):
     bank = export_bank(cdir)
     lib = _compile(gcc, tmp_path, c_files(bank, facts(cdir), "qf", "float"))
     c = Bound(lib, "qf", "float")
-    assert c.size == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5) * 4
+    assert c.size == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5 + 1) * 4
     ys = np.random.default_rng(2).uniform(-1, 1, (400, 6))
     rt = RealizedController(cdir.controller.bank, 0.1)
     want = np.array([rt.step(y) for y in ys])

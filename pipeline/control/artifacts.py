@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, model_serializer
+from pydantic import BaseModel, ConfigDict, field_validator, model_serializer
 
 from qsls.pipeline.control.calibration import record_problems
 from qsls.pipeline.control.guarantee import PremiseNumbers
@@ -51,6 +52,31 @@ Kind = Literal["filter_bank", "static_gain"]
 
 GAIN_TOL = 1e-12
 """Largest relative difference between stored and recomputed realization gains."""
+
+CONTROLLER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.-]{0,63}")
+"""A controller's name (its certificate's ``controller``, and the folder name an export reads):
+a letter or ``_``, then letters, digits, ``_``, ``.`` or ``-``, at most 64 characters. The
+name reaches generated code (docs/export.md), so nothing else is accepted."""
+NAME_RULE = "a letter or '_', then letters, digits, '_', '.' or '-', at most 64 characters"
+
+
+def name_problem(name: object) -> str | None:
+    """Why ``name`` is not a controller name (:data:`CONTROLLER_NAME`), None when it is."""
+    if isinstance(name, str) and CONTROLLER_NAME.fullmatch(name):
+        return None
+    shown = ascii(name)  # one line, every control or non-ASCII character escaped
+    if len(shown) > 72:
+        shown = shown[:69] + "..."
+    return f"{shown} is not a controller name ({NAME_RULE})"
+
+
+def check_controller_name(name: object, where: str) -> str:
+    """``name`` when it is a controller name; otherwise a one-line :class:`InputError`."""
+    why = name_problem(name)
+    if why is not None:
+        raise InputError(f"{where}: {why}; refusing it")
+    assert isinstance(name, str)
+    return name
 
 
 def _plant_arrays(m: LinearModel) -> dict[str, np.ndarray]:
@@ -338,6 +364,14 @@ class Certificate(CertificateBody):
     calibration: Calibration | None = None
     """The calibration behind the numbers above (``qsls calibrate``); None: the design premise."""
 
+    @field_validator("controller")
+    @classmethod
+    def _plain_name(cls, v: str) -> str:
+        why = name_problem(v)
+        if why is not None:
+            raise ValueError(why)
+        return v
+
     @model_serializer(mode="wrap")
     def _in_file_order(self, handler: Any) -> dict[str, Any]:
         data = handler(self)
@@ -384,6 +418,8 @@ class Certificate(CertificateBody):
             raise InputError(f"{f}: not valid YAML; regenerate it with 'qsls synth'") from None
         if not isinstance(data, dict):
             raise InputError(f"{f}: not a certificate (expected a mapping)")
+        if "controller" in data:  # before the model: its own one-line message
+            check_controller_name(data["controller"], f"{f}: controller")
         try:
             return cls.model_validate(data)
         except ValidationError as exc:

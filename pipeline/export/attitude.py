@@ -142,20 +142,50 @@ def quat_tilt_rad(q: np.ndarray) -> np.ndarray:
 
 
 def c_function(prefix: str, real: str, float_math: bool) -> str:
-    """The C helper ``PREFIX_attitude(u, acc_ref, yaw, &thrust, q)`` (body of the .c file)."""
+    """The C helper ``PREFIX_attitude(u, acc_ref, yaw, &thrust, q)`` (body of the .c file).
+
+    An input that is not finite, a ``u`` or ``acc_ref`` entry beyond ``+/- PREFIX_Y_MAX`` (the
+    step's bound: far beyond any real command, far inside float range), or a result that is
+    not finite gives hover: thrust ``m g``, the level attitude at the commanded yaw (yaw 0
+    when it is not finite)."""
     m = prefix.upper()
     f = "f" if float_math else ""
-    one, half, two = ("1.0f", "0.5f", "2.0f") if float_math else ("1.0", "0.5", "2.0")
-    return f"""void {prefix}_attitude(const {real} u[{m}_NU], const {real} acc_ref[3], {real} yaw,
+    zero, one, half, two = (
+        ("0.0f", "1.0f", "0.5f", "2.0f") if float_math else ("0.0", "1.0", "0.5", "2.0")
+    )
+    return f"""/* Hover: thrust m g, level at the yaw (0 when the yaw is not finite). */
+static int {prefix}_within({real} x)
+{{
+    return x >= -{m}_Y_MAX && x <= {m}_Y_MAX; /* a NaN fails both */
+}}
+
+static void {prefix}_hover({real} yaw, {real} *thrust, {real} q[4])
+{{
+    const {real} psi = isfinite(yaw) ? yaw : {zero};
+    *thrust = {m}_MASS * {m}_GRAVITY;
+    q[0] = {zero};
+    q[1] = {zero};
+    q[2] = sin{f}({half} * psi);
+    q[3] = cos{f}({half} * psi);
+}}
+
+void {prefix}_attitude(const {real} u[{m}_NU], const {real} acc_ref[3], {real} yaw,
                 {real} *thrust, {real} q[4])
 {{
     const {real} hover = {m}_MASS * {m}_GRAVITY;
-    /* f = m (a_ref + a_u + g e3), a_u = [-g u0, g u1, u2 / m] */
-    {real} fx = {m}_MASS * (acc_ref[0] - {m}_GRAVITY * u[0]);
-    {real} fy = {m}_MASS * (acc_ref[1] + {m}_GRAVITY * u[1]);
-    {real} fz = {m}_MASS * (acc_ref[2] + {m}_GRAVITY) + u[2];
-    {real} fh, cap, norm, zx, zy, zz, nx, ny, k, a, b, c, ch, sh, cy, sy;
+    {real} fx, fy, fz, fh, cap, norm, th, zx, zy, zz, nx, ny, k, a, b, c, ch, sh, cy, sy;
+    {real} qq[4];
     const {real} fz_min = {m}_THRUST_MIN * hover * cos{f}({m}_MAX_TILT);
+    if (!({prefix}_within(u[0]) && {prefix}_within(u[1]) && {prefix}_within(u[2])
+          && {prefix}_within(acc_ref[0]) && {prefix}_within(acc_ref[1])
+          && {prefix}_within(acc_ref[2]) && isfinite(yaw))) {{
+        {prefix}_hover(yaw, thrust, q);
+        return;
+    }}
+    /* f = m (a_ref + a_u + g e3), a_u = [-g u0, g u1, u2 / m] */
+    fx = {m}_MASS * (acc_ref[0] - {m}_GRAVITY * u[0]);
+    fy = {m}_MASS * (acc_ref[1] + {m}_GRAVITY * u[1]);
+    fz = {m}_MASS * (acc_ref[2] + {m}_GRAVITY) + u[2];
     if (fz < fz_min) fz = fz_min; /* the rotors only push up */
     fh = sqrt{f}(fx * fx + fy * fy);
     cap = fz * tan{f}({m}_MAX_TILT);
@@ -164,8 +194,8 @@ def c_function(prefix: str, real: str, float_math: bool) -> str:
         fy *= cap / fh;
     }}
     norm = sqrt{f}(fx * fx + fy * fy + fz * fz);
-    *thrust = norm < {m}_THRUST_MIN * hover ? {m}_THRUST_MIN * hover
-            : norm > {m}_THRUST_MAX * hover ? {m}_THRUST_MAX * hover : norm;
+    th = norm < {m}_THRUST_MIN * hover ? {m}_THRUST_MIN * hover
+       : norm > {m}_THRUST_MAX * hover ? {m}_THRUST_MAX * hover : norm;
     zx = fx / norm;
     zy = fy / norm;
     zz = fz / norm;
@@ -180,10 +210,17 @@ def c_function(prefix: str, real: str, float_math: bool) -> str:
     c = ({one} + zz) * k;
     ch = cos{f}({half} * yaw);
     sh = sin{f}({half} * yaw);
-    q[0] = ch * a - sh * b;
-    q[1] = ch * b + sh * a;
-    q[2] = sh * c;
-    q[3] = ch * c;
+    qq[0] = ch * a - sh * b;
+    qq[1] = ch * b + sh * a;
+    qq[2] = sh * c;
+    qq[3] = ch * c;
+    if (!(isfinite(th) && isfinite(qq[0]) && isfinite(qq[1]) && isfinite(qq[2])
+          && isfinite(qq[3]))) {{ /* overflowed */
+        {prefix}_hover(yaw, thrust, q);
+        return;
+    }}
+    *thrust = th;
+    memcpy(q, qq, sizeof qq);
 }}
 """
 
@@ -196,17 +233,38 @@ THRUST_MIN = {limits.thrust_min!r}  # x MASS * GRAVITY
 THRUST_MAX = {limits.thrust_max!r}  # x MASS * GRAVITY
 
 
+def _hover(yaw):
+    """Hover: thrust MASS * GRAVITY, level at the yaw (0 when the yaw is not finite)."""
+    try:
+        psi = float(yaw)
+    except (TypeError, ValueError, OverflowError):
+        psi = 0.0
+    if not math.isfinite(psi):
+        psi = 0.0
+    return MASS * GRAVITY, [0.0, 0.0, math.sin(0.5 * psi), math.cos(0.5 * psi)]
+
+
 def attitude(u, acc_ref, yaw=0.0):
     """``(thrust [N], q [x, y, z, w])`` from ``u``, the reference acceleration and the yaw.
 
     f = m (a_ref + [-g u0, g u1, u2 / m] + g e3), f_z >= THRUST_MIN m g cos(MAX_TILT),
     |f_xy| <= f_z tan(MAX_TILT), thrust = |f| clamped to [THRUST_MIN, THRUST_MAX] m g,
-    body z = f / |f|, q = q_z(yaw) * (minimal rotation e3 -> Rz(-yaw) body z).
+    body z = f / |f|, q = q_z(yaw) * (minimal rotation e3 -> Rz(-yaw) body z). A u or
+    acc_ref entry that is not a finite number within +/- Y_MAX, a yaw that is not finite, or a
+    result that is not finite gives _hover(yaw).
     """
+    try:
+        u0, u1, u2 = float(u[0]), float(u[1]), float(u[2])
+        a0, a1, a2 = float(acc_ref[0]), float(acc_ref[1]), float(acc_ref[2])
+        yaw = float(yaw)
+    except (TypeError, ValueError, OverflowError):
+        return _hover(yaw)
+    if not (all(-Y_MAX <= v <= Y_MAX for v in (u0, u1, u2, a0, a1, a2)) and math.isfinite(yaw)):
+        return _hover(yaw)
     hover = MASS * GRAVITY
-    fx = MASS * (acc_ref[0] - GRAVITY * u[0])
-    fy = MASS * (acc_ref[1] + GRAVITY * u[1])
-    fz = MASS * (acc_ref[2] + GRAVITY) + u[2]
+    fx = MASS * (a0 - GRAVITY * u0)
+    fy = MASS * (a1 + GRAVITY * u1)
+    fz = MASS * (a2 + GRAVITY) + u2
     fz = max(fz, THRUST_MIN * hover * math.cos(MAX_TILT))
     fh = math.sqrt(fx * fx + fy * fy)
     cap = fz * math.tan(MAX_TILT)
@@ -221,5 +279,8 @@ def attitude(u, acc_ref, yaw=0.0):
     k = 1.0 / math.sqrt(2.0 * (1.0 + zz))
     a, b, c = -ny * k, nx * k, (1.0 + zz) * k
     ch, sh = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return thrust, [ch * a - sh * b, ch * b + sh * a, sh * c, ch * c]
+    q = [ch * a - sh * b, ch * b + sh * a, sh * c, ch * c]
+    if not all(map(math.isfinite, (thrust, *q))):  # overflowed
+        return _hover(yaw)
+    return thrust, q
 '''

@@ -17,7 +17,7 @@ from typing import Literal
 
 import numpy as np
 
-from qsls.pipeline.control.artifacts import Certificate, ControllerDir
+from qsls.pipeline.control.artifacts import Certificate, ControllerDir, check_controller_name
 from qsls.pipeline.control.guarantee import MonitorSpec
 from qsls.pipeline.control.monitor import NO_MONITOR, monitor_of
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, REFERENCE, RELAXED, UNCERTIFIED
@@ -33,6 +33,15 @@ INDEX_BYTES = 4
 MONITOR_COUNTERS = 5
 """The monitor's ``unsigned int`` counters besides its ``T`` outlier flags: the window's head
 and count, ticks, trips and the first trip's tick."""
+REFUSAL_COUNTERS = 1
+"""The step's ``unsigned int`` count of refused measurements (the latch of ``INPUT_REFUSED``)."""
+Y_MAX = 1e6
+"""The exported step refuses a measurement with an entry beyond ``+/- Y_MAX`` (m, m/s) or not
+finite (docs/export.md#refused-measurements): far beyond any real deviation, and far inside
+what the float build computes without overflow."""
+INPUT_REFUSED = 4
+"""The step's status bit for a refused measurement, latched until reset (beside the monitor's
+``TRIP_ENVELOPE`` 1 and ``TRIP_OUTLIERS`` 2)."""
 
 MCU_RAM_BYTES = 192 * 1024
 MCU_FLASH_BYTES = 1024 * 1024
@@ -128,12 +137,12 @@ class Sizes:
 
 
 def sizes(bank: ExportBank, precision: Precision = "double") -> Sizes:
-    """``sizeof`` the C state struct (``T nx + (T+1) ny`` reals, two ring heads and the
-    monitor's ``T + 5`` counters, ``unsigned int`` each, padded to the real's alignment), the
-    ``static const`` taps, and 2 flops per multiply-add."""
+    """``sizeof`` the C state struct (``T nx + (T+1) ny`` reals, two ring heads, the
+    monitor's ``T + 5`` counters and the refusal count, ``unsigned int`` each, padded to the
+    real's alignment), the ``static const`` taps, and 2 flops per multiply-add."""
     r = REAL_BYTES[precision]
     reals = bank.T * bank.nx + (bank.T + 1) * bank.ny
-    state = reals * r + (2 + MONITOR_COUNTERS + bank.T) * INDEX_BYTES
+    state = reals * r + (2 + MONITOR_COUNTERS + REFUSAL_COUNTERS + bank.T) * INDEX_BYTES
     state += -state % max(r, INDEX_BYTES)
     return Sizes(state, bank.constants() * r, 2 * bank.multiply_adds(), precision)
 
@@ -167,11 +176,23 @@ def _shares(cert: Certificate) -> str:
     return cert.premise.shares()
 
 
+def export_name(cdir: ControllerDir) -> str:
+    """The name a generated file carries: the controller folder's (``.`` read as the folder it
+    is), refused in one line unless it is a controller name
+    (:data:`~qsls.pipeline.control.artifacts.CONTROLLER_NAME`): it reaches generated code."""
+    name = cdir.name or cdir.folder.resolve().name
+    # the message names no path: the folder's own name is the text refused (shown escaped)
+    check_controller_name(name, "export: the controller folder's name")
+    check_controller_name(cdir.certificate.controller, "export: the certificate's controller")
+    return name
+
+
 def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> ExportFacts:
+    """What the generated files state (every text escaped where it is written: c.py, python.py)."""
     c, cert = cdir.controller, cdir.certificate
     mon = monitor_of(cdir)
     return ExportFacts(
-        name=cdir.name,
+        name=export_name(cdir),
         status=cert.status,
         sha256=cert.controller_sha256,
         dt=c.dt,

@@ -23,7 +23,7 @@ import numpy as np
 from qsls.pipeline.control.artifacts import load_controller_dir
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.locks import make_temporary
-from qsls.pipeline.export.bank import export_bank, facts
+from qsls.pipeline.export.bank import INPUT_REFUSED, export_bank, facts
 from qsls.pipeline.export.c import c_files
 
 STRICT = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic")
@@ -97,8 +97,11 @@ class CController:
         self._trips.restype, self._trips.argtypes = ctypes.c_uint, [ctypes.c_void_p]
         self._first = getattr(self._lib, f"{prefix}_first_trip")
         self._first.restype, self._first.argtypes = ctypes.c_long, [ctypes.c_void_p]
+        self._refused = getattr(self._lib, f"{prefix}_refused")
+        self._refused.restype, self._refused.argtypes = ctypes.c_uint, [ctypes.c_void_p]
         self.flags = 0
-        """The monitor's bits of the last tick (docs/monitor.md)."""
+        """The step's bits of the last tick: the monitor's (docs/monitor.md) and
+        :data:`INPUT_REFUSED` (latched from a refused measurement until :meth:`reset`)."""
         self._att = getattr(self._lib, f"{prefix}_attitude")
         self._att.restype = None
         ptr = ctypes.POINTER(real)
@@ -112,7 +115,9 @@ class CController:
         self.flags = 0
 
     def step(self, y: np.ndarray) -> np.ndarray:
-        """``u[k]`` (3,) from ``y[k]`` (6,); the monitor's bits go to :attr:`flags`."""
+        """``u[k]`` (3,) from ``y[k]`` (6,); the step's bits go to :attr:`flags`. A None entry
+        reaches the C step as NaN (refused: ``u = 0``, :data:`INPUT_REFUSED`); in the float
+        build an entry beyond float range reaches it as inf (refused too)."""
         self._y[:] = [float(v) for v in np.asarray(y, dtype=float).reshape(6)]
         self.flags = int(self._step(self._state, self._y, self._u))
         return np.array(self._u[:], dtype=float)
@@ -121,6 +126,16 @@ class CController:
     def trips(self) -> int:
         """Ticks on which the monitor tripped since reset."""
         return int(self._trips(self._state))
+
+    @property
+    def refused(self) -> int:
+        """Measurements the step refused since reset (:data:`INPUT_REFUSED` set while > 0)."""
+        return int(self._refused(self._state))
+
+    @property
+    def input_refused(self) -> bool:
+        """The latched bit: a measurement was refused since reset; fly the fallback."""
+        return bool(self.flags & INPUT_REFUSED)
 
     @property
     def first_trip(self) -> int | None:

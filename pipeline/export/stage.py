@@ -10,7 +10,10 @@ wrote against the Python realization (:func:`~qsls.pipeline.control.artifacts.lo
   (velocities beyond a gate on about half the entries), against the realization fed the
   same deviations through the certificate's gate (the Python controller as it flies);
 - ``c`` (when a C compiler is on PATH): the generated double-precision C, compiled with the
-  strict flags and loaded with ctypes, over the same ticks. With ``precision: float`` the
+  strict flags and loaded with ctypes, over the same ticks.
+- both: the refusal of a measurement that is not finite or beyond ``Y_MAX``
+  (:func:`refusal_check`: ``u = 0``, the latched bit, the filter's memory unchanged), recorded
+  as ``verify.refuses_nonfinite``. With ``precision: float`` the
   float build is also compared with the double build: over the random ticks (``u``) and in
   closed loop with the controller's own linear plant ``x[k+1] = A x + B u + H w``,
   ``y = C x + e`` driven by random ``||w|| <= eps_w``, ``||e|| <= eps_e`` (state, metres).
@@ -38,6 +41,8 @@ from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.plant import NX
 from qsls.pipeline.export.bank import (
+    INPUT_REFUSED,
+    Y_MAX,
     ExportBank,
     check_exportable,
     export_bank,
@@ -117,6 +122,31 @@ def run_ticks(runtime: Any, ys: np.ndarray) -> np.ndarray:
     return np.array([np.asarray(runtime.step(y), dtype=float) for y in ys]).reshape(-1, 3)
 
 
+REFUSED_ENTRIES = (float("nan"), float("inf"), float("-inf"), 2 * Y_MAX)
+"""What :func:`refusal_check` inserts, one per inserted tick."""
+
+
+def refusal_check(runtime: Any, ys: np.ndarray) -> bool:
+    """The step refuses a measurement holding an entry of :data:`REFUSED_ENTRIES`: ``u = 0``
+    on it, :data:`INPUT_REFUSED` from it on (latched), and the other ticks' ``u`` exactly those
+    of the same ticks without the refused ones (the filter's memory unchanged)."""
+    ys = ys[:40]
+    want = run_ticks(runtime, ys)
+    at = {len(ys) // 4 + 3 * i: v for i, v in enumerate(REFUSED_ENTRIES)}
+    runtime.reset()
+    ok, got = True, []
+    for k, y in enumerate(ys):
+        if k in at:
+            bad = np.array(y, dtype=float)
+            bad[k % 6] = at[k]
+            u = np.asarray(runtime.step(bad), dtype=float)
+            ok = ok and bool(np.all(u == 0.0)) and runtime.flags == INPUT_REFUSED
+        got.append(np.asarray(runtime.step(y), dtype=float))
+        latched = bool(runtime.flags & INPUT_REFUSED)
+        ok = ok and latched == (k >= min(at))
+    return ok and bool(np.array_equal(np.array(got).reshape(-1, 3), want))
+
+
 def closed_loop(runtime: Any, model: Any, w: np.ndarray, e: np.ndarray) -> np.ndarray:
     """States (n+1, 6) of ``x[k+1] = A x + B u + H w``, ``u = K(C x + e)`` from ``x = 0``."""
     runtime.reset()
@@ -161,6 +191,7 @@ def _verify_c(
             "compiler": Path(cc).name,
             "max_abs_diff": float(np.abs(u_d - ref_u).max(initial=0.0)),
             "max_abs_u": float(np.abs(ref_u).max(initial=0.0)),
+            "refuses_nonfinite": all(refusal_check(b, ys) for b in builds.values()),
         }
         if options.precision != "float":
             return verify, None
@@ -199,6 +230,7 @@ def _verify_python(
         **_clipped(ys, gate),
         "max_abs_diff": float(np.abs(u - ref_u).max(initial=0.0)),
         "max_abs_u": float(np.abs(ref_u).max(initial=0.0)),
+        "refuses_nonfinite": refusal_check(mod.Controller(), ys),
     }
 
 

@@ -3,12 +3,16 @@ own weights (docs/guarantee.md, The claim), or, for a controller without one, th
 and why, in the first line.
 
 The lines are plain text; :mod:`qsls.pipeline.export.c` and :mod:`qsls.pipeline.export.python`
-put them in a comment and a docstring.
+put them in a comment and a docstring, each through its escape (:func:`c_comment`,
+:func:`c_string`, :func:`py_doc`): a certificate's texts (the controller's name, a status
+reason, calibration conditions, check names) come from a file that may have been shared, and
+nothing in them may end the comment, the string or the docstring (docs/export.md).
 """
 
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 import numpy as np
@@ -26,6 +30,45 @@ def _g(x: float | None) -> str:
 
 def _diag(v: Any) -> str:
     return "diag(" + ", ".join(f"{float(x):g}" for x in v) + ")"
+
+
+def _escaped(ch: str) -> str:
+    """``\\xNN``, ``\\uNNNN`` or ``\\UNNNNNNNN``: a character outside printable ASCII, as text."""
+    o = ord(ch)
+    return f"\\x{o:02x}" if o < 0x100 else f"\\u{o:04x}" if o < 0x10000 else f"\\U{o:08x}"
+
+
+def _printable(ch: str) -> bool:
+    return 0x20 <= ord(ch) < 0x7F
+
+
+def c_comment(text: str) -> str:
+    """``text`` safe inside a C block comment: a backslash doubled, every character outside
+    printable ASCII (a newline, a bidirectional override) written ``\\xNN`` / ``\\uNNNN``,
+    ``*/`` and ``/*`` split by a space (no end of the comment, no nested-comment warning) and
+    a backslash put between two ``?`` (no trigraph such as ``??/``, C99's backslash)."""
+    out = "".join("\\\\" if ch == "\\" else ch if _printable(ch) else _escaped(ch) for ch in text)
+    out = out.replace("*/", "* /").replace("/*", "/ *")
+    return re.sub(r"\?(?=\?)", "?\\\\", out)
+
+
+def c_string(text: str) -> str:
+    """The body of a C string literal reading back as ``text``'s UTF-8 bytes: ``"``, ``\\``
+    and ``?`` escaped (no trigraph), every byte outside printable ASCII in octal."""
+    out = []
+    for b in text.encode("utf-8", "backslashreplace"):
+        ch = chr(b)
+        out.append("\\" + ch if ch in '"\\?' else ch if _printable(ch) else f"\\{b:03o}")
+    return "".join(out)
+
+
+def py_doc(text: str) -> str:
+    """``text`` safe inside a (non-raw) Python docstring: a backslash and every ``"`` escaped
+    (so no ``\"\"\"`` can end it), every character outside printable ASCII written as its
+    escape (``\\n``: no new line in the source)."""
+    return "".join(
+        "\\" + ch if ch in '"\\' else ch if _printable(ch) else _escaped(ch) for ch in text
+    )
 
 
 def wrap_lines(lines: tuple[str, ...] | list[str], lead: str, width: int = 96) -> str:
