@@ -203,7 +203,7 @@ def _one(
     if premise is None:
         raise InputError(f"calibrate: {folder.name} has no premise to calibrate")
     _check_dt(flights, folder, taps_of_dt(folder))
-    scored = []
+    scored: list[dict[str, Any]] = []
     for f in (f for f in flights if f.role != "validation"):
         parts = score_flight(f.log, premise, training.distance)
         if f.role == "range":
@@ -211,10 +211,10 @@ def _one(
         scored.append({"flight": f.name, "role": f.role, "controller": folder.name,
                        "condition": condition, "log_sha256": f.log_sha256, "crashed": False,
                        **parts})  # fmt: skip
-    s = [r["score"] for r in scored if r["role"] == "calibration"]
-    rs = [r["score"] for r in scored if r["role"] == "range"]
+    s = [float(r["score"]) for r in scored if r["role"] == "calibration"]
+    rs = [float(r["score"]) for r in scored if r["role"] == "range"]
     status, reason, lam, rank, chk, tested, tol = decide(
-        s, [r["reached"] for r in scored], premise.numbers, taps_of(folder), options,
+        s, [float(r["reached"]) for r in scored], premise.numbers, taps_of(folder), options,
         range_scores=rs,
     )  # fmt: skip
     o = Outcome(folder.name, condition, status, reason, lam, rank, chk, tested, tol, s)

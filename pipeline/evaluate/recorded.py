@@ -20,10 +20,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.core.artifacts import read_manifest
+from qsls.pipeline.core.artifacts import MANIFEST, read_manifest
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import TICKS_FILE, TickLog
 from qsls.pipeline.errormodel.fit import same_motion
+from qsls.pipeline.ingest.flight import FLIGHT_FILE
 
 ROLES = ("calibration", "range", "validation")
 
@@ -93,8 +94,8 @@ def expand(given: Sequence[Path]) -> list[Path]:
     subfolders holding a manifest, by name)."""
     out: list[Path] = []
     for g in map(Path, given):
-        if g.is_dir() and not (g / "manifest.json").is_file():
-            inner = sorted(d for d in g.iterdir() if (d / "manifest.json").is_file())
+        if g.is_dir() and not (g / MANIFEST).is_file():
+            inner = sorted(d for d in g.iterdir() if (d / MANIFEST).is_file())
             if not inner:
                 raise InputError(
                     f"recorded flights {g}: neither an ingest folder nor a folder of them"
@@ -172,10 +173,10 @@ def refuse_design(flights: Sequence[RecordedFlight], fit_dir: Path) -> None:
                  if isinstance(i, dict)]  # fmt: skip
     except InputError:
         return
-    train = [(p / "flight.parquet" if p.is_dir() else p) for p in given]
-    frames = {p: pd.read_parquet(p) for p in train if p.name == "flight.parquet" and p.is_file()}
+    train = [(p / FLIGHT_FILE if p.is_dir() else p) for p in given]
+    frames = {p: pd.read_parquet(p) for p in train if p.name == FLIGHT_FILE and p.is_file()}
     for f in flights:
-        mine = f.folder / "flight.parquet"
+        mine = f.folder / FLIGHT_FILE
         if not mine.is_file():
             continue
         a = pd.read_parquet(mine)

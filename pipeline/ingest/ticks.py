@@ -64,7 +64,7 @@ def _sorted(t_ns: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
 def _truth_at(truth: Trajectory, t: np.ndarray, max_gap_ns: int) -> np.ndarray:
     """``x_k`` (k, 6): the truth at ``t`` (ns) by its capture stamps (module docstring)."""
     has_v = truth.velocity is not None and bool(np.isfinite(truth.velocity).all())
-    vel = truth.velocity if has_v else np.zeros_like(truth.position)
+    vel = truth.velocity if has_v and truth.velocity is not None else np.zeros_like(truth.position)
     ts, p, v = _sorted(truth.header_ns, truth.position, vel)
     keep = np.concatenate([[True], np.diff(ts) > 0])
     ts, p, v = ts[keep], p[keep], v[keep]
