@@ -62,7 +62,7 @@ from qsls.pipeline.export.attitude import (
     limited,
     quat_tilt_rad,
 )
-from qsls.pipeline.export.bank import check_exportable, export_bank, facts
+from qsls.pipeline.export.bank import INPUT_REFUSED, check_exportable, export_bank, facts
 from qsls.pipeline.export.c import c_files
 from qsls.pipeline.export.cbuild import CController, compile_shared
 from qsls.pipeline.export.options import ReplayOptions
@@ -268,19 +268,25 @@ MAX_LISTED_TRIPS = 100
 """The report lists the times of at most this many tripped ticks (it counts all of them)."""
 
 
+ENVELOPE_BIT, OUTLIER_BIT = 1, 2
+"""The monitor's trip bits (docs/monitor.md); ``INPUT_REFUSED`` (4) is the step's refusal of a
+non-finite measurement, counted apart."""
+
+
 def monitor_report(cdir: Any, flags: np.ndarray, stamps: np.ndarray) -> dict[str, Any]:
     """Where the exported premise monitor would have tripped (docs/monitor.md): the ticks, by
     kind, the first one's time, and the thresholds it checked. One-sided: a trip proves the
     certificate's premise broken on this recording; no trip proves nothing."""
     spec = monitor_of(cdir)
     t = (stamps - stamps[0]) / NS
-    hit = np.flatnonzero(flags)
+    hit = np.flatnonzero(flags & (ENVELOPE_BIT | OUTLIER_BIT))  # INPUT_REFUSED is no trip
     kinds = {TRIP: "envelope", COUNT: "outlier count"}
     return {
         "active": spec.active,
         "ticks_tripped": len(hit),
         "envelope_ticks": int(np.count_nonzero(flags & 1)),
         "outlier_count_ticks": int(np.count_nonzero(flags & 2)),
+        "refused_ticks": int(np.count_nonzero(flags & INPUT_REFUSED)),
         "first_trip_t_s": float(t[hit[0]]) if len(hit) else None,
         "trip_t_s": [float(x) for x in t[hit[:MAX_LISTED_TRIPS]]],
         "thresholds": {
