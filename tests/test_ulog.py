@@ -564,3 +564,36 @@ def test_prepare_takes_a_ulog_velocity_as_world(tmp_path: Path) -> None:
     log = write(tmp_path / "w.ulg", odometry("vehicle_visual_odometry", t, p, q, v))
     pre = prepare(read_odometry(log, "vehicle_visual_odometry"), "vio", str(log), IngestOptions())
     assert pre.velocity is None and pre.nonfinite == 0
+
+
+def test_every_cut_is_refused_or_a_whole_shorter_log(tmp_path: Path, monkeypatch) -> None:
+    """A file cut at a byte (each of the last 300, every 7th before): refused as truncated (or damaged), or, cut exactly between
+    two messages, read as the shorter log it then is; the walk (blocks of 97 bytes) and
+    pyulog over the whole file (:func:`.scan.load_whole`) agree on which."""
+    from qsls.pipeline.ingest.sources.ulog import scan
+
+    monkeypatch.setattr(scan, "BLOCK", 97)
+    n = 6
+    t = 1_000_000 + 10_000 * np.arange(n)
+    q = q_ned_of_yaw_pitch(np.zeros(n))
+    log = write(
+        tmp_path / "w.ulg", odometry("vehicle_visual_odometry", t, np.zeros((n, 3)), q, np.zeros((n, 3))),
+        parameters={"MPC_THR_HOVER": 0.5}, dropouts=[(int(t[2]) + 1, 20)],
+    )  # fmt: skip
+    data = log.read_bytes()
+    cut = tmp_path / "c.ulg"
+    whole = 0
+    cuts = sorted({*range(17, len(data) - 300, 7), *range(len(data) - 300, len(data) + 1)})
+    for k in cuts:
+        cut.write_bytes(data[:k])
+        outcomes = []
+        for read in (scan.load, scan.load_whole):
+            try:
+                u = read(cut, ["vehicle_visual_odometry"])
+                outcomes.append(sum(len(d.data["timestamp"]) for d in u.data_list))
+            except InputError as e:
+                assert "truncated" in str(e) or "damaged" in str(e)
+                outcomes.append(-1)
+        assert outcomes[0] == outcomes[1], k
+        whole += outcomes[0] >= 0
+    assert whole >= 3 and outcomes[0] == n  # the whole file reads whole

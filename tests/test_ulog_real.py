@@ -160,6 +160,38 @@ def test_topics_and_info_match_pyulog(logs: Path) -> None:
     assert len(ulog_info(logs / "sample.ulg")["dropouts"]) == 4
 
 
+def test_the_walk_gives_pyulogs_filtered_read(logs: Path, monkeypatch) -> None:
+    """:func:`.scan.load` (the framing walked, pyulog on the topics' messages) equals pyulog's
+    filtered read of the file: data, parameters and their changes, info, dropouts, logged
+    strings; every log takes the walk (none falls back to the whole-file read), also with
+    blocks of 777 bytes (messages across block ends)."""
+    from pyulog import ULog
+
+    from qsls.pipeline.ingest.sources.ulog import scan
+
+    topics = ["vehicle_attitude", "vehicle_local_position", "hover_thrust_estimate"]
+    for block in (scan.BLOCK, 777):
+        monkeypatch.setattr(scan, "BLOCK", block)
+        for log in sorted(logs.glob("*.ulg")):
+            assert scan.walk(log, topics) is not None
+            assert scan.walk(log, [], stamps=True) is not None
+            a, b = ULog(str(log), topics), scan.load(log, topics)
+            assert [(d.name, d.multi_id) for d in a.data_list] == [
+                (d.name, d.multi_id) for d in b.data_list
+            ]
+            for x, y in zip(a.data_list, b.data_list, strict=True):
+                assert x.data.keys() == y.data.keys()
+                assert all(np.array_equal(x.data[k], y.data[k], equal_nan=True) for k in x.data)
+            assert a.initial_parameters == b.initial_parameters
+            assert a.changed_parameters == b.changed_parameters
+            assert a.msg_info_dict == b.msg_info_dict
+            assert (a.start_timestamp, a.last_timestamp) == (b.start_timestamp, b.last_timestamp)
+            assert [(o.timestamp, o.duration) for o in a.dropouts] == [
+                (o.timestamp, o.duration) for o in b.dropouts
+            ]
+            assert len(a.logged_messages) == len(b.logged_messages)
+
+
 def test_old_local_position_yaw_field(logs: Path) -> None:
     """``sample.ulg`` (older PX4: ``yaw``, no ``timestamp_sample``): orientations from
     ``vehicle_attitude`` at the nearest stamp agree with the logged ``yaw`` while flying."""

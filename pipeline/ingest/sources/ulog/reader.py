@@ -16,20 +16,14 @@ its body FRD; they go to ENU and FLU by :func:`qsls.pipeline.core.rotations.ned_
 :func:`~qsls.pipeline.core.rotations.frd_to_flu` and
 :func:`~qsls.pipeline.core.rotations.frd_ned_to_flu_enu`.
 
-pyulog reads only the topics asked for (``message_name_filter_list``): the others are
-skipped, not buffered. A log that ends inside a message (cut off) or that pyulog finds
-damaged is refused in one line (:func:`load`): pyulog reads such a file in part, silently,
-so the file is handed to it with a known message appended (:class:`_WithTail`), which it
-parses only when every message before it was whole.
+pyulog parses only the topics asked for, from the stream :func:`.scan.walk` makes of the
+file (its framing walked once, the other topics' data left out); a log that ends inside a
+message (cut off) or that pyulog finds damaged is refused in one line (:mod:`.scan`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import io
-import os
-import struct
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,28 +37,15 @@ from qsls.pipeline.core.rotations import (
     frd_ned_to_flu_enu,
     frd_to_flu,
     ned_to_enu,
-    wxyz_to_xyzw,
     yaw_ned_to_enu,
     yaw_quat,
 )
 from qsls.pipeline.ingest.sources.base import Trajectory
-from qsls.pipeline.ingest.sources.ulog import px4
-from qsls.pipeline.ingest.sources.ulog.writer import MAGIC
+from qsls.pipeline.ingest.sources.ulog import px4, scan
+from qsls.pipeline.ingest.sources.ulog.scan import load
 
 MAX_CLOCK_STEP_BACK_US = 250_000
 """A topic whose ``timestamp`` goes back further than this (0.25 s) had its clock reset."""
-
-_END_KEY = "_qsls_reader_end_of_file"
-
-
-def _info_message(key: str, value: bytes) -> bytes:
-    """A ULog info message ``I``: ``key`` a ``char[len]`` string."""
-    k = f"char[{len(value)}] {key}".encode()
-    return struct.pack("<HB", 1 + len(k) + len(value), ord("I")) + bytes([len(k)]) + k + value
-
-
-_END_MESSAGE = _info_message(_END_KEY, b"ok")
-"""An info message appended after the file's last byte (:class:`_WithTail`)."""
 
 _BLOCK = 1 << 16
 """Rows rotated at once (no ``(n, 3, 3)`` matrices for a whole topic)."""
@@ -113,97 +94,6 @@ class PositionSetpoints:
 
 
 # --------------------------------------------------------------------------- loading
-class _WithTail(io.RawIOBase):
-    """The file's bytes, then ``tail``: what pyulog is given to read.
-
-    pyulog stops without a word at a message cut short by the end of the file. With an
-    info message appended, a whole file ends with that message parsed; a cut one swallows
-    it into the cut message (or misreads it), so its absence says the file was cut."""
-
-    def __init__(self, path: Path, tail: bytes) -> None:
-        super().__init__()
-        self._file = open(path, "rb", buffering=0)  # noqa: SIM115 (closed by close())
-        self._size = os.fstat(self._file.fileno()).st_size
-        self._tail = tail
-        self._pos = 0
-
-    def readable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return True
-
-    def readinto(self, buffer: Any) -> int:
-        view = memoryview(buffer).cast("B")
-        if self._pos < self._size:
-            self._file.seek(self._pos)
-            n = self._file.readinto(view[: self._size - self._pos]) or 0
-        else:
-            k = self._pos - self._size
-            chunk = self._tail[k : k + len(view)]
-            view[: len(chunk)] = chunk
-            n = len(chunk)
-        self._pos += n
-        return n
-
-    def seek(self, offset: int, whence: int = 0) -> int:
-        pos = {0: 0, 1: self._pos, 2: self._size + len(self._tail)}[whence] + offset
-        if pos < 0:  # as a file does (pyulog seeks back by a garbled size)
-            raise OSError(22, "Invalid argument")
-        self._pos = pos
-        return pos
-
-    def tell(self) -> int:
-        return self._pos
-
-    def close(self) -> None:
-        self._file.close()
-        super().close()
-
-
-def _damaged(path: Path, what: str) -> InputError:
-    return InputError(
-        f"{path}: the ULog is {what}; copy the log again from the vehicle's SD card (a log cut "
-        "off by a power loss or a full card cannot be read as a whole)"
-    )
-
-
-def load(path: Path, topics: Sequence[str] | None, *, header_only: bool = False) -> Any:
-    """``pyulog.ULog`` of ``path`` buffering only ``topics`` (None: all; ``[]``: none);
-    ``header_only``: the definitions alone (formats, info, parameters). A one-line
-    :class:`InputError` for a file that is not a ULog, is damaged (pyulog raises or sets
-    ``file_corruption``) or ends inside a message (module docstring)."""
-    from pyulog import ULog
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file; check the path")
-    with open(path, "rb") as fh:
-        if fh.read(len(MAGIC)) != MAGIC:
-            raise InputError(f"{path}: not a PX4 ULog (no ULog header); give a .ulg log")
-    stream = io.BufferedReader(_WithTail(path, _END_MESSAGE), buffer_size=1 << 20)
-    try:
-        with contextlib.redirect_stdout(io.StringIO()):  # pyulog prints its warnings
-            u = ULog(stream, message_name_filter_list=topics, parse_header_only=header_only)
-    except InputError:
-        raise
-    except Exception as exc:  # pyulog's own, or what a garbled file makes it raise
-        what = (
-            "a message's size points before the file's start"
-            if isinstance(exc, OSError)
-            else " ".join(str(exc).split()) or type(exc).__name__
-        )
-        raise _damaged(path, f"damaged ({what})") from None
-    finally:
-        stream.close()
-    if u.file_corruption:
-        raise _damaged(path, "damaged (pyulog found corrupt messages in it)")
-    if not header_only and _END_KEY not in u.msg_info_dict:
-        raise _damaged(path, "truncated (it ends inside a message)")
-    u.msg_info_dict.pop(_END_KEY, None)
-    return u
-
-
 def _dataset(u: Any, name: str, instance: int) -> Any | None:
     return next((d for d in u.data_list if d.name == name and d.multi_id == instance), None)
 
@@ -223,6 +113,12 @@ def _columns(d: dict[str, np.ndarray], names: Iterable[str]) -> np.ndarray:
     for j, c in enumerate(cols):
         out[:, j] = c
     return out
+
+
+def _attitudes(d: dict[str, np.ndarray], wxyz: tuple[str, ...]) -> np.ndarray:
+    """The FLU body in ENU ``[x, y, z, w]`` of PX4 quaternion fields ``wxyz`` (FRD in NED,
+    ``[w, x, y, z]``, read in ``[x, y, z, w]`` order): :func:`frd_ned_to_flu_enu`."""
+    return frd_ned_to_flu_enu(_columns(d, (*wxyz[1:], wxyz[0])))
 
 
 def _stamps(path: Path, topic: str, d: dict[str, np.ndarray], start_us: int) -> np.ndarray:
@@ -253,14 +149,31 @@ def _sample_stamps(d: dict[str, np.ndarray], t_us: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- listing
 @functools.lru_cache(maxsize=4)
 def _whole(path: str, _mtime_ns: int, _size: int) -> tuple[list[tuple[str, int, int]], dict]:
-    u = load(Path(path), None)
-    topics = sorted((d.name, int(d.multi_id), len(d.data["timestamp"])) for d in u.data_list)
+    """:func:`ulog_topics` and :func:`ulog_info` of ``path`` (one walk, kept per file
+    version)."""
+    p = Path(path)
+    found = scan.walk(p, [], stamps=True)
+    if found is None:  # a framing the walk does not follow: pyulog over all of it
+        u = scan.load_whole(p, None)
+        topics = sorted((d.name, int(d.multi_id), len(d.data["timestamp"])) for d in u.data_list)
+        last, dropouts = (
+            int(u.last_timestamp),
+            [(int(o.timestamp), int(o.duration)) for o in u.dropouts],
+        )
+    else:
+        u = scan.parse(found.kept, p, [], False)
+        topics = sorted(
+            (name, int(inst), found.counts[k])
+            for k, (name, inst) in found.subscriptions.items()
+            if found.counts.get(k)
+        )
+        last, dropouts = int(found.last_us), [(int(t), int(d)) for t, d in found.dropouts]
     info = {
         "parameters": dict(u.initial_parameters),
         "info": dict(u.msg_info_dict),
         "start_us": int(u.start_timestamp),
-        "last_us": int(u.last_timestamp),
-        "dropouts": [(int(o.timestamp), int(o.duration)) for o in u.dropouts],
+        "last_us": last,
+        "dropouts": dropouts,
     }
     return topics, info
 
@@ -275,16 +188,16 @@ def _summary(path: Path) -> tuple[list[tuple[str, int, int]], dict]:
 
 def ulog_topics(path: Path) -> list[tuple[str, int, int]]:
     """``(topic, instance, message count)`` of every topic logged in ``path`` (with at least
-    one message), sorted. One pass over the whole log, every topic buffered (pyulog), so
-    its memory is the log's data; the result is kept for the file as it is."""
+    one message), sorted. One walk through the log's framing (:func:`.scan.walk`), no data
+    buffered; the result is kept for the file as it is."""
     return list(_summary(path)[0])
 
 
 def ulog_info(path: Path) -> dict[str, Any]:
     """``{"parameters": initial parameters, "info": info strings, "start_us": the header's
     start, "last_us": the last message's timestamp, "dropouts": [(timestamp_us, ms), ...]}``
-    of ``path`` (a whole pass, as :func:`ulog_topics`; the dropouts' stamps are the last
-    timestamp before each)."""
+    of ``path`` (the same walk as :func:`ulog_topics`; the dropouts' stamps are the largest
+    data timestamp before each, as pyulog gives them)."""
     info = _summary(path)[1]
     return {**info, "dropouts": list(info["dropouts"])}
 
@@ -306,12 +219,9 @@ def topic_label(topic: str, instance: int) -> str:
 
 def _pose_topics(path: Path, u: Any) -> str:
     """The odometry and local position topics of ``path`` with their counts, for an error
-    (a second pass that buffers those topics only)."""
-    names = [n for n in u.message_formats if px4.format_kind(_flat_fields(u, n))]
-    if not names:
-        return "none"
-    got = load(path, names)
-    listed = sorted((d.name, d.multi_id, len(d.data["timestamp"])) for d in got.data_list)
+    (``u``: its definitions)."""
+    names = {n for n in u.message_formats if px4.format_kind(_flat_fields(u, n))}
+    listed = [t for t in ulog_topics(path) if t[0] in names]
     return ", ".join(f"{topic_label(n, i)} ({c} msgs)" for n, i, c in listed) or "none"
 
 
@@ -412,7 +322,7 @@ def _odometry(
     pos_f = px4.first_present(d, px4.POSITION_FIELDS)
     assert pos_f is not None  # format_kind checked it
     p = ned_to_enu(_columns(d, pos_f))
-    q = frd_ned_to_flu_enu(wxyz_to_xyzw(_columns(d, px4.QUATERNION_FIELDS)))
+    q = _attitudes(d, px4.QUATERNION_FIELDS)
     gen = px4.frame_field(d)
     frames = np.full(len(t), px4.NED, dtype=object)
     if gen is not None:
@@ -469,7 +379,7 @@ def _local_position(
         ta = _sample_stamps(att.data, att.data["timestamp"].astype(np.int64))
         order = np.argsort(ta, kind="stable")
         ta = ta[order]
-        qa = frd_ned_to_flu_enu(wxyz_to_xyzw(_columns(att.data, px4.QUATERNION_FIELDS)[order]))
+        qa = _attitudes(att.data, px4.QUATERNION_FIELDS)[order]
         q = qa[_nearest(ta, header)]
     else:
         heading = next((f for f in px4.HEADING_FIELDS if f in d), None)
@@ -503,7 +413,7 @@ def read_commands(path: Path) -> AttitudeCommands:
         )
     d = sp.data
     t = _stamps(path, px4.ATTITUDE_SETPOINT, d, int(u.start_timestamp))
-    q = frd_ned_to_flu_enu(wxyz_to_xyzw(_columns(d, px4.Q_D_FIELDS)))
+    q = _attitudes(d, px4.Q_D_FIELDS)
     if set(px4.THRUST_BODY_FIELDS) <= set(d):
         thrust = np.linalg.norm(_columns(d, px4.THRUST_BODY_FIELDS), axis=1)
     elif "thrust" in d:
