@@ -139,7 +139,13 @@ def frd_ned_to_flu_enu(q: np.ndarray) -> np.ndarray:
     stays NaN."""
     q = np.asarray(q, dtype=float)
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([x + y, x - y, w - z, w + z], axis=-1) * _S
+    out = np.empty(q.shape)  # column by column: one temporary at a time
+    np.add(x, y, out=out[..., 0])
+    np.subtract(x, y, out=out[..., 1])
+    np.subtract(w, z, out=out[..., 2])
+    np.add(w, z, out=out[..., 3])
+    out *= _S
+    return out
 
 
 def yaw_ned_to_enu(yaw: np.ndarray) -> np.ndarray:

@@ -50,7 +50,8 @@ MSGTYPE_PREFIX = "px4/"
 such a stream's velocity is in its world frame (ENU)."""
 
 # ---- frame codes: which rows are world-fixed (NED, or FRD: treated as NED) or body FRD
-NED, FRD, BODY_FRD = "NED", "FRD", "BODY_FRD"
+UNKNOWN, NED, FRD, BODY_FRD = 0, 1, 2, 3
+"""The reader's own codes for a message's frame (PX4's differ by generation: below)."""
 POSE_FRAMES = {
     "pose_frame": {1: NED, 2: FRD},  # PX4 >= 1.14 (0: unknown)
     "local_frame": {0: NED, 1: FRD},  # older (2: other)

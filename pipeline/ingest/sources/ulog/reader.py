@@ -324,10 +324,10 @@ def _odometry(
     p = ned_to_enu(_columns(d, pos_f))
     q = _attitudes(d, px4.QUATERNION_FIELDS)
     gen = px4.frame_field(d)
-    frames = np.full(len(t), px4.NED, dtype=object)
+    frames = np.full(len(t), px4.NED, dtype=np.uint8)
     if gen is not None:
         frames = _frames(d[gen], px4.POSE_FRAMES[gen])
-        unknown = frames == ""
+        unknown = frames == px4.UNKNOWN
         if unknown.any():
             k = int(np.flatnonzero(unknown)[0])
             raise InputError(
@@ -336,28 +336,41 @@ def _odometry(
                 "positions cannot be converted: the sender must set the frame (MAVLink "
                 "ODOMETRY frame_id MAV_FRAME_LOCAL_NED or MAV_FRAME_LOCAL_FRD)"
             )
-    v = np.full((len(t), 3), np.nan)
-    vel_f = px4.first_present(d, px4.VELOCITY_FIELDS)
-    if vel_f is not None:
-        raw = _columns(d, vel_f)
-        if gen is not None and "velocity_frame" in d:
-            vf = _frames(d["velocity_frame"], px4.VELOCITY_FRAMES[gen])
-        else:
-            vf = np.full(len(t), px4.NED, dtype=object)
-        world = (vf == px4.NED) | (vf == px4.FRD)
-        v[world] = ned_to_enu(raw[world])
-        for rows in _blocks(np.flatnonzero(vf == px4.BODY_FRD)):
-            v[rows] = body_to_world(q[rows], frd_to_flu(raw[rows]))
+    v = _odometry_velocity(d, gen, q)
     world = "ENU" if (frames == px4.NED).all() else "ENU (from FRD: heading arbitrary)"
     return _trajectory(topic, instance, px4.ODOMETRY, t, _sample_stamps(d, t), p, q, v, world)
 
 
-def _frames(codes: np.ndarray, names: dict[int, str]) -> np.ndarray:
-    """Frame names of frame codes (``""`` for a code not in ``names``)."""
-    out = np.full(len(codes), "", dtype=object)
-    for code, name in names.items():
-        out[codes == code] = name
-    return out
+def _odometry_velocity(d: dict[str, np.ndarray], gen: str | None, q: np.ndarray) -> np.ndarray:
+    """An odometry's velocity in ENU (n, 3) (:func:`read_odometry`): a world frame's (NED,
+    FRD) as positions are, ``BODY_FRD`` rotated by the attitude ``q`` (FLU in ENU),
+    ``v = R(q) [v_x, -v_y, -v_z]``, NaN for another frame or none logged."""
+    n = len(q)
+    fields = px4.first_present(d, px4.VELOCITY_FIELDS)
+    if fields is None:
+        return np.full((n, 3), np.nan)
+    raw = _columns(d, fields)
+    if gen is not None and "velocity_frame" in d:
+        vf = _frames(d["velocity_frame"], px4.VELOCITY_FRAMES[gen])
+    else:
+        vf = np.full(n, px4.NED, dtype=np.uint8)
+    world = (vf == px4.NED) | (vf == px4.FRD)
+    if world.all():  # the usual: no row of another frame
+        return ned_to_enu(raw)
+    v = np.full((n, 3), np.nan)
+    v[world] = ned_to_enu(raw[world])
+    for rows in _blocks(np.flatnonzero(vf == px4.BODY_FRD)):
+        v[rows] = body_to_world(q[rows], frd_to_flu(raw[rows]))
+    return v
+
+
+def _frames(codes: np.ndarray, names: dict[int, int]) -> np.ndarray:
+    """The reader's frame codes (:data:`px4.NED`, ...) of PX4's frame codes ``codes``
+    (:data:`px4.UNKNOWN` for one not in ``names``)."""
+    lut = np.full(256, px4.UNKNOWN, dtype=np.uint8)
+    for code, frame in names.items():
+        lut[code] = frame
+    return lut[np.asarray(codes).astype(np.uint8)]
 
 
 def _blocks(rows: np.ndarray) -> Iterable[np.ndarray]:
