@@ -17,14 +17,19 @@ class IngestOptions(Options):
     """Options of ``qsls ingest`` (defaults are the built-in defaults)."""
 
     vio_topic: str | None = None
-    """VIO topic (nav_msgs/Odometry, or a pose topic); default: chosen when unambiguous."""
+    """VIO topic (nav_msgs/Odometry, or a pose topic); default: chosen when unambiguous. In a
+    PX4 ULog: NAME[:INSTANCE] of an odometry or local position topic (default
+    vehicle_visual_odometry)."""
     truth_topic: str | None = None
     """Ground-truth topic (PoseStamped, PoseWithCovarianceStamped, TransformStamped, Odometry,
-    or a TF topic with ``truth_frame``); default: chosen when unambiguous."""
+    or a TF topic with ``truth_frame``); default: chosen when unambiguous. In a PX4 ULog:
+    NAME[:INSTANCE] (default vehicle_mocap_odometry)."""
     vio: Path | None = None
-    """File holding the VIO stream (bag, TUM, EuRoC csv); default: the sources given."""
+    """File holding the VIO stream (bag, PX4 ULog, TUM, EuRoC csv); default: the sources
+    given."""
     truth: Path | None = None
-    """File holding the truth stream (bag, TUM, EuRoC csv); default: the sources given."""
+    """File holding the truth stream (bag, PX4 ULog, TUM, EuRoC csv); default: the sources
+    given."""
     dt: float = Field(0.1, gt=0)
     """Resampling period (s)."""
     align: Literal["4dof", "se3", "none"] = "4dof"
