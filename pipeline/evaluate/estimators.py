@@ -19,7 +19,7 @@ reader of a fly stage reads them unchanged. Beside them:
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import pandas as pd
 
@@ -27,7 +27,22 @@ from qsls.pipeline.evaluate.stats import paired_ratio
 
 if TYPE_CHECKING:
     from qsls.pipeline.core.artifacts import StageWriter
-    from qsls.pipeline.evaluate.fly import Analysis
+
+
+class Analysis(Protocol):
+    """What these tables read of one estimator's analysis (the fly stage's
+    ``qsls.pipeline.evaluate.fly.Analysis``; the fly stage imports this module, so this one
+    states what it reads instead of importing it)."""
+
+    @property
+    def flights(self) -> pd.DataFrame: ...
+    @property
+    def assumptions(self) -> pd.DataFrame: ...
+    @property
+    def per(self) -> pd.DataFrame: ...
+    @property
+    def findings(self) -> dict[str, Any]: ...
+
 
 KEYS = ["controller", "condition", "seed"]
 PAIRED_METRICS = [

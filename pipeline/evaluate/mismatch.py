@@ -18,7 +18,7 @@ from qsls.pipeline.evaluate.training import TrainingData
 from qsls.pipeline.ingest.flight import states
 
 if TYPE_CHECKING:
-    from qsls.pipeline.evaluate.bound import ControllerBound
+    from qsls.pipeline.evaluate.certified import ControllerBound
 
 
 def skipped_controller_folders(folders: Sequence[Path]) -> list[str]:

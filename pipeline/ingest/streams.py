@@ -41,7 +41,7 @@ from qsls.pipeline.ingest.sources.text.reader import TEXT_READERS
 from qsls.pipeline.ingest.sources.ulog.px4 import MSGTYPE_PREFIX
 
 if TYPE_CHECKING:
-    from qsls.pipeline.ingest.stage import IngestOptions
+    from qsls.pipeline.ingest.options import IngestOptions
 
 CHUNK = 1 << 16
 """Rows computed at once where a stream-long computation is local to each row: its

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from qsls.pipeline.control.options import SweepOptions, SweepSection, SynthOptions
 from qsls.pipeline.core.artifacts import read_manifest
@@ -34,10 +34,8 @@ from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
 from qsls.pipeline.run.paths import resolve_path
+from qsls.pipeline.run.runconfig import FlightSpec, RunConfig
 from qsls.pipeline.sim.options import PERCEPTIONS, SimOptions
-
-if TYPE_CHECKING:  # the runner imports this module
-    from qsls.pipeline.run.runner import FlightSpec, RunConfig
 
 Src = Callable[[str], str]
 Execute = Callable[[Path, Mapping[str, Path]], Any]
