@@ -36,6 +36,8 @@ EXAMPLE = "qsls ingest --vio vio.tum --truth data.csv --out flights/f1 --dt 0.1"
         "drop_nonfinite": ("--drop-nonfinite",),
         "mass": ("--mass",),
         "hover_thrust": ("--hover-thrust",),
+        "commands_topic": ("--commands-topic",),
+        "reference_topic": ("--reference-topic",),
     },
 )
 def command(

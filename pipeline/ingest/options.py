@@ -68,6 +68,13 @@ class IngestOptions(Options):
     ``hover_thrust_estimate`` where valid, else ``MPC_THR_HOVER``); with ``mass`` only."""
     decoder: Literal["fast", "deserializer"] = "fast"
     """Message decoding: the fast field reader, or rosbags' full deserializer (a check)."""
+    commands_topic: str | None = None
+    """A bag's attitude setpoints (mavros_msgs/AttitudeTarget), with ``mass`` (a bag states no
+    hover thrust: give ``hover_thrust``); default: /mavros/setpoint_raw/target_attitude, else
+    /mavros/setpoint_raw/attitude."""
+    reference_topic: str | None = None
+    """A bag's reference (mavros_msgs/PositionTarget, one per tick), with ``mass``; default:
+    /qsls/reference, else /mavros/setpoint_raw/local."""
 
     @field_validator("truth_frame")
     @classmethod

@@ -29,6 +29,7 @@ objects in and objects out:
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,7 @@ import numpy as np
 from qsls.pipeline.core.artifacts import StageWriter, check_output, parquet_bytes, prime_hashes
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.rotations import body_to_world
 from qsls.pipeline.core.ticks import TICKS_FILE
 from qsls.pipeline.ingest.assemble import flight_from_streams
 from qsls.pipeline.ingest.flight import FLIGHT_FILE
@@ -87,14 +89,51 @@ def _describe_stream(s: dict[str, Any]) -> str:
 
 def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> RecordedTicks:
     """The tick log of a flight whose log holds the controller's commands (``o.mass`` given):
-    read from the estimate's log (:mod:`qsls.pipeline.ingest.ticks`), with the controller's
-    identity where the log stamps it."""
+    read from the estimate's log (:mod:`qsls.pipeline.ingest.ticks`):
+
+    - a PX4 ULog: its attitude and trajectory setpoints, its hover thrust, the controller's
+      identity where the log stamps it;
+    - a bag recorded with mavros (docs/vehicle.md#what-to-log,
+      :mod:`qsls.pipeline.ingest.sources.mavros`): the attitude setpoints
+      (``--commands-topic``, default ``/mavros/setpoint_raw/target_attitude``, else
+      ``/mavros/setpoint_raw/attitude``) and the reference (``--reference-topic``, default
+      ``/qsls/reference``, else ``/mavros/setpoint_raw/local``). A bag states no hover thrust
+      (``--hover-thrust`` required) and no identity. The estimate's twist goes to the world
+      frame by ``vio_velocity_frame`` (the controller read a world velocity); the truth's
+      twist is not used (its positions are differentiated, as ingest's are).
+    """
     assert o.mass is not None
     src = Path(vio.source)
-    if not src.is_file() or detect(src) != "ulog":
+    kind = detect(src) if src.exists() else ""
+    if kind in ("ros1", "rosbag2", "db3", "mcap"):
+        # deferred: the commands' reader loads only for a log that holds commands
+        from qsls.pipeline.ingest.sources import mavros
+
+        if o.hover_thrust is None:
+            raise InputError(
+                f"--mass on a bag ({src.name}): a bag states no hover thrust; give the "
+                "vehicle's with --hover-thrust (PX4's MPC_THR_HOVER or hover_thrust_estimate, "
+                "in the commands topic's units: target_attitude's thrust is what PX4 got)"
+            )
+        cmd = o.commands_topic
+        ref = o.reference_topic
+        cmd = mavros.first_topic(src, [cmd] if cmd else mavros.COMMAND_TOPICS, "commands")
+        ref = mavros.first_topic(src, [ref] if ref else mavros.REFERENCE_TOPICS, "reference")
+        if vio.velocity is not None and o.vio_velocity_frame == "body":
+            vio = dataclasses.replace(vio, velocity=body_to_world(vio.orientation, vio.velocity))
+        made = recorded_ticks(
+            vio, dataclasses.replace(truth, velocity=None), mavros.read_bag_commands(src, cmd),
+            mavros.read_bag_setpoints(src, ref), o.mass, hover_thrust=o.hover_thrust,
+            max_gap_s=o.max_gap,
+        )  # fmt: skip
+        facts = {**made.facts, "stamps": {}, "log": src.name, "commands_topic": cmd,
+                 "reference_topic": ref}  # fmt: skip
+        return RecordedTicks(made.log, facts)
+    if kind != "ulog":
         raise InputError(
-            f"--mass: the controller's commands are read from a PX4 ULog; {src} is not one "
-            "(drop --mass to ingest the estimate and the truth alone)"
+            f"--mass: the controller's commands are read from a PX4 ULog or a bag recorded "
+            f"with mavros; {src} is neither (drop --mass to ingest the estimate and the truth "
+            "alone)"
         )
     # deferred: pyulog loads only for a log that holds commands
     from qsls.pipeline.ingest.sources.ulog.reader import read_commands, read_setpoints, ulog_info
@@ -105,7 +144,7 @@ def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> Rec
     )  # fmt: skip
     info = ulog_info(src)
     stamps = {k: v for k, v in (info.get("info") or {}).items() if str(k).startswith("qsls_")}
-    facts = {**made.facts, "stamps": stamps, "log": src.name}
+    facts = {**made.facts, "stamps": stamps, "log": src.name, "frame": "px4 local (NED as ENU)"}
     return RecordedTicks(made.log, facts)
 
 

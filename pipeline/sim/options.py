@@ -424,9 +424,11 @@ class FlightOptions(Options):
 class LogOptions(Options):
     """How the flight is recorded: format, topics, clocks, frames, transport delays."""
 
-    format: Literal["ros1", "ros2-sqlite", "ros2-mcap", "mcap", "ulog"] = "ros1"
+    format: Literal["ros1", "ros2-sqlite", "ros2-mcap", "mcap", "ulog", "mavros"] = "ros1"
     """Bag format: ros1, ros2-sqlite, ros2-mcap or mcap; or ulog, the log PX4 writes
-    (``flight.ulg``; needs ``px4.interface: px4``)."""
+    (``flight.ulg``); or mavros, a ROS1 bag as a ROS user with mavros records the PX4 vehicle
+    (``flight.bag``: the estimate, the motion capture, the attitude setpoints and the
+    reference); both need ``px4.interface: px4``."""
     compression: str | None = None
     """Bag compression (ros1: lz4, bz2; rosbag2: zstd; mcap: zstd, lz4); none by default."""
     vio_topic: str = "/vio/odometry"
@@ -459,9 +461,9 @@ class SimOptions(FlightOptions):
 
     @model_validator(mode="after")
     def _ulog_is_px4(self) -> SimOptions:
-        if self.log.format == "ulog" and self.px4.interface != "px4":
+        if self.log.format in ("ulog", "mavros") and self.px4.interface != "px4":
             raise ValueError(
-                "log.format ulog records a PX4 vehicle: set px4.interface: px4 (the ULog's "
-                "attitude setpoints are the PX4 interface's)"
+                f"log.format {self.log.format} records a PX4 vehicle: set px4.interface: px4 "
+                "(the log's attitude setpoints are the PX4 interface's)"
             )
         return self

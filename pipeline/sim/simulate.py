@@ -23,7 +23,9 @@ With ``log.format: ulog`` (and ``px4.interface: px4``) the log is ``flight.ulg``
 a bag: the flight as PX4 would log it (:mod:`qsls.pipeline.sim.px4log`, PX4's boot clock in
 µs, NED), and ``truth.json`` and the manifest's results gain ``px4`` (hover thrust and its
 estimate, the estimate's and the motion capture's latency, jitter, drops and message counts,
-the logger dropouts, the controller's sha256 and gate).
+the logger dropouts, the controller's sha256 and gate). With ``log.format: mavros`` (and
+``px4.interface: px4``) it is ``flight.bag``, the same record as a mavros user's ROS1 bag
+(:mod:`qsls.pipeline.sim.mavroslog`, the ROS clock, ENU), with the same ``px4`` block.
 
 Clocks (docs/conventions.md#clocks): ``time_offset_s`` is added to motion-capture stamps to put
 them on the VIO clock, so ``mocap_stamp = vio_clock(t) - time_offset_s``. The bag's log time
@@ -50,6 +52,8 @@ from qsls.pipeline.ingest.sources.ulog.writer import write_ulog
 from qsls.pipeline.ingest.sources.write import write_bag
 from qsls.pipeline.sim.closedloop import NS, FlightLog, fly
 from qsls.pipeline.sim.controllers import PositionController, controller_folder
+from qsls.pipeline.sim.mavroslog import BAG_FORMAT as MAVROS_BAG_FORMAT
+from qsls.pipeline.sim.mavroslog import mavros_log
 from qsls.pipeline.sim.mocap import sample_mocap
 from qsls.pipeline.sim.options import LogOptions as LogOptions
 from qsls.pipeline.sim.options import SimOptions
@@ -104,7 +108,8 @@ class SimResult:
 
 def bag_name(fmt: str) -> str:
     """The bag's name inside the output folder for a format."""
-    return {"ros1": "flight.bag", "mcap": "flight.mcap", "ulog": ULOG_NAME}.get(fmt, "flight")
+    names = {"ros1": "flight.bag", "mavros": "flight.bag", "mcap": "flight.mcap", "ulog": ULOG_NAME}
+    return names.get(fmt, "flight")
 
 
 def _rz(yaw: float) -> np.ndarray:
@@ -296,6 +301,10 @@ def simulate(
         name = bag_name(options.log.format)
         if options.log.format == "ulog":
             clocks = ulog_streams(flight, options, options.seed, w.path(name), controller)
+        elif options.log.format == "mavros":
+            identity = controller_identity(options, flight, controller)
+            streams, clocks = mavros_log(flight, options, options.seed, identity)
+            write_bag(w.path(name), streams, MAVROS_BAG_FORMAT, compression=options.log.compression)
         else:
             streams, clocks = log_streams(flight, options, options.seed)
             write_bag(

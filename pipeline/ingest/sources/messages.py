@@ -1,4 +1,5 @@
-"""What a bag writer records: streams of poses, odometry and images, and their messages.
+"""What a bag writer records: streams of poses, odometry, images and mavros setpoints, and
+their messages.
 
 Every format's writer (:mod:`.ros1.writer`, :mod:`.rosbag2.writer`, :mod:`.mcap.writer`,
 chosen by :func:`qsls.pipeline.ingest.sources.write.write_bag`) takes the same streams and
@@ -18,11 +19,13 @@ import numpy as np
 
 from qsls.pipeline.ingest.sources.base import Trajectory
 from qsls.pipeline.ingest.sources.msgtypes import (
+    ATTITUDE_TARGET,
     IMAGE,
     ODOMETRY,
     POSE_COV,
     POSE_STAMPED,
     POSE_TYPES,
+    POSITION_TARGET,
     TF,
     TRANSFORM,
     typestore,
@@ -127,7 +130,56 @@ class ImageStream:
         return len(self.header_ns)
 
 
-Stream = OdometryStream | PoseStream | ImageStream
+@dataclass(frozen=True)
+class AttitudeTargetStream:
+    """A ``mavros_msgs/msg/AttitudeTarget`` topic (``/mavros/setpoint_raw/attitude`` or its
+    echo ``target_attitude``): ``orientation`` ``(n, 4)`` ``x, y, z, w``, the FLU body in ENU;
+    ``thrust`` ``(n,)`` normalized (float32 in the message); ``body_rate`` zeros and ignored
+    (``type_mask`` 7: the three rates) unless given."""
+
+    topic: str
+    header_ns: np.ndarray
+    log_ns: np.ndarray
+    orientation: np.ndarray
+    thrust: np.ndarray
+    type_mask: int = 7
+    frame_id: str = ""
+
+    @property
+    def msgtype(self) -> str:
+        return ATTITUDE_TARGET
+
+    def __len__(self) -> int:
+        return len(self.header_ns)
+
+
+@dataclass(frozen=True)
+class PositionTargetStream:
+    """A ``mavros_msgs/msg/PositionTarget`` topic (``/mavros/setpoint_raw/local``):
+    ``position``, ``velocity``, ``acceleration`` ``(n, 3)`` in ``coordinate_frame`` (1,
+    ``FRAME_LOCAL_NED``: mavros' name for the ENU local frame on the ROS side), ``yaw``
+    ``(n,)`` rad; ``type_mask`` 2048 (the yaw rate ignored) unless given."""
+
+    topic: str
+    header_ns: np.ndarray
+    log_ns: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    yaw: np.ndarray
+    coordinate_frame: int = 1
+    type_mask: int = 2048
+    frame_id: str = ""
+
+    @property
+    def msgtype(self) -> str:
+        return POSITION_TARGET
+
+    def __len__(self) -> int:
+        return len(self.header_ns)
+
+
+Stream = OdometryStream | PoseStream | ImageStream | AttitudeTargetStream | PositionTargetStream
 
 
 def as_trajectory(s: OdometryStream | PoseStream) -> Trajectory:
@@ -196,10 +248,13 @@ class MessageBuilder:
             return self.Header(seq=seq, stamp=stamp, frame_id=frame_id)
         return self.Header(stamp=stamp, frame_id=frame_id)
 
+    def quat(self, q: np.ndarray) -> Any:
+        return self.Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+
     def pose(self, p: np.ndarray, q: np.ndarray) -> Any:
         return self.Pose(
             position=self.Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-            orientation=self.Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
+            orientation=self.quat(q),
         )
 
     def vec(self, v: np.ndarray) -> Any:
@@ -228,6 +283,26 @@ class MessageBuilder:
                 is_bigendian=0,
                 step=s.width,
                 data=s.pixels(i),
+            )
+        if isinstance(s, AttitudeTargetStream):
+            return self.types[ATTITUDE_TARGET](
+                header=hdr,
+                type_mask=s.type_mask,
+                orientation=self.quat(s.orientation[i]),
+                body_rate=self.vec(np.zeros(3)),
+                thrust=float(s.thrust[i]),
+            )
+        if isinstance(s, PositionTargetStream):
+            p = s.position[i]
+            return self.types[POSITION_TARGET](
+                header=hdr,
+                coordinate_frame=s.coordinate_frame,
+                type_mask=s.type_mask,
+                position=self.Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                velocity=self.vec(s.velocity[i]),
+                acceleration_or_force=self.vec(s.acceleration[i]),
+                yaw=float(s.yaw[i]),
+                yaw_rate=0.0,
             )
         pose = self.pose(s.position[i], s.orientation[i])
         if mt == ODOMETRY:
@@ -276,6 +351,15 @@ def check_streams(streams: Sequence[Stream]) -> None:
         n = len(s.header_ns)
         _arr(s.log_ns, (n,), np.int64)
         if isinstance(s, ImageStream):
+            continue
+        if isinstance(s, AttitudeTargetStream):
+            _arr(s.orientation, (n, 4))
+            _arr(s.thrust, (n,))
+            continue
+        if isinstance(s, PositionTargetStream):
+            for a in (s.position, s.velocity, s.acceleration):
+                _arr(a, (n, 3))
+            _arr(s.yaw, (n,))
             continue
         _arr(s.position, (n, 3))
         _arr(s.orientation, (n, 4))
