@@ -13,9 +13,10 @@ ROS conventions (ENU world, FLU body, quaternions ``[x, y, z, w]``, float64) on 
   the body frame (ROS convention);
 - ``log.mocap_topic`` (``log.mocap_msgtype``, a vrpn / vicon bridge's): the motion capture,
   header stamp = its capture, log time = its arrival;
-- ``/mavros/setpoint_raw/target_attitude`` (``mavros_msgs/AttitudeTarget``, :data:`COMMANDS`):
-  one per tick, header stamp = the tick: ``q_d`` (FLU in ENU) and the normalized thrust ``T``
-  the PX4 interface sent (``hover_estimate * thrust / (m g)``), rates ignored;
+- ``/mavros/setpoint_raw/attitude`` (``mavros_msgs/AttitudeTarget``, :data:`COMMANDS`): the
+  controller's own command, one per tick, header stamp = the tick: ``q_d`` (FLU in ENU) and
+  the normalized thrust ``T`` the PX4 interface sent (``hover_estimate * thrust / (m g)``;
+  mavros' ``thrust_scaling`` 1), rates ignored;
 - ``/qsls/reference`` (``mavros_msgs/PositionTarget``, :data:`REFERENCE`): one per tick,
   stamped at the tick: the reference the controller tracked (position, velocity,
   acceleration; ``FRAME_LOCAL_NED``, mavros' name for the ENU local frame; yaw 0: east).
@@ -45,8 +46,9 @@ from qsls.pipeline.sim.options import SimOptions
 from qsls.pipeline.sim.px4 import US, frd_to_flu, ned_to_enu, quat_ned_frd_to_enu_flu
 from qsls.pipeline.sim.px4log import Identity, px4_log
 
-COMMANDS = "/mavros/setpoint_raw/target_attitude"
-"""The attitude setpoint's topic (mavros' echo of what PX4 was sent)."""
+COMMANDS = "/mavros/setpoint_raw/attitude"
+"""The attitude setpoint's topic (the controller's own, one per tick, before mavros'
+``thrust_scaling``)."""
 REFERENCE = "/qsls/reference"
 """The reference's topic (the controller's own, a ``setpoint_raw/local``-style message)."""
 BAG_FORMAT = "ros1"

@@ -36,7 +36,7 @@ from qsls.pipeline.ingest.sources.base import TopicInfo
 from qsls.pipeline.ingest.sources.msgtypes import ATTITUDE_TARGET, POSITION_TARGET
 from qsls.pipeline.ingest.sources.ulog.reader import AttitudeCommands, PositionSetpoints
 
-COMMAND_TOPICS = ("/mavros/setpoint_raw/target_attitude", "/mavros/setpoint_raw/attitude")
+COMMAND_TOPICS = ("/mavros/setpoint_raw/attitude", "/mavros/setpoint_raw/target_attitude")
 """Where the attitude setpoints are looked for, in order (``--commands-topic`` names another)."""
 REFERENCE_TOPICS = ("/qsls/reference", "/mavros/setpoint_raw/local")
 """Where the reference is looked for, in order (``--reference-topic`` names another)."""
