@@ -1,5 +1,8 @@
 """The stage packages form layers: each imports only the ones below it (imports inside functions
-count; ``if TYPE_CHECKING:`` imports do not), so the package import graph has no cycle."""
+count; ``if TYPE_CHECKING:`` imports do not), so the package import graph has no cycle. Within
+and across packages, no two modules import each other, through any chain: imports inside
+functions and ``if TYPE_CHECKING:`` imports count too (issue 49), and a ``TYPE_CHECKING``
+import names the module that defines what it imports."""
 
 from __future__ import annotations
 
@@ -138,7 +141,7 @@ def test_the_simulator_imports_the_c_backend_it_flies():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["True", "False"]
     graph = package_graph()
-    assert graph["sim"]["export"] == ["sim/controllers.py"]
+    assert "sim/controllers.py" in graph["sim"]["export"]
     assert "sim" not in graph.get("export", {})
     callers = [
         f.relative_to(PIPELINE.parent).as_posix()
@@ -200,3 +203,152 @@ def test_imports_inside_functions_are_deferred_on_purpose():
         if (lines := undeferred_imports(f.read_text()))
     }
     assert found == {}
+
+
+# --------------------------------------------------------------------------- modules
+def module_of(f: Path) -> str:
+    """The dotted name of a file under ``pipeline/`` (a package's ``__init__.py``: the package)."""
+    parts = list(f.relative_to(PIPELINE).with_suffix("").parts)
+    return ".".join(["qsls", "pipeline", *(parts[:-1] if parts[-1] == "__init__" else parts)])
+
+
+def imported_modules(source: str, here: str, is_package: bool, known: set[str]) -> set[str]:
+    """The modules of ``known`` that ``source`` (module ``here``) imports by any statement:
+    at the top, inside functions, under ``if TYPE_CHECKING:``. ``from P import n`` imports the
+    module ``P.n`` when there is one, else ``P``."""
+    package = here if is_package else here.rpartition(".")[0]
+
+    def nearest(name: str) -> str:
+        while name and name not in known:
+            name = name.rpartition(".")[0]
+        return name
+
+    found = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found |= {nearest(a.name) for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            module = node.module or ""
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                module = ".".join([*base, module] if module else base)
+            for a in node.names:
+                full = f"{module}.{a.name}"
+                found.add(full if full in known else nearest(module))
+    return found - {here, "", "qsls.pipeline"}
+
+
+def module_graph(sources: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
+    """``{module: modules it imports}`` from ``{module: (source, is_package)}``."""
+    known = set(sources)
+    return {m: imported_modules(src, m, pkg, known) for m, (src, pkg) in sources.items()}
+
+
+def pipeline_sources() -> dict[str, tuple[str, bool]]:
+    return {
+        module_of(f): (f.read_text(), f.name == "__init__.py")
+        for f in sorted(PIPELINE.rglob("*.py"))
+    }
+
+
+def circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Every group of modules that import each other through some chain (the strongly
+    connected components of more than one module), each sorted, as ``a -> b`` edges."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                members = set(group)
+                out.append(sorted(f"{a} -> {b}" for a in members for b in graph[a] if b in members))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(out)
+
+
+def test_the_module_walker_sees_every_import():
+    p = "qsls.pipeline.x"
+    sources = {
+        p: ("", True),
+        f"{p}.a": (
+            "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .b import B\n",
+            False,
+        ),
+        f"{p}.b": ("def f():\n    from qsls.pipeline.x import c  # deferred: test\n", False),
+        f"{p}.c": ("import qsls.pipeline.x.a\nfrom qsls.pipeline.x import lazy_name\n", False),
+        f"{p}.d": ("from . import a\n", False),
+    }
+    graph = module_graph(sources)
+    assert graph[f"{p}.c"] == {f"{p}.a", p} and graph[f"{p}.d"] == {f"{p}.a"}
+    assert circles(graph) == [[f"{p}.a -> {p}.b", f"{p}.b -> {p}.c", f"{p}.c -> {p}.a"]]
+    assert circles({**graph, f"{p}.a": set()}) == []
+
+
+def test_no_module_imports_itself_through_a_chain():
+    """No import circle between modules of pipeline/, not even through ``TYPE_CHECKING`` or an
+    import inside a function: a module depends on what it imports, never the other way too."""
+    graph = module_graph(pipeline_sources())
+    assert len(graph) > 150 and "qsls.pipeline.control.costs" in graph["qsls.pipeline.control.sls"]
+    assert circles(graph) == []
+
+
+def type_checking_imports(source: str) -> list[tuple[str, str]]:
+    """``(module, name)`` of every ``from qsls... import name`` under ``if TYPE_CHECKING:``."""
+    out = []
+    for block in ast.walk(ast.parse(source)):
+        if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test):
+            for node in (n for stmt in block.body for n in ast.walk(stmt)):
+                if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("qsls."):
+                    out += [(node.module or "", a.name) for a in node.names]
+    return out
+
+
+def defined_names(source: str) -> set[str]:
+    """The names a module defines at its top level (not the ones it imports)."""
+    out = set()
+    for node in ast.parse(source).body:
+        if isinstance(node, ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef):
+            out.add(node.name)
+        elif isinstance(node, ast.Assign):
+            out |= {t.id for t in node.targets if isinstance(t, ast.Name)}
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            out.add(node.target.id)
+    return out
+
+
+def test_a_type_checking_import_names_the_defining_module():
+    src = "if TYPE_CHECKING:\n    from qsls.pipeline.a import B, c\n    import numpy\n"
+    assert type_checking_imports(src) == [("qsls.pipeline.a", "B"), ("qsls.pipeline.a", "c")]
+    assert defined_names("from x import y\nclass B: ...\nc: int = 1\nd = e = 2\n") == {
+        "B",
+        "c",
+        "d",
+        "e",
+    }
+    sources = pipeline_sources()
+    wrong = [
+        f"{m} imports {name} from {module}"
+        for m, (src, _) in sources.items()
+        for module, name in type_checking_imports(src)
+        if module in sources and name not in defined_names(sources[module][0])
+    ]
+    assert wrong == []

@@ -23,26 +23,22 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from qsls.pipeline.control import largest_s, sls
-from qsls.pipeline.control.costs import cost_of
-from qsls.pipeline.control.options import PaperModeOptions, SynthOptions
-from qsls.pipeline.control.premise import TrainingStates
-from qsls.pipeline.control.resolution import Resolved, resolve
-from qsls.pipeline.control.status import CHOSEN, RELAXED
-from qsls.pipeline.control.synth import (
+from qsls.pipeline.control.design import (
     Built,
     certified_controller,
     controller_plan,
     design,
     imitation_target,
 )
+from qsls.pipeline.control.options import PaperModeOptions, SynthOptions
+from qsls.pipeline.control.premise import TrainingStates
+from qsls.pipeline.control.resolution import Resolved, resolve
+from qsls.pipeline.control.status import CHOSEN, RELAXED
 from qsls.pipeline.core.errors import InfeasibleError
 from qsls.pipeline.errormodel.model import ErrorModel
-
-if TYPE_CHECKING:
-    from qsls.pipeline.control.synth import Built
 
 SUFFIX = "_paper"
 """A paper-mode controller is named after its honest twin with this suffix."""
@@ -143,7 +139,7 @@ def paper_controllers(
         st = plan[name]
         st = r.structure(st.T, st.norm, st.cost, st.robust, st.strictly_proper)
         nominal, ex = None, dict(extra)
-        if cost_of(st.cost).imitates:
+        if st.cost.imitates:
             nominal = imitation_target(opts.imitate, opts.T, done, folder)
             ex["imitate"] = opts.imitate
         d = design(r, st, nominal=nominal, solver=opts.solver)

@@ -41,11 +41,10 @@ against 0.195-0.204 at T = 50, the same optimal value.
 
 Norms: the induced inf-to-inf norm of an FIR operator is the largest row sum of absolute
 values over all its taps side by side (:func:`l1_norm`); H2 is the Frobenius norm over all
-taps (:func:`h2_norm`). Costs (paper eqs. qrcost and immitationcost, the input weights
-block-diagonal, ``diag(eps_w H, eps_e I)``)::
-
-    c_QR = || diag(Q^1/2, R^1/2) [Phi_xx Phi_xy; Phi_ux Phi_uy] diag(eps_w H, eps_e I) ||
-    c_im = || diag(Q^1/2, R^1/2) [Phi - Phi_nominal] ||
+taps (:func:`h2_norm`). The objective is the :class:`~qsls.pipeline.control.costs.Cost` the
+structure holds (``c_QR``, ``c_im``, Dinkelbach's ratio, ...): it builds its own expression
+from what the problem exposes (:meth:`SLSProblem.response`, :meth:`SLSProblem.sums`, the
+premise's norms) and sets its own Parameters; the problem never asks which cost it is.
 
 Robustness constraint (convex form of the paper's)::
 
@@ -66,7 +65,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from qsls.pipeline.control.achievable import (
-    Affine,
     Mirror,
     block_pattern,
     eliminate,
@@ -74,7 +72,8 @@ from qsls.pipeline.control.achievable import (
     implied_zero_taps,
     mirror_maps,
 )
-from qsls.pipeline.control.costs import PremiseNorms, WeightedCost, cost_of
+from qsls.pipeline.control.costs import QR, Cost, PremiseNorms, cost_of, is_diagonal
+from qsls.pipeline.control.costs import cost_value as cost_value  # c_QR, c_im from taps
 from qsls.pipeline.control.guarantee import (
     VELOCITY,
     Norms,
@@ -85,23 +84,18 @@ from qsls.pipeline.control.guarantee import (
     premise_bound,
     system_norms,
 )
-from qsls.pipeline.control.options import psd_sqrt
+from qsls.pipeline.control.options import psd_sqrt as psd_sqrt
 from qsls.pipeline.control.taps import (  # re-exported: the responses are the problem's variables
     RESPONSES,
     Taps,
-    h2_norm,
-    l1_norm,
-    side_by_side,
 )
+from qsls.pipeline.control.taps import h2_norm as h2_norm
+from qsls.pipeline.control.taps import l1_norm as l1_norm
+from qsls.pipeline.control.taps import side_by_side as side_by_side
 from qsls.pipeline.core.plant import NX, LinearModel
 
 Norm = Literal["l1", "h2"]
-Cost = str
-"""A cost's name in :data:`qsls.pipeline.control.costs.COSTS`."""
 ROBUST_BACKOFF = 1e-6
-LIGHT_ROW = 1e-4
-"""A state's row of ``c_QR``'s L1 weighted below this fraction of the largest state weight is
-left out of the problem and checked after the solve (:func:`solve`)."""
 TIGHT = {"tol_feas": 1e-10, "tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10}
 """Clarabel's tolerances for the attitude plant: its optimum sits on the robustness constraint
 with responses ten times larger than the hover plant's, and the default 1e-8 left the
@@ -113,45 +107,6 @@ FAST = {**TIGHT, "iterative_refinement_enable": False}
 37): at the quickstart's setting, T = 50, the same iterations at ~55 % of the time, the
 objective within 3e-9 relative and the realization error 3e-10 (limit 1e-8). Where it ends
 inaccurate, :data:`TIGHT` is solved, then the default tolerances."""
-
-
-def cost_blocks(
-    taps: Taps,
-    model: LinearModel,
-    q_half: np.ndarray,
-    r_half: np.ndarray,
-    eps_w: float,
-    eps_e: float,
-    nominal: Taps | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The weighted operator of the cost, as ``(state rows, input rows)`` tap arrays
-    ``(T+1, rows, nx + ny)``: ``c_QR``'s when ``nominal`` is None, else ``c_im``'s."""
-    if nominal is None:
-        xx, xy = taps.Phi_xx @ model.H * eps_w, taps.Phi_xy * eps_e
-        ux, uy = taps.Phi_ux @ model.H * eps_w, taps.Phi_uy * eps_e
-    else:
-        n = nominal.truncated(taps.T)
-        xx, xy = taps.Phi_xx - n.Phi_xx, taps.Phi_xy - n.Phi_xy
-        ux, uy = taps.Phi_ux - n.Phi_ux, taps.Phi_uy - n.Phi_uy
-    top = q_half @ np.concatenate([xx, xy], axis=2)
-    bottom = r_half @ np.concatenate([ux, uy], axis=2)
-    return top, bottom
-
-
-def cost_value(
-    norm: Norm,
-    taps: Taps,
-    model: LinearModel,
-    q_half: np.ndarray,
-    r_half: np.ndarray,
-    eps_w: float,
-    eps_e: float,
-    nominal: Taps | None = None,
-) -> float:
-    """``c_QR`` or ``c_im`` in the L1 (induced inf-to-inf) or H2 norm, from taps."""
-    top, bottom = cost_blocks(taps, model, q_half, r_half, eps_w, eps_e, nominal)
-    full = np.concatenate([top, bottom], axis=1)
-    return l1_norm(full) if norm == "l1" else h2_norm(full)
 
 
 def achievability_residuals(taps: Taps, model: LinearModel) -> dict[str, float]:
@@ -179,11 +134,13 @@ def achievability_residuals(taps: Taps, model: LinearModel) -> dict[str, float]:
 # --------------------------------------------------------------------------- problem
 @dataclass(frozen=True)
 class Structure:
-    """What fixes a compiled problem: the model, the horizon, norm, cost, timing."""
+    """What fixes a compiled problem: the model, the horizon, norm, cost, timing. ``cost``
+    is a :class:`~qsls.pipeline.control.costs.Cost` (a config's name for one is looked up in
+    :data:`~qsls.pipeline.control.costs.COSTS` here)."""
 
     T: int
     norm: Norm = "l1"
-    cost: Cost = "qr"
+    cost: Cost = QR
     robust: bool = True
     strictly_proper: bool = False
     # Q and R diagonal: the weights are Parameter vectors (diag(l) @ Phi keeps the
@@ -212,6 +169,9 @@ class Structure:
     # :func:`solve` picks them from ``Q`` and re-solves with them where one would bind.
     light_states: tuple[int, ...] = ()
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "cost", cost_of(self.cost))
+
 
 def mirrors_of(
     model: LinearModel, s: Structure, Q: np.ndarray | None = None, R: np.ndarray | None = None
@@ -235,11 +195,6 @@ def mirrors_of(
 
 def _pairs(mirrors: tuple[Mirror, ...]) -> tuple[tuple[int, int], ...]:
     return tuple((m.source, m.image) for m in mirrors)
-
-
-def is_diagonal(m: np.ndarray) -> bool:
-    m = np.asarray(m)
-    return bool(np.array_equal(m, np.diag(np.diag(m))))
 
 
 NO_PREMISE = PremiseNumbers(eps=0.0, S=0.0, radius=1.0, eps_w=0.0, delta=0.0)
@@ -306,14 +261,14 @@ class SLSProblem:
         self.fixed_uy = unread | ((tap == 0) if s.strictly_proper else False)
         # the last taps of an unread column follow from the earlier ones: not imposed twice
         implied = unread & (tap > s.T - implied_zero_taps(model, self.pattern)[col])
-        imposed = self.fixed_uy & ~implied & ~self._dropped("Phi_uy")
+        imposed = self.fixed_uy & ~implied & ~self.copies("Phi_uy")
         E = sp.vstack([mp.E, mp.Phi_uy.M[imposed]]).tocsr()
         e = np.concatenate([mp.e, mp.Phi_uy.f[imposed]])
         rows = np.diff(E.indptr) > 0  # a fixed tap outside the block pattern is no equation
         self.E = E[rows]
         self._cons: list[Any] = [self.E @ z + e[rows] == 0]
         self._epi: dict[str, tuple[np.ndarray, np.ndarray, Any]] = {}
-        self.cost = cost = cost_of(s.cost)
+        self.cost = cost = s.cost
         self._read = self._rows_read()
         norms = self._premise_norms() if s.robust or cost.needs_norms else None
         p: dict[str, Any] = {}
@@ -322,7 +277,9 @@ class SLSProblem:
             self._cons += self._robustness_constraints(p, norms)
         objective = cost.objective(self, p, norms)
         self.params = p
-        self.problem = cp.Problem(cp.Minimize(objective), self._cons)
+        self.problem = cp.Problem(
+            cp.Minimize(cp.Constant(0.0) if objective is None else objective), self._cons
+        )
         self.construct_time_s = time.perf_counter() - t0
         self._compiled = False
 
@@ -337,19 +294,20 @@ class SLSProblem:
         """The state rows of a mirrored group's image (every row sum there equals its source's:
         a maximum over rows, or a bound per row, need not read them)."""
         _, i, _ = self.maps.Phi_xy.entry()
-        return np.isin(np.arange(self.model.nx), i[self._dropped("Phi_xy")])
+        return np.isin(np.arange(self.model.nx), i[self.copies("Phi_xy")])
 
     def _rows_read(self) -> dict[str, np.ndarray]:
         """Per response, the rows some norm or cost reads through the shared epigraphs; only
         these get one (:meth:`_epigraph`)."""
         s, nx, nu = self.structure, self.model.nx, self.model.nu
         premise = self._premise_rows() if s.robust or self.cost.needs_norms else np.zeros(nx, bool)
-        shared = isinstance(self.cost, WeightedCost) and self._shared_rows(self.cost)
-        cost_x = shared & ~np.isin(np.arange(nx), s.light_states)
-        return {
-            "Phi_xy": premise | cost_x, "Phi_xx_H": premise | cost_x,
-            "Phi_ux_H": np.full(nu, shared), "Phi_uy": np.full(nu, shared),
+        read = {
+            "Phi_xy": premise, "Phi_xx_H": premise,
+            "Phi_ux_H": np.zeros(nu, bool), "Phi_uy": np.zeros(nu, bool),
         }  # fmt: skip
+        for name, rows in self.cost.epigraph_rows(self).items():
+            read[name] = read[name] | rows
+        return read
 
     def _premise_norms(self) -> PremiseNorms:
         """The premise's norms (docs/guarantee.md) on the shared epigraphs:
@@ -363,8 +321,8 @@ class SLSProblem:
         s, T = self.structure, self.structure.T
         wx = np.asarray(s.state_scale, float)
         inv_e = error_weights(s.error_scale, measured_channels(s.measure))
-        self._rs_xh = self._sums("Phi_xx_H", lambda t, i, j: 1.0)
-        self._rs_xy = self._sums("Phi_xy", lambda t, i, j: inv_e[j])
+        self._rs_xh = self.sums("Phi_xx_H", lambda t, i, j: 1.0)
+        self._rs_xy = self.sums("Phi_xy", lambda t, i, j: inv_e[j])
         rows = np.flatnonzero((wx > 0) & ~self._copied_rows())
         if not len(rows):  # every state weighted 0: the norms are 0
             rows = np.arange(1)
@@ -374,7 +332,7 @@ class SLSProblem:
         self._g_rows: dict[int, Any] = {}
         if not channels:
             return PremiseNorms(n_xy, n_xx, None)
-        per_tap = self._sums("Phi_xy", lambda t, i, j: np.isin(j, channels), by_tap=True)
+        per_tap = self.sums("Phi_xy", lambda t, i, j: np.isin(j, channels), by_tap=True)
         k = min(s.m, T)
 
         def g(i: int) -> Any:  # a new expression per use: the compiled problem is unchanged
@@ -423,7 +381,7 @@ class SLSProblem:
         if name == "Phi_uy":
             varies &= ~self.fixed_uy
         _, i, _ = aff.entry()
-        drop = self._dropped(name) | ~self._read[name][i]  # copies, and rows nothing reads
+        drop = self.copies(name) | ~self._read[name][i]  # copies, and rows nothing reads
         varies &= ~drop
         const = np.where(varies | drop, 0.0, np.abs(aff.f))
         if name == "Phi_uy":
@@ -433,12 +391,12 @@ class SLSProblem:
         self._epi[name] = (varies, const, t)
         return [ex <= t, -ex <= t]
 
-    def _dropped(self, name: str) -> np.ndarray:
+    def copies(self, name: str) -> np.ndarray:
         """The entries of response ``name`` that copy a mirrored group's (none unmirrored)."""
         aff = getattr(self.maps, name)
         return self.dropped.get(name, np.zeros(aff.M.shape[0], dtype=bool))
 
-    def _sums(self, name: str, weight: Any, *, by_tap: bool = False) -> Any:
+    def sums(self, name: str, weight: Any, *, by_tap: bool = False) -> Any:
         """``sum weight(tap, i, j) |Phi(tap)_ij|`` per row ``i`` (per row and tap, row-major,
         with ``by_tap``), from the epigraph of response ``name`` (made on first use)."""
         aff = getattr(self.maps, name)
@@ -452,69 +410,25 @@ class SLSProblem:
         agg = sp.csr_matrix((w, (out, np.arange(len(i)))), shape=(n_out, len(i)))
         return agg[:, varies] @ t + agg @ const
 
-    def weighted_cost(self, p: dict[str, Any], cost: WeightedCost) -> Any:
-        """``c_QR`` or ``c_im`` (module docstring), L1 or H2, with the weights as Parameters:
-        per-row vectors when ``Q`` and ``R`` are diagonal (``c_QR``'s L1 then reads the shared
-        epigraphs), full matrices otherwise."""
-        import cvxpy as cp
+    def response(self, name: str, support: np.ndarray | None = None) -> Any:
+        """Response ``name``'s entries (``M z + f``, those ``support`` marks) as a cvxpy
+        expression of the free taps, in the order of its map's ``entry()``."""
+        aff = getattr(self.maps, name)
+        if support is None:
+            return aff.M @ self.z + aff.f
+        return aff.M[support] @ self.z + aff.f[support]
 
-        s, mp = self.structure, self.maps
-        names = {"xx": "Phi_xx", "xy": "Phi_xy", "ux": "Phi_ux", "uy": "Phi_uy"}
-        if cost.reads_H:
-            names.update(xx="Phi_xx_H", ux="Phi_ux_H")
-        if self._shared_rows(cost):
-            rows = []
-            for block in ("x", "u"):
-                n = self.model.nx if block == "x" else self.model.nu
-                for part in ("x", "y"):
-                    key = block + part
-                    p["L" + key] = cp.Parameter(n, nonneg=True, name="L" + key)
-                    rows.append(
-                        cp.multiply(p["L" + key], self._sums(names[key], lambda t, i, j: 1.0))
-                    )
-            kept = ~np.isin(np.arange(self.model.nx), s.light_states)
-            return cp.max(cp.hstack([(rows[0] + rows[1])[np.flatnonzero(kept)], rows[2] + rows[3]]))
-        blocks = {}
-        self._support: dict[str, np.ndarray] = {}
-        for key, name in names.items():
-            aff: Affine = getattr(mp, name)
-            if s.diagonal_weights:
-                _, i, j = aff.entry()
-                support = self.pattern[name.removesuffix("_H")][i, j]
-                if s.norm == "l1":  # a copy adds nothing to a row's maximum, but to H2's sum
-                    support = support & ~self._dropped(name)
-                self._support[key] = support
-                p["L" + key] = cp.Parameter(int(support.sum()), nonneg=True, name="L" + key)
-                expr = cp.multiply(p["L" + key], aff.M[support] @ self.z + aff.f[support])
-                if cost.imitates:
-                    p["N" + key] = cp.Parameter(int(support.sum()), name="N" + key)
-                    expr = expr - p["N" + key]
-            else:
-                mat = cp.reshape(aff.M @ self.z + aff.f, (aff.rows, aff.taps * aff.cols), order="F")
-                p["L" + key] = cp.Parameter((aff.rows, aff.rows), name="L" + key)
-                expr = p["L" + key] @ mat
-                if cost.imitates:
-                    p["N" + key] = cp.Parameter(mat.shape, name="N" + key)
-                    expr = expr - p["N" + key]
-            blocks[key] = expr
-        if s.norm == "h2":
-            return sum(cp.sum_squares(v) for v in blocks.values())
-        sums: dict[str, Any] = {}
-        for key, expr in blocks.items():
-            if s.diagonal_weights:
-                aff = getattr(mp, names[key])
-                _, i, _ = aff.entry()
-                i = i[self._support[key]]
-                agg = sp.csr_matrix(
-                    (np.ones(len(i)), (i, np.arange(len(i)))), shape=(aff.rows, len(i))
-                )
-                sums[key] = agg @ cp.abs(expr)
-            else:
-                sums[key] = cp.sum(cp.abs(expr), axis=1)
-        return cp.max(cp.hstack([sums["xx"] + sums["xy"], sums["ux"] + sums["uy"]]))
+    def shares_mirrors(self, Q: np.ndarray, R: np.ndarray) -> bool:
+        """``Q`` and ``R`` leave this problem's mirrored groups invariant."""
+        return _pairs(mirrors_of(self.model, self.structure, Q, R)) == _pairs(self.mirrors)
 
     # ---- parameters
     def set_values(self, v: Values) -> None:
+        """The Parameters of the premise's constraints, then the cost's (its own)."""
+        self._set_premise(v)
+        self.cost.set_values(self, self.params, v)
+
+    def _set_premise(self, v: Values) -> None:
         s, p, n = self.structure, self.params, v.numbers
         if s.robust:
             p["c_xy"].value = float(n.S + n.eps / n.radius)
@@ -529,52 +443,6 @@ class SLSProblem:
                 p["g_d"].value = float(premise_bound(n.eps, n.S, n.radius))
                 p["g_o"].value = float(n.eps_o)
                 p["g_V"].value = float(n.gate)
-        self.cost.set_values(self, p, v)
-
-    def _shared_rows(self, cost: WeightedCost) -> bool:
-        """``c_QR``'s L1 with diagonal weights reads the shared epigraphs' row sums."""
-        s = self.structure
-        return cost.reads_H and not cost.imitates and s.norm == "l1" and s.diagonal_weights
-
-    def set_weights(self, v: Values, cost: WeightedCost) -> None:
-        s, p, mp = self.structure, self.params, self.maps
-        if s.diagonal_weights and not (is_diagonal(v.Q) and is_diagonal(v.R)):
-            raise ValueError("this problem was built for diagonal Q and R")
-        if self.mirrors and (
-            cost.imitates or _pairs(mirrors_of(self.model, s, v.Q, v.R)) != _pairs(self.mirrors)
-        ):
-            raise ValueError("this problem was built for weights its mirrored axes share")
-        qh, rh = psd_sqrt(v.Q, "Q"), psd_sqrt(v.R, "R")
-        scale = cost.scale(v)
-        if cost.imitates:
-            if v.nominal is None:
-                raise ValueError("the imitation cost needs nominal responses")
-            nom = v.nominal.truncated(s.T)
-        names = {"xx": "Phi_xx", "xy": "Phi_xy", "ux": "Phi_ux", "uy": "Phi_uy"}
-        for key, name in names.items():
-            half = qh if key[0] == "x" else rh
-            aff: Affine = getattr(mp, name)
-            if s.diagonal_weights:
-                w = scale[key] * np.diag(half)
-                if self._shared_rows(cost):
-                    p["L" + key].value = w  # per row of the shared epigraph's sums
-                    continue
-                tap, i, j = aff.entry()
-                sup = self._support[key]
-                p["L" + key].value = w[i[sup]]
-                if cost.imitates:
-                    taps = getattr(nom, name)[aff.first : aff.first + aff.taps]
-                    vals = taps[tap, i, j]
-                    if np.any(vals[~sup] != 0):
-                        raise ValueError(
-                            "the nominal responses couple what this problem's block pattern keeps apart"
-                        )
-                    p["N" + key].value = w[i[sup]] * vals[sup]
-            else:
-                p["L" + key].value = scale[key] * half
-                if cost.imitates:
-                    taps = getattr(nom, name)[aff.first : aff.first + aff.taps]
-                    p["N" + key].value = half @ side_by_side(taps)
 
     def taps(self) -> Taps:
         z = np.asarray(self.z.value)
@@ -699,26 +567,18 @@ def _solve_structure(
 
 
 def light_states(structure: Structure, values: Values) -> tuple[int, ...]:
-    """The states whose rows of ``c_QR``'s L1 (diagonal weights) a problem may leave out: ``Q``
-    below :data:`LIGHT_ROW` of its largest diagonal entry (the attitude plant's extra states)."""
-    if structure.cost != "qr" or structure.norm != "l1":
-        return ()
-    q = np.diag(values.Q)
-    return tuple(int(i) for i in np.flatnonzero(q < LIGHT_ROW * q.max()))
+    """The states whose rows the structure's cost lets a problem (diagonal weights) leave out
+    and check after the solve (``c_QR``'s L1: the attitude plant's extra states,
+    :meth:`~qsls.pipeline.control.costs.QRCost.light_rows`)."""
+    return structure.cost.light_rows(structure.norm, values.Q)
 
 
 def light_rows_hold(taps: Taps, model: LinearModel, values: Values, structure: Structure) -> bool:
-    """The left-out rows of ``c_QR`` (:func:`light_states`) lie below the rows kept, so the
-    solution's full cost is the solved problem's optimum: ``c_QR = max_i rowsum_i``, and a
-    problem with fewer rows has an optimum no larger, attained here by a feasible point."""
-    light = np.asarray(structure.light_states, int)
-    if not len(light):
+    """The rows left out (:func:`light_states`) do not change the optimum: the solution's full
+    cost is the solved problem's (:meth:`~qsls.pipeline.control.costs.Cost.light_rows_hold`)."""
+    if not structure.light_states:
         return True
-    qh, rh = psd_sqrt(values.Q, "Q"), psd_sqrt(values.R, "R")
-    top, bottom = cost_blocks(taps, model, qh, rh, values.numbers.eps_w, values.numbers.eps)
-    rows = np.abs(top).sum(axis=(0, 2))
-    kept = np.delete(rows, light)
-    return bool(rows[light].max() <= max(kept.max(), np.abs(bottom).sum(axis=(0, 2)).max()))
+    return structure.cost.light_rows_hold(taps, model, values, structure.light_states)
 
 
 # --------------------------------------------------------------------------- feasibility
@@ -732,9 +592,9 @@ class Shape:
     m: int = 0
     gate: bool = False
 
-    def structure(self, T: int, cost: Cost, strictly_proper: bool) -> Structure:
+    def structure(self, T: int, cost: Cost | str, strictly_proper: bool) -> Structure:
         return Structure(
-            T, "l1", cost, False, strictly_proper, state_scale=self.state_scale,
+            T, "l1", cost_of(cost), False, strictly_proper, state_scale=self.state_scale,
             error_scale=self.error_scale, measure=self.measure, m=self.m, gate=self.gate,
         )  # fmt: skip
 

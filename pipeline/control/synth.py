@@ -22,31 +22,32 @@ Infeasible is an answer: before solving, the necessary condition
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.artifacts import (
-    CERTIFICATE_FILE,
-    CONTROLLER_FILE,
-    Certificate,
-    CertificateBody,
-    Controller,
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, CONTROLLER_FILE, Certificate
+from qsls.pipeline.control.design import IMITATE_NAMED as IMITATE_NAMED
+from qsls.pipeline.control.design import NO_INPUTS as NO_INPUTS
+from qsls.pipeline.control.design import S_UNTESTED as S_UNTESTED
+from qsls.pipeline.control.design import (
+    Built,
+    controller_plan,
+    imitation_target,
+    nominal_from_folder,
+    pd_controller,
 )
-from qsls.pipeline.control.certify import PREMISE_VIOLATED, certify, guarantee_fields
-from qsls.pipeline.control.certify import certify as check  # design() has a `certify` flag
-from qsls.pipeline.control.costs import cost_of
+from qsls.pipeline.control.design import Design as Design
+from qsls.pipeline.control.design import certified_controller as certified_controller
+from qsls.pipeline.control.design import design as design
 from qsls.pipeline.control.feasibility import MaxFeasibleSResult as MaxFeasibleSResult
 from qsls.pipeline.control.feasibility import diagnose, diagnosis_message
 from qsls.pipeline.control.feasibility import max_feasible_s as max_feasible_s
-from qsls.pipeline.control.guarantee import Norms, necessary_condition
-from qsls.pipeline.control.nominal import pd_responses, spectral_radius, static_gain_norms
+from qsls.pipeline.control.guarantee import necessary_condition
 from qsls.pipeline.control.options import ProblemOptions as ProblemOptions
 from qsls.pipeline.control.options import SynthOptions
-from qsls.pipeline.control.pdgain import PDGains
+from qsls.pipeline.control.papermode import PaperChoice, paper_controllers
 from qsls.pipeline.control.premise import refuse_empty
 from qsls.pipeline.control.resolution import ModelInput as ModelInput
 from qsls.pipeline.control.resolution import Resolved as Resolved
@@ -54,200 +55,11 @@ from qsls.pipeline.control.resolution import read_model as read_model
 from qsls.pipeline.control.resolution import resolve as resolve
 from qsls.pipeline.control.status import RELAXED, Status
 from qsls.pipeline.core.artifacts import StageWriter, check_output
-from qsls.pipeline.core.errors import InfeasibleError, InputError, SolverError
+from qsls.pipeline.core.errors import InfeasibleError, SolverError
 from qsls.pipeline.core.plant import NU, NX
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.errormodel.disturbance import RESIDUAL
 from qsls.pipeline.errormodel.model import ErrorModel
 from qsls.pipeline.errormodel.premise import TrainingStates
-
-
-# --------------------------------------------------------------------------- one controller
-@dataclass(frozen=True)
-class Design:
-    """One solved controller problem (:func:`design`): the solver's answer and, when it gave
-    taps, the certificate's body and the cost. ``qsls synth`` writes it as a controller folder
-    (:func:`certified_controller`); a sweep row is its projection."""
-
-    structure: sls.Structure
-    solution: sls.Solution
-    body: CertificateBody | None = None
-    cost_value: float = math.nan
-
-
-def design(
-    r: Resolved,
-    structure: sls.Structure,
-    *,
-    nominal: sls.Taps | None = None,
-    solver: str = "CLARABEL",
-    certify: bool = True,
-) -> Design:
-    """Solve one controller's problem and certify its taps (infeasible and failed solves are
-    returned, not raised); ``certify=False`` only measures them (a ``reference`` body).
-    ``relaxed`` instead of ``certified`` when the premise does not hold on all the training
-    data."""
-    sol = sls.solve(r.model, structure, r.values(nominal), solver=solver)
-    if sol.taps is None:
-        return Design(structure, sol)
-    shape = replace(r.shape, gate=structure.gate)
-    if certify:
-        holds = r.premise is None or r.premise.holds
-        body = check(
-            sol.taps, r.model, r.numbers, shape, solver_status=sol.status, premise_holds=holds
-        )
-    else:
-        body = check(sol.taps, r.model, r.numbers, shape, reference=True)
-    cost = sls.cost_value(
-        structure.norm, sol.taps, r.model, sls.psd_sqrt(r.Q), sls.psd_sqrt(r.R), r.numbers.eps_w,
-        r.numbers.eps, nominal if cost_of(structure.cost).imitates else None,
-    )  # fmt: skip
-    return Design(structure, sol, body, cost)
-
-
-@dataclass(frozen=True)
-class Built:
-    """One synthesized (or reference) controller with its certificate, ready to write."""
-
-    name: str
-    controller: Controller
-    certificate: Certificate
-    timings: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def status(self) -> Status:
-        return self.certificate.status
-
-    @property
-    def taps(self) -> sls.Taps:
-        return self.controller.taps
-
-
-def _built(
-    name: str, ctrl: Controller, body: CertificateBody, setting: dict[str, Any],
-    timings: dict[str, float],
-) -> Built:  # fmt: skip
-    premise = setting.get("premise")
-    if body.status_reason and premise is not None and premise.S.violated is None:
-        others = [e for k, e in premise.entries().items() if k != "S"]
-        reason = body.status_reason
-        if premise.n_excluded == 0 and all(e.violated == 0.0 for e in others):
-            reason = reason.replace("; " + PREMISE_VIOLATED, "")  # nothing violated: untested
-        body = body.model_copy(update={"status_reason": reason + "; " + S_UNTESTED})
-    if body.status_reason and premise is not None and premise.eps_w_source == RESIDUAL:
-        body = body.model_copy(update={"status_reason": body.status_reason + "; " + NO_INPUTS})
-    cert = Certificate.of(body, **setting, controller_sha256=ctrl.sha256())
-    return Built(name, ctrl, cert, timings)
-
-
-S_UNTESTED = (
-    "S cannot be tested: no two training flights share an environment (leave-one-flight-out "
-    "needs a second flight of the same room and frame), so its value is assumed; certifiable "
-    "with a second flight there"
-)
-NO_INPUTS = (
-    "eps_w cannot be measured: the flights logged no inputs, and the input-free residual is a "
-    "lower bound on any controller's disturbance; certifiable with the commands flown logged "
-    "(qsls fit --inputs) on flights this controller flies (qsls calibrate)"
-)
-
-
-def certified_controller(
-    name: str, d: Design, r: Resolved, *, extra: dict[str, Any] | None = None
-) -> Built:
-    """The controller of a solved :class:`Design` with its certificate."""
-    sol, structure = d.solution, d.structure
-    assert sol.taps is not None and d.body is not None
-    setting = {
-        "controller": name,
-        "robust": structure.robust,
-        "norm": structure.norm,
-        "cost": structure.cost,
-        "cost_value": d.cost_value,
-        "objective": sol.objective,
-        "strictly_proper": structure.strictly_proper,
-        "T": structure.T,
-        **r.record(),
-        "gate": r.numbers.gate
-        if structure.gate
-        else None,  # only a gated design reads through the gate
-        "tested_range": r.premise.tested_range if r.premise else None,
-        "solver_status": sol.solver_status,
-        "dt": r.model.dt,
-        "mass": r.model.mass,
-        "Q": r.Q.tolist(),
-        "R": r.R.tolist(),
-        **(extra or {}),
-        "premise": r.premise,
-    }
-    timings = {"build_time_s": sol.build_time_s, "solve_time_s": sol.solve_time_s}
-    return _built(name, Controller(sol.taps, r.model), d.body, setting, timings)
-
-
-def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) -> Built:
-    """The PD reference: its responses truncated to ``T`` taps are stored, but its norms and
-    guarantee numbers are the true closed loop's (:func:`nominal.static_gain_norms`), never the
-    truncated ones, which underestimate them."""
-    K, taps = pd_responses(r.model, gains, T)
-    body = certify(taps, r.model, r.numbers, r.shape, reference=True)
-    norms = static_gain_norms(r.model, K, T)
-    # weighted norms of the closed loop bounded through its unweighted ones:
-    # ||W_x Phi W_e^-1|| <= max w_x ||Phi|| max 1/w_e, and G_m <= max w_x ||Phi_xy||
-    wx, we = max(r.shape.state_scale), 1.0 / min(r.shape.error_scale)
-    nxy = norms["phi_xy"].value
-    true = Norms(
-        N=wx * nxy * we, N_w=wx * norms["phi_xx_h"].value, G_m=wx * nxy if r.numbers.m > 0 else 0.0
-    )
-    true_norms = {f"norm_{k}": n.value for k, n in norms.items()}
-    body = body.model_copy(update=true_norms | guarantee_fields(r.numbers, true))
-    setting = {
-        "controller": "pd",
-        "robust": False,
-        "norm": None,
-        "cost": None,
-        "strictly_proper": False,
-        "T": T,
-        **r.record(),
-        "gate": None,
-        "closed_loop_norms": norms,
-        "closed_loop_spectral_radius": spectral_radius(r.model, K),
-        "kp": list(gains.kp),
-        "kd": list(gains.kd),
-        "dt": r.model.dt,
-        "mass": r.model.mass,
-        **extra,
-    }
-    return _built("pd", Controller(taps, r.model, "static_gain", K), body, setting, {})
-
-
-def nominal_from_folder(path: Path, T: int) -> sls.Taps:
-    """The responses of the controller in ``path``, truncated (or padded) to ``T`` taps."""
-    if not (Path(path) / CONTROLLER_FILE).is_file():
-        raise InputError(
-            f"imitate: {path} has no {CONTROLLER_FILE}; give pd, l1_nominal or a controller folder"
-        )
-    return Controller.load(Path(path)).taps.truncated(T)
-
-
-IMITATE_NAMED = ("pd", "l1_nominal", "h2_nominal")
-"""Imitation targets synthesized with the controllers; any other ``imitate`` is a folder."""
-
-
-def imitation_target(
-    target: str, T: int, done: Mapping[str, sls.Taps], folder: sls.Taps | None = None
-) -> sls.Taps:
-    """The responses an imitation controller imitates: the PD reference's or a nominal
-    controller's among the responses already ``done`` (by name), or ``folder`` (a controller
-    folder's, read by the stage)."""
-    if target == "pd":
-        return done["pd"]
-    if target in done:
-        return done[target].truncated(T)
-    if target in IMITATE_NAMED:
-        raise InputError(f"imitate: {target} is not synthesized by this configuration")
-    if folder is None:
-        raise InputError(f"imitate: {target}: the controller folder was not read")
-    return folder
 
 
 # --------------------------------------------------------------------------- synth
@@ -258,8 +70,8 @@ class Synthesized:
 
     resolved: Resolved
     controllers: dict[str, Built]
-    paper: Any = None
-    """The paper mode's :class:`~qsls.pipeline.control.papermode.PaperChoice`, if asked."""
+    paper: PaperChoice | None = None
+    """The paper mode's choice of S, if asked."""
 
     def certificates(self) -> dict[str, Certificate]:
         return {n: c.certificate for n, c in self.controllers.items()}
@@ -287,24 +99,6 @@ class SynthResult:
             if cert.status == RELAXED and cert.premise is not None:
                 out[name] += "; " + cert.premise.shares()
         return out
-
-
-def controller_plan(opts: SynthOptions) -> list[tuple[str, sls.Structure]]:
-    """``(name, structure)`` of every synthesized controller, in solve order."""
-    T, sp_ = opts.T, opts.strictly_proper
-    if opts.controllers == "single":
-        rob = "robust" if opts.robust else "nominal"
-        name = f"{opts.norm}_{rob}" + ("_imitation" if opts.cost == "imitation" else "")
-        return [(name, sls.Structure(T, cast(sls.Norm, opts.norm), opts.cost, opts.robust, sp_))]
-    norms: list[sls.Norm] = ["l1", "h2"] if opts.norm == "both" else [opts.norm]
-    plan = []
-    for n in norms:
-        plan += [
-            (f"{n}_nominal", sls.Structure(T, n, "qr", False, sp_)),
-            (f"{n}_robust", sls.Structure(T, n, "qr", True, sp_)),
-            (f"{n}_robust_imitation", sls.Structure(T, n, "imitation", True, sp_)),
-        ]
-    return plan
 
 
 LARGE_T = 100  # horizons from here on solve in tens of seconds to minutes per problem
@@ -358,7 +152,7 @@ def synthesize(
     for name, st in plan:
         nominal = None
         extra = dict(base_extra)
-        if cost_of(st.cost).imitates:
+        if st.cost.imitates:
             done = {n: c.taps for n, c in ctrls.items()}
             nominal = imitation_target(options.imitate, options.T, done, imitate)
             extra["imitate"] = options.imitate
@@ -377,10 +171,6 @@ def synthesize(
         progress.advance()
     choice = None
     if options.paper_mode is not None:
-        from qsls.pipeline.control.papermode import (
-            paper_controllers,  # deferred: import cycle (papermode builds on this module)
-        )
-
         done = {n: c.taps for n, c in ctrls.items()}
         choice, paper = paper_controllers(options, model, training, done, base_extra, imitate)
         ctrls.update(paper)
@@ -402,7 +192,7 @@ def synth(
     mi = read_model(error_model)
     folder = None
     if options.imitate not in IMITATE_NAMED and any(
-        cost_of(st.cost).imitates for _, st in controller_plan(options)
+        st.cost.imitates for _, st in controller_plan(options)
     ):
         folder = nominal_from_folder(Path(options.imitate), options.T)
     result = synthesize(

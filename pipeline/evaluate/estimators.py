@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from qsls.pipeline.core.artifacts import StageWriter
 
 
-class Analysis(Protocol):
+class EstimatorAnalysis(Protocol):
     """What these tables read of one estimator's analysis (the fly stage's
     ``qsls.pipeline.evaluate.fly.Analysis``; the fly stage imports this module, so this one
     states what it reads instead of importing it)."""
@@ -67,7 +67,7 @@ def keyed(tables: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
 
 
-def paired(analyses: Mapping[str, Analysis]) -> pd.DataFrame:
+def paired(analyses: Mapping[str, EstimatorAnalysis]) -> pd.DataFrame:
     """One row per (controller, condition, seed) flown with every estimator: each estimator's
     metrics (``<metric>_<estimator>``) and, for a controller with a guarantee, whether every
     assumption held on that flight and the first that failed. Only flights flown with every
@@ -107,7 +107,7 @@ def estimator_ratios(pairs: pd.DataFrame, a: str, b: str) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def findings_by_estimator(analyses: Mapping[str, Analysis]) -> dict[str, Any]:
+def findings_by_estimator(analyses: Mapping[str, EstimatorAnalysis]) -> dict[str, Any]:
     """The primary's findings document with ``estimator`` and ``by_estimator`` added."""
     primary = next(iter(analyses))
     return {
@@ -117,7 +117,7 @@ def findings_by_estimator(analyses: Mapping[str, Analysis]) -> dict[str, Any]:
     }
 
 
-def findings_markdown(analyses: Mapping[str, Analysis]) -> str:
+def findings_markdown(analyses: Mapping[str, EstimatorAnalysis]) -> str:
     """Each finding's verdict and effect per estimator, one row per finding."""
     vios = list(analyses)
     by_id: dict[str, dict[str, Any]] = {}
@@ -146,7 +146,7 @@ def findings_markdown(analyses: Mapping[str, Analysis]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_by_estimator(w: StageWriter, analyses: Mapping[str, Analysis]) -> dict[str, Any]:
+def write_by_estimator(w: StageWriter, analyses: Mapping[str, EstimatorAnalysis]) -> dict[str, Any]:
     """The keyed and paired tables of the module docstring inside an open writer; returns
     the stage's ``findings.json`` document."""
     w.write_parquet(FLIGHTS_FILE, keyed({v: a.flights for v, a in analyses.items()}))
