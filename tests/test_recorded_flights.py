@@ -260,3 +260,34 @@ def test_a_tick_log_names_its_controller_and_its_ticks_must_be_the_controllers(
     (half / TICKS_FILE).write_bytes(parquet_bytes(sub.frame()))
     got, why = own_log(half, half / TICKS_FILE, "", bound)
     assert got is None and "0.2 s apart" in why, why
+
+
+@pytest.mark.slow
+def test_the_same_flights_as_mavros_bags_give_the_same_scores(
+    px4_run: Path, tmp_path: Path
+) -> None:
+    """``calibrate.standin_log: mavros``: the stand-in's flights recorded as a mavros user would
+    (ROS1 bags, the controller's AttitudeTarget and reference per tick, the hover thrust given)
+    score as their ULogs did, seed for seed (the same simulated flights)."""
+    cfg = yaml.safe_load(CONFIG.read_text())
+    cal = dict(cfg["calibrate"], flights=3, range_flights=0, validation=0, tube=0.0,
+               standin_log="mavros", sim=cfg["simulate"])  # fmt: skip
+    (tmp_path / "mav.yaml").write_text(yaml.safe_dump({"calibrate": cal}))
+    out = tmp_path / "cal"
+    proc = qsls("calibrate", "-m", str(px4_run / "fit"), "--controllers", str(px4_run / "synth"),
+                "-c", "mav.yaml", "-o", str(out), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (out / "standin" / "logs" / "calibration_l1_robust_s31000" / "flight.bag").is_file()
+    bags = pd.read_parquet(out / "scores.parquet").set_index("flight")
+    ulogs = pd.read_parquet(px4_run / "calibrate" / "scores.parquet").set_index("flight")
+    assert len(bags) == 3
+    # the bag's motion capture is a pose (PoseStamped): its velocity is differentiated from
+    # 120 Hz positions, up to 6e-4 m/s off the ULog's odometry velocity, which moves the
+    # ratios by at most 1.4e-3 here (the disturbance's velocity rows over eps_w 0.06)
+    for name, row in bags.iterrows():
+        for part in ("dense", "disturbance", "score"):
+            assert row[part] == pytest.approx(ulogs.loc[name, part], abs=3e-3), (name, part)
+        assert row["reference"] == pytest.approx(ulogs.loc[name, "reference"], rel=1e-6)
+    cert = yaml.safe_load((out / "regular" / "l1_robust" / "certificate.yaml").read_text())
+    assert cert["status"] == "relaxed" and "3 calibration flights" in cert["status_reason"]
+    assert cert["calibration"]["conditions"]["estimate_topic"] == "/vio/odometry"

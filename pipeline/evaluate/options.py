@@ -194,6 +194,9 @@ class CalibrateOptions(Options):
     realization in the simulator, its tick log kept), or ``standin``: the stand-in for a PX4
     vehicle (the exported C behind the PX4 interface, each flight a ULog ingested with the
     vehicle's mass and calibrated as a recorded flight; docs/vehicle.md)."""
+    standin_log: Literal["ulog", "mavros"] = "ulog"
+    """With ``source: standin``, how the stand-in vehicle logs each flight: a PX4 ULog, or a
+    ROS1 bag as a mavros user records it (docs/vehicle.md)."""
     recorded: RecordedFlights = RecordedFlights()
     """Recorded flights by role; given, no flight is simulated (docs/vehicle.md)."""
     design_seeds: list[int] = Field(default_factory=list)

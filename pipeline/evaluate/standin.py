@@ -4,8 +4,10 @@
 the way a user's vehicle would, so the recorded-flights loop runs and is tested without one:
 the EXPORTED C controller (compiled, through ctypes; ``controller.backend: c``) behind the
 PX4 interface (an attitude setpoint and a normalized thrust, the estimate read by its arrival
-time), each flight written as the ULog PX4 would write (``flight.ulg``), then ingested like
-any vehicle's log with the vehicle's mass (``qsls ingest LOG --mass``, which rebuilds the
+time), each flight written as the ULog PX4 would write (``flight.ulg``; or, with
+``standin_log: mavros``, the ROS1 bag a mavros user records, ``flight.bag``), then ingested
+like any vehicle's log with the vehicle's mass (and, for a bag, the hover thrust the interface
+used) (``qsls ingest LOG --mass``, which rebuilds the
 tick log from the log alone). The simulator's own tick log stays beside the ULog
 (``ticks.parquet``), so what the log gives can be compared with the truth.
 """
@@ -23,8 +25,6 @@ from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.evaluate.options import CalibrateOptions, RecordedFlights
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.sim.options import SimOptions
-
-LOG_FILE = "flight.ulg"
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ def standin_sim(options: CalibrateOptions, folder: Path, seed: int,
         "controller": {"kind": str(folder.resolve()), "backend": "c"},
         "vio": {"perception": options.conditions[0]},
         "px4": {"interface": "px4"},
-        "log": {"format": "ulog"},
+        "log": {"format": options.standin_log},
     }
     if any(offset):
         cx, cy = ref.get("center", (0.0, 0.0))
@@ -68,9 +68,8 @@ def fly_standin(job: StandinJob) -> str:
     from qsls.pipeline.sim.simulate import simulate
 
     opts = SimOptions.model_validate(job.sim)
-    simulate(opts, Path(job.log_dir), force=True)
-    ingest([Path(job.log_dir) / LOG_FILE], IngestOptions.model_validate(job.ingest),
-           Path(job.ingest_dir), force=True)  # fmt: skip
+    log = simulate(opts, Path(job.log_dir), force=True).bag
+    ingest([log], IngestOptions.model_validate(job.ingest), Path(job.ingest_dir), force=True)
     return job.ingest_dir
 
 
@@ -82,12 +81,14 @@ def standin_flights(
     offsets: Callable[[int], tuple[float, float, float]],
     progress: Progress = NULL_PROGRESS,
 ) -> RecordedFlights:
-    """Fly every candidate's stand-in flights into ``root`` (``logs/<name>/flight.ulg`` and
+    """Fly every candidate's stand-in flights into ``root`` (``logs/<name>/`` with the log and
     ``flights/<name>/``, the ingest folder) on the pool; the ingest folders by role."""
     calib, valid = options.seed_lists()
     roles = (("calibration", calib), ("range", options.range_seeds), ("validation", valid))
-    ingest = {"dt": dt, "align": "none", "time_offset": 0.0,
-              "mass": float(options.sim.vehicle.mass)}  # fmt: skip
+    ingest: dict[str, Any] = {"dt": dt, "align": "none", "time_offset": 0.0,
+                              "mass": float(options.sim.vehicle.mass)}  # fmt: skip
+    if options.standin_log == "mavros":  # a bag states no hover thrust: the user gives it
+        ingest["hover_thrust"] = float(options.sim.px4.estimate)
     jobs = [
         StandinJob(
             name := f"{role}_{f.name}_s{s}", role,
