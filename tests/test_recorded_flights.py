@@ -291,3 +291,14 @@ def test_the_same_flights_as_mavros_bags_give_the_same_scores(
     cert = yaml.safe_load((out / "regular" / "l1_robust" / "certificate.yaml").read_text())
     assert cert["status"] == "relaxed" and "3 calibration flights" in cert["status_reason"]
     assert cert["calibration"]["conditions"]["estimate_topic"] == "/vio/odometry"
+
+
+def test_commands_options_without_the_mass_are_refused(tmp_path: Path) -> None:
+    text = tmp_path / "vio.tum"
+    text.write_text("".join(f"{k * 0.1} 0 0 1 0 0 0 1\n" for k in range(50)))
+    for flag, value in (("--hover-thrust", "0.5"), ("--commands-topic", "/x")):
+        proc = qsls("ingest", "--vio", str(text), "--truth", str(text), flag, value, "--out",
+                    str(tmp_path / "x"), cwd=tmp_path)  # fmt: skip
+        err = proc.stderr.strip()
+        assert proc.returncode == 2 and "needs the vehicle's mass: give --mass KG" in err, err
+        assert len(err.splitlines()) == 1 and not (tmp_path / "x").exists()

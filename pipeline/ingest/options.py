@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.core.config import Options
 
@@ -61,20 +61,30 @@ class IngestOptions(Options):
     """Skip messages with NaN/inf values instead of stopping."""
     mass: float | None = Field(None, gt=0)
     """The vehicle's mass (kg). Given, ingest also reads the controller's commands (a PX4
-    ULog's attitude setpoints and position setpoints) back to the model's input and writes
-    the flight's tick log, ``ticks.parquet`` (docs/vehicle.md); the log does not hold it."""
+    ULog's attitude and trajectory setpoints, or a mavros bag's) back to the model's input and
+    writes the flight's tick log, ``ticks.parquet`` (docs/vehicle.md); no log holds it."""
     hover_thrust: float | None = Field(None, gt=0, lt=1)
-    """The normalized thrust that hovers the vehicle, overriding the log's (PX4: its
-    ``hover_thrust_estimate`` where valid, else ``MPC_THR_HOVER``); with ``mass`` only."""
-    decoder: Literal["fast", "deserializer"] = "fast"
-    """Message decoding: the fast field reader, or rosbags' full deserializer (a check)."""
+    """The normalized thrust that hovers the vehicle, in the commands' units (PX4: its
+    ``hover_thrust_estimate`` where valid, else ``MPC_THR_HOVER``, is read from a ULog; a
+    mavros bag needs it given); with ``mass`` only."""
     commands_topic: str | None = None
-    """A bag's attitude setpoints (mavros_msgs/AttitudeTarget), with ``mass`` (a bag states no
-    hover thrust: give ``hover_thrust``); default: /mavros/setpoint_raw/target_attitude, else
-    /mavros/setpoint_raw/attitude."""
+    """A bag's attitude setpoints (mavros_msgs/AttitudeTarget), with ``mass``; default:
+    /mavros/setpoint_raw/attitude (the controller's own), else
+    /mavros/setpoint_raw/target_attitude."""
     reference_topic: str | None = None
     """A bag's reference (mavros_msgs/PositionTarget, one per tick), with ``mass``; default:
     /qsls/reference, else /mavros/setpoint_raw/local."""
+
+    @model_validator(mode="after")
+    def _commands_need_the_mass(self) -> IngestOptions:
+        given = [k for k in ("hover_thrust", "commands_topic", "reference_topic")
+                 if getattr(self, k) is not None]  # fmt: skip
+        if given and self.mass is None:
+            raise ValueError(
+                f"{', '.join(given)} reads the controller's commands, which needs the vehicle's "
+                "mass: give --mass KG (docs/vehicle.md)"
+            )
+        return self
 
     @field_validator("truth_frame")
     @classmethod
