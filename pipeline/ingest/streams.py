@@ -38,6 +38,7 @@ from qsls.pipeline.ingest.sources.select import (
     find_topic,
 )
 from qsls.pipeline.ingest.sources.text.reader import TEXT_READERS
+from qsls.pipeline.ingest.sources.ulog import px4
 from qsls.pipeline.ingest.sources.ulog.px4 import MSGTYPE_PREFIX
 
 if TYPE_CHECKING:
@@ -177,7 +178,7 @@ def _read_ulogs(ulogs: dict[str, Path], o: IngestOptions) -> dict[str, Trajector
     serves (:func:`~qsls.pipeline.ingest.sources.ulog.reader.read_odometries`)."""
     if not ulogs:
         return {}
-    from qsls.pipeline.ingest.sources.ulog import px4
+    # deferred: the ULog reader (its imports, 10 ms) only when a ULog is read
     from qsls.pipeline.ingest.sources.ulog.reader import parse_topic, read_odometries
 
     spec = {
@@ -232,7 +233,7 @@ def read_vio_stream(
     if kind in TEXT_READERS:
         return dataclasses.replace(TEXT_READERS[kind](source), source=str(source))
     if kind == "ulog":
-        from qsls.pipeline.ingest.sources.ulog import px4
+        # deferred: the ULog reader (its imports, 10 ms) only when a ULog is read
         from qsls.pipeline.ingest.sources.ulog.reader import parse_topic, read_odometry
 
         traj = read_odometry(source, *parse_topic(vio_topic or px4.DEFAULT_VIO_TOPIC))
