@@ -15,7 +15,13 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from qsls.pipeline.control.costs import PremiseNorms, cost_of
+from qsls.pipeline.control.costs import (
+    RATIO,
+    ErrorGain,
+    NoCost,
+    PremiseNorms,
+    WeightedCost,
+)
 from qsls.pipeline.control.guarantee import (
     VELOCITY,
     error_weights,
@@ -44,7 +50,7 @@ class VectorizedProblem(SLSProblem):
         if s.T < 2:
             raise ValueError(f"horizon T must be at least 2, got {s.T}")
         self.model, self.structure = model, s
-        self.cost = cost_of(s.cost)
+        self.cost = cost = s.cost
         # With C = I the Phi_xy equations follow from the others: Phi_xy(k) = Phi_xx(k+1) -
         # Phi_xx(k) A and Phi_uy(k) = Phi_ux(k+1) - Phi_ux(k) A (right equations), and then
         # A Phi_xy(k) + B Phi_uy(k) = [A Phi_xx(k+1) + B Phi_ux(k+1)] - [A Phi_xx(k) + B
@@ -106,7 +112,7 @@ class VectorizedProblem(SLSProblem):
             cons.append(lhs <= p["c_rhs"])
             if s.gate:
                 cons += self._gate_constraints(X @ ih, Y, s, measured, T, ny, p)
-        if s.cost in ("qr", "imitation"):
+        if isinstance(cost, WeightedCost):
             blocks = {}
             for name, var, rows, right in (
                 ("xx", X, nx, ih),
@@ -120,7 +126,7 @@ class VectorizedProblem(SLSProblem):
                 else:
                     p["L" + name] = cp.Parameter((rows, rows), name="L" + name)
                     weight = p["L" + name]
-                if s.cost == "qr":
+                if not cost.imitates:  # c_QR
                     v = var if right is None else var @ right
                     blocks[name] = weight @ v
                 else:
@@ -132,16 +138,16 @@ class VectorizedProblem(SLSProblem):
                 objective = cp.max(cp.hstack([rows_x, rows_u]))
             else:
                 objective = sum(cp.sum_squares(v) for v in blocks.values())
-        elif s.cost == "min_phi_xy":
+        elif isinstance(cost, ErrorGain):
             objective = n_xy
-        elif s.cost == "ratio":  # Dinkelbach: min lambda N + (eps_w / r) N_w + (eps_o / r) G_m
+        elif cost == RATIO:  # Dinkelbach: min lambda N + (eps_w / r) N_w + (eps_o / r) G_m
             p["lam"] = cp.Parameter(nonneg=True, name="lambda")
             p["c_xx_ratio"] = cp.Parameter(nonneg=True, name="eps_w_over_r_ratio")
             objective = p["lam"] * n_xy + p["c_xx_ratio"] * n_xx
             if g_m is not None:
                 p["c_o_ratio"] = cp.Parameter(nonneg=True, name="eps_o_over_r_ratio")
                 objective = objective + p["c_o_ratio"] * g_m
-        elif s.cost == "none":
+        elif isinstance(cost, NoCost):
             objective = cp.Constant(0.0)  # type: ignore[assignment]
         else:
             raise ValueError(f"unknown cost {s.cost!r}")
@@ -197,11 +203,21 @@ class VectorizedProblem(SLSProblem):
         return out
 
     # ---- parameters
-    def set_weights(self, v: Values, cost: Any = None) -> None:
+    def set_values(self, v: Values) -> None:
+        """The premise's Parameters as the eliminated problem sets them; the weights of
+        ``c_QR`` and ``c_im`` its own (this formulation's Parameters are not the eliminated
+        problem's, which the cost objects set), any other cost's by the cost."""
+        self._set_premise(v)
+        if isinstance(self.cost, WeightedCost):
+            self.set_weights(v)
+        else:
+            self.cost.set_values(self, self.params, v)
+
+    def set_weights(self, v: Values) -> None:
         s, p = self.structure, self.params
         qh = psd_sqrt(v.Q, "Q")
         rh = psd_sqrt(v.R, "R")
-        if s.cost == "qr":
+        if not self.cost.imitates:  # c_QR
             n = v.numbers
             w = {"xx": n.eps_w, "xy": n.eps, "ux": n.eps_w, "uy": n.eps}
         else:
@@ -213,7 +229,7 @@ class VectorizedProblem(SLSProblem):
                 p["L" + name].value = w[name] * np.diag(half)
             else:
                 p["L" + name].value = w[name] * half
-        if s.cost == "imitation":
+        if self.cost.imitates:
             if v.nominal is None:
                 raise ValueError("the imitation cost needs nominal responses")
             n = v.nominal.truncated(s.T)
@@ -257,8 +273,8 @@ class SharedRowsProblem(SLSProblem):
         wx = np.asarray(s.state_scale, float)
         read = np.flatnonzero(wx > 0)
         inv_e = error_weights(s.error_scale, measured_channels(s.measure))
-        self._rs_xh = self._sums("Phi_xx_H", lambda t, i, j: 1.0)
-        self._rs_xy = self._sums("Phi_xy", lambda t, i, j: inv_e[j])
+        self._rs_xh = self.sums("Phi_xx_H", lambda t, i, j: 1.0)
+        self._rs_xy = self.sums("Phi_xy", lambda t, i, j: inv_e[j])
         n_xy = cp.max(cp.multiply(wx[read], self._rs_xy[read]))
         n_xx = cp.max(cp.multiply(wx[read], self._rs_xh[read]))
         channels = outlier_channels(s.measure, s.m)
@@ -266,7 +282,7 @@ class SharedRowsProblem(SLSProblem):
         if not channels:
             return PremiseNorms(n_xy, n_xx, None)
         rows = sorted(set(read.tolist()) | (set(VELOCITY) if s.gate else set()))
-        per_tap = self._sums("Phi_xy", lambda t, i, j: np.isin(j, channels), by_tap=True)
+        per_tap = self.sums("Phi_xy", lambda t, i, j: np.isin(j, channels), by_tap=True)
         pick = np.concatenate([np.arange(i * T, (i + 1) * T) for i in rows])
         g = cp.Variable(len(rows))
         q = cp.Variable(len(rows))

@@ -208,36 +208,3 @@ def test_certificate_checks_catch_a_wrong_response():
     assert c.status == FAILED
     assert c.achievability_residual > 1e-7 and not c.checks["achievability"]["passed"]
     assert c.realization_error > 1e-8 and not c.checks["realization"]["passed"]
-
-
-def test_a_new_cost_is_one_class_registered_by_name(monkeypatch):
-    """Issue 36: a cost is an object; one registered in COSTS is compiled by name with no
-    change to the problem. Here the smallest disturbance gain ``N_w = ||Phi_xx H||``: its
-    optimum equals the gain recomputed from the taps, and no c_QR design has a smaller one."""
-    from qsls.pipeline.control import costs
-    from qsls.pipeline.control.taps import l1_norm
-
-    class MinDisturbanceGain:
-        name = "min_phi_xx"
-        needs_norms = True
-        imitates = False
-
-        def objective(self, prob, p, norms):
-            return norms.N_w
-
-        def set_values(self, prob, p, v):
-            return None
-
-    monkeypatch.setitem(costs.COSTS, "min_phi_xx", MinDisturbanceGain())
-    sol = sls.solve(MODEL, sls.Structure(10, "l1", "min_phi_xx", False), sls.Values(Q=Q, R=R))
-    assert sol.status == "optimal"
-    gain = l1_norm(sol.taps.Phi_xx, MODEL.H)
-    assert sol.objective == pytest.approx(gain, rel=1e-6)
-    qr = sls.solve(
-        MODEL,
-        sls.Structure(10, "l1", "qr", False),
-        sls.Values(Q=Q, R=R, numbers=replace(sls.NO_PREMISE, eps_w=1.0, eps=0.5)),
-    )
-    assert gain <= l1_norm(qr.taps.Phi_xx, MODEL.H) + 1e-7
-    with pytest.raises(ValueError, match="unknown cost 'nope'; the costs are qr, imitation"):
-        costs.cost_of("nope")

@@ -13,11 +13,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from qsls.pipeline.core.errors import InputError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 TICKS_FILE = "ticks.parquet"
 """The controller's own log of a flight, at its ticks."""
@@ -54,6 +57,8 @@ class TickLog(FlownLog):
     """Its ``controller.npz``'s sha256, where the writer knew it."""
 
     def frame(self) -> pd.DataFrame:
+        import pandas as pd  # deferred: ingest imports this module and reads no pandas
+
         cols: dict[str, np.ndarray] = {"t": self.t}
         for prefix, a, names in (("x", self.x, STATE), ("y", self.y, STATE), ("u", self.u, INPUT),
                                  ("r", self.ref, STATE), ("uff", self.uff, INPUT)):  # fmt: skip
@@ -70,6 +75,8 @@ class TickLog(FlownLog):
         (:class:`~qsls.pipeline.core.errors.InputError`) where it is unreadable, lacks a column,
         holds fewer than :data:`MIN_TICKS` ticks, a time that does not increase, or a value
         that is not finite: a check must never pass on what a log does not hold."""
+        import pandas as pd  # deferred: ingest imports this module and reads no pandas
+
         f = path / TICKS_FILE if path.is_dir() else path
         try:
             df = pd.read_parquet(f)

@@ -24,7 +24,9 @@ from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.evaluate.options import CalibrateOptions, RecordedFlights
 from qsls.pipeline.ingest.options import IngestOptions
+from qsls.pipeline.ingest.stage import ingest
 from qsls.pipeline.sim.options import SimOptions
+from qsls.pipeline.sim.simulate import simulate
 
 
 @dataclass(frozen=True)
@@ -64,9 +66,6 @@ def standin_sim(options: CalibrateOptions, folder: Path, seed: int,
 
 def fly_standin(job: StandinJob) -> str:
     """Fly one stand-in flight and ingest its ULog (in a worker: paths in, path out)."""
-    from qsls.pipeline.ingest.stage import ingest
-    from qsls.pipeline.sim.simulate import simulate
-
     opts = SimOptions.model_validate(job.sim)
     log = simulate(opts, Path(job.log_dir), force=True).bag
     ingest([log], IngestOptions.model_validate(job.ingest), Path(job.ingest_dir), force=True)

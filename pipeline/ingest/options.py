@@ -67,6 +67,8 @@ class IngestOptions(Options):
     """The normalized thrust that hovers the vehicle, in the commands' units (PX4: its
     ``hover_thrust_estimate`` where valid, else ``MPC_THR_HOVER``, is read from a ULog; a
     mavros bag needs it given); with ``mass`` only."""
+    decoder: Literal["fast", "deserializer"] = "fast"
+    """Message decoding: the fast field reader, or rosbags' full deserializer (a check)."""
     commands_topic: str | None = None
     """A bag's attitude setpoints (mavros_msgs/AttitudeTarget), with ``mass``; default:
     /mavros/setpoint_raw/attitude (the controller's own), else

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
 from qsls.pipeline.core.artifacts import StageWriter, npz_bytes
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.rotations import quat_mul
@@ -250,8 +251,6 @@ def controller_identity(
     kind = options.controller.kind
     if controller is not None or kind in ("se3", "pd"):
         return Identity(flight.controller)
-    from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Certificate
-
     folder = controller_folder(kind)
     if not (folder / CERTIFICATE_FILE).is_file():
         return Identity(flight.controller)
@@ -333,7 +332,8 @@ def simulate(
             w.write_bytes(CAMERA_FRAME, npz_bytes(flight.camera_frame))
         for fname, df in _frames(flight, clocks["vio_clock_start_ns"]).items():
             w.write_parquet(fname, df)
-        ticks = tick_log(flight, options.reference)
+        identity = controller_identity(options, flight, controller)
+        ticks = tick_log(flight, options.reference, identity.sha256 or "")
         w.write_parquet(TICKS_FILE, ticks.frame())
         w.results.update(
             {
