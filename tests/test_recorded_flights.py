@@ -241,7 +241,7 @@ def test_a_tick_log_names_its_controller_and_its_ticks_must_be_the_controllers(
     (bound,) = load_bounds([px4_run / "calibrate" / "regular" / "l1_robust"])
     sim = px4_run / "calibrate" / "standin" / "logs" / standin(px4_run, "validation")[0]
     log = TickLog.read(sim / TICKS_FILE)
-    assert log.controller == "l1_robust"
+    assert log.controller == "l1_robust" and len(log.controller_sha256) == 64
     assert own_log(sim, sim / TICKS_FILE, "", bound)[0] is not None
     cases = {
         "flown by pd": dict(controller="pd", controller_sha256=""),
