@@ -199,7 +199,12 @@ def ulog_info(path: Path) -> dict[str, Any]:
     of ``path`` (the same walk as :func:`ulog_topics`; the dropouts' stamps are the largest
     data timestamp before each, as pyulog gives them)."""
     info = _summary(path)[1]
-    return {**info, "dropouts": list(info["dropouts"])}
+    return {  # copies: the caller's to change, not the cache's
+        **info,
+        "parameters": dict(info["parameters"]),
+        "info": dict(info["info"]),
+        "dropouts": list(info["dropouts"]),
+    }
 
 
 def parse_topic(spec: str) -> tuple[str, int]:
