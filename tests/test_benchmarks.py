@@ -204,6 +204,21 @@ def tune_pd(out: str) -> None:
     assert positive(score) and score == min(r[2] for r in grid)
 
 
+def ulog(out: str) -> None:
+    ((minutes, msgs, mb, vio),) = numbers(
+        r"PX4 ULog: {n} min, {n} messages in 5 topics, {n} MB \(written in \S+ s; VIO and mocap "
+        r"odometry at 200 Hz, {n} VIO messages\)", out)  # fmt: skip
+    assert minutes == 0.2 and msgs == 15000 and vio == 2400 and positive(mb)
+    for _wall, _cpu, rss in numbers(
+        r"(?m)^(?:read_odometry\(|pyulog |qsls ingest )[^\n]*?\s{n}\s+{n}\s+{n}$", out, 4
+    ):
+        assert positive(rss)
+    ((speed, _extra, _naive, size),) = numbers(
+        r"read_odometry: {n}x the naive way's speed; peak RSS above the imports {n} MB "
+        r"\(naive {n} MB\) for a {n} MB log", out)  # fmt: skip
+    assert positive(speed, size)
+
+
 FIGURES: dict[str, Callable[[str], None]] = {
     "bench_camera.py": camera,
     "bench_camera_consistency.py": camera_consistency,
@@ -217,6 +232,7 @@ FIGURES: dict[str, Callable[[str], None]] = {
     "bench_rpe.py": rpe,
     "bench_run.py": run,
     "bench_simulate.py": simulate,
+    "bench_ulog.py": ulog,
     "bench_sweep.py": sweep,
     "bench_synth.py": synth,
     "fresh.py": fresh,

@@ -50,8 +50,8 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 def test_sitl_estimate_against_its_truth(logs: Path, tmp_path: Path) -> None:
     """The estimator's ``vehicle_local_position`` against the simulator's
     ``vehicle_local_position_groundtruth``, through ``qsls ingest``. Both are on PX4's one
-    clock (``--time-offset 0``: the vehicle sits still for these 10.8 s, so no offset
-    could be estimated from the motion). Measured: position RMS 0.0170 m, velocity RMS
+    clock, so ingest takes the offset as 0 without estimating it (the vehicle sits still for
+    these 10.8 s: no offset could be estimated from the motion). Measured: position RMS 0.0170 m, velocity RMS
     0.150 m/s. The truth's x and y move in steps of 7.5 and 11.1 mm (the simulator's
     position passes through a float latitude/longitude) while the estimate stays within
     3 mm: the position error is that quantization (its RMS over a few steps is under 2 cm;
@@ -61,11 +61,11 @@ def test_sitl_estimate_against_its_truth(logs: Path, tmp_path: Path) -> None:
     res = CliRunner().invoke(
         app,
         ["ingest", str(logs / SITL), "--vio-topic", "vehicle_local_position",
-         "--truth-topic", "vehicle_local_position_groundtruth", "--time-offset", "0",
-         "--out", str(out)],
+         "--truth-topic", "vehicle_local_position_groundtruth", "--out", str(out)],
     )  # fmt: skip
     assert res.exit_code == 0, res.output
     r = json.loads((out / "manifest.json").read_text())["results"]
+    assert r["time_offset_s"] == 0.0 and r["time_offset"]["method"].startswith("one clock")
     assert r["samples"] == 101 and r["gaps"] == []
     assert r["rms_position_m"] < 0.025
     assert r["rms_velocity_mps"] < 0.25

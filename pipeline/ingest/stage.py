@@ -87,6 +87,18 @@ def _describe_stream(s: dict[str, Any]) -> str:
     return f"{s['topic']} ({kind}, {s['messages']} msgs, {s['rate_hz']:.1f} Hz)"
 
 
+def one_clock(vio: Trajectory, truth: Trajectory) -> bool:
+    """Whether both streams come from one PX4 ULog: PX4 stamped both on its one clock, so the
+    offset between them is 0 (``time_offset: auto`` is not estimated)."""
+    src = Path(vio.source)
+    return (
+        bool(vio.source)
+        and vio.source == truth.source
+        and src.is_file()
+        and (detect(src) == "ulog")
+    )
+
+
 def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> RecordedTicks:
     """The tick log of a flight whose log holds the controller's commands (``o.mass`` given):
     read from the estimate's log (:mod:`qsls.pipeline.ingest.ticks`):
@@ -204,8 +216,10 @@ def _ingest(
 ) -> IngestResult:
     streams = read_streams(sources, o, progress)
     ticks = commanded_ticks(streams[0], streams[1], o) if o.mass is not None else None
+    one = one_clock(streams[0], streams[1]) and o.time_offset == "auto"
+    core = o.model_copy(update={"time_offset": 0.0}) if one else o
     # the core gets the only references to the streams: it drops their arrays once used
-    flight = flight_from_streams(streams.pop(0), streams.pop(), o)
+    flight = flight_from_streams(streams.pop(0), streams.pop(), core)
     files = {TUM_FILES[role]: tum_text(*track).encode() for role, track in flight.tracks.items()}
     # the files are serialized while the input hash may still run; the writer needs it
     files = {FLIGHT_FILE: parquet_bytes(flight.table), **files}
@@ -213,6 +227,8 @@ def _ingest(
         files[TICKS_FILE] = parquet_bytes(ticks.log.frame())
     hashed.result()
     r = dict(flight.results)
+    if one:
+        r["time_offset"] = {"method": "one clock: both streams of one PX4 ULog, stamped by PX4"}
     if ticks is not None:
         r["ticks"] = ticks.facts
     with StageWriter(out, STAGE, options=o, inputs=inputs, force=force) as w:
