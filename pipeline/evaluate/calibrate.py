@@ -120,7 +120,10 @@ def fly_job(job: Job) -> TickLog:
             "height": float(ref.get("height", 1.0)) + job.offset[2],
         }
     opts = SimOptions.model_validate(merge(job.sim, over))
-    sha = Certificate.load(Path(job.folder)).controller_sha256
+    folder = Path(job.folder)
+    sha = (
+        Certificate.load(folder).controller_sha256 if (folder / CERTIFICATE_FILE).is_file() else ""
+    )
     return tick_log(fly(opts), opts.reference, sha)
 
 
