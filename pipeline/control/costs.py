@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -251,42 +251,39 @@ class Scaled(Cost):
 
 
 @dataclass(frozen=True)
-class ErrorGain(Cost):
+class _PremiseGain(Cost):
+    """One of the premise's gains (:class:`PremiseNorms`), named by ``gain``."""
+
+    gain: ClassVar[str]
+
+    @property
+    def needs_norms(self) -> bool:
+        return True
+
+    def objective(self, prob: Problem, p: dict[str, Any], norms: PremiseNorms | None) -> Any:
+        assert norms is not None
+        return getattr(norms, self.gain)
+
+
+@dataclass(frozen=True)
+class ErrorGain(_PremiseGain):
     """``N = ||W_x Phi_xy W_e^-1||``, the premise's error gain."""
 
-    @property
-    def needs_norms(self) -> bool:
-        return True
-
-    def objective(self, prob: Problem, p: dict[str, Any], norms: PremiseNorms | None) -> Any:
-        assert norms is not None
-        return norms.N
+    gain: ClassVar[str] = "N"
 
 
 @dataclass(frozen=True)
-class DisturbanceGain(Cost):
+class DisturbanceGain(_PremiseGain):
     """``N_w = ||W_x Phi_xx H||``, the premise's disturbance gain."""
 
-    @property
-    def needs_norms(self) -> bool:
-        return True
-
-    def objective(self, prob: Problem, p: dict[str, Any], norms: PremiseNorms | None) -> Any:
-        assert norms is not None
-        return norms.N_w
+    gain: ClassVar[str] = "N_w"
 
 
 @dataclass(frozen=True)
-class SparseGain(Cost):
+class SparseGain(_PremiseGain):
     """``G_m``, the premise's sparse gain (no term without outlier channels)."""
 
-    @property
-    def needs_norms(self) -> bool:
-        return True
-
-    def objective(self, prob: Problem, p: dict[str, Any], norms: PremiseNorms | None) -> Any:
-        assert norms is not None
-        return norms.G_m
+    gain: ClassVar[str] = "G_m"
 
 
 @dataclass(frozen=True)
