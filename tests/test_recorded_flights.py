@@ -302,3 +302,16 @@ def test_commands_options_without_the_mass_are_refused(tmp_path: Path) -> None:
         err = proc.stderr.strip()
         assert proc.returncode == 2 and "needs the vehicle's mass: give --mass KG" in err, err
         assert len(err.splitlines()) == 1 and not (tmp_path / "x").exists()
+
+
+def test_a_run_configs_recorded_list_is_its_calibration_flights() -> None:
+    from qsls.pipeline.evaluate.options import CalibrateOptions
+
+    o = CalibrateOptions.model_validate({"recorded": ["flights/a", "flights/b"]})
+    assert o.recorded.calibration == [Path("flights/a"), Path("flights/b")]
+    assert o.recorded.range == [] and o.recorded.given
+    o = CalibrateOptions.model_validate(
+        {"recorded": {"calibration": ["c"], "validation": ["v1", "v2"]}}
+    )
+    assert o.recorded.validation == [Path("v1"), Path("v2")]
+    assert not CalibrateOptions().recorded.given

@@ -198,7 +198,14 @@ class CalibrateOptions(Options):
     """With ``source: standin``, how the stand-in vehicle logs each flight: a PX4 ULog, or a
     ROS1 bag as a mavros user records it (docs/vehicle.md)."""
     recorded: RecordedFlights = RecordedFlights()
-    """Recorded flights by role; given, no flight is simulated (docs/vehicle.md)."""
+    """Recorded flights by role (``calibration``, ``range``, ``validation``; a plain list is the
+    calibration flights); given, no flight is simulated (docs/vehicle.md)."""
+
+    @field_validator("recorded", mode="before")
+    @classmethod
+    def _a_list_is_calibration(cls, v: object) -> object:
+        return {"calibration": v} if isinstance(v, list | tuple | str) else v
+
     design_seeds: list[int] = Field(default_factory=list)
     """Seeds of the design flights (``qsls run`` fills them in): a calibration or validation
     seed among them is refused, as is a validation seed among the calibration ones."""

@@ -91,7 +91,7 @@ def build_graph(
     graph.add(Stage("synth", "synth", synth_opts, _synth_exec(synth_opts, progress), deps=("fit",)))
     calibrated = None
     if cfg.calibrate is not None and "calibrate" in wanted:
-        calibrated = _calibrate_stage(graph, cfg, src, progress)
+        calibrated = _calibrate_stage(graph, cfg, base, src, progress)
     heldout = ingest_ids["heldout"]
     if "evaluate" not in wanted:
         return graph
@@ -240,13 +240,19 @@ def design_seeds(cfg: RunConfig) -> list[int]:
     return seeds
 
 
-def _calibrate_stage(graph: StageGraph, cfg: RunConfig, src: Src, progress: Progress) -> str:
+def _calibrate_stage(
+    graph: StageGraph, cfg: RunConfig, base: Path, src: Src, progress: Progress
+) -> str:
     """The candidates' calibration and validation flights (docs/calibration.md), under the
     run's ``simulate:`` conditions, on seeds no design flight used."""
     given = cfg.written("calibrate") or {}
     data = merge(given, {"sim": merge(cfg.written("simulate"), given.get("sim") or {})})
     data["design_seeds"] = sorted(set(design_seeds(cfg)) | set(given.get("design_seeds") or []))
     opts = validate(CalibrateOptions, data, src("calibrate"))
+    rec = opts.recorded  # the user's flights, where the config says, relative to it
+    opts = opts.model_copy(update={"recorded": rec.model_copy(update={
+        role: [resolve_path(base, p) for p in getattr(rec, role)]
+        for role in ("calibration", "range", "validation")})})  # fmt: skip
     try:
         opts.seed_lists()
     except ConfigError as exc:
@@ -262,9 +268,12 @@ def _calibrate_stage(graph: StageGraph, cfg: RunConfig, src: Src, progress: Prog
         run = calibrate_recorded if opts.recorded.given or opts.source == "standin" else calibrate
         return run(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
 
+    external = tuple(Path(p) for r in ("calibration", "range", "validation")
+                     for p in getattr(opts.recorded, r))  # fmt: skip
     graph.add(
-        Stage("calibrate", "calibrate", opts, execute, deps=("fit", "synth"), notes=_calibrated)
-    )
+        Stage("calibrate", "calibrate", opts, execute, deps=("fit", "synth"), notes=_calibrated,
+              external=external)
+    )  # fmt: skip
     return str(opts.conditions[0])
 
 
