@@ -64,10 +64,7 @@ def _register(only: str | None = None) -> None:
     for name, module in COMMANDS:
         if only is not None and name != only:
             continue
-        full = f"qsls.cli.{module}"
-        if importlib.util.find_spec(full) is None:
-            continue  # a stage not built yet
-        mod = importlib.import_module(full)
+        mod = importlib.import_module(f"qsls.cli.{module}")
         example = getattr(mod, "EXAMPLE", None)
         epilog = f"\b\nExample:\n  {example}" if example else None
         app.command(name, epilog=epilog)(mod.command)

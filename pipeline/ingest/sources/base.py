@@ -20,6 +20,9 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 
+METADATA = "metadata.yaml"
+"""A rosbag2 folder's listing of its storage files and topics."""
+
 KINDS = ("ros1", "rosbag2", "db3", "mcap", "ulog", "tum", "euroc")
 BAG_HINT = (
     "give a ROS1 .bag, a rosbag2 folder (or its .db3/.mcap file), a plain .mcap, "
@@ -144,7 +147,7 @@ def detect(path: Path) -> str:
     if not path.exists():
         raise InputError(f"{path}: no such file or folder; check the path")
     if path.is_dir():
-        if (path / "metadata.yaml").is_file():
+        if (path / METADATA).is_file():
             return "rosbag2"
         raise InputError(f"{path}: folder without metadata.yaml is not a rosbag2 bag; {BAG_HINT}")
     if path.stat().st_size == 0:
@@ -164,7 +167,7 @@ def detect(path: Path) -> str:
 
 
 def _listed_in_metadata(path: Path) -> bool:
-    meta = path.parent / "metadata.yaml"
+    meta = path.parent / METADATA
     return meta.is_file() and path.name in meta.read_text(errors="replace")
 
 

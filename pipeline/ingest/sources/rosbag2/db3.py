@@ -8,7 +8,7 @@ from pathlib import Path
 
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.ingest.sources.anyreader import temp_link
-from qsls.pipeline.ingest.sources.base import BAG_HINT, locked_hint
+from qsls.pipeline.ingest.sources.base import BAG_HINT, METADATA, locked_hint
 
 
 def db3_folder(db: Path) -> Path:
@@ -62,5 +62,5 @@ def db3_folder(db: Path) -> Path:
             "compression_mode": "",
         }
     }
-    (folder / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    (folder / METADATA).write_text(yaml.safe_dump(meta))
     return folder

@@ -14,6 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path, PurePath
 
+from qsls.pipeline.ingest.sources.base import METADATA
+
 STORAGES = ("sqlite3", "mcap")
 
 
@@ -35,7 +37,7 @@ def open_rosbag2(folder: Path) -> Rosbag2Listing | None:
 
     try:
         loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's parser when built
-        meta = yaml.load((Path(folder) / "metadata.yaml").read_text(), Loader=loader)
+        meta = yaml.load((Path(folder) / METADATA).read_text(), Loader=loader)
         info = meta["rosbag2_bagfile_information"]
         storage = info["storage_identifier"]
         if int(info["version"]) > 9 or storage not in STORAGES:
