@@ -8,7 +8,7 @@ from typing import Any
 import typer
 
 from qsls.cli.common import cli_errors
-from qsls.cli.fields import Flag, model_options
+from qsls.cli.fields import Flag, model_options, repeated_list
 from qsls.pipeline.evaluate.options import CalibrateOptions
 
 EXAMPLE = "qsls calibrate -m fit --controllers synth -o cal --recorded flights/cal"
@@ -35,9 +35,18 @@ EXAMPLE = "qsls calibrate -m fit --controllers synth -o cal --recorded flights/c
         "jobs": ("--jobs", "-j"),
         "scheduler": ("--scheduler",),
         "wait_workers": ("--wait-workers",),
-        "recorded.calibration": Flag(("--recorded",), name="recorded"),
-        "recorded.range": Flag(("--recorded-range",), name="recorded_range"),
-        "recorded.validation": Flag(("--recorded-validation",), name="recorded_validation"),
+        "recorded.calibration": Flag(
+            ("--recorded",), name="recorded", parse=repeated_list, kind=list[str]
+        ),
+        "recorded.range": Flag(
+            ("--recorded-range",), name="recorded_range", parse=repeated_list, kind=list[str]
+        ),
+        "recorded.validation": Flag(
+            ("--recorded-validation",),
+            name="recorded_validation",
+            parse=repeated_list,
+            kind=list[str],
+        ),
     },
 )
 def command(

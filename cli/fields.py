@@ -51,6 +51,12 @@ def auto_or_number(text: str, flag: str) -> float | str:
         raise ConfigError(f"{flag}: expected 'auto' or a number, got {text!r}") from None
 
 
+def repeated_list(texts: list[str], flag: str) -> list[str]:
+    """A ``Flag`` parser for a list option given repeated and/or comma-separated
+    (``--recorded a --recorded b,c`` -> ``[a, b, c]``); use with ``kind=list[str]``."""
+    return [p.strip() for text in texts for p in text.split(",") if p.strip()]
+
+
 def as_given(text: str, flag: str) -> str:
     """A ``Flag`` parser that hands the model the command line's text (a number-or-name the
     stage reads itself, a reference spelled as text)."""

@@ -73,7 +73,8 @@ def test_certified_from_ulog_flights_alone(px4_run: Path) -> None:
     assert cond["estimate_topic"] == "vehicle_visual_odometry"
     assert cond["vehicle"]["mass"] == MASS
     assert cond["vehicle"]["hover_source"] == "hover_thrust_estimate"
-    assert abs(cond["vehicle"]["hover_thrust"] - 0.45) < 1e-7  # the log's float32
+    low, high = cond["vehicle"]["hover_thrust"]  # over the flights, as their logs state it
+    assert abs(low - 0.45) < 1e-7 and abs(high - 0.45) < 1e-7  # the log's float32
     assert cert["status"] == "certified"
     report = (px4_run / "report" / "report.md").read_text()
     assert "calibration flights are recorded flights of the vehicle" in report
@@ -181,7 +182,8 @@ def test_recorded_calibration_refusals(px4_run: Path, tmp_path: Path) -> None:
         "vehicle mass 0.3": [a, heavy],
     }
     for want, given in cases.items():
-        args = ["--recorded", ",".join(map(str, given))]
+        # repeated, the second comma-separated (both read)
+        args = ["--recorded", str(given[0]), "--recorded", f"{given[1]},"]
         out = tmp_path / f"cal_{len(want)}"
         proc = qsls("calibrate", "-m", str(px4_run / "fit"), "--controllers",
                     str(px4_run / "synth"), "-o", str(out), *args, cwd=tmp_path)  # fmt: skip
@@ -315,3 +317,38 @@ def test_a_run_configs_recorded_list_is_its_calibration_flights() -> None:
     )
     assert o.recorded.validation == [Path("v1"), Path("v2")]
     assert not CalibrateOptions().recorded.given
+
+
+def test_a_tick_log_needs_one_frame_one_clock_and_every_command(tmp_path: Path) -> None:
+    """Refused in one line: an estimate in another frame or on another clock than the truth
+    (the tick log is the log's own), and a log that lost commands (a logger dropout: the
+    replay cannot follow the filter through ticks the log does not hold)."""
+    from qsls.pipeline.core.errors import InputError
+    from qsls.pipeline.ingest.stage import one_frame
+
+    same = {"alignment": {"yaw_rad": 0.001, "translation": [0.01, 0, 0]}, "time_offset_s": 0.0}
+    one_frame(same)
+    for bad, said in (
+        ({"yaw_rad": 0.5236, "translation": [0, 0, 0]}, "30.00 deg"),
+        ({"yaw_rad": 0.0, "translation": [2.0, 0, 0]}, "2.000 m"),
+    ):
+        with pytest.raises(InputError, match=said):
+            one_frame({"alignment": bad, "time_offset_s": 0.0})
+    with pytest.raises(InputError, match=r"clock 0\.0200 s"):
+        one_frame({**same, "time_offset_s": 0.02})
+    cfg = yaml.safe_load(CONFIG.read_text())["simulate"]
+    cfg.update(duration=6, controller={"kind": "pd"})
+    cfg["px4"] = dict(cfg["px4"], logger_dropouts=40)
+    (tmp_path / "sim.yaml").write_text(yaml.safe_dump(cfg))
+    assert (
+        qsls(
+            "simulate", "--config", "sim.yaml", "--seed", "77300", "-o", "s", cwd=tmp_path
+        ).returncode
+        == 0
+    )
+    proc = qsls("ingest", "s/flight.ulg", "--mass", str(MASS), "-o", "i", cwd=tmp_path)
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and "lost the controller's commands" in err, err
+    assert len(err.splitlines()) == 1 and not (tmp_path / "i").exists()
+    # without --mass the same log is a flight with gaps, as any log
+    assert qsls("ingest", "s/flight.ulg", "-o", "j", cwd=tmp_path).returncode == 0

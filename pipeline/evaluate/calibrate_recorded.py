@@ -76,10 +76,18 @@ def _conditions(
     return {
         "source": "standin" if estimator else "recorded", "perception": condition,
         "estimator": estimator or first["estimator"], "estimate_topic": first["estimator"],
-        "truth": first["truth"], "vehicle": first["vehicle"], "dt_s": first["dt_s"],
+        "truth": first["truth"], "dt_s": first["dt_s"],
+        "vehicle": {**first["vehicle"], "hover_thrust": _span(
+            [f.conditions["vehicle"].get("hover_thrust") for f in flights])},
         "frame": first["frame"], "reference": _reference_family(flights),
         "duration_s": max(float(f.conditions["duration_s"]) for f in flights),
     }  # fmt: skip
+
+
+def _span(values: list[Any]) -> list[float] | None:
+    """``[low, high]`` of the numbers among ``values`` (None where there are none)."""
+    nums = [float(v) for v in values if isinstance(v, int | float)]
+    return [min(nums), max(nums)] if nums else None
 
 
 def _reference_family(flights: list[RecordedFlight]) -> dict[str, list[float]]:
@@ -106,7 +114,7 @@ def calibrate_recorded(
     if not standin and not options.recorded.calibration:
         raise InputError(
             "calibrate: recorded range or validation flights need recorded calibration "
-            "flights (--recorded FOLDER, repeated)"
+            "flights (--recorded FOLDER, repeated or comma-separated)"
         )
     if len(options.conditions) > 1:
         raise InputError(

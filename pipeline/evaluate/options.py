@@ -124,8 +124,8 @@ class RecordedFlights(Options):
     LOG --mass KG``) by role, in place of simulated ones (docs/vehicle.md)."""
 
     calibration: list[Path] = Field(default_factory=list)
-    """Calibration flights (ingest folders, or folders of them; comma-separated on the
-    command line), each proved flown by the candidate from its log."""
+    """Calibration flights (ingest folders, or folders of them; on the command line repeated
+    or comma-separated), each proved flown by the candidate from its log."""
     range: list[Path] = Field(default_factory=list)
     """Range flights (as ``calibration``): the reference moved away from the design's, scored
     without the reference's term."""

@@ -87,6 +87,32 @@ def _describe_stream(s: dict[str, Any]) -> str:
     return f"{s['topic']} ({kind}, {s['messages']} msgs, {s['rate_hz']:.1f} Hz)"
 
 
+FRAME_TOLERANCE = (1.0, 0.05, 0.005)
+"""How far the estimate's frame and clock may be from the truth's for a tick log: yaw (deg),
+translation (m), clock (s). Within them the alignment finds noise, not another frame."""
+
+
+def one_frame(results: dict[str, Any]) -> None:
+    """Refuse a tick log whose estimate and truth are not in one frame on one clock: the tick
+    log is the log's own (docs/vehicle.md), so ingest's alignment (``p' = R p + t``) and clock
+    offset must find nothing beyond :data:`FRAME_TOLERANCE`."""
+    a = results["alignment"]
+    yaw = abs(np.degrees(float(a.get("yaw_rad", 0.0))))
+    rot = np.asarray(a.get("rotation", np.eye(3)), dtype=float)
+    tilt = np.degrees(np.arccos(np.clip(rot[2, 2], -1.0, 1.0)))
+    shift = float(np.linalg.norm(a.get("translation", (0.0, 0.0, 0.0))))
+    tau = abs(float(results["time_offset_s"]))
+    y_max, t_max, c_max = FRAME_TOLERANCE
+    if max(yaw, tilt) > y_max or shift > t_max or tau > c_max:
+        raise InputError(
+            f"--mass: the estimate's frame is {max(yaw, tilt):.2f} deg and {shift:.3f} m off "
+            f"the truth's and its clock {tau:.4f} s (tolerance {y_max:g} deg, {t_max:g} m, "
+            f"{c_max:g} s): a tick log needs the estimate the controller read and the truth in "
+            "one frame on one clock (as a PX4 log holds them when the estimate is fused in the "
+            "motion capture's frame); record them so, or ingest without --mass"
+        )
+
+
 def one_clock(vio: Trajectory, truth: Trajectory) -> bool:
     """Whether both streams come from one PX4 ULog: PX4 stamped both on its one clock, so the
     offset between them is 0 (``time_offset: auto`` is not estimated)."""
@@ -227,6 +253,8 @@ def _ingest(
         files[TICKS_FILE] = parquet_bytes(ticks.log.frame())
     hashed.result()
     r = dict(flight.results)
+    if ticks is not None:
+        one_frame(r)
     if one:
         r["time_offset"] = {"method": "one clock: both streams of one PX4 ULog, stamped by PX4"}
     if ticks is not None:

@@ -131,6 +131,17 @@ def recorded_ticks(
             f"command {k} is stamped at or before the one before it: the log's clock jumped; "
             "cut the log there"
         )
+    step = np.diff(t)
+    lost = step > 1.5 * np.median(step)
+    if lost.any():
+        k = int(np.flatnonzero(lost)[0])
+        raise InputError(
+            f"the log lost the controller's commands at {(t[k] - t[0]) / NS:.3f} s (a gap of "
+            f"{step[k] / NS:.3g} s, {int(lost.sum())} such gaps; a logger dropout?): its filter "
+            "ran through ticks the log does not hold, so the replay cannot prove who flew it "
+            "and the flight cannot count; log the setpoints without dropouts (a faster SD card, "
+            "a smaller SDLOG_PROFILE) or ingest without --mass"
+        )
     vs, vp, vv = _sorted(vio.log_ns, vio.position, vio.velocity)
     iy = _latest(vs, t)
     ss = np.asarray(setpoints.t_ns, dtype=np.int64)
