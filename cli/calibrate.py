@@ -11,6 +11,16 @@ from qsls.cli.common import cli_errors
 from qsls.cli.fields import Flag, model_options, repeated_list
 from qsls.pipeline.evaluate.options import CalibrateOptions
 
+
+def count_or_flights(texts: list[str], flag: str) -> int | list[str]:
+    """``--flights N`` (simulated flights per candidate) or ``--flights F1 [F2 ...]`` (recorded
+    calibration flights: ingest folders, as ``--recorded``)."""
+    items = repeated_list(texts, flag)
+    if len(items) == 1 and items[0].lstrip("+").isdigit():
+        return int(items[0])
+    return items
+
+
 EXAMPLE = "qsls calibrate -m fit --controllers synth -o cal --recorded flights/cal"
 
 
@@ -18,7 +28,7 @@ EXAMPLE = "qsls calibrate -m fit --controllers synth -o cal --recorded flights/c
 @model_options(
     CalibrateOptions,
     {
-        "flights": ("--flights",),
+        "flights": Flag(("--flights",), parse=count_or_flights, kind=list[str]),
         "validation": ("--validation",),
         "range_flights": ("--range-flights",),
         "tube": ("--tube",),
@@ -71,10 +81,17 @@ def command(
         "vehicle, reference and estimator the flights fly).",
     ),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output folder."),
+    more: list[str] = typer.Argument(
+        None, hidden=True, help="More recorded calibration flights after --flights F1 (F2 ...)."
+    ),
     *,
     given: dict[str, Any],
 ) -> None:
     """Calibrate the candidates' premise on flights they fly themselves, then validate it."""
+    if more:  # qsls calibrate --flights F1 F2 F3: the folders after the first
+        if not isinstance(given.get("flights"), list):
+            raise typer.BadParameter(f"unexpected argument {more[0]!r}", param_hint="FLIGHTS")
+        given = {**given, "flights": [*given["flights"], *more]}
     from qsls.cli.common import RichProgress, print_summary, print_verdicts
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.evaluate.calibrate import calibrate, simulated_notice, summary_lines

@@ -352,3 +352,20 @@ def test_a_tick_log_needs_one_frame_one_clock_and_every_command(tmp_path: Path) 
     assert len(err.splitlines()) == 1 and not (tmp_path / "i").exists()
     # without --mass the same log is a flight with gaps, as any log
     assert qsls("ingest", "s/flight.ulg", "-o", "j", cwd=tmp_path).returncode == 0
+
+
+@pytest.mark.slow
+def test_calibrate_flights_takes_folders_as_the_issue_writes_it(px4_run: Path, tmp_path: Path):
+    """``qsls calibrate --flights F1 F2 F3``: ingest folders in place of a count are the
+    recorded calibration flights (as ``--recorded``)."""
+    flights = px4_run / "calibrate" / "standin" / "flights"
+    names = standin(px4_run, "calibration")[:3]
+    proc = qsls("calibrate", "-m", str(px4_run / "fit"), "--controllers", str(px4_run / "synth"),
+                "--only", "l1_robust", "-o", str(tmp_path / "c"), "--flights",
+                *(str(flights / n) for n in names), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    scores = pd.read_parquet(tmp_path / "c" / "scores.parquet")
+    assert sorted(scores["flight"]) == names
+    proc = qsls("calibrate", "-m", str(px4_run / "fit"), "--controllers", str(px4_run / "synth"),
+                "-o", str(tmp_path / "d"), "--flights", "5", "stray", cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 2 and "unexpected argument 'stray'" in proc.stderr

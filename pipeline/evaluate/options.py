@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.core.cluster import SchedulerAddress
 from qsls.pipeline.core.config import Options
@@ -142,7 +142,8 @@ class CalibrateOptions(Options):
     its own calibration flights, then fresh validation flights (docs/calibration.md)."""
 
     flights: int = Field(20, ge=1)
-    """Calibration flights per candidate and condition (19 at least for ``certified``)."""
+    """Calibration flights per candidate and condition (19 at least for ``certified``); given
+    as ingest folders instead of a number, the recorded calibration flights (``recorded``)."""
     validation: int = Field(20, ge=0)
     """Validation flights per candidate and condition (fresh seeds, used for nothing else)."""
     alpha: float = Field(0.1, gt=0, lt=1)
@@ -200,6 +201,19 @@ class CalibrateOptions(Options):
     recorded: RecordedFlights = RecordedFlights()
     """Recorded flights by role (``calibration``, ``range``, ``validation``; a plain list is the
     calibration flights); given, no flight is simulated (docs/vehicle.md)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _flights_as_folders(cls, data: object) -> object:
+        """``flights`` given as folders (``qsls calibrate --flights F1 F2``) are recorded
+        calibration flights."""
+        if isinstance(data, dict) and isinstance(data.get("flights"), list | tuple):
+            given = [str(f) for f in data["flights"]]
+            rec = data.get("recorded") or {}
+            rec = {"calibration": rec} if isinstance(rec, list | tuple | str) else dict(rec)
+            rec["calibration"] = [*rec.get("calibration", []), *given]
+            data = {**data, "flights": max(1, len(given)), "recorded": rec}
+        return data
 
     @field_validator("recorded", mode="before")
     @classmethod
