@@ -151,24 +151,30 @@ def test_faster_flight_and_less_light_larger_rpe():
 
 @pytest.mark.slow
 def test_weaker_texture_and_more_blur_larger_rpe():
-    """Paired by seed: the 1 s RPE grows on a floor of weaker texture (strength 0.3: fewer,
-    weaker corners), and with motion blur alone (the fast circle under a 30 ms exposure
-    instead of 4 ms, at the same photon count per pixel, so the noise does not change).
-    Measured with the noise from the image (seeds 0-2): texture 1.2-1.5x (0.007-0.010 ->
-    0.011-0.013 m), blur 1.4-1.6x (0.009 -> 0.013-0.014 m). (With the fixed 0.3 px model:
-    texture 2x, blur 1.8-2.3x; the image model weighs weak and blurred features less, so
-    they cost less; the texture threshold went from 1.3x to 1.15x for that reason.)"""
+    """Paired by seed: the 1 s RPE grows on a floor of weak texture (strength 0.15: fewer,
+    weaker corners, each localized worse), and with motion blur alone (a circle flown at 2.5
+    m/s under a 45 ms exposure instead of 4 ms, at the same photon count per pixel, so the
+    noise does not change: 33 px of blur on average instead of 3).
+
+    Measured (issue 50), seeds 0-5, with OpenCV 5.1 and 4.14 (the two render different bits,
+    so different realizations): texture 2.4-4.0x and 2.0-4.0x (0.007-0.012 -> 0.021-0.030 m),
+    blur 2.2-3.1x and 2.2-3.6x (0.010-0.015 -> 0.027-0.041 m); asserted at 1.6x. The contrasts
+    the test had before were within the seeds' scatter once the pixel noise came from the
+    image (which weighs weak and blurred features less): texture 0.3 measured 0.47-1.56x
+    (OpenCV 5.1, seeds 0-5) and 0.66-1.28x (4.10-4.14, seeds 0-2), blur at 30 ms on a 2.1 m/s
+    circle (18 px) 1.03-1.64x (5.1, seeds 0-5), so which seed passed depended on the
+    rendering's last bits."""
     mid = circle(12.0, 1.0, 5.0)
-    fast = circle(12.0, 1.0, 3.0)
+    fast = circle(12.0, 1.0, 2.5)
     cam = CameraOptions()
-    blurred = CameraOptions(exposure_s=0.03, exposure_max_s=0.03, blur_max_substeps=16)
+    blurred = CameraOptions(exposure_s=0.045, exposure_max_s=0.045, blur_max_substeps=32)
     for seed in (0, 1, 2):
         r_mid = _rpe(mid[0], mid[1], replay(cam, 1.0, 1.0, seed, *mid)[0])
-        r_weak = _rpe(mid[0], mid[1], replay(cam, 1.0, 0.3, seed, *mid)[0])
+        r_weak = _rpe(mid[0], mid[1], replay(cam, 1.0, 0.15, seed, *mid)[0])
         r_fast = _rpe(fast[0], fast[1], replay(cam, 1.0, 1.0, seed, *fast)[0])
         r_blur = _rpe(fast[0], fast[1], replay(blurred, 1.0, 1.0, seed, *fast)[0])
-        assert r_weak > 1.15 * r_mid, (seed, r_mid, r_weak)
-        assert r_blur > 1.3 * r_fast, (seed, r_fast, r_blur)
+        assert r_weak > 1.6 * r_mid, (seed, r_mid, r_weak)
+        assert r_blur > 1.6 * r_fast, (seed, r_fast, r_blur)
 
 
 def test_camera_facing_away_is_refused():

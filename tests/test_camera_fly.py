@@ -52,24 +52,63 @@ def _degraded_flight(seed: int, **camera):
     )
 
 
+def _kicked_flight(monkeypatch, seed: int, kick_t: float, kick_v: float, **camera):
+    """A degraded flight whose filter has its velocity knocked off by ``kick_v`` (m/s, along
+    x) at ``kick_t`` (s), its covariance untouched: an overconfident, wrong filter (as
+    tests/test_camera.py's replay does), in the closed loop."""
+    from qsls.pipeline.sim import closedloop
+
+    make = closedloop._camera_loop
+    with monkeypatch.context() as m:
+
+        def kicked(options, seed_, veh):
+            loop = make(options, seed_, veh)
+            step, at, n = loop.step, round(kick_t * options.vehicle.physics_hz), [0]
+
+            def step_kicked(s0, s1):
+                if n[0] == at:
+                    flt = loop.filter
+                    assert flt is not None
+                    flt.v = flt.v + np.array([kick_v, 0.0, 0.0])
+                n[0] += 1
+                step(s0, s1)
+
+            m.setattr(loop, "step", step_kicked)
+            return loop
+
+        m.setattr(closedloop, "_camera_loop", kicked)
+        return _degraded_flight(seed, **camera)
+
+
 @pytest.mark.slow
-def test_degraded_flight_that_diverged_now_resets_instead_of_crashing():
-    """Degraded light, seed 4, with the fixed 0.3 px pixel noise (the model that made it
-    diverge; the image-formation model keeps it consistent, next test): without the reset
-    the estimate drifts until the vehicle is 3 m off the reference; with it the filter is
-    declared lost when the camera contradicts it, waits on the IMU until a window is
-    well-conditioned (it refuses the windows of the take-off hover), re-initializes from the
-    measurements only and the flight completes (measured: lost at 3.4 s, re-initialized at
-    4.7 s with a velocity error of 0.004 m/s and a tilt error of 0.14 deg; largest error
-    0.47 m)."""
-    off = _degraded_flight(4, reset=False, pixel_noise="fixed")
+def test_degraded_flight_that_diverged_now_resets_instead_of_crashing(monkeypatch):
+    """A degraded flight (light 0.35, texture 0.45) whose filter is knocked off by 0.85 m/s at
+    8 s with its covariance untouched: without the reset every later feature fails the gate
+    and the estimate drifts until the vehicle is 3 m off the reference; with it the filter is
+    declared lost when the camera contradicts it, refuses the windows that do not fit,
+    re-initializes from the measurements only and the flight completes.
+
+    Measured (issue 50) on seeds 0-5 with OpenCV 5.1 and with 4.14 (12 flights each way):
+    without the reset all 12 crash, 3 m from the reference at 11.5-11.7 s; with it none
+    crashes, one reset each (the innovation check) at 9.1-10.8 s after 2-38 refused windows,
+    re-initialized within 0.02-0.56 m/s and 0.09-2.5 deg, largest error 0.97-2.37 m (seed 0:
+    reset at 9.1 / 9.15 s, 0.02 / 0.07 m/s, 0.1 / 0.2 deg, largest error 0.99 / 1.03 m).
+
+    (This test used to fly seed 4 with the fixed 0.3 px noise and no kick: a realization in
+    which the filter's first updates after the take-off hold pulled it off for good. That
+    divergence belonged to one realization of the rendering's last bits: with this code no
+    such flight crashes, with OpenCV 5.1 (seeds 0-7, largest error 0.05-0.27 m) nor with
+    4.10-4.14 (seeds 4 and 0, 0.22-0.26 m). The fixed noise's inconsistency at that level does
+    hold: with the reset on, the innovation check fires at 4.05-4.25 s on 5 of seeds 0-5.)"""
+    off = _kicked_flight(monkeypatch, 0, 8.0, 0.85, reset=False)
     assert off.crashed and "3.00 m from the reference" in str(off.crash_reason)
-    on = _degraded_flight(4, reset=True, pixel_noise="fixed")
-    assert not on.crashed and on.emulator["resets"] >= 1
+    on = _kicked_flight(monkeypatch, 0, 8.0, 0.85, reset=True)
+    assert not on.crashed, on.crash_reason
+    assert on.emulator["resets"] == 1 and 8.0 < on.emulator["reset_times_s"][0] < 11.0
     assert on.emulator["reset_refusals"] >= 1
-    assert max(on.emulator["reset_velocity_error"]) < 0.15
-    assert max(on.emulator["reset_tilt_error_deg"]) < 1.5
-    assert np.abs(on.vio_e[:, :3]).max() < 1.0
+    assert max(on.emulator["reset_velocity_error"]) < 0.7
+    assert max(on.emulator["reset_tilt_error_deg"]) < 3.0
+    assert np.abs(on.vio_e[:, :3]).max() < 2.6
 
 
 @pytest.mark.slow
