@@ -36,6 +36,7 @@ EXAMPLE = "qsls ingest --vio vio.tum --truth data.csv --out flights/f1 --dt 0.1"
         "drop_nonfinite": ("--drop-nonfinite",),
         "mass": ("--mass",),
         "hover_thrust": ("--hover-thrust",),
+        "reference": ("--reference",),
         "commands_topic": ("--commands-topic",),
         "reference_topic": ("--reference-topic",),
     },

@@ -369,3 +369,24 @@ def test_calibrate_flights_takes_folders_as_the_issue_writes_it(px4_run: Path, t
     proc = qsls("calibrate", "-m", str(px4_run / "fit"), "--controllers", str(px4_run / "synth"),
                 "-o", str(tmp_path / "d"), "--flights", "5", "stray", cwd=tmp_path)  # fmt: skip
     assert proc.returncode == 2 and "unexpected argument 'stray'" in proc.stderr
+
+
+@pytest.mark.slow
+def test_a_stated_reference_in_place_of_the_logs_setpoints(px4_run: Path, tmp_path: Path):
+    """``qsls ingest LOG --mass M --reference SPEC``: the reference the controller tracked,
+    stated, sampled from its first command: the stand-in's equals its logged one to the bit
+    (float64, where the log's setpoints are float32), and the proof holds; a wrong one (radius
+    1.2 instead of 1) is caught by the proof."""
+    name = standin(px4_run, "calibration")[0]
+    logs = px4_run / "calibrate" / "standin" / "logs" / name
+    sim = TickLog.read(logs / TICKS_FILE)
+    cand = px4_run / "synth" / "l1_robust"
+    for spec, same in (("circle:radius=1,period=5,height=1", True),
+                       ("circle:radius=1.2,period=5,height=1", False)):  # fmt: skip
+        out = tmp_path / str(same)
+        proc = qsls("ingest", str(logs / "flight.ulg"), "--mass", str(MASS), "--reference", spec,
+                    "-o", str(out), cwd=tmp_path)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        log = TickLog.read(out / TICKS_FILE)
+        assert np.array_equal(log.ref, sim.ref) == same
+        assert flown_by(log, cand, MASS, {}).flown == same

@@ -73,13 +73,17 @@ class IngestOptions(Options):
     """A bag's attitude setpoints (mavros_msgs/AttitudeTarget), with ``mass``; default:
     /mavros/setpoint_raw/attitude (the controller's own), else
     /mavros/setpoint_raw/target_attitude."""
+    reference: str | None = None
+    """The reference the controller tracked, stated (``circle:radius=1,height=1,period=5``),
+    for a log without its position setpoints: sampled at each command from the first (0 s), as
+    the controller started it; with ``mass`` only (default: the log's setpoints)."""
     reference_topic: str | None = None
     """A bag's reference (mavros_msgs/PositionTarget, one per tick), with ``mass``; default:
     /qsls/reference, else /mavros/setpoint_raw/local."""
 
     @model_validator(mode="after")
     def _commands_need_the_mass(self) -> IngestOptions:
-        given = [k for k in ("hover_thrust", "commands_topic", "reference_topic")
+        given = [k for k in ("hover_thrust", "commands_topic", "reference_topic", "reference")
                  if getattr(self, k) is not None]  # fmt: skip
         if given and self.mass is None:
             raise ValueError(

@@ -48,7 +48,7 @@ from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.ingest.sources.base import Trajectory, detect
 from qsls.pipeline.ingest.sources.text.writer import tum_text
 from qsls.pipeline.ingest.streams import read_streams
-from qsls.pipeline.ingest.ticks import RecordedTicks, recorded_ticks
+from qsls.pipeline.ingest.ticks import RecordedTicks, recorded_ticks, stated_setpoints
 
 STAGE = "ingest"
 TUM_FILES = {"vio": "vio_aligned.tum", "truth": "truth.tum"}
@@ -156,13 +156,17 @@ def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> Rec
         cmd = o.commands_topic
         ref = o.reference_topic
         cmd = mavros.first_topic(src, [cmd] if cmd else mavros.COMMAND_TOPICS, "commands")
-        ref = mavros.first_topic(src, [ref] if ref else mavros.REFERENCE_TOPICS, "reference")
+        commands = mavros.read_bag_commands(src, cmd)
+        if o.reference is not None:
+            setpoints, ref = stated_setpoints(o.reference, commands.t_ns), o.reference
+        else:
+            ref = mavros.first_topic(src, [ref] if ref else mavros.REFERENCE_TOPICS, "reference")
+            setpoints = mavros.read_bag_setpoints(src, ref)
         if vio.velocity is not None and o.vio_velocity_frame == "body":
             vio = dataclasses.replace(vio, velocity=body_to_world(vio.orientation, vio.velocity))
         made = recorded_ticks(
-            vio, dataclasses.replace(truth, velocity=None), mavros.read_bag_commands(src, cmd),
-            mavros.read_bag_setpoints(src, ref), o.mass, hover_thrust=o.hover_thrust,
-            max_gap_s=o.max_gap,
+            vio, dataclasses.replace(truth, velocity=None), commands, setpoints, o.mass,
+            hover_thrust=o.hover_thrust, max_gap_s=o.max_gap,
         )  # fmt: skip
         facts = {**made.facts, "stamps": {}, "log": src.name, "commands_topic": cmd,
                  "reference_topic": ref}  # fmt: skip
@@ -176,13 +180,16 @@ def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> Rec
     # deferred: pyulog loads only for a log that holds commands
     from qsls.pipeline.ingest.sources.ulog.reader import read_commands, read_setpoints, ulog_info
 
+    commands = read_commands(src)
+    setpoints = (stated_setpoints(o.reference, commands.t_ns) if o.reference is not None
+                 else read_setpoints(src))  # fmt: skip
     made = recorded_ticks(
-        vio, truth, read_commands(src), read_setpoints(src), o.mass,
-        hover_thrust=o.hover_thrust, max_gap_s=o.max_gap,
-    )  # fmt: skip
+        vio, truth, commands, setpoints, o.mass, hover_thrust=o.hover_thrust, max_gap_s=o.max_gap
+    )
     info = ulog_info(src)
     stamps = {k: v for k, v in (info.get("info") or {}).items() if str(k).startswith("qsls_")}
-    facts = {**made.facts, "stamps": stamps, "log": src.name, "frame": "px4 local (NED as ENU)"}
+    facts = {**made.facts, "stamps": stamps, "log": src.name, "frame": "px4 local (NED as ENU)",
+             "reference_source": o.reference or "trajectory_setpoint"}  # fmt: skip
     return RecordedTicks(made.log, facts)
 
 

@@ -32,6 +32,7 @@ import numpy as np
 from qsls.pipeline.core.attitude import input_from_attitude
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import feedforward_input
+from qsls.pipeline.core.references import Reference, parse_reference
 from qsls.pipeline.core.ticks import TickLog
 from qsls.pipeline.core.units import NS
 
@@ -87,6 +88,17 @@ def _truth_at(truth: Trajectory, t: np.ndarray, max_gap_ns: int) -> np.ndarray:
     a = ((t - ts[jj - 1]) / gap)[:, None]
     xs = np.hstack([p, v])
     return (1 - a) * xs[jj - 1] + a * xs[jj]
+
+
+def stated_setpoints(spec: str, t_ns: np.ndarray) -> PositionSetpoints:
+    """The reference ``spec`` (:func:`~qsls.pipeline.core.references.parse_reference`) as the
+    controller tracked it: sampled at the command stamps ``t_ns``, from the first (0 s)."""
+    # deferred: the ULog reader (and pyulog) loads only for a log that holds commands
+    from qsls.pipeline.ingest.sources.ulog.reader import PositionSetpoints
+
+    t = (np.asarray(t_ns, dtype=np.int64) - int(t_ns[0])) / NS
+    p, v, a = Reference(parse_reference(spec, "--reference")).arrays(t)
+    return PositionSetpoints(np.asarray(t_ns, dtype=np.int64), p, v, a, np.zeros(len(t)))
 
 
 def reference_summary(ref: np.ndarray) -> dict[str, float]:
