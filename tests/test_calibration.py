@@ -530,3 +530,31 @@ def test_a_range_flights_score_keeps_the_disturbance_and_drops_the_reference() -
     assert range_score(parts) == 1.098
     assert range_score({**parts, "disturbance": 0.5}) == 0.9
     assert range_score({**parts, "outliers": 2.0}) == 2.0
+
+
+def test_fly_refuses_the_seeds_a_calibration_flew(quickstart_session, tmp_path: Path) -> None:
+    """Issue 50, item 5: a flight on a seed the calibration flew (calibration 21000.., range
+    23000.., validation 22000..) is that flight again, not fresh evidence: ``qsls fly``
+    refuses it in one line; a fresh seed is not refused."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    run = quickstart_session[0] / "runs" / "quickstart"
+    cert = run / "calibrate" / "regular" / "l1_robust"
+    rec = yaml.safe_load((cert / "certificate.yaml").read_text())["calibration"]
+    assert {21000, 23019, 22019} <= set(rec["evidence_seeds"]) and len(rec["evidence_seeds"]) == 60
+    for seeds, refused in (("22005", True), ("23000", True), ("21019", True)):
+        proc = subprocess.run(
+            [sys.executable, "-m", "qsls.cli.main", "fly", "--model", str(run / "fit"),
+             "--controller", str(cert), "--seeds", seeds, "--out", str(tmp_path / seeds)],
+            capture_output=True, text=True, cwd=tmp_path,
+        )  # fmt: skip
+        err = proc.stderr.strip()
+        assert (proc.returncode != 0) == refused, err
+        assert "flown by l1_robust's calibration" in err and len(err.splitlines()) == 1
+        assert not (tmp_path / seeds).exists()
+    from qsls.pipeline.evaluate.certified import refuse_evidence_seeds
+
+    refuse_evidence_seeds([cert], [0, 20999, 21020, 24000])  # fresh: no error

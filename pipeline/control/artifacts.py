@@ -305,6 +305,9 @@ class Calibration(BaseModel):
     """Range flights (the reference offset within a tube): scored on the perception premise
     only, their calibrated score can only raise ``lambda_hat``."""
     range_scores: list[float] = []
+    evidence_seeds: list[int] = []
+    """Every seed a flight of this calibration flew (calibration, range and validation): a
+    flight on one of them is that flight again, no fresh evidence (``qsls fly`` refuses it)."""
     logs: list[str] = []
     """Recorded calibration flights (docs/vehicle.md): the sha256 of each flight's vehicle log,
     in the order of ``scores`` (a seed's place: empty for simulated flights)."""

@@ -337,6 +337,14 @@ def calibrated_checks(
     return out
 
 
+def _evidence(options: CalibrateOptions, seeds: Sequence[int]) -> set[int]:
+    """Every seed a simulated calibration flew: calibration, range and validation (none for
+    recorded flights, whose ``seeds`` are empty)."""
+    if not seeds:
+        return set()
+    return {*seeds, *options.range_seeds, *options.seed_lists()[1]}
+
+
 def calibrated_certificate(
     folder: Path,
     out: Path,
@@ -361,6 +369,7 @@ def calibrated_certificate(
         method=options.method, conditions=conditions,
         duration_s=options.duration if duration is None else duration,
         seeds=list(seeds), design_seeds=list(options.design_seeds),
+        evidence_seeds=sorted(_evidence(options, seeds)),
         scores=[float(s) for s in o.scores], lambda_hat=o.lambda_hat,
         rank=o.rank, tested_range=o.tested_range,
         nominal={"eps_e": cert.eps_e, "S": cert.S, "eps_w": cert.eps_w, "delta": cert.delta,

@@ -27,7 +27,7 @@ from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import static_gain_responses
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
-from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.plant import GRAVITY, NX
 from qsls.pipeline.errormodel import honest
 from qsls.pipeline.evaluate.assumptions import CertifiedPremise
@@ -299,6 +299,20 @@ def certificate_for(
 def calibration_of(folder: Path) -> Calibration | None:
     """The calibration record of the certificate in ``folder`` (None: not calibrated)."""
     return load_controller_dir(folder).certificate.calibration
+
+
+def refuse_evidence_seeds(folders: Sequence[Path], seeds: Sequence[int]) -> None:
+    """A flight on a seed a certificate's calibration flew is that flight again (the same
+    bytes), not fresh evidence: refused in one line (:class:`ConfigError`)."""
+    for folder in folders:
+        cal = calibration_of(folder)
+        shared = sorted(set(seeds) & set(cal.evidence_seeds)) if cal is not None else []
+        if shared:
+            raise ConfigError(
+                f"seeds {shared[:5]} were flown by {folder.name}'s calibration (calibration, "
+                "range or validation flights): flown again they are those flights, not fresh "
+                "evidence; choose other seeds"
+            )
 
 
 def outside_calibration(

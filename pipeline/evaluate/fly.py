@@ -84,6 +84,7 @@ from qsls.pipeline.evaluate.certified import (
     check_unweighted,
     load_conditioned,
     outside_calibration,
+    refuse_evidence_seeds,
 )
 from qsls.pipeline.evaluate.estimators import findings_markdown, keyed, write_by_estimator
 from qsls.pipeline.evaluate.figures import write_fly_figures
@@ -772,6 +773,7 @@ def fly_evaluate(
     folders = _select(expand_controllers(controllers), options.controllers)
     bounds = load_bounds(folders)
     conditioned = load_conditioned(by_condition, [b.name for b in bounds], options.conditions)
+    refuse_evidence_seeds([*folders, *(b.folder for b in conditioned.values())], options.seeds)
     warnings = [m for b in bounds if (m := check_model_hash(b, model_file, force=force))]
     warnings += [
         m for b in conditioned.values() if (m := check_model_hash(b, model_file, force=force))
