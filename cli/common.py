@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import signal
@@ -46,6 +47,20 @@ def _die_with_parent() -> None:
         os._exit(1)
 
 
+def _exit_now(code: int) -> None:
+    """Leave at once, the unwinding done (every ``StageWriter`` has removed its temporary
+    folder, the workers are ended): release the locks, flush, ``os._exit``. A normal exit
+    would join the process pool's manager thread, which may be blocked reading a large result
+    from a worker that was just terminated: the run then never exited (issue 50)."""
+    from qsls.pipeline.core.locks import release_all
+
+    release_all()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    os._exit(code)
+
+
 def _on_sigterm(signum: int, frame: Any) -> None:
     if os.getpid() != _MAIN_PID:  # a forked worker inherited the handler: die as asked
         signal.signal(signum, signal.SIG_DFL)
@@ -88,7 +103,10 @@ def cli_errors(fn: F) -> F:
             _end_children()
             what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
             typer.echo(f"error: {what}; no partial output was kept", err=True)
-            raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
+            code = 143 if isinstance(exc, Terminated) else 130
+            if main and os.getpid() == _MAIN_PID:
+                _exit_now(code)
+            raise typer.Exit(code) from None
         finally:
             from qsls.pipeline.core.locks import release_all
 
