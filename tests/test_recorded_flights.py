@@ -72,6 +72,7 @@ def test_certified_from_ulog_flights_alone(px4_run: Path) -> None:
     assert cond["source"] == "standin" and cond["estimator"] == "emulator"
     assert cond["estimate_topic"] == "vehicle_visual_odometry"
     assert cond["vehicle"]["mass"] == MASS
+    assert cond["duration_s"] == pytest.approx(15.0)  # 150 ticks of 0.1 s, as a simulated flight
     assert cond["vehicle"]["hover_source"] == "hover_thrust_estimate"
     low, high = cond["vehicle"]["hover_thrust"]  # over the flights, as their logs state it
     assert abs(low - 0.45) < 1e-7 and abs(high - 0.45) < 1e-7  # the log's float32
@@ -190,6 +191,15 @@ def test_recorded_calibration_refusals(px4_run: Path, tmp_path: Path) -> None:
         err = proc.stderr.strip()
         assert proc.returncode != 0 and want in err and len(err.splitlines()) == 1, (want, err)
         assert not out.exists()
+    # two flights whose folders share a name are told apart by their parents
+    for parent, src in (("day1", a), ("day2", b)):
+        shutil.copytree(src, tmp_path / parent / "f01")
+    out = tmp_path / "same_names"
+    proc = qsls("calibrate", "-m", str(px4_run / "fit"), "--controllers", str(px4_run / "synth"),
+                "-o", str(out), "--recorded", str(tmp_path / "day1" / "f01"), "--recorded",
+                str(tmp_path / "day2" / "f01"), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(pd.read_parquet(out / "scores.parquet")["flight"]) == ["day1/f01", "day2/f01"]
     # --mass on a log that is not a ULog
     text = tmp_path / "vio.tum"
     text.write_text("".join(f"{k * 0.1} 0 0 1 0 0 0 1\n" for k in range(50)))

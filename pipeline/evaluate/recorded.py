@@ -12,6 +12,7 @@ each flight's log hash in place of a seed.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,10 +43,12 @@ class RecordedFlight:
     conditions: dict[str, Any]
     stamps: dict[str, Any]
     """The controller identity the log carries (``qsls_controller_sha256``, ``qsls_gate``)."""
+    label: str = ""
+    """Its name in the tables where its folder's name is not unique among the flights."""
 
     @property
     def name(self) -> str:
-        return self.folder.name
+        return self.label or self.folder.name
 
 
 def load_recorded(folder: Path, role: str) -> RecordedFlight:
@@ -82,7 +85,8 @@ def load_recorded(folder: Path, role: str) -> RecordedFlight:
         "dt_s": float(facts["dt_s"]),
         "frame": str(facts.get("frame", "")),
         "reference": dict(facts.get("reference") or {}),
-        "duration_s": float(log.t[-1]) if len(log.t) else 0.0,
+        # the flight's length as a simulated flight states it: its ticks times the tick
+        "duration_s": len(log.t) * float(facts["dt_s"]),
     }  # fmt: skip
     return RecordedFlight(
         folder, role, log, sha, float(facts["mass_kg"]), conditions, dict(facts.get("stamps") or {})
@@ -119,20 +123,21 @@ def load_all(by_role: dict[str, Sequence[Path]]) -> list[RecordedFlight]:
                 f"({f.role}) come from one log: a flight counts once; pass it once"
             )
         seen[key] = f
-    for what, key in (("vehicle mass", "mass"), ("estimator", "estimator"), ("tick", "dt_s"),
-                      ("frame", "frame")):  # fmt: skip
-        values = {f.name: (f.mass if key == "mass" else f.conditions[key]) for f in flights}
-        first = flights[0] if flights else None
-        for f in flights[1:]:
-            a, b = values[first.name], values[f.name]  # type: ignore[union-attr]
-            same = np.isclose(a, b, rtol=1e-3) if isinstance(a, float) else a == b
-            if not same:
+    first = flights[0] if flights else None
+    for f in flights[1:]:
+        assert first is not None
+        for what, a, b in (("vehicle mass", first.mass, f.mass),
+                           *((what, first.conditions[k], f.conditions[k]) for what, k in
+                             (("estimator", "estimator"), ("tick", "dt_s"), ("frame", "frame")))):  # fmt: skip
+            if not (np.isclose(a, b, rtol=1e-3) if isinstance(a, float) else a == b):
                 raise InputError(
-                    f"recorded flight {f.folder}: {what} {b} while {first.folder} has {a}: "  # type: ignore[union-attr]
+                    f"recorded flight {f.folder}: {what} {b} while {first.folder} has {a}: "
                     "a certificate is calibrated on flights of one vehicle and one estimator; "
                     "calibrate each separately"
                 )
-    return flights
+    names = [f.folder.name for f in flights]  # two folders of one name: their parent tells
+    return [dataclasses.replace(f, label=f"{f.folder.parent.name}/{f.folder.name}")
+            if names.count(f.folder.name) > 1 else f for f in flights]  # fmt: skip
 
 
 def design_logs(fit_dir: Path) -> set[str]:
