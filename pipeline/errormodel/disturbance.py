@@ -45,6 +45,32 @@ def realized_disturbance(
     return x[1:] - (z[:-1] @ A.T + du[:-1] @ B.T)[:, :n]
 
 
+def deviation_disturbance(
+    x: np.ndarray,
+    u: np.ndarray,
+    ref: np.ndarray,
+    uff: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    u_hover: np.ndarray,
+) -> np.ndarray:
+    """The proof's disturbance ``delta_k = dx_{k+1} - A dx_k - B du_k`` with ``dx = x - r`` and
+    ``du = u - u_hover - uff`` (docs/guarantee.md, Disturbance in deviation coordinates),
+    ``(n - 1, 6)``.
+
+    It is what ``x - r = Phi_xx H delta + Phi_xy e`` is driven by: the absolute
+    :func:`realized_disturbance` minus the reference's own residual
+    ``r_{k+1} - A r_k - B uff_k``. The attitude plant's loop states are the model's response
+    to the deviation inputs ``du`` from rest at the first tick."""
+    return realized_disturbance(
+        np.asarray(x, float) - np.asarray(ref, float),
+        np.asarray(u, float) - np.asarray(uff, float),
+        A,
+        B,
+        u_hover,
+    )
+
+
 def input_free_residual(x: np.ndarray, dt: float) -> np.ndarray:
     """The smallest ``w_k`` (per axis, infinity norm) that explains ``x_{k+1}`` from ``x_k``
     under any acceleration held over the step (module docstring); ``(n - 1, 6)``."""
