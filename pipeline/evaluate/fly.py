@@ -76,12 +76,12 @@ from qsls.pipeline.evaluate.bound import (
     expand_controllers,
     load_bounds,
     load_training,
+    weighted_bounds,
     write_tables,
 )
 from qsls.pipeline.evaluate.certified import (
     certificate_for,
     certified_premise,
-    check_unweighted,
     load_conditioned,
     outside_calibration,
     refuse_evidence_seeds,
@@ -664,7 +664,7 @@ def assumption_table(
         c, monitor, cal = premise_of(b)
         if c is None or len(o.t_ctrl) < 2:
             continue  # a crashed flight is checked on the ticks it flew: a crash is no excuse
-        log = FlownLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl)
+        log = FlownLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl)
         row = check_assumptions(log, c, training.distance)
         row.update(monitor_columns(monitor, log, c.numbers.gate))
         if o.metrics.get("crashed"):
@@ -769,10 +769,11 @@ def fly_evaluate(
     check_output(Path(out), force)
     model_file, fit_dir = resolve_model(error_model)
     model = load_error_model(model_file)
-    check_unweighted(model, "check certified controllers")
     folders = _select(expand_controllers(controllers), options.controllers)
-    bounds = load_bounds(folders)
+    bounds = weighted_bounds(load_bounds(folders), model.state_scale)
     conditioned = load_conditioned(by_condition, [b.name for b in bounds], options.conditions)
+    weighted = weighted_bounds(conditioned.values(), model.state_scale)
+    conditioned = dict(zip(conditioned, weighted, strict=True))
     refuse_evidence_seeds([*folders, *(b.folder for b in conditioned.values())], options.seeds)
     warnings = [m for b in bounds if (m := check_model_hash(b, model_file, force=force))]
     warnings += [
