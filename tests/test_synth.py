@@ -171,15 +171,33 @@ def test_infeasible_is_exit_3_with_diagnosis(tmp_path, error_model):
         largest_s.min_phi_xy(quadrotor_model(), 12), rel=1e-3
     )
     assert "largest feasible S for this setting is" in res.output
-    assert not out.exists()
+    _only_the_feasible_written(out, res.output)
     # the necessary condition holds but ||Phi_xy|| >= 2.x makes S = 0.45 infeasible
-    res = _synth("-m", error_model, "-T", T, "--S", "0.45", "-o", out)
+    res = _synth("-m", error_model, "-T", T, "--S", "0.45", "-o", tmp_path / "inf2")
     assert res.exit_code == 3 and "condition S + eps_e/r < 1 holds" in res.output
-    assert not out.exists()
+    _only_the_feasible_written(tmp_path / "inf2", res.output)
     # Delta / r >= 1: no S at all
-    res = _synth("-m", error_model, "-T", T, "--S", "0.01", "--delta", "1.2", "-o", out)
+    res = _synth(
+        "-m", error_model, "-T", T, "--S", "0.01", "--delta", "1.2", "-o", tmp_path / "inf3"
+    )  # fmt: skip
     assert res.exit_code == 3 and "no S >= 0 is feasible" in res.output, res.output
-    assert not out.exists()
+    _only_the_feasible_written(tmp_path / "inf3", res.output)
+
+
+def _only_the_feasible_written(out, output):
+    """An infeasible robust design still writes the controllers that are feasible (the PD
+    and the nominal), each loadable, and names the infeasible ones in the manifest."""
+    import json
+
+    written = sorted(p.name for p in out.iterdir() if p.is_dir())
+    assert written == ["l1_nominal", "pd"], written
+    for n in written:
+        assert load_controller(out / n) is not None
+    results = json.loads((out / "manifest.json").read_text())["results"]
+    assert sorted(results["infeasible"]) == ["l1_robust", "l1_robust_imitation"]
+    assert set(results["controllers"]) == {"pd", "l1_nominal"}
+    text = " ".join(output.split())
+    assert "l1_robust, l1_robust_imitation: " in text and "pd, l1_nominal (feasible" in text
 
 
 def test_max_feasible_s_is_feasible_and_one_percent_above_is_not(tmp_path, error_model):
@@ -194,7 +212,7 @@ def test_max_feasible_s_is_feasible_and_one_percent_above_is_not(tmp_path, error
     cert = yaml.safe_load((tmp_path / "ok" / "l1_robust" / "certificate.yaml").read_text())
     assert cert["status"] == "relaxed" and cert["margin"] > 0  # S < max
     bad = _synth(*single, "--S", repr(1.01 * s_max), "-o", tmp_path / "bad")
-    assert bad.exit_code == 3 and not (tmp_path / "bad").exists()
+    assert bad.exit_code == 3 and not (tmp_path / "bad" / "l1_robust").exists()
     # the bound is tight: the certified controller at S_max has ||Phi_xy|| where the
     # constraint is active
     assert cert["margin"] < 1e-4
@@ -289,7 +307,7 @@ def test_s_at_least_one_says_no_radius_can_help(tmp_path, error_model):
     res = _synth("-m", error_model, "-T", 8, "--S", "1.2", "-o", tmp_path / "o")
     assert res.exit_code == 3, res.output
     assert "no radius or horizon can help" in " ".join(res.output.split())
-    assert not (tmp_path / "o").exists()
+    assert not (tmp_path / "o" / "l1_robust").exists()
 
 
 def test_certificates_do_not_depend_on_where_the_run_lives(tmp_path, error_model):

@@ -15,9 +15,12 @@ and with ``norm: h2`` (or ``both``) the H2 variants ``h2_nominal``, ``h2_robust`
 
 Infeasible is an answer: before solving, the necessary condition
 ``(S + eps_e / r) N_lower < 1`` (``N >= N_lower``, 1 with unit weights, for this plant:
-:func:`qsls.pipeline.control.guarantee.min_norm_bound`) is checked, and an infeasible robust problem raises
-:class:`InfeasibleError` (exit 3) with a diagnosis: that condition, the smallest achievable
-``||Phi_xy||`` at this ``T`` and the largest feasible ``S`` (:func:`max_feasible_s`).
+:func:`qsls.pipeline.control.guarantee.min_norm_bound`) is checked, and an infeasible robust
+problem is diagnosed: that condition, the smallest achievable ``||Phi_xy||`` at this ``T`` and
+the largest feasible ``S`` (:func:`max_feasible_s`). The stage still writes every controller
+that is feasible (the PD, the nominal ones: they need no premise) and then raises
+:class:`InfeasibleError` (exit 3) naming the infeasible ones and what it wrote
+(docs/synthesis.md).
 """
 
 from __future__ import annotations
@@ -72,6 +75,9 @@ class Synthesized:
     controllers: dict[str, Built]
     paper: PaperChoice | None = None
     """The paper mode's choice of S, if asked."""
+    infeasible: dict[str, InfeasibleError] = field(default_factory=dict)
+    """The robust controllers whose problem is infeasible, each with its diagnosis (only with
+    ``partial``: :func:`synthesize` raises the first otherwise)."""
 
     def certificates(self) -> dict[str, Certificate]:
         return {n: c.certificate for n, c in self.controllers.items()}
@@ -124,12 +130,14 @@ def synthesize(
     error_model_sha256: str | None = None,
     imitate: sls.Taps | None = None,
     progress: Progress = NULL_PROGRESS,
+    partial: bool = False,
 ) -> Synthesized:
     """The controllers of ``options`` with their certificates (module docstring), from an
     error model and its training data in memory (both optional: numbers alone are a premise
     no data tested). No file is read or written; ``imitate`` is the target's responses when
     ``options.imitate`` names a controller folder. Raises :class:`InfeasibleError` with a
-    diagnosis when a robust problem is infeasible."""
+    diagnosis when a robust problem is infeasible; with ``partial`` the feasible controllers
+    are returned and the infeasible ones listed in ``infeasible`` instead."""
     r = resolve(options, model, training)
     if r.premise is not None:
         refuse_empty(r.premise)
@@ -138,12 +146,29 @@ def synthesize(
     # the error model by its hash only: a path would differ between two folders of one run
     base_extra = {"error_model": None, "error_model_sha256": error_model_sha256,
                   "solver": options.solver}  # fmt: skip
+    infeasible: dict[str, InfeasibleError] = {}
+    diagnosis: dict[str, Any] = {}
+
+    def refuse(name: str, *, necessary: bool = False) -> None:
+        if not diagnosis:  # one diagnosis of the setting (a bisection on S): computed once
+            diagnosis.update(diagnose(r, options.T, options.strictly_proper, options.solver))
+        text = diagnosis_message(diagnosis)
+        err = InfeasibleError(
+            text if necessary and not partial else f"{name}: {text}",
+            {**diagnosis, "controller": name},
+        )
+        if not partial:
+            raise err
+        infeasible[name] = err
+
     if (
         any(s.robust for _, s in plan)
         and necessary_condition(r.numbers, r.shape.state_scale, r.shape.error_scale) >= 1.0
     ):
-        d = diagnose(r, options.T, options.strictly_proper, options.solver)
-        raise InfeasibleError(diagnosis_message(d), d)
+        for name, st in plan:
+            if st.robust:
+                refuse(name, necessary=True)
+        plan = [(n, st) for n, st in plan if not st.robust]
     warn_size(options.T, len(plan), progress)
     progress.start("synth", total=len(plan) + 1)
     ctrls: dict[str, Built] = {}
@@ -160,9 +185,9 @@ def synthesize(
             progress.note(f"solving {name} (T = {options.T}) ...")
         dsg = design(r, st, nominal=nominal, solver=options.solver)
         if dsg.solution.status == "infeasible":
-            d = diagnose(r, options.T, options.strictly_proper, options.solver)
-            d["controller"] = name
-            raise InfeasibleError(f"{name}: " + diagnosis_message(d), d)
+            refuse(name)
+            progress.advance()
+            continue
         if dsg.solution.status == "error" or dsg.body is None:
             raise SolverError(
                 f"{name}: the solver failed ({dsg.solution.solver_status}); nothing was certified"
@@ -175,7 +200,7 @@ def synthesize(
         choice, paper = paper_controllers(options, model, training, done, base_extra, imitate)
         ctrls.update(paper)
     progress.finish()
-    return Synthesized(r, ctrls, choice)
+    return Synthesized(r, ctrls, choice, infeasible)
 
 
 def synth(
@@ -197,10 +222,11 @@ def synth(
         folder = nominal_from_folder(Path(options.imitate), options.T)
     result = synthesize(
         mi.model, mi.training, options, error_model_sha256=mi.sha256, imitate=folder,
-        progress=progress,
+        progress=progress, partial=True,
     )  # fmt: skip
     ctrls = result.controllers
     with StageWriter(out, "synth", options=options, inputs=mi.inputs, force=force) as w:
+        w.results["infeasible"] = {n: str(e) for n, e in result.infeasible.items()}
         for name, c in ctrls.items():
             w.write_bytes(f"{name}/{CONTROLLER_FILE}", c.controller.to_bytes())
             w.write_text(f"{name}/{CERTIFICATE_FILE}", c.certificate.to_yaml())
@@ -209,4 +235,20 @@ def synth(
         w.results["error_model_sha256"] = mi.sha256
         if result.paper is not None:
             w.results["paper_mode"] = result.paper.record()
+    if result.infeasible:
+        raise infeasible_error(result.infeasible, list(ctrls), Path(out))
     return SynthResult(Path(out), result.statuses(), result.certificates())
+
+
+def infeasible_error(
+    infeasible: dict[str, InfeasibleError], written: list[str], out: Path
+) -> InfeasibleError:
+    """One error for every infeasible robust controller (they share the diagnosis of the
+    setting when the necessary condition fails), naming the feasible ones written."""
+    first = next(iter(infeasible.values()))
+    names = ", ".join(infeasible)
+    return InfeasibleError(
+        f"{names}: {diagnosis_message(first.diagnosis)}; written to {out}: "
+        f"{', '.join(written)} (feasible; the infeasible ones are listed in its manifest)",
+        {**first.diagnosis, "controller": names, "written": written},
+    )
