@@ -248,7 +248,7 @@ def test_euroc_report_states_the_position_only_controller_honestly(real_data, tm
     cfg = tmp_path / "configs" / "euroc.yaml"
     cfg.parent.mkdir()
     text = (REPO / "configs" / "euroc.yaml").read_text()
-    cfg.write_text(text.replace("../../shared/data/real", str(real_data)))
+    cfg.write_text(text.replace("${QSLS_SHARED:-../../shared}/data/real", str(real_data)))
     proc = _run(cfg, tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     run_dir, out = tmp_path / "runs" / "euroc", tmp_path / "runs" / "euroc" / "report"

@@ -411,7 +411,7 @@ def test_euroc_config_on_the_real_flights(real_data, tmp_path):
     cfg_text = (REPO / "configs" / "euroc.yaml").read_text()
     cfg = tmp_path / "configs" / "euroc.yaml"
     cfg.parent.mkdir()
-    cfg.write_text(cfg_text.replace("../../shared/data/real", str(real_data)))
+    cfg.write_text(cfg_text.replace("${QSLS_SHARED:-../../shared}/data/real", str(real_data)))
     proc = _qsls("run", str(cfg), cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     run_dir = tmp_path / "runs" / "euroc"

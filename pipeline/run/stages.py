@@ -33,7 +33,7 @@ from qsls.pipeline.evaluate.options import CalibrateOptions, EvaluateOptions, Fl
 from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
-from qsls.pipeline.run.paths import resolve_path
+from qsls.pipeline.run.paths import missing_hint, resolve_path
 from qsls.pipeline.run.runconfig import FlightSpec, RunConfig
 from qsls.pipeline.sim.options import PERCEPTIONS, SimOptions
 
@@ -148,7 +148,8 @@ def _flight_stages(
         given = [*sources, *(Path(ingest_opts[k]) for k in ("vio", "truth") if k in ingest_opts)]
         missing = [p for p in given if not p.exists()]
         if missing:
-            raise ConfigError(f"flight '{fl.name}': {missing[0]} does not exist")
+            raw = [*fl.sources, *(v for v in (fl.vio, fl.truth) if v is not None)]
+            raise ConfigError(f"flight '{fl.name}': {missing[0]} does not exist{missing_hint(raw)}")
     opts = validate(IngestOptions, ingest_opts, src(f"ingest (flight '{fl.name}')"))
     external = tuple(sources) + tuple(Path(p) for p in (opts.vio, opts.truth) if p is not None)
     stage_id = f"ingest/{fl.name}"
