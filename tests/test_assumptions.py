@@ -76,7 +76,9 @@ def _fly(model, taps, *, w_scale=1.0, outliers=(), K=120, seed=0, bias=0.0):
         us.append(u)
         w = rng.uniform(-1, 1, 6) * NUMBERS.eps_w * w_scale
         x = model.A @ x + model.B @ (u - hover) + model.H @ w
-    return FlownLog(np.array(t), np.array(xs), np.array(ys), np.array(us), np.zeros((K, 6)))
+    return FlownLog(
+        np.array(t), np.array(xs), np.array(ys), np.array(us), np.zeros((K, 6)), np.zeros((K, 3))
+    )
 
 
 def _training() -> TrainingData:
@@ -130,7 +132,7 @@ def test_a_crashed_flight_is_never_reported_as_held(certified):
 def test_gate_clips_what_the_controller_reads():
     log = FlownLog(
         np.zeros(2), np.zeros((2, 6)), np.array([[0, 0, 0, 3.0, -0.5, 0]] * 2), np.zeros((2, 3)),
-        np.array([[0, 0, 0, 0.5, 0, 0]] * 2),
+        np.array([[0, 0, 0, 0.5, 0, 0]] * 2), np.zeros((2, 3)),
     )  # fmt: skip
     e = gated_errors(log, 1.0)
     assert e[0].tolist() == [0, 0, 0, 1.5, -0.5, 0]  # v_ref 0.5 + V 1.0; the other inside

@@ -500,7 +500,7 @@ def test_stated_alpha_is_met_by_exchangeable_synthetic_flights(tmp_path: Path) -
         e = rng.normal(0.0, 0.3 * c.numbers.eps, (k, 6)) * s[0]
         burst = rng.integers(0, k - 3)
         e[burst : burst + rng.integers(0, 4), 3] = 0.5  # velocity outliers within eps_o
-        return FlownLog(t, x, x + e, u, ref)
+        return FlownLog(t, x, x + e, u, ref, np.zeros((k, 3)))
 
     def breaks(log: FlownLog, lam: float) -> bool:
         big = replace(c, numbers=cal.inflate(c.numbers, lam))

@@ -194,3 +194,40 @@ def feedforward_input(acc: np.ndarray, mass: float, g: float = GRAVITY) -> np.nd
     (n, 3)) through the paper's ``B`` (its inverse on the velocity rows)."""
     a = np.asarray(acc, dtype=float)
     return np.stack([-a[..., 0] / g, a[..., 1] / g, mass * a[..., 2]], axis=-1)
+
+
+def feedforward_acceleration(uff: np.ndarray, mass: float, g: float = GRAVITY) -> np.ndarray:
+    """The acceleration ``uff`` stands for: the inverse of :func:`feedforward_input`."""
+    u = np.asarray(uff, dtype=float)
+    return np.stack([-u[..., 0] * g, u[..., 1] * g, u[..., 2] / mass], axis=-1)
+
+
+def model_feedforward(
+    dv: np.ndarray,
+    da: np.ndarray,
+    dj: np.ndarray,
+    dt: float,
+    mass: float,
+    plant: Plant = "hover",
+    g: float = GRAVITY,
+) -> np.ndarray:
+    """The feedforward ``uff_k`` under which the model follows the reference over the step
+    ``[t_k, t_k + dt)`` (docs/guarantee.md, Disturbance in deviation coordinates), ``(n, 3)``,
+    from the reference's changes over the step in velocity ``dv``, acceleration ``da`` and
+    jerk ``dj`` (each ``(n, 3)``).
+
+    It is the step mean of the plant's continuous-time inverse. Hover plant: the mean
+    acceleration ``dv / dt``, with which ``v_{k+1} = v_k + dt a`` holds exactly (and the
+    position up to ``dt^3`` times the jerk). Attitude plant: the tilt loop
+    ``theta'' = kp (u - theta) - kd theta'`` and the rotor lag ``f' = (u_f - f) / tau`` lead
+    by ``u = theta + (kd theta' + theta'') / kp`` and ``u_f = f + tau f'``, whose step means
+    are ``(dv + (kd / kp) da + dj / kp) / dt`` (tilt channels, as accelerations) and
+    ``(dv + tau da) / dt`` (thrust). Its residual ``r_{k+1} - A r_k - B uff_k`` is 0.006 on
+    the default circle at ``dt = 0.1`` against 0.067 for the acceleration sampled at the tick."""
+    dv, da, dj = (np.asarray(z, dtype=float) for z in (dv, da, dj))
+    acc = dv / dt
+    if plant == "attitude":
+        lead = (ATTITUDE_KD / ATTITUDE_KP) * da + dj / ATTITUDE_KP
+        acc = np.concatenate([acc[..., :2] + lead[..., :2] / dt,
+                              acc[..., 2:] + THRUST_TAU_S * da[..., 2:] / dt], axis=-1)  # fmt: skip
+    return feedforward_input(acc, mass, g)

@@ -34,6 +34,7 @@ from pydantic import Field
 
 from qsls.pipeline.core.config import Options, validate
 from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.plant import Plant, model_feedforward
 
 
 class ReferenceOptions(Options):
@@ -113,6 +114,9 @@ class RefSample:
     p: np.ndarray
     v: np.ndarray
     a: np.ndarray
+    uff: np.ndarray | None = None
+    """The model's feedforward for the tick that starts here (:meth:`Reference.feedforward`),
+    where the flight computed it; else the acceleration at this instant stands for it."""
 
     @property
     def state(self) -> np.ndarray:
@@ -205,6 +209,25 @@ class Reference:
         v[:, :2] = rad * f1 * thd[:, None]
         a[:, :2] = rad * (f2 * thd[:, None] ** 2 + f1 * thdd[:, None])
         return p, v, a
+
+    def feedforward(
+        self, t: np.ndarray, dt: float, mass: float, plant: Plant = "hover"
+    ) -> np.ndarray:
+        """``uff_k`` at the ticks ``t`` (n,) for a controller of step ``dt`` on ``plant``: the
+        step mean of the plant's inverse, so that the reference nearly satisfies the model,
+        ``r_{k+1} ~ A r_k + B uff_k`` (:func:`qsls.pipeline.core.plant.model_feedforward`;
+        docs/guarantee.md, Disturbance in deviation coordinates). The jerk is the acceleration's
+        central difference over ``h = 1e-4`` s (the acceleration is analytic; at a move's ends,
+        where the jerk jumps, the difference takes the mean of both sides)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        h = 1e-4
+        _, v0, a0 = self.arrays(t)
+        _, v1, a1 = self.arrays(t + dt)
+
+        def jerk(s: np.ndarray) -> np.ndarray:
+            return (self.arrays(s + h)[2] - self.arrays(s - h)[2]) / (2 * h)
+
+        return model_feedforward(v1 - v0, a1 - a0, jerk(t + dt) - jerk(t), dt, mass, plant)
 
     def sample(self, t: float) -> RefSample:
         p, v, a = self.arrays(np.array([t]))

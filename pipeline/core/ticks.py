@@ -33,13 +33,16 @@ MIN_TICKS = 10
 
 @dataclass(frozen=True)
 class FlownLog:
-    """A flight at the controller's ticks (``(k,)`` and ``(k, 6)`` / ``(k, 3)`` arrays)."""
+    """A flight at the controller's ticks (``(k,)`` and ``(k, 6)`` / ``(k, 3)`` arrays): the
+    reference ``ref`` and the feedforward ``uff`` the controller added are what the proof's
+    deviation coordinates subtract (docs/guarantee.md)."""
 
     t: np.ndarray
     x: np.ndarray
     y: np.ndarray
     u: np.ndarray
     ref: np.ndarray
+    uff: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -48,7 +51,6 @@ class TickLog(FlownLog):
     (k, 3) (absolute input and the reference's feedforward, the paper's signs); a
     :class:`FlownLog`, so every assumption check reads it as it is."""
 
-    uff: np.ndarray
     crashed: bool = False
     crash_reason: str = ""
     controller: str = ""

@@ -7,16 +7,20 @@ the velocity gate the controller read ``y'_v = clip(y_v - v_ref, -V, V) + v_ref`
 acted on is ``e'_k = y'_k - x_k``, split into dense and sparse parts as the premise says. The
 assumptions, in the order the proof uses them:
 
-1. ``disturbance``: the realized ``w_k = x_{k+1} - A x_k - B (u_k - u_hover)`` has
-   ``||H^-1 w_k||_inf <= eps_w`` (measured as on the training flights);
-2. ``nominal``: ``dist(x_hat_k) <= a = eps_w N_w + Delta`` with ``x_hat = x - Phi_xy * e'``;
-3. ``invariance``: ``dist(x_k) <= rho* <= r``;
-4. ``dense``: ``|d_k|_e <= eps + S dist(x_k)`` at every sample;
-5. ``outliers``: at most ``m`` nonzero ``o_k`` in any ``T`` consecutive steps, each
+1. ``disturbance``: the disturbance in the proof's deviation coordinates,
+   ``delta_k = dx_{k+1} - A dx_k - B du_k`` (``dx = x - r``, ``du = u - u_hover - uff``), has
+   ``||H^-1 delta_k||_inf <= eps_w`` (docs/guarantee.md, Disturbance in deviation coordinates);
+2. ``reference``: ``dist(x_ref,k) <= Delta``, the reference inside the region the premise
+   covers (``a = eps_w N_w + Delta`` counts on it);
+3. ``nominal``: ``dist(x_hat_k) <= a`` with ``x_hat = x - Phi_xy * e'``;
+4. ``invariance``: ``dist(x_k) <= rho* <= r``;
+5. ``dense``: ``|d_k|_e <= eps + S dist(x_k)`` at every sample;
+6. ``outliers``: at most ``m`` nonzero ``o_k`` in any ``T`` consecutive steps, each
    ``||o_k||_inf <= eps_o``.
 
-The verdict names the first assumption that failed; ``|d_k|_e <= eps + S rho*`` ("the bound
-held") is reported as a consequence only. ``max ||e|| <= gamma`` alone would follow from the
+The verdict names the assumption that failed first in time (at the same tick, the first in the
+proof's order above); ``|d_k|_e <= eps + S rho*`` ("the bound held") is reported as a
+consequence only. ``max ||e|| <= gamma`` alone would follow from the
 premise at the worst sample whatever ``Phi_xy`` is: it checks the error model, not the controller.
 """
 
@@ -32,11 +36,11 @@ import numpy as np
 from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.guarantee import PremiseNumbers, measured_channels
 from qsls.pipeline.errormodel import honest
-from qsls.pipeline.errormodel.disturbance import realized_disturbance, shaped_norm
+from qsls.pipeline.errormodel.disturbance import deviation_disturbance, shaped_norm
 from qsls.pipeline.evaluate.theorem import nominal_states
 from qsls.pipeline.sim.ticks import FlownLog as FlownLog
 
-ASSUMPTIONS = ("disturbance", "nominal", "invariance", "dense", "outliers")
+ASSUMPTIONS = ("disturbance", "reference", "nominal", "invariance", "dense", "outliers")
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,9 @@ def signals(
         dense=honest.weighted_norm(d, c.error_scale),
         mag=mag,
         dist=distance(log.x),
-        w=shaped_norm(realized_disturbance(log.x, log.u, c.A, c.B, c.u_hover), c.H),
+        w=shaped_norm(
+            deviation_disturbance(log.x, log.u, log.ref, log.uff, c.A, c.B, c.u_hover), c.H
+        ),
         counts=honest.window_counts(mag > 0, np.zeros(len(mag), int), c.window),
     )
 
@@ -113,10 +119,12 @@ def check_assumptions(
     sig = signals(log, c, distance)
     dense, mag, dist, w, counts = sig.dense, sig.mag, sig.dist, sig.w, sig.counts
     d_hat = distance(nominal_states(log.x, sig.e_read, c.phi_xy))
+    d_ref = distance(np.asarray(log.ref, float))
     allowed = guarantee.premise_bound(c.numbers.eps, c.numbers.S, dist)
     inside = dist <= c.numbers.radius
     values = {
         "disturbance": (float(w.max()) if len(w) else 0.0, c.numbers.eps_w, _first(w > c.numbers.eps_w, log.t)),
+        "reference": (float(d_ref.max()), c.numbers.delta, _first(d_ref > c.numbers.delta, log.t)),
         "nominal": (float(d_hat.max()), c.a, _first(d_hat > c.a, log.t)),
         "invariance": (float(dist.max()), min(c.rho_star, c.numbers.radius),
                        _first(dist > min(c.rho_star, c.numbers.radius), log.t)),
@@ -124,16 +132,16 @@ def check_assumptions(
         "outliers": (float(counts.max()), float(c.numbers.m), _first((counts > c.numbers.m) | (mag > c.numbers.eps_o), log.t)),
     }  # fmt: skip
     row: dict[str, Any] = {}
-    failed = None
     for name in ASSUMPTIONS:
         value, limit, t_fail = values[name]
-        holds = math.isnan(t_fail)
         row[f"{name}_value"] = value
         row[f"{name}_limit"] = limit
-        row[f"{name}_holds"] = holds
+        row[f"{name}_holds"] = math.isnan(t_fail)
         row[f"{name}_t"] = t_fail
-        if not holds and failed is None:
-            failed = name
+    broken = [
+        (values[n][2], i, n) for i, n in enumerate(ASSUMPTIONS) if not math.isnan(values[n][2])
+    ]
+    failed = min(broken)[2] if broken else None
     bound = float(guarantee.premise_bound(c.numbers.eps, c.numbers.S, c.rho_star))
     row |= {
         "max_outlier": float(mag.max()),
@@ -166,7 +174,8 @@ def _first(bad: np.ndarray, t: np.ndarray) -> float:
 
 
 WHAT = {
-    "disturbance": "realized ||H^-1 w|| {v:.3g} > eps_w {lim:.3g}",
+    "disturbance": "||H^-1 delta|| {v:.3g} > eps_w {lim:.3g} (deviation coordinates)",
+    "reference": "dist(x_ref) {v:.3g} > Delta {lim:.3g}",
     "nominal": "dist(x_hat) {v:.3g} > a {lim:.3g}",
     "invariance": "dist(x) {v:.3g} > rho* {lim:.3g}",
     "dense": "dense error above eps + S dist by {v:.3g}",

@@ -93,6 +93,8 @@ class FlightLog:
     camera_frame: dict[str, np.ndarray] | None = None
     """The camera loop's kept frame and its tracked features (``Snapshot.arrays``), if any."""
     ctrl_acc: np.ndarray | None = None  # (k, 3) reference acceleration at the ticks
+    ctrl_uff: np.ndarray | None = None
+    """(k, 3) the feedforward the controller added at each tick (``RefSample.uff``)."""
     ctrl_sp: np.ndarray | None = None
     """(k, 5) PX4's attitude setpoint at each tick, ``[T, qx, qy, qz, qw]`` (normalized
     thrust; attitude of the z-up body in the z-up world): the PX4 interface only."""
@@ -191,6 +193,7 @@ class _Record:
     c_u: np.ndarray
     c_a: np.ndarray
     c_sp: np.ndarray
+    c_ff: np.ndarray
 
     @classmethod
     def allocate(cls, n_steps: int, n_vio: int, n_ctrl: int) -> _Record:
@@ -208,6 +211,7 @@ class _Record:
             c_u=np.empty((n_ctrl, 3)),
             c_a=np.empty((n_ctrl, 3)),
             c_sp=np.empty((n_ctrl, 5)),
+            c_ff=np.empty((n_ctrl, 3)),
         )
 
     def log(
@@ -247,6 +251,7 @@ class _Record:
             vio_q_est=self.vio_qe[:m].copy() if camera else None,
             camera_frame=camera_frame,
             ctrl_acc=self.c_a[:k].copy(),
+            ctrl_uff=self.c_ff[:k].copy(),
             ctrl_sp=self.c_sp[:k].copy() if px4 else None,
             vio_arrival_us=arrival[0][:m].copy() if arrival is not None else None,
             vio_dropped=arrival[1][:m].copy() if arrival is not None else None,
@@ -349,11 +354,18 @@ def _fly(
         rec.vio_e,
     )
     c_t, c_y, c_r, c_u, c_a, c_sp = rec.c_t, rec.c_y, rec.c_r, rec.c_u, rec.c_a, rec.c_sp
+    c_ff = rec.c_ff
     vio_a = np.empty((n_vio_max, 3))  # the physics step's mean acceleration at each sample
     step = veh.step_numpy if stepwise else veh.step
     batch = cam is None and not stepwise
 
     ref_p, ref_v, ref_a = ref.arrays(t_ns / NS)
+    # the feedforward of each tick, for the controller's own mass and plant (docs/guarantee.md,
+    # Disturbance in deviation coordinates)
+    ref_ff = ref.feedforward(
+        np.arange(n_ctrl) * (n_sub * h_ns / NS), n_sub * h_ns / NS,
+        float(getattr(ctrl, "mass", veh.mass)), getattr(ctrl, "plant", "hover"),
+    )  # fmt: skip
     s = veh.hover_state(ref_p[0], ref_v[0])
     S[0] = s
     ctrl.reset()
@@ -395,7 +407,7 @@ def _fly(
             if batch and pending < m:
                 y_latest, pending = flush(), m
             t = i * h
-            r = RefSample(p=ref_p[i], v=ref_v[i], a=ref_a[i])
+            r = RefSample(p=ref_p[i], v=ref_v[i], a=ref_a[i], uff=ref_ff[min(k, len(ref_ff) - 1)])
             if arrival is not None:  # the newest sample arrived by the tick
                 tick_ns = i * h_ns
                 while cursor + 1 < m and (dropped[cursor + 1] or arrival_ns[cursor + 1] <= tick_ns):
@@ -416,6 +428,7 @@ def _fly(
                 thrust, cmd_q = veh.command_px4(t_sp, q_d, px4.hover_thrust)
                 c_sp[k, 0], c_sp[k, 1:] = t_sp, q_d
             c_t[k], c_y[k], c_r[k], c_u[k], c_a[k] = i * h_ns, y, r.state, u, r.a
+            c_ff[k] = ref_ff[min(k, len(ref_ff) - 1)]
             k += 1
             progress.advance(1)
         s_next = step(s, thrust, cmd_q, h)

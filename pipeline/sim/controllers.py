@@ -38,7 +38,7 @@ from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.control.pdgain import PDGains, pd_gain
 from qsls.pipeline.control.realize import StaticGainController
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.plant import GRAVITY, PAPER_DT_S, feedforward_input
+from qsls.pipeline.core.plant import GRAVITY, NX, PAPER_DT_S, Plant, feedforward_input
 from qsls.pipeline.core.references import RefSample
 from qsls.pipeline.export.cbuild import c_runtime
 from qsls.pipeline.sim.options import ControllerOptions
@@ -65,8 +65,12 @@ def hover_input(mass: float, g: float = GRAVITY) -> np.ndarray:
 
 
 def feedforward(ref: RefSample, mass: float, g: float = GRAVITY) -> np.ndarray:
-    """``[-a_x / g, a_y / g, m a_z]``: the reference acceleration through the paper's ``B``
+    """``uff``: the model's feedforward the flight computed for the tick (``ref.uff``,
+    :meth:`qsls.pipeline.core.references.Reference.feedforward`), else the reference
+    acceleration through the paper's ``B``, ``[-a_x / g, a_y / g, m a_z]``
     (:func:`qsls.pipeline.core.plant.feedforward_input`)."""
+    if ref.uff is not None:
+        return ref.uff
     return feedforward_input(ref.a, mass, g)
 
 
@@ -173,7 +177,7 @@ class LinearController:
 
     def __init__(
         self, runtime: Any, mass: float, name: str, dt: float | None = None,
-        gate: float | None = None,
+        gate: float | None = None, plant: Plant | None = None,
     ) -> None:  # fmt: skip
         self.runtime = runtime
         self.mass = float(mass)
@@ -181,6 +185,8 @@ class LinearController:
         self.dt = float(dt if dt is not None else runtime.dt)
         self.gate = gate
         """Velocity gate ``V``: the velocity deviation read is clipped to ``[-V, V]``."""
+        self.plant: Plant = plant or plant_of(runtime)
+        """The plant it was synthesized on: its feedforward is that plant's inverse."""
 
     def reset(self) -> None:
         self.runtime.reset()
@@ -189,6 +195,13 @@ class LinearController:
         dev = gated_deviation(np.asarray(y - ref.state, dtype=float), self.gate)
         u = np.asarray(self.runtime.step(dev), dtype=float)
         return hover_input(self.mass) + feedforward(ref, self.mass) + u.reshape(3)
+
+
+def plant_of(runtime: Any) -> Plant:
+    """The plant a runtime's filter bank was synthesized on: its state is the attitude
+    plant's when wider than the physical ``NX`` (a static gain: the hover plant)."""
+    nx = getattr(getattr(runtime, "bank", None), "nx", NX)
+    return "attitude" if nx > NX else "hover"
 
 
 def controller_folder(spec: str | Path) -> Path:
@@ -219,6 +232,7 @@ def make_controller(options: ControllerOptions, mass: float) -> PositionControll
     folder = controller_folder(kind)
 
     runtime: Any = load_runtime(folder)
+    plant = plant_of(runtime)
     if options.backend == "c" and not isinstance(runtime, StaticGainController):
         runtime = c_runtime(folder)  # the code 'qsls export' writes, compiled, through ctypes
     name = str(getattr(runtime, "name", None) or folder.name)
@@ -229,4 +243,4 @@ def make_controller(options: ControllerOptions, mass: float) -> PositionControll
         )
 
     gate = Certificate.load(folder).gate if (folder / CERTIFICATE_FILE).is_file() else None
-    return LinearController(runtime, mass, name, gate=gate)
+    return LinearController(runtime, mass, name, gate=gate, plant=plant)

@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from qsls.pipeline.core.plant import GRAVITY
+from qsls.pipeline.core.plant import GRAVITY, feedforward_acceleration
 from qsls.pipeline.core.references import RefSample
 from qsls.pipeline.core.rotations import quat_mul
 from qsls.pipeline.export.attitude import AttitudeLimits, thrust_attitude
@@ -142,10 +142,10 @@ class Px4Interface:
         """``(F newtons, q_d [x, y, z, w] ENU/FLU)``: the export's map of ``u``. The map
         takes the deviation ``u - hover - u_ff`` and the reference acceleration, as the
         exported code's ``_attitude`` does."""
-        dev = np.asarray(u, dtype=float) - self._hover - feedforward(ref, self.mass, self.g)
-        thrust, q = thrust_attitude(
-            dev[None, :], ref.a[None, :], self.mass, self.limits, 0.0, self.g
-        )
+        ff = feedforward(ref, self.mass, self.g)
+        dev = np.asarray(u, dtype=float) - self._hover - ff
+        acc = feedforward_acceleration(ff, self.mass, self.g)  # what the feedforward stands for
+        thrust, q = thrust_attitude(dev[None, :], acc[None, :], self.mass, self.limits, 0.0, self.g)
         return float(thrust[0]), q[0]
 
     def setpoint(self, u: np.ndarray, ref: RefSample) -> tuple[float, np.ndarray]:

@@ -5,7 +5,8 @@ Every flight a synthesized controller flies keeps it (``qsls simulate``, the fly
 ``t`` (s), the true state ``x_*`` and what the controller read ``y_*`` (``px .. vz``), the
 absolute input ``u_*`` (``pitch, roll, thrust``, the paper's signs), the reference state
 ``r_*`` and its feedforward ``uff_*``. The state ``x_k`` is the physics sample at the tick,
-``uff_k = feedforward(r(t_k), mass)`` (:func:`qsls.pipeline.sim.controllers.feedforward`).
+``uff_k`` the feedforward the controller added (the model's, for its mass and plant:
+:meth:`qsls.pipeline.core.references.Reference.feedforward`).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ def tick_log(flight: FlightLog, reference: ReferenceOptions, sha256: str = "") -
     t = flight.ctrl_t_ns / NS
     return TickLog(
         t, _tick_states(flight), flight.ctrl_y, flight.ctrl_u, flight.ctrl_ref,
-        _tick_feedforward(reference, t, flight.mass), flight.crashed, flight.crash_reason or "",
+        flight.ctrl_uff if flight.ctrl_uff is not None else _tick_feedforward(reference, t, flight.mass),
+        flight.crashed, flight.crash_reason or "",
         controller=flight.controller, controller_sha256=sha256,
     )  # fmt: skip
