@@ -57,7 +57,10 @@ EXAMPLE = "qsls calibrate -m fit --controllers synth -o cal --recorded flights/c
             parse=repeated_list,
             kind=list[str],
         ),
+        "source": ("--source",),
+        "standin_log": ("--standin-log",),
     },
+    config_only={"sim": "the vehicle, reference and VIO: a run config's simulate: section"},
 )
 def command(
     model: Path = typer.Option(

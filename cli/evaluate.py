@@ -10,7 +10,7 @@ import typer
 
 from qsls.cli.common import RichProgress, cli_errors, overrides, print_summary, print_verdicts
 from qsls.cli.fields import hidden, model_options
-from qsls.cli.fly import FLY
+from qsls.cli.fly import FLY, FLY_CONFIG_ONLY
 from qsls.pipeline.evaluate.options import FlyOptions
 
 EXAMPLE = "qsls evaluate --model fit --controller synth --flights flights/f3 --out ev"
@@ -18,7 +18,9 @@ EXAMPLE = "qsls evaluate --model fit --controller synth --flights flights/f3 --o
 
 @cli_errors
 @model_options(
-    FlyOptions, {"smooth_s": ("--smooth-s",), "flown_by": ("--flown-by",), **hidden(FLY)}
+    FlyOptions,
+    {"smooth_s": ("--smooth-s",), "flown_by": ("--flown-by",), **hidden(FLY)},
+    config_only=FLY_CONFIG_ONLY,
 )
 def command(
     model: Path = typer.Option(

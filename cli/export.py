@@ -25,6 +25,9 @@ EXAMPLE = "qsls export controllers/l1_robust --target c --out export"
         "verify_ticks": ("--verify-ticks",),
         "tilt_limit_deg": ("--tilt-limit-deg",),
         "thrust_limits": ("--thrust-limits",),
+        "closed_loop_ticks": ("--closed-loop-ticks",),
+        "seed": ("--seed",),
+        "compiler": ("--compiler",),
     },
 )
 def command(

@@ -194,6 +194,17 @@ def _param(name: str, flag: Flag, model: Any, dotted: str) -> tuple[inspect.Para
     return param, parse
 
 
+def config_only_text(fields: Mapping[str, str], width: int = 76) -> str:
+    """The ``--help`` epilog's paragraph on the config-only options (``""`` for none)."""
+    import textwrap
+
+    if not fields:
+        return ""
+    body = "; ".join(f"{k} ({v})" for k, v in fields.items())
+    lines = textwrap.wrap(f"Config file only (--config): {body}.", width - 2)
+    return "\b\n" + "\n".join(f"  {ln}" if i else ln for i, ln in enumerate(lines))
+
+
 def _nested(dotted: str, value: Any) -> tuple[str, Any]:
     """``("sim.controller.backend", "c")`` -> ``("sim", {"controller": {"backend": "c"}})``."""
     top, *rest = dotted.split(".")
@@ -202,11 +213,24 @@ def _nested(dotted: str, value: Any) -> tuple[str, Any]:
     return top, value
 
 
-def model_options(model: Any, table: Table) -> Callable[[F], F]:
+CONFIG_ONLY = "__qsls_config_only__"
+"""The attribute of a generated command naming its model's config-only fields (``--help``
+lists them, :func:`qsls.cli.main._register`)."""
+
+
+def model_options(
+    model: Any, table: Table, config_only: Mapping[str, str] | None = None
+) -> Callable[[F], F]:
     """Give a command the options of ``model``'s fields in ``table``: Typer sees one option per
     field (named after the field's last part), ``None`` unless the user sets it, so the
     model's default (or the config file's value) applies. The command takes ``given``, the
-    options set on the command line as the model's values (``{"T": 10, "sim": {...}}``)."""
+    options set on the command line as the model's values (``{"T": 10, "sim": {...}}``).
+
+    ``config_only``: the model's fields the command line does not take, each with where it
+    is set instead (``{"sim": "the config's simulate: section"}``); ``--help`` lists them.
+    Every field of the model is in ``table``, in ``config_only``, or set by the command's
+    own parameters (tests/test_cli_help.py checks it: an option qsls's messages name must
+    not be refused as unknown)."""
     specs = {d: _flag(f) for d, f in table.items()}
 
     def wrap(fn: F) -> F:
@@ -229,6 +253,7 @@ def model_options(model: Any, table: Table) -> Callable[[F], F]:
 
         params = own + [p for _, p, _ in built.values()]
         command.__signature__ = sig.replace(parameters=params)  # type: ignore[attr-defined]
+        setattr(command, CONFIG_ONLY, dict(config_only or {}))
         command.__annotations__ = {
             **{k: v for k, v in fn.__annotations__.items() if k != "given"},
             **{p.name: p.annotation for _, p, _ in built.values()},

@@ -8,7 +8,7 @@ from typing import Any
 import typer
 
 from qsls.cli.common import cli_errors, overrides
-from qsls.cli.fields import Flag, as_given, auto_or_number, model_options
+from qsls.cli.fields import Flag, as_given, auto_or_number, model_options, repeated_list
 from qsls.pipeline.errormodel.options import FitOptions
 
 EXAMPLE = "qsls fit flights/f1 flights/f2 --out fit --radius 1.0"
@@ -32,6 +32,14 @@ EXAMPLE = "qsls fit flights/f1 flights/f2 --out fit --radius 1.0"
         "bootstrap_block": ("--bootstrap-block",),
         "seed": ("--seed",),
         "jobs": ("--jobs", "-j"),
+        "inputs": Flag(("--inputs",), parse=repeated_list, kind=list[str]),
+        "environments": Flag(("--environments",), parse=repeated_list, kind=list[str]),
+        "mass": ("--mass",),
+        "plant": ("--plant",),
+        "min_separation_factor": ("--min-separation-factor",),
+        "reference_dt": ("--reference-dt",),
+        "bootstrap_level": ("--bootstrap-level",),
+        "top_pairs": ("--top-pairs",),
     },
 )
 def command(

@@ -38,12 +38,30 @@ FLY: Table = {
     "sim.controller.backend": ("--backend",),
     "assured": ("--assured/--no-assured",),
     "fallback": ("--fallback",),
+    "state_scale": ("--state-scale",),
+    "max_figure_flights": ("--max-figure-flights",),
+    "track_threshold_m": ("--track-threshold-m",),
+    "tie_rel": ("--tie-rel",),
+    "keep_bags": ("--keep-bags/--no-keep-bags",),
+    "se3": ("--se3/--no-se3",),
 }
 """The flying options ``qsls fly`` exposes (``qsls evaluate --fly`` too, hidden)."""
 
+FLY_CONFIG_ONLY = {
+    "sim": "the vehicle, reference and VIO: a run config's simulate: section",
+    "ingest": "how each flight's log is ingested: the ingest: section",
+    "controllers": "names; the command line gives --controller folders",
+    "pd_z_control": "on, off or a list of controllers",
+}
+"""FlyOptions' fields a config file sets (mappings, or spelled by another parameter)."""
+
 
 @cli_errors
-@model_options(FlyOptions, FLY)
+@model_options(
+    FlyOptions,
+    {**FLY, "smooth_s": ("--smooth-s",)},
+    config_only={**FLY_CONFIG_ONLY, "flown_by": "qsls evaluate's; fly flies them itself"},
+)
 def command(
     model: Path = typer.Option(
         ...,

@@ -39,6 +39,8 @@ EXAMPLE = "qsls ingest --vio vio.tum --truth data.csv --out flights/f1 --dt 0.1"
         "reference": ("--reference",),
         "commands_topic": ("--commands-topic",),
         "reference_topic": ("--reference-topic",),
+        "max_truth_accel": ("--max-truth-accel",),
+        "decoder": ("--decoder",),
     },
 )
 def command(

@@ -66,7 +66,13 @@ def _register(only: str | None = None) -> None:
             continue
         mod = importlib.import_module(f"qsls.cli.{module}")
         example = getattr(mod, "EXAMPLE", None)
-        epilog = f"\b\nExample:\n  {example}" if example else None
+        parts = [f"\b\nExample:\n  {example}"] if example else []
+        config_only = getattr(mod.command, "__qsls_config_only__", None)  # fields.CONFIG_ONLY
+        if config_only:
+            from qsls.cli.fields import config_only_text
+
+            parts.append(config_only_text(config_only))
+        epilog = "\n\n".join(parts) or None
         app.command(name, epilog=epilog)(mod.command)
 
 

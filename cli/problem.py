@@ -29,5 +29,15 @@ PROBLEM: Table = {
     "dt": ("--dt",),
     "imitate": ("--imitate",),
     "solver": ("--solver",),
+    "plant": ("--plant",),
+    "H": ("--H",),
+    "R0": ("--R0",),
+    "outlier_risk": ("--outlier-risk",),
 }
 """Each exposed field of the problem and its flags."""
+
+PROBLEM_CONFIG_ONLY = {
+    "eps_groups": "a mapping per channel group",
+    "pd": "the PD's gains, a mapping",
+}
+"""The problem's fields a config file sets (mappings the command line does not spell)."""

@@ -44,6 +44,10 @@ def _band(text: str, flag: str) -> list[float]:
         "vio_to_reference": ("--vio-to-reference",),
         "tilt_limit_deg": ("--tilt-limit-deg",),
         "thrust_limits": ("--thrust-limits",),
+        "velocity_window": ("--velocity-window",),
+        "command_topic": ("--command-topic",),
+        "frame_id": ("--frame-id",),
+        "warn_deviation_m": ("--warn-deviation-m",),
     },
 )
 def command(

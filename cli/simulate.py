@@ -27,6 +27,13 @@ EXAMPLE = "qsls simulate --out flights/sim1 --seed 1 --format mcap"
         "controller.backend": Flag(("--backend",), name="backend"),
         "px4.interface": Flag(("--interface",), name="interface"),
     },
+    config_only={
+        "vehicle": "mass, drag",
+        "reference": "kind, radius, height, period, ...",
+        "crash": "the crash limits",
+        "mocap": "the motion capture's noise and rate",
+        "vio, controller, log, px4": "their other fields",
+    },
 )
 def command(
     out: Path = typer.Option(

@@ -9,7 +9,7 @@ import typer
 
 from qsls.cli.common import cli_errors, parse_list, print_summary
 from qsls.cli.fields import Flag, model_options
-from qsls.cli.problem import PROBLEM
+from qsls.cli.problem import PROBLEM, PROBLEM_CONFIG_ONLY
 from qsls.pipeline.control.options import SweepSection
 
 
@@ -49,7 +49,11 @@ def _scheduler(address: str, flag: str) -> str:
         "jobs": ("--jobs", "-j"),
         "scheduler": Flag(("--scheduler",), parse=_scheduler),
         "wait_workers": ("--wait-workers",),
+        "certify": ("--certify/--no-certify",),
+        "s_max_curve": ("--s-max-curve/--no-s-max-curve",),
+        "chunks_per_job": ("--chunks-per-job",),
     },
+    config_only=PROBLEM_CONFIG_ONLY,
 )
 def command(
     config: Path | None = typer.Option(

@@ -9,14 +9,18 @@ import typer
 
 from qsls.cli.common import cli_errors, print_summary
 from qsls.cli.fields import model_options
-from qsls.cli.problem import PROBLEM
+from qsls.cli.problem import PROBLEM, PROBLEM_CONFIG_ONLY
 from qsls.pipeline.control.options import SynthOptions
 
 EXAMPLE = "qsls synth --model fit --out controllers --T 20 --S p50 --eps-e p95"
 
 
 @cli_errors
-@model_options(SynthOptions, {**PROBLEM, "controllers": ("--controllers",)})
+@model_options(
+    SynthOptions,
+    {**PROBLEM, "controllers": ("--controllers",)},
+    config_only={**PROBLEM_CONFIG_ONLY, "paper_mode": "the paper's setting, a mapping"},
+)
 def command(
     model: Path | None = typer.Option(
         None, "--model", "-m", help="error_model.yaml or the fit folder holding it (qsls fit)."

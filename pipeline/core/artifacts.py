@@ -21,6 +21,7 @@ import contextlib
 import hashlib
 import io
 import json
+import math
 import os
 import shutil
 import time
@@ -182,16 +183,73 @@ def dump_yaml(obj: Any) -> str:
     return yaml.safe_dump(to_plain(obj), sort_keys=False, default_flow_style=None, width=100)
 
 
-def load_yaml(text: str) -> Any:
+def load_yaml(text: str, source: str | Path = "") -> Any:
     """``yaml.safe_load`` through libyaml's parser where PyYAML was built with it (the same
-    objects, 10 to 20 times faster: a flight loads its controller's certificate)."""
+    objects, 10 to 20 times faster: a flight loads its controller's certificate).
+
+    A document whose aliases expand it beyond ``max(MAX_CONFIG_VALUES, len(text))`` values
+    is refused (:class:`InputError` naming ``source``): without aliases a value takes at least
+    one character, and qsls writes none, so only an alias "bomb" gets there (a 6 kB file
+    that expands to billions: every reader that walks it, pydantic's included, never
+    returns)."""
     import yaml
 
-    return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    # deferred: core.config builds pydantic's models; only its counting is needed here
+    from qsls.pipeline.core.config import MAX_CONFIG_VALUES, expanded_size
+
+    data = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    cap = max(MAX_CONFIG_VALUES, len(text))
+    if isinstance(data, dict | list) and expanded_size(data, cap) > cap:
+        raise InputError(
+            f"{source or 'YAML document'}: expands to more than {cap} values through YAML "
+            "aliases (qsls writes none); refused: regenerate the file or write the values out"
+        )
+    return data
+
+
+def finite_or_null(obj: Any) -> Any:
+    """``obj`` (plain values, :func:`to_plain`) with every NaN and infinity replaced by
+    ``None``: JSON has no such numbers (``NaN``/``Infinity`` are Python's extension, which
+    other readers refuse). A ``null`` in a number's place means "no finite value": not
+    defined (a NaN), or unbounded where the field says so (docs/conventions.md#json)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_or_null(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [finite_or_null(v) for v in obj]
+    return obj
 
 
 def dump_json(obj: Any) -> str:
-    return json.dumps(to_plain(obj), indent=2, sort_keys=False, allow_nan=True) + "\n"
+    """The one JSON writer of qsls's files: standard JSON (``allow_nan=False``), a non-finite
+    number written as ``null`` (:func:`finite_or_null`)."""
+    plain = finite_or_null(to_plain(obj))
+    return json.dumps(plain, indent=2, sort_keys=False, allow_nan=False) + "\n"
+
+
+def json_number(value: Any, null: float = math.nan) -> float:
+    """A number read back from qsls's JSON: ``null`` is what the field's writer meant by it
+    (``null``: NaN, "not defined", unless the field is unbounded where null, e.g. a
+    calibration's ``lambda_hat``: ``math.inf``)."""
+    return null if value is None else float(value)
+
+
+def read_json(path: Path, fix: str = "") -> Any:
+    """A JSON file qsls wrote, read whole: a missing, unreadable, truncated or corrupted file
+    is one :class:`InputError` naming it (and ``fix``, what to do), never a traceback.
+    ``NaN``/``Infinity`` written by older versions are still read."""
+    path = Path(path)
+    tail = f"; {fix}" if fix else ""
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc}){tail}") from None
+    try:
+        return json.loads(raw)
+    except (ValueError, RecursionError) as exc:  # not JSON, not UTF-8, truncated
+        what = getattr(exc, "msg", None) or exc.__class__.__name__
+        raise InputError(f"{path}: not valid JSON ({what}){tail}") from None
 
 
 def parquet_bytes(df: Any) -> bytes:
@@ -299,6 +357,21 @@ def require_stage(folder: Path, stage: str) -> dict[str, Any]:
             f"{folder}: written by stage '{manifest.get('stage')}', expected a '{stage}' folder"
         )
     return manifest
+
+
+def read_stage_json(folder: Path, name: str, fix: str) -> Any:
+    """The JSON file ``name`` of a stage folder, as its stage wrote it: refused in one line
+    (:class:`InputError`, with ``fix``) when its bytes are not those its ``manifest.json``
+    lists (edited or corrupted since, whatever its size and time say: a cache that trusts
+    them would not see it), or when it is not JSON (:func:`read_json`)."""
+    path = Path(folder) / name
+    listed = (read_manifest(folder).get("files") or {}).get(name)
+    if listed is not None and path.is_file() and _hash_file(path) != listed:
+        raise InputError(
+            f"{path}: changed since its stage wrote it (its sha256 is not the one its "
+            f"{MANIFEST} lists); {fix}"
+        )
+    return read_json(path, fix)
 
 
 # --------------------------------------------------------------------------- stage writer
@@ -412,6 +485,7 @@ def check_output(
     (:func:`foreign_files`; ``known``: name patterns taken as qsls's in a folder without a
     manifest, as older reports had)."""
     out = Path(out)
+    refuse_in_use(out)
     refuse_overlap(out, inputs)
     check_writable(out, "output folder")
     check_unlocked(out)
@@ -427,6 +501,33 @@ def check_output(
         raise OutputExistsError(
             f"{out} holds files qsls did not write ({shown}); --force replaces only a folder "
             "a qsls command wrote: move them away or choose another --out"
+        )
+
+
+def refuse_in_use(out: Path, what: str = "output folder") -> None:
+    """Refuse an output that names no folder of its own: ``.``, ``..``, ``/`` and anything
+    that resolves to the filesystem's root, the home folder, the current folder or a folder
+    holding it. A stage replaces its output folder as a whole, so such an output would take
+    the user's files (and the process's own working folder) with it."""
+    given = Path(out)
+    o = given.resolve()
+    cwd = Path.cwd().resolve()
+    named = given.name not in ("", ".", "..")
+    why = None
+    if o == o.parent:
+        why = "is the filesystem's root"
+    elif o == Path.home().resolve():
+        why = "is your home folder"
+    elif o == cwd:
+        why = "is the current folder"
+    elif o in cwd.parents:
+        why = f"holds the current folder ({cwd})"
+    elif not named:
+        why = f"names no folder of its own ({o})"
+    if why is not None:
+        raise InputError(
+            f"{what} {given} {why}; name a new folder for the output, e.g. --out "
+            f"{'./' if o == cwd else ''}results"
         )
 
 

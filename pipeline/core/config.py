@@ -11,9 +11,16 @@ from __future__ import annotations
 import difflib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
-from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+)
 
 from qsls.pipeline.core.errors import ConfigError
 
@@ -35,6 +42,46 @@ class Options(BaseModel):
         if _nonfinite(value):
             raise ValueError("must be a finite number")
         return value
+
+
+def _at_most(limit: float, why: str) -> Any:
+    """A pydantic check refusing a value above ``limit``, the message saying ``why``."""
+
+    def check(value: Any) -> Any:
+        if value > limit:
+            raise ValueError(f"at most {limit if isinstance(limit, int) else f'{limit:g}'} ({why})")
+        return value
+
+    return AfterValidator(check)
+
+
+MAX_SEED = 2**32 - 1
+"""The largest seed: numpy's legacy generators stop at ``2^32 - 1``, and seeds are stored in
+int64 columns offset by the flight count (``seed + k``), which stays inside 64 bits from here;
+a larger one failed only after flying (pyarrow's OverflowError) or in a worker."""
+Seed = Annotated[
+    int, Field(ge=0), _at_most(MAX_SEED, "a seed is 0 .. 2^32 - 1: seeds are stored in 64 bits")
+]
+"""A random seed, ``0 .. 2^32 - 1`` (:data:`MAX_SEED`), checked when the options are read,
+before anything flies."""
+MAX_FLIGHTS = 10_000
+"""The most flights one count may ask for (calibration, range, validation flights; fly's
+seeds): a flight is seconds of CPU and megabytes of tables, so 10 000 is hours of flying and
+gigabytes (a certificate needs 19, docs/calibration.md); a count of 10^9 ran out of memory
+before the first flight instead of being refused."""
+FlightCount = Annotated[
+    int,
+    Field(ge=0),
+    _at_most(MAX_FLIGHTS, "10 000 flights are hours of flying; a certificate needs 19"),
+]
+"""A number of flights, ``0 .. MAX_FLIGHTS``."""
+MAX_DURATION_S = 86_400.0
+"""The longest flight (s): a day, longer than any battery (a simulated day takes hours and
+about 140 MB); a longer one ran out of memory instead of being refused."""
+Duration = Annotated[
+    float, Field(gt=0), _at_most(MAX_DURATION_S, "seconds: a day, longer than any battery")
+]
+"""A flight's duration in seconds, ``(0, MAX_DURATION_S]``."""
 
 
 def _nonfinite(value: Any) -> bool:
@@ -78,7 +125,7 @@ def read_yaml(path: Path) -> dict[str, Any]:
         return {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of option names to values at the top level")
-    if _expanded_size(data, MAX_CONFIG_VALUES) > MAX_CONFIG_VALUES:
+    if expanded_size(data, MAX_CONFIG_VALUES) > MAX_CONFIG_VALUES:
         raise ConfigError(
             f"{path}: expands to more than {MAX_CONFIG_VALUES} values (YAML aliases that "
             "repeat each other, or refer to themselves); write the values out"
@@ -93,7 +140,7 @@ MAX_CONFIG_VALUES = 200_000
 "bomb" expands to billions; every stage walks the options, so it would never return)."""
 
 
-def _expanded_size(obj: Any, cap: int) -> int:
+def expanded_size(obj: Any, cap: int) -> int:
     """How many values ``obj`` holds with shared (aliased) parts counted each time they
     occur, counting no further than just past ``cap``."""
     n, stack = 0, [obj]
@@ -245,9 +292,15 @@ def describe_validation_error(model: type[BaseModel], exc: ValidationError) -> s
         else:
             msg = err.get("msg", "invalid value").removeprefix("Value error, ")
             got = err.get("input")
-            shown = f" (got {got!r})" if got is not None and not isinstance(got, dict) else ""
+            shown = f" (got {_short(got)})" if got is not None and not isinstance(got, dict) else ""
             parts.append(f"'{dotted}': {msg}{shown}")
     return "; ".join(parts)
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """``repr(value)``, cut to about ``limit`` characters (a 20 000-item list given)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[: limit - 5]}...{text[-1]}"
 
 
 def _field_names(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:

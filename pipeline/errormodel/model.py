@@ -188,7 +188,7 @@ def load_error_model(path: Path) -> ErrorModel:
 
     f = error_model_file(path)
     try:
-        data = load_yaml(f.read_text())
+        data = load_yaml(f.read_text(), f)
     except yaml.YAMLError:
         raise InputError(f"{f}: not valid YAML; regenerate it with 'qsls fit'") from None
     if not isinstance(data, dict):

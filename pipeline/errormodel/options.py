@@ -9,7 +9,7 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator
 
-from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.config import Options, Seed
 from qsls.pipeline.core.plant import PAPER_MASS_KG, Plant
 from qsls.pipeline.core.references import ReferenceOptions
 
@@ -51,14 +51,14 @@ class FitOptions(Options):
     """Include a parametric reference's take-off and approach (before its pattern) in delta."""
     r0: float | str = "max"
     """``R0``: ``max`` (= eps_e), ``pNN`` (a percentile of ``||e||``) or a number."""
-    bootstrap: int = Field(0, ge=0)
+    bootstrap: int = Field(0, ge=0, le=100_000)
     """Bootstrap replicates for confidence intervals (moving blocks within each flight; costs
     about N times the pair pass); 0: none."""
     bootstrap_block: int = Field(10, ge=1)
     """Block length (samples) of the moving-block bootstrap within each flight."""
     bootstrap_level: float = Field(0.95, gt=0, lt=1)
     """Confidence level of the bootstrap intervals."""
-    seed: int = 0
+    seed: Seed = 0
     """Seed of the bootstrap."""
     top_pairs: int = Field(20, ge=1, le=1000)
     """Number of worst pairs reported."""

@@ -613,6 +613,12 @@ def simulated_notice(options: CalibrateOptions) -> str:
     )
 
 
+def _unbounded(value: float | None) -> float:
+    """A ``lambda_hat`` read from ``calibration.json``: ``null`` is no inflation covers, inf
+    (docs/conventions.md#json)."""
+    return math.inf if value is None else float(value)
+
+
 def summary_lines(out: Path) -> list[str]:
     """The console's line per calibrated certificate (from ``calibration.json``)."""
     import json
@@ -621,7 +627,7 @@ def summary_lines(out: Path) -> list[str]:
     lines = []
     for r in data["certificates"]:
         head = (f"{r['controller']} ({r['condition']}): {r['status']}, {r['flights']} calibration "
-                f"flights, alpha {r['alpha']:g}, lambda_hat {r['lambda_hat']:.3g}")  # fmt: skip
+                f"flights, alpha {r['alpha']:g}, lambda_hat {_unbounded(r['lambda_hat']):.3g}")  # fmt: skip
         if r["rho_star"] is not None:
             head += f", rho* {r['rho_star']:.3g} (tested to {r['tested_range']:.3g})"
         if r["validation_flights"]:

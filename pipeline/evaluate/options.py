@@ -12,7 +12,7 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.core.cluster import SchedulerAddress
-from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.config import MAX_FLIGHTS, Duration, FlightCount, Options, Seed
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.sim.options import Perception, SimOptions
@@ -33,7 +33,7 @@ class EvaluateOptions(Options):
     rows; every other row, and every row when unset, checks the premise only."""
     figures: bool = True
     """Write the PNG figures."""
-    max_figure_flights: int = 12
+    max_figure_flights: int = Field(12, ge=0, le=1000)
     """At most this many flights get a panel in the figures (all are in the tables)."""
 
 
@@ -43,9 +43,11 @@ Vio = Literal["emulator", "camera"]
 class FlyOptions(EvaluateOptions):
     """Options of ``qsls fly`` (and those of the bound check)."""
 
-    seeds: list[int] = Field(default_factory=lambda: [0, 1, 2], min_length=1)
+    seeds: list[Seed] = Field(
+        default_factory=lambda: [0, 1, 2], min_length=1, max_length=MAX_FLIGHTS
+    )
     """Seeds of the VIO emulator (and of the log's noise); one flight per seed."""
-    duration: float = Field(30.0, gt=0)
+    duration: Duration = 30.0
     """Seconds per flight."""
     conditions: list[Perception] = Field(
         default_factory=lambda: ["regular", "degraded"],  # type: ignore[arg-type]
@@ -141,10 +143,10 @@ class CalibrateOptions(Options):
     """Options of ``qsls calibrate`` (the run's ``calibrate:`` section): each candidate flies
     its own calibration flights, then fresh validation flights (docs/calibration.md)."""
 
-    flights: int = Field(20, ge=1)
+    flights: FlightCount = Field(20, ge=1)
     """Calibration flights per candidate and condition (19 at least for ``certified``); given
     as ingest folders instead of a number, the recorded calibration flights (``recorded``)."""
-    validation: int = Field(20, ge=0)
+    validation: FlightCount = 20
     """Validation flights per candidate and condition (fresh seeds, used for nothing else)."""
     alpha: float = Field(0.1, gt=0, lt=1)
     """The stated probability that a new flight breaks the calibrated premise."""
@@ -153,18 +155,18 @@ class CalibrateOptions(Options):
     confidence ``1 - delta`` over the calibration draw."""
     delta: float = Field(0.05, gt=0, lt=1)
     """``1 - confidence`` of the ``pac`` statement."""
-    seed: int = Field(1000, ge=0)
+    seed: Seed = 1000
     """First calibration seed (seeds ``seed .. seed + flights - 1``)."""
-    validation_seed: int = Field(2000, ge=0)
+    validation_seed: Seed = 2000
     """First validation seed."""
     conditions: list[Perception] = Field(
         default_factory=lambda: ["regular"],  # type: ignore[arg-type]
         min_length=1,
     )
     """Perception conditions: one calibrated certificate per candidate and condition."""
-    duration: float = Field(20.0, gt=0)
+    duration: Duration = 20.0
     """Seconds per flight."""
-    range_flights: int = Field(0, ge=0)
+    range_flights: FlightCount = 0
     """Range flights per candidate and condition: the candidate flies the design reference
     moved by a random offset within ``tube``, so the flights reach distances from the training
     states toward ``rho*``; they are scored on every premise quantity but the reference's
@@ -174,7 +176,7 @@ class CalibrateOptions(Options):
     tube: float = Field(0.0, ge=0)
     """Radius (m) of the range flights' offsets: horizontal, uniform in the disc; the height
     uniform within ``tube / 2``."""
-    range_seed: int = Field(3000, ge=0)
+    range_seed: Seed = 3000
     """First range-flight seed."""
     controllers: list[str] | None = None
     """Candidate controller names; default: every robust controller whose design check passed."""
@@ -220,7 +222,7 @@ class CalibrateOptions(Options):
     def _a_list_is_calibration(cls, v: object) -> object:
         return {"calibration": v} if isinstance(v, list | tuple | str) else v
 
-    design_seeds: list[int] = Field(default_factory=list)
+    design_seeds: list[Seed] = Field(default_factory=list)
     """Seeds of the design flights (``qsls run`` fills them in): a calibration or validation
     seed among them is refused, as is a validation seed among the calibration ones."""
 

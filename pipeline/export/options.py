@@ -10,6 +10,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from qsls.pipeline.core.config import Seed
 from qsls.pipeline.export.attitude import LimitOptions
 
 PREFIX_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,40}$")
@@ -78,11 +79,11 @@ class ExportOptions(LimitOptions):
     """C names: ``PREFIX_t``, ``PREFIX_step`` ..., files ``PREFIX.h``/``PREFIX.c``/``PREFIX.py``."""
     allow_uncertified: bool = False
     """Export a controller whose status is not ``certified``."""
-    verify_ticks: int = Field(10_000, ge=0)
+    verify_ticks: int = Field(10_000, ge=0, le=10_000_000)
     """Random ticks of the check against the Python realization (0: no check)."""
-    closed_loop_ticks: int = Field(2_000, ge=0)
+    closed_loop_ticks: int = Field(2_000, ge=0, le=10_000_000)
     """Ticks of the float-vs-double closed-loop check (``precision: float``)."""
-    seed: int = Field(0, ge=0)
+    seed: Seed = 0
     """Seed of the check's random ticks."""
     compiler: str | None = None
     """C compiler for the check (default ``$CC``, ``cc``, ``gcc``, ``clang``)."""

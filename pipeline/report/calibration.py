@@ -4,11 +4,13 @@ the fresh validation flights fared against the stated ``alpha``."""
 
 from __future__ import annotations
 
-import json
+import math
 from typing import Any
 
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Calibration, Certificate
 from qsls.pipeline.control.calibration import Method, calibrated_quantile
+from qsls.pipeline.core.artifacts import json_number, read_stage_json
+from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.evaluate.calibrate import SUMMARY_FILE
 from qsls.pipeline.report.document import Section
 from qsls.pipeline.report.facts import Facts, g4, pct, status_words
@@ -25,11 +27,25 @@ def read_calibration(f: Facts) -> list[tuple[dict[str, Any], Certificate | None]
         path = folder / SUMMARY_FILE
         if not path.is_file():
             continue
-        for row in json.loads(path.read_text())["certificates"]:
-            cdir = folder / row["condition"] / row["controller"]
+        fix = "run the calibration again (qsls run CONFIG --from calibrate)"
+        doc = read_stage_json(folder, SUMMARY_FILE, fix)
+        rows = doc.get("certificates") if isinstance(doc, dict) else None
+        if not isinstance(rows, list) or not all(
+            isinstance(r, dict) and set(r) >= _ROW_KEYS for r in rows
+        ):
+            raise InputError(f"{path}: not a calibration summary of this qsls version; {fix}")
+        for row in rows:
+            # null is the JSON of an unbounded lambda_hat: no inflation covers the flights
+            row = {**row, "lambda_hat": json_number(row["lambda_hat"], math.inf)}
+            cdir = folder / str(row["condition"]) / str(row["controller"])
             cert = Certificate.load(cdir) if (cdir / CERTIFICATE_FILE).is_file() else None
             out.append((row, cert))
     return out
+
+
+_ROW_KEYS = frozenset({"controller", "condition", "status", "method", "alpha", "flights",
+                       "lambda_hat", "rho_star", "tested_range", "validation_ci"})  # fmt: skip
+"""The keys of a ``calibration.json`` row the section reads."""
 
 
 def _tolerance(tolerances: dict[str, float], q: str) -> str:

@@ -11,7 +11,7 @@ from pydantic import Field, PrivateAttr, field_validator, model_validator
 
 from qsls.pipeline.control.options import SweepSection, SynthOptions
 from qsls.pipeline.core.artifacts import to_plain
-from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.config import Options, Seed
 from qsls.pipeline.errormodel.options import FitOptions
 from qsls.pipeline.evaluate.options import CalibrateOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
@@ -89,7 +89,7 @@ class RunConfig(Options):
         every flight raises ``outlier_max``; such a pair belongs in the flights."""
 
     name: str
-    seed: int = 0
+    seed: Seed = 0
     out: str | None = None
     stages: (
         list[

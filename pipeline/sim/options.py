@@ -22,7 +22,7 @@ from pydantic import (
 )
 
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.core.config import Options
+from qsls.pipeline.core.config import Duration, Options, Seed
 from qsls.pipeline.core.references import ReferenceOptions
 from qsls.pipeline.sim.camera.options import CameraOptions
 
@@ -391,9 +391,9 @@ class Px4Options(Options):
 class FlightOptions(Options):
     """Everything that shapes one simulated flight."""
 
-    seed: int = Field(0, ge=0)
+    seed: Seed = 0
     """Random seed of the VIO emulator and the logs."""
-    duration: float | None = Field(None, gt=0, le=86_400)
+    duration: Duration | None = None
     """Flight length (s), at most a day (a simulated day takes hours and about 140 MB);
     default: take-off, approach and the reference's laps (ramp / 2 + laps * period: 23 s for
     3 laps of the 5 s circle)."""
