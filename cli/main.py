@@ -28,6 +28,7 @@ COMMANDS: tuple[tuple[str, str], ...] = (
     ("fly", "fly"),
     ("export", "export"),
     ("replay", "replay"),
+    ("verify", "verify"),
     ("report", "report"),
     ("run", "run"),
 )

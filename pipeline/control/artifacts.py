@@ -10,6 +10,13 @@ A controller folder (one per controller inside a ``qsls synth`` output) holds:
 - ``certificate.yaml`` (:class:`Certificate`): the setting, norms, guarantee and checks, and
   the sha256 of the ``controller.npz`` it certifies. :func:`load_controller_dir` refuses a
   pair whose hashes do not match.
+
+Every reader recomputes a certificate's numbers (docs/verify.md): :meth:`Certificate.load`,
+:func:`load_controller_dir` and :func:`load_runtime` run
+:func:`qsls.pipeline.control.certify.certify` on the stored taps under the stored (for a
+calibrated certificate: inflated) premise and refuse, in one line, a certificate whose norms,
+guarantee numbers or checks differ from what its taps give (:func:`recomputation_problems`),
+or whose calibration record disagrees with itself (:func:`record_consistency`).
 """
 
 from __future__ import annotations
@@ -25,7 +32,15 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, field_validator, model_serializer
 
-from qsls.pipeline.control.calibration import record_problems
+from qsls.pipeline.control import sls
+from qsls.pipeline.control.body import CertificateBody as CertificateBody
+from qsls.pipeline.control.calibration import calibrated_quantile, calibration_rank, record_problems
+from qsls.pipeline.control.certify import (
+    ACHIEVABILITY_TOL,
+    PERTURBATION_TOL,
+    REALIZATION_TOL,
+    certify,
+)
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import (
     ClosedLoopNorm,
@@ -40,7 +55,7 @@ from qsls.pipeline.control.realize import (
     filter_bank,
 )
 from qsls.pipeline.control.sls import RESPONSES, Taps, l1_norm
-from qsls.pipeline.control.status import CERTIFIED, Status
+from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, REFERENCE
 from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_yaml, load_yaml, npz_bytes
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import LinearModel
@@ -226,44 +241,32 @@ def _check_gains(f: Path, arrays: dict[str, np.ndarray], bank: FilterBank) -> No
             )
 
 
-class CertificateBody(BaseModel):
-    """What :func:`qsls.pipeline.control.certify.certify` finds on a controller's taps: its
-    status, the norms of its responses, the guarantee's numbers (docs/guarantee.md) and the
-    checks, each recomputed from the taps. A :class:`Certificate` is this body with the setting
-    it was checked against (:meth:`Certificate.of`)."""
+class FlightEvidence(BaseModel):
+    """One flight behind a calibration: its tick log and that log's sha256 (docs/verify.md).
+    ``qsls verify`` re-reads the log, checks the hash and recomputes the flight's score."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    status: Status
-    status_reason: str | None = None
-    """Why the status is not ``certified`` (None when it is, or for a reference or nominal
-    controller, whose status says it all)."""
-    norm_phi_xx_h: float
-    norm_phi_xy: float
-    norm_phi_ux: float
-    norm_phi_uy: float
-    robustness_lhs: float
-    margin: float
-    s_times_norm_phi_xy: float
-    a: float
-    gamma: float
-    """The bound on the dense error, ``eps + S rho*`` (Dean et al.'s gamma in the special case)."""
-    gamma_strict: float
-    rho_star: float | None = None
-    """``dist(x_k) <= rho*`` for every k: the region the guarantee keeps the vehicle in."""
-    norm_N: float | None = None
-    norm_N_w: float | None = None
-    G_m: float | None = None
-    rho_v: float | None = None
-    """Certified bound on the velocity deviation from the reference (``<= V`` with a gate)."""
-    achievability_residual: float
-    truncation_residual: float | None = None
-    """A reference controller's: its taps are a truncation, so the residual is the tail's."""
-    realization_error: float | None = None
-    perturbation_peak: float | None = None
-    perturbation_final: float | None = None
-    checks: dict[str, dict[str, Any]] | None = None
-    """``name -> {value, limit, passed}`` (none for a reference controller)."""
+    flight: str
+    """The flight's name (its row in ``scores.parquet`` / ``validation.parquet``)."""
+    role: str
+    """``calibration``, ``range`` or ``validation``."""
+    ticks: str
+    """The tick log: relative to the calibration output (``flights/<name>/ticks.parquet``), or
+    the recorded flight's own ``ticks.parquet`` in its ingest folder (absolute)."""
+    sha256: str
+    """sha256 of the tick log's bytes."""
+    seed: int | None = None
+    """A simulated flight's seed (None for a recorded flight)."""
+    log_sha256: str | None = None
+    """A recorded flight's vehicle log (what ``logs`` lists for the calibration flights)."""
+
+    @field_validator("role")
+    @classmethod
+    def _role(cls, v: str) -> str:
+        if v not in ("calibration", "range", "validation"):
+            raise ValueError(f"role {v!r} is not calibration, range or validation")
+        return v
 
 
 class Calibration(BaseModel):
@@ -311,6 +314,18 @@ class Calibration(BaseModel):
     logs: list[str] = []
     """Recorded calibration flights (docs/vehicle.md): the sha256 of each flight's vehicle log,
     in the order of ``scores`` (a seed's place: empty for simulated flights)."""
+    evidence: list[FlightEvidence] = []
+    """Every flight's tick log with its sha256 (calibration and range flights in the order of
+    ``scores`` and ``range_scores``, then the validation flights): what ``qsls verify``
+    recomputes the record from (docs/verify.md). Empty in a record written before it existed."""
+
+    @field_validator("tested_range", "duration_s", "alpha")
+    @classmethod
+    def _finite(cls, v: float) -> float:
+        # NaN compares false with everything: a NaN here would pass every later comparison
+        if not math.isfinite(v) or v < 0:
+            raise ValueError(f"{v} is not a finite non-negative number")
+        return v
 
 
 class Certificate(CertificateBody):
@@ -367,6 +382,13 @@ class Certificate(CertificateBody):
     calibration: Calibration | None = None
     """The calibration behind the numbers above (``qsls calibrate``); None: the design premise."""
 
+    @field_validator("tested_range")
+    @classmethod
+    def _finite_range(cls, v: float | None) -> float | None:
+        if v is not None and not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"{v} is not a finite non-negative distance")
+        return v
+
     @field_validator("controller")
     @classmethod
     def _plain_name(cls, v: str) -> str:
@@ -405,33 +427,45 @@ class Certificate(CertificateBody):
 
     @classmethod
     def load(cls, path: Path) -> Certificate:
-        """Read ``certificate.yaml`` (or a folder holding it)."""
-        import yaml
-        from pydantic import ValidationError
-
+        """Read ``certificate.yaml`` (or a folder holding it), its record checked against itself
+        (:func:`record_consistency`) and, where ``controller.npz`` lies beside it, its numbers
+        recomputed from those taps (:func:`load_controller_dir`'s checks); refused in one line
+        otherwise."""
         f = _file(Path(path), CERTIFICATE_FILE)
-        if not f.is_file():
-            raise InputError(
-                f"{f.parent}: no {CERTIFICATE_FILE}; pass a controller folder written by "
-                "'qsls synth' (one folder per controller inside the synth output)"
-            )
-        try:
-            data = load_yaml(f.read_text())
-        except yaml.YAMLError:
-            raise InputError(f"{f}: not valid YAML; regenerate it with 'qsls synth'") from None
-        if not isinstance(data, dict):
-            raise InputError(f"{f}: not a certificate (expected a mapping)")
-        if "controller" in data:  # before the model: its own one-line message
-            check_controller_name(data["controller"], f"{f}: controller")
-        try:
-            return cls.model_validate(data)
-        except ValidationError as exc:
-            first = exc.errors()[0]
-            where = ".".join(str(p) for p in first["loc"])
-            raise InputError(
-                f"{f}: not a certificate of this qsls version ({where}: {first['msg']}); "
-                "regenerate it with 'qsls synth'"
-            ) from None
+        cert, digest = _parse(f)
+        _verified(f.parent, cert, digest, taps=(f.parent / CONTROLLER_FILE).is_file())
+        return cert
+
+
+def _parse(f: Path) -> tuple[Certificate, str]:
+    """The certificate in file ``f`` (typed, strict) and the sha256 of its bytes."""
+    import yaml  # deferred: pyyaml's import is slow and only a file read needs it
+    from pydantic import ValidationError  # deferred: as above, on the hot path of no caller
+
+    if not f.is_file():
+        raise InputError(
+            f"{f.parent}: no {CERTIFICATE_FILE}; pass a controller folder written by "
+            "'qsls synth' (one folder per controller inside the synth output)"
+        )
+    raw = f.read_bytes()
+    try:
+        data = load_yaml(raw.decode("utf-8", "replace"))
+    except yaml.YAMLError:
+        raise InputError(f"{f}: not valid YAML; regenerate it with 'qsls synth'") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{f}: not a certificate (expected a mapping)")
+    if "controller" in data:  # before the model: its own one-line message
+        check_controller_name(data["controller"], f"{f}: controller")
+    try:
+        cert = Certificate.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise InputError(
+            f"{f}: not a certificate of this qsls version ({where}: {first['msg']}); "
+            "regenerate it with 'qsls synth'"
+        ) from None
+    return cert, hashlib.sha256(raw).hexdigest()
 
 
 FILE_ORDER = (
@@ -463,14 +497,32 @@ class ControllerDir:
 
 def load_controller_dir(folder: Path) -> ControllerDir:
     """Both files of ``folder`` (a ``controller.npz`` path is taken as its folder); refuses a
-    controller whose sha256 is not the one its certificate records, or whose gains do not
-    match its taps."""
+    controller whose sha256 is not the one its certificate records, whose gains do not match
+    its taps, or whose certificate's numbers are not what its taps and premise give
+    (:func:`recomputation_problems`), each in one line."""
     folder = Path(folder)
     if folder.is_file() and folder.name == CONTROLLER_FILE:
         folder = folder.parent
     if not folder.is_dir():
         raise InputError(f"{folder}: no such controller folder")
-    cert = Certificate.load(folder)
+    cert, digest = _parse(folder / CERTIFICATE_FILE)
+    ctrl = _verified(folder, cert, digest)
+    assert ctrl is not None
+    return ControllerDir(folder, ctrl, cert)
+
+
+_RECOMPUTED: dict[tuple[str, str], Controller] = {}
+"""Certificates whose numbers were recomputed and matched, by (sha256 of ``certificate.yaml``,
+sha256 of ``controller.npz``): the same two files are never recomputed twice in a process
+(a calibration reads its candidates once per flight)."""
+
+
+def _verified(folder: Path, cert: Certificate, digest: str, taps: bool = True) -> Controller | None:
+    """``folder``'s controller, once its certificate is shown to be about it: the sha256 it
+    records, a ``certified`` status its own checks and record allow, a record that agrees with
+    itself (:func:`record_consistency`), and every number recomputed from the taps
+    (:func:`recomputation_problems`, cached per pair of files); without ``taps`` (a
+    certificate read alone) all but the last, and None."""
     f = folder / CONTROLLER_FILE
     if f.is_file():  # the hash first: a damaged file is refused before it is parsed
         actual = hashlib.sha256(f.read_bytes()).hexdigest()
@@ -479,7 +531,7 @@ def load_controller_dir(folder: Path) -> ControllerDir:
                 f"{folder}: {CONTROLLER_FILE} (sha256 {actual[:12]}) is not the controller its "
                 f"{CERTIFICATE_FILE} certifies ({cert.controller_sha256[:12]}); refusing to use it"
             )
-    failed = [k for k, v in (cert.checks or {}).items() if not v.get("passed", True)]
+    failed = [k for k, v in (cert.checks or {}).items() if not v["passed"]]
     why = f"failed checks {', '.join(failed)}" if failed else ""
     if not why and cert.premise is not None and not cert.premise.holds and cert.calibration is None:
         why = cert.premise.shares()  # a calibrated certificate rests on its calibration instead
@@ -490,8 +542,201 @@ def load_controller_dir(folder: Path) -> ControllerDir:
             f"{folder}: {CERTIFICATE_FILE} says 'certified' against its own record ({why}); "
             "the file was altered: regenerate it with 'qsls synth' and 'qsls calibrate'"
         )
+    why_record = record_consistency(cert)
+    if why_record:
+        raise InputError(
+            f"{folder / CERTIFICATE_FILE}: its calibration record disagrees with itself "
+            f"({_first(why_record)}); the file was altered: regenerate it with 'qsls calibrate'"
+        )
+    if not taps:
+        return None
+    key = (digest, cert.controller_sha256)
+    if key in _RECOMPUTED:
+        return _RECOMPUTED[key]
     ctrl = Controller.load(folder)
-    return ControllerDir(folder, ctrl, cert)
+    diffs = recomputation_problems(cert, ctrl)
+    if diffs:
+        raise InputError(
+            f"{folder}: {CERTIFICATE_FILE} is not what its taps and premise give "
+            f"({_first(diffs)}); the file was altered or written by another qsls version: "
+            "regenerate it with 'qsls synth' (and 'qsls calibrate'), or run 'qsls verify'"
+        )
+    if len(_RECOMPUTED) > 256:
+        _RECOMPUTED.clear()
+    _RECOMPUTED[key] = ctrl
+    return ctrl
+
+
+def _first(why: list[str]) -> str:
+    return why[0] + (f"; and {len(why) - 1} more" if len(why) > 1 else "")
+
+
+THEOREM = (
+    "norm_phi_xx_h", "norm_phi_xy", "norm_phi_ux", "norm_phi_uy", "robustness_lhs", "margin",
+    "s_times_norm_phi_xy", "a", "gamma", "gamma_strict", "rho_star", "norm_N", "norm_N_w",
+    "G_m", "rho_v", "perturbation_peak",
+)  # fmt: skip
+"""The certificate's numbers recomputed exactly (:data:`RECOMPUTE_RTOL`): norms and the
+guarantee's arithmetic are sums of absolute tap values, the perturbation peak a seeded
+simulation; none depends on more than the summation order."""
+RECOMPUTE_RTOL = 1e-9
+"""Largest relative difference between a stored and a recomputed :data:`THEOREM` number (the
+summation order moves them by about 1e-15)."""
+ROUNDOFF = {
+    "achievability_residual": ACHIEVABILITY_TOL, "truncation_residual": ACHIEVABILITY_TOL,
+    "realization_error": REALIZATION_TOL, "perturbation_final": PERTURBATION_TOL,
+}  # fmt: skip
+"""Round-off residuals, each compared to within its check's limit: below the limit both are
+round-off, whose digits another BLAS may change; a stored value beyond it is a failed check."""
+CHECK_TOL = {
+    "achievability": ACHIEVABILITY_TOL, "measured_channels": ACHIEVABILITY_TOL,
+    "realization": REALIZATION_TOL, "internal_stability": PERTURBATION_TOL,
+}  # fmt: skip
+"""A check's value compared as :data:`ROUNDOFF`; ``robustness`` and ``gate`` as :data:`THEOREM`."""
+
+
+def recomputed_body(cert: Certificate, ctrl: Controller) -> CertificateBody:
+    """:func:`qsls.pipeline.control.certify.certify` on ``ctrl``'s taps under ``cert``'s premise
+    (for a calibrated certificate the inflated one it states), in its weights: what the file
+    must say (docs/verify.md)."""
+    p = cert.premise
+    extra = ctrl.model.nx - 6  # the attitude plant's states: unweighted, unmeasured (synth's shape)
+    shape = sls.Shape(
+        (*(p.state_scale if p is not None else (1.0,) * 6), *(0.0,) * extra),
+        (*(p.error_scale if p is not None else (1.0,) * 6), *(1.0,) * extra),
+        cert.measure, cert.m, cert.gate is not None,
+    )  # fmt: skip
+    return certify(
+        ctrl.taps, ctrl.model, cert.numbers(), shape,
+        solver_status=cert.solver_status or "optimal", reference=cert.status == REFERENCE,
+    )  # fmt: skip
+
+
+def differs(have: Any, want: Any, rtol: float = RECOMPUTE_RTOL, atol: float = 1e-12) -> bool:
+    """A stored value ``have`` is not the recomputed ``want``: None only equals None, NaN only
+    NaN, an infinity only itself, numbers within ``rtol`` (relative) or ``atol``."""
+    if have is None or want is None or isinstance(have, str) or isinstance(want, str):
+        return have != want
+    if isinstance(have, bool) or isinstance(want, bool):
+        return have is not want
+    h, w = float(have), float(want)
+    if math.isnan(h) or math.isnan(w):
+        return not (math.isnan(h) and math.isnan(w))
+    if math.isinf(h) or math.isinf(w):
+        return h != w
+    return abs(h - w) > max(rtol * max(abs(h), abs(w)), atol)
+
+
+def _shown(v: Any) -> str:
+    return f"{v:.10g}" if isinstance(v, float) and not isinstance(v, bool) else repr(v)
+
+
+def recomputation_problems(cert: Certificate, ctrl: Controller) -> list[str]:
+    """Each number of ``cert`` its taps and premise do not give: ``"<field> stored <v>,
+    recomputed <v>"`` (:func:`recomputed_body`); the checks' values and ``passed`` likewise, a
+    check the recomputation has and the file lacks, a status that claims checks the taps fail,
+    and a calibration whose ``holds`` the taps contradict. A static gain (the PD) has true
+    closed-loop norms, not its taps' (docs/synthesis.md): only its ``reference`` status is
+    checked. Empty when the file is what its taps give."""
+    if ctrl.kind == "static_gain":
+        if cert.status != REFERENCE:
+            return [f"status stored {cert.status!r}, a static gain is a 'reference'"]
+        return []
+    body = recomputed_body(cert, ctrl)
+    out = []
+    for k in THEOREM:
+        if differs(getattr(cert, k), getattr(body, k)):
+            out.append(
+                f"{k} stored {_shown(getattr(cert, k))}, recomputed {_shown(getattr(body, k))}"
+            )
+    for k, tol in ROUNDOFF.items():
+        have, want = getattr(cert, k), getattr(body, k)
+        if differs(have, want, rtol=0.0, atol=tol):
+            out.append(f"{k} stored {_shown(have)}, recomputed {_shown(want)}")
+    stored = cert.checks or {}
+    for name, want in (body.checks or {}).items():
+        have = stored.get(name)
+        if have is None:
+            out.append(f"checks.{name} stored none, recomputed {_shown(want['value'])}")
+            continue
+        if have["passed"] is not want["passed"]:
+            out.append(f"checks.{name}.passed stored {have['passed']}, recomputed {want['passed']}")
+        roundoff = CHECK_TOL.get(name)
+        rtol, atol = (0.0, roundoff) if roundoff is not None else (RECOMPUTE_RTOL, 1e-12)
+        if differs(have.get("value"), want["value"], rtol, atol):
+            out.append(
+                f"checks.{name}.value stored {_shown(have.get('value'))}, "
+                f"recomputed {_shown(want['value'])}"
+            )
+    claims = cert.status not in (body.status, "failed", "solver_inaccurate")
+    if claims and body.status in ("failed", "solver_inaccurate"):
+        out.append(f"status stored {cert.status!r}, recomputed {body.status!r}")
+    c = cert.calibration
+    robust_ok = bool((body.checks or {}).get("robustness", {}).get("passed", False))
+    if c is not None and math.isfinite(c.lambda_hat) and c.holds is not robust_ok:
+        out.append(f"calibration.holds stored {c.holds}, recomputed {robust_ok}")
+    if cert.status in (CERTIFIED, EXTRAPOLATED) and not robust_ok:
+        out.append(f"status stored {cert.status!r}, but the taps fail the robustness condition")
+    return out
+
+
+def record_consistency(cert: Certificate) -> list[str]:
+    """What a certificate's calibration record says against itself or against the certificate
+    (docs/verify.md), without the flights: the top-level ``tested_range`` is the record's, the
+    record's ``duration_s`` its conditions' ``duration_s``, the counts its lists' lengths,
+    ``rank`` and ``lambda_hat`` the calibrated quantile of its scores (exactly, not at least),
+    the premise the record's design premise inflated by ``lambda_hat``, and a ``certified``
+    status with no reason not to be. Empty for a certificate without a calibration."""
+    c = cert.calibration
+    if c is None:
+        return []
+    out = []
+    if differs(cert.tested_range, c.tested_range):
+        out.append(f"tested_range stored {cert.tested_range}, the record's {c.tested_range}")
+    dur = c.conditions.get("duration_s")
+    if isinstance(dur, int | float) and differs(c.duration_s, float(dur)):
+        out.append(f"duration_s {c.duration_s:g}, the conditions' duration_s {dur:g}")
+    if c.flights != len(c.scores):
+        out.append(f"flights {c.flights} with {len(c.scores)} scores")
+    if c.range_flights != len(c.range_scores):
+        out.append(f"range_flights {c.range_flights} with {len(c.range_scores)} range scores")
+    if c.evidence:
+        roles = [e.role for e in c.evidence]
+        for role, n in (("calibration", c.flights), ("range", c.range_flights)):
+            if roles.count(role) != n:
+                out.append(f"{roles.count(role)} {role} tick logs listed for {n} {role} flights")
+    method: Literal["conformal", "pac"] = "pac" if c.method == "pac" else "conformal"
+    # 1 - (1 - delta) may come back a hair below delta (calibration.record_problems does the same)
+    delta = 1.0 - c.confidence + 1e-12 if c.confidence is not None else 0.05
+    if c.flights and c.rank != calibration_rank(c.flights, c.alpha, method, delta):
+        out.append(f"rank {c.rank}, the calibration's rank of {c.flights} flights is another")
+    lam = calibrated_quantile(c.scores, c.alpha, method, delta) if c.scores else math.inf
+    if c.range_scores:
+        lam = max(lam, calibrated_quantile(c.range_scores, c.alpha, method, delta))
+    if differs(c.lambda_hat, lam):
+        out.append(f"lambda_hat stored {_shown(c.lambda_hat)}, its scores' quantile {_shown(lam)}")
+    if math.isfinite(c.lambda_hat):
+        out += _inflation_problems(cert)
+    if cert.status == CERTIFIED and cert.status_reason:
+        out.append(f"status 'certified' with a reason not to be: {cert.status_reason[:60]!r}")
+    return out
+
+
+def _inflation_problems(cert: Certificate) -> list[str]:
+    """The certificate's premise is the record's design premise inflated by ``lambda_hat``
+    (:func:`qsls.pipeline.control.calibration.inflate`), where the record states it."""
+    c = cert.calibration
+    assert c is not None
+    lam, why = c.lambda_hat, []
+    for key, have in (("eps_e", cert.eps_e), ("S", cert.S), ("eps_w", cert.eps_w),
+                      ("delta", cert.delta)):  # fmt: skip
+        want = c.nominal.get(key)
+        if want is not None and not math.isclose(have, want * lam, rel_tol=1e-9, abs_tol=1e-12):
+            why.append(f"{key} {have:.6g} is not the design's {want:.6g} x lambda_hat {lam:.6g}")
+    m0 = c.nominal.get("m")
+    if m0 is not None and cert.m != math.floor(lam * m0 + 1e-9):
+        why.append(f"m {cert.m} is not floor(lambda_hat x the design's {m0:g})")
+    return why
 
 
 def calibration_problems(cert: Certificate) -> list[str]:
@@ -507,15 +752,7 @@ def calibration_problems(cert: Certificate) -> list[str]:
         rho_star=cert.rho_star, tested_range=cert.tested_range,
     )  # fmt: skip
     # the certificate's numbers are the record's design premise inflated by lambda_hat
-    lam = c.lambda_hat
-    for key, have in (("eps_e", cert.eps_e), ("S", cert.S), ("eps_w", cert.eps_w),
-                      ("delta", cert.delta)):  # fmt: skip
-        want = c.nominal.get(key)
-        if want is not None and not math.isclose(have, want * lam, rel_tol=1e-9, abs_tol=1e-12):
-            why.append(f"{key} {have:.6g} is not the design's {want:.6g} x lambda_hat {lam:.6g}")
-    m0 = c.nominal.get("m")
-    if m0 is not None and cert.m is not None and cert.m != math.floor(lam * m0 + 1e-9):
-        why.append(f"m {cert.m} is not floor(lambda_hat x the design's {m0:g})")
+    why += _inflation_problems(cert) if math.isfinite(c.lambda_hat) else []
     if not (cert.robustness_lhs <= 1.0 and cert.rho_star is not None
             and cert.rho_star <= cert.radius * (1 + 1e-12)):  # fmt: skip
         why.append(f"robustness lhs {cert.robustness_lhs:.6g} or rho* {cert.rho_star} beyond r")

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.artifacts import CertificateBody
+from qsls.pipeline.control.body import CertificateBody
 from qsls.pipeline.control.guarantee import (
     Norms,
     PremiseNumbers,

@@ -47,6 +47,7 @@ from qsls.pipeline.control.artifacts import (
     CONTROLLER_FILE,
     Calibration,
     Certificate,
+    FlightEvidence,
     calibration_problems,
     load_controller_dir,
 )
@@ -62,6 +63,7 @@ from qsls.pipeline.core.artifacts import (
     atomic_write_bytes,
     check_output,
     read_manifest,
+    sha256_file,
 )
 from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError
@@ -76,6 +78,7 @@ from qsls.pipeline.evaluate.assumptions import (
     signals,
 )
 from qsls.pipeline.evaluate.certified import certified_premise, expand_controllers
+from qsls.pipeline.evaluate.conditions import draw, drawn, stated
 from qsls.pipeline.evaluate.options import CalibrateOptions as CalibrateOptions
 from qsls.pipeline.evaluate.training import load_training
 from qsls.pipeline.sim.closedloop import fly
@@ -357,6 +360,7 @@ def calibrated_certificate(
     *,
     logs: Sequence[str] = (),
     duration: float | None = None,
+    evidence: Sequence[FlightEvidence] = (),
 ) -> Path:
     """Write ``out`` (a controller folder): the candidate's controller and its certificate with
     the inflated premise's numbers and the ``calibration`` record."""
@@ -377,7 +381,7 @@ def calibrated_certificate(
         parts={k: float(max((r[k] for r in score_rows), default=0.0)) for k in cal.SCORED},
         tolerances=o.tolerances, holds=bool(o.check is not None and o.check.holds),
         range_flights=len(range_scores), range_scores=[float(v) for v in range_scores],
-        logs=list(logs),
+        logs=list(logs), evidence=list(evidence),
     )  # fmt: skip
     update: dict[str, Any] = {"status": o.status, "status_reason": o.reason or None,
                               "calibration": record, "tested_range": o.tested_range}  # fmt: skip
@@ -484,6 +488,8 @@ def calibrate(
         "estimator": str(getattr(options.sim.vio, "kind", "emulator")), "reference": sim["reference"],
         **({"range_tube_m": options.tube} if options.range_flights else {}),
         "duration_s": options.duration, "vehicle": sim["vehicle"],
+        **{k: v for k, v in stated(options.family, sim).items()
+           if k != "family" or not options.family.point},
     }  # fmt: skip
 
     with StageWriter(out, STAGE, options=options, inputs=[model_file, *folders], force=force) as w:
@@ -494,7 +500,7 @@ def calibrate(
             return [
                 Job(name=f"{role}_{cond}_{f.name}_s{s}", controller=f.name,
                     folder=str(folder_of(cond, f.name).resolve()), condition=cond, seed=s,
-                    role=role, sim=sim,
+                    role=role, sim=merge(sim, draw(options.family, s, sim)),
                     offset=(offsets(s, options.tube, height) if role == "range"
                             else (0.0, 0.0, 0.0)))
                 for cond in options.conditions for f in folders for s in seeds
@@ -507,15 +513,16 @@ def calibrate(
         ticks = fly_all(cjobs)
         progress.finish()
         rows = []
+        evidence: dict[str, FlightEvidence] = {}
         for j, tk in zip(cjobs, ticks, strict=True):
-            w.write_parquet(f"flights/{j.name}/{TICKS_FILE}", tk.frame())
+            evidence[j.name] = _kept(w, j, tk)
             parts = score_flight(tk, premises[j.controller], training.distance)
             if j.role == "range":  # the offset is the point: every part but the reference's
                 parts["score"] = range_score(parts)
             rows.append({"flight": j.name, "role": j.role, "controller": j.controller,
                          "condition": j.condition, "seed": j.seed,
                          "offset_m": float(np.hypot(*j.offset[:2])), "crashed": tk.crashed,
-                         **parts})  # fmt: skip
+                         **drawn(options.family, j.sim), **parts})  # fmt: skip
         scores = pd.DataFrame(rows)
         outcomes = []
         for cond in options.conditions:
@@ -545,6 +552,7 @@ def calibrate(
                     sel.to_dict(orient="records"),
                     {**conditions_of, "perception": cond},
                     ranged["score"].to_list(),
+                    evidence=[evidence[n] for n in (*sel["flight"], *ranged["flight"])],
                 )
         vjobs = jobs_for("validation", valid_seeds, lambda cond, n: w.path(f"{cond}/{n}"))
         vrows = []
@@ -555,7 +563,7 @@ def calibrate(
             cal_premise = {(o.condition, o.controller): certified_premise(w.path(f"{o.condition}/{o.controller}"))
                            for o in outcomes}  # fmt: skip
             for j, tk in zip(vjobs, vticks, strict=True):
-                w.write_parquet(f"flights/{j.name}/{TICKS_FILE}", tk.frame())
+                evidence[j.name] = _kept(w, j, tk)
                 c = cal_premise[(j.condition, j.controller)]
                 if c is None:
                     continue
@@ -564,6 +572,10 @@ def calibrate(
                     row = crashed(row, float(tk.t[-1]), tk.crash_reason)
                 vrows.append({"flight": j.name, "controller": j.controller, "condition": j.condition,
                               "seed": j.seed, **row})  # fmt: skip
+            for o in outcomes:  # the validation flights' tick logs join the record
+                _add_evidence(w.path(f"{o.condition}/{o.controller}"),
+                              [evidence[j.name] for j in vjobs
+                               if (j.condition, j.controller) == (o.condition, o.controller)])  # fmt: skip
         validation = pd.DataFrame(vrows)
         summary = [summary_row(o, validation, options) for o in outcomes]
         w.write_parquet(SCORES_FILE, scores)
@@ -572,6 +584,33 @@ def calibrate(
                                     "delta": options.delta, "certificates": summary})  # fmt: skip
         w.results.update({"certificates": summary})
     return CalibrateResult(Path(out), tuple(outcomes), validation, tuple(summary))
+
+
+PERCEPTION_ATTR = "perception"
+"""The perception condition a calibration flight flew, kept in its tick log's metadata (under
+the log's sha256, so ``qsls verify`` reads the condition from the evidence: docs/verify.md)."""
+
+
+def _kept(w: StageWriter, j: Job, tk: TickLog) -> FlightEvidence:
+    """Write ``j``'s tick log (``flights/<name>/ticks.parquet``) and name it with its sha256."""
+    df = tk.frame()
+    df.attrs[PERCEPTION_ATTR] = j.condition
+    name = f"flights/{j.name}/{TICKS_FILE}"
+    sha = sha256_file(w.write_parquet(name, df))
+    role = (
+        "range" if j.role == "range" else "validation" if j.role == "validation" else "calibration"
+    )
+    return FlightEvidence(flight=j.name, role=role, ticks=name, sha256=sha, seed=j.seed)
+
+
+def _add_evidence(folder: Path, more: Sequence[FlightEvidence]) -> None:
+    """Append ``more`` (the validation flights' tick logs) to ``folder``'s calibration record."""
+    cert = Certificate.load(folder)
+    if cert.calibration is None or not more:
+        return
+    record = cert.calibration.model_copy(update={"evidence": [*cert.calibration.evidence, *more]})
+    atomic_write_bytes(folder / CERTIFICATE_FILE,
+                       cert.model_copy(update={"calibration": record}).to_yaml().encode())  # fmt: skip
 
 
 def summary_row(o: Outcome, validation: pd.DataFrame, options: CalibrateOptions) -> dict[str, Any]:

@@ -23,10 +23,11 @@ from typing import Any
 
 import pandas as pd
 
-from qsls.pipeline.control.artifacts import load_controller_dir
-from qsls.pipeline.core.artifacts import StageWriter, check_output
+from qsls.pipeline.control.artifacts import FlightEvidence, load_controller_dir
+from qsls.pipeline.core.artifacts import StageWriter, check_output, sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.ticks import TICKS_FILE
 from qsls.pipeline.errormodel.model import load_error_model, resolve_model
 from qsls.pipeline.evaluate.assumptions import check_assumptions
 from qsls.pipeline.evaluate.calibrate import (
@@ -230,9 +231,13 @@ def _one(
     estimator = str(options.sim.vio.kind) if standin else ""
     conditions = _conditions([f for f in flights if f.role != "validation"], condition, estimator)
     target = path(f"{condition}/{folder.name}")
+    root = path(condition).parent  # the output: a stand-in's tick logs are named inside it
+    order = {"calibration": 0, "range": 1, "validation": 2}
+    evidence = [_evidence(f, root) for f in sorted(flights, key=lambda f: order[f.role])]
     calibrated_certificate(
         folder, target, o, options, [], [r for r in scored if r["role"] == "calibration"],
         conditions, rs, logs=[f.log_sha256 for f in calib], duration=conditions["duration_s"],
+        evidence=evidence,
     )  # fmt: skip
     c = certified_premise(target)
     checked = [
@@ -241,6 +246,15 @@ def _one(
         for f in flights if f.role == "validation" and c is not None
     ]  # fmt: skip
     return o, scored, checked
+
+
+def _evidence(f: RecordedFlight, root: Path) -> FlightEvidence:
+    """A recorded flight's tick log and its sha256 (docs/verify.md): named relative to the
+    output where it lies inside it (a stand-in's), else by its absolute path."""
+    ticks = (f.folder / TICKS_FILE).resolve()
+    where = ticks.relative_to(root.resolve()) if ticks.is_relative_to(root.resolve()) else ticks
+    return FlightEvidence(flight=f.name, role=f.role, ticks=where.as_posix(),
+                          sha256=sha256_file(ticks), log_sha256=f.log_sha256 or None)  # fmt: skip
 
 
 def taps_of_dt(folder: Path) -> float:
