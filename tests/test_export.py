@@ -22,7 +22,17 @@ from qsls.pipeline.control.artifacts import load_runtime
 from qsls.pipeline.core.artifacts import dump_yaml
 from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
 from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
+from qsls.pipeline.export.innovation import state_bytes
 from tests.controllerfixtures import as_calibrated
+
+
+def innovation_bytes(folder):
+    """The innovation monitor's fields of the C state (docs/monitor.md)."""
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.monitor import innovation_of
+
+    return state_bytes(innovation_of(load_controller_dir(folder)), 8)
+
 
 RUN = CliRunner()
 T = 15
@@ -121,7 +131,13 @@ def test_c_equals_python_realization(tmp_path, controllers, compiler, timing):
         lib = build(cc, out)
         c = CController(lib, dt=0.1)
         assert (
-            c.size == manifest["state_bytes"] == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5 + 1) * 4 + 4
+            c.size
+            == manifest["state_bytes"]
+            >= (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5 + 1) * 4 + innovation_bytes(folder)
+        )
+        assert (
+            c.size
+            <= (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5 + 1) * 4 + innovation_bytes(folder) + 16
         )
         got = np.array([c.step(y) for y in ys])
         assert np.abs(got - want).max() <= 1e-12, cc
@@ -141,7 +157,12 @@ def test_float_precision_deviation_is_reported_and_small(tmp_path, controllers, 
     assert res.exit_code == 0, res.output
     assert "float vs double" in res.output
     r = json.loads((tmp_path / "f" / "manifest.json").read_text())["results"]
-    assert r["state_bytes"] == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5 + 1) * 4
+    base = (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5 + 1) * 4
+    from qsls.pipeline.control.artifacts import load_controller_dir
+    from qsls.pipeline.control.monitor import innovation_of
+
+    inn = state_bytes(innovation_of(load_controller_dir(folder)), 4)
+    assert base + inn <= r["state_bytes"] < base + inn + 8  # the innovation monitor's fields
     lib = build(compiler, tmp_path / "f")
     cf = CController(lib, precision="float", dt=0.1)
     ys = random_y(2000)

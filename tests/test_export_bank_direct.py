@@ -142,8 +142,10 @@ def test_state_bytes_are_gccs_sizeof(tmp_path, proper, shape, precision):
         bb=rng.normal(size=(Tn - 1, nx, nx)),
         by=rng.normal(size=(Tn, nx, ny)),
     )
-    want = _c_sizeof(tmp_path, bank, B.facts(proper), precision)
-    assert B.sizes(bank, precision).state_bytes == want
+    fx = B.facts(proper)
+    want = _c_sizeof(tmp_path, bank, fx, precision)
+    assert fx.innovation.active  # the innovation monitor's fields are counted too
+    assert B.sizes(bank, precision, fx.innovation).state_bytes == want
 
 
 def test_refuses_static_gain_and_nonfinite_taps(proper):

@@ -15,8 +15,9 @@ import pytest
 
 from qsls.pipeline.control.artifacts import ControllerDir
 from qsls.pipeline.control.realize import RealizedController
-from qsls.pipeline.export.bank import export_bank, facts
+from qsls.pipeline.export.bank import export_bank, facts, sizes
 from qsls.pipeline.export.c import c_files, header, literal, source
+from qsls.pipeline.export.innovation import state_bytes as innovation_state_bytes
 from tests.controllerfixtures import independent_bank, synthesized
 
 T = 8
@@ -157,8 +158,12 @@ def test_compiled_step_is_the_realization(tmp_path, gcc, ctrls, which):
     bank = export_bank(cdir)
     lib = _compile(gcc, tmp_path, c_files(bank, facts(cdir), "qc", "double"))
     c = Bound(lib, "qc")
-    # two unsigned heads, the monitor's T + 5 counters and the refusal count (no padding)
-    assert c.size == (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5 + 1) * 4
+    # two unsigned heads, the monitor's T + 5 counters and the refusal count (no padding), then
+    # the innovation monitor's fields
+    inn = innovation_state_bytes(facts(cdir).innovation, 8)
+    base = (T * 6 + (T + 1) * 6) * 8 + (2 + T + 5 + 1) * 4
+    assert inn > 0 and c.size == sizes(bank, "double", facts(cdir).innovation).state_bytes
+    assert base + inn <= c.size < base + inn + 16  # padding only
     ys = np.random.default_rng(11).uniform(-1, 1, (400, 6))
     rt = RealizedController(cdir.controller.bank, cdir.controller.dt)
     want = np.array([rt.step(y) for y in ys])
@@ -205,7 +210,10 @@ def test_float_build_is_close_but_not_double(tmp_path, gcc, ctrls):
     bank = export_bank(cdir)
     lib = _compile(gcc, tmp_path, c_files(bank, facts(cdir), "qf", "float"))
     c = Bound(lib, "qf", "float")
-    assert c.size == (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5 + 1) * 4
+    inn = innovation_state_bytes(facts(cdir).innovation, 4)
+    base = (T * 6 + (T + 1) * 6) * 4 + (2 + T + 5 + 1) * 4
+    assert c.size == sizes(bank, "float", facts(cdir).innovation).state_bytes
+    assert base + inn <= c.size < base + inn + 16  # padding only
     ys = np.random.default_rng(2).uniform(-1, 1, (400, 6))
     rt = RealizedController(cdir.controller.bank, 0.1)
     want = np.array([rt.step(y) for y in ys])

@@ -31,7 +31,7 @@ from tests.controllerfixtures import gated
 
 RUN = CliRunner()
 SYMBOLS = {f"qsls_ctrl_{f}" for f in
-           ("size", "reset", "step", "trips", "refused", "first_trip", "attitude")}  # fmt: skip
+           ("size", "reset", "step", "trips", "refused", "first_trip", "attitude", "flown")}  # fmt: skip
 MARK = "PWNED"
 
 

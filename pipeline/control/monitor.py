@@ -89,8 +89,11 @@ class RuntimeMonitor:
     tick are never cleared before a reset. Tick for tick the bits equal
     ``monitor_flags(spec, dev, gate)`` on the whole log."""
 
-    def __init__(self, spec: MonitorSpec, gate: float | None = None) -> None:
+    def __init__(
+        self, spec: MonitorSpec, gate: float | None = None, innovation: InnovationSpec | None = None
+    ) -> None:
         self.spec, self.gate = spec, gate
+        self.innovation = InnovationMonitor(innovation) if innovation is not None else None
         self._thr = np.asarray(spec.threshold, dtype=float)
         kind = np.asarray(spec.kind)
         self._trip, self._count = kind == TRIP, kind == COUNT
@@ -98,6 +101,8 @@ class RuntimeMonitor:
 
     def reset(self) -> None:
         self._window = np.zeros(self.spec.window, dtype=int)
+        if self.innovation is not None:
+            self.innovation.reset()
         self.tick = 0
         self.trips = 0
         self.first_trip: int | None = None
@@ -109,6 +114,8 @@ class RuntimeMonitor:
         beyond = ~((d <= self._thr) & (d >= -self._thr))
         self._window[self.tick % self.spec.window] = int((beyond & self._count).any())
         bits = int((beyond & self._trip).any()) * TRIP_ENVELOPE
+        if self.innovation is not None:
+            bits |= self.innovation.step(d.tolist() if np.all(np.isfinite(d)) else None)
         if int(self._window.sum()) > self.spec.m:
             bits |= TRIP_OUTLIERS
         if bits:
@@ -117,6 +124,11 @@ class RuntimeMonitor:
                 self.first_trip = self.tick
         self.tick += 1
         return bits
+
+    def command(self, du: np.ndarray) -> None:
+        """The deviation command flown at this tick (the innovation's ``du_k``)."""
+        if self.innovation is not None:
+            self.innovation.command(np.asarray(du, dtype=float).reshape(3).tolist())
 
 
 def envelope_peak(spec: MonitorSpec, dev: np.ndarray, gate: float | None = None) -> float:
@@ -316,12 +328,12 @@ def innovation_spec(
     return InnovationSpec(
         a_xx=_rows(A[:NX, :NX]), a_xa=_rows(A[:NX, NX:]), b_x=_rows(B[:NX]),
         a_aa=_rows(A[NX:, NX:]), b_a=_rows(B[NX:]), windows=tuple(windows),
-        threshold=tuple(tuple(v * widen + tol if v > 0 else 0.0 for v in r) for r in threshold),
+        threshold=tuple(tuple(float(v * widen + tol) if v > 0 else 0.0 for v in r) for r in threshold),
         shifts=tuple(shifts),
-        outlier_threshold=tuple(v * widen + tol if v > 0 else 0.0 for v in othr),
+        outlier_threshold=tuple(float(v * widen + tol) if v > 0 else 0.0 for v in othr),
         m=m_eff, count_window=max(T - 1, 1), breaks=tuple(breaks),
         per_tick=tuple(float(v) for v in per_tick),
-        error_part=tuple(tuple(r) for r in error_part),
+        error_part=tuple(tuple(float(v) for v in r) for r in error_part),
     )  # fmt: skip
 
 
@@ -482,7 +494,8 @@ def innovation_flags(spec: InnovationSpec, dev: np.ndarray, du: np.ndarray,
     out = np.zeros(len(d), dtype=int)
     for k in range(len(d)):
         ok = bool(np.all(np.isfinite(d[k])))
-        out[k] = mon.step(d[k].tolist() if ok else None)
+        bits = mon.step(d[k].tolist() if ok else None)
+        out[k] = bits if ok else 0  # a refused tick carries no premise bit (the export's rule)
         mon.command(u[k].tolist())
     return out
 

@@ -19,11 +19,18 @@ import numpy as np
 
 from qsls.pipeline.control.artifacts import Certificate, ControllerDir, check_controller_name
 from qsls.pipeline.control.guarantee import MonitorSpec
-from qsls.pipeline.control.monitor import NO_MONITOR, monitor_of
+from qsls.pipeline.control.monitor import (
+    NO_INNOVATION,
+    NO_MONITOR,
+    InnovationSpec,
+    innovation_of,
+    monitor_of,
+)
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import NX
 from qsls.pipeline.export.attitude import AttitudeLimits
+from qsls.pipeline.export.innovation import state_bytes as innovation_state_bytes
 from qsls.pipeline.export.statement import statement
 
 Precision = Literal["double", "float"]
@@ -136,13 +143,18 @@ class Sizes:
         }
 
 
-def sizes(bank: ExportBank, precision: Precision = "double") -> Sizes:
+def sizes(
+    bank: ExportBank, precision: Precision = "double", innovation: InnovationSpec = NO_INNOVATION
+) -> Sizes:
     """``sizeof`` the C state struct (``T nx + (T+1) ny`` reals, two ring heads, the
-    monitor's ``T + 5`` counters and the refusal count, ``unsigned int`` each, padded to the
+    monitor's ``T + 5`` counters and the refusal count, ``unsigned int`` each, the innovation
+    monitor's fields (:func:`qsls.pipeline.export.innovation.state_bytes`), padded to the
     real's alignment), the ``static const`` taps, and 2 flops per multiply-add."""
     r = REAL_BYTES[precision]
     reals = bank.T * bank.nx + (bank.T + 1) * bank.ny
     state = reals * r + (2 + MONITOR_COUNTERS + REFUSAL_COUNTERS + bank.T) * INDEX_BYTES
+    state += -state % r  # the innovation fields start with reals
+    state += innovation_state_bytes(innovation, r)
     state += -state % max(r, INDEX_BYTES)
     return Sizes(state, bank.constants() * r, 2 * bank.multiply_adds(), precision)
 
@@ -165,6 +177,8 @@ class ExportFacts:
     """Velocity gate ``V``: ``_step`` clips the velocity deviation to ``[-V, V]``."""
     monitor: MonitorSpec = NO_MONITOR
     """The onboard premise monitor's thresholds (docs/monitor.md)."""
+    innovation: InnovationSpec = NO_INNOVATION
+    """The innovation monitor's windows and thresholds (docs/monitor.md)."""
     statement: tuple[str, ...] = ()
     """The guarantee as the file states it, the first line naming the status
     (:mod:`qsls.pipeline.export.statement`)."""
@@ -202,6 +216,7 @@ def facts(cdir: ControllerDir, limits: AttitudeLimits = AttitudeLimits()) -> Exp
         limits=limits,
         gate=cert.gate,
         monitor=mon,
+        innovation=innovation_of(cdir),
         statement=tuple(statement(cdir, mon, status_reason(cert))),
     )
 

@@ -20,6 +20,7 @@ from qsls.pipeline.control.guarantee import MonitorSpec
 from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.export.attitude import c_function
 from qsls.pipeline.export.bank import Y_MAX, ExportBank, ExportFacts, Precision
+from qsls.pipeline.export.innovation import c_code, state_fields
 from qsls.pipeline.export.statement import c_comment, c_string, wrap_lines
 
 PER_LINE = 6
@@ -163,6 +164,14 @@ extern "C" {{
 #define {m}_TRIP_ENVELOPE 1 /* a measured deviation beyond its channel's envelope + error bound */
 #define {m}_TRIP_OUTLIERS 2 /* more than MONITOR_M outlier ticks in the last T ticks */
 #define {m}_INPUT_REFUSED 4 /* latched until _reset: a y entry not finite or beyond Y_MAX */
+/* The innovation monitor (docs/monitor.md, The bits): nu = y'[k+1] - A y'[k] - B u[k] (the
+ * attitude loop's states from the commands) summed over windows; its bits say which test and
+ * which channel tripped. */
+#define {m}_TRIP_INNOVATION_OUTLIERS 8 /* more than MONITOR_M outlier ticks placed in T - 1 */
+#define {m}_TRIP_SUM_CHANNEL 16 /* << c: a window sum beyond its bound on channel c (px..vz) */
+#define {m}_TRIP_SUM_WINDOW 1024 /* << w: ... on the window INNOVATION_WINDOWS[w] */
+#define {m}_INNOVATION_ON {int(facts.innovation.active)}
+{_windows(facts, m)}
 #define {m}_Y_MAX {literal(Y_MAX, precision)} /* m, m/s: |y_i| beyond this is refused */
 #define {m}_MONITOR_M {facts.monitor.m}
 #define {m}_MONITOR_ON {int(facts.monitor.active)}
@@ -181,7 +190,7 @@ struct {prefix} {{
     unsigned int mon_ticks; /* ticks since reset */
     unsigned int mon_trips; /* ticks on which the monitor tripped */
     unsigned int mon_first; /* the first of them (valid when mon_trips > 0) */
-    unsigned int refused; /* measurements refused since reset (INPUT_REFUSED latched while > 0) */
+    unsigned int refused; /* measurements refused since reset (INPUT_REFUSED latched while > 0) */{_fields(facts, real)}
 }};
 typedef struct {prefix} {prefix}_t;
 
@@ -201,6 +210,9 @@ unsigned int {prefix}_trips(const {prefix}_t *c);
 unsigned int {prefix}_refused(const {prefix}_t *c);
 /* The first tick (0 = the first after reset) on which it tripped, -1 if none. */
 long {prefix}_first_trip(const {prefix}_t *c);
+/* The command actually flown this tick (deviation, as u), when it is not this step's u (a
+ * fallback flies): the innovation monitor models the next measurement from it. */
+void {prefix}_flown({prefix}_t *c, const {real} u[{m}_NU]);
 /* u plus the reference acceleration acc_ref (m/s^2, world, z up) and the commanded yaw
  * (rad) -> collective thrust (N, limited) and attitude q = [x, y, z, w] (tilt limited). */
 void {prefix}_attitude(const {real} u[{m}_NU], const {real} acc_ref[3], {real} yaw,
@@ -212,6 +224,17 @@ void {prefix}_attitude(const {real} u[{m}_NU], const {real} acc_ref[3], {real} y
 
 #endif /* {m}_H */
 """
+
+
+def _windows(facts: ExportFacts, m: str) -> str:
+    ks = facts.innovation.windows
+    if not facts.innovation.active or not ks:
+        return f"/* no {m}_INNOVATION_WINDOWS: no window sum is checked */"
+    return f"#define {m}_INNOVATION_WINDOWS {{ {', '.join(str(k) for k in ks)} }} /* ticks */"
+
+
+def _fields(facts: ExportFacts, real: str) -> str:
+    return "".join("\n    " + f for f in state_fields(facts.innovation, real))
 
 
 def monitor_thresholds(mon: MonitorSpec, precision: Precision) -> list[float]:
@@ -266,6 +289,17 @@ def source(bank: ExportBank, facts: ExportFacts, prefix: str, precision: Precisi
     mon = facts.monitor
     thr = [literal(v, precision) for v in monitor_thresholds(mon, precision)]
     kinds = ", ".join(f"{k}u" for k in mon.kind)
+    inn = facts.innovation
+    inn_code = c_code(inn, prefix, real, precision == "float")
+    if inn.active:
+        inn_call = f"inn = {prefix}_innovation_tick(c, yg);\n    "
+        inn_flags = "inn"
+        inn_refuse = f"(void){prefix}_innovation_tick(c, NULL); /* no premise bit on a refused tick */\n    memset(c->inn_du, 0, sizeof c->inn_du);\n    "
+        inn_store = "memcpy(c->inn_du, u, sizeof c->inn_du);\n    "
+        inn_flown = "memcpy(c->inn_du, u, sizeof c->inn_du);"
+    else:
+        inn_call, inn_flags, inn_refuse, inn_store = "", "0", "", ""
+        inn_flown = "(void)c;\n    (void)u;"
     gate = (
         f"""for (i = 3u; i < {m}_NY; ++i) {{ /* the gate: velocity deviation to +/- GATE */
         if (yg[i] > {m}_GATE) {{
@@ -291,11 +325,10 @@ def source(bank: ExportBank, facts: ExportFacts, prefix: str, precision: Precisi
  * 0 not checked, 1 the premise is broken, 2 the tick carries an outlier. */
 static const {real} MON_THR[{m}_NY] = {{ {", ".join(thr)} }};
 static const unsigned char MON_KIND[{m}_NY] = {{ {kinds} }};
-
-static int {prefix}_monitor_tick({prefix}_t *c, const {real} yg[{m}_NY])
+{inn_code}
+static int {prefix}_monitor_tick({prefix}_t *c, const {real} yg[{m}_NY], int flags)
 {{
     unsigned int i, outlier = 0u;
-    int flags = 0;
 
     for (i = 0u; i < {m}_NY; ++i) {{
         if (MON_KIND[i] != 0u && !(yg[i] <= MON_THR[i] && yg[i] >= -MON_THR[i])) {{
@@ -333,7 +366,7 @@ static int {prefix}_refuse({prefix}_t *c, {real} u[{m}_NU])
     for (i = 0u; i < {m}_NU; ++i) {{
         u[i] = {zero};
     }}
-    c->mon_count -= c->mon_outlier[c->mon_head];
+    {inn_refuse}c->mon_count -= c->mon_outlier[c->mon_head];
     c->mon_outlier[c->mon_head] = 0u;
     c->mon_head = (c->mon_head + 1u == (unsigned int){m}_T) ? 0u : c->mon_head + 1u;
     ++c->mon_ticks;
@@ -373,7 +406,7 @@ int {prefix}_step({prefix}_t *c, const {real} y[{m}_NY], {real} u[{m}_NU])
     {real} nb[{m}_NX]; /* beta[k + 1] */
     {real} yg[{m}_NY]; /* y through the gate */
     unsigned int i, j, k, r;
-    int flags;
+    int flags;{" int inn;" if inn.active else ""}
 
     for (i = 0u; i < {m}_NY; ++i) {{ /* a NaN fails both comparisons */
         if (!(y[i] >= -{m}_Y_MAX && y[i] <= {m}_Y_MAX)) {{
@@ -381,7 +414,7 @@ int {prefix}_step({prefix}_t *c, const {real} y[{m}_NY], {real} u[{m}_NU])
         }}
     }}
     memcpy(yg, y, sizeof yg);
-    {gate}flags = {prefix}_monitor_tick(c, yg);
+    {gate}{inn_call}flags = {prefix}_monitor_tick(c, yg, {inn_flags});
     if (c->refused != 0u) {{
         flags |= {m}_INPUT_REFUSED;
     }}
@@ -413,7 +446,12 @@ int {prefix}_step({prefix}_t *c, const {real} y[{m}_NY], {real} u[{m}_NU])
     }}
     c->beta_head = (c->beta_head == 0u) ? (unsigned int)({m}_T - 1) : c->beta_head - 1u;
     memcpy(c->beta[c->beta_head], nb, sizeof nb);
-    return flags;
+    {inn_store}return flags;
+}}
+
+void {prefix}_flown({prefix}_t *c, const {real} u[{m}_NU])
+{{
+    {inn_flown}
 }}
 
 {c_function(prefix, real, precision == "float")}"""

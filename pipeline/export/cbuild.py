@@ -97,6 +97,9 @@ class CController:
         self._trips.restype, self._trips.argtypes = ctypes.c_uint, [ctypes.c_void_p]
         self._first = getattr(self._lib, f"{prefix}_first_trip")
         self._first.restype, self._first.argtypes = ctypes.c_long, [ctypes.c_void_p]
+        self._flown = getattr(self._lib, f"{prefix}_flown")
+        self._flown.restype = None
+        self._flown.argtypes = [ctypes.c_void_p, ctypes.POINTER(real)]
         self._refused = getattr(self._lib, f"{prefix}_refused")
         self._refused.restype, self._refused.argtypes = ctypes.c_uint, [ctypes.c_void_p]
         self.flags = 0
@@ -121,6 +124,12 @@ class CController:
         self._y[:] = [float(v) for v in np.asarray(y, dtype=float).reshape(6)]
         self.flags = int(self._step(self._state, self._y, self._u))
         return np.array(self._u[:], dtype=float)
+
+    def flown(self, u: np.ndarray) -> None:
+        """The command actually flown this tick (deviation) when it is not the step's ``u``
+        (a fallback flies): the innovation monitor models the next measurement from it."""
+        uu = (self.real * 3)(*[float(v) for v in np.asarray(u, dtype=float).reshape(3)])
+        self._flown(self._state, uu)
 
     @property
     def trips(self) -> int:

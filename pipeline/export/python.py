@@ -17,6 +17,7 @@ from qsls.pipeline.control.sls import side_by_side
 from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.export.attitude import py_function
 from qsls.pipeline.export.bank import INPUT_REFUSED, Y_MAX, ExportBank, ExportFacts
+from qsls.pipeline.export.innovation import py_code
 from qsls.pipeline.export.statement import py_doc, wrap_lines
 
 PER_LINE = 4
@@ -128,6 +129,10 @@ Y_MAX = {Y_MAX!r}  # m, m/s: |y_i| beyond this (or not finite) is refused
 MONITOR_THR = ({", ".join(repr(float(v)) for v in mon.threshold)},)
 MONITOR_KIND = ({", ".join(str(k) for k in mon.kind)},)
 MONITOR_M = {mon.m}
+# The innovation monitor (docs/monitor.md, The bits): window sums of nu = y'[k+1] - A y'[k] -
+# B u[k]; TRIP_SUM_CHANNEL << c names the channel (px..vz), TRIP_SUM_WINDOW << w the window.
+TRIP_INNOVATION_OUTLIERS, TRIP_SUM_CHANNEL, TRIP_SUM_WINDOW = 8, 16, 1024
+{py_code(facts.innovation)}
 
 _sumprod = getattr(math, "sumprod", None)
 
@@ -167,10 +172,16 @@ class Controller:
         self.first_trip = None
         self.flags = 0
         self.refused = 0
+        self._inn = _Innovation()
 
-    def _monitor(self, yg):
-        """The monitor's bits for this tick (docs/monitor.md)."""
-        flags = 0
+    def flown(self, u):
+        """The command actually flown this tick (deviation, as ``u``) when it is not this
+        step's ``u`` (a fallback flies): the innovation monitor models the next measurement
+        from it."""
+        self._inn.command(u)
+
+    def _monitor(self, yg, flags=0):
+        """The monitor's bits for this tick (docs/monitor.md), after the innovation's."""
         outlier = 0
         for v, thr, kind in zip(yg, MONITOR_THR, MONITOR_KIND):
             if kind and not (-thr <= v <= thr):
@@ -195,6 +206,8 @@ class Controller:
         """A refused measurement: the filter's memory is unchanged, the monitor's window moves
         on by one tick with no outlier, u = 0 (hover plus feedforward)."""
         self.refused += 1
+        self._inn.tick(None, self.ticks)  # no premise bit on a refused tick
+        self._inn.command((0.0, 0.0, 0.0))
         self._count -= self._outlier[self._head]
         self._outlier[self._head] = 0
         self._head = (self._head + 1) % T
@@ -226,7 +239,7 @@ class Controller:
                     yg[i] = GATE
                 elif yg[i] < -GATE:
                     yg[i] = -GATE
-        self._monitor(yg)
+        self._monitor(yg, self._inn.tick(yg, self.ticks))
         if self.refused:
             self.flags |= INPUT_REFUSED
         ys = self._y
@@ -239,6 +252,7 @@ class Controller:
         nb = [_dot(r, sb) for r in KB]
         beta[NX:] = beta[:-NX]
         beta[:NX] = nb
+        self._inn.command(u)
         return u
 {py_function(facts.limits)}'''
 

@@ -38,6 +38,7 @@ from qsls.pipeline.control.artifacts import (
     load_runtime,
 )
 from qsls.pipeline.control.gate import gated_deviation
+from qsls.pipeline.control.monitor import innovation_of
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.plant import NX
 from qsls.pipeline.export.bank import (
@@ -257,7 +258,7 @@ def export(folder: Path, options: ExportOptions, out: Path, *, force: bool = Fal
         "target": options.target,
         "T": bank.T,
         "strictly_proper": cdir.controller.strictly_proper,
-        **sizes(bank, options.precision).as_dict(),
+        **sizes(bank, options.precision, innovation_of(cdir)).as_dict(),
     }
     ys = _random_y(options.verify_ticks, options.seed, cdir.certificate.gate)
     ref_u = reference_u(cdir, ys)

@@ -18,7 +18,10 @@ fallback's on the same deviation, and the attitude loop smooths the step):
   with zero velocity and no feedforward (``r_hold = [y_p,trip, 0]``): the vehicle stops
   where it believes it is, and the position deviation is zero at the handover.
 
-Per tick it records the monitor's bits and which controller flew (:attr:`flew`).
+Per tick it records the monitor's bits and which controller flew (:attr:`flew`). The monitor
+includes the innovation monitor (docs/monitor.md), which models each measurement from the
+command flown at the tick before: the assured controller tells it that command (the fallback's
+after the handover; the exported C step through ``PREFIX_flown``).
 
 With ``--backend c`` (the exported, compiled controller flying through ctypes:
 :func:`qsls.pipeline.export.cbuild.c_runtime`) the exported step's own monitor decides the
@@ -36,9 +39,9 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import numpy as np
 
 from qsls.pipeline.control.artifacts import load_controller_dir
-from qsls.pipeline.control.monitor import RuntimeMonitor, monitor_of
+from qsls.pipeline.control.monitor import RuntimeMonitor, innovation_of, monitor_of
 from qsls.pipeline.core.references import RefSample
-from qsls.pipeline.sim.controllers import PDController, PositionController
+from qsls.pipeline.sim.controllers import PDController, PositionController, feedforward, hover_input
 
 Fallback = Literal["pd", "hold"]
 FALLBACKS: tuple[Fallback, ...] = ("pd", "hold")
@@ -53,6 +56,8 @@ class ExportedStep(Protocol):
     flags: int
 
     def step(self, y: np.ndarray) -> np.ndarray: ...
+
+    def flown(self, u: np.ndarray) -> None: ...
 
 
 def exported_runtime(primary: PositionController) -> ExportedStep | None:
@@ -110,9 +115,18 @@ class AssuredController:
                 self._hold = RefSample(p=np.array(y[:3], dtype=float), v=zero, a=zero)
         if self.trip_tick is None:
             self.flew.append(str(self.primary.name))
-            return u if u is not None else self.primary.command(t, y, q, ref)
-        self.flew.append(self.mode)
-        return self.fallback.command(t, y, q, self._hold if self._hold is not None else ref)
+            cmd = u if u is not None else self.primary.command(t, y, q, ref)
+        else:
+            self.flew.append(self.mode)
+            cmd = self.fallback.command(t, y, q, self._hold if self._hold is not None else ref)
+        # the innovation monitor models the next measurement from the command flown
+        du = np.asarray(cmd, dtype=float) - hover_input(self.fallback.mass)
+        du = du - feedforward(ref, self.fallback.mass)
+        if self.monitor is not None:
+            self.monitor.command(du)
+        elif self.onboard is not None and self.trip_tick is not None:
+            self.onboard.flown(du)  # before the trip the step's own u is the one flown
+        return cmd
 
 
 def assured_controller(
@@ -129,5 +143,5 @@ def assured_controller(
         fallback.K = np.asarray(K, dtype=float)
     if exported_runtime(primary) is not None:
         return AssuredController(primary, fallback, None, mode)
-    monitor = RuntimeMonitor(monitor_of(cdir), cdir.certificate.gate)
+    monitor = RuntimeMonitor(monitor_of(cdir), cdir.certificate.gate, innovation_of(cdir))
     return AssuredController(primary, fallback, monitor, mode)
