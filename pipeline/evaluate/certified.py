@@ -31,6 +31,7 @@ from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.plant import GRAVITY, NX
 from qsls.pipeline.errormodel import honest
 from qsls.pipeline.evaluate.assumptions import CertifiedPremise
+from qsls.pipeline.evaluate.conditions import outside_family
 
 
 @dataclass(frozen=True)
@@ -316,17 +317,26 @@ def refuse_evidence_seeds(folders: Sequence[Path], seeds: Sequence[int]) -> None
 
 
 def outside_calibration(
-    cal: Calibration | None, condition: str, flight_s: float, estimator: str = ""
+    cal: Calibration | None,
+    condition: str,
+    flight_s: float,
+    estimator: str = "",
+    conditions: Mapping[str, Any] | None = None,
 ) -> str:
     """Why a flight of perception ``condition`` (``''``: not known, as for a recorded log)
     lasting ``flight_s``, its estimate from ``estimator`` (``camera``, ``emulator``; ``''``:
-    not known), lies outside the conditions a certificate was calibrated under (``cal``, its
-    record; ``''`` when inside, or when it has no calibration):
-    :func:`qsls.pipeline.control.calibration.outside_conditions`."""
+    not known), its other recorded ``conditions`` (vehicle, reference, VIO parameters:
+    :func:`qsls.pipeline.evaluate.conditions.flight_conditions`; None: not known), lies
+    outside the conditions a certificate was calibrated under (``cal``, its record; ``''``
+    when inside, or when it has no calibration):
+    :func:`qsls.pipeline.control.calibration.outside_conditions` and
+    :func:`qsls.pipeline.evaluate.conditions.outside_family`."""
     if cal is None:
         return ""
     calibrated = str(cal.conditions.get("perception", ""))
-    return outside_conditions(
+    why = outside_conditions(
         condition or calibrated, flight_s, calibrated, cal.duration_s,
         estimator, str(cal.conditions.get("estimator", "")),
     )  # fmt: skip
+    family = outside_family(cal.conditions, conditions) if conditions else []
+    return "; ".join([w for w in (why, *family) if w])

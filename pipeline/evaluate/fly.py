@@ -86,6 +86,7 @@ from qsls.pipeline.evaluate.certified import (
     outside_calibration,
     refuse_evidence_seeds,
 )
+from qsls.pipeline.evaluate.conditions import flight_conditions
 from qsls.pipeline.evaluate.estimators import findings_markdown, keyed, write_by_estimator
 from qsls.pipeline.evaluate.figures import write_fly_figures
 from qsls.pipeline.evaluate.findings import PAPER_CONTROLLERS, ROBUST_QR, compare_with_paper
@@ -223,6 +224,7 @@ def run_job(job: FlyJob) -> FlyOutcome:
         u_pd=u_pd,
         uff_ctrl=ticks.uff,
         extra={"crash_time_s": f.crash_time_s, "lipschitz": f.lipschitz, "mass": f.mass,
+               "conditions": flight_conditions(opts.model_dump(mode="json")),
                **({"flew": list(ctrl.flew), "bits": list(ctrl.bits)} if job.assured else {})},
         estimator=job.estimator,
     )  # fmt: skip
@@ -670,8 +672,9 @@ def assumption_table(
         if o.metrics.get("crashed"):
             row = crashed(row, o.extra.get("crash_time_s"), o.metrics.get("crash_reason"))
         row["outside_calibration"] = outside_calibration(
-            cal, o.condition, float(o.metrics.get("duration_s", o.t_ctrl[-1])), o.estimator
-        )
+            cal, o.condition, float(o.metrics.get("duration_s", o.t_ctrl[-1])), o.estimator,
+            o.extra.get("conditions"),
+        )  # fmt: skip
         rows.append({"flight": o.name, "controller": o.controller, "status": b.status,
                      "crashed": bool(o.metrics.get("crashed")),
                      "condition": o.condition, "seed": o.seed, **row})  # fmt: skip

@@ -14,6 +14,7 @@ from pydantic import Field, field_validator, model_validator
 from qsls.pipeline.core.cluster import SchedulerAddress
 from qsls.pipeline.core.config import MAX_FLIGHTS, Duration, FlightCount, Options, Seed
 from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.evaluate.conditions import ConditionFamily
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.sim.options import Perception, SimOptions
 
@@ -164,6 +165,11 @@ class CalibrateOptions(Options):
         min_length=1,
     )
     """Perception conditions: one calibrated certificate per candidate and condition."""
+    family: ConditionFamily = ConditionFamily()
+    """The conditions each calibration, range and validation flight draws from (the vehicle's
+    true mass, the reference's radius, period, height and centre); the certificate states the
+    family and every flight is checked against it (docs/calibration.md, Conditions as a
+    stated family). Default: one vehicle on one reference."""
     duration: Duration = 20.0
     """Seconds per flight."""
     range_flights: FlightCount = 0

@@ -1,0 +1,205 @@
+"""The conditions a certificate is calibrated under, as a stated family, and the check of a
+flight's conditions against it (docs/calibration.md, Conditions as a stated family).
+
+A calibrated promise holds for a new flight *exchangeable* with the calibration flights, so
+it holds only under the conditions they were drawn from. The calibration draws each
+calibration, range and validation flight's conditions from :class:`ConditionFamily` (by
+the flight's seed), records per flight what was drawn, and the certificate states:
+
+- ``family``: the ranges drawn from (the vehicle's true mass, the reference's radius,
+  period, height and centre);
+- ``vehicle``, ``reference``, ``vio``: every other condition, fixed at its recorded value
+  (the vehicle and its integrator, the reference's kind and timing, every parameter of the
+  VIO emulator); ``perception``, ``estimator`` and ``duration_s`` as before.
+
+:func:`outside_family` compares *all* of a flight's recorded conditions with that statement
+and says which condition lies outside and by how much; a flight outside is outside the
+certificate, whatever its verdict.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from qsls.pipeline.core.config import Options
+
+FAMILY_STREAM = 0x46414D
+"""The random stream of the family's draws (``SeedSequence([seed, FAMILY_STREAM])``): apart
+from every stream of the flight itself, so a point family changes no flight."""
+
+Span = tuple[float, float]
+
+REL_TOL = 1e-9
+"""Two recorded numbers are one condition within this relative tolerance (a round trip
+through JSON and YAML is exact; this absorbs nothing a user could set)."""
+
+UNCOMPARED = {"reference": {"laps"}, "vio": {"perception"}}
+"""Recorded but compared elsewhere: the laps only set a flight's natural length (the flight
+length is compared as ``duration_s``), the perception condition is its own key."""
+
+
+class ConditionFamily(Options):
+    """The family the calibration draws each flight's conditions from (``calibrate.family``);
+    every range ``[low, high]`` is drawn uniformly, a point range keeps the condition fixed.
+    The controller keeps the mass it was synthesized for: a drawn mass is the vehicle's true
+    one (a heavier battery), which the controller does not know."""
+
+    mass: Span = (1.0, 1.0)
+    """The vehicle's true mass relative to ``vehicle.mass`` (``[0.97, 1.03]``: +-3 %)."""
+    radius: Span | None = None
+    """The reference's radius (m); None: fixed at ``reference.radius``."""
+    period: Span | None = None
+    """The reference's period (s); None: fixed."""
+    height: Span | None = None
+    """The reference's height (m); None: fixed."""
+    center_offset: float = Field(0.0, ge=0.0, le=10.0)
+    """The reference's centre moved up to this far (m, uniform in the disc)."""
+
+    @model_validator(mode="after")
+    def _ranges(self) -> ConditionFamily:
+        for name in ("mass", "radius", "period", "height"):
+            span = getattr(self, name)
+            if span is None:
+                continue
+            lo, hi = span
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+                raise ValueError(f"family.{name} [{lo}, {hi}]: need 0 < low <= high, finite")
+        if not self.mass[1] <= 2.0:
+            raise ValueError(f"family.mass up to {self.mass[1]}: at most twice the mass")
+        return self
+
+    @property
+    def point(self) -> bool:
+        """Every condition fixed: the calibration flies one vehicle on one reference."""
+        spans = [self.mass, self.radius, self.period, self.height]
+        return self.center_offset == 0 and all(s is None or s[0] == s[1] for s in spans)
+
+
+def draw(family: ConditionFamily, seed: int, sim: Mapping[str, Any]) -> dict[str, Any]:
+    """The overrides of flight ``seed``'s simulation options drawn from ``family`` (empty for
+    a point family, so its flights are byte-identical to the fixed ones). ``sim`` is the
+    base options' dump; the mass drawn is the vehicle's, the controller keeps the base's."""
+    if family.point:
+        return {}
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), FAMILY_STREAM]))
+    u = rng.uniform(size=6)
+    veh, ref = dict(sim.get("vehicle") or {}), dict(sim.get("reference") or {})
+    out: dict[str, Any] = {}
+    m0 = float(veh.get("mass", 0.256))
+    lo, hi = family.mass
+    if lo != hi or lo != 1.0:
+        out["vehicle"] = {"mass": m0 * (lo + (hi - lo) * u[0])}
+        out["px4"] = {"controller_mass": m0}
+    r: dict[str, Any] = {}
+    for i, name in enumerate(("radius", "period", "height"), start=1):
+        span = getattr(family, name)
+        if span is not None:
+            r[name] = span[0] + (span[1] - span[0]) * u[i]
+    if family.center_offset > 0:
+        cx, cy = ref.get("center", (0.0, 0.0))
+        rad, ang = family.center_offset * math.sqrt(u[4]), 2 * math.pi * u[5]
+        r["center"] = [float(cx) + rad * math.cos(ang), float(cy) + rad * math.sin(ang)]
+    if r:
+        out["reference"] = r
+    return out
+
+
+def drawn(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, float]:
+    """What a flight of options ``sim`` met of a non-point ``family`` (the scores' columns:
+    ``mass_kg``, ``radius_m``, ``period_s``, ``height_m``, ``center_x_m``, ``center_y_m``);
+    empty for a point family (the scores stay as they were)."""
+    if family.point:
+        return {}
+    veh, ref = sim.get("vehicle") or {}, sim.get("reference") or {}
+    cx, cy = ref.get("center", (0.0, 0.0))
+    return {"mass_kg": float(veh["mass"]), "radius_m": float(ref["radius"]),
+            "period_s": float(ref["period"]), "height_m": float(ref["height"]),
+            "center_x_m": float(cx), "center_y_m": float(cy)}  # fmt: skip
+
+
+def stated(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, Any]:
+    """What a certificate states of its conditions beyond perception, estimator and length:
+    the family's ranges in absolute units and every other condition at its recorded value."""
+    veh, ref = dict(sim.get("vehicle") or {}), dict(sim.get("reference") or {})
+    m0 = float(veh.get("mass", 0.256))
+    fam: dict[str, Any] = {"mass": [m0 * family.mass[0], m0 * family.mass[1]]}
+    for name in ("radius", "period", "height"):
+        span = getattr(family, name)
+        fam[name] = list(span) if span is not None else [float(ref[name])] * 2
+    fam["center"] = list(ref.get("center", (0.0, 0.0)))
+    fam["center_offset"] = family.center_offset
+    return {"family": fam, "vehicle": veh, "reference": ref, "vio": dict(sim.get("vio") or {})}
+
+
+def flight_conditions(sim: Mapping[str, Any]) -> dict[str, Any]:
+    """A flight's recorded conditions from its simulation options' dump: the vehicle (its
+    true mass), the reference and the VIO emulator's parameters."""
+    return {k: dict(sim.get(k) or {}) for k in ("vehicle", "reference", "vio")}
+
+
+def _differs(a: Any, b: Any) -> bool:
+    if isinstance(a, bool | str) or isinstance(b, bool | str) or a is None or b is None:
+        return bool(a != b)
+    if isinstance(a, int | float) and isinstance(b, int | float):
+        return not math.isclose(float(a), float(b), rel_tol=REL_TOL, abs_tol=1e-12)
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return len(a) != len(b) or any(_differs(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        return set(a) != set(b) or any(_differs(a[k], b[k]) for k in a)
+    return bool(a != b)
+
+
+def _span(name: str, value: float, span: list[float], unit: str) -> str:
+    lo, hi = float(span[0]), float(span[1])
+    if lo - REL_TOL * abs(lo) <= value <= hi + REL_TOL * abs(hi):
+        return ""
+    edge = hi if value > hi else lo
+    rel = f" ({100 * (value - edge) / edge:+.1f} % beyond)" if edge else ""
+    fixed = f"{lo:.4g}" if lo == hi else f"[{lo:.4g}, {hi:.4g}]"
+    return f"{name} {value:.4g}{unit}, calibrated at {fixed}{unit}{rel}"
+
+
+def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> list[str]:
+    """Each of ``flight``'s conditions (:func:`flight_conditions`) that lies outside what the
+    certificate states (:func:`stated`), in words with how far; empty when every one lies
+    inside. A condition the statement does not record is not compared (an older record); a
+    recorded flights' certificate states its logs' conditions, compared where they are read
+    (:mod:`qsls.pipeline.evaluate.calibrate_recorded`)."""
+    if statement.get("source") in ("recorded", "standin"):
+        return []  # a log's conditions are stated as its log says them (calibrate_recorded)
+    fam = statement.get("family")
+    why: list[str] = []
+    ranged: dict[str, set[str]] = {"vehicle": set(), "reference": set()}
+    if fam:
+        veh, ref = flight.get("vehicle") or {}, flight.get("reference") or {}
+        checks = [("mass", veh.get("mass"), fam.get("mass"), " kg", "vehicle")]
+        checks += [(n, ref.get(n), fam.get(n), u, "reference")
+                   for n, u in (("radius", " m"), ("period", " s"), ("height", " m"))]  # fmt: skip
+        for name, value, span, unit, group in checks:
+            if value is None or span is None:
+                continue
+            ranged[group].add(name)
+            if text := _span(name, float(value), span, unit):
+                why.append(text)
+        if "center" in ref and fam.get("center") is not None:
+            ranged["reference"].add("center")
+            d = math.dist([float(c) for c in ref["center"]], [float(c) for c in fam["center"]])
+            if d > float(fam.get("center_offset", 0.0)) + 1e-9:
+                why.append(f"reference centre {d:.3g} m from the calibrated centre "
+                           f"(up to {float(fam.get('center_offset', 0.0)):.3g} m)")  # fmt: skip
+    for group in ("vehicle", "reference", "vio"):
+        have, want = flight.get(group) or {}, statement.get(group)
+        if not want:
+            continue
+        skip = ranged.get(group, set()) | UNCOMPARED.get(group, set())
+        for key in sorted(set(want) | set(have)):
+            if key in skip:
+                continue
+            if key not in have or key not in want or _differs(have[key], want[key]):
+                why.append(f"{group}.{key} {have.get(key)!r}, calibrated at {want.get(key)!r}")
+    return why
