@@ -364,14 +364,24 @@ def read_stage_json(folder: Path, name: str, fix: str) -> Any:
     (:class:`InputError`, with ``fix``) when its bytes are not those its ``manifest.json``
     lists (edited or corrupted since, whatever its size and time say: a cache that trusts
     them would not see it), or when it is not JSON (:func:`read_json`)."""
+    check_stage_file(folder, name, fix)
+    return read_json(Path(folder) / name, fix)
+
+
+def check_stage_file(folder: Path, name: str, fix: str) -> None:
+    """Refuse (one :class:`InputError` line, with ``fix``) the file ``name`` of a stage
+    folder when its bytes are not those the folder's ``manifest.json`` lists: corrupted or
+    edited since its stage wrote it. A folder without a manifest, or a file it does not list,
+    is not checked (files written by hand or by an older version)."""
     path = Path(folder) / name
+    if not (Path(folder) / MANIFEST).is_file() or not path.is_file():
+        return
     listed = (read_manifest(folder).get("files") or {}).get(name)
-    if listed is not None and path.is_file() and _hash_file(path) != listed:
+    if listed is not None and _hash_file(path) != listed:
         raise InputError(
             f"{path}: changed since its stage wrote it (its sha256 is not the one its "
             f"{MANIFEST} lists); {fix}"
         )
-    return read_json(path, fix)
 
 
 # --------------------------------------------------------------------------- stage writer

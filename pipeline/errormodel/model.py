@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from qsls.pipeline.core.artifacts import load_yaml
+from qsls.pipeline.core.artifacts import check_stage_file, load_yaml
 from qsls.pipeline.core.errors import InputError
 
 if TYPE_CHECKING:
@@ -215,4 +215,12 @@ def load_training_states(fit_dir: Path) -> pd.DataFrame:
             f"{fit_dir}: no {TRAINING_FILE} beside {ERROR_MODEL_FILE}; pass the folder written "
             "by 'qsls fit'"
         )
-    return pd.read_parquet(path)
+    fix = "run 'qsls fit' again to rewrite it"
+    check_stage_file(Path(fit_dir), TRAINING_FILE, fix)
+    try:
+        df = pd.read_parquet(path)
+    except Exception as exc:  # pyarrow raises several types for a corrupt or truncated file
+        raise InputError(
+            f"{path}: not a readable parquet file ({exc.__class__.__name__}); {fix}"
+        ) from None
+    return df
