@@ -274,9 +274,10 @@ def print_summary(title: str, rows: Iterable[tuple[str, Any]] | Mapping[str, Any
 
 
 def print_verdicts(title: str, verdicts: Iterable[Any]) -> None:
-    """The answer last: one line per controller, ``holds`` / ``FAILS`` and the worst ratio
-    (``verdicts``: Verdicts, or their lines as recorded in a run state)."""
-    lines = [v if isinstance(v, str) else v.line() for v in verdicts]
+    """The answer last: per controller what its certificate promises, then ``holds`` /
+    ``FAILS`` and the worst ratio (``verdicts``: Verdicts, or their lines as recorded in a
+    run state)."""
+    lines = [x for v in verdicts for x in ([v] if isinstance(v, str) else v.lines())]
     if lines:
         typer.echo(f"{title}:")
         for line in lines:

@@ -76,7 +76,7 @@ def test_an_up_to_date_rerun_runs_nothing_imports_nothing_heavy_and_notices_chan
     first = _qsls("run", cfg, cwd=tmp_path)
     assert "evaluate" in _ran(first) and index.is_file()
     verdicts = _verdict_lines(first.stdout)
-    assert verdicts[1:] == [f"  {v.line()}" for v in read_verdicts(run / "evaluate")]
+    assert verdicts[1:] == [f"  {x}" for v in read_verdicts(run / "evaluate") for x in v.lines()]
     assert any(v.startswith("  l1_robust: ") for v in verdicts)
     report_stamp = index.stat().st_mtime_ns
 

@@ -38,7 +38,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -84,7 +84,14 @@ from qsls.pipeline.evaluate.theorem import (
     uniform_grid,
 )
 from qsls.pipeline.evaluate.training import TrainingData, load_training
-from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
+from qsls.pipeline.evaluate.verdict import (
+    ASSUMPTIONS_FILE,
+    AssumptionVerdict,
+    Verdict,
+    combined,
+    controller_promises,
+    with_promises,
+)
 from qsls.pipeline.ingest.flight import errors, read_flight, states
 from qsls.pipeline.sim.simulate import TRUTH_FILE
 from qsls.pipeline.sim.ticks import TICKS_FILE, TickLog
@@ -351,6 +358,12 @@ class EvaluateResult:
     tick logs); None when there are none."""
     nees: tuple[Nees, ...] = ()
     """The position NEES of each flight whose VIO recorded covariances (:mod:`.nees`)."""
+    promises: Mapping[str, str] = field(default_factory=dict)
+    """Each controller's promise, the sentence its verdict leads with (:mod:`.verdict`)."""
+
+    def verdicts(self) -> list[Verdict | AssumptionVerdict]:
+        """Each controller's verdict, led by its promise (:func:`.verdict.combined`)."""
+        return with_promises(combined(self.table, self.assumptions), self.promises)
 
     def summary(self) -> dict[str, Any]:
         t = self.table
@@ -626,6 +639,7 @@ def evaluate(
         force=force,
         assumptions=assumptions,
         nees=nees,
+        promises=controller_promises((b.name, b.certificate) for b in every),
     )
 
 
@@ -774,13 +788,16 @@ def write_evaluation(
     force: bool,
     assumptions: pd.DataFrame | None = None,
     nees: tuple[Nees, ...] = (),
+    promises: Mapping[str, str] | None = None,
 ) -> EvaluateResult:
-    """Write the stage folder: ``evaluation.parquet``, ``evaluation.json``,
+    """Write the stage folder: ``evaluation.parquet``, ``evaluation.json`` (with each
+    controller's ``promises``: :func:`~qsls.pipeline.evaluate.verdict.promise`),
     ``samples.parquet``, figures and, with ``assumptions``, ``assumptions.parquet``."""
+    promised = dict(promises or {})
     with StageWriter(out, "evaluate", options=options, inputs=inputs, force=force) as w:
         if assumptions is not None:
             w.write_parquet(ASSUMPTIONS_FILE, assumptions)
-        totals = write_tables(w, table, samples, warnings, model, options)
+        totals = write_tables(w, table, samples, warnings, model, options, {"promises": promised})
         w.results.update(
             {
                 "flights": int(table["flight"].nunique()),
@@ -791,8 +808,9 @@ def write_evaluation(
         if nees:
             w.results["vio_position_nees"] = [n.as_dict() for n in nees]
     return EvaluateResult(
-        out=Path(out), table=table, warnings=tuple(warnings), assumptions=assumptions, nees=nees
-    )
+        out=Path(out), table=table, warnings=tuple(warnings), assumptions=assumptions, nees=nees,
+        promises=promised,
+    )  # fmt: skip
 
 
 def write_tables(

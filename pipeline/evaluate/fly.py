@@ -109,7 +109,7 @@ from qsls.pipeline.evaluate.paired import (
     replace_finding,
 )
 from qsls.pipeline.evaluate.paper import circle_metrics
-from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
+from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE, controller_promises
 from qsls.pipeline.ingest.flight import read_flight
 from qsls.pipeline.ingest.stage import ingest
 from qsls.pipeline.sim.assured import assured_controller
@@ -777,6 +777,9 @@ def fly_evaluate(
     conditioned = load_conditioned(by_condition, [b.name for b in bounds], options.conditions)
     weighted = weighted_bounds(conditioned.values(), model.state_scale)
     conditioned = dict(zip(conditioned, weighted, strict=True))
+    promises = controller_promises(
+        (b.name, b.certificate) for b in [*bounds, *conditioned.values()]
+    )
     refuse_evidence_seeds([*folders, *(b.folder for b in conditioned.values())], options.seeds)
     warnings = [m for b in bounds if (m := check_model_hash(b, model_file, force=force))]
     warnings += [
@@ -889,6 +892,7 @@ def fly_evaluate(
                 "per_controller": per.to_dict(orient="records"),
                 "comparison": comparison,
                 "assumptions": assumptions.to_dict(orient="records"),
+                "promises": promises,
                 **assured_json,
             }
             totals = write_tables(
@@ -920,6 +924,7 @@ def fly_evaluate(
         findings=findings,
         wall_time_s=time.perf_counter() - t0,
         assured=table,
+        promises=promises,
     )
 
 

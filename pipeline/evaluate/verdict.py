@@ -11,12 +11,21 @@ written before the theorem columns existed falls back to ``bound_holds`` and ``m
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
-from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED, Status
+from qsls.pipeline.control.status import (
+    CERTIFIED,
+    EXTRAPOLATED,
+    FAILED,
+    REFERENCE,
+    RELAXED,
+    Status,
+)
 from qsls.pipeline.evaluate.table import Evaluation
 
 UNREAD = "its disturbance, dist(x_hat) and invariance are not read"
@@ -24,6 +33,95 @@ UNREAD = "its disturbance, dist(x_hat) and invariance are not read"
 assumptions are about the controller's own closed loop (docs/evaluation.md)."""
 CLAIMS = (CERTIFIED, EXTRAPOLATED, RELAXED)
 """Statuses whose premise is checked on flights (only ``certified`` claims the guarantee)."""
+
+
+# --------------------------------------------------------------------------- the promise
+def conditions_text(conditions: Mapping[str, Any] | None) -> str:
+    """The calibration's conditions in words: perception, estimator, reference, flight length
+    (docs/calibration.md, "One certificate per condition")."""
+    c = dict(conditions or {})
+    parts = []
+    if c.get("perception"):
+        parts.append(f"{c['perception']} perception")
+    if c.get("estimator"):
+        parts.append(f"the {c['estimator']} estimator")
+    ref = c.get("reference")
+    if isinstance(ref, Mapping) and ref.get("kind"):
+        size = (
+            f" of radius {ref['radius']:g} m" if isinstance(ref.get("radius"), int | float) else ""
+        )
+        parts.append(f"the {ref['kind']} reference{size}")
+    elif isinstance(ref, str) and ref:
+        parts.append(f"the reference {ref}")
+    if isinstance(c.get("vehicle"), Mapping) and c["vehicle"].get("mass"):
+        parts.append(f"the {c['vehicle']['mass']:g} kg vehicle")
+    return ", ".join(parts) or "the conditions of its calibration flights"
+
+
+def _first_reason(cert: Mapping[str, Any]) -> str:
+    reason = str(cert.get("status_reason") or "").strip()
+    return reason.split("; ")[0] if reason else ""
+
+
+def promise(cert: Mapping[str, Any]) -> str:
+    """One plain sentence: what the certificate ``cert`` (its fields, as
+    :meth:`~qsls.pipeline.control.artifacts.Certificate.model_dump` gives them) promises, for
+    which conditions, with which probability, and what lies outside (docs/calibration.md,
+    "What certified promises"). Only ``certified`` promises anything: with probability at
+    least ``1 - alpha`` a next flight in the calibrated conditions keeps the calibrated
+    premise, and then ``dist(x_k) <= rho*`` and ``|d_k|_e <= gamma``."""
+    name = str(cert.get("controller") or "this controller")
+    status = str(cert.get("status") or "")
+    cal = cert.get("calibration") or {}
+    if status == REFERENCE:
+        return f"{name} is the reference controller: it promises nothing, it is measured."
+    if status == FAILED:
+        why = _first_reason(cert)
+        return f"{name} promises nothing: its checks failed{f' ({why})' if why else ''}."
+    if status == CERTIFIED and cal:
+        alpha = float(cal.get("alpha", math.nan))
+        conf = cal.get("confidence")
+        sure = (f", with confidence {float(conf):g} over the calibration draw"
+                if cal.get("method") == "pac" and conf is not None else "")  # fmt: skip
+        length = cal.get("duration_s") or (cal.get("conditions") or {}).get("duration_s")
+        flight = f"{float(length):g} s flight" if length else "flight"
+        return (
+            f"With probability at least {1 - alpha:g}{sure}, a next {flight} of {name} in the "
+            f"conditions it was calibrated in ({conditions_text(cal.get('conditions'))}) keeps "
+            f"its premise and then stays within rho* = {float(cert['rho_star']):.3g} of the "
+            f"training states, its dense perception error within gamma = "
+            f"{float(cert['gamma']):.3g}; a flight in other conditions (another perception, "
+            "estimator, reference or vehicle) lies outside this promise."
+        )
+    if status == EXTRAPOLATED:
+        tested, rho = cert.get("tested_range"), cert.get("rho_star")
+        reach = (f": its calibration flights reached {float(tested):.3g} from the training "
+                 f"states, short of the rho* = {float(rho):.3g} its claim needs"
+                 if tested is not None and rho is not None else "")  # fmt: skip
+        return (
+            f"{name} promises nothing yet (extrapolated{reach}); range flights that reach "
+            "rho* would certify it."
+        )
+    why = _first_reason(cert)
+    if status == RELAXED:
+        return (
+            f"{name} promises nothing for a next flight (relaxed{f': {why}' if why else ''}); "
+            "calibrating it on flights it flies itself (qsls calibrate) can certify it."
+        )
+    if cert.get("robust") is False:
+        return f"{name} promises nothing: it was designed without the robustness constraint."
+    return f"{name} promises nothing ({status or 'no status'}{f': {why}' if why else ''})."
+
+
+def controller_promises(certificates: Iterable[tuple[str, Mapping[str, Any]]]) -> dict[str, str]:
+    """``{controller: its promise}`` from ``(name, certificate fields)`` pairs; a controller
+    with one certificate per condition gets each one's sentence, in order, once."""
+    out: dict[str, list[str]] = {}
+    for name, cert in certificates:
+        text = promise({**cert, "controller": cert.get("controller") or name})
+        if text not in out.setdefault(name, []):
+            out[name].append(text)
+    return {name: " ".join(texts) for name, texts in out.items()}
 
 
 @dataclass(frozen=True)
@@ -42,6 +140,11 @@ class Verdict:
     outside: int = 0  # rows checked against a certificate calibrated under other conditions
     outside_why: str = ""  # the first such row's reason
     relaxed: int = 0  # rows checked against a relaxed certificate, where others are not
+    promise: str = ""  # what the certificate promises (:func:`promise`), said first
+
+    def lines(self) -> list[str]:
+        """The promise, then what the flights showed (:meth:`line`)."""
+        return [self.promise, self.line()] if self.promise else [self.line()]
 
     @property
     def word(self) -> str:
@@ -98,6 +201,11 @@ class AssumptionVerdict:
     outside_failing: int = 0  # of the failing flights, those flown outside the calibration
     relaxed: int = 0  # flights checked against a relaxed certificate (one condition's, say)
     failing: tuple[str, ...] = ()  # every failing flight, the first (worst_flight) included
+    promise: str = ""  # what the certificate promises (:func:`promise`), said first
+
+    def lines(self) -> list[str]:
+        """The promise, then what the flights showed (:meth:`line`)."""
+        return [self.promise, self.line()] if self.promise else [self.line()]
 
     def line(self) -> str:
         n = f"{self.flights} flight{'s' if self.flights != 1 else ''}"
@@ -230,10 +338,21 @@ def combined(
     return [*own, *rest]
 
 
+def with_promises(
+    found: list[Verdict | AssumptionVerdict], promises: Mapping[str, str] | None
+) -> list[Verdict | AssumptionVerdict]:
+    """Each verdict led by its controller's promise (``evaluation.json``'s ``promises``)."""
+    from dataclasses import replace
+
+    return [replace(v, promise=(promises or {}).get(v.controller, "")) for v in found]
+
+
 def read_verdicts(folder: Path) -> list[Verdict | AssumptionVerdict]:
-    """The verdicts of an evaluate stage folder (empty when it holds no evaluation)."""
+    """The verdicts of an evaluate stage folder, each led by its promise where the folder
+    records one (empty when it holds no evaluation)."""
     if not Evaluation.exists(folder):
         return []
     f = Path(folder) / ASSUMPTIONS_FILE
     assumptions = pd.read_parquet(f) if f.is_file() else None
-    return combined(Evaluation.load(folder).rows, assumptions)
+    ev = Evaluation.load(folder)
+    return with_promises(combined(ev.rows, assumptions), ev.doc.get("promises"))

@@ -48,6 +48,7 @@ padding:.5rem .7rem;font-size:.87rem}
 .card dl{display:grid;grid-template-columns:auto 1fr;gap:0 .6rem;margin:.3rem 0}
 .card dt{color:var(--muted)}.card dd{margin:0;text-align:right;white-space:nowrap;font-variant-numeric:tabular-nums}
 .card p{margin:.25rem 0}.card .links{font-size:.8rem}
+.card .promise{font-size:.86rem}
 .badge{display:inline-block;padding:0 .4rem;border-radius:3px;font-size:.78rem;font-weight:600}
 .ok{color:var(--ok)}.warn{color:var(--warn)}.bad{color:var(--bad)}.muted{color:var(--muted)}
 .badge.ok{background:#e1f2e9}.badge.warn{background:#fcefd2}.badge.bad{background:#fbe1df}
@@ -116,6 +117,7 @@ class Card:
     note: str = ""  # a muted line under the numbers (the premise's shares)
     verdict_label: str = "Flown flights"  # whose flights ``verdict`` is about
     more: list[tuple[str, str, str]] = field(default_factory=list)  # (label, text, kind)
+    promise: str = ""  # what the certificate promises, first (evaluate/verdict.py:promise)
 
 
 @dataclass
@@ -282,7 +284,8 @@ def _html_card(c: Card) -> str:
         f'<div class="card" style="--c:{html.escape(c.colour)}">'
         f"<h3>{html.escape(c.title)}</h3>"
         f'<span class="badge {c.kind}">{html.escape(c.badge)}</span>'
-        f"<dl>{items}</dl>"
+        + (f'<p class="promise">{html.escape(c.promise)}</p>' if c.promise else "")
+        + f"<dl>{items}</dl>"
         + (f'<p class="muted">{_inline(c.note)}</p>' if c.note else "")
         + "".join(
             f'<p class="{kind}"><b>{html.escape(label)}:</b> {_inline(text)}</p>'
@@ -391,7 +394,9 @@ def _md_table(t: Table) -> list[str]:
 
 def _md_cards(cards: Sequence[Card]) -> list[str]:
     cols = ["controller", "status", *(k for k, _ in cards[0].items), "verdict"]
-    lines = ["| " + " | ".join(_md(c).replace("|", "\\|") for c in cols) + " |"]
+    lines = [f"- **{_md(c.title)}**: {_md(c.promise)}" for c in cards if c.promise]
+    lines += [""] if lines else []
+    lines += ["| " + " | ".join(_md(c).replace("|", "\\|") for c in cols) + " |"]
     lines.append("| " + " | ".join(["---", "---", *["---:"] * len(cards[0].items), "---"]) + " |")
     for c in cards:
         values = dict(c.items)

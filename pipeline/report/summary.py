@@ -113,9 +113,12 @@ def controller_card(f: Facts, c: Controller) -> Card:
         links += [("flights", "#heldout"), ("figures", "#figures")]
     rec = recorded_verdict(f, c)
     more = [("Held-out recorded flights", rec.text, rec.kind)] if rec is not None else []
+    # deferred: evaluate.verdict loads pandas, which a run with nothing to do must not import
+    from qsls.pipeline.evaluate.verdict import promise
+
     return Card(
         c.name, controller_colour(c.name), badge, kind, items, v.text, v.kind, links, note,
-        "Flown flights", more,
+        "Flown flights", more, promise({**c.cert, "controller": c.name}),
     )  # fmt: skip
 
 

@@ -292,7 +292,7 @@ def _verdicts(out: Path) -> dict[str, Any]:
     # deferred: a stage's code loads when it runs (a cached run loads none of it)
     from qsls.pipeline.evaluate.verdict import read_verdicts
 
-    return {"verdicts": [v.line() for v in read_verdicts(out)]}
+    return {"verdicts": [line for v in read_verdicts(out) for line in v.lines()]}
 
 
 def _simulate_stage(
