@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -252,10 +253,39 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
     return out
 
 
+def verification_lines(cdir: ControllerDir) -> list[str]:
+    """Whether the certificate was verified (docs/verify.md), deterministically (no date): its
+    numbers were recomputed from the taps on load (a mismatch is refused before export), and
+    how many of the tick logs its calibration record lists lie beside it (in the calibration
+    output two folders up) with the sha256 it states. Scores are recomputed by ``qsls verify``,
+    not here."""
+    from qsls.pipeline.core.artifacts import sha256_file  # deferred: only an export hashes
+
+    out = ["verification: certificate numbers recomputed from the taps: match"]
+    cal = cdir.certificate.calibration
+    if cal is None:
+        return out
+    if not cal.evidence:
+        return [*out, "evidence: the calibration record lists no tick logs (not verifiable)"]
+    root = cdir.folder.parent.parent
+    found = 0
+    for e in cal.evidence:
+        f = Path(e.ticks) if Path(e.ticks).is_absolute() else root / e.ticks
+        found += bool(f.is_file() and sha256_file(f) == e.sha256)
+    n = len(cal.evidence)
+    state = "verified" if found == n else "NOT verified"
+    return [
+        *out,
+        f"evidence {state}: {found} of {n} tick logs the calibration lists were found with their "
+        "sha256 (qsls verify recomputes the scores, lambda_hat and the tested range from them)",
+    ]
+
+
 def statement(cdir: ControllerDir, spec: MonitorSpec, reason: str) -> list[str]:
-    """Every line a generated file states about the guarantee, the first naming the status."""
+    """Every line a generated file states about the guarantee, the first naming the status,
+    the second whether it was verified (:func:`verification_lines`)."""
     cert = cdir.certificate
-    lines = [first_line(cert, reason)]
+    lines = [first_line(cert, reason), *verification_lines(cdir)]
     if cert.status in (CERTIFIED, RELAXED) and cert.robust and cert.rho_star is not None:
         if not has_guarantee(cert):
             lines.append("the numbers it was synthesized against (NOT a guarantee):")
