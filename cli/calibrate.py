@@ -21,7 +21,13 @@ def count_or_flights(texts: list[str], flag: str) -> int | list[str]:
     return items
 
 
-EXAMPLE = "qsls calibrate -m fit --controllers synth -o cal --recorded flights/cal"
+EXAMPLE = (
+    "qsls calibrate -m fit --controllers synth -o cal --range-flights 20 --tube 2\n"
+    "  (20 calibration flights: certified needs 19; range flights over a 2 m tube\n"
+    "  reach rho*: without them the certificate says extrapolated)\n"
+    "  qsls calibrate -m fit --controllers synth -o cal --recorded flights/cal \\\n"
+    "      --recorded-range flights/range --recorded-validation flights/val"
+)
 
 
 @cli_errors

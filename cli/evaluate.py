@@ -64,7 +64,6 @@ def command(
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.core.errors import InputError
     from qsls.pipeline.evaluate.section import EvaluateSection
-    from qsls.pipeline.evaluate.verdict import combined
 
     figures = overrides(figures=False if no_figures else None)
     if fly:
@@ -90,6 +89,4 @@ def command(
     for w in checked.warnings:
         typer.echo(f"warning: {w}", err=True)
     print_summary("qsls evaluate", checked.summary())
-    print_verdicts(
-        "Certified bound on the held-out flights", combined(checked.table, checked.assumptions)
-    )
+    print_verdicts("Certified bound on the held-out flights", checked.verdicts())

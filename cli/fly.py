@@ -111,7 +111,6 @@ def fly(
     from qsls.pipeline.core.config import load_options
     from qsls.pipeline.evaluate.fly import fly_evaluate
     from qsls.pipeline.evaluate.section import EvaluateSection
-    from qsls.pipeline.evaluate.verdict import combined
 
     section = load_options(EvaluateSection, config, None, section="evaluate")
     options = section.flying(given, str(config or "options"))
@@ -120,6 +119,4 @@ def fly(
     print_summary(title, result.summary())
     cols, rows = result.comparison_rows()
     print_table("Against the paper's findings", cols, rows)
-    print_verdicts(
-        "Certified bound on the flown flights", combined(result.table, result.assumptions)
-    )
+    print_verdicts("Certified bound on the flown flights", result.verdicts())

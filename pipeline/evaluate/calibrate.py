@@ -253,7 +253,9 @@ def decide(
             if k and cal.calibration_rank(k, options.alpha, options.method, options.delta) > k
         ]
         why = (
-            f"{' and '.join(short)} cannot support alpha {options.alpha:g} ({options.method} needs {need})"
+            f"{' and '.join(short)} cannot support alpha {options.alpha:g} ({options.method} "
+            f"needs {need} for any calibrated premise, certified needs {cal.MIN_FLIGHTS}: "
+            f"--flights {max(need, cal.MIN_FLIGHTS)})"
             if short
             else "a calibration flight broke a premise quantity no inflation covers"
         )
@@ -289,7 +291,8 @@ def decide(
     if tested < rho:
         why = (f"the flights reached dist {tested:.3g} from the training states while the "
                f"certificate uses the premise out to rho* {rho:.3g}: add range flights over a "
-               "tube that reaches it (calibrate.range_flights, calibrate.tube)")  # fmt: skip
+               "tube that reaches it (--range-flights N --tube R; calibrate.range_flights, "
+               "calibrate.tube in a config)")  # fmt: skip
         return EXTRAPOLATED, why, lam, rank, chk, tested, tol
     return CERTIFIED, "", lam, rank, chk, tested, tol
 

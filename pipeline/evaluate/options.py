@@ -240,7 +240,8 @@ class CalibrateOptions(Options):
         design = set(self.design_seeds)
         if self.range_flights and self.tube <= 0:
             raise ConfigError(
-                "calibrate.range_flights needs calibrate.tube > 0 (the offsets' radius)"
+                "--range-flights needs --tube > 0, the offsets' radius in m (calibrate.range_flights "
+                "and calibrate.tube in a config)"
             )
         ranged = list(range(self.range_seed, self.range_seed + self.range_flights))
         for what, key, seeds in (
@@ -253,13 +254,14 @@ class CalibrateOptions(Options):
                 raise ConfigError(
                     f"{what} seeds {shared[:5]} are design flights' seeds: a certificate must be "
                     f"calibrated and validated on flights its design never saw; move "
-                    f"calibrate.{key} past them"
+                    f"--{key.replace('_', '-')} past them (calibrate.{key} in a config)"
                 )
         both = sorted(set(calib).union(ranged).intersection(valid))
         if both:
             raise ConfigError(
                 f"validation seeds {both[:5]} are also calibration or range seeds: validation "
-                "flights must be fresh; move calibrate.validation_seed past them"
+                "flights must be fresh; move --validation-seed past them "
+                "(calibrate.validation_seed in a config)"
             )
         return calib, valid
 
