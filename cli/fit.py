@@ -70,6 +70,8 @@ def command(
         result = fit(list(flights or []), options, out, force=force, progress=progress)
     print_summary("qsls fit", result.summary())
     _print_worst_pairs(result.model.worst_pairs[:5])
+    for w in result.warnings:
+        typer.echo(f"warning: {w}", err=True)
 
 
 def _print_worst_pairs(wp: list) -> None:

@@ -218,7 +218,7 @@ def test_model_hash_mismatch_with_real_stages(trained, tmp_path):
     args = ["evaluate", "--model", tmp_path / "fit2", "--controller", root / "synth" / "l1_robust",
             "--flights", root / "train", "--out", tmp_path / "ev"]  # fmt: skip
     r = CliRunner().invoke(app, [str(a) for a in args])
-    assert r.exit_code == 2 and "certified against error model" in r.output
+    assert r.exit_code == 2 and "designed against error model" in r.output  # relaxed: not certified
     assert not (tmp_path / "ev").exists()
     r = CliRunner().invoke(app, [str(a) for a in [*args, "--force", "--no-figures"]])
     assert r.exit_code == 0 and "warning:" in r.output

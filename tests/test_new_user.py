@@ -384,15 +384,19 @@ def test_ctrl_c_during_a_parallel_sweep_ends_it_at_once(tmp_path):
 
 # --------------------------------------------------------------------------- smaller: console
 def test_a_first_run_says_done_and_a_rerun_says_why():
+    """Each line shows the stage's own time, then the run's so far (issue 50: the run's
+    cumulative time was shown as if it were the stage's)."""
     from qsls.cli.run import stage_line
 
-    assert stage_line("fit", "ran", 2, 6, "not run yet", 3.25) == "[3/6] fit" + " " * 22 + (
-        "done        (   3.2 s)"
+    assert stage_line("fit", "ran", 2, 6, "not run yet", 3.25, 9.5) == "[3/6] fit" + " " * 22 + (
+        "done        (   3.2 s, 9.5 s in all)"
     )
-    line = stage_line("fit", "ran", 2, 6, "output fit/error_model.yaml is missing", 3.0)
+    line = stage_line("fit", "ran", 2, 6, "output fit/error_model.yaml is missing", 3.0, 4.0)
     assert line is not None and line.endswith("  ran: output fit/error_model.yaml is missing")
-    assert stage_line("synth", "skipped", 3, 6, "", 1.0).endswith("up to date  (   1.0 s)")
-    assert stage_line("synth", "running", 3, 6, "", 1.0) is None
+    assert stage_line("synth", "skipped", 3, 6, "", 0.0, 1.0).endswith(
+        "up to date  (   0.0 s, 1.0 s in all)"
+    )
+    assert stage_line("synth", "running", 3, 6, "", 1.0, 1.0) is None
 
 
 def test_long_stages_print_lines_when_not_on_a_terminal(capsys):

@@ -474,7 +474,9 @@ def compute(
     workers = jobs if scheduler is None else 8
     specs = s_max_specs(points) if options.s_max_curve else []
     warn_size(max(int(p["T"]) for p in points), len(points), progress)
-    progress.start("sweep", total=len(points) + len(specs))
+    # the count is tasks, not points: name both kinds ("sweep: 3/6" read as 6 points)
+    searches = f", {len(specs)} largest-S searches" if specs else ""
+    progress.start(f"sweep ({len(points)} points{searches})", total=len(points) + len(specs))
 
     def execute(tasks: list[tuple[Any, Any]], weights: list[int]) -> list[Any]:
         if not tasks:

@@ -206,6 +206,10 @@ def forget_config_files() -> None:
     _CONFIG_FILES.clear()
 
 
+SECTION_NAMES = frozenset({"simulate", "ingest", "fit", "sweep", "synth", "calibrate",
+                           "evaluate", "fly", "export", "replay", "problem", "report"})  # fmt: skip
+"""The sections of a run config (a misspelled one is named with the one meant)."""
+
 SHARED = "problem"
 """A run config's section of the synthesis problem's settings that ``sweep:`` and ``synth:``
 share (``R``, ``measure``, ``beta``, ``gate``, ``error_scale``, ``H``, ``plant``, ...: the fields
@@ -244,6 +248,10 @@ def read_section(config: Path | None, section: str | None) -> dict[str, Any]:
     _CONFIG_FILES.append(Path(config))
     if section in SHARED_UNDER and SHARED in data:
         data = with_shared({**data, section: data.get(section) or {}}, config)
+    if section is not None and section not in data:
+        near = difflib.get_close_matches(section, [str(k) for k in data], n=1, cutoff=0.6)
+        if near and isinstance(data[near[0]], Mapping) and near[0] not in SECTION_NAMES:
+            raise ConfigError(f"{config}: section '{near[0]}': did you mean '{section}'?")
     if section is None or section not in data:
         return data
     sub = data[section]

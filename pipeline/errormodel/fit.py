@@ -80,6 +80,8 @@ class FitResult:
     model: ErrorModel
     noise_floor: dict[str, float]
     n_candidates: int
+    warnings: tuple[str, ...] = ()
+    """What the user needs to know about the model (the CLI prints each as ``warning:``)."""
 
     def summary(self) -> dict[str, Any]:
         m = self.model
@@ -542,11 +544,29 @@ def fit(
     _resolve_r0(options.r0, 0.0, dict.fromkeys(names, 0.0))  # a clear error before reading
     data = load_fit_data(flights, options)
     fitted = fit_model(data, options, progress)
-    _write(Path(out), fitted.model, data, fitted.idx, fitted.slopes, options, flights, force)
+    warnings = fit_warnings(options)
+    _write(Path(out), fitted.model, data, fitted.idx, fitted.slopes, options, flights, force,
+           warnings)  # fmt: skip
     return FitResult(
         out=Path(out), model=fitted.model, noise_floor=fitted.model.noise_floor,
-        n_candidates=fitted.slopes.n_candidates,
+        n_candidates=fitted.slopes.n_candidates, warnings=warnings,
     )  # fmt: skip
+
+
+NO_REFERENCE = (
+    "no reference given: Delta (the reference's largest distance to the training states, "
+    "docs/guarantee.md) is 0, so a controller designed on this model promises nothing once "
+    "the reference leaves the training states, and a calibration on such flights finds "
+    "'reference' broken with no inflation covering it; give the reference flown "
+    "(--reference circle:radius=1,height=1,period=5, or a flight folder), or state Delta at "
+    "synthesis (--delta)"
+)
+"""The fit's warning when no reference gives ``Delta`` (it is then 0, not measured)."""
+
+
+def fit_warnings(options: FitOptions) -> tuple[str, ...]:
+    """The warnings of a fit with ``options`` (:data:`NO_REFERENCE` when no reference)."""
+    return (NO_REFERENCE,) if options.reference is None else ()
 
 
 def _disturbance_stats(
@@ -623,8 +643,10 @@ def _write(
     options: FitOptions,
     flights: list[Path],
     force: bool,
+    warnings: tuple[str, ...] = (),
 ) -> None:
-    """The stage folder: error_model.yaml, training_states.parquet, figures, manifest."""
+    """The stage folder: error_model.yaml, training_states.parquet, figures, manifest (its
+    results hold the ``warnings``)."""
     x, e = tr.x[idx], tr.e[idx]
     training = pd.DataFrame(
         {"flight": [tr.names[k] for k in tr.flight_idx[idx]], "t": tr.t[idx]}
@@ -646,6 +668,7 @@ def _write(
         "delta": model.delta,
         "eps_w": model.disturbance.max if model.disturbance else None,
         "dt": tr.dt,
+        "warnings": list(warnings),
     }
     with StageWriter(out, STAGE, options=options, inputs=flights, force=force) as w:
         w.write_yaml(ERROR_MODEL_FILE, model)

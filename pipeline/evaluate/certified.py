@@ -231,17 +231,22 @@ def check_model_hash(bound: ControllerBound, model_file: Path, *, force: bool) -
     Returns a warning (hash differs and ``force``, or no hash recorded), ``None`` when they
     match; raises :class:`InputError` when they differ and not ``force``.
     """
+    # "certified" only for a certified controller: the others were designed against it
+    done = "certified" if bound.status == CERTIFIED else "designed"
     if bound.model_sha256 is None:
-        return f"{bound.name}: certificate records no error-model hash; cannot check it was certified against this model"
+        return f"{bound.name}: certificate records no error-model hash; cannot check it was {done} against this model"
     ours = {sha256_file(model_file), sha256_path(model_file.parent)}
     if bound.model_sha256 in ours:
         return None
     msg = (
-        f"{bound.name}: certified against error model {bound.model_sha256[:12]}, "
+        f"{bound.name}: {done} against error model {bound.model_sha256[:12]}, "
         f"but --model is {sha256_file(model_file)[:12]}"
     )
     if not force:
-        raise InputError(msg + "; pass the model it was certified with, or --force to check anyway")
+        raise InputError(
+            f"{bound.name}: pass the error model it was {done} with, or --force to check "
+            f"anyway; {msg.removeprefix(bound.name + ': ')}"
+        )
     return msg + " (checked anyway: --force)"
 
 

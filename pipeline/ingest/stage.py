@@ -105,11 +105,10 @@ def one_frame(results: dict[str, Any]) -> None:
     y_max, t_max, c_max = FRAME_TOLERANCE
     if max(yaw, tilt) > y_max or shift > t_max or tau > c_max:
         raise InputError(
-            f"--mass: the estimate's frame is {max(yaw, tilt):.2f} deg and {shift:.3f} m off "
-            f"the truth's and its clock {tau:.4f} s (tolerance {y_max:g} deg, {t_max:g} m, "
-            f"{c_max:g} s): a tick log needs the estimate the controller read and the truth in "
-            "one frame on one clock (as a PX4 log holds them when the estimate is fused in the "
-            "motion capture's frame); record them so, or ingest without --mass"
+            "--mass: ingest without --mass, or record the estimate and the truth in one "
+            f"frame on one clock; the estimate's frame is {max(yaw, tilt):.2f} deg and "
+            f"{shift:.3f} m off the truth's and its clock {tau:.4f} s (a tick log allows "
+            f"{y_max:g} deg, {t_max:g} m, {c_max:g} s)"
         )
 
 

@@ -76,7 +76,7 @@ def build_graph(
     sims = [s for s in sim_ids["train"] if s is not None]
     logged = sims if len(sims) == len(train) and fit_opts.inputs is None else []
     execute = _fit_exec(fit_opts, list(train), logged, progress)
-    graph.add(Stage("fit", "fit", fit_opts, execute, (*train, *logged)))
+    graph.add(Stage("fit", "fit", fit_opts, execute, (*train, *logged), notes=_warnings))
     if cfg.sweep is not None and "sweep" in wanted:
         _sweep_stage(graph, cfg.sweep, progress)
     listed = set(cfg.stages or ())
@@ -276,6 +276,13 @@ def _calibrate_stage(
               external=external)
     )  # fmt: skip
     return str(opts.conditions[0])
+
+
+def _warnings(out: Path) -> dict[str, Any]:
+    """A stage's warnings (its manifest's results), kept in the run state for the console."""
+    return {
+        "warnings": [str(w) for w in read_manifest(out).get("results", {}).get("warnings") or []]
+    }
 
 
 def _calibrated(out: Path) -> dict[str, Any]:
