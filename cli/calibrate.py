@@ -66,7 +66,10 @@ EXAMPLE = (
         "source": ("--source",),
         "standin_log": ("--standin-log",),
     },
-    config_only={"sim": "the vehicle, reference and VIO: a run config's simulate: section"},
+    config_only={
+        "sim": "the vehicle, reference and VIO: a run config's simulate: section",
+        "family": "the conditions the flights draw from, a mapping",
+    },
 )
 def command(
     model: Path = typer.Option(
