@@ -656,7 +656,7 @@ def _replicate(
 
     item["detail"] += (
         f"; on all seeds: {item['verdict_all_seeds']}; replication: "
-        + ", ".join(f"{span(h)} {eff(h)} {h['verdict']}" for h in hs)
+        + ", ".join(f"{span(h)} {eff(h)} {h['verdict']}" if h["seeds"] else NO_HALF for h in hs)
         + f", so {final}"
     )
     if whole and "metric" in item and str(item["metric"]).endswith("_circle"):
@@ -672,6 +672,10 @@ def _replicate(
     else:
         item.pop("mechanism", None)
     return item
+
+
+NO_HALF = "one half without seeds (too few flights to split), not tested"
+"""A half of the seeds that holds none: said in words, never as a verdict with no effect."""
 
 
 def _assumption_halves(item: dict[str, Any], assumptions: pd.DataFrame) -> dict[str, Any]:
@@ -698,7 +702,7 @@ def _assumption_halves(item: dict[str, Any], assumptions: pd.DataFrame) -> dict[
         "; replication: "
         + ", ".join(
             f"seeds {h['seeds'][0]} to {h['seeds'][-1]} {h['verdict']}" if h["seeds"] else
-            "no seeds inconclusive" for h in hs
+            NO_HALF for h in hs
         )
         + f", so {final}"
     )  # fmt: skip

@@ -83,7 +83,10 @@ class ExportResult:
         v = r.get("verify", {})
         if "max_abs_diff" in v:
             gated = (
-                f", gate {v['gate']:g}: {100 * v['clipped_ticks']:.0f} % of ticks clipped"
+                f"; gate {v['gate']:g} m/s: {100 * v['clipped_ticks']:.0f} % of ticks had a "
+                f"velocity deviation clipped to it, on purpose (the check draws velocity "
+                f"deviations within +-{2 * v['gate']:g} so the written code's clipping is "
+                "compared too)"
                 if v.get("gate") is not None
                 else ""
             )

@@ -73,6 +73,12 @@ def pct(v: Any) -> str:
     return f"{100 * x:.1f}%" if 0 < x < 0.01 else f"{100 * x:.0f}%"
 
 
+def approx_pct(v: Any, inferred: bool, unknown: str = "-") -> str:
+    """:func:`pct`, marked ``~`` when inferred from how the number was chosen; ``unknown``
+    when there is no share at all (a number chosen by hand: no data tested it)."""
+    return unknown if math.isnan(num(v)) else "~" * inferred + pct(v)
+
+
 def _json(path: Path) -> dict[str, Any]:
     if not path.is_file():
         return {}

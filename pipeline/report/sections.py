@@ -23,11 +23,11 @@ from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
 from qsls.pipeline.report.facts import (
     Facts,
+    approx_pct,
     findings_list,
     first,
     g4,
     interval_text,
-    pct,
     status_words,
 )
 from qsls.pipeline.report.summary import premise_entry, status_badge
@@ -151,9 +151,9 @@ def _controller_rows(
             [
                 c.name,
                 pe or "-",
-                "~" * pe_inf + pct(pe_share),
+                approx_pct(pe_share, pe_inf),
                 ps or "-",
-                "~" * ps_inf + pct(ps_share),
+                approx_pct(ps_share, ps_inf),
                 d.get("radius"),
                 d.get("delta"),
                 _with_source(d.get("eps_w"), prem.get("eps_w_source")),

@@ -18,6 +18,7 @@ from qsls.pipeline.report.facts import (
 )
 from qsls.pipeline.report.facts import (
     Facts,
+    approx_pct,
     assumption_rows,
     findings_list,
     first,
@@ -102,10 +103,11 @@ def controller_card(f: Facts, c: Controller) -> Card:
             f" (premise tested to {g4(tested)})" if tested is not None else "")))  # fmt: skip
     note = ""
     if (share_e > 0 or share_s > 0) and c.certified:
-        approx = "~" if inferred_e or inferred_s else ""
+        approx = inferred_e or inferred_s
         note = (
-            f"Outside the premise: {approx}{pct(share_e)} of training samples (eps_e), "
-            f"{approx}{pct(share_s)} of left-out samples (S)."
+            f"Outside the premise: {approx_pct(share_e, approx, 'an untested share')} of "
+            f"training samples (eps_e), {approx_pct(share_s, approx, 'an untested share')} of "
+            "left-out samples (S)."
         )
     v = heldout_verdict(f, c)
     links = [("certificate", "#controllers")]
@@ -170,8 +172,8 @@ def error_model_line(f: Facts) -> str:
         line += (
             f"; used: eps_e {_with_how(c.cert.get('eps_e'), how_e)}, "
             f"S {_with_how(c.cert.get('S'), how_s)}; training data outside the premise: "
-            f"{'~' * inf_e}{pct(share_e)} of samples (eps_e), "
-            f"{'~' * inf_s}{pct(share_s)} of left-out samples (S)"
+            f"{approx_pct(share_e, inf_e, 'an untested share')} of samples (eps_e), "
+            f"{approx_pct(share_s, inf_s, 'an untested share')} of left-out samples (S)"
         )
     line += f"; radius r {g4(em.get('radius'))}, {em.get('n_samples', '?')} samples"
     return line + " ([error model](#error-model))."
@@ -226,8 +228,12 @@ def _effect(item: dict[str, Any]) -> str:
 
 
 def _half(h: dict[str, Any]) -> str:
+    """One half of the seeds: its verdict, effect and seeds; a half without seeds (too few
+    flights to split) says so instead of a verdict."""
     seeds = h.get("seeds") or []
-    span = f"seeds {seeds[0]}-{seeds[-1]}" if seeds else "no seeds"
+    if not seeds and h.get("effect") is None:
+        return "not tested: too few seeds to split in halves"
+    span = f"seeds {seeds[0]}-{seeds[-1]}" if seeds else "seeds not recorded"
     return f"{h.get('verdict')}: {_effect(h)} ({span})"
 
 
