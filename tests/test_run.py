@@ -532,3 +532,23 @@ def test_flown_by_reads_the_tick_log_qsls_simulate_kept(quickstart, tmp_path):
     again = check_assumptions(ticks, premise, training.distance)
     for name in ("disturbance", "nominal", "invariance", "dense", "outliers"):
         assert a.iloc[0][f"{name}_value"] == pytest.approx(again[f"{name}_value"], rel=1e-12)
+    # its recorded conditions (the simulate manifest's vehicle, reference, VIO) lie inside the
+    # certificate's family; the same flight on a faster circle and with the VIO's noise off is
+    # flagged with each condition and how far
+    assert a.iloc[0]["outside_calibration"] == ""
+    heavy = tmp_path / "heavy.yaml"
+    heavy.write_text("simulate:\n  reference: {period: 4.0}\n  vio: {noise: false}\n")  # fmt: skip
+    proc = _qsls("simulate", "--config", str(heavy), "--controller", str(ctrl), "--seed", "78",
+                 "--duration", "12", "-o", str(tmp_path / "sim2"), cwd=work)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    proc = _qsls(
+        "ingest", str(tmp_path / "sim2" / "flight.bag"), "-o", str(tmp_path / "f2"), cwd=work
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    proc = _qsls("evaluate", "--model", str(root / "fit"), "--controller", str(ctrl),
+                 "--flights", str(tmp_path / "f2"), "--flown-by", "l1_robust", "--no-figures",
+                 "--out", str(tmp_path / "ev2"), cwd=work)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    why = pd.read_parquet(tmp_path / "ev2" / "assumptions.parquet").iloc[0]["outside_calibration"]
+    assert "vio.noise False, calibrated at True" in why and "mass" not in why, why
+    assert "period 4 s, calibrated at 5 s (-20.0 % beyond)" in why, why

@@ -71,6 +71,7 @@ from qsls.pipeline.evaluate.certified import (
     load_controller_bound,
     outside_calibration,
 )
+from qsls.pipeline.evaluate.conditions import flight_conditions
 from qsls.pipeline.evaluate.flownby import flown_by
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
 from qsls.pipeline.evaluate.nees import Nees, flight_nees
@@ -684,6 +685,20 @@ def own_log_of(folder: Path) -> tuple[Path | None, str]:
     return None, ""
 
 
+def simulated_conditions(ticks: Path) -> dict[str, Any] | None:
+    """The recorded conditions of the simulated flight whose tick log is ``ticks`` (vehicle,
+    reference, VIO emulator: :func:`qsls.pipeline.evaluate.conditions.flight_conditions`),
+    read from the simulate folder's manifest beside it; None where the log is not a
+    simulation's (a recorded flight states its conditions in its ingest manifest)."""
+    try:
+        opts = read_manifest(ticks.parent).get("options")
+    except InputError:
+        return None
+    if not isinstance(opts, dict) or not isinstance(opts.get("vehicle"), dict):
+        return None
+    return flight_conditions(opts)
+
+
 def own_log(
     folder: Path, ticks: Path, who: str, bound: ControllerBound
 ) -> tuple[TickLog | None, str]:
@@ -770,7 +785,9 @@ def own_log_assumptions(
             continue
         row = check_assumptions(log, premise, training.distance)
         span = float(log.t[-1] - log.t[0]) if len(log.t) else 0.0
-        row["outside_calibration"] = outside_calibration(calibration, condition, span, estimator)
+        row["outside_calibration"] = outside_calibration(
+            calibration, condition, span, estimator, simulated_conditions(ticks)
+        )
         rows.append({"flight": folder.name, "controller": bound.name, "status": bound.status,
                      "crashed": False, **row})  # fmt: skip
     return (pd.DataFrame(rows) if rows else None), list(dict.fromkeys(missing))
