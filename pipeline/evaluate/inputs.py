@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from qsls.pipeline.control.pdgain import pd_gain
-from qsls.pipeline.core.plant import GRAVITY
+from qsls.pipeline.core.plant import GRAVITY, PAPER_DT_S
 from qsls.pipeline.core.references import Reference
 from qsls.pipeline.sim.controllers import LinearController, PDController, make_controller
 from qsls.pipeline.sim.simulate import SimOptions
@@ -42,12 +42,13 @@ def pd_on_same_estimate(
 
 
 def command_offset(opts: SimOptions, mass: float, t: np.ndarray) -> np.ndarray:
-    """``hover + u_ff`` (k, 3): the part of PD's and the synthesized controllers' command
-    that does not depend on the estimate (the reference's feedforward)."""
+    """``hover + u_ff`` (k, 3): the part of PD's command that does not depend on the estimate,
+    its feedforward the hover plant's (:meth:`qsls.pipeline.core.references.Reference.
+    feedforward`; a synthesized controller's differs by its plant's lead terms)."""
     if len(t) == 0:
         return np.zeros((0, 3))
-    _, _, acc = Reference(opts.reference).arrays(t)
-    ff = np.c_[-acc[:, 0] / GRAVITY, acc[:, 1] / GRAVITY, mass * acc[:, 2]]
+    dt = float(t[1] - t[0]) if len(t) > 1 else PAPER_DT_S
+    ff = Reference(opts.reference).feedforward(t, dt, mass, "hover")  # as PD flies it
     return np.array([0.0, 0.0, mass * GRAVITY]) + ff
 
 
