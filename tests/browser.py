@@ -27,7 +27,7 @@ _PROBE = """JSON.stringify((() => {
   const de = document.documentElement;
   const box = e => e.getBoundingClientRect();
   const rows = Array.from(document.querySelectorAll('tr')).map(r => ({
-    height: box(r).height, text: r.innerText.slice(0, 120)}));
+    height: box(r).height, width: box(r).width, text: r.innerText.slice(0, 120)}));
   const figures = Array.from(document.querySelectorAll('figure img')).map(i => ({
     width: box(i).width, height: box(i).height, alt: i.alt}));
   const s = document.getElementById('summary');

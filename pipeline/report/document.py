@@ -60,6 +60,7 @@ th,td{padding:.22rem .6rem;border-bottom:1px solid var(--line);text-align:right;
 th{background:#f3f3f5;font-weight:600;vertical-align:bottom;white-space:normal;min-width:4.5em}
 td:first-child,th:first-child{text-align:left}
 td.t,th.t{text-align:left}td.w{text-align:left;white-space:normal;min-width:16em;max-width:38em}
+td.ww{text-align:left;white-space:normal;min-width:24em;max-width:48em}
 ol.notes{font-size:.84rem;color:#333;margin:.2rem 0 .8rem;padding-left:1.6rem;max-width:75em}
 .csv{font-size:.84rem}
 .figs{display:grid;grid-template-columns:repeat(auto-fit,minmax(490px,1fr));gap:14px;margin:.6rem 0}
@@ -87,6 +88,7 @@ class Table:
     csv: str = ""  # file beside the report holding the full data
     text_cols: tuple[int, ...] = ()  # columns aligned left (names, short words)
     wrap_cols: tuple[int, ...] = ()  # left-aligned columns whose text may wrap (claims)
+    wide_cols: tuple[int, ...] = ()  # wrapping columns of long prose (reasons), wider lines
 
 
 @dataclass(frozen=True)
@@ -151,6 +153,7 @@ class Section:
         csv: str = "",
         text_cols: Sequence[int] = (),
         wrap_cols: Sequence[int] = (),
+        wide_cols: Sequence[int] = (),
     ) -> None:
         t = Table(
             list(columns),
@@ -160,6 +163,7 @@ class Section:
             csv,
             tuple(text_cols),
             tuple(wrap_cols),
+            tuple(wide_cols),
         )
         self.blocks.append(("table", t))
 
@@ -248,7 +252,11 @@ def _inline(s: str) -> str:
 
 def _html_table(t: Table) -> str:
     cap = f'<p class="cap">{_inline(t.caption)}</p>' if t.caption else ""
-    cls = {j: ' class="t"' for j in t.text_cols} | {j: ' class="w"' for j in t.wrap_cols}
+    cls = (
+        {j: ' class="t"' for j in t.text_cols}
+        | {j: ' class="w"' for j in t.wrap_cols}
+        | {j: ' class="ww"' for j in t.wide_cols}
+    )
     head = "".join(
         f"<th{' class=t' if j in cls else ''}>{html.escape(str(c))}</th>"
         for j, c in enumerate(t.columns)
@@ -378,7 +386,7 @@ def _md_cell(v: Any) -> str:
 
 def _md_table(t: Table) -> list[str]:
     lines = [f"**{_md(t.caption)}**", ""] if t.caption else []
-    left = set(t.text_cols) | set(t.wrap_cols)
+    left = set(t.text_cols) | set(t.wrap_cols) | set(t.wide_cols)
     align = ["---" if j == 0 or j in left else "---:" for j in range(len(t.columns))]
     lines.append("| " + " | ".join(_md(c).replace("|", "\\|") for c in t.columns) + " |")
     lines.append("| " + " | ".join(align) + " |")

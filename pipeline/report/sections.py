@@ -108,6 +108,18 @@ _STATUS_NOTES = {
 }
 
 
+def reason_parts(reason: str) -> list[str]:
+    """A ``status_reason``'s reasons: its ``"; "``-joined parts, each that names no quantity
+    (no ``": "``, e.g. "certifiable with a second flight there") kept with the one before."""
+    out: list[str] = []
+    for part in reason.split("; "):
+        if out and ": " not in part:
+            out[-1] += "; " + part
+        else:
+            out.append(part)
+    return out
+
+
 def _controller_rows(
     f: Facts,
 ) -> tuple[list[list[Any]], list[list[Any]], list[list[Any]], list[list[Any]]]:
@@ -217,18 +229,22 @@ def section_controllers(f: Facts, counter: list[int]) -> Section | None:
         notes=notes,
         text_cols=[1],
     )
+    # one row per reason (a status_reason joins them with "; "), the prose wrapped in a wide
+    # column: a whole reason on one row was a line thousands of px long, or 247 px tall wrapped
     reasons = [
-        [c.name, status_badge(c, em)[0], str(c.cert["status_reason"])]
+        [c.name if k == 0 else "", status_badge(c, em)[0] if k == 0 else "", part]
         for c in f.controllers
         if c.cert.get("status_reason")
+        for k, part in enumerate(reason_parts(str(c.cert["status_reason"])))
     ]
     if reasons:
         sec.table(
-            ["controller", "status", "why (the certificate's status_reason)"],
+            ["controller", "status", "why (the certificate's status_reason, one reason a row)"],
             reasons,
             "What keeps each certificate from certified: which premise quantity could not be "
             "measured or tested, and what data would make it certifiable",
-            text_cols=[1, 2],
+            text_cols=[1],
+            wide_cols=[2],
         )
     sec.table(
         [
