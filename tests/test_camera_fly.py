@@ -40,6 +40,9 @@ def test_camera_flight_log_has_no_lipschitz():
 def _degraded_flight(seed: int, **camera):
     from qsls.pipeline.sim.closedloop import FlightOptions, fly
 
+    # these flights are about the shared degraded level, 0.35 / 0.45 (no longer the camera's)
+    camera = {"degraded_light": 0.35, "degraded_texture": 0.45, **camera}
+
     return fly(
         FlightOptions.model_validate(
             {

@@ -259,7 +259,9 @@ class VioParams(Options):
     @property
     def level(self) -> PerceptionLevel:
         """The active perception level (``regular`` or ``degraded`` preset); the camera loop's
-        degraded level takes ``camera.degraded_light`` / ``camera.degraded_texture`` where set."""
+        degraded level is the camera's own, ``camera.degraded_light`` / ``degraded_texture``
+        (0.15 / 0.25 unless set: the shared preset barely degrades the camera, docs/camera.md),
+        each taking the shared preset's where set to None."""
         if self.perception != "degraded":
             return self.regular
         cam = self.camera
