@@ -112,3 +112,8 @@ def test_the_quickstart_console_and_report_lead_with_the_promise(quickstart_sess
     assert card.index('<p class="promise">With probability at least 0.9') < card.index("<dl>")
     md = (work / "runs/quickstart/report/report.md").read_text()
     assert "- **l1_robust**: With probability at least 0.9" in md
+    # certificate.yaml states it too, right after its status (written by qsls calibrate)
+    f = work / "runs/quickstart/calibrate/regular/l1_robust/certificate.yaml"
+    cert = yaml.safe_load(f.read_text())
+    assert cert["promise"] == promise(cert) == lines[k - 1]
+    assert list(cert)[:4] == ["controller", "status", "status_reason", "promise"]

@@ -381,6 +381,10 @@ class Certificate(CertificateBody):
     (:mod:`qsls.pipeline.control.premise`)."""
     calibration: Calibration | None = None
     """The calibration behind the numbers above (``qsls calibrate``); None: the design premise."""
+    promise: str | None = None
+    """What the certificate promises, in one sentence: for which conditions, with which
+    probability, and what lies outside (written by ``qsls calibrate``:
+    :func:`qsls.pipeline.evaluate.verdict.promise`, docs/calibration.md#the-promise)."""
 
     @field_validator("tested_range")
     @classmethod
@@ -469,7 +473,7 @@ def _parse(f: Path) -> tuple[Certificate, str]:
 
 
 FILE_ORDER = (
-    "controller", "status", "status_reason", "robust", "norm", "cost", "cost_value", "objective", "strictly_proper",
+    "controller", "status", "status_reason", "promise", "robust", "norm", "cost", "cost_value", "objective", "strictly_proper",
     "T", "S", "eps_e", "radius", "delta", "eps_w", "R0", "norm_phi_xx_h", "norm_phi_xy",
     "norm_phi_ux", "norm_phi_uy", "robustness_lhs", "margin", "s_times_norm_phi_xy", "a",
     "gamma", "gamma_strict", "rho_star", "norm_N", "norm_N_w", "G_m", "m", "eps_o", "measure",

@@ -81,6 +81,7 @@ from qsls.pipeline.evaluate.certified import certified_premise, expand_controlle
 from qsls.pipeline.evaluate.conditions import draw, drawn, stated
 from qsls.pipeline.evaluate.options import CalibrateOptions as CalibrateOptions
 from qsls.pipeline.evaluate.training import load_training
+from qsls.pipeline.evaluate.verdict import promise
 from qsls.pipeline.sim.closedloop import fly
 from qsls.pipeline.sim.options import SimOptions
 from qsls.pipeline.sim.ticks import TICKS_FILE as TICKS_FILE
@@ -402,6 +403,7 @@ def calibrated_certificate(
             "checks": calibrated_checks(cert.checks, o.check),
         }  # fmt: skip
     new = cert.model_copy(update=update)
+    new = new.model_copy(update={"promise": promise(new.model_dump())})
     Certificate.model_validate(new.model_dump())  # the record must read back
     if new.status == CERTIFIED and (why := calibration_problems(new)):
         raise RuntimeError(f"{out}: a certified record its readers would refuse: {why}")

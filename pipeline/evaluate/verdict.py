@@ -66,9 +66,9 @@ def _first_reason(cert: Mapping[str, Any]) -> str:
 def promise(cert: Mapping[str, Any]) -> str:
     """One plain sentence: what the certificate ``cert`` (its fields, as
     :meth:`~qsls.pipeline.control.artifacts.Certificate.model_dump` gives them) promises, for
-    which conditions, with which probability, and what lies outside (docs/calibration.md,
-    "What certified promises"). Only ``certified`` promises anything: with probability at
-    least ``1 - alpha`` a next flight in the calibrated conditions keeps the calibrated
+    which conditions, with which probability, and what lies outside
+    (docs/calibration.md#the-promise). Only ``certified`` promises anything: with probability
+    at least ``1 - alpha`` a next flight in the calibrated conditions keeps the calibrated
     premise, and then ``dist(x_k) <= rho*`` and ``|d_k|_e <= gamma``."""
     name = str(cert.get("controller") or "this controller")
     status = str(cert.get("status") or "")
