@@ -86,7 +86,19 @@ def test_trip_columns_from_the_tick_record():
     t = np.arange(6) * 0.1
     got = trip_columns(["c", "c", "c", "pd", "pd", "pd"], [0, 0, 0, 2, 0, 1], t)
     assert got == {"tripped": True, "trip_tick": 3, "trip_t": pytest.approx(0.3),
-                   "trip_first": "outlier count", "fallback_share": 0.5}  # fmt: skip
+                   "trip_first": "outlier count", "fallback_share": 0.5,
+                   "trip_summary": "more than m outliers in T ticks (envelope count) for 0.1 s "
+                                   "(from 0.3 s); deviation beyond its envelope for 0.1 s "
+                                   "(from 0.5 s)"}  # fmt: skip
+    # the innovation monitor's bits name their test and channel: vz's window sum (16 << 5)
+    # on window 1 (1024 << 1), four ticks from 0.2 s, then the innovation outlier count (8)
+    vz = (16 << 5) | (1024 << 1)
+    inno = trip_columns(["c"] * 6, [0, 0, vz, vz, vz | 8, vz], t)
+    assert inno["trip_first"] == "disturbance on vz" and inno["trip_tick"] == 2
+    assert inno["trip_summary"] == (
+        "disturbance above eps_w on vz for 0.4 s (from 0.2 s); more than m outliers in T ticks "
+        "(innovation count) for 0.1 s (from 0.4 s)"
+    )
     none = trip_columns(["c"] * 3, [0, 0, 0], t[:3])
     assert not none["tripped"] and none["trip_tick"] == -1 and none["fallback_share"] == 0.0
 
@@ -99,10 +111,15 @@ def test_report_section_reads_the_fly_stages_tables(tmp_path):
 
     fly = tmp_path / "fly"
     fly.mkdir()
-    pd.DataFrame([
+    a, b = (
         _row("a", "degraded", 0, NAN, {"outliers": 2.0}),
         _row("b", "degraded", 2, 3.0, {"dense": 2.5}),
-    ]).to_parquet(fly / "assumptions.parquet")  # fmt: skip
+    )
+    b |= {"first_failed": "dense", "controller": "l1_robust"}
+    a |= {"controller": "l1_robust"}
+    a["monitor_summary"] = ""
+    b["monitor_summary"] = "disturbance above eps_w on vz for 0.2 s (from 3.0 s)"
+    pd.DataFrame([a, b]).to_parquet(fly / "assumptions.parquet")
     pd.DataFrame([_flight("pd", 0, 0.1), _flight("l1_robust", 0, 0.2)]).to_parquet(
         fly / "flights.parquet"
     )
@@ -112,13 +129,16 @@ def test_report_section_reads_the_fly_stages_tables(tmp_path):
     sec = section_monitor(Facts(tmp_path, {}, {}, fly_folder="fly"), [0])
     assert sec is not None
     tables = [b for kind, b in sec.blocks if kind == "table"]
-    assert len(tables) == 2 and all(len(t.columns) <= 8 for t in tables)
+    assert len(tables) == 3 and all(len(t.columns) <= 8 for t in tables)
     assert tables[0].rows[0][:5] == ["all", 2, 2, 1, "50%"]
-    assured = {r[2]: r for r in tables[1].rows}
+    # a trip explains itself: the flight that tripped, its first failing assumption, the delay
+    assert tables[1].rows == [["b", "l1_robust", "degraded", "dense at 2.5 s", "3", "0.5",
+                               "disturbance above eps_w on vz for 0.2 s (from 3.0 s)"]]  # fmt: skip
+    assured = {r[2]: r for r in tables[2].rows}
     assert set(assured) == {"alone", "assured", "PD alone"}
     assert assured["assured"][1] == "l1_robust (relaxed)"
     assert assured["assured"][7].startswith("1 of 1 (100%), mean trip 3")
-    notes = tables[1].notes
+    notes = tables[2].notes
     assert len(notes) == 2 and "l1_robust is relaxed, not certified" in notes[0]
     assert "calibrated in regular perception" in notes[1] and "in degraded perception" in notes[1]
     assert section_monitor(Facts(tmp_path, {}, {}, fly_folder=""), [0]) is None

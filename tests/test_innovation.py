@@ -229,3 +229,59 @@ def test_c_python_and_library_give_the_same_bits_on_the_attitude_plant(tmp_path,
     b = np.array(got["c"])
     assert (b & 8).any() and (b & (TRIP_SUM_CHANNEL << 5)).any() and (b == 0).any()
     np.testing.assert_array_equal(innovation_flags(spec, ys, np.array(us)), b)
+
+
+def test_the_fly_stage_and_replay_apply_the_onboard_monitor_and_say_what_tripped(loop):
+    """The offline monitor is the onboard one (issue 48): the fly stage's ``monitor_columns`` on
+    a flight's log (absolute commands ``u = du + u_hover + uff``) trips on the ticks the C step's
+    bits do, names the test that tripped first and says every test in words; replay's report
+    counts the innovation bits as trips and says them (a 50 % break on vz from tick 40)."""
+    from qsls.pipeline.control.monitor import monitor_of
+    from qsls.pipeline.core.ticks import FlownLog
+    from qsls.pipeline.evaluate.fly import monitor_columns
+    from qsls.pipeline.export.replay import _monitor_text, monitor_report
+
+    ctrl, s, c, _ = loop
+    k0, n, dt = 40, 300, 0.1
+    rng = np.random.default_rng(5)
+    w = rng.uniform(-EPS_W, EPS_W, (n, 6))
+    w[k0:, 5] = 1.5 * EPS_W
+    e = rng.uniform(-1, 1, (n, 6)) * np.array([0.1] * 3 + [0.2] * 3)
+    model = ctrl.controller.model
+    x, ys, us = np.zeros(6), [], []
+    c.reset()
+    bits = np.zeros(n, dtype=int)
+    for k in range(n):
+        y = x + e[k]
+        u = np.asarray(c.step(y), dtype=float)
+        bits[k] = c.flags
+        ys.append(y)
+        us.append(u)
+        x = model.A @ x + model.B @ u + model.H @ w[k]
+    hit = np.flatnonzero(bits)
+    assert len(hit) and hit[0] > k0 and bits[hit[0]] & (TRIP_SUM_CHANNEL << 5)
+    t = np.arange(n) * dt
+    hover = np.array([0.0, 0.0, 2.5])
+    uff = rng.normal(0, 0.1, (n, 3))
+    ref = np.zeros((n, 6))
+    ref[:, 0] = np.sin(t)  # y - r is what the monitor reads: a moving reference changes nothing
+    ys = np.array(ys) + ref
+    log = FlownLog(t, np.zeros((n, 6)), ys, np.array(us) + hover + uff, ref, uff)
+    cols = monitor_columns(monitor_of(ctrl), log, ctrl.certificate.gate, s, hover)
+    assert cols["monitor_trips"] == len(hit)
+    assert cols["monitor_t"] == pytest.approx(t[hit[0]])
+    assert cols["monitor_first"] == "disturbance on vz"
+    assert cols["monitor_summary"].startswith(
+        f"disturbance above eps_w on vz for {np.count_nonzero(bits & (16 << 5)) * dt:.1f} s "
+        f"(from {t[hit[0]]:.1f} s)"
+    )
+    # without the innovation monitor (the envelope alone, as before issue 48) nothing trips
+    assert monitor_columns(monitor_of(ctrl), log, ctrl.certificate.gate)["monitor_trips"] == 0
+    stamps = (t * 1e9).astype(np.int64) + 10**9
+    rep = monitor_report(ctrl, bits, stamps)
+    assert rep["ticks_tripped"] == rep["innovation_ticks"] == len(hit)
+    assert rep["envelope_ticks"] == rep["outlier_count_ticks"] == 0
+    assert rep["first_trip_t_s"] == pytest.approx(t[hit[0]])
+    assert rep["innovation"]["windows"] == list(s.windows)
+    text = _monitor_text(rep)
+    assert "premise broken" in text and "disturbance above eps_w on vz for" in text

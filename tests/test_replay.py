@@ -347,16 +347,20 @@ def test_the_report_lists_where_the_monitor_would_have_tripped(tmp_path, control
         stamps, dev = deviations(read_mcap(out)[1]["/qsls/deviation"])
         beyond = (np.abs(dev[:, :6]) > thr).any(axis=1)  # every channel trips (no beta)
         mon = report_of(out)["monitor"]
-        assert mon["ticks_tripped"] == mon["envelope_ticks"] == int(beyond.sum())
+        assert mon["envelope_ticks"] == int(beyond.sum())
         assert mon["outlier_count_ticks"] == 0
         t = (stamps - stamps[0]) / 1e9
-        np.testing.assert_allclose(mon["trip_t_s"], t[beyond][:100], atol=1e-9)
         if name == "off":
+            assert mon["ticks_tripped"] == mon["envelope_ticks"]
+            np.testing.assert_allclose(mon["trip_t_s"], t[beyond][:100], atol=1e-9)
             assert mon["first_trip_t_s"] == 0.0 and "premise broken" in res.output
         else:
-            # the flight the controller flew inside its premise's numbers: whatever tripped is
-            # listed; the summary says what a quiet monitor means
-            assert mon["ticks_tripped"] == 0 and "no trip (one-sided" in res.output
+            # on the reference the envelope is quiet; this flight's realized disturbance is 16
+            # times the certificate's eps_w (0.159 against 0.01, from take-off), which the
+            # innovation monitor (issue 48) may catch: its trips are said in words
+            assert mon["envelope_ticks"] == 0
+            assert mon["ticks_tripped"] == mon["innovation_ticks"]
+            assert all(s.startswith("disturbance above eps_w on v") for s in mon["summary"])
 
 
 def test_the_vios_own_uncertainty_is_shown_beside_the_monitor(tmp_path, controllers, flown):  # noqa: F811

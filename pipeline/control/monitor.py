@@ -503,16 +503,7 @@ def innovation_flags(spec: InnovationSpec, dev: np.ndarray, du: np.ndarray,
 
 def describe_bits(bits: int, spec: InnovationSpec | None = None) -> list[str]:
     """What a tick's bits say, one phrase per test (docs/monitor.md, The bits)."""
-    out = []
-    if bits & TRIP_ENVELOPE:
-        out.append("deviation beyond its envelope")
-    if bits & TRIP_OUTLIERS:
-        out.append("more than m outliers in T ticks (envelope count)")
-    if bits & TRIP_INNOVATION_OUTLIERS:
-        out.append("more than m outliers in T ticks (innovation count)")
-    for c in range(NX):
-        if bits & (TRIP_SUM_CHANNEL << c):
-            out.append(f"disturbance above eps_w on {CHANNEL_NAMES[c]}")
+    out = [text for bit, _, text in _tests() if bits & bit]
     if spec is not None:
         ws = [spec.windows[w] for w in range(len(spec.windows)) if bits & (TRIP_SUM_WINDOW << w)]
         if ws:
@@ -520,22 +511,57 @@ def describe_bits(bits: int, spec: InnovationSpec | None = None) -> list[str]:
     return out
 
 
-def trip_summary(bits: np.ndarray, dt: float) -> list[str]:
-    """A flight's trips by test and channel with how long each held, first trip first:
-    ``disturbance above eps_w on vz for 2.3 s (from 1.7 s)``."""
-    b = np.asarray(bits, dtype=int)
+def _tests() -> list[tuple[int, str, str]]:
+    """Each test's bit, its short name (a table cell) and its phrase (docs/monitor.md, The bits)."""
     tests = [
-        (TRIP_ENVELOPE, "deviation beyond its envelope"),
-        (TRIP_OUTLIERS, "more than m outliers in T ticks (envelope count)"),
-        (TRIP_INNOVATION_OUTLIERS, "more than m outliers in T ticks (innovation count)"),
-    ]
-    tests += [(TRIP_SUM_CHANNEL << c, f"disturbance above eps_w on {CHANNEL_NAMES[c]}")
-              for c in range(NX)]  # fmt: skip
+        (TRIP_ENVELOPE, "envelope", "deviation beyond its envelope"),
+        (TRIP_OUTLIERS, "outlier count", "more than m outliers in T ticks (envelope count)"),
+        (TRIP_INNOVATION_OUTLIERS, "innovation outlier count",
+         "more than m outliers in T ticks (innovation count)"),
+    ]  # fmt: skip
+    tests += [(TRIP_SUM_CHANNEL << c, f"disturbance on {CHANNEL_NAMES[c]}",
+               f"disturbance above eps_w on {CHANNEL_NAMES[c]}") for c in range(NX)]  # fmt: skip
+    return tests
+
+
+PREMISE_BITS = (
+    TRIP_ENVELOPE | TRIP_OUTLIERS | TRIP_INNOVATION_OUTLIERS
+    | ((1 << NX) - 1) * TRIP_SUM_CHANNEL | ((1 << MAX_WINDOWS) - 1) * TRIP_SUM_WINDOW
+)  # fmt: skip
+"""Every bit that proves the premise broken (``INPUT_REFUSED``, 4, is the step's refusal)."""
+
+
+def first_test(bits: int) -> str:
+    """The short name of the test a tick's bits name first, in the order of :data:`_tests`
+    (``envelope``, ``outlier count``, ``innovation outlier count``, ``disturbance on vz``);
+    empty when no premise bit is set."""
+    return next((name for bit, name, _ in _tests() if bits & bit), "")
+
+
+def trip_summary(bits: np.ndarray, dt: float, t: np.ndarray | None = None) -> list[str]:
+    """A flight's trips by test and channel with how long each held, first trip first:
+    ``disturbance above eps_w on vz for 2.3 s (from 1.7 s)`` (``len(hit) dt`` seconds; the
+    start at ``t`` of the first tripped tick, ``k dt`` without ``t``)."""
+    b = np.asarray(bits, dtype=int)
     found = []
-    for bit, text in tests:
+    for bit, _, text in _tests():
         hit = np.flatnonzero(b & bit)
         if len(hit):
-            found.append(
-                (int(hit[0]), f"{text} for {len(hit) * dt:.1f} s (from {hit[0] * dt:.1f} s)")
-            )
-    return [t for _, t in sorted(found)]
+            start = float(t[hit[0]]) if t is not None else hit[0] * dt
+            found.append((int(hit[0]), f"{text} for {len(hit) * dt:.1f} s (from {start:.1f} s)"))
+    return [s for _, s in sorted(found)]
+
+
+def onboard_flags(
+    spec: MonitorSpec, innovation: InnovationSpec, dev: np.ndarray, du: np.ndarray,
+    gate: float | None = None,
+) -> np.ndarray:  # fmt: skip
+    """The onboard monitor's bits (the exported step's and :class:`RuntimeMonitor`'s) at every
+    tick of a logged flight from a reset: :func:`monitor_flags` (the envelope and its outlier
+    count) or-ed with :func:`innovation_flags` (the window sums and the innovation outlier
+    count) on the raw deviations ``dev`` (n, 6) and the deviation commands ``du`` (n, 3)
+    flown, ``du_k = u_k - u_hover - uff_k``."""
+    flags = monitor_flags(spec, dev, gate)
+    if innovation.active:
+        flags = flags | innovation_flags(innovation, dev, du, gate)
+    return flags

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from qsls.pipeline.control.monitor import first_test, trip_summary
 from qsls.pipeline.evaluate.assumptions import ASSUMPTIONS
 
 ASSURED_FILE = "assured.parquet"
@@ -39,7 +40,10 @@ ESTIMATOR = "estimator"
 
 def trip_columns(flew: Sequence[str], bits: Sequence[int], t: np.ndarray) -> dict[str, Any]:
     """One assured flight's handover from its per-tick record: whether the monitor tripped,
-    the trip tick and time, which bit tripped first, the share of ticks the fallback flew."""
+    the trip tick and time, which test tripped first
+    (:func:`qsls.pipeline.control.monitor.first_test`), every test's trips in words
+    (:func:`qsls.pipeline.control.monitor.trip_summary`), the share of ticks the fallback
+    flew."""
     b = np.asarray(bits, dtype=int)
     hit = np.flatnonzero(b)
     first = int(hit[0]) if len(hit) else None
@@ -48,7 +52,8 @@ def trip_columns(flew: Sequence[str], bits: Sequence[int], t: np.ndarray) -> dic
         "tripped": first is not None,
         "trip_tick": -1 if first is None else first,
         "trip_t": math.nan if first is None else float(t[first]),
-        "trip_first": "" if first is None else ("envelope" if b[first] & 1 else "outlier count"),
+        "trip_first": "" if first is None else first_test(int(b[first])),
+        "trip_summary": "; ".join(trip_summary(b, float(t[1] - t[0]) if len(t) > 1 else 0.0, t)),
         "fallback_share": fallback / len(flew) if len(flew) else 0.0,
     }
 

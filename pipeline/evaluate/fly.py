@@ -51,7 +51,15 @@ import pandas as pd
 
 from qsls.pipeline.control.artifacts import load_controller_dir
 from qsls.pipeline.control.guarantee import OFF
-from qsls.pipeline.control.monitor import envelope_peak, monitor_flags, monitor_of
+from qsls.pipeline.control.monitor import (
+    NO_INNOVATION,
+    envelope_peak,
+    first_test,
+    innovation_of,
+    monitor_of,
+    onboard_flags,
+    trip_summary,
+)
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError, QslsError
@@ -233,7 +241,8 @@ def run_job(job: FlyJob) -> FlyOutcome:
 def _assured(job: FlyJob, opts: SimOptions, primary: Any) -> Any:
     """The runtime-assured form of ``job``'s controller (flown as ``primary`` if given, e.g.
     with PD's height channel): :func:`qsls.pipeline.sim.assured.assured_controller`."""
-    mass = Vehicle(opts.vehicle).mass
+    # the mass the controller assumes, as the controller alone flies it (closedloop.fly)
+    mass = opts.px4.controller_mass or Vehicle(opts.vehicle).mass
     if primary is None:
         primary = make_controller(opts.controller, mass)
     return assured_controller(
@@ -618,19 +627,29 @@ def _check_flights(
     return checks, samples, ref_j
 
 
-def monitor_columns(spec: Any, log: Any, gate: float | None) -> dict[str, Any]:
-    """What the onboard premise monitor (docs/monitor.md) would have said on a flown log: the
-    ticks it trips on (``y - r`` at the controller's ticks, from the reset at take-off), the
-    first one's time, and whether the envelope or the outlier count tripped first."""
-    flags = monitor_flags(spec, np.asarray(log.y) - np.asarray(log.ref), gate)
+def monitor_columns(
+    spec: Any, log: Any, gate: float | None, innovation: Any = NO_INNOVATION,
+    u_hover: Any = None,
+) -> dict[str, Any]:  # fmt: skip
+    """What the onboard premise monitor (docs/monitor.md) would have said on a flown log, the
+    envelope and the innovation monitor both
+    (:func:`qsls.pipeline.control.monitor.onboard_flags` on ``y - r`` and the deviation command
+    ``u - u_hover - uff`` flown, at the controller's ticks, from the reset at take-off): the
+    ticks it trips on, the first one's time, the test that tripped first (``envelope``,
+    ``outlier count``, ``innovation outlier count``, ``disturbance on vz``) and every test's
+    trips in words (:func:`qsls.pipeline.control.monitor.trip_summary`)."""
+    du = np.asarray(log.u, float) - np.asarray(log.uff, float)
+    du = du - (np.zeros(3) if u_hover is None else np.asarray(u_hover, float))
+    t = np.asarray(log.t, float)
+    flags = onboard_flags(spec, innovation, np.asarray(log.y) - np.asarray(log.ref), du, gate)
     hit = np.flatnonzero(flags)
     first = int(hit[0]) if len(hit) else None
+    dt = float(t[1] - t[0]) if len(t) > 1 else 0.0
     return {
         "monitor_trips": len(hit),
-        "monitor_t": float(log.t[first]) if first is not None else float("nan"),
-        "monitor_first": (
-            "" if first is None else ("envelope" if flags[first] & 1 else "outlier count")
-        ),
+        "monitor_t": float(t[first]) if first is not None else float("nan"),
+        "monitor_first": "" if first is None else first_test(int(flags[first])),
+        "monitor_summary": "; ".join(trip_summary(flags, dt, t)),
     }
 
 
@@ -644,16 +663,17 @@ def assumption_table(
     (or relaxed) robust controller flew, from its own log at its own ticks, against the
     certificate of its condition (:func:`certificate_for`)."""
     named = {b.name: b for b in bounds}
-    loaded: dict[Path, tuple[Any, Any, Any]] = {}
+    loaded: dict[Path, tuple[Any, Any, Any, Any]] = {}
 
-    def premise_of(b: ControllerBound) -> tuple[Any, Any, Any]:
-        """(premise, monitor, calibration) of one certificate, each read once."""
+    def premise_of(b: ControllerBound) -> tuple[Any, Any, Any, Any]:
+        """(premise, monitor, innovation monitor, calibration) of one certificate, read once."""
         if b.folder not in loaded:
             c = certified_premise(b.folder)
             d = load_controller_dir(b.folder) if c is not None else None
             loaded[b.folder] = (
                 c,
                 monitor_of(d) if d is not None else None,
+                innovation_of(d) if d is not None else NO_INNOVATION,
                 d.certificate.calibration if d is not None else None,
             )
         return loaded[b.folder]
@@ -663,12 +683,12 @@ def assumption_table(
         b = certificate_for(o.controller, o.condition, named, by_condition)
         if b is None:
             continue
-        c, monitor, cal = premise_of(b)
+        c, monitor, innovation, cal = premise_of(b)
         if c is None or len(o.t_ctrl) < 2:
             continue  # a crashed flight is checked on the ticks it flew: a crash is no excuse
         log = FlownLog(o.t_ctrl, o.x_ctrl, o.y_ctrl, o.u_ctrl, o.ref_ctrl, o.uff_ctrl)
         row = check_assumptions(log, c, training.distance)
-        row.update(monitor_columns(monitor, log, c.numbers.gate))
+        row.update(monitor_columns(monitor, log, c.numbers.gate, innovation, c.u_hover))
         if o.metrics.get("crashed"):
             row = crashed(row, o.extra.get("crash_time_s"), o.metrics.get("crash_reason"))
         row["outside_calibration"] = outside_calibration(

@@ -27,7 +27,9 @@ at its ``dt``, and what it would have commanded is written as a ROS 2 MCAP
 5. Command limits: largest tilt, thrust range against hover ``m g``, the fraction of ticks
    with tilt beyond ``max_tilt_deg`` and with thrust outside ``thrust_band`` (times hover).
 6. The premise monitor of the exported code (docs/monitor.md): the ticks where it would have
-   tripped (the measurement proves the certificate's premise broken), by kind, the first;
+   tripped (the measurement proves the certificate's premise broken), by kind, the first,
+   and each test in words, with its channel and how long it held (``disturbance above eps_w
+   on vz for 2.3 s (from 1.7 s)``, :func:`qsls.pipeline.control.monitor.trip_summary`);
    beside it, when the VIO recorded covariances (docs/ingest.md#covariances), its own
    position uncertainty: ``sigma_k = sqrt(max_i var_i,k)`` over the position axes ``i``,
    its median and largest value over the stream (the recording has no truth, so no NEES:
@@ -46,7 +48,12 @@ import numpy as np
 
 from qsls.pipeline.control.artifacts import load_controller_dir
 from qsls.pipeline.control.guarantee import COUNT, TRIP
-from qsls.pipeline.control.monitor import monitor_of
+from qsls.pipeline.control.monitor import (
+    PREMISE_BITS,
+    innovation_of,
+    monitor_of,
+    trip_summary,
+)
 from qsls.pipeline.core.artifacts import refuse_overlap, sha256_path
 from qsls.pipeline.core.config import read_yaml, validate
 from qsls.pipeline.core.errors import ConfigError, InputError, OutputExistsError
@@ -118,11 +125,14 @@ def _monitor_text(m: dict[str, Any]) -> str:
         return "off (no guarantee to monitor)"
     if not m["ticks_tripped"]:
         return "no trip (one-sided: this proves nothing about the premise)"
-    return (
+    text = (
         f"premise broken: {m['ticks_tripped']} ticks tripped, the first at "
         f"{m['first_trip_t_s']:.2f} s (envelope {m['envelope_ticks']}, outlier count "
         f"{m['outlier_count_ticks']})"
     )
+    if m.get("summary"):
+        text += ": " + "; ".join(m["summary"])
+    return text
 
 
 def _sigma_text(u: dict[str, Any]) -> str:
@@ -275,14 +285,17 @@ non-finite measurement, counted apart."""
 
 def monitor_report(cdir: Any, flags: np.ndarray, stamps: np.ndarray) -> dict[str, Any]:
     """Where the exported premise monitor would have tripped (docs/monitor.md): the ticks, by
-    kind, the first one's time, and the thresholds it checked. One-sided: a trip proves the
-    certificate's premise broken on this recording; no trip proves nothing."""
-    spec = monitor_of(cdir)
+    kind (the envelope's, its outlier count's, the innovation monitor's), the first one's time,
+    each test in words (``summary``: test, channel, seconds held, from when), and the
+    thresholds it checked. One-sided: a trip proves the certificate's premise broken on this
+    recording; no trip proves nothing."""
+    spec, inno = monitor_of(cdir), innovation_of(cdir)
     t = (stamps - stamps[0]) / NS
-    hit = np.flatnonzero(flags & (ENVELOPE_BIT | OUTLIER_BIT))  # INPUT_REFUSED is no trip
+    hit = np.flatnonzero(flags & PREMISE_BITS)  # INPUT_REFUSED is no trip
     kinds = {TRIP: "envelope", COUNT: "outlier count"}
+    dt = float(cdir.controller.dt)
     return {
-        "active": spec.active,
+        "active": spec.active or inno.active,
         "ticks_tripped": len(hit),
         "envelope_ticks": int(np.count_nonzero(flags & 1)),
         "outlier_count_ticks": int(np.count_nonzero(flags & 2)),
@@ -295,6 +308,20 @@ def monitor_report(cdir: Any, flags: np.ndarray, stamps: np.ndarray) -> dict[str
             if k in kinds
         },
         "outliers_allowed": {"m": spec.m, "window": spec.window},
+        "innovation_ticks": int(
+            np.count_nonzero(flags & (PREMISE_BITS & ~(ENVELOPE_BIT | OUTLIER_BIT)))
+        ),
+        "summary": trip_summary(flags & PREMISE_BITS, dt, t),
+        "innovation": {
+            "windows": list(inno.windows),
+            "thresholds": {
+                CHANNELS[c]: [inno.threshold[w][c] for w in range(len(inno.windows))]
+                for c in inno.live_channels()
+            },
+            "outlier_thresholds": {
+                CHANNELS[c]: v for c, v in enumerate(inno.outlier_threshold) if v > 0
+            },
+        },
     }
 
 

@@ -8,6 +8,7 @@ several)."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from qsls.pipeline.evaluate.assured import (
@@ -46,6 +47,41 @@ def _calibration_notes(assured: Any) -> list[str]:
     return notes
 
 
+MAX_TRIP_ROWS = 20
+"""The trips table lists at most this many flights (the catch share counts them all)."""
+
+
+def _trips_table(sec: Section, assumptions: Any) -> None:
+    """A trip explains itself (docs/monitor.md, The bits): per flight on which the monitor
+    tripped, the first failing assumption and its time, the trip's time and delay, and which
+    test on which channel tripped for how long (``monitor_summary``)."""
+    if "monitor_summary" not in assumptions:
+        return
+    tripped = assumptions[assumptions["monitor_trips"].to_numpy(int) > 0]
+    if not len(tripped):
+        return
+    rows = []
+    for r in tripped.head(MAX_TRIP_ROWS).to_dict(orient="records"):
+        failed = str(r.get("first_failed", "") or "")
+        t_fail = r.get(f"{failed}_t", math.nan) if failed else math.nan
+        delay = r["monitor_t"] - t_fail if t_fail == t_fail else math.nan
+        rows.append([
+            r["flight"], r["controller"], r["condition"],
+            f"{failed} at {g4(t_fail)} s" if failed and t_fail == t_fail else (failed or "none"),
+            g4(r["monitor_t"]), g4(delay), str(r["monitor_summary"]),
+        ])  # fmt: skip
+    more = len(tripped) - len(rows)
+    sec.table(
+        ["flight", "controller", "condition", "first failing assumption", "trip (s)",
+         "delay (s)", "what tripped, for how long"],
+        rows,
+        "Each trip in words: the test and channel that tripped, the seconds its bit was set "
+        "and from when (the first failing assumption from the post-flight checks)",
+        notes=[f"{more} more flights tripped (assumptions.parquet)"] if more > 0 else [],
+        text_cols=[0, 1, 2], wrap_cols=[3], wide_cols=[6],
+    )  # fmt: skip
+
+
 def section_monitor(f: Facts, counter: list[int]) -> Section | None:
     import pandas as pd
 
@@ -78,6 +114,7 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
             "first failing assumption's)",
             text_cols=[0, 4],
         )  # fmt: skip
+        _trips_table(sec, assumptions)
     if len(assured):
         keyed = ESTIMATOR in assured  # several estimators: each meets its own flights
         flights = pd.read_parquet(fly / (FLIGHTS_FILE if keyed else FLOWN_FILE))
