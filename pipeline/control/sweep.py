@@ -74,6 +74,8 @@ SWEEP_FILE = "sweep.parquet"
 """One row per grid point (``sweep.csv`` beside it holds the same)."""
 S_MAX_FILE = "s_max.parquet"
 """The largest feasible ``S`` per setting (``s_max_curve``)."""
+FEASIBILITY_FIGURE = "feasibility.png"
+S_MAX_FIGURE = "s_max_vs_T.png"
 TIMING = ("build_time_s", "solve_time_s")
 RESULT_COLUMNS = (
     "status", "feasible", "skipped", "cost_value", "norm_phi_xy", "norm_N", "norm_phi_xx",
@@ -555,9 +557,9 @@ def sweep(
         if len(smax):
             w.write_parquet(S_MAX_FILE, smax)
             w.write_text("s_max.csv", smax.to_csv(index=False))
-        w.write_figure("feasibility.png", feasibility_figure(table, options, smax))
+        w.write_figure(FEASIBILITY_FIGURE, feasibility_figure(table, options, smax))
         if len(smax):
-            w.write_figure("s_max_vs_T.png", s_max_figure(smax))
+            w.write_figure(S_MAX_FIGURE, s_max_figure(smax))
         counts = Counter(table["status"])
         w.results.update(
             points=len(table),

@@ -17,15 +17,21 @@ from qsls.pipeline.core import style
 from qsls.pipeline.errormodel.model import ErrorModel
 from qsls.pipeline.errormodel.slopes import PairSlopes
 
+SLOPE_DISTRIBUTION_FIGURE = "slope_distribution.png"
+ERROR_NORM_FIGURE = "error_norm.png"
+WORST_PAIRS_FIGURE = "worst_pairs.png"
+FIGURES = (SLOPE_DISTRIBUTION_FIGURE, ERROR_NORM_FIGURE, WORST_PAIRS_FIGURE)
+"""The fit's figures, in the order the report shows them."""
+
 _MAX_PANELS = 6
 
 
 def make_figures(model: ErrorModel, ps: PairSlopes, tr: Any, idx: np.ndarray, qs) -> dict:
     """All figures by file name (``tr``: the fit's training data, ``idx``: kept samples)."""
     return {
-        "slope_distribution.png": slope_distribution(model, ps),
-        "error_norm.png": error_norm(model, tr),
-        "worst_pairs.png": worst_pairs(model, tr, idx),
+        SLOPE_DISTRIBUTION_FIGURE: slope_distribution(model, ps),
+        ERROR_NORM_FIGURE: error_norm(model, tr),
+        WORST_PAIRS_FIGURE: worst_pairs(model, tr, idx),
     }
 
 

@@ -70,7 +70,7 @@ from qsls.pipeline.ingest.flight import (
 )
 
 STAGE = "fit"
-FIGURES = ("slope_distribution.png", "error_norm.png", "worst_pairs.png")
+FIGURES = fit_plots.FIGURES
 _MAD = 1.4826
 
 

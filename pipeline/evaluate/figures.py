@@ -15,6 +15,23 @@ import pandas as pd
 
 from qsls.pipeline.core import style
 
+PERCEPTION_ERROR_FIGURE = "perception_error.png"
+"""``||e||`` per flight against each controller's bound (paper, Fig. est_err)."""
+DISTANCE_FIGURE = "distance_to_training.png"
+"""The flown state's distance to the training data, per flight (diagnostic)."""
+INPUT_FIGURES = "input_*_vs_pd.png"
+"""The robust controller's input against PD's (paper, Fig. u_L1_pd), as a glob."""
+
+
+def tracking_file(condition: str) -> str:
+    """The tracking figure of one perception condition (paper, Fig. pos_tracking)."""
+    return f"tracking_{condition}.png"
+
+
+def input_file(controller: str) -> str:
+    """The input figure of one robust controller, one match of :data:`INPUT_FIGURES`."""
+    return INPUT_FIGURES.replace("*", controller)
+
 
 def smooth(signal: np.ndarray, dt: float, tau: float) -> np.ndarray:
     """First-order average with time constant ``tau`` (the paper's figure): ``s_k = s_{k-1} +
@@ -188,7 +205,7 @@ def write_fly_figures(w: Any, outcomes: Any, options: Any, checks: Any = None) -
         if traces:
             ref = next(o.ref_ctrl for (k, _), o in first.items() if k == cond)
             w.write_figure(
-                f"tracking_{cond}.png",
+                tracking_file(cond),
                 tracking_figure(traces, ref, f"{cond} perception, seed {seed0}"),
             )
     # the robust controller's input against PD's from the same estimate
@@ -199,10 +216,10 @@ def write_fly_figures(w: Any, outcomes: Any, options: Any, checks: Any = None) -
     if robust is not None:
         o = first[(options.conditions[0], robust)]
         u_pd = o.u_pd
-        w.write_figure(f"input_{robust}_vs_pd.png", input_figure(o.t_ctrl, o.u_ctrl, u_pd, robust))
+        w.write_figure(input_file(robust), input_figure(o.t_ctrl, o.u_ctrl, u_pd, robust))
     traces_e = {f"{o.condition}/{o.controller}": (o.t_vio, o.e_norm) for o in first.values()}
     w.write_figure(
-        "perception_error.png",
+        PERCEPTION_ERROR_FIGURE,
         error_per_controller_figure(
             traces_e, own_gamma(first.values(), checks), options.conditions
         ),

@@ -19,6 +19,18 @@ from qsls.pipeline.control.status import (
     RELAXED,
     UNCERTIFIED,
 )
+from qsls.pipeline.control.sweep import FEASIBILITY_FIGURE, S_MAX_FIGURE
+from qsls.pipeline.errormodel.figures import (
+    ERROR_NORM_FIGURE,
+    SLOPE_DISTRIBUTION_FIGURE,
+    WORST_PAIRS_FIGURE,
+)
+from qsls.pipeline.evaluate.figures import (
+    DISTANCE_FIGURE,
+    INPUT_FIGURES,
+    PERCEPTION_ERROR_FIGURE,
+    tracking_file,
+)
 from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.report.document import Figure, Section, figure_of, stage_pngs
 from qsls.pipeline.report.facts import (
@@ -56,15 +68,15 @@ def _stage_figures(
 
 # --------------------------------------------------------------------------- paper figures
 PAPER_FIGURES = {
-    "tracking_regular.png": "Tracking (paper, Fig. pos_tracking): regular perception, top view",
-    "tracking_degraded.png": "Tracking: degraded perception, top view",
-    "perception_error.png": "Perception error ||e|| against each controller's bound "
+    tracking_file("regular"): "Tracking (paper, Fig. pos_tracking): regular perception, top view",
+    tracking_file("degraded"): "Tracking: degraded perception, top view",
+    PERCEPTION_ERROR_FIGURE: "Perception error ||e|| against each controller's bound "
     "(paper, Fig. est_err), per condition",
 }
 
 
 def _paper_files(root: Any) -> tuple[str, ...]:
-    return (*PAPER_FIGURES, *sorted(p.name for p in root.glob("input_*_vs_pd.png")))
+    return (*PAPER_FIGURES, *sorted(p.name for p in root.glob(INPUT_FIGURES)))
 
 
 def section_paper_figures(f: Facts, counter: list[int]) -> Section | None:
@@ -73,7 +85,7 @@ def section_paper_figures(f: Facts, counter: list[int]) -> Section | None:
     root = f.run_dir / f.fly_folder
     sec = Section("The paper's figures", id="figures")
     names = [n for n in PAPER_FIGURES if (root / n).is_file()]
-    inputs = sorted(p.name for p in root.glob("input_*_vs_pd.png"))
+    inputs = sorted(p.name for p in root.glob(INPUT_FIGURES))
     caps = dict(PAPER_FIGURES)
     for n in inputs:
         caps[n] = "Input (paper, Fig. u_L1_pd): the robust controller's command against what PD "
@@ -392,8 +404,8 @@ def section_heldout(f: Facts, counter: list[int]) -> Section | None:
             ev.folder,
             counter,
             {
-                "perception_error.png": f"{ev.folder}: ||e|| per flight against each bound",
-                "distance_to_training.png": f"{ev.folder}: distance of the flown state to the "
+                PERCEPTION_ERROR_FIGURE: f"{ev.folder}: ||e|| per flight against each bound",
+                DISTANCE_FIGURE: f"{ev.folder}: distance of the flown state to the "
                 "training data (diagnostic)",
             },
             skip=_paper_files(f.run_dir / ev.folder) if ev.kind == "fly" else (),
@@ -565,9 +577,9 @@ def section_error_model(f: Facts, counter: list[int]) -> Section | None:
             f.error_model_folder,
             counter,
             {
-                "slope_distribution.png": "Distribution of the S-slopes over pairs",
-                "error_norm.png": "||e|| over time per training flight, with eps_e",
-                "worst_pairs.png": "The worst pairs on the trajectory",
+                SLOPE_DISTRIBUTION_FIGURE: "Distribution of the S-slopes over pairs",
+                ERROR_NORM_FIGURE: "||e|| over time per training flight, with eps_e",
+                WORST_PAIRS_FIGURE: "The worst pairs on the trajectory",
             },
         )
     )
@@ -619,8 +631,8 @@ def section_sweep(f: Facts, counter: list[int]) -> Section | None:
             f.rel(folders[0]),
             counter,
             {
-                "s_max_vs_T.png": "Largest feasible S against the horizon T",
-                "feasibility.png": "Feasible fraction over the grid",
+                S_MAX_FIGURE: "Largest feasible S against the horizon T",
+                FEASIBILITY_FIGURE: "Feasible fraction over the grid",
             },
         )
     )

@@ -59,6 +59,7 @@ from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.ingest.sources import layout
 from qsls.pipeline.ingest.sources.base import (
+    METADATA,
     BagReader,
     RawTopic,
     TopicInfo,
@@ -190,7 +191,7 @@ class BagSource:
         listed = ", ".join(f"{i.topic} as {i.msgtype}" for i in infos)
         return (
             f"the messages do not decode as the types {self._current().listed_by} lists "
-            f"({listed}); check those types (a hand-edited metadata.yaml?), else "
+            f"({listed}); check those types (a hand-edited {METADATA}?), else "
             f"{damaged_hint(self.kind)}"
         )
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from qsls.pipeline.core.progress import Progress
 from qsls.pipeline.ingest.sources.anyreader import anyreader_raw, open_anyreader
-from qsls.pipeline.ingest.sources.base import IndexPlan, RawTopic, TopicInfo, bag_root
+from qsls.pipeline.ingest.sources.base import METADATA, IndexPlan, RawTopic, TopicInfo, bag_root
 from qsls.pipeline.ingest.sources.layout import Batch
 from qsls.pipeline.ingest.sources.mcap.chunks import topic_batches
 from qsls.pipeline.ingest.sources.rosbag2.db3 import db3_folder
@@ -65,7 +65,7 @@ class Rosbag2Reader:
         except BaseException:
             self.close()
             raise
-        self.listed_by = "its metadata.yaml" if self._listed is not None else "the bag"
+        self.listed_by = f"its {METADATA}" if self._listed is not None else "the bag"
 
     @property
     def rosbags_opened(self) -> bool:
