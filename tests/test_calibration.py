@@ -558,3 +558,18 @@ def test_fly_refuses_the_seeds_a_calibration_flew(quickstart_session, tmp_path: 
     from qsls.pipeline.evaluate.certified import refuse_evidence_seeds
 
     refuse_evidence_seeds([cert], [0, 20999, 21020, 24000])  # fresh: no error
+
+
+def test_the_summary_names_the_premise_quantity_that_set_lambda_hat():
+    """``lambda_set_by``: the largest part of the flight whose score is ``lambda_hat`` (issue 47:
+    on the quickstart every calibration score was the reference's term, so its quantile said
+    nothing of the noise; the report says so)."""
+    rows = [
+        {"role": "calibration", "dense": 0.4, "disturbance": 0.5, "reference": 0.86, "outliers": 0.0, "score": 0.86},
+        {"role": "calibration", "dense": 0.9, "disturbance": 0.5, "reference": 0.86, "outliers": 0.25, "score": 0.9},
+        {"role": "range", "dense": 0.5, "disturbance": 1.1, "reference": 9.0, "outliers": 0.0, "score": 1.1},
+    ]  # fmt: skip
+    assert cal.set_by(rows, 0.9) == "dense (calibration flight)"
+    assert cal.set_by(rows, 0.86) == "reference (calibration flight)"
+    assert cal.set_by(rows, 1.1) == "disturbance (range flight)"  # scored without the reference
+    assert cal.set_by(rows, 0.7) == "" and cal.set_by(rows, math.inf) == ""

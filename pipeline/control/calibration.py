@@ -33,9 +33,9 @@ which it alone could grow before that condition fails.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -114,6 +114,23 @@ def ratio(value: float, limit: float) -> float:
     if value <= 0.0:
         return 0.0
     return value / limit if limit > 0.0 else math.inf
+
+
+def set_by(rows: Sequence[Mapping[str, Any]], lambda_hat: float) -> str:
+    """Which premise quantity set ``lambda_hat``: the largest part (:data:`SCORED`) of the
+    flight whose score is ``lambda_hat`` (the quantile's flight; the first in ``rows`` on a
+    tie), with its role, e.g. ``"reference (calibration flight)"``; ``''`` when no flight's
+    score is ``lambda_hat`` (a hand-made record)."""
+    for r in rows:
+        score = float(r.get("score", math.nan))
+        if math.isfinite(lambda_hat) and math.isclose(score, lambda_hat, rel_tol=1e-12):
+            # a range flight's score leaves the reference's term out (its offset is the point)
+            keys = [
+                k for k in SCORED if k in r and not (k == "reference" and r.get("role") == "range")
+            ]
+            part = max(keys, key=lambda k: float(r[k]), default="")
+            return f"{part} ({r.get('role', 'calibration')} flight)" if part else ""
+    return ""
 
 
 def outside_conditions(

@@ -582,7 +582,7 @@ def calibrate(
                               [evidence[j.name] for j in vjobs
                                if (j.condition, j.controller) == (o.condition, o.controller)])  # fmt: skip
         validation = pd.DataFrame(vrows)
-        summary = [summary_row(o, validation, options) for o in outcomes]
+        summary = [summary_row(o, validation, options, scores) for o in outcomes]
         w.write_parquet(SCORES_FILE, scores)
         w.write_parquet(VALIDATION_FILE, validation)
         w.write_json(SUMMARY_FILE, {"alpha": options.alpha, "method": options.method,
@@ -618,12 +618,22 @@ def _add_evidence(folder: Path, more: Sequence[FlightEvidence]) -> None:
                        cert.model_copy(update={"calibration": record}).to_yaml().encode())  # fmt: skip
 
 
-def summary_row(o: Outcome, validation: pd.DataFrame, options: CalibrateOptions) -> dict[str, Any]:
-    """One candidate's line: its calibration and its validation share against ``alpha``."""
+def summary_row(
+    o: Outcome,
+    validation: pd.DataFrame,
+    options: CalibrateOptions,
+    scores: pd.DataFrame | None = None,
+) -> dict[str, Any]:
+    """One candidate's line: its calibration, which premise quantity set ``lambda_hat``
+    (:func:`qsls.pipeline.control.calibration.set_by`, from its flights' ``scores``) and its
+    validation share against ``alpha``."""
     g = o.check.guarantee if o.check is not None else None
+    mine = (scores[(scores["controller"] == o.controller) & (scores["condition"] == o.condition)]
+            if scores is not None and len(scores) else pd.DataFrame())  # fmt: skip
     row: dict[str, Any] = {
         "controller": o.controller, "condition": o.condition, "status": o.status,
         "reason": o.reason, "flights": len(o.scores), "lambda_hat": o.lambda_hat,
+        "lambda_set_by": cal.set_by(mine.to_dict(orient="records"), o.lambda_hat),
         "rho_star": g.rho_star if g else None, "tested_range": o.tested_range,
         "alpha": options.alpha, "method": options.method,
     }  # fmt: skip
@@ -672,6 +682,8 @@ def summary_lines(out: Path) -> list[str]:
     for r in data["certificates"]:
         head = (f"{r['controller']} ({r['condition']}): {r['status']}, {r['flights']} calibration "
                 f"flights, alpha {r['alpha']:g}, lambda_hat {_unbounded(r['lambda_hat']):.3g}")  # fmt: skip
+        if r.get("lambda_set_by"):
+            head += f" (set by the {r['lambda_set_by']})"
         if r["rho_star"] is not None:
             head += f", rho* {r['rho_star']:.3g} (tested to {r['tested_range']:.3g})"
         if r["validation_flights"]:

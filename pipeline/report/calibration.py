@@ -100,7 +100,8 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
         )
         main.append([
             r["controller"], r["condition"], status_words(r["status"])[0],
-            f"{g4(r['alpha'])} ({how}, {r['flights']} flights)", g4(r["lambda_hat"]),
+            f"{g4(r['alpha'])} ({how}, {r['flights']} flights)",
+            g4(r["lambda_hat"]) + (f" (set by the {r['lambda_set_by']})" if r.get("lambda_set_by") else ""),
             ", ".join(f"{q} {g4(parts.get(k))}" for k, q in PARTS.items() if k in parts),
             _range_cell(cal), f"{g4(r['rho_star'])} / {g4(r['tested_range'])}",
         ])  # fmt: skip
@@ -124,7 +125,7 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
         "lambda_hat is the larger of the two; rho* under the calibrated premise beside the "
         "distance the flights reached (certified needs it to reach rho*)",
         notes=[f"{r['controller']} ({r['condition']}): {r['reason']}" for r, _ in rows if r["reason"]],
-        text_cols=[2, 3, 5, 6, 7],
+        text_cols=[2, 3, 4, 5, 6, 7],
     )  # fmt: skip
     if any(any(c != "-" for c in t[2:]) for t in tol):
         sec.table(
