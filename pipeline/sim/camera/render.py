@@ -73,7 +73,6 @@ class Renderer:
             .astype(np.float32)
             .reshape(1, 256)
         )
-        self.last_substeps = 1
         self.last_blur_px = 0.0
 
     # ------------------------------------------------------------------ geometry
@@ -163,7 +162,7 @@ class Renderer:
             if dark
             else max(1, min(cam.blur_max_substeps, math.ceil(b / cam.blur_px_per_substep)))
         )
-        self.last_substeps, self.last_blur_px = n, b
+        self.last_blur_px = b
         if dark:
             rho = np.zeros((cam.height, cam.width), np.float32)
         elif n == 1:
