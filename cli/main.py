@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import gc
 import importlib
-import importlib.util
 import os
 
 # No pydantic plugins in the command: pydantic looks them up (every installed package's
