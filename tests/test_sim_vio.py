@@ -168,3 +168,30 @@ def test_motion_parts_off_is_bit_identical_to_the_emulator_before_them(
         new.reset()
         stepped = np.array([new.sample(x[k], omega[k], accel[k]) for k in range(300)])
         assert stepped.tobytes() == want[:300].tobytes()
+
+
+def test_the_mapped_region_error_grows_with_the_distance_outside_it_and_l_bounds_it():
+    """``vio.region`` (issue 47: the emulator's error did not depend on where the vehicle was,
+    so range flights could not measure S): zero inside the region, ``slope`` metres per metre
+    outward beyond it, and the emulator's Lipschitz constant still bounds the whole field."""
+    from qsls.pipeline.sim.options import VioParams
+    from qsls.pipeline.sim.vio import VioEmulator
+
+    params = VioParams.model_validate(
+        {"region": {"center": [0.5, 0.0], "radius": 1.0, "slope": 0.1}}
+    )
+    emu = VioEmulator(params, seed=0)
+    base = VioEmulator(VioParams(), seed=0)
+    p = np.array([[0.5, 0.0], [1.2, 0.0], [2.5, 0.0], [0.5, -3.0]])
+    np.testing.assert_allclose(
+        emu.region_error(p), [[0, 0], [0, 0], [0.1, 0], [0, -0.2]], atol=1e-15
+    )
+    x = np.hstack([p, np.ones((4, 1)), np.zeros((4, 3))])
+    np.testing.assert_allclose(
+        emu.bias(x) - base.bias(x), np.hstack([emu.region_error(p), np.zeros((4, 4))])
+    )
+    assert emu.lipschitz >= base.lipschitz
+    rng = np.random.default_rng(1)
+    a, b = rng.uniform(-4, 4, (2000, 6)), rng.uniform(-4, 4, (2000, 6))
+    ratio = np.abs(emu.bias(a) - emu.bias(b)).max(axis=1) / np.abs(a - b).max(axis=1)
+    assert ratio.max() <= emu.lipschitz + 1e-12

@@ -55,6 +55,19 @@ class Ripple(Options):
     amplitude: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
+class MappedRegion(Options):
+    """Where the estimator knows the scene: beyond ``radius`` (m) from ``center`` its position
+    estimate takes a scale error that grows with the distance outside,
+    ``slope * max(0, |p_xy - c| - radius)`` along the outward direction (a map built on the
+    design flights, extrapolated: :mod:`qsls.pipeline.sim.vio`). It makes the error grow with
+    the distance from the training states, so range flights measure ``S``."""
+
+    center: tuple[float, float] = (0.0, 0.0)
+    radius: float = Field(1.5, gt=0)
+    slope: float = Field(0.05, ge=0, le=1)
+    """Metres of position error per metre outside the region."""
+
+
 class VioFault(Options):
     """A perception fault injected into the estimate (to test the onboard monitor and the
     runtime-assured mode, docs/monitor.md): from ``start_s`` on, ``bias`` is added to every
@@ -156,6 +169,9 @@ class VioParams(Options):
     # bias field
     ridges: list[Ridge] = Field(default_factory=_default_ridges)
     ripples: list[Ripple] = Field(default_factory=_default_ripples)
+    region: MappedRegion | None = None
+    """The region the estimator knows (None: the error does not depend on where the vehicle
+    is beyond the bias field)."""
     velocity_scale: tuple[float, float, float] = (0.02, 0.02, 0.01)
     """Velocity scale-factor error ``kappa`` per axis (fraction)."""
     bias_light_gain: float = Field(1.0, ge=0)

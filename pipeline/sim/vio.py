@@ -8,6 +8,7 @@ the sum of seven parts, each with its own switch in :class:`VioParams`::
         + sigma(p_k) * n_k    white noise, larger where texture or light is poor
         + o_k                 occasional velocity outliers
         + blur, drift with motion, feature loss   (motion-dependent parts, below)
+        + a scale error beyond the mapped region  (``region``, off by default: below)
 
 **Bias field.** ``b(x) = sum_r A_r tanh((n_r . p - c_r) / w_r)          (ridges)
                      + sum_q A_q sin(k_q . p + phi_q)                   (ripples)
@@ -73,6 +74,12 @@ dt_v`` (rounded), and adds ``A sin(pi (j + 1) / (m + 1))`` at its ``j``-th sampl
 [loss_position] * 3 + [loss_velocity] * 3`` times uniforms in ``[-1, 1]``.
 
 These parts are noise-like: the bias field and its Lipschitz constant ``L`` do not change.
+
+**Mapped region** (``region``: centre ``c``, radius ``R``, ``slope``). Beyond the region the
+horizontal position estimate takes ``slope max(0, rho - R) (p_xy - c) / rho``
+(``rho = |p_xy - c|``): the error grows with the distance from what the estimator knows. Its
+Jacobian is ``slope`` along ``p_hat`` and ``slope (rho - R) / rho`` across, so each row's
+absolute sum is at most ``sqrt(2) slope``, added to ``L`` (docs/simulation.md).
 
 Random parts come from independent streams of ``numpy.random.SeedSequence(seed)``, so
 switching one part off leaves the others' values unchanged (and with the three motion parts
@@ -170,6 +177,10 @@ class VioEmulator:
             per = np.abs(self._rip_k).sum(axis=1)
             rows += (np.abs(self._rip_a) * per[:, None]).sum(axis=0)
         rows[3:] += np.abs(self._kappa)
+        if self.params.region is not None:
+            # the radial field's Jacobian: slope along p_hat, slope (rho - R) / rho < slope across;
+            # a row's absolute sum is at most slope (|cos| + |sin|) <= sqrt(2) slope
+            rows[:2] += np.sqrt(2.0) * self.params.region.slope / self.bias_gain
         return float(self.bias_gain * rows.max())
 
     def bias(self, x: np.ndarray) -> np.ndarray:
@@ -186,7 +197,22 @@ class VioEmulator:
             s = np.sin(_dot2(pxy, self._rip_k) + self._rip_phi)
             out += (s[:, :, None] * self._rip_a[None]).sum(axis=1)
         out[:, 3:] += x[:, 3:6] * self._kappa
-        return self.bias_gain * out
+        out = self.bias_gain * out
+        if self.params.region is not None:
+            out[:, :2] += self.region_error(pxy)
+        return out
+
+    def region_error(self, pxy: np.ndarray) -> np.ndarray:
+        """The scale error beyond the mapped region, ``slope max(0, rho - R) (p - c) / rho``
+        (``rho = |p_xy - c|``), on the horizontal position: ``(n, 2)``."""
+        reg = self.params.region
+        assert reg is not None
+        d = np.asarray(pxy, dtype=float) - np.asarray(reg.center, dtype=float)
+        rho = np.hypot(d[:, 0], d[:, 1])
+        out_m = np.maximum(rho - reg.radius, 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = np.where(rho[:, None] > 0, d / rho[:, None], 0.0)
+        return reg.slope * out_m[:, None] * unit
 
     # ------------------------------------------------------------------ texture and noise
     def texture(self, p: np.ndarray) -> np.ndarray:
