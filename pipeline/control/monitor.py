@@ -345,6 +345,34 @@ def innovation_tolerance(L: int, c_max: float, unit: float) -> float:
     return 4.0 * max(L, 1) ** 2 * unit * c_max
 
 
+QUANTUM_SCALE = 2.0**30
+"""The window sums are exact sums of integers: each innovation is truncated to a multiple of
+``2^-30`` (m or m/s) before it is summed (:func:`quantize`), so a running sum (add the newest,
+subtract the one leaving) carries no rounding, however long the flight, and the C and the
+Python steps hold the same integers."""
+QUANTUM_MAX = 2.0**40
+"""Innovations are clamped to ``+/- 2^40`` quanta (1024 m/s) before truncation: a window of
+``K <= 600`` holds sums below ``2^50``, exact in a double. Under the premise an innovation is
+a few m/s, so the clamp never acts on a flight whose premise held."""
+
+
+def quantize(v: float) -> float:
+    """``trunc(v 2^30)`` clamped to ``+/- 2^40``, as a double (an integer): ``|q - v 2^30| < 1``
+    (:data:`QUANTUM_SCALE`; NaN maps to the upper clamp)."""
+    x = v * QUANTUM_SCALE
+    if not (-QUANTUM_MAX <= x <= QUANTUM_MAX):
+        x = -QUANTUM_MAX if x < 0 else QUANTUM_MAX
+    return float(math.trunc(x))
+
+
+def sum_limit(threshold: float, K: int) -> float:
+    """The bound on a window sum of ``K`` quantized innovations: ``floor(threshold 2^30) + K``.
+    Each truncation moves a term by less than one quantum, so a window sum within
+    ``threshold`` quantizes to within ``threshold 2^30 + K`` quanta, an integer, hence within
+    this bound (docs/monitor.md, Rounding)."""
+    return float(math.floor(threshold * QUANTUM_SCALE) + K)
+
+
 def _rows(a: np.ndarray) -> tuple[tuple[float, ...], ...]:
     return tuple(tuple(float(v) for v in r) for r in np.asarray(a, dtype=float))
 
@@ -371,12 +399,19 @@ class InnovationMonitor:
 
     At each tick :meth:`step` takes the gated deviation ``y'_k`` (None: a refused measurement)
     and returns the tick's bits; then :meth:`command` takes the deviation command ``du_k``
-    actually flown at that tick."""
+    actually flown at that tick.
+
+    Per checked channel and window ``K`` the window sum is a running sum of the quantized
+    innovations (:func:`quantize`: exact integers, no drift); a sum is ``above`` its bound
+    (:func:`sum_limit`) or ``below`` its negative; the median of the last ``ns`` sums is beyond
+    the bound exactly when more than ``ns // 2`` of them are on the same side, which is what
+    the exported code counts (one comparison per tick, not a sort)."""
 
     def __init__(self, spec: InnovationSpec) -> None:
         self.spec = spec
         self._live = spec.live_channels()
-        self._L = spec.ring
+        self._R = max(spec.windows, default=0) + 1
+        self._cap = max(spec.windows, default=0) + max(spec.shifts, default=1)
         self._terms = [
             [(j, v) for j, v in enumerate(spec.a_xx[c]) if v != 0.0]
             + [(NX + j, v) for j, v in enumerate(spec.a_xa[c]) if v != 0.0]
@@ -384,22 +419,36 @@ class InnovationMonitor:
             for c in range(NX)
         ]
         self._count_c = [c for c in range(NX) if spec.outlier_threshold[c] > 0]
+        self._limit = [
+            [sum_limit(t, K) if (t := spec.threshold[w][c]) > 0 else 0.0 for c in range(NX)]
+            for w, K in enumerate(spec.windows)
+        ]
         self.reset()
 
     def reset(self) -> None:
         self._yp: list[float] | None = None
         self._a = [0.0] * len(self.spec.a_aa)
         self._du = [0.0, 0.0, 0.0]
-        self._nu = {c: [0.0] * max(self._L, 1) for c in self._live}
         self._head = 0
-        self._valid = 0
         self._placed = [0] * self.spec.count_window
         self._phead = 0
         self._pcount = 0
         self._last = -2
         self.tick = 0
+        self._restart()
         self.statistic = [[0.0] * NX for _ in self.spec.windows]
-        """The last tick's statistic per window and channel (0 before the window is full)."""
+        """The last tick's statistic per window and channel (0 before the window is full): the
+        median of the last ``ns`` window sums, in m or m/s (a multiple of the quantum)."""
+
+    def _restart(self) -> None:
+        """Empty windows (after a reset or a refused tick)."""
+        nw = len(self.spec.windows)
+        self._q = {c: [0.0] * self._R for c in self._live}
+        self._sum = {c: [0.0] * nw for c in self._live}
+        self._recent: dict[int, list[list[float]]] = {
+            c: [[] for _ in range(nw)] for c in self._live
+        }
+        self._valid = 0
 
     def _innovation(self, yg: list[float]) -> list[float]:
         yp, a, du = self._yp, self._a, self._du
@@ -421,15 +470,23 @@ class InnovationMonitor:
         s = self.spec
         bits = 0
         placed = 0
+        fresh = False
         if self.tick > 0:
             if self._yp is not None and yg is not None:
                 y = [float(v) for v in yg]
                 nu = self._innovation(y)
-                if self._L:
-                    self._head = self._head - 1 if self._head > 0 else self._L - 1
+                if self._live and s.windows:
+                    fresh = True
+                    self._head = self._head - 1 if self._head > 0 else self._R - 1
+                    self._valid = min(self._valid + 1, self._cap)
                     for c in self._live:
-                        self._nu[c][self._head] = nu[c]
-                    self._valid = min(self._valid + 1, self._L)
+                        q = quantize(nu[c])
+                        self._q[c][self._head] = q
+                        for w, K in enumerate(s.windows):
+                            acc = self._sum[c][w] + q
+                            if self._valid > K:
+                                acc = acc - self._q[c][(self._head + K) % self._R]
+                            self._sum[c][w] = acc
                 hit = any(
                     not (-s.outlier_threshold[c] <= nu[c] <= s.outlier_threshold[c])
                     for c in self._count_c
@@ -438,7 +495,7 @@ class InnovationMonitor:
                     placed = 1  # the innovation k = tick - 1 has an outlier at k or k + 1
                     self._last = self.tick
             else:
-                self._valid = 0
+                self._restart()
             na = len(self._a)
             if na:
                 a, du = self._a, self._du
@@ -456,22 +513,21 @@ class InnovationMonitor:
         self._phead = (self._phead + 1) % s.count_window
         if self._pcount > s.m and self._count_c:
             bits |= TRIP_INNOVATION_OUTLIERS
-        for c in self._live:
-            ring, L = self._nu[c], self._L
-            suffix = [0.0]
-            acc = 0.0
-            for i in range(self._valid):
-                acc = acc + ring[(self._head + i) % L]
-                suffix.append(acc)
+        for c in self._live if fresh else ():
             ns = s.shifts[c]
             for w, K in enumerate(s.windows):
-                thr = s.threshold[w][c]
-                if thr <= 0 or self._valid < K + ns - 1:
+                lim = self._limit[w][c]
+                if lim <= 0:
                     continue
-                sums = sorted(suffix[K + i] - suffix[i] for i in range(ns))
-                med = sums[ns // 2]
-                self.statistic[w][c] = med
-                if not (-thr <= med <= thr):
+                recent = self._recent[c][w]
+                if self._valid >= K:
+                    recent.append(self._sum[c][w])
+                    del recent[:-ns]
+                if self._valid < K + ns - 1:
+                    continue
+                med = sorted(recent)[ns // 2]
+                self.statistic[w][c] = med / QUANTUM_SCALE
+                if not (-lim <= med <= lim):
                     bits |= (TRIP_SUM_CHANNEL << c) | (TRIP_SUM_WINDOW << w)
         self._yp = [float(v) for v in yg] if yg is not None else None
         self.tick += 1

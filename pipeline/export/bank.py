@@ -148,14 +148,16 @@ def sizes(
 ) -> Sizes:
     """``sizeof`` the C state struct (``T nx + (T+1) ny`` reals, two ring heads, the
     monitor's ``T + 5`` counters and the refusal count, ``unsigned int`` each, the innovation
-    monitor's fields (:func:`qsls.pipeline.export.innovation.state_bytes`), padded to the
-    real's alignment), the ``static const`` taps, and 2 flops per multiply-add."""
+    monitor's fields (:func:`qsls.pipeline.export.innovation.state_bytes`, a block that
+    starts and ends 8-aligned), padded to the struct's alignment), the ``static const`` taps, and 2 flops per multiply-add."""
     r = REAL_BYTES[precision]
     reals = bank.T * bank.nx + (bank.T + 1) * bank.ny
     state = reals * r + (2 + MONITOR_COUNTERS + REFUSAL_COUNTERS + bank.T) * INDEX_BYTES
-    state += -state % r  # the innovation fields start with reals
-    state += innovation_state_bytes(innovation, r)
-    state += -state % max(r, INDEX_BYTES)
+    inn = innovation_state_bytes(innovation, r)
+    align = 8 if inn else max(r, INDEX_BYTES)  # the innovation fields start with doubles
+    state += -state % align
+    state += inn
+    state += -state % align
     return Sizes(state, bank.constants() * r, 2 * bank.multiply_adds(), precision)
 
 
