@@ -86,6 +86,10 @@ class AssuredController:
         self.primary, self.fallback, self.monitor, self.mode = primary, fallback, monitor, mode
         self.name = f"{primary.name}+assured"
         self.dt = primary.dt
+        # the closed loop computes each tick's feedforward for the flying controller's mass and
+        # plant (closedloop.fly): the primary's, so that until a trip the flight is its own
+        self.mass = float(getattr(primary, "mass", fallback.mass))
+        self.plant = getattr(primary, "plant", "hover")
         self.reset()
 
     def reset(self) -> None:
