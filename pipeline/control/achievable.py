@@ -44,6 +44,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from qsls.pipeline.control.taps import Taps
 from qsls.pipeline.core.plant import NX, LinearModel
 
 
@@ -372,3 +373,25 @@ def mirror_maps(
     keep = ~np.isin(z_group[first], images)
     reduced = Maps(**out, E=sp.csr_matrix(E[keep] @ P), e=maps.e[keep], n_free=P.shape[1])
     return reduced, dropped
+
+
+def achievability_residuals(taps: Taps, model: LinearModel) -> dict[str, float]:
+    """Max absolute residual of each group of achievability equations (all taps, FIR end
+    included, the fixed zeros at tap 0 too)."""
+    a, b, c = model.A, model.B, model.C
+    xx, ux, xy, uy = taps.Phi_xx, taps.Phi_ux, taps.Phi_xy, taps.Phi_uy
+    nx = a.shape[0]
+
+    def nxt(p: np.ndarray) -> np.ndarray:  # Phi(k+1) for k = 0..T, Phi(T+1) = 0
+        return np.concatenate([p[1:], np.zeros((1, *p.shape[1:]))])
+
+    ident = np.zeros_like(xx)
+    ident[0] = np.eye(nx)
+    res = {
+        "zero_taps": max(np.abs(xx[0]).max(), np.abs(ux[0]).max(), np.abs(xy[0]).max()),
+        "left_x": np.abs(nxt(xx) - a @ xx - b @ ux - ident).max(),
+        "left_y": np.abs(nxt(xy) - a @ xy - b @ uy).max(),
+        "right_x": np.abs(nxt(xx) - xx @ a - xy @ c - ident).max(),
+        "right_u": np.abs(nxt(ux) - ux @ a - uy @ c).max(),
+    }
+    return {k: float(v) for k, v in res.items()}

@@ -72,6 +72,7 @@ from qsls.pipeline.control.achievable import (
     implied_zero_taps,
     mirror_maps,
 )
+from qsls.pipeline.control.achievable import achievability_residuals as achievability_residuals
 from qsls.pipeline.control.costs import QR, Cost, PremiseNorms, cost_of, is_diagonal
 from qsls.pipeline.control.costs import cost_value as cost_value  # c_QR, c_im from taps
 from qsls.pipeline.control.guarantee import (
@@ -107,28 +108,6 @@ FAST = {**TIGHT, "iterative_refinement_enable": False}
 37): at the quickstart's setting, T = 50, the same iterations at ~55 % of the time, the
 objective within 3e-9 relative and the realization error 3e-10 (limit 1e-8). Where it ends
 inaccurate, :data:`TIGHT` is solved, then the default tolerances."""
-
-
-def achievability_residuals(taps: Taps, model: LinearModel) -> dict[str, float]:
-    """Max absolute residual of each group of achievability equations (all taps, FIR end
-    included, the fixed zeros at tap 0 too)."""
-    a, b, c = model.A, model.B, model.C
-    xx, ux, xy, uy = taps.Phi_xx, taps.Phi_ux, taps.Phi_xy, taps.Phi_uy
-    nx = a.shape[0]
-
-    def nxt(p: np.ndarray) -> np.ndarray:  # Phi(k+1) for k = 0..T, Phi(T+1) = 0
-        return np.concatenate([p[1:], np.zeros((1, *p.shape[1:]))])
-
-    ident = np.zeros_like(xx)
-    ident[0] = np.eye(nx)
-    res = {
-        "zero_taps": max(np.abs(xx[0]).max(), np.abs(ux[0]).max(), np.abs(xy[0]).max()),
-        "left_x": np.abs(nxt(xx) - a @ xx - b @ ux - ident).max(),
-        "left_y": np.abs(nxt(xy) - a @ xy - b @ uy).max(),
-        "right_x": np.abs(nxt(xx) - xx @ a - xy @ c - ident).max(),
-        "right_u": np.abs(nxt(ux) - ux @ a - uy @ c).max(),
-    }
-    return {k: float(v) for k, v in res.items()}
 
 
 # --------------------------------------------------------------------------- problem
