@@ -453,7 +453,7 @@ def _parse(f: Path) -> tuple[Certificate, str]:
         )
     raw = f.read_bytes()
     try:
-        data = load_yaml(raw.decode("utf-8", "replace"))
+        data = load_yaml(raw.decode("utf-8", "replace"), f)
     except yaml.YAMLError:
         raise InputError(f"{f}: not valid YAML; regenerate it with 'qsls synth'") from None
     if not isinstance(data, dict):
