@@ -21,17 +21,20 @@ velocity error is within 3 of its reported standard deviations. ``--smoke``
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2
 from smokemode import requested, require
 
 from qsls.pipeline.core.rotations import quat_to_matrix
-from qsls.pipeline.sim.camera.geometry import thrust_attitudes
 from qsls.pipeline.sim.camera.loop import CameraVio, replay, trajectory_states
 from qsls.pipeline.sim.camera.options import CameraOptions
 from qsls.pipeline.sim.camera.vinit import InitSolution
 from qsls.pipeline.sim.closedloop import FlightOptions, fly
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.reference_impl
+from tests.reference_impl import thrust_attitudes
 
 
 def figure_eight(seconds: float, hz: float = 200.0):

@@ -67,11 +67,13 @@ DT = 0.1
 
 def flight_row(folder: Path) -> dict[str, Any]:
     """The statistic on an ingested flight (a folder holding ``flight.parquet``)."""
-    from qsls.pipeline.evaluate.rpe import rpe_vs_speed
+    from qsls.pipeline.evaluate.rpe import rpe_windows, speed_statistic
     from qsls.pipeline.ingest.flight import Flight
 
     f = Flight.load(folder)
-    return vars(rpe_vs_speed(f.frame["t"].to_numpy(), f.states(), f.measurements()))
+    return vars(
+        speed_statistic(*rpe_windows(f.frame["t"].to_numpy(), f.states(), f.measurements())[1:])
+    )
 
 
 def real_row(name: str, work: Path) -> dict[str, Any]:
@@ -111,7 +113,7 @@ def truth_states(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
 def emulated_row(
     truth: tuple[np.ndarray, ...], motion: bool, seed: int, vio: dict[str, Any] | None = None
 ) -> dict[str, Any]:
-    from qsls.pipeline.evaluate.rpe import rpe_vs_speed
+    from qsls.pipeline.evaluate.rpe import rpe_windows, speed_statistic
     from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
     t, x, omega, a = truth
@@ -120,7 +122,7 @@ def emulated_row(
     )
     e = VioEmulator(prm, seed).errors(x, omega, a)
     k = slice(None, None, round(RATE_HZ * DT))
-    return vars(rpe_vs_speed(t[k] * 1e-9, x[k], x[k] + e[k]))
+    return vars(speed_statistic(*rpe_windows(t[k] * 1e-9, x[k], x[k] + e[k])[1:]))
 
 
 def sim_row(
@@ -131,7 +133,7 @@ def sim_row(
     vio: dict[str, Any] | None = None,
     laps: int = 6,
 ) -> dict[str, Any]:
-    from qsls.pipeline.evaluate.rpe import rpe_vs_speed
+    from qsls.pipeline.evaluate.rpe import rpe_windows, speed_statistic
     from qsls.pipeline.sim.closedloop import FlightOptions, fly
 
     o = FlightOptions.model_validate(
@@ -148,7 +150,9 @@ def sim_row(
     )
     log = fly(o, seed=seed)
     k = slice(None, None, round(o.vio.rate_hz * DT))
-    return vars(rpe_vs_speed(log.vio_t_ns[k] * 1e-9, log.vio_x[k], log.vio_y[k]))
+    return vars(
+        speed_statistic(*rpe_windows(log.vio_t_ns[k] * 1e-9, log.vio_x[k], log.vio_y[k])[1:])
+    )
 
 
 def summarize(rows: list[dict[str, Any]]) -> dict[str, str]:

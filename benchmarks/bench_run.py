@@ -56,7 +56,7 @@ cfg = load_run_config(config)
 graph = plan(cfg, config, root)  # every stage's options validated: every stage imported
 keys = graph.keys()  # no recorded stamps: every input hashed
 state = RunState.load(root)
-stale = [s.id for s in graph.stages if state.why_stale(s.id, keys[s.id], graph.folder(s.id))]
+stale = [s.id for s in graph.stages if state.check(s.id, keys[s.id], graph.folder(s.id))[0]]
 assert not stale, stale
 print_summary("qsls run", {"stages up to date (skipped)": len(graph.stages)})
 for stage in ("evaluate", "fly"):

@@ -35,8 +35,14 @@ from qsls.pipeline.control.sls import (
     is_diagonal,
     psd_sqrt,
 )
-from qsls.pipeline.control.taps import Taps, from_side_by_side, side_by_side
+from qsls.pipeline.control.taps import Taps, side_by_side
 from qsls.pipeline.core.plant import LinearModel
+
+
+def from_side_by_side(mat: np.ndarray, cols: int) -> np.ndarray:
+    """Inverse of :func:`qsls.pipeline.control.taps.side_by_side`."""
+    r = mat.shape[0]
+    return np.transpose(mat.reshape(r, -1, cols), (1, 0, 2))
 
 
 class VectorizedProblem(SLSProblem):

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.evaluate.rpe import rpe_windows
-from qsls.pipeline.sim.camera.geometry import thrust_attitudes
 from qsls.pipeline.sim.camera.loop import replay
 from qsls.pipeline.sim.camera.options import CameraOptions
+from tests.reference_impl import thrust_attitudes
 
 
 def figure_eight(seconds: float, half_width: float = 1.0, period: float = 10.0, hz: float = 200.0):

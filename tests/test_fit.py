@@ -290,7 +290,7 @@ def test_fit_model_on_arrays_in_memory_matches_the_stage(tmp_path):
     gives ``eps_e = max ||e||`` and the exact largest pair slope (against the all-pairs
     count), and the same error model ``qsls fit`` writes from the same samples on disk."""
     from qsls.pipeline.errormodel.fit import FitData, fit_model, load_fit_data
-    from qsls.pipeline.errormodel.slopes import brute_force_slopes
+    from tests.reference_impl import brute_force_slopes
 
     rng = np.random.default_rng(3)
     ts, xs, es = [], [], []
@@ -335,7 +335,7 @@ def test_environments_keep_distances_and_pairs_within_one_room(tmp_path):
     third flight in the first room is compared with that room's flight only."""
     from qsls.pipeline.errormodel.fit import FitData, fit_model, load_fit_data
     from qsls.pipeline.errormodel.premise import Spec, TrainingStates
-    from qsls.pipeline.errormodel.slopes import brute_force_slopes
+    from tests.reference_impl import brute_force_slopes
 
     rng = np.random.default_rng(5)
     parts = []

@@ -7,15 +7,50 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 from qsls.pipeline.ingest.assemble import flight_from_streams
 from qsls.pipeline.ingest.flight import FLIGHT_FILE
-from qsls.pipeline.ingest.sources.messages import OdometryStream, as_trajectory
+from qsls.pipeline.ingest.sources.base import Trajectory
+from qsls.pipeline.ingest.sources.messages import OdometryStream, PoseStream
 from qsls.pipeline.ingest.sources.write import write_bag
 from qsls.pipeline.ingest.stage import IngestOptions, ingest
 from tests.bagfixtures import make_flight
+
+
+def as_trajectory(s: OdometryStream | PoseStream) -> Trajectory:
+    """The :class:`Trajectory` a reader returns for ``s``'s topic once written (copies: the
+    ingest core normalizes quaternions in place), without a bag: streams in memory for
+    :func:`qsls.pipeline.ingest.assemble.flight_from_streams`. A TF stream is its
+    transforms; covariances all zero are none (ROS: unknown), as the readers say."""
+    n = len(s)
+    if isinstance(s, OdometryStream):
+        velocity: np.ndarray | None = np.array(s.linear_velocity, dtype=float)
+        cov = [c for c in (s.pose_covariance, s.twist_covariance) if c is not None]
+        recorded = any(np.any(np.asarray(c) != 0) for c in cov)
+        diag = [
+            np.zeros((n, 6)) if c is None else np.asarray(c, dtype=float)[:, ::7].copy()
+            for c in (s.pose_covariance, s.twist_covariance)
+        ]
+        pose_var, twist_var = (diag[0], diag[1]) if recorded else (None, None)
+    else:
+        velocity = pose_var = twist_var = None
+    return Trajectory(
+        name=s.topic,
+        msgtype=s.msgtype,
+        header_ns=np.array(s.header_ns, dtype=np.int64),
+        log_ns=np.array(s.log_ns, dtype=np.int64),
+        position=np.array(s.position, dtype=float),
+        orientation=np.array(s.orientation, dtype=float),
+        velocity=velocity,
+        frame_id=s.frame_id,
+        child_frame_id=s.child_frame_id,
+        decoder="memory",
+        pose_var=pose_var,
+        twist_var=twist_var,
+    )
 
 
 def _without_origin(results: dict) -> dict:

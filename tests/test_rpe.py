@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qsls.pipeline.evaluate.rpe import rpe_vs_speed, rpe_windows, speed_statistic
+from qsls.pipeline.evaluate.rpe import RpeSpeed, rpe_windows, speed_statistic
+
+
+def rpe_vs_speed(t: np.ndarray, p: np.ndarray, q: np.ndarray, window: float = 1.0) -> RpeSpeed:
+    """:func:`speed_statistic` of :func:`rpe_windows`."""
+    _, speed, rpe = rpe_windows(t, p, q, window)
+    return speed_statistic(speed, rpe)
+
 
 DT = 0.1
 

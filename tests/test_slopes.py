@@ -10,10 +10,10 @@ from hypothesis import strategies as st
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.errormodel.slopes import (
     HIST_REL_ERROR,
-    brute_force_slopes,
     nearest_distance,
     pair_slopes,
 )
+from tests.reference_impl import brute_force_slopes
 
 QS = (0, 10, 50, 90, 95, 99, 100)
 

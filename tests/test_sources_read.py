@@ -3,18 +3,37 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
+from qsls.pipeline.ingest.sources import layout
 from qsls.pipeline.ingest.sources.bags import BagSource
 from qsls.pipeline.ingest.sources.base import detect
 from qsls.pipeline.ingest.sources.messages import ImageStream, PoseStream
 from qsls.pipeline.ingest.sources.msgtypes import ODOMETRY, POSE_COV, POSE_STAMPED, TRANSFORM
-from qsls.pipeline.ingest.sources.ros1.index import ros1_slices
+from qsls.pipeline.ingest.sources.ros1.index import ros1_batches
 from qsls.pipeline.ingest.sources.text.reader import read_euroc, read_tum
 from qsls.pipeline.ingest.sources.write import FORMATS, write_bag
 from tests.bagfixtures import T0_NS, make_flight, tf_streams
+
+
+def ros1_slices(
+    reader1: Any, conn_ids: set[int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All messages of ``conn_ids`` in one buffer, in time order: ``(buf, starts, ends, log_ns)``.
+
+    It copies every message; readers use :func:`ros1_batches`.
+    """
+    pieces: list[tuple[int, bytes]] = []
+    for b in ros1_batches(reader1, conn_ids):
+        for s, e, t in zip(b.starts.tolist(), b.ends.tolist(), b.log_ns.tolist(), strict=True):
+            pieces.append((t, bytes(b.buf[s:e])))
+    pieces.sort(key=lambda x: x[0])
+    buf, starts, ends = layout.concat([p for _, p in pieces])
+    return buf, starts, ends, np.array([t for t, _ in pieces], dtype=np.int64)
+
 
 TYPES = (POSE_STAMPED, POSE_COV, TRANSFORM, ODOMETRY)
 

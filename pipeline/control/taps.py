@@ -50,12 +50,6 @@ def side_by_side(taps: np.ndarray) -> np.ndarray:
     return np.transpose(taps, (1, 0, 2)).reshape(r, k * c)
 
 
-def from_side_by_side(mat: np.ndarray, cols: int) -> np.ndarray:
-    """Inverse of :func:`side_by_side`."""
-    r = mat.shape[0]
-    return np.transpose(mat.reshape(r, -1, cols), (1, 0, 2))
-
-
 def l1_norm(taps: np.ndarray, right: np.ndarray | None = None) -> float:
     """Induced inf-to-inf norm of an FIR operator: the largest absolute row sum over all
     taps side by side (of ``Phi(k) @ right`` when ``right`` is given)."""

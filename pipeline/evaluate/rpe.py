@@ -88,9 +88,3 @@ def speed_statistic(speed: np.ndarray, rpe: np.ndarray) -> RpeSpeed:
     rho = float(spearmanr(speed, rpe)[0])
     ratio = fast / slow if slow > 0 else float("inf")
     return RpeSpeed(n, ratio, rho, float(rpe.mean()), float(speed.mean()))
-
-
-def rpe_vs_speed(t: np.ndarray, p: np.ndarray, q: np.ndarray, window: float = 1.0) -> RpeSpeed:
-    """:func:`speed_statistic` of :func:`rpe_windows`."""
-    _, speed, rpe = rpe_windows(t, p, q, window)
-    return speed_statistic(speed, rpe)

@@ -217,12 +217,6 @@ class RunState(_Frozen):
     def with_plan(self, plan: Plan | None) -> RunState:
         return self.model_copy(update={"plan": plan})
 
-    def why_stale(
-        self, stage_id: str, key: str, folder: Path, versions: Mapping[str, str] | None = None
-    ) -> str | None:
-        """Why stage ``stage_id`` must run (None when it is up to date)."""
-        return self.check(stage_id, key, folder, versions)[0]
-
     def check(
         self, stage_id: str, key: str, folder: Path, versions: Mapping[str, str] | None = None
     ) -> tuple[str | None, RunState]:

@@ -10,8 +10,6 @@ import math
 
 import numpy as np
 
-from qsls.pipeline.core.rotations import matrix_to_quat
-
 
 def skew(v: np.ndarray) -> np.ndarray:
     """``[v]x`` with ``[v]x w = v x w``."""
@@ -101,14 +99,3 @@ def matrix_quat(r: np.ndarray) -> np.ndarray:
     out = np.array(q, dtype=float)
     out /= math.sqrt(float(out @ out))
     return -out if out[3] < 0 else out
-
-
-def thrust_attitudes(acc: np.ndarray, gravity: float = 9.81) -> np.ndarray:
-    """Quaternions (n, 4) xyzw of a multirotor with zero yaw whose thrust axis (body z)
-    points along ``acc + g e_z`` (what it must to fly accelerations ``acc`` (n, 3))."""
-    zb = acc + np.array([0.0, 0.0, gravity])
-    zb /= np.linalg.norm(zb, axis=1, keepdims=True)
-    yb = np.cross(zb, np.array([1.0, 0.0, 0.0]))
-    yb /= np.linalg.norm(yb, axis=1, keepdims=True)
-    xb = np.cross(yb, zb)
-    return matrix_to_quat(np.stack([xb, yb, zb], axis=2))

@@ -220,22 +220,6 @@ def _mapped_batches(reader1: Any, entries: _Entries, order: list[int]) -> Iterat
         del buf, starts, ends, rows, parts
 
 
-def ros1_slices(
-    reader1: Any, conn_ids: set[int]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """All messages of ``conn_ids`` in one buffer, in time order: ``(buf, starts, ends, log_ns)``.
-
-    For tests and small bags (it copies every message); readers use :func:`ros1_batches`.
-    """
-    pieces: list[tuple[int, bytes]] = []
-    for b in ros1_batches(reader1, conn_ids):
-        for s, e, t in zip(b.starts.tolist(), b.ends.tolist(), b.log_ns.tolist(), strict=True):
-            pieces.append((t, bytes(b.buf[s:e])))
-    pieces.sort(key=lambda x: x[0])
-    buf, starts, ends = layout.concat([p for _, p in pieces])
-    return buf, starts, ends, np.array([t for t, _ in pieces], dtype=np.int64)
-
-
 def _header_fields(raw: bytes) -> dict[str, int]:
     """Offsets (within the header) of each field's value."""
     out = {}
