@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from qsls.pipeline.control.costs import COSTS
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.references import ReferenceOptions, parse_reference
 from tests.test_layers import LAYERS
@@ -198,3 +199,23 @@ def test_no_figure_file_name_is_spelled_in_two_modules():
     shared = {n: m for n, m in modules.items() if len({r for r in m if (r, n) not in pending}) > 1}
     assert shared == {}
     assert len(modules) >= 7  # the scan sees the figures
+
+
+COST_NAMES_SPELLED = {
+    "control/costs.py",  # the registry, COSTS: the one place where costs have names
+    "control/options.py",  # the config's schema (cost: Literal["qr", "imitation"])
+}
+
+
+def test_cost_names_are_spelled_only_by_the_registry_and_the_config_schema():
+    """Issue 49: the library passes Cost objects and asks their properties (``imitates``,
+    ``needs_norms``); a name is turned into a cost once, where the config enters
+    (``cost_of``), and back only for the certificate's record (``name_of``). Control only:
+    elsewhere ``"none"`` and ``"ratio"`` are other things' names (an alignment, a column)."""
+    found = sorted(
+        f"{rel}:{line}: {text!r}"
+        for rel, line, text in _spellings()
+        if text in COSTS and rel.startswith("control/") and rel not in COST_NAMES_SPELLED
+    )
+    assert found == []
+    assert {"qr", "imitation", "ratio", "min_phi_xy", "none"} <= set(COSTS)  # the scan's names

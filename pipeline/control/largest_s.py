@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+from qsls.pipeline.control.costs import MIN_ERROR_GAIN, NONE, RATIO
 from qsls.pipeline.control.guarantee import PremiseNumbers, largest_slope
 from qsls.pipeline.control.sls import (
     NO_PREMISE,
@@ -38,7 +39,7 @@ def min_phi_xy(
     (solved once per process: a sweep asks for every setting at that ``T``)."""
     key = (_model_key(model), T, strictly_proper, solver, shape)
     if key not in _MIN_XY:
-        st = shape.structure(T, "min_phi_xy", strictly_proper)
+        st = shape.structure(T, MIN_ERROR_GAIN, strictly_proper)
         sol = solve(model, st, Values(), solver=solver)
         if sol.taps is None:
             raise SolverError(f"the smallest-||Phi_xy|| problem failed ({sol.solver_status})")
@@ -89,7 +90,7 @@ def max_ratio(
     LP re-solved through Parameters) and sets ``lam = rho(Phi)``; ``lam`` increases
     monotonically and converges superlinearly. ``eps_e`` plays no part: one ratio serves
     every ``eps_e`` (:func:`max_feasible_s`)."""
-    structure = shape.structure(T, "ratio", strictly_proper)
+    structure = shape.structure(T, RATIO, strictly_proper)
     lam, total, it, gap = 0.0, 0.0, 0, math.inf
     nxy = nxx = float("nan")
     numbers = replace(NO_PREMISE, eps_w=eps_w, radius=radius, eps_o=eps_o)
@@ -160,7 +161,7 @@ def max_feasible_s(
     s_max = lam - eps_e / radius
     s_max -= 1e-7 * max(abs(s_max), 1e-3)
     if shape.gate and s_max >= 0:
-        gated = replace(shape.structure(T, "none", strictly_proper), robust=True)
+        gated = replace(shape.structure(T, NONE, strictly_proper), robust=True)
 
         def feasible(S: float) -> bool:
             numbers = PremiseNumbers(

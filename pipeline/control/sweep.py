@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import largest_s, sls
-from qsls.pipeline.control.costs import cost_of
+from qsls.pipeline.control.costs import QR, cost_of
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
 from qsls.pipeline.control.guarantee import necessary_condition
 from qsls.pipeline.control.nominal import pd_responses
@@ -113,8 +113,8 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
                     for k, v in gv.items()
                 },
                 "resolved": r,
-                "structure": r.structure(
-                    opts.T, opts.norm, opts.cost, opts.robust, opts.strictly_proper
+                "structure": r.structure(  # the config's name: the cost
+                    opts.T, opts.norm, cost_of(opts.cost), opts.robust, opts.strictly_proper
                 ),
                 "T": opts.T,
                 "norm": opts.norm,
@@ -330,7 +330,7 @@ def _nominal(p: dict[str, Any]) -> Any:
     (:func:`qsls.pipeline.control.synth.imitation_target`): the PD's responses, the nominal
     controller of the point's own options (``l1_nominal`` / ``h2_nominal``, solved here
     first), or a controller folder's."""
-    if not cost_of(p["cost"]).imitates:
+    if not p["structure"].cost.imitates:
         return None
 
     r, T, target = p["resolved"], p["T"], p["imitate"]
@@ -341,7 +341,7 @@ def _nominal(p: dict[str, Any]) -> Any:
         done["pd"] = pd_responses(r.model, PDGains(kp=p["kp"], kd=p["kd"]), T)[1]
     else:
         norm = target.removesuffix("_nominal")
-        st = r.structure(T, norm, "qr", False, p["strictly_proper"])
+        st = r.structure(T, norm, QR, False, p["strictly_proper"])
         sol = sls.solve(r.model, st, r.values(), solver=p["solver"])
         if sol.taps is None:
             raise InputError(f"imitate: {target} failed at this point ({sol.solver_status})")
