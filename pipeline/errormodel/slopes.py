@@ -416,30 +416,64 @@ def pair_slopes(
     if W is not None and (W.ndim != 2 or W.shape[1] != n):
         raise ValueError(f"bootstrap weights must be (B, {n}), got {W.shape}")
 
-    order = np.arange(n)
-    acc = None
-    if n >= 2:
-        xs = x[:, scale > 0] * scale[scale > 0]
-        g = cell_grid(xs, float(radius))
-        order = g.order
-        args = (
-            np.ascontiguousarray(xs[order].T),
-            np.ascontiguousarray(e[order].T),
-            order,
-            float(radius),
-            float(min_separation),
-            int(top_k),
-            int(exact_limit),
-            None if W is None else W[:, order],
-        )
-        progress.start("pair slopes", total=n)
-        accs = [_Acc(*args) for _ in range(max(1, int(jobs)))]
-        _run_blocks(accs, pair_blocks(g, block_elems), progress)
-        progress.finish()
-        acc = accs[0]
-        for other in accs[1:]:
-            acc.merge(other)
+    order, acc = _accumulate(
+        x, e, scale, radius, min_separation, top_k, exact_limit, block_elems, W, jobs, progress
+    )
+    return _summary(acc, order, n, qs, W, radius, min_separation)
 
+
+def _accumulate(
+    x: np.ndarray,
+    e: np.ndarray,
+    scale: np.ndarray,
+    radius: float,
+    min_separation: float,
+    top_k: int,
+    exact_limit: int,
+    block_elems: int,
+    W: np.ndarray | None,
+    jobs: int,
+    progress: Progress,
+) -> tuple[np.ndarray, _Acc | None]:
+    """The samples' order in the cell grid and every pair's statistics accumulated over the
+    grid's blocks by ``jobs`` threads, merged (None with fewer than two samples)."""
+    n = len(x)
+    if n < 2:
+        return np.arange(n), None
+    xs = x[:, scale > 0] * scale[scale > 0]
+    g = cell_grid(xs, float(radius))
+    order = g.order
+    args = (
+        np.ascontiguousarray(xs[order].T),
+        np.ascontiguousarray(e[order].T),
+        order,
+        float(radius),
+        float(min_separation),
+        int(top_k),
+        int(exact_limit),
+        None if W is None else W[:, order],
+    )
+    progress.start("pair slopes", total=n)
+    accs = [_Acc(*args) for _ in range(max(1, int(jobs)))]
+    _run_blocks(accs, pair_blocks(g, block_elems), progress)
+    progress.finish()
+    acc = accs[0]
+    for other in accs[1:]:
+        acc.merge(other)
+    return order, acc
+
+
+def _summary(
+    acc: _Acc | None,
+    order: np.ndarray,
+    n: int,
+    qs: list[float],
+    W: np.ndarray | None,
+    radius: float,
+    min_separation: float,
+) -> PairSlopes:
+    """The statistics of the module doc from the accumulated pairs (exact percentiles while
+    the slopes were kept, else the histogram's)."""
     loc = np.full(n, np.nan)
     if acc is not None:
         loc[order] = np.where(acc.local >= 0, acc.local, np.nan)

@@ -114,23 +114,9 @@ def reference_summary(ref: np.ndarray) -> dict[str, float]:
     }  # fmt: skip
 
 
-def recorded_ticks(
-    vio: Trajectory,
-    truth: Trajectory,
-    commands: AttitudeCommands,
-    setpoints: PositionSetpoints,
-    mass: float,
-    *,
-    hover_thrust: float | None = None,
-    max_gap_s: float = 0.25,
-) -> RecordedTicks:
-    """The tick log of a recorded flight (module docstring); ``hover_thrust`` overrides the
-    log's (its estimate, else its parameter)."""
-    if vio.velocity is None or not np.isfinite(vio.velocity).all():
-        raise InputError(
-            f"the estimate ({vio.name}) has no velocity at every message, while the controller "
-            "read one: name the estimator's odometry topic (--vio-topic)"
-        )
+def _command_stamps(commands: AttitudeCommands) -> np.ndarray:
+    """The commands' stamps (ns), refused in one line when they cannot be the controller's
+    ticks: too few, out of order (the log's clock jumped) or with a gap (a logger dropout)."""
     t = np.asarray(commands.t_ns, dtype=np.int64)
     if len(t) < MIN_TICKS:
         raise InputError(
@@ -154,6 +140,27 @@ def recorded_ticks(
             "and the flight cannot count; log the setpoints without dropouts (a faster SD card, "
             "a smaller SDLOG_PROFILE) or ingest without --mass"
         )
+    return t
+
+
+def recorded_ticks(
+    vio: Trajectory,
+    truth: Trajectory,
+    commands: AttitudeCommands,
+    setpoints: PositionSetpoints,
+    mass: float,
+    *,
+    hover_thrust: float | None = None,
+    max_gap_s: float = 0.25,
+) -> RecordedTicks:
+    """The tick log of a recorded flight (module docstring); ``hover_thrust`` overrides the
+    log's (its estimate, else its parameter)."""
+    if vio.velocity is None or not np.isfinite(vio.velocity).all():
+        raise InputError(
+            f"the estimate ({vio.name}) has no velocity at every message, while the controller "
+            "read one: name the estimator's odometry topic (--vio-topic)"
+        )
+    t = _command_stamps(commands)
     vs, vp, vv = _sorted(vio.log_ns, vio.position, vio.velocity)
     iy = _latest(vs, t)
     ss = np.asarray(setpoints.t_ns, dtype=np.int64)

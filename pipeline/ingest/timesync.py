@@ -193,6 +193,28 @@ _COARSE = 5
 """Grid steps between the points of the first, coarser pass of the offset search."""
 
 
+def _attitude_terms(
+    vio_q: np.ndarray | None,
+    truth_q: np.ndarray | None,
+    idx: np.ndarray,
+    pt: np.ndarray,
+    method: str,
+    min_tilt_rad: float,
+) -> tuple[np.ndarray | None, np.ndarray | tuple[np.ndarray, ...]]:
+    """The VIO's gravity directions in its body frame at samples ``idx`` and the truth's
+    table to compare with (positions, and its gravity directions), when both orientations
+    are given, ``method`` is ``4dof`` or ``none`` and the attitudes move; else ``(None,
+    positions)``: level (or identity) attitudes have nothing to compare."""
+    if vio_q is None or truth_q is None or method not in ("4dof", "none"):
+        return None, pt
+    gv = gravity_in_body(np.asarray(vio_q)[idx])
+    truth_q = np.asarray(truth_q)
+    gt = truth_q if truth_q.shape[1] == 3 else gravity_rows(truth_q)
+    if min(_tilt_rms(gv), _tilt_rms(gt)) > min_tilt_rad:
+        return gv, (pt, gt)
+    return None, pt
+
+
 def estimate_offset(
     vio_ns: np.ndarray,
     vio_p: np.ndarray,
@@ -235,18 +257,7 @@ def estimate_offset(
         idx = idx[np.linspace(0, len(idx) - 1, max_samples).round().astype(int)]
     tv = tv_all[idx]
     pv = np.asarray(vio_p, float)[idx]
-    gv = None
-    table: np.ndarray | tuple[np.ndarray, ...] = pt  # and the truth's g_b with attitudes
-    if vio_q is not None and truth_q is not None and method in ("4dof", "none"):
-        gv = gravity_in_body(np.asarray(vio_q)[idx])
-        truth_q = np.asarray(truth_q)
-        gt = truth_q if truth_q.shape[1] == 3 else gravity_rows(truth_q)
-        moving = min(_tilt_rms(gv), _tilt_rms(gt))
-        if moving > min_tilt_rad:  # else level (or identity) attitudes: nothing to compare
-            table = (pt, gt)
-        else:
-            gv = None
-        del gt
+    gv, table = _attitude_terms(vio_q, truth_q, idx, pt, method, min_tilt_rad)
     args = (gv, tt, table, method)
     # coarse: a grid of step_s on at most coarse_samples of the samples
     sub = np.linspace(0, len(tv) - 1, min(len(tv), coarse_samples)).round().astype(int)
