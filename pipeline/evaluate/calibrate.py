@@ -32,7 +32,7 @@ record and ``controller.npz``: a controller folder every other command reads),
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -77,6 +77,7 @@ from qsls.pipeline.evaluate.assumptions import (
     crashed,
     signals,
 )
+from qsls.pipeline.evaluate.broken import broken_premise
 from qsls.pipeline.evaluate.certified import certified_premise, expand_controllers
 from qsls.pipeline.evaluate.conditions import draw, drawn, stated
 from qsls.pipeline.evaluate.options import CalibrateOptions as CalibrateOptions
@@ -152,10 +153,11 @@ def score_flight(
     allowed = guarantee.premise_bound(c.numbers.eps, c.numbers.S, dist)
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(dense > 0, dense / allowed, 0.0)
+    ref_max = float(distance(log.ref).max())
     parts = {
         "dense": float(rel[inside].max()) if inside.any() else 0.0,
         "disturbance": cal.ratio(float(w.max()) if len(w) else 0.0, c.numbers.eps_w),
-        "reference": cal.ratio(float(distance(log.ref).max()), c.numbers.delta),
+        "reference": cal.ratio(ref_max, c.numbers.delta),
         "outliers": math.inf
         if mag.max() > c.numbers.eps_o
         else cal.ratio(float(counts.max()), c.numbers.m),
@@ -164,7 +166,8 @@ def score_flight(
     # through every distance up to r on the way)
     reached = float(dist[inside].max()) if inside.any() else 0.0
     return {**parts, "score": cal.flight_score(parts), "reached": reached,
-            "w_max": float(w.max()) if len(w) else 0.0, "window_max": float(counts.max())}  # fmt: skip
+            "w_max": float(w.max()) if len(w) else 0.0, "window_max": float(counts.max()),
+            "ref_max": ref_max, "outlier_max": float(mag.max())}  # fmt: skip
 
 
 def range_score(parts: dict[str, float]) -> float:
@@ -234,10 +237,13 @@ def decide(
     options: CalibrateOptions,
     crashed: int = 0,
     range_scores: Sequence[float] = (),
+    broken: Sequence[Mapping[str, Any]] = (),
 ) -> tuple[str, str, float, int, cal.Check | None, float, dict[str, float]]:
     """``(status, reason, lambda_hat, rank, check, tested range, tolerances)`` (module
     docstring); ``reached`` covers the calibration and the range flights, ``range_scores`` are
-    the range flights' scores (:func:`range_score`) (their quantile can only raise ``lambda_hat``)."""
+    the range flights' scores (:func:`range_score`) (their quantile can only raise ``lambda_hat``);
+    ``broken``: the score rows of the flights whose score is inf (the refusal names their
+    quantities, :func:`~qsls.pipeline.evaluate.broken.broken_premise`)."""
     n = len(scores)
     rank = cal.calibration_rank(n, options.alpha, options.method, options.delta)
     lam = cal.calibrated_quantile(scores, options.alpha, options.method, options.delta)
@@ -258,7 +264,7 @@ def decide(
             f"needs {need} for any calibrated premise, certified needs {cal.MIN_FLIGHTS}: "
             f"--flights {max(need, cal.MIN_FLIGHTS)})"
             if short
-            else "a calibration flight broke a premise quantity no inflation covers"
+            else broken_premise(broken, nominal)
         )
         return RELAXED, why, lam, rank, None, tested, {}  # fmt: skip
     inflated = cal.inflate(nominal, lam)
@@ -545,6 +551,7 @@ def calibrate(
                     options,
                     crashed=int(mine["crashed"].sum()),
                     range_scores=ranged["score"].to_list(),
+                    broken=mine[np.isinf(mine["score"])].to_dict(orient="records"),
                 )
                 o = Outcome(f.name, cond, status, reason, lam, rank, chk, tested, tol, s)
                 outcomes.append(o)

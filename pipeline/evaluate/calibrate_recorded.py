@@ -224,7 +224,7 @@ def _one(
     rs = [float(r["score"]) for r in scored if r["role"] == "range"]
     status, reason, lam, rank, chk, tested, tol = decide(
         s, [float(r["reached"]) for r in scored], premise.numbers, taps_of(folder), options,
-        range_scores=rs,
+        range_scores=rs, broken=[r for r in scored if r["score"] == float("inf")],
     )  # fmt: skip
     o = Outcome(folder.name, condition, status, reason, lam, rank, chk, tested, tol, s)
     calib = [f for f in flights if f.role == "calibration"]
