@@ -70,6 +70,8 @@ def command(
     with RichProgress() as progress:
         result = ingest(list(sources or []), options, out, force=force, progress=progress)
     print_summary("qsls ingest", result.summary())
+    for w in result.warnings:
+        typer.echo(f"warning: {w}", err=True)
 
 
 def _one_blas_thread() -> None:

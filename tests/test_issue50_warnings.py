@@ -77,3 +77,97 @@ def test_the_refusal_names_each_infinite_quantity_once_with_its_largest_value():
     assert text.index("disturbance") < text.index("outliers")  # the score table's order
     m0 = broken_premise([_row(outliers=math.inf, window_max=3.0)], _premise(m=0))
     assert "outliers (1 flight): 3 outliers in a window of T ticks over m 0" in m0
+
+
+# --------------------------------------------------------------------------- ingest warnings
+def _tum(path, rate_hz, noise, seed, radius=1.0, direction=1.0, seconds=40.0):
+    """A TUM file of a 1 m circle (5 s period) at ``rate_hz`` with white position noise."""
+    import numpy as np
+
+    from qsls.pipeline.ingest.sources.text.writer import tum_text
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds, 1.0 / rate_hz)
+    w = direction * 2 * np.pi / 5.0
+    p = np.column_stack([radius * np.cos(w * t), radius * np.sin(w * t), 1.0 + 0.2 * np.sin(t)])
+    p += noise * rng.standard_normal(p.shape)
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
+    path.write_text(tum_text((t * 1e9 + 1e18).astype(np.int64), p, q))
+    return path
+
+
+@pytest.fixture(scope="module")
+def tum_streams(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tum")
+    return {
+        "truth": _tum(d / "mocap.txt", 200.0, 0.0005, 1),
+        "vio": _tum(d / "vio.txt", 20.0, 0.02, 2),
+        "other": _tum(d / "other.txt", 20.0, 0.02, 3, radius=3.0, direction=-1.0),
+    }
+
+
+def _ingest(tmp_path, vio, truth):
+    from qsls.pipeline.ingest.options import IngestOptions
+    from qsls.pipeline.ingest.stage import ingest
+
+    out = tmp_path / f"{vio.stem}_{truth.stem}"
+    return ingest([], IngestOptions(vio=vio, truth=truth, dt=0.05, time_offset=0.0), out)
+
+
+def test_ingest_of_the_right_streams_warns_nothing(tmp_path, tum_streams):
+    r = _ingest(tmp_path, tum_streams["vio"], tum_streams["truth"])
+    assert r.rms_position_m < 0.05 and r.warnings == ()
+
+
+def test_swapped_streams_are_named_with_the_flags_to_swap(tmp_path, tum_streams):
+    import json
+
+    r = _ingest(tmp_path, tum_streams["truth"], tum_streams["vio"])
+    (w,) = r.warnings
+    assert w.startswith("the streams look swapped: swap --vio-topic and --truth-topic")
+    assert "'mocap.txt' is the ground truth and 'vio.txt' the estimate" in w
+    assert "it records at 200 Hz, the truth at 20 Hz" in w
+    ratio = float(w.split("second differences are ")[1].split(" x")[0])
+    assert ratio < 0.8  # the "truth" (the estimate: 2 cm noise) is the rougher
+    manifest = json.loads((r.out / "manifest.json").read_text())
+    assert manifest["results"]["warnings"] == [w]
+
+
+def test_a_smoother_vio_at_the_truths_rate_looks_swapped_too():
+    import numpy as np
+    import pyarrow as pa
+
+    from qsls.pipeline.ingest.plausible import swapped
+
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 20, 0.1)
+    smooth = np.column_stack([np.cos(t), np.sin(t), np.ones_like(t)])
+    rough = smooth + 0.02 * rng.standard_normal(smooth.shape)
+    cols = {"t": t, **{f"x_p{a}": rough[:, i] for i, a in enumerate("xyz")},
+            **{f"y_p{a}": smooth[:, i] for i, a in enumerate("xyz")}}  # fmt: skip
+    res = {"dt": 0.1, "streams": {"vio": {"topic": "/a", "rate_hz": 100.0},
+                                  "truth": {"topic": "/b", "rate_hz": 100.0}}}  # fmt: skip
+    assert "'/a' is the ground truth" in swapped(pa.table(cols), res)
+    flipped = {**cols, **{f"x_p{a}": smooth[:, i] for i, a in enumerate("xyz")},
+               **{f"y_p{a}": rough[:, i] for i, a in enumerate("xyz")}}  # fmt: skip
+    assert swapped(pa.table(flipped), res) is None
+    # a faster VIO that is the rougher stream (an IMU-rate estimate against a 20 Hz tracker)
+    fast = {**res, "streams": {"vio": {"topic": "/a", "rate_hz": 200.0},
+                               "truth": {"topic": "/b", "rate_hz": 20.0}}}  # fmt: skip
+    assert swapped(pa.table(flipped), fast) is None
+
+
+def test_an_implausible_rms_error_warns_and_the_cli_prints_it(tmp_path, tum_streams):
+    from typer.testing import CliRunner
+
+    from qsls.cli.main import app
+
+    out = tmp_path / "far"
+    res = CliRunner().invoke(app, ["ingest", "--vio", str(tum_streams["other"]), "--truth",
+                                   str(tum_streams["truth"]), "--out", str(out), "--dt", "0.05",
+                                   "--time-offset", "0"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    line = next(ln for ln in res.stderr.splitlines() if "RMS position error" in ln)
+    assert line.startswith("warning: check the topics, frames and clocks: ")
+    rms = float(line.split("truth is ")[1].split(" m")[0])
+    assert rms > 1.0 and "(0 gaps), above 1 m" in line

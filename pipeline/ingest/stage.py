@@ -45,6 +45,7 @@ from qsls.pipeline.core.ticks import TICKS_FILE
 from qsls.pipeline.ingest.assemble import flight_from_streams
 from qsls.pipeline.ingest.flight import FLIGHT_FILE
 from qsls.pipeline.ingest.options import IngestOptions
+from qsls.pipeline.ingest.plausible import ingest_warnings
 from qsls.pipeline.ingest.sources.base import Trajectory, detect
 from qsls.pipeline.ingest.sources.text.writer import tum_text
 from qsls.pipeline.ingest.streams import read_streams
@@ -65,6 +66,9 @@ class IngestResult:
     rms_velocity_mps: float
     streams: dict[str, dict[str, Any]]
     gaps: list[dict[str, Any]] = field(default_factory=list)
+    warnings: tuple[str, ...] = ()
+    """What looks wrong in the flight (:mod:`qsls.pipeline.ingest.plausible`; the CLI prints
+    each as ``warning:``)."""
 
     def summary(self) -> dict[str, Any]:
         v, t = self.streams["vio"], self.streams["truth"]
@@ -259,6 +263,9 @@ def _ingest(
         files[TICKS_FILE] = parquet_bytes(ticks.log.frame())
     hashed.result()
     r = dict(flight.results)
+    warnings = ingest_warnings(flight.table, r)
+    if warnings:  # only then: a flight without them keeps its manifest as before
+        r["warnings"] = list(warnings)
     if ticks is not None:
         one_frame(r)
     if one:
@@ -271,5 +278,5 @@ def _ingest(
         w.results.update(r)
     return IngestResult(
         out, flight.samples, r["time_offset_s"], r["alignment"], r["rms_position_m"],
-        r["rms_velocity_mps"], r["streams"], r["gaps"],
+        r["rms_velocity_mps"], r["streams"], r["gaps"], warnings,
     )  # fmt: skip

@@ -161,6 +161,7 @@ def _flight_stages(
             _ingest_exec(opts, sources, deps, progress),
             deps=deps,
             external=external,
+            notes=_warnings,
         )
     )
     return stage_id, deps[0] if deps else None, perception, estimator
