@@ -20,6 +20,11 @@ from qsls.pipeline.evaluate.certified import certified_premise
 from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
 from qsls.pipeline.evaluate.training import load_training
 from qsls.pipeline.evaluate.verdict import verdicts
+from qsls.pipeline.sim.options import SimOptions
+
+REGION = {"radius": 1.5, "slope": 0.05}
+"""configs/quickstart.yaml's ``simulate.vio.region``."""
+SIM = SimOptions.model_validate({"vio": {"region": REGION}})
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +36,12 @@ def flown(quickstart_session, tmp_path_factory):
     run = quickstart_session[0] / "runs" / "quickstart"
     for stage in ("fit", "synth", "calibrate"):
         shutil.copytree(run / stage, tmp / stage)
+    # the quickstart's emulator (its mapped region): flights of another are outside the
+    # certificate's conditions (docs/calibration.md, Conditions as a stated family)
+    (tmp / "cal.yaml").write_text(f"sim:\n  vio: {{region: {REGION}}}\n")
     proc = subprocess.run(
-        [sys.executable, "-m", "qsls.cli.main", "calibrate", "-m", str(tmp / "fit"),
+        [sys.executable, "-m", "qsls.cli.main", "calibrate", "--config", str(tmp / "cal.yaml"),
+         "-m", str(tmp / "fit"),
          "--controllers", str(tmp / "synth"), "--only", "l1_robust", "--conditions", "degraded",
          "--flights", "4", "--validation", "0", "--duration", "8", "--seed", "95000",
          "-o", str(tmp / "degraded_cal")],
@@ -43,7 +52,7 @@ def flown(quickstart_session, tmp_path_factory):
     degraded = tmp / "degraded_cal" / "degraded" / "l1_robust"
     opts = FlyOptions(
         seeds=[0], conditions=["regular", "degraded"], duration=8.0, controllers=["l1_robust"],
-        se3=False, figures=False, assured=True, jobs=2,
+        se3=False, figures=False, assured=True, jobs=2, sim=SIM,
     )  # fmt: skip
     result = fly_evaluate(
         tmp / "fit", [regular], opts, tmp / "fly", by_condition={"degraded": [degraded]}
@@ -86,7 +95,7 @@ def test_without_a_conditions_certificate_a_flight_is_marked_outside(flown, tmp_
     tmp, regular, _, _ = flown
     opts = FlyOptions(
         seeds=[0], conditions=["degraded"], duration=8.0, controllers=["l1_robust"], se3=False,
-        figures=False, jobs=1,
+        figures=False, jobs=1, sim=SIM,
     )  # fmt: skip
     result = fly_evaluate(tmp / "fit", [regular], opts, tmp_path / "fly")
     row = result.assumptions.iloc[0]
