@@ -171,3 +171,63 @@ def test_an_implausible_rms_error_warns_and_the_cli_prints_it(tmp_path, tum_stre
     assert line.startswith("warning: check the topics, frames and clocks: ")
     rms = float(line.split("truth is ")[1].split(" m")[0])
     assert rms > 1.0 and "(0 gaps), above 1 m" in line
+
+
+# --------------------------------------------------------------------------- twins
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    """Three TUM flights of circles of radius 1, 1.5 and 2 m ingested, and an error model
+    fitted on the first two (a real fit)."""
+    from qsls.pipeline.errormodel.fit import fit
+    from qsls.pipeline.errormodel.options import FitOptions
+    from qsls.pipeline.ingest.options import IngestOptions
+    from qsls.pipeline.ingest.stage import ingest
+
+    d = tmp_path_factory.mktemp("twins")
+    folders = {}
+    for k, radius in enumerate((1.0, 1.5, 2.0)):
+        truth = _tum(d / f"truth{k}.txt", 200.0, 0.0005, 10 + k, radius=radius)
+        vio = _tum(d / f"vio{k}.txt", 20.0, 0.02, 20 + k, radius=radius)
+        opts = IngestOptions(vio=vio, truth=truth, dt=0.1, time_offset=0.0)
+        folders[k] = ingest([], opts, d / f"f{k}").out
+    # the first flight's truth with another estimate: one flight, two ingests
+    vio = _tum(d / "vio0b.txt", 20.0, 0.03, 99)
+    opts = IngestOptions(vio=vio, truth=d / "truth0.txt", dt=0.1, time_offset=0.0)
+    folders["again"] = ingest([], opts, d / "f0_again").out
+    fit([folders[0], folders[1]], FitOptions(), d / "fit")
+    return d, folders
+
+
+def test_a_held_out_twin_of_a_training_flight_is_named_with_it(fitted):
+    import shutil
+
+    from qsls.pipeline.evaluate.bound import load_flights
+    from qsls.pipeline.evaluate.twins import twin_warnings
+
+    d, f = fitted
+    copy = d / "copy_of_f0"
+    if not copy.exists():
+        shutil.copytree(f[0], copy)
+    held = [f[2], f[0], copy, f["again"]]
+    ws = twin_warnings(held, load_flights(held), d / "fit")
+    assert len(ws) == 3  # f2 is another flight
+    assert ws[0].startswith("evaluate a flight the fit did not see: held-out flight 'f0'")
+    assert f"is training flight 'f0' ({f[0]})'s twin (the same folder)" in ws[0]
+    assert "'copy_of_f0'" in ws[1] and "(the same ground truth)" in ws[1]
+    assert "'f0_again'" in ws[2] and "'f0'" in ws[2]
+    # the training folders gone, the fit's training states still tell
+    moved = d / "moved"
+    if not moved.exists():
+        moved.mkdir()
+        shutil.copytree(f[0], moved / "f0")
+        shutil.copytree(f[2], moved / "f2")
+    gone = [moved / "f2", moved / "f0"]
+    saved = {k: d / f"f{k}" for k in (0, 1)}
+    for k, p in saved.items():
+        p.rename(d / f"away{k}")
+    try:
+        ws = twin_warnings(gone, load_flights(gone), d / "fit")
+    finally:
+        for k, p in saved.items():
+            (d / f"away{k}").rename(p)
+    assert len(ws) == 1 and "held-out flight 'f0'" in ws[0] and "training flight 'f0''s" in ws[0]

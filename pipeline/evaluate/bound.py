@@ -85,6 +85,7 @@ from qsls.pipeline.evaluate.theorem import (
     uniform_grid,
 )
 from qsls.pipeline.evaluate.training import TrainingData, load_training
+from qsls.pipeline.evaluate.twins import twin_warnings
 from qsls.pipeline.evaluate.verdict import (
     ASSUMPTIONS_FILE,
     AssumptionVerdict,
@@ -590,6 +591,7 @@ def evaluate(
     held_out = load_flights(flights)
     warnings += skipped_controller_folders(controllers)
     warnings += flight_mismatches(held_out, bounds, training)
+    warnings += twin_warnings(flights, held_out, fit_dir)
     for f in flights:
         try:
             require_stage(Path(f) if Path(f).is_dir() else Path(f).parent, "ingest")
