@@ -77,7 +77,7 @@ def _trips_table(sec: Section, assumptions: Any) -> None:
         rows,
         "Each trip in words: the test and channel that tripped, the seconds its bit was set "
         "and from when (the first failing assumption from the post-flight checks)",
-        notes=[f"{more} more flights tripped (assumptions.parquet)"] if more > 0 else [],
+        notes=[f"{more} more flights tripped ({ASSUMPTIONS_FILE})"] if more > 0 else [],
         text_cols=[0, 1, 2], wrap_cols=[3], wide_cols=[6],
     )  # fmt: skip
 
