@@ -231,3 +231,14 @@ def test_a_held_out_twin_of_a_training_flight_is_named_with_it(fitted):
         for k, p in saved.items():
             (d / f"away{k}").rename(p)
     assert len(ws) == 1 and "held-out flight 'f0'" in ws[0] and "training flight 'f0''s" in ws[0]
+
+
+# --------------------------------------------------------------------------- the fix first
+def test_a_truth_that_jumps_everywhere_is_refused_with_the_fix_first(tmp_path, tum_streams):
+    """One of the longest refusals (320 characters of text) named its fix last."""
+    truth = _tum(tmp_path / "jumpy.txt", 200.0, 0.5, 7)  # 0.5 m of noise at 200 Hz
+    with pytest.raises(InputError) as exc:
+        _ingest(tmp_path, tum_streams["vio"], truth)
+    msg = str(exc.value)
+    assert msg.startswith("truth stream jumpy.txt: check --truth-topic and --vio-topic")
+    assert "jumps no vehicle could fly" in msg and len(msg) < 300

@@ -225,7 +225,8 @@ def test_max_feasible_s_when_no_s_is_feasible_says_why(error_model):
     line = res.output.strip()
     assert "no S >= 0 is feasible" in line and "inf" not in line.replace("infeasible", "")
     assert len(line.splitlines()) == 1
-    lower = float(line.split("it is at least ")[1].split(";")[0])
+    assert "none feasible: lower eps_e" in line  # the fix first (issue 50)
+    lower = float(line.split("/ r < 1, at least ")[1].split(" with")[0])
     assert lower >= 1.0  # the stated reason: the S = 0 constraint's lower bound exceeds 1
 
 

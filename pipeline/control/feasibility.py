@@ -126,12 +126,11 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
             r.numbers.eps * min_xy + r.numbers.eps_w * min(r.shape.state_scale) + r.numbers.delta
         ) / r.numbers.radius
         raise InfeasibleError(
-            f"none feasible: no S >= 0 is feasible at T = {options.T}: even S = 0 needs "
-            f"(eps_e N + eps_w N_w + Delta + eps_o G_m) / r < 1, and with eps_e = "
-            f"{r.numbers.eps:.4g}, the smallest N = {min_xy:.4g} at this T, eps_w = "
-            f"{r.numbers.eps_w:.4g}, Delta = {r.numbers.delta:.4g} and r = {r.numbers.radius:.4g} it is at least "
-            f"{lower:.4g}; lower eps_e (beta, error_scale, measure: position) or Delta, or "
-            "raise r or T",
+            "none feasible: lower eps_e (beta, error_scale, measure: position) or Delta, or "
+            f"raise r or T: no S >= 0 is feasible at T = {options.T}: even S = 0 needs "
+            f"(eps_e N + eps_w N_w + Delta + eps_o G_m) / r < 1, at least {lower:.4g} with "
+            f"eps_e = {r.numbers.eps:.4g}, the smallest N = {min_xy:.4g} at this T, eps_w = "
+            f"{r.numbers.eps_w:.4g}, Delta = {r.numbers.delta:.4g} and r = {r.numbers.radius:.4g}",
             {"T": options.T, "min_norm_phi_xy": min_xy, "lower_bound_at_S0": lower},
         )
     return MaxFeasibleSResult(ms.s_max, min_xy, options.T, r.numbers, ms.iterations)

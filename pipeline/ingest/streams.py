@@ -315,10 +315,10 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
             var = var[~bad] if var is not None else None
             if len(t) < max(10, n // 2):
                 raise InputError(
-                    f"{name}: {glitches} jumps no vehicle could fly (accelerations above "
-                    f"max_truth_accel, {o.max_truth_accel:g} m/s^2) leave {len(t)} of {n} "
-                    "messages; is it the motion-capture topic? Check --truth-topic and "
-                    "--vio-topic (swapped?), or raise ingest.max_truth_accel in the config"
+                    f"{name}: check --truth-topic and --vio-topic (swapped?), or raise "
+                    f"ingest.max_truth_accel in the config: {glitches} jumps no vehicle could "
+                    f"fly (accelerations above {o.max_truth_accel:g} m/s^2) leave {len(t)} of "
+                    f"{n} messages; is it the motion-capture topic?"
                 )
     return Prepared(
         role,

@@ -134,11 +134,10 @@ def _command_stamps(commands: AttitudeCommands) -> np.ndarray:
     if lost.any():
         k = int(np.flatnonzero(lost)[0])
         raise InputError(
-            f"the log lost the controller's commands at {(t[k] - t[0]) / NS:.3f} s (a gap of "
-            f"{step[k] / NS:.3g} s, {int(lost.sum())} such gaps; a logger dropout?): its filter "
-            "ran through ticks the log does not hold, so the replay cannot prove who flew it "
-            "and the flight cannot count; log the setpoints without dropouts (a faster SD card, "
-            "a smaller SDLOG_PROFILE) or ingest without --mass"
+            "log the setpoints without dropouts (a faster SD card, a smaller SDLOG_PROFILE) or "
+            f"ingest without --mass: the log lost the controller's commands at "
+            f"{(t[k] - t[0]) / NS:.3f} s (a gap of {step[k] / NS:.3g} s, {int(lost.sum())} such "
+            "gaps; a logger dropout?), so the replay cannot prove who flew it"
         )
     return t
 
