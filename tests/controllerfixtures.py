@@ -176,3 +176,85 @@ def as_calibrated(folder: Path, n: int = 20) -> Path:
     calibrated_certificate(folder, folder, o, opts, list(range(1000, 1000 + n)), parts,
                            {"perception": "regular", "stand_in": True})  # fmt: skip
     return folder
+
+
+def record_of(numbers: PremiseNumbers) -> dict:
+    """The certificate's record of ``numbers`` (its keys: ``eps_e``, ``S``, ``radius``, ...)."""
+    return {
+        "S": numbers.S, "eps_e": numbers.eps, "radius": numbers.radius, "eps_w": numbers.eps_w,
+        "delta": numbers.delta, "R0": numbers.eps if numbers.R0 is None else numbers.R0,
+        "m": numbers.m, "eps_o": numbers.eps_o,
+    }  # fmt: skip
+
+
+def l1_taps(T: int = 8, numbers: PremiseNumbers = SETTING) -> sls.Taps:
+    """A robust L1 solve at horizon ``T`` on :func:`quadrotor_model` under ``numbers``."""
+    sol = sls.solve(
+        quadrotor_model(), sls.Structure(T, "l1", "qr", True, False), sls.Values(numbers=numbers)
+    )
+    assert sol.status == "optimal" and sol.taps is not None, sol.solver_status
+    return sol.taps
+
+
+def written(
+    folder: Path,
+    taps: sls.Taps,
+    numbers: PremiseNumbers = SETTING,
+    *,
+    calibrated: bool = True,
+    status: str | None = None,
+    **setting: object,
+) -> Path:
+    """``taps`` (on :func:`quadrotor_model`) written to ``folder`` with the certificate
+    ``certify()`` gives under ``numbers``: every number is what a reader recomputes. With
+    ``calibrated`` (its robustness check passed) rewritten by :func:`as_calibrated` (status
+    ``certified``); else the status ``certify()`` gives, or ``status`` in its place (``failed``:
+    one the taps never claim, which readers accept). ``setting`` adds certificate keys
+    (``error_model_sha256``, ...)."""
+    model = quadrotor_model()
+    body = certify(taps, model, numbers)
+    if status is not None:
+        body = body.model_copy(update={"status": status, "status_reason": None})
+    ctrl = Controller(taps, model)
+    cert = Certificate.of(
+        body, controller=Path(folder).name, robust=True, norm="l1", cost="qr",
+        strictly_proper=False, T=taps.T, dt=model.dt, mass=model.mass,
+        controller_sha256=ctrl.sha256(), **record_of(numbers), **setting,
+    )  # fmt: skip
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    ctrl.save(folder)
+    cert.save(folder)
+    return as_calibrated(folder) if calibrated else folder
+
+
+def written_pd(
+    folder: Path, numbers: PremiseNumbers = SETTING, T: int = 10, **setting: object
+) -> Path:
+    """The PD reference (:class:`PDGains`' defaults) written to ``folder`` as synth writes it:
+    its ``T`` taps stored, the true closed loop's norms and guarantee numbers stated
+    (:func:`qsls.pipeline.control.design.pd_controller`), status ``reference``."""
+    from qsls.pipeline.control.certify import guarantee_fields
+    from qsls.pipeline.control.guarantee import Norms
+    from qsls.pipeline.control.nominal import pd_responses, static_gain_norms
+    from qsls.pipeline.control.pdgain import PDGains
+
+    model = quadrotor_model()
+    K, taps = pd_responses(model, PDGains(), T)
+    norms = static_gain_norms(model, K, T)
+    true = Norms(N=norms["phi_xy"].value, N_w=norms["phi_xx_h"].value, G_m=0.0)
+    body = certify(taps, model, numbers, reference=True)
+    body = body.model_copy(
+        update={f"norm_{k}": n.value for k, n in norms.items()} | guarantee_fields(numbers, true)
+    )
+    ctrl = Controller(taps, model, "static_gain", K)
+    cert = Certificate.of(
+        body, controller=Path(folder).name, robust=False, strictly_proper=False, T=T,
+        dt=model.dt, mass=model.mass, controller_sha256=ctrl.sha256(), closed_loop_norms=norms,
+        **record_of(numbers), **setting,
+    )  # fmt: skip
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    ctrl.save(folder)
+    cert.save(folder)
+    return folder

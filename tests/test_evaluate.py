@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from qsls.pipeline.control.artifacts import (
     Certificate,
     Controller,
 )
-from qsls.pipeline.control.sls import Taps
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.sls import l1_norm as fir_inf_norm
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.plant import quadrotor_model
@@ -30,6 +31,7 @@ from qsls.pipeline.evaluate.bound import (
 )
 from qsls.pipeline.evaluate.figures import smooth
 from qsls.pipeline.ingest.flight import X_COLS, make_flight_frame
+from tests.controllerfixtures import l1_taps, written, written_pd
 
 DT = 0.1
 
@@ -66,64 +68,30 @@ def write_fit(folder, x_train, e_train, *, eps_e=0.05, s_max=3.0, radius=0.5):
     return folder / "error_model.yaml"
 
 
-CALIBRATION = {  # 20 flights, alpha 0.1: the conformal rank 19 of these scores is 1.0
-    "flights": 20, "alpha": 0.1, "confidence": None, "method": "conformal",
-    "conditions": {"perception": "regular"}, "duration_s": 20.0, "seeds": list(range(20)),
-    "scores": [0.5] * 18 + [1.0, 1.0], "lambda_hat": 1.0, "rank": 19, "tested_range": 0.1,
-    "nominal": {}, "parts": {}, "tolerances": {}, "holds": True,
-}  # fmt: skip
+NUMBERS = PremiseNumbers(eps=0.05, S=0.05, radius=1.0, eps_w=0.01, delta=0.0, R0=0.05)
+"""The premise the test controllers are solved and certified under."""
 
 
-def write_controller(folder, model_file, **over):
-    """A controller folder whose responses have the given norms: ``Phi_xy(1) = ||Phi_xy|| I``,
-    ``Phi_xx(1) = ||Phi_xx|| I`` (a filter bank the bound check never runs)."""
-    cert = {
-        "controller": Path(folder).name,
-        "status": "certified",
-        "robust": True,
-        "strictly_proper": False,
-        "T": 2,
-        "S": 0.2,
-        "eps_e": 0.05,
-        "R0": 0.05,
-        "eps_w": 0.01,
-        "norm_phi_xx_h": 2.0,
-        "norm_phi_xy": 2.5,
-        "norm_phi_ux": 0.0,
-        "norm_phi_uy": 0.0,
-        "radius": 0.5,
-        "delta": 0.0,
-        "robustness_lhs": 0.5,
-        "margin": 0.5,
-        "s_times_norm_phi_xy": 0.5,
-        "a": 0.02,
-        "gamma": 0.1,
-        "gamma_strict": 0.1,
-        "achievability_residual": 0.0,
-        "dt": DT,
-        "mass": 0.256,
-        "error_model_sha256": sha256_file(model_file),
-    }
-    cert.update(over)
-    if cert["status"] == "certified":  # certified only by a calibration record that backs it
-        cert.setdefault("rho_star", 0.25)
-        cert.setdefault("tested_range", cert["radius"])
-        cert.setdefault("calibration", CALIBRATION)
-    eye = np.eye(6)
-    taps = Taps(
-        Phi_xx=np.stack([0 * eye, cert["norm_phi_xx_h"] * eye, 0 * eye]),
-        Phi_ux=np.zeros((3, 3, 6)),
-        Phi_xy=np.stack([0 * eye, cert["norm_phi_xy"] * eye, 0 * eye]),
-        Phi_uy=np.zeros((3, 3, 6)),
-    )
-    ctrl = Controller(taps, quadrotor_model())
-    with StageWriter(folder, "synth") as w:
-        w.write_bytes(CONTROLLER_FILE, ctrl.to_bytes())
-        w.write_text(
-            CERTIFICATE_FILE,
-            Certificate(**cert, controller_sha256=ctrl.sha256()).to_yaml(),
-        )
-    return folder
+def write_controller(folder, model_file, taps, numbers=NUMBERS, **kw):
+    """A real controller folder (``taps`` certified under ``numbers`` and, unless
+    ``calibrated=False``, calibrated: status ``certified``) against ``model_file``
+    (:func:`tests.controllerfixtures.written`); its numbers are what a reader recomputes."""
+    kw.setdefault("error_model_sha256", sha256_file(model_file))
+    return written(Path(folder), taps, numbers, **kw)
+
+
+def explicit_norm(phi: np.ndarray) -> float:
+    """``||Phi|| = max_i sum_{t,j} |Phi_ij(t)|``, by explicit sums."""
+    return max(float(np.abs(phi[:, i, :]).sum()) for i in range(phi.shape[1]))
+
+
+def explicit_nominal(x: np.ndarray, e: np.ndarray, phi_xy: np.ndarray) -> np.ndarray:
+    """``x_hat_k = x_k - sum_{t=0}^{T} Phi_xy(t) e_{k-t}`` (``e_j = 0`` for ``j < 0``), by loops."""
+    x_hat = x.copy()
+    for k in range(len(x)):
+        for t in range(min(k, len(phi_xy) - 1) + 1):
+            x_hat[k] -= phi_xy[t] @ e[k - t]
+    return x_hat
 
 
 def write_flight(folder, x, e):
@@ -133,13 +101,19 @@ def write_flight(folder, x, e):
     return folder
 
 
+@pytest.fixture(scope="module")
+def taps():
+    """A robust L1 controller (T 8) solved under :data:`NUMBERS`, once per module."""
+    return l1_taps(8, NUMBERS)
+
+
 @pytest.fixture()
-def setup(tmp_path):
+def setup(tmp_path, taps):
     rng = np.random.default_rng(0)
     x_train = circle_states(400)
     e_train = rng.uniform(-0.04, 0.04, (400, 6))
     model = write_fit(tmp_path / "fit", x_train, e_train)
-    ctrl = write_controller(tmp_path / "l1_robust", model)
+    ctrl = write_controller(tmp_path / "l1_robust", model, taps)
     # Held out: the same circle 0.1 m higher (distance exactly 0.1 to the training states),
     # errors 0.03 except a planted spike of 0.2 at sample 37.
     x = circle_states(200, z=1.1)
@@ -149,47 +123,55 @@ def setup(tmp_path):
     return tmp_path, model, ctrl, flight
 
 
-def test_bounds_match_hand_computation(setup):
+def test_bounds_match_hand_computation(setup, taps):
     tmp, model, ctrl, flight = setup
+    cert = Certificate.load(ctrl)
+    assert cert.status == "certified" and cert.S == 0.05 and cert.eps_e == 0.05
+    # the certificate's norms are the taps' (H = I), here by explicit sums
+    n_xy, n_xx = explicit_norm(taps.Phi_xy), explicit_norm(taps.Phi_xx)
+    assert cert.norm_phi_xy == pytest.approx(n_xy, rel=1e-12)
+    assert cert.norm_phi_xx_h == pytest.approx(n_xx, rel=1e-12)
     opts = EvaluateOptions(figures=False, flown_by="l1_robust")
     res = evaluate([flight], model, [ctrl], opts, tmp / "ev")
     row = res.table.iloc[0]
-    denom = 1 - 0.2 * 2.5
+    denom = 1 - 0.05 * n_xy
     gamma_strict = 0.05 / denom
-    gamma = (0.05 + 0.2 * (0.01 * 2.0 + 0.1)) / denom
+    gamma = (0.05 + 0.05 * (0.01 * n_xx + 0.1)) / denom
     assert row["gamma_strict"] == pytest.approx(gamma_strict, rel=1e-12)
     assert row["gamma"] == pytest.approx(gamma, rel=1e-9)
     assert row["max_distance_to_training"] == pytest.approx(0.1, abs=1e-9)
     assert row["max_error_norm"] == pytest.approx(0.2)
     assert row["max_ratio_t"] == pytest.approx(3.7)
     assert row["max_ratio"] == pytest.approx(0.2 / gamma, rel=1e-9)
-    # Only the spike exceeds the bounds: one sample of 200.
+    # Only the spike exceeds the bounds (0.03 < gamma_strict < gamma < 0.2): one sample of 200.
+    assert 0.03 < gamma_strict < gamma < 0.2
     assert row["frac_under_gamma"] == pytest.approx(199 / 200)
     assert row["frac_under_gamma_strict"] == pytest.approx(199 / 200)
     assert not row["local_bound_holds"]
-    # 0.2 > eps_e + S d = 0.07: the premise failed on this flight, and the verdict says so.
+    # 0.2 > eps_e + S d = 0.055: the premise failed on this flight, and the verdict says so.
     assert not row["assumption_holds"]
     assert "premise violated at 0.5% of samples" in row["verdict"]
     assert row["frac_premise_holds"] == pytest.approx(199 / 200)
-    # The theorem: x_hat_k = x_k - 2.5 e_{k-1} (Phi_xy(1) = 2.5 I); a_nominal by brute force.
+    # The theorem: x_hat_k = x_k - sum_t Phi_xy(t) e_{k-t}; a_nominal by brute force.
     x = circle_states(200, z=1.1)
     e = np.full((200, 6), 0.03)
     e[37, 3] = 0.2
-    x_hat = x.copy()
-    x_hat[1:] -= 2.5 * e[:-1]
+    x_hat = explicit_nominal(x, e, taps.Phi_xy)
     d_hat = np.abs(x_hat[:, None, :] - circle_states(400)[None]).max(axis=2).min(axis=1)
     a = d_hat.max()
-    assert a > row["max_distance_to_training"] + 0.05  # the flown distance does not bound a
+    assert a > row["max_distance_to_training"] + 0.04  # the flown distance does not bound a
     assert row["theorem_applies"] and row["flown_by"] == "l1_robust"
     assert row["a_nominal"] == pytest.approx(a, rel=1e-12)
     assert row["a_nominal_t"] == pytest.approx(DT * int(d_hat.argmax()))
-    gamma_nominal = (0.05 + 0.2 * a) / (1 - 0.2 * 2.5)
+    gamma_nominal = (0.05 + 0.05 * a) / denom
     assert row["gamma_nominal"] == pytest.approx(gamma_nominal, rel=1e-12)
     assert row["nominal_ratio"] == pytest.approx(0.2 / gamma_nominal, rel=1e-12)
-    assert bool(row["bound_holds"]) is bool(gamma_nominal >= 0.2)
-    assert bool(row["nominal_within_radius"]) is bool(a < 0.5)
-    assert row["verdict"].startswith("holds: max ||e|| 0.2 <= gamma_nominal")
-    assert row["a_certificate"] == pytest.approx(0.01 * 2.0 + 0.0)
+    assert bool(row["nominal_within_radius"]) is bool(a < 1.0)
+    # the spike exceeds gamma_nominal: the theorem's bound fails where its premise failed
+    assert gamma_nominal < 0.2 and not row["bound_holds"]
+    assert row["verdict"].startswith("FAILS: max ||e|| 0.2 > gamma_nominal")
+    assert "although the premise holds" not in row["verdict"]
+    assert row["a_certificate"] == pytest.approx(0.01 * n_xx + 0.0, rel=1e-12)
     doc = json.loads((tmp / "ev" / "evaluation.json").read_text())
     assert doc["controllers"][0]["max_ratio"] == pytest.approx(row["max_ratio"])
     cols = pd.read_parquet(tmp / "ev" / "evaluation.parquet").columns
@@ -208,35 +190,41 @@ def test_bounds_match_hand_computation(setup):
         assert c in cols
 
 
-def test_bound_holds_when_errors_small(setup):
+def test_bound_holds_when_errors_small(setup, taps):
     tmp, model, ctrl, _ = setup
     x = circle_states(100, z=1.05)
-    flight = write_flight(tmp / "quiet", x, np.full((100, 6), 0.02))
+    e = np.full((100, 6), 0.02)
+    flight = write_flight(tmp / "quiet", x, e)
     res = evaluate([flight], model, [ctrl], EvaluateOptions(flown_by="l1_robust"), tmp / "ev2")
     row = res.table.iloc[0]
     assert row["bound_holds"] and row["assumption_holds"]
     assert (
         row["verdict"].startswith("holds: ") and "premise holds at every sample" in row["verdict"]
     )
-    # x_hat = x - 2.5 * 0.02: every coordinate 0.05 off the flown state, which is 0.05 above
-    # the training circle: a_nominal is 0.05 (z) or 0.1 (z and the shift add) at most.
-    assert 0.05 - 1e-9 <= row["a_nominal"] <= 0.1 + 1e-9
+    # x_hat = x - Phi_xy * e moves each coordinate by at most 0.02 ||Phi_xy|| from the flown
+    # state, which is 0.05 above the training circle
+    x_hat = explicit_nominal(x, e, taps.Phi_xy)
+    d_hat = np.abs(x_hat[:, None, :] - circle_states(400)[None]).max(axis=2).min(axis=1)
+    assert row["a_nominal"] == pytest.approx(d_hat.max(), rel=1e-12)
+    assert 0.05 < row["a_nominal"] <= 0.05 + 0.02 * explicit_norm(taps.Phi_xy) + 1e-9
+    assert row["gamma_nominal"] >= 0.05 > 0.02  # eps_e / (1 - S ||Phi_xy||) at least
     assert row["frac_under_gamma"] == 1.0
     assert (tmp / "ev2" / "perception_error.png").stat().st_size > 1000
     assert (tmp / "ev2" / "distance_to_training.png").is_file()
 
 
-def test_no_guarantee_when_s_phi_at_least_one(setup):
+def test_no_guarantee_when_s_phi_at_least_one(setup, taps):
     tmp, model, _, flight = setup
-    pd_dir = write_controller(
-        tmp / "pd", model, S=0.5, norm_phi_xy=4.0, status="reference", robust=False
-    )
+    # the PD reference (its closed loop's true ||Phi_xy||, about 3.4) under S 0.5
+    pd_dir = written_pd(tmp / "pd", replace(NUMBERS, S=0.5), error_model_sha256=sha256_file(model))
     b = load_controller_bound(pd_dir)
+    s_norm = 0.5 * b.norm_phi_xy
+    assert s_norm >= 1.5 and b.norm_phi_xy == pytest.approx(Certificate.load(pd_dir).norm_phi_xy)
     assert not b.has_guarantee and math.isinf(b.gamma_strict)
     opts = EvaluateOptions(figures=False, flown_by="pd")
     res = evaluate([flight], model, [pd_dir], opts, tmp / "ev3")
     row = res.table.iloc[0]
-    assert row["verdict"].startswith("no bound: S*||W Phi_xy|| = 2 >= 1")
+    assert row["verdict"].startswith(f"no bound: S*||W Phi_xy|| = {s_norm:.3g} >= 1")
     assert math.isinf(row["gamma_nominal"]) and not row["bound_holds"]
     # a recorded flight: the premise only, the theorem's columns empty
     res = evaluate([flight], model, [pd_dir], EvaluateOptions(figures=False), tmp / "ev3b")
@@ -244,15 +232,19 @@ def test_no_guarantee_when_s_phi_at_least_one(setup):
     assert row["verdict"].startswith("premise only (a recorded flight")
     assert not row["theorem_applies"] and math.isnan(row["gamma_nominal"])
     assert row["bound_holds"] is None
-    # finite formula but robustness condition not met: no guarantee, said so
-    nom = write_controller(tmp / "nom", model, robustness_lhs=1.4, status="uncertified")
+    # finite formula (S ||Phi_xy|| < 1) but the robustness condition not met (eps_e / r = 1
+    # at r 0.05): no guarantee, said so
+    small = replace(NUMBERS, radius=0.05)
+    nom = write_controller(tmp / "nom", model, taps, small, calibrated=False)
+    cert = Certificate.load(nom)
+    assert cert.status == "uncertified" and cert.robustness_lhs >= 1.0
     b = load_controller_bound(nom)
     assert b.finite and not b.has_guarantee
     res = evaluate([flight], model, [nom], EvaluateOptions(figures=False), tmp / "ev4")
     assert "no guarantee: robustness condition not met" in res.table.iloc[0]["verdict"]
     assert not res.table.iloc[0]["has_guarantee"]
     # a controller whose verification failed is never a guarantee
-    bad = write_controller(tmp / "bad", model, status="failed")
+    bad = write_controller(tmp / "bad", model, taps, calibrated=False, status="failed")
     assert load_controller_bound(bad).no_guarantee_reason == "certificate status 'failed'"
 
 
@@ -304,9 +296,9 @@ def test_controller_without_certificate(setup):
     assert not (tmp / "o2").exists()
 
 
-def test_model_hash_mismatch_refused_then_warned(setup):
+def test_model_hash_mismatch_refused_then_warned(setup, taps):
     tmp, model, _, flight = setup
-    other = write_controller(tmp / "other", model, error_model_sha256="0" * 64)
+    other = write_controller(tmp / "other", model, taps, error_model_sha256="0" * 64)
     r = _run(["--model", model, "--controller", other, "--flights", flight, "--out", tmp / "o3"])
     assert r.exit_code == 2 and "certified against error model" in r.output
     assert "--force" in r.output and not (tmp / "o3").exists()
@@ -330,7 +322,7 @@ def test_model_hash_mismatch_refused_then_warned(setup):
     assert any("certified against" in w for w in doc["warnings"])
 
 
-def test_nonfinite_samples_are_dropped_and_counted(setup):
+def test_nonfinite_samples_are_dropped_and_counted(setup, taps):
     tmp, model, ctrl, _ = setup
     x = circle_states(100, z=1.05)
     e = np.full((100, 6), 0.02)
@@ -340,38 +332,35 @@ def test_nonfinite_samples_are_dropped_and_counted(setup):
     row = evaluate([flight], model, [ctrl], opts, tmp / "ev5").table.iloc[0]
     assert row["n_samples"] == 95 and row["n_nonfinite_dropped"] == 5
     assert row["frac_under_gamma"] == 1.0 and row["bound_holds"]
-    # e_10..e_14 unknown: x_hat_k = x_k - 2.5 e_{k-1} is undefined for k = 10..15
-    assert row["n_nominal_undefined"] == 6 and "x_hat undefined at 6 samples" in row["verdict"]
+    # e_10..e_14 unknown: x_hat_k = x_k - sum_t Phi_xy(t) e_{k-t} is undefined for
+    # k = 10 .. 14 + the last nonzero tap (x_10..x_14 unknown too)
+    last = max(t for t in range(len(taps.Phi_xy)) if np.any(taps.Phi_xy[t]))
+    assert last == 8 and row["n_nominal_undefined"] == 5 + last
+    assert "x_hat undefined at 13 samples" in row["verdict"]
 
 
-def test_same_controller_name_from_two_synth_folders(setup):
+def test_same_controller_name_from_two_synth_folders(setup, taps):
     tmp, model, _, flight = setup
-    a = write_controller(tmp / "synthA" / "l1_robust", model)
-    b = write_controller(tmp / "synthB" / "l1_robust", model, S=0.1)
+    a = write_controller(tmp / "synthA" / "l1_robust", model, taps)
+    b = write_controller(tmp / "synthB" / "l1_robust", model, taps, replace(NUMBERS, S=0.1))
     res = evaluate([flight], model, [a, b], EvaluateOptions(figures=False), tmp / "ev6")
     assert list(res.table["controller"]) == ["synthA-l1_robust", "synthB-l1_robust"]
-    assert res.table["gamma_strict"].nunique() == 2
+    n = explicit_norm(taps.Phi_xy)  # R0 / (1 - S ||Phi_xy||) at S 0.05 and 0.1
+    want = [0.05 / (1 - 0.05 * n), 0.05 / (1 - 0.1 * n)]
+    assert list(res.table["gamma_strict"]) == pytest.approx(want, rel=1e-12)
 
 
-def _filter_bank_controller(folder, model_file):
-    """A real filter-bank controller (the PD's truncated responses realized), certified file pair."""
-    from qsls.pipeline.control.nominal import pd_responses
-    from qsls.pipeline.control.pdgain import PDGains
-
-    _, taps = pd_responses(quadrotor_model(), PDGains(), 10)
-    ctrl = Controller(taps, quadrotor_model())
-    write_controller(folder, model_file)  # the certificate's numbers; the npz is replaced below
-    (folder / CONTROLLER_FILE).write_bytes(ctrl.to_bytes())
-    cert = Certificate.load(folder).model_copy(update={"controller_sha256": ctrl.sha256()})
-    cert.save(folder)
-    return folder, ctrl
+def _filter_bank_controller(folder, model_file, taps):
+    """A real filter-bank controller (the robust L1 solve realized), its certified file pair."""
+    write_controller(folder, model_file, taps)
+    return folder, Controller.load(folder)
 
 
-def test_tampered_or_foreign_controller_is_refused(setup):
+def test_tampered_or_foreign_controller_is_refused(setup, taps):
     """A gain changed by 1e-4 (hash updated to match) and a certificate from another controller:
     one line, exit 2, nothing written."""
     tmp, model, _, flight = setup
-    good, ctrl = _filter_bank_controller(tmp / "fb", model)
+    good, ctrl = _filter_bank_controller(tmp / "fb", model, taps)
     r = _run(["--model", model, "--controller", good, "--flights", flight, "--out", tmp / "ok"])
     assert r.exit_code == 0, r.output
     # one gain off by 1e-4, the certificate's hash made to match: the gains/taps check catches it
@@ -390,11 +379,11 @@ def test_tampered_or_foreign_controller_is_refused(setup):
     r = _run(["--model", model, "--controller", bad, "--flights", flight, "--out", tmp / "o1"])
     assert r.exit_code == 2 and "K_by does not match" in r.output, r.output
     assert len(r.output.strip().splitlines()) == 1 and not (tmp / "o1").exists()
-    # the certificate of another controller beside this controller.npz
+    # the certificate of another controller (the PD reference) beside this controller.npz
     foreign = tmp / "foreign"
     foreign.mkdir()
     (foreign / CONTROLLER_FILE).write_bytes(ctrl.to_bytes())
-    write_controller(tmp / "other", model).joinpath(CERTIFICATE_FILE)
+    written_pd(tmp / "other", NUMBERS, error_model_sha256=sha256_file(model))
     (foreign / CERTIFICATE_FILE).write_bytes((tmp / "other" / CERTIFICATE_FILE).read_bytes())
     r = _run(["--model", model, "--controller", foreign, "--flights", flight, "--out", tmp / "o2"])
     assert r.exit_code == 2 and "is not the controller its certificate.yaml certifies" in r.output
@@ -422,7 +411,7 @@ def _with_matching_hash(folder, source, npz: bytes, **update):
     return folder
 
 
-def test_damaged_altered_pd_or_overclaiming_controllers_are_refused(setup):
+def test_damaged_altered_pd_or_overclaiming_controllers_are_refused(setup, taps):
     """A truncated or empty controller.npz (with and without a matching hash), a PD whose K
     was changed by 1e-4 (hash updated), and a certificate edited to 'certified' over its own
     violated premise: evaluate, evaluate --fly and export give one line, exit 2."""
@@ -431,7 +420,7 @@ def test_damaged_altered_pd_or_overclaiming_controllers_are_refused(setup):
     from qsls.pipeline.control.premise import Premise, PremiseEntry
 
     tmp, model, _, flight = setup
-    good, ctrl = _filter_bank_controller(tmp / "fb", model)
+    good, ctrl = _filter_bank_controller(tmp / "fb", model, taps)
     raw = ctrl.to_bytes()
     cut = tmp / "cut"  # truncated, certificate unchanged: the hash refuses it before parsing
     cut.mkdir()
@@ -439,8 +428,8 @@ def test_damaged_altered_pd_or_overclaiming_controllers_are_refused(setup):
     (cut / CERTIFICATE_FILE).write_bytes((good / CERTIFICATE_FILE).read_bytes())
     cut_hashed = _with_matching_hash(tmp / "cut_hashed", good, raw[:5000])
     empty = _with_matching_hash(tmp / "empty", good, b"")
-    K, taps = pd_responses(quadrotor_model(), PDGains(), 10)
-    pd_ok = Controller(taps, quadrotor_model(), "static_gain", K)
+    K, pd_taps = pd_responses(quadrotor_model(), PDGains(), 10)
+    pd_ok = Controller(pd_taps, quadrotor_model(), "static_gain", K)
     assert Controller.load(_with_matching_hash(tmp / "pd", good, pd_ok.to_bytes())).K is not None
     arrays = pd_ok.arrays()
     arrays["K"] = arrays["K"].copy()
