@@ -37,6 +37,7 @@ EXAMPLE = "qsls ingest --vio vio.tum --truth data.csv --out flights/f1 --dt 0.1"
         "mass": ("--mass",),
         "hover_thrust": ("--hover-thrust",),
         "reference": ("--reference",),
+        "feedforward": ("--feedforward",),
         "commands_topic": ("--commands-topic",),
         "reference_topic": ("--reference-topic",),
         "max_truth_accel": ("--max-truth-accel",),

@@ -80,6 +80,11 @@ class IngestOptions(Options):
     reference_topic: str | None = None
     """A bag's reference (mavros_msgs/PositionTarget, one per tick), with ``mass``; default:
     /qsls/reference, else /mavros/setpoint_raw/local."""
+    feedforward: Literal["sampled", "hover", "attitude"] = "sampled"
+    """With ``reference``: how the controller's feedforward followed from it: ``sampled``, the
+    reference's acceleration at each command (a flight stack's setpoint); ``hover`` or
+    ``attitude``, the model's (the step mean of that plant's inverse, as qsls's simulator and
+    PX4 stand-in fly: docs/guarantee.md, Disturbance in deviation coordinates)."""
 
     @model_validator(mode="after")
     def _commands_need_the_mass(self) -> IngestOptions:

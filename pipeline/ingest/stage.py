@@ -161,7 +161,10 @@ def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> Rec
         cmd = mavros.first_topic(src, [cmd] if cmd else mavros.COMMAND_TOPICS, "commands")
         commands = mavros.read_bag_commands(src, cmd)
         if o.reference is not None:
-            setpoints, ref = stated_setpoints(o.reference, commands.t_ns), o.reference
+            setpoints, ref = (
+                stated_setpoints(o.reference, commands.t_ns, o.feedforward, float(o.mass or 1.0)),
+                o.reference,
+            )
         else:
             ref = mavros.first_topic(src, [ref] if ref else mavros.REFERENCE_TOPICS, "reference")
             setpoints = mavros.read_bag_setpoints(src, ref)
@@ -184,7 +187,7 @@ def commanded_ticks(vio: Trajectory, truth: Trajectory, o: IngestOptions) -> Rec
     from qsls.pipeline.ingest.sources.ulog.reader import read_commands, read_setpoints, ulog_info
 
     commands = read_commands(src)
-    setpoints = (stated_setpoints(o.reference, commands.t_ns) if o.reference is not None
+    setpoints = (stated_setpoints(o.reference, commands.t_ns, o.feedforward, float(o.mass or 1.0)) if o.reference is not None
                  else read_setpoints(src))  # fmt: skip
     made = recorded_ticks(
         vio, truth, commands, setpoints, o.mass, hover_thrust=o.hover_thrust, max_gap_s=o.max_gap

@@ -31,7 +31,7 @@ import numpy as np
 
 from qsls.pipeline.core.attitude import input_from_attitude
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.plant import feedforward_input
+from qsls.pipeline.core.plant import feedforward_acceleration, feedforward_input
 from qsls.pipeline.core.references import Reference, parse_reference
 from qsls.pipeline.core.ticks import TickLog
 from qsls.pipeline.core.units import NS
@@ -90,14 +90,24 @@ def _truth_at(truth: Trajectory, t: np.ndarray, max_gap_ns: int) -> np.ndarray:
     return (1 - a) * xs[jj - 1] + a * xs[jj]
 
 
-def stated_setpoints(spec: str, t_ns: np.ndarray) -> PositionSetpoints:
+def stated_setpoints(
+    spec: str, t_ns: np.ndarray, feedforward: str = "sampled", mass: float = 1.0
+) -> PositionSetpoints:
     """The reference ``spec`` (:func:`~qsls.pipeline.core.references.parse_reference`) as the
-    controller tracked it: sampled at the command stamps ``t_ns``, from the first (0 s)."""
+    controller tracked it: sampled at the command stamps ``t_ns``, from the first (0 s). Its
+    acceleration is the one the controller's feedforward stood for: the reference's at the
+    command (``sampled``), or the model's of a plant (``hover``, ``attitude``: the step mean
+    of its inverse over the median tick, for a vehicle of ``mass``)."""
     # deferred: the ULog reader (and pyulog) loads only for a log that holds commands
     from qsls.pipeline.ingest.sources.ulog.reader import PositionSetpoints
 
     t = (np.asarray(t_ns, dtype=np.int64) - int(t_ns[0])) / NS
-    p, v, a = Reference(parse_reference(spec, "--reference")).arrays(t)
+    ref = Reference(parse_reference(spec, "--reference"))
+    p, v, a = ref.arrays(t)
+    if feedforward in ("hover", "attitude") and len(t) > 1:
+        dt = float(np.median(np.diff(t)))
+        uff = ref.feedforward(t, dt, mass, "attitude" if feedforward == "attitude" else "hover")
+        a = feedforward_acceleration(uff, mass)
     return PositionSetpoints(np.asarray(t_ns, dtype=np.int64), p, v, a, np.zeros(len(t)))
 
 

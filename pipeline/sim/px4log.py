@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.core.plant import feedforward_acceleration
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.ingest.sources.ulog.writer import LogContent, Topic
 from qsls.pipeline.sim.closedloop import FlightLog
@@ -170,6 +171,15 @@ def _local_position(flight: FlightLog, boot_us: int) -> Topic:
     return Topic("vehicle_local_position", LOCAL_POSITION_FIELDS, data)
 
 
+def _feedforward_acc(flight: FlightLog) -> np.ndarray:
+    """The reference acceleration at each tick that the controller's feedforward stands for,
+    ``B^-1 uff`` with the controller's mass (the sampled acceleration where no ``uff``)."""
+    if flight.ctrl_uff is None:
+        assert flight.ctrl_acc is not None
+        return flight.ctrl_acc
+    return feedforward_acceleration(flight.ctrl_uff, flight.controller_mass or flight.mass)
+
+
 def _setpoints(flight: FlightLog, boot_us: int) -> list[Topic]:
     """``vehicle_attitude_setpoint`` and ``trajectory_setpoint`` at every tick."""
     if flight.ctrl_sp is None or flight.ctrl_acc is None:
@@ -196,7 +206,9 @@ def _setpoints(flight: FlightLog, boot_us: int) -> list[Topic]:
             "timestamp": ts,
             "position": enu_to_ned(flight.ctrl_ref[:, :3]),
             "velocity": enu_to_ned(flight.ctrl_ref[:, 3:]),
-            "acceleration": enu_to_ned(flight.ctrl_acc),
+            # the acceleration the controller's feedforward stood for (its model's, issue 47):
+            # what an ingest turns back into uff with the vehicle's mass
+            "acceleration": enu_to_ned(_feedforward_acc(flight)),
             "jerk": np.full((k, 3), np.nan),  # not used by the controller (PX4: NaN = unset)
             "yaw": np.full(k, 0.5 * np.pi),  # ENU yaw 0: the body x axis points east
             "yawspeed": np.zeros(k),
