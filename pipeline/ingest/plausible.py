@@ -42,15 +42,32 @@ def roughness(p: np.ndarray, t: np.ndarray, dt: float) -> float:
     return float(np.sqrt(np.mean(np.sum(d2**2, axis=1))))
 
 
+def _column(table: Any, name: str) -> np.ndarray:
+    """An arrow table's float64 column as numpy, read from its buffers (every conversion
+    pyarrow offers imports pandas, which an ingest never loads: tests/test_startup.py); nulls
+    as NaN."""
+    out = []
+    for c in table.column(name).chunks:
+        if str(c.type) != "double":
+            out.append(np.asarray(c.to_numpy(zero_copy_only=False), dtype=float))
+            continue
+        data = np.frombuffer(c.buffers()[1], dtype=np.float64, count=len(c), offset=8 * c.offset)
+        if c.null_count:
+            valid = np.asarray(c.is_valid().to_numpy(zero_copy_only=False), dtype=bool)
+            data = np.where(valid, data, np.nan)
+        out.append(data)
+    return np.concatenate(out) if out else np.zeros(0)
+
+
 def swapped(table: Any, results: dict[str, Any]) -> str | None:
     """The warning when the streams look swapped (module docstring), naming both topics, the
     evidence and the flags to swap; None otherwise."""
     cols = table.column_names
     if not all(c in cols for c in ("t", "x_px", "y_px")):
         return None
-    t = np.asarray(table.column("t").to_numpy(), dtype=float)
-    x = np.column_stack([table.column(f"x_p{a}").to_numpy() for a in "xyz"]).astype(float)
-    y = np.column_stack([table.column(f"y_p{a}").to_numpy() for a in "xyz"]).astype(float)
+    t = _column(table, "t")
+    x = np.column_stack([_column(table, f"x_p{a}") for a in "xyz"])
+    y = np.column_stack([_column(table, f"y_p{a}") for a in "xyz"])
     dt = float(results.get("dt", 0.0)) or (float(np.median(np.diff(t))) if len(t) > 1 else 0.0)
     rx, ry = roughness(x, t, dt), roughness(y, t, dt)
     ratio = ry / rx if rx > 0 else float("nan")
