@@ -172,8 +172,10 @@ def _weighted_model(tmp_path, em):
 
 @pytest.mark.parametrize("command", ["evaluate", "fly"])
 def test_weighted_error_model_is_refused(tmp_path, fit_dir, command):
-    """A weighted ``S`` with the unweighted ``||Phi_xy||`` is never mixed: one line, exit 2
-    (evaluate: the certificates state unweighted norms, so their gamma would mix them)."""
+    """A weighted ``S`` with the unweighted ``||Phi_xy||`` is never mixed: a certificate whose
+    premise is in other weights than the error model is refused in one line, exit 2 (evaluate
+    and fly check a weighted model against certificates in its own weights: test_evaluate_
+    weighted.py)."""
     model = _weighted_model(tmp_path, fit_dir[3])
     ev = command in ("evaluate", "fly")
     args = ["--model" if ev else "-m", model, "--out" if ev else "-o", tmp_path / "out"]
@@ -191,7 +193,11 @@ def test_weighted_error_model_is_refused(tmp_path, fit_dir, command):
     assert res.exit_code == 2, res.output
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: "), res.output
-    assert "state_scale" in lines[0] and "refit with the default state_scale" in lines[0]
+    assert (
+        "state_scale [1.0, 1.0, 1.0, 1.0, 1.0, 1.0], the error model in [1.0, 1.0, 1.0, 0.5"
+        in lines[0]
+    )
+    assert "check it against the error model it was synthesized from" in lines[0]
     assert not (tmp_path / "out").exists()
 
 
