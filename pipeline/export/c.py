@@ -19,7 +19,7 @@ from qsls.pipeline.control.artifacts import CONTROLLER_FILE
 from qsls.pipeline.control.guarantee import MonitorSpec
 from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.export.attitude import c_function
-from qsls.pipeline.export.bank import Y_MAX, ExportBank, ExportFacts, Precision
+from qsls.pipeline.export.bank import REAL_BYTES, Y_MAX, ExportBank, ExportFacts, Precision
 from qsls.pipeline.export.innovation import c_code, state_fields
 from qsls.pipeline.export.statement import c_comment, c_string, wrap_lines
 
@@ -190,7 +190,7 @@ struct {prefix} {{
     unsigned int mon_ticks; /* ticks since reset */
     unsigned int mon_trips; /* ticks on which the monitor tripped */
     unsigned int mon_first; /* the first of them (valid when mon_trips > 0) */
-    unsigned int refused; /* measurements refused since reset (INPUT_REFUSED latched while > 0) */{_fields(facts, real)}
+    unsigned int refused; /* measurements refused since reset (INPUT_REFUSED latched while > 0) */{_fields(facts, real, precision)}
 }};
 typedef struct {prefix} {prefix}_t;
 
@@ -233,8 +233,10 @@ def _windows(facts: ExportFacts, m: str) -> str:
     return f"#define {m}_INNOVATION_WINDOWS {{ {', '.join(str(k) for k in ks)} }} /* ticks */"
 
 
-def _fields(facts: ExportFacts, real: str) -> str:
-    return "".join("\n    " + f for f in state_fields(facts.innovation, real))
+def _fields(facts: ExportFacts, real: str, precision: Precision) -> str:
+    return "".join(
+        "\n    " + f for f in state_fields(facts.innovation, real, REAL_BYTES[precision])
+    )
 
 
 def monitor_thresholds(mon: MonitorSpec, precision: Precision) -> list[float]:

@@ -84,9 +84,10 @@ def _shape(spec: InnovationSpec) -> tuple[list[int], int, int, int, int]:
             max((spec.shifts[c] for c in live), default=1), len(spec.a_aa))  # fmt: skip
 
 
-def state_fields(spec: InnovationSpec, real: str) -> list[str]:
+def state_fields(spec: InnovationSpec, real: str, real_bytes: int | None = None) -> list[str]:
     """The C struct's innovation fields (none when inactive): the doubles first (the block
-    starts 8-aligned), then the reals, the counters, the bytes, and a pad to 8 bytes."""
+    starts 8-aligned), then the reals (type ``real`` of ``real_bytes`` bytes; default: 4 for
+    ``float``, else 8), the counters, the bytes, and a pad to 8 bytes."""
     if not spec.active:
         return []
     live, R, nw, ns, na = _shape(spec)
@@ -121,7 +122,8 @@ def state_fields(spec: InnovationSpec, real: str) -> list[str]:
     ]
     if nl:
         out.append(f"signed char inn_side[{nl}][{nw}][{ns}]; /* each sum's side: 1, -1, 0 */")
-    pad = -_raw_bytes(spec, 4 if real == "float" else 8) % 8
+    size = real_bytes if real_bytes is not None else (4 if real == "float" else 8)
+    pad = -_raw_bytes(spec, size) % 8
     if pad:
         out.append(f"unsigned char inn_pad[{pad}]; /* the block ends 8-aligned */")
     return out
