@@ -28,10 +28,15 @@ class EvaluateSection(EvaluateOptions):
         return EvaluateOptions.model_validate(self._own())
 
     def flying(
-        self, overrides: Mapping[str, Any] | None = None, source: str = "options"
+        self,
+        overrides: Mapping[str, Any] | None = None,
+        source: str = "options",
+        base_sim: Mapping[str, Any] | None = None,
     ) -> FlyOptions:
         """The flying options: the section's keys, then ``fly``'s, then ``overrides`` (the
-        command line's); errors name ``source``."""
-        return validate(
-            FlyOptions, merge(merge(self._own(), self.fly or {}), overrides or {}), source
-        )
+        command line's); ``base_sim`` (a run's ``simulate:`` section) is laid under their
+        ``sim``, as under the calibration's; errors name ``source``."""
+        data = merge(merge(self._own(), self.fly or {}), overrides or {})
+        if base_sim:
+            data["sim"] = merge(dict(base_sim), data.get("sim") or {})
+        return validate(FlyOptions, data, source)

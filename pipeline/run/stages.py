@@ -108,6 +108,7 @@ def build_graph(
         _evaluate_stages(
             graph, cfg.evaluate or EvaluateSection(), heldout, src, progress, calibrated,
             [perception[h] for h in heldout], [estimator[h] for h in heldout],
+            cfg.written("simulate") or {},
         )  # fmt: skip
     return graph
 
@@ -182,6 +183,7 @@ def _evaluate_stages(
     calibrated: str | None = None,
     conditions: list[str] | None = None,
     estimators: list[str] | None = None,
+    simulate: Mapping[str, Any] | None = None,
 ) -> None:
     """The bound check on the held-out flights (when there are some; ``conditions``: their
     perception, ``estimators`` their estimator, ``''`` for a recorded flight) and the flights flown (when the section has
@@ -196,7 +198,9 @@ def _evaluate_stages(
         deps = ("fit", "synth", *cal, *heldout)
         graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps, notes=_verdicts))
     if sec.fly is not None:
-        fly_opts = sec.flying(source=src("evaluate.fly"))
+        # the flights fly the run's simulate: conditions, as the calibration's do (a flight of
+        # other conditions is outside the certificate: docs/calibration.md)
+        fly_opts = sec.flying(source=src("evaluate.fly"), base_sim=simulate)
         execute = _fly_exec(fly_opts, progress, calibrated)
         graph.add(
             Stage("fly", "evaluate", fly_opts, execute, deps=("fit", "synth", *cal),
