@@ -78,3 +78,12 @@ def test_a_family_range_must_be_ordered_finite_and_positive():
         0.9,
         1.1,
     )
+
+
+def test_the_promise_names_the_vehicle_family_it_was_calibrated_over():
+    from qsls.pipeline.evaluate.verdict import conditions_text
+
+    c = {"perception": "regular", "vehicle": {"mass": 0.256}}
+    assert conditions_text(c).endswith("the 0.256 kg vehicle")
+    c["family"] = stated(FAMILY, BASE)["family"]
+    assert conditions_text(c).endswith("a vehicle of 0.2483 to 0.2637 kg")

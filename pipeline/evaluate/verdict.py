@@ -53,7 +53,11 @@ def conditions_text(conditions: Mapping[str, Any] | None) -> str:
         parts.append(f"the {ref['kind']} reference{size}")
     elif isinstance(ref, str) and ref:
         parts.append(f"the reference {ref}")
-    if isinstance(c.get("vehicle"), Mapping) and c["vehicle"].get("mass"):
+    fam = c.get("family") if isinstance(c.get("family"), Mapping) else {}
+    span = fam.get("mass") if fam else None
+    if isinstance(span, list | tuple) and len(span) == 2 and span[0] != span[1]:
+        parts.append(f"a vehicle of {span[0]:.4g} to {span[1]:.4g} kg")  # the stated family
+    elif isinstance(c.get("vehicle"), Mapping) and c["vehicle"].get("mass"):
         parts.append(f"the {c['vehicle']['mass']:g} kg vehicle")
     return ", ".join(parts) or "the conditions of its calibration flights"
 
