@@ -101,7 +101,6 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
         main.append([
             r["controller"], r["condition"], status_words(r["status"])[0],
             f"{g4(r['alpha'])} ({how}, {r['flights']} flights)", g4(r["lambda_hat"]),
-            r.get("lambda_set_by") or "-",
             ", ".join(f"{q} {g4(parts.get(k))}" for k, q in PARTS.items() if k in parts),
             _range_cell(cal), f"{g4(r['rho_star'])} / {g4(r['tested_range'])}",
         ])  # fmt: skip
@@ -115,7 +114,7 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
             failed or "-", "yes" if r["validation_agrees"] else "NO",
         ])  # fmt: skip
     sec.table(
-        ["controller", "condition", "status", "alpha", "lambda_hat", "lambda_hat set by",
+        ["controller", "condition", "status", "alpha", "lambda_hat",
          "largest ratio", "range flights", "rho* / reached"],
         main,
         "The calibration: lambda_hat inflates every premise quantity; the largest ratio over the "
@@ -124,8 +123,10 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
         "their own quantile, and "
         "lambda_hat is the larger of the two; rho* under the calibrated premise beside the "
         "distance the flights reached (certified needs it to reach rho*)",
-        notes=[f"{r['controller']} ({r['condition']}): {r['reason']}" for r, _ in rows if r["reason"]],
-        text_cols=[2, 3, 5, 6, 7, 8],
+        notes=[f"{r['controller']} ({r['condition']}): lambda_hat set by the {r['lambda_set_by']}"
+               for r, _ in rows if r.get("lambda_set_by")]
+        + [f"{r['controller']} ({r['condition']}): {r['reason']}" for r, _ in rows if r["reason"]],
+        text_cols=[2, 3, 5, 6, 7],
     )  # fmt: skip
     if any(any(c != "-" for c in t[2:]) for t in tol):
         sec.table(
