@@ -58,7 +58,7 @@ from qsls.pipeline.core.artifacts import refuse_overlap, sha256_path
 from qsls.pipeline.core.config import read_yaml, validate
 from qsls.pipeline.core.errors import ConfigError, InputError, OutputExistsError
 from qsls.pipeline.core.locks import check_writable, make_parent, unwritable
-from qsls.pipeline.core.plant import GRAVITY, NX, feedforward_acceleration
+from qsls.pipeline.core.plant import GRAVITY, NX, Plant, feedforward_acceleration
 from qsls.pipeline.core.references import Reference, ReferenceOptions, parse_reference
 from qsls.pipeline.core.rotations import rot_z
 from qsls.pipeline.core.units import NS
@@ -379,7 +379,7 @@ def replay(
     p_r, v_r, _ = Reference(ref_opts).arrays(t_ref)
     # the model's feedforward, as the simulator flies it (docs/guarantee.md, Disturbance in
     # deviation coordinates): the acceleration it stands for goes to the attitude map
-    plant = "attitude" if c.model.A.shape[0] > NX else "hover"
+    plant: Plant = "attitude" if c.model.A.shape[0] > NX else "hover"
     uff = Reference(ref_opts).feedforward(t_ref, c.dt, c.mass, plant)
     acc = feedforward_acceleration(uff, c.mass)
     al = reference_frame(yv[:, :3], p_r, options)

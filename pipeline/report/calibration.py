@@ -66,6 +66,12 @@ def _range_cell(cal: Calibration | None) -> str:
     return f"{g4(q)} ({len(cal.range_scores)} flights, largest {g4(max(cal.range_scores))})"
 
 
+def _notes(r: dict) -> list[str]:
+    """A calibration row's notes: what set its ``lambda_hat``, and why it is not certified."""
+    set_by = [f"lambda_hat set by the {r['lambda_set_by']}"] if r.get("lambda_set_by") else []
+    return set_by + ([str(r["reason"])] if r["reason"] else [])
+
+
 def section_calibration(f: Facts, counter: list[int]) -> Section | None:
     rows = read_calibration(f)
     if not rows:
@@ -123,9 +129,7 @@ def section_calibration(f: Facts, counter: list[int]) -> Section | None:
         "their own quantile, and "
         "lambda_hat is the larger of the two; rho* under the calibrated premise beside the "
         "distance the flights reached (certified needs it to reach rho*)",
-        notes=[f"{r['controller']} ({r['condition']}): lambda_hat set by the {r['lambda_set_by']}"
-               for r, _ in rows if r.get("lambda_set_by")]
-        + [f"{r['controller']} ({r['condition']}): {r['reason']}" for r, _ in rows if r["reason"]],
+        notes=[f"{r['controller']} ({r['condition']}): {n}" for r, _ in rows for n in _notes(r)],
         text_cols=[2, 3, 5, 6, 7],
     )  # fmt: skip
     if any(any(c != "-" for c in t[2:]) for t in tol):
