@@ -168,7 +168,7 @@ def test_weaker_texture_and_more_blur_larger_rpe():
     fast = circle(12.0, 1.0, 2.5)
     cam = CameraOptions()
     blurred = CameraOptions(exposure_s=0.045, exposure_max_s=0.045, blur_max_substeps=32)
-    for seed in (0, 1, 2):
+    for seed in (0, 1):  # each seed's ratio measured 2.0x or more (docstring): two suffice
         r_mid = _rpe(mid[0], mid[1], replay(cam, 1.0, 1.0, seed, *mid)[0])
         r_weak = _rpe(mid[0], mid[1], replay(cam, 1.0, 0.15, seed, *mid)[0])
         r_fast = _rpe(fast[0], fast[1], replay(cam, 1.0, 1.0, seed, *fast)[0])
