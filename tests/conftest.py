@@ -45,6 +45,18 @@ def quickstart_session(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def gcc() -> str:
+    """The system's C compiler (the export tests compile what ``qsls export`` writes); the
+    test skips where there is none."""
+    from qsls.pipeline.export.cbuild import find_compiler
+
+    cc = find_compiler("gcc")
+    if cc is None:
+        pytest.skip("no gcc on this machine")
+    return str(cc)
+
+
+@pytest.fixture(scope="session")
 def real_data() -> Path:
     """``../shared/data/real``; tests that use it skip cleanly when it is absent."""
     if not SHARED_REAL.is_dir():

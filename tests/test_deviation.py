@@ -37,7 +37,7 @@ def flown(tmp_path_factory):
     ctrl = make_controller(opts.controller, opts.vehicle.mass)
     f = fly(opts, ctrl)
     assert not f.crashed
-    return cdir, tick_log(f, opts.reference)
+    return cdir, tick_log(f)
 
 
 def test_the_deviation_recomposes_from_delta_and_the_error_read(flown):

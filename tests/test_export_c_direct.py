@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import ctypes
 import re
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -22,14 +21,6 @@ from tests.controllerfixtures import independent_bank, synthesized
 
 T = 8
 FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
-
-
-@pytest.fixture(scope="module")
-def gcc() -> str:
-    cc = shutil.which("gcc")
-    if cc is None:
-        pytest.skip("no gcc on this machine")
-    return cc
 
 
 @pytest.fixture(scope="module")

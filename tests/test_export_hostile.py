@@ -24,7 +24,7 @@ from qsls.pipeline.control.artifacts import CONTROLLER_NAME, load_controller_dir
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.export.bank import export_bank, facts
 from qsls.pipeline.export.c import c_files
-from qsls.pipeline.export.cbuild import STRICT, find_compiler
+from qsls.pipeline.export.cbuild import STRICT
 from qsls.pipeline.export.python import load_module, module
 from qsls.pipeline.export.stage import ExportOptions, export
 from tests.controllerfixtures import gated
@@ -53,14 +53,6 @@ def payloads(trap: Path) -> list[str]:
         f"\u202e*/ int {MARK}_bidi; /*\u2066 \x00 \x1b[2J",
         f'f*/ static const char *s = "{MARK}_str"; /*',
     ]
-
-
-@pytest.fixture(scope="module")
-def gcc():
-    cc = find_compiler("gcc")
-    if cc is None:
-        pytest.skip("no gcc on this machine")
-    return cc
 
 
 @pytest.fixture(scope="module")

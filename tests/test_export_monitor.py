@@ -16,20 +16,12 @@ from qsls.pipeline.control.artifacts import load_runtime
 from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.control.guarantee import COUNT, OFF, TRIP
 from qsls.pipeline.control.monitor import innovation_flags, innovation_of, monitor_flags, monitor_of
-from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
+from qsls.pipeline.export.cbuild import STRICT, CController
 from qsls.pipeline.export.python import load_module
 from qsls.pipeline.export.stage import ExportOptions, export
 from tests.controllerfixtures import gated
 
 V = 1.5
-
-
-@pytest.fixture(scope="module")
-def gcc():
-    cc = find_compiler("gcc")
-    if cc is None:
-        pytest.skip("no gcc on this machine")
-    return cc
 
 
 @pytest.fixture(scope="module")

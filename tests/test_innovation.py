@@ -23,20 +23,12 @@ from qsls.pipeline.control.monitor import (
 from qsls.pipeline.core.plant import plant_model
 from qsls.pipeline.export import bank as B
 from qsls.pipeline.export.c import c_files
-from qsls.pipeline.export.cbuild import STRICT, CController, find_compiler
+from qsls.pipeline.export.cbuild import STRICT, CController
 from qsls.pipeline.export.python import load_module, module
 from tests.controllerfixtures import gated
 
 V = 1.5
 EPS_W = 0.02
-
-
-@pytest.fixture(scope="module")
-def gcc():
-    cc = find_compiler("gcc")
-    if cc is None:
-        pytest.skip("no gcc on this machine")
-    return cc
 
 
 def _build(cc, files, folder, name="lib"):

@@ -129,7 +129,7 @@ def fly_job(job: Job) -> TickLog:
     sha = (
         Certificate.load(folder).controller_sha256 if (folder / CERTIFICATE_FILE).is_file() else ""
     )
-    return tick_log(fly(opts), opts.reference, sha)
+    return tick_log(fly(opts), sha)
 
 
 # --------------------------------------------------------------------------- scores

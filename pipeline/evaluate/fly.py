@@ -187,7 +187,7 @@ def run_job(job: FlyJob) -> FlyOutcome:
     if job.assured is not None:
         ctrl = _assured(job, opts, ctrl)
         f = fly(opts, ctrl)
-        ticks = tick_log(f, opts.reference)
+        ticks = tick_log(f)
     else:
         res = simulate(opts, Path(job.sim_dir), force=True, controller=ctrl)
         f, ticks = res.flight, res.ticks

@@ -407,7 +407,7 @@ def _fly(
             if batch and pending < m:
                 y_latest, pending = flush(), m
             t = i * h
-            r = RefSample(p=ref_p[i], v=ref_v[i], a=ref_a[i], uff=ref_ff[min(k, len(ref_ff) - 1)])
+            r = RefSample(p=ref_p[i], v=ref_v[i], a=ref_a[i], uff=ref_ff[k])  # k < n_ctrl
             if arrival is not None:  # the newest sample arrived by the tick
                 tick_ns = i * h_ns
                 while cursor + 1 < m and (dropped[cursor + 1] or arrival_ns[cursor + 1] <= tick_ns):
@@ -427,8 +427,7 @@ def _fly(
                 t_sp, q_d = iface.setpoint(u, r)
                 thrust, cmd_q = veh.command_px4(t_sp, q_d, px4.hover_thrust)
                 c_sp[k, 0], c_sp[k, 1:] = t_sp, q_d
-            c_t[k], c_y[k], c_r[k], c_u[k], c_a[k] = i * h_ns, y, r.state, u, r.a
-            c_ff[k] = ref_ff[min(k, len(ref_ff) - 1)]
+            c_t[k], c_y[k], c_r[k], c_u[k], c_a[k], c_ff[k] = i * h_ns, y, r.state, u, r.a, r.uff
             k += 1
             progress.advance(1)
         s_next = step(s, thrust, cmd_q, h)

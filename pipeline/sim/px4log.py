@@ -173,10 +173,8 @@ def _local_position(flight: FlightLog, boot_us: int) -> Topic:
 
 def _feedforward_acc(flight: FlightLog) -> np.ndarray:
     """The reference acceleration at each tick that the controller's feedforward stands for,
-    ``B^-1 uff`` with the controller's mass (the sampled acceleration where no ``uff``)."""
-    if flight.ctrl_uff is None:
-        assert flight.ctrl_acc is not None
-        return flight.ctrl_acc
+    ``B^-1 uff`` with the controller's mass."""
+    assert flight.ctrl_uff is not None, "every flight records the feedforward it flew"
     return feedforward_acceleration(flight.ctrl_uff, flight.controller_mass or flight.mass)
 
 

@@ -333,7 +333,7 @@ def simulate(
         for fname, df in _frames(flight, clocks["vio_clock_start_ns"]).items():
             w.write_parquet(fname, df)
         identity = controller_identity(options, flight, controller)
-        ticks = tick_log(flight, options.reference, identity.sha256 or "")
+        ticks = tick_log(flight, identity.sha256 or "")
         w.write_parquet(TICKS_FILE, ticks.frame())
         w.results.update(
             {

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from qsls.pipeline.core.references import Reference, ReferenceOptions
 from qsls.pipeline.core.ticks import INPUT as INPUT
 from qsls.pipeline.core.ticks import STATE as STATE
 from qsls.pipeline.core.ticks import TICKS_FILE as TICKS_FILE
@@ -21,7 +20,6 @@ from qsls.pipeline.core.ticks import FlownLog as FlownLog
 from qsls.pipeline.core.ticks import TickLog
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.sim.closedloop import FlightLog
-from qsls.pipeline.sim.controllers import feedforward
 
 
 def _tick_states(flight: FlightLog) -> np.ndarray:
@@ -35,19 +33,12 @@ def _tick_states(flight: FlightLog) -> np.ndarray:
     return np.asarray(flight.x[idx])
 
 
-def _tick_feedforward(reference: ReferenceOptions, t: np.ndarray, mass: float) -> np.ndarray:
-    """``uff_k = feedforward(r(t_k), mass)`` at the tick times ``t`` (s): ``(k, 3)``."""
-    ref = Reference(reference)
-    return np.array([feedforward(ref.sample(float(s)), mass) for s in t]).reshape(-1, 3)
-
-
-def tick_log(flight: FlightLog, reference: ReferenceOptions, sha256: str = "") -> TickLog:
+def tick_log(flight: FlightLog, sha256: str = "") -> TickLog:
     """The flight's tick log (module docstring), naming the controller that flew (and its
     ``controller.npz``'s ``sha256`` where the caller knows it)."""
-    t = flight.ctrl_t_ns / NS
+    assert flight.ctrl_uff is not None, "every flight records the feedforward it flew"
     return TickLog(
-        t, _tick_states(flight), flight.ctrl_y, flight.ctrl_u, flight.ctrl_ref,
-        flight.ctrl_uff if flight.ctrl_uff is not None else _tick_feedforward(reference, t, flight.mass),
-        flight.crashed, flight.crash_reason or "",
+        flight.ctrl_t_ns / NS, _tick_states(flight), flight.ctrl_y, flight.ctrl_u,
+        flight.ctrl_ref, flight.ctrl_uff, flight.crashed, flight.crash_reason or "",
         controller=flight.controller, controller_sha256=sha256,
     )  # fmt: skip
