@@ -135,19 +135,6 @@ class ControllerBound:
         )
 
 
-def check_unweighted(em: Any, to: str = "check certified controllers") -> None:
-    """Refuse an error model fitted with a ``state_scale`` other than ones: the flight check
-    compares errors against ``eps_e + S d_k`` with unweighted ``||Phi_xy||`` (docs/guarantee.md);
-    a weighted premise is checked by synthesis, not yet on flights."""
-    if em is None or all(v == 1.0 for v in em.state_scale):
-        return
-    raise InputError(
-        f"the error model was fitted with state_scale {list(em.state_scale)}; the flight check "
-        f"reads unweighted norms, so it cannot {to} against it yet; refit with the default "
-        "state_scale (all ones) to check flights"
-    )
-
-
 def certified_premise(folder: Path) -> Any:
     """What the certificate in ``folder`` promises, for the checks on its own flights
     (:class:`qsls.pipeline.evaluate.assumptions.CertifiedPremise`); None for a controller
