@@ -34,6 +34,12 @@ The PX4 stand-in (``px4``, :mod:`qsls.pipeline.sim.px4`, docs/simulation.md#the-
   tick (a whole number of µs). Without latency, jitter or drops that is the newest sample
   captured at or before the tick, as without the stand-in.
 
+The flight's conditions the controller is not told (docs/calibration.md#conditions-as-a-stated-family):
+the wind (``wind``, :mod:`qsls.pipeline.sim.wind`) is written into the state's wind slot
+before each physics step, as RotorPy's ``simulate`` does, and a battery's sag
+(``vehicle.sag``) scales the commanded rotor speeds of the step starting at ``t`` by
+``sqrt(1 - sag t / duration)``.
+
 A crash (position below ``crash.floor_z``, farther than ``crash.max_deviation`` from the
 reference in any axis, tilt beyond ``crash.max_tilt_deg``, or a non-finite state) ends the
 flight: the log holds everything up to it and says why.
@@ -56,6 +62,7 @@ from qsls.pipeline.sim.options import CrashOptions, FlightOptions
 from qsls.pipeline.sim.px4 import US, Px4Interface, arrivals
 from qsls.pipeline.sim.vehicle import Vehicle
 from qsls.pipeline.sim.vio import VioEmulator
+from qsls.pipeline.sim.wind import wind_series
 
 if TYPE_CHECKING:
     from qsls.pipeline.sim.camera.loop import CameraVio
@@ -367,6 +374,10 @@ def _fly(
         float(getattr(ctrl, "mass", veh.mass)), getattr(ctrl, "plant", "hover"),
     )  # fmt: skip
     s = veh.hover_state(ref_p[0], ref_v[0])
+    wind = wind_series(options.wind, seed, t_ns / NS)  # None in still air
+    if wind is not None:
+        s[13:16] = wind[0]
+    sag = float(options.vehicle.sag) / duration
     S[0] = s
     ctrl.reset()
     vio.reset()
@@ -430,7 +441,9 @@ def _fly(
             c_t[k], c_y[k], c_r[k], c_u[k], c_a[k], c_ff[k] = i * h_ns, y, r.state, u, r.a, r.uff
             k += 1
             progress.advance(1)
-        s_next = step(s, thrust, cmd_q, h)
+        s_next = step(s, thrust, cmd_q, h, math.sqrt(1.0 - sag * i * h) if sag else 1.0)
+        if wind is not None:  # the wind over the next step, as RotorPy's simulate sets it
+            s_next[13:16] = wind[i + 1]
         S[i + 1] = s_next
         if cam is not None:
             cam.step(s, s_next)

@@ -293,6 +293,28 @@ class VioParams(Options):
         return self.degraded
 
 
+class WindOptions(Options):
+    """The wind the vehicle flies in (docs/calibration.md#conditions-as-a-stated-family):
+    RotorPy's ``ConstantWind`` plus its ``SinusoidWind`` gust, both horizontal, the world
+    wind ``w(t) = (speed + gust sin(2 pi gust_hz (t + phase))) [cos d, sin d, 0]`` with ``d``
+    = ``direction_deg`` and ``phase`` drawn from the flight's seed. The vehicle's drag acts on
+    its airspeed ``v - w`` (``vehicle.aero``). No wind by default (absent from the dump)."""
+
+    speed: float = Field(0.0, ge=0, le=20)
+    """Steady horizontal wind speed (m/s)."""
+    direction_deg: float = Field(0.0, ge=-360, le=360)
+    """Where the wind blows *to*, degrees counter-clockwise from the world's +x."""
+    gust: float = Field(0.0, ge=0, le=10)
+    """Gust amplitude along the wind's direction (m/s; 0: steady)."""
+    gust_hz: float = Field(0.5, gt=0, le=10)
+    """Gust frequency (Hz)."""
+
+    @property
+    def off(self) -> bool:
+        """No wind at all (the vehicle flies in still air)."""
+        return self.speed == 0 and self.gust == 0
+
+
 class VehicleOptions(Options):
     """The simulated vehicle and its integrator."""
 
@@ -310,6 +332,25 @@ class VehicleOptions(Options):
     """RK4 substeps per physics step (the motor command is held over the step)."""
     max_tilt_deg: float = Field(35.0, gt=0, lt=90)
     """Commanded pitch and roll are clipped to this angle."""
+    thrust_constant: float = Field(1.0, ge=0.5, le=1.5)
+    """The rotors' true thrust constant relative to the nominal ``k_eta`` (another propeller);
+    the flight computer allocates with the nominal one, so the thrust is this times the
+    command. Absent from the dump at 1."""
+    sag: float = Field(0.0, ge=0, le=0.5)
+    """Battery sag: the share of thrust lost by the flight's end for the same command,
+    linearly in time (the rotor speeds scale by ``sqrt(1 - sag t / duration)``). Absent
+    from the dump at 0."""
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """A vehicle's dump without ``thrust_constant`` and ``sag`` at their nominal values,
+        as before they existed: every artifact of such a flight stays byte-identical."""
+        out: dict[str, Any] = handler(self)
+        if self.thrust_constant == 1.0:
+            out.pop("thrust_constant", None)
+        if self.sag == 0.0:
+            out.pop("sag", None)
+        return out
 
 
 class ControllerOptions(Options):
@@ -423,14 +464,18 @@ class FlightOptions(Options):
     px4: Px4Options = Px4Options()
     """The PX4 stand-in: the interface, the hover throttle, the estimate's and the motion
     capture's transport (none by default, and then absent from the options' dump)."""
+    wind: WindOptions = WindOptions()
+    """The wind (none by default, and then absent from the options' dump)."""
 
     @model_serializer(mode="wrap")
     def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """A flight's options dump without ``px4`` when it is the default, as before the
-        stand-in existed: every artifact of such a flight stays byte-identical."""
+        """A flight's options dump without ``px4`` and ``wind`` when they are the default, as
+        before they existed: every artifact of such a flight stays byte-identical."""
         out: dict[str, Any] = handler(self)
         if self.px4 == Px4Options():
             out.pop("px4", None)
+        if self.wind == WindOptions():
+            out.pop("wind", None)
         return out
 
     def flight_duration(self) -> float:

@@ -26,6 +26,13 @@ RotorPy's z-up body frame a right-handed rotation ``theta`` about body y gives
 in :func:`paper_to_ctatt`: ``theta = -pitch``, ``phi = -roll``, attitude
 ``R = R_z(0) R_y(theta) R_x(phi)``, collective thrust unchanged.
 
+**Conditions the controller is not told** (docs/calibration.md#conditions-as-a-stated-family):
+``thrust_constant`` scales the rotors' ``k_eta`` in :meth:`Vehicle.derivative` while
+:meth:`Vehicle.motor_command` allocates with the nominal one (thrust = ``thrust_constant``
+times the command); a battery's sag scales the commanded rotor speeds per step
+(:meth:`Vehicle.step`'s ``speed_scale``); the wind is the state's ``s[13:16]``, as RotorPy
+carries it (:mod:`qsls.pipeline.sim.wind`).
+
 **Integration.** RotorPy's ``Multirotor.step`` holds the motor command over a step and calls
 ``scipy.integrate.solve_ivp`` (RK45) every step: ~3.6 ms per step here. :class:`Vehicle`
 keeps exactly that model (same state vector, same equations: :meth:`Vehicle.derivative`
@@ -45,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.core.rotations import quat_to_matrix
 from qsls.pipeline.sim.options import VehicleOptions
@@ -134,6 +142,12 @@ class Vehicle:
         from rotorpy.vehicles.multirotor import Multirotor
 
         self.options = options or VehicleOptions()
+        o = self.options
+        if o.integrator == "solve_ivp" and (o.thrust_constant != 1.0 or o.sag != 0.0):
+            raise ConfigError(
+                "vehicle.thrust_constant and vehicle.sag fly with vehicle.integrator rk4 "
+                "(RotorPy's stock step allocates with its own k_eta)"
+            )
         self.params = quad_params(self.options)
         self.multirotor = Multirotor(
             self.params,
@@ -156,6 +170,8 @@ class Vehicle:
         self.geometry = np.asarray(mr.rotor_geometry, dtype=float)  # (4, 3)
         self._geom = [tuple(float(v) for v in row) for row in self.geometry]
         self.k_eta = float(mr.k_eta)
+        # the rotors' true thrust constant; the allocation (motor_command) keeps the nominal
+        self.k_eta_rotor = self.k_eta * float(self.options.thrust_constant)
         self.k_m = float(mr.k_m)
         self.k_h = float(mr.k_h)
         self.k_flap = float(mr.k_flap)
@@ -266,7 +282,7 @@ class Vehicle:
         bx = r00 * ux + r10 * uy + r20 * uz
         by = r01 * ux + r11 * uy + r21 * uz
         bz = r02 * ux + r12 * uy + r22 * uz
-        k_eta, k_h, k_flap = self.k_eta, self.k_h, self.k_flap
+        k_eta, k_h, k_flap = self.k_eta_rotor, self.k_h, self.k_flap
         kdx, kdy, kdz = self._rotor_drag
         fbx = fby = fbz = 0.0
         mx = my = mz = 0.0
@@ -339,8 +355,14 @@ class Vehicle:
         ]
 
     # ---------------------------------------------------------------- integration
-    def step(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
+    def step(
+        self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float, speed_scale: float = 1.0
+    ) -> np.ndarray:
         """One step of length ``h``: motor command held, RK4 (``substeps``), quaternion renormalized.
+
+        ``speed_scale`` multiplies the commanded rotor speeds after their limits (a sagging
+        battery: ``sqrt(1 - sag t / duration)``, so the thrust for the same command falls by
+        ``sag t / duration``); the wind is the state's ``s[13:16]``, held over the step.
 
         ``k1 = f(s)``, ``k2 = f(s + dt/2 k1)``, ``k3 = f(s + dt/2 k2)``, ``k4 = f(s + dt k3)``,
         ``s+ = s + dt/6 (k1 + 2 k2 + 2 k3 + k4)`` on plain floats, element by element in the
@@ -350,6 +372,8 @@ class Vehicle:
         if self.options.integrator == "solve_ivp":
             return self.step_rotorpy(s, thrust, cmd_q, h)
         cmd = self._motor_speeds(s, thrust, cmd_q)
+        if speed_scale != 1.0:
+            cmd = [c * speed_scale for c in cmd]
         n = self.options.substeps
         dt = h / n
         half, sixth = 0.5 * dt, dt / 6.0
@@ -368,12 +392,16 @@ class Vehicle:
         out[6:10] /= np.sqrt(out[6:10] @ out[6:10])  # numpy's dot: its summation order
         return out
 
-    def step_numpy(self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float) -> np.ndarray:
+    def step_numpy(
+        self, s: np.ndarray, thrust: float, cmd_q: np.ndarray, h: float, speed_scale: float = 1.0
+    ) -> np.ndarray:
         """:meth:`step` as whole-array numpy expressions (the code before the plain-float one;
         kept as the reference the tests and ``benchmarks/bench_flights.py`` compare with)."""
         if self.options.integrator == "solve_ivp":
             return self.step_rotorpy(s, thrust, cmd_q, h)
         cmd = self.motor_command(s, thrust, cmd_q)
+        if speed_scale != 1.0:
+            cmd = cmd * speed_scale
         n = self.options.substeps
         dt = h / n
         f = self.derivative
