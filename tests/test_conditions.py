@@ -87,3 +87,101 @@ def test_the_promise_names_the_vehicle_family_it_was_calibrated_over():
     assert conditions_text(c).endswith("the 0.256 kg vehicle")
     c["family"] = stated(FAMILY, BASE)["family"]
     assert conditions_text(c).endswith("a vehicle of 0.2483 to 0.2637 kg")
+
+
+WINDY = ConditionFamily(
+    mass=(0.97, 1.03), period=(4.5, 5.5), center_offset=0.2,
+    wind=(0.0, 1.5), gust=(0.0, 0.3), thrust_constant=(0.95, 1.05), sag=(0.0, 0.05),
+)  # fmt: skip
+
+
+def test_the_wind_thrust_constant_and_sag_are_drawn_by_the_seed_and_recorded():
+    draws = [draw(WINDY, s, BASE) for s in range(200)]
+    assert draws[7] == draw(WINDY, 7, BASE) and draws[7] != draws[8]
+    # drawn after the mass and the reference: those stay the draws they were
+    for s in (0, 7, 11):
+        old, new = draw(FAMILY, s, BASE), draws[s]
+        assert new["vehicle"]["mass"] == old["vehicle"]["mass"]
+        assert new["reference"] == old["reference"]
+    speeds = [d["wind"]["speed"] for d in draws]
+    dirs = [d["wind"]["direction_deg"] for d in draws]
+    tcs = [d["vehicle"]["thrust_constant"] for d in draws]
+    sags = [d["vehicle"]["sag"] for d in draws]
+    assert 0 <= min(speeds) < 0.05 and 1.45 < max(speeds) <= 1.5
+    assert min(dirs) < 20 and max(dirs) > 340  # uniform over the circle unless stated
+    assert 0.95 <= min(tcs) < 0.955 and 1.045 < max(tcs) <= 1.05
+    assert 0.0 <= min(sags) < 0.002 and 0.048 < max(sags) <= 0.05
+    flown = merge(BASE, draws[7])
+    rec = drawn(WINDY, flown)
+    assert rec["wind_mps"] == draws[7]["wind"]["speed"]
+    assert rec["wind_dir_deg"] == draws[7]["wind"]["direction_deg"]
+    assert rec["gust_mps"] == draws[7]["wind"]["gust"]
+    assert rec["thrust_constant"] == draws[7]["vehicle"]["thrust_constant"]
+    assert rec["sag"] == draws[7]["vehicle"]["sag"]
+    assert "wind_mps" not in drawn(FAMILY, flown)  # a family without them: the columns as before
+    st = stated(WINDY, BASE)["family"]
+    assert st["wind"] == [0.0, 1.5] and st["wind_direction"] == [0.0, 360.0]
+    assert st["thrust_constant"] == [0.95, 1.05] and st["sag"] == [0.0, 0.05]
+    statement = stated(WINDY, BASE)
+    for d in draws[:30]:
+        assert outside_family(statement, _flight(d)) == []
+
+
+@pytest.mark.parametrize(
+    ("over", "says"),
+    [
+        ({"wind": {"speed": 3.1}}, "wind 3.1 m/s, calibrated at [0, 1.5] m/s (+106.7 % beyond)"),
+        ({"wind": {"speed": 1.0, "gust": 0.5}}, "gust 0.5 m/s, calibrated at [0, 0.3] m/s (+66.7 % beyond)"),
+        ({"vehicle": {"thrust_constant": 1.1}}, "thrust constant 1.1, calibrated at [0.95, 1.05] (+4.8 % beyond)"),
+        ({"vehicle": {"sag": 0.1}}, "sag 0.1, calibrated at [0, 0.05] (+100.0 % beyond)"),
+    ],
+)  # fmt: skip
+def test_a_wind_thrust_or_sag_outside_the_family_is_flagged_with_how_far(over, says):
+    why = outside_family(stated(WINDY, BASE), _flight(over))
+    assert why == [says]
+
+
+def test_a_certificate_that_states_no_wind_was_calibrated_in_still_air():
+    """A statement without them (a point family, or a record older than them) was flown in
+    still air with nominal rotors: a windy, sagging flight lies outside it."""
+    for statement in (stated(FAMILY, BASE), {"vehicle": BASE["vehicle"]}):
+        why = outside_family(statement, _flight({"wind": {"speed": 1.0}, "vehicle": {"sag": 0.05}}))
+        assert why == ["wind 1 m/s, calibrated at 0 m/s", "sag 0.05, calibrated at 0"], why
+        assert outside_family(statement, _flight({})) == []
+
+
+def test_a_stated_wind_direction_flags_a_wind_from_elsewhere_by_the_angle():
+    fam = WINDY.model_copy(update={"wind_direction": (0.0, 90.0)})
+    statement = stated(fam, BASE)
+    inside = _flight({"wind": {"speed": 1.0, "direction_deg": 45.0}})
+    assert outside_family(statement, inside) == []
+    why = outside_family(statement, _flight({"wind": {"speed": 1.0, "direction_deg": -60.0}}))
+    assert why == ["wind direction -60 deg, calibrated at [0, 90] deg (60 deg beyond)"]
+
+
+def test_a_degenerate_range_sets_its_condition_on_every_flight():
+    fam = ConditionFamily(radius=(1.2, 1.2), wind=(1.0, 1.0))
+    assert not fam.point
+    d = draw(fam, 3, BASE)
+    assert d["reference"]["radius"] == 1.2 and d["wind"]["speed"] == 1.0
+    with pytest.raises(ValueError):
+        ConditionFamily(sag=(0.0, 0.9))
+
+
+def test_a_windy_flight_is_outside_a_still_air_calibration_in_the_fly_tables_words():
+    from qsls.pipeline.control.artifacts import Calibration
+    from qsls.pipeline.evaluate.certified import outside_calibration
+
+    statement = {"perception": "regular", "estimator": "emulator", "duration_s": 15.0,
+                 **stated(WINDY, BASE)}  # fmt: skip
+    cal = Calibration(
+        flights=20, alpha=0.1, confidence=None, method="split conformal", conditions=statement,
+        duration_s=15.0, seeds=list(range(20)), scores=[0.5] * 20, lambda_hat=0.5, rank=19,
+        tested_range=1.0, nominal={}, parts={}, tolerances={}, holds=True,
+    )  # fmt: skip
+    flown = SimOptions.model_validate(merge(BASE, {"wind": {"speed": 3.1, "gust": 0.2}}))
+    conditions = flight_conditions(flown.model_dump(mode="json"))  # as fly.py records them
+    why = outside_calibration(cal, "regular", 15.0, "emulator", conditions)
+    assert why == "wind 3.1 m/s, calibrated at [0, 1.5] m/s (+106.7 % beyond)"
+    inside = SimOptions.model_validate(merge(BASE, draw(WINDY, 4, BASE))).model_dump(mode="json")
+    assert outside_calibration(cal, "regular", 15.0, "emulator", flight_conditions(inside)) == ""

@@ -7,10 +7,14 @@ calibration, range and validation flight's conditions from :class:`ConditionFami
 the flight's seed), records per flight what was drawn, and the certificate states:
 
 - ``family``: the ranges drawn from (the vehicle's true mass, the reference's radius,
-  period, height and centre);
-- ``vehicle``, ``reference``, ``vio``: every other condition, fixed at its recorded value
-  (the vehicle and its integrator, the reference's kind and timing, every parameter of the
-  VIO emulator); ``perception``, ``estimator`` and ``duration_s`` as before.
+  period, height and centre; where the family ranges them, the steady wind's speed and
+  direction, the gust's amplitude, the rotors' thrust constant and the battery's sag);
+- ``vehicle``, ``reference``, ``vio``, ``wind``: every other condition, fixed at its recorded
+  value (the vehicle and its integrator, the reference's kind and timing, every parameter of
+  the VIO emulator, the wind where there was one); ``perception``, ``estimator`` and
+  ``duration_s`` as before. A certificate that states no wind, thrust constant or sag was
+  calibrated in still air, at the nominal thrust constant, without sag (they did not exist
+  before), and a flight is compared with those.
 
 :func:`outside_family` compares *all* of a flight's recorded conditions with that statement
 and says which condition lies outside and by how much; a flight outside is outside the
@@ -27,6 +31,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from qsls.pipeline.core.config import Options
+from qsls.pipeline.sim.options import WindOptions
 
 FAMILY_STREAM = 0x46414D
 """The random stream of the family's draws (``SeedSequence([seed, FAMILY_STREAM])``): apart
@@ -59,6 +64,20 @@ class ConditionFamily(Options):
     """The reference's height (m); None: fixed."""
     center_offset: float = Field(0.0, ge=0.0, le=10.0)
     """The reference's centre moved up to this far (m, uniform in the disc)."""
+    wind: Span | None = None
+    """The steady horizontal wind's speed (m/s, ``[0, 1.5]``: light wind); None: fixed at
+    ``wind.speed`` (still air unless set)."""
+    wind_direction: Span | None = None
+    """Where the wind blows to (degrees from +x); None: uniform over the circle where
+    ``wind`` is drawn, else fixed at ``wind.direction_deg``."""
+    gust: Span | None = None
+    """The gust's amplitude (m/s, along the wind); None: fixed at ``wind.gust``."""
+    thrust_constant: Span | None = None
+    """The rotors' thrust constant relative to nominal (``[0.95, 1.05]``: +-5 %), which the
+    controller is not told; None: fixed at ``vehicle.thrust_constant``."""
+    sag: Span | None = None
+    """The battery's sag, the share of thrust lost by the flight's end (``[0, 0.05]``);
+    None: fixed at ``vehicle.sag``."""
 
     @model_validator(mode="after")
     def _ranges(self) -> ConditionFamily:
@@ -71,13 +90,44 @@ class ConditionFamily(Options):
                 raise ValueError(f"family.{name} [{lo}, {hi}]: need 0 < low <= high, finite")
         if not self.mass[1] <= 2.0:
             raise ValueError(f"family.mass up to {self.mass[1]}: at most twice the mass")
+        for name, (least, most) in NEW_LIMITS.items():
+            span = getattr(self, name)
+            if span is None:
+                continue
+            lo, hi = span
+            if not (math.isfinite(lo) and math.isfinite(hi) and least <= lo <= hi <= most):
+                raise ValueError(
+                    f"family.{name} [{lo}, {hi}]: need {least:g} <= low <= high <= {most:g}"
+                )
         return self
 
     @property
     def point(self) -> bool:
-        """Every condition fixed: the calibration flies one vehicle on one reference."""
-        spans = [self.mass, self.radius, self.period, self.height]
-        return self.center_offset == 0 and all(s is None or s[0] == s[1] for s in spans)
+        """Every condition fixed at the simulation options' own: the calibration flies one
+        vehicle on one reference (a degenerate range such as ``radius: [1.2, 1.2]`` sets its
+        condition for every flight, so it is not a point family)."""
+        spans = [self.radius, self.period, self.height, *(getattr(self, n) for n in NEW_LIMITS)]
+        return self.center_offset == 0 and self.mass == (1.0, 1.0) and all(s is None for s in spans)
+
+    @property
+    def ranges_new(self) -> bool:
+        """Whether the family draws the wind, the thrust constant or the sag."""
+        return any(getattr(self, n) is not None for n in NEW_LIMITS)
+
+
+NEW_LIMITS: dict[str, tuple[float, float]] = {
+    "wind": (0.0, 20.0),
+    "wind_direction": (-360.0, 360.0),
+    "gust": (0.0, 10.0),
+    "thrust_constant": (0.5, 1.5),
+    "sag": (0.0, 0.5),
+}
+"""The family's ranges of the conditions added by issue 47 (item 2), within the simulator's
+own limits (:class:`qsls.pipeline.sim.options.WindOptions`, ``VehicleOptions``)."""
+
+
+def _lerp(span: Span, u: float) -> float:
+    return float(span[0] + (span[1] - span[0]) * u)
 
 
 def draw(family: ConditionFamily, seed: int, sim: Mapping[str, Any]) -> dict[str, Any]:
@@ -88,6 +138,7 @@ def draw(family: ConditionFamily, seed: int, sim: Mapping[str, Any]) -> dict[str
         return {}
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), FAMILY_STREAM]))
     u = rng.uniform(size=6)
+    v = rng.uniform(size=5)  # after the first six: a family without them draws as before
     veh, ref = dict(sim.get("vehicle") or {}), dict(sim.get("reference") or {})
     out: dict[str, Any] = {}
     m0 = float(veh.get("mass", 0.256))
@@ -106,20 +157,41 @@ def draw(family: ConditionFamily, seed: int, sim: Mapping[str, Any]) -> dict[str
         r["center"] = [float(cx) + rad * math.cos(ang), float(cy) + rad * math.sin(ang)]
     if r:
         out["reference"] = r
+    for i, name in ((3, "thrust_constant"), (4, "sag")):
+        span = getattr(family, name)
+        if span is not None:
+            out.setdefault("vehicle", {})[name] = _lerp(span, v[i])
+    w: dict[str, float] = {}
+    if family.wind is not None:
+        w["speed"] = _lerp(family.wind, v[0])
+        w["direction_deg"] = _lerp(family.wind_direction or (0.0, 360.0), v[1])
+    elif family.wind_direction is not None:
+        w["direction_deg"] = _lerp(family.wind_direction, v[1])
+    if family.gust is not None:
+        w["gust"] = _lerp(family.gust, v[2])
+    if w:
+        out["wind"] = w
     return out
 
 
 def drawn(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, float]:
     """What a flight of options ``sim`` met of a non-point ``family`` (the scores' columns:
-    ``mass_kg``, ``radius_m``, ``period_s``, ``height_m``, ``center_x_m``, ``center_y_m``);
-    empty for a point family (the scores stay as they were)."""
+    ``mass_kg``, ``radius_m``, ``period_s``, ``height_m``, ``center_x_m``, ``center_y_m``,
+    and where the family draws any of them ``wind_mps``, ``wind_dir_deg``, ``gust_mps``,
+    ``thrust_constant``, ``sag``); empty for a point family (the scores stay as they were)."""
     if family.point:
         return {}
     veh, ref = sim.get("vehicle") or {}, sim.get("reference") or {}
     cx, cy = ref.get("center", (0.0, 0.0))
-    return {"mass_kg": float(veh["mass"]), "radius_m": float(ref["radius"]),
-            "period_s": float(ref["period"]), "height_m": float(ref["height"]),
-            "center_x_m": float(cx), "center_y_m": float(cy)}  # fmt: skip
+    out = {"mass_kg": float(veh["mass"]), "radius_m": float(ref["radius"]),
+           "period_s": float(ref["period"]), "height_m": float(ref["height"]),
+           "center_x_m": float(cx), "center_y_m": float(cy)}  # fmt: skip
+    if family.ranges_new:
+        wind = WindOptions.model_validate(sim.get("wind") or {})
+        out |= {"wind_mps": wind.speed, "wind_dir_deg": wind.direction_deg,
+                "gust_mps": wind.gust, "thrust_constant": float(veh.get("thrust_constant", 1.0)),
+                "sag": float(veh.get("sag", 0.0))}  # fmt: skip
+    return out
 
 
 def stated(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, Any]:
@@ -133,13 +205,26 @@ def stated(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, Any]:
         fam[name] = list(span) if span is not None else [float(ref[name])] * 2
     fam["center"] = list(ref.get("center", (0.0, 0.0)))
     fam["center_offset"] = family.center_offset
-    return {"family": fam, "vehicle": veh, "reference": ref, "vio": dict(sim.get("vio") or {})}
+    for name in NEW_LIMITS:  # stated where ranged: an older statement stays as it was
+        span = getattr(family, name)
+        if name == "wind_direction" and span is None and family.wind is not None:
+            span = (0.0, 360.0)  # drawn uniformly over the circle
+        if span is not None:
+            fam[name] = list(span)
+    out = {"family": fam, "vehicle": veh, "reference": ref, "vio": dict(sim.get("vio") or {})}
+    if sim.get("wind"):
+        out["wind"] = dict(sim["wind"])
+    return out
 
 
 def flight_conditions(sim: Mapping[str, Any]) -> dict[str, Any]:
     """A flight's recorded conditions from its simulation options' dump: the vehicle (its
-    true mass), the reference and the VIO emulator's parameters."""
-    return {k: dict(sim.get(k) or {}) for k in ("vehicle", "reference", "vio")}
+    true mass, thrust constant and sag), the reference, the VIO emulator's parameters and
+    the wind (where there was one)."""
+    out = {k: dict(sim.get(k) or {}) for k in ("vehicle", "reference", "vio")}
+    if sim.get("wind"):
+        out["wind"] = dict(sim["wind"])
+    return out
 
 
 def _differs(a: Any, b: Any) -> bool:
@@ -192,6 +277,8 @@ def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> l
             if d > float(fam.get("center_offset", 0.0)) + 1e-9:
                 why.append(f"reference centre {d:.3g} m from the calibrated centre "
                            f"(up to {float(fam.get('center_offset', 0.0)):.3g} m)")  # fmt: skip
+    why += _unseen_forces(statement, flight)
+    ranged["vehicle"] |= {"thrust_constant", "sag"}
     for group in ("vehicle", "reference", "vio"):
         have, want = flight.get(group) or {}, statement.get(group)
         if not want:
@@ -202,4 +289,45 @@ def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> l
                 continue
             if key not in have or key not in want or _differs(have[key], want[key]):
                 why.append(f"{group}.{key} {have.get(key)!r}, calibrated at {want.get(key)!r}")
+    return why
+
+
+def _fixed(value: float) -> list[float]:
+    return [value, value]
+
+
+def _unseen_forces(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> list[str]:
+    """The wind, the gust, the thrust constant and the sag of ``flight`` against the
+    statement's family where it ranges them, else against its recorded value, else (an
+    older record: they did not exist) still air, the nominal thrust constant and no sag."""
+    fam = statement.get("family") or {}
+    sveh, fveh = statement.get("vehicle") or {}, flight.get("vehicle") or {}
+    swind = WindOptions.model_validate(statement.get("wind") or {})
+    fwind = WindOptions.model_validate(flight.get("wind") or {})
+    why: list[str] = []
+    checks = [
+        ("wind", fwind.speed, fam.get("wind") or _fixed(swind.speed), " m/s"),
+        ("gust", fwind.gust, fam.get("gust") or _fixed(swind.gust), " m/s"),
+        ("thrust constant", float(fveh.get("thrust_constant", 1.0)),
+         fam.get("thrust_constant") or _fixed(float(sveh.get("thrust_constant", 1.0))), ""),
+        ("sag", float(fveh.get("sag", 0.0)), fam.get("sag") or _fixed(float(sveh.get("sag", 0.0))), ""),
+    ]  # fmt: skip
+    for name, value, span, unit in checks:
+        if text := _span(name, value, span, unit):
+            why.append(text)
+    if fwind.off:
+        return why
+    calm = max(float((fam.get("wind") or _fixed(swind.speed))[1]),
+               float((fam.get("gust") or _fixed(swind.gust))[1])) == 0  # fmt: skip
+    if not calm:  # a wind the calibration flew: from where it blew
+        lo, hi = (float(a) for a in fam.get("wind_direction") or _fixed(swind.direction_deg))
+        if hi - lo < 360.0:
+            off = (fwind.direction_deg - lo) % 360.0  # degrees past the range's start
+            if off > hi - lo + 1e-9:
+                beyond = min(off - (hi - lo), 360.0 - off)
+                fixed = f"{lo:.4g}" if lo == hi else f"[{lo:.4g}, {hi:.4g}]"
+                why.append(f"wind direction {fwind.direction_deg:.4g} deg, calibrated at "
+                           f"{fixed} deg ({beyond:.3g} deg beyond)")  # fmt: skip
+    if fwind.gust > 0 and _differs(fwind.gust_hz, swind.gust_hz):
+        why.append(f"wind.gust_hz {fwind.gust_hz:g}, calibrated at {swind.gust_hz:g}")
     return why

@@ -442,7 +442,7 @@ def _fly(
             k += 1
             progress.advance(1)
         s_next = step(s, thrust, cmd_q, h, math.sqrt(1.0 - sag * i * h) if sag else 1.0)
-        if wind is not None:  # the wind over the next step, as RotorPy's simulate sets it
+        if wind is not None:  # the wind held over the next step, at that step's start
             s_next[13:16] = wind[i + 1]
         S[i + 1] = s_next
         if cam is not None:
