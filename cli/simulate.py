@@ -28,7 +28,8 @@ EXAMPLE = "qsls simulate --out flights/sim1 --seed 1 --format mcap"
         "px4.interface": Flag(("--interface",), name="interface"),
     },
     config_only={
-        "vehicle": "mass, drag",
+        "vehicle": "mass, drag, thrust_constant, sag",
+        "wind": "speed, direction_deg, gust, gust_hz",
         "reference": "kind, radius, height, period, ...",
         "crash": "the crash limits",
         "mocap": "the motion capture's noise and rate",
