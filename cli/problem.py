@@ -17,6 +17,7 @@ PROBLEM: Table = {
     "radius": ("--radius", "-r"),
     "delta": ("--delta",),
     "eps_w": ("--eps-w",),
+    "eps_b": ("--eps-b",),
     "measure": ("--measure",),
     "beta": ("--beta",),
     "eps_o": ("--eps-o",),

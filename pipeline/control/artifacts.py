@@ -351,6 +351,9 @@ class Certificate(CertificateBody):
     radius: float
     delta: float
     eps_w: float
+    eps_b: float = 0.0
+    """The bias term's bound (m/s^2 per axis; docs/guarantee.md#the-bias-term): a constant
+    acceleration ``||beta||_inf <= eps_b`` besides ``||w'_k|| <= eps_w``; 0: no bias term."""
     R0: float
     m: int = 0
     eps_o: float = 0.0
@@ -411,7 +414,7 @@ class Certificate(CertificateBody):
         reader of a certificate takes: evaluate, calibrate, export and the monitor)."""
         return PremiseNumbers(
             eps=self.eps_e, S=self.S, radius=self.radius, eps_w=self.eps_w, delta=self.delta,
-            eps_o=self.eps_o, m=self.m, R0=self.R0, gate=self.gate,
+            eps_o=self.eps_o, m=self.m, R0=self.R0, gate=self.gate, eps_b=self.eps_b,
         )  # fmt: skip
 
     @classmethod
@@ -474,9 +477,9 @@ def _parse(f: Path) -> tuple[Certificate, str]:
 
 FILE_ORDER = (
     "controller", "status", "status_reason", "promise", "robust", "norm", "cost", "cost_value", "objective", "strictly_proper",
-    "T", "S", "eps_e", "radius", "delta", "eps_w", "R0", "norm_phi_xx_h", "norm_phi_xy",
+    "T", "S", "eps_e", "radius", "delta", "eps_w", "eps_b", "R0", "norm_phi_xx_h", "norm_phi_xy",
     "norm_phi_ux", "norm_phi_uy", "robustness_lhs", "margin", "s_times_norm_phi_xy", "a",
-    "gamma", "gamma_strict", "rho_star", "norm_N", "norm_N_w", "G_m", "m", "eps_o", "measure",
+    "gamma", "gamma_strict", "rho_star", "norm_N", "norm_N_w", "G_m", "G_b", "m", "eps_o", "measure",
     "gate", "rho_v", "tested_range", "achievability_residual", "truncation_residual",
     "realization_error", "perturbation_peak", "perturbation_final", "checks", "solver_status",
     "solver", "dt", "mass", "Q", "R", "closed_loop_spectral_radius", "closed_loop_norms", "kp",
@@ -578,7 +581,7 @@ def _first(why: list[str]) -> str:
 THEOREM = (
     "norm_phi_xx_h", "norm_phi_xy", "norm_phi_ux", "norm_phi_uy", "robustness_lhs", "margin",
     "s_times_norm_phi_xy", "a", "gamma", "gamma_strict", "rho_star", "norm_N", "norm_N_w",
-    "G_m", "rho_v", "perturbation_peak",
+    "G_m", "G_b", "rho_v", "perturbation_peak",
 )  # fmt: skip
 """The certificate's numbers recomputed exactly (:data:`RECOMPUTE_RTOL`): norms and the
 guarantee's arithmetic are sums of absolute tap values, the perturbation peak a seeded
@@ -608,7 +611,7 @@ def recomputed_body(cert: Certificate, ctrl: Controller) -> CertificateBody:
     shape = sls.Shape(
         (*(p.state_scale if p is not None else (1.0,) * 6), *(0.0,) * extra),
         (*(p.error_scale if p is not None else (1.0,) * 6), *(1.0,) * extra),
-        cert.measure, cert.m, cert.gate is not None,
+        cert.measure, cert.m, cert.gate is not None, cert.eps_b > 0,
     )  # fmt: skip
     return certify(
         ctrl.taps, ctrl.model, cert.numbers(), shape,
@@ -733,7 +736,7 @@ def _inflation_problems(cert: Certificate) -> list[str]:
     assert c is not None
     lam, why = c.lambda_hat, []
     for key, have in (("eps_e", cert.eps_e), ("S", cert.S), ("eps_w", cert.eps_w),
-                      ("delta", cert.delta)):  # fmt: skip
+                      ("delta", cert.delta), ("eps_b", cert.eps_b)):  # fmt: skip
         want = c.nominal.get(key)
         if want is not None and not math.isclose(have, want * lam, rel_tol=1e-9, abs_tol=1e-12):
             why.append(f"{key} {have:.6g} is not the design's {want:.6g} x lambda_hat {lam:.6g}")

@@ -40,6 +40,8 @@ class CertificateBody(BaseModel):
     norm_N: float | None = None
     norm_N_w: float | None = None
     G_m: float | None = None
+    G_b: float | None = None
+    """The peak gain from a constant acceleration bias (docs/guarantee.md#the-bias-term)."""
     rho_v: float | None = None
     """Certified bound on the velocity deviation from the reference (``<= V`` with a gate)."""
     achievability_residual: float

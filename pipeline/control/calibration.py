@@ -217,7 +217,9 @@ class Responses:
     measured: tuple[int, ...]
     outlier: tuple[int, ...]
     norms: Norms
-    """``N``, ``N_w`` (``G_m`` is recomputed per ``m``)."""
+    """``N``, ``N_w``, ``G_b`` (``G_m`` is recomputed per ``m``)."""
+    bias_dirs: np.ndarray | None = None
+    """``D_w`` (:func:`qsls.pipeline.core.plant.bias_directions`), for the gate's ``g_b,i``."""
 
 
 @dataclass(frozen=True)
@@ -232,13 +234,14 @@ class Check:
 
 
 def inflate(p: PremiseNumbers, lam: float) -> PremiseNumbers:
-    """``P(lambda)``: ``eps``, ``S``, ``eps_w``, ``Delta`` (and the paper's ``R0``, an error bound
-    too) times ``lambda``, ``m -> floor(lambda m)``."""
+    """``P(lambda)``: ``eps``, ``S``, ``eps_w``, ``eps_b``, ``Delta`` (and the paper's ``R0``, an
+    error bound too) times ``lambda``, ``m -> floor(lambda m)``."""
     m = math.floor(lam * p.m + 1e-9) if math.isfinite(lam) else p.m
     R0 = None if p.R0 is None else p.R0 * lam
     return replace(
-        p, eps=p.eps * lam, S=p.S * lam, eps_w=p.eps_w * lam, delta=p.delta * lam, m=m, R0=R0
-    )
+        p, eps=p.eps * lam, S=p.S * lam, eps_w=p.eps_w * lam, delta=p.delta * lam, m=m, R0=R0,
+        eps_b=p.eps_b * lam,
+    )  # fmt: skip
 
 
 def check(p: PremiseNumbers, taps: Responses) -> Check:
@@ -255,7 +258,7 @@ def check(p: PremiseNumbers, taps: Responses) -> Check:
     if p.gate is not None:
         rho_v = velocity_deviation(
             taps.phi_xy, taps.phi_xx_h, p, error_scale=taps.error_scale,
-            measured=taps.measured, outlier_channels=taps.outlier,
+            measured=taps.measured, outlier_channels=taps.outlier, bias_dirs=taps.bias_dirs,
         )  # fmt: skip
         ok = ok and rho_v <= p.gate
     return Check(p, g, gm, rho_v, bool(ok))

@@ -44,7 +44,7 @@ from qsls.pipeline.control.status import (
     UNCERTIFIED,
     Status,
 )
-from qsls.pipeline.core.plant import LinearModel
+from qsls.pipeline.core.plant import LinearModel, bias_directions
 
 NOT_CALIBRATED = (
     "not calibrated: the premise describes the design flights only; calibrate it on flights "
@@ -142,6 +142,7 @@ def guarantee_fields(numbers: PremiseNumbers, norms: Norms) -> dict[str, float]:
         "norm_N": norms.N,
         "norm_N_w": norms.N_w,
         "G_m": norms.G_m,
+        "G_b": norms.G_b,
     }
 
 
@@ -207,6 +208,7 @@ def certify(
             taps.Phi_xy, taps.Phi_xx @ model.H, numbers, error_scale=shape.error_scale,
             measured=measured_channels(shape.measure),
             outlier_channels=outlier_channels(shape.measure, shape.m),
+            bias_dirs=bias_directions(model),
         )  # fmt: skip
         fields["rho_v"] = rho_v
         ok = rho_v <= numbers.gate * (1 + 1e-7)

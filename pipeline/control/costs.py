@@ -106,6 +106,7 @@ class PremiseNorms:
     N: Any  # ||W_x Phi_xy W_e^-1||
     N_w: Any  # ||W_x Phi_xx H||
     G_m: Any  # the sparse gain (None without outlier channels)
+    G_b: Any = None  # the bias gain (None without the bias term)
 
 
 def is_diagonal(m: np.ndarray) -> bool:

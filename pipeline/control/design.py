@@ -14,6 +14,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, cast
 
+import numpy as np
+
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.artifacts import (
     CONTROLLER_FILE,
@@ -31,6 +33,7 @@ from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.resolution import Resolved
 from qsls.pipeline.control.status import Status
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import bias_directions
 from qsls.pipeline.errormodel.disturbance import RESIDUAL
 
 
@@ -161,11 +164,13 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
     body = certify(taps, r.model, r.numbers, r.shape, reference=True)
     norms = static_gain_norms(r.model, K, T)
     # weighted norms of the closed loop bounded through its unweighted ones:
-    # ||W_x Phi W_e^-1|| <= max w_x ||Phi|| max 1/w_e, and G_m <= max w_x ||Phi_xy||
+    # ||W_x Phi W_e^-1|| <= max w_x ||Phi|| max 1/w_e, G_m <= max w_x ||Phi_xy||, and
+    # G_b <= max w_x ||Phi_xx H|| ||D_w|| (a partial sum is at most the sum of all taps)
     wx, we = max(r.shape.state_scale), 1.0 / min(r.shape.error_scale)
-    nxy = norms["phi_xy"].value
+    nxy, nxx = norms["phi_xy"].value, norms["phi_xx_h"].value
+    d_w = float(np.abs(bias_directions(r.model)).sum(axis=1).max())
     true = Norms(
-        N=wx * nxy * we, N_w=wx * norms["phi_xx_h"].value, G_m=wx * nxy if r.numbers.m > 0 else 0.0
+        N=wx * nxy * we, N_w=wx * nxx, G_m=wx * nxy if r.numbers.m > 0 else 0.0, G_b=wx * nxx * d_w
     )
     true_norms = {f"norm_{k}": n.value for k, n in norms.items()}
     body = body.model_copy(update=true_norms | guarantee_fields(r.numbers, true))

@@ -3,13 +3,18 @@
 Norms are weighted: ``|z|_x = ||W_x z||_inf`` on states, ``|e|_e = ||W_e e||_inf`` on errors;
 ``dist(x) = min_d |x - x_d|_x`` to the training states. The premise (dense plus sparse errors,
 :mod:`qsls.pipeline.errormodel.honest`) is ``|d_k|_e <= eps + S dist(x_k)`` within ``r``, at most
-``m`` outliers ``||o_k||_inf <= eps_o`` in any ``T`` consecutive steps, ``||w_k||_inf <= eps_w``
-and ``dist(x_ref,k) <= Delta``. The system quantities of responses ``Phi``::
+``m`` outliers ``||o_k||_inf <= eps_o`` in any ``T`` consecutive steps, ``w_k = D_w beta + w'_k``
+with a constant acceleration bias ``||beta||_inf <= eps_b`` and ``||w'_k||_inf <= eps_w``, and
+``dist(x_ref,k) <= Delta``. The system quantities of responses ``Phi``::
 
     N   = ||W_x Phi_xy W_e^-1||                     (measured error channels only)
     N_w = ||W_x Phi_xx H||
     G_m = max_i w_x,i * (sum of the m largest over taps t of sum_{j outlier} |Phi_xy(t)_ij|)
-    a   = eps_w N_w + Delta
+    G_b = max_i w_x,i max_K sum_c |P_K|_ic          P_K = sum_{t<=K} Phi_xx(t) H D_w
+    a   = eps_w N_w + eps_b G_b + Delta
+
+(``G_b``: the peak response to a constant bias, docs/guarantee.md#the-bias-term; with integral
+action, ``P_T = 0`` on the physical states, it decays to 0 after ``T`` ticks.)
 
 Robustness condition and conclusion::
 
@@ -89,6 +94,34 @@ def grouped_premise(
     return float(eps), float(S * eps / min(bounds.values())), tuple(out)
 
 
+def bias_rows(phi_xx_h: np.ndarray, bias_dirs: np.ndarray | None) -> np.ndarray:
+    """``g_b,i = max_K sum_c |P_K|_ic`` per state row, ``P_K = sum_{t<=K} Phi_xx(t) H D_w``: the
+    peak of row ``i``'s response to a constant bias ``||beta||_inf <= 1`` acting from the first
+    tick (after tap ``T`` the response stays at ``P_T``). Zeros without bias directions."""
+    nx = phi_xx_h.shape[1]
+    if bias_dirs is None:
+        return np.zeros(nx)
+    partial = np.cumsum(phi_xx_h @ np.asarray(bias_dirs, float), axis=0)  # (taps, nx, 3)
+    return np.asarray(np.abs(partial).sum(axis=2).max(axis=0), dtype=float)
+
+
+def bias_gain(
+    phi_xx_h: np.ndarray, bias_dirs: np.ndarray | None, state_scale: Sequence[float] = ONES
+) -> float:
+    """``G_b = max_i w_x,i g_b,i`` (:func:`bias_rows`)."""
+    rows = bias_rows(phi_xx_h, bias_dirs)
+    wx = np.zeros(len(rows))
+    wx[: len(state_scale)] = np.asarray(state_scale, float)[: len(rows)]
+    return float((wx * rows).max())
+
+
+def dc_bias_gain(phi_xx_h: np.ndarray, bias_dirs: np.ndarray, rows: int = 6) -> float:
+    """``max |P_T|`` over the physical rows: 0 when the controller has integral action on
+    the bias directions (the constraint :mod:`qsls.pipeline.control.sls` imposes)."""
+    total = (phi_xx_h @ np.asarray(bias_dirs, float)).sum(axis=0)
+    return float(np.abs(total[:rows]).max())
+
+
 @dataclass(frozen=True)
 class Norms:
     """The system quantities of one controller's responses."""
@@ -96,6 +129,7 @@ class Norms:
     N: float
     N_w: float
     G_m: float
+    G_b: float = 0.0
 
 
 def system_norms(
@@ -107,14 +141,17 @@ def system_norms(
     measured: Sequence[int] = tuple(range(6)),
     outlier_channels: Sequence[int] = (),
     m: int = 0,
+    bias_dirs: np.ndarray | None = None,
 ) -> Norms:
-    """``N``, ``N_w`` and ``G_m`` (module docstring) from the taps ``Phi_xy`` and ``Phi_xx H``."""
+    """``N``, ``N_w``, ``G_m`` and ``G_b`` (module docstring) from the taps ``Phi_xy`` and
+    ``Phi_xx H`` (``G_b`` 0 without ``bias_dirs``, :func:`qsls.pipeline.core.plant.bias_directions`)."""
     wx = np.asarray(state_scale, float)[None, :, None]
     inv_e = error_weights(error_scale, measured)[None, None, :]
     return Norms(
         N=l1_norm(wx * phi_xy * inv_e),
         N_w=l1_norm(wx * phi_xx_h),
         G_m=sparse_gain(phi_xy, state_scale, outlier_channels, m),
+        G_b=bias_gain(phi_xx_h, bias_dirs, state_scale),
     )
 
 
@@ -135,16 +172,20 @@ class PremiseNumbers:
     """The paper's error bound for ``gamma_strict`` (``eps`` when unset)."""
     gate: float | None = None
     """Velocity gate ``V`` (None: no gate)."""
+    eps_b: float = 0.0
+    """The bound on a constant acceleration bias (m/s^2 per axis, docs/guarantee.md#the-bias-term):
+    a stated design number, like ``Delta``; 0: no bias term."""
 
 
-def a_value(eps_w: float, N_w: float, delta: Any) -> Any:
-    """``a = eps_w N_w + Delta`` (``Delta`` a number, or measured distances: an array)."""
-    return eps_w * N_w + delta
+def a_value(eps_w: float, N_w: float, delta: Any, eps_b: float = 0.0, G_b: float = 0.0) -> Any:
+    """``a = eps_w N_w + eps_b G_b + Delta`` (``Delta`` a number, or measured distances: an
+    array)."""
+    return eps_w * N_w + eps_b * G_b + delta
 
 
 def a_prior(p: PremiseNumbers, n: Norms) -> float:
-    """``a = eps_w N_w + Delta``: the a-priori bound on ``dist(x_hat_k)``."""
-    return a_value(p.eps_w, n.N_w, p.delta)
+    """``a = eps_w N_w + eps_b G_b + Delta``: the a-priori bound on ``dist(x_hat_k)``."""
+    return a_value(p.eps_w, n.N_w, p.delta, p.eps_b, n.G_b)
 
 
 def denominator(S: float, N: float) -> float:
@@ -200,11 +241,12 @@ def necessary_condition(
 
 
 def largest_slope(n: Norms, *, eps_w: float, delta: float, eps_o: float, radius: float,
-                  backoff: float = 0.0) -> float:  # fmt: skip
-    """``rho = (1 - backoff - Delta/r - (eps_w N_w + eps_o G_m)/r) / N``: the largest
-    ``S + eps/r`` the robustness condition leaves these responses (``eps`` aside, so one
-    ratio serves every ``eps``)."""
-    return (1.0 - backoff - delta / radius - (eps_w * n.N_w + eps_o * n.G_m) / radius) / n.N
+                  backoff: float = 0.0, eps_b: float = 0.0) -> float:  # fmt: skip
+    """``rho = (1 - backoff - Delta/r - (eps_w N_w + eps_b G_b + eps_o G_m)/r) / N``: the
+    largest ``S + eps/r`` the robustness condition leaves these responses (``eps`` aside, so
+    one ratio serves every ``eps``)."""
+    rest = eps_w * n.N_w + eps_b * n.G_b + eps_o * n.G_m
+    return (1.0 - backoff - delta / radius - rest / radius) / n.N
 
 
 def rho_star(p: PremiseNumbers, n: Norms, a: float | None = None) -> float:
@@ -230,15 +272,18 @@ def velocity_deviation(
     error_scale: Sequence[float] = ONES,
     measured: Sequence[int] = tuple(range(6)),
     outlier_channels: Sequence[int] = (),
+    bias_dirs: np.ndarray | None = None,
 ) -> float:
     """``rho_v``: the bound on ``|v_k - v_ref,k|`` that the velocity gate needs (docs/guarantee.md,
-    Velocity gate). With ``x - x_ref = Phi_xx H w + Phi_xy (d + o)``, ``|d_j| <= (eps + S r) / w_e,j``
-    while ``dist(x) <= rho* <= r``, per velocity row ``i``::
+    Velocity gate). With ``x - x_ref = Phi_xx H (D_w beta + w') + Phi_xy (d + o)``,
+    ``|d_j| <= (eps + S r) / w_e,j`` while ``dist(x) <= rho* <= r``, per velocity row ``i``::
 
-        rho_v = max_i eps_w sum|Phi_xx H|_i + (eps + S r) sum|Phi_xy W_e^-1|_i + eps_o G_m,i
+        rho_v = max_i eps_w sum|Phi_xx H|_i + eps_b g_b,i + (eps + S r) sum|Phi_xy W_e^-1|_i
+                + eps_o G_m,i
 
-    (unweighted rows: the gate is in m/s)."""
+    (unweighted rows: the gate is in m/s; ``g_b,i`` of :func:`bias_rows`)."""
     inv_e = error_weights(error_scale, measured)[None, None, :]
+    g_b = bias_rows(phi_xx_h, bias_dirs)
     out = 0.0
     for i in VELOCITY:
         dense = float(np.abs(phi_xy[:, i, :] * inv_e[0]).sum())
@@ -248,7 +293,11 @@ def velocity_deviation(
             per_tap = np.abs(phi_xy[:, i, list(outlier_channels)]).sum(axis=1)
             sparse = float(np.sort(per_tap)[::-1][: p.m].sum())
         out = max(
-            out, p.eps_w * dist + premise_bound(p.eps, p.S, p.radius) * dense + p.eps_o * sparse
+            out,
+            p.eps_w * dist
+            + p.eps_b * float(g_b[i])
+            + premise_bound(p.eps, p.S, p.radius) * dense
+            + p.eps_o * sparse,
         )
     return out
 
@@ -308,12 +357,15 @@ def deviation_envelope(
     m: int = 0,
     eps_o: float = 0.0,
     beta: float = math.inf,
+    eps_b: float = 0.0,
+    bias_dirs: np.ndarray | None = None,
 ) -> np.ndarray:
     """``env`` (one entry per state channel, unweighted): under the premise
     ``|x_k,i - r_k,i| <= env_i`` at every tick (docs/monitor.md, The envelope).
 
     In deviation from the reference ``x - r = Phi_xx H * w + Phi_xy * (d + o)`` (the flight
-    starts on the reference), ``||w|| <= eps_w``, ``|d_j|_e <= dense = eps + S rho*`` (so
+    starts on the reference), ``w = D_w beta + w'`` with ``||beta|| <= eps_b`` (adding
+    ``eps_b g_b,i``, :func:`bias_rows`) and ``||w'|| <= eps_w``, ``|d_j|_e <= dense = eps + S rho*`` (so
     ``|d_j| <= dense / w_e,j``, and ``<= beta`` on an outlier channel, where ``d = clip_beta(e)``)
     and at most ``m`` of the last ``T`` ticks carry an outlier ``||o|| <= eps_o``::
 
@@ -321,11 +373,13 @@ def deviation_envelope(
               + sum_t sum_j |Phi_xy(t)_ij| db_j                 db_j = dense / w_e,j (min beta)
               + eps_o (sum of the m largest over t of sum_{j in O} |Phi_xy(t)_ij|)
 
-    ``max_i w_x,i env_i <= eps_w N_w + N dense + eps_o G_m = rho* - Delta``."""
+    ``max_i w_x,i env_i <= eps_w N_w + eps_b G_b + N dense + eps_o G_m = rho* - Delta``."""
     db = error_bounds(dense, error_scale, measured, beta)
     env = eps_w * np.abs(phi_xx_h).sum(axis=(0, 2)) + (np.abs(phi_xy) * db[None, None, :]).sum(
         axis=(0, 2)
     )
+    if eps_b > 0:
+        env = env + eps_b * bias_rows(phi_xx_h, bias_dirs)
     if m > 0 and len(outlier_channels):
         per_tap = np.abs(phi_xy[:, :, list(outlier_channels)]).sum(axis=2)  # (taps, nx)
         env = env + eps_o * (-np.sort(-per_tap, axis=0))[:m].sum(axis=0)
@@ -371,6 +425,8 @@ def monitor_spec(
     beta: float = math.inf,
     gate: float | None = None,
     realization_error: float = 0.0,
+    eps_b: float = 0.0,
+    bias_dirs: np.ndarray | None = None,
 ) -> MonitorSpec:
     """The thresholds ``env_i + db_i`` of :func:`deviation_envelope` plus the bound ``db_i`` on
     the error of the tick itself, per measured channel; velocity channels with ``beta`` and
@@ -385,6 +441,7 @@ def monitor_spec(
     env = deviation_envelope(
         phi_xy, phi_xx_h, eps_w=eps_w, dense=dense, error_scale=error_scale,
         measured=measured, outlier_channels=sparse, m=m, eps_o=eps_o, beta=beta,
+        eps_b=eps_b, bias_dirs=bias_dirs,
     )  # fmt: skip
     db = error_bounds(dense, error_scale, measured, beta)
     T = phi_xy.shape[0] - 1

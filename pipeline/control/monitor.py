@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -29,7 +30,7 @@ from qsls.pipeline.control.guarantee import (
     outlier_channels,
 )
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
-from qsls.pipeline.core.plant import NX
+from qsls.pipeline.core.plant import NX, bias_directions
 
 NO_MONITOR = MonitorSpec((0.0,) * 6, (OFF,) * 6, 0, 1, (0.0,) * 6, (0.0,) * 6)
 """The monitor of a controller without a guarantee: every channel off."""
@@ -62,6 +63,7 @@ def monitor_of(cdir: ControllerDir) -> MonitorSpec:
         measure=cert.measure, m=cert.m, eps_o=cert.eps_o,
         beta=p.beta if p is not None and p.beta is not None else np.inf,
         gate=cert.gate, realization_error=cert.realization_error or 0.0,
+        eps_b=cert.eps_b, bias_dirs=bias_directions(c.model),
     )  # fmt: skip
 
 
@@ -191,7 +193,8 @@ class InnovationSpec:
     breaks: tuple[float, ...] = ()
     """The break (share above ``eps_w``) each window catches at the errors' worst."""
     per_tick: tuple[float, ...] = ()
-    """``eps_w sum_j |H_cj|``: the premise's disturbance bound per tick and channel."""
+    """``eps_w sum_j |H_cj|`` (plus the bias term's ``eps_b sum_a |(H D_w)_ca|``): the
+    premise's disturbance bound per tick and channel."""
     error_part: tuple[tuple[float, ...], ...] = ()
     """``E_K,c``: the window bound's error terms (the threshold is ``K per_tick + E``)."""
     mode: str = "sound"
@@ -256,23 +259,34 @@ def window_bound(
     return K * float(per_tick[c]), ends + inner
 
 
+def per_tick_bound(
+    H: np.ndarray, eps_w: float, eps_b: float = 0.0, bias_dirs: np.ndarray | None = None
+) -> np.ndarray:
+    """``|delta_k,c| <= eps_w sum_j |H_cj| + eps_b sum_a |(H D_w)_ca|`` per physical channel:
+    ``delta = H (D_w beta + w')`` with the bias term's constant ``||beta|| <= eps_b``
+    (docs/guarantee.md#the-bias-term) and ``||w'|| <= eps_w``."""
+    out = eps_w * np.abs(H[:NX, :NX]).sum(axis=1)
+    if eps_b > 0 and bias_dirs is not None:
+        out = out + eps_b * np.abs(H[:NX] @ np.asarray(bias_dirs, float)).sum(axis=1)
+    return np.asarray(out, dtype=float)
+
+
 def innovation_spec(
     A: np.ndarray, B: np.ndarray, H: np.ndarray, *, eps_w: float, dense: float,
     error_scale: Sequence[float], measure: str, m: int, eps_o: float, beta: float, T: int,
-) -> InnovationSpec:  # fmt: skip
+    eps_b: float = 0.0, bias_dirs: np.ndarray | None = None) -> InnovationSpec:  # fmt: skip
     """The innovation monitor of a certificate's numbers (docs/monitor.md): per-tick
-    disturbance bound ``eps_w sum_j |H_cj|``, dense bounds ``db`` (:func:`error_bounds`),
+    disturbance bound (:func:`per_tick_bound`), dense bounds ``db`` (:func:`error_bounds`),
     outlier channels (velocities that can hold an outlier: ``m > 0`` and ``db = beta``), the
-    windows of :data:`WINDOW_BREAKS` and their thresholds (:func:`window_bound`). Off (all
-    thresholds 0) without a measured velocity or where the loop states depend on the
-    physical ones."""
+    windows of :data:`WINDOW_BREAKS` and their thresholds (:func:`window_bound`). Off without
+    a measured velocity or where the loop states depend on the physical ones."""
     A, B, H = (np.asarray(v, dtype=float) for v in (A, B, H))
     na = A.shape[0] - NX
     if measure != "full" or (na and np.any(A[NX:, :NX] != 0)) or not math.isfinite(dense):
         return NO_INNOVATION
     measured = measured_channels(measure)
     db = error_bounds(dense, error_scale, measured, beta)
-    per_tick = eps_w * np.abs(H[:NX, :NX]).sum(axis=1)
+    per_tick = per_tick_bound(H, eps_w, eps_b, bias_dirs)
     sparse = outlier_channels(measure, m) if math.isfinite(beta) else ()
     outlier = np.zeros(NX)
     for j in sparse:
@@ -286,7 +300,7 @@ def innovation_spec(
         ok = bool(outlier[c]) and ns <= T and float(np.abs(amI[c]) @ outlier) == 0.0
         robust.append(ok)
         shifts.append(ns if ok else 1)
-    kw = dict(per_tick=per_tick, db=db, a_minus_i=amI, outlier=outlier, eps_o=eps_o, m=m_eff, T=T)
+    kw: dict[str, Any] = dict(per_tick=per_tick, db=db, a_minus_i=amI, outlier=outlier, eps_o=eps_o, m=m_eff, T=T)  # fmt: skip
 
     def caught(K: int, c: int) -> float:
         """The smallest break share the window catches on channel c at the errors' worst."""
@@ -390,6 +404,7 @@ def innovation_of(cdir: ControllerDir) -> InnovationSpec:
         error_scale=p.error_scale if p is not None else (1.0,) * 6, measure=cert.measure,
         m=cert.m or 0, eps_o=cert.eps_o or 0.0,
         beta=p.beta if p is not None and p.beta is not None else np.inf, T=c.T,
+        eps_b=cert.eps_b, bias_dirs=bias_directions(model),
     )  # fmt: skip
 
 

@@ -119,6 +119,10 @@ class ProblemOptions(Options):
     model's."""
     R0: Number | None = None
     """R0 for gamma_strict; default: the eps_e in use (so gamma_strict <= gamma)."""
+    eps_b: float = Field(0.0, ge=0, le=5.0)
+    """Bound on a constant acceleration bias, m/s^2 per axis (a heavier vehicle, a steady wind):
+    the controller removes it by integral action and the premise allows it besides eps_w
+    (docs/guarantee.md#the-bias-term); 0: neither."""
     pd: PDGains = PDGains()
     """The PD controller's gains (the baseline, and the imitation target pd)."""
     imitate: str = "pd"

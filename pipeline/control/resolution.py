@@ -54,7 +54,7 @@ class Resolved:
         sh = self.shape
         return sls.Structure(
             T, norm, cost, robust, sp_, state_scale=sh.state_scale, error_scale=sh.error_scale,
-            measure=sh.measure, m=sh.m, gate=sh.gate and robust,
+            measure=sh.measure, m=sh.m, gate=sh.gate and robust, bias=sh.bias,
         )  # fmt: skip
 
     def record(self) -> dict[str, Any]:
@@ -63,6 +63,7 @@ class Resolved:
         return {
             "S": p.S, "eps_e": p.eps, "radius": p.radius, "delta": p.delta, "eps_w": p.eps_w,
             "R0": p.R0, "m": p.m, "eps_o": p.eps_o, "measure": self.shape.measure, "gate": p.gate,
+            "eps_b": p.eps_b,
         }  # fmt: skip
 
 
@@ -307,14 +308,14 @@ def resolve(
         "r": from_em if opts.radius is None else "number",
         "Delta": from_em if opts.delta is None else _how(opts.delta),
     }  # fmt: skip
-    chosen = PremiseNumbers(eps_e, S, radius, eps_w, delta, eps_o, m, R0, opts.gate)
+    chosen = PremiseNumbers(eps_e, S, radius, eps_w, delta, eps_o, m, R0, opts.gate, opts.eps_b)
     premise = premise_record(chosen, how, meas, em, where, group_record(groups_at, bounds))
     H = None if opts.H is None else np.asarray(opts.H)
     model = plant_model(opts.plant, dt=opts.dt, mass=opts.mass, H=H)
     extra = model.nx - len(state_scale)  # the attitude plant's states: unweighted, unmeasured
     shape = sls.Shape(
         (*state_scale, *(0.0,) * extra), (*spec.error_scale, *(1.0,) * extra), opts.measure, m,
-        opts.gate is not None,
+        opts.gate is not None, opts.eps_b > 0,
     )  # fmt: skip
     return Resolved(
         model, pad_weight(np.asarray(opts.Q), model.nx), np.asarray(opts.R), chosen, shape, premise

@@ -26,18 +26,12 @@ re-solved, cold. Measured at T = 50 (L1 robust c_QR): Clarabel 25 iterations on 
 variables instead of 37 on 14k; build plus solve 5x less CPU (benchmarks/bench_synth.py).
 
 Mirrored (issue 37, :func:`qsls.pipeline.control.achievable.mirror_maps`): where a signed
-permutation maps one axis onto another and leaves the plant and every weight invariant (the
-quadrotor's x and y), the optimum may be taken symmetric, so the image axis's free taps are
-the source's with signs and its entries get no epigraph of their own (their row sums equal the
-source's). The quickstart's honest setting at T = 50: 30 % less CPU, the same optimal value
-(docs/synthesis.md#fir-responses-and-achievability, docs/performance.md).
-
-Only the rows something reads (issue 37, second round): rows that ``W_x`` weights 0 and a
-mirror's image rows stay out of ``N``, ``N_w``, ``G_m`` and the gate; ``c_QR``'s L1 rows of
-states with a light weight (:data:`LIGHT_ROW`, the attitude plant's extra states) stay out of
-the problem and are checked after the solve (:func:`light_rows_hold`); an epigraph covers only
-the rows read. With Clarabel first without iterative refinement (:data:`FAST`): 0.137-0.146 CPU s
-against 0.195-0.204 at T = 50, the same optimal value.
+permutation maps one axis onto another and leaves the plant and every weight invariant (x and
+y), the image axis's free taps are the source's with signs, with no epigraph of their own.
+Only the rows something reads get an epigraph (``W_x``'s nonzero rows, not a mirror's image);
+``c_QR``'s rows of lightly weighted states (:data:`LIGHT_ROW`) are checked after the solve
+(:func:`light_rows_hold`). Measured in docs/performance.md (30 % less CPU from the mirror;
+0.137-0.146 CPU s against 0.195-0.204 with :data:`FAST` at T = 50, the same optimum).
 
 Norms: the induced inf-to-inf norm of an FIR operator is the largest row sum of absolute
 values over all its taps side by side (:func:`l1_norm`); H2 is the Frobenius norm over all
@@ -48,10 +42,10 @@ premise's norms) and sets its own Parameters; the problem never asks which cost 
 
 Robustness constraint (convex form of the paper's)::
 
-    (S + eps_e / r) ||Phi_xy|| + (eps_w ||Phi_xx H|| + Delta) / r <= 1 - backoff
+    (S + eps_e / r) ||Phi_xy|| + (eps_w ||Phi_xx H|| + eps_b G_b + Delta) / r <= 1 - backoff
 
-``backoff`` (1e-6) keeps the constraint strict after the solver's tolerance, so a
-certificate recomputed from the stored taps still has ``lhs < 1``.
+(``G_b`` with integral action only, :mod:`qsls.pipeline.control.integral`). ``backoff`` (1e-6)
+keeps it strict after the solver's tolerance: a recomputed certificate still has ``lhs < 1``.
 """
 
 from __future__ import annotations
@@ -85,6 +79,7 @@ from qsls.pipeline.control.guarantee import (
     premise_bound,
     system_norms,
 )
+from qsls.pipeline.control.integral import bias_norm, bias_sums, integral_action
 from qsls.pipeline.control.options import psd_sqrt as psd_sqrt
 from qsls.pipeline.control.taps import (  # re-exported: the responses are the problem's variables
     RESPONSES,
@@ -93,7 +88,7 @@ from qsls.pipeline.control.taps import (  # re-exported: the responses are the p
 from qsls.pipeline.control.taps import h2_norm as h2_norm
 from qsls.pipeline.control.taps import l1_norm as l1_norm
 from qsls.pipeline.control.taps import side_by_side as side_by_side
-from qsls.pipeline.core.plant import NX, LinearModel
+from qsls.pipeline.core.plant import NX, LinearModel, bias_directions
 
 Norm = Literal["l1", "h2"]
 ROBUST_BACKOFF = 1e-6
@@ -122,10 +117,8 @@ class Structure:
     cost: Cost = QR
     robust: bool = True
     strictly_proper: bool = False
-    # Q and R diagonal: the weights are Parameter vectors (diag(l) @ Phi keeps the
-    # problem data as sparse as the taps; a full Parameter matrix makes every weighted
-    # row depend on every row, which doubled Clarabel's time at T = 50). :func:`solve`
-    # picks this from the values.
+    # Q and R diagonal: Parameter vectors (a full Parameter matrix doubled Clarabel's time at
+    # T = 50); :func:`solve` picks this from the values.
     diagonal_weights: bool = True
     # The premise's norms (docs/guarantee.md), compiled into the problem: W_x, W_e, which
     # error channels the controller reads (position-only: Phi_uy's velocity columns are 0),
@@ -135,17 +128,16 @@ class Structure:
     measure: str = "full"
     m: int = 0
     gate: bool = False  # robust problems: the certified velocity deviation stays within V
-    # Responses restricted to the plant's decoupled blocks (the quadrotor's axes): exact
-    # when Q, R are diagonal and the nominal has no cross terms (qsls.pipeline.control.
-    # achievable); :func:`solve` turns it off otherwise.
+    # The bias term (docs/guarantee.md#the-bias-term): integral action, eps_b G_b in lhs.
+    bias: bool = False
+    # Responses on the plant's decoupled blocks (its axes): exact with diagonal Q, R and a
+    # nominal without cross terms (achievable.py); :func:`solve` turns it off otherwise.
     decoupled: bool = True
-    # Mirrored groups (the x and y axes) solved once (issue 37; achievable.mirror_maps): exact
-    # when the weights are invariant under the mirror and there is no nominal to imitate;
-    # :func:`solve` turns it on where it is.
+    # Mirrored groups (x and y) solved once (achievable.mirror_maps): exact when the weights
+    # are mirror-invariant and nothing is imitated; :func:`solve` turns it on where it is.
     mirrored: bool = False
-    # States whose rows of c_QR's L1 are left out of the problem (weights below LIGHT_ROW of
-    # the largest: the attitude plant's extra states) and checked after the solve (issue 37);
-    # :func:`solve` picks them from ``Q`` and re-solves with them where one would bind.
+    # States whose c_QR L1 rows are left out (weights below LIGHT_ROW: the attitude plant's
+    # extra states), checked after the solve; :func:`solve` re-solves where one would bind.
     light_states: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
@@ -250,6 +242,9 @@ class SLSProblem:
         self.cost = cost = s.cost
         self._read = self._rows_read()
         norms = self._premise_norms() if s.robust or cost.needs_norms else None
+        if s.bias:  # integral action: P_T = 0 (control/integral.py)
+            sums = bias_sums(mp.Phi_xx_H, bias_directions(model))
+            self._cons += integral_action(sums, z, self._copied_rows())
         p: dict[str, Any] = {}
         if s.robust:
             assert norms is not None
@@ -309,8 +304,15 @@ class SLSProblem:
         n_xx = cp.max(cp.multiply(wx[rows], self._rs_xh[rows]))
         channels = outlier_channels(s.measure, s.m)
         self._g_rows: dict[int, Any] = {}
+        g_b, self._gb_rows = None, {}
+        if s.bias:  # G_b on its own epigraph, g_b,i of the velocity rows for the gate
+            vel = np.isin(np.arange(self.model.nx), VELOCITY) & s.gate
+            sums = bias_sums(self.maps.Phi_xx_H, bias_directions(self.model))
+            g_b, per_row, cons = bias_norm(sums, self.z, wx, rows, vel, self._copied_rows())
+            self._cons += cons
+            self._gb_rows = {i: per_row[i] for i in VELOCITY if i in per_row}
         if not channels:
-            return PremiseNorms(n_xy, n_xx, None)
+            return PremiseNorms(n_xy, n_xx, None, g_b)
         per_tap = self.sums("Phi_xy", lambda t, i, j: np.isin(j, channels), by_tap=True)
         k = min(s.m, T)
 
@@ -319,7 +321,7 @@ class SLSProblem:
 
         g_m = cp.max(cp.hstack([wx[i] * g(int(i)) for i in rows]))
         self._g_rows = {i: g(i) for i in VELOCITY if not self._copied_rows()[i]}
-        return PremiseNorms(n_xy, n_xx, g_m)
+        return PremiseNorms(n_xy, n_xx, g_m, g_b)
 
     def _robustness_constraints(self, p: dict[str, Any], norms: PremiseNorms) -> list:
         """The robustness constraint (module docstring; docs/guarantee.md)
@@ -334,18 +336,23 @@ class SLSProblem:
         p["c_xx"] = cp.Parameter(nonneg=True, name="eps_w_over_r")
         p["c_rhs"] = cp.Parameter(name="one_minus_delta_over_r")
         lhs = p["c_xy"] * norms.N + p["c_xx"] * norms.N_w
+        if norms.G_b is not None:
+            p["c_b"] = cp.Parameter(nonneg=True, name="eps_b_over_r")
+            lhs = lhs + p["c_b"] * norms.G_b
         if norms.G_m is not None:
             p["c_o"] = cp.Parameter(nonneg=True, name="eps_o_over_r")
             lhs = lhs + p["c_o"] * norms.G_m
         cons = [lhs <= p["c_rhs"]]
         if s.gate:
-            for name in ("g_w", "g_d", "g_o", "g_V"):
+            for name in ("g_w", "g_d", "g_o", "g_b", "g_V"):
                 p[name] = cp.Parameter(nonneg=True, name="gate_" + name)
             copied = self._copied_rows()
             for i in (i for i in VELOCITY if not copied[i]):  # an image's row copies its source's
                 row = p["g_w"] * self._rs_xh[i] + p["g_d"] * self._rs_xy[i]
                 if i in self._g_rows:
                     row = row + p["g_o"] * self._g_rows[i]
+                if norms.G_b is not None:
+                    row = row + p["g_b"] * self._gb_rows[i]
                 cons.append(row <= p["g_V"])
         return cons
 
@@ -415,12 +422,15 @@ class SLSProblem:
             p["c_rhs"].value = float(1.0 - n.delta / n.radius - ROBUST_BACKOFF)
             if "c_o" in p:
                 p["c_o"].value = float(n.eps_o / n.radius)
+            if "c_b" in p:
+                p["c_b"].value = float(n.eps_b / n.radius)
             if "g_V" in p:
                 if n.gate is None:
                     raise ValueError("this problem was built with a velocity gate: give its V")
                 p["g_w"].value = float(n.eps_w)
                 p["g_d"].value = float(premise_bound(n.eps, n.S, n.radius))
                 p["g_o"].value = float(n.eps_o)
+                p["g_b"].value = float(n.eps_b)
                 p["g_V"].value = float(n.gate)
 
     def taps(self) -> Taps:
@@ -570,16 +580,20 @@ class Shape:
     measure: str = "full"
     m: int = 0
     gate: bool = False
+    bias: bool = False
 
     def structure(self, T: int, cost: Cost | str, strictly_proper: bool) -> Structure:
         return Structure(
             T, "l1", cost_of(cost), False, strictly_proper, state_scale=self.state_scale,
             error_scale=self.error_scale, measure=self.measure, m=self.m, gate=self.gate,
+            bias=self.bias,
         )  # fmt: skip
 
     def norms(self, taps: Taps, model: LinearModel) -> Norms:
+        """The premise's norms of ``taps``, ``G_b`` always (without integral action too)."""
         return system_norms(
             taps.Phi_xy, taps.Phi_xx @ model.H, state_scale=self.state_scale,
             error_scale=self.error_scale, measured=measured_channels(self.measure),
             outlier_channels=outlier_channels(self.measure, self.m), m=self.m,
+            bias_dirs=bias_directions(model),
         )  # fmt: skip

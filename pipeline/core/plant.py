@@ -172,6 +172,19 @@ def plant_model(
     return LinearModel(A=a, B=b, C=np.eye(n), H=h, dt=float(dt), mass=float(mass))
 
 
+def bias_directions(model: LinearModel) -> np.ndarray:
+    """``D_w = H^+ D`` (``(nx, 3)``): the disturbance a constant acceleration bias ``beta``
+    (m/s^2, one per axis) puts on one step, in the model's disturbance coordinates
+    (docs/guarantee.md, The bias term). A constant acceleration held over ``dt`` moves the
+    physical states by ``D beta`` with ``D = [dt^2/2 I; dt I]`` (the zero-order hold of the
+    double integrator); the attitude plant's loop states do not see it (they follow the
+    commands only)."""
+    d = np.zeros((model.nx, 3))
+    d[:3] = 0.5 * model.dt**2 * np.eye(3)
+    d[3:NX] = model.dt * np.eye(3)
+    return np.linalg.pinv(np.asarray(model.H, float)) @ d
+
+
 def input_states(A: np.ndarray, B: np.ndarray, du: np.ndarray) -> np.ndarray:
     """The model's extra states ``a_k`` (``(n, nx - NX)``) driven by the input deviations ``du``
     ``(n, nu)`` from rest: ``a_{k+1} = A_aa a_k + B_a du_k`` (they do not depend on the

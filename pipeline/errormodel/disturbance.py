@@ -16,6 +16,8 @@ certificate built on it says so.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from qsls.pipeline.core.plant import input_states
@@ -132,3 +134,58 @@ def shaped_norm(w: np.ndarray, H: np.ndarray | None) -> np.ndarray:
     if H is not None:
         w = np.linalg.solve(np.asarray(H, float), w.T).T
     return np.abs(w).max(axis=1)
+
+
+@dataclass(frozen=True)
+class BiasSplit:
+    """A flight's disturbance split as the bias term's premise reads it
+    (docs/guarantee.md#the-bias-term): ``w_k = D_w beta + w'_k``, one constant acceleration
+    ``beta`` for the whole flight."""
+
+    beta: np.ndarray
+    """``beta`` (m/s^2 per axis) of the smallest ``ratio``."""
+    residual: np.ndarray
+    """``||w'_k||_inf = ||w_k - D_w beta||_inf`` per tick."""
+    ratio: float
+    """``min_beta max(||beta||_inf / eps_b, max_k ||w_k - D_w beta||_inf / eps_w)``: the
+    smallest inflation of ``(eps_w, eps_b)`` under which the flight's disturbance holds."""
+
+
+def split_bias(w: np.ndarray, dirs: np.ndarray, eps_w: float, eps_b: float) -> BiasSplit:
+    """:class:`BiasSplit` of the disturbance ``w`` ((n, k), in the premise's coordinates
+    ``H^-1 delta``) with bias directions ``dirs`` ((k, 3), ``H^-1 D``). The ratio is a linear
+    program in ``(beta, t)``: minimize ``t`` subject to ``|beta_c| <= eps_b t`` and
+    ``|w_kj - (dirs beta)_j| <= eps_w t``, which needs only each channel's largest and smallest
+    ``w_kj``. Without a bias term (``eps_b = 0``) ``beta = 0`` and the ratio is
+    ``max ||w_k|| / eps_w``."""
+    w = np.asarray(w, dtype=float)
+    k = dirs.shape[1]
+    if eps_b <= 0 or not len(w) or not np.isfinite(w).any():
+        res = np.abs(w).max(axis=1) if w.size else np.zeros(len(w))
+        return BiasSplit(np.zeros(k), res, _ratio(float(np.nanmax(res, initial=0.0)), eps_w))
+    from scipy.optimize import linprog  # deferred: scipy.optimize is slow to import
+
+    hi, lo = np.nanmax(w, axis=0), np.nanmin(w, axis=0)
+    d = np.asarray(dirs, dtype=float)
+    ones = np.ones((len(d), 1))
+    eye = np.eye(k)
+    # rows: w_hi - d beta <= eps_w t; d beta - w_lo <= eps_w t; +-beta <= eps_b t
+    a_ub = np.vstack([
+        np.hstack([-d, -eps_w * ones]), np.hstack([d, -eps_w * ones]),
+        np.hstack([eye, -eps_b * np.ones((k, 1))]), np.hstack([-eye, -eps_b * np.ones((k, 1))]),
+    ])  # fmt: skip
+    b_ub = np.concatenate([-hi, lo, np.zeros(2 * k)])
+    cost = np.zeros(k + 1)
+    cost[-1] = 1.0
+    sol = linprog(cost, A_ub=a_ub, b_ub=b_ub, bounds=[(None, None)] * (k + 1), method="highs")
+    beta = np.asarray(sol.x[:k], dtype=float) if sol.status == 0 else np.zeros(k)
+    res = np.abs(w - beta @ d.T).max(axis=1)
+    worst = float(np.nanmax(res, initial=0.0))
+    ratio = max(_ratio(float(np.abs(beta).max()), eps_b), _ratio(worst, eps_w))
+    return BiasSplit(beta, res, ratio)
+
+
+def _ratio(value: float, limit: float) -> float:
+    if limit > 0:
+        return value / limit
+    return 0.0 if value <= 0 else float("inf")

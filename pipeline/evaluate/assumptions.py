@@ -10,6 +10,8 @@ assumptions, in the order the proof uses them:
 1. ``disturbance``: the disturbance in the proof's deviation coordinates,
    ``delta_k = dx_{k+1} - A dx_k - B du_k`` (``dx = x - r``, ``du = u - u_hover - uff``), has
    ``||H^-1 delta_k||_inf <= eps_w`` (docs/guarantee.md, Disturbance in deviation coordinates);
+   with a bias term, some constant acceleration ``||beta||_inf <= eps_b`` leaves
+   ``||H^-1 delta_k - D_w beta||_inf <= eps_w`` (docs/guarantee.md#the-bias-term);
 2. ``reference``: ``dist(x_ref,k) <= Delta``, the reference inside the region the premise
    covers (``a = eps_w N_w + Delta`` counts on it);
 3. ``nominal``: ``dist(x_hat_k) <= a`` with ``x_hat = x - Phi_xy * e'``;
@@ -36,7 +38,7 @@ import numpy as np
 from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.guarantee import PremiseNumbers, measured_channels
 from qsls.pipeline.errormodel import honest
-from qsls.pipeline.errormodel.disturbance import deviation_disturbance, shaped_norm
+from qsls.pipeline.errormodel.disturbance import BiasSplit, deviation_disturbance, split_bias
 from qsls.pipeline.evaluate.theorem import nominal_states
 from qsls.pipeline.sim.ticks import FlownLog as FlownLog
 
@@ -60,6 +62,9 @@ class CertifiedPremise:
     B: np.ndarray
     H: np.ndarray
     u_hover: np.ndarray
+    bias_dirs: np.ndarray | None = None
+    """``D_w`` on the physical states ((6, 3), :func:`qsls.pipeline.core.plant.bias_directions`);
+    read only when the premise has a bias term (``numbers.eps_b > 0``)."""
 
     @property
     def window(self) -> int:
@@ -78,7 +83,8 @@ def gated_errors(log: FlownLog, gate: float | None) -> np.ndarray:
 class Signals:
     """What a flight shows of each premise quantity, per tick: the error acted on (``e_read``,
     through the gate, the measured channels), ``|d_k|_e``, ``||o_k||_inf``, ``dist(x_k)``,
-    ``||H^-1 w_k||_inf`` and the outlier count of the ``T`` ticks ending at ``k``."""
+    ``||H^-1 w_k - D_w beta||_inf`` (``beta = 0`` without a bias term), the outlier count of
+    the ``T`` ticks ending at ``k``, and the disturbance's split (its ratio and ``beta``)."""
 
     e_read: np.ndarray
     dense: np.ndarray
@@ -86,6 +92,7 @@ class Signals:
     dist: np.ndarray
     w: np.ndarray
     counts: np.ndarray
+    split: BiasSplit
 
 
 def signals(
@@ -99,15 +106,18 @@ def signals(
     e_read[:, ch] = e[:, ch]
     d, o = honest.split_errors(e_read, c.beta, c.measure)
     mag = np.abs(o).max(axis=1)
+    delta = deviation_disturbance(log.x, log.u, log.ref, log.uff, c.A, c.B, c.u_hover)
+    w = np.linalg.solve(np.asarray(c.H, float), delta.T).T
+    dirs = c.bias_dirs if c.bias_dirs is not None else np.zeros((w.shape[1], 3))
+    split = split_bias(w, dirs, c.numbers.eps_w, c.numbers.eps_b)
     return Signals(
         e_read=e_read,
         dense=honest.weighted_norm(d, c.error_scale),
         mag=mag,
         dist=distance(log.x),
-        w=shaped_norm(
-            deviation_disturbance(log.x, log.u, log.ref, log.uff, c.A, c.B, c.u_hover), c.H
-        ),
+        w=split.residual,
         counts=honest.window_counts(mag > 0, np.zeros(len(mag), int), c.window),
+        split=split,
     )
 
 
@@ -122,8 +132,11 @@ def check_assumptions(
     d_ref = distance(np.asarray(log.ref, float))
     allowed = guarantee.premise_bound(c.numbers.eps, c.numbers.S, dist)
     inside = dist <= c.numbers.radius
+    t_w = _first(w > c.numbers.eps_w, log.t)
+    if math.isnan(t_w) and sig.split.ratio > 1.0 and len(log.t):  # only the bias is beyond eps_b
+        t_w = float(log.t[0])
     values = {
-        "disturbance": (float(w.max()) if len(w) else 0.0, c.numbers.eps_w, _first(w > c.numbers.eps_w, log.t)),
+        "disturbance": (float(w.max()) if len(w) else 0.0, c.numbers.eps_w, t_w),
         "reference": (float(d_ref.max()), c.numbers.delta, _first(d_ref > c.numbers.delta, log.t)),
         "nominal": (float(d_hat.max()), c.a, _first(d_hat > c.a, log.t)),
         "invariance": (float(dist.max()), min(c.rho_star, c.numbers.radius),
@@ -144,6 +157,8 @@ def check_assumptions(
     failed = min(broken)[2] if broken else None
     bound = float(guarantee.premise_bound(c.numbers.eps, c.numbers.S, c.rho_star))
     row |= {
+        "bias": float(np.abs(sig.split.beta).max()),
+        "eps_b": c.numbers.eps_b,
         "max_outlier": float(mag.max()),
         "eps_o": c.numbers.eps_o,
         "max_dense": float(dense.max()),

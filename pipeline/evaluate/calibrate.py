@@ -67,6 +67,7 @@ from qsls.pipeline.core.artifacts import (
 )
 from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.plant import bias_directions
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import load_error_model, resolve_model
@@ -140,7 +141,8 @@ def score_flight(
     (:mod:`qsls.pipeline.control.calibration`), with what the flight reached:
 
     - ``dense``: ``max |d_k|_e / (eps + S dist(x_k))`` over the samples within ``r``;
-    - ``disturbance``: ``max ||H^-1 w_k||_inf / eps_w``;
+    - ``disturbance``: ``max ||H^-1 w_k||_inf / eps_w``; with a bias term the smallest
+      inflation of ``(eps_w, eps_b)`` that holds (``split_bias``: one constant ``beta``);
     - ``reference``: ``max dist(x_ref,k) / Delta``;
     - ``outliers``: the largest outlier count in ``T`` consecutive ticks over ``m`` (inf when
       an outlier exceeds ``eps_o``, which the gate fixes and no inflation moves);
@@ -156,7 +158,7 @@ def score_flight(
     ref_max = float(distance(log.ref).max())
     parts = {
         "dense": float(rel[inside].max()) if inside.any() else 0.0,
-        "disturbance": cal.ratio(float(w.max()) if len(w) else 0.0, c.numbers.eps_w),
+        "disturbance": sig.split.ratio,
         "reference": cal.ratio(ref_max, c.numbers.delta),
         "outliers": math.inf
         if mag.max() > c.numbers.eps_o
@@ -167,7 +169,8 @@ def score_flight(
     reached = float(dist[inside].max()) if inside.any() else 0.0
     return {**parts, "score": cal.flight_score(parts), "reached": reached,
             "w_max": float(w.max()) if len(w) else 0.0, "window_max": float(counts.max()),
-            "ref_max": ref_max, "outlier_max": float(mag.max())}  # fmt: skip
+            "ref_max": ref_max, "outlier_max": float(mag.max()),
+            "bias": float(np.abs(sig.split.beta).max())}  # fmt: skip
 
 
 def range_score(parts: dict[str, float]) -> float:
@@ -209,8 +212,11 @@ def taps_of(folder: Path) -> cal.Responses:
     measured = measured_channels(c.measure)
     outlier = outlier_channels(c.measure, 1)  # G_m is recomputed per m
     phi_xx_h = taps.Phi_xx @ model.H
-    norms = system_norms(taps.Phi_xy, phi_xx_h, state_scale=sx, error_scale=se, measured=measured)
-    return cal.Responses(taps.Phi_xy, phi_xx_h, sx, se, measured, outlier, norms)
+    dirs = bias_directions(model)
+    norms = system_norms(
+        taps.Phi_xy, phi_xx_h, state_scale=sx, error_scale=se, measured=measured, bias_dirs=dirs
+    )
+    return cal.Responses(taps.Phi_xy, phi_xx_h, sx, se, measured, outlier, norms, dirs)
 
 
 @dataclass(frozen=True)
@@ -387,7 +393,7 @@ def calibrated_certificate(
         scores=[float(s) for s in o.scores], lambda_hat=o.lambda_hat,
         rank=o.rank, tested_range=o.tested_range,
         nominal={"eps_e": cert.eps_e, "S": cert.S, "eps_w": cert.eps_w, "delta": cert.delta,
-                 "m": float(cert.m), "rho_star": cert.rho_star},
+                 "m": float(cert.m), "rho_star": cert.rho_star, "eps_b": cert.eps_b},
         parts={k: float(max((r[k] for r in score_rows), default=0.0)) for k in cal.SCORED},
         tolerances=o.tolerances, holds=bool(o.check is not None and o.check.holds),
         range_flights=len(range_scores), range_scores=[float(v) for v in range_scores],
@@ -399,7 +405,7 @@ def calibrated_certificate(
         p, g = o.check.premise, o.check.guarantee
         update |= {
             "eps_e": p.eps, "S": p.S, "eps_w": p.eps_w, "delta": p.delta, "m": p.m,
-            "robustness_lhs": g.robustness_lhs, "margin": g.margin, "a": g.a,
+            "eps_b": p.eps_b, "robustness_lhs": g.robustness_lhs, "margin": g.margin, "a": g.a,
             "rho_star": g.rho_star, "gamma": g.dense_bound,
             # the paper's comparison R0 / (1 - S N) under the calibrated premise: R0 is its
             # error bound (the design's R0 was the design premise's)

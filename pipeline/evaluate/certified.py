@@ -28,7 +28,7 @@ from qsls.pipeline.control.nominal import static_gain_responses
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import ConfigError, InputError
-from qsls.pipeline.core.plant import GRAVITY, NX
+from qsls.pipeline.core.plant import GRAVITY, NX, bias_directions
 from qsls.pipeline.errormodel import honest
 from qsls.pipeline.evaluate.assumptions import CertifiedPremise
 from qsls.pipeline.evaluate.conditions import outside_family
@@ -57,6 +57,8 @@ class ControllerBound:
     """Bound on ``||Phi_xy||`` beyond ``phi_xy``'s taps (0 for a FIR controller)."""
     dt: float = math.nan
     """The controller's sample time."""
+    norm_bias: float = 0.0
+    """``G_b``, the peak gain from a constant bias (docs/guarantee.md#the-bias-term)."""
     beta: float = math.inf
     measure: str = "full"
     error_scale: tuple[float, ...] = (1.0,) * 6
@@ -78,8 +80,9 @@ class ControllerBound:
 
     @property
     def a_certificate(self) -> float:
-        """The certificate's a-priori ``a = eps_w ||Phi_xx H|| + Delta``."""
-        return guarantee.a_value(self.numbers.eps_w, self.norm_phi_xx_h, self.numbers.delta)
+        """The certificate's a-priori ``a = eps_w ||Phi_xx H|| + eps_b G_b + Delta``."""
+        n = self.numbers
+        return guarantee.a_value(n.eps_w, self.norm_phi_xx_h, n.delta, n.eps_b, self.norm_bias)
 
     @property
     def denominator(self) -> float:
@@ -120,10 +123,10 @@ class ControllerBound:
         return guarantee.gamma_strict_of(self.r0, self.numbers.S, self.norm_phi_xy)
 
     def gamma_at(self, distance: np.ndarray) -> np.ndarray:
-        """``gamma_k = (eps_e + S (eps_w ||Phi_xx H|| + d_k)) / (1 - S ||Phi_xy||)``."""
-        a = guarantee.a_value(
-            self.numbers.eps_w, self.norm_phi_xx_h, np.asarray(distance, dtype=float)
-        )
+        """``gamma_k = (eps_e + S (eps_w ||Phi_xx H|| + eps_b G_b + d_k)) / (1 - S ||Phi_xy||)``."""
+        n = self.numbers
+        d = np.asarray(distance, dtype=float)
+        a = guarantee.a_value(n.eps_w, self.norm_phi_xx_h, d, n.eps_b, self.norm_bias)
         return np.asarray(guarantee.gamma_of(self.numbers.eps, self.numbers.S, self.norm_phi_xy, a))
 
     def premise_at(self, distance: np.ndarray) -> np.ndarray:
@@ -153,6 +156,7 @@ def certified_premise(folder: Path) -> Any:
         phi_xy=physical(d.controller.taps.Phi_xy), A=model.A, B=model.B,
         H=model.H[:NX, :NX],
         u_hover=np.array([0.0, 0.0, model.mass * GRAVITY]),
+        bias_dirs=bias_directions(model)[:NX],
     )  # fmt: skip
 
 
@@ -192,6 +196,7 @@ def load_controller_bound(folder: Path) -> ControllerBound:
         phi_xy=physical(phi_xy),
         phi_xy_tail=tail,
         dt=float(ctrl.dt),
+        norm_bias=float(c.G_b or 0.0),
         beta=math.inf if c.premise is None or c.premise.beta is None else c.premise.beta,
         measure=c.measure,
         error_scale=tuple(c.premise.error_scale) if c.premise is not None else (1.0,) * 6,

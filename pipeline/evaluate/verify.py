@@ -334,9 +334,10 @@ def _design_premise(d: ControllerDir) -> Any:
         eps=float(nom["eps_e"]), S=float(nom["S"]), radius=cert.radius,  # type: ignore[arg-type]
         eps_w=float(nom["eps_w"]), delta=float(nom["delta"]),  # type: ignore[arg-type]
         eps_o=cert.eps_o, m=int(nom["m"]), R0=None, gate=cert.gate,  # type: ignore[arg-type]
+        eps_b=float(nom.get("eps_b") or 0.0),
     )  # fmt: skip
     assert cert.norm_N_w is not None  # a calibrated certificate states it (checked on load)
-    a = a_value(numbers.eps_w, cert.norm_N_w, numbers.delta)
+    a = a_value(numbers.eps_w, cert.norm_N_w, numbers.delta, numbers.eps_b, cert.G_b or 0.0)
     return dataclasses.replace(premise, numbers=numbers, a=a, rho_star=float(nom["rho_star"]))  # type: ignore[arg-type]
 
 
