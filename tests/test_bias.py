@@ -13,12 +13,14 @@ import pytest
 import yaml
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.artifacts import Certificate
+from qsls.pipeline.control.artifacts import Certificate, load_controller_dir
 from qsls.pipeline.control.guarantee import PremiseNumbers, bias_gain, dc_bias_gain, guarantee
+from qsls.pipeline.control.monitor import NO_MONITOR
 from qsls.pipeline.control.realize import RealizedController, filter_bank
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import bias_directions, plant_model
 from qsls.pipeline.errormodel.disturbance import split_bias
+from qsls.pipeline.export.statement import theorem_lines
 
 T = 20
 NUMBERS = PremiseNumbers(eps=0.05, S=0.0, radius=1.0, eps_w=0.01, delta=0.05, eps_b=0.5)
@@ -123,6 +125,8 @@ def test_the_certificate_states_the_bias_term_and_refuses_an_edited_gain(tmp_pat
     n = cert.numbers()
     want = n.eps_w * (cert.norm_N_w or 0.0) + n.eps_b * cert.G_b + n.delta
     assert cert.a == pytest.approx(want, rel=1e-12)
+    lines = " ".join(theorem_lines(load_controller_dir(out / "l1_robust"), NO_MONITOR))
+    assert "eps_b = 0.5 m/s^2" in lines and f"G_b = {cert.G_b:.6g}" in lines
     f = out / "l1_robust" / "certificate.yaml"
     data = yaml.safe_load(f.read_text())
     data["G_b"] = data["G_b"] / 4

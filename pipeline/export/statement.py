@@ -213,6 +213,12 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
         f"  (iii) ||H^-1 w_k||_inf <= eps_w = {_g(cert.eps_w)}, H = {h}, eps_w from: {src}; "
         f"dist(x_ref,k) <= Delta = {_g(cert.delta)}"
     )
+    if cert.eps_b > 0:
+        out.append(
+            f"  (iii') with the bias term: w_k = D_w beta + w'_k, one constant acceleration "
+            f"||beta||_inf <= eps_b = {_g(cert.eps_b)} m/s^2 and ||w'_k||_inf <= eps_w; the "
+            "taps have integral action (docs/guarantee.md#the-bias-term)"
+        )
     out.append(
         "  the flight starts on the reference (||H^-1 (x_0 - r_0)||_inf <= eps_w) with the "
         "controller reset"
@@ -225,7 +231,11 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
     out.append(
         f"condition: (S + eps/r) N + (a + eps_o G_m)/r = {_g(cert.robustness_lhs)} < 1 with "
         f"N = {_g(cert.norm_N)}, N_w = {_g(cert.norm_N_w)}, G_m = {_g(cert.G_m)}, "
-        f"a = eps_w N_w + Delta = {_g(cert.a)}"
+        + (
+            f"G_b = {_g(cert.G_b)}, a = eps_w N_w + eps_b G_b + Delta = {_g(cert.a)}"
+            if cert.eps_b > 0
+            else f"a = eps_w N_w + Delta = {_g(cert.a)}"
+        )
     )
     err = f"|d_k|_e <= gamma = eps + S rho* = {_g(cert.gamma)}"
     if full and cert.m > 0 and beta is not None:
