@@ -55,11 +55,38 @@ def conditions_text(conditions: Mapping[str, Any] | None) -> str:
         parts.append(f"the reference {ref}")
     fam = c.get("family") if isinstance(c.get("family"), Mapping) else {}
     span = fam.get("mass") if fam else None
-    if isinstance(span, list | tuple) and len(span) == 2 and span[0] != span[1]:
+    if _ranged(span):
+        assert span is not None
         parts.append(f"a vehicle of {span[0]:.4g} to {span[1]:.4g} kg")  # the stated family
     elif isinstance(c.get("vehicle"), Mapping) and c["vehicle"].get("mass"):
         parts.append(f"the {c['vehicle']['mass']:g} kg vehicle")
+    for key, (what, unit, scale) in FAMILY_WORDS.items():
+        span = fam.get(key) if fam else None
+        if _ranged(span):
+            assert span is not None
+            lo, hi = (float(v) * scale for v in span)
+            parts.append(f"{what} {lo:.3g} to {hi:.3g}{unit}")
+    px4 = c.get("px4")
+    if isinstance(px4, Mapping) and px4.get("interface") == "px4":
+        parts.append("flown through PX4's attitude interface with its hover-thrust estimate")
     return ", ".join(parts) or "the conditions of its calibration flights"
+
+
+FAMILY_WORDS = {
+    "radius": ("a reference radius of", " m", 1.0),
+    "period": ("a period of", " s", 1.0),
+    "height": ("a height of", " m", 1.0),
+    "wind": ("wind of", " m/s", 1.0),
+    "gust": ("gusts of", " m/s", 1.0),
+    "thrust_constant": ("a thrust constant of", " x nominal", 1.0),
+    "sag": ("a battery sag of", " %", 100.0),
+    "hover_error": ("a hover-thrust estimate off by", " %", 100.0),
+}
+"""How a ranged condition of the stated family reads in the promise (its words, unit, scale)."""
+
+
+def _ranged(span: Any) -> bool:
+    return isinstance(span, list | tuple) and len(span) == 2 and span[0] != span[1]
 
 
 def _first_reason(cert: Mapping[str, Any]) -> str:

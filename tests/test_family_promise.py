@@ -1,0 +1,29 @@
+"""The promise names every ranged condition of the stated family and the interface it was
+calibrated through (docs/calibration.md#the-promise)."""
+
+from __future__ import annotations
+
+from qsls.pipeline.evaluate.verdict import conditions_text, promise
+
+
+def test_the_promise_states_the_family_it_was_calibrated_over():
+    conditions = {
+        "perception": "regular", "estimator": "emulator",
+        "reference": {"kind": "circle", "radius": 1.0},
+        "vehicle": {"mass": 0.256},
+        "family": {"mass": [0.2304, 0.2816], "wind": [0.0, 0.5], "sag": [0.0, 0.02],
+                   "radius": [1.0, 1.0], "hover_error": [-0.02, 0.02]},
+        "px4": {"interface": "px4"},
+    }  # fmt: skip
+    text = conditions_text(conditions)
+    assert "a vehicle of 0.2304 to 0.2816 kg" in text
+    assert "wind of 0 to 0.5 m/s" in text
+    assert "a battery sag of 0 to 2 %" in text
+    assert "a hover-thrust estimate off by -2 to 2 %" in text
+    assert "reference radius" not in text  # a point range is no family: the recorded value
+    assert "PX4's attitude interface" in text
+    cert = {"controller": "l1_robust", "status": "certified", "rho_star": 1.29, "gamma": 0.145,
+            "calibration": {"alpha": 0.1, "duration_s": 15, "conditions": conditions}}  # fmt: skip
+    assert text in promise(cert)
+    # without the interface the promise does not claim it
+    assert "PX4" not in conditions_text({**conditions, "px4": None})
