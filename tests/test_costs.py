@@ -122,3 +122,74 @@ def test_no_cost_is_told_apart_by_its_name():
         if f.name != "costs.py" and (names := _compared_names(f.read_text()))
     }
     assert found == {}
+
+
+class InputGain(costs.Cost):
+    """``||R^1/2 Phi_ux H||``, the L1 gain from the disturbance to the weighted inputs: the
+    largest weighted row sum of the shared epigraph of ``Phi_ux H`` (every input row read)."""
+
+    def epigraph_rows(self, prob: Any) -> dict[str, np.ndarray]:
+        return {"Phi_ux_H": np.full(prob.model.nu, True)}
+
+    def objective(self, prob: Any, p: dict[str, Any], norms: Any) -> Any:
+        p["r_half"] = cp.Parameter(prob.model.nu, nonneg=True, name="r_half")
+        return cp.max(cp.multiply(p["r_half"], prob.sums("Phi_ux_H", lambda t, i, j: 1.0)))
+
+    def set_values(self, prob: Any, p: dict[str, Any], v: Any) -> None:
+        p["r_half"].value = np.sqrt(np.diag(v.R))
+
+
+def input_gain(taps: sls.Taps, R: np.ndarray) -> float:
+    return float((np.sqrt(np.diag(R)) * np.abs(taps.Phi_ux @ MODEL.H).sum(axis=(0, 2))).max())
+
+
+def independent_optimum(T: int, R: np.ndarray, with_error_gain: bool) -> float:
+    """The same objective over the four responses as plain cvxpy variables, every
+    achievability equation written out tap by tap (``achievability_residuals``'s), no
+    elimination, no block pattern, no mirror, no shared epigraph."""
+    a, b, c, h = MODEL.A, MODEL.B, MODEL.C, MODEL.H
+    nx, nu, ny = MODEL.nx, MODEL.nu, MODEL.ny
+    xx = [np.zeros((nx, nx))] + [cp.Variable((nx, nx)) for _ in range(T)]
+    ux = [np.zeros((nu, nx))] + [cp.Variable((nu, nx)) for _ in range(T)]
+    xy = [np.zeros((nx, ny))] + [cp.Variable((nx, ny)) for _ in range(T)]
+    uy = [cp.Variable((nu, ny)) for _ in range(T + 1)]
+    end = {"x": np.zeros((nx, nx)), "u": np.zeros((nu, nx)), "y": np.zeros((nx, ny))}
+    cons = []
+    for k in range(T + 1):
+        ident = np.eye(nx) if k == 0 else np.zeros((nx, nx))
+        x1 = xx[k + 1] if k < T else end["x"]
+        u1 = ux[k + 1] if k < T else end["u"]
+        y1 = xy[k + 1] if k < T else end["y"]
+        cons += [
+            x1 == a @ xx[k] + b @ ux[k] + ident,
+            x1 == xx[k] @ a + xy[k] @ c + ident,
+            y1 == a @ xy[k] + b @ uy[k],
+            u1 == ux[k] @ a + uy[k] @ c,
+        ]
+    r_half = np.sqrt(np.diag(R))
+    rows_u = sum(cp.sum(cp.abs(ux[k] @ h), axis=1) for k in range(1, T + 1))
+    objective = cp.max(cp.multiply(r_half, rows_u))
+    if with_error_gain:  # N with unit weights and every channel measured
+        objective = objective + cp.max(sum(cp.sum(cp.abs(xy[k]), axis=1) for k in range(1, T + 1)))
+    prob = cp.Problem(cp.Minimize(objective), cons)
+    prob.solve(solver="CLARABEL")
+    assert prob.status == cp.OPTIMAL
+    return float(prob.value)
+
+
+def test_a_new_cost_and_its_sum_with_a_premise_gain_reach_the_independent_optimum():
+    """A cost the library has never seen, ``||R^1/2 Phi_ux H||``, and its sum with the
+    premise's error gain ``N``: ``sls.solve`` (eliminated taps, block pattern, mirror, shared
+    epigraphs) reaches the optimum of the plain formulation above, and its taps state it."""
+    T = 8
+    alone = sls.solve(MODEL, sls.Structure(T, "l1", InputGain(), False), VALUES)
+    assert alone.status == "optimal" and alone.taps is not None
+    assert alone.objective == pytest.approx(input_gain(alone.taps, R), rel=1e-6)
+    assert alone.objective == pytest.approx(independent_optimum(T, R, False), rel=1e-6)
+    both = sls.solve(MODEL, sls.Structure(T, "l1", InputGain() + costs.ErrorGain(), False), VALUES)
+    assert both.status == "optimal" and both.taps is not None
+    stated = input_gain(both.taps, R) + l1_norm(both.taps.Phi_xy)
+    assert both.objective == pytest.approx(stated, rel=1e-6)
+    assert both.objective == pytest.approx(independent_optimum(T, R, True), rel=1e-6)
+    # the sum trades input gain for error gain: it pays more input gain than the first alone
+    assert input_gain(both.taps, R) > alone.objective * (1 + 1e-3)
