@@ -86,7 +86,9 @@ def test_the_promise_names_the_vehicle_family_it_was_calibrated_over():
     c = {"perception": "regular", "vehicle": {"mass": 0.256}}
     assert conditions_text(c).endswith("the 0.256 kg vehicle")
     c["family"] = stated(FAMILY, BASE)["family"]
-    assert conditions_text(c).endswith("a vehicle of 0.2483 to 0.2637 kg")
+    assert "a vehicle of 0.2483 to 0.2637 kg" in conditions_text(c)
+    c["family"] = stated(WINDY, BASE)["family"]
+    assert "wind of 0 to 1.5 m/s" in conditions_text(c), conditions_text(c)
 
 
 WINDY = ConditionFamily(
