@@ -206,10 +206,11 @@ def test_imports_inside_functions_are_deferred_on_purpose():
 
 
 # --------------------------------------------------------------------------- modules
-def module_of(f: Path) -> str:
-    """The dotted name of a file under ``pipeline/`` (a package's ``__init__.py``: the package)."""
-    parts = list(f.relative_to(PIPELINE).with_suffix("").parts)
-    return ".".join(["qsls", "pipeline", *(parts[:-1] if parts[-1] == "__init__" else parts)])
+def module_of(f: Path, root: Path = PIPELINE) -> str:
+    """The dotted name of a file under ``root`` (``pipeline/`` or ``cli/``; a package's
+    ``__init__.py``: the package)."""
+    parts = list(f.relative_to(root).with_suffix("").parts)
+    return ".".join(["qsls", root.name, *(parts[:-1] if parts[-1] == "__init__" else parts)])
 
 
 def imported_modules(source: str, here: str, is_package: bool, known: set[str]) -> set[str]:
@@ -244,10 +245,10 @@ def module_graph(sources: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
     return {m: imported_modules(src, m, pkg, known) for m, (src, pkg) in sources.items()}
 
 
-def pipeline_sources() -> dict[str, tuple[str, bool]]:
+def pipeline_sources(root: Path = PIPELINE) -> dict[str, tuple[str, bool]]:
     return {
-        module_of(f): (f.read_text(), f.name == "__init__.py")
-        for f in sorted(PIPELINE.rglob("*.py"))
+        module_of(f, root): (f.read_text(), f.name == "__init__.py")
+        for f in sorted(root.rglob("*.py"))
     }
 
 
@@ -308,6 +309,14 @@ def test_no_module_imports_itself_through_a_chain():
     import inside a function: a module depends on what it imports, never the other way too."""
     graph = module_graph(pipeline_sources())
     assert len(graph) > 150 and "qsls.pipeline.control.costs" in graph["qsls.pipeline.control.sls"]
+    assert "qsls.pipeline.control.sls" not in graph["qsls.pipeline.control.costs"]
+    assert circles(graph) == []
+
+
+def test_no_cli_module_imports_itself_through_a_chain():
+    """The same for the CLI's modules (their imports of pipeline/ point down, out of it)."""
+    graph = module_graph(pipeline_sources(PIPELINE.parent / "cli"))
+    assert len(graph) > 15 and "qsls.cli.common" in graph["qsls.cli.synth"]
     assert circles(graph) == []
 
 
