@@ -430,7 +430,8 @@ class SLSProblem:
                 p["g_w"].value = float(n.eps_w)
                 p["g_d"].value = float(premise_bound(n.eps, n.S, n.radius))
                 p["g_o"].value = float(n.eps_o)
-                p["g_b"].value = float(n.eps_b)
+                if "g_b" in p:  # (a problem built without the bias term has none)
+                    p["g_b"].value = float(n.eps_b)
                 p["g_V"].value = float(n.gate)
 
     def taps(self) -> Taps:
