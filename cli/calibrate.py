@@ -65,6 +65,8 @@ EXAMPLE = (
         ),
         "source": ("--source",),
         "standin_log": ("--standin-log",),
+        "monitor.mode": ("--monitor",),
+        "monitor.false_trip_rate": ("--false-trip-rate",),
     },
     config_only={
         "sim": "the vehicle, reference and VIO: a run config's simulate: section",

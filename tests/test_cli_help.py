@@ -81,6 +81,8 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "recorded": "recorded.calibration",
             "recorded_range": "recorded.range",
             "recorded_validation": "recorded.validation",
+            "mode": "monitor.mode",
+            "false_trip_rate": "monitor.false_trip_rate",
         },
     ),
     "evaluate": (

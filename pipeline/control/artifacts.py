@@ -42,6 +42,7 @@ from qsls.pipeline.control.certify import (
     certify,
 )
 from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.control.monitor_record import MonitorCalibration
 from qsls.pipeline.control.nominal import (
     ClosedLoopNorm,
     static_gain_norms,
@@ -318,6 +319,9 @@ class Calibration(BaseModel):
     """Every flight's tick log with its sha256 (calibration and range flights in the order of
     ``scores`` and ``range_scores``, then the validation flights): what ``qsls verify``
     recomputes the record from (docs/verify.md). Empty in a record written before it existed."""
+    monitor: MonitorCalibration | None = None
+    """The innovation monitor's mode, false-trip rate and quantile of its calibration flights'
+    statistics (docs/monitor.md#the-calibrated-mode); None: sound, none recorded."""
 
     @field_validator("tested_range", "duration_s", "alpha")
     @classmethod

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -29,8 +29,15 @@ from qsls.pipeline.control.guarantee import (
     monitor_spec,
     outlier_channels,
 )
+from qsls.pipeline.control.monitor_record import (
+    CALIBRATED,
+    MonitorCalibration,
+    MonitorMode,
+    conformal_quantile,
+)
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
-from qsls.pipeline.core.plant import NX, bias_directions
+from qsls.pipeline.core.plant import GRAVITY, NX, bias_directions
+from qsls.pipeline.core.ticks import FlownLog
 
 NO_MONITOR = MonitorSpec((0.0,) * 6, (OFF,) * 6, 0, 1, (0.0,) * 6, (0.0,) * 6)
 """The monitor of a controller without a guarantee: every channel off."""
@@ -201,6 +208,8 @@ class InnovationSpec:
     """``sound`` (the premise's bound) or ``calibrated`` (a conformal quantile: docs/monitor.md)."""
     false_trip_rate: float = 0.0
     """Calibrated mode: the stated probability of a false trip per flight (0 when sound)."""
+    scale: float = 1.0
+    """Calibrated mode: the window thresholds' share of the sound ones (1 when sound)."""
 
     @property
     def active(self) -> bool:
@@ -393,7 +402,18 @@ def _rows(a: np.ndarray) -> tuple[tuple[float, ...], ...]:
 
 def innovation_of(cdir: ControllerDir) -> InnovationSpec:
     """The innovation monitor of a controller folder (its certificate's numbers, its model's
-    ``A``, ``B``, ``H``); off where :func:`monitor_of` is off."""
+    ``A``, ``B``, ``H``); off where :func:`monitor_of` is off. Calibrated where the
+    certificate's calibration record says so (:func:`calibrated_innovation`)."""
+    spec = sound_innovation_of(cdir)
+    cal = cdir.certificate.calibration
+    if cal is not None and cal.monitor is not None and spec.active:
+        return calibrated_innovation(spec, cal.monitor)
+    return spec
+
+
+def sound_innovation_of(cdir: ControllerDir) -> InnovationSpec:
+    """:func:`innovation_of` in sound mode, whatever the record says: the premise's bounds
+    (the scale of a calibration's statistics)."""
     cert, c = cdir.certificate, cdir.controller
     if monitor_of(cdir) is NO_MONITOR:
         return NO_INNOVATION
@@ -406,6 +426,70 @@ def innovation_of(cdir: ControllerDir) -> InnovationSpec:
         beta=p.beta if p is not None and p.beta is not None else np.inf, T=c.T,
         eps_b=cert.eps_b, bias_dirs=bias_directions(model),
     )  # fmt: skip
+
+
+# --------------------------------------------------------------------------- calibrated mode
+def calibrated_innovation(spec: InnovationSpec, record: MonitorCalibration) -> InnovationSpec:
+    """``spec`` (sound) with the window thresholds the record states: ``scale`` times the
+    sound ones (``scale = min(q (1 + 1e-9), 1)``, ``q`` the conformal quantile of the
+    calibration flights' :func:`flight_statistic`: docs/monitor.md#the-calibrated-mode). A flight
+    whose statistic is at most ``q`` never trips them; the outlier count stays sound. In sound
+    mode (or ``q`` 0 or inf) the thresholds are the sound ones, the mode and rate stated."""
+    if record.mode != CALIBRATED:
+        return spec
+    f = record.scale
+    thr = tuple(tuple(v * f if v > 0 else 0.0 for v in row) for row in spec.threshold)
+    return replace(
+        spec, threshold=thr, mode=CALIBRATED, false_trip_rate=record.false_trip_rate, scale=f
+    )
+
+
+def flight_statistic(
+    spec: InnovationSpec, log: FlownLog, u_hover: np.ndarray | Sequence[float], gate: float | None
+) -> float:
+    """A flight's statistic ``s_f = max_{k, w, c} |med_k,w,c| / threshold_w,c`` under the sound
+    ``spec``: the largest median window sum of innovations (:class:`InnovationMonitor`, the
+    onboard arithmetic) over the flight's ticks, windows and checked channels, each over its
+    sound threshold (docs/monitor.md#the-calibrated-mode). 1 or more: the sound monitor tripped
+    (the premise is broken); 0 where no window filled. From the flight's ``y - r`` (velocity
+    through the gate) and the deviation command ``u - u_hover - uff`` flown, from the reset at
+    take-off; a row that is not finite is refused (it restarts the windows), as onboard."""
+    d = np.asarray(log.y, float) - np.asarray(log.ref, float)
+    if gate is not None:
+        d[:, 3:] = np.clip(d[:, 3:], -gate, gate)
+    du = np.asarray(log.u, float) - np.asarray(log.uff, float) - np.asarray(u_hover, float)
+    du = np.nan_to_num(du)
+    mon = InnovationMonitor(spec)
+    live = [
+        (w, c, thr) for w, row in enumerate(spec.threshold) for c, thr in enumerate(row) if thr > 0
+    ]
+    worst = 0.0
+    for k in range(len(d)):
+        ok = bool(np.all(np.isfinite(d[k])))
+        mon.step(d[k].tolist() if ok else None)
+        mon.command(du[k].tolist())
+        for w, c, thr in live:
+            worst = max(worst, abs(mon.statistic[w][c]) / thr)
+    return worst
+
+
+def monitor_calibration(
+    spec: InnovationSpec, logs: Sequence[FlownLog], u_hover: np.ndarray | Sequence[float],
+    gate: float | None, mode: MonitorMode, rate: float,
+) -> MonitorCalibration:  # fmt: skip
+    """The calibration record of the innovation monitor: each calibration flight's
+    :func:`flight_statistic` under the sound ``spec`` and their conformal quantile at ``rate``
+    (:func:`qsls.pipeline.control.monitor_record.conformal_quantile`)."""
+    stats = [flight_statistic(spec, log, u_hover, gate) for log in logs]
+    rank, q = conformal_quantile(stats, rate)
+    return MonitorCalibration(
+        mode=mode, false_trip_rate=rate, statistics=stats, rank=rank, quantile=q
+    )
+
+
+def hover_input(cdir: ControllerDir) -> np.ndarray:
+    """``u_hover = [0, 0, m g]`` of the controller's model (the deviation command's origin)."""
+    return np.array([0.0, 0.0, cdir.controller.model.mass * GRAVITY])
 
 
 class InnovationMonitor:

@@ -57,6 +57,7 @@ from qsls.pipeline.control.guarantee import (
     outlier_channels,
     system_norms,
 )
+from qsls.pipeline.control.monitor import hover_input, monitor_calibration, sound_innovation_of
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED
 from qsls.pipeline.core.artifacts import (
     StageWriter,
@@ -423,6 +424,23 @@ def calibrated_certificate(
     return out
 
 
+def record_monitor(folder: Path, logs: Sequence[FlownLog], options: CalibrateOptions) -> None:
+    """The innovation monitor's calibration in ``folder``'s record
+    (docs/monitor.md#the-calibrated-mode): each calibration flight's statistic (``logs``, in the order of the scores) under the
+    calibrated certificate's sound monitor, their conformal quantile at the option's
+    false-trip rate, and the mode (:func:`qsls.pipeline.control.monitor.monitor_calibration`);
+    nothing where that monitor is off."""
+    d = load_controller_dir(folder)
+    cert, spec = d.certificate, sound_innovation_of(d)
+    if cert.calibration is None or not spec.active:
+        return
+    mon = options.monitor
+    rec = monitor_calibration(spec, logs, hover_input(d), cert.gate, mon.mode, mon.false_trip_rate)
+    record = cert.calibration.model_copy(update={"monitor": rec})
+    new = cert.model_copy(update={"calibration": record})
+    atomic_write_bytes(folder / CERTIFICATE_FILE, new.to_yaml().encode())
+
+
 # --------------------------------------------------------------------------- the stage
 @dataclass(frozen=True)
 class CalibrateResult:
@@ -572,6 +590,9 @@ def calibrate(
                     ranged["score"].to_list(),
                     evidence=[evidence[n] for n in (*sel["flight"], *ranged["flight"])],
                 )
+                flown = {j.name: tk for j, tk in zip(cjobs, ticks, strict=True)}
+                record_monitor(w.path(f"{cond}/{f.name}"), [flown[n] for n in sel["flight"]],
+                               options)  # fmt: skip
         vjobs = jobs_for("validation", valid_seeds, lambda cond, n: w.path(f"{cond}/{n}"))
         vrows = []
         if vjobs:

@@ -44,6 +44,7 @@ from qsls.pipeline.evaluate.calibrate import (
     fitted_seeds,
     offsets,
     range_score,
+    record_monitor,
     score_flight,
     summary_row,
     taps_of,
@@ -239,6 +240,7 @@ def _one(
         conditions, rs, logs=[f.log_sha256 for f in calib], duration=conditions["duration_s"],
         evidence=evidence,
     )  # fmt: skip
+    record_monitor(target, [f.log for f in calib], options)
     c = certified_premise(target)
     checked = [
         {"flight": f.name, "controller": folder.name, "condition": condition,

@@ -140,6 +140,19 @@ class RecordedFlights(Options):
         return bool(self.calibration or self.range or self.validation)
 
 
+class MonitorOptions(Options):
+    """Which thresholds the calibrated certificate's innovation monitor flies
+    (docs/monitor.md#the-calibrated-mode)."""
+
+    mode: Literal["sound", "calibrated"] = "sound"
+    """``sound``: the premise's bound (a trip proves the premise broken); ``calibrated``: the
+    conformal quantile of the calibration flights' window statistics (earlier catches, at a
+    stated false-trip rate)."""
+    false_trip_rate: float = Field(0.1, gt=0, lt=1)
+    """``calibrated``: the probability that a next flight of the calibration's conditions
+    trips the window sums (the quantile is recorded at this rate in either mode)."""
+
+
 class CalibrateOptions(Options):
     """Options of ``qsls calibrate`` (the run's ``calibrate:`` section): each candidate flies
     its own calibration flights, then fresh validation flights (docs/calibration.md)."""
@@ -206,6 +219,9 @@ class CalibrateOptions(Options):
     standin_log: Literal["ulog", "mavros"] = "ulog"
     """With ``source: standin``, how the stand-in vehicle logs each flight: a PX4 ULog, or a
     ROS1 bag as a mavros user records it (docs/vehicle.md)."""
+    monitor: MonitorOptions = MonitorOptions()
+    """The innovation monitor's mode and false-trip rate (``mode: calibrated`` for thresholds
+    at the calibration flights' conformal quantile; docs/monitor.md#the-calibrated-mode)."""
     recorded: RecordedFlights = RecordedFlights()
     """Recorded flights by role (``calibration``, ``range``, ``validation``; a plain list is the
     calibration flights); given, no flight is simulated (docs/vehicle.md)."""

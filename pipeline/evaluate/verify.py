@@ -15,7 +15,9 @@ controller folder inside it),
   (:func:`~qsls.pipeline.evaluate.calibrate.decide`) on the recomputed scores;
 - the conditions the logs carry: each flight's perception condition (its tick log's metadata,
   and the folder the certificate sits in), the controller that flew it (its ``controller.npz``
-  sha256), the flights' seeds, and the flight length (ticks times the tick, to within a tick).
+  sha256), the flights' seeds, and the flight length (ticks times the tick, to within a tick);
+- the innovation monitor's statistic of every calibration flight and their quantile
+  (docs/monitor.md#the-calibrated-mode).
 
 Each difference is one :class:`Difference` (field, stored, recomputed); none: verified.
 """
@@ -36,6 +38,7 @@ from qsls.pipeline.control.artifacts import (
     load_controller_dir,
 )
 from qsls.pipeline.control.guarantee import PremiseNumbers, a_value
+from qsls.pipeline.control.monitor import hover_input, monitor_calibration, sound_innovation_of
 from qsls.pipeline.core.artifacts import MANIFEST, read_manifest, sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import TickLog
@@ -223,7 +226,33 @@ def _one(
     _duration(d, logs, diff)
     if training is not None and all(e.flight in logs for e in c.evidence):
         _scores(d, logs, training.data, root, diff)
+    if all(e.flight in logs for e in c.evidence if e.role == "calibration"):
+        _monitor(d, logs, diff)
     return len(logs), out
+
+
+def _monitor(d: ControllerDir, logs: dict[str, TickLog], diff: Any) -> None:
+    """The innovation monitor's statistics from the calibration flights' logs under the
+    certificate's sound monitor, and their quantile (docs/monitor.md#the-calibrated-mode; the
+    record's rank and quantile against its own statistics are checked on load)."""
+    c = d.certificate.calibration
+    assert c is not None
+    if c.monitor is None:
+        return  # sound, none recorded (a record from before the calibrated mode)
+    spec = sound_innovation_of(d)
+    names = [e.flight for e in c.evidence if e.role == "calibration"]
+    mine = [logs[n] for n in names]
+    gate = d.certificate.gate
+    want = monitor_calibration(spec, mine, hover_input(d), gate, c.monitor.mode,
+                               c.monitor.false_trip_rate)  # fmt: skip
+    if len(want.statistics) != len(c.monitor.statistics):
+        diff("calibration.monitor.statistics", len(c.monitor.statistics), len(want.statistics))
+        return
+    for i, (h, w) in enumerate(zip(c.monitor.statistics, want.statistics, strict=True)):
+        if differs(h, w):
+            diff(f"calibration.monitor.statistics[{i}]", h, w)
+    if differs(c.monitor.quantile, want.quantile):
+        diff("calibration.monitor.quantile", c.monitor.quantile, want.quantile)
 
 
 def _conditions_of(

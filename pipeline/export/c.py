@@ -171,6 +171,13 @@ extern "C" {{
 #define {m}_TRIP_SUM_CHANNEL 16 /* << c: a window sum beyond its bound on channel c (px..vz) */
 #define {m}_TRIP_SUM_WINDOW 1024 /* << w: ... on the window INNOVATION_WINDOWS[w] */
 #define {m}_INNOVATION_ON {int(facts.innovation.active)}
+/* The window sums' thresholds: "sound" (the premise's bound: no trip while it holds) or
+ * "calibrated" (INNOVATION_SCALE of the sound ones, the conformal quantile of the calibration
+ * flights: a next flight of its conditions trips them with probability at most
+ * FALSE_TRIP_RATE; docs/monitor.md#the-calibrated-mode). */
+#define {m}_INNOVATION_MODE "{facts.innovation.mode}"
+#define {m}_FALSE_TRIP_RATE {facts.innovation.false_trip_rate!r}
+#define {m}_INNOVATION_SCALE {facts.innovation.scale!r}
 {_windows(facts, m)}
 #define {m}_Y_MAX {literal(Y_MAX, precision)} /* m, m/s: |y_i| beyond this is refused */
 #define {m}_MONITOR_M {facts.monitor.m}

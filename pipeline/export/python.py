@@ -132,6 +132,12 @@ MONITOR_M = {mon.m}
 # The innovation monitor (docs/monitor.md, The bits): window sums of nu = y'[k+1] - A y'[k] -
 # B u[k]; TRIP_SUM_CHANNEL << c names the channel (px..vz), TRIP_SUM_WINDOW << w the window.
 TRIP_INNOVATION_OUTLIERS, TRIP_SUM_CHANNEL, TRIP_SUM_WINDOW = 8, 16, 1024
+# The window sums' thresholds: "sound" (the premise's bound) or "calibrated" (INNOVATION_SCALE
+# of the sound ones: a next flight of the calibration's conditions trips them with probability
+# at most FALSE_TRIP_RATE; docs/monitor.md#the-calibrated-mode).
+INNOVATION_MODE = {facts.innovation.mode!r}
+FALSE_TRIP_RATE = {facts.innovation.false_trip_rate!r}
+INNOVATION_SCALE = {facts.innovation.scale!r}
 {py_code(facts.innovation)}
 
 _sumprod = getattr(math, "sumprod", None)

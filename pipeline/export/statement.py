@@ -20,6 +20,7 @@ import numpy as np
 
 from qsls.pipeline.control.artifacts import Calibration, Certificate, ControllerDir
 from qsls.pipeline.control.guarantee import COUNT, OFF, TRIP, MonitorSpec
+from qsls.pipeline.control.monitor import InnovationSpec, innovation_of
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
 
 CHANNELS = ("px", "py", "pz", "vx", "vy", "vz")
@@ -303,4 +304,24 @@ def statement(cdir: ControllerDir, spec: MonitorSpec, reason: str) -> list[str]:
     else:
         lines.append(f"no theorem: status {cert.status} ({reason})")
     lines += monitor_lines(spec)
+    lines += innovation_lines(innovation_of(cdir))
     return lines
+
+
+def innovation_lines(inn: InnovationSpec) -> list[str]:
+    """What the innovation monitor checks and in which mode (docs/monitor.md)."""
+    if not inn.active:
+        return []
+    out = [
+        f"innovation monitor: window sums of nu over {', '.join(str(k) for k in inn.windows)} "
+        f"ticks on {', '.join(CHANNELS[c] for c in inn.live_channels()) or 'no channel'}"
+    ]
+    if inn.mode == "calibrated":
+        out.append(
+            f"  calibrated: thresholds {inn.scale:.4g} of the sound ones (the conformal quantile "
+            f"of the calibration flights' statistics); a next flight of its conditions trips "
+            f"them with probability at most {inn.false_trip_rate:g} (a trip is not a proof)"
+        )
+    else:
+        out.append("  sound: a trip proves the premise broken on this flight")
+    return out
