@@ -277,3 +277,58 @@ def test_the_fly_stage_and_replay_apply_the_onboard_monitor_and_say_what_tripped
     assert rep["innovation"]["windows"] == list(s.windows)
     text = _monitor_text(rep)
     assert "premise broken" in text and "disturbance above eps_w on vz for" in text
+
+
+def test_calibrated_thresholds_export_bit_identical_and_trip_sooner(loop, gcc, tmp_path):
+    """The calibrated mode (docs/monitor.md#the-calibrated-mode): a record's quantile 0.6 makes
+    every window threshold 0.6 of the sound one; the exported C (double) and Python read it from
+    the spec, state the mode and rate in their headers, and give the library's bits tick for
+    tick on a 20 % break on vz, which they catch sooner than the sound thresholds do (and a
+    quiet stretch before the break at half the premise's disturbance trips neither)."""
+    from qsls.pipeline.control.monitor import calibrated_innovation
+    from qsls.pipeline.control.monitor_record import MonitorCalibration
+
+    ctrl, sound, _, _ = loop
+    stats = [0.2 + 0.02 * i for i in range(20)]  # rank 19 of 20 at rate 0.1: 0.56
+    rec = MonitorCalibration(
+        mode="calibrated", false_trip_rate=0.1, statistics=stats, rank=19, quantile=stats[18]
+    )
+    spec = calibrated_innovation(sound, rec)
+    assert spec.scale == pytest.approx(0.56, rel=2e-9)
+    for w in range(len(spec.windows)):
+        for c in range(6):
+            assert spec.threshold[w][c] == pytest.approx(0.56 * sound.threshold[w][c], rel=2e-9)
+    fx = dataclasses.replace(B.facts(ctrl), innovation=spec)
+    bank = B.export_bank(ctrl)
+    files = c_files(bank, fx, "qsls_ctrl", "double")
+    assert '#define QSLS_CTRL_INNOVATION_MODE "calibrated"' in files["qsls_ctrl.h"]
+    assert "#define QSLS_CTRL_FALSE_TRIP_RATE 0.1" in files["qsls_ctrl.h"]
+    c = CController(_build(gcc, files, tmp_path / "cal"), dt=0.1)
+    src = module(bank, fx)
+    assert "INNOVATION_MODE = 'calibrated'" in src and "FALSE_TRIP_RATE = 0.1" in src
+    py = load_module(src).Controller()
+    k0, n = 200, 600
+    rng = np.random.default_rng(20)
+    w = rng.uniform(-0.5 * EPS_W, 0.5 * EPS_W, (n, 6))
+    w[k0:, 5] = 1.2 * EPS_W
+    e = rng.uniform(-1.0, 1.0, (n, 6)) * np.array([0.1] * 3 + [0.2] * 3)
+    bits = _fly(ctrl, [c, py], w, e)
+    assert (bits[0] == bits[1]).all()
+    # the library, from the same measurements and commands as the C flew
+    model = ctrl.controller.model
+    x, ys, us = np.zeros(6), [], []
+    c.reset()
+    for k in range(n):
+        y = x + e[k]
+        u = np.asarray(c.step(y), dtype=float)
+        ys.append(y)
+        us.append(u)
+        x = model.A @ x + model.B @ u + model.H @ w[k]
+    lib = innovation_flags(spec, np.array(ys), np.array(us), V)
+    np.testing.assert_array_equal(bits[0] & ~7, lib)
+    snd = innovation_flags(sound, np.array(ys), np.array(us), V)
+    cal_vz = np.flatnonzero(lib & (TRIP_SUM_CHANNEL << 5))
+    snd_vz = np.flatnonzero(snd & (TRIP_SUM_CHANNEL << 5))
+    assert len(cal_vz) and not lib[:k0].any() and not snd[:k0].any()
+    # measured: calibrated 36 ticks after the break, sound 139
+    assert len(snd_vz) and k0 < cal_vz[0] < snd_vz[0], (cal_vz[:1], snd_vz[:1])
