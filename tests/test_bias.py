@@ -133,3 +133,27 @@ def test_the_certificate_states_the_bias_term_and_refuses_an_edited_gain(tmp_pat
     f.write_text(yaml.safe_dump(data, sort_keys=False))
     with pytest.raises(InputError, match="G_b"):
         Certificate.load(out / "l1_robust")
+
+
+def test_a_certificate_of_an_inaccurate_solve_is_what_its_taps_give(tmp_path: Path):
+    """A solve that ends ``optimal_inaccurate`` (cvxpy's word, recorded as ``solver_status``)
+    was certified as ``inaccurate`` (the solution's status): recomputed on load, it is the
+    same certificate, not a tampered one."""
+    from qsls.pipeline.control.artifacts import Controller, recomputation_problems
+    from qsls.pipeline.control.certify import certify
+
+    out = tmp_path / "synth"
+    cmd = [sys.executable, "-m", "qsls.cli.main", "synth", "-o", str(out), "--T", "12",
+           "--plant", "hover", "--controllers", "single", "--eps-e", "0.05", "--S", "0",
+           "--radius", "1", "--delta", "0.05", "--eps-w", "0.01"]  # fmt: skip
+    assert subprocess.run(cmd, capture_output=True, text=True, timeout=300).returncode == 0
+    cert = Certificate.load(out / "l1_robust")
+    ctrl = Controller.load(out / "l1_robust")
+    body = certify(ctrl.taps, ctrl.model, cert.numbers(), solver_status="inaccurate")
+    setting = cert.model_dump(exclude=set(type(body).model_fields))
+    redone = Certificate.of(body, **setting | {"solver_status": "optimal_inaccurate"})
+    assert redone.status == "solver_inaccurate"
+    assert recomputation_problems(redone, ctrl) == []
+    # a status the record does not give is still refused
+    tampered = redone.model_copy(update={"solver_status": "optimal"})
+    assert recomputation_problems(tampered, ctrl)

@@ -606,6 +606,12 @@ CHECK_TOL = {
 """A check's value compared as :data:`ROUNDOFF`; ``robustness`` and ``gate`` as :data:`THEOREM`."""
 
 
+SOLVED_AS = {"optimal": "optimal", "optimal_inaccurate": "inaccurate"}
+"""The solve's status as :func:`qsls.pipeline.control.certify.certify` read it, from the
+solver's own status the certificate records (``sls.Solution.status`` of
+``solver_status``): the only two under which a solve returns taps."""
+
+
 def recomputed_body(cert: Certificate, ctrl: Controller) -> CertificateBody:
     """:func:`qsls.pipeline.control.certify.certify` on ``ctrl``'s taps under ``cert``'s premise
     (for a calibrated certificate the inflated one it states), in its weights: what the file
@@ -619,7 +625,8 @@ def recomputed_body(cert: Certificate, ctrl: Controller) -> CertificateBody:
     )  # fmt: skip
     return certify(
         ctrl.taps, ctrl.model, cert.numbers(), shape,
-        solver_status=cert.solver_status or "optimal", reference=cert.status == REFERENCE,
+        solver_status=SOLVED_AS.get(cert.solver_status or "optimal", cert.solver_status or ""),
+        reference=cert.status == REFERENCE,
     )  # fmt: skip
 
 

@@ -31,7 +31,8 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from qsls.pipeline.core.config import Options
-from qsls.pipeline.sim.options import WindOptions
+from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.sim.options import Px4Options, WindOptions
 
 FAMILY_STREAM = 0x46414D
 """The random stream of the family's draws (``SeedSequence([seed, FAMILY_STREAM])``): apart
@@ -78,6 +79,10 @@ class ConditionFamily(Options):
     sag: Span | None = None
     """The battery's sag, the share of thrust lost by the flight's end (``[0, 0.05]``);
     None: fixed at ``vehicle.sag``."""
+    hover_error: Span | None = None
+    """The relative error of the hover throttle PX4's interface assumes (its hover-thrust
+    estimate, converged: ``[-0.02, 0.02]``), drawn as ``px4.hover_estimate = hover_thrust
+    (1 + e)``; needs ``px4.interface: px4``. None: fixed at the options' estimate."""
 
     @model_validator(mode="after")
     def _ranges(self) -> ConditionFamily:
@@ -121,6 +126,7 @@ NEW_LIMITS: dict[str, tuple[float, float]] = {
     "gust": (0.0, 10.0),
     "thrust_constant": (0.5, 1.5),
     "sag": (0.0, 0.5),
+    "hover_error": (-0.5, 0.5),
 }
 """The family's ranges of the conditions added by issue 47 (item 2), within the simulator's
 own limits (:class:`qsls.pipeline.sim.options.WindOptions`, ``VehicleOptions``)."""
@@ -171,6 +177,15 @@ def draw(family: ConditionFamily, seed: int, sim: Mapping[str, Any]) -> dict[str
         w["gust"] = _lerp(family.gust, v[2])
     if w:
         out["wind"] = w
+    if family.hover_error is not None:
+        px4 = Px4Options.model_validate(sim.get("px4") or {})
+        if px4.interface != "px4":
+            raise ConfigError(
+                "calibrate.family.hover_error draws the hover-thrust estimate of PX4's "
+                "interface: set sim px4.interface: px4 (or drop hover_error)"
+            )
+        e = _lerp(family.hover_error, float(rng.uniform()))  # after v: earlier draws unchanged
+        out.setdefault("px4", {})["hover_estimate"] = px4.hover_thrust * (1.0 + e)
     return out
 
 
@@ -191,7 +206,16 @@ def drawn(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, float]:
         out |= {"wind_mps": wind.speed, "wind_dir_deg": wind.direction_deg,
                 "gust_mps": wind.gust, "thrust_constant": float(veh.get("thrust_constant", 1.0)),
                 "sag": float(veh.get("sag", 0.0))}  # fmt: skip
+    if family.hover_error is not None:
+        out["hover_error"] = hover_error(sim.get("px4"))
     return out
+
+
+def hover_error(px4: Mapping[str, Any] | None) -> float:
+    """The relative error of the hover throttle the interface assumes, ``hover_estimate /
+    hover_thrust - 1`` (0 without PX4's interface, or with the estimate at the truth)."""
+    opts = Px4Options.model_validate(px4 or {})
+    return float(opts.estimate / opts.hover_thrust - 1.0)
 
 
 def stated(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, Any]:
@@ -214,6 +238,8 @@ def stated(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, Any]:
     out = {"family": fam, "vehicle": veh, "reference": ref, "vio": dict(sim.get("vio") or {})}
     if sim.get("wind"):
         out["wind"] = dict(sim["wind"])
+    if sim.get("px4"):
+        out["px4"] = dict(sim["px4"])
     return out
 
 
@@ -222,8 +248,9 @@ def flight_conditions(sim: Mapping[str, Any]) -> dict[str, Any]:
     true mass, thrust constant and sag), the reference, the VIO emulator's parameters and
     the wind (where there was one)."""
     out = {k: dict(sim.get(k) or {}) for k in ("vehicle", "reference", "vio")}
-    if sim.get("wind"):
-        out["wind"] = dict(sim["wind"])
+    for k in ("wind", "px4"):
+        if sim.get(k):
+            out[k] = dict(sim[k])
     return out
 
 
@@ -278,6 +305,7 @@ def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> l
                 why.append(f"reference centre {d:.3g} m from the calibrated centre "
                            f"(up to {float(fam.get('center_offset', 0.0)):.3g} m)")  # fmt: skip
     why += _unseen_forces(statement, flight)
+    why += _interface(statement, flight)
     ranged["vehicle"] |= {"thrust_constant", "sag"}
     for group in ("vehicle", "reference", "vio"):
         have, want = flight.get(group) or {}, statement.get(group)
@@ -330,4 +358,28 @@ def _unseen_forces(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> l
                            f"{fixed} deg ({beyond:.3g} deg beyond)")  # fmt: skip
     if fwind.gust > 0 and _differs(fwind.gust_hz, swind.gust_hz):
         why.append(f"wind.gust_hz {fwind.gust_hz:g}, calibrated at {swind.gust_hz:g}")
+    return why
+
+
+PX4_RANGED = {"hover_estimate", "controller_mass"}
+"""The interface's keys compared elsewhere: the estimate as its error against the family's
+range, the controller's mass as the vehicle's design mass (the family draws the true one)."""
+
+
+def _interface(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> list[str]:
+    """The interface the flight was flown through against the calibration's: PX4's or the
+    paper's, the hover-thrust estimate's error against the family's range (else its recorded
+    value), and every other PX4 stand-in option exactly."""
+    sp, fp = statement.get("px4") or {}, flight.get("px4") or {}
+    s_opts, f_opts = Px4Options.model_validate(sp), Px4Options.model_validate(fp)
+    if s_opts.interface != f_opts.interface:
+        return [f"interface {f_opts.interface!r}, calibrated through {s_opts.interface!r}"]
+    fam = statement.get("family") or {}
+    span = fam.get("hover_error") or _fixed(hover_error(sp))
+    why = [t for t in [_span("hover-thrust estimate error", hover_error(fp), span, "")] if t]
+    for key in sorted((set(sp) | set(fp)) - PX4_RANGED):
+        if _differs(getattr(f_opts, key), getattr(s_opts, key)):
+            why.append(
+                f"px4.{key} {getattr(f_opts, key)!r}, calibrated at {getattr(s_opts, key)!r}"
+            )
     return why
