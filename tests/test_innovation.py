@@ -277,6 +277,12 @@ def test_the_fly_stage_and_replay_apply_the_onboard_monitor_and_say_what_tripped
     assert rep["innovation"]["windows"] == list(s.windows)
     text = _monitor_text(rep)
     assert "premise broken" in text and "disturbance above eps_w on vz for" in text
+    assert rep["innovation"]["mode"] == "sound"
+    # calibrated window sums alone prove nothing: replay says so (docs/monitor.md)
+    rep["innovation"] |= {"mode": "calibrated", "false_trip_rate": 0.1}
+    text = _monitor_text(rep)
+    assert text.startswith("calibrated monitor tripped (false-trip rate 0.1 per flight: not a")
+    assert "premise broken" not in text
 
 
 def test_calibrated_thresholds_export_bit_identical_and_trip_sooner(loop, gcc, tmp_path):

@@ -125,8 +125,16 @@ def _monitor_text(m: dict[str, Any]) -> str:
         return "off (no guarantee to monitor)"
     if not m["ticks_tripped"]:
         return "no trip (one-sided: this proves nothing about the premise)"
+    inn = m.get("innovation") or {}
+    proof = inn.get("mode") != "calibrated" or m["envelope_ticks"] or m["outlier_count_ticks"]
+    head = (
+        "premise broken"
+        if proof
+        else f"calibrated monitor tripped (false-trip rate {inn.get('false_trip_rate', 0):g} "
+        "per flight: not a proof)"
+    )
     text = (
-        f"premise broken: {m['ticks_tripped']} ticks tripped, the first at "
+        f"{head}: {m['ticks_tripped']} ticks tripped, the first at "
         f"{m['first_trip_t_s']:.2f} s (envelope {m['envelope_ticks']}, outlier count "
         f"{m['outlier_count_ticks']})"
     )
@@ -313,6 +321,8 @@ def monitor_report(cdir: Any, flags: np.ndarray, stamps: np.ndarray) -> dict[str
         ),
         "summary": trip_summary(flags & PREMISE_BITS, dt, t),
         "innovation": {
+            "mode": inno.mode,
+            "false_trip_rate": inno.false_trip_rate,
             "windows": list(inno.windows),
             "thresholds": {
                 CHANNELS[c]: [inno.threshold[w][c] for w in range(len(inno.windows))]
