@@ -187,3 +187,33 @@ def test_a_windy_flight_is_outside_a_still_air_calibration_in_the_fly_tables_wor
     assert why == "wind 3.1 m/s, calibrated at [0, 1.5] m/s (+106.7 % beyond)"
     inside = SimOptions.model_validate(merge(BASE, draw(WINDY, 4, BASE))).model_dump(mode="json")
     assert outside_calibration(cal, "regular", 15.0, "emulator", flight_conditions(inside)) == ""
+
+
+PX4 = merge(BASE, {"px4": {"interface": "px4"}})
+HOVER = ConditionFamily(mass=(0.9, 1.1), hover_error=(-0.02, 0.02))
+
+
+def test_the_hover_estimate_error_is_drawn_for_px4s_interface_and_compared():
+    from qsls.pipeline.core.errors import ConfigError
+    from qsls.pipeline.evaluate.conditions import hover_error
+
+    errs = [hover_error(draw(HOVER, s, PX4)["px4"]) for s in range(100)]
+    assert -0.02 <= min(errs) < -0.018 and 0.018 < max(errs) <= 0.02  # spans the range
+    assert draw(HOVER, 3, PX4) == draw(HOVER, 3, PX4)
+    # the mass draw is the one a family without the estimate makes (its stream comes first)
+    assert (
+        draw(HOVER, 3, PX4)["vehicle"] == draw(ConditionFamily(mass=(0.9, 1.1)), 3, PX4)["vehicle"]
+    )
+    with pytest.raises(ConfigError, match=r"px4\.interface: px4"):
+        draw(HOVER, 3, BASE)
+    statement = stated(HOVER, PX4)
+    for s in range(20):
+        assert outside_family(statement, _flight(merge(PX4, draw(HOVER, s, PX4)))) == []
+    off = _flight(merge(PX4, {"px4": {"hover_estimate": 0.47}}))
+    assert outside_family(statement, off) == [
+        "hover-thrust estimate error -0.06, calibrated at [-0.02, 0.02] (-200.0 % beyond)"
+    ]
+    # a flight through the paper's interface is outside a calibration through PX4's
+    assert outside_family(statement, _flight({})) == ["interface 'paper', calibrated through 'px4'"]
+    slow = _flight(merge(PX4, {"px4": {"estimator_latency_s": 0.05}}))
+    assert outside_family(statement, slow) == ["px4.estimator_latency_s 0.05, calibrated at 0.0"]

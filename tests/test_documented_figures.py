@@ -94,7 +94,7 @@ def test_calibration_docs_quickstart_figures_are_the_runs(quickstart_session):
                                              run["rho_v"], run["tested_range"]), strict=True):  # fmt: skip
         if not as_written(actual, float(text_), text_):
             bad.append(f"sentence: documented {text_}, the run's {actual}")
-    family = text.split("The quickstart calibrates over +-3 % mass and is certified")[1][:80]
+    family = text.split("The quickstart calibrates over its stated family and is certified")[1][:80]
     lam2, rho2, tested2 = re.search(
         r"`lambda_hat` ([0-9.]+), `rho\*` ([0-9.]+),\s+tested to ([0-9.]+)", family
     ).groups()

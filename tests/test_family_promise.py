@@ -27,3 +27,27 @@ def test_the_promise_states_the_family_it_was_calibrated_over():
     assert text in promise(cert)
     # without the interface the promise does not claim it
     assert "PX4" not in conditions_text({**conditions, "px4": None})
+
+
+def test_the_report_names_the_flights_flown_outside_the_calibration(tmp_path):
+    import pandas as pd
+
+    from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
+    from qsls.pipeline.report.facts import ControllerFacts, Facts, heldout_verdict
+
+    (tmp_path / "fly").mkdir()
+    pd.DataFrame({
+        "flight": ["regular_s0", "windy_s1", "heavy_s2"], "controller": ["c"] * 3,
+        "assumptions_hold": [True, True, False], "bound_held": [True] * 3,
+        "first_failed": ["", "", "disturbance"],
+        "outside_calibration": ["", "wind 1 m/s, calibrated at [0, 0.5] m/s (+100.0 % beyond)",
+                                "mass 0.3072 kg, calibrated at [0.2304, 0.2816] kg (+9.1 % beyond)"],
+    }).to_parquet(tmp_path / "fly" / ASSUMPTIONS_FILE)  # fmt: skip
+    f = Facts(run_dir=tmp_path, info={"name": "x"}, stages={}, error_model={})
+    f.fly_folder = "fly"
+    v = heldout_verdict(f, ControllerFacts("c", "calibrate", {"status": "certified"}))
+    assert "every assumption held on 2 of 3 own flights; failed: heavy_s2 (disturbance)" in v.text
+    assert v.text.endswith(
+        "; 2 of 3 flown outside its calibration (windy_s1: wind 1 m/s, calibrated at [0, 0.5] "
+        "m/s (+100.0 % beyond))"
+    )

@@ -271,7 +271,7 @@ def _span(name: str, value: float, span: list[float], unit: str) -> str:
     if lo - REL_TOL * abs(lo) <= value <= hi + REL_TOL * abs(hi):
         return ""
     edge = hi if value > hi else lo
-    rel = f" ({100 * (value - edge) / edge:+.1f} % beyond)" if edge else ""
+    rel = f" ({100 * (value - edge) / abs(edge):+.1f} % beyond)" if edge else ""
     fixed = f"{lo:.4g}" if lo == hi else f"[{lo:.4g}, {hi:.4g}]"
     return f"{name} {value:.4g}{unit}, calibrated at {fixed}{unit}{rel}"
 

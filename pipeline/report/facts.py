@@ -323,6 +323,21 @@ def assumption_rows(f: Facts, name: str) -> Any:
     return rows if len(rows) else None
 
 
+def _outside_text(rows: Any) -> str:
+    """Which of the flights lay outside the certificate's calibration and why (the first
+    flight's conditions, in the fly table's words), or nothing when every one lay inside."""
+    if "outside_calibration" not in rows:
+        return ""
+    away = rows[rows["outside_calibration"].fillna("").astype(str) != ""]
+    if not len(away):
+        return ""
+    first = away.iloc[0]
+    return (
+        f"; {len(away)} of {len(rows)} flown outside its calibration "
+        f"({first['flight']}: {first['outside_calibration']})"
+    )
+
+
 def heldout_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict:
     """Did the guarantee hold on the flights this controller flew itself? Every assumption
     checked on its own log where the fly stage has them, else the bound check's verdict."""
@@ -340,6 +355,7 @@ def heldout_verdict(f: Facts, c: ControllerFacts) -> HeldoutVerdict:
             named = [f"{r['flight']} ({r['first_failed'] or 'bound'})" for _, r in bad.iterrows()]
             more = f" and {len(named) - 6} more" if len(named) > 6 else ""
             text += "; failed: " + ", ".join(named[:6]) + more
+        text += _outside_text(a)
         if not c.certified:
             text += f" ({c.status} premise: no guarantee claimed)"
         return HeldoutVerdict(text, "ok" if ok == n else "bad", n, ok, float(n - ok), True)
