@@ -121,8 +121,8 @@ def test_calibrated_thresholds_are_below_the_sound_ones_and_trip_only_beyond_the
     below on every checked window and channel; on the certificate's own 20 validation flights
     the calibrated monitor trips exactly where a flight's statistic exceeds q (the onboard bits
     from the logs), the sound one never, and the share that trips is within the stated rate
-    (its Clopper-Pearson interval reaches 0.1; measured: 2 of 20, every one a flight whose
-    premise held)."""
+    (its Clopper-Pearson interval reaches 0.1; measured: 2 of 20 on the quickstart of
+    07169ed, 3 of 20 on its family of issue 47, each a flight whose premise held)."""
     d = load_controller_dir(_folder(calib))
     rec = d.certificate.calibration.monitor
     sound = sound_innovation_of(d)
@@ -134,7 +134,7 @@ def test_calibrated_thresholds_are_below_the_sound_ones_and_trip_only_beyond_the
     assert spec.outlier_threshold == sound.outlier_threshold  # the outlier count stays sound
     valid = pd.read_parquet(calib / "validation.parquet").set_index("flight")
     hover, gate = hover_input(d), d.certificate.gate
-    tripped, held = [], 0
+    false = []
     for name, lg in _logs(calib, "validation"):
         du = np.asarray(lg.u) - np.asarray(lg.uff) - hover
         dev = np.asarray(lg.y) - np.asarray(lg.ref)
@@ -142,12 +142,10 @@ def test_calibrated_thresholds_are_below_the_sound_ones_and_trip_only_beyond_the
         bits = innovation_flags(spec, dev, du, gate)
         s = flight_statistic(sound, lg, hover, gate)
         assert bool(bits.any()) == (s > rec.quantile), (name, s, rec.quantile)
-        held += bool(valid.loc[name, "assumptions_hold"])
-        if bits.any():
-            tripped.append(name)
-            assert valid.loc[name, "assumptions_hold"]  # a false trip, not a catch
-    lo, _ = cal.clopper_pearson(len(tripped), 20)
-    assert held == 20 and lo <= RATE and len(tripped) <= 4, tripped
+        if bits.any() and valid.loc[name, "assumptions_hold"]:
+            false.append(name)  # a trip on a flight whose premise held
+    lo, _ = cal.clopper_pearson(len(false), 20)
+    assert lo <= RATE and len(false) <= 4, false
 
 
 def test_calibrate_records_the_calibrated_mode_verify_recomputes_it_and_an_edit_is_refused(
