@@ -9,12 +9,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from scipy.stats import binom
 
 from qsls.pipeline.control import calibration as cal
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.evaluate.options import CalibrateOptions
+
+QUICKSTART_CAL = yaml.safe_load(
+    (Path(__file__).resolve().parents[1] / "configs" / "quickstart.yaml").read_text()
+)["calibrate"]
+CAL_SEED = int(QUICKSTART_CAL["seed"])
+"""The quickstart's first calibration seed (its range and validation seeds beside it)."""
 
 
 def test_conformal_rank_is_the_hand_computed_order_statistic() -> None:
@@ -367,7 +374,7 @@ def test_calibration_on_a_dask_cluster_writes_the_local_pools_bytes_and_survives
         ({"lambda_hat": 0.5}, "lambda_hat 0.5 below its scores' quantile"),
         ({"holds": False}, "the condition fails under the calibrated premise"),
         ({"tested_range": 0.2}, "tested to 0.2 < rho*"),
-        ({"design_seeds": [21000]}, "calibration seeds [21000] are design flights' seeds"),
+        ({"design_seeds": [CAL_SEED]}, f"calibration seeds [{CAL_SEED}] are design flights' seeds"),
         ({"eps_e": 0.0135}, "eps_e 0.0135 is not the design's"),
     ],
 )
@@ -533,8 +540,8 @@ def test_a_range_flights_score_keeps_the_disturbance_and_drops_the_reference() -
 
 
 def test_fly_refuses_the_seeds_a_calibration_flew(quickstart_session, tmp_path: Path) -> None:
-    """Issue 50, item 5: a flight on a seed the calibration flew (calibration 21000.., range
-    23000.., validation 22000..) is that flight again, not fresh evidence: ``qsls fly``
+    """Issue 50, item 5: a flight on a seed the calibration flew (the quickstart's calibration,
+    range and validation seeds) is that flight again, not fresh evidence: ``qsls fly``
     refuses it in one line; a fresh seed is not refused."""
     import subprocess
     import sys
@@ -544,8 +551,9 @@ def test_fly_refuses_the_seeds_a_calibration_flew(quickstart_session, tmp_path: 
     run = quickstart_session[0] / "runs" / "quickstart"
     cert = run / "calibrate" / "regular" / "l1_robust"
     rec = yaml.safe_load((cert / "certificate.yaml").read_text())["calibration"]
-    assert {21000, 23019, 22019} <= set(rec["evidence_seeds"]) and len(rec["evidence_seeds"]) == 60
-    for seeds, refused in (("22005", True), ("23000", True), ("21019", True)):
+    c, r, v = CAL_SEED, QUICKSTART_CAL["range_seed"], QUICKSTART_CAL["validation_seed"]
+    assert {c, r + 19, v + 19} <= set(rec["evidence_seeds"]) and len(rec["evidence_seeds"]) == 60
+    for seeds, refused in ((str(v + 5), True), (str(r), True), (str(c + 19), True)):
         proc = subprocess.run(
             [sys.executable, "-m", "qsls.cli.main", "fly", "--model", str(run / "fit"),
              "--controller", str(cert), "--seeds", seeds, "--out", str(tmp_path / seeds)],
@@ -557,7 +565,7 @@ def test_fly_refuses_the_seeds_a_calibration_flew(quickstart_session, tmp_path: 
         assert not (tmp_path / seeds).exists()
     from qsls.pipeline.evaluate.certified import refuse_evidence_seeds
 
-    refuse_evidence_seeds([cert], [0, 20999, 21020, 24000])  # fresh: no error
+    refuse_evidence_seeds([cert], [0, c - 1, c + 20, r + 1000])  # fresh: no error
 
 
 def test_the_summary_names_the_premise_quantity_that_set_lambda_hat():

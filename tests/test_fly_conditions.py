@@ -24,7 +24,8 @@ from qsls.pipeline.sim.options import SimOptions
 
 REGION = {"radius": 1.5, "slope": 0.05}
 """configs/quickstart.yaml's ``simulate.vio.region``."""
-SIM = SimOptions.model_validate({"vio": {"region": REGION}})
+SIM = SimOptions.model_validate({"vio": {"region": REGION}, "px4": {"interface": "px4"}})
+"""The quickstart's calibration conditions: its emulator, through PX4's interface."""
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +39,7 @@ def flown(quickstart_session, tmp_path_factory):
         shutil.copytree(run / stage, tmp / stage)
     # the quickstart's emulator (its mapped region): flights of another are outside the
     # certificate's conditions (docs/calibration.md, Conditions as a stated family)
-    (tmp / "cal.yaml").write_text(f"sim:\n  vio: {{region: {REGION}}}\n")
+    (tmp / "cal.yaml").write_text(f"sim:\n  vio: {{region: {REGION}}}\n  px4: {{interface: px4}}\n")
     proc = subprocess.run(
         [sys.executable, "-m", "qsls.cli.main", "calibrate", "--config", str(tmp / "cal.yaml"),
          "-m", str(tmp / "fit"),
