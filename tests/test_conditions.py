@@ -217,3 +217,28 @@ def test_the_hover_estimate_error_is_drawn_for_px4s_interface_and_compared():
     assert outside_family(statement, _flight({})) == ["interface 'paper', calibrated through 'px4'"]
     slow = _flight(merge(PX4, {"px4": {"estimator_latency_s": 0.05}}))
     assert outside_family(statement, slow) == ["px4.estimator_latency_s 0.05, calibrated at 0.0"]
+
+
+def test_the_estimators_parameters_are_drawn_recorded_and_compared_with_their_ranges():
+    fam = ConditionFamily(
+        mass=(0.97, 1.03), estimator={"noise_velocity": (0.012, 0.018), "regular.light": (0.9, 1.0)}
+    )
+    a = draw(fam, 4, BASE)
+    assert a["vehicle"] == draw(ConditionFamily(mass=(0.97, 1.03)), 4, BASE)["vehicle"]
+    opts = SimOptions.model_validate(merge(BASE, a))
+    assert 0.012 <= opts.vio.noise_velocity <= 0.018 and 0.9 <= opts.vio.regular.light <= 1.0
+    assert opts.vio.regular.texture == 1.0  # the level's other parameter stays
+    got = drawn(fam, opts.model_dump(mode="json"))
+    assert got["vio_noise_velocity"] == opts.vio.noise_velocity
+    assert got["vio_regular_light"] == opts.vio.regular.light
+    statement = stated(fam, BASE)
+    for s in range(20):
+        assert outside_family(statement, _flight(draw(fam, s, BASE))) == []
+    noisy = _flight({"vio": {"noise_velocity": 0.03}})
+    assert outside_family(statement, noisy) == [
+        "vio.noise_velocity 0.03, calibrated at [0.012, 0.018] (+66.7 % beyond)"
+    ]
+    other = _flight({"vio": {"noise_position": 0.01}})  # not ranged: compared exactly
+    assert outside_family(statement, other) == ["vio.noise_position 0.01, calibrated at 0.004"]
+    with pytest.raises(ValueError, match="not a numeric parameter"):
+        ConditionFamily(estimator={"kind": (0.0, 1.0)})

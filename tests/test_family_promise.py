@@ -12,7 +12,8 @@ def test_the_promise_states_the_family_it_was_calibrated_over():
         "reference": {"kind": "circle", "radius": 1.0},
         "vehicle": {"mass": 0.256},
         "family": {"mass": [0.2304, 0.2816], "wind": [0.0, 0.5], "sag": [0.0, 0.02],
-                   "radius": [1.0, 1.0], "hover_error": [-0.02, 0.02]},
+                   "radius": [1.0, 1.0], "hover_error": [-0.02, 0.02],
+                   "estimator": {"noise_velocity": [0.012, 0.018]}},
         "px4": {"interface": "px4"},
     }  # fmt: skip
     text = conditions_text(conditions)
@@ -22,6 +23,7 @@ def test_the_promise_states_the_family_it_was_calibrated_over():
     assert "a hover-thrust estimate off by -2 to 2 %" in text
     assert "reference radius" not in text  # a point range is no family: the recorded value
     assert "PX4's attitude interface" in text
+    assert "the estimator's noise_velocity 0.012 to 0.018" in text
     cert = {"controller": "l1_robust", "status": "certified", "rho_star": 1.29, "gamma": 0.145,
             "calibration": {"alpha": 0.1, "duration_s": 15, "conditions": conditions}}  # fmt: skip
     assert text in promise(cert)

@@ -23,6 +23,7 @@ certificate, whatever its verdict.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -32,7 +33,7 @@ from pydantic import Field, model_validator
 
 from qsls.pipeline.core.config import Options
 from qsls.pipeline.core.errors import ConfigError
-from qsls.pipeline.sim.options import Px4Options, WindOptions
+from qsls.pipeline.sim.options import Px4Options, VioParams, WindOptions
 
 FAMILY_STREAM = 0x46414D
 """The random stream of the family's draws (``SeedSequence([seed, FAMILY_STREAM])``): apart
@@ -79,6 +80,10 @@ class ConditionFamily(Options):
     sag: Span | None = None
     """The battery's sag, the share of thrust lost by the flight's end (``[0, 0.05]``);
     None: fixed at ``vehicle.sag``."""
+    estimator: dict[str, Span] = Field(default_factory=dict)
+    """The VIO emulator's numeric parameters drawn per flight, by their path in ``vio``
+    (``{noise_velocity: [0.012, 0.018], regular.light: [0.9, 1.0]}``): each uniform in its
+    range; the others fixed at their recorded values."""
     hover_error: Span | None = None
     """The relative error of the hover throttle PX4's interface assumes (its hover-thrust
     estimate, converged: ``[-0.02, 0.02]``), drawn as ``px4.hover_estimate = hover_thrust
@@ -86,6 +91,16 @@ class ConditionFamily(Options):
 
     @model_validator(mode="after")
     def _ranges(self) -> ConditionFamily:
+        base = VioParams().model_dump(mode="json")
+        for path, (lo, hi) in self.estimator.items():
+            have = _at(base, path)
+            if isinstance(have, bool) or not isinstance(have, int | float):
+                raise ValueError(
+                    f"family.estimator.{path}: not a numeric parameter of the VIO emulator "
+                    "(a path in sim.vio such as noise_velocity or regular.light)"
+                )
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo <= hi):
+                raise ValueError(f"family.estimator.{path} [{lo}, {hi}]: need 0 <= low <= high")
         for name in ("mass", "radius", "period", "height"):
             span = getattr(self, name)
             if span is None:
@@ -112,7 +127,8 @@ class ConditionFamily(Options):
         vehicle on one reference (a degenerate range such as ``radius: [1.2, 1.2]`` sets its
         condition for every flight, so it is not a point family)."""
         spans = [self.radius, self.period, self.height, *(getattr(self, n) for n in NEW_LIMITS)]
-        return self.center_offset == 0 and self.mass == (1.0, 1.0) and all(s is None for s in spans)
+        fixed = self.center_offset == 0 and self.mass == (1.0, 1.0) and not self.estimator
+        return fixed and all(s is None for s in spans)
 
     @property
     def ranges_new(self) -> bool:
@@ -186,7 +202,30 @@ def draw(family: ConditionFamily, seed: int, sim: Mapping[str, Any]) -> dict[str
             )
         e = _lerp(family.hover_error, float(rng.uniform()))  # after v: earlier draws unchanged
         out.setdefault("px4", {})["hover_estimate"] = px4.hover_thrust * (1.0 + e)
+    if family.estimator:  # a stream of its own: the draws above stay as they were
+        est = np.random.default_rng(np.random.SeedSequence([int(seed), FAMILY_STREAM, 2]))
+        vio: dict[str, Any] = {}
+        for path in sorted(family.estimator):
+            _put(vio, path, _lerp(family.estimator[path], float(est.uniform())))
+        out["vio"] = vio
     return out
+
+
+def _at(tree: Mapping[str, Any], path: str) -> Any:
+    """The value at the dotted ``path`` of a nested mapping (None where there is none)."""
+    node: Any = tree
+    for key in path.split("."):
+        if not isinstance(node, Mapping) or key not in node:
+            return None
+        node = node[key]
+    return node
+
+
+def _put(tree: dict[str, Any], path: str, value: float) -> None:
+    *head, last = path.split(".")
+    for key in head:
+        tree = tree.setdefault(key, {})
+    tree[last] = value
 
 
 def drawn(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, float]:
@@ -208,6 +247,8 @@ def drawn(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, float]:
                 "sag": float(veh.get("sag", 0.0))}  # fmt: skip
     if family.hover_error is not None:
         out["hover_error"] = hover_error(sim.get("px4"))
+    for path in sorted(family.estimator):
+        out[f"vio_{path.replace('.', '_')}"] = float(_at(sim.get("vio") or {}, path))
     return out
 
 
@@ -235,6 +276,8 @@ def stated(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, Any]:
             span = (0.0, 360.0)  # drawn uniformly over the circle
         if span is not None:
             fam[name] = list(span)
+    if family.estimator:
+        fam["estimator"] = {k: list(v) for k, v in sorted(family.estimator.items())}
     out = {"family": fam, "vehicle": veh, "reference": ref, "vio": dict(sim.get("vio") or {})}
     if sim.get("wind"):
         out["wind"] = dict(sim["wind"])
@@ -306,12 +349,19 @@ def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> l
                            f"(up to {float(fam.get('center_offset', 0.0)):.3g} m)")  # fmt: skip
     why += _unseen_forces(statement, flight)
     why += _interface(statement, flight)
+    estimator = (fam or {}).get("estimator") or {}
+    for path, span in sorted(estimator.items()):
+        value = _at(flight.get("vio") or {}, path)
+        if value is not None and (text := _span(f"vio.{path}", float(value), span, "")):
+            why.append(text)
     ranged["vehicle"] |= {"thrust_constant", "sag"}
     for group in ("vehicle", "reference", "vio"):
         have, want = flight.get(group) or {}, statement.get(group)
         if not want:
             continue
         skip = ranged.get(group, set()) | UNCOMPARED.get(group, set())
+        if group == "vio":  # the drawn parameters were compared with their ranges above
+            have, want = _without(have, estimator), _without(want, estimator)
         for key in sorted(set(want) | set(have)):
             if key in skip:
                 continue
@@ -383,3 +433,16 @@ def _interface(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> list[
                 f"px4.{key} {getattr(f_opts, key)!r}, calibrated at {getattr(s_opts, key)!r}"
             )
     return why
+
+
+def _without(tree: Mapping[str, Any], paths: Mapping[str, Any]) -> dict[str, Any]:
+    """``tree`` without the leaves at ``paths`` (dotted), as a new nested dict."""
+    out = copy.deepcopy(dict(tree))
+    for path in paths:
+        *head, last = path.split(".")
+        node: Any = out
+        for key in head:
+            node = node.get(key) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node.pop(last, None)
+    return out

@@ -66,6 +66,10 @@ def conditions_text(conditions: Mapping[str, Any] | None) -> str:
             assert span is not None
             lo, hi = (float(v) * scale for v in span)
             parts.append(f"{what} {lo:.3g} to {hi:.3g}{unit}")
+    est = fam.get("estimator") if fam else None
+    if isinstance(est, Mapping) and est:
+        spans = ", ".join(f"{k} {float(v[0]):.3g} to {float(v[1]):.3g}" for k, v in est.items())
+        parts.append(f"the estimator's {spans}")
     px4 = c.get("px4")
     if isinstance(px4, Mapping) and px4.get("interface") == "px4":
         parts.append("flown through PX4's attitude interface with its hover-thrust estimate")
