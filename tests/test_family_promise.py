@@ -53,3 +53,37 @@ def test_the_report_names_the_flights_flown_outside_the_calibration(tmp_path):
         "; 2 of 3 flown outside its calibration (windy_s1: wind 1 m/s, calibrated at [0, 0.5] "
         "m/s (+100.0 % beyond))"
     )
+
+
+def test_the_report_says_a_calibrated_monitors_trip_is_an_alarm_not_a_proof(tmp_path):
+    import pandas as pd
+
+    from qsls.pipeline.evaluate.assumptions import ASSUMPTIONS
+    from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
+    from qsls.pipeline.report.document import render_html
+    from qsls.pipeline.report.facts import ControllerFacts, Facts
+    from qsls.pipeline.report.monitor import section_monitor
+
+    (tmp_path / "fly").mkdir()
+    rows = {
+        "flight": ["s0", "s1"], "controller": ["c", "c"], "condition": ["regular"] * 2,
+        "assumptions_hold": [True, False], "bound_held": [True, True],
+        "first_failed": ["", "disturbance"],
+        "monitor_trips": [0, 4], "monitor_t": [float("nan"), 3.5],
+        "monitor_first": ["", "disturbance on vz"],
+        "monitor_summary": ["", "disturbance above eps_w on vz for 0.4 s (from 3.5 s)"],
+    }  # fmt: skip
+    for name in ASSUMPTIONS:
+        broken = name == "disturbance"
+        rows[f"{name}_holds"] = [True, not broken]
+        rows[f"{name}_t"] = [float("nan"), 3.0 if broken else float("nan")]
+    pd.DataFrame(rows).to_parquet(tmp_path / "fly" / ASSUMPTIONS_FILE)
+    f = Facts(run_dir=tmp_path, info={"name": "x"}, stages={}, error_model={})
+    f.fly_folder = "fly"
+    cert = {"status": "certified", "calibration": {"monitor": {"mode": "calibrated"}}}
+    f.controllers = [ControllerFacts("c", "calibrate", cert)]
+    page = render_html("t", "", [section_monitor(f, [0])])
+    assert "c fly the innovation monitor" in page and "calibrated mode (docs/monitor.md" in page
+    assert "not a proof" in page
+    f.controllers = [ControllerFacts("c", "calibrate", {"status": "certified"})]
+    assert "calibrated mode" not in render_html("t", "", [section_monitor(f, [0])])
