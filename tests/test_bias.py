@@ -157,3 +157,24 @@ def test_a_certificate_of_an_inaccurate_solve_is_what_its_taps_give(tmp_path: Pa
     # a status the record does not give is still refused
     tampered = redone.model_copy(update={"solver_status": "optimal"})
     assert recomputation_problems(tampered, ctrl)
+
+
+def test_the_largest_feasible_s_counts_the_bias_term():
+    """Dinkelbach's ratio under a premise with a bias term charges ``eps_b G_b``: its ``S_max``
+    solves feasible with integral action, 1 % more does not, and it is below the one without
+    the bias term."""
+    from dataclasses import replace
+
+    from qsls.pipeline.control import largest_s
+
+    model = plant_model("hover", dt=0.1)
+    shape = sls.Shape(bias=True)
+    given = replace(NUMBERS, S=0.0)
+    ms = largest_s.max_feasible_s(model, T, given, shape=shape)
+    plain = largest_s.max_feasible_s(model, T, replace(given, eps_b=0.0), shape=sls.Shape())
+    assert 0 < ms.s_max < plain.s_max
+    st = sls.Structure(T, "l1", "qr", True, False, bias=True)
+    at = sls.solve(model, st, sls.Values(numbers=replace(given, S=ms.s_max)))
+    assert at.status == "optimal"
+    over = sls.solve(model, st, sls.Values(numbers=replace(given, S=1.01 * ms.s_max)))
+    assert over.status == "infeasible"

@@ -93,6 +93,7 @@ def test_the_registry_maps_every_config_name_and_back():
     assert (
         costs.LAMBDA * costs.ErrorGain()
         + costs.EPS_W_OVER_R * costs.DisturbanceGain()
+        + costs.EPS_B_OVER_R * costs.BiasGain()
         + costs.EPS_O_OVER_R * costs.SparseGain()
     ) == costs.RATIO
     assert costs.RATIO.needs_norms and not costs.RATIO.imitates and costs.IMITATION.imitates

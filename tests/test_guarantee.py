@@ -238,7 +238,7 @@ def test_necessary_condition_is_necessary_with_weights(state_scale, error_scale)
         numbers = PremiseNumbers(eps=0.6, S=0.5, radius=1.0, eps_w=0.0, delta=0.0)
         assert numbers.S + numbers.eps / numbers.radius >= 1.0  # the old condition refused it
         assert necessary_condition(numbers, state_scale, error_scale) < 1.0
-        ms = largest_s.max_feasible_s(model, 10, eps_e=0.6, radius=1.0, shape=shape)
+        ms = largest_s.max_feasible_s(model, 10, numbers, shape=shape)
         assert ms.s_max > 0.5
         rob = sls.Structure(**{**shape.structure(10, "qr", False).__dict__, "robust": True})
         values = sls.Values(

@@ -93,10 +93,10 @@ def test_filter_bank_equals_sls_controller_transfer_function(strictly_proper):
 
 
 def test_max_feasible_s_is_feasible_and_one_percent_more_is_not():
-    kw = {"eps_e": 0.05, "radius": 1.0, "eps_w": 0.01, "delta": 0.05}
-    ms = largest_s.max_feasible_s(MODEL, 12, **kw)
+    given = PremiseNumbers(eps=0.05, S=0.0, radius=1.0, eps_w=0.01, delta=0.05)
+    ms = largest_s.max_feasible_s(MODEL, 12, given)
     st = sls.Structure(12, "l1", "qr", True)
-    numbers = PremiseNumbers(eps=0.05, S=ms.s_max, radius=1.0, eps_w=0.01, delta=0.05)
+    numbers = replace(given, S=ms.s_max)
     ok = sls.solve(MODEL, st, sls.Values(numbers=numbers))
     assert ok.status == "optimal"
     norms = Norms(sls.l1_norm(ok.taps.Phi_xy), sls.l1_norm(ok.taps.Phi_xx), 0.0)
@@ -107,7 +107,7 @@ def test_max_feasible_s_is_feasible_and_one_percent_more_is_not():
         == "infeasible"
     )
     # no Delta, no process noise: S_max = 1 / min ||Phi_xy|| - eps_e / r
-    ms0 = largest_s.max_feasible_s(MODEL, 12, eps_e=0.05, radius=1.0)
+    ms0 = largest_s.max_feasible_s(MODEL, 12, replace(sls.NO_PREMISE, eps=0.05))
     assert ms0.s_max == pytest.approx(1 / largest_s.min_phi_xy(MODEL, 12) - 0.05, rel=1e-5)
 
 

@@ -80,10 +80,7 @@ def test_local_sweep_table_and_feasibility(tmp_path):
     # feasibility against the largest feasible S computed separately for each T (the
     # robustness constraint does not involve the cost, so both norms agree)
     model = quadrotor_model()
-    s_max = {
-        T: largest_s.max_feasible_s(model, T, eps_e=0.05, radius=1.0, eps_w=0.01, delta=0.05).s_max
-        for T in (6, 10)
-    }
+    s_max = {T: largest_s.max_feasible_s(model, T, _premise(0.05, 1.0)).s_max for T in (6, 10)}
     for _, row in t.iterrows():
         assert row["feasible"] == (row["S"] <= s_max[row["T"]]), row.to_dict()
         if row["feasible"]:
@@ -138,9 +135,7 @@ def test_one_and_two_processes_write_identical_tables(tmp_path):
     assert len(smax) == 8
     model = quadrotor_model()
     for _, row in smax.iterrows():
-        own = largest_s.max_feasible_s(
-            model, int(row["T"]), eps_e=row["eps_e"], radius=row["radius"], eps_w=0.01, delta=0.05
-        )
+        own = largest_s.max_feasible_s(model, int(row["T"]), _premise(row["eps_e"], row["radius"]))
         assert row["s_max"] == own.s_max  # the same solves: exactly the same number
     s_of = {(r.T, r.eps_e, r.radius): r.s_max for r in smax.itertuples()}
     for r in t[~necessary].itertuples():
@@ -155,10 +150,10 @@ def test_points_above_the_largest_feasible_s_are_exactly_the_infeasible_ones():
     model = quadrotor_model()
     setting = {"radius": 1.0, "eps_w": 0.01, "delta": 0.05}
     for T in (6, 10):
-        ratio = largest_s.max_ratio(model, T, **setting)
+        ratio = largest_s.max_ratio(model, T, _premise(0.0, 1.0))
         upper = ratio.upper(largest_s.min_phi_xy(model, T))
         assert ratio.ratio <= upper <= ratio.ratio * (1 + 1e-8)  # Dinkelbach's gap closed
-        s_max = largest_s.max_feasible_s(model, T, eps_e=0.05, ratio=ratio, **setting).s_max
+        s_max = largest_s.max_feasible_s(model, T, _premise(0.05, 1.0), ratio=ratio).s_max
         point = {"robust": True, "T": T, "eps_e": 0.05, **setting, "strictly_proper": False,
                  "dt": 0.1, "mass": 1.0, "eps_o_value": 0.0, "m_value": 0, "measure": "full",
                  "gate_value": None, "H": None, "state_scale": [1.0] * 6,
@@ -522,3 +517,8 @@ def test_jobs_zero_means_every_core_and_no_more_processes_than_cores(tmp_path):
     res = _sweep("-c", cfg, "-o", tmp_path / "j64", "--jobs", 64)
     assert res.exit_code == 0, res.output
     assert f"local, {cores} process" in res.output, res.output
+
+
+def _premise(eps_e: float, radius: float) -> PremiseNumbers:
+    """The premise these sweeps state (``eps_w`` 0.01, ``Delta`` 0.05; ``S`` aside)."""
+    return PremiseNumbers(eps=float(eps_e), S=0.0, radius=float(radius), eps_w=0.01, delta=0.05)

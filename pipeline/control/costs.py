@@ -281,6 +281,14 @@ class DisturbanceGain(_PremiseGain):
 
 
 @dataclass(frozen=True)
+class BiasGain(_PremiseGain):
+    """``G_b``, the peak response to a constant bias (no term without the bias term,
+    docs/guarantee.md#the-bias-term)."""
+
+    gain: ClassVar[str] = "G_b"
+
+
+@dataclass(frozen=True)
 class SparseGain(_PremiseGain):
     """``G_m``, the premise's sparse gain (no term without outlier channels)."""
 
@@ -540,16 +548,24 @@ def _eps_o_over_r(v: Instance) -> float:
     return float(v.numbers.eps_o / v.numbers.radius)
 
 
+def _eps_b_over_r(v: Instance) -> float:
+    return float(v.numbers.eps_b / v.numbers.radius)
+
+
 LAMBDA = Factor("lam", "lambda", _lambda)
 """Dinkelbach's ``lambda`` (``Instance.ratio_lambda``)."""
 EPS_W_OVER_R = Factor("c_xx_ratio", "eps_w_over_r_ratio", _eps_w_over_r)
 EPS_O_OVER_R = Factor("c_o_ratio", "eps_o_over_r_ratio", _eps_o_over_r)
+EPS_B_OVER_R = Factor("c_b_ratio", "eps_b_over_r_ratio", _eps_b_over_r)
 
 QR: Cost = QRCost()
 IMITATION: Cost = ImitationCost()
 MIN_ERROR_GAIN: Cost = ErrorGain()
-RATIO: Cost = LAMBDA * ErrorGain() + EPS_W_OVER_R * DisturbanceGain() + EPS_O_OVER_R * SparseGain()
-"""Dinkelbach's step: ``lambda N + (eps_w/r) N_w + (eps_o/r) G_m``."""
+RATIO: Cost = (
+    LAMBDA * ErrorGain() + EPS_W_OVER_R * DisturbanceGain() + EPS_B_OVER_R * BiasGain()
+    + EPS_O_OVER_R * SparseGain()
+)  # fmt: skip
+"""Dinkelbach's step: ``lambda N + (eps_w/r) N_w + (eps_b/r) G_b + (eps_o/r) G_m``."""
 NONE: Cost = NoCost()
 
 COSTS: dict[str, Cost] = {

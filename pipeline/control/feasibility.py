@@ -26,7 +26,7 @@ def diagnose(
     min_xy = largest_s.min_phi_xy(
         r.model, T, strictly_proper=strictly_proper, solver=solver, shape=r.shape
     )
-    ms = largest_s.max_feasible_s_under(
+    ms = largest_s.max_feasible_s(
         r.model, T, r.numbers, shape=r.shape, strictly_proper=strictly_proper, solver=solver
     )
     return {
@@ -111,7 +111,7 @@ def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeas
     mi = read_model(error_model)
     opts = options.model_copy(update={"S": 0.0})
     r = resolve(opts, mi.model, mi.training)
-    ms = largest_s.max_feasible_s_under(
+    ms = largest_s.max_feasible_s(
         r.model, options.T, r.numbers, shape=r.shape, strictly_proper=options.strictly_proper,
         solver=options.solver,
     )  # fmt: skip

@@ -240,13 +240,12 @@ def necessary_condition(
     return (p.S + p.eps / p.radius) * min_norm_bound(state_scale, error_scale)
 
 
-def largest_slope(n: Norms, *, eps_w: float, delta: float, eps_o: float, radius: float,
-                  backoff: float = 0.0, eps_b: float = 0.0) -> float:  # fmt: skip
+def largest_slope(n: Norms, p: PremiseNumbers, backoff: float = 0.0) -> float:
     """``rho = (1 - backoff - Delta/r - (eps_w N_w + eps_b G_b + eps_o G_m)/r) / N``: the
-    largest ``S + eps/r`` the robustness condition leaves these responses (``eps`` aside, so
-    one ratio serves every ``eps``)."""
-    rest = eps_w * n.N_w + eps_b * n.G_b + eps_o * n.G_m
-    return (1.0 - backoff - delta / radius - rest / radius) / n.N
+    largest ``S + eps/r`` the robustness condition leaves these responses under premise ``p``
+    (its ``eps`` and ``S`` aside, so one ratio serves every ``eps``)."""
+    rest = p.eps_w * n.N_w + p.eps_b * n.G_b + p.eps_o * n.G_m
+    return (1.0 - backoff - p.delta / p.radius - rest / p.radius) / n.N
 
 
 def rho_star(p: PremiseNumbers, n: Norms, a: float | None = None) -> float:

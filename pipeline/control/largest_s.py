@@ -14,7 +14,6 @@ from dataclasses import dataclass, replace
 from qsls.pipeline.control.costs import MIN_ERROR_GAIN, NONE, RATIO
 from qsls.pipeline.control.guarantee import PremiseNumbers, largest_slope
 from qsls.pipeline.control.sls import (
-    NO_PREMISE,
     ROBUST_BACKOFF,
     Shape,
     Values,
@@ -74,26 +73,24 @@ class MaxRatio:
 def max_ratio(
     model: LinearModel,
     T: int,
+    numbers: PremiseNumbers,
     *,
-    radius: float,
-    eps_w: float = 0.0,
-    delta: float = 0.0,
-    eps_o: float = 0.0,
     strictly_proper: bool = False,
     solver: str = "CLARABEL",
     shape: Shape = Shape(),
     tol: float = 1e-9,
     max_iter: int = 50,
 ) -> MaxRatio:
-    """``max rho(Phi)``, ``rho = (1 - backoff - Delta/r - (eps_w N_w + eps_o G_m)/r) / N``, by
-    Dinkelbach's method: each step solves ``min lam N + (eps_w/r) N_w + (eps_o/r) G_m`` (an
-    LP re-solved through Parameters) and sets ``lam = rho(Phi)``; ``lam`` increases
-    monotonically and converges superlinearly. ``eps_e`` plays no part: one ratio serves
-    every ``eps_e`` (:func:`max_feasible_s`)."""
+    """``max rho(Phi)`` under the premise ``numbers`` (:func:`~qsls.pipeline.control.guarantee.
+    largest_slope`: ``rho = (1 - backoff - Delta/r - (eps_w N_w + eps_b G_b + eps_o G_m)/r) /
+    N``), by Dinkelbach's method: each step solves ``min lam N + (eps_w/r) N_w + (eps_b/r) G_b
+    + (eps_o/r) G_m`` (an LP re-solved through Parameters) and sets ``lam = rho(Phi)``; ``lam``
+    increases monotonically and converges superlinearly. The premise's ``eps`` and ``S`` play
+    no part: one ratio serves every ``eps_e`` (:func:`max_feasible_s`)."""
     structure = shape.structure(T, RATIO, strictly_proper)
     lam, total, it, gap = 0.0, 0.0, 0, math.inf
     nxy = nxx = float("nan")
-    numbers = replace(NO_PREMISE, eps_w=eps_w, radius=radius, eps_o=eps_o)
+    numbers = replace(numbers, eps=0.0, S=0.0)
     for it in range(1, max_iter + 1):
         values = Values(numbers=numbers, ratio_lambda=lam)
         sol = solve(model, structure, values, solver=solver)
@@ -102,9 +99,7 @@ def max_ratio(
             raise SolverError(f"the largest-feasible-S subproblem failed ({sol.solver_status})")
         n = shape.norms(sol.taps, model)
         nxy, nxx = n.N, n.N_w
-        new = largest_slope(
-            n, eps_w=eps_w, delta=delta, eps_o=eps_o, radius=radius, backoff=ROBUST_BACKOFF
-        )
+        new = largest_slope(n, numbers, backoff=ROBUST_BACKOFF)
         if it == 1 and new <= 0:
             # lam = 0 minimized eps_w N_w + eps_o G_m: even then (a + eps_o G_m) / r leaves
             # nothing for S: no S >= 0 is feasible
@@ -133,28 +128,24 @@ class MaxS:
 def max_feasible_s(
     model: LinearModel,
     T: int,
+    numbers: PremiseNumbers,
     *,
-    eps_e: float,
-    radius: float,
-    eps_w: float = 0.0,
-    delta: float = 0.0,
-    eps_o: float = 0.0,
-    gate: float | None = None,
     strictly_proper: bool = False,
     solver: str = "CLARABEL",
     shape: Shape = Shape(),
     ratio: MaxRatio | None = None,
 ) -> MaxS:
-    """Largest ``S`` with ``(S + eps/r) N + (eps_w N_w + Delta + eps_o G_m)/r <= 1 - backoff``
-    satisfiable (docs/guarantee.md): ``S_max = max rho - eps / r`` (:func:`max_ratio`, or
-    ``ratio`` when given: computed for the same setting but any ``eps_e``). The answer is
-    rounded down by a relative ``1e-7`` so that ``S_max`` itself solves as feasible. With a
-    velocity gate ``S`` enters the gate's constraint too: ``S_max`` is then bisected on
-    feasibility below that bound."""
+    """Largest ``S`` with ``(S + eps/r) N + (eps_w N_w + eps_b G_b + Delta + eps_o G_m)/r <= 1 -
+    backoff`` satisfiable under the premise ``numbers`` (its own ``S`` aside;
+    docs/guarantee.md): ``S_max = max rho - eps / r`` (:func:`max_ratio`, or ``ratio`` when
+    given: computed for the same setting but any ``eps_e``). The answer is rounded down by a
+    relative ``1e-7`` so that ``S_max`` itself solves as feasible. With a velocity gate ``S``
+    enters the gate's constraint too: ``S_max`` is then bisected on feasibility below that
+    bound."""
+    eps_e, radius = numbers.eps, numbers.radius
     r = ratio or max_ratio(
-        model, T, radius=radius, eps_w=eps_w, delta=delta, eps_o=eps_o,
-        strictly_proper=strictly_proper, solver=solver, shape=shape,
-    )  # fmt: skip
+        model, T, numbers, strictly_proper=strictly_proper, solver=solver, shape=shape
+    )
     lam, nxy, nxx, it, total = r.ratio, r.norm_phi_xy, r.norm_phi_xx, r.iterations, r.solve_time_s
     if lam == -math.inf:
         return MaxS(-math.inf, lam, nxy, nxx, it, total)
@@ -164,10 +155,8 @@ def max_feasible_s(
         gated = replace(shape.structure(T, NONE, strictly_proper), robust=True)
 
         def feasible(S: float) -> bool:
-            numbers = PremiseNumbers(
-                eps=eps_e, S=S, radius=radius, eps_w=eps_w, delta=delta, eps_o=eps_o, gate=gate
-            )
-            return solve(model, gated, Values(numbers=numbers), solver=solver).status == "optimal"
+            at = Values(numbers=replace(numbers, S=S))
+            return solve(model, gated, at, solver=solver).status == "optimal"
 
         lo, hi = 0.0, s_max
         if not feasible(lo):
@@ -180,20 +169,3 @@ def max_feasible_s(
                     break
             s_max = lo
     return MaxS(s_max, lam, nxy, nxx, it, total)
-
-
-def max_feasible_s_under(
-    model: LinearModel,
-    T: int,
-    numbers: PremiseNumbers,
-    *,
-    shape: Shape = Shape(),
-    strictly_proper: bool = False,
-    solver: str = "CLARABEL",
-) -> MaxS:
-    """:func:`max_feasible_s` under the premise ``numbers`` (its ``S`` aside)."""
-    p = numbers
-    return max_feasible_s(
-        model, T, eps_e=p.eps, radius=p.radius, eps_w=p.eps_w, delta=p.delta, eps_o=p.eps_o,
-        gate=p.gate, strictly_proper=strictly_proper, solver=solver, shape=shape,
-    )  # fmt: skip

@@ -93,7 +93,7 @@ def choose_s(s_hat: float, s_max: float, margin: float) -> float:
 
 def largest_feasible_s(r: Resolved, T: int, strictly_proper: bool, solver: str) -> float:
     """``S_max`` of the resolved premise (its own S plays no part)."""
-    ms = largest_s.max_feasible_s_under(
+    ms = largest_s.max_feasible_s(
         r.model, T, r.numbers, shape=r.shape, strictly_proper=strictly_proper, solver=solver
     )
     return ms.s_max

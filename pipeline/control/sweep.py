@@ -42,7 +42,7 @@ import numpy as np
 from qsls.pipeline.control import largest_s, sls
 from qsls.pipeline.control.costs import QR, cost_of
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
-from qsls.pipeline.control.guarantee import necessary_condition
+from qsls.pipeline.control.guarantee import PremiseNumbers, necessary_condition
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.options import AXES as AXES
 from qsls.pipeline.control.options import DASK_SCHEMES as DASK_SCHEMES
@@ -366,12 +366,12 @@ def s_max_task(spec: dict[str, Any]) -> list[dict[str, Any]]:
     ``S_max``, :func:`qsls.pipeline.control.largest_s.max_ratio`)."""
     model = _model(spec)
     shape = _shape(spec)
-    common = {
-        "radius": spec["radius"], "eps_w": spec["eps_w"], "delta": spec["delta"],
-        "eps_o": spec["eps_o_value"], "strictly_proper": spec["strictly_proper"],
-        "solver": spec["solver"], "shape": shape,
-    }  # fmt: skip
-    ratio = largest_s.max_ratio(model, spec["T"], **common)
+    numbers = PremiseNumbers(
+        eps=0.0, S=0.0, radius=spec["radius"], eps_w=spec["eps_w"], delta=spec["delta"],
+        eps_o=spec["eps_o_value"], gate=spec["gate_value"],
+    )  # fmt: skip
+    common = {"strictly_proper": spec["strictly_proper"], "solver": spec["solver"], "shape": shape}
+    ratio = largest_s.max_ratio(model, spec["T"], numbers, **common)
     min_xy = largest_s.min_phi_xy(
         model, spec["T"], strictly_proper=spec["strictly_proper"], solver=spec["solver"],
         shape=shape,
@@ -381,7 +381,7 @@ def s_max_task(spec: dict[str, Any]) -> list[dict[str, Any]]:
     rows = []
     for eps_e in spec["eps_e"]:
         ms = largest_s.max_feasible_s(
-            model, spec["T"], eps_e=eps_e, ratio=ratio, gate=spec["gate_value"], **common
+            model, spec["T"], replace(numbers, eps=eps_e), ratio=ratio, **common
         )
         rows.append({**{k: spec[k] for k in keep}, "eps_e": eps_e, "s_max": ms.s_max,
                      "min_norm_phi_xy": min_xy, "key": spec["key"], "ratio_upper": upper})  # fmt: skip
