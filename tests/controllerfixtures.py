@@ -167,11 +167,9 @@ def as_calibrated(folder: Path, n: int = 20) -> Path:
     assert c is not None, f"{folder}: no premise to calibrate"
     opts = CalibrateOptions(flights=n)
     scores = [1.0] * n
-    status, reason, lam, rank, chk, tested, tol = decide(
-        scores, [c.rho_star] * n, c.numbers, taps_of(folder), opts
-    )
-    assert status == "certified", reason
-    o = Outcome(folder.name, "regular", status, reason, lam, rank, chk, tested, tol, scores)
+    decision = decide(scores, [c.rho_star] * n, c.numbers, taps_of(folder), opts)
+    assert decision.status == "certified", decision.reason
+    o = Outcome.of(folder.name, "regular", decision, scores)
     parts = [dict.fromkeys(SCORED, 1.0)] * n
     calibrated_certificate(folder, folder, o, opts, list(range(1000, 1000 + n)), parts,
                            {"perception": "regular", "stand_in": True})  # fmt: skip

@@ -44,7 +44,8 @@ def test_hints_name_the_flags():
 def test_too_few_flights_say_both_counts():
     assert cal.smallest_flights(0.1, "conformal") == 9
     numbers = PremiseNumbers(eps=0.1, S=0.0, radius=1.0, eps_w=0.01, delta=0.0)
-    status, reason, lam, *_ = decide([0.5] * 5, [0.1] * 5, numbers, None, CalibrateOptions())  # type: ignore[arg-type]
+    d = decide([0.5] * 5, [0.1] * 5, numbers, None, CalibrateOptions())  # type: ignore[arg-type]
+    status, reason, lam = d.status, d.reason, d.lambda_hat
     assert status == "relaxed" and lam == float("inf")
     assert reason == (
         "5 calibration flights cannot support alpha 0.1 (conformal needs 9 for any calibrated "

@@ -51,10 +51,11 @@ def test_the_calibration_refusal_names_the_reference_its_value_and_the_fix():
 
     nominal = _premise(delta=0.0)
     rows = [_row(reference=math.inf, score=math.inf, ref_max=0.2 + 0.01 * k) for k in range(20)]
-    status, reason, lam, *_ = decide(
+    d = decide(
         [r["score"] for r in rows], [r["reached"] for r in rows], nominal, None,
         CalibrateOptions(), broken=rows,
     )  # fmt: skip
+    status, reason, lam = d.status, d.reason, d.lambda_hat
     assert status == "relaxed" and math.isinf(lam)
     assert "reference (20 flights): dist(x_ref) reaches 0.39 over Delta 0" in reason
     assert "qsls fit --reference" in reason and "qsls synth --delta" in reason

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -107,9 +107,13 @@ class Job:
     folder: str
     condition: str
     seed: int
-    role: str  # "calibration" | "validation"
+    role: str
+    """``calibration`` (its score enters the quantile), ``range`` (its reference moved within
+    the tube: it tests the premise out to ``rho*``) or ``validation`` (checked, never scored)."""
     sim: dict[str, Any]
+    """The flight's simulation options (the run's, its condition's and its family draw)."""
     offset: tuple[float, float, float]
+    """The reference's offset (a range flight's; zeros otherwise)."""
 
 
 def fly_job(job: Job) -> TickLog:
@@ -221,19 +225,30 @@ def taps_of(folder: Path) -> cal.Responses:
 
 
 @dataclass(frozen=True)
-class Outcome:
-    """One candidate's calibration in one condition."""
+class Decision:
+    """What :func:`decide` finds of a candidate's scores (module docstring)."""
 
-    controller: str
-    condition: str
     status: str
     reason: str
     lambda_hat: float
     rank: int
     check: cal.Check | None
+    """The condition under the premise inflated by ``lambda_hat`` (None: no finite one)."""
     tested_range: float
     tolerances: dict[str, float]
-    scores: list[float]
+
+
+@dataclass(frozen=True)
+class Outcome(Decision):
+    """One candidate's calibration in one condition: its :class:`Decision` on its scores."""
+
+    controller: str = ""
+    condition: str = ""
+    scores: list[float] = field(default_factory=list)
+
+    @classmethod
+    def of(cls, controller: str, condition: str, d: Decision, scores: Sequence[float]) -> Outcome:
+        return cls(**vars(d), controller=controller, condition=condition, scores=list(scores))
 
 
 def decide(
@@ -245,9 +260,8 @@ def decide(
     crashed: int = 0,
     range_scores: Sequence[float] = (),
     broken: Sequence[Mapping[str, Any]] = (),
-) -> tuple[str, str, float, int, cal.Check | None, float, dict[str, float]]:
-    """``(status, reason, lambda_hat, rank, check, tested range, tolerances)`` (module
-    docstring); ``reached`` covers the calibration and the range flights, ``range_scores`` are
+) -> Decision:
+    """The candidate's :class:`Decision` (module docstring); ``reached`` covers the calibration and the range flights, ``range_scores`` are
     the range flights' scores (:func:`range_score`) (their quantile can only raise ``lambda_hat``);
     ``broken``: the score rows of the flights whose score is inf (the refusal names their
     quantities, :func:`~qsls.pipeline.evaluate.broken.broken_premise`)."""
@@ -273,7 +287,7 @@ def decide(
             if short
             else broken_premise(broken, nominal)
         )
-        return RELAXED, why, lam, rank, None, tested, {}  # fmt: skip
+        return Decision(RELAXED, why, lam, rank, None, tested, {})
     inflated = cal.inflate(nominal, lam)
     chk = cal.check(inflated, taps)
     tol: dict[str, float] = (
@@ -300,15 +314,15 @@ def decide(
     if options.alpha > cal.MAX_ALPHA:
         reasons.append(f"alpha {options.alpha:g} > {cal.MAX_ALPHA:g}")
     if reasons:
-        return RELAXED, "; ".join(reasons), lam, rank, chk, tested, tol
+        return Decision(RELAXED, "; ".join(reasons), lam, rank, chk, tested, tol)
     rho = chk.guarantee.rho_star
     if tested < rho:
         why = (f"the flights reached dist {tested:.3g} from the training states while the "
                f"certificate uses the premise out to rho* {rho:.3g}: add range flights over a "
                "tube that reaches it (--range-flights N --tube R; calibrate.range_flights, "
                "calibrate.tube in a config)")  # fmt: skip
-        return EXTRAPOLATED, why, lam, rank, chk, tested, tol
-    return CERTIFIED, "", lam, rank, chk, tested, tol
+        return Decision(EXTRAPOLATED, why, lam, rank, chk, tested, tol)
+    return Decision(CERTIFIED, "", lam, rank, chk, tested, tol)
 
 
 def fitted_seeds(fit_dir: Path) -> list[int]:
@@ -567,7 +581,7 @@ def calibrate(
                 ranged = mine[mine["role"] == "range"]
                 s = sel["score"].to_list()
                 nominal = premises[f.name].numbers
-                status, reason, lam, rank, chk, tested, tol = decide(
+                decision = decide(
                     s,
                     mine["reached"].to_list(),
                     nominal,
@@ -577,7 +591,7 @@ def calibrate(
                     range_scores=ranged["score"].to_list(),
                     broken=mine[np.isinf(mine["score"])].to_dict(orient="records"),
                 )
-                o = Outcome(f.name, cond, status, reason, lam, rank, chk, tested, tol, s)
+                o = Outcome.of(f.name, cond, decision, s)
                 outcomes.append(o)
                 calibrated_certificate(
                     f,

@@ -223,11 +223,11 @@ def _one(
                        **parts})  # fmt: skip
     s = [float(r["score"]) for r in scored if r["role"] == "calibration"]
     rs = [float(r["score"]) for r in scored if r["role"] == "range"]
-    status, reason, lam, rank, chk, tested, tol = decide(
+    decision = decide(
         s, [float(r["reached"]) for r in scored], premise.numbers, taps_of(folder), options,
         range_scores=rs, broken=[r for r in scored if r["score"] == float("inf")],
     )  # fmt: skip
-    o = Outcome(folder.name, condition, status, reason, lam, rank, chk, tested, tol, s)
+    o = Outcome.of(folder.name, condition, decision, s)
     calib = [f for f in flights if f.role == "calibration"]
     estimator = str(options.sim.vio.kind) if standin else ""
     conditions = _conditions([f for f in flights if f.role != "validation"], condition, estimator)

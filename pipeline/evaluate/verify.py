@@ -334,10 +334,11 @@ def _scores(
         alpha=c.alpha, method="pac" if c.method == "pac" else "conformal",
         delta=1.0 - c.confidence if c.confidence is not None else 0.05,
     )  # fmt: skip
-    status, _, lam, rank, _, tested, _ = decide(
+    got = decide(
         scores, reached, nominal.numbers, taps_of(d.folder), opts,
         crashed=_crashed(root, d), range_scores=ranged,
     )  # fmt: skip
+    status, lam, rank, tested = got.status, got.lambda_hat, got.rank, got.tested_range
     decided: tuple[tuple[str, Any, Any], ...] = (
         ("calibration.lambda_hat", c.lambda_hat, lam), ("calibration.rank", c.rank, rank),
         ("calibration.tested_range", c.tested_range, tested),
