@@ -12,14 +12,13 @@ import subprocess
 import numpy as np
 import pytest
 
-from qsls.pipeline.control.monitor import (
+from qsls.pipeline.control.innovation import (
     TRIP_SUM_CHANNEL,
     InnovationMonitor,
     innovation_flags,
-    innovation_of,
     innovation_spec,
-    trip_summary,
 )
+from qsls.pipeline.control.monitor import innovation_of, trip_summary
 from qsls.pipeline.core.plant import plant_model
 from qsls.pipeline.export import bank as B
 from qsls.pipeline.export.c import c_files
@@ -291,7 +290,7 @@ def test_calibrated_thresholds_export_bit_identical_and_trip_sooner(loop, gcc, t
     the spec, state the mode and rate in their headers, and give the library's bits tick for
     tick on a 20 % break on vz, which they catch sooner than the sound thresholds do (and a
     quiet stretch before the break at half the premise's disturbance trips neither)."""
-    from qsls.pipeline.control.monitor import calibrated_innovation
+    from qsls.pipeline.control.innovation import calibrated_innovation
     from qsls.pipeline.control.monitor_record import MonitorCalibration
 
     ctrl, sound, _, _ = loop

@@ -18,13 +18,15 @@ import yaml
 
 from qsls.pipeline.control import calibration as cal
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
-from qsls.pipeline.control.monitor import (
+from qsls.pipeline.control.innovation import (
     QUANTUM_MAX,
     QUANTUM_SCALE,
     calibrated_innovation,
     flight_statistic,
-    hover_input,
     innovation_flags,
+)
+from qsls.pipeline.control.monitor import (
+    hover_input,
     innovation_of,
     monitor_of,
     sound_innovation_of,

@@ -7,7 +7,7 @@ each divided by the sound threshold of its window and channel (``K per_tick_c + 
 widened). The calibrated thresholds are ``q`` times the sound ones, ``q`` the split-conformal
 quantile of the ``n`` statistics (rank ``ceil((n + 1)(1 - a))``): a next flight exchangeable with
 the calibration flights trips the window sums with probability at most ``a``
-(:func:`qsls.pipeline.control.monitor.calibrated_innovation` applies it).
+(:func:`qsls.pipeline.control.innovation.calibrated_innovation` applies it).
 
 The record checks itself on load: the rank is the conformal rank of its statistics' count at
 its rate and the quantile the statistic of that rank (a hand-edited quantile is refused).

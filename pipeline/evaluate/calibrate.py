@@ -57,7 +57,8 @@ from qsls.pipeline.control.guarantee import (
     outlier_channels,
     system_norms,
 )
-from qsls.pipeline.control.monitor import hover_input, monitor_calibration, sound_innovation_of
+from qsls.pipeline.control.innovation import monitor_calibration
+from qsls.pipeline.control.monitor import hover_input, sound_innovation_of
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED
 from qsls.pipeline.core.artifacts import (
     StageWriter,
@@ -442,7 +443,7 @@ def record_monitor(folder: Path, logs: Sequence[FlownLog], options: CalibrateOpt
     """The innovation monitor's calibration in ``folder``'s record
     (docs/monitor.md#the-calibrated-mode): each calibration flight's statistic (``logs``, in the order of the scores) under the
     calibrated certificate's sound monitor, their conformal quantile at the option's
-    false-trip rate, and the mode (:func:`qsls.pipeline.control.monitor.monitor_calibration`);
+    false-trip rate, and the mode (:func:`qsls.pipeline.control.innovation.monitor_calibration`);
     nothing where that monitor is off."""
     d = load_controller_dir(folder)
     cert, spec = d.certificate, sound_innovation_of(d)

@@ -38,7 +38,8 @@ from qsls.pipeline.control.artifacts import (
     load_controller_dir,
 )
 from qsls.pipeline.control.guarantee import PremiseNumbers, a_value
-from qsls.pipeline.control.monitor import hover_input, monitor_calibration, sound_innovation_of
+from qsls.pipeline.control.innovation import monitor_calibration
+from qsls.pipeline.control.monitor import hover_input, sound_innovation_of
 from qsls.pipeline.core.artifacts import MANIFEST, read_manifest, sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import TickLog

@@ -1,6 +1,6 @@
 """The innovation monitor in the exported code (docs/monitor.md, The innovation monitor).
 
-:class:`qsls.pipeline.control.monitor.InnovationMonitor` written out as C99 and as stdlib
+:class:`qsls.pipeline.control.innovation.InnovationMonitor` written out as C99 and as stdlib
 Python with the same operations in the same order, so that the C double build and the Python
 module compute the same bits from the same measurements and commands (no fused multiply-add:
 ``-std=c99`` keeps ``-ffp-contract=off``; Python's floats are IEEE doubles):
@@ -9,7 +9,7 @@ module compute the same bits from the same measurements and commands (no fused m
   right over the nonzero coefficients;
 - the loop states ``a <- A_aa a + B_a du``, each row accumulated from 0;
 - per checked channel and window, a running sum of the quantized innovations (exact integers
-  in doubles, :func:`qsls.pipeline.control.monitor.quantize`: add the newest, subtract the one
+  in doubles, :func:`qsls.pipeline.control.innovation.quantize`: add the newest, subtract the one
   leaving), compared with ``+/- sum_limit``; the median over the channel's shifts is beyond
   the bound when more than ``ns // 2`` of the last ``ns`` sums are on one side, which is
   counted (one comparison per window and tick, no sort: docs/monitor.md, Rounding).
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qsls.pipeline.control.monitor import (
+from qsls.pipeline.control.innovation import (
     DOUBLE_EPS,
     QUANTUM_MAX,
     QUANTUM_SCALE,
@@ -156,7 +156,7 @@ def c_literal(x: float, float_build: bool) -> str:
 
 def limits(spec: InnovationSpec, float_build: bool) -> list[list[float]]:
     """Per window and channel the bound on the quantized window sum the build compares with
-    (:func:`qsls.pipeline.control.monitor.sum_limit` of its stored threshold; 0: not checked)."""
+    (:func:`qsls.pipeline.control.innovation.sum_limit` of its stored threshold; 0: not checked)."""
     thr, _ = stored(spec, float_build)
     return [[sum_limit(t, K) if t > 0 else 0.0 for t in thr[w]] for w, K in enumerate(spec.windows)]
 

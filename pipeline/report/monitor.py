@@ -82,6 +82,23 @@ def _trips_table(sec: Section, assumptions: Any) -> None:
     )  # fmt: skip
 
 
+def _calibrated_note(sec: Section, f: Facts) -> None:
+    """Name the controllers whose innovation monitor is calibrated: their window-sum trips are
+    alarms at a stated rate, not proofs (docs/monitor.md#the-calibrated-mode)."""
+    calibrated = sorted(
+        c.name for c in f.controllers
+        if ((c.cert.get("calibration") or {}).get("monitor") or {}).get("mode") == "calibrated"
+    )  # fmt: skip
+    if calibrated:
+        sec.text(
+            f"{', '.join(calibrated)} fly the innovation monitor's calibrated mode "
+            "(docs/monitor.md#the-calibrated-mode): their window sums trip at a conformal "
+            "quantile of the calibration flights' statistics, so such a trip is an alarm with a "
+            "stated false-trip probability per flight, not a proof, and a trip on a flight whose "
+            "checks all held counts against that rate."
+        )
+
+
 def section_monitor(f: Facts, counter: list[int]) -> Section | None:
     import pandas as pd
 
@@ -102,18 +119,7 @@ def section_monitor(f: Facts, counter: list[int]) -> Section | None:
         "until its monitor trips, then the PD reference flies (or holds) from that tick on.",
         lead=True,
     )
-    calibrated = sorted(
-        c.name for c in f.controllers
-        if ((c.cert.get("calibration") or {}).get("monitor") or {}).get("mode") == "calibrated"
-    )  # fmt: skip
-    if calibrated:
-        sec.text(
-            f"{', '.join(calibrated)} fly the innovation monitor's calibrated mode "
-            "(docs/monitor.md#the-calibrated-mode): their window sums trip at a conformal "
-            "quantile of the calibration flights' statistics, so such a trip is an alarm with a "
-            "stated false-trip probability per flight, not a proof, and a trip on a flight whose "
-            "checks all held counts against that rate."
-        )
+    _calibrated_note(sec, f)
     if len(assumptions):
         c = catch_share(assumptions)
         sec.table(
