@@ -26,6 +26,7 @@ import yaml
 from smokemode import add_flag, requested, require
 
 from qsls.pipeline.control import largest_s, sls
+from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.sweep import (
     ABOVE_S_MAX,
     NECESSARY,
@@ -133,6 +134,13 @@ def cpu_balance(jobs: int = 2) -> tuple[float, float, float]:
     return main, total1 + total2, busy1 + busy2
 
 
+def _premise(spec: dict, eps_e: float) -> PremiseNumbers:
+    """The premise of one sweep setting at ``eps_e`` (``S`` aside)."""
+    return PremiseNumbers(
+        eps=float(eps_e), S=0.0, radius=spec["radius"], eps_w=spec["eps_w"], delta=spec["delta"]
+    )
+
+
 def s_max_both_ways() -> list[tuple[str, int, int, float, pd.Series]]:
     """``(way, tasks, solves, cpu s, s_max per setting)`` for the sweep's 100 settings."""
     points = grid_points(options(), None)
@@ -145,10 +153,7 @@ def s_max_both_ways() -> list[tuple[str, int, int, float, pd.Series]]:
     solves, got = 0, {}
     for spec in specs:  # before: every (T, eps_e, radius) its own Dinkelbach and min ||Phi_xy||
         for eps_e in spec["eps_e"]:
-            ms = largest_s.max_feasible_s(
-                model, spec["T"], eps_e=eps_e, radius=spec["radius"], eps_w=spec["eps_w"],
-                delta=spec["delta"],
-            )  # fmt: skip
+            ms = largest_s.max_feasible_s(model, spec["T"], _premise(spec, eps_e))
             largest_s._MIN_XY.clear()
             largest_s.min_phi_xy(model, spec["T"])
             solves += ms.iterations + 1
@@ -159,17 +164,13 @@ def s_max_both_ways() -> list[tuple[str, int, int, float, pd.Series]]:
     c0 = time.process_time()
     solves, got = 0, {}
     for spec in specs:
-        ratio = largest_s.max_ratio(model, spec["T"], radius=spec["radius"], eps_w=spec["eps_w"],
-                              delta=spec["delta"])  # fmt: skip
+        ratio = largest_s.max_ratio(model, spec["T"], _premise(spec, 0.0))
         solves += ratio.iterations
         n_min = len(largest_s._MIN_XY)
         largest_s.min_phi_xy(model, spec["T"])
         solves += len(largest_s._MIN_XY) - n_min
         for eps_e in spec["eps_e"]:
-            ms = largest_s.max_feasible_s(
-                model, spec["T"], eps_e=eps_e, radius=spec["radius"], eps_w=spec["eps_w"],
-                delta=spec["delta"], ratio=ratio,
-            )  # fmt: skip
+            ms = largest_s.max_feasible_s(model, spec["T"], _premise(spec, eps_e), ratio=ratio)
             got[(spec["T"], eps_e, spec["radius"])] = ms.s_max
     out.append(("per T and radius", len(specs), solves, time.process_time() - c0, pd.Series(got)))
     return out
