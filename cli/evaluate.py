@@ -1,5 +1,4 @@
-"""Check certified bounds on held-out flights (``qsls fly`` flies the controllers; ``--fly`` is its
-old alias)."""
+"""Check certified bounds on held-out flights (``qsls fly`` flies the controllers)."""
 
 from __future__ import annotations
 
@@ -9,19 +8,20 @@ from typing import Any
 import typer
 
 from qsls.cli.common import RichProgress, cli_errors, overrides, print_summary, print_verdicts
-from qsls.cli.fields import hidden, model_options
-from qsls.cli.fly import FLY, FLY_CONFIG_ONLY
-from qsls.pipeline.evaluate.options import FlyOptions
+from qsls.cli.fields import model_options
+from qsls.pipeline.evaluate.options import EvaluateOptions
 
 EXAMPLE = "qsls evaluate --model fit --controller synth --flights flights/f3 --out ev"
 
 
 @cli_errors
 @model_options(
-    FlyOptions,
-    {"smooth_s": ("--smooth-s",), "flown_by": ("--flown-by",), **hidden(FLY)},
-    config_only=FLY_CONFIG_ONLY,
-)
+    EvaluateOptions,
+    {
+        "smooth_s": ("--smooth-s",), "flown_by": ("--flown-by",),
+        "state_scale": ("--state-scale",), "max_figure_flights": ("--max-figure-flights",),
+    },
+)  # fmt: skip
 def command(
     model: Path = typer.Option(
         ...,
@@ -43,13 +43,6 @@ def command(
     out: Path = typer.Option(
         ..., "--out", help="Output folder (evaluation.json, .parquet, figures)."
     ),
-    fly: bool = typer.Option(
-        False,
-        "--fly",
-        hidden=True,
-        help="The old spelling of 'qsls fly' (says so on stderr): fly the controllers "
-        "instead of checking --flights.",
-    ),
     config: Path = typer.Option(
         None, "--config", help="YAML file of options (the command line wins)."
     ),
@@ -62,23 +55,10 @@ def command(
 ) -> None:
     """Check the certified bounds on held-out flights (to fly the controllers: qsls fly)."""
     from qsls.pipeline.core.config import load_options
-    from qsls.pipeline.core.errors import InputError
     from qsls.pipeline.evaluate.section import EvaluateSection
 
     figures = overrides(figures=False if no_figures else None)
-    if fly:
-        from qsls.cli.fly import fly as fly_command
-
-        typer.echo("warning: 'qsls evaluate --fly' is the old spelling of 'qsls fly'; "
-                   "it runs 'qsls fly' and will go", err=True)  # fmt: skip
-        if flights:
-            raise InputError("--flights is not used with --fly (the flights are flown); drop one")
-        if "flown_by" in given:
-            raise InputError("--flown-by is not used with --fly (each flight records its own)")
-        fly_command(model, controller, out, config, force, {**given, **figures},
-                    "qsls evaluate --fly")  # fmt: skip
-        return
-    ov = {**{k: v for k, v in given.items() if k in ("smooth_s", "flown_by")}, **figures}
+    ov = {**given, **figures}
     section = load_options(EvaluateSection, config, ov, section="evaluate")
     from qsls.pipeline.evaluate.bound import evaluate
 

@@ -5,7 +5,6 @@ one source of all three; a command only lists which fields it exposes and their 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import inspect
 import re
@@ -26,14 +25,13 @@ F = TypeVar("F", bound=Callable[..., Any])
 @dataclass(frozen=True)
 class Flag:
     """How the command line spells one field: its flags (``"--robust/--no-robust"`` for an
-    on/off pair), whether ``--help`` hides it, and, where the field's annotation does not say
+    on/off pair) and, where the field's annotation does not say
     it, how the command line's text becomes the model's value (``parse(text, flag)``) and the
     text's type (``kind``)."""
 
     flags: tuple[str, ...]
     parse: Callable[[Any, str], Any] | None = None
     kind: Any = None
-    hidden: bool = False
     name: str | None = None
     """The command's parameter (default: the field's last part), where that is taken."""
 
@@ -66,11 +64,6 @@ def as_given(text: str, flag: str) -> str:
 Table = Mapping[str, "Flag | tuple[str, ...]"]
 """A command's exposed fields (dotted for a nested model: ``sim.controller.backend``) and how
 it spells them."""
-
-
-def hidden(table: Table) -> dict[str, Flag]:
-    """``table`` with every option hidden from ``--help`` (an old spelling's options)."""
-    return {d: dataclasses.replace(_flag(f), hidden=True) for d, f in table.items()}
 
 
 def _flag(spec: Flag | tuple[str, ...]) -> Flag:
@@ -185,9 +178,7 @@ def _param(name: str, flag: Flag, model: Any, dotted: str) -> tuple[inspect.Para
         kind, parse = flag.kind or str, flag.parse
     else:
         kind, parse = _reader(owner.model_fields[field].annotation)
-    option = typer.Option(
-        None, *flag.flags, help=field_help(model, dotted, flag.flags), hidden=flag.hidden
-    )
+    option = typer.Option(None, *flag.flags, help=field_help(model, dotted, flag.flags))
     annotation = kind | None
     param = inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=option,
                               annotation=annotation)  # fmt: skip

@@ -45,7 +45,7 @@ FLY: Table = {
     "keep_bags": ("--keep-bags/--no-keep-bags",),
     "se3": ("--se3/--no-se3",),
 }
-"""The flying options ``qsls fly`` exposes (``qsls evaluate --fly`` too, hidden)."""
+"""The flying options ``qsls fly`` exposes."""
 
 FLY_CONFIG_ONLY = {
     "sim": "the vehicle, reference and VIO: a run config's simulate: section",
@@ -104,7 +104,6 @@ def fly(
     config: Path | None,
     force: bool,
     given: dict[str, object],
-    title: str = "qsls fly",
 ) -> None:
     """Fly (the options: the config's ``evaluate:`` section, its ``fly:``, then ``given``),
     then the summary, the paper comparison and the verdicts."""
@@ -116,7 +115,7 @@ def fly(
     options = section.flying(given, str(config or "options"))
     with RichProgress() as progress:
         result = fly_evaluate(model, controllers, options, out, force=force, progress=progress)
-    print_summary(title, result.summary())
+    print_summary("qsls fly", result.summary())
     cols, rows = result.comparison_rows()
     print_table("Against the paper's findings", cols, rows)
     print_verdicts("Certified bound on the flown flights", result.verdicts())

@@ -22,9 +22,9 @@ MODELS = {
         {},
     ),
     "evaluate": (
-        "qsls.pipeline.evaluate.options:FlyOptions",
-        {"--model", "--controller", "--flights", "--fly"},
-        {"--no-figures": "figures", "--backend": "sim.controller.backend"},
+        "qsls.pipeline.evaluate.options:EvaluateOptions",
+        {"--model", "--controller", "--flights"},
+        {"--no-figures": "figures"},
     ),
     "fly": (
         "qsls.pipeline.evaluate.options:FlyOptions",

@@ -258,7 +258,7 @@ def test_a_run_config_made_in_python_lays_each_flight_over_its_sections(tmp_path
 def test_a_bad_fly_subsection_is_refused_when_the_config_is_read(work):
     """``evaluate.fly`` (laid over the evaluate section's own keys) is validated with the
     flying options when the config is read, not first when the run is planned; the same
-    keys for ``qsls evaluate --fly --config`` name the same problem."""
+    keys for ``qsls fly --config`` name the same problem."""
     cfg = _write(work / "cfg", evaluate={"figures": False, "fly": {"seedz": [1]}})
     with pytest.raises(
         ConfigError, match=r"cfg: evaluate.fly: unknown option 'seedz'; did you mean 'seeds'\?"

@@ -414,7 +414,7 @@ def _with_matching_hash(folder, source, npz: bytes, **update):
 def test_damaged_altered_pd_or_overclaiming_controllers_are_refused(setup, taps):
     """A truncated or empty controller.npz (with and without a matching hash), a PD whose K
     was changed by 1e-4 (hash updated), and a certificate edited to 'certified' over its own
-    violated premise: evaluate, evaluate --fly and export give one line, exit 2."""
+    violated premise: evaluate, fly and export give one line, exit 2."""
     from qsls.pipeline.control.nominal import pd_responses
     from qsls.pipeline.control.pdgain import PDGains
     from qsls.pipeline.control.premise import Premise, PremiseEntry

@@ -427,7 +427,7 @@ def test_bad_input(tmp_path, controllers):
 
 @pytest.mark.slow
 def test_evaluate_fly_flies_the_exported_c(tmp_path, compiler):
-    """`qsls evaluate --fly --backend c`: the same flights as the Python realization's."""
+    """`qsls fly --backend c`: the same flights as the Python realization's."""
     steps = [
         ("simulate", "--duration", 10, "--seed", 0, "--out", tmp_path / "sim"),
         ("ingest", tmp_path / "sim" / "flight.bag", "--out", tmp_path / "ing"),

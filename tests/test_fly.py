@@ -1,4 +1,4 @@
-"""Flying the controllers (qsls evaluate --fly) through the real stages.
+"""Flying the controllers (qsls fly) through the real stages.
 
 simulate -> ingest -> fit -> synth build the inputs; the realized controllers are checked
 against their responses on the linear model by an independent simulation.
@@ -187,12 +187,10 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
     assert "Against the paper" in r.output
     md = (out / "comparison.md").read_text()
     assert sum(md.count(f"\n| {i}. ") for i in (1, 2, 3)) == 3
-    # 'evaluate --fly', the old spelling, says so on stderr; --flights makes no sense with
-    # it: one-line error, nothing written
+    # 'evaluate --fly', the old spelling, is gone: one-line refusal, nothing written
     old = ["evaluate", "--fly", *args[1:-4], "--flights", root / "train", "--out", tmp_path / "x"]
     r = CliRunner().invoke(app, [str(a) for a in old])
-    assert r.exit_code == 2 and "--flights is not used with --fly" in r.output
-    assert "'qsls evaluate --fly' is the old spelling of 'qsls fly'" in r.output
+    assert r.exit_code == 2 and "--fly" in r.output
     assert not (tmp_path / "x").exists()
 
 

@@ -1,4 +1,4 @@
-"""The process pool shared by the sweep and ``evaluate --fly`` (``core/pools.py``)."""
+"""The process pool shared by the sweep and ``qsls fly`` (``core/pools.py``)."""
 
 from __future__ import annotations
 

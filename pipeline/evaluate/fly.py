@@ -1,4 +1,4 @@
-"""``qsls evaluate --fly``: the paper's four controllers and SE3 flown side by side.
+"""``qsls fly``: the paper's four controllers and SE3 flown side by side.
 
 Every controller (PD, nominal L1, L1 robust, L1 robust imitation from a synth folder, plus
 RotorPy's SE3 controller of the training flights) is flown on the simulator's RotorPy
