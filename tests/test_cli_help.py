@@ -86,17 +86,15 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
         },
     ),
     "evaluate": (
-        "qsls.pipeline.evaluate.options:FlyOptions",
+        "qsls.pipeline.evaluate.options:EvaluateOptions",
         {
             "model": None,
             "controller": None,
             "flights": None,
             "out": None,
-            "fly": None,
             "config": None,
             "force": None,
             "no_figures": None,
-            "backend": "sim.controller.backend",
         },
     ),
     "fly": (
