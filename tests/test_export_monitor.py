@@ -14,9 +14,8 @@ import yaml
 
 from qsls.pipeline.control.artifacts import load_runtime
 from qsls.pipeline.control.gate import gated_deviation
-from qsls.pipeline.control.guarantee import COUNT, OFF, TRIP
 from qsls.pipeline.control.innovation import innovation_flags
-from qsls.pipeline.control.monitor import innovation_of, monitor_flags, monitor_of
+from qsls.pipeline.control.monitor import COUNT, OFF, TRIP, innovation_of, monitor_flags, monitor_of
 from qsls.pipeline.export.cbuild import STRICT, CController
 from qsls.pipeline.export.python import load_module
 from qsls.pipeline.export.stage import ExportOptions, export

@@ -2,7 +2,7 @@
 certificate and the taps, and the rule applied to a logged flight; the innovation monitor's
 own arithmetic is :mod:`qsls.pipeline.control.innovation`.
 
-The thresholds' arithmetic is :func:`qsls.pipeline.control.guarantee.monitor_spec`; the
+The thresholds' arithmetic is :func:`monitor_spec` (the envelope of the guarantee's split); the
 exported step applies the same rule on the vehicle (:mod:`qsls.pipeline.export.c`,
 :mod:`qsls.pipeline.export.python`); :func:`monitor_flags` applies it to deviations logged in
 flight, for the checks of ``qsls fly`` and the tests' cross-check of the exported
@@ -11,15 +11,22 @@ code.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
 
 from qsls.pipeline.control.artifacts import ControllerDir
 from qsls.pipeline.control.guarantee import (
-    COUNT,
-    OFF,
-    TRIP,
-    MonitorSpec,
-    monitor_spec,
+    MONITOR_RTOL,
+    ONES,
+    VELOCITY,
+    bias_rows,
+    error_bounds,
+    error_weights,
+    measured_channels,
+    outlier_channels,
 )
 from qsls.pipeline.control.innovation import (
     CHANNEL_NAMES,
@@ -37,6 +44,126 @@ from qsls.pipeline.control.innovation import (
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
 from qsls.pipeline.core.plant import GRAVITY, NX, bias_directions
 
+
+# --------------------------------------------------------------------------- the envelope
+def deviation_envelope(
+    phi_xy: np.ndarray,
+    phi_xx_h: np.ndarray,
+    *,
+    eps_w: float,
+    dense: float,
+    error_scale: Sequence[float] = ONES,
+    measured: Sequence[int] = tuple(range(6)),
+    outlier_channels: Sequence[int] = (),
+    m: int = 0,
+    eps_o: float = 0.0,
+    beta: float = math.inf,
+    eps_b: float = 0.0,
+    bias_dirs: np.ndarray | None = None,
+) -> np.ndarray:
+    """``env`` (one entry per state channel, unweighted): under the premise
+    ``|x_k,i - r_k,i| <= env_i`` at every tick (docs/monitor.md, The envelope).
+
+    In deviation from the reference ``x - r = Phi_xx H * w + Phi_xy * (d + o)`` (the flight
+    starts on the reference), ``w = D_w beta + w'`` with ``||beta|| <= eps_b`` (adding
+    ``eps_b g_b,i``, :func:`bias_rows`) and ``||w'|| <= eps_w``, ``|d_j|_e <= dense = eps + S rho*`` (so
+    ``|d_j| <= dense / w_e,j``, and ``<= beta`` on an outlier channel, where ``d = clip_beta(e)``)
+    and at most ``m`` of the last ``T`` ticks carry an outlier ``||o|| <= eps_o``::
+
+        env_i = eps_w sum_t sum_j |(Phi_xx H)(t)_ij|
+              + sum_t sum_j |Phi_xy(t)_ij| db_j                 db_j = dense / w_e,j (min beta)
+              + eps_o (sum of the m largest over t of sum_{j in O} |Phi_xy(t)_ij|)
+
+    ``max_i w_x,i env_i <= eps_w N_w + eps_b G_b + N dense + eps_o G_m = rho* - Delta``."""
+    db = error_bounds(dense, error_scale, measured, beta)
+    env = eps_w * np.abs(phi_xx_h).sum(axis=(0, 2)) + (np.abs(phi_xy) * db[None, None, :]).sum(
+        axis=(0, 2)
+    )
+    if eps_b > 0:
+        env = env + eps_b * bias_rows(phi_xx_h, bias_dirs)
+    if m > 0 and len(outlier_channels):
+        per_tap = np.abs(phi_xy[:, :, list(outlier_channels)]).sum(axis=2)  # (taps, nx)
+        env = env + eps_o * (-np.sort(-per_tap, axis=0))[:m].sum(axis=0)
+    return np.asarray(env, dtype=float)
+
+
+OFF, TRIP, COUNT = 0, 1, 2
+"""A monitored channel's kind: not checked; beyond its threshold the premise is broken; beyond
+its threshold the tick carries an outlier (more than ``m`` in ``T`` ticks break the premise)."""
+
+
+@dataclass(frozen=True)
+class MonitorSpec:
+    """The onboard premise monitor's constants (docs/monitor.md): a measured deviation
+    ``|y_k,i - r_k,i|`` (velocity through the gate) beyond ``threshold_i = env_i + db_i``."""
+
+    threshold: tuple[float, ...]
+    kind: tuple[int, ...]
+    m: int
+    window: int
+    envelope: tuple[float, ...]
+    error_bound: tuple[float, ...]
+
+    @property
+    def active(self) -> bool:
+        return any(k != OFF for k in self.kind)
+
+
+def monitor_spec(
+    phi_xy: np.ndarray,
+    phi_xx_h: np.ndarray,
+    *,
+    eps_w: float,
+    dense: float,
+    error_scale: Sequence[float] = ONES,
+    measure: str = "full",
+    m: int = 0,
+    eps_o: float = 0.0,
+    beta: float = math.inf,
+    gate: float | None = None,
+    realization_error: float = 0.0,
+    eps_b: float = 0.0,
+    bias_dirs: np.ndarray | None = None,
+) -> MonitorSpec:
+    """The thresholds ``env_i + db_i`` of :func:`deviation_envelope` plus the bound ``db_i`` on
+    the error of the tick itself, per measured channel; velocity channels with ``beta`` and
+    ``m > 0`` count outliers (``kind`` :data:`COUNT`), the others trip (:data:`TRIP`). A channel
+    whose threshold is at least the gate can never be exceeded through the gate: it is
+    :data:`OFF`. A velocity channel counts only where an outlier can meet the dense bound
+    (``beta <= dense / w_e,j``); where ``dense / w_e,j < beta``, an error beyond ``dense / w_e,j``
+    breaks the dense premise whether or not it is an outlier (its clipped part is then
+    ``beta``), so the channel trips. Thresholds are widened by :data:`MONITOR_RTOL`."""
+    measured = measured_channels(measure)
+    sparse = outlier_channels(measure, m) if math.isfinite(beta) else ()
+    env = deviation_envelope(
+        phi_xy, phi_xx_h, eps_w=eps_w, dense=dense, error_scale=error_scale,
+        measured=measured, outlier_channels=sparse, m=m, eps_o=eps_o, beta=beta,
+        eps_b=eps_b, bias_dirs=bias_dirs,
+    )  # fmt: skip
+    db = error_bounds(dense, error_scale, measured, beta)
+    T = phi_xy.shape[0] - 1
+    widen = 1.0 + MONITOR_RTOL + 10.0 * (T + 1) * max(realization_error, 0.0)
+    thr = (env + db) * widen
+    kind = []
+    for i in range(len(thr)):
+        if i not in measured or not math.isfinite(thr[i]):
+            kind.append(OFF)
+        elif i in VELOCITY and gate is not None and thr[i] >= gate:
+            kind.append(OFF)  # the gated deviation never exceeds V
+        elif i in sparse and dense * error_weights(error_scale, measured)[i] >= beta:
+            kind.append(COUNT)  # beyond: |e_i| > beta, an outlier the premise allows m of
+        else:
+            kind.append(TRIP)  # beyond: the dense bound is broken (with o != 0, |d_i| = beta too)
+    return MonitorSpec(
+        threshold=tuple(float(v) if k != OFF else 0.0 for v, k in zip(thr, kind, strict=True)),
+        kind=tuple(kind),
+        m=int(m) if sparse else 0,
+        window=T,
+        envelope=tuple(float(v) for v in env),
+        error_bound=tuple(float(v) for v in db),
+    )
+
+
 NO_MONITOR = MonitorSpec((0.0,) * 6, (OFF,) * 6, 0, 1, (0.0,) * 6, (0.0,) * 6)
 """The monitor of a controller without a guarantee: every channel off."""
 TRIP_ENVELOPE, TRIP_OUTLIERS = 1, 2
@@ -46,7 +173,7 @@ TRIP_ENVELOPE, TRIP_OUTLIERS = 1, 2
 
 def monitor_of(cdir: ControllerDir) -> MonitorSpec:
     """The monitor of a controller whose certificate states a premise and ``rho*`` (certified
-    or relaxed, robust): :func:`qsls.pipeline.control.guarantee.monitor_spec` on its taps, with
+    or relaxed, robust): :func:`monitor_spec` on its taps, with
     the dense bound ``gamma = eps + S rho*``; otherwise the monitor is off."""
     cert, c = cdir.certificate, cdir.controller
     if (

@@ -50,9 +50,9 @@ import numpy as np
 import pandas as pd
 
 from qsls.pipeline.control.artifacts import load_controller_dir
-from qsls.pipeline.control.guarantee import OFF
 from qsls.pipeline.control.innovation import NO_INNOVATION
 from qsls.pipeline.control.monitor import (
+    OFF,
     envelope_peak,
     first_test,
     innovation_of,

@@ -18,9 +18,8 @@ from typing import Literal
 import numpy as np
 
 from qsls.pipeline.control.artifacts import Certificate, ControllerDir, check_controller_name
-from qsls.pipeline.control.guarantee import MonitorSpec
 from qsls.pipeline.control.innovation import NO_INNOVATION, InnovationSpec
-from qsls.pipeline.control.monitor import NO_MONITOR, innovation_of, monitor_of
+from qsls.pipeline.control.monitor import NO_MONITOR, MonitorSpec, innovation_of, monitor_of
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, REFERENCE, RELAXED, UNCERTIFIED
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import NX

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from qsls.pipeline.control.artifacts import CONTROLLER_FILE
-from qsls.pipeline.control.guarantee import MonitorSpec
+from qsls.pipeline.control.monitor import MonitorSpec
 from qsls.pipeline.core.plant import GRAVITY
 from qsls.pipeline.export.attitude import c_function
 from qsls.pipeline.export.bank import REAL_BYTES, Y_MAX, ExportBank, ExportFacts, Precision

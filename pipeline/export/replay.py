@@ -47,8 +47,14 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control.artifacts import load_controller_dir
-from qsls.pipeline.control.guarantee import COUNT, TRIP
-from qsls.pipeline.control.monitor import PREMISE_BITS, innovation_of, monitor_of, trip_summary
+from qsls.pipeline.control.monitor import (
+    COUNT,
+    PREMISE_BITS,
+    TRIP,
+    innovation_of,
+    monitor_of,
+    trip_summary,
+)
 from qsls.pipeline.core.artifacts import refuse_overlap, sha256_path
 from qsls.pipeline.core.config import read_yaml, validate
 from qsls.pipeline.core.errors import ConfigError, InputError, OutputExistsError

@@ -19,9 +19,8 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control.artifacts import Calibration, Certificate, ControllerDir
-from qsls.pipeline.control.guarantee import COUNT, OFF, TRIP, MonitorSpec
 from qsls.pipeline.control.innovation import InnovationSpec
-from qsls.pipeline.control.monitor import innovation_of
+from qsls.pipeline.control.monitor import COUNT, OFF, TRIP, MonitorSpec, innovation_of
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
 
 CHANNELS = ("px", "py", "pz", "vx", "vy", "vz")
