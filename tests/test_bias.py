@@ -14,7 +14,7 @@ import yaml
 
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.artifacts import Certificate, load_controller_dir
-from qsls.pipeline.control.guarantee import PremiseNumbers, bias_gain, dc_bias_gain, guarantee
+from qsls.pipeline.control.guarantee import PremiseNumbers, bias_gain, guarantee
 from qsls.pipeline.control.monitor import NO_MONITOR
 from qsls.pipeline.control.realize import RealizedController, filter_bank
 from qsls.pipeline.core.errors import InputError
@@ -38,6 +38,11 @@ def designs() -> dict[bool, tuple[sls.Taps, object]]:
         assert sol.taps is not None
         out[bias] = (sol.taps, model)
     return out
+
+
+def dc_bias_gain(phi_xx_h: np.ndarray, D: np.ndarray) -> float:
+    """``max |P_T|`` over the physical rows: 0 with integral action on the bias directions."""
+    return float(np.abs((phi_xx_h @ D).sum(axis=0)[:6]).max())
 
 
 def partial_sum_peak(phi_xx: np.ndarray, D: np.ndarray) -> float:

@@ -47,6 +47,7 @@ from qsls.pipeline.control.guarantee import (
     sparse_gain,
     velocity_deviation,
 )
+from qsls.pipeline.errormodel.disturbance import ratio as ratio  # a score's parts read it
 from qsls.pipeline.errormodel.honest import clopper_pearson as cp
 
 Method = Literal["conformal", "pac"]
@@ -109,13 +110,6 @@ def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
 
 
 # --------------------------------------------------------------------------- scores
-def ratio(value: float, limit: float) -> float:
-    """``value / limit`` with ``0 / 0 = 0`` and ``v / 0 = inf`` for ``v > 0``."""
-    if value <= 0.0:
-        return 0.0
-    return value / limit if limit > 0.0 else math.inf
-
-
 def set_by(rows: Sequence[Mapping[str, Any]], lambda_hat: float) -> str:
     """Which premise quantity set ``lambda_hat``: the largest part (:data:`SCORED`) of the
     flight whose score is ``lambda_hat`` (the quantile's flight; the first in ``rows`` on a

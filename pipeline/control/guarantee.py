@@ -115,13 +115,6 @@ def bias_gain(
     return float((wx * rows).max())
 
 
-def dc_bias_gain(phi_xx_h: np.ndarray, bias_dirs: np.ndarray, rows: int = 6) -> float:
-    """``max |P_T|`` over the physical rows: 0 when the controller has integral action on
-    the bias directions (the constraint :mod:`qsls.pipeline.control.sls` imposes)."""
-    total = (phi_xx_h @ np.asarray(bias_dirs, float)).sum(axis=0)
-    return float(np.abs(total[:rows]).max())
-
-
 @dataclass(frozen=True)
 class Norms:
     """The system quantities of one controller's responses."""

@@ -241,10 +241,11 @@ class SLSProblem:
         self._epi: dict[str, tuple[np.ndarray, np.ndarray, Any]] = {}
         self.cost = cost = s.cost
         self._read = self._rows_read()
+        # the bias term's partial sums P_K (control/integral.py), built once for both uses
+        self._bias = bias_sums(mp.Phi_xx_H, bias_directions(model)) if s.bias else None
         norms = self._premise_norms() if s.robust or cost.needs_norms else None
-        if s.bias:  # integral action: P_T = 0 (control/integral.py)
-            sums = bias_sums(mp.Phi_xx_H, bias_directions(model))
-            self._cons += integral_action(sums, z, self._copied_rows())
+        if self._bias is not None:  # integral action: P_T = 0
+            self._cons += integral_action(self._bias, z, self._copied_rows())
         p: dict[str, Any] = {}
         if s.robust:
             assert norms is not None
@@ -305,10 +306,9 @@ class SLSProblem:
         channels = outlier_channels(s.measure, s.m)
         self._g_rows: dict[int, Any] = {}
         g_b, self._gb_rows = None, {}
-        if s.bias:  # G_b on its own epigraph, g_b,i of the velocity rows for the gate
+        if self._bias is not None:  # G_b on its own epigraph, the gate's g_b,i per velocity row
             vel = np.isin(np.arange(self.model.nx), VELOCITY) & s.gate
-            sums = bias_sums(self.maps.Phi_xx_H, bias_directions(self.model))
-            g_b, per_row, cons = bias_norm(sums, self.z, wx, rows, vel, self._copied_rows())
+            g_b, per_row, cons = bias_norm(self._bias, self.z, wx, rows, vel, self._copied_rows())
             self._cons += cons
             self._gb_rows = {i: per_row[i] for i in VELOCITY if i in per_row}
         if not channels:

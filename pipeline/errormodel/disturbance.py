@@ -162,7 +162,7 @@ def split_bias(w: np.ndarray, dirs: np.ndarray, eps_w: float, eps_b: float) -> B
     k = dirs.shape[1]
     if eps_b <= 0 or not len(w) or not np.isfinite(w).any():
         res = np.abs(w).max(axis=1) if w.size else np.zeros(len(w))
-        return BiasSplit(np.zeros(k), res, _ratio(float(np.nanmax(res, initial=0.0)), eps_w))
+        return BiasSplit(np.zeros(k), res, ratio(float(np.nanmax(res, initial=0.0)), eps_w))
     from scipy.optimize import linprog  # deferred: scipy.optimize is slow to import
 
     hi, lo = np.nanmax(w, axis=0), np.nanmin(w, axis=0)
@@ -181,11 +181,12 @@ def split_bias(w: np.ndarray, dirs: np.ndarray, eps_w: float, eps_b: float) -> B
     beta = np.asarray(sol.x[:k], dtype=float) if sol.status == 0 else np.zeros(k)
     res = np.abs(w - beta @ d.T).max(axis=1)
     worst = float(np.nanmax(res, initial=0.0))
-    ratio = max(_ratio(float(np.abs(beta).max()), eps_b), _ratio(worst, eps_w))
-    return BiasSplit(beta, res, ratio)
+    return BiasSplit(beta, res, max(ratio(float(np.abs(beta).max()), eps_b), ratio(worst, eps_w)))
 
 
-def _ratio(value: float, limit: float) -> float:
-    if limit > 0:
-        return value / limit
-    return 0.0 if value <= 0 else float("inf")
+def ratio(value: float, limit: float) -> float:
+    """``value / limit`` with ``0 / 0 = 0`` and ``v / 0 = inf`` for ``v > 0``: a measured
+    quantity over its premise bound (a score's part, docs/calibration.md)."""
+    if value <= 0.0:
+        return 0.0
+    return value / limit if limit > 0.0 else float("inf")
