@@ -10,7 +10,20 @@ import ast
 from pathlib import Path
 
 PIPELINE = Path(__file__).resolve().parents[1] / "pipeline"
-LAYERS = ("core", "ingest", "errormodel", "control", "export", "sim", "evaluate", "report", "run")
+LAYERS = (
+    "core",
+    "ingest",
+    "errormodel",
+    "premise",
+    "control",
+    "export",
+    "sim",
+    "evaluate",
+    "calibrate",
+    "fly",
+    "report",
+    "run",
+)
 """Bottom to top."""
 
 
