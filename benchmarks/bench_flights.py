@@ -58,7 +58,7 @@ def _sim(duration: float) -> dict[str, Any]:
 
 def fly_stage_flights(n: int, duration: float, root: Path) -> float:
     """CPU seconds per flight of the fly stage's job (closed loop, bag, ingest, metrics)."""
-    from qsls.pipeline.evaluate.fly import FlyJob, run_job
+    from qsls.pipeline.fly.fly import FlyJob, run_job
     from qsls.pipeline.ingest.options import IngestOptions
 
     ingest = IngestOptions(dt=0.1).model_dump(mode="json")

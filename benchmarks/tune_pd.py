@@ -16,7 +16,7 @@ import sys
 
 from smokemode import requested, require
 
-from qsls.pipeline.evaluate.pdtune import tune_pd
+from qsls.pipeline.fly.pdtune import tune_pd
 
 KP = (2.0, 5.0, 8.0, 11.0, 14.0, 17.0)
 KD = (2.2, 4.0, 5.5, 7.0)

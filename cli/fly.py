@@ -108,7 +108,7 @@ def fly(
     """Fly (the options: the config's ``evaluate:`` section, its ``fly:``, then ``given``),
     then the summary, the paper comparison and the verdicts."""
     from qsls.pipeline.core.config import load_options
-    from qsls.pipeline.evaluate.fly import fly_evaluate
+    from qsls.pipeline.fly.fly import fly_evaluate
     from qsls.pipeline.evaluate.section import EvaluateSection
 
     section = load_options(EvaluateSection, config, None, section="evaluate")

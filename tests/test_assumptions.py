@@ -23,7 +23,7 @@ from qsls.pipeline.evaluate.assumptions import (
     check_assumptions,
     gated_errors,
 )
-from qsls.pipeline.evaluate.paired import finding3_assumptions
+from qsls.pipeline.fly.paired import finding3_assumptions
 from qsls.pipeline.evaluate.training import TrainingData
 
 T, R, V, BETA = 20, 2.0, 1.5, 0.2

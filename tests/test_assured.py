@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from qsls.pipeline.evaluate.assumptions import ASSUMPTIONS
-from qsls.pipeline.evaluate.assured import assured_comparison, catch_share, trip_columns
+from qsls.pipeline.fly.assured import assured_comparison, catch_share, trip_columns
 
 NAN = math.nan
 

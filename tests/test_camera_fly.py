@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qsls.pipeline.evaluate.fly import FlyOutcome, _true_lipschitz
+from qsls.pipeline.fly.fly import FlyOutcome, _true_lipschitz
 
 
 def _outcome(condition: str, lipschitz: float | None) -> FlyOutcome:
@@ -145,7 +145,7 @@ def trained(tmp_path_factory):
 
 
 def _fly(root, out, vio):
-    from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
+    from qsls.pipeline.fly.fly import FlyOptions, fly_evaluate
 
     opts = FlyOptions.model_validate(
         {"vio": vio, "seeds": [0, 1], "duration": 4.0, "conditions": ["regular"], "se3": False,
@@ -157,7 +157,7 @@ def _fly(root, out, vio):
 def test_fly_options_estimators():
     from pydantic import ValidationError
 
-    from qsls.pipeline.evaluate.fly import FlyOptions
+    from qsls.pipeline.fly.fly import FlyOptions
 
     assert FlyOptions().estimators == ("emulator",)
     assert FlyOptions.model_validate({"vio": "camera"}).estimators == ("camera",)

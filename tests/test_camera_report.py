@@ -67,7 +67,7 @@ def test_estimator_ratio_counts_the_pairs_it_dropped():
     import pandas as pd
     import pytest
 
-    from qsls.pipeline.evaluate.estimators import estimator_ratios
+    from qsls.pipeline.fly.estimators import estimator_ratios
     from qsls.pipeline.report.camera import _ratio_text
 
     pairs = pd.DataFrame({

@@ -13,9 +13,9 @@ import pytest
 
 from qsls.pipeline.control.synth import SynthOptions, synth
 from qsls.pipeline.errormodel.fit import FitOptions, fit
-from qsls.pipeline.evaluate.fly import FlyOptions, fly_evaluate
-from qsls.pipeline.evaluate.paired import paired_findings
-from qsls.pipeline.evaluate.stats import Interval, verdict
+from qsls.pipeline.fly.fly import FlyOptions, fly_evaluate
+from qsls.pipeline.fly.paired import paired_findings
+from qsls.pipeline.fly.stats import Interval, verdict
 from qsls.pipeline.ingest.stage import IngestOptions, ingest
 from qsls.pipeline.sim.simulate import SimOptions, simulate
 
@@ -130,7 +130,7 @@ def test_tied_controllers_are_rarely_called_contradicted():
     times: "PD best" / "l1_robust lowest" must read "contradicted" at most about as often as
     a one-sided 2.5% error allows. The per-seed minimum over the others (the old effect) is
     biased below 1 and, tested the same way, says "contradicted" far more often."""
-    from qsls.pipeline.evaluate.stats import ratio_interval
+    from qsls.pipeline.fly.stats import ratio_interval
 
     rng = np.random.default_rng(7)
     says = {1: [], 2: []}

@@ -91,9 +91,9 @@ ARTIFACT_FILES = {
     "s_max.parquet": "control/sweep.py",
     "calibration.json": "evaluate/calibrate.py",
     "assumptions.parquet": "evaluate/verdict.py",
-    "findings.json": "evaluate/paired.py",
-    "flights.parquet": "evaluate/fly.py",
-    "per_controller.parquet": "evaluate/fly.py",
+    "findings.json": "fly/paired.py",
+    "flights.parquet": "fly/fly.py",
+    "per_controller.parquet": "fly/fly.py",
     "camera_frame.npz": "sim/simulate.py",
 }
 """Each file that passes between stages, and the one module that spells its name."""

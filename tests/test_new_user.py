@@ -551,8 +551,8 @@ def test_the_perception_error_figure_draws_what_the_verdict_compares():
 def test_one_seed_says_no_interval_instead_of_dashes(tmp_path):
     import math
 
-    from qsls.pipeline.evaluate.paired import _iv_text
-    from qsls.pipeline.evaluate.stats import Interval
+    from qsls.pipeline.fly.paired import _iv_text
+    from qsls.pipeline.fly.stats import Interval
     from qsls.pipeline.report.facts import Facts, interval_text
     from qsls.pipeline.report.summary import findings_lines
 

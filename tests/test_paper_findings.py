@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from qsls.pipeline.evaluate.paired import paired_findings, strict_bound_text, strict_bounds
-from qsls.pipeline.evaluate.paper import (
+from qsls.pipeline.fly.paired import paired_findings, strict_bound_text, strict_bounds
+from qsls.pipeline.fly.paper import (
     circle_metrics,
     halves,
     replicated,
@@ -127,7 +127,7 @@ def test_camera_blur_column_is_the_cameras_own_exposure_model():
     exposure t = min(t0 / L, t_max) (docs/camera.md), averaged over its frames, with its
     features per frame; the VIO emulator's formula (another exposure and focal length) gives
     another number on the same motion and is used only for emulator flights."""
-    from qsls.pipeline.evaluate.inputs import motion_metrics
+    from qsls.pipeline.fly.inputs import motion_metrics
     from qsls.pipeline.sim.camera.options import CameraOptions
     from qsls.pipeline.sim.camera.render import exposure
     from qsls.pipeline.sim.closedloop import FlightOptions, fly
@@ -167,7 +167,7 @@ def test_degradation_check_needs_the_interval_above_two():
                              "seed": s, "perception_error_rms": base * f})  # fmt: skip
         return pd.DataFrame(rows)
 
-    from qsls.pipeline.evaluate.paired import degradation_check
+    from qsls.pipeline.fly.paired import degradation_check
 
     yes = degradation_check(flights(3.0))
     assert yes["doubles"] and 2.7 < yes["effect"] < 3.3 and yes["ci"][0] > 2
@@ -188,7 +188,7 @@ def test_pd_height_for_the_named_controllers_only():
 def test_pd_tuning_picks_the_lowest_circle_tracking():
     """Two gain pairs on one short emulator flight: the tuned pair is the one with the lower
     circle tracking RMS, each pair's score kept in grid order."""
-    from qsls.pipeline.evaluate.pdtune import tune_pd
+    from qsls.pipeline.fly.pdtune import tune_pd
 
     flight = {
         "duration": 6.0,
@@ -206,7 +206,7 @@ def test_camera_flights_keep_the_cameras_parameters(tmp_path):
     """With the options' vio kind the emulator (the default) and ``vio: [camera, emulator]``,
     a camera job keeps ``sim.vio.camera`` (an emulator's dump leaves it out): its degraded
     level is the camera's own."""
-    from qsls.pipeline.evaluate.fly import FlyOptions, _make_jobs
+    from qsls.pipeline.fly.fly import FlyOptions, _make_jobs
     from qsls.pipeline.sim.simulate import SimOptions
 
     o = FlyOptions.model_validate(
@@ -227,7 +227,7 @@ def test_camera_flights_keep_the_cameras_parameters(tmp_path):
 def test_state_dependence_against_a_hand_computation():
     """Who strays errs: the paired ratios against PD are geometric means by hand, and the
     rank correlation is 1 when the error grows with the tracking RMS."""
-    from qsls.pipeline.evaluate.findings import state_dependence
+    from qsls.pipeline.fly.findings import state_dependence
 
     rows = []
     for seed, (t_pd, t_r, e_pd, e_r) in enumerate([(1.0, 0.5, 2.0, 1.0), (2.0, 0.5, 4.0, 2.0),
@@ -254,7 +254,7 @@ def test_state_dependence_against_a_hand_computation():
 
 
 def test_paper_mode_reaction_is_the_geometric_mean_of_its_own_flights_only():
-    from qsls.pipeline.evaluate.findings import paper_mode_reaction
+    from qsls.pipeline.fly.findings import paper_mode_reaction
 
     f = pd.DataFrame(
         {

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from qsls.pipeline.evaluate.stats import (
+from qsls.pipeline.fly.stats import (
     Interval,
     paired_difference,
     paired_ratio,

@@ -1,4 +1,4 @@
-"""``qsls evaluate``: the guarantee checked on held-out flights, and controllers flown in simulation."""
+"""``qsls evaluate``: the guarantee checked on held-out flights."""
 
 from qsls.pipeline.core.api import lazy_api
 
@@ -7,7 +7,5 @@ __all__, __getattr__ = lazy_api(
     {
         "EvaluateOptions": "bound",
         "evaluate": "bound",
-        "FlyOptions": "options",
-        "fly_evaluate": "fly",
     },
 )

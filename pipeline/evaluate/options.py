@@ -2,7 +2,7 @@
 file with :class:`~qsls.pipeline.evaluate.section.EvaluateSection`), apart from the stage: this
 module imports only pydantic, the core and the other stages' light option modules, so
 ``qsls run`` validates a run config without loading pandas. :mod:`qsls.pipeline.evaluate.bound`
-and :mod:`qsls.pipeline.evaluate.fly` re-export them."""
+and :mod:`qsls.pipeline.fly.fly` re-export them."""
 
 from __future__ import annotations
 

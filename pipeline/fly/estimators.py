@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import pandas as pd
 
-from qsls.pipeline.evaluate.stats import paired_ratio
+from qsls.pipeline.fly.stats import paired_ratio
 
 if TYPE_CHECKING:
     from qsls.pipeline.core.artifacts import StageWriter
@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
 class EstimatorAnalysis(Protocol):
     """What these tables read of one estimator's analysis (the fly stage's
-    ``qsls.pipeline.evaluate.fly.Analysis``; the fly stage imports this module, so this one
+    ``qsls.pipeline.fly.fly.Analysis``; the fly stage imports this module, so this one
     states what it reads instead of importing it)."""
 
     @property
@@ -93,7 +93,7 @@ def estimator_ratios(pairs: pd.DataFrame, a: str, b: str) -> pd.DataFrame:
     """Per condition and controller, for each of :data:`RATIO_METRICS`, the geometric mean over
     seeds of ``metric_a / metric_b`` (estimator ``a`` against ``b`` on the same controller,
     condition and seed) with the exp of the 95% t-interval of the log ratios
-    (:func:`qsls.pipeline.evaluate.stats.paired_ratio`; no difference: 1). ``METRIC_n`` counts
+    (:func:`qsls.pipeline.fly.stats.paired_ratio`; no difference: 1). ``METRIC_n`` counts
     the pairs used (a crashed flight with a zero or missing metric drops its pair), ``n`` the
     pairs."""
     rows = []

@@ -1,6 +1,6 @@
 """The paper's findings (paper, Experiments), one function each, and the comparison table:
 the point comparison (means over seeds), numbered in the paper's order like
-:mod:`qsls.pipeline.evaluate.paired` (1 tracking, 2 softness, 3 bound, 4 degraded).
+:mod:`qsls.pipeline.fly.paired` (1 tracking, 2 softness, 3 bound, 4 degraded).
 
 Each ``finding_*`` returns ``{"finding", "qsls", "agrees"}`` (what the paper claims, what qsls
 measured, whether it agrees) or ``None`` when the flights needed for it were not flown.
@@ -16,7 +16,7 @@ import pandas as pd
 
 from qsls.pipeline.control import guarantee
 from qsls.pipeline.evaluate.bound import ControllerBound
-from qsls.pipeline.evaluate.stats import paired_ratio, ratio_interval
+from qsls.pipeline.fly.stats import paired_ratio, ratio_interval
 
 PAPER_CONTROLLERS = ("pd", "l1_nominal", "l1_robust", "l1_robust_imitation")
 ROBUST_QR = "l1_robust"

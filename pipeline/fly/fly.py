@@ -7,13 +7,13 @@ vehicle with the VIO emulator in the loop (:func:`qsls.pipeline.sim.closedloop.f
 and for each seed. Synthesized controllers act on ``y - r`` and add the reference's
 feedforward (:class:`qsls.pipeline.sim.controllers.LinearController`). ``vio`` picks the
 estimator (the emulator or the camera loop); a list flies every controller with each, the
-results keyed by estimator (:mod:`qsls.pipeline.evaluate.estimators`).
+results keyed by estimator (:mod:`qsls.pipeline.fly.estimators`).
 
 With ``assured`` each controller that has an onboard monitor also flies runtime-assured on
 the same seeds (:class:`qsls.pipeline.sim.assured.AssuredController`: until its monitor
 trips, then the fallback), without a bag and apart from every other table: ``assured.parquet``,
 and beside it the comparison with the controller alone and PD alone and the monitor's catch
-share (:mod:`qsls.pipeline.evaluate.assured`; docs/monitor.md, The fallback).
+share (:mod:`qsls.pipeline.fly.assured`; docs/monitor.md, The fallback).
 
 Each flight is written as a bag like a real log and goes through ``ingest`` exactly as a
 real flight does; the ingested ``flight.parquet`` is what the bound check
@@ -27,7 +27,7 @@ feedback attitude command's RMS (``reaction_vs_pd``, softness) and its step chan
 (``smoothness_vs_pd``, roughness); the body rate and the image blur it makes. Then per
 controller and condition the mean over seeds, the paper's figures, and the paper's four
 findings (paper, Results), each paired by seed with a 95% interval and a verdict in
-``findings.json`` (:mod:`qsls.pipeline.evaluate.paired`) and ``comparison.md``:
+``findings.json`` (:mod:`qsls.pipeline.fly.paired`) and ``comparison.md``:
 
 1. regular perception: every controller tracks, and PD tracks best;
 2. degraded perception: the robust ``qr``-cost controller (``l1_robust``) has the lowest
@@ -68,14 +68,6 @@ from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.errormodel.model import load_error_model, resolve_model
 from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions, crashed
-from qsls.pipeline.evaluate.assured import (
-    ASSURED_FILE,
-    ASSURED_SUFFIX,
-    ESTIMATOR,
-    assured_comparison,
-    catch_share,
-    trip_columns,
-)
 from qsls.pipeline.evaluate.bound import (
     ControllerBound,
     EvaluateResult,
@@ -95,10 +87,22 @@ from qsls.pipeline.evaluate.certified import (
     refuse_evidence_seeds,
 )
 from qsls.pipeline.evaluate.conditions import flight_conditions
-from qsls.pipeline.evaluate.estimators import findings_markdown, keyed, write_by_estimator
 from qsls.pipeline.evaluate.figures import write_fly_figures
-from qsls.pipeline.evaluate.findings import PAPER_CONTROLLERS, ROBUST_QR, compare_with_paper
-from qsls.pipeline.evaluate.inputs import (
+from qsls.pipeline.evaluate.options import FlyOptions as FlyOptions
+from qsls.pipeline.evaluate.options import IngestOptions, SimOptions
+from qsls.pipeline.evaluate.options import Vio as Vio
+from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE, controller_promises
+from qsls.pipeline.fly.assured import (
+    ASSURED_FILE,
+    ASSURED_SUFFIX,
+    ESTIMATOR,
+    assured_comparison,
+    catch_share,
+    trip_columns,
+)
+from qsls.pipeline.fly.estimators import findings_markdown, keyed, write_by_estimator
+from qsls.pipeline.fly.findings import PAPER_CONTROLLERS, ROBUST_QR, compare_with_paper
+from qsls.pipeline.fly.inputs import (
     PdHeightController,
     command_offset,
     error_reaction,
@@ -106,18 +110,14 @@ from qsls.pipeline.evaluate.inputs import (
     motion_metrics,
     pd_on_same_estimate,
 )
-from qsls.pipeline.evaluate.options import FlyOptions as FlyOptions
-from qsls.pipeline.evaluate.options import IngestOptions, SimOptions
-from qsls.pipeline.evaluate.options import Vio as Vio
-from qsls.pipeline.evaluate.paired import (
+from qsls.pipeline.fly.paired import (
     FINDINGS_FILE,
     comparison_markdown,
     finding3,
     paired_findings,
     replace_finding,
 )
-from qsls.pipeline.evaluate.paper import circle_metrics
-from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE, controller_promises
+from qsls.pipeline.fly.paper import circle_metrics
 from qsls.pipeline.ingest.flight import read_flight
 from qsls.pipeline.ingest.stage import ingest
 from qsls.pipeline.sim.assured import assured_controller
@@ -400,12 +400,12 @@ CIRCLE_COLUMNS = (
     "reaction_vs_pd_circle",
 )
 """The metrics over the circle with the paper's 1 s smoothing
-(:func:`qsls.pipeline.evaluate.paper.circle_metrics`)."""
+(:func:`qsls.pipeline.fly.paper.circle_metrics`)."""
 
 
 def premise_rows(bounds: Sequence[ControllerBound]) -> list[dict[str, Any]]:
     """Each controller's premise for the paper's strict bound (``R0``, ``S``, ``||Phi_xe||``,
-    ``||Phi_ue||``; :func:`qsls.pipeline.evaluate.paired.strict_bounds`)."""
+    ``||Phi_ue||``; :func:`qsls.pipeline.fly.paired.strict_bounds`)."""
     return [
         {"name": b.name, "status": b.status, "R0": b.r0, "S": b.numbers.S,
          "norm_phi_xe": b.norm_phi_xy, "norm_phi_ue": b.certificate.get("norm_phi_uy")}
@@ -715,7 +715,7 @@ def assured_table(
     """One row per runtime-assured flight: its flight-table columns (``controller`` the
     monitored controller's name), the certificate's status and the perception its calibration
     flew in (``calibrated_perception``, empty if not calibrated), the fallback, the handover
-    (:func:`qsls.pipeline.evaluate.assured.trip_columns`) and ``envelope_peak``, the largest
+    (:func:`qsls.pipeline.fly.assured.trip_columns`) and ``envelope_peak``, the largest
     ``|y_i - r_i| / threshold_i`` over the flight's ticks and envelope channels
     (:func:`qsls.pipeline.control.monitor.envelope_peak`: how close it came to a trip).
     ``by_estimator`` (a stage with several estimators) puts the flight's estimator first.

@@ -7,14 +7,14 @@
 3. every controller's perception error stays below the theoretical bound, both as qsls's
    certificate (every assumption of the guarantee on the robust controllers' own flights,
    every estimator's) and as the paper's strict bound ``R0 / (1 - S ||Phi_xe||)`` (undefined
-   when ``S ||Phi_xe|| >= 1``; :mod:`qsls.pipeline.evaluate.paper`);
+   when ``S ||Phi_xe|| >= 1``; :mod:`qsls.pipeline.fly.paper`);
 4. degraded perception: the quadratic-cost robust and nominal controllers err significantly
    less than PD and the imitation controller (the **two-group contrast**), ``l1_robust`` the
    least (reported beside it).
 
 The same seed gives every controller the same randomness, so each finding is one effect per
 seed, compared between controllers flown with that seed in the same condition;
-:mod:`qsls.pipeline.evaluate.stats` turns the per-seed effects into a mean, a 95% interval
+:mod:`qsls.pipeline.fly.stats` turns the per-seed effects into a mean, a 95% interval
 and a verdict (``reproduced`` / ``contradicted`` / ``inconclusive``). Ratios are tested on
 their logarithm and reported as geometric means (no effect: 1):
 
@@ -56,12 +56,12 @@ import numpy as np
 import pandas as pd
 
 from qsls.pipeline.errormodel.honest import clopper_pearson
-from qsls.pipeline.evaluate.findings import (
+from qsls.pipeline.fly.findings import (
     paper_mode_reaction,
     state_dependence,
     state_dependence_markdown,
 )
-from qsls.pipeline.evaluate.paper import (
+from qsls.pipeline.fly.paper import (
     PAPER_BOUND_SIM,
     PAPER_S_SIM,
     QUADRATIC,
@@ -71,7 +71,7 @@ from qsls.pipeline.evaluate.paper import (
     strict_bound,
     two_group_contrast,
 )
-from qsls.pipeline.evaluate.stats import (
+from qsls.pipeline.fly.stats import (
     LEVEL,
     Direction,
     Interval,

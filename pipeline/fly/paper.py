@@ -22,7 +22,7 @@
 
   (``e_i(c)``: controller ``c``'s perception error RMS on seed ``i``), the ratio of the groups'
   geometric means (> 1: the quadratic-cost group errs less), tested like every ratio
-  (:mod:`qsls.pipeline.evaluate.stats`).
+  (:mod:`qsls.pipeline.fly.stats`).
 - **The replication split**: the seeds, sorted, are cut into two halves (the first
   ``floor(n / 2)`` and the rest); a finding reads ``reproduced`` (or ``contradicted``) only
   when both halves say so on their own, else ``inconclusive``.

@@ -6,7 +6,7 @@ The procedure: for each pair ``(kp, kd)`` of a grid (the horizontal gains; the h
 as given), fly the PD at its control rate over the reference in regular perception with the
 chosen estimator, on the tuning seeds, and score the pair by the mean over seeds of the
 tracking RMS ``||p - p_ref||_2`` over the circle with the paper's 1 s smoothing
-(:func:`qsls.pipeline.evaluate.paper.window_stats`); a crash scores ``inf``. The tuned gains
+(:func:`qsls.pipeline.fly.paper.window_stats`); a crash scores ``inf``. The tuned gains
 are the pair with the lowest score. Deterministic (seeded flights, a fixed grid, ties to the
 first pair in grid order).
 
@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict
 
 from qsls.pipeline.core.pools import run_tasks
 from qsls.pipeline.core.units import NS
-from qsls.pipeline.evaluate.paper import window_stats
+from qsls.pipeline.fly.paper import window_stats
 from qsls.pipeline.sim.closedloop import FlightOptions, fly
 
 

@@ -9,7 +9,7 @@ Appears when the run has camera flights (a simulate folder whose ``truth.json`` 
 - the fly stage's per-controller results of the camera loop, per condition; when the fly
   stage flew both estimators (``vio: [camera, emulator]``), each controller's closed-loop
   results with the camera loop beside those with the emulator (same seeds and conditions:
-  :mod:`qsls.pipeline.evaluate.estimators`), the guarantee's assumptions per estimator and
+  :mod:`qsls.pipeline.fly.estimators`), the guarantee's assumptions per estimator and
   each finding's verdict per estimator, the per-flight pairs attached as CSV (otherwise the
   emulator's counterpart is ``configs/paper_sim.yaml``'s run);
 - one frame of each condition with the features tracked on it (``camera_frame.npz`` of a
@@ -26,7 +26,7 @@ import numpy as np
 
 from qsls.pipeline.core import style
 from qsls.pipeline.core.artifacts import figure_bytes, read_manifest
-from qsls.pipeline.evaluate.estimators import PAIRED_FILE, estimator_ratios
+from qsls.pipeline.fly.estimators import PAIRED_FILE, estimator_ratios
 from qsls.pipeline.report.document import Figure, Section
 from qsls.pipeline.report.facts import Facts
 from qsls.pipeline.sim.simulate import CAMERA_FRAME, TRUTH_FILE

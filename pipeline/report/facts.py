@@ -225,8 +225,8 @@ def _calibrated_folders(stages: dict[str, list[Path]]) -> dict[str, Path]:
 
 def _read_evaluation(f: Facts, folder: Path) -> None:
     # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
-    from qsls.pipeline.evaluate.fly import PER_CONTROLLER_TABLE
-    from qsls.pipeline.evaluate.paired import FINDINGS_FILE
+    from qsls.pipeline.fly.fly import PER_CONTROLLER_TABLE
+    from qsls.pipeline.fly.paired import FINDINGS_FILE
     from qsls.pipeline.evaluate.table import Evaluation
 
     ev = Evaluation.load(folder) if Evaluation.exists(folder) else None

@@ -1,8 +1,8 @@
 """The report's section on the onboard premise monitor (docs/monitor.md): its catch share on
-the flown flights (:func:`qsls.pipeline.evaluate.assured.catch_share` on the fly stage's
+the flown flights (:func:`qsls.pipeline.fly.assured.catch_share` on the fly stage's
 ``assumptions.parquet``) and, when the fly stage flew runtime-assured controllers
 (``assured: true``), how they flew against the controller alone and PD alone
-(:func:`qsls.pipeline.evaluate.assured.assured_comparison` on ``assured.parquet`` and
+(:func:`qsls.pipeline.fly.assured.assured_comparison` on ``assured.parquet`` and
 ``flights.parquet``; per estimator, on the stage's flights of every estimator, when it flew
 several)."""
 
@@ -11,15 +11,15 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from qsls.pipeline.evaluate.assured import (
+from qsls.pipeline.fly.assured import (
     ASSURED,
     ASSURED_FILE,
     ESTIMATOR,
     assured_comparison,
     catch_share,
 )
-from qsls.pipeline.evaluate.estimators import FLIGHTS_FILE
-from qsls.pipeline.evaluate.fly import FLOWN_FILE
+from qsls.pipeline.fly.estimators import FLIGHTS_FILE
+from qsls.pipeline.fly.fly import FLOWN_FILE
 from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.report.document import Section
 from qsls.pipeline.report.facts import Facts, g4, pct

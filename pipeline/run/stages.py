@@ -418,7 +418,7 @@ def _evaluate_exec(
 def _fly_exec(opts: FlyOptions, progress: Progress, calibrated: str | None = None) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
-        from qsls.pipeline.evaluate.fly import fly_evaluate
+        from qsls.pipeline.fly.fly import fly_evaluate
 
         ctrls = controller_folders(deps, calibrated)
         return fly_evaluate(
