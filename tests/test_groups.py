@@ -9,11 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from qsls.pipeline.control.guarantee import grouped_premise, system_norms
+from qsls.pipeline.control.guarantee import system_norms
 from qsls.pipeline.control.synth import SynthOptions, synthesize
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
 from qsls.pipeline.errormodel.premise import TrainingStates
+from qsls.pipeline.premise.numbers import grouped_premise
 
 W_X = (1.0, 1.0, 1.0, 0.5, 0.5, 0.5)
 W_E = (1.0, 1.0, 1.0, 0.5, 0.5, 0.5)

@@ -33,7 +33,7 @@ def diagnose(
         "S": r.numbers.S,
         "eps_e": r.numbers.eps,
         "radius": r.numbers.radius,
-        "S_plus_eps_e_over_r": r.numbers.S + r.numbers.eps / r.numbers.radius,
+        "S_plus_eps_e_over_r": r.numbers.slope_ratio,
         "N_lower": n_lower,
         "necessary": nec,
         "necessary_condition_holds": bool(nec < 1.0),

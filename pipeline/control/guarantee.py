@@ -32,17 +32,19 @@ necessary because ``N >= N_lower = max_i w_x,i / w_e,i`` over the positions on t
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from qsls.pipeline.control.taps import l1_norm
-from qsls.pipeline.errormodel.honest import GROUPS, VELOCITY, measured_channels
+from qsls.pipeline.core.plant import VELOCITY, measured_channels
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 ONES = (1.0,) * 6
-__all__ = ["VELOCITY", "measured_channels"]  # re-exported: one definition, in the premise's fit
+# re-exported: one definition each, the channels in the plant, the numbers in the premise
+__all__ = ["VELOCITY", "PremiseNumbers", "measured_channels"]
 
 
 def outlier_channels(measure: str, m: int) -> tuple[int, ...]:
@@ -68,30 +70,6 @@ def sparse_gain(
     per_tap = np.abs(phi_xy[:, :, list(channels)]).sum(axis=2)  # (taps, nx)
     top = -np.sort(-per_tap, axis=0)[:m]  # the m largest taps of every row
     return float((np.asarray(state_scale, float) * top.sum(axis=0)).max())
-
-
-def grouped_premise(
-    error_scale: Sequence[float], bounds: Mapping[str, float], S: float
-) -> tuple[float, float, tuple[float, ...]]:
-    """The premise with a vector of bounds as the scalar premise in per-group weights
-    (docs/guarantee.md, Channel groups). The vector premise, one bound per channel group ``g``
-    (:data:`GROUPS`), is ``|d_k,g|_e <= eps_g + S dist(x_k)``; returned are ``(eps, S', W_e')``::
-
-        eps = max_g eps_g      w'_e,j = w_e,j eps / eps_g(j)      S' = S eps / min_g eps_g
-
-    so that ``|d_k|_e' = max_g (eps / eps_g) |d_k,g|_e <= eps + S' dist(x_k)``. With ``S = 0``
-    the two premises are one set and the robustness condition in ``W_e'`` is the row-wise
-    vector condition ``max_i sum_g N_ig eps_g / r + (a + eps_o G_m) / r <= 1`` with
-    ``N_ig = sum_t sum_{j in g} w_x,i |Phi_xy(t)_ij| / w_e,j``; with ``S > 0`` it is a sound
-    cover of it. Channels of no named group keep their weight."""
-    if not bounds:
-        return float("nan"), S, tuple(float(w) for w in error_scale)
-    eps = max(bounds.values())
-    out = [float(w) for w in error_scale]
-    for g, b in bounds.items():
-        for j in GROUPS[g]:
-            out[j] = out[j] * eps / b
-    return float(eps), float(S * eps / min(bounds.values())), tuple(out)
 
 
 def bias_rows(phi_xx_h: np.ndarray, bias_dirs: np.ndarray | None) -> np.ndarray:
@@ -148,28 +126,6 @@ def system_norms(
     )
 
 
-@dataclass(frozen=True)
-class PremiseNumbers:
-    """The numbers of the premise (docs/guarantee.md), the one numeric form every stage reads."""
-
-    eps: float
-    """The dense error bound: ``eps`` of docs/guarantee.md, which the options, the certificate
-    file and the paper call ``eps_e`` (one number, two spellings)."""
-    S: float
-    radius: float
-    eps_w: float
-    delta: float
-    eps_o: float = 0.0
-    m: int = 0
-    R0: float | None = None
-    """The paper's error bound for ``gamma_strict`` (``eps`` when unset)."""
-    gate: float | None = None
-    """Velocity gate ``V`` (None: no gate)."""
-    eps_b: float = 0.0
-    """The bound on a constant acceleration bias (m/s^2 per axis, docs/guarantee.md#the-bias-term):
-    a stated design number, like ``Delta``; 0: no bias term."""
-
-
 def a_value(eps_w: float, N_w: float, delta: Any, eps_b: float = 0.0, G_b: float = 0.0) -> Any:
     """``a = eps_w N_w + eps_b G_b + Delta`` (``Delta`` a number, or measured distances: an
     array)."""
@@ -210,7 +166,7 @@ def gamma_strict_of(R0: float, S: float, N: float) -> float:
 
 def robustness_lhs(p: PremiseNumbers, n: Norms) -> float:
     """``(S + eps/r) N + (a + eps_o G_m) / r``."""
-    return (p.S + p.eps / p.radius) * n.N + (a_prior(p, n) + p.eps_o * n.G_m) / p.radius
+    return p.slope_ratio * n.N + (a_prior(p, n) + p.eps_o * n.G_m) / p.radius
 
 
 def min_norm_bound(
@@ -230,7 +186,7 @@ def necessary_condition(
     """``(S + eps/r) N_lower``: below 1 is necessary for feasibility, since the robustness
     condition needs ``(S + eps/r) N < 1`` and ``N >= N_lower`` (:func:`min_norm_bound`; 1 with
     unit weights, where it reads ``S + eps/r < 1``)."""
-    return (p.S + p.eps / p.radius) * min_norm_bound(state_scale, error_scale)
+    return p.slope_ratio * min_norm_bound(state_scale, error_scale)
 
 
 def largest_slope(n: Norms, p: PremiseNumbers, backoff: float = 0.0) -> float:

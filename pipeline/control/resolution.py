@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.guarantee import PremiseNumbers, grouped_premise
+from qsls.pipeline.control.guarantee import PremiseNumbers
+from qsls.pipeline.premise.numbers import grouped_premise
 from qsls.pipeline.control.options import ProblemOptions
 from qsls.pipeline.control.premise import Premise, group_record, premise_record
 from qsls.pipeline.core.artifacts import sha256_file

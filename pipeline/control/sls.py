@@ -417,7 +417,7 @@ class SLSProblem:
     def _set_premise(self, v: Values) -> None:
         s, p, n = self.structure, self.params, v.numbers
         if s.robust:
-            p["c_xy"].value = float(n.S + n.eps / n.radius)
+            p["c_xy"].value = float(n.slope_ratio)
             p["c_xx"].value = float(n.eps_w / n.radius)
             p["c_rhs"].value = float(1.0 - n.delta / n.radius - ROBUST_BACKOFF)
             if "c_o" in p:

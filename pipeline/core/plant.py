@@ -22,6 +22,16 @@ GRAVITY = 9.81
 PAPER_MASS_KG = 0.256
 PAPER_DT_S = 0.1
 NX, NU, NY = 6, 3, 6
+POSITION = (0, 1, 2)
+VELOCITY = (3, 4, 5)
+GROUPS = {"position": POSITION, "velocity": VELOCITY}
+"""The state's channel groups: the premise fits their dense errors apart (docs/guarantee.md,
+Channel groups), the velocity gate clips the second."""
+
+
+def measured_channels(measure: str) -> tuple[int, ...]:
+    """Error channels the controller reads: all six (``full``), or the three positions."""
+    return POSITION + VELOCITY if measure == "full" else POSITION
 
 
 def continuous_model(

@@ -32,13 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-POSITION = (0, 1, 2)
-VELOCITY = (3, 4, 5)
-
-
-def measured_channels(measure: str) -> tuple[int, ...]:
-    """Error channels the controller reads: all six, or the three positions."""
-    return POSITION + VELOCITY if measure == "full" else POSITION
+from qsls.pipeline.core.plant import GROUPS, VELOCITY, measured_channels
 
 
 def outlier_channels(measure: str, beta: float) -> tuple[int, ...]:
@@ -152,10 +146,6 @@ def lofo_slope(
             per.append(float(np.max(excess[pos] / dist[pos])))
     tested = float(dist_other[within].max()) if within.any() else 0.0
     return SlopeFit(float(max(per)), tuple(per), tested, int(within.sum()))
-
-
-GROUPS = {"position": POSITION, "velocity": VELOCITY}
-"""The channel groups whose dense errors are fitted apart (docs/guarantee.md, Channel groups)."""
 
 
 def group_norms(
