@@ -14,7 +14,7 @@ flights (seeds 0.., regular perception, the default circle) in this run:
    logs must be identical to the bit;
 1. the fly stage's flight (``evaluate.fly.run_job``): the closed loop, its bag written, the bag
    ingested, the metrics computed: what ``qsls evaluate --fly`` does per flight;
-2. the calibration's flight (``evaluate.calibrate.fly_job``): the closed loop and its tick
+2. the calibration's flight (``calibrate.stage.fly_job``): the closed loop and its tick
    log, which is all a flight's score reads (no bag, no ingest);
 3. ``--flights`` calibration flights on the local pool of ``--jobs`` processes (wall time;
    the target: 200 flights of 20 s in at most 2 minutes on 2 cores);
@@ -126,7 +126,7 @@ def closed_loop(controller: str, n: int, duration: float) -> tuple[float, float,
 
 
 def calibration_jobs(n: int, duration: float, folder: str = "pd") -> list[Any]:
-    from qsls.pipeline.evaluate.calibrate import Job
+    from qsls.pipeline.calibrate.stage import Job
 
     return [
         Job(name=f"c{s}", controller="pd" if folder == "pd" else "sls", folder=folder, condition="regular", seed=s,
@@ -148,8 +148,8 @@ def main() -> None:
     if a.smoke:
         a.flights, a.duration, a.sample = 2, 2.0, 1
 
+    from qsls.pipeline.calibrate.stage import fly_job
     from qsls.pipeline.core.pools import run_tasks
-    from qsls.pipeline.evaluate.calibrate import fly_job
 
     with tempfile.TemporaryDirectory() as tmp:
         sls = certified_controller(a.controller, Path(tmp), a.smoke)

@@ -9,7 +9,7 @@ import typer
 
 from qsls.cli.common import cli_errors
 from qsls.cli.fields import Flag, model_options, repeated_list
-from qsls.pipeline.evaluate.options import CalibrateOptions
+from qsls.pipeline.calibrate.options import CalibrateOptions
 
 
 def count_or_flights(texts: list[str], flag: str) -> int | list[str]:
@@ -107,12 +107,12 @@ def command(
             raise typer.BadParameter(f"unexpected argument {more[0]!r}", param_hint="FLIGHTS")
         given = {**given, "flights": [*given["flights"], *more]}
     from qsls.cli.common import RichProgress, print_summary, print_verdicts
+    from qsls.pipeline.calibrate.stage import calibrate, simulated_notice, summary_lines
     from qsls.pipeline.core.config import load_options
-    from qsls.pipeline.evaluate.calibrate import calibrate, simulated_notice, summary_lines
 
     options = load_options(CalibrateOptions, config, given, section="calibrate")
     if options.recorded.given or options.source == "standin":
-        from qsls.pipeline.evaluate.calibrate_recorded import calibrate_recorded
+        from qsls.pipeline.calibrate.flights import calibrate_recorded
 
         with RichProgress() as progress:
             result = calibrate_recorded(

@@ -19,7 +19,7 @@ def command(
     ),
 ) -> None:
     """Recompute every score, lambda_hat, the tested range and the numbers from the tick logs."""
-    from qsls.pipeline.evaluate.verify import verify
+    from qsls.pipeline.calibrate.verify import verify
 
     result = verify(folder)
     for line in result.lines():

@@ -148,19 +148,19 @@ def gated(
 def as_calibrated(folder: Path, n: int = 20) -> Path:
     """``folder``'s controller (written by synth, its design check passed) rewritten in place
     as the calibration stage writes one: the real decision and record
-    (:func:`qsls.pipeline.evaluate.calibrate.decide`, :func:`calibrated_certificate`) on a
+    (:func:`qsls.pipeline.calibrate.stage.decide`, :func:`calibrated_certificate`) on a
     stand-in for ``n`` calibration flights that each scored exactly 1 and reached ``rho*``,
     so the premise is the design one and the status ``certified``. For tests of what reads a
     certified controller (export, replay), not of the calibration itself."""
-    from qsls.pipeline.control.calibration import SCORED
-    from qsls.pipeline.evaluate.calibrate import (
+    from qsls.pipeline.calibrate.options import CalibrateOptions
+    from qsls.pipeline.calibrate.stage import (
         Outcome,
         calibrated_certificate,
         decide,
         taps_of,
     )
+    from qsls.pipeline.control.calibration import SCORED
     from qsls.pipeline.evaluate.certified import certified_premise
-    from qsls.pipeline.evaluate.options import CalibrateOptions
 
     folder = Path(folder)
     c = certified_premise(folder)

@@ -11,11 +11,11 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
+from qsls.pipeline.calibrate.options import CalibrateOptions
+from qsls.pipeline.calibrate.stage import decide
 from qsls.pipeline.control import calibration as cal
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.errors import ConfigError
-from qsls.pipeline.evaluate.calibrate import decide
-from qsls.pipeline.evaluate.options import CalibrateOptions
 
 
 def test_the_help_example_flies_what_certified_needs():

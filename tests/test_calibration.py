@@ -12,10 +12,10 @@ import pytest
 import yaml
 from scipy.stats import binom
 
+from qsls.pipeline.calibrate.options import CalibrateOptions
 from qsls.pipeline.control import calibration as cal
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.errors import ConfigError
-from qsls.pipeline.evaluate.options import CalibrateOptions
 
 QUICKSTART_CAL = yaml.safe_load(
     (Path(__file__).resolve().parents[1] / "configs" / "quickstart.yaml").read_text()
@@ -423,8 +423,8 @@ def test_standalone_calibrate_reads_the_design_seeds_from_the_fit(
     import subprocess
     import sys
 
+    from qsls.pipeline.calibrate.stage import fitted_seeds
     from qsls.pipeline.control.artifacts import Certificate
-    from qsls.pipeline.evaluate.calibrate import fitted_seeds
 
     run = quickstart_session[0] / "runs" / "quickstart"
     assert fitted_seeds(run / "fit") == [1, 2, 4, 5]
@@ -478,8 +478,8 @@ def test_stated_alpha_is_met_by_exchangeable_synthetic_flights(tmp_path: Path) -
     flight drawn 1.3 times wider breaks it far more often."""
     from dataclasses import replace
 
+    from qsls.pipeline.calibrate.stage import score_flight
     from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions
-    from qsls.pipeline.evaluate.calibrate import score_flight
     from qsls.pipeline.evaluate.certified import certified_premise
     from tests.controllerfixtures import gated
 
@@ -531,7 +531,7 @@ def test_a_range_flights_score_keeps_the_disturbance_and_drops_the_reference() -
     but the disturbance bound is assumed out to rho*: a range flight whose realized
     disturbance exceeds eps_w raises its score (paper_sim_camera's first degraded calibration
     had one at 1.10, left out by a perception-only score)."""
-    from qsls.pipeline.evaluate.calibrate import range_score
+    from qsls.pipeline.calibrate.stage import range_score
 
     parts = {"dense": 0.9, "disturbance": 1.098, "reference": 13.4, "outliers": 0.0}
     assert range_score(parts) == 1.098

@@ -70,7 +70,7 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
         },
     ),
     "calibrate": (
-        "qsls.pipeline.evaluate.options:CalibrateOptions",
+        "qsls.pipeline.calibrate.options:CalibrateOptions",
         {
             "model": None,
             "controllers": None,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pytest
 
+from qsls.pipeline.calibrate.options import CalibrateOptions
 from qsls.pipeline.core.config import merge
 from qsls.pipeline.evaluate.conditions import (
     ConditionFamily,
@@ -15,7 +16,6 @@ from qsls.pipeline.evaluate.conditions import (
     outside_family,
     stated,
 )
-from qsls.pipeline.evaluate.options import CalibrateOptions
 from qsls.pipeline.sim.options import SimOptions
 
 BASE = SimOptions.model_validate(

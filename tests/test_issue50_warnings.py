@@ -46,8 +46,8 @@ def test_the_calibration_refusal_names_the_reference_its_value_and_the_fix():
     reference part is inf; the refusal said only 'a premise quantity no inflation covers'."""
     import math
 
-    from qsls.pipeline.evaluate.calibrate import decide
-    from qsls.pipeline.evaluate.options import CalibrateOptions
+    from qsls.pipeline.calibrate.options import CalibrateOptions
+    from qsls.pipeline.calibrate.stage import decide
 
     nominal = _premise(delta=0.0)
     rows = [_row(reference=math.inf, score=math.inf, ref_max=0.2 + 0.01 * k) for k in range(20)]
@@ -65,7 +65,7 @@ def test_the_calibration_refusal_names_the_reference_its_value_and_the_fix():
 def test_the_refusal_names_each_infinite_quantity_once_with_its_largest_value():
     import math
 
-    from qsls.pipeline.evaluate.broken import broken_premise
+    from qsls.pipeline.calibrate.broken import broken_premise
 
     rows = [
         _row(outliers=math.inf, score=math.inf, outlier_max=0.9),

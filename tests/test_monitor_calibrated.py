@@ -156,9 +156,9 @@ def test_calibrate_records_the_calibrated_mode_verify_recomputes_it_and_an_edit_
     """calibrate's own step (record_monitor) with monitor.mode calibrated writes the record
     the exported code and every reader fly; verify recomputes the statistics from the logs and
     reports an edited one; an edited quantile is refused on load, in one line."""
-    from qsls.pipeline.evaluate.calibrate import record_monitor
-    from qsls.pipeline.evaluate.options import CalibrateOptions
-    from qsls.pipeline.evaluate.verify import verify
+    from qsls.pipeline.calibrate.options import CalibrateOptions
+    from qsls.pipeline.calibrate.stage import record_monitor
+    from qsls.pipeline.calibrate.verify import verify
     from qsls.pipeline.export.statement import statement
 
     out = tmp_path / "calibrate"

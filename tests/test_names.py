@@ -89,7 +89,7 @@ ARTIFACT_FILES = {
     "certificate.yaml": "control/artifacts.py",
     "sweep.parquet": "control/sweep.py",
     "s_max.parquet": "control/sweep.py",
-    "calibration.json": "evaluate/calibrate.py",
+    "calibration.json": "calibrate/stage.py",
     "assumptions.parquet": "evaluate/verdict.py",
     "findings.json": "fly/paired.py",
     "flights.parquet": "fly/fly.py",

@@ -18,11 +18,11 @@ import pandas as pd
 import pytest
 import yaml
 
+from qsls.pipeline.calibrate.stage import score_flight
 from qsls.pipeline.core.artifacts import parquet_bytes
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import TICKS_FILE, TickLog
 from qsls.pipeline.errormodel.model import load_error_model, resolve_model
-from qsls.pipeline.evaluate.calibrate import score_flight
 from qsls.pipeline.evaluate.certified import certified_premise
 from qsls.pipeline.evaluate.flownby import TOLERANCE, flown_by, tolerances
 from qsls.pipeline.evaluate.training import load_training
@@ -313,7 +313,7 @@ def test_commands_options_without_the_mass_are_refused(tmp_path: Path) -> None:
 
 
 def test_a_run_configs_recorded_list_is_its_calibration_flights() -> None:
-    from qsls.pipeline.evaluate.options import CalibrateOptions
+    from qsls.pipeline.calibrate.options import CalibrateOptions
 
     o = CalibrateOptions.model_validate({"recorded": ["flights/a", "flights/b"]})
     assert o.recorded.calibration == [Path("flights/a"), Path("flights/b")]

@@ -84,10 +84,10 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
     no design flight used; every score recomputed from the flight's own tick log; lambda_hat
     the conformal order statistic of those scores; the status honest about the condition and
     the tested range; validation rows recomputed from their tick logs."""
+    from qsls.pipeline.calibrate.stage import TickLog, score_flight
     from qsls.pipeline.control import calibration as cal
     from qsls.pipeline.errormodel.model import load_error_model
     from qsls.pipeline.evaluate.assumptions import check_assumptions
-    from qsls.pipeline.evaluate.calibrate import TickLog, score_flight
     from qsls.pipeline.evaluate.certified import certified_premise
     from qsls.pipeline.evaluate.training import load_training
 
@@ -175,9 +175,9 @@ def test_quickstart_assumptions_on_the_flown_flights(quickstart):
         assert r["verdict"].startswith(f"assumption '{r['first_failed']}' fails first")
         assert not r[f"{r['first_failed']}_holds"]
     # the flight's own tick log reproduces its row (issue 32: an auditor recomputes it)
+    from qsls.pipeline.calibrate.stage import TickLog
     from qsls.pipeline.errormodel.model import load_error_model
     from qsls.pipeline.evaluate.assumptions import check_assumptions
-    from qsls.pipeline.evaluate.calibrate import TickLog
     from qsls.pipeline.evaluate.certified import certified_premise
     from qsls.pipeline.evaluate.training import load_training
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from qsls.pipeline.calibrate.verify import verify
 from qsls.pipeline.control.artifacts import (
     CERTIFICATE_FILE,
     CONTROLLER_FILE,
@@ -20,7 +21,6 @@ from qsls.pipeline.control.artifacts import (
     load_controller_dir,
 )
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.evaluate.verify import verify
 
 
 @pytest.fixture(scope="module")

@@ -1,12 +1,12 @@
 """``qsls calibrate --recorded``: the candidates' premise calibrated on the user's own recorded
 flights (docs/vehicle.md), with the simulated calibration's scores, quantile, status rules and
-record (:mod:`qsls.pipeline.evaluate.calibrate`).
+record (:mod:`qsls.pipeline.calibrate.stage`).
 
-Each recorded flight (:mod:`qsls.pipeline.evaluate.recorded`) must be the candidate's own:
+Each recorded flight (:mod:`qsls.pipeline.calibrate.recorded`) must be the candidate's own:
 replayed through its taps and gate it gives the logged commands (else the command stops,
 naming the flight and the first tick that differs). Calibration flights give the scores
-``lambda_f`` (:func:`~qsls.pipeline.evaluate.calibrate.score_flight`), range flights theirs
-without the reference's term (:func:`~qsls.pipeline.evaluate.calibrate.range_score`), and the
+``lambda_f`` (:func:`~qsls.pipeline.calibrate.stage.score_flight`), range flights theirs
+without the reference's term (:func:`~qsls.pipeline.calibrate.stage.range_score`), and the
 validation flights are checked against every assumption of the calibrated premise. The
 conditions are the logs' (vehicle mass and hover thrust, estimator, tick, flight length);
 the record lists each calibration flight's log sha256 (``calibration.logs``) in place of seeds.
@@ -23,14 +23,8 @@ from typing import Any
 
 import pandas as pd
 
-from qsls.pipeline.control.artifacts import FlightEvidence, load_controller_dir
-from qsls.pipeline.core.artifacts import StageWriter, check_output, sha256_file
-from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.core.ticks import TICKS_FILE
-from qsls.pipeline.errormodel.model import load_error_model, resolve_model
-from qsls.pipeline.evaluate.assumptions import check_assumptions
-from qsls.pipeline.evaluate.calibrate import (
+from qsls.pipeline.calibrate.recorded import RecordedFlight, load_all, refuse_design
+from qsls.pipeline.calibrate.stage import (
     SCORES_FILE,
     STAGE,
     SUMMARY_FILE,
@@ -49,10 +43,16 @@ from qsls.pipeline.evaluate.calibrate import (
     summary_row,
     taps_of,
 )
+from qsls.pipeline.calibrate.standin import standin_flights
+from qsls.pipeline.control.artifacts import FlightEvidence, load_controller_dir
+from qsls.pipeline.core.artifacts import StageWriter, check_output, sha256_file
+from qsls.pipeline.core.errors import InputError
+from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.ticks import TICKS_FILE
+from qsls.pipeline.errormodel.model import load_error_model, resolve_model
+from qsls.pipeline.evaluate.assumptions import check_assumptions
 from qsls.pipeline.evaluate.certified import certified_premise
 from qsls.pipeline.evaluate.flownby import flown_by
-from qsls.pipeline.evaluate.recorded import RecordedFlight, load_all, refuse_design
-from qsls.pipeline.evaluate.standin import standin_flights
 from qsls.pipeline.evaluate.training import load_training
 
 DT_TOLERANCE = 0.01
@@ -111,7 +111,7 @@ def calibrate_recorded(
 ) -> CalibrateResult:
     """Prove, score, calibrate and validate every candidate on the recorded flights (module
     docstring); with ``options.source == "standin"`` the stand-in vehicle flies them first
-    (:mod:`qsls.pipeline.evaluate.standin`)."""
+    (:mod:`qsls.pipeline.calibrate.standin`)."""
     standin = options.source == "standin" and not options.recorded.given
     if not standin and not options.recorded.calibration:
         raise InputError(

@@ -6,7 +6,7 @@ writes ``ticks.parquet``, :mod:`qsls.pipeline.ingest.ticks`). Before a flight co
 candidate it must be the candidate's own (:func:`qsls.pipeline.evaluate.flownby.flown_by`);
 the flights must be distinct (no log twice, none a design flight by its log's hash or its
 motion) and of one vehicle and one estimator. Then the scores, the quantile, the status rules
-and the record are the simulated calibration's (:mod:`qsls.pipeline.evaluate.calibrate`), with
+and the record are the simulated calibration's (:mod:`qsls.pipeline.calibrate.stage`), with
 each flight's log hash in place of a seed.
 """
 

@@ -40,6 +40,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from qsls.pipeline.calibrate.broken import broken_premise
+from qsls.pipeline.calibrate.options import CalibrateOptions as CalibrateOptions
 from qsls.pipeline.control import calibration as cal
 from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.artifacts import (
@@ -80,10 +82,8 @@ from qsls.pipeline.evaluate.assumptions import (
     crashed,
     signals,
 )
-from qsls.pipeline.evaluate.broken import broken_premise
 from qsls.pipeline.evaluate.certified import certified_premise, expand_controllers
 from qsls.pipeline.evaluate.conditions import draw, drawn, stated
-from qsls.pipeline.evaluate.options import CalibrateOptions as CalibrateOptions
 from qsls.pipeline.evaluate.training import load_training
 from qsls.pipeline.evaluate.verdict import promise
 from qsls.pipeline.sim.closedloop import fly
@@ -265,7 +265,7 @@ def decide(
     """The candidate's :class:`Decision` (module docstring); ``reached`` covers the calibration and the range flights, ``range_scores`` are
     the range flights' scores (:func:`range_score`) (their quantile can only raise ``lambda_hat``);
     ``broken``: the score rows of the flights whose score is inf (the refusal names their
-    quantities, :func:`~qsls.pipeline.evaluate.broken.broken_premise`)."""
+    quantities, :func:`~qsls.pipeline.calibrate.broken.broken_premise`)."""
     n = len(scores)
     rank = cal.calibration_rank(n, options.alpha, options.method, options.delta)
     lam = cal.calibrated_quantile(scores, options.alpha, options.method, options.delta)

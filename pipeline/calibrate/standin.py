@@ -19,10 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from qsls.pipeline.calibrate.options import CalibrateOptions, RecordedFlights
 from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.evaluate.options import CalibrateOptions, RecordedFlights
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.ingest.stage import ingest
 from qsls.pipeline.sim.options import SimOptions

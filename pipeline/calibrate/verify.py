@@ -7,12 +7,12 @@ controller folder inside it),
 
 - every tick log its record lists (``calibration.evidence``) is read and its sha256 checked;
 - every calibration and range flight's score ``lambda_f`` is recomputed by the calibration's
-  own scoring (:func:`~qsls.pipeline.evaluate.calibrate.score_flight`,
-  :func:`~qsls.pipeline.evaluate.calibrate.range_score`) under the design premise the record
+  own scoring (:func:`~qsls.pipeline.calibrate.stage.score_flight`,
+  :func:`~qsls.pipeline.calibrate.stage.range_score`) under the design premise the record
   states, against the training states of the error model the calibration read;
 - ``lambda_hat``, its rank, the tested range (the largest ``dist(x_k)`` within ``r``) and the
   status come from the calibration's own decision
-  (:func:`~qsls.pipeline.evaluate.calibrate.decide`) on the recomputed scores;
+  (:func:`~qsls.pipeline.calibrate.stage.decide`) on the recomputed scores;
 - the conditions the logs carry: each flight's perception condition (its tick log's metadata,
   and the folder the certificate sits in), the controller that flew it (its ``controller.npz``
   sha256), the flights' seeds, and the flight length (ticks times the tick, to within a tick);
@@ -30,6 +30,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from qsls.pipeline.calibrate.options import CalibrateOptions
+from qsls.pipeline.calibrate.stage import (
+    PERCEPTION_ATTR,
+    SCORES_FILE,
+    STAGE,
+    decide,
+    range_score,
+    score_flight,
+    taps_of,
+)
 from qsls.pipeline.control.artifacts import (
     CERTIFICATE_FILE,
     Calibration,
@@ -44,21 +54,11 @@ from qsls.pipeline.core.artifacts import MANIFEST, read_manifest, sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import TickLog
 from qsls.pipeline.errormodel.model import load_error_model, resolve_model
-from qsls.pipeline.evaluate.calibrate import (
-    PERCEPTION_ATTR,
-    SCORES_FILE,
-    STAGE,
-    decide,
-    range_score,
-    score_flight,
-    taps_of,
-)
 from qsls.pipeline.evaluate.certified import (
     certified_premise,
     check_model_hash,
     load_controller_bound,
 )
-from qsls.pipeline.evaluate.options import CalibrateOptions
 from qsls.pipeline.evaluate.training import TrainingData, load_training
 
 VERIFIED = "verified"

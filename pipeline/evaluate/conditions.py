@@ -324,7 +324,7 @@ def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> l
     certificate states (:func:`stated`), in words with how far; empty when every one lies
     inside. A condition the statement does not record is not compared (an older record); a
     recorded flights' certificate states its logs' conditions, compared where they are read
-    (:mod:`qsls.pipeline.evaluate.calibrate_recorded`)."""
+    (:mod:`qsls.pipeline.calibrate.flights`)."""
     if statement.get("source") in ("recorded", "standin"):
         return []  # a log's conditions are stated as its log says them (calibrate_recorded)
     fam = statement.get("family")

@@ -9,11 +9,11 @@ from typing import Any, Literal
 
 from pydantic import Field, PrivateAttr, field_validator, model_validator
 
+from qsls.pipeline.calibrate.options import CalibrateOptions
 from qsls.pipeline.control.options import SweepSection, SynthOptions
 from qsls.pipeline.core.artifacts import to_plain
 from qsls.pipeline.core.config import Options, Seed
 from qsls.pipeline.errormodel.options import FitOptions
-from qsls.pipeline.evaluate.options import CalibrateOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.sim.options import SimOptions

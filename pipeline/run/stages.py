@@ -23,13 +23,14 @@ from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 from typing import Any
 
+from qsls.pipeline.calibrate.options import CalibrateOptions
 from qsls.pipeline.control.options import SweepOptions, SweepSection, SynthOptions
 from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.core.config import merge, validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.options import FitOptions
-from qsls.pipeline.evaluate.options import CalibrateOptions, EvaluateOptions, FlyOptions
+from qsls.pipeline.evaluate.options import EvaluateOptions, FlyOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
@@ -268,8 +269,8 @@ def _calibrate_stage(
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
-        from qsls.pipeline.evaluate.calibrate import calibrate
-        from qsls.pipeline.evaluate.calibrate_recorded import calibrate_recorded
+        from qsls.pipeline.calibrate.flights import calibrate_recorded
+        from qsls.pipeline.calibrate.stage import calibrate
 
         run = calibrate_recorded if opts.recorded.given or opts.source == "standin" else calibrate
         return run(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
@@ -293,7 +294,7 @@ def _warnings(out: Path) -> dict[str, Any]:
 def _calibrated(out: Path) -> dict[str, Any]:
     """One line per calibrated certificate, kept in the run state for the console."""
     # deferred: a stage's code loads when it runs (a cached run loads none of it)
-    from qsls.pipeline.evaluate.calibrate import summary_lines
+    from qsls.pipeline.calibrate.stage import summary_lines
 
     return {"calibrated": summary_lines(out)}
 
