@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from qsls.pipeline.report.sections import reason_parts
+from qsls.pipeline.report.certificates import reason_parts
 from tests.browser import find_chromium, visit
 
 REPO = Path(__file__).resolve().parents[1]

@@ -186,6 +186,7 @@ def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Se
     # a config, which must not (tests/test_config_sections.py)
     from qsls.pipeline.report import calibration as calib
     from qsls.pipeline.report import camera as cam
+    from qsls.pipeline.report import certificates as certs
     from qsls.pipeline.report import flights as fl
     from qsls.pipeline.report import monitor as mon
     from qsls.pipeline.report import sections as rs
@@ -197,7 +198,7 @@ def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Se
     counter = [0]
     builders = [
         rs.section_paper_figures,
-        rs.section_controllers,
+        certs.section_controllers,
         calib.section_calibration,
         rs.section_heldout,
         rs.section_flown,
