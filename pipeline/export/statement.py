@@ -169,7 +169,19 @@ def monitor_lines(spec: MonitorSpec) -> list[str]:
 
 
 def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
-    """The generalized theorem (docs/guarantee.md) in the certificate's own numbers."""
+    """The generalized theorem (docs/guarantee.md) in the certificate's own numbers: the
+    premise, the condition and what it guarantees, how far the premise was tested."""
+    cert = cdir.certificate
+    return [
+        *_premise_lines(cdir),
+        *_conclusion_lines(cert, spec),
+        _tested_range_line(cert),
+        *_calibration_lines(cert.calibration),
+    ]
+
+
+def _premise_lines(cdir: ControllerDir) -> list[str]:
+    """The norms, what is measured, the premise (i)-(iii) ``e = d + o`` and the start."""
     cert = cdir.certificate
     p = cert.premise
     wx = p.state_scale if p is not None else [1.0] * 6
@@ -229,7 +241,16 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
             f"gate: _step clips the velocity deviation to +/- V = {cert.gate:g} m/s before the "
             "filter bank (the guarantee needs it)"
         )
-    out.append(
+    return out
+
+
+def _conclusion_lines(cert: Certificate, spec: MonitorSpec) -> list[str]:
+    """The condition ``(S + eps/r) N + (a + eps_o G_m)/r < 1`` with its numbers, then the
+    bounds it gives at every tick (``rho*``, ``gamma``, the monitor's envelope)."""
+    p = cert.premise
+    beta = p.beta if p is not None else None
+    full = cert.measure == "full"
+    out = [
         f"condition: (S + eps/r) N + (a + eps_o G_m)/r = {_g(cert.robustness_lhs)} < 1 with "
         f"N = {_g(cert.norm_N)}, N_w = {_g(cert.norm_N_w)}, G_m = {_g(cert.G_m)}, "
         + (
@@ -237,7 +258,7 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
             if cert.eps_b > 0
             else f"a = eps_w N_w + Delta = {_g(cert.a)}"
         )
-    )
+    ]
     err = f"|d_k|_e <= gamma = eps + S rho* = {_g(cert.gamma)}"
     if full and cert.m > 0 and beta is not None:
         err += ", ||e_k||_inf at most that plus eps_o on the velocity channels"
@@ -248,20 +269,22 @@ def theorem_lines(cdir: ControllerDir, spec: MonitorSpec) -> list[str]:
     out.append(f"  and |x_k - r_k| per channel <= {env} (docs/monitor.md)")
     if cert.gate is not None and cert.rho_v is not None:
         out.append(f"  |v_k - v_ref,k| <= rho_v = {_g(cert.rho_v)} <= V = {cert.gate:g}")
+    return out
+
+
+def _tested_range_line(cert: Certificate) -> str:
+    """How far from the training states the premise's S was tested (or calibrated)."""
     tr = cert.tested_range
     if tr is None:
-        out.append("tested range: S was not tested on left-out data")
-    else:
-        beyond = (
-            f" (rho* = {_g(cert.rho_star)} extrapolates beyond it)"
-            if cert.rho_star is not None and cert.rho_star > tr
-            else ""
-        )
-        how = ("the calibration flights reached dist" if cert.calibration is not None
-               else "S tested on left-out data out to")  # fmt: skip
-        out.append(f"tested range: {how} {_g(tr)}{beyond}")
-    out += _calibration_lines(cert.calibration)
-    return out
+        return "tested range: S was not tested on left-out data"
+    beyond = (
+        f" (rho* = {_g(cert.rho_star)} extrapolates beyond it)"
+        if cert.rho_star is not None and cert.rho_star > tr
+        else ""
+    )
+    how = ("the calibration flights reached dist" if cert.calibration is not None
+           else "S tested on left-out data out to")  # fmt: skip
+    return f"tested range: {how} {_g(tr)}{beyond}"
 
 
 def verification_lines(cdir: ControllerDir) -> list[str]:

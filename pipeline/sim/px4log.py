@@ -35,7 +35,7 @@ from qsls.pipeline.core.units import NS
 from qsls.pipeline.ingest.sources.ulog.writer import LogContent, Topic
 from qsls.pipeline.sim.closedloop import FlightLog
 from qsls.pipeline.sim.mocap import interpolate_truth, sample_mocap
-from qsls.pipeline.sim.options import SimOptions
+from qsls.pipeline.sim.options import Px4Options, SimOptions, VioParams
 from qsls.pipeline.sim.px4 import (
     US,
     arrivals,
@@ -235,30 +235,32 @@ def _dropouts(
     return out, [(int(s), int(d)) for s, d in zip(start, ms, strict=True)]
 
 
-def px4_log(
-    flight: FlightLog, options: SimOptions, seed: int, identity: Identity
-) -> tuple[LogContent, dict[str, Any]]:
-    """The flight's ULog content and its truth (module docstring)."""
-    px4 = options.px4
-    if flight.vio_arrival_us is None or flight.vio_dropped is None:
-        raise ValueError("a PX4 log needs a flight whose estimates were read by arrival")
-    boot_us = round(px4.boot_s * 1e6)
-    # the estimator: the samples that arrived, at their arrival
-    got = ~flight.vio_dropped
+def _visual_odometry(
+    flight: FlightLog, arrival_us: np.ndarray, dropped: np.ndarray, vio: VioParams, boot_us: int
+) -> tuple[Topic, np.ndarray]:
+    """The estimator's topic: the samples that arrived, at their arrival (and which did)."""
+    got = ~dropped
     y = flight.vio_y[got]
     q_est = flight.vio_q if flight.vio_q_est is None else flight.vio_q_est
-    vio = options.vio
     var = (
         (vio.noise_position**2, np.nan, vio.noise_velocity**2)
         if vio.kind == "emulator"
         else (np.nan, np.nan, np.nan)
     )
     visual = _odometry(
-        "vehicle_visual_odometry", boot_us + flight.vio_arrival_us[got],
+        "vehicle_visual_odometry", boot_us + arrival_us[got],
         boot_us + np.round(flight.vio_t_ns[got] / US).astype(np.int64), y[:, :3], q_est[got],
         y[:, 3:], flight.vio_w[got], var,
     )  # fmt: skip
-    # the motion capture: noisy pose, true velocity and body rate, its own transport
+    return visual, got
+
+
+def _mocap_odometry(
+    flight: FlightLog, options: SimOptions, seed: int, boot_us: int
+) -> tuple[Topic, int, np.ndarray]:
+    """The motion capture's topic: noisy pose, true velocity and body rate, its own transport
+    (and how many samples it took, which arrived)."""
+    px4 = options.px4
     log_rng = np.random.default_rng(np.random.SeedSequence([seed, _LOG_STREAM]))
     mc = sample_mocap(options.mocap, flight.t_ns, flight.x, flight.q, log_rng)
     _, v_mc, _ = interpolate_truth(flight.t_ns, flight.x, flight.q, mc.t_ns)
@@ -276,10 +278,14 @@ def px4_log(
         mc.orientation[keep], v_mc[keep], w_mc[keep],
         (options.mocap.position_noise**2, options.mocap.attitude_noise**2, np.nan),
     )  # fmt: skip
-    end_ns = int(flight.t_ns[-1])
+    return mocap, len(mc.t_ns), keep
+
+
+def _hover_estimate(px4: Px4Options, end_ns: int, boot_us: int) -> Topic:
+    """PX4's hover-thrust estimate, constant at ``px4.estimate``, at :data:`HOVER_ESTIMATE_HZ`."""
     hts = boot_us + _every(round(NS / HOVER_ESTIMATE_HZ), end_ns) // US
     nh = len(hts)
-    hover = Topic(
+    return Topic(
         "hover_thrust_estimate",
         HOVER_THRUST_FIELDS,
         {
@@ -290,6 +296,21 @@ def px4_log(
             "valid": np.ones(nh),
         },
     )  # fmt: skip
+
+
+def px4_log(
+    flight: FlightLog, options: SimOptions, seed: int, identity: Identity
+) -> tuple[LogContent, dict[str, Any]]:
+    """The flight's ULog content and its truth (module docstring)."""
+    px4 = options.px4
+    if flight.vio_arrival_us is None or flight.vio_dropped is None:
+        raise ValueError("a PX4 log needs a flight whose estimates were read by arrival")
+    boot_us = round(px4.boot_s * 1e6)
+    vio = options.vio
+    visual, got = _visual_odometry(flight, flight.vio_arrival_us, flight.vio_dropped, vio, boot_us)
+    mocap, n_mc, keep = _mocap_odometry(flight, options, seed, boot_us)
+    end_ns = int(flight.t_ns[-1])
+    hover = _hover_estimate(px4, end_ns, boot_us)
     topics = [visual, mocap, *_setpoints(flight, boot_us), hover, _local_position(flight, boot_us)]
     drop_rng = np.random.default_rng(np.random.SeedSequence([seed, _DROPOUT_STREAM]))
     topics, dropouts = _dropouts(topics, px4.logger_dropouts, end_ns // US, boot_us, drop_rng)
@@ -304,7 +325,7 @@ def px4_log(
         dropouts=dropouts,
         start_us=boot_us,
     )
-    n_vio, n_mc = len(flight.vio_t_ns), len(mc.t_ns)
+    n_vio = len(flight.vio_t_ns)
     truth = {
         "boot_us": boot_us,
         "interface": px4.interface,
