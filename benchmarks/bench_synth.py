@@ -21,7 +21,7 @@
    what ``sls.solve`` runs since its second round (mirrored, the light cost rows left out and
    checked, ``sls.FAST`` first), in the same run; objective, the largest tap difference and
    the certificate's guarantee numbers and realization error of each.
-3. The premise's share of training pairs above S (:mod:`qsls.pipeline.control.premise`):
+3. The premise's share of training pairs above S (:mod:`qsls.pipeline.premise.record`):
    the cell grid against the chunked all-pairs count, same answer required.
 Targets: build + solve <= 0.15 s on one core at T = 50 (issue 27; issue 37 in the honest
 setting); sweep >= 1.8x faster.
@@ -158,13 +158,13 @@ def honest_setting(T: int):
     import yaml
 
     from qsls.pipeline.control.options import ProblemOptions
-    from qsls.pipeline.control.resolution import resolve
+    from qsls.pipeline.control.problem import resolve
 
     config = Path(__file__).resolve().parents[1] / "configs/quickstart.yaml"
     cfg = yaml.safe_load(config.read_text())
     keys = set(ProblemOptions.model_fields)
     opts = {k: v for k, v in {**cfg["problem"], **cfg["synth"]}.items() if k in keys}
-    r = resolve(ProblemOptions(**{**opts, "T": T}), None)
+    r = resolve(ProblemOptions(**{**opts, "T": T}))
     return r, r.structure(T, "l1", "qr", True, False)
 
 

@@ -102,7 +102,7 @@ def gated(
     import yaml
 
     from qsls.pipeline.control.artifacts import load_controller_dir
-    from qsls.pipeline.control.premise import Premise, PremiseEntry
+    from qsls.pipeline.premise.record import Premise, PremiseEntry
 
     model = quadrotor_model(H=np.diag(H))
     sparse = m if beta is not None and measure == "full" else 0

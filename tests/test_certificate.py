@@ -376,7 +376,7 @@ def test_samples_the_fit_excluded_make_the_premise_relaxed(tmp_path, fit_dir):
     assert res.exit_code == 0, res.output
     c = _cert(tmp_path / "s")
     assert c["status"] == "relaxed" and c["premise"]["n_excluded"] == 3
-    from qsls.pipeline.control.premise import Premise
+    from qsls.pipeline.premise.record import Premise
 
     assert "3 training samples excluded by the fit" in Premise.model_validate(c["premise"]).shares()
     assert "excluded" in res.output

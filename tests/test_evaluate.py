@@ -417,7 +417,7 @@ def test_damaged_altered_pd_or_overclaiming_controllers_are_refused(setup, taps)
     violated premise: evaluate, fly and export give one line, exit 2."""
     from qsls.pipeline.control.nominal import pd_responses
     from qsls.pipeline.control.pdgain import PDGains
-    from qsls.pipeline.control.premise import Premise, PremiseEntry
+    from qsls.pipeline.premise.record import Premise, PremiseEntry
 
     tmp, model, _, flight = setup
     good, ctrl = _filter_bank_controller(tmp / "fb", model, taps)

@@ -18,7 +18,7 @@ from qsls.pipeline.control.artifacts import (
 )
 from qsls.pipeline.control.certify import certify
 from qsls.pipeline.control.guarantee import PremiseNumbers
-from qsls.pipeline.control.premise import Premise, PremiseEntry
+from qsls.pipeline.premise.record import Premise, PremiseEntry
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import quadrotor_model

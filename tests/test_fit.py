@@ -17,6 +17,7 @@ from qsls.pipeline.core.references import Reference, ReferenceOptions
 from qsls.pipeline.errormodel.fit import FIGURES, TRAINING_FILE, FitOptions, fit
 from qsls.pipeline.errormodel.model import load_error_model
 from qsls.pipeline.ingest.flight import E_COLS, X_COLS, make_flight_frame
+from qsls.pipeline.premise.choose import lookup_eps_e, lookup_s
 from qsls.pipeline.sim.vio import VioEmulator, VioParams
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -132,8 +133,9 @@ def test_outputs_figures_reference_and_determinism(tmp_path):
     model = load_error_model(out)
     assert model == res.model
     assert set(model.s_slope.percentiles) == {"p50", "p99.5"}
-    assert model.resolve_s("local_p99.5") == model.s_slope.local_max_percentiles["p99.5"]
-    assert model.resolve_eps_e("max") == model.eps_e == model.R0
+    # the premise looks the names up (premise/choose.py)
+    assert lookup_s(model, "local_p99.5") == model.s_slope.local_max_percentiles["p99.5"]
+    assert lookup_eps_e(model, "max") == model.eps_e == model.R0
     assert len(model.worst_pairs) == 20
     assert [w.slope for w in model.worst_pairs] == sorted(
         (w.slope for w in model.worst_pairs), reverse=True
@@ -334,7 +336,7 @@ def test_environments_keep_distances_and_pairs_within_one_room(tmp_path):
     flight), leave-one-flight-out has nothing to leave out (S NaN, tested range 0), and a
     third flight in the first room is compared with that room's flight only."""
     from qsls.pipeline.errormodel.fit import FitData, fit_model, load_fit_data
-    from qsls.pipeline.errormodel.premise import Spec, TrainingStates
+    from qsls.pipeline.premise.measure import Spec, TrainingStates
     from tests.reference_impl import brute_force_slopes
 
     rng = np.random.default_rng(5)

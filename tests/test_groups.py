@@ -13,7 +13,8 @@ from qsls.pipeline.control.guarantee import system_norms
 from qsls.pipeline.control.synth import SynthOptions, synthesize
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.errormodel.model import ErrorModel, SlopeStats
-from qsls.pipeline.errormodel.premise import TrainingStates
+from qsls.pipeline.premise.choose import ModelInput
+from qsls.pipeline.premise.measure import TrainingStates
 from qsls.pipeline.premise.numbers import grouped_premise
 
 W_X = (1.0, 1.0, 1.0, 0.5, 0.5, 0.5)
@@ -80,9 +81,13 @@ def test_a_synthesis_with_group_bounds_certifies_on_the_vector_condition():
     tr = _training()
     base = dict(T=15, S=0.0, eps_e=0.06, controllers="single", measure="full", beta=0.2, gate=0.6,
                 error_scale=W_E, eps_w=0.005, radius=1.5, m=2)  # fmt: skip
-    plain = synthesize(_em(tr), tr, SynthOptions(**base)).controllers["l1_robust"].certificate
+    plain = (
+        synthesize(ModelInput(_em(tr), training=tr), SynthOptions(**base))
+        .controllers["l1_robust"]
+        .certificate
+    )
     opts = SynthOptions(**base, eps_groups={"velocity": "clip"})
-    cert = synthesize(_em(tr), tr, opts).controllers["l1_robust"].certificate
+    cert = synthesize(ModelInput(_em(tr), training=tr), opts).controllers["l1_robust"].certificate
     p = cert.premise
     assert p is not None and p.groups is not None
     assert p.groups["velocity"]["bound"] == pytest.approx(0.5 * 0.2)  # w_e,v beta
@@ -101,10 +106,10 @@ def test_a_synthesis_with_group_bounds_certifies_on_the_vector_condition():
 def test_group_bounds_that_cannot_hold_are_refused():
     tr = _training()
     with pytest.raises(InputError, match="needs beta"):
-        synthesize(_em(tr), tr, SynthOptions(T=6, S=0.0, eps_e=0.1, eps_w=0.005, radius=1.5,
+        synthesize(ModelInput(_em(tr), training=tr), SynthOptions(T=6, S=0.0, eps_e=0.1, eps_w=0.005, radius=1.5,
                                              controllers="single",
                                              eps_groups={"velocity": "clip"}))  # fmt: skip
     with pytest.raises(InputError, match="not measured"):
-        synthesize(_em(tr), tr, SynthOptions(T=6, S=0.0, eps_e=0.1, eps_w=0.005, radius=1.5,
+        synthesize(ModelInput(_em(tr), training=tr), SynthOptions(T=6, S=0.0, eps_e=0.1, eps_w=0.005, radius=1.5,
                                              controllers="single", measure="position",
                                              eps_groups={"velocity": 0.1}))  # fmt: skip

@@ -12,6 +12,7 @@ from qsls.pipeline.control import sls
 from qsls.pipeline.control.options import SynthOptions
 from qsls.pipeline.control.papermode import paper_choice, paper_controllers
 from qsls.pipeline.control.status import CHOSEN
+from qsls.pipeline.premise.choose import ModelInput
 
 OPTS = SynthOptions(
     T=8, S=0.0, eps_e=0.02, eps_w=0.01, radius=1.0, delta=0.05,
@@ -27,7 +28,7 @@ def _feasible(r, S: float) -> bool:
 
 def test_the_chosen_s_is_the_largest_feasible_less_the_margin():
     assert OPTS.paper_mode is not None
-    choice, r = paper_choice(OPTS, OPTS.paper_mode, None, None)
+    choice, r = paper_choice(OPTS, OPTS.paper_mode, ModelInput())
     n = r.numbers
     assert (n.S, n.eps, n.eps_o, n.m) == (choice.S, 0.03, 0.0, 0)
     assert pytest.approx(0.8 * choice.S_max, rel=1e-12) == choice.S
@@ -38,7 +39,7 @@ def test_the_chosen_s_is_the_largest_feasible_less_the_margin():
 
 def test_the_status_says_chosen_not_certified():
     done = {}
-    choice, built = paper_controllers(OPTS, None, None, done, {"error_model": None})
+    choice, built = paper_controllers(OPTS, ModelInput(), done, {"error_model": None})
     ((name, b),) = built.items()
     cert = b.certificate
     assert name == "l1_robust_paper" and cert.status == CHOSEN
@@ -55,11 +56,11 @@ def test_the_papers_premise_has_one_bound_even_when_the_honest_design_has_groups
         update={"eps_e": 0.4, "eps_groups": {"position": 0.4, "velocity": 0.1}}
     )
     assert grouped.paper_mode is not None
-    choice, r = paper_choice(grouped, grouped.paper_mode, None, None)
-    plain, _ = paper_choice(OPTS, OPTS.paper_mode, None, None)  # type: ignore[arg-type]
+    choice, r = paper_choice(grouped, grouped.paper_mode, ModelInput())
+    plain, _ = paper_choice(OPTS, OPTS.paper_mode, ModelInput())  # type: ignore[arg-type]
     assert choice.S_max == pytest.approx(plain.S_max, rel=1e-9)
     assert (r.numbers.S, r.numbers.eps) == (choice.S, 0.03)
     assert list(r.shape.error_scale) == [1.0] * 6
     assert _feasible(r, choice.S) and not _feasible(r, 1.01 * choice.S_max)
-    _, built = paper_controllers(grouped, None, None, {}, {"error_model": None})
+    _, built = paper_controllers(grouped, ModelInput(), {}, {"error_model": None})
     assert built["l1_robust_paper"].certificate.status == CHOSEN

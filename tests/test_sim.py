@@ -166,9 +166,7 @@ def test_synthesized_controller_from_folder_flies(tmp_path):
 
     folder = tmp_path / "pd"
     folder.mkdir()
-    built = pd_controller(
-        resolve(SynthOptions(S=0.0, eps_e=0.05, radius=1.0), None), PDGains(), 20, {}
-    )
+    built = pd_controller(resolve(SynthOptions(S=0.0, eps_e=0.05, radius=1.0)), PDGains(), 20, {})
     built.controller.save(folder)
     built.certificate.save(folder)
     runtime = load_runtime(folder)

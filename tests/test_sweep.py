@@ -26,6 +26,7 @@ from qsls.pipeline.control.sweep import (
 from qsls.pipeline.core.artifacts import dump_yaml
 from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
+from qsls.pipeline.premise.choose import ModelInput
 
 RUN = CliRunner()
 REPO = Path(__file__).resolve().parents[1]
@@ -461,7 +462,7 @@ def test_a_sweep_row_is_the_certificate_synth_writes_for_the_same_options():
 
     base = {"T": 6, "S": 0.05, "eps_e": 0.05, "radius": 1.0, "delta": 0.05, "eps_w": 0.01,
             "imitate": "l1_nominal"}  # fmt: skip
-    made = synthesize(None, None, SynthOptions(**base)).certificates()
+    made = synthesize(ModelInput(), SynthOptions(**base)).certificates()
     opts = SweepOptions(**base, grid={"cost": ["qr", "imitation"]}, s_max_curve=False)
     table, _, _ = compute(opts, jobs=1)
     for row, name in zip(table.itertuples(), ("l1_robust", "l1_robust_imitation"), strict=True):

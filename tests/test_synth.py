@@ -17,6 +17,7 @@ from qsls.pipeline.control.synth import SynthOptions, max_feasible_s
 from qsls.pipeline.core.artifacts import dump_yaml, sha256_file
 from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
+from qsls.pipeline.premise.choose import ModelInput
 
 RUN = CliRunner()
 T = 12
@@ -329,7 +330,7 @@ def test_certificates_do_not_depend_on_where_the_run_lives(tmp_path, error_model
 
 
 def _training(n=400, seed=0):
-    from qsls.pipeline.errormodel.premise import TrainingStates
+    from qsls.pipeline.premise.measure import TrainingStates
 
     rng = np.random.default_rng(seed)
     x = rng.uniform(-1, 1, (n, 6))
@@ -361,7 +362,7 @@ def test_synthesize_in_memory_matches_the_stage_on_the_same_training_states(tmp_
     em = ErrorModel(eps_e=float(np.abs(tr.e).max()), radius=1.0, s_slope=SlopeStats(max=1.0),
                     R0=0.0, delta=0.05, n_samples=len(tr.x), n_pairs=0)  # fmt: skip
     opts = SynthOptions(T=8, S="lofo", eps_e="max", controllers="single")
-    mem = synthesize(em, tr, opts).controllers["l1_robust"].certificate
+    mem = synthesize(ModelInput(em, training=tr), opts).controllers["l1_robust"].certificate
     assert mem.status == "relaxed" and mem.premise is not None and mem.premise.holds
     assert mem.S > 0 and mem.premise.S.chosen == "lofo" and mem.premise.S.violated == 0.0
     fit = tmp_path / "fit"

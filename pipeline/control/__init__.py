@@ -15,7 +15,6 @@ __all__, __getattr__ = lazy_api(
         "load_controller_dir": "artifacts",
         "Certificate": "artifacts",
         "CertificateBody": "artifacts",
-        "TrainingStates": "premise",
         "synthesize": "synth",
         "SynthOptions": "options",
         "SweepOptions": "options",

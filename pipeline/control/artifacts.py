@@ -48,7 +48,7 @@ from qsls.pipeline.control.nominal import (
     static_gain_norms,
     static_gain_responses,
 )
-from qsls.pipeline.control.premise import Premise
+from qsls.pipeline.premise.record import Premise
 from qsls.pipeline.control.realize import (
     FilterBank,
     RealizedController,
@@ -385,7 +385,7 @@ class Certificate(CertificateBody):
     """sha256 of the ``controller.npz`` this certificate is about."""
     premise: Premise | None = None
     """The premise the guarantee rests on, with the training data's violated shares
-    (:mod:`qsls.pipeline.control.premise`)."""
+    (:mod:`qsls.pipeline.premise.record`)."""
     calibration: Calibration | None = None
     """The calibration behind the numbers above (``qsls calibrate``); None: the design premise."""
     promise: str | None = None

@@ -30,11 +30,11 @@ from qsls.pipeline.control.guarantee import Norms
 from qsls.pipeline.control.nominal import pd_responses, spectral_radius, static_gain_norms
 from qsls.pipeline.control.options import SynthOptions
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.control.resolution import Resolved
+from qsls.pipeline.control.problem import Resolved
 from qsls.pipeline.control.status import Status
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import bias_directions
-from qsls.pipeline.errormodel.disturbance import RESIDUAL
+from qsls.pipeline.premise.record import RESIDUAL
 
 
 @dataclass(frozen=True)

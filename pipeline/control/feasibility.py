@@ -10,10 +10,12 @@ from pathlib import Path
 from typing import Any
 
 from qsls.pipeline.control import largest_s
-from qsls.pipeline.control.guarantee import PremiseNumbers, min_norm_bound, necessary_condition
+from qsls.pipeline.control.guarantee import min_norm_bound, necessary_condition
 from qsls.pipeline.control.options import ProblemOptions
-from qsls.pipeline.control.resolution import Resolved, read_model, resolve
+from qsls.pipeline.control.problem import Resolved, resolve
 from qsls.pipeline.core.errors import InfeasibleError
+from qsls.pipeline.premise.choose import read_model
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 
 def diagnose(
@@ -108,9 +110,8 @@ class MaxFeasibleSResult:
 def max_feasible_s(error_model: Path | None, options: ProblemOptions) -> MaxFeasibleSResult:
     """The largest S for which the robust problem of ``options`` is feasible under its premise
     (its feasibility does not depend on the cost); see :func:`qsls.pipeline.control.largest_s.max_feasible_s`."""
-    mi = read_model(error_model)
     opts = options.model_copy(update={"S": 0.0})
-    r = resolve(opts, mi.model, mi.training)
+    r = resolve(opts, read_model(error_model))
     ms = largest_s.max_feasible_s(
         r.model, options.T, r.numbers, shape=r.shape, strictly_proper=options.strictly_proper,
         solver=options.solver,

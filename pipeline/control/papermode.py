@@ -20,7 +20,6 @@ reason states ``S_hat``, ``S_max``, the margin and ``S_paper``.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -34,11 +33,10 @@ from qsls.pipeline.control.design import (
     imitation_target,
 )
 from qsls.pipeline.control.options import PaperModeOptions, SynthOptions
-from qsls.pipeline.control.premise import TrainingStates
-from qsls.pipeline.control.resolution import Resolved, resolve
+from qsls.pipeline.control.problem import Resolved, resolve
 from qsls.pipeline.control.status import CHOSEN, RELAXED
 from qsls.pipeline.core.errors import InfeasibleError
-from qsls.pipeline.errormodel.model import ErrorModel
+from qsls.pipeline.premise.choose import ModelInput, largest_pair_slope
 
 SUFFIX = "_paper"
 """A paper-mode controller is named after its honest twin with this suffix."""
@@ -100,12 +98,11 @@ def largest_feasible_s(r: Resolved, T: int, strictly_proper: bool, solver: str) 
 
 
 def paper_choice(
-    opts: SynthOptions, mode: PaperModeOptions, em: ErrorModel | None,
-    training: TrainingStates | None,
-) -> tuple[PaperChoice, Resolved]:  # fmt: skip
+    opts: SynthOptions, mode: PaperModeOptions, source: ModelInput
+) -> tuple[PaperChoice, Resolved]:
     """The chosen S and the paper's premise resolved at it; :class:`InfeasibleError` when
     no S >= 0 makes the paper's synthesis feasible."""
-    r0 = resolve(paper_options(opts, 0.0, mode.eps_e), em, training)
+    r0 = resolve(paper_options(opts, 0.0, mode.eps_e), source)
     p = r0.numbers
     s_max = largest_feasible_s(r0, opts.T, opts.strictly_proper, opts.solver)
     if not s_max >= 0:
@@ -115,16 +112,15 @@ def paper_choice(
             f"{p.delta:.4g}); raise radius or T, or drop paper_mode",
             {"eps_e": p.eps, "radius": p.radius},
         )
-    s_hat = em.resolve_s("max") if em is not None else math.inf
+    s_hat = largest_pair_slope(source.model)
     S = choose_s(s_hat, s_max, mode.margin)
     choice = PaperChoice(S, s_max, s_hat, mode.margin, p.eps, p.radius)
-    return choice, resolve(paper_options(opts, S, mode.eps_e), em, training)
+    return choice, resolve(paper_options(opts, S, mode.eps_e), source)
 
 
 def paper_controllers(
     opts: SynthOptions,
-    em: ErrorModel | None,
-    training: TrainingStates | None,
+    source: ModelInput,
     done: Mapping[str, sls.Taps],
     extra: dict[str, Any],
     folder: sls.Taps | None = None,
@@ -132,7 +128,7 @@ def paper_controllers(
     """The paper-mode controllers (``l1_robust_paper``, ...) as :class:`Built`, each
     imitating what its honest twin imitates (``done``: the honest responses by name)."""
     assert opts.paper_mode is not None
-    choice, r = paper_choice(opts, opts.paper_mode, em, training)
+    choice, r = paper_choice(opts, opts.paper_mode, source)
     plan = dict(controller_plan(opts))
     out: dict[str, Built] = {}
     for name in opts.paper_mode.controllers:

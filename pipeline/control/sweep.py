@@ -4,7 +4,7 @@ The grid is the Cartesian product of the values given for any of ``S`` (numbers 
 error-model names), ``eps_e``, ``radius``, ``delta``, ``T``, ``q_scale`` / ``r_scale``
 (multiplying ``Q`` / ``R``), ``eps_w``, ``norm``, ``cost``, ``robust``,
 ``strictly_proper``; every other setting comes from the base options. Each point is
-resolved and solved as ``qsls synth`` does it (:func:`qsls.pipeline.control.resolution.resolve`,
+resolved and solved as ``qsls synth`` does it (:func:`qsls.pipeline.control.problem.resolve`,
 :func:`qsls.pipeline.control.synth.design`) and its row is the projection of that design's
 certificate body. A robust point that cannot be feasible is answered without the solver and
 marked ``skipped``: by the necessary condition ``(S + eps_e/r) N_lower < 1``
@@ -50,8 +50,7 @@ from qsls.pipeline.control.options import ProblemOptions, check_scheduler
 from qsls.pipeline.control.options import SweepOptions as SweepOptions
 from qsls.pipeline.control.options import SweepSection as SweepSection
 from qsls.pipeline.control.pdgain import PDGains
-from qsls.pipeline.control.premise import PREMISE_COLUMNS, premise_columns
-from qsls.pipeline.control.resolution import read_model, resolve
+from qsls.pipeline.control.problem import resolve
 from qsls.pipeline.control.sls import Shape
 from qsls.pipeline.control.status import SOLVER_INACCURATE
 from qsls.pipeline.control.synth import (
@@ -68,7 +67,8 @@ from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.plant import plant_model
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.errormodel.model import error_model_file
+from qsls.pipeline.premise.choose import ModelInput, error_model_file, read_model
+from qsls.pipeline.premise.record import PREMISE_COLUMNS, premise_columns
 
 SWEEP_FILE = "sweep.parquet"
 """One row per grid point (``sweep.csv`` beside it holds the same)."""
@@ -87,7 +87,7 @@ RESULT_COLUMNS = (
 # --------------------------------------------------------------------------- points
 def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[dict[str, Any]]:
     """One plain dict per grid point: the grid values, the point's resolved problem
-    (:class:`~qsls.pipeline.control.resolution.Resolved`, as ``qsls synth`` resolves it), the
+    (:class:`~qsls.pipeline.control.problem.Resolved`, as ``qsls synth`` resolves it), the
     premise's violated shares (:func:`premise_fields`) and everything a worker needs
     (picklable)."""
     axes = list(options.grid)
@@ -100,7 +100,7 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
             opts = validate(ProblemOptions, {**base, **upd}, "grid point")
         except ConfigError as exc:
             raise ConfigError(f"grid point {gv}: {exc}") from None
-        r = resolve(opts, em, training)
+        r = resolve(opts, ModelInput(em, training=training))
         qs, rs = float(gv.get("q_scale", 1.0)), float(gv.get("r_scale", 1.0))
         if qs <= 0 or rs <= 0:
             raise ConfigError(f"grid point {gv}: q_scale and r_scale must be > 0")

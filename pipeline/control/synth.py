@@ -51,18 +51,14 @@ from qsls.pipeline.control.guarantee import necessary_condition
 from qsls.pipeline.control.options import ProblemOptions as ProblemOptions
 from qsls.pipeline.control.options import SynthOptions
 from qsls.pipeline.control.papermode import PaperChoice, paper_controllers
-from qsls.pipeline.control.premise import refuse_empty
-from qsls.pipeline.control.resolution import ModelInput as ModelInput
-from qsls.pipeline.control.resolution import Resolved as Resolved
-from qsls.pipeline.control.resolution import read_model as read_model
-from qsls.pipeline.control.resolution import resolve as resolve
+from qsls.pipeline.control.problem import Resolved, resolve
 from qsls.pipeline.control.status import RELAXED, Status
 from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.errors import InfeasibleError, SolverError
 from qsls.pipeline.core.plant import NU, NX
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.errormodel.model import ErrorModel
-from qsls.pipeline.errormodel.premise import TrainingStates
+from qsls.pipeline.premise.choose import ModelInput, read_model
+from qsls.pipeline.premise.record import refuse_empty
 
 
 # --------------------------------------------------------------------------- synth
@@ -123,28 +119,26 @@ def warn_size(T: int, problems: int, progress: Progress) -> None:
 
 
 def synthesize(
-    model: ErrorModel | None,
-    training: TrainingStates | None,
+    source: ModelInput,
     options: SynthOptions,
     *,
-    error_model_sha256: str | None = None,
     imitate: sls.Taps | None = None,
     progress: Progress = NULL_PROGRESS,
     partial: bool = False,
 ) -> Synthesized:
     """The controllers of ``options`` with their certificates (module docstring), from an
-    error model and its training data in memory (both optional: numbers alone are a premise
-    no data tested). No file is read or written; ``imitate`` is the target's responses when
+    error model and its training data in memory (``source``, :func:`read_model`; both
+    optional: numbers alone are a premise no data tested). No file is read or written; ``imitate`` is the target's responses when
     ``options.imitate`` names a controller folder. Raises :class:`InfeasibleError` with a
     diagnosis when a robust problem is infeasible; with ``partial`` the feasible controllers
     are returned and the infeasible ones listed in ``infeasible`` instead."""
-    r = resolve(options, model, training)
+    r = resolve(options, source)
     if r.premise is not None:
         refuse_empty(r.premise)
     plan = [(n, r.structure(st.T, st.norm, st.cost, st.robust, st.strictly_proper))
             for n, st in controller_plan(options)]  # fmt: skip
     # the error model by its hash only: a path would differ between two folders of one run
-    base_extra = {"error_model": None, "error_model_sha256": error_model_sha256,
+    base_extra = {"error_model": None, "error_model_sha256": source.sha256,
                   "solver": options.solver}  # fmt: skip
     infeasible: dict[str, InfeasibleError] = {}
     diagnosis: dict[str, Any] = {}
@@ -197,7 +191,7 @@ def synthesize(
     choice = None
     if options.paper_mode is not None:
         done = {n: c.taps for n, c in ctrls.items()}
-        choice, paper = paper_controllers(options, model, training, done, base_extra, imitate)
+        choice, paper = paper_controllers(options, source, done, base_extra, imitate)
         ctrls.update(paper)
     progress.finish()
     return Synthesized(r, ctrls, choice, infeasible)
@@ -220,10 +214,7 @@ def synth(
         st.cost.imitates for _, st in controller_plan(options)
     ):
         folder = nominal_from_folder(Path(options.imitate), options.T)
-    result = synthesize(
-        mi.model, mi.training, options, error_model_sha256=mi.sha256, imitate=folder,
-        progress=progress, partial=True,
-    )  # fmt: skip
+    result = synthesize(mi, options, imitate=folder, progress=progress, partial=True)
     ctrls = result.controllers
     with StageWriter(out, "synth", options=options, inputs=mi.inputs, force=force) as w:
         w.results["infeasible"] = {n: str(e) for n, e in result.infeasible.items()}

@@ -5,12 +5,12 @@ writes it lives in :mod:`qsls.pipeline.errormodel.fit`.
 
 Names a later stage may use for a number of the model (``S`` and ``eps_e`` in synth):
 ``max``; ``pNN`` (a percentile over pair slopes, or over ``||e_i||``); ``local_pNN``
-(a percentile of each sample's largest slope, S only).
+(a percentile of each sample's largest slope, S only); the premise looks them up
+(:mod:`qsls.pipeline.premise.choose`).
 """
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -26,7 +26,6 @@ ERROR_MODEL_FILE = "error_model.yaml"
 TRAINING_FILE = "training_states.parquet"
 W_COLS = ("w_px", "w_py", "w_pz", "w_vx", "w_vy", "w_vz")
 """The realized disturbance's columns in ``training_states.parquet``."""
-_PCT = re.compile(r"^p(\d+(?:\.\d+)?)$")
 
 
 class _Frozen(BaseModel):
@@ -112,58 +111,6 @@ class ErrorModel(_Frozen):
     dt: float | None = None
     """The training flights' sample period (s): windows, ``eps_w`` and the outlier counts are
     measured on steps of this length, so a controller of another ``dt`` cannot use them."""
-
-    def resolve_s(self, name: str | float) -> float:
-        """The S-slope called ``name`` (``max``, ``p95``, ``local_p99``) or a number."""
-        if isinstance(name, int | float):
-            return float(name)
-        key = str(name).strip()
-        if key == "max":
-            return self.s_slope.max
-        table, what = self.s_slope.percentiles, "s_slope.percentiles"
-        if key.startswith("local_"):
-            table, what, key = (
-                self.s_slope.local_max_percentiles,
-                "s_slope.local_max_percentiles",
-                key[6:],
-            )
-        return _lookup(table, key, what, name)
-
-    def resolve_eps_w(self, name: str | float) -> float:
-        """The disturbance bound called ``name`` (``max``, ``pNN``) or a number."""
-        if isinstance(name, int | float):
-            return float(name)
-        if self.disturbance is None:
-            raise InputError(
-                f"eps_w '{name}': this error model has no measured disturbance; refit it "
-                "with this qsls or give eps_w as a number"
-            )
-        key = str(name).strip()
-        if key == "max":
-            return self.disturbance.max
-        return _lookup(self.disturbance.percentiles, key, "disturbance.percentiles", name)
-
-    def resolve_eps_e(self, name: str | float) -> float:
-        """The error bound called ``name`` (``max``, ``p99``, ``R0``) or a number."""
-        if isinstance(name, int | float):
-            return float(name)
-        key = str(name).strip()
-        if key == "max":
-            return self.eps_e
-        if key == "R0":
-            return self.R0
-        return _lookup(self.eps_e_percentiles, key, "eps_e_percentiles", name)
-
-
-def _lookup(table: dict[str, float], key: str, what: str, name: Any) -> float:
-    if not _PCT.match(key):
-        raise InputError(f"'{name}' is not a name in the error model (use max, pNN or local_pNN)")
-    if key not in table:
-        have = ", ".join(sorted(table)) or "none"
-        raise InputError(
-            f"'{name}' is not in the error model's {what} (it has: {have}); refit with --percentiles"
-        )
-    return float(table[key])
 
 
 def error_model_file(path: Path) -> Path:

@@ -1,7 +1,7 @@
 """The premise a certificate rests on: its numbers, how each was chosen, and how much of the
 training data violates it (docs/guarantee.md, Premise).
 
-The premise is measured beside its fit (:mod:`qsls.pipeline.errormodel.premise`) on the
+The premise is measured (:mod:`qsls.pipeline.premise.measure`) on the
 training states the error model was fitted on (``training_states.parquet`` beside
 ``error_model.yaml``):
 
@@ -26,21 +26,12 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.errormodel import honest
+from qsls.pipeline.errormodel.disturbance import RESIDUAL as RESIDUAL  # eps_w_source's lower bound
 from qsls.pipeline.errormodel.model import ErrorModel
-from qsls.pipeline.errormodel.premise import (
-    Measured,
-    Spec,
-    TrainingStates,
-    measure,
-    training_beside,
-)
-
-__all__ = ["Measured", "Spec", "TrainingStates", "measure", "training_beside"]
-
-ONES = (1.0,) * 6
+from qsls.pipeline.premise.measure import ONES, Measured, Spec
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 
 class PremiseEntry(BaseModel):
@@ -96,7 +87,7 @@ class Premise(BaseModel):
     when nothing was left out); the premise's training ``eps_e`` and ``S = lofo`` are their
     maxima. With a vector of bounds (``eps_groups``) each group's ``bound`` ``eps_g``: the
     premise's ``eps_e``, ``S`` and ``error_scale`` are then those of
-    :func:`qsls.pipeline.control.guarantee.grouped_premise`."""
+    :func:`qsls.pipeline.premise.numbers.grouped_premise`."""
 
     def entries(self) -> dict[str, PremiseEntry]:
         out = {"eps_e": self.eps_e, "S": self.S, "eps_w": self.eps_w}
@@ -149,15 +140,15 @@ def _entry(value: float, chosen: str, counted: tuple[int, int] | None) -> Premis
     )
 
 
-def premise_record(chosen: PremiseNumbers, how: dict[str, str], meas: Measured | None,
-                   em: ErrorModel | None, where: str | None,
+def premise_record(chosen: PremiseNumbers, how: dict[str, str], spec: Spec,
+                   meas: Measured | None, em: ErrorModel | None, where: str | None,
                    groups: dict[str, dict[str, float]] | None = None) -> Premise:  # fmt: skip
-    """The certificate's :class:`Premise`: the numbers synthesis uses (``chosen``), how each was
-    chosen (``how``: ``eps_e``, ``S``, ``eps_w``, ``m``, ``eps_o``, ``r``, ``Delta``) and the
-    share of the training data violating each (counted on ``meas``); ``groups``: the channel
-    groups' record (default: that of ``meas``, :func:`group_record`)."""
+    """The certificate's :class:`Premise`: the numbers synthesis uses (``chosen``) in the norms
+    of ``spec``, how each was chosen (``how``: ``eps_e``, ``S``, ``eps_w``, ``m``, ``eps_o``,
+    ``r``, ``Delta``) and the share of the training data violating each (counted on ``meas``,
+    measured under ``spec``); ``groups``: the channel groups' record (default: that of ``meas``,
+    :func:`group_record`)."""
     h = how
-    spec = meas.spec if meas is not None else None
     if meas is None:
         # without the training states a share is known only where the number is at least
         # the error model's maximum over them (then nothing violates it)
@@ -183,9 +174,9 @@ def premise_record(chosen: PremiseNumbers, how: dict[str, str], meas: Measured |
         else:
             top_w = em.disturbance.max if em is not None and em.disturbance is not None else None
             eps_w = _bounded(chosen.eps_w, h["eps_w"], top_w)
-        has_out = bool(honest.outlier_channels(spec.measure, spec.beta))  # type: ignore[union-attr]
+        has_out = bool(honest.outlier_channels(spec.measure, spec.beta))
         if has_out:
-            counts = honest.window_counts(meas.outlier > 0, meas.flight, spec.window)  # type: ignore[union-attr]
+            counts = honest.window_counts(meas.outlier > 0, meas.flight, spec.window)
             m = _entry(chosen.m, h["m"], _count(counts > chosen.m))
             out = meas.outlier[meas.outlier > 0]
             if (
@@ -202,10 +193,9 @@ def premise_record(chosen: PremiseNumbers, how: dict[str, str], meas: Measured |
         r=PremiseEntry(value=chosen.radius, chosen=h["r"]),
         Delta=PremiseEntry(value=chosen.delta, chosen=h["Delta"]),
         eps_w=eps_w, m=m, eps_o=eps_o,
-        measure=spec.measure if spec else "full",
-        beta=spec.beta if spec and math.isfinite(spec.beta) else None,
-        state_scale=list(spec.state_scale) if spec else list(ONES),
-        error_scale=list(spec.error_scale) if spec else list(ONES),
+        measure=spec.measure,
+        beta=spec.beta if math.isfinite(spec.beta) else None,
+        state_scale=list(spec.state_scale), error_scale=list(spec.error_scale),
         gate=chosen.gate,
         outliers=_outlier_record(meas, chosen.m) if m is not None else None,
         eps_w_source=em.disturbance.source if em is not None and em.disturbance else None,

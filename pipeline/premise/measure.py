@@ -5,8 +5,9 @@ premise so that all the data satisfy it): plain functions of arrays.
 (:mod:`qsls.pipeline.errormodel.honest`), takes their weighted norms per channel group, fits
 ``S`` leave one flight out and the outlier count ``m``, and measures the realized disturbance;
 :class:`TrainingStates` holds the states ``qsls fit`` saved beside ``error_model.yaml`` and
-keeps one measurement per :class:`Spec`. Synthesis reads its premise from here
-(:mod:`qsls.pipeline.control.resolution`), so the fit and the certificate share one error model.
+keeps one measurement per :class:`Spec`. The premise is chosen from here
+(:func:`qsls.pipeline.premise.choose.choose_premise`), so the fit and the certificate share one
+error model.
 """
 
 from __future__ import annotations
