@@ -38,8 +38,6 @@ LONG_FUNCTIONS = {
     "evaluate/calibrate.py:calibrate",
     "evaluate/bound.py:check_flight",
     "evaluate/bound.py:evaluate",
-    # the premise's resolution moves to pipeline/premise/ (issue 49)
-    "control/resolution.py:resolve",
     # one loop or one derivation each, read top to bottom; not yet split
     "sim/closedloop.py:_fly",
     "sim/camera/vinit.py:_solve",
@@ -49,7 +47,6 @@ LONG_FUNCTIONS = {
     "ingest/streams.py:prepare",
     "report/sections.py:section_controllers",
     "export/statement.py:theorem_lines",
-    "control/certify.py:certify",
 }
 """Functions over :data:`FUNCTION_LINES` lines, as ``module:qualified name``."""
 

@@ -178,8 +178,33 @@ def certify(
     fields["realization_error"] = rerr
     fields["perturbation_peak"] = peak
     fields["perturbation_final"] = final
-    unread = _unread_gain(taps, shape)
-    checks: dict[str, dict[str, Any]] = {
+    checks = _checks(solver_status, resid, rerr, peak, final, _unread_gain(taps, shape))
+    checks["robustness"] = {
+        "value": g["robustness_lhs"],
+        "limit": 1.0,
+        "passed": g["robustness_lhs"] < 1.0 and g["rho_star"] <= numbers.radius,
+    }
+    if numbers.gate is not None and shape.gate:
+        rho_v = velocity_deviation(
+            taps.Phi_xy, taps.Phi_xx @ model.H, numbers, error_scale=shape.error_scale,
+            measured=measured_channels(shape.measure),
+            outlier_channels=outlier_channels(shape.measure, shape.m),
+            bias_dirs=bias_directions(model),
+        )  # fmt: skip
+        fields["rho_v"] = rho_v
+        ok = rho_v <= numbers.gate * (1 + 1e-7)
+        checks["robustness"]["passed"] = bool(checks["robustness"]["passed"] and ok)
+        checks["gate"] = {"value": rho_v, "limit": numbers.gate, "passed": bool(ok)}
+    fields["checks"] = checks
+    status, reason = _status(checks, solver_status, float(g["gamma"]), premise_holds)
+    return CertificateBody(status=status, status_reason=reason, **fields)
+
+
+def _checks(
+    solver_status: str, resid: float, rerr: float, peak: float, final: float, unread: float
+) -> dict[str, dict[str, Any]]:
+    """The checks of the taps themselves (the guarantee's are added by :func:`certify`)."""
+    return {
         "solver": {"value": solver_status, "passed": solver_status == "optimal"},
         "achievability": {
             "value": resid,
@@ -197,39 +222,24 @@ def certify(
             "limit": ACHIEVABILITY_TOL,
             "passed": unread <= ACHIEVABILITY_TOL,
         },
-        "robustness": {
-            "value": g["robustness_lhs"],
-            "limit": 1.0,
-            "passed": g["robustness_lhs"] < 1.0 and g["rho_star"] <= numbers.radius,
-        },
     }
-    if numbers.gate is not None and shape.gate:
-        rho_v = velocity_deviation(
-            taps.Phi_xy, taps.Phi_xx @ model.H, numbers, error_scale=shape.error_scale,
-            measured=measured_channels(shape.measure),
-            outlier_channels=outlier_channels(shape.measure, shape.m),
-            bias_dirs=bias_directions(model),
-        )  # fmt: skip
-        fields["rho_v"] = rho_v
-        ok = rho_v <= numbers.gate * (1 + 1e-7)
-        checks["robustness"]["passed"] = bool(checks["robustness"]["passed"] and ok)
-        checks["gate"] = {"value": rho_v, "limit": numbers.gate, "passed": bool(ok)}
-    fields["checks"] = checks
+
+
+def _status(
+    checks: dict[str, dict[str, Any]], solver_status: str, gamma: float, premise_holds: bool
+) -> tuple[Status, str | None]:
+    """The status the checks allow, and why it is not ``certified``: a premise fitted on the
+    design flights describes them, not the next flight; only a calibration (qsls calibrate)
+    makes a certificate ``certified``."""
     verified = all(c["passed"] for k, c in checks.items() if k not in ("robustness", "gate"))
-    status: Status
-    reason = None
     if solver_status == "inaccurate":
-        status = SOLVER_INACCURATE
-    elif not verified:
-        status = FAILED
-    elif checks["robustness"]["passed"] and np.isfinite(g["gamma"]):
-        # a premise fitted on the design flights describes them, not the next flight: only a
-        # calibration (qsls calibrate) makes a certificate 'certified'
-        status = RELAXED
+        return SOLVER_INACCURATE, None
+    if not verified:
+        return FAILED, None
+    if checks["robustness"]["passed"] and np.isfinite(gamma):
         reason = NOT_CALIBRATED if premise_holds else NOT_CALIBRATED + "; " + PREMISE_VIOLATED
-    else:
-        status = UNCERTIFIED
-    return CertificateBody(status=status, status_reason=reason, **fields)
+        return RELAXED, reason
+    return UNCERTIFIED, None
 
 
 def _unread_gain(taps: Taps, shape: sls.Shape) -> float:
