@@ -282,6 +282,49 @@ class Vehicle:
         bx = r00 * ux + r10 * uy + r20 * uz
         by = r01 * ux + r11 * uy + r21 * uz
         bz = r02 * ux + r12 * uy + r22 * uz
+        fbx, fby, fbz, mx, my, mz = self._body_wrench(bx, by, bz, wx, wy, wz, om)
+        im = 1.0 / self.mass
+        (i00, i01, i02), (i10, i11, i12), (i20, i21, i22) = self._inertia
+        iwx = i00 * wx + i01 * wy + i02 * wz
+        iwy = i10 * wx + i11 * wy + i12 * wz
+        iwz = i20 * wx + i21 * wy + i22 * wz
+        tx = mx - (wy * iwz - wz * iwy)
+        ty = my - (wz * iwx - wx * iwz)
+        tz = mz - (wx * iwy - wy * iwx)
+        (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = self._inv_inertia
+        itau = 1.0 / self.tau_m
+        return [
+            vx,
+            vy,
+            vz,
+            (r00 * fbx + r01 * fby + r02 * fbz) * im,
+            (r10 * fbx + r11 * fby + r12 * fbz) * im,
+            (r20 * fbx + r21 * fby + r22 * fbz) * im - self.g,
+            0.5 * (qw * wx - z * wy + y * wz),
+            0.5 * (z * wx + qw * wy - x * wz),
+            0.5 * (-y * wx + x * wy + qw * wz),
+            0.5 * (-x * wx - y * wy - z * wz),
+            j00 * tx + j01 * ty + j02 * tz,
+            j10 * tx + j11 * ty + j12 * tz,
+            j20 * tx + j21 * ty + j22 * tz,
+            0.0,
+            0.0,
+            0.0,
+            (cmd[0] - om[0]) * itau,
+            (cmd[1] - om[1]) * itau,
+            (cmd[2] - om[2]) * itau,
+            (cmd[3] - om[3]) * itau,
+        ]
+
+    def _body_wrench(
+        self, bx: float, by: float, bz: float, wx: float, wy: float, wz: float, om: list[float]
+    ) -> tuple[float, float, float, float, float, float]:
+        """The body-frame force and moment of RotorPy's equations at body airspeed ``b`` and
+        body rate ``w``: per rotor ``k`` at ``r_k``, thrust ``k_eta o_k^2`` and, with ``aero``,
+        the local airspeed ``l = b + w x r_k`` giving the rotor's drag ``-o_k K_d l`` (x, y),
+        translational lift ``k_h (l_x^2 + l_y^2)`` and flapping moment ``k_flap o_k (-l_y, l_x)``;
+        moments ``r_k x F_k`` plus the yaw drag ``dir_k k_m o_k^2``; then the airframe's drag
+        ``-|b| C_d b``."""
         k_eta, k_h, k_flap = self.k_eta_rotor, self.k_h, self.k_flap
         kdx, kdy, kdz = self._rotor_drag
         fbx = fby = fbz = 0.0
@@ -321,38 +364,7 @@ class Vehicle:
             fbz -= speed * cdz * bz
         mx += mfx
         my += mfy
-        im = 1.0 / self.mass
-        (i00, i01, i02), (i10, i11, i12), (i20, i21, i22) = self._inertia
-        iwx = i00 * wx + i01 * wy + i02 * wz
-        iwy = i10 * wx + i11 * wy + i12 * wz
-        iwz = i20 * wx + i21 * wy + i22 * wz
-        tx = mx - (wy * iwz - wz * iwy)
-        ty = my - (wz * iwx - wx * iwz)
-        tz = mz - (wx * iwy - wy * iwx)
-        (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = self._inv_inertia
-        itau = 1.0 / self.tau_m
-        return [
-            vx,
-            vy,
-            vz,
-            (r00 * fbx + r01 * fby + r02 * fbz) * im,
-            (r10 * fbx + r11 * fby + r12 * fbz) * im,
-            (r20 * fbx + r21 * fby + r22 * fbz) * im - self.g,
-            0.5 * (qw * wx - z * wy + y * wz),
-            0.5 * (z * wx + qw * wy - x * wz),
-            0.5 * (-y * wx + x * wy + qw * wz),
-            0.5 * (-x * wx - y * wy - z * wz),
-            j00 * tx + j01 * ty + j02 * tz,
-            j10 * tx + j11 * ty + j12 * tz,
-            j20 * tx + j21 * ty + j22 * tz,
-            0.0,
-            0.0,
-            0.0,
-            (cmd[0] - om[0]) * itau,
-            (cmd[1] - om[1]) * itau,
-            (cmd[2] - om[2]) * itau,
-            (cmd[3] - om[3]) * itau,
-        ]
+        return fbx, fby, fbz, mx, my, mz
 
     # ---------------------------------------------------------------- integration
     def step(
