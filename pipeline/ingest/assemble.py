@@ -113,40 +113,15 @@ def flight_from_streams(
     v_vio = al.rotate(v_vio)
     vio = dataclasses.replace(vio, position=np.zeros((0, 3)))  # p_vio from here on
 
-    # ---- common grid
-    check_grid(o.dt, vio.t_ns, hi - lo)
-    grid = time_grid(lo, hi, round(o.dt * 1e9))
-    # each column block on its own (the same values as the stacked columns, no stream-long copy)
-    (yp, ok_v), (yvv, _) = (
-        interp(grid, vio.t_ns, p_vio, gap_ns),
-        interp(grid, vio.t_ns, v_vio, gap_ns),
+    table, n_dropped, stamp0, rms_p, rms_v = _on_grid(
+        vio.t_ns, p_vio, v_vio, vio.variance, tt, truth.position, v_truth, (lo, hi), o
     )
-    (xp, ok_t), (xvv, _) = (
-        interp(grid, tt, truth.position, gap_ns),
-        interp(grid, tt, v_truth, gap_ns),
-    )
-    yv, xv = np.hstack([yp, yvv]), np.hstack([xp, xvv])
-    del yp, yvv, xp, xvv
-    var = interp(grid, vio.t_ns, vio.variance, gap_ns)[0] if vio.variance is not None else None
-    valid = ok_v & ok_t
-    if valid.sum() < 10:
-        raise InputError(
-            f"only {int(valid.sum())} samples of dt={o.dt:g} s where both streams have data; "
-            "the streams overlap too little (check --max-gap, --dt and the topics)"
-        )
-    stamps = grid[valid]
-    table = flight_table(stamps, xv[valid], yv[valid], None if var is None else var[valid])
-    err = yv[valid] - xv[valid]
-    rms_p = float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
-    rms_v = float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1))))
     truth_vio_clock = dataclasses.replace(truth, t_ns=tt)
-    found_gaps = gaps(vio, lo, hi, gap_ns, int(stamps[0])) + gaps(
-        truth_vio_clock, lo, hi, gap_ns, int(stamps[0])
-    )
+    found_gaps = gaps(vio, lo, hi, gap_ns, stamp0) + gaps(truth_vio_clock, lo, hi, gap_ns, stamp0)
     streams["vio"]["stamp"] = streams["truth"]["stamp"] = o.stamp
     results: dict[str, Any] = {
         "samples": table.num_rows,
-        "dropped_grid_samples": int(len(grid) - valid.sum()),
+        "dropped_grid_samples": n_dropped,
         "dt": o.dt,
         "time_offset_s": tau,
         "time_offset": offset_info,
@@ -160,7 +135,7 @@ def flight_from_streams(
         "gaps": found_gaps,
         "streams": streams,
     }
-    if var is not None:  # only then: a flight without them keeps its manifest as before
+    if vio.variance is not None:  # only then: a flight without them keeps its manifest as before
         results["covariance_columns"] = list(VAR_COLS)
     tracks: dict[str, Track] = {}
     if o.export_tum:
@@ -170,6 +145,51 @@ def flight_from_streams(
     del vio, truth, truth_vio_clock, tt, p_vio, v_vio, v_truth
     release_freed_memory()
     return IngestedFlight(table, results, tracks)
+
+
+def _on_grid(
+    vio_t: np.ndarray,
+    p_vio: np.ndarray,
+    v_vio: np.ndarray,
+    vio_var: np.ndarray | None,
+    tt: np.ndarray,
+    p_truth: np.ndarray,
+    v_truth: np.ndarray,
+    span: tuple[int, int],
+    o: IngestOptions,
+) -> tuple[pa.Table, int, int, float, float]:
+    """Both streams resampled onto the common grid ``t_k = t_0 + k dt`` over ``span`` (truth
+    on the VIO clock, ``tt``): the flight table of the ticks where both have data, how many
+    ticks were dropped, the first kept stamp and the rms position and velocity errors
+    ``sqrt(mean ||y - x||^2)``."""
+    lo, hi = span
+    gap_ns = round(o.max_gap * 1e9)
+    check_grid(o.dt, vio_t, hi - lo)
+    grid = time_grid(lo, hi, round(o.dt * 1e9))
+    # each column block on its own (the same values as the stacked columns, no stream-long copy)
+    (yp, ok_v), (yvv, _) = (
+        interp(grid, vio_t, p_vio, gap_ns),
+        interp(grid, vio_t, v_vio, gap_ns),
+    )
+    (xp, ok_t), (xvv, _) = (
+        interp(grid, tt, p_truth, gap_ns),
+        interp(grid, tt, v_truth, gap_ns),
+    )
+    yv, xv = np.hstack([yp, yvv]), np.hstack([xp, xvv])
+    del yp, yvv, xp, xvv
+    var = interp(grid, vio_t, vio_var, gap_ns)[0] if vio_var is not None else None
+    valid = ok_v & ok_t
+    if valid.sum() < 10:
+        raise InputError(
+            f"only {int(valid.sum())} samples of dt={o.dt:g} s where both streams have data; "
+            "the streams overlap too little (check --max-gap, --dt and the topics)"
+        )
+    stamps = grid[valid]
+    table = flight_table(stamps, xv[valid], yv[valid], None if var is None else var[valid])
+    err = yv[valid] - xv[valid]
+    rms_p = float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
+    rms_v = float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1))))
+    return table, int(len(grid) - valid.sum()), int(stamps[0]), rms_p, rms_v
 
 
 def _fit_on_pairs(

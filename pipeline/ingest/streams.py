@@ -260,14 +260,7 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     name = f"{role} stream {traj.name}"
     if n == 0:
         raise InputError(f"{name} has no messages; check the topic or the file")
-    ok = np.isfinite(p).all(axis=1) & np.isfinite(q).all(axis=1)
-    if v is not None:
-        ok &= np.isfinite(v).all(axis=1)
-    qn = np.empty(n)
-    for a in range(0, n, CHUNK):  # row by row: the same norms, without copies of q
-        qa = q[a : a + CHUNK]
-        qn[a : a + CHUNK] = np.linalg.norm(np.where(np.isfinite(qa), qa, 0.0), axis=1)
-    ok &= qn > 1e-9
+    ok, qn = _usable(p, q, v)
     nonfinite = int(n - ok.sum())
     if nonfinite and not o.drop_nonfinite:
         first = int(np.flatnonzero(~ok)[0])
@@ -282,14 +275,8 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
     # the usual stream is sorted and without duplicates: nothing to reorder or drop then
     step = np.diff(t)
     unsorted = int(np.sum(step < 0))
-    if unsorted and step.min() < -o.max_gap * 1e9:  # a clock reset, not reordered messages
-        k = int(np.argmin(step)) + 1
-        raise InputError(
-            f"{name}: its clock jumps back {-step.min() * 1e-9:.3g} s at message {k} "
-            f"(--stamp {o.stamp}); a clock that was reset or set mid-flight: cut the log "
-            "there, or try --stamp " + ("log" if o.stamp == "header" else "header")
-        )
     if unsorted:
+        _refuse_clock_reset(step, name, o)
         order = np.argsort(t, kind="stable")
         t, p, q, qn = t[order], p[order], q[order], qn[order]
         v = v[order] if v is not None else None
@@ -337,6 +324,33 @@ def prepare(traj: Any, role: str, source: str, o: IngestOptions) -> Prepared:
         glitches,
         var,
     )
+
+
+def _usable(p: np.ndarray, q: np.ndarray, v: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Which messages are usable (finite position, orientation and velocity, a quaternion of
+    norm above 1e-9) and each quaternion's norm (its non-finite entries taken as 0)."""
+    n = len(q)
+    ok = np.isfinite(p).all(axis=1) & np.isfinite(q).all(axis=1)
+    if v is not None:
+        ok &= np.isfinite(v).all(axis=1)
+    qn = np.empty(n)
+    for a in range(0, n, CHUNK):  # row by row: the same norms, without copies of q
+        qa = q[a : a + CHUNK]
+        qn[a : a + CHUNK] = np.linalg.norm(np.where(np.isfinite(qa), qa, 0.0), axis=1)
+    ok &= qn > 1e-9
+    return ok, qn
+
+
+def _refuse_clock_reset(step: np.ndarray, name: str, o: IngestOptions) -> None:
+    """Stamps that go back by more than ``max_gap`` are a clock reset, not reordered
+    messages: refused (sorting would splice two flights' times together)."""
+    if step.min() < -o.max_gap * 1e9:
+        k = int(np.argmin(step)) + 1
+        raise InputError(
+            f"{name}: its clock jumps back {-step.min() * 1e-9:.3g} s at message {k} "
+            f"(--stamp {o.stamp}); a clock that was reset or set mid-flight: cut the log "
+            "there, or try --stamp " + ("log" if o.stamp == "header" else "header")
+        )
 
 
 def world_velocity(traj: Any, role: str, o: IngestOptions) -> np.ndarray | None:
