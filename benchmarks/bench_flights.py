@@ -12,9 +12,9 @@ flights (seeds 0.., regular perception, the default circle) in this run:
    when missing), flown the fast way and the straightforward way (``stepwise=True``: the
    vehicle in whole-array numpy, one emulator call per VIO sample), taken in turns; the two
    logs must be identical to the bit;
-1. the fly stage's flight (``evaluate.fly.run_job``): the closed loop, its bag written, the bag
+1. the fly stage's flight (``fly.flights.run_job``): the closed loop, its bag written, the bag
    ingested, the metrics computed: what ``qsls evaluate --fly`` does per flight;
-2. the calibration's flight (``calibrate.stage.fly_job``): the closed loop and its tick
+2. the calibration's flight (``calibrate.flights.fly_job``): the closed loop and its tick
    log, which is all a flight's score reads (no bag, no ingest);
 3. ``--flights`` calibration flights on the local pool of ``--jobs`` processes (wall time;
    the target: 200 flights of 20 s in at most 2 minutes on 2 cores);
@@ -58,7 +58,7 @@ def _sim(duration: float) -> dict[str, Any]:
 
 def fly_stage_flights(n: int, duration: float, root: Path) -> float:
     """CPU seconds per flight of the fly stage's job (closed loop, bag, ingest, metrics)."""
-    from qsls.pipeline.fly.fly import FlyJob, run_job
+    from qsls.pipeline.fly.flights import FlyJob, run_job
     from qsls.pipeline.ingest.options import IngestOptions
 
     ingest = IngestOptions(dt=0.1).model_dump(mode="json")
@@ -126,7 +126,7 @@ def closed_loop(controller: str, n: int, duration: float) -> tuple[float, float,
 
 
 def calibration_jobs(n: int, duration: float, folder: str = "pd") -> list[Any]:
-    from qsls.pipeline.calibrate.stage import Job
+    from qsls.pipeline.calibrate.flights import Job
 
     return [
         Job(name=f"c{s}", controller="pd" if folder == "pd" else "sls", folder=folder, condition="regular", seed=s,
@@ -148,7 +148,7 @@ def main() -> None:
     if a.smoke:
         a.flights, a.duration, a.sample = 2, 2.0, 1
 
-    from qsls.pipeline.calibrate.stage import fly_job
+    from qsls.pipeline.calibrate.flights import fly_job
     from qsls.pipeline.core.pools import run_tasks
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -148,31 +148,30 @@ def gated(
 def as_calibrated(folder: Path, n: int = 20) -> Path:
     """``folder``'s controller (written by synth, its design check passed) rewritten in place
     as the calibration stage writes one: the real decision and record
-    (:func:`qsls.pipeline.calibrate.stage.decide`, :func:`calibrated_certificate`) on a
+    (:func:`qsls.pipeline.calibrate.core.decide`, :func:`~.core.calibrated_certificate`) on a
     stand-in for ``n`` calibration flights that each scored exactly 1 and reached ``rho*``,
     so the premise is the design one and the status ``certified``. For tests of what reads a
     certified controller (export, replay), not of the calibration itself."""
-    from qsls.pipeline.calibrate.options import CalibrateOptions
-    from qsls.pipeline.calibrate.stage import (
-        Outcome,
-        calibrated_certificate,
-        decide,
-        taps_of,
-    )
-    from qsls.pipeline.control.calibration import SCORED
-    from qsls.pipeline.evaluate.certified import certified_premise
+    from qsls.pipeline.calibrate import core
+    from qsls.pipeline.calibrate.core import Record, Rule, Scores
+    from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
+    from qsls.pipeline.evaluate.certified import premise_of
 
     folder = Path(folder)
-    c = certified_premise(folder)
+    d = load_controller_dir(folder)
+    c = premise_of(d)
     assert c is not None, f"{folder}: no premise to calibrate"
-    opts = CalibrateOptions(flights=n)
-    scores = [1.0] * n
-    decision = decide(scores, [c.rho_star] * n, c.numbers, taps_of(folder), opts)
-    assert decision.status == "certified", decision.reason
-    o = Outcome.of(folder.name, "regular", decision, scores)
-    parts = [dict.fromkeys(SCORED, 1.0)] * n
-    calibrated_certificate(folder, folder, o, opts, list(range(1000, 1000 + n)), parts,
-                           {"perception": "regular", "stand_in": True})  # fmt: skip
+    rule = Rule(0.1)
+    scores = Scores((1.0,) * n, reached=(c.rho_star,) * n)
+    o = core.decide(scores, c.numbers, core.responses(d), rule)
+    assert o.status == "certified", o.reason
+    parts = (dict.fromkeys(core.SCORED, 1.0),) * n
+    conditions = {"perception": "regular", "stand_in": True}
+    seeds = tuple(range(1000, 1000 + n))
+    flown = (*seeds, *range(2000, 2020))  # and the default validation seeds
+    record = Record(rule, conditions, 20.0, seeds, evidence_seeds=flown, parts=parts)
+    cert = core.calibrated_certificate(d.certificate, c, o, record)
+    (folder / CERTIFICATE_FILE).write_text(cert.to_yaml())
     return folder
 
 

@@ -11,9 +11,9 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
+from qsls.pipeline.calibrate.core import Rule, Scores, decide
 from qsls.pipeline.calibrate.options import CalibrateOptions
-from qsls.pipeline.calibrate.stage import decide
-from qsls.pipeline.control import calibration as cal
+from qsls.pipeline.control import conformal
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.errors import ConfigError
 
@@ -28,8 +28,8 @@ def test_the_help_example_flies_what_certified_needs():
     opts = CalibrateOptions(range_flights=int(flights.group(1)), tube=float(tube.group(1)))
     assert opts.range_flights > 0 and opts.tube > 0
     assert CalibrateOptions().range_flights == 0  # the defaults cannot reach rho*
-    assert opts.flights >= cal.MIN_FLIGHTS  # the default count is enough for certified
-    assert str(cal.MIN_FLIGHTS) in example and "extrapolated" in example
+    assert opts.flights >= conformal.MIN_FLIGHTS  # the default count is enough for certified
+    assert str(conformal.MIN_FLIGHTS) in example and "extrapolated" in example
 
 
 def test_hints_name_the_flags():
@@ -42,9 +42,9 @@ def test_hints_name_the_flags():
 
 
 def test_too_few_flights_say_both_counts():
-    assert cal.smallest_flights(0.1, "conformal") == 9
+    assert conformal.smallest_flights(0.1, "conformal") == 9
     numbers = PremiseNumbers(eps=0.1, S=0.0, radius=1.0, eps_w=0.01, delta=0.0)
-    d = decide([0.5] * 5, [0.1] * 5, numbers, None, CalibrateOptions())  # type: ignore[arg-type]
+    d = decide(Scores((0.5,) * 5, reached=(0.1,) * 5), numbers, None, Rule(0.1))  # type: ignore[arg-type]
     status, reason, lam = d.status, d.reason, d.lambda_hat
     assert status == "relaxed" and lam == float("inf")
     assert reason == (

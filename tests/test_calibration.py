@@ -12,10 +12,13 @@ import pytest
 import yaml
 from scipy.stats import binom
 
+from qsls.pipeline.calibrate.core import set_by
 from qsls.pipeline.calibrate.options import CalibrateOptions
 from qsls.pipeline.control import calibration as cal
+from qsls.pipeline.control import conformal
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.evaluate.conditions import outside_conditions
 
 QUICKSTART_CAL = yaml.safe_load(
     (Path(__file__).resolve().parents[1] / "configs" / "quickstart.yaml").read_text()
@@ -27,38 +30,40 @@ CAL_SEED = int(QUICKSTART_CAL["seed"])
 def test_conformal_rank_is_the_hand_computed_order_statistic() -> None:
     # ceil((n + 1)(1 - alpha)): n = 19, alpha 0.05 -> 19 (the maximum); n = 20, alpha 0.1 ->
     # ceil(18.9) = 19; n = 9, alpha 0.1 -> ceil(9.0) = 9; n = 8, alpha 0.1 -> ceil(8.1) = 9 > 8
-    assert cal.conformal_rank(19, 0.05) == 19
-    assert cal.conformal_rank(20, 0.1) == 19
-    assert cal.conformal_rank(9, 0.1) == 9
-    assert cal.conformal_rank(8, 0.1) == 9
+    assert conformal.conformal_rank(19, 0.05) == 19
+    assert conformal.conformal_rank(20, 0.1) == 19
+    assert conformal.conformal_rank(9, 0.1) == 9
+    assert conformal.conformal_rank(8, 0.1) == 9
     scores = [5.0, 1.0, 4.0, 2.0, 3.0, 9.0, 8.0, 7.0, 6.0, 10.0] * 2  # 20 flights
     # sorted: 1,1,2,2,...,10,10; rank 19 -> 10
-    assert cal.calibrated_quantile(scores, 0.1, "conformal") == 10.0
-    assert cal.calibrated_quantile(scores, 0.2, "conformal") == 9.0  # ceil(16.8) = 17 -> 9
-    assert math.isinf(cal.calibrated_quantile(scores[:8], 0.1, "conformal"))
+    assert conformal.calibrated_quantile(scores, 0.1, "conformal") == 10.0
+    assert conformal.calibrated_quantile(scores, 0.2, "conformal") == 9.0  # ceil(16.8) = 17 -> 9
+    assert math.isinf(conformal.calibrated_quantile(scores[:8], 0.1, "conformal"))
 
 
 def test_pac_rank_is_the_hand_computed_order_statistic() -> None:
     # the maximum of n flights (j = 1) needs (1 - alpha)^n <= delta: 29 flights for 90/95
     # ((0.9)^29 = 0.047), 28 are not enough ((0.9)^28 = 0.052)
-    assert cal.pac_rank(29, 0.1, 0.05) == 29
-    assert cal.pac_rank(28, 0.1, 0.05) == 29  # n + 1: not enough
-    assert cal.smallest_flights(0.1, "pac", 0.05) == 29
-    assert cal.smallest_flights(0.05, "pac", 0.05) == 59
-    assert cal.smallest_flights(0.05, "conformal") == 19
+    assert conformal.pac_rank(29, 0.1, 0.05) == 29
+    assert conformal.pac_rank(28, 0.1, 0.05) == 29  # n + 1: not enough
+    assert conformal.smallest_flights(0.1, "pac", 0.05) == 29
+    assert conformal.smallest_flights(0.05, "pac", 0.05) == 59
+    assert conformal.smallest_flights(0.05, "conformal") == 19
     # n = 100, alpha 0.1, delta 0.05: the largest j with P[Bin(100, .1) <= j - 1] <= .05
     j = max(j for j in range(1, 101) if binom.cdf(j - 1, 100, 0.1) <= 0.05)
     assert j == 5  # P[Bin <= 4] = 0.024, P[Bin <= 5] = 0.058
-    assert cal.pac_rank(100, 0.1, 0.05) == 100 - j + 1
+    assert conformal.pac_rank(100, 0.1, 0.05) == 100 - j + 1
     # the quantile itself: the 5th largest of 100 shuffled scores 0.01 .. 1.00 is 0.96
     scores = np.random.default_rng(1).permutation(np.arange(1, 101) / 100)
-    assert cal.calibrated_quantile(scores, 0.1, "pac", 0.05) == pytest.approx(0.96)
-    assert cal.calibrated_quantile(scores[:29], 0.1, "pac", 0.05) == scores[:29].max()
-    assert cal.calibrated_quantile(scores[:28], 0.1, "pac", 0.05) == math.inf
+    assert conformal.calibrated_quantile(scores, 0.1, "pac", 0.05) == pytest.approx(0.96)
+    assert conformal.calibrated_quantile(scores[:29], 0.1, "pac", 0.05) == scores[:29].max()
+    assert conformal.calibrated_quantile(scores[:28], 0.1, "pac", 0.05) == math.inf
 
 
 @pytest.mark.parametrize("method,alpha", [("conformal", 0.1), ("pac", 0.1)])
-def test_stated_alpha_is_met_by_exchangeable_flights(method: cal.Method, alpha: float) -> None:
+def test_stated_alpha_is_met_by_exchangeable_flights(
+    method: conformal.Method, alpha: float
+) -> None:
     """1000 draws of 29 calibration flights and one new flight from a heavy-tailed family: the
     new flight exceeds lambda_hat at a rate within the binomial interval of alpha (conformal:
     marginal, so the rate is at most alpha; PAC: each draw's own coverage is at least
@@ -69,7 +74,7 @@ def test_stated_alpha_is_met_by_exchangeable_flights(method: cal.Method, alpha: 
     misses = 0
     bad_draws = 0
     for _ in range(draws):
-        lam = cal.calibrated_quantile(dist(n), alpha, method)
+        lam = conformal.calibrated_quantile(dist(n), alpha, method)
         misses += bool(dist(1)[0] > lam)
         if method == "pac":
             coverage = float(np.mean(dist(2000) <= lam))
@@ -89,7 +94,10 @@ def test_a_family_that_breaks_exchangeability_is_caught_by_the_same_check() -> N
     lambda_hat far more often than alpha."""
     rng = np.random.default_rng(3)
     misses = sum(
-        bool(rng.normal(0, 2.0) > cal.calibrated_quantile(rng.normal(0, 1, 29), 0.1, "conformal"))
+        bool(
+            rng.normal(0, 2.0)
+            > conformal.calibrated_quantile(rng.normal(0, 1, 29), 0.1, "conformal")
+        )
         for _ in range(1000)
     )
     assert misses / 1000 > 0.2
@@ -143,22 +151,22 @@ def test_a_flight_outside_the_calibrations_conditions_says_why() -> None:
 
     from qsls.pipeline.evaluate.verdict import assumption_verdicts
 
-    assert cal.outside_conditions("regular", 15.0, "regular", 15.0) == ""
-    assert cal.outside_conditions("regular", 12.0, "regular", 15.0) == ""  # shorter (a crash)
-    assert cal.outside_conditions("degraded", 15.0, "regular", 15.0) == (
+    assert outside_conditions("regular", 15.0, "regular", 15.0) == ""
+    assert outside_conditions("regular", 12.0, "regular", 15.0) == ""  # shorter (a crash)
+    assert outside_conditions("degraded", 15.0, "regular", 15.0) == (
         "perception degraded, calibrated in regular"
     )
-    assert cal.outside_conditions("regular", 30.0, "regular", 15.0) == (
+    assert outside_conditions("regular", 30.0, "regular", 15.0) == (
         "a 30 s flight, calibrated on 15 s flights"
     )
     # another estimator: the camera loop and the emulator err their own ways ('' = not known)
-    assert cal.outside_conditions("regular", 15.0, "regular", 15.0, "emulator", "camera") == (
+    assert outside_conditions("regular", 15.0, "regular", 15.0, "emulator", "camera") == (
         "estimator emulator, calibrated with camera"
     )
-    assert cal.outside_conditions("regular", 15.0, "regular", 15.0, "camera", "camera") == ""
-    assert cal.outside_conditions("regular", 15.0, "regular", 15.0, "", "camera") == ""
-    assert cal.outside_conditions("regular", 15.0, "regular", 15.0, "emulator", "") == ""
-    both = cal.outside_conditions("degraded", 23.0, "regular", 15.0)
+    assert outside_conditions("regular", 15.0, "regular", 15.0, "camera", "camera") == ""
+    assert outside_conditions("regular", 15.0, "regular", 15.0, "", "camera") == ""
+    assert outside_conditions("regular", 15.0, "regular", 15.0, "emulator", "") == ""
+    both = outside_conditions("degraded", 23.0, "regular", 15.0)
     assert (
         both
         == "perception degraded, calibrated in regular; a 23 s flight, calibrated on 15 s flights"
@@ -478,7 +486,7 @@ def test_stated_alpha_is_met_by_exchangeable_synthetic_flights(tmp_path: Path) -
     flight drawn 1.3 times wider breaks it far more often."""
     from dataclasses import replace
 
-    from qsls.pipeline.calibrate.stage import score_flight
+    from qsls.pipeline.calibrate.core import score_flight
     from qsls.pipeline.evaluate.assumptions import FlownLog, check_assumptions
     from qsls.pipeline.evaluate.certified import certified_premise
     from tests.controllerfixtures import gated
@@ -518,7 +526,7 @@ def test_stated_alpha_is_met_by_exchangeable_synthetic_flights(tmp_path: Path) -
     draws, n, misses, wide = 1000, 20, 0, 0
     for _ in range(draws):
         scores = [score_flight(flight(), c, distance)["score"] for _ in range(n)]
-        lam = cal.calibrated_quantile(scores, 0.1, "conformal")
+        lam = conformal.calibrated_quantile(scores, 0.1, "conformal")
         misses += breaks(flight(), lam)
         wide += breaks(flight(1.3), lam)  # not exchangeable: the check must see it
     lo, hi = binom.ppf([0.0005, 0.9995], draws, 0.1) / draws
@@ -531,7 +539,7 @@ def test_a_range_flights_score_keeps_the_disturbance_and_drops_the_reference() -
     but the disturbance bound is assumed out to rho*: a range flight whose realized
     disturbance exceeds eps_w raises its score (paper_sim_camera's first degraded calibration
     had one at 1.10, left out by a perception-only score)."""
-    from qsls.pipeline.calibrate.stage import range_score
+    from qsls.pipeline.calibrate.core import range_score
 
     parts = {"dense": 0.9, "disturbance": 1.098, "reference": 13.4, "outliers": 0.0}
     assert range_score(parts) == 1.098
@@ -577,7 +585,7 @@ def test_the_summary_names_the_premise_quantity_that_set_lambda_hat():
         {"role": "calibration", "dense": 0.9, "disturbance": 0.5, "reference": 0.86, "outliers": 0.25, "score": 0.9},
         {"role": "range", "dense": 0.5, "disturbance": 1.1, "reference": 9.0, "outliers": 0.0, "score": 1.1},
     ]  # fmt: skip
-    assert cal.set_by(rows, 0.9) == "dense (calibration flight)"
-    assert cal.set_by(rows, 0.86) == "reference (calibration flight)"
-    assert cal.set_by(rows, 1.1) == "disturbance (range flight)"  # scored without the reference
-    assert cal.set_by(rows, 0.7) == "" and cal.set_by(rows, math.inf) == ""
+    assert set_by(rows, 0.9) == "dense (calibration flight)"
+    assert set_by(rows, 0.86) == "reference (calibration flight)"
+    assert set_by(rows, 1.1) == "disturbance (range flight)"  # scored without the reference
+    assert set_by(rows, 0.7) == "" and set_by(rows, math.inf) == ""

@@ -12,14 +12,15 @@ from pathlib import Path
 
 import pytest
 
-from qsls.pipeline.calibrate.stage import TickLog
+from qsls.pipeline.core.ticks import TickLog
 from qsls.pipeline.errormodel.model import load_error_model
 from qsls.pipeline.evaluate.assumptions import check_assumptions
 from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate, load_controller_bound
 from qsls.pipeline.evaluate.certified import certified_premise
 from qsls.pipeline.evaluate.training import load_training
 from qsls.pipeline.evaluate.verdict import verdicts
-from qsls.pipeline.fly.fly import FlyOptions, fly_evaluate
+from qsls.pipeline.fly.options import FlyOptions
+from qsls.pipeline.fly.stage import fly_evaluate
 from qsls.pipeline.sim.options import SimOptions
 
 REGION = {"radius": 1.5, "slope": 0.05}

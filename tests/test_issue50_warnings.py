@@ -46,15 +46,14 @@ def test_the_calibration_refusal_names_the_reference_its_value_and_the_fix():
     reference part is inf; the refusal said only 'a premise quantity no inflation covers'."""
     import math
 
-    from qsls.pipeline.calibrate.options import CalibrateOptions
-    from qsls.pipeline.calibrate.stage import decide
+    from qsls.pipeline.calibrate.core import Rule, Scores, decide
 
     nominal = _premise(delta=0.0)
-    rows = [_row(reference=math.inf, score=math.inf, ref_max=0.2 + 0.01 * k) for k in range(20)]
-    d = decide(
-        [r["score"] for r in rows], [r["reached"] for r in rows], nominal, None,
-        CalibrateOptions(), broken=rows,
-    )  # fmt: skip
+    rows = [
+        _row(role="calibration", reference=math.inf, score=math.inf, ref_max=0.2 + 0.01 * k)
+        for k in range(20)
+    ]
+    d = decide(Scores.of(rows), nominal, None, Rule(0.1))  # type: ignore[arg-type]
     status, reason, lam = d.status, d.reason, d.lambda_hat
     assert status == "relaxed" and math.isinf(lam)
     assert "reference (20 flights): dist(x_ref) reaches 0.39 over Delta 0" in reason
@@ -65,7 +64,7 @@ def test_the_calibration_refusal_names_the_reference_its_value_and_the_fix():
 def test_the_refusal_names_each_infinite_quantity_once_with_its_largest_value():
     import math
 
-    from qsls.pipeline.calibrate.broken import broken_premise
+    from qsls.pipeline.calibrate.core import broken_premise
 
     rows = [
         _row(outliers=math.inf, score=math.inf, outlier_max=0.9),

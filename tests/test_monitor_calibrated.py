@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from qsls.pipeline.control import calibration as cal
+from qsls.pipeline.control import conformal
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
 from qsls.pipeline.control.innovation import (
     QUANTUM_MAX,
@@ -146,18 +146,18 @@ def test_calibrated_thresholds_are_below_the_sound_ones_and_trip_only_beyond_the
         assert bool(bits.any()) == (s > rec.quantile), (name, s, rec.quantile)
         if bits.any() and valid.loc[name, "assumptions_hold"]:
             false.append(name)  # a trip on a flight whose premise held
-    lo, _ = cal.clopper_pearson(len(false), 20)
+    lo, _ = conformal.clopper_pearson(len(false), 20)
     assert lo <= RATE and len(false) <= 4, false
 
 
 def test_calibrate_records_the_calibrated_mode_verify_recomputes_it_and_an_edit_is_refused(
     calib, tmp_path
 ):
-    """calibrate's own step (record_monitor) with monitor.mode calibrated writes the record
+    """calibrate's own step (with_monitor) with monitor.mode calibrated writes the record
     the exported code and every reader fly; verify recomputes the statistics from the logs and
     reports an edited one; an edited quantile is refused on load, in one line."""
+    from qsls.pipeline.calibrate.core import with_monitor
     from qsls.pipeline.calibrate.options import CalibrateOptions
-    from qsls.pipeline.calibrate.stage import record_monitor
     from qsls.pipeline.calibrate.verify import verify
     from qsls.pipeline.export.statement import statement
 
@@ -166,7 +166,8 @@ def test_calibrate_records_the_calibrated_mode_verify_recomputes_it_and_an_edit_
     folder = _folder(out)
     before = load_controller_dir(folder).certificate.calibration.monitor
     opts = CalibrateOptions(monitor={"mode": "calibrated", "false_trip_rate": 0.2})
-    record_monitor(folder, [lg for _, lg in _logs(out, "calibration")], opts)
+    logs = [lg for _, lg in _logs(out, "calibration")]
+    with_monitor(load_controller_dir(folder), logs, opts.monitor).save(folder)
     d = load_controller_dir(folder)
     rec = d.certificate.calibration.monitor
     assert rec.mode == "calibrated" and rec.statistics == before.statistics

@@ -89,11 +89,11 @@ ARTIFACT_FILES = {
     "certificate.yaml": "control/artifacts.py",
     "sweep.parquet": "control/sweep.py",
     "s_max.parquet": "control/sweep.py",
-    "calibration.json": "calibrate/stage.py",
+    "calibration.json": "calibrate/summary.py",
     "assumptions.parquet": "evaluate/verdict.py",
-    "findings.json": "fly/paired.py",
-    "flights.parquet": "fly/fly.py",
-    "per_controller.parquet": "fly/fly.py",
+    "findings.json": "fly/items.py",
+    "flights.parquet": "fly/tables.py",
+    "per_controller.parquet": "fly/tables.py",
     "camera_frame.npz": "sim/simulate.py",
 }
 """Each file that passes between stages, and the one module that spells its name."""

@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from qsls.pipeline.calibrate.stage import score_flight
+from qsls.pipeline.calibrate.core import score_flight
 from qsls.pipeline.core.artifacts import parquet_bytes
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import TICKS_FILE, TickLog

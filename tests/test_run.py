@@ -84,8 +84,9 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
     no design flight used; every score recomputed from the flight's own tick log; lambda_hat
     the conformal order statistic of those scores; the status honest about the condition and
     the tested range; validation rows recomputed from their tick logs."""
-    from qsls.pipeline.calibrate.stage import TickLog, score_flight
-    from qsls.pipeline.control import calibration as cal
+    from qsls.pipeline.calibrate.core import score_flight
+    from qsls.pipeline.control import conformal
+    from qsls.pipeline.core.ticks import TickLog
     from qsls.pipeline.errormodel.model import load_error_model
     from qsls.pipeline.evaluate.assumptions import check_assumptions
     from qsls.pipeline.evaluate.certified import certified_premise
@@ -154,7 +155,7 @@ def test_quickstart_calibration_from_the_tick_logs(quickstart):
     (only,) = summary
     assert only["validation_flights"] == 20 and only["validation_agrees"], only
     assert "Calibrated certificates:" in proc.stdout
-    assert cal.MIN_FLIGHTS == 19
+    assert conformal.MIN_FLIGHTS == 19
 
 
 @pytest.mark.slow
@@ -175,7 +176,7 @@ def test_quickstart_assumptions_on_the_flown_flights(quickstart):
         assert r["verdict"].startswith(f"assumption '{r['first_failed']}' fails first")
         assert not r[f"{r['first_failed']}_holds"]
     # the flight's own tick log reproduces its row (issue 32: an auditor recomputes it)
-    from qsls.pipeline.calibrate.stage import TickLog
+    from qsls.pipeline.core.ticks import TickLog
     from qsls.pipeline.errormodel.model import load_error_model
     from qsls.pipeline.evaluate.assumptions import check_assumptions
     from qsls.pipeline.evaluate.certified import certified_premise
@@ -334,7 +335,7 @@ def test_the_reports_calibration_table_shows_where_lambda_hat_comes_from(quickst
     range flights' own quantile; ``lambda_hat`` is the larger of the two quantiles, each the
     order statistic of the certificate's recorded scores."""
     from qsls.pipeline.control.artifacts import Certificate
-    from qsls.pipeline.control.calibration import calibrated_quantile
+    from qsls.pipeline.control.conformal import calibrated_quantile
 
     root = quickstart[0] / "runs" / "quickstart"
     cal = Certificate.load(root / "calibrate" / "regular" / "l1_robust").calibration

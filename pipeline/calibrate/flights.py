@@ -1,65 +1,174 @@
-"""``qsls calibrate --recorded``: the candidates' premise calibrated on the user's own recorded
-flights (docs/vehicle.md), with the simulated calibration's scores, quantile, status rules and
-record (:mod:`qsls.pipeline.calibrate.stage`).
+"""The calibration's flights (docs/calibration.md#the-packages-shape): what each flies, flying
+them, and the tick logs the scores read, from whichever source they come.
 
-Each recorded flight (:mod:`qsls.pipeline.calibrate.recorded`) must be the candidate's own:
-replayed through its taps and gate it gives the logged commands (else the command stops,
-naming the flight and the first tick that differs). Calibration flights give the scores
-``lambda_f`` (:func:`~qsls.pipeline.calibrate.stage.score_flight`), range flights theirs
-without the reference's term (:func:`~qsls.pipeline.calibrate.stage.range_score`), and the
-validation flights are checked against every assumption of the calibrated premise. The
-conditions are the logs' (vehicle mass and hover thrust, estimator, tick, flight length);
-the record lists each calibration flight's log sha256 (``calibration.logs``) in place of seeds.
-
-Output: as ``qsls calibrate`` (``<condition>/<controller>/``, ``scores.parquet``,
-``validation.parquet``, ``calibration.json``); the tick logs stay in their ingest folders.
+- Simulated: a :class:`Job` per flight (the candidate, its perception condition, its seed, its
+  draw from the condition family and, for a range flight, the reference's offset), flown on the
+  pool or Dask (:func:`fly_jobs`); each tick log is kept in the output
+  (``flights/<name>/ticks.parquet``) and named in the record by its sha256 (:func:`keep`).
+- Recorded (docs/vehicle.md): the user's flights (:mod:`qsls.pipeline.calibrate.recorded`),
+  each proved flown by one candidate (:func:`assign`), the conditions the record states read
+  from their logs (:func:`recorded_conditions`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
+import numpy as np
 
-from qsls.pipeline.calibrate.recorded import RecordedFlight, load_all, refuse_design
-from qsls.pipeline.calibrate.stage import (
-    SCORES_FILE,
-    STAGE,
-    SUMMARY_FILE,
-    VALIDATION_FILE,
-    CalibrateOptions,
-    CalibrateResult,
-    Outcome,
-    calibrated_certificate,
-    candidates,
-    decide,
-    fitted_seeds,
-    offsets,
-    range_score,
-    record_monitor,
-    score_flight,
-    summary_row,
-    taps_of,
-)
-from qsls.pipeline.calibrate.standin import standin_flights
-from qsls.pipeline.control.artifacts import FlightEvidence, load_controller_dir
-from qsls.pipeline.core.artifacts import StageWriter, check_output, sha256_file
+from qsls.pipeline.calibrate.options import CalibrateOptions
+from qsls.pipeline.calibrate.recorded import RecordedFlight
+from qsls.pipeline.control.artifacts import FlightEvidence
+from qsls.pipeline.core.artifacts import StageWriter, sha256_file
+from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.core.ticks import TICKS_FILE
-from qsls.pipeline.errormodel.model import load_error_model, resolve_model
-from qsls.pipeline.evaluate.assumptions import check_assumptions
-from qsls.pipeline.evaluate.certified import certified_premise
+from qsls.pipeline.core.pools import pool_size, run_tasks
+from qsls.pipeline.core.progress import Progress
+from qsls.pipeline.core.ticks import TICKS_FILE, TickLog
+from qsls.pipeline.evaluate.conditions import draw
 from qsls.pipeline.evaluate.flownby import flown_by
-from qsls.pipeline.evaluate.training import load_training
+from qsls.pipeline.sim.closedloop import fly
+from qsls.pipeline.sim.options import SimOptions
+from qsls.pipeline.sim.ticks import tick_log
 
+PERCEPTION_ATTR = "perception"
+"""The perception condition a calibration flight flew, kept in its tick log's metadata (under
+the log's sha256, so ``qsls verify`` reads the condition from the evidence: docs/verify.md)."""
+MIN_HEIGHT = 0.6
+"""Lowest reference height of a range flight (m): lower, the circle's ground effect and the
+floor-crash rule decide the flight, not perception."""
 DT_TOLERANCE = 0.01
-"""A flight's tick may differ from the certificate's ``dt`` by this fraction (jitter)."""
+"""A recorded flight's tick may differ from the certificate's ``dt`` by this fraction (jitter)."""
 
 
-def _check_dt(flights: list[RecordedFlight], folder: Path, dt: float) -> None:
+# --------------------------------------------------------------------------- simulated
+@dataclass(frozen=True)
+class Job:
+    """One flight of a candidate."""
+
+    name: str
+    controller: str
+    folder: str
+    condition: str
+    seed: int
+    role: str
+    """``calibration`` (its score enters the quantile), ``range`` (its reference moved within
+    the tube: it tests the premise out to ``rho*``, its score can only raise ``lambda_hat``) or
+    ``validation`` (checked against the calibrated premise, never scored)."""
+    sim: dict[str, Any]
+    """The flight's simulation options (the run's, its condition's and its family draw)."""
+    offset: tuple[float, float, float]
+    """The reference's offset (a range flight's; zeros otherwise)."""
+    sha256: str = ""
+    """The flying controller's ``controller.npz`` sha256, stamped on its tick log."""
+
+
+def fly_job(job: Job) -> TickLog:
+    """Fly ``job`` (no bag: the tick log is what the scores read)."""
+    ref = dict(job.sim.get("reference") or {})
+    cx, cy = ref.get("center", (0.0, 0.0))
+    over: dict[str, Any] = {
+        "seed": job.seed,
+        "controller": {"kind": job.folder},
+        "vio": {"perception": job.condition},
+    }
+    if any(job.offset):
+        over["reference"] = {
+            "center": [float(cx) + job.offset[0], float(cy) + job.offset[1]],
+            "height": float(ref.get("height", 1.0)) + job.offset[2],
+        }
+    opts = SimOptions.model_validate(merge(job.sim, over))
+    return tick_log(fly(opts), job.sha256)
+
+
+def offsets(seed: int, tube: float, height: float = 1.0) -> tuple[float, float, float]:
+    """The reference offset of flight ``seed`` in a tube of radius ``tube``: uniform in the
+    horizontal disc of radius ``tube``, the height uniform within ``tube / 2`` but never
+    below :data:`MIN_HEIGHT` (its own seeded stream)."""
+    if tube <= 0:
+        return (0.0, 0.0, 0.0)
+    rng = np.random.default_rng([seed, 7919])
+    r = tube * math.sqrt(rng.uniform())
+    th = rng.uniform(0, 2 * math.pi)
+    dz = rng.uniform(max(-tube / 2, MIN_HEIGHT - height), tube / 2)
+    return (r * math.cos(th), r * math.sin(th), dz)
+
+
+@dataclass(frozen=True)
+class Flyer:
+    """Who flies a role's flights: a folder and its controller's sha256 per candidate name."""
+
+    folder: Callable[[str, str], Path]
+    """``(condition, candidate) -> controller folder``."""
+    sha256: Callable[[str], str]
+
+
+def jobs(
+    role: str,
+    seeds: Sequence[int],
+    names: Sequence[str],
+    flyer: Flyer,
+    options: CalibrateOptions,
+    sim: dict[str, Any],
+) -> list[Job]:
+    """Every candidate's ``role`` flights in every condition, one per seed, each with its draw
+    from the condition family (and a range flight's offset)."""
+    height = float(options.sim.reference.height)
+    out = []
+    for cond in options.conditions:
+        for name in names:
+            for s in seeds:
+                off = offsets(s, options.tube, height) if role == "range" else (0.0, 0.0, 0.0)
+                out.append(
+                    Job(
+                        name=f"{role}_{cond}_{name}_s{s}",
+                        controller=name,
+                        folder=str(flyer.folder(cond, name).resolve()),
+                        condition=cond,
+                        seed=s,
+                        role=role,
+                        sim=merge(sim, draw(options.family, s, sim)),
+                        offset=off,
+                        sha256=flyer.sha256(name),
+                    )
+                )
+    return out
+
+
+def fly_jobs(
+    todo: Sequence[Job], options: CalibrateOptions, progress: Progress, what: str
+) -> list[TickLog]:
+    """Fly ``todo`` on the pool (or the options' Dask scheduler), in order."""
+    progress.start(what, total=len(todo))
+    logs = run_tasks(
+        [(fly_job, j) for j in todo],
+        min(pool_size(options.jobs), len(todo)),
+        lambda i: progress.advance(),
+        scheduler=options.scheduler,
+        note=progress.note,
+        worker_timeout=options.wait_workers,
+        what="calibration",
+    )
+    progress.finish()
+    return logs
+
+
+def keep(w: StageWriter, j: Job, tk: TickLog) -> FlightEvidence:
+    """Write ``j``'s tick log (``flights/<name>/ticks.parquet``) and name it with its sha256."""
+    df = tk.frame()
+    df.attrs[PERCEPTION_ATTR] = j.condition
+    name = f"flights/{j.name}/{TICKS_FILE}"
+    sha = sha256_file(w.write_parquet(name, df))
+    return FlightEvidence(flight=j.name, role=j.role, ticks=name, sha256=sha, seed=j.seed)
+
+
+# --------------------------------------------------------------------------- recorded
+def check_dt(flights: Sequence[RecordedFlight], folder: Path, dt: float) -> None:
+    """Refuse a flight whose controller ticked at another rate than ``folder``'s."""
     for f in flights:
         have = float(f.conditions["dt_s"])
         if abs(have - dt) > DT_TOLERANCE * dt:
@@ -67,116 +176,6 @@ def _check_dt(flights: list[RecordedFlight], folder: Path, dt: float) -> None:
                 f"recorded flight {f.folder}: its controller ticked every {have:.4g} s, "
                 f"{folder.name} is synthesized for dt {dt:g} s: not flown by this controller"
             )
-
-
-def _conditions(
-    flights: list[RecordedFlight], condition: str, estimator: str = ""
-) -> dict[str, Any]:
-    """What the certificate states of its calibration flights (their logs' conditions); the
-    estimator is the estimate's topic unless named (the stand-in's: its simulated one)."""
-    first = flights[0].conditions
-    return {
-        "source": "standin" if estimator else "recorded", "perception": condition,
-        "estimator": estimator or first["estimator"], "estimate_topic": first["estimator"],
-        "truth": first["truth"], "dt_s": first["dt_s"],
-        "vehicle": {**first["vehicle"], "hover_thrust": _span(
-            [f.conditions["vehicle"].get("hover_thrust") for f in flights])},
-        "frame": first["frame"], "reference": _reference_family(flights),
-        "duration_s": max(float(f.conditions["duration_s"]) for f in flights),
-    }  # fmt: skip
-
-
-def _span(values: list[Any]) -> list[float] | None:
-    """``[low, high]`` of the numbers among ``values`` (None where there are none)."""
-    nums = [float(v) for v in values if isinstance(v, int | float)]
-    return [min(nums), max(nums)] if nums else None
-
-
-def _reference_family(flights: list[RecordedFlight]) -> dict[str, list[float]]:
-    """The range of each reference number over the flights (``[low, high]``): the references
-    the calibration flew (:func:`qsls.pipeline.ingest.ticks.reference_summary`)."""
-    refs = [f.conditions["reference"] for f in flights if f.conditions.get("reference")]
-    keys = sorted({k for r in refs for k in r})
-    return {k: [min(r[k] for r in refs), max(r[k] for r in refs)] for k in keys}
-
-
-def calibrate_recorded(
-    error_model: Path,
-    synth_dir: Path,
-    options: CalibrateOptions,
-    out: Path,
-    *,
-    force: bool = False,
-    progress: Progress = NULL_PROGRESS,
-) -> CalibrateResult:
-    """Prove, score, calibrate and validate every candidate on the recorded flights (module
-    docstring); with ``options.source == "standin"`` the stand-in vehicle flies them first
-    (:mod:`qsls.pipeline.calibrate.standin`)."""
-    standin = options.source == "standin" and not options.recorded.given
-    if not standin and not options.recorded.calibration:
-        raise InputError(
-            "calibrate: recorded range or validation flights need recorded calibration "
-            "flights (--recorded FOLDER, repeated or comma-separated)"
-        )
-    if len(options.conditions) > 1:
-        raise InputError(
-            "calibrate: recorded flights are flown under the conditions they met: give one "
-            "condition (--conditions NAME) to name them"
-        )
-    check_output(Path(out), force)
-    model_file, fit_dir = resolve_model(error_model)
-    folders = candidates(Path(synth_dir), options.controllers)
-    if not folders:
-        raise InputError(
-            f"calibrate: {synth_dir} holds no robust controller whose design check passed; "
-            "nothing to calibrate (see its certificates' checks)"
-        )
-    if standin:
-        design = sorted(set(options.design_seeds) | set(fitted_seeds(fit_dir)))
-        options = options.model_copy(update={"design_seeds": design})
-        options.seed_lists()
-    model = load_error_model(model_file)
-    training = load_training(fit_dir, model, None)
-    inputs = [model_file, *folders, *options.recorded.calibration, *options.recorded.range,
-              *options.recorded.validation]  # fmt: skip
-    with StageWriter(out, STAGE, options=options, inputs=inputs, force=force) as w:
-        recorded = options.recorded
-        if standin:
-            dt = min(taps_of_dt(f) for f in folders)
-            recorded = standin_flights(
-                folders, options, w.path("standin"), dt,
-                lambda s: offsets(s, options.tube, float(options.sim.reference.height)),
-                progress,
-            )  # fmt: skip
-        flights = load_all({"calibration": recorded.calibration, "range": recorded.range,
-                            "validation": recorded.validation})  # fmt: skip
-        refuse_design(flights, fit_dir)
-        owners = assign(flights, folders)
-        rows, vrows, outcomes = [], [], []
-        progress.start("recorded flights", total=len(flights))
-        for folder in folders:
-            mine = [f for f in flights if owners[f.name] == folder.name]
-            if not any(f.role == "calibration" for f in mine):
-                continue
-            o, scored, checked = _one(folder, mine, options, training, w.path, standin)
-            outcomes.append(o)
-            rows += scored
-            vrows += checked
-            progress.advance(len(mine))
-        progress.finish()
-        if not outcomes:
-            raise InputError(
-                "calibrate: none of the candidates flew a calibration flight among those given"
-            )
-        scores, validation = pd.DataFrame(rows), pd.DataFrame(vrows)
-        summary = [summary_row(o, validation, options) for o in outcomes]
-        w.write_parquet(SCORES_FILE, scores)
-        w.write_parquet(VALIDATION_FILE, validation)
-        w.write_json(SUMMARY_FILE, {"alpha": options.alpha, "method": options.method,
-                                    "delta": options.delta, "source": "recorded",
-                                    "certificates": summary})  # fmt: skip
-        w.results.update({"certificates": summary, "flown_by": owners})
-    return CalibrateResult(Path(out), tuple(outcomes), validation, tuple(summary))
 
 
 def assign(flights: Sequence[RecordedFlight], folders: Sequence[Path]) -> dict[str, str]:
@@ -199,66 +198,50 @@ def assign(flights: Sequence[RecordedFlight], folders: Sequence[Path]) -> dict[s
     return owners
 
 
-def _one(
-    folder: Path,
-    flights: list[RecordedFlight],
-    options: CalibrateOptions,
-    training: Any,
-    path: Any,
-    standin: bool = False,
-) -> tuple[Outcome, list[dict[str, Any]], list[dict[str, Any]]]:
-    """One candidate on its own flights: scores, the decision, the certificate, validation."""
-    condition = options.conditions[0]
-    premise = certified_premise(folder)
-    if premise is None:
-        raise InputError(f"calibrate: {folder.name} has no premise to calibrate")
-    _check_dt(flights, folder, taps_of_dt(folder))
-    scored: list[dict[str, Any]] = []
-    for f in (f for f in flights if f.role != "validation"):
-        parts = score_flight(f.log, premise, training.distance)
-        if f.role == "range":
-            parts["score"] = range_score(parts)
-        scored.append({"flight": f.name, "role": f.role, "controller": folder.name,
-                       "condition": condition, "log_sha256": f.log_sha256, "crashed": False,
-                       **parts})  # fmt: skip
-    s = [float(r["score"]) for r in scored if r["role"] == "calibration"]
-    rs = [float(r["score"]) for r in scored if r["role"] == "range"]
-    decision = decide(
-        s, [float(r["reached"]) for r in scored], premise.numbers, taps_of(folder), options,
-        range_scores=rs, broken=[r for r in scored if r["score"] == float("inf")],
-    )  # fmt: skip
-    o = Outcome.of(folder.name, condition, decision, s)
-    calib = [f for f in flights if f.role == "calibration"]
-    estimator = str(options.sim.vio.kind) if standin else ""
-    conditions = _conditions([f for f in flights if f.role != "validation"], condition, estimator)
-    target = path(f"{condition}/{folder.name}")
-    root = path(condition).parent  # the output: a stand-in's tick logs are named inside it
-    order = {"calibration": 0, "range": 1, "validation": 2}
-    evidence = [_evidence(f, root) for f in sorted(flights, key=lambda f: order[f.role])]
-    calibrated_certificate(
-        folder, target, o, options, [], [r for r in scored if r["role"] == "calibration"],
-        conditions, rs, logs=[f.log_sha256 for f in calib], duration=conditions["duration_s"],
-        evidence=evidence,
-    )  # fmt: skip
-    record_monitor(target, [f.log for f in calib], options)
-    c = certified_premise(target)
-    checked = [
-        {"flight": f.name, "controller": folder.name, "condition": condition,
-         "log_sha256": f.log_sha256, **check_assumptions(f.log, c, training.distance)}
-        for f in flights if f.role == "validation" and c is not None
-    ]  # fmt: skip
-    return o, scored, checked
+def recorded_conditions(
+    flights: Sequence[RecordedFlight], condition: str, estimator: str = ""
+) -> dict[str, Any]:
+    """What the certificate states of its calibration flights (their logs' conditions); the
+    estimator is the estimate's topic unless named (the stand-in's: its simulated one)."""
+    first = flights[0].conditions
+    hover = _span([f.conditions["vehicle"].get("hover_thrust") for f in flights])
+    return {
+        "source": "standin" if estimator else "recorded",
+        "perception": condition,
+        "estimator": estimator or first["estimator"],
+        "estimate_topic": first["estimator"],
+        "truth": first["truth"],
+        "dt_s": first["dt_s"],
+        "vehicle": {**first["vehicle"], "hover_thrust": hover},
+        "frame": first["frame"],
+        "reference": _reference_family(flights),
+        "duration_s": max(float(f.conditions["duration_s"]) for f in flights),
+    }
 
 
-def _evidence(f: RecordedFlight, root: Path) -> FlightEvidence:
+def _span(values: list[Any]) -> list[float] | None:
+    """``[low, high]`` of the numbers among ``values`` (None where there are none)."""
+    nums = [float(v) for v in values if isinstance(v, int | float)]
+    return [min(nums), max(nums)] if nums else None
+
+
+def _reference_family(flights: Sequence[RecordedFlight]) -> dict[str, list[float]]:
+    """The range of each reference number over the flights (``[low, high]``): the references
+    the calibration flew (:func:`qsls.pipeline.ingest.ticks.reference_summary`)."""
+    refs = [f.conditions["reference"] for f in flights if f.conditions.get("reference")]
+    keys = sorted({k for r in refs for k in r})
+    return {k: [min(r[k] for r in refs), max(r[k] for r in refs)] for k in keys}
+
+
+def recorded_evidence(f: RecordedFlight, root: Path) -> FlightEvidence:
     """A recorded flight's tick log and its sha256 (docs/verify.md): named relative to the
     output where it lies inside it (a stand-in's), else by its absolute path."""
     ticks = (f.folder / TICKS_FILE).resolve()
     where = ticks.relative_to(root.resolve()) if ticks.is_relative_to(root.resolve()) else ticks
-    return FlightEvidence(flight=f.name, role=f.role, ticks=where.as_posix(),
-                          sha256=sha256_file(ticks), log_sha256=f.log_sha256 or None)  # fmt: skip
-
-
-def taps_of_dt(folder: Path) -> float:
-    """The candidate's tick (s)."""
-    return float(load_controller_dir(folder).controller.dt)
+    return FlightEvidence(
+        flight=f.name,
+        role=f.role,
+        ticks=where.as_posix(),
+        sha256=sha256_file(ticks),
+        log_sha256=f.log_sha256 or None,
+    )

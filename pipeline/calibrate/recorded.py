@@ -79,15 +79,18 @@ def load_recorded(folder: Path, role: str) -> RecordedFlight:
         "source": "recorded",
         "estimator": str((streams.get("vio") or {}).get("topic", "")),
         "truth": str((streams.get("truth") or {}).get("topic", "")),
-        "vehicle": {"mass": float(facts["mass_kg"]), "hover_thrust": facts.get("hover_thrust"),
-                    "hover_source": facts.get("hover_source"),
-                    "thr_mdl_fac": facts.get("thr_mdl_fac")},
+        "vehicle": {
+            "mass": float(facts["mass_kg"]),
+            "hover_thrust": facts.get("hover_thrust"),
+            "hover_source": facts.get("hover_source"),
+            "thr_mdl_fac": facts.get("thr_mdl_fac"),
+        },
         "dt_s": float(facts["dt_s"]),
         "frame": str(facts.get("frame", "")),
         "reference": dict(facts.get("reference") or {}),
         # the flight's length as a simulated flight states it: its ticks times the tick
         "duration_s": len(log.t) * float(facts["dt_s"]),
-    }  # fmt: skip
+    }
     return RecordedFlight(
         folder, role, log, sha, float(facts["mass_kg"]), conditions, dict(facts.get("stamps") or {})
     )
@@ -126,9 +129,13 @@ def load_all(by_role: dict[str, Sequence[Path]]) -> list[RecordedFlight]:
     first = flights[0] if flights else None
     for f in flights[1:]:
         assert first is not None
-        for what, a, b in (("vehicle mass", first.mass, f.mass),
-                           *((what, first.conditions[k], f.conditions[k]) for what, k in
-                             (("estimator", "estimator"), ("tick", "dt_s"), ("frame", "frame")))):  # fmt: skip
+        for what, a, b in (
+            ("vehicle mass", first.mass, f.mass),
+            *(
+                (what, first.conditions[k], f.conditions[k])
+                for what, k in (("estimator", "estimator"), ("tick", "dt_s"), ("frame", "frame"))
+            ),
+        ):
             if not (np.isclose(a, b, rtol=1e-3) if isinstance(a, float) else a == b):
                 raise InputError(
                     f"recorded flight {f.folder}: {what} {b} while {first.folder} has {a}: "
@@ -136,8 +143,12 @@ def load_all(by_role: dict[str, Sequence[Path]]) -> list[RecordedFlight]:
                     "calibrate each separately"
                 )
     names = [f.folder.name for f in flights]  # two folders of one name: their parent tells
-    return [dataclasses.replace(f, label=f"{f.folder.parent.name}/{f.folder.name}")
-            if names.count(f.folder.name) > 1 else f for f in flights]  # fmt: skip
+    return [
+        dataclasses.replace(f, label=f"{f.folder.parent.name}/{f.folder.name}")
+        if names.count(f.folder.name) > 1
+        else f
+        for f in flights
+    ]
 
 
 def design_logs(fit_dir: Path) -> set[str]:
@@ -174,8 +185,11 @@ def refuse_design(flights: Sequence[RecordedFlight], fit_dir: Path) -> None:
                 "validated on flights its design never saw"
             )
     try:
-        given = [Path(str(i.get("path", ""))) for i in read_manifest(fit_dir).get("inputs", [])
-                 if isinstance(i, dict)]  # fmt: skip
+        given = [
+            Path(str(i.get("path", "")))
+            for i in read_manifest(fit_dir).get("inputs", [])
+            if isinstance(i, dict)
+        ]
     except InputError:
         return
     train = [(p / FLIGHT_FILE if p.is_dir() else p) for p in given]

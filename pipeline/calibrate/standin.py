@@ -41,8 +41,9 @@ class StandinJob:
     ingest: dict[str, Any]
 
 
-def standin_sim(options: CalibrateOptions, folder: Path, seed: int,
-                offset: tuple[float, float, float]) -> dict[str, Any]:  # fmt: skip
+def standin_sim(
+    options: CalibrateOptions, folder: Path, seed: int, offset: tuple[float, float, float]
+) -> dict[str, Any]:
     """The flight's simulate options: the run's vehicle, reference and estimator, the
     candidate's exported C behind the PX4 interface, logged as a ULog."""
     sim = options.sim.model_dump(mode="json")
@@ -84,25 +85,39 @@ def standin_flights(
     ``flights/<name>/``, the ingest folder) on the pool; the ingest folders by role."""
     calib, valid = options.seed_lists()
     roles = (("calibration", calib), ("range", options.range_seeds), ("validation", valid))
-    ingest: dict[str, Any] = {"dt": dt, "align": "none", "time_offset": 0.0,
-                              "mass": float(options.sim.vehicle.mass)}  # fmt: skip
+    ingest: dict[str, Any] = {
+        "dt": dt,
+        "align": "none",
+        "time_offset": 0.0,
+        "mass": float(options.sim.vehicle.mass),
+    }
     if options.standin_log == "mavros":  # a bag states no hover thrust: the user gives it
         ingest["hover_thrust"] = float(options.sim.px4.estimate)
     jobs = [
         StandinJob(
-            name := f"{role}_{f.name}_s{s}", role,
+            name := f"{role}_{f.name}_s{s}",
+            role,
             standin_sim(options, f, s, offsets(s) if role == "range" else (0.0, 0.0, 0.0)),
-            str(root / "logs" / name), str(root / "flights" / name), ingest,
+            str(root / "logs" / name),
+            str(root / "flights" / name),
+            ingest,
         )
-        for role, seeds in roles for f in folders for s in seeds
-    ]  # fmt: skip
+        for role, seeds in roles
+        for f in folders
+        for s in seeds
+    ]
     progress.start("stand-in flights", total=len(jobs))
     run_tasks(
-        [(fly_standin, j) for j in jobs], min(pool_size(options.jobs), len(jobs)),
-        lambda i: progress.advance(), scheduler=options.scheduler, note=progress.note,
-        worker_timeout=options.wait_workers, what="stand-in",
-    )  # fmt: skip
+        [(fly_standin, j) for j in jobs],
+        min(pool_size(options.jobs), len(jobs)),
+        lambda i: progress.advance(),
+        scheduler=options.scheduler,
+        note=progress.note,
+        worker_timeout=options.wait_workers,
+        what="stand-in",
+    )
     progress.finish()
     by = {r: [Path(j.ingest_dir) for j in jobs if j.role == r] for r, _ in roles}
-    return RecordedFlights(calibration=by["calibration"], range=by["range"],
-                           validation=by["validation"])  # fmt: skip
+    return RecordedFlights(
+        calibration=by["calibration"], range=by["range"], validation=by["validation"]
+    )

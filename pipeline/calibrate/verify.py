@@ -7,12 +7,12 @@ controller folder inside it),
 
 - every tick log its record lists (``calibration.evidence``) is read and its sha256 checked;
 - every calibration and range flight's score ``lambda_f`` is recomputed by the calibration's
-  own scoring (:func:`~qsls.pipeline.calibrate.stage.score_flight`,
-  :func:`~qsls.pipeline.calibrate.stage.range_score`) under the design premise the record
+  own scoring (:func:`~qsls.pipeline.calibrate.core.score_flight`,
+  :func:`~qsls.pipeline.calibrate.core.range_score`) under the design premise the record
   states, against the training states of the error model the calibration read;
 - ``lambda_hat``, its rank, the tested range (the largest ``dist(x_k)`` within ``r``) and the
   status come from the calibration's own decision
-  (:func:`~qsls.pipeline.calibrate.stage.decide`) on the recomputed scores;
+  (:func:`~qsls.pipeline.calibrate.core.decide`) on the recomputed scores;
 - the conditions the logs carry: each flight's perception condition (its tick log's metadata,
   and the folder the certificate sits in), the controller that flew it (its ``controller.npz``
   sha256), the flights' seeds, and the flight length (ticks times the tick, to within a tick);
@@ -30,16 +30,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from qsls.pipeline.calibrate.options import CalibrateOptions
-from qsls.pipeline.calibrate.stage import (
-    PERCEPTION_ATTR,
-    SCORES_FILE,
-    STAGE,
-    decide,
-    range_score,
-    score_flight,
-    taps_of,
-)
+from qsls.pipeline.calibrate import core
+from qsls.pipeline.calibrate.core import Rule, Scores
+from qsls.pipeline.calibrate.flights import PERCEPTION_ATTR
+from qsls.pipeline.calibrate.stage import SCORES_FILE, STAGE
 from qsls.pipeline.control.artifacts import (
     CERTIFICATE_FILE,
     Calibration,
@@ -47,17 +41,18 @@ from qsls.pipeline.control.artifacts import (
     differs,
     load_controller_dir,
 )
-from qsls.pipeline.control.guarantee import PremiseNumbers, a_value
+from qsls.pipeline.control.guarantee import a_value
 from qsls.pipeline.control.innovation import monitor_calibration
 from qsls.pipeline.control.monitor import hover_input, sound_innovation_of
 from qsls.pipeline.core.artifacts import MANIFEST, read_manifest, sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import TickLog
 from qsls.pipeline.errormodel.model import load_error_model, resolve_model
+from qsls.pipeline.evaluate.assumptions import CertifiedPremise
 from qsls.pipeline.evaluate.certified import (
-    certified_premise,
     check_model_hash,
     load_controller_bound,
+    premise_of,
 )
 from qsls.pipeline.evaluate.training import TrainingData, load_training
 
@@ -244,8 +239,9 @@ def _monitor(d: ControllerDir, logs: dict[str, TickLog], diff: Any) -> None:
     names = [e.flight for e in c.evidence if e.role == "calibration"]
     mine = [logs[n] for n in names]
     gate = d.certificate.gate
-    want = monitor_calibration(spec, mine, hover_input(d), gate, c.monitor.mode,
-                               c.monitor.false_trip_rate)  # fmt: skip
+    want = monitor_calibration(
+        spec, mine, hover_input(d), gate, c.monitor.mode, c.monitor.false_trip_rate
+    )
     if len(want.statistics) != len(c.monitor.statistics):
         diff("calibration.monitor.statistics", len(c.monitor.statistics), len(want.statistics))
         return
@@ -316,11 +312,9 @@ def _scores(
     ranged: list[float] = []
     reached: list[float] = []
     for e in (e for e in c.evidence if e.role != "validation"):
-        parts = score_flight(logs[e.flight], nominal, training.distance)
+        parts = core.scored(logs[e.flight], nominal, training.distance, e.role)
         reached.append(float(parts["reached"]))
-        (ranged if e.role == "range" else scores).append(
-            range_score(parts) if e.role == "range" else float(parts["score"])
-        )
+        (ranged if e.role == "range" else scores).append(float(parts["score"]))
     for what, have, want in (
         ("scores", c.scores, scores),
         ("range_scores", c.range_scores, ranged),
@@ -331,45 +325,36 @@ def _scores(
         for i, (h, w) in enumerate(zip(have, want, strict=True)):
             if differs(h, w):
                 diff(f"calibration.{what}[{i}]", h, w)
-    opts = CalibrateOptions(
-        alpha=c.alpha, method="pac" if c.method == "pac" else "conformal",
-        delta=1.0 - c.confidence if c.confidence is not None else 0.05,
-    )  # fmt: skip
-    got = decide(
-        scores, reached, nominal.numbers, taps_of(d.folder), opts,
-        crashed=_crashed(root, d), range_scores=ranged,
-    )  # fmt: skip
+    flown = Scores(tuple(scores), tuple(ranged), tuple(reached), _crashed(root, d))
+    got = core.decide(flown, nominal.numbers, core.responses(d), Rule.of_record(c))
     status, lam, rank, tested = got.status, got.lambda_hat, got.rank, got.tested_range
     decided: tuple[tuple[str, Any, Any], ...] = (
-        ("calibration.lambda_hat", c.lambda_hat, lam), ("calibration.rank", c.rank, rank),
+        ("calibration.lambda_hat", c.lambda_hat, lam),
+        ("calibration.rank", c.rank, rank),
         ("calibration.tested_range", c.tested_range, tested),
-        ("tested_range", cert.tested_range, tested), ("status", cert.status, status),
-    )  # fmt: skip
+        ("tested_range", cert.tested_range, tested),
+        ("status", cert.status, status),
+    )
     for field, stored, recomputed in decided:
         if differs(stored, recomputed):
             diff(field, stored, recomputed)
 
 
-def _design_premise(d: ControllerDir) -> Any:
+def _design_premise(d: ControllerDir) -> CertifiedPremise | None:
     """The premise the calibration scored under: the certificate's, with the design numbers
-    its record states in place of the inflated ones (``a`` and ``rho*`` with them)."""
+    its record states (:func:`qsls.pipeline.calibrate.core.nominal_numbers`) in place of the
+    inflated ones (``a`` and ``rho*`` with them)."""
     cert = d.certificate
     c = cert.calibration
     assert c is not None
-    premise = certified_premise(d.folder)
-    nom = c.nominal
-    keys = ("eps_e", "S", "eps_w", "delta", "m", "rho_star")
-    if premise is None or any(not isinstance(nom.get(k), int | float) for k in keys):
+    premise = premise_of(d)
+    numbers = core.nominal_numbers(cert)
+    if premise is None or numbers is None:
         return None
-    numbers = PremiseNumbers(
-        eps=float(nom["eps_e"]), S=float(nom["S"]), radius=cert.radius,  # type: ignore[arg-type]
-        eps_w=float(nom["eps_w"]), delta=float(nom["delta"]),  # type: ignore[arg-type]
-        eps_o=cert.eps_o, m=int(nom["m"]), R0=None, gate=cert.gate,  # type: ignore[arg-type]
-        eps_b=float(nom.get("eps_b") or 0.0),
-    )  # fmt: skip
     assert cert.norm_N_w is not None  # a calibrated certificate states it (checked on load)
     a = a_value(numbers.eps_w, cert.norm_N_w, numbers.delta, numbers.eps_b, cert.G_b or 0.0)
-    return dataclasses.replace(premise, numbers=numbers, a=a, rho_star=float(nom["rho_star"]))  # type: ignore[arg-type]
+    rho_star = float(c.nominal["rho_star"] or 0.0)
+    return dataclasses.replace(premise, numbers=numbers, a=a, rho_star=rho_star)
 
 
 def _crashed(root: Path | None, d: ControllerDir) -> int:

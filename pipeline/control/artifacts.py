@@ -25,6 +25,7 @@ import hashlib
 import math
 import re
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -34,12 +35,18 @@ from pydantic import BaseModel, ConfigDict, field_validator, model_serializer
 
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.body import CertificateBody as CertificateBody
-from qsls.pipeline.control.calibration import calibrated_quantile, calibration_rank, record_problems
 from qsls.pipeline.control.certify import (
     ACHIEVABILITY_TOL,
     PERTURBATION_TOL,
     REALIZATION_TOL,
     certify,
+)
+from qsls.pipeline.control.conformal import (
+    MAX_ALPHA,
+    MIN_FLIGHTS,
+    Method,
+    calibrated_quantile,
+    calibration_rank,
 )
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.monitor_record import MonitorCalibration
@@ -48,7 +55,6 @@ from qsls.pipeline.control.nominal import (
     static_gain_norms,
     static_gain_responses,
 )
-from qsls.pipeline.premise.record import Premise
 from qsls.pipeline.control.realize import (
     FilterBank,
     RealizedController,
@@ -60,6 +66,7 @@ from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, REFERENCE
 from qsls.pipeline.core.artifacts import atomic_write_bytes, dump_yaml, load_yaml, npz_bytes
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import LinearModel
+from qsls.pipeline.premise.record import Premise
 
 CONTROLLER_FILE = "controller.npz"
 CERTIFICATE_FILE = "certificate.yaml"
@@ -724,7 +731,7 @@ def record_consistency(cert: Certificate) -> list[str]:
             if roles.count(role) != n:
                 out.append(f"{roles.count(role)} {role} tick logs listed for {n} {role} flights")
     method: Literal["conformal", "pac"] = "pac" if c.method == "pac" else "conformal"
-    # 1 - (1 - delta) may come back a hair below delta (calibration.record_problems does the same)
+    # 1 - (1 - delta) may come back a hair below delta (record_problems does the same)
     delta = 1.0 - c.confidence + 1e-12 if c.confidence is not None else 0.05
     if c.flights and c.rank != calibration_rank(c.flights, c.alpha, method, delta):
         out.append(f"rank {c.rank}, the calibration's rank of {c.flights} flights is another")
@@ -757,9 +764,52 @@ def _inflation_problems(cert: Certificate) -> list[str]:
     return why
 
 
+def record_problems(
+    *,
+    flights: int,
+    alpha: float,
+    method: str,
+    confidence: float | None,
+    scores: Sequence[float],
+    range_scores: Sequence[float],
+    lambda_hat: float,
+    holds: bool,
+    rho_star: float | None,
+    tested_range: float | None,
+    shared_seeds: Sequence[int] = (),
+) -> list[str]:
+    """What keeps a recorded calibration from backing a ``certified`` status (empty when
+    nothing does): at least :data:`MIN_FLIGHTS` flights, ``alpha <= MAX_ALPHA``, ``lambda_hat``
+    at least the calibrated quantile of the recorded scores (and of the range flights'), the
+    condition holding under it, the premise tested out to ``rho*``, and no calibration seed
+    among the design flights' (``shared_seeds``). Read whenever a
+    certificate is loaded, so a hand-edited record cannot claim what its flights do not."""
+    why = []
+    if flights < MIN_FLIGHTS or len(scores) != flights:
+        why.append(f"{flights} calibration flights with {len(scores)} scores (needs {MIN_FLIGHTS})")
+    if alpha > MAX_ALPHA:
+        why.append(f"alpha {alpha:g} > {MAX_ALPHA:g}")
+    m: Method = "pac" if method == "pac" else "conformal"
+    # 1 - (1 - delta) may come back a hair below delta; never refuse on that rounding
+    delta = 1.0 - confidence + 1e-12 if confidence is not None else 0.05
+    lam = max(
+        calibrated_quantile(scores, alpha, m, delta),
+        calibrated_quantile(range_scores, alpha, m, delta) if len(range_scores) else 0.0,
+    )
+    if not lambda_hat >= lam * (1 - 1e-12):
+        why.append(f"lambda_hat {lambda_hat:.6g} below its scores' quantile {lam:.6g}")
+    if not holds:
+        why.append("the condition fails under the calibrated premise")
+    if rho_star is None or tested_range is None or tested_range < rho_star * (1 - 1e-9):
+        why.append(f"tested to {tested_range} < rho* {rho_star}")
+    if len(shared_seeds):
+        why.append(f"calibration seeds {list(shared_seeds)[:5]} are design flights' seeds")
+    return why
+
+
 def calibration_problems(cert: Certificate) -> list[str]:
     """Why ``cert``'s calibration record cannot back a ``certified`` status (none recorded,
-    or :func:`qsls.pipeline.control.calibration.record_problems`); empty when it can."""
+    or :func:`record_problems`); empty when it can."""
     c = cert.calibration
     if c is None:
         return ["no calibration: only flights the design never saw certify (qsls calibrate)"]

@@ -20,7 +20,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, field_validator, model_validator
 
-from qsls.pipeline.control.calibration import conformal_rank
+from qsls.pipeline.control.conformal import conformal_rank
 
 MonitorMode = Literal["sound", "calibrated"]
 SOUND: MonitorMode = "sound"

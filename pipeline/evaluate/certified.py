@@ -21,8 +21,12 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import guarantee
-from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Calibration, load_controller_dir
-from qsls.pipeline.control.calibration import outside_conditions
+from qsls.pipeline.control.artifacts import (
+    CERTIFICATE_FILE,
+    Calibration,
+    ControllerDir,
+    load_controller_dir,
+)
 from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import static_gain_responses
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
@@ -31,7 +35,7 @@ from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.plant import GRAVITY, NX, bias_directions
 from qsls.pipeline.errormodel import honest
 from qsls.pipeline.evaluate.assumptions import CertifiedPremise
-from qsls.pipeline.evaluate.conditions import outside_family
+from qsls.pipeline.evaluate.conditions import outside_conditions, outside_family
 
 
 @dataclass(frozen=True)
@@ -142,7 +146,11 @@ def certified_premise(folder: Path) -> Any:
     """What the certificate in ``folder`` promises, for the checks on its own flights
     (:class:`qsls.pipeline.evaluate.assumptions.CertifiedPremise`); None for a controller
     without a guarantee to check (a reference, a nominal or a failed one)."""
-    d = load_controller_dir(folder)
+    return premise_of(load_controller_dir(folder))
+
+
+def premise_of(d: ControllerDir) -> CertifiedPremise | None:
+    """:func:`certified_premise` of a controller folder already read."""
     c = d.certificate
     if c.status not in (CERTIFIED, RELAXED) or not c.robust or c.rho_star is None:
         return None
@@ -326,7 +334,7 @@ def outside_calibration(
     :func:`qsls.pipeline.evaluate.conditions.flight_conditions`; None: not known), lies
     outside the conditions a certificate was calibrated under (``cal``, its record; ``''``
     when inside, or when it has no calibration):
-    :func:`qsls.pipeline.control.calibration.outside_conditions` and
+    :func:`qsls.pipeline.evaluate.conditions.outside_conditions` and
     :func:`qsls.pipeline.evaluate.conditions.outside_family`."""
     if cal is None:
         return ""

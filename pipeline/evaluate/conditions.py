@@ -319,6 +319,30 @@ def _span(name: str, value: float, span: list[float], unit: str) -> str:
     return f"{name} {value:.4g}{unit}, calibrated at {fixed}{unit}{rel}"
 
 
+def outside_conditions(
+    perception: str,
+    flight_s: float,
+    calibrated_perception: str,
+    calibrated_s: float,
+    estimator: str = "",
+    calibrated_estimator: str = "",
+) -> str:
+    """Why a flight lies outside the conditions its certificate was calibrated under ('' when
+    inside): another perception condition, another estimator (the camera loop against the VIO
+    emulator: each errs its own way; ``''`` where not known), or a flight longer than the
+    calibration flights (the promise ``P(lambda_hat)`` is about a new flight *of the same
+    conditions*, and the premise's quantities grow with a flight's length:
+    docs/calibration.md)."""
+    why = []
+    if calibrated_perception and perception != calibrated_perception:
+        why.append(f"perception {perception}, calibrated in {calibrated_perception}")
+    if estimator and calibrated_estimator and estimator != calibrated_estimator:
+        why.append(f"estimator {estimator}, calibrated with {calibrated_estimator}")
+    if flight_s > calibrated_s + 1e-6:
+        why.append(f"a {flight_s:g} s flight, calibrated on {calibrated_s:g} s flights")
+    return "; ".join(why)
+
+
 def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> list[str]:
     """Each of ``flight``'s conditions (:func:`flight_conditions`) that lies outside what the
     certificate states (:func:`stated`), in words with how far; empty when every one lies

@@ -7,9 +7,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from qsls.pipeline.calibrate.stage import SUMMARY_FILE
+from qsls.pipeline.calibrate.summary import SUMMARY_FILE
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, Calibration, Certificate
-from qsls.pipeline.control.calibration import Method, calibrated_quantile
+from qsls.pipeline.control.conformal import Method, calibrated_quantile
 from qsls.pipeline.core.artifacts import json_number, read_stage_json
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.report.document import Section

@@ -209,7 +209,7 @@ def _calibrated_folders(stages: dict[str, list[Path]]) -> dict[str, Path]:
     """Controller name -> its calibrated certificate's folder, in the calibration's first
     condition (the one the run's flights are checked against), from ``calibration.json``."""
     # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
-    from qsls.pipeline.calibrate.stage import SUMMARY_FILE
+    from qsls.pipeline.calibrate.summary import SUMMARY_FILE
     from qsls.pipeline.control.artifacts import CERTIFICATE_FILE
 
     out: dict[str, Path] = {}
@@ -226,8 +226,8 @@ def _calibrated_folders(stages: dict[str, list[Path]]) -> dict[str, Path]:
 def _read_evaluation(f: Facts, folder: Path) -> None:
     # deferred: scipy and pandas; qsls run reads RUN_FILE here when it validates a config
     from qsls.pipeline.evaluate.table import Evaluation
-    from qsls.pipeline.fly.fly import PER_CONTROLLER_TABLE
-    from qsls.pipeline.fly.paired import FINDINGS_FILE
+    from qsls.pipeline.fly.items import FINDINGS_FILE
+    from qsls.pipeline.fly.tables import PER_CONTROLLER_TABLE
 
     ev = Evaluation.load(folder) if Evaluation.exists(folder) else None
     doc = ev.doc if ev is not None else {}

@@ -14,7 +14,7 @@ Every stage's options are validated before anything runs, with the stage's own m
 misspelled option is reported with the config's section and the nearest valid name: the typed
 sections when the config is read (:func:`qsls.pipeline.run.runner.load_run_config`), a
 flight's simulate and ingest options (the flight's own laid over the run's section as it was
-written) and the flying options (the evaluate section under its ``fly:``) here.
+written) and the flying options (the ``fly:`` section over the run's ``simulate:``) here.
 """
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ from qsls.pipeline.core.config import merge, validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.options import FitOptions
-from qsls.pipeline.evaluate.options import EvaluateOptions, FlyOptions
+from qsls.pipeline.evaluate.options import EvaluateOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
+from qsls.pipeline.fly.options import FlyOptions, flying
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
 from qsls.pipeline.run.paths import missing_hint, resolve_path
@@ -48,7 +49,8 @@ def build_graph(
 ) -> StageGraph:
     """Stages for ``cfg``; paths relative to ``base``."""
     wanted = set(
-        cfg.stages or ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate")
+        cfg.stages
+        or ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "fly")
     )
     graph = StageGraph(root)
 
@@ -94,23 +96,22 @@ def build_graph(
     if cfg.calibrate is not None and "calibrate" in wanted:
         calibrated = _calibrate_stage(graph, cfg, base, src, progress)
     heldout = ingest_ids["heldout"]
-    if "evaluate" not in wanted:
-        return graph
-    flies = cfg.evaluate is not None and cfg.evaluate.fly is not None
-    if not heldout and not flies and ("evaluate" in listed or cfg.evaluate is not None):
-        where = src("stages") if "evaluate" in listed else src("evaluate")
-        raise ConfigError(
-            f"{where}: evaluate is asked for but there is nothing to evaluate: no flight "
-            "has role 'heldout' and the evaluate: section has no fly:; add a held-out flight "
-            "or evaluate.fly, or leave evaluate out"
-        )
-    # a held-out flight is checked with the default options when the section is left out
-    if cfg.evaluate is not None or heldout:
-        _evaluate_stages(
-            graph, cfg.evaluate or EvaluateSection(), heldout, src, progress, calibrated,
-            [perception[h] for h in heldout], [estimator[h] for h in heldout],
-            cfg.written("simulate") or {},
-        )  # fmt: skip
+    if "evaluate" in wanted:
+        if not heldout and ("evaluate" in listed or cfg.evaluate is not None):
+            where = src("stages") if "evaluate" in listed else src("evaluate")
+            raise ConfigError(
+                f"{where}: evaluate is asked for but there is nothing to evaluate: no flight "
+                "has role 'heldout'; add a held-out flight, or leave evaluate out (the "
+                "controllers fly in a fly: section)"
+            )
+        # a held-out flight is checked with the default options when the section is left out
+        if heldout:
+            _evaluate_stages(
+                graph, cfg.evaluate or EvaluateSection(), heldout, progress, calibrated,
+                [perception[h] for h in heldout], [estimator[h] for h in heldout],
+            )  # fmt: skip
+    if cfg.fly is not None and "fly" in wanted:
+        _fly_stage(graph, cfg, src, progress, calibrated)
     return graph
 
 
@@ -179,34 +180,35 @@ def _evaluate_stages(
     graph: StageGraph,
     sec: EvaluateSection,
     heldout: list[str],
-    src: Src,
     progress: Progress,
     calibrated: str | None = None,
     conditions: list[str] | None = None,
     estimators: list[str] | None = None,
-    simulate: Mapping[str, Any] | None = None,
 ) -> None:
-    """The bound check on the held-out flights (when there are some; ``conditions``: their
-    perception, ``estimators`` their estimator, ``''`` for a recorded flight) and the flights flown (when the section has
-    ``fly``); with a calibration (``calibrated``: its first condition), each calibrated
-    controller is checked against its certificate for the flight's condition."""
+    """The bound check on the held-out flights (``conditions``: their perception,
+    ``estimators`` their estimator, ``''`` for a recorded flight); with a calibration
+    (``calibrated``: its first condition), each calibrated controller is checked against its
+    certificate for the flight's condition."""
     cal = ("calibrate",) if calibrated is not None else ()
-    if heldout:
-        eval_opts = sec.bound()
-        conds = conditions if conditions is not None else [""] * len(heldout)
-        ests = estimators if estimators is not None else [""] * len(heldout)
-        execute = _evaluate_exec(eval_opts, heldout, progress, calibrated, conds, ests)
-        deps = ("fit", "synth", *cal, *heldout)
-        graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps, notes=_verdicts))
-    if sec.fly is not None:
-        # the flights fly the run's simulate: conditions, as the calibration's do (a flight of
-        # other conditions is outside the certificate: docs/calibration.md)
-        fly_opts = sec.flying(source=src("evaluate.fly"), base_sim=simulate)
-        execute = _fly_exec(fly_opts, progress, calibrated)
-        graph.add(
-            Stage("fly", "evaluate", fly_opts, execute, deps=("fit", "synth", *cal),
-                  notes=_verdicts)
-        )  # fmt: skip
+    eval_opts = sec.bound()
+    conds = conditions if conditions is not None else [""] * len(heldout)
+    ests = estimators if estimators is not None else [""] * len(heldout)
+    execute = _evaluate_exec(eval_opts, heldout, progress, calibrated, conds, ests)
+    deps = ("fit", "synth", *cal, *heldout)
+    graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps, notes=_verdicts))
+
+
+def _fly_stage(
+    graph: StageGraph, cfg: RunConfig, src: Src, progress: Progress, calibrated: str | None
+) -> None:
+    """The controllers flown (``fly:``, docs/evaluation.md), each checked against its own
+    certificate (its condition's, with a calibration)."""
+    cal = ("calibrate",) if calibrated is not None else ()
+    # the flights fly the run's simulate: conditions, as the calibration's do (a flight of
+    # other conditions is outside the certificate: docs/calibration.md)
+    opts = flying(cfg.written("fly"), source=src("fly"), base_sim=cfg.written("simulate") or {})
+    execute = _fly_exec(opts, progress, calibrated)
+    graph.add(Stage("fly", "fly", opts, execute, deps=("fit", "synth", *cal), notes=_verdicts))
 
 
 def controller_folders(deps: Mapping[str, Path], calibrated: str | None) -> list[Path]:
@@ -269,8 +271,7 @@ def _calibrate_stage(
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
-        from qsls.pipeline.calibrate.flights import calibrate_recorded
-        from qsls.pipeline.calibrate.stage import calibrate
+        from qsls.pipeline.calibrate.stage import calibrate, calibrate_recorded
 
         run = calibrate_recorded if opts.recorded.given or opts.source == "standin" else calibrate
         return run(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
@@ -294,7 +295,7 @@ def _warnings(out: Path) -> dict[str, Any]:
 def _calibrated(out: Path) -> dict[str, Any]:
     """One line per calibrated certificate, kept in the run state for the console."""
     # deferred: a stage's code loads when it runs (a cached run loads none of it)
-    from qsls.pipeline.calibrate.stage import summary_lines
+    from qsls.pipeline.calibrate.summary import summary_lines
 
     return {"calibrated": summary_lines(out)}
 
@@ -419,7 +420,7 @@ def _evaluate_exec(
 def _fly_exec(opts: FlyOptions, progress: Progress, calibrated: str | None = None) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
-        from qsls.pipeline.fly.fly import fly_evaluate
+        from qsls.pipeline.fly.stage import fly_evaluate
 
         ctrls = controller_folders(deps, calibrated)
         return fly_evaluate(
