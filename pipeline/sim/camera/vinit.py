@@ -194,19 +194,11 @@ def _solve(
     cam_off = sf + (rf @ t_bc)  # S_j + R_0j t_bc (M, 3)
     j_, a_ = fr[use], fr[anchor[use]]
     bj, ba = b[use], b[anchor[use]]
-    tj = _tangent(bj)  # (n, 2, 3)
     dt = (tf[a_] - tf[j_])[:, None]
     dt2 = 0.5 * (tf[a_] ** 2 - tf[j_] ** 2)[:, None]
     rhs3 = cam_off[j_] - cam_off[a_]
-    n = len(j_)
-    cols = 6 + nf
-    # unwhitened rows: T (v0 dt + g0 dt2 + lambda b_a) = T rhs3
-    a_full = np.zeros((n, 2, cols))
-    a_full[:, :, 0:3] = tj * dt[:, :, None]
-    a_full[:, :, 3:6] = tj * dt2[:, :, None]
-    a_full[np.arange(n), :, 6 + fcol[use]] = np.einsum("nkc,nc->nk", tj, ba)
-    y_full = np.einsum("nkc,nc->nk", tj, rhs3)
-    ridge = 1e-9 * np.eye(cols)
+    a_full, y_full = _linear_rows(bj, ba, dt, dt2, rhs3, fcol[use], nf)
+    ridge = 1e-9 * np.eye(6 + nf)
     # pass 1: weights from a nominal 1 m distance; pass 2: from the solved distances
     wgt = 1.0 / sig[use]
     x = _wls(a_full, y_full, wgt, ridge)
@@ -219,21 +211,7 @@ def _solve(
     g_free = float(np.linalg.norm(x[3:6]))
     if not math.isfinite(g_free) or abs(g_free - gravity) > 0.1 * gravity:
         return InitRefusal(f"gravity norm {g_free:.2f} m/s^2 from the window")
-    # ||g0|| = g: g0 = g n + B delta
-    nvec = x[3:6] / g_free
-    aw = a_full * wgt[:, None, None]
-    yw = y_full * wgt[:, None]
-    for _ in range(3):
-        bb = _basis(nvec)
-        a2 = np.concatenate(
-            [aw[:, :, 0:3], np.einsum("nkc,cd->nkd", aw[:, :, 3:6], bb), aw[:, :, 6:]], axis=2
-        ).reshape(2 * n, cols - 1)
-        y2 = (yw - np.einsum("nkc,c->nk", aw[:, :, 3:6], gravity * nvec)).reshape(-1)
-        ata = a2.T @ a2 + ridge[1:, 1:]
-        x2 = np.linalg.solve(ata, a2.T @ y2)
-        g0 = gravity * nvec + bb @ x2[3:5]
-        nvec = g0 / np.linalg.norm(g0)
-    g0 = gravity * nvec
+    x2, g0 = _on_gravity_sphere(a_full, y_full, wgt, ridge, x[3:6] / g_free, gravity)
     # Gauss-Newton on the reprojection errors (the linear rows treat the anchor bearing as
     # exact, which biases them at real noise levels): unknowns v_0, delta, the features
     x0 = _features(x2[5:], fcol[use], ba, x2[0:3], g0, tf[a_], cam_off[a_], nf)
@@ -243,15 +221,9 @@ def _solve(
         return InitRefusal("refinement failed")
     v0, g0, xf, cov, rms = ref
     cov = sigma_scale**2 * cov
-    bb = _basis(g0 / gravity)
-    t_m = float(tf[-1])
-    v_m = v0 + g0 * t_m + vs[frame_sample[-1]]
-    jac = np.zeros((3, 5))
-    jac[:, 0:3] = I3
-    jac[:, 3:5] = t_m * bb
-    cov_v = jac @ cov @ jac.T
-    sig_v = math.sqrt(max(float(np.linalg.eigvalsh(cov_v)[-1]), 0.0))
-    sig_tilt = math.sqrt(max(float(np.linalg.eigvalsh(cov[3:5, 3:5])[-1]), 0.0)) / gravity
+    v_m, cov_v, sig_v, sig_tilt = _at_last_frame(
+        v0, g0, cov, float(tf[-1]), vs[frame_sample[-1]], gravity
+    )
     depth = ((xf[fcol[use]] - _centres(v0, g0, tf[j_], cam_off[j_])) * bj).sum(axis=1)
     if rms > max_residual:
         return InitRefusal(f"residuals {rms:.1f} times the assumed noise")
@@ -265,6 +237,72 @@ def _solve(
         r_0m=rs[frame_sample[-1]], g0=g0, v_m=v_m, cov_v=cov_v, sigma_tilt=sig_tilt,
         features=nf, residual_rms=rms,
     )  # fmt: skip
+
+
+def _linear_rows(
+    bj: np.ndarray,
+    ba: np.ndarray,
+    dt: np.ndarray,
+    dt2: np.ndarray,
+    rhs3: np.ndarray,
+    feature_col: np.ndarray,
+    nf: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The unwhitened rows ``T (v0 dt + g0 dt2 + lambda_f b_a) = T rhs3``, two per
+    observation (``T`` the two unit vectors normal to its bearing ``b_j``), over the unknowns
+    ``(v0, g0, lambda_1..nf)``: ``(n, 2, 6 + nf)`` and ``(n, 2)``."""
+    tj = _tangent(bj)  # (n, 2, 3)
+    n = len(bj)
+    a_full = np.zeros((n, 2, 6 + nf))
+    a_full[:, :, 0:3] = tj * dt[:, :, None]
+    a_full[:, :, 3:6] = tj * dt2[:, :, None]
+    a_full[np.arange(n), :, 6 + feature_col] = np.einsum("nkc,nc->nk", tj, ba)
+    return a_full, np.einsum("nkc,nc->nk", tj, rhs3)
+
+
+def _on_gravity_sphere(
+    a_full: np.ndarray,
+    y_full: np.ndarray,
+    wgt: np.ndarray,
+    ridge: np.ndarray,
+    nvec: np.ndarray,
+    gravity: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The weighted rows solved again with ``||g0|| = g``: ``g0 = g n + B delta`` (``B`` two
+    unit vectors normal to ``n``), ``n`` updated from the solution, three times; the last
+    solution ``(v_0, delta, lambda)`` and ``g0 = g n``."""
+    n, _, cols = a_full.shape
+    aw = a_full * wgt[:, None, None]
+    yw = y_full * wgt[:, None]
+    for _ in range(3):
+        bb = _basis(nvec)
+        a2 = np.concatenate(
+            [aw[:, :, 0:3], np.einsum("nkc,cd->nkd", aw[:, :, 3:6], bb), aw[:, :, 6:]], axis=2
+        ).reshape(2 * n, cols - 1)
+        y2 = (yw - np.einsum("nkc,c->nk", aw[:, :, 3:6], gravity * nvec)).reshape(-1)
+        ata = a2.T @ a2 + ridge[1:, 1:]
+        x2 = np.linalg.solve(ata, a2.T @ y2)
+        g0 = gravity * nvec + bb @ x2[3:5]
+        nvec = g0 / np.linalg.norm(g0)
+    return x2, gravity * nvec
+
+
+def _at_last_frame(
+    v0: np.ndarray, g0: np.ndarray, cov: np.ndarray, t_m: float, dv_m: np.ndarray, gravity: float
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The velocity at the window's last frame ``v_m = v_0 + g0 t_m + dv_m`` (``dv_m`` the
+    preintegrated velocity), its covariance ``J cov J^T`` with ``J = [I, t_m B]`` from the
+    covariance of ``(v_0, delta)``, its largest std, and the tilt's std (``delta``'s largest,
+    over ``g``)."""
+    bb = _basis(g0 / gravity)
+    v_m = v0 + g0 * t_m + dv_m
+    jac = np.zeros((3, 5))
+    jac[:, 0:3] = I3
+    jac[:, 3:5] = t_m * bb
+    cov_v = jac @ cov @ jac.T
+    sig_v = math.sqrt(max(float(np.linalg.eigvalsh(cov_v)[-1]), 0.0))
+    sig_tilt = math.sqrt(max(float(np.linalg.eigvalsh(cov[3:5, 3:5])[-1]), 0.0)) / gravity
+    return v_m, cov_v, sig_v, sig_tilt
 
 
 def _wls(a: np.ndarray, y: np.ndarray, wgt: np.ndarray, ridge: np.ndarray) -> np.ndarray:
