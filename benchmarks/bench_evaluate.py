@@ -67,7 +67,8 @@ def bench_distance(smoke: bool = False) -> list[tuple[str, float, str]]:
 def bench_fly(
     fit: Path, synth: Path, quick: bool, smoke: bool = False
 ) -> list[tuple[str, float, str]]:
-    from qsls.pipeline.fly.fly import FlyOptions, fly_evaluate
+    from qsls.pipeline.fly.options import FlyOptions
+    from qsls.pipeline.fly.stage import fly_evaluate
 
     kw: dict = {"seeds": [0], "duration": 10.0} if quick else {}
     if smoke:

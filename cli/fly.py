@@ -17,7 +17,7 @@ from qsls.cli.common import (
     print_verdicts,
 )
 from qsls.cli.fields import Flag, Table, model_options
-from qsls.pipeline.evaluate.options import FlyOptions
+from qsls.pipeline.fly.options import FlyOptions
 
 EXAMPLE = "qsls fly --model fit --controller synth --out fly --seeds 0,1,2"
 
@@ -60,7 +60,7 @@ FLY_CONFIG_ONLY = {
 @model_options(
     FlyOptions,
     {**FLY, "smooth_s": ("--smooth-s",)},
-    config_only={**FLY_CONFIG_ONLY, "flown_by": "qsls evaluate's; fly flies them itself"},
+    config_only=FLY_CONFIG_ONLY,
 )
 def command(
     model: Path = typer.Option(
@@ -82,8 +82,8 @@ def command(
     config: Path = typer.Option(
         None,
         "--config",
-        help="YAML file of options: its 'evaluate:' section and the 'fly:' under it, as in "
-        "a run config (the command line wins).",
+        help="YAML file of options: its 'fly:' section, as in a run config (the command line "
+        "wins).",
     ),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     force: bool = typer.Option(
@@ -105,14 +105,12 @@ def fly(
     force: bool,
     given: dict[str, object],
 ) -> None:
-    """Fly (the options: the config's ``evaluate:`` section, its ``fly:``, then ``given``),
-    then the summary, the paper comparison and the verdicts."""
-    from qsls.pipeline.core.config import load_options
-    from qsls.pipeline.fly.fly import fly_evaluate
-    from qsls.pipeline.evaluate.section import EvaluateSection
+    """Fly (the options: the config's ``fly:`` section, then ``given``), then the summary, the
+    paper comparison and the verdicts."""
+    from qsls.pipeline.fly.options import load_fly_options
+    from qsls.pipeline.fly.stage import fly_evaluate
 
-    section = load_options(EvaluateSection, config, None, section="evaluate")
-    options = section.flying(given, str(config or "options"))
+    options = load_fly_options(config, given)
     with RichProgress() as progress:
         result = fly_evaluate(model, controllers, options, out, force=force, progress=progress)
     print_summary("qsls fly", result.summary())

@@ -23,8 +23,8 @@ from qsls.pipeline.evaluate.assumptions import (
     check_assumptions,
     gated_errors,
 )
-from qsls.pipeline.fly.paired import finding3_assumptions
 from qsls.pipeline.evaluate.training import TrainingData
+from qsls.pipeline.fly.bound_finding import finding3_assumptions
 
 T, R, V, BETA = 20, 2.0, 1.5, 0.2
 H = np.diag([0.1, 0.1, 0.1, 1.0, 1.0, 1.0])

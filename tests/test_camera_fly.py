@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qsls.pipeline.fly.fly import FlyOutcome, _true_lipschitz
+from qsls.pipeline.fly.flights import FlyOutcome
+from qsls.pipeline.fly.tables import true_lipschitz
 
 
 def _outcome(condition: str, lipschitz: float | None) -> FlyOutcome:
@@ -18,14 +19,14 @@ def _outcome(condition: str, lipschitz: float | None) -> FlyOutcome:
     )  # fmt: skip
 
 
-def test_camera_flights_claim_no_true_lipschitz():
+def test_camera_flights_claim_notrue_lipschitz():
     """Emulator flights give the largest L per condition; camera flights (L None) give none,
     so the findings skip the 'bound with the true L' comparison instead of reading L = 0."""
     emu = [_outcome("regular", 0.2), _outcome("regular", 0.3), _outcome("degraded", 0.5)]
-    assert _true_lipschitz(emu) == {"regular": 0.3, "degraded": 0.5}
+    assert true_lipschitz(emu) == {"regular": 0.3, "degraded": 0.5}
     cam = [_outcome("regular", None), _outcome("degraded", None)]
-    assert _true_lipschitz(cam) == {}
-    assert _true_lipschitz([*cam, emu[2]]) == {"degraded": 0.5}
+    assert true_lipschitz(cam) == {}
+    assert true_lipschitz([*cam, emu[2]]) == {"degraded": 0.5}
 
 
 def test_camera_flight_log_has_no_lipschitz():
@@ -145,7 +146,8 @@ def trained(tmp_path_factory):
 
 
 def _fly(root, out, vio):
-    from qsls.pipeline.fly.fly import FlyOptions, fly_evaluate
+    from qsls.pipeline.fly.options import FlyOptions
+    from qsls.pipeline.fly.stage import fly_evaluate
 
     opts = FlyOptions.model_validate(
         {"vio": vio, "seeds": [0, 1], "duration": 4.0, "conditions": ["regular"], "se3": False,
@@ -157,7 +159,7 @@ def _fly(root, out, vio):
 def test_fly_options_estimators():
     from pydantic import ValidationError
 
-    from qsls.pipeline.fly.fly import FlyOptions
+    from qsls.pipeline.fly.options import FlyOptions
 
     assert FlyOptions().estimators == ("emulator",)
     assert FlyOptions.model_validate({"vio": "camera"}).estimators == ("camera",)

@@ -98,7 +98,7 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
         },
     ),
     "fly": (
-        "qsls.pipeline.evaluate.options:FlyOptions",
+        "qsls.pipeline.fly.options:FlyOptions",
         {
             "model": None,
             "controller": None,
@@ -216,7 +216,8 @@ def test_every_command_reads_its_section_of_one_config_file(tmp_path):
         "synth: {T: 6, S: 0.1, eps_e: 0.05, radius: 1.0, delta: 0.05}\n"
         "sweep: {eps_e: 0.05, radius: 1.0, delta: 0.05, s_max_curve: false,\n"
         "        grid: {S: [0.05, 1.5], T: [6]}}\n"
-        "evaluate: {smooth_s: 0.5, fly: {seeds: [7]}}\n"
+        "evaluate: {smooth_s: 0.5}\n"
+        "fly: {seeds: [7]}\n"
     )
 
     def run(*args):

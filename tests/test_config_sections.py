@@ -1,8 +1,8 @@
-"""One YAML section, two readers: a ``qsls run`` config's ``sweep:`` and ``evaluate:`` sections
-(with the keys that say where and how to run: ``jobs``, ``scheduler``, ``wait_workers``,
-``fly``) and its ``simulate:`` and ``ingest:`` sections (the bases of every flight's own) work
-unchanged for the stage command with ``--config``, and the other way round; a misspelled key
-is the same one-line error from both."""
+"""One YAML section, two readers: a ``qsls run`` config's ``sweep:``, ``evaluate:`` and ``fly:``
+sections (with the keys that say where and how to run: ``jobs``, ``scheduler``,
+``wait_workers``) and its ``simulate:`` and ``ingest:`` sections (the bases of every flight's
+own) work unchanged for the stage command with ``--config``, and the other way round; a
+misspelled key is the same one-line error from both."""
 
 from __future__ import annotations
 
@@ -30,7 +30,8 @@ SWEEP = {
     "s_max_curve": False,
     "jobs": 2,
 }
-EVALUATE = {"figures": False, "smooth_s": 0.5, "fly": {"seeds": [3], "jobs": 1, "duration": 5}}
+EVALUATE = {"figures": False, "smooth_s": 0.5}
+FLY = {"figures": False, "smooth_s": 0.5, "seeds": [3], "jobs": 1, "duration": 5}
 
 
 def _write(folder, **changes):
@@ -77,18 +78,19 @@ def test_the_sweep_section_of_a_run_config_works_for_qsls_sweep_and_qsls_run(wor
     assert _manifest(work / "one")["results"]["executor"] == "local, 1 process"
 
 
-def test_the_evaluate_section_with_fly_is_read_the_same_by_both(work):
-    cfg = _write(work / "cfg", evaluate=EVALUATE)
+def test_the_evaluate_and_fly_sections_are_read_the_same_by_both(work):
+    cfg = _write(work / "cfg", evaluate=EVALUATE, fly=FLY)
     graph = plan(load_run_config(cfg), cfg, work / "out")
     by = {s.id: s.options for s in graph.stages}
     bound, fly = by["evaluate"], by["fly"]
     assert (bound.figures, bound.smooth_s) == (False, 0.5)
-    # fly inherits the section's keys and adds its own
+    # fly is a section of its own (issue 49): its keys only, the run's simulate: under its sim
     assert (fly.figures, fly.smooth_s, fly.seeds, fly.jobs, fly.duration) == (
         False, 0.5, [3], 1, 5.0
     )  # fmt: skip
+    assert {s.id: s.kind for s in graph.stages}["fly"] == "fly"
     # the stage command on the same file: the bound check with the section's options
-    ran = run(_write(work / "cfg", evaluate=EVALUATE, stages=["ingest", "fit", "synth"]),
+    ran = run(_write(work / "cfg", evaluate=EVALUATE, fly=FLY, stages=["ingest", "fit", "synth"]),
               out=work / "run")  # fmt: skip
     assert {o.id for o in ran.outcomes} >= {"fit", "synth", "ingest/c"}
     res = _cli(
@@ -255,18 +257,34 @@ def test_a_run_config_made_in_python_lays_each_flight_over_its_sections(tmp_path
     assert sim.vio.outliers and by["ingest/s"]["options"].dt == 0.2
 
 
-def test_a_bad_fly_subsection_is_refused_when_the_config_is_read(work):
-    """``evaluate.fly`` (laid over the evaluate section's own keys) is validated with the
-    flying options when the config is read, not first when the run is planned; the same
-    keys for ``qsls fly --config`` name the same problem."""
-    cfg = _write(work / "cfg", evaluate={"figures": False, "fly": {"seedz": [1]}})
+def test_a_bad_fly_section_is_refused_when_the_config_is_read(work):
+    """``fly:`` is validated with the flying options when the config is read, not first when
+    the run is planned; the same keys for ``qsls fly --config`` name the same problem."""
+    cfg = _write(work / "cfg", fly={"figures": False, "seedz": [1]})
     with pytest.raises(
-        ConfigError, match=r"cfg: evaluate.fly: unknown option 'seedz'; did you mean 'seeds'\?"
+        ConfigError, match=r"cfg: fly: unknown option 'seedz'; did you mean 'seeds'\?"
     ):
         load_run_config(cfg)
-    cfg = _write(work / "cfg", evaluate={"fly": {"vio": ["camera", "camera"]}})
+    res = _cli("fly", "--config", cfg, "--model", work, "--controller", work, "--out", work / "f")
+    assert res.exit_code == 2
+    assert "unknown option 'seedz'; did you mean 'seeds'?" in res.output
+    cfg = _write(work / "cfg", fly={"vio": ["camera", "camera"]})
     with pytest.raises(ConfigError, match="give each estimator once"):
         load_run_config(cfg)
+
+
+def test_fly_under_evaluate_is_refused_with_a_pointer_to_its_own_section(work):
+    """Issue 49: an old config's ``evaluate: {fly: ...}`` gets, for one release, one line saying
+    where the options went, from the run, ``qsls fly`` and ``qsls evaluate`` alike."""
+    cfg = _write(work / "cfg", evaluate={"figures": False, "fly": {"seeds": [1]}})
+    moved = "evaluate: 'fly': flying is a stage of its own now: move this mapping out of evaluate:"
+    with pytest.raises(ConfigError, match=re.escape(f"cfg: {moved}")):
+        load_run_config(cfg)
+    for command in ("fly", "evaluate"):
+        res = _cli(command, "--config", cfg, "--model", work, "--controller", work,
+                   "--out", work / command)  # fmt: skip
+        assert res.exit_code == 2, res.output
+        assert moved.partition(" ")[2] in " ".join(res.output.split()), res.output
 
 
 def test_the_problem_section_is_laid_under_sweep_and_synth(work):

@@ -338,7 +338,7 @@ def _assured_flight(folder, tmp_path, name, fault=None, fallback="pd", backend="
     """A 4 s runtime-assured flight of ``folder`` on the circle, ideal perception but for
     ``fault`` (run_job's path: the assured controller, no bag), and its tick log; ``backend``
     ``c`` flies the exported C, compiled, whose own monitor decides the handover."""
-    from qsls.pipeline.fly.fly import FlyJob, run_job, tick_frame
+    from qsls.pipeline.fly.flights import FlyJob, run_job, tick_frame
     from qsls.pipeline.ingest.options import IngestOptions
     from qsls.pipeline.sim.options import SimOptions
 

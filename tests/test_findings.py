@@ -13,8 +13,9 @@ import pytest
 
 from qsls.pipeline.control.synth import SynthOptions, synth
 from qsls.pipeline.errormodel.fit import FitOptions, fit
-from qsls.pipeline.fly.fly import FlyOptions, fly_evaluate
+from qsls.pipeline.fly.options import FlyOptions
 from qsls.pipeline.fly.paired import paired_findings
+from qsls.pipeline.fly.stage import fly_evaluate
 from qsls.pipeline.fly.stats import Interval, verdict
 from qsls.pipeline.ingest.stage import IngestOptions, ingest
 from qsls.pipeline.sim.simulate import SimOptions, simulate

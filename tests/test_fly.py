@@ -19,7 +19,8 @@ from qsls.pipeline.control.artifacts import load_runtime as load_controller
 from qsls.pipeline.control.synth import SynthOptions, synth
 from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.errormodel.fit import FitOptions, fit
-from qsls.pipeline.fly.fly import FlyOptions, fly_evaluate
+from qsls.pipeline.fly.options import FlyOptions
+from qsls.pipeline.fly.stage import fly_evaluate
 from qsls.pipeline.ingest.stage import IngestOptions, ingest
 from qsls.pipeline.sim.simulate import SimOptions, simulate
 
@@ -151,10 +152,7 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
     cfg.write_text(
         yaml.safe_dump(
             {
-                "evaluate": {
-                    "smooth_s": 0.5,
-                    "fly": {"controllers": ["pd", "l1_robust"], "duration": 8.0},
-                }
+                "fly": {"smooth_s": 0.5, "controllers": ["pd", "l1_robust"], "duration": 8.0},
             }
         )
     )
@@ -227,7 +225,7 @@ def test_model_hash_mismatch_with_real_stages(trained, tmp_path):
 
 def test_pd_height_channel_option(trained, tmp_path):
     """pd_z_control (the paper's setup): thrust from PD on the same estimate, attitude not."""
-    from qsls.pipeline.fly.fly import FlyJob, run_job
+    from qsls.pipeline.fly.flights import FlyJob, run_job
 
     root, _ = trained
     sim = SimOptions().model_dump(mode="json")

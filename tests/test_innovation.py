@@ -229,8 +229,8 @@ def test_the_fly_stage_and_replay_apply_the_onboard_monitor_and_say_what_tripped
     counts the innovation bits as trips and says them (a 50 % break on vz from tick 40)."""
     from qsls.pipeline.control.monitor import monitor_of
     from qsls.pipeline.core.ticks import FlownLog
-    from qsls.pipeline.fly.fly import monitor_columns
     from qsls.pipeline.export.replay import _monitor_text, monitor_report
+    from qsls.pipeline.fly.tables import monitor_columns
 
     ctrl, s, c, _ = loop
     k0, n, dt = 40, 300, 0.1

@@ -231,7 +231,7 @@ def test_from_fly_reruns_fly_only_and_an_unknown_stage_names_the_choices(tmp_pat
         g.add(Stage("fit", "fit", {}, writer("fit")))
         g.add(Stage("synth", "synth", {}, writer("synth"), deps=("fit",)))
         g.add(Stage("evaluate", "evaluate", {}, writer("evaluate"), deps=("synth",)))
-        g.add(Stage("fly", "evaluate", {}, writer("evaluate"), deps=("synth",)))
+        g.add(Stage("fly", "fly", {}, writer("fly"), deps=("synth",)))
         return g
 
     assert [o.status for o in graph().run()] == ["ran"] * 4
@@ -330,8 +330,8 @@ def test_evaluate_listed_with_nothing_to_evaluate_is_refused_before_any_stage(tm
     res = invoke("run", _run_config(tmp_path, stages=stages), "--out", tmp_path / "run")
     assert one_line(res) == (
         f"error: {tmp_path}: stages: evaluate is asked for but there is nothing to evaluate: "
-        "no flight has role 'heldout' and the evaluate: section has no fly:; add a held-out "
-        "flight or evaluate.fly, or leave evaluate out"
+        "no flight has role 'heldout'; add a held-out flight, or leave evaluate out (the "
+        "controllers fly in a fly: section)"
     )
     res = invoke("run", _run_config(tmp_path, stages=stages, synth=None), "--out", tmp_path / "run")
     assert one_line(res) == (
@@ -514,7 +514,7 @@ def test_the_perception_error_figure_draws_what_the_verdict_compares():
     import numpy as np
     import pandas as pd
 
-    from qsls.pipeline.evaluate.figures import error_per_controller_figure, own_gamma
+    from qsls.pipeline.fly.figures import error_per_controller_figure, own_gamma
 
     t = np.arange(0.0, 20.0, 0.1)
     e = 0.05 + 0.02 * np.sin(t)
@@ -551,7 +551,7 @@ def test_the_perception_error_figure_draws_what_the_verdict_compares():
 def test_one_seed_says_no_interval_instead_of_dashes(tmp_path):
     import math
 
-    from qsls.pipeline.fly.paired import _iv_text
+    from qsls.pipeline.fly.items import interval_text as fly_interval_text
     from qsls.pipeline.fly.stats import Interval
     from qsls.pipeline.report.facts import Facts, interval_text
     from qsls.pipeline.report.summary import findings_lines
@@ -570,4 +570,6 @@ def test_one_seed_says_no_interval_instead_of_dashes(tmp_path):
         "Finding 1, PD tracks best: **inconclusive** (effect 1.31, 95% CI 1.1 to 1.52)"
     ]
     assert interval_text([None, None], 3) == "no interval"
-    assert _iv_text(Interval(1.31, math.nan, math.nan, 1)) == "1.31 (one seed: no interval)"
+    assert (
+        fly_interval_text(Interval(1.31, math.nan, math.nan, 1)) == "1.31 (one seed: no interval)"
+    )

@@ -11,7 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from qsls.pipeline.fly.paired import paired_findings, strict_bound_text, strict_bounds
+from qsls.pipeline.fly.bound_finding import strict_bound_text, strict_bounds
+from qsls.pipeline.fly.paired import paired_findings
 from qsls.pipeline.fly.paper import (
     circle_metrics,
     halves,
@@ -206,14 +207,15 @@ def test_camera_flights_keep_the_cameras_parameters(tmp_path):
     """With the options' vio kind the emulator (the default) and ``vio: [camera, emulator]``,
     a camera job keeps ``sim.vio.camera`` (an emulator's dump leaves it out): its degraded
     level is the camera's own."""
-    from qsls.pipeline.fly.fly import FlyOptions, _make_jobs
+    from qsls.pipeline.fly.flights import make_jobs
+    from qsls.pipeline.fly.options import FlyOptions
     from qsls.pipeline.sim.simulate import SimOptions
 
     o = FlyOptions.model_validate(
         {"vio": ["camera", "emulator"], "seeds": [0], "conditions": ["degraded"],
          "sim": {"vio": {"camera": {"degraded_light": 0.15, "degraded_texture": 0.25}}}}
     )  # fmt: skip
-    cam, emu = _make_jobs([("pd", "x")], o, sims=tmp_path, flights=tmp_path, pd_gain=None)
+    cam, emu = make_jobs([("pd", "x")], o, sims=tmp_path, flights=tmp_path, pd_gain=None)
     level = SimOptions.model_validate(
         {**cam.sim, "vio": {**cam.sim["vio"], "perception": "degraded"}}
     ).vio.level

@@ -7,8 +7,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from qsls.pipeline.fly.paired import NO_HALF
 from qsls.pipeline.export.stage import ExportResult
+from qsls.pipeline.fly.items import NO_HALF
 from qsls.pipeline.report.facts import approx_pct
 from qsls.pipeline.report.summary import _half
 

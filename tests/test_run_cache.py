@@ -187,7 +187,7 @@ def test_a_stage_output_folder_held_by_another_process_is_refused(tmp_path):
 
 
 # --------------------------------------------------------------------------- item 5
-FLY = {"fly": {"seeds": [0, 1, 2, 3], "duration": 12, "conditions": ["regular"], "jobs": 2}}
+FLY = {"seeds": [0, 1, 2, 3], "duration": 12, "conditions": ["regular"], "jobs": 2}
 BEFORE_FLY = {"simulate/train_1", "ingest/train_1", "fit", "synth"}
 
 
@@ -209,7 +209,7 @@ def test_a_signal_during_fly_leaves_no_temporary_and_no_worker(tmp_path, sig, be
     import os
 
     shutil.copytree(before_fly, tmp_path / "runs")
-    cfg = _config(tmp_path, name="fly", flights=SMALL["flights"][:1], evaluate=FLY)
+    cfg = _config(tmp_path, name="fly", flights=SMALL["flights"][:1], fly=FLY)
     run = tmp_path / "runs" / "fly"
     systmp = tmp_path / "systmp"  # the system temporary folder, as this run sees it
     systmp.mkdir()

@@ -89,10 +89,10 @@ def test_plan_orders_stages_and_wires_inputs(work, monkeypatch):
     # sweep sits between fit and synth; `fly` without held-out flights: no bound check
     sweep = {"grid": {"S": [0.0, 0.01]}, "T": 6, "eps_e": 0.05, "jobs": 1}
     flights = BASE["flights"][:2]
-    g2 = _plan(work, sweep=sweep, flights=flights, evaluate={"fly": {"seeds": [0]}})
+    g2 = _plan(work, sweep=sweep, flights=flights, evaluate=None, fly={"seeds": [0]})
     assert g2.ids == ["ingest/a", "ingest/b", "fit", "sweep", "synth", "fly"]
     fly = g2.stages[-1]
-    assert (fly.kind, fly.deps) == ("evaluate", ("fit", "synth"))
+    assert (fly.kind, fly.deps) == ("fly", ("fit", "synth"))
     assert _plan(work, stages=["ingest", "fit"]).ids == ALL[:4]
     assert _plan(work, stages=["ingest"]).ids == ALL[:3]
 

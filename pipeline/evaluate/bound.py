@@ -75,7 +75,7 @@ from qsls.pipeline.evaluate.conditions import flight_conditions
 from qsls.pipeline.evaluate.flownby import flown_by
 from qsls.pipeline.evaluate.mismatch import flight_mismatches, skipped_controller_folders
 from qsls.pipeline.evaluate.nees import Nees, flight_nees
-from qsls.pipeline.evaluate.options import EvaluateOptions
+from qsls.pipeline.evaluate.options import CheckOptions, EvaluateOptions
 from qsls.pipeline.evaluate.table import Evaluation
 from qsls.pipeline.evaluate.theorem import (
     TheoremNumbers,
@@ -838,7 +838,7 @@ def write_tables(
     samples: pd.DataFrame,
     warnings: Sequence[str],
     model: ErrorModel,
-    options: EvaluateOptions,
+    options: CheckOptions,
     extra_json: dict[str, Any] | None = None,
     *,
     own_only: bool = False,

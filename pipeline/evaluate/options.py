@@ -2,7 +2,8 @@
 file with :class:`~qsls.pipeline.evaluate.section.EvaluateSection`), apart from the stage: this
 module imports only pydantic, the core and the other stages' light option modules, so
 ``qsls run`` validates a run config without loading pandas. :mod:`qsls.pipeline.evaluate.bound`
-and :mod:`qsls.pipeline.fly.fly` re-export them."""
+re-exports them; the flying options (:mod:`qsls.pipeline.fly.options`) share
+:class:`CheckOptions`."""
 
 from __future__ import annotations
 
@@ -12,15 +13,16 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 
 from qsls.pipeline.core.cluster import SchedulerAddress
-from qsls.pipeline.core.config import MAX_FLIGHTS, Duration, FlightCount, Options, Seed
+from qsls.pipeline.core.config import Duration, FlightCount, Options, Seed
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.evaluate.conditions import ConditionFamily
-from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.sim.options import Perception, SimOptions
 
 
-class EvaluateOptions(Options):
-    """Options of the bound check (``qsls evaluate``)."""
+class CheckOptions(Options):
+    """What the bound check's tables and figures read, whoever flew the flights: ``qsls
+    evaluate`` (:class:`EvaluateOptions`) and ``qsls fly``
+    (:class:`qsls.pipeline.fly.options.FlyOptions`)."""
 
     smooth_s: float = 1.0
     """Time constant (s) of the first-order average drawn over ``||e||`` in the bound check's
@@ -29,94 +31,18 @@ class EvaluateOptions(Options):
     state_scale: tuple[float, float, float, float, float, float] | None = None
     """Per-coordinate weights of the state distance; must equal the error model's (its
     S-slope is a slope in that norm), which is the default."""
-    flown_by: str | None = None
-    """The controller (by name) that flew the given flights: the theorem is checked on its
-    rows; every other row, and every row when unset, checks the premise only."""
     figures: bool = True
     """Write the PNG figures."""
     max_figure_flights: int = Field(12, ge=0, le=1000)
     """At most this many flights get a panel in the figures (all are in the tables)."""
 
 
-Vio = Literal["emulator", "camera"]
+class EvaluateOptions(CheckOptions):
+    """Options of the bound check (``qsls evaluate``)."""
 
-
-class FlyOptions(EvaluateOptions):
-    """Options of ``qsls fly`` (and those of the bound check)."""
-
-    seeds: list[Seed] = Field(
-        default_factory=lambda: [0, 1, 2], min_length=1, max_length=MAX_FLIGHTS
-    )
-    """Seeds of the VIO emulator (and of the log's noise); one flight per seed."""
-    duration: Duration = 30.0
-    """Seconds per flight."""
-    conditions: list[Perception] = Field(
-        default_factory=lambda: ["regular", "degraded"],  # type: ignore[arg-type]
-        min_length=1,
-    )
-    """Perception conditions (the emulator's presets)."""
-    vio: Vio | list[Vio] = "emulator"
-    """Where each flight's estimate comes from: ``emulator`` (the VIO error model) or
-    ``camera`` (a rendered camera, an IMU and an MSCKF; ``sim.vio.camera`` holds its
-    parameters). A list (``camera,emulator``) flies every controller, seed and condition with
-    each, paired by seed; the first is the primary (its tables as a single-estimator run
-    writes them), every estimator's results also keyed by estimator (docs/evaluation.md)."""
-
-    @field_validator("vio")
-    @classmethod
-    def _distinct_estimators(cls, v: Vio | list[Vio]) -> Vio | list[Vio]:
-        if isinstance(v, list) and (not v or len(set(v)) < len(v)):
-            raise ValueError("vio: give each estimator once, at least one")
-        return v
-
-    @property
-    def estimators(self) -> tuple[Vio, ...]:
-        """The estimators flown, the primary first."""
-        return tuple(self.vio) if isinstance(self.vio, list) else (self.vio,)
-
-    controllers: list[str] | None = None
-    """Controller folder names to fly; default: the paper's four where given, else all."""
-    se3: bool = True
-    """Also fly RotorPy's SE3 controller (the training flights' controller)."""
-    jobs: int = Field(0, ge=0)
-    """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
-    scheduler: SchedulerAddress | None = None
-    """A Dask scheduler (``tcp://host:8786``): the flights run on its workers instead of the
-    local pool, with the same tables (workers on other machines need this one's filesystem);
-    default: none, the local pool."""
-    wait_workers: float = Field(60.0, gt=0)
-    """With ``scheduler``: seconds to wait for a first worker, and for one to come back after
-    every worker left, before failing."""
-    sim: SimOptions = SimOptions()
-    """Vehicle, reference, VIO emulator, crash limits and the log's format (seed, duration,
-    controller and perception are set per flight)."""
-    ingest: IngestOptions = IngestOptions()
-    """How each flight's bag is ingested (as a real one)."""
-    track_threshold_m: float = Field(0.3, gt=0)
-    """A controller 'tracks' when it does not crash and its tracking RMS is below this (m)."""
-    tie_rel: float = Field(0.02, ge=0)
-    """Relative difference below which two controllers' numbers count as a tie (findings)."""
-    pd_z_control: bool | list[str] = False
-    """Fly synthesized controllers with the PD's height (thrust) channel, pitch and roll
-    staying theirs: ``true`` for every synthesized controller, or the list of those that do
-    (the paper: the imitation controller only, ``[l1_robust_imitation]``, "for safety" on
-    hardware and matched in simulation)."""
-
-    def pd_z_for(self, controller: str) -> bool:
-        """Whether ``controller`` flies with the PD's height channel (``pd_z_control``)."""
-        z = self.pd_z_control
-        return z if isinstance(z, bool) else controller in z
-
-    keep_bags: bool = False
-    """Keep every flight's simulate folder (bag, truth.json) under ``sims/``."""
-    assured: bool = False
-    """Also fly each controller that has an onboard monitor (a robust certificate, certified or
-    relaxed) in runtime-assured mode: it flies until its monitor trips, then ``fallback``
-    flies (docs/monitor.md, The fallback); beside the controller alone and PD alone, same
-    seeds. Written to ``assured.parquet`` and the flights' tick logs."""
-    fallback: Literal["pd", "hold"] = "pd"
-    """The assured mode's fallback: ``pd``, the PD reference on the reference from the current
-    estimate; ``hold``, PD holding the estimated position of the trip tick."""
+    flown_by: str | None = None
+    """The controller (by name) that flew the given flights: the theorem is checked on its
+    rows; every other row, and every row when unset, checks the premise only."""
 
 
 Method = Literal["conformal", "pac"]

@@ -1,42 +1,38 @@
 """The ``evaluate:`` section of a config file, read the same way by ``qsls evaluate --config``
-and by ``qsls run``: the bound check's options (:class:`EvaluateOptions`) and, under ``fly:``,
-the options of the flights flown by the controllers (:class:`FlyOptions`, which inherit the
-section's own keys: ``figures: false`` beside ``fly:`` holds for both)."""
+and by ``qsls run``: the bound check's options (:class:`EvaluateOptions`). The flights flown by
+the controllers have a top-level section of their own, ``fly:``
+(:class:`qsls.pipeline.fly.options.FlyOptions`); an ``evaluate:`` that still holds ``fly:``
+is refused with a one-line pointer (:data:`FLY_MOVED`, for one release)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
-from qsls.pipeline.core.config import merge, validate
-from qsls.pipeline.evaluate.options import EvaluateOptions, FlyOptions
+from pydantic import field_validator
+
+from qsls.pipeline.evaluate.options import EvaluateOptions
+
+FLY_MOVED = (
+    "flying is a stage of its own now: move this mapping out of evaluate: to a top-level "
+    "fly: section (with any smooth_s, state_scale, figures or max_figure_flights it took "
+    "from evaluate:)"
+)
+"""The one-line pointer an old config (``evaluate: {fly: ...}``) gets, for one release."""
 
 
 class EvaluateSection(EvaluateOptions):
-    """``evaluate:``: the bound check's options, plus ``fly`` for ``qsls fly``."""
+    """``evaluate:``: the bound check's options."""
 
-    fly: dict[str, Any] | None = None
-    """Options of ``qsls fly`` (the run's ``fly`` stage) over the section's own:
-    seeds, duration, conditions, jobs, sim, ... (:class:`FlyOptions`); absent: the run flies
-    nothing."""
+    fly: Any = None
+    """Refused (:data:`FLY_MOVED`): the flying options are the top-level ``fly:`` section's."""
 
-    def _own(self) -> dict[str, Any]:
-        return self.model_dump(exclude={"fly"}, exclude_unset=True)
+    @field_validator("fly")
+    @classmethod
+    def _fly_moved(cls, v: Any) -> Any:
+        if v is not None:
+            raise ValueError(FLY_MOVED)
+        return v
 
     def bound(self) -> EvaluateOptions:
         """The bound check's options."""
-        return EvaluateOptions.model_validate(self._own())
-
-    def flying(
-        self,
-        overrides: Mapping[str, Any] | None = None,
-        source: str = "options",
-        base_sim: Mapping[str, Any] | None = None,
-    ) -> FlyOptions:
-        """The flying options: the section's keys, then ``fly``'s, then ``overrides`` (the
-        command line's); ``base_sim`` (a run's ``simulate:`` section) is laid under their
-        ``sim``, as under the calibration's; errors name ``source``."""
-        data = merge(merge(self._own(), self.fly or {}), overrides or {})
-        if base_sim:
-            data["sim"] = merge(dict(base_sim), data.get("sim") or {})
-        return validate(FlyOptions, data, source)
+        return EvaluateOptions.model_validate(self.model_dump(exclude={"fly"}, exclude_unset=True))

@@ -19,20 +19,17 @@ reader of a fly stage reads them unchanged. Beside them:
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import pandas as pd
 
 from qsls.pipeline.fly.stats import paired_ratio
 
-if TYPE_CHECKING:
-    from qsls.pipeline.core.artifacts import StageWriter
-
 
 class EstimatorAnalysis(Protocol):
-    """What these tables read of one estimator's analysis (the fly stage's
-    ``qsls.pipeline.fly.fly.Analysis``; the fly stage imports this module, so this one
-    states what it reads instead of importing it)."""
+    """What these tables read of one estimator's analysis
+    (:class:`qsls.pipeline.fly.core.Analysis`; the core imports this module, so this one states
+    what it reads instead of importing it)."""
 
     @property
     def flights(self) -> pd.DataFrame: ...
@@ -57,6 +54,7 @@ PAIRED_METRICS = [
 FLIGHTS_FILE = "flights_by_estimator.parquet"
 PAIRED_FILE = "paired_by_estimator.parquet"
 PER_CONTROLLER_FILE = "per_controller_by_estimator.parquet"
+ASSUMPTIONS_FILE = "assumptions_by_estimator.parquet"
 
 
 def keyed(tables: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
@@ -146,27 +144,26 @@ def findings_markdown(analyses: Mapping[str, EstimatorAnalysis]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_by_estimator(w: StageWriter, analyses: Mapping[str, EstimatorAnalysis]) -> dict[str, Any]:
-    """The keyed and paired tables of the module docstring inside an open writer; returns
-    the stage's ``findings.json`` document."""
-    w.write_parquet(FLIGHTS_FILE, keyed({v: a.flights for v, a in analyses.items()}))
-    w.write_parquet(PER_CONTROLLER_FILE, keyed({v: a.per for v, a in analyses.items()}))
-    w.write_parquet(
-        "assumptions_by_estimator.parquet", keyed({v: a.assumptions for v, a in analyses.items()})
-    )
-    w.write_parquet(PAIRED_FILE, paired(analyses))
-    return findings_by_estimator(analyses)
+def by_estimator_tables(analyses: Mapping[str, EstimatorAnalysis]) -> dict[str, pd.DataFrame]:
+    """The keyed and paired tables of the module docstring, by file name."""
+    return {
+        FLIGHTS_FILE: keyed({v: a.flights for v, a in analyses.items()}),
+        PER_CONTROLLER_FILE: keyed({v: a.per for v, a in analyses.items()}),
+        ASSUMPTIONS_FILE: keyed({v: a.assumptions for v, a in analyses.items()}),
+        PAIRED_FILE: paired(analyses),
+    }
 
 
 __all__ = [
+    "ASSUMPTIONS_FILE",
     "FLIGHTS_FILE",
     "PAIRED_FILE",
     "PER_CONTROLLER_FILE",
     "RATIO_METRICS",
+    "by_estimator_tables",
     "estimator_ratios",
     "findings_by_estimator",
     "findings_markdown",
     "keyed",
     "paired",
-    "write_by_estimator",
 ]

@@ -7,7 +7,8 @@
 3. every controller's perception error stays below the theoretical bound, both as qsls's
    certificate (every assumption of the guarantee on the robust controllers' own flights,
    every estimator's) and as the paper's strict bound ``R0 / (1 - S ||Phi_xe||)`` (undefined
-   when ``S ||Phi_xe|| >= 1``; :mod:`qsls.pipeline.fly.paper`);
+   when ``S ||Phi_xe|| >= 1``; :mod:`qsls.pipeline.fly.paper`), in
+   :mod:`qsls.pipeline.fly.bound_finding`;
 4. degraded perception: the quadratic-cost robust and nominal controllers err significantly
    less than PD and the imitation controller (the **two-group contrast**), ``l1_robust`` the
    least (reported beside it).
@@ -42,33 +43,31 @@ when all controllers tie.
 Metrics are read over the circle with the paper's 1 s smoothing where the flights have them
 (``*_circle`` columns), the whole flight's reported beside (``whole_flight``). Every verdict
 is replicated: it reads ``reproduced`` or ``contradicted`` only when both halves of the seeds
-say so on their own (``halves``; the verdict on all seeds is ``verdict_all_seeds``).
+say so on their own (``halves``; the verdict on all seeds is ``verdict_all_seeds``;
+:func:`qsls.pipeline.fly.items.replicate`). ``comparison.md``'s text:
+:mod:`qsls.pipeline.fly.markdown`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.errormodel.honest import clopper_pearson
+from qsls.pipeline.fly.bound_finding import finding3
 from qsls.pipeline.fly.findings import (
     paper_mode_reaction,
     state_dependence,
-    state_dependence_markdown,
 )
+from qsls.pipeline.fly.items import finding_item, interval_text, replicate
 from qsls.pipeline.fly.paper import (
-    PAPER_BOUND_SIM,
-    PAPER_S_SIM,
     QUADRATIC,
     TUNED_FOR_IDEAL,
     halves,
-    replicated,
-    strict_bound,
     two_group_contrast,
 )
 from qsls.pipeline.fly.stats import (
@@ -81,20 +80,6 @@ from qsls.pipeline.fly.stats import (
 )
 
 ROBUST = ("l1_robust", "l1_robust_imitation")
-FINDINGS_FILE = "findings.json"
-
-
-def _g(v: float) -> str:
-    return f"{v:.3g}" if math.isfinite(v) else "n/a"
-
-
-def _iv_text(iv: Interval) -> str:
-    lo, hi = iv.ci
-    none = "(one seed: no interval)" if iv.n == 1 else "(no interval)"
-    if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
-        return f"{_g(iv.mean)} {none}"
-    ci = f"[{_g(lo)}, {_g(hi)}]"
-    return f"{_g(iv.mean)} {ci}"
 
 
 def _pivot(flights: pd.DataFrame, condition: str, col: str) -> pd.DataFrame:
@@ -103,41 +88,6 @@ def _pivot(flights: pd.DataFrame, condition: str, col: str) -> pd.DataFrame:
     if sub.empty or col not in sub:
         return pd.DataFrame()
     return sub.pivot_table(index="seed", columns="controller", values=col, aggfunc="first")
-
-
-def _item(
-    fid: int,
-    claim: str,
-    definition: str,
-    per_seed: pd.Series,
-    direction: Direction,
-    detail: str,
-    mechanism: Callable[[], str] | None = None,
-    level: float = LEVEL,
-    **extra: Any,
-) -> dict[str, Any]:
-    """One finding: the per-seed ratios' geometric mean, interval (at ``level``) and verdict
-    (against 1)."""
-    iv = ratio_interval(per_seed.to_numpy(float), level)
-    v = verdict(iv, 1.0, direction)
-    item: dict[str, Any] = {
-        "id": fid,
-        "claim": claim,
-        "effect": float(iv.mean) if math.isfinite(iv.mean) else None,
-        "ci": iv.ci,
-        "verdict": v,
-        "n_seeds": iv.n,
-        "level": level,
-        "effect_definition": definition,
-        "paper_direction": f"{'>' if direction == 'greater' else '<'} 1",
-        "per_seed": {str(int(s)): float(r) for s, r in per_seed.items()},
-        "detail": f"effect {_iv_text(iv)} over {iv.n} seeds: {v}; {detail}",
-    }
-    if mechanism is not None:
-        item["why"] = mechanism()
-    if v != "reproduced" and mechanism is not None:
-        item["mechanism"] = item["detail"] + "; why: " + item["why"]
-    return {**item, **extra}
 
 
 def _col(flights: pd.DataFrame, base: str, window: str) -> str:
@@ -198,7 +148,7 @@ def _against_each(piv: pd.DataFrame, who: str, direction: Direction) -> Pairs:
 
 
 def _pairs_text(p: Pairs) -> str:
-    return ", ".join(f"{c} {_iv_text(iv)}" for c, iv in p.intervals.items())
+    return ", ".join(f"{c} {interval_text(iv)}" for c, iv in p.intervals.items())
 
 
 def finding1_tracking(
@@ -234,7 +184,7 @@ def finding1_tracking(
         f"; each controller's tracking RMS / PD's (simultaneous {100 * pairs.level:.4g}% "
         f"intervals): {_pairs_text(pairs)}"
     )
-    return _item(
+    return finding_item(
         1,
         "regular perception: all controllers track, PD tracks best",
         f"per seed, {pairs.decider}'s tracking RMS / PD's ({_window_name(col)}; > 1: PD "
@@ -273,11 +223,11 @@ def finding2_softness(flights: pd.DataFrame, window: str = "circle") -> dict | N
         f"feedback attitude command RMS / PD's on the same estimate ({_window_name(col)}; < 1: "
         f"softer), regular perception, each robust controller (simultaneous "
         f"{100 * level:.4g}% intervals): "
-        + ", ".join(f"{c} {_iv_text(iv)} {says[c]}" for c, iv in ivs.items())
+        + ", ".join(f"{c} {interval_text(iv)} {says[c]}" for c, iv in ivs.items())
     )
     if deg:
         detail += "; degraded perception: " + ", ".join(
-            f"{c} {_iv_text(iv)}" for c, iv in deg.items()
+            f"{c} {interval_text(iv)}" for c, iv in deg.items()
         )
     g = flights[flights["controller"].isin(ROBUST)].groupby(["controller", "condition"], sort=False)
     rough = g["smoothness_vs_pd"].mean() if "smoothness_vs_pd" in flights else pd.Series()
@@ -297,7 +247,7 @@ def finding2_softness(flights: pd.DataFrame, window: str = "circle") -> dict | N
             )
         return text
 
-    return _item(
+    return finding_item(
         2,
         "the robust controllers react more conservatively to estimation errors than PD "
         "(each robust controller)",
@@ -407,7 +357,7 @@ def finding4_degraded(
     def why() -> str:
         return _motion_mechanism(flights, cols, motion_parts, estimator)
 
-    return _item(
+    return finding_item(
         4,
         "degraded perception: the quadratic-cost robust and nominal controllers err less than "
         "PD and the imitation controller (l1_robust the least)",
@@ -421,324 +371,6 @@ def finding4_degraded(
         groups={"quadratic": a, "others": b},
         l1_robust_lowest=lowest,
     )
-
-
-def finding3_bound(
-    checks: pd.DataFrame, flights: pd.DataFrame, ref_name: str | None
-) -> dict | None:
-    """Finding 3 without the assumption table (module docstring): the largest max ||e|| /
-    gamma per seed."""
-    if checks.empty:
-        return None
-    seed_of = dict(zip(flights["flight"], flights["seed"], strict=True))
-    checks = checks[checks["flight"].isin(seed_of)]
-    checks = checks.assign(seed=checks["flight"].map(seed_of))
-    nominal = "gamma_nominal" in checks and checks["gamma_nominal"].notna().any()
-    if nominal:
-        rows = checks[(checks["controller"] == checks["flown_by"]) & checks["has_guarantee"]]
-        rows = rows[np.isfinite(rows["gamma_nominal"].astype(float))]
-        ratio = rows["max_error_norm"].astype(float) / rows["gamma_nominal"].astype(float)
-        basis = "gamma_nominal (the theorem, own flights of the certified controllers)"
-    else:
-        rows = checks[checks["controller"] == ref_name]
-        ratio = rows["max_ratio_strict"].astype(float)
-        basis = f"gamma_strict of {ref_name} on every flight (the paper's comparison)"
-    if rows.empty:
-        return None
-    frame = pd.DataFrame({"seed": rows["seed"], "ratio": ratio, "by": rows["flown_by"]})
-    for col in ("frac_premise_holds", "max_premise_ratio", "condition"):
-        if col in rows:
-            frame[col] = rows[col]
-    per_seed = frame.groupby("seed")["ratio"].max()
-    by = frame.groupby("by")["ratio"].max().sort_values()
-    detail = f"bound: {basis}; worst max ||e|| / gamma per controller: " + ", ".join(
-        f"{c} {_g(v)}" for c, v in by.items()
-    )
-
-    def why() -> str:
-        worst = frame.loc[frame["ratio"].idxmax()]
-        cond = f", {worst['condition']}" if "condition" in frame else ""
-        text = (
-            f"the worst flight ({worst['by']}{cond}, seed {int(worst['seed'])}) reaches "
-            f"{_g(float(worst['ratio']))} x gamma; the bound holds only under its premise "
-            "||e|| <= eps_e + S d (the certificate's eps_e and S)"
-        )
-        if "frac_premise_holds" in frame and "max_premise_ratio" in frame:
-            text += (
-                f", which holds on {100 * float(frame['frac_premise_holds'].mean()):.1f}% of "
-                f"the samples of these flights, the error reaching "
-                f"{_g(float(frame['max_premise_ratio'].max()))} x (eps_e + S d)"
-            )
-        return text
-
-    return _item(
-        3,
-        "every controller's perception error stays below the bound",
-        "per seed, the largest max ||e|| / gamma over the flights of that seed (< 1: below)",
-        per_seed,
-        "less",
-        detail,
-        why,
-        bound=("gamma_nominal" if nominal else "gamma_strict"),
-    )
-
-
-def finding3_assumptions(assumptions: pd.DataFrame) -> dict | None:
-    """Finding 3 on the robust controllers' own flights (every estimator's), read through
-    every assumption of the guarantee (:mod:`qsls.pipeline.evaluate.assumptions`):
-    ``contradicted`` if any flight breaks an assumption or the bound, with the share of such
-    flights and its Clopper-Pearson 95% interval, each failing flight named; ``reproduced``
-    only when none does. The paper's claim is about its robust controllers, whatever their
-    status here: the detail counts the failures per status (a ``relaxed`` certificate promises
-    nothing) and those flown outside their certificate's calibration."""
-    if assumptions is None or not len(assumptions):
-        return None
-    ok = assumptions["assumptions_hold"].astype(bool) & assumptions["bound_held"].astype(bool)
-    bad = assumptions[~ok]
-    n, k = len(assumptions), len(bad)
-    lo, hi = clopper_pearson(k, n)
-    named = [f"{r.flight} ({r.first_failed or 'bound'})" for r in bad.itertuples()]
-    per_est = ""
-    if "estimator" in assumptions:
-        parts = []
-        for est, g in assumptions.groupby("estimator", sort=False):
-            g_ok = g["assumptions_hold"].astype(bool) & g["bound_held"].astype(bool)
-            parts.append(f"{est} {int((~g_ok).sum())} of {len(g)}")
-        per_est = " (" + ", ".join(parts) + ")"
-    by_status = ""
-    if "status" in assumptions:
-        parts = [
-            f"{st} {int((~ok[g.index]).sum())} of {len(g)}"
-            for st, g in assumptions.groupby("status", sort=False)
-        ]
-        by_status = "; by status: " + ", ".join(parts)
-    outside = ""
-    if "outside_calibration" in assumptions:
-        away = int((bad["outside_calibration"].fillna("").astype(str) != "").sum())
-        outside = f"; {away} of the {k} outside their certificate's calibration" if away else ""
-    detail = (
-        f"{k} of {n} flights of the robust controllers{per_est} break an assumption or the "
-        f"bound (share {k / n:.3g}, 95% Clopper-Pearson {lo:.3g} to {hi:.3g}){by_status}"
-        f"{outside}" + (": " + _names_all(named) if k else "")
-    )
-    item = {
-        "id": 3,
-        "claim": "every controller's perception error stays below the bound",
-        "effect": k / n,
-        "ci": [lo, hi],
-        "verdict": "contradicted" if k else "reproduced",
-        "n_flights": n,
-        "n_violating": k,
-        "violating": named,
-        "level": 0.95,
-        "effect_definition": "share of the robust controllers' own flights (certified or "
-        "relaxed: the detail counts each) on which an assumption of the guarantee, or the bound "
-        "itself, fails (the paper: 0)",
-        "paper_direction": "= 0",
-        "detail": detail,
-        "bound": "every assumption (docs/guarantee.md)",
-    }
-    if k:
-        item["mechanism"] = detail
-    return item
-
-
-def _names_all(items: Sequence[str], most: int = 12) -> str:
-    more = f" and {len(items) - most} more (findings.json lists all)" if len(items) > most else ""
-    return ", ".join(items[:most]) + more
-
-
-def strict_bounds(
-    controllers: Sequence[dict[str, Any]], flights: pd.DataFrame
-) -> list[dict[str, Any]]:
-    """Per controller with a premise (``{name, status, R0, S, norm_phi_xe}``), the paper's
-    strict bound ``R0 / (1 - S ||Phi_xe||)`` with the controller's own S (``None``: undefined,
-    ``S ||Phi_xe|| >= 1``) and at the paper's ``S = 11.7``, against the largest ``||e||``
-    over the controller's own flights."""
-    out = []
-    for c in controllers:
-        S, n, R0 = float(c["S"]), float(c["norm_phi_xe"]), float(c["R0"])
-        mine = flights[flights["controller"] == c["name"]] if len(flights) else flights
-        worst = float(mine["perception_error_max"].max()) if len(mine) else math.nan
-        b = strict_bound(R0, S, n)
-        bp = strict_bound(R0, PAPER_S_SIM, n)
-        out.append(
-            {
-                "controller": c["name"],
-                "status": c.get("status"),
-                "R0": R0,
-                "S": S,
-                "norm_phi_xe": n,
-                "norm_phi_ue": c.get("norm_phi_ue"),
-                "S_norm_phi_xe": S * n,
-                "bound": b,
-                "max_error": worst,
-                "max_error_over_bound": worst / b if b is not None and b > 0 else None,
-                "paper_S": PAPER_S_SIM,
-                "paper_S_norm_phi_xe": PAPER_S_SIM * n,
-                "bound_at_paper_S": bp,
-            }
-        )
-    return out
-
-
-def strict_bound_text(rows: Sequence[dict[str, Any]]) -> tuple[str, str]:
-    """``(verdict, text)`` of the paper's strict bound over ``rows`` (:func:`strict_bounds`):
-    ``reproduced`` when every defined bound holds on its controller's flights, ``contradicted``
-    when one does not, ``undefined`` when no controller has one."""
-    if not rows:
-        return "undefined", ""
-    parts, defined, broken = [], 0, 0
-    for r in rows:
-        if r["bound"] is None:
-            parts.append(
-                f"{r['controller']}: S {_g(r['S'])} x ||Phi_xe|| {_g(r['norm_phi_xe'])} = "
-                f"{_g(r['S_norm_phi_xe'])} >= 1, undefined"
-            )
-            continue
-        defined += 1
-        ratio = r["max_error_over_bound"]
-        broken += ratio is not None and ratio >= 1
-        parts.append(
-            f"{r['controller']}: S {_g(r['S'])}, ||Phi_xe|| {_g(r['norm_phi_xe'])}, bound "
-            f"{_g(r['bound'])}, max ||e|| / bound {_g(ratio if ratio is not None else math.nan)}"
-        )
-    v = "undefined" if not defined else "contradicted" if broken else "reproduced"
-    smallest = min(r["norm_phi_xe"] for r in rows)
-    paper = (
-        f"at the paper's S = {PAPER_S_SIM:g} every controller has S ||Phi_xe|| >= "
-        f"{_g(PAPER_S_SIM * smallest)} >= 1, so R0 / (1 - S ||Phi_xe||) is undefined: the "
-        f"paper's {PAPER_BOUND_SIM:g} cannot come from that formula at S = {PAPER_S_SIM:g}"
-        if PAPER_S_SIM * smallest >= 1
-        else f"at the paper's S = {PAPER_S_SIM:g} the smallest S ||Phi_xe|| is "
-        f"{_g(PAPER_S_SIM * smallest)} < 1"
-    )
-    return v, "the paper's strict bound R0 / (1 - S ||Phi_xe||): " + "; ".join(parts) + (
-        f" ({v}); {paper}"
-    )
-
-
-def _replicate(
-    build: Callable[[pd.DataFrame, str], dict[str, Any] | None],
-    flights: pd.DataFrame,
-    whole: bool = True,
-) -> dict[str, Any] | None:
-    """``build`` on all seeds, on each half of the seeds (the replication split) and, when
-    ``whole``, on the whole flight's metrics; the verdict is the halves' (module docstring)."""
-    item = build(flights, "circle")
-    if item is None:
-        return None
-    seeds = flights["seed"].unique() if len(flights) else []
-    hs = []
-    for half in halves(seeds):
-        sub = build(flights[flights["seed"].isin(half)], "circle") if half else None
-        hs.append(
-            {
-                "seeds": half,
-                "effect": sub["effect"] if sub else None,
-                "ci": sub["ci"] if sub else [None, None],
-                "verdict": sub["verdict"] if sub else "inconclusive",
-            }
-        )
-    final = replicated(str(hs[0]["verdict"]), str(hs[1]["verdict"]))
-    item["verdict_all_seeds"] = item["verdict"]
-    item["verdict"] = final
-    item["halves"] = hs
-
-    def span(h: dict[str, Any]) -> str:
-        s = h["seeds"]
-        return f"seeds {s[0]} to {s[-1]}" if s else "no seeds"
-
-    def eff(h: dict[str, Any]) -> str:
-        lo, hi = h["ci"]
-        e = "n/a" if h["effect"] is None else _g(float(h["effect"]))
-        return e + (f" [{_g(lo)}, {_g(hi)}]" if lo is not None and hi is not None else "")
-
-    item["detail"] += (
-        f"; on all seeds: {item['verdict_all_seeds']}; replication: "
-        + ", ".join(f"{span(h)} {eff(h)} {h['verdict']}" if h["seeds"] else NO_HALF for h in hs)
-        + f", so {final}"
-    )
-    if whole and "metric" in item and str(item["metric"]).endswith("_circle"):
-        w = build(flights, "flight")
-        if w is not None:
-            item["whole_flight"] = {k: w[k] for k in ("effect", "ci", "verdict", "metric")}
-            item["detail"] += (
-                f"; whole flight (take-off included, unsmoothed): {eff(w)} {w['verdict']}"
-            )
-    if final != "reproduced":
-        why = item.get("why")
-        item["mechanism"] = item["detail"] + (f"; why: {why}" if why else "")
-    else:
-        item.pop("mechanism", None)
-    return item
-
-
-NO_HALF = "one half without seeds (too few flights to split), not tested"
-"""A half of the seeds that holds none: said in words, never as a verdict with no effect."""
-
-
-def _assumption_halves(item: dict[str, Any], assumptions: pd.DataFrame) -> dict[str, Any]:
-    """Finding 3 on the assumptions, replicated on both halves of the seeds."""
-    hs = []
-    for half in halves(assumptions["seed"].unique() if "seed" in assumptions else []):
-        sub = finding3_assumptions(assumptions[assumptions["seed"].isin(half)]) if half else None
-        hs.append(
-            {
-                "seeds": half,
-                "effect": sub["effect"] if sub else None,
-                "ci": sub["ci"] if sub else [None, None],
-                "verdict": sub["verdict"] if sub else "inconclusive",
-            }
-        )
-    # a failing flight is a counterexample to "every flight": it needs no replication
-    final = (
-        "contradicted"
-        if item["verdict"] == "contradicted"
-        else replicated(str(hs[0]["verdict"]), str(hs[1]["verdict"]))
-    )
-    item["verdict_all_seeds"], item["verdict"], item["halves"] = item["verdict"], final, hs
-    item["detail"] += (
-        "; replication: "
-        + ", ".join(
-            f"seeds {h['seeds'][0]} to {h['seeds'][-1]} {h['verdict']}" if h["seeds"] else
-            NO_HALF for h in hs
-        )
-        + f", so {final}"
-    )  # fmt: skip
-    if final != "reproduced":
-        item["mechanism"] = item["detail"]
-    else:
-        item.pop("mechanism", None)
-    return item
-
-
-def finding3(
-    checks: pd.DataFrame,
-    flights: pd.DataFrame,
-    ref_name: str | None,
-    assumptions: pd.DataFrame | None,
-    strict: Sequence[dict[str, Any]] = (),
-) -> dict[str, Any] | None:
-    """Finding 3 both ways (module docstring): qsls's certificate (every assumption, or the
-    bound check without the assumption table) decides the verdict; the paper's strict bound
-    is reported beside it with its own verdict (``strict_bound``)."""
-    if assumptions is not None and len(assumptions):
-        item = finding3_assumptions(assumptions)
-        if item is not None:
-            item = _assumption_halves(item, assumptions)
-    else:
-        item = _replicate(lambda fl, _w: finding3_bound(checks, fl, ref_name), flights, whole=False)
-    if item is None:
-        return None
-    rows = strict_bounds(strict, flights)
-    if rows:
-        v, text = strict_bound_text(rows)
-        item["strict_bound"] = {"verdict": v, "controllers": rows}
-        item["detail"] += "; " + text
-        if "mechanism" in item:
-            item["mechanism"] += "; " + text
-    return item
 
 
 def mechanism_table(
@@ -836,7 +468,7 @@ def degradation_check(
         "per_seed": {str(int(s)): float(v) for s, v in r.items()},
         "text": (
             f"degraded over regular estimator error ({who}'s flights, {_window_name(col)}, "
-            f"paired by seed): {_iv_text(iv)} over {iv.n} seeds; "
+            f"paired by seed): {interval_text(iv)} over {iv.n} seeds; "
             + (
                 f"the interval lies above {factor:g}: the degraded condition degrades"
                 if doubles
@@ -867,12 +499,10 @@ def paired_findings(
     mechanism's text); ``strict``: the controllers' premises for the paper's strict bound
     (:func:`strict_bounds`); ``norms``: ``{controller: {phi_xe, phi_ue}}``."""
     found = (
-        _replicate(lambda fl, w: finding1_tracking(fl, paper4, threshold, w), flights),
-        _replicate(finding2_softness, flights),
+        replicate(lambda fl, w: finding1_tracking(fl, paper4, threshold, w), flights),
+        replicate(finding2_softness, flights),
         finding3(checks, flights, ref_name, assumptions, strict),
-        _replicate(
-            lambda fl, w: finding4_degraded(fl, paper4, motion_parts, estimator, w), flights
-        ),
+        replicate(lambda fl, w: finding4_degraded(fl, paper4, motion_parts, estimator, w), flights),
     )
     names = list(dict.fromkeys(flights["controller"])) if len(flights) else []
     return {
@@ -901,124 +531,9 @@ def replace_finding(doc: dict[str, Any], item: dict[str, Any] | None) -> dict[st
     return {**doc, "findings": found}
 
 
-def _effect_text(f: dict[str, Any]) -> str:
-    lo, hi = f["ci"]
-    eff = "n/a" if f["effect"] is None else f"{f['effect']:.3g}"
-    return eff + (f" [{lo:.3g}, {hi:.3g}]" if lo is not None and hi is not None else "")
-
-
-def halves_text(f: dict[str, Any]) -> str:
-    """``seeds a to b: verdict (effect [CI]); ...`` of a finding's replication split."""
-    out = []
-    for h in f.get("halves") or []:
-        s = h["seeds"]
-        span = f"seeds {s[0]} to {s[-1]}" if s else "no seeds"
-        out.append(f"{span}: {h['verdict']} ({_effect_text(h)})")
-    return "; ".join(out) or "-"
-
-
-def comparison_markdown(
-    comparison: Sequence[dict[str, Any]],
-    per: pd.DataFrame,
-    findings: dict[str, Any] | None = None,
-) -> str:
-    """The findings table (paired by seed with intervals when ``findings``, the
-    ``findings.json`` document, is given) and the per-controller metrics as Markdown."""
-    lines = ["# qsls against the paper's findings", ""]
-
-    def cell(v: Any) -> str:
-        return str(v).replace("|", "\\|")
-
-    if findings is not None:
-        lines += findings_markdown(findings, comparison)
-        pm = findings.get("paper_mode")
-        if pm:
-            lines += ["", f"Paper mode, finding 2's measure ({pm['metric']}, < 1: softer than PD):"]
-            lines += [
-                f"- {c} ({cond}): {v['effect']:.3g} [{v['ci'][0]:.3g}, {v['ci'][1]:.3g}]"
-                for c, by in pm["controllers"].items()
-                for cond, v in by.items()
-                if v["ci"][0] is not None and v["ci"][1] is not None
-            ]
-        lines += state_dependence_markdown(findings.get("state_dependence"))
-    else:
-        lines += ["| finding (paper) | qsls | agrees |", "|---|---|---|"]
-        lines += [
-            f"| {cell(c['finding'])} | {cell(c['qsls'])} | {cell(c['agrees'])} |"
-            for c in comparison
-        ]
-    cols = [
-        "condition", "controller", "flights", "crashed", "tracking_rms_m", "tracking_max_m",
-        "perception_error_rms", "perception_error_max", "control_effort_rms",
-        "control_smoothness_rms", "smoothness_vs_pd", "reaction_vs_pd", "angular_rate_rms",
-        "blur_px_mean", "features_per_frame", "tracking_rms_m_circle",
-        "perception_error_rms_circle", "gamma_strict", "frac_under_gamma", "max_ratio",
-    ]  # fmt: skip
-    cols = [c for c in cols if c in per.columns]
-    lines += ["", "## Per controller and condition (mean over seeds; maxima: max)", ""]
-    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for r in per[cols].itertuples(index=False):
-        lines.append(
-            "| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-def findings_markdown(doc: dict[str, Any], comparison: Sequence[dict[str, Any]] = ()) -> list[str]:
-    """The findings as a Markdown table (``| 1. claim | effect [CI] | verdict | qsls | ... |``),
-    with the point comparison (means over seeds, ``agrees``) of the same finding beside."""
-
-    def cell(v: Any) -> str:
-        return str(v).replace("|", "\\|")
-
-    point = {str(c["finding"]).partition(".")[0]: c for c in comparison}
-    lines = [
-        f"Paired by seed ({doc.get('n_seeds', 0)} seeds): {doc.get('method', '')}.",
-        "",
-        "| finding (paper) | effect [95% CI] | verdict (both halves) | halves | qsls "
-        "| means over seeds (agrees) |",
-        "|---|---|---|---|---|---|",
-    ]
-    for f in doc.get("findings", []):
-        c = point.get(str(f["id"]))
-        means = f"{c['qsls']} ({c['agrees']})" if c else "-"
-        lines.append(
-            f"| {f['id']}. {cell(f['claim'])} | {_effect_text(f)} (paper: "
-            f"{cell(f['paper_direction'])}) | {f['verdict']} | {cell(halves_text(f))} "
-            f"| {cell(f.get('mechanism', f['detail']))} | {cell(means)} |"
-        )
-    check = doc.get("perception_check")
-    if check:
-        lines += ["", f"Perception check: {check['text']}."]
-    mech = doc.get("mechanism") or []
-    if mech:
-        lines += ["", "The mechanism, per controller and condition (means over seeds):", ""]
-        keys = [k for k in mech[0] if k not in ("controller", "condition")]
-        lines += [
-            "| controller | condition | " + " | ".join(keys) + " |",
-            "|---|---|" + "---|" * len(keys),
-        ]
-        for r in mech:
-            vals = [_g(float(r[k])) if isinstance(r[k], int | float) else "-" for k in keys]
-            lines.append(f"| {r['controller']} | {r['condition']} | " + " | ".join(vals) + " |")
-    rms = doc.get("degraded_perception_rms") or {}
-    if rms:
-        lines += ["", "Degraded perception, ||e||_inf RMS per controller (mean [95% CI]):", ""]
-        for name, v in rms.items():
-            lo, hi = v["ci"]
-            ci = f" [{lo:.4g}, {hi:.4g}]" if lo is not None and hi is not None else ""
-            lines.append(f"- {name}: {v['mean']:.4g}{ci}")
-    return lines
-
-
 __all__ = [
-    "FINDINGS_FILE",
-    "comparison_markdown",
     "degradation_check",
-    "finding3",
-    "findings_markdown",
     "mechanism_table",
     "paired_findings",
     "replace_finding",
-    "strict_bounds",
 ]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
 from qsls.pipeline.fly.assured import (
     ASSURED,
     ASSURED_FILE,
@@ -19,8 +20,7 @@ from qsls.pipeline.fly.assured import (
     catch_share,
 )
 from qsls.pipeline.fly.estimators import FLIGHTS_FILE
-from qsls.pipeline.fly.fly import FLOWN_FILE
-from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE
+from qsls.pipeline.fly.tables import FLOWN_FILE
 from qsls.pipeline.report.document import Section
 from qsls.pipeline.report.facts import Facts, g4, pct
 

@@ -15,6 +15,7 @@ from qsls.pipeline.core.artifacts import to_plain
 from qsls.pipeline.core.config import Options, Seed
 from qsls.pipeline.errormodel.options import FitOptions
 from qsls.pipeline.evaluate.section import EvaluateSection
+from qsls.pipeline.fly.options import FlyOptions
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.sim.options import SimOptions
 
@@ -65,28 +66,29 @@ class FlightSpec(Options):
 class RunConfig(Options):
     """The run: flights plus each stage's options (the stage's own option names).
 
-        Each stage section is the same section the stage command reads with ``--config``, typed
-        by the model that command uses: ``simulate``
-        :class:`~qsls.pipeline.sim.options.SimOptions`, ``ingest``
-        :class:`~qsls.pipeline.ingest.options.IngestOptions`, ``fit``
-        :class:`~qsls.pipeline.errormodel.options.FitOptions`, ``sweep``
-        :class:`~qsls.pipeline.control.options.SweepSection` (with ``jobs``, ``scheduler``,
-        ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions` (both
-        with the config's ``problem:`` laid under them, :func:`~qsls.pipeline.core.config.with_shared`:
-        the settings they share, stated once),
-        ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (with ``fly``, whose
-        options, :class:`~qsls.pipeline.evaluate.options.FlyOptions`, are the section's keys with
-    ``fly``'s laid over them: validated when the config is read too). These
-        models live apart from their stages, so reading a run config loads no solver, pandas or
-        simulator: a run with nothing to do imports nothing heavy.
+    Each stage section is the same section the stage command reads with ``--config``, typed
+    by the model that command uses: ``simulate``
+    :class:`~qsls.pipeline.sim.options.SimOptions`, ``ingest``
+    :class:`~qsls.pipeline.ingest.options.IngestOptions`, ``fit``
+    :class:`~qsls.pipeline.errormodel.options.FitOptions`, ``sweep``
+    :class:`~qsls.pipeline.control.options.SweepSection` (with ``jobs``, ``scheduler``,
+    ``wait_workers``), ``synth`` :class:`~qsls.pipeline.control.options.SynthOptions` (both
+    with the config's ``problem:`` laid under them, :func:`~qsls.pipeline.core.config.with_shared`:
+    the settings they share, stated once),
+    ``evaluate`` :class:`~qsls.pipeline.evaluate.section.EvaluateSection` (the bound check;
+    a ``fly:`` under it is refused with a pointer), ``fly``
+    :class:`~qsls.pipeline.fly.options.FlyOptions` (the controllers flown, the run's
+    ``simulate:`` laid under its ``sim``). These
+    models live apart from their stages, so reading a run config loads no solver, pandas or
+    simulator: a run with nothing to do imports nothing heavy.
 
-        ``simulate`` and ``ingest`` are also the bases of the flights: a flight's own
-        ``simulate:`` / ``ingest:`` is laid over the section as written (:meth:`written`; the
-        flight's keys win, nested mappings merge) and the result is validated per flight when
-        planned, its errors naming the flight. The base must be valid on its own, as it is for
-        ``qsls simulate --config`` / ``qsls ingest --config`` reading the same file: a base
-        ``vio: {outlier_min: 2}`` is refused (above the default ``outlier_max``, 1) even when
-        every flight raises ``outlier_max``; such a pair belongs in the flights."""
+    ``simulate`` and ``ingest`` are also the bases of the flights: a flight's own
+    ``simulate:`` / ``ingest:`` is laid over the section as written (:meth:`written`; the
+    flight's keys win, nested mappings merge) and the result is validated per flight when
+    planned, its errors naming the flight. The base must be valid on its own, as it is for
+    ``qsls simulate --config`` / ``qsls ingest --config`` reading the same file: a base
+    ``vio: {outlier_min: 2}`` is refused (above the default ``outlier_max``, 1) even when
+    every flight raises ``outlier_max``; such a pair belongs in the flights."""
 
     name: str
     seed: Seed = 0
@@ -94,7 +96,15 @@ class RunConfig(Options):
     stages: (
         list[
             Literal[
-                "simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "report"
+                "simulate",
+                "ingest",
+                "fit",
+                "sweep",
+                "synth",
+                "calibrate",
+                "evaluate",
+                "fly",
+                "report",
             ]
         ]
         | None
@@ -109,6 +119,9 @@ class RunConfig(Options):
     """Calibration and validation flights of the candidates (docs/calibration.md); the run's
     ``simulate:`` section is laid under its ``sim``."""
     evaluate: EvaluateSection | None = None
+    fly: FlyOptions | None = None
+    """The controllers flown side by side (``qsls fly``, docs/evaluation.md); the run's
+    ``simulate:`` section is laid under its ``sim``. Absent: the run flies nothing."""
     report: bool = True
     _given: dict[str, Any] | None = PrivateAttr(None)
 
@@ -141,14 +154,15 @@ class RunConfig(Options):
         }
 
 
-SECTIONS = ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate")
+SECTIONS = ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "fly")
 """The typed stage sections of a run config (each validated with its stage's name in errors)."""
 MODELS: dict[str, type[Options]] = {
     "simulate": SimOptions, "ingest": IngestOptions, "fit": FitOptions, "sweep": SweepSection,
     "synth": SynthOptions, "calibrate": CalibrateOptions, "evaluate": EvaluateSection,
+    "fly": FlyOptions,
 }  # fmt: skip
 """Each section's model: the one its stage command reads with ``--config``."""
 DEFAULTS: dict[str, Any] = {
     "simulate": {}, "ingest": {}, "fit": {}, "sweep": None, "synth": None, "calibrate": None,
-    "evaluate": None,
+    "evaluate": None, "fly": None,
 }  # fmt: skip

@@ -84,8 +84,6 @@ def load_run_config(path: Path) -> RunConfig:
         if isinstance(raw.get(key), Mapping):
             typed[key] = validate(model, raw[key], f"{base}: {key}")
     cfg = validate(RunConfig, typed, str(path))
-    if cfg.evaluate is not None and cfg.evaluate.fly is not None:
-        cfg.evaluate.flying(source=f"{base}: evaluate.fly")  # the flights' options, checked now
     cfg._given = {k: raw[k] for k in SECTIONS if k in raw}
     return cfg
 
