@@ -85,8 +85,8 @@ def test_reference_errors_are_one_line_and_name_the_option():
 ARTIFACT_FILES = {
     "flight.parquet": "ingest/flight.py",
     "error_model.yaml": "errormodel/model.py",
-    "controller.npz": "control/artifacts.py",
-    "certificate.yaml": "control/artifacts.py",
+    "controller.npz": "control/controller.py",
+    "certificate.yaml": "control/certificate.py",
     "sweep.parquet": "control/sweep.py",
     "s_max.parquet": "control/sweep.py",
     "calibration.json": "calibrate/summary.py",

@@ -34,7 +34,7 @@ from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.errormodel.model import ERROR_MODEL_FILE, load_error_model
 
 if TYPE_CHECKING:
-    from qsls.pipeline.control.artifacts import Certificate
+    from qsls.pipeline.control.certificate import Certificate
 
 RUN_FILE = "run.json"
 
