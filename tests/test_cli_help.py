@@ -163,7 +163,7 @@ def test_every_options_help_states_the_models_default(command):
 DOCUMENTED = (
     "qsls.pipeline.errormodel.fit:FitOptions",
     "qsls.pipeline.ingest.stage:IngestOptions",
-    "qsls.pipeline.evaluate.options:FlyOptions",
+    "qsls.pipeline.fly.options:FlyOptions",
     "qsls.pipeline.evaluate.bound:EvaluateOptions",
 )
 

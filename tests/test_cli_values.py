@@ -117,7 +117,7 @@ def test_sweep_takes_eps_w_max_as_synth_does(tmp_path):
 def test_fly_takes_assured_and_fallback_from_its_model(tmp_path):
     """Issue 33's leftover: qsls fly --assured/--no-assured and --fallback pd|hold, built from
     FlyOptions (their defaults there), refused in one line naming the option."""
-    from qsls.pipeline.evaluate.options import FlyOptions
+    from qsls.pipeline.fly.options import FlyOptions
 
     text = " ".join(runner.invoke(app, ["fly", "--help"], terminal_width=200).output.split())
     assured = "--no-assured" if not FlyOptions().assured else "--assured"

@@ -178,7 +178,7 @@ def test_degradation_check_needs_the_interval_above_two():
 
 
 def test_pd_height_for_the_named_controllers_only():
-    from qsls.pipeline.evaluate.options import FlyOptions
+    from qsls.pipeline.fly.options import FlyOptions
 
     o = FlyOptions(pd_z_control=["l1_robust_imitation"])
     assert o.pd_z_for("l1_robust_imitation") and not o.pd_z_for("l1_robust")
