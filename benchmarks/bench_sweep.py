@@ -26,7 +26,6 @@ import yaml
 from smokemode import add_flag, requested, require
 
 from qsls.pipeline.control import largest_s, sls
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.sweep import (
     ABOVE_S_MAX,
     NECESSARY,
@@ -37,6 +36,7 @@ from qsls.pipeline.control.sweep import (
 )
 from qsls.pipeline.core.config import validate
 from qsls.pipeline.core.plant import quadrotor_model
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "bench_sweep.yaml"
 SMOKE_GRID = {

@@ -44,8 +44,8 @@ import numpy as np
 from smokemode import add_flag, requested, require
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.plant import quadrotor_model
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.sls_reference
 

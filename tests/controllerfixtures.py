@@ -10,8 +10,8 @@ import numpy as np
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.artifacts import Certificate, Controller, ControllerDir
 from qsls.pipeline.control.certify import certify
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.plant import quadrotor_model
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 SETTING = PremiseNumbers(eps=0.05, S=0.05, radius=1.0, eps_w=0.01, delta=0.05, R0=0.05)
 RECORD = {"S": 0.05, "eps_e": 0.05, "radius": 1.0, "eps_w": 0.01, "delta": 0.05, "R0": 0.05}

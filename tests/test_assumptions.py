@@ -13,7 +13,6 @@ import pytest
 
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.certify import certify
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.realize import RealizedController, filter_bank
 from qsls.pipeline.control.status import RELAXED
 from qsls.pipeline.core.plant import GRAVITY, quadrotor_model
@@ -25,6 +24,7 @@ from qsls.pipeline.evaluate.assumptions import (
 )
 from qsls.pipeline.evaluate.training import TrainingData
 from qsls.pipeline.fly.bound_finding import finding3_assumptions
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 T, R, V, BETA = 20, 2.0, 1.5, 0.2
 H = np.diag([0.1, 0.1, 0.1, 1.0, 1.0, 1.0])

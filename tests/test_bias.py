@@ -14,13 +14,14 @@ import yaml
 
 from qsls.pipeline.control import sls
 from qsls.pipeline.control.artifacts import Certificate, load_controller_dir
-from qsls.pipeline.control.guarantee import PremiseNumbers, bias_gain, guarantee
+from qsls.pipeline.control.guarantee import bias_gain, guarantee
 from qsls.pipeline.control.monitor import NO_MONITOR
 from qsls.pipeline.control.realize import RealizedController, filter_bank
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import bias_directions, plant_model
 from qsls.pipeline.errormodel.disturbance import split_bias
 from qsls.pipeline.export.statement import theorem_lines
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 T = 20
 NUMBERS = PremiseNumbers(eps=0.05, S=0.0, radius=1.0, eps_w=0.01, delta=0.05, eps_b=0.5)

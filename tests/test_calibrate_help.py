@@ -14,8 +14,8 @@ from qsls.cli.main import app
 from qsls.pipeline.calibrate.core import Rule, Scores, decide
 from qsls.pipeline.calibrate.options import CalibrateOptions
 from qsls.pipeline.control import conformal
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 
 def test_the_help_example_flies_what_certified_needs():

@@ -16,9 +16,9 @@ from qsls.pipeline.calibrate.core import set_by
 from qsls.pipeline.calibrate.options import CalibrateOptions
 from qsls.pipeline.control import calibration as cal
 from qsls.pipeline.control import conformal
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.evaluate.conditions import outside_conditions
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 QUICKSTART_CAL = yaml.safe_load(
     (Path(__file__).resolve().parents[1] / "configs" / "quickstart.yaml").read_text()

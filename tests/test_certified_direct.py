@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.control import sls
-from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, guarantee
+from qsls.pipeline.control.guarantee import Norms, guarantee
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file
 from qsls.pipeline.core.errors import InputError
@@ -23,6 +23,7 @@ from qsls.pipeline.evaluate.certified import (
     load_bounds,
     load_controller_bound,
 )
+from qsls.pipeline.premise.numbers import PremiseNumbers
 from tests.controllerfixtures import SETTING, synthesized
 
 # S ||Phi_xy|| = 0.1 * 4 = 0.4, a = eps_w ||Phi_xx H|| + Delta = 0.02 * 5 + 0.1 = 0.2

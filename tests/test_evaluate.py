@@ -19,7 +19,6 @@ from qsls.pipeline.control.artifacts import (
     Certificate,
     Controller,
 )
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.sls import l1_norm as fir_inf_norm
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.plant import quadrotor_model
@@ -31,6 +30,7 @@ from qsls.pipeline.evaluate.bound import (
 )
 from qsls.pipeline.evaluate.figures import smooth
 from qsls.pipeline.ingest.flight import X_COLS, make_flight_frame
+from qsls.pipeline.premise.numbers import PremiseNumbers
 from tests.controllerfixtures import l1_taps, written, written_pd
 
 DT = 0.1

@@ -17,12 +17,12 @@ from qsls.pipeline.control.artifacts import (
     Controller,
 )
 from qsls.pipeline.control.certify import certify
-from qsls.pipeline.control.guarantee import PremiseNumbers
-from qsls.pipeline.premise.record import Premise, PremiseEntry
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
+from qsls.pipeline.premise.numbers import PremiseNumbers
+from qsls.pipeline.premise.record import Premise, PremiseEntry
 from tests.test_evaluate import circle_states, write_fit, write_flight
 
 SCALE = (1.0, 1.0, 1.0, 0.5, 0.5, 0.5)

@@ -29,7 +29,7 @@ def test_a_certificate_alias_bomb_refusal_names_the_file(tmp_path):
 
 # --------------------------------------------------------------------------- no inflation covers
 def _premise(**kw):
-    from qsls.pipeline.control.guarantee import PremiseNumbers
+    from qsls.pipeline.premise.numbers import PremiseNumbers
 
     base = dict(eps=0.05, S=0.2, radius=1.0, eps_w=0.06, delta=0.3, eps_o=0.5, m=2)
     return PremiseNumbers(**{**base, **kw})

@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from qsls.pipeline.control import certify, largest_s, sls
-from qsls.pipeline.control.guarantee import Norms, PremiseNumbers, robustness_lhs
+from qsls.pipeline.control.guarantee import Norms, robustness_lhs
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.realize import RealizedController, filter_bank
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED
 from qsls.pipeline.core.plant import quadrotor_model
+from qsls.pipeline.premise.numbers import PremiseNumbers
 from tests.lqg_reference import lqg_h2_squared
 
 Q = np.diag([10.0, 10, 10, 1, 1, 1])

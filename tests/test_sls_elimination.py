@@ -13,10 +13,10 @@ import pytest
 
 from qsls.pipeline.control import certify, sls
 from qsls.pipeline.control.achievable import block_pattern, eliminate
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.core.plant import quadrotor_model
+from qsls.pipeline.premise.numbers import PremiseNumbers
 from tests.sls_reference import VectorizedProblem
 
 MODEL = quadrotor_model()

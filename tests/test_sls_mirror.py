@@ -13,8 +13,8 @@ import pytest
 
 from qsls.pipeline.control import certify, sls
 from qsls.pipeline.control.achievable import axis_groups, find_mirrors
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.core.plant import plant_model, quadrotor_model
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 ATTITUDE = plant_model("attitude", H=np.diag([0.1, 0.1, 0.1, 1, 1, 1]))
 HOVER = quadrotor_model()

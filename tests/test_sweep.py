@@ -15,7 +15,6 @@ from typer.testing import CliRunner
 
 from qsls.cli.main import app
 from qsls.pipeline.control import largest_s, sls
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.sweep import (
     ABOVE_S_MAX,
     NECESSARY,
@@ -27,6 +26,7 @@ from qsls.pipeline.core.artifacts import dump_yaml
 from qsls.pipeline.core.plant import quadrotor_model
 from qsls.pipeline.errormodel.model import DisturbanceStats, ErrorModel, SlopeStats
 from qsls.pipeline.premise.choose import ModelInput
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 RUN = CliRunner()
 REPO = Path(__file__).resolve().parents[1]

@@ -28,7 +28,6 @@ from qsls.pipeline.control import sls
 from qsls.pipeline.control.body import CertificateBody
 from qsls.pipeline.control.guarantee import (
     Norms,
-    PremiseNumbers,
     guarantee,
     measured_channels,
     outlier_channels,
@@ -45,6 +44,7 @@ from qsls.pipeline.control.status import (
     Status,
 )
 from qsls.pipeline.core.plant import LinearModel, bias_directions
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 NOT_CALIBRATED = (
     "not calibrated: the premise describes the design flights only; calibrate it on flights "

@@ -32,10 +32,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from qsls.pipeline.control.achievable import Affine, Maps
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.options import psd_sqrt
 from qsls.pipeline.control.taps import Taps, h2_norm, l1_norm, side_by_side
 from qsls.pipeline.core.plant import LinearModel
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 LIGHT_ROW = 1e-4
 """A state's row of ``c_QR``'s L1 weighted below this fraction of the largest state weight is

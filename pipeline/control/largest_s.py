@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, replace
 
 from qsls.pipeline.control.costs import MIN_ERROR_GAIN, NONE, RATIO
-from qsls.pipeline.control.guarantee import PremiseNumbers, largest_slope
+from qsls.pipeline.control.guarantee import largest_slope
 from qsls.pipeline.control.sls import (
     ROBUST_BACKOFF,
     Shape,
@@ -22,6 +22,7 @@ from qsls.pipeline.control.sls import (
 )
 from qsls.pipeline.core.errors import SolverError
 from qsls.pipeline.core.plant import LinearModel
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 _MIN_XY: dict[tuple, float] = {}
 

@@ -72,7 +72,6 @@ from qsls.pipeline.control.costs import cost_value as cost_value  # c_QR, c_im f
 from qsls.pipeline.control.guarantee import (
     VELOCITY,
     Norms,
-    PremiseNumbers,
     error_weights,
     measured_channels,
     outlier_channels,
@@ -89,6 +88,7 @@ from qsls.pipeline.control.taps import h2_norm as h2_norm
 from qsls.pipeline.control.taps import l1_norm as l1_norm
 from qsls.pipeline.control.taps import side_by_side as side_by_side
 from qsls.pipeline.core.plant import NX, LinearModel, bias_directions
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 Norm = Literal["l1", "h2"]
 ROBUST_BACKOFF = 1e-6

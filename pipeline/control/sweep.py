@@ -42,7 +42,7 @@ import numpy as np
 from qsls.pipeline.control import largest_s, sls
 from qsls.pipeline.control.costs import QR, cost_of
 from qsls.pipeline.control.figures import feasibility_figure, s_max_figure
-from qsls.pipeline.control.guarantee import PremiseNumbers, necessary_condition
+from qsls.pipeline.control.guarantee import necessary_condition
 from qsls.pipeline.control.nominal import pd_responses
 from qsls.pipeline.control.options import AXES as AXES
 from qsls.pipeline.control.options import DASK_SCHEMES as DASK_SCHEMES
@@ -68,6 +68,7 @@ from qsls.pipeline.core.plant import plant_model
 from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.premise.choose import ModelInput, error_model_file, read_model
+from qsls.pipeline.premise.numbers import PremiseNumbers
 from qsls.pipeline.premise.record import PREMISE_COLUMNS, premise_columns
 
 SWEEP_FILE = "sweep.parquet"

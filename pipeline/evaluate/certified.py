@@ -27,7 +27,6 @@ from qsls.pipeline.control.artifacts import (
     ControllerDir,
     load_controller_dir,
 )
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.nominal import static_gain_responses
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
@@ -36,6 +35,7 @@ from qsls.pipeline.core.plant import GRAVITY, NX, bias_directions
 from qsls.pipeline.errormodel import honest
 from qsls.pipeline.evaluate.assumptions import CertifiedPremise
 from qsls.pipeline.evaluate.conditions import outside_conditions, outside_family
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 
 @dataclass(frozen=True)

@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import guarantee
-from qsls.pipeline.control.guarantee import PremiseNumbers
 from qsls.pipeline.control.taps import l1_norm
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 THEOREM_COLUMNS: tuple[str, ...] = (
     "theorem_applies",
