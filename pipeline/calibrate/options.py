@@ -10,9 +10,9 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from qsls.pipeline.core.cluster import SchedulerAddress
 from qsls.pipeline.core.config import Duration, FlightCount, Options, Seed
 from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.core.workers import PoolOptions
 from qsls.pipeline.evaluate.conditions import ConditionFamily
 from qsls.pipeline.sim.options import Perception, SimOptions
 
@@ -50,7 +50,7 @@ class MonitorOptions(Options):
     trips the window sums (the quantile is recorded at this rate in either mode)."""
 
 
-class CalibrateOptions(Options):
+class CalibrateOptions(PoolOptions):
     """Options of ``qsls calibrate`` (the run's ``calibrate:`` section): each candidate flies
     its own calibration flights, then fresh validation flights (docs/calibration.md)."""
 
@@ -96,15 +96,6 @@ class CalibrateOptions(Options):
     """First range-flight seed."""
     controllers: list[str] | None = None
     """Candidate controller names; default: every robust controller whose design check passed."""
-    jobs: int = Field(0, ge=0)
-    """Flights in parallel (process pool); 0 = all cores, 1 = in this process."""
-    scheduler: SchedulerAddress | None = None
-    """A Dask scheduler (``tcp://host:8786``): the flights run on its workers instead of the
-    local pool, with the same tables (workers on other machines need this one's filesystem);
-    default: none, the local pool."""
-    wait_workers: float = Field(60.0, gt=0)
-    """With ``scheduler``: seconds to wait for a first worker, and for one to come back after
-    every worker left, before failing."""
     sim: SimOptions = SimOptions()
     """Vehicle, reference, VIO emulator and crash limits (``qsls run`` lays its ``simulate:``
     section here); seed, controller, perception and duration are set per flight."""
