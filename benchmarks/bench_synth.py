@@ -333,7 +333,7 @@ def cpu_balance(jobs: int = 2) -> tuple[float, float]:
 def bench_premise(n: int = 8000, flights: int = 4) -> list[tuple[str, float, float]]:
     """``(way, seconds, tested range)``: the leave-one-flight-out premise's distances to other
     flights (docs/guarantee.md) by KD-tree against all cross-flight pairs."""
-    from qsls.pipeline.errormodel.honest import other_flight_distances
+    from qsls.pipeline.premise.honest import other_flight_distances
 
     rng = np.random.default_rng(0)
     x = rng.uniform(-3.0, 3.0, (n, 6))

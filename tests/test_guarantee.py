@@ -28,7 +28,7 @@ from qsls.pipeline.control.guarantee import (
 )
 from qsls.pipeline.control.status import RELAXED
 from qsls.pipeline.core.plant import quadrotor_model
-from qsls.pipeline.errormodel import honest
+from qsls.pipeline.premise import honest
 from qsls.pipeline.premise.numbers import PremiseNumbers
 
 WX = np.array([1.0, 1.0, 1.0, 0.5, 0.5, 0.5])

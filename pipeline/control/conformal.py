@@ -21,7 +21,7 @@ from typing import Literal
 
 import numpy as np
 
-from qsls.pipeline.errormodel.honest import clopper_pearson as cp
+from qsls.pipeline.premise.honest import clopper_pearson as cp
 
 Method = Literal["conformal", "pac"]
 MIN_FLIGHTS = 19

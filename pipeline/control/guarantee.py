@@ -2,7 +2,7 @@
 
 Norms are weighted: ``|z|_x = ||W_x z||_inf`` on states, ``|e|_e = ||W_e e||_inf`` on errors;
 ``dist(x) = min_d |x - x_d|_x`` to the training states. The premise (dense plus sparse errors,
-:mod:`qsls.pipeline.errormodel.honest`) is ``|d_k|_e <= eps + S dist(x_k)`` within ``r``, at most
+:mod:`qsls.pipeline.premise.honest`) is ``|d_k|_e <= eps + S dist(x_k)`` within ``r``, at most
 ``m`` outliers ``||o_k||_inf <= eps_o`` in any ``T`` consecutive steps, ``w_k = D_w beta + w'_k``
 with a constant acceleration bias ``||beta||_inf <= eps_b`` and ``||w'_k||_inf <= eps_w``, and
 ``dist(x_ref,k) <= Delta``. The system quantities of responses ``Phi``::

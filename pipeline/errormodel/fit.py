@@ -37,7 +37,7 @@ from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.core.references import Reference, parse_reference
 from qsls.pipeline.errormodel import figures as fit_plots
-from qsls.pipeline.errormodel.honest import apart
+from qsls.pipeline.errormodel.environments import apart
 from qsls.pipeline.errormodel.model import (
     ERROR_MODEL_FILE,
     TRAINING_FILE,

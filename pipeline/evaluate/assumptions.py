@@ -37,9 +37,9 @@ import numpy as np
 
 from qsls.pipeline.control import guarantee
 from qsls.pipeline.control.guarantee import measured_channels
-from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.disturbance import BiasSplit, deviation_disturbance, split_bias
 from qsls.pipeline.evaluate.theorem import nominal_states
+from qsls.pipeline.premise import honest
 from qsls.pipeline.premise.numbers import PremiseNumbers
 from qsls.pipeline.sim.ticks import FlownLog as FlownLog
 

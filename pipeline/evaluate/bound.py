@@ -51,7 +51,6 @@ from qsls.pipeline.control.nominal import static_gain_responses
 from qsls.pipeline.core.artifacts import StageWriter, read_manifest, require_stage
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
-from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.model import (
     ErrorModel,
     load_error_model,
@@ -95,6 +94,7 @@ from qsls.pipeline.evaluate.verdict import (
     with_promises,
 )
 from qsls.pipeline.ingest.flight import errors, read_flight, states
+from qsls.pipeline.premise import honest
 from qsls.pipeline.sim.simulate import TRUTH_FILE
 from qsls.pipeline.sim.ticks import TICKS_FILE, TickLog
 

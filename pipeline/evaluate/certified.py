@@ -32,9 +32,9 @@ from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INAC
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import ConfigError, InputError
 from qsls.pipeline.core.plant import GRAVITY, NX, bias_directions
-from qsls.pipeline.errormodel import honest
 from qsls.pipeline.evaluate.assumptions import CertifiedPremise
 from qsls.pipeline.evaluate.conditions import outside_conditions, outside_family
+from qsls.pipeline.premise import honest
 from qsls.pipeline.premise.numbers import PremiseNumbers
 
 

@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qsls.pipeline.errormodel.honest import clopper_pearson
 from qsls.pipeline.fly.items import FINDINGS_FILE, NO_HALF, finding_item, num, replicate
 from qsls.pipeline.fly.paper import PAPER_BOUND_SIM, PAPER_S_SIM, halves, replicated, strict_bound
+from qsls.pipeline.premise.honest import clopper_pearson
 
 
 def finding3_bound(

@@ -2,7 +2,7 @@
 premise so that all the data satisfy it): plain functions of arrays.
 
 :func:`measure` splits the training errors into their dense and sparse parts
-(:mod:`qsls.pipeline.errormodel.honest`), takes their weighted norms per channel group, fits
+(:mod:`qsls.pipeline.premise.honest`), takes their weighted norms per channel group, fits
 ``S`` leave one flight out and the outlier count ``m``, and measures the realized disturbance;
 :class:`TrainingStates` holds the states ``qsls fit`` saved beside ``error_model.yaml`` and
 keeps one measurement per :class:`Spec`. The premise is chosen from here
@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.disturbance import shaped_norm
 from qsls.pipeline.errormodel.model import TRAINING_FILE, W_COLS
 from qsls.pipeline.ingest.flight import E_COLS, X_COLS
+from qsls.pipeline.premise import honest
 
 ONES = (1.0,) * 6
 

@@ -27,9 +27,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.errormodel import honest
 from qsls.pipeline.errormodel.disturbance import RESIDUAL as RESIDUAL  # eps_w_source's lower bound
 from qsls.pipeline.errormodel.model import ErrorModel
+from qsls.pipeline.premise import honest
 from qsls.pipeline.premise.measure import ONES, Measured, Spec
 from qsls.pipeline.premise.numbers import PremiseNumbers
 

@@ -88,27 +88,6 @@ def other_flight_distances(
     return out
 
 
-ENVIRONMENT_SEPARATION = 1e6
-"""How far apart (in the weighted state norm) :func:`apart` lays two environments: farther than
-any radius a premise uses, so no pair within ``r`` crosses environments."""
-
-
-def apart(
-    x: np.ndarray, environment: np.ndarray | None, state_scale: Sequence[float] | np.ndarray
-) -> np.ndarray:
-    """The states with environment ``k``'s positions shifted by ``k`` times
-    :data:`ENVIRONMENT_SEPARATION` (weighted): a pair search within ``r`` then never pairs
-    states of two environments (``x`` itself when there is one)."""
-    x = np.asarray(x, float)
-    if environment is None or not np.any(environment):
-        return x
-    w = np.asarray(state_scale, float)
-    shift = np.asarray(environment, float)[:, None] * (ENVIRONMENT_SEPARATION / w[None, :3])
-    out = x.copy()
-    out[:, :3] += shift
-    return out
-
-
 @dataclass(frozen=True)
 class SlopeFit:
     """The leave-one-flight-out slope and where it was tested."""
