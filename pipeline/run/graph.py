@@ -235,7 +235,7 @@ class StageGraph:
         if from_kind is None:
             return {}
         kinds = [s.kind for s in self.stages]
-        # a kind (evaluate: the bound check and fly) or a stage's own id (fly)
+        # a kind (evaluate, fly, ...) or a stage's own id (ingest/train_1)
         hits = [i for i, s in enumerate(self.stages) if from_kind in (s.kind, s.id)]
         if not hits:
             raise ConfigError(
