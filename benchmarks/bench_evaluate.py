@@ -35,7 +35,7 @@ def brute_nearest(train: np.ndarray, query: np.ndarray, chunk: int = 256) -> np.
 
 
 def bench_distance(smoke: bool = False) -> list[tuple[str, float, str]]:
-    from qsls.pipeline.evaluate.bound import TrainingData
+    from qsls.pipeline.evaluate.training import TrainingData
 
     rng = np.random.default_rng(0)
     rows = []

@@ -60,7 +60,7 @@ def command(
     figures = overrides(figures=False if no_figures else None)
     ov = {**given, **figures}
     section = load_options(EvaluateSection, config, ov, section="evaluate")
-    from qsls.pipeline.evaluate.bound import evaluate
+    from qsls.pipeline.evaluate.stage import evaluate
 
     with RichProgress() as progress:
         checked = evaluate(

@@ -260,7 +260,7 @@ def test_pd_certificate_states_the_true_closed_loop_norms(tmp_path):
     1/3.43 and 1/3.28 gets no guarantee although the truncated norm would grant one."""
     from qsls.pipeline.control import sls
     from qsls.pipeline.control.artifacts import Controller
-    from qsls.pipeline.evaluate.bound import load_controller_bound
+    from qsls.pipeline.evaluate.certified import load_controller_bound
 
     S = 0.2985  # S * 3.28 = 0.978 < 1 <= S * 3.43 = 1.025
     out = tmp_path / "s"

@@ -164,7 +164,7 @@ DOCUMENTED = (
     "qsls.pipeline.errormodel.fit:FitOptions",
     "qsls.pipeline.ingest.stage:IngestOptions",
     "qsls.pipeline.fly.options:FlyOptions",
-    "qsls.pipeline.evaluate.bound:EvaluateOptions",
+    "qsls.pipeline.evaluate.options:EvaluateOptions",
 )
 
 

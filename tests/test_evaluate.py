@@ -22,13 +22,11 @@ from qsls.pipeline.control.artifacts import (
 from qsls.pipeline.control.sls import l1_norm as fir_inf_norm
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.plant import quadrotor_model
-from qsls.pipeline.evaluate.bound import (
-    EvaluateOptions,
-    TrainingData,
-    evaluate,
-    load_controller_bound,
-)
+from qsls.pipeline.evaluate.certified import load_controller_bound
 from qsls.pipeline.evaluate.figures import smooth
+from qsls.pipeline.evaluate.options import EvaluateOptions
+from qsls.pipeline.evaluate.stage import evaluate
+from qsls.pipeline.evaluate.training import TrainingData
 from qsls.pipeline.ingest.flight import X_COLS, make_flight_frame
 from qsls.pipeline.premise.numbers import PremiseNumbers
 from tests.controllerfixtures import l1_taps, written, written_pd

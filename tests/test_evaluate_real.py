@@ -12,7 +12,8 @@ import pytest
 
 from qsls.pipeline.control.synth import SynthOptions, synth
 from qsls.pipeline.errormodel.fit import FitOptions, fit
-from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
+from qsls.pipeline.evaluate.options import EvaluateOptions
+from qsls.pipeline.evaluate.stage import evaluate
 from qsls.pipeline.ingest.flight import X_COLS, read_flight
 from qsls.pipeline.ingest.stage import IngestOptions, ingest
 

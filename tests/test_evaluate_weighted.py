@@ -20,7 +20,8 @@ from qsls.pipeline.control.certify import certify
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import quadrotor_model
-from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
+from qsls.pipeline.evaluate.options import EvaluateOptions
+from qsls.pipeline.evaluate.stage import evaluate
 from qsls.pipeline.premise.numbers import PremiseNumbers
 from qsls.pipeline.premise.record import Premise, PremiseEntry
 from tests.test_evaluate import circle_states, write_fit, write_flight

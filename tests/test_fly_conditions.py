@@ -15,8 +15,9 @@ import pytest
 from qsls.pipeline.core.ticks import TickLog
 from qsls.pipeline.errormodel.model import load_error_model
 from qsls.pipeline.evaluate.assumptions import check_assumptions
-from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate, load_controller_bound
-from qsls.pipeline.evaluate.certified import certified_premise
+from qsls.pipeline.evaluate.certified import certified_premise, load_controller_bound
+from qsls.pipeline.evaluate.options import EvaluateOptions
+from qsls.pipeline.evaluate.stage import evaluate
 from qsls.pipeline.evaluate.training import load_training
 from qsls.pipeline.evaluate.verdict import verdicts
 from qsls.pipeline.fly.options import FlyOptions

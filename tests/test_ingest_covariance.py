@@ -18,8 +18,8 @@ import pytest
 from typer.testing import CliRunner
 
 from qsls.cli.main import app
-from qsls.pipeline.evaluate.bound import load_flights, vio_nees
 from qsls.pipeline.evaluate.nees import CHI2_3_95, position_nees
+from qsls.pipeline.evaluate.stage import load_flights, vio_nees
 from qsls.pipeline.ingest.flight import VAR_COLS, read_flight
 from qsls.pipeline.ingest.sources.write import write_bag
 from tests.bagfixtures import T0_NS, make_flight

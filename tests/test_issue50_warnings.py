@@ -201,7 +201,7 @@ def fitted(tmp_path_factory):
 def test_a_held_out_twin_of_a_training_flight_is_named_with_it(fitted):
     import shutil
 
-    from qsls.pipeline.evaluate.bound import load_flights
+    from qsls.pipeline.evaluate.stage import load_flights
     from qsls.pipeline.evaluate.twins import twin_warnings
 
     d, f = fitted

@@ -148,13 +148,8 @@ FIGURE_FILES = {
 """Figures a stage writes and the report reads (and the rosbag2 listing ingest reads), and the
 one module that spells each name (issue 49)."""
 
-FIGURE_SPELLINGS_PENDING = {
-    # evaluate/bound.py writes both figures under its own literals; its owner is restructuring
-    # evaluate/ (issue 49), the edit is `plots.PERCEPTION_ERROR_FIGURE` / `plots.DISTANCE_FIGURE`.
-    # This list may only shrink.
-    ("evaluate/bound.py", "perception_error.png"),
-    ("evaluate/bound.py", "distance_to_training.png"),
-}
+FIGURE_SPELLINGS_PENDING: set[tuple[str, str]] = set()
+"""Figure names still spelled outside their owner (issue 49); may only shrink (none left)."""
 
 
 def _spellings() -> list[tuple[str, int, str]]:

@@ -311,7 +311,7 @@ def _run_config(tmp_path, **changes):
 
 
 def test_a_heldout_flight_without_an_evaluate_section_is_evaluated_with_defaults(tmp_path):
-    from qsls.pipeline.evaluate.bound import EvaluateOptions
+    from qsls.pipeline.evaluate.options import EvaluateOptions
     from qsls.pipeline.run.runner import load_run_config, plan
     from tests.test_run_cache import SMALL
 

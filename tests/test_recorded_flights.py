@@ -243,8 +243,8 @@ def test_a_tick_log_names_its_controller_and_its_ticks_must_be_the_controllers(
 ) -> None:
     """``--flown-by`` refuses a tick log that names another controller (or another
     controller.npz), or whose ticks are not the controller's dt."""
-    from qsls.pipeline.evaluate.bound import own_log
     from qsls.pipeline.evaluate.certified import load_bounds
+    from qsls.pipeline.evaluate.ownlog import own_log
 
     (bound,) = load_bounds([px4_run / "calibrate" / "regular" / "l1_robust"])
     sim = px4_run / "calibrate" / "standin" / "logs" / standin(px4_run, "validation")[0]

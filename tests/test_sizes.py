@@ -11,12 +11,7 @@ PIPELINE = Path(__file__).resolve().parents[1] / "pipeline"
 MODULE_LINES = 600
 FUNCTION_LINES = 80
 
-LONG_MODULES = {
-    # evaluate/ is three stages in one package (issue 49: pipeline/fly/, pipeline/calibrate/);
-    # these move and split with that restructuring.
-    "evaluate/bound.py",
-    # being edited for issue 50 (bad input, report wording) at the time of writing
-}
+LONG_MODULES: set[str] = set()
 """Modules over :data:`MODULE_LINES` lines, by path under ``pipeline/``."""
 
 LONG_FUNCTIONS = {
@@ -27,9 +22,6 @@ LONG_FUNCTIONS = {
     "export/innovation.py:c_code",
     "export/innovation.py:py_code",
     "export/attitude.py:c_function",
-    # the stages' drivers, split with the evaluate/ restructuring (issue 49)
-    "evaluate/bound.py:check_flight",
-    "evaluate/bound.py:evaluate",
     # the flight's one loop over physics steps: the controller tick, the step and the VIO
     # sampling share ~15 locals (records, the arrival cursor, the emulator's pending batch);
     # functions would pass them every physics step or move them to attribute lookups in the

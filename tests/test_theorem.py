@@ -18,7 +18,8 @@ from typer.testing import CliRunner
 
 from qsls.cli.main import app
 from qsls.pipeline.control.artifacts import load_controller_dir
-from qsls.pipeline.evaluate.bound import check_flight, load_controller_bound
+from qsls.pipeline.evaluate.certified import load_controller_bound
+from qsls.pipeline.evaluate.check import check_flight
 from qsls.pipeline.evaluate.theorem import nominal_states
 from qsls.pipeline.evaluate.training import TrainingData
 from qsls.pipeline.ingest.flight import make_flight_frame

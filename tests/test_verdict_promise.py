@@ -9,7 +9,8 @@ import json
 import pytest
 import yaml
 
-from qsls.pipeline.evaluate.bound import EvaluateOptions, evaluate
+from qsls.pipeline.evaluate.options import EvaluateOptions
+from qsls.pipeline.evaluate.stage import evaluate
 from qsls.pipeline.evaluate.verdict import controller_promises, promise, read_verdicts
 from tests.test_evaluate_weighted import weighted  # noqa: F401  (the fixture)
 

@@ -5,7 +5,7 @@ from qsls.pipeline.core.api import lazy_api
 __all__, __getattr__ = lazy_api(
     __name__,
     {
-        "EvaluateOptions": "bound",
-        "evaluate": "bound",
+        "EvaluateOptions": "options",
+        "evaluate": "stage",
     },
 )

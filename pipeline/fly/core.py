@@ -29,8 +29,8 @@ from typing import Any
 import pandas as pd
 
 from qsls.pipeline.control.artifacts import ControllerDir
-from qsls.pipeline.evaluate.bound import bound_check
 from qsls.pipeline.evaluate.certified import ControllerBound, certificate_for
+from qsls.pipeline.evaluate.core import bound_check
 from qsls.pipeline.evaluate.training import TrainingData
 from qsls.pipeline.fly.bound_finding import finding3
 from qsls.pipeline.fly.estimators import by_estimator_tables, findings_by_estimator

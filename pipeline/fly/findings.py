@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from qsls.pipeline.control import guarantee
-from qsls.pipeline.evaluate.bound import ControllerBound
+from qsls.pipeline.evaluate.certified import ControllerBound
 from qsls.pipeline.fly.stats import paired_ratio, ratio_interval
 
 PAPER_CONTROLLERS = ("pd", "l1_nominal", "l1_robust", "l1_robust_imitation")

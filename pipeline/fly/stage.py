@@ -37,22 +37,18 @@ from qsls.pipeline.core.artifacts import StageWriter, check_output
 from qsls.pipeline.core.pools import pool_size
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.model import ErrorModel, load_error_model, resolve_model
-from qsls.pipeline.evaluate.bound import (
-    EvaluateResult,
+from qsls.pipeline.evaluate.certified import (
+    ControllerBound,
     check_model_hash,
     expand_controllers,
     load_bounds,
-    load_training,
-    weighted_bounds,
-    write_tables,
-)
-from qsls.pipeline.evaluate.certified import (
-    ControllerBound,
     load_conditioned,
     refuse_evidence_seeds,
 )
-from qsls.pipeline.evaluate.training import TrainingData
+from qsls.pipeline.evaluate.stage import EvaluateResult, write_tables
+from qsls.pipeline.evaluate.training import TrainingData, load_training
 from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE, controller_promises
+from qsls.pipeline.evaluate.weighted import weighted_bounds
 from qsls.pipeline.fly.assured import ASSURED_FILE, assured_comparison, catch_share
 from qsls.pipeline.fly.core import FlyTables, fly_tables
 from qsls.pipeline.fly.estimators import keyed

@@ -404,7 +404,7 @@ def _evaluate_exec(
 ) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
-        from qsls.pipeline.evaluate.bound import evaluate
+        from qsls.pipeline.evaluate.stage import evaluate
 
         flights = [deps[d] for d in heldout]
         ctrls = controller_folders(deps, calibrated)
