@@ -27,7 +27,7 @@ MODELS = {
         {"--no-figures": "figures"},
     ),
     "fly": (
-        "qsls.pipeline.evaluate.options:FlyOptions",
+        "qsls.pipeline.fly.options:FlyOptions",
         {"--model", "--controller"},
         {"--no-figures": "figures", "--backend": "sim.controller.backend"},
     ),

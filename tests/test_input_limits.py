@@ -83,7 +83,7 @@ def test_a_named_new_folder_beside_the_current_one_is_fine(tmp_path, monkeypatch
 )
 def test_seeds_counts_and_numbers_are_refused_when_read(model, data, expect):
     from qsls.pipeline.calibrate import options as calibrate_options
-    from qsls.pipeline.evaluate import options
+    from qsls.pipeline.fly import options
 
     with pytest.raises(ConfigError, match=expect) as err:
         validate(getattr(options, model, None) or getattr(calibrate_options, model), data)
