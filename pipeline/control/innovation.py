@@ -274,6 +274,21 @@ def sum_limit(threshold: float, K: int) -> float:
     return float(math.floor(threshold * QUANTUM_SCALE) + K)
 
 
+def majority_side(sums: Sequence[float], h: int) -> float | None:
+    """The statistic of the shifted window sums held so far (at most ``ns = 2h - 1``): the
+    ``h``-th largest where it is positive, else the ``h``-th smallest where that is negative,
+    else 0; None while fewer than ``h`` are held. It lies beyond a bound exactly when at least
+    ``h`` of the sums lie beyond it on one side, and with all ``ns`` sums held it is their
+    median. At most ``h - 1 = 2m`` of any ``ns`` consecutive shifted sums have an outlier at an
+    end, so ``h`` beyond the bound prove the premise broken as soon as ``h`` are held, without
+    waiting for all ``ns`` (docs/monitor.md, The median over shifts)."""
+    if len(sums) < h:
+        return None
+    srt = sorted(sums)
+    hi, lo = srt[len(srt) - h], srt[h - 1]
+    return hi if hi > 0 else (lo if lo < 0 else 0.0)
+
+
 def _rows(a: np.ndarray) -> tuple[tuple[float, ...], ...]:
     return tuple(tuple(float(v) for v in r) for r in np.asarray(a, dtype=float))
 
@@ -349,7 +364,8 @@ class InnovationMonitor:
     innovations (:func:`quantize`: exact integers, no drift); a sum is ``above`` its bound
     (:func:`sum_limit`) or ``below`` its negative; the median of the last ``ns`` sums is beyond
     the bound exactly when more than ``ns // 2`` of them are on the same side, which is what
-    the exported code counts (one comparison per tick, not a sort)."""
+    the exported code counts (one comparison per tick, not a sort); while fewer than ``ns``
+    are held, ``ns // 2 + 1`` of them on one side decide (:func:`majority_side`)."""
 
     def __init__(self, spec: InnovationSpec) -> None:
         self.spec = spec
@@ -467,9 +483,9 @@ class InnovationMonitor:
                 if self._valid >= K:
                     recent.append(self._sum[c][w])
                     del recent[:-ns]
-                if self._valid < K + ns - 1:
+                med = majority_side(recent, ns // 2 + 1)
+                if med is None:
                     continue
-                med = sorted(recent)[ns // 2]
                 self.statistic[w][c] = med / QUANTUM_SCALE
                 if not (-lim <= med <= lim):
                     bits |= (TRIP_SUM_CHANNEL << c) | (TRIP_SUM_WINDOW << w)

@@ -12,7 +12,9 @@ module compute the same bits from the same measurements and commands (no fused m
   in doubles, :func:`qsls.pipeline.control.innovation.quantize`: add the newest, subtract the one
   leaving), compared with ``+/- sum_limit``; the median over the channel's shifts is beyond
   the bound when more than ``ns // 2`` of the last ``ns`` sums are on one side, which is
-  counted (one comparison per window and tick, no sort: docs/monitor.md, Rounding).
+  counted (one comparison per window and tick, no sort: docs/monitor.md, Rounding); a sum not
+  yet held counts on neither side, so while the windows fill ``ns // 2 + 1`` of those held
+  decide (docs/monitor.md, Deciding before all shifts are held).
 
 Nothing here is used unless the spec is active: a controller without an innovation monitor
 exports the code it exported before.
@@ -287,9 +289,8 @@ def c_code(spec: InnovationSpec, prefix: str, real: str, float_build: bool) -> s
         body.append("            c->inn_side[l][w][h] = side;")
         body.append("            c->inn_above[l][w] += (side > 0);")
         body.append("            c->inn_below[l][w] += (side < 0);")
-        body.append("            if (c->inn_valid + 1u >= INN_K[w] + ns")
         body.append(
-            "                && (2u * c->inn_above[l][w] > ns || 2u * c->inn_below[l][w] > ns)) {"
+            "            if (2u * c->inn_above[l][w] > ns || 2u * c->inn_below[l][w] > ns) {"
         )
         body.append(
             f"                flags |= ({TRIP_SUM_CHANNEL} << INN_LIVE[l]) | ({TRIP_SUM_WINDOW} << w);"
@@ -379,9 +380,7 @@ def py_code(spec: InnovationSpec, float_build: bool = False) -> str:
             win.append("            cnt[0] += (side > 0) - (old > 0)")
             win.append("            cnt[1] += (side < 0) - (old < 0)")
             win.append("            sides[h] = side")
-            win.append(
-                f"            if self._valid + 1 >= {K + ns} and (2 * cnt[0] > {ns} or 2 * cnt[1] > {ns}):"
-            )
+            win.append(f"            if 2 * cnt[0] > {ns} or 2 * cnt[1] > {ns}:")
             win.append(
                 f"                flags |= {(TRIP_SUM_CHANNEL << ch) | (TRIP_SUM_WINDOW << w)}"
             )
