@@ -24,6 +24,7 @@ from qsls.pipeline.export import bank as B
 from qsls.pipeline.export.c import c_files
 from qsls.pipeline.export.cbuild import STRICT, CController
 from qsls.pipeline.export.python import load_module, module
+from qsls.pipeline.premise.numbers import PremiseNumbers
 from tests.controllerfixtures import gated
 
 V = 1.5
@@ -232,9 +233,10 @@ def test_c_python_and_library_give_the_same_bits_on_the_attitude_plant(tmp_path,
 
     proper = synthesized()
     model = plant_model("attitude")
+    numbers = PremiseNumbers(eps=0.3, S=0.0, radius=1.5, eps_w=0.05, delta=0.0, eps_o=2.8, m=2)
     spec = innovation_spec(
-        model.A, model.B, np.diag([0.1] * 3 + [1.0] * 3 + [0.0] * 5), eps_w=0.05, dense=0.3,
-        error_scale=(1, 1, 1, 0.5, 0.5, 0.5), measure="full", m=2, eps_o=2.8, beta=0.2, T=20,
+        model.A, model.B, np.diag([0.1] * 3 + [1.0] * 3 + [0.0] * 5), numbers, dense=0.3,
+        error_scale=(1, 1, 1, 0.5, 0.5, 0.5), measure="full", beta=0.2, T=20,
     )  # fmt: skip
     assert len(spec.a_aa) == 5 and spec.active
     fx = dataclasses.replace(B.facts(proper), innovation=spec)

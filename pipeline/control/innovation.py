@@ -30,6 +30,7 @@ from qsls.pipeline.control.monitor_record import (
 )
 from qsls.pipeline.core.plant import NX
 from qsls.pipeline.core.ticks import FlownLog
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 # --------------------------------------------------------------------------- the innovation
 TRIP_INNOVATION_OUTLIERS = 8
@@ -159,21 +160,23 @@ def per_tick_bound(
 
 
 def innovation_spec(
-    A: np.ndarray, B: np.ndarray, H: np.ndarray, *, eps_w: float, dense: float,
-    error_scale: Sequence[float], measure: str, m: int, eps_o: float, beta: float, T: int,
-    eps_b: float = 0.0, bias_dirs: np.ndarray | None = None) -> InnovationSpec:  # fmt: skip
-    """The innovation monitor of a certificate's numbers (docs/monitor.md): per-tick
+    A: np.ndarray, B: np.ndarray, H: np.ndarray, numbers: PremiseNumbers, *, dense: float,
+    error_scale: Sequence[float], measure: str, beta: float, T: int,
+    bias_dirs: np.ndarray | None = None) -> InnovationSpec:  # fmt: skip
+    """The innovation monitor of a certificate's premise ``numbers`` (``eps_w``, ``m``,
+    ``eps_o``, ``eps_b``) with the dense bound ``dense`` (docs/monitor.md): per-tick
     disturbance bound (:func:`per_tick_bound`), dense bounds ``db`` (:func:`error_bounds`),
     outlier channels (velocities that can hold an outlier: ``m > 0`` and ``db = beta``), the
     windows of :data:`WINDOW_BREAKS` and their thresholds (:func:`window_bound`). Off without
     a measured velocity or where the loop states depend on the physical ones."""
     A, B, H = (np.asarray(v, dtype=float) for v in (A, B, H))
+    eps_w, eps_o, m = numbers.eps_w, numbers.eps_o, numbers.m
     na = A.shape[0] - NX
     if measure != "full" or (na and np.any(A[NX:, :NX] != 0)) or not math.isfinite(dense):
         return NO_INNOVATION
     measured = measured_channels(measure)
     db = error_bounds(dense, error_scale, measured, beta)
-    per_tick = per_tick_bound(H, eps_w, eps_b, bias_dirs)
+    per_tick = per_tick_bound(H, eps_w, numbers.eps_b, bias_dirs)
     sparse = outlier_channels(measure, m) if math.isfinite(beta) else ()
     outlier = np.zeros(NX)
     for j in sparse:

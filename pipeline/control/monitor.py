@@ -43,6 +43,7 @@ from qsls.pipeline.control.innovation import (
 )
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
 from qsls.pipeline.core.plant import GRAVITY, NX, bias_directions
+from qsls.pipeline.premise.numbers import PremiseNumbers
 
 
 # --------------------------------------------------------------------------- the envelope
@@ -112,33 +113,32 @@ class MonitorSpec:
 def monitor_spec(
     phi_xy: np.ndarray,
     phi_xx_h: np.ndarray,
+    numbers: PremiseNumbers,
     *,
-    eps_w: float,
     dense: float,
     error_scale: Sequence[float] = ONES,
     measure: str = "full",
-    m: int = 0,
-    eps_o: float = 0.0,
     beta: float = math.inf,
-    gate: float | None = None,
     realization_error: float = 0.0,
-    eps_b: float = 0.0,
     bias_dirs: np.ndarray | None = None,
 ) -> MonitorSpec:
     """The thresholds ``env_i + db_i`` of :func:`deviation_envelope` plus the bound ``db_i`` on
-    the error of the tick itself, per measured channel; velocity channels with ``beta`` and
+    the error of the tick itself, per measured channel, under the premise ``numbers``
+    (``eps_w``, ``m``, ``eps_o``, the gate ``V``, ``eps_b``) with the dense bound ``dense``
+    (``gamma = eps + S rho*``); velocity channels with ``beta`` and
     ``m > 0`` count outliers (``kind`` :data:`COUNT`), the others trip (:data:`TRIP`). A channel
     whose threshold is at least the gate can never be exceeded through the gate: it is
     :data:`OFF`. A velocity channel counts only where an outlier can meet the dense bound
     (``beta <= dense / w_e,j``); where ``dense / w_e,j < beta``, an error beyond ``dense / w_e,j``
     breaks the dense premise whether or not it is an outlier (its clipped part is then
     ``beta``), so the channel trips. Thresholds are widened by :data:`MONITOR_RTOL`."""
+    m, gate = numbers.m, numbers.gate
     measured = measured_channels(measure)
     sparse = outlier_channels(measure, m) if math.isfinite(beta) else ()
     env = deviation_envelope(
-        phi_xy, phi_xx_h, eps_w=eps_w, dense=dense, error_scale=error_scale,
-        measured=measured, outlier_channels=sparse, m=m, eps_o=eps_o, beta=beta,
-        eps_b=eps_b, bias_dirs=bias_dirs,
+        phi_xy, phi_xx_h, eps_w=numbers.eps_w, dense=dense, error_scale=error_scale,
+        measured=measured, outlier_channels=sparse, m=m, eps_o=numbers.eps_o, beta=beta,
+        eps_b=numbers.eps_b, bias_dirs=bias_dirs,
     )  # fmt: skip
     db = error_bounds(dense, error_scale, measured, beta)
     T = phi_xy.shape[0] - 1
@@ -190,12 +190,11 @@ def monitor_of(cdir: ControllerDir) -> MonitorSpec:
     # measured nor disturbed: docs/model.md)
     phi_xx_h = np.einsum("tij,jk->tik", taps.Phi_xx, c.model.H)[:, :NX, :]
     return monitor_spec(
-        taps.Phi_xy[:, :NX, :NX], phi_xx_h, eps_w=cert.eps_w, dense=cert.gamma,
+        taps.Phi_xy[:, :NX, :NX], phi_xx_h, cert.numbers(), dense=cert.gamma,
         error_scale=p.error_scale if p is not None else (1.0,) * 6,
-        measure=cert.measure, m=cert.m, eps_o=cert.eps_o,
+        measure=cert.measure,
         beta=p.beta if p is not None and p.beta is not None else np.inf,
-        gate=cert.gate, realization_error=cert.realization_error or 0.0,
-        eps_b=cert.eps_b, bias_dirs=bias_directions(c.model),
+        realization_error=cert.realization_error or 0.0, bias_dirs=bias_directions(c.model),
     )  # fmt: skip
 
 
@@ -298,11 +297,10 @@ def sound_innovation_of(cdir: ControllerDir) -> InnovationSpec:
     p = cert.premise
     model = c.model
     return innovation_spec(
-        model.A, model.B, model.H, eps_w=cert.eps_w, dense=cert.gamma,
+        model.A, model.B, model.H, cert.numbers(), dense=cert.gamma,
         error_scale=p.error_scale if p is not None else (1.0,) * 6, measure=cert.measure,
-        m=cert.m or 0, eps_o=cert.eps_o or 0.0,
         beta=p.beta if p is not None and p.beta is not None else np.inf, T=c.T,
-        eps_b=cert.eps_b, bias_dirs=bias_directions(model),
+        bias_dirs=bias_directions(model),
     )  # fmt: skip
 
 
