@@ -7,6 +7,7 @@ Python and the library, and the attitude plant's loop states propagated alike.""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import subprocess
 
 import numpy as np
@@ -107,6 +108,24 @@ def _aligned(s, n, k0, sign, outliers, rng):
     return w, e
 
 
+def _library(ctrl, s, c, w, e):
+    """The library's monitor on the linear closed loop flown by the C controller (from the
+    same measurements and commands as :func:`_fly`), asserting no bit; yields it after each
+    tick."""
+    model = ctrl.controller.model
+    mon, x = InnovationMonitor(s), np.zeros(6)
+    c.reset()
+    for k in range(len(w)):
+        y = x + e[k]
+        u = c.step(y)
+        dev = y.copy()
+        dev[3:] = np.clip(dev[3:], -V, V)
+        assert mon.step(dev.tolist()) == 0
+        mon.command(u.tolist())
+        yield mon
+        x = model.A @ x + model.B @ u + model.H @ w[k]
+
+
 def test_never_trips_at_the_premises_limits_and_attains_its_bound(loop):
     """60 runs of 440 ticks at the premise's limits, half with m outliers of eps_o per T ticks:
     no trip in C or Python, nor in the library (every fifth run); without outliers the velocity
@@ -126,25 +145,11 @@ def test_never_trips_at_the_premises_limits_and_attains_its_bound(loop):
         if n % 5 > 1:
             continue
         # the library, from the same measurements and commands, and its statistics
-        mon = InnovationMonitor(s)
-        x = np.zeros(6)
-        c.reset()
-        for k in range(len(w)):
-            y = x + e[k]
-            u = c.step(y)
-            dev = y.copy()
-            dev[3:] = np.clip(dev[3:], -V, V)
-            assert mon.step(dev.tolist()) == 0
-            mon.command(u.tolist())
+        for mon in _library(ctrl, s, c, w, e):
             for wi in range(len(s.windows)):
                 for ch in (3, 4, 5):
                     r = abs(mon.statistic[wi][ch]) / s.threshold[wi][ch]
                     worst[outliers] = max(worst[outliers], r)
-            x = (
-                ctrl.controller.model.A @ x
-                + ctrl.controller.model.B @ u
-                + ctrl.controller.model.H @ w[k]
-            )
     assert worst[False] == pytest.approx(1.0, abs=1e-6), worst
     assert worst[True] <= 1.0 and worst[True] > 0.99, worst
 
@@ -169,20 +174,7 @@ def test_the_majority_attains_its_bound_with_2m_outlier_ends(loop, warm):
         e[n - K - m - i, 3:] = -2 * V
     bits = _fly(ctrl, [c, py], w, e)
     assert not bits.any()
-    mon, x = InnovationMonitor(s), np.zeros(6)
-    c.reset()
-    for k in range(n + 1):
-        y = x + e[k]
-        u = c.step(y)
-        dev = y.copy()
-        dev[3:] = np.clip(dev[3:], -V, V)
-        assert mon.step(dev.tolist()) == 0
-        mon.command(u.tolist())
-        x = (
-            ctrl.controller.model.A @ x
-            + ctrl.controller.model.B @ u
-            + ctrl.controller.model.H @ w[k]
-        )
+    mon = next(itertools.islice(_library(ctrl, s, c, w, e), n, None))  # after tick n
     held = mon._recent[5][0]
     assert len(held) == (2 * m + 1 if warm else s.shifts[5])
     assert sum(v > mon._limit[0][5] for v in held) == 2 * m
