@@ -22,11 +22,6 @@ LONG_FUNCTIONS = {
     "export/innovation.py:c_code",
     "export/innovation.py:py_code",
     "export/attitude.py:c_function",
-    # the flight's one loop over physics steps: the controller tick, the step and the VIO
-    # sampling share ~15 locals (records, the arrival cursor, the emulator's pending batch);
-    # functions would pass them every physics step or move them to attribute lookups in the
-    # hot loop. Its setup (clock, arrivals, first sample) may still leave it (issue 49).
-    "sim/closedloop.py:_fly",
 }
 """Functions over :data:`FUNCTION_LINES` lines, as ``module:qualified name``."""
 

@@ -194,6 +194,8 @@ class _Record:
     vio_w: np.ndarray
     vio_e: np.ndarray
     vio_qe: np.ndarray
+    vio_a: np.ndarray
+    """The physics step's mean acceleration at each sample (the emulator's input; not logged)."""
     c_t: np.ndarray
     c_y: np.ndarray
     c_r: np.ndarray
@@ -212,6 +214,7 @@ class _Record:
             vio_w=np.empty((n_vio, 3)),
             vio_e=np.empty((n_vio, 6)),
             vio_qe=np.empty((n_vio, 4)),
+            vio_a=np.empty((n_vio, 3)),
             c_t=np.empty(n_ctrl, dtype=np.int64),
             c_y=np.empty((n_ctrl, 6)),
             c_r=np.empty((n_ctrl, 6)),
@@ -303,142 +306,30 @@ def _fly(
 ) -> FlightLog:
     """Fly ``controller`` (default: ``options.controller``) over the reference; see module doc.
 
-    The emulator's errors are needed only when the controller reads ``y``: the samples since
-    the previous tick are kept (state, body rate, acceleration) and their errors made in one
-    :meth:`VioEmulator.errors` call, which equals calling :meth:`VioEmulator.sample` on each in
-    order (same random draws, same additions; tests/test_sim_vio.py)."""
-    seed = options.seed if seed is None else int(seed)
-    veh = vehicle or Vehicle(options.vehicle)
-    px4 = options.px4
-    m_ctrl = veh.mass if px4.controller_mass is None else float(px4.controller_mass)
-    ctrl = controller or make_controller(options.controller, m_ctrl)
-    m_ctrl = float(getattr(ctrl, "mass", m_ctrl))
-    iface = Px4Interface(px4, m_ctrl) if px4.interface == "px4" else None
-    ref = Reference(options.reference)
-    vio = VioEmulator(options.vio, seed)
-    cam = _camera_loop(options, seed, veh) if options.vio.kind == "camera" else None
-    crash = options.crash
-    truth_feedback = options.controller.feedback == "truth"
-    fault = np.asarray(options.vio.fault.bias, float) if options.vio.fault is not None else None
-    fault_ns = round(options.vio.fault.start_s * NS) if options.vio.fault is not None else 0
-
-    h_ns = round(NS / options.vehicle.physics_hz)
-    h = h_ns / NS
-    n_sub = _ticks(ctrl.dt, h_ns, "control")
-    duration = options.flight_duration()
-    n_ctrl = int(np.floor(duration / ctrl.dt + 1e-9))
-    if n_ctrl < 1:
-        raise ConfigError(
-            f"duration {duration:g} s is shorter than one control period ({ctrl.dt:g} s)"
-        )
-    n_steps = n_ctrl * n_sub
-    vio_ns = round(NS / options.vio.rate_hz)
-    n_vio_max = n_steps * h_ns // vio_ns + 1
-    arrival: tuple[np.ndarray, np.ndarray] | None = None
-    arrival_ns, dropped = np.zeros(0, dtype=np.int64), []
-    if px4.timed:
-        if (n_sub * h_ns) % US:
-            raise ConfigError(
-                f"the control period ({n_sub * h_ns} ns) is not a whole number of "
-                "microseconds, PX4's clock unit; choose vehicle.physics_hz so that it is"
-            )
-        rng = np.random.default_rng(np.random.SeedSequence([seed, _ESTIMATOR_STREAM]))
-        arrival = arrivals(
-            np.arange(n_vio_max, dtype=np.int64) * vio_ns, px4.estimator_latency_s,
-            px4.estimator_jitter_s, px4.estimator_drop, rng, keep_first=True,
-        )  # fmt: skip
-        arrival_ns, dropped = arrival[0] * US, arrival[1].tolist()
-    read = cursor = 0  # the sample the controller reads, the last one looked at
-
-    t_ns = np.arange(n_steps + 1, dtype=np.int64) * h_ns
-    rec = _Record.allocate(n_steps, n_vio_max, n_ctrl)
-    S, vio_t, vio_x, vio_q, vio_w, vio_e = (
-        rec.S,
-        rec.vio_t,
-        rec.vio_x,
-        rec.vio_q,
-        rec.vio_w,
-        rec.vio_e,
-    )
-    c_t, c_y, c_r, c_u, c_a, c_sp = rec.c_t, rec.c_y, rec.c_r, rec.c_u, rec.c_a, rec.c_sp
-    c_ff = rec.c_ff
-    vio_a = np.empty((n_vio_max, 3))  # the physics step's mean acceleration at each sample
-    step = veh.step_numpy if stepwise else veh.step
-    batch = cam is None and not stepwise
-
-    ref_p, ref_v, ref_a = ref.arrays(t_ns / NS)
-    # the feedforward of each tick, for the controller's own mass and plant (docs/guarantee.md,
-    # Disturbance in deviation coordinates)
-    ref_ff = ref.feedforward(
-        np.arange(n_ctrl) * (n_sub * h_ns / NS), n_sub * h_ns / NS,
-        float(getattr(ctrl, "mass", veh.mass)), getattr(ctrl, "plant", "hover"),
-    )  # fmt: skip
-    s = veh.hover_state(ref_p[0], ref_v[0])
-    wind = wind_series(options.wind, seed, t_ns / NS)  # None in still air
-    if wind is not None:
-        s[13:16] = wind[0]
-    sag = float(options.vehicle.sag) / duration
-    S[0] = s
-    ctrl.reset()
-    vio.reset()
-    cos_tilt = np.cos(np.radians(crash.max_tilt_deg))
-
-    # first VIO sample at t = 0
-    m = 0
-    vio_t[0], vio_x[0], vio_q[0], vio_w[0] = 0, s[0:6], s[6:10], s[10:13]
-    if cam is None:
-        vio_e[0] = vio.sample(s[0:6], s[10:13], np.zeros(3))
-    else:
-        cam.check_view(s)
-        cam.start(s)
-        est, rec.vio_qe[0] = cam.estimate()
-        vio_e[0] = est - s[0:6]
-    if fault is not None and fault_ns <= 0:
-        vio_e[0] += fault
-    m = 1
+    The loop alone: its setup, each controller tick and the result are :class:`_Flight`'s; the
+    physics step and the VIO sampling stay here, on locals (they run every physics step)."""
+    f = _Flight.prepare(options, controller, seed, vehicle, stepwise)
+    rec, cam, ref_p, crash, cos_tilt = f.rec, f.cam, f.ref_p, f.crash, f.cos_tilt
+    S, vio_t, vio_x, vio_q, vio_w = rec.S, rec.vio_t, rec.vio_x, rec.vio_q, rec.vio_w
+    vio_a = rec.vio_a
+    h, h_ns, n_sub, vio_ns, n_vio_max = f.h, f.h_ns, f.n_sub, f.vio_ns, f.n_vio_max
+    step, wind, sag, batch = f.step, f.wind, f.sag, f.batch
+    s, y_latest = f.start()
+    m = pending = 1  # samples so far; the first whose error is not made yet (batched emulator)
     next_vio = vio_ns
-    y_latest = vio_x[0] + vio_e[0]
-    pending = m  # first VIO sample whose error is not made yet (batched emulator)
-
-    def flush() -> np.ndarray:
-        """Errors of the pending samples; the newest estimate ``y``."""
-        e = vio.errors(vio_x[pending:m], vio_w[pending:m], vio_a[pending:m])
-        if fault is not None:
-            e[vio_t[pending:m] >= fault_ns] += fault
-        vio_e[pending:m] = e
-        return vio_x[m - 1] + vio_e[m - 1]
-
-    crashed, reason, crash_t = False, None, None
+    end: tuple[str, float, int] | None = None  # why the flight ended early, when, its last step
     thrust, cmd_q = 0.0, np.array([0.0, 0.0, 0.0, 1.0])
     k = 0
-    last_step = n_steps
-    progress.start("flying", total=n_ctrl)
-    for i in range(n_steps):
+    progress.start("flying", total=f.n_ctrl)
+    for i in range(f.n_steps):
         if i % n_sub == 0:
             if batch and pending < m:
-                y_latest, pending = flush(), m
-            t = i * h
-            r = RefSample(p=ref_p[i], v=ref_v[i], a=ref_a[i], uff=ref_ff[k])  # k < n_ctrl
-            if arrival is not None:  # the newest sample arrived by the tick
-                tick_ns = i * h_ns
-                while cursor + 1 < m and (dropped[cursor + 1] or arrival_ns[cursor + 1] <= tick_ns):
-                    cursor += 1
-                    if not dropped[cursor]:
-                        read = cursor
-                y_latest = vio_x[read] + vio_e[read]
-            y = s[0:6].copy() if truth_feedback else y_latest
-            u = np.asarray(ctrl.command(t, y, s[6:10], r), dtype=float)
-            if not np.all(np.isfinite(u)):
-                crashed, reason, crash_t = True, "controller output is not finite", t
-                last_step = i
+                y_latest, pending = f.flush(pending, m), m
+            command = f.tick(i, k, s, y_latest, m)
+            if command is None:
+                end = ("controller output is not finite", i * h, i)
                 break
-            if iface is None:
-                thrust, cmd_q = veh.command(u)
-            else:
-                t_sp, q_d = iface.setpoint(u, r)
-                thrust, cmd_q = veh.command_px4(t_sp, q_d, px4.hover_thrust)
-                c_sp[k, 0], c_sp[k, 1:] = t_sp, q_d
-            c_t[k], c_y[k], c_r[k], c_u[k], c_a[k], c_ff[k] = i * h_ns, y, r.state, u, r.a, r.uff
+            thrust, cmd_q = command
             k += 1
             progress.advance(1)
         s_next = step(s, thrust, cmd_q, h, math.sqrt(1.0 - sag * i * h) if sag else 1.0)
@@ -449,43 +340,231 @@ def _fly(
             cam.step(s, s_next)
         t1 = (i + 1) * h_ns
         while next_vio <= t1 and m < n_vio_max:
-            a = (next_vio - i * h_ns) / h_ns
-            xv, qv, wv = _interp(s, s_next, a, h)
+            xv, qv, wv = _interp(s, s_next, (next_vio - i * h_ns) / h_ns, h)
             vio_t[m], vio_x[m], vio_q[m], vio_w[m] = next_vio, xv, qv, wv
             if batch:
                 vio_a[m] = (s_next[3:6] - s[3:6]) / h
-                m += 1
-                next_vio += vio_ns
-                continue
-            if cam is None:
-                vio_e[m] = vio.sample(xv, wv, (s_next[3:6] - s[3:6]) / h)
             else:
-                est, rec.vio_qe[m] = cam.estimate()
-                vio_e[m] = est - xv
-            if fault is not None and next_vio >= fault_ns:
-                vio_e[m] += fault
-            y_latest = xv + vio_e[m]
+                y_latest = f.sample(m, xv, wv, s, s_next, next_vio)
             m += 1
             next_vio += vio_ns
         s = s_next
-        why = _crash_reason(s, ref_p[i + 1], (i + 1) * h, crash, cos_tilt)
-        if why is not None:
-            crashed, reason, crash_t = True, why, (i + 1) * h
-            last_step = i + 1
+        if (why := _crash_reason(s, ref_p[i + 1], (i + 1) * h, crash, cos_tilt)) is not None:
+            end = (why, (i + 1) * h, i + 1)
             break
     progress.finish()
     if batch and pending < m:
-        flush()
+        f.flush(pending, m)
+    return f.log(m, k, end)
 
-    n = last_step + 1
-    return rec.log(
-        ctrl, veh, t_ns[:n], np.hstack([ref_p[:n], ref_v[:n]]), n, m, k,
-        crashed=crashed, reason=reason, crash_t=crash_t,
-        lipschitz=None if cam else vio.lipschitz,
-        described=cam.describe() if cam else vio.describe(), camera=cam is not None,
-        camera_frame=cam.snapshot.arrays() if cam is not None and cam.snapshot else None,
-        px4=iface is not None, arrival=arrival,
-        controller_mass=m_ctrl if m_ctrl != veh.mass else None,
+
+@dataclass
+class _Flight:
+    """One flight's fixed parts (clock, controller, emulator, reference arrays, VIO arrivals)
+    and its records, set up by :meth:`prepare`; :func:`_fly` runs the loop over them.
+
+    The emulator's errors are needed only when the controller reads ``y``: the samples since
+    the previous tick are kept (state, body rate, acceleration) and their errors made in one
+    :meth:`VioEmulator.errors` call (:meth:`flush`), which equals calling
+    :meth:`VioEmulator.sample` on each in order (same random draws, same additions;
+    tests/test_sim_vio.py)."""
+
+    options: FlightOptions
+    seed: int
+    ctrl: PositionController
+    veh: Vehicle
+    m_ctrl: float
+    iface: Px4Interface | None
+    vio: VioEmulator
+    cam: CameraVio | None
+    h_ns: int
+    n_sub: int
+    n_ctrl: int
+    arrival: tuple[np.ndarray, np.ndarray] | None
+    t_ns: np.ndarray
+    rec: _Record
+    ref_p: np.ndarray
+    ref_v: np.ndarray
+    ref_a: np.ndarray
+    ref_ff: np.ndarray
+    stepwise: bool
+    read: int = 0
+    """The VIO sample the controller reads (by arrival)."""
+    cursor: int = 0
+    """The last VIO sample looked at (by arrival)."""
+
+    @classmethod
+    def prepare(
+        cls, options: FlightOptions, controller: PositionController | None, seed: int | None,
+        vehicle: Vehicle | None, stepwise: bool,
+    ) -> _Flight:  # fmt: skip
+        """The flight's parts, its clock checked (whole physics steps per tick, whole µs)."""
+        seed = options.seed if seed is None else int(seed)
+        veh = vehicle or Vehicle(options.vehicle)
+        px4 = options.px4
+        m_ctrl = veh.mass if px4.controller_mass is None else float(px4.controller_mass)
+        ctrl = controller or make_controller(options.controller, m_ctrl)
+        m_ctrl = float(getattr(ctrl, "mass", m_ctrl))
+        iface = Px4Interface(px4, m_ctrl) if px4.interface == "px4" else None
+        ref = Reference(options.reference)
+        vio = VioEmulator(options.vio, seed)
+        cam = _camera_loop(options, seed, veh) if options.vio.kind == "camera" else None
+        h_ns = round(NS / options.vehicle.physics_hz)
+        n_sub = _ticks(ctrl.dt, h_ns, "control")
+        duration = options.flight_duration()
+        n_ctrl = int(np.floor(duration / ctrl.dt + 1e-9))
+        if n_ctrl < 1:
+            raise ConfigError(
+                f"duration {duration:g} s is shorter than one control period ({ctrl.dt:g} s)"
+            )
+        n_steps = n_ctrl * n_sub
+        vio_ns = round(NS / options.vio.rate_hz)
+        n_vio_max = n_steps * h_ns // vio_ns + 1
+        arrival = _vio_arrivals(options, seed, n_sub * h_ns, n_vio_max, vio_ns)
+        t_ns = np.arange(n_steps + 1, dtype=np.int64) * h_ns
+        rec = _Record.allocate(n_steps, n_vio_max, n_ctrl)
+        ref_p, ref_v, ref_a = ref.arrays(t_ns / NS)
+        # the feedforward of each tick, for the controller's own mass and plant
+        # (docs/guarantee.md, Disturbance in deviation coordinates)
+        ref_ff = ref.feedforward(
+            np.arange(n_ctrl) * (n_sub * h_ns / NS), n_sub * h_ns / NS,
+            float(getattr(ctrl, "mass", veh.mass)), getattr(ctrl, "plant", "hover"),
+        )  # fmt: skip
+        return cls(
+            options, seed, ctrl, veh, m_ctrl, iface, vio, cam, h_ns, n_sub, n_ctrl, arrival,
+            t_ns, rec, ref_p, ref_v, ref_a, ref_ff, stepwise,
+        )  # fmt: skip
+
+    def __post_init__(self) -> None:
+        o = self.options
+        self.h = self.h_ns / NS
+        self.n_steps = self.n_ctrl * self.n_sub
+        self.vio_ns = round(NS / o.vio.rate_hz)
+        self.n_vio_max = len(self.rec.vio_t)
+        self.crash = o.crash
+        self.cos_tilt = np.cos(np.radians(o.crash.max_tilt_deg))
+        self.truth_feedback = o.controller.feedback == "truth"
+        self.fault = np.asarray(o.vio.fault.bias, float) if o.vio.fault is not None else None
+        self.fault_ns = round(o.vio.fault.start_s * NS) if o.vio.fault is not None else 0
+        self.arrival_ns, self.dropped = np.zeros(0, dtype=np.int64), []
+        if self.arrival is not None:
+            self.arrival_ns, self.dropped = self.arrival[0] * US, self.arrival[1].tolist()
+        self.step = self.veh.step_numpy if self.stepwise else self.veh.step
+        self.batch = self.cam is None and not self.stepwise
+        self.wind = wind_series(o.wind, self.seed, self.t_ns / NS)  # None in still air
+        self.sag = float(o.vehicle.sag) / o.flight_duration()
+
+    def start(self) -> tuple[np.ndarray, np.ndarray]:
+        """The hover state at the reference's start, recorded, and the first VIO sample at
+        ``t = 0``: ``(s, y)``."""
+        rec, veh, vio, cam = self.rec, self.veh, self.vio, self.cam
+        s = veh.hover_state(self.ref_p[0], self.ref_v[0])
+        if self.wind is not None:
+            s[13:16] = self.wind[0]
+        rec.S[0] = s
+        self.ctrl.reset()
+        vio.reset()
+        rec.vio_t[0], rec.vio_x[0], rec.vio_q[0], rec.vio_w[0] = 0, s[0:6], s[6:10], s[10:13]
+        if cam is None:
+            rec.vio_e[0] = vio.sample(s[0:6], s[10:13], np.zeros(3))
+        else:
+            cam.check_view(s)
+            cam.start(s)
+            est, rec.vio_qe[0] = cam.estimate()
+            rec.vio_e[0] = est - s[0:6]
+        if self.fault is not None and self.fault_ns <= 0:
+            rec.vio_e[0] += self.fault
+        return s, rec.vio_x[0] + rec.vio_e[0]
+
+    def flush(self, pending: int, m: int) -> np.ndarray:
+        """Errors of the pending samples ``pending .. m - 1``; the newest estimate ``y``."""
+        rec = self.rec
+        e = self.vio.errors(rec.vio_x[pending:m], rec.vio_w[pending:m], rec.vio_a[pending:m])
+        if self.fault is not None:
+            e[rec.vio_t[pending:m] >= self.fault_ns] += self.fault
+        rec.vio_e[pending:m] = e
+        return rec.vio_x[m - 1] + rec.vio_e[m - 1]
+
+    def sample(
+        self, m: int, xv: np.ndarray, wv: np.ndarray, s: np.ndarray, s_next: np.ndarray, t_ns: int
+    ) -> np.ndarray:
+        """VIO sample ``m`` (at ``t_ns``, true state ``xv``, body rate ``wv``) made at once,
+        not batched (camera loop, stepwise): its error recorded; ``y``."""
+        rec = self.rec
+        if self.cam is None:
+            rec.vio_e[m] = self.vio.sample(xv, wv, (s_next[3:6] - s[3:6]) / self.h)
+        else:
+            est, rec.vio_qe[m] = self.cam.estimate()
+            rec.vio_e[m] = est - xv
+        if self.fault is not None and t_ns >= self.fault_ns:
+            rec.vio_e[m] += self.fault
+        return xv + rec.vio_e[m]
+
+    def tick(
+        self, i: int, k: int, s: np.ndarray, y_latest: np.ndarray, m: int
+    ) -> tuple[float, np.ndarray] | None:
+        """Controller tick ``k`` at physics step ``i`` (state ``s``, ``m`` VIO samples so far,
+        the newest estimate ``y_latest``): its command recorded; the vehicle's thrust and
+        attitude command, None when the controller's output is not finite."""
+        rec, iface, t = self.rec, self.iface, i * self.h
+        r = RefSample(p=self.ref_p[i], v=self.ref_v[i], a=self.ref_a[i], uff=self.ref_ff[k])
+        if self.arrival is not None:  # the newest sample arrived by the tick
+            tick_ns, dropped, arrival_ns = i * self.h_ns, self.dropped, self.arrival_ns
+            while self.cursor + 1 < m and (
+                dropped[self.cursor + 1] or arrival_ns[self.cursor + 1] <= tick_ns
+            ):
+                self.cursor += 1
+                if not dropped[self.cursor]:
+                    self.read = self.cursor
+            y_latest = rec.vio_x[self.read] + rec.vio_e[self.read]
+        y = s[0:6].copy() if self.truth_feedback else y_latest
+        u = np.asarray(self.ctrl.command(t, y, s[6:10], r), dtype=float)
+        if not np.all(np.isfinite(u)):
+            return None
+        if iface is None:
+            thrust, cmd_q = self.veh.command(u)
+        else:
+            px4 = self.options.px4
+            t_sp, q_d = iface.setpoint(u, r)
+            thrust, cmd_q = self.veh.command_px4(t_sp, q_d, px4.hover_thrust)
+            rec.c_sp[k, 0], rec.c_sp[k, 1:] = t_sp, q_d
+        rec.c_t[k], rec.c_y[k], rec.c_r[k] = i * self.h_ns, y, r.state
+        rec.c_u[k], rec.c_a[k], rec.c_ff[k] = u, r.a, r.uff
+        return thrust, cmd_q
+
+    def log(self, m: int, k: int, end: tuple[str, float, int] | None) -> FlightLog:
+        """The flight's log: ``m`` VIO samples, ``k`` ticks, and the steps up to the last one
+        (``end``: why the flight ended early, when and at which step; None: it did not)."""
+        n = (self.n_steps if end is None else end[2]) + 1
+        cam, vio, veh, m_ctrl = self.cam, self.vio, self.veh, self.m_ctrl
+        return self.rec.log(
+            self.ctrl, veh, self.t_ns[:n], np.hstack([self.ref_p[:n], self.ref_v[:n]]), n, m, k,
+            crashed=end is not None, reason=end[0] if end else None,
+            crash_t=end[1] if end else None, lipschitz=None if cam else vio.lipschitz,
+            described=cam.describe() if cam else vio.describe(), camera=cam is not None,
+            camera_frame=cam.snapshot.arrays() if cam is not None and cam.snapshot else None,
+            px4=self.iface is not None, arrival=self.arrival,
+            controller_mass=m_ctrl if m_ctrl != veh.mass else None,
+        )  # fmt: skip
+
+
+def _vio_arrivals(
+    options: FlightOptions, seed: int, tick_ns: int, n_vio_max: int, vio_ns: int
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """When each VIO sample reaches the controller (µs) and which never do, where samples are
+    read by arrival (:attr:`Px4Options.timed`; None otherwise)."""
+    px4 = options.px4
+    if not px4.timed:
+        return None
+    if tick_ns % US:
+        raise ConfigError(
+            f"the control period ({tick_ns} ns) is not a whole number of "
+            "microseconds, PX4's clock unit; choose vehicle.physics_hz so that it is"
+        )
+    rng = np.random.default_rng(np.random.SeedSequence([seed, _ESTIMATOR_STREAM]))
+    return arrivals(
+        np.arange(n_vio_max, dtype=np.int64) * vio_ns, px4.estimator_latency_s,
+        px4.estimator_jitter_s, px4.estimator_drop, rng, keep_first=True,
     )  # fmt: skip
 
 
