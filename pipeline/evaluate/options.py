@@ -1,8 +1,8 @@
 """The options of the bound check (``qsls evaluate``, and the ``evaluate:`` section of a config
 file with :class:`~qsls.pipeline.evaluate.section.EvaluateSection`), apart from the stage: this
 module imports only pydantic, the core and the other stages' light option modules, so
-``qsls run`` validates a run config without loading pandas. :mod:`qsls.pipeline.evaluate.bound`
-re-exports them; the flying options (:mod:`qsls.pipeline.fly.options`) share
+``qsls run`` validates a run config without loading pandas. :mod:`qsls.pipeline.evaluate.stage`
+reads them; the flying options (:mod:`qsls.pipeline.fly.options`) share
 :class:`CheckOptions`."""
 
 from __future__ import annotations
