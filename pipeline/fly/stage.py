@@ -308,7 +308,7 @@ def fly_evaluate(
     t0 = time.perf_counter()
     check_output(Path(out), force)
     setup = read_setup(error_model, controllers, options, force, by_condition)
-    with StageWriter(out, "evaluate", options=options, inputs=setup.inputs, force=force) as w:
+    with StageWriter(out, "fly", options=options, inputs=setup.inputs, force=force) as w:
         flown, jobs = fly_all(w, setup, options, progress)
         setup.warnings.extend(flight_warnings(flown))
         # the assured flights are kept apart: every other table is what a run without them writes

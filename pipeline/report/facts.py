@@ -200,7 +200,7 @@ def read_facts(run_dir: Path, stages: dict[str, list[Path]]) -> Facts:
             f.sweep = _parquet(folder / SWEEP_FILE)
             f.s_max = _parquet(folder / S_MAX_FILE)
             f.sweep_options = read_manifest(folder).get("options") or {}
-    for folder in stages.get("evaluate", []):
+    for folder in [*stages.get("evaluate", []), *stages.get("fly", [])]:
         _read_evaluation(f, folder)
     return f
 

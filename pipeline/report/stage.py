@@ -177,7 +177,7 @@ def _other_section(f: Facts, kind: str, counter: list[int]) -> Section:
     return sec
 
 
-_KNOWN = {"simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate"}
+_KNOWN = {"simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "fly"}
 
 
 def build_sections(run_dir: Path, progress: Progress = NULL_PROGRESS) -> list[Section]:
