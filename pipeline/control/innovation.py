@@ -10,7 +10,7 @@ exactly its roundings). Pure: numbers and arrays in, a spec or bits out;
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -197,15 +197,7 @@ def innovation_spec(
         dist, err = window_bound(K, c, robust=robust[c], **kw)
         return 2.0 * err / dist if dist > 0 else math.inf
 
-    windows: list[int] = []
-    breaks: list[float] = []
-    for f in WINDOW_BREAKS:
-        for K in range(1, MAX_WINDOW + 1):
-            if min(caught(K, c) for c in range(NX)) < f:
-                if K not in windows:
-                    windows.append(K)
-                    breaks.append(f)
-                break
+    windows, breaks = _windows(lambda K: min(caught(K, c) for c in range(NX)))
     threshold, error_part = [], []
     L = max((K + max(shifts) - 1 for K in windows), default=0)
     for K in windows:
@@ -240,6 +232,22 @@ def innovation_spec(
         per_tick=tuple(float(v) for v in per_tick),
         error_part=tuple(tuple(float(v) for v in r) for r in error_part),
     )  # fmt: skip
+
+
+def _windows(caught: Callable[[int], float]) -> tuple[list[int], list[float]]:
+    """For each break share ``f`` of :data:`WINDOW_BREAKS`, the shortest window ``K`` (at most
+    :data:`MAX_WINDOW`) that ``caught(K)`` (the smallest break share a window of ``K`` catches
+    on some channel at the errors' worst) says catches ``f``; each window once, with its ``f``."""
+    windows: list[int] = []
+    breaks: list[float] = []
+    for f in WINDOW_BREAKS:
+        for K in range(1, MAX_WINDOW + 1):
+            if caught(K) < f:
+                if K not in windows:
+                    windows.append(K)
+                    breaks.append(f)
+                break
+    return windows, breaks
 
 
 def innovation_tolerance(L: int, c_max: float, unit: float) -> float:
