@@ -14,6 +14,14 @@ from qsls.pipeline.evaluate.options import EvaluateOptions
 EXAMPLE = "qsls evaluate --model fit --controller synth --flights flights/f3 --out ev"
 
 
+def _moved(fly: bool) -> None:
+    """For one release: ``qsls evaluate --fly`` says where the flying went, before any other
+    option is checked."""
+    if fly:
+        typer.echo("error: 'qsls evaluate --fly' is now 'qsls fly' (the same options)", err=True)
+        raise typer.Exit(2)
+
+
 @cli_errors
 @model_options(
     EvaluateOptions,
@@ -49,6 +57,9 @@ def command(
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     force: bool = typer.Option(
         False, "--force", help="Overwrite --out; another error model's controller only warns."
+    ),
+    fly: bool = typer.Option(
+        False, "--fly", hidden=True, is_eager=True, callback=lambda v: _moved(v), help="qsls fly."
     ),
     *,
     given: dict[str, Any],

@@ -95,6 +95,7 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "config": None,
             "force": None,
             "no_figures": None,
+            "fly": None,  # hidden, for one release: the pointer to qsls fly
         },
     ),
     "fly": (

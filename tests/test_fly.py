@@ -185,10 +185,14 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
     assert "Against the paper" in r.output
     md = (out / "comparison.md").read_text()
     assert sum(md.count(f"\n| {i}. ") for i in (1, 2, 3)) == 3
-    # 'evaluate --fly', the old spelling, is gone: one-line refusal, nothing written
+    # 'evaluate --fly', the old spelling, is gone: a one-line pointer to 'qsls fly' (with or
+    # without the other options), nothing written
     old = ["evaluate", "--fly", *args[1:-4], "--flights", root / "train", "--out", tmp_path / "x"]
-    r = CliRunner().invoke(app, [str(a) for a in old])
-    assert r.exit_code == 2 and "--fly" in r.output
+    for argv in (old, ["evaluate", "--fly"]):
+        r = CliRunner().invoke(app, [str(a) for a in argv])
+        assert r.exit_code == 2 and r.output.strip().splitlines() == [
+            "error: 'qsls evaluate --fly' is now 'qsls fly' (the same options)"
+        ], r.output
     assert not (tmp_path / "x").exists()
 
 
