@@ -1,4 +1,4 @@
-"""Tune the PD for tracking at 10 Hz in regular perception (pipeline/evaluate/pdtune.py).
+"""Tune the PD for tracking at 10 Hz in regular perception (pipeline/fly/pdtune.py).
 
     python benchmarks/tune_pd.py                 # the camera loop, tuning seeds 100 and 101
     python benchmarks/tune_pd.py --vio emulator  # the VIO emulator instead

@@ -182,7 +182,7 @@ def test_a_windy_flight_is_outside_a_still_air_calibration_in_the_fly_tables_wor
         tested_range=1.0, nominal={}, parts={}, tolerances={}, holds=True,
     )  # fmt: skip
     flown = SimOptions.model_validate(merge(BASE, {"wind": {"speed": 3.1, "gust": 0.2}}))
-    conditions = flight_conditions(flown.model_dump(mode="json"))  # as fly.py records them
+    conditions = flight_conditions(flown.model_dump(mode="json"))  # as fly/flights.py records them
     why = outside_calibration(cal, "regular", 15.0, "emulator", conditions)
     assert why == "wind 3.1 m/s, calibrated at [0, 1.5] m/s (+106.7 % beyond)"
     inside = SimOptions.model_validate(merge(BASE, draw(WINDY, 4, BASE))).model_dump(mode="json")

@@ -1,4 +1,4 @@
-"""The paper's findings paired by seed (pipeline/evaluate/paired.py): constructed per-flight
+"""The paper's findings paired by seed (pipeline/fly/paired.py): constructed per-flight
 tables with a known answer for each finding, and a small real fly run whose findings.json has
 issue 13's schema and verdicts that follow from its intervals."""
 

@@ -1,4 +1,4 @@
-"""The paper's findings as the paper states them (pipeline/evaluate/paper.py, paired.py): the
+"""The paper's findings as the paper states them (pipeline/fly/paper.py, paired.py): the
 strict bound and where it is undefined, the two-group contrast against a hand computation,
 the replication split, the 1 s smoothing over the circle, and the blur column of camera
 flights from the camera's own exposure model."""

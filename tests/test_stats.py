@@ -1,4 +1,4 @@
-"""Paired-by-seed statistics (pipeline/evaluate/stats.py): intervals against hand-computed
+"""Paired-by-seed statistics (pipeline/fly/stats.py): intervals against hand-computed
 values and every verdict reached from constructed paired samples."""
 
 from __future__ import annotations
