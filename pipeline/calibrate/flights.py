@@ -26,9 +26,9 @@ from qsls.pipeline.control.artifacts import FlightEvidence
 from qsls.pipeline.core.artifacts import StageWriter, sha256_file
 from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import Progress
 from qsls.pipeline.core.ticks import TICKS_FILE, TickLog
+from qsls.pipeline.core.workers import run_flights
 from qsls.pipeline.evaluate.conditions import draw
 from qsls.pipeline.evaluate.flownby import flown_by
 from qsls.pipeline.sim.closedloop import fly
@@ -143,18 +143,7 @@ def fly_jobs(
     todo: Sequence[Job], options: CalibrateOptions, progress: Progress, what: str
 ) -> list[TickLog]:
     """Fly ``todo`` on the pool (or the options' Dask scheduler), in order."""
-    progress.start(what, total=len(todo))
-    logs = run_tasks(
-        [(fly_job, j) for j in todo],
-        min(pool_size(options.jobs), len(todo)),
-        lambda i: progress.advance(),
-        scheduler=options.scheduler,
-        note=progress.note,
-        worker_timeout=options.wait_workers,
-        what="calibration",
-    )
-    progress.finish()
-    return logs
+    return run_flights(fly_job, todo, options, progress, what, "calibration")
 
 
 def keep(w: StageWriter, j: Job, tk: TickLog) -> FlightEvidence:

@@ -21,8 +21,8 @@ from typing import Any
 
 from qsls.pipeline.calibrate.options import CalibrateOptions, RecordedFlights
 from qsls.pipeline.core.config import merge
-from qsls.pipeline.core.pools import pool_size, run_tasks
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.workers import run_flights
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.ingest.stage import ingest
 from qsls.pipeline.sim.options import SimOptions
@@ -106,17 +106,7 @@ def standin_flights(
         for f in folders
         for s in seeds
     ]
-    progress.start("stand-in flights", total=len(jobs))
-    run_tasks(
-        [(fly_standin, j) for j in jobs],
-        min(pool_size(options.jobs), len(jobs)),
-        lambda i: progress.advance(),
-        scheduler=options.scheduler,
-        note=progress.note,
-        worker_timeout=options.wait_workers,
-        what="stand-in",
-    )
-    progress.finish()
+    run_flights(fly_standin, jobs, options, progress, "stand-in flights", "stand-in")
     by = {r: [Path(j.ingest_dir) for j in jobs if j.role == r] for r, _ in roles}
     return RecordedFlights(
         calibration=by["calibration"], range=by["range"], validation=by["validation"]
