@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qsls.pipeline.fly.core import fly_tables
+from qsls.pipeline.fly.core import Flown, fly_tables
 from qsls.pipeline.fly.estimators import FLIGHTS_FILE, PAIRED_FILE
 from qsls.pipeline.fly.flights import FlyOutcome
 from qsls.pipeline.fly.options import FlyOptions
@@ -46,7 +46,7 @@ def _flown(estimators=("emulator",)) -> list[FlyOutcome]:
 
 
 def test_the_core_computes_the_tables_and_findings_from_flown_flights_alone():
-    t = fly_tables(_flown(), {}, [], None, {}, FlyOptions(seeds=SEEDS))  # type: ignore[arg-type]
+    t = fly_tables(Flown(_flown(), {}, [], None, {}), FlyOptions(seeds=SEEDS))  # type: ignore[arg-type]
     per = t.per.set_index(["condition", "controller"])
     # mean over seeds 0..3 of 0.10 (1 + 0.01 s) = 0.10 x 1.015
     assert per.loc[("regular", "pd"), "tracking_rms_m"] == pytest.approx(0.1015)
@@ -65,9 +65,9 @@ def test_the_core_computes_the_tables_and_findings_from_flown_flights_alone():
 
 def test_several_estimators_key_the_tables_and_the_primary_stays_the_stages():
     both = fly_tables(
-        _flown(("camera", "emulator")), {}, [], None, {},  # type: ignore[arg-type]
+        Flown(_flown(("camera", "emulator")), {}, [], None, {}),  # type: ignore[arg-type]
         FlyOptions(seeds=SEEDS, vio=["camera", "emulator"]),
-    )  # fmt: skip
+    )
     assert set(both.analyses) == {"camera", "emulator"}
     assert len(both.flights) == 16  # the primary's flights: 2 conditions x 4 seeds x 2
     assert set(both.by_estimator[FLIGHTS_FILE]["estimator"]) == {"camera", "emulator"}

@@ -22,7 +22,7 @@ estimator's flights count in finding 3 and the by-estimator tables are added
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +50,21 @@ from qsls.pipeline.fly.tables import (
     premise_rows,
     true_lipschitz,
 )
+
+
+@dataclass(frozen=True)
+class Flown:
+    """What the stage flew and read, as the core takes it: the flights flown (runtime-assured
+    ones left out), their ingested ``flight.parquet`` frames by flight name (a flight whose
+    ingest failed is absent), the controllers' bounds (and their conditions' certificates,
+    ``by_condition``), their folders as read and the training data."""
+
+    outcomes: Sequence[FlyOutcome]
+    ingested: Mapping[str, pd.DataFrame]
+    bounds: Sequence[ControllerBound]
+    training: TrainingData
+    dirs: Mapping[Path, ControllerDir]
+    by_condition: Mapping[tuple[str, str], ControllerBound] | None = None
 
 
 @dataclass(frozen=True)
@@ -125,19 +140,12 @@ def check_flights(
     return checks, samples, ref_j
 
 
-def analyse(
-    outcomes: Sequence[FlyOutcome],
-    ingested: Mapping[str, pd.DataFrame],
-    bounds: Sequence[ControllerBound],
-    training: TrainingData,
-    dirs: Mapping[Path, ControllerDir],
-    options: FlyOptions,
-    by_condition: Mapping[tuple[str, str], ControllerBound] | None = None,
-    estimator: str = "emulator",
-) -> Analysis:
+def analyse(flown: Flown, options: FlyOptions, estimator: str = "emulator") -> Analysis:
     """Tables, bound checks, assumptions, the paper comparison and the paired findings of one
     estimator's flights (a flight checked against its condition's certificate where
-    ``by_condition`` holds one: :func:`certificate_for`)."""
+    ``flown.by_condition`` holds one: :func:`certificate_for`)."""
+    outcomes, ingested, bounds = flown.outcomes, flown.ingested, flown.bounds
+    training, dirs, by_condition = flown.training, flown.dirs, flown.by_condition
     flights = flight_table(outcomes)
     checks, samples, ref_j = check_flights(
         outcomes, ingested, flights, bounds, training, by_condition
@@ -157,26 +165,16 @@ def analyse(
     return Analysis(flights, checks, samples, assumptions, per, comparison, findings)
 
 
-def fly_tables(
-    outcomes: Sequence[FlyOutcome],
-    ingested: Mapping[str, pd.DataFrame],
-    bounds: Sequence[ControllerBound],
-    training: TrainingData,
-    dirs: Mapping[Path, ControllerDir],
-    options: FlyOptions,
-    by_condition: Mapping[tuple[str, str], ControllerBound] | None = None,
-) -> FlyTables:
+def fly_tables(flown: Flown, options: FlyOptions) -> FlyTables:
     """Every estimator's flights analysed (:func:`analyse`), the primary's as the stage's
     tables; with several, finding 3 counts every estimator's flights (the assumptions of all of
-    them) and the by-estimator tables are added (module docstring). ``outcomes``: the flights
-    flown, runtime-assured ones left out."""
+    them) and the by-estimator tables are added (module docstring)."""
     analyses: dict[str, Analysis] = {}
     for vio in options.estimators:
-        mine = [o for o in outcomes if o.estimator == vio]
+        mine = [o for o in flown.outcomes if o.estimator == vio]
         analyses[vio] = analyse(
-            mine, ingested, bounds, training, dirs, options, by_condition,
-            estimator=vio if mine else "emulator",
-        )  # fmt: skip
+            replace(flown, outcomes=mine), options, estimator=vio if mine else "emulator"
+        )
     a = analyses[options.estimators[0]]
     if len(analyses) == 1:
         md = comparison_markdown(a.comparison, a.per, a.findings)
@@ -194,7 +192,7 @@ def fly_tables(
         findings_by_estimator(analyses),
         finding3(
             a.checks, every, None, assumptions if len(assumptions) else None,
-            premise_rows(bounds),
+            premise_rows(flown.bounds),
         ),
     )  # fmt: skip
     md = comparison_markdown(a.comparison, a.per, findings) + "\n" + estimators_markdown(analyses)

@@ -50,7 +50,7 @@ from qsls.pipeline.evaluate.training import TrainingData, load_training
 from qsls.pipeline.evaluate.verdict import ASSUMPTIONS_FILE, controller_promises
 from qsls.pipeline.evaluate.weighted import weighted_bounds
 from qsls.pipeline.fly.assured import ASSURED_FILE, assured_comparison, catch_share
-from qsls.pipeline.fly.core import FlyTables, fly_tables
+from qsls.pipeline.fly.core import Flown, FlyTables, fly_tables
 from qsls.pipeline.fly.estimators import keyed
 from qsls.pipeline.fly.figures import write_fly_figures
 from qsls.pipeline.fly.flights import (
@@ -318,10 +318,10 @@ def fly_evaluate(
             for o, j in zip(flown, jobs, strict=True)
             if j.assured is None and not o.ingest_error
         }
-        tables = fly_tables(
-            outcomes, ingested, setup.bounds, setup.training, setup.dirs, options,
-            setup.conditioned,
-        )  # fmt: skip
+        read = Flown(
+            outcomes, ingested, setup.bounds, setup.training, setup.dirs, setup.conditioned
+        )
+        tables = fly_tables(read, options)
         assured = pd.DataFrame()
         assured_json: dict[str, Any] = {}
         if options.assured:
