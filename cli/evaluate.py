@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import typer
+from typer.core import TyperCommand
 
 from qsls.cli.common import RichProgress, cli_errors, overrides, print_summary, print_verdicts
 from qsls.cli.fields import model_options
@@ -14,12 +15,17 @@ from qsls.pipeline.evaluate.options import EvaluateOptions
 EXAMPLE = "qsls evaluate --model fit --controller synth --flights flights/f3 --out ev"
 
 
-def _moved(fly: bool) -> None:
-    """For one release: ``qsls evaluate --fly`` says where the flying went, before any other
-    option is checked."""
-    if fly:
-        typer.echo("error: 'qsls evaluate --fly' is now 'qsls fly' (the same options)", err=True)
-        raise typer.Exit(2)
+class Command(TyperCommand):
+    """For one release: ``qsls evaluate --fly ...`` says where the flying went, before its
+    other (now unknown) options are parsed."""
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:  # Typer's own click Context
+        if "--fly" in args:
+            typer.echo(
+                "error: 'qsls evaluate --fly' is now 'qsls fly' (the same options)", err=True
+            )
+            ctx.exit(2)
+        return super().parse_args(ctx, args)
 
 
 @cli_errors
@@ -57,9 +63,6 @@ def command(
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the PNG figures."),
     force: bool = typer.Option(
         False, "--force", help="Overwrite --out; another error model's controller only warns."
-    ),
-    fly: bool = typer.Option(
-        False, "--fly", hidden=True, is_eager=True, callback=lambda v: _moved(v), help="qsls fly."
     ),
     *,
     given: dict[str, Any],

@@ -73,7 +73,7 @@ def _register(only: str | None = None) -> None:
 
             parts.append(config_only_text(config_only))
         epilog = "\n\n".join(parts) or None
-        app.command(name, epilog=epilog)(mod.command)
+        app.command(name, epilog=epilog, cls=getattr(mod, "Command", None))(mod.command)
 
 
 def _invoked() -> str | None:

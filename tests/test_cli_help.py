@@ -95,7 +95,6 @@ MODELS: dict[str, tuple[str, dict[str, str | None]]] = {
             "config": None,
             "force": None,
             "no_figures": None,
-            "fly": None,  # hidden, for one release: the pointer to qsls fly
         },
     ),
     "fly": (

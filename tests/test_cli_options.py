@@ -23,7 +23,7 @@ MODELS = {
     ),
     "evaluate": (
         "qsls.pipeline.evaluate.options:EvaluateOptions",
-        {"--model", "--controller", "--flights", "--fly"},  # --fly: the pointer to qsls fly
+        {"--model", "--controller", "--flights"},
         {"--no-figures": "figures"},
     ),
     "fly": (

@@ -188,7 +188,8 @@ def test_fly_cli_flies_in_parallel_and_compares(trained, tmp_path):
     # 'evaluate --fly', the old spelling, is gone: a one-line pointer to 'qsls fly' (with or
     # without the other options), nothing written
     old = ["evaluate", "--fly", *args[1:-4], "--flights", root / "train", "--out", tmp_path / "x"]
-    for argv in (old, ["evaluate", "--fly"]):
+    fly_args = ["--seeds", "0", "--conditions", "regular", "--jobs", "2"]  # qsls fly's own
+    for argv in (old, ["evaluate", "--fly"], ["evaluate", "--fly", *fly_args]):
         r = CliRunner().invoke(app, [str(a) for a in argv])
         assert r.exit_code == 2 and r.output.strip().splitlines() == [
             "error: 'qsls evaluate --fly' is now 'qsls fly' (the same options)"
