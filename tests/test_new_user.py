@@ -338,6 +338,19 @@ def test_evaluate_listed_with_nothing_to_evaluate_is_refused_before_any_stage(tm
         f"error: {tmp_path}: stages: evaluate is listed but there are no controllers to "
         "evaluate: add a synth: section (and synth to the stages)"
     )
+    # fly, a stage of its own, is refused alike: without synth, and without its section
+    fly = {"seeds": [0], "duration": 5, "conditions": ["regular"]}
+    flying = ["simulate", "ingest", "fit", "fly"]
+    res = invoke("run", _run_config(tmp_path, stages=flying, fly=fly), "--out", tmp_path / "run")
+    assert one_line(res) == (
+        f"error: {tmp_path}: stages: fly is listed but there are no controllers to "
+        "fly: add a synth: section (and synth to the stages)"
+    )
+    res = invoke("run", _run_config(tmp_path, stages=[*stages, "fly"]), "--out", tmp_path / "run")
+    assert one_line(res) == (
+        f"error: {tmp_path}: stages: fly is listed but the config has no fly: section (the "
+        "seeds, conditions and duration to fly): add one, or leave fly out"
+    )
     assert not (tmp_path / "run").exists()
 
 

@@ -83,12 +83,18 @@ def build_graph(
     if cfg.sweep is not None and "sweep" in wanted:
         _sweep_stage(graph, cfg.sweep, progress)
     listed = set(cfg.stages or ())
+    if "fly" in listed and cfg.fly is None:
+        raise ConfigError(
+            f"{src('stages')}: fly is listed but the config has no fly: section (the seeds, "
+            "conditions and duration to fly): add one, or leave fly out"
+        )
     if cfg.synth is None or "synth" not in wanted:
-        if "evaluate" in listed:
-            raise ConfigError(
-                f"{src('stages')}: evaluate is listed but there are no controllers to evaluate: "
-                "add a synth: section (and synth to the stages)"
-            )
+        for stage, verb in (("evaluate", "evaluate"), ("fly", "fly")):
+            if stage in listed:
+                raise ConfigError(
+                    f"{src('stages')}: {stage} is listed but there are no controllers to "
+                    f"{verb}: add a synth: section (and synth to the stages)"
+                )
         return graph
     synth_opts = cfg.synth
     graph.add(Stage("synth", "synth", synth_opts, _synth_exec(synth_opts, progress), deps=("fit",)))
