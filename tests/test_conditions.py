@@ -242,3 +242,42 @@ def test_the_estimators_parameters_are_drawn_recorded_and_compared_with_their_ra
     assert outside_family(statement, other) == ["vio.noise_position 0.01, calibrated at 0.004"]
     with pytest.raises(ValueError, match="not a numeric parameter"):
         ConditionFamily(estimator={"kind": (0.0, 1.0)})
+
+
+def test_the_figure_eight_as_a_member_of_the_family():
+    """``figure8: 0.25`` flies the figure-eight on about a quarter of the flights (by seed, a
+    stream of its own: the other draws are those of the family without it), records which
+    one each flew, states the share and accepts both kinds; a hover is still outside."""
+    fam = ConditionFamily(mass=(0.97, 1.03), period=(4.5, 5.5), center_offset=0.2, figure8=0.25)
+    kinds = [draw(fam, s, BASE)["reference"].get("kind", "circle") for s in range(400)]
+    assert 0.2 < kinds.count("figure8") / 400 < 0.3 and set(kinds) == {"circle", "figure8"}
+    for s in range(20):  # the other draws unchanged by the new member
+        a, b = draw(fam, s, BASE), draw(FAMILY, s, BASE)
+        a["reference"].pop("kind", None)
+        assert a == b
+    statement = stated(fam, BASE)
+    assert (
+        statement["family"]["figure8"] == 0.25 and "figure8" not in stated(FAMILY, BASE)["family"]
+    )
+    for s in range(30):
+        flight = merge(BASE, draw(fam, s, BASE))
+        assert outside_family(statement, _flight(draw(fam, s, BASE))) == []
+        assert drawn(fam, flight)["figure8"] == float(flight["reference"]["kind"] == "figure8")
+    assert outside_family(statement, _flight({"reference": {"kind": "hover"}})) == [
+        "reference 'hover', calibrated on 'circle' and 'figure8'"
+    ]
+    # without the member, a figure-eight flight lies outside
+    assert any(
+        "figure8" in w
+        for w in outside_family(stated(FAMILY, BASE), _flight({"reference": {"kind": "figure8"}}))
+    )
+
+
+def test_the_promise_names_the_centre_offset_and_the_figure_eight_share():
+    from qsls.pipeline.evaluate.verdict import conditions_text
+
+    fam = ConditionFamily(center_offset=0.2, figure8=0.25)
+    text = conditions_text({"perception": "regular", **stated(fam, BASE)})
+    assert "its centre moved up to 0.2 m" in text
+    assert "the figure-eight instead on 25 % of flights" in text
+    assert "figure-eight" not in conditions_text({"perception": "regular", **stated(FAMILY, BASE)})

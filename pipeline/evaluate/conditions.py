@@ -66,6 +66,10 @@ class ConditionFamily(Options):
     """The reference's height (m); None: fixed."""
     center_offset: float = Field(0.0, ge=0.0, le=10.0)
     """The reference's centre moved up to this far (m, uniform in the disc)."""
+    figure8: float = Field(0.0, ge=0.0, le=1.0)
+    """The share of flights that fly the figure-eight instead of the recorded reference's kind
+    (drawn per flight, with the same radius, period, height and centre draws); 0: the kind is
+    fixed."""
     wind: Span | None = None
     """The steady horizontal wind's speed (m/s, ``[0, 1.5]``: light wind); None: fixed at
     ``wind.speed`` (still air unless set)."""
@@ -127,7 +131,10 @@ class ConditionFamily(Options):
         vehicle on one reference (a degenerate range such as ``radius: [1.2, 1.2]`` sets its
         condition for every flight, so it is not a point family)."""
         spans = [self.radius, self.period, self.height, *(getattr(self, n) for n in NEW_LIMITS)]
-        fixed = self.center_offset == 0 and self.mass == (1.0, 1.0) and not self.estimator
+        fixed = (
+            self.center_offset == 0 and self.mass == (1.0, 1.0) and not self.estimator
+            and self.figure8 == 0
+        )  # fmt: skip
         return fixed and all(s is None for s in spans)
 
     @property
@@ -177,6 +184,10 @@ def draw(family: ConditionFamily, seed: int, sim: Mapping[str, Any]) -> dict[str
         cx, cy = ref.get("center", (0.0, 0.0))
         rad, ang = family.center_offset * math.sqrt(u[4]), 2 * math.pi * u[5]
         r["center"] = [float(cx) + rad * math.cos(ang), float(cy) + rad * math.sin(ang)]
+    if family.figure8 > 0:  # a stream of its own: the draws above stay as they were
+        kind = np.random.default_rng(np.random.SeedSequence([int(seed), FAMILY_STREAM, 3]))
+        if float(kind.uniform()) < family.figure8:
+            r["kind"] = "figure8"
     if r:
         out["reference"] = r
     for i, name in ((3, "thrust_constant"), (4, "sag")):
@@ -247,6 +258,8 @@ def drawn(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, float]:
                 "sag": float(veh.get("sag", 0.0))}  # fmt: skip
     if family.hover_error is not None:
         out["hover_error"] = hover_error(sim.get("px4"))
+    if family.figure8 > 0:
+        out["figure8"] = float(ref.get("kind") == "figure8")
     for path in sorted(family.estimator):
         out[f"vio_{path.replace('.', '_')}"] = float(_at(sim.get("vio") or {}, path))
     return out
@@ -278,6 +291,8 @@ def stated(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, Any]:
             fam[name] = list(span)
     if family.estimator:
         fam["estimator"] = {k: list(v) for k, v in sorted(family.estimator.items())}
+    if family.figure8 > 0:  # stated where drawn: an older statement stays as it was
+        fam["figure8"] = family.figure8
     out = {"family": fam, "vehicle": veh, "reference": ref, "vio": dict(sim.get("vio") or {})}
     if sim.get("wind"):
         out["wind"] = dict(sim["wind"])
@@ -365,6 +380,11 @@ def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> l
             ranged[group].add(name)
             if text := _span(name, float(value), span, unit):
                 why.append(text)
+        if fam.get("figure8"):  # the recorded kind or the figure-eight
+            ranged["reference"].add("kind")
+            base = (statement.get("reference") or {}).get("kind", "circle")
+            if ref.get("kind", "circle") not in (base, "figure8"):
+                why.append(f"reference {ref.get('kind')!r}, calibrated on {base!r} and 'figure8'")
         if "center" in ref and fam.get("center") is not None:
             ranged["reference"].add("center")
             d = math.dist([float(c) for c in ref["center"]], [float(c) for c in fam["center"]])

@@ -66,6 +66,10 @@ def conditions_text(conditions: Mapping[str, Any] | None) -> str:
             assert span is not None
             lo, hi = (float(v) * scale for v in span)
             parts.append(f"{what} {lo:.3g} to {hi:.3g}{unit}")
+    if fam and float(fam.get("center_offset") or 0.0) > 0:
+        parts.append(f"its centre moved up to {float(fam['center_offset']):.3g} m")
+    if fam and float(fam.get("figure8") or 0.0) > 0:
+        parts.append(f"the figure-eight instead on {100 * float(fam['figure8']):.3g} % of flights")
     est = fam.get("estimator") if fam else None
     if isinstance(est, Mapping) and est:
         spans = ", ".join(f"{k} {float(v[0]):.3g} to {float(v[1]):.3g}" for k, v in est.items())
