@@ -30,6 +30,7 @@ EXAMPLE = "qsls simulate --out flights/sim1 --seed 1 --format mcap"
     config_only={
         "vehicle": "mass, drag, thrust_constant, sag",
         "wind": "speed, direction_deg, gust, gust_hz",
+        "start_offset": "x and y (m) beside the reference's first point",
         "reference": "kind, radius, height, period, ...",
         "crash": "the crash limits",
         "mocap": "the motion capture's noise and rate",

@@ -273,11 +273,40 @@ def test_the_figure_eight_as_a_member_of_the_family():
     )
 
 
-def test_the_promise_names_the_centre_offset_and_the_figure_eight_share():
+def test_the_promise_names_the_centre_offset_the_start_and_the_figure_eight_share():
     from qsls.pipeline.evaluate.verdict import conditions_text
 
-    fam = ConditionFamily(center_offset=0.2, figure8=0.25)
+    fam = ConditionFamily(center_offset=0.2, figure8=0.25, start_offset=0.3)
     text = conditions_text({"perception": "regular", **stated(fam, BASE)})
     assert "its centre moved up to 0.2 m" in text
+    assert "a start up to 0.3 m beside the reference" in text
     assert "the figure-eight instead on 25 % of flights" in text
     assert "figure-eight" not in conditions_text({"perception": "regular", **stated(FAMILY, BASE)})
+
+
+def test_a_start_beside_the_reference_as_a_member_of_the_family():
+    """``start_offset: 0.3`` starts each flight up to 0.3 m beside the reference's first point
+    (uniform in the disc, by seed, on a stream of its own), records it, states it and accepts
+    it; a start farther out, or any start under a family without it, lies outside."""
+    fam = ConditionFamily(mass=(0.97, 1.03), period=(4.5, 5.5), center_offset=0.2, start_offset=0.3)
+    starts = [draw(fam, s, BASE)["start_offset"] for s in range(300)]
+    radii = [(x * x + y * y) ** 0.5 for x, y in starts]
+    assert max(radii) <= 0.3 and max(radii) > 0.28 and min(radii) < 0.05
+    for s in range(20):
+        a = draw(fam, s, BASE)
+        a.pop("start_offset")
+        assert a == draw(FAMILY, s, BASE)  # the other draws unchanged by the new member
+    statement = stated(fam, BASE)
+    assert statement["family"]["start_offset"] == 0.3
+    for s in range(30):
+        d = draw(fam, s, BASE)
+        flight = SimOptions.model_validate(merge(BASE, d)).model_dump(mode="json")
+        assert outside_family(statement, _flight(d)) == []
+        assert [drawn(fam, flight)[k] for k in ("start_x_m", "start_y_m")] == d["start_offset"]
+    far = {"start_offset": [0.3, 0.3]}
+    assert outside_family(statement, _flight(far)) == [
+        "start 0.424 m beside the reference's first point, calibrated at up to 0.3 m"
+    ]
+    assert outside_family(stated(FAMILY, BASE), _flight({"start_offset": [0.1, 0.0]})) == [
+        "start 0.1 m beside the reference's first point, calibrated at up to 0 m"
+    ]

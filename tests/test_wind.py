@@ -107,3 +107,18 @@ def test_the_windy_flight_is_the_same_bits_stepwise_and_close_to_rotorpys_own_st
 def test_rotorpys_stock_step_cannot_fly_a_thrust_constant_it_does_not_know():
     with pytest.raises(ConfigError, match="integrator rk4"):
         Vehicle(VehicleOptions(integrator="solve_ivp", sag=0.05))
+
+
+def test_a_start_beside_the_reference_flies_to_it_and_the_default_dump_is_as_it_was():
+    """``start_offset`` puts the vehicle beside the reference's first point at take-off (the
+    truth at t = 0 is the reference's first point plus the offset) and the controller flies
+    it back; (0, 0) leaves the dump without the key, so every older flight's artifacts stay."""
+    assert "start_offset" not in SimOptions().model_dump(mode="json")
+    opts = _hover(6.0, start_offset=(0.4, -0.3))
+    assert opts.model_dump(mode="json")["start_offset"] == [0.4, -0.3]
+    f, home = fly(opts), fly(_hover(6.0))
+    np.testing.assert_allclose(f.x[0, :3] - f.ref[0, :3], [0.4, -0.3, 0.0], atol=1e-12)
+    np.testing.assert_allclose(home.x[0, :3] - home.ref[0, :3], 0.0, atol=1e-12)
+    assert np.linalg.norm(f.x[-1, :2] - f.ref[-1, :2]) < 0.05  # flown back to the reference
+    with pytest.raises(ValueError, match="within 10 m"):
+        _hover(1.0, start_offset=(11.0, 0.0))

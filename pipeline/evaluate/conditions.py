@@ -66,6 +66,9 @@ class ConditionFamily(Options):
     """The reference's height (m); None: fixed."""
     center_offset: float = Field(0.0, ge=0.0, le=10.0)
     """The reference's centre moved up to this far (m, uniform in the disc)."""
+    start_offset: float = Field(0.0, ge=0.0, le=10.0)
+    """The vehicle starts up to this far beside the reference's first point (m, uniform in the
+    horizontal disc) and flies to the reference from there; 0: on it."""
     figure8: float = Field(0.0, ge=0.0, le=1.0)
     """The share of flights that fly the figure-eight instead of the recorded reference's kind
     (drawn per flight, with the same radius, period, height and centre draws); 0: the kind is
@@ -133,7 +136,7 @@ class ConditionFamily(Options):
         spans = [self.radius, self.period, self.height, *(getattr(self, n) for n in NEW_LIMITS)]
         fixed = (
             self.center_offset == 0 and self.mass == (1.0, 1.0) and not self.estimator
-            and self.figure8 == 0
+            and self.figure8 == 0 and self.start_offset == 0
         )  # fmt: skip
         return fixed and all(s is None for s in spans)
 
@@ -190,6 +193,10 @@ def draw(family: ConditionFamily, seed: int, sim: Mapping[str, Any]) -> dict[str
             r["kind"] = "figure8"
     if r:
         out["reference"] = r
+    if family.start_offset > 0:  # a stream of its own, as the figure-eight's
+        st = np.random.default_rng(np.random.SeedSequence([int(seed), FAMILY_STREAM, 4]))
+        rad, ang = family.start_offset * math.sqrt(st.uniform()), 2 * math.pi * st.uniform()
+        out["start_offset"] = [rad * math.cos(ang), rad * math.sin(ang)]
     for i, name in ((3, "thrust_constant"), (4, "sag")):
         span = getattr(family, name)
         if span is not None:
@@ -260,6 +267,9 @@ def drawn(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, float]:
         out["hover_error"] = hover_error(sim.get("px4"))
     if family.figure8 > 0:
         out["figure8"] = float(ref.get("kind") == "figure8")
+    if family.start_offset > 0:
+        sx, sy = sim.get("start_offset") or (0.0, 0.0)
+        out |= {"start_x_m": float(sx), "start_y_m": float(sy)}
     for path in sorted(family.estimator):
         out[f"vio_{path.replace('.', '_')}"] = float(_at(sim.get("vio") or {}, path))
     return out
@@ -293,6 +303,8 @@ def stated(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, Any]:
         fam["estimator"] = {k: list(v) for k, v in sorted(family.estimator.items())}
     if family.figure8 > 0:  # stated where drawn: an older statement stays as it was
         fam["figure8"] = family.figure8
+    if family.start_offset > 0:
+        fam["start_offset"] = family.start_offset
     out = {"family": fam, "vehicle": veh, "reference": ref, "vio": dict(sim.get("vio") or {})}
     if sim.get("wind"):
         out["wind"] = dict(sim["wind"])
@@ -304,11 +316,13 @@ def stated(family: ConditionFamily, sim: Mapping[str, Any]) -> dict[str, Any]:
 def flight_conditions(sim: Mapping[str, Any]) -> dict[str, Any]:
     """A flight's recorded conditions from its simulation options' dump: the vehicle (its
     true mass, thrust constant and sag), the reference, the VIO emulator's parameters and
-    the wind (where there was one)."""
-    out = {k: dict(sim.get(k) or {}) for k in ("vehicle", "reference", "vio")}
+    the wind, the interface and the start beside the reference (where not the default)."""
+    out: dict[str, Any] = {k: dict(sim.get(k) or {}) for k in ("vehicle", "reference", "vio")}
     for k in ("wind", "px4"):
         if sim.get(k):
             out[k] = dict(sim[k])
+    if sim.get("start_offset"):
+        out["start_offset"] = [float(c) for c in sim["start_offset"]]
     return out
 
 
@@ -391,6 +405,11 @@ def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> l
             if d > float(fam.get("center_offset", 0.0)) + 1e-9:
                 why.append(f"reference centre {d:.3g} m from the calibrated centre "
                            f"(up to {float(fam.get('center_offset', 0.0)):.3g} m)")  # fmt: skip
+    start = math.hypot(*(flight.get("start_offset") or (0.0, 0.0)))
+    allowed = float((fam or {}).get("start_offset", 0.0))
+    if start > allowed + 1e-9:
+        why.append(f"start {start:.3g} m beside the reference's first point, calibrated "
+                   f"at up to {allowed:.3g} m")  # fmt: skip
     why += _unseen_forces(statement, flight)
     why += _interface(statement, flight)
     estimator = (fam or {}).get("estimator") or {}

@@ -68,6 +68,8 @@ def conditions_text(conditions: Mapping[str, Any] | None) -> str:
             parts.append(f"{what} {lo:.3g} to {hi:.3g}{unit}")
     if fam and float(fam.get("center_offset") or 0.0) > 0:
         parts.append(f"its centre moved up to {float(fam['center_offset']):.3g} m")
+    if fam and float(fam.get("start_offset") or 0.0) > 0:
+        parts.append(f"a start up to {float(fam['start_offset']):.3g} m beside the reference")
     if fam and float(fam.get("figure8") or 0.0) > 0:
         parts.append(f"the figure-eight instead on {100 * float(fam['figure8']):.3g} % of flights")
     est = fam.get("estimator") if fam else None

@@ -458,7 +458,7 @@ class _Flight:
         """The hover state at the reference's start, recorded, and the first VIO sample at
         ``t = 0``: ``(s, y)``."""
         rec, veh, vio, cam = self.rec, self.veh, self.vio, self.cam
-        s = veh.hover_state(self.ref_p[0], self.ref_v[0])
+        s = veh.hover_state(self.ref_p[0] + [*self.options.start_offset, 0.0], self.ref_v[0])
         if self.wind is not None:
             s[13:16] = self.wind[0]
         rec.S[0] = s

@@ -11,6 +11,7 @@ scipy or pandas. The simulator's modules re-export them where they were defined:
 
 from __future__ import annotations
 
+import math
 from typing import Any, Literal, get_args
 
 from pydantic import (
@@ -466,17 +467,31 @@ class FlightOptions(Options):
     capture's transport (none by default, and then absent from the options' dump)."""
     wind: WindOptions = WindOptions()
     """The wind (none by default, and then absent from the options' dump)."""
+    start_offset: tuple[float, float] = (0.0, 0.0)
+    """Where the vehicle starts beside the reference's first point (m, x and y, at its
+    height): it flies to the reference from there. (0, 0) by default, on it, and then absent
+    from the options' dump."""
 
     @model_serializer(mode="wrap")
     def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """A flight's options dump without ``px4`` and ``wind`` when they are the default, as
-        before they existed: every artifact of such a flight stays byte-identical."""
+        """A flight's options dump without ``px4``, ``wind`` and ``start_offset`` when they
+        are the default, as before they existed: every artifact of such a flight stays
+        byte-identical."""
         out: dict[str, Any] = handler(self)
         if self.px4 == Px4Options():
             out.pop("px4", None)
         if self.wind == WindOptions():
             out.pop("wind", None)
+        if self.start_offset == (0.0, 0.0):
+            out.pop("start_offset", None)
         return out
+
+    @field_validator("start_offset")
+    @classmethod
+    def _near(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not all(math.isfinite(c) and abs(c) <= 10.0 for c in v):
+            raise ValueError(f"start_offset {list(v)}: each coordinate finite, within 10 m")
+        return v
 
     def flight_duration(self) -> float:
         return (
