@@ -22,7 +22,7 @@ estimator's flights count in finding 3 and the by-estimator tables are added
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -81,21 +81,22 @@ class Analysis:
 
 
 @dataclass(frozen=True)
-class FlyTables:
+class FlyTables(Analysis):
     """What the fly stage writes: the primary estimator's tables (``assumptions`` every
     estimator's, ``estimator`` first, when there are several), ``findings.json``, the text of
     ``comparison.md`` and, with several estimators, the by-estimator tables by file name."""
 
     analyses: dict[str, Analysis]
-    flights: pd.DataFrame
-    checks: pd.DataFrame
-    samples: pd.DataFrame
-    assumptions: pd.DataFrame
-    per: pd.DataFrame
-    comparison: list[dict[str, Any]]
-    findings: dict[str, Any]
     markdown: str
     by_estimator: dict[str, pd.DataFrame] = field(default_factory=dict)
+
+    @classmethod
+    def of(
+        cls, primary: Analysis, analyses: dict[str, Analysis], markdown: str, **over: Any
+    ) -> FlyTables:
+        """The primary estimator's analysis as the stage's tables, ``over`` replacing some."""
+        own = {f.name: getattr(primary, f.name) for f in fields(Analysis)}
+        return cls(**{**own, **over}, analyses=analyses, markdown=markdown)
 
 
 def check_flights(
@@ -178,8 +179,7 @@ def fly_tables(flown: Flown, options: FlyOptions) -> FlyTables:
     a = analyses[options.estimators[0]]
     if len(analyses) == 1:
         md = comparison_markdown(a.comparison, a.per, a.findings)
-        return FlyTables(analyses, a.flights, a.checks, a.samples, a.assumptions, a.per,
-                         a.comparison, a.findings, md)  # fmt: skip
+        return FlyTables.of(a, analyses, md)
     assumptions = a.assumptions
     if any(len(an.assumptions) for an in analyses.values()):
         assumptions = pd.concat(
@@ -196,7 +196,7 @@ def fly_tables(flown: Flown, options: FlyOptions) -> FlyTables:
         ),
     )  # fmt: skip
     md = comparison_markdown(a.comparison, a.per, findings) + "\n" + estimators_markdown(analyses)
-    return FlyTables(
-        analyses, a.flights, a.checks, a.samples, assumptions, a.per, a.comparison, findings, md,
-        by_estimator_tables(analyses),
+    return FlyTables.of(
+        a, analyses, md, assumptions=assumptions, findings=findings,
+        by_estimator=by_estimator_tables(analyses),
     )  # fmt: skip

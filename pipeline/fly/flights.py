@@ -3,7 +3,7 @@ condition, seed and controller (:func:`make_jobs`), each flown on the simulator'
 vehicle with the VIO emulator (or the camera loop) in the loop
 (:func:`qsls.pipeline.sim.closedloop.fly` through :func:`qsls.pipeline.sim.simulate.simulate`),
 its bag ingested as a real log's is (:func:`run_job`), on a process pool or a Dask cluster
-(:func:`run_jobs`).
+(:func:`qsls.pipeline.core.workers.run_flights`).
 
 Synthesized controllers act on ``y - r`` and add the reference's feedforward
 (:class:`qsls.pipeline.sim.controllers.LinearController`); a runtime-assured flight
@@ -31,8 +31,6 @@ from qsls.pipeline.control.artifacts import load_controller_dir
 from qsls.pipeline.control.monitor import OFF, monitor_of
 from qsls.pipeline.core.config import merge
 from qsls.pipeline.core.errors import InputError, QslsError
-from qsls.pipeline.core.pools import run_tasks
-from qsls.pipeline.core.progress import Progress
 from qsls.pipeline.core.units import NS
 from qsls.pipeline.evaluate.conditions import flight_conditions
 from qsls.pipeline.fly.assured import ASSURED_SUFFIX
@@ -195,24 +193,6 @@ def tick_frame(o: FlyOutcome) -> pd.DataFrame:
         frame["monitor_bits"] = np.asarray(o.extra["bits"], dtype=np.int64)
         frame["flew"] = list(o.extra["flew"])
     return frame
-
-
-def run_jobs(
-    jobs: Sequence[FlyJob],
-    workers: int,
-    progress: Progress,
-    scheduler: str | None = None,
-    wait_workers: float = 60.0,
-) -> list[FlyOutcome]:
-    """All flights, on a process pool of ``workers`` or the Dask cluster at ``scheduler`` (in
-    order of ``jobs``)."""
-    progress.start("flying", total=len(jobs))
-    results = run_tasks(
-        [(run_job, j) for j in jobs], workers, lambda i: progress.advance(),
-        scheduler=scheduler, note=progress.note, worker_timeout=wait_workers, what="fly",
-    )  # fmt: skip
-    progress.finish()
-    return results
 
 
 def select_controllers(folders: list[Path], names: list[str] | None) -> list[Path]:

@@ -34,8 +34,8 @@ import pandas as pd
 
 from qsls.pipeline.control.artifacts import ControllerDir, load_controller_dir
 from qsls.pipeline.core.artifacts import StageWriter, check_output
-from qsls.pipeline.core.pools import pool_size
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
+from qsls.pipeline.core.workers import run_flights
 from qsls.pipeline.errormodel.model import ErrorModel, load_error_model, resolve_model
 from qsls.pipeline.evaluate.certified import (
     ControllerBound,
@@ -59,7 +59,7 @@ from qsls.pipeline.fly.flights import (
     make_jobs,
     monitored,
     pd_gain_of,
-    run_jobs,
+    run_job,
     select_controllers,
     tick_frame,
 )
@@ -201,8 +201,7 @@ def fly_all(
             flights=w.path("flights"), pd_gain=pd_gain_of(setup.folders), assured=assured,
             spec_in={k: str(b.folder.resolve()) for k, b in setup.conditioned.items()},
         )  # fmt: skip
-        workers = min(pool_size(options.jobs), len(jobs))
-        flown = run_jobs(jobs, workers, progress, options.scheduler, options.wait_workers)
+        flown = run_flights(run_job, jobs, options, progress, "flying", "fly")
     finally:
         shutil.rmtree(tmp_root, ignore_errors=True)
     for o in flown:
