@@ -18,7 +18,7 @@ from qsls.pipeline.control.guarantee import bias_gain, guarantee
 from qsls.pipeline.control.monitor import NO_MONITOR
 from qsls.pipeline.control.realize import RealizedController, filter_bank
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.plant import bias_directions, plant_model
+from qsls.pipeline.core.plant import plant_model
 from qsls.pipeline.errormodel.disturbance import split_bias
 from qsls.pipeline.export.statement import theorem_lines
 from qsls.pipeline.premise.numbers import PremiseNumbers
@@ -57,7 +57,7 @@ def partial_sum_peak(phi_xx: np.ndarray, D: np.ndarray) -> float:
 
 
 def test_integral_action_leaves_no_deviation_from_a_constant_bias(designs):
-    D = bias_directions(designs[True][1])
+    D = designs[True][1].bias_dirs
     with_, model = designs[True]
     without, _ = designs[False]
     assert dc_bias_gain(with_.Phi_xx @ model.H, D) < 1e-8
@@ -75,7 +75,7 @@ def test_the_realized_controller_holds_the_state_within_a_under_bias_and_disturb
     and a disturbance at eps_w with random signs: ``|x - r| <= eps_w N_w + eps_b G_b`` at every
     tick, and once the disturbance stops the bias leaves nothing after T ticks."""
     taps, model = designs[True]
-    D = bias_directions(model)
+    D = model.bias_dirs
     norms = sls.Shape(bias=True).norms(taps, model)
     bound = NUMBERS.eps_w * norms.N_w + NUMBERS.eps_b * norms.G_b
     rng = np.random.default_rng(3)
@@ -98,7 +98,7 @@ def test_the_realized_controller_holds_the_state_within_a_under_bias_and_disturb
 
 def test_split_bias_finds_the_injected_constant_and_the_smallest_inflation():
     model = plant_model("hover", dt=0.1)
-    D = bias_directions(model)
+    D = model.bias_dirs
     rng = np.random.default_rng(0)
     beta = np.array([0.3, -0.2, 0.8])
     noise = rng.uniform(-0.5, 0.5, (300, 6)) * 0.01

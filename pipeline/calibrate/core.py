@@ -50,7 +50,6 @@ from qsls.pipeline.control.guarantee import measured_channels, outlier_channels,
 from qsls.pipeline.control.innovation import monitor_calibration
 from qsls.pipeline.control.monitor import hover_input, sound_innovation_of
 from qsls.pipeline.control.status import CERTIFIED, EXTRAPOLATED, RELAXED
-from qsls.pipeline.core.plant import bias_directions
 from qsls.pipeline.errormodel.disturbance import ratio
 from qsls.pipeline.evaluate.assumptions import CertifiedPremise, FlownLog, signals
 from qsls.pipeline.evaluate.verdict import promise
@@ -370,7 +369,7 @@ def responses(d: ControllerDir) -> Responses:
     measured = measured_channels(c.measure)
     outlier = outlier_channels(c.measure, 1)  # G_m is recomputed per m
     phi_xx_h = taps.Phi_xx @ model.H
-    dirs = bias_directions(model)
+    dirs = model.bias_dirs
     norms = system_norms(
         taps.Phi_xy, phi_xx_h, state_scale=sx, error_scale=se, measured=measured, bias_dirs=dirs
     )

@@ -43,7 +43,7 @@ from qsls.pipeline.control.status import (
     UNCERTIFIED,
     Status,
 )
-from qsls.pipeline.core.plant import LinearModel, bias_directions
+from qsls.pipeline.core.plant import LinearModel
 from qsls.pipeline.premise.numbers import PremiseNumbers
 
 NOT_CALIBRATED = (
@@ -189,7 +189,7 @@ def certify(
             taps.Phi_xy, taps.Phi_xx @ model.H, numbers, error_scale=shape.error_scale,
             measured=measured_channels(shape.measure),
             outlier_channels=outlier_channels(shape.measure, shape.m),
-            bias_dirs=bias_directions(model),
+            bias_dirs=model.bias_dirs,
         )  # fmt: skip
         fields["rho_v"] = rho_v
         ok = rho_v <= numbers.gate * (1 + 1e-7)

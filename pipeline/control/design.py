@@ -33,7 +33,6 @@ from qsls.pipeline.control.pdgain import PDGains
 from qsls.pipeline.control.problem import Resolved
 from qsls.pipeline.control.status import Status
 from qsls.pipeline.core.errors import InputError
-from qsls.pipeline.core.plant import bias_directions
 from qsls.pipeline.premise.record import RESIDUAL
 
 
@@ -168,7 +167,7 @@ def pd_controller(r: Resolved, gains: PDGains, T: int, extra: dict[str, Any]) ->
     # G_b <= max w_x ||Phi_xx H|| ||D_w|| (a partial sum is at most the sum of all taps)
     wx, we = max(r.shape.state_scale), 1.0 / min(r.shape.error_scale)
     nxy, nxx = norms["phi_xy"].value, norms["phi_xx_h"].value
-    d_w = float(np.abs(bias_directions(r.model)).sum(axis=1).max())
+    d_w = float(np.abs(r.model.bias_dirs).sum(axis=1).max())
     true = Norms(
         N=wx * nxy * we, N_w=wx * nxx, G_m=wx * nxy if r.numbers.m > 0 else 0.0, G_b=wx * nxx * d_w
     )

@@ -1,7 +1,7 @@
 """Integral action on a constant bias, in the synthesis (docs/guarantee.md#the-bias-term).
 
 A constant acceleration ``beta`` (a heavier vehicle, a steady wind) puts ``D_w beta`` on every
-step's disturbance (:func:`qsls.pipeline.core.plant.bias_directions`). Acting from the first
+step's disturbance (:attr:`qsls.pipeline.core.plant.LinearModel.bias_dirs`). Acting from the first
 tick, it moves the state by the partial sums::
 
     P_K = sum_{t<=K} Phi_xx(t) H D_w        (K = 0..T; after tap T the response stays P_T)

@@ -42,7 +42,7 @@ from qsls.pipeline.control.innovation import (
     innovation_spec,
 )
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
-from qsls.pipeline.core.plant import GRAVITY, NX, bias_directions
+from qsls.pipeline.core.plant import GRAVITY, NX
 from qsls.pipeline.premise.numbers import PremiseNumbers
 
 
@@ -194,7 +194,7 @@ def monitor_of(cdir: ControllerDir) -> MonitorSpec:
         error_scale=p.error_scale if p is not None else (1.0,) * 6,
         measure=cert.measure,
         beta=p.beta if p is not None and p.beta is not None else np.inf,
-        realization_error=cert.realization_error or 0.0, bias_dirs=bias_directions(c.model),
+        realization_error=cert.realization_error or 0.0, bias_dirs=c.model.bias_dirs,
     )  # fmt: skip
 
 
@@ -300,7 +300,7 @@ def sound_innovation_of(cdir: ControllerDir) -> InnovationSpec:
         model.A, model.B, model.H, cert.numbers(), dense=cert.gamma,
         error_scale=p.error_scale if p is not None else (1.0,) * 6, measure=cert.measure,
         beta=p.beta if p is not None and p.beta is not None else np.inf, T=c.T,
-        bias_dirs=bias_directions(model),
+        bias_dirs=model.bias_dirs,
     )  # fmt: skip
 
 

@@ -87,7 +87,7 @@ from qsls.pipeline.control.taps import (  # re-exported: the responses are the p
 from qsls.pipeline.control.taps import h2_norm as h2_norm
 from qsls.pipeline.control.taps import l1_norm as l1_norm
 from qsls.pipeline.control.taps import side_by_side as side_by_side
-from qsls.pipeline.core.plant import NX, LinearModel, bias_directions
+from qsls.pipeline.core.plant import NX, LinearModel
 from qsls.pipeline.premise.numbers import PremiseNumbers
 
 Norm = Literal["l1", "h2"]
@@ -242,7 +242,7 @@ class SLSProblem:
         self.cost = cost = s.cost
         self._read = self._rows_read()
         # the bias term's partial sums P_K (control/integral.py), built once for both uses
-        self._bias = bias_sums(mp.Phi_xx_H, bias_directions(model)) if s.bias else None
+        self._bias = bias_sums(mp.Phi_xx_H, model.bias_dirs) if s.bias else None
         norms = self._premise_norms() if s.robust or cost.needs_norms else None
         if self._bias is not None:  # integral action: P_T = 0
             self._cons += integral_action(self._bias, z, self._copied_rows())
@@ -596,5 +596,5 @@ class Shape:
             taps.Phi_xy, taps.Phi_xx @ model.H, state_scale=self.state_scale,
             error_scale=self.error_scale, measured=measured_channels(self.measure),
             outlier_channels=outlier_channels(self.measure, self.m), m=self.m,
-            bias_dirs=bias_directions(model),
+            bias_dirs=model.bias_dirs,
         )  # fmt: skip

@@ -475,6 +475,7 @@ def compute(
         raise ConfigError(f"--jobs must be 0 (every core) or more, got {jobs}")
     jobs = jobs or (os.cpu_count() or 1)  # the chunking follows what was asked
     workers = jobs if scheduler is None else 8
+    n = pool_size(jobs)
     specs = s_max_specs(points) if options.s_max_curve else []
     warn_size(max(int(p["T"]) for p in points), len(points), progress)
     # the count is tasks, not points: name both kinds ("sweep: 3/6" read as 6 points)
@@ -489,9 +490,9 @@ def compute(
                 tasks, scheduler, lambda i: progress.advance(weights[i]), progress.note,
                 worker_timeout, what="sweep",
             )  # fmt: skip
-        if pool_size(jobs) > 1 and len(tasks) > 1:
+        if n > 1 and len(tasks) > 1:
             preload_workers()
-        return run_tasks(tasks, pool_size(jobs), lambda i: progress.advance(weights[i]))
+        return run_tasks(tasks, n, lambda i: progress.advance(weights[i]))
 
     # first the largest feasible S of every setting: it answers the points above it
     s_results = execute([(s_max_task, s) for s in specs], [1] * len(specs))
@@ -501,7 +502,6 @@ def compute(
     if scheduler is not None:
         executor = f"dask {scheduler}"
     else:
-        n = pool_size(jobs)
         executor = f"local, {n} process{'es' if n > 1 else ''}"
     progress.finish()
     rows = [r for res in results for r in res]

@@ -84,6 +84,19 @@ class LinearModel:
     def ny(self) -> int:
         return self.C.shape[0]
 
+    @property
+    def bias_dirs(self) -> np.ndarray:
+        """``D_w = H^+ D`` (``(nx, 3)``): the disturbance a constant acceleration bias ``beta``
+        (m/s^2, one per axis) puts on one step, in the model's disturbance coordinates
+        (docs/guarantee.md, The bias term). A constant acceleration held over ``dt`` moves the
+        physical states by ``D beta`` with ``D = [dt^2/2 I; dt I]`` (the zero-order hold of the
+        double integrator); the attitude plant's loop states do not see it (they follow the
+        commands only)."""
+        d = np.zeros((self.nx, 3))
+        d[:3] = 0.5 * self.dt**2 * np.eye(3)
+        d[3:NX] = self.dt * np.eye(3)
+        return np.linalg.pinv(np.asarray(self.H, float)) @ d
+
 
 @lru_cache(maxsize=64)
 def _discrete(dt: float, mass: float, g: float) -> tuple[np.ndarray, np.ndarray]:
@@ -180,19 +193,6 @@ def plant_model(
     h = np.zeros((n, n))
     h[:NX, :NX] = np.eye(NX) if H is None else np.asarray(H, dtype=float)
     return LinearModel(A=a, B=b, C=np.eye(n), H=h, dt=float(dt), mass=float(mass))
-
-
-def bias_directions(model: LinearModel) -> np.ndarray:
-    """``D_w = H^+ D`` (``(nx, 3)``): the disturbance a constant acceleration bias ``beta``
-    (m/s^2, one per axis) puts on one step, in the model's disturbance coordinates
-    (docs/guarantee.md, The bias term). A constant acceleration held over ``dt`` moves the
-    physical states by ``D beta`` with ``D = [dt^2/2 I; dt I]`` (the zero-order hold of the
-    double integrator); the attitude plant's loop states do not see it (they follow the
-    commands only)."""
-    d = np.zeros((model.nx, 3))
-    d[:3] = 0.5 * model.dt**2 * np.eye(3)
-    d[3:NX] = model.dt * np.eye(3)
-    return np.linalg.pinv(np.asarray(model.H, float)) @ d
 
 
 def input_states(A: np.ndarray, B: np.ndarray, du: np.ndarray) -> np.ndarray:

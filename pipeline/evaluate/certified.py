@@ -31,7 +31,7 @@ from qsls.pipeline.control.nominal import static_gain_responses
 from qsls.pipeline.control.status import CERTIFIED, FAILED, RELAXED, SOLVER_INACCURATE
 from qsls.pipeline.core.artifacts import sha256_file, sha256_path
 from qsls.pipeline.core.errors import ConfigError, InputError
-from qsls.pipeline.core.plant import GRAVITY, NX, bias_directions
+from qsls.pipeline.core.plant import GRAVITY, NX
 from qsls.pipeline.evaluate.assumptions import CertifiedPremise
 from qsls.pipeline.evaluate.conditions import outside_conditions, outside_family
 from qsls.pipeline.premise import honest
@@ -164,7 +164,7 @@ def premise_of(d: ControllerDir) -> CertifiedPremise | None:
         phi_xy=physical(d.controller.taps.Phi_xy), A=model.A, B=model.B,
         H=model.H[:NX, :NX],
         u_hover=np.array([0.0, 0.0, model.mass * GRAVITY]),
-        bias_dirs=bias_directions(model)[:NX],
+        bias_dirs=model.bias_dirs[:NX],
     )  # fmt: skip
 
 
