@@ -174,7 +174,7 @@ def plant_model(
     g: float = GRAVITY,
 ) -> LinearModel:
     """The discrete model of ``plant``. The attitude plant's extra states are the model's own
-    response to the inputs (:func:`input_states`), which the controller computes from its
+    response to the inputs (:func:`qsls.pipeline.errormodel.disturbance.input_states`), which the controller computes from its
     commands: ``C = I``, and the premise puts no error on them (only the first ``NY``
     channels are measured). ``H`` (6 x 6) acts on the physical states."""
     if plant == "hover":
@@ -193,23 +193,6 @@ def plant_model(
     h = np.zeros((n, n))
     h[:NX, :NX] = np.eye(NX) if H is None else np.asarray(H, dtype=float)
     return LinearModel(A=a, B=b, C=np.eye(n), H=h, dt=float(dt), mass=float(mass))
-
-
-def input_states(A: np.ndarray, B: np.ndarray, du: np.ndarray) -> np.ndarray:
-    """The model's extra states ``a_k`` (``(n, nx - NX)``) driven by the input deviations ``du``
-    ``(n, nu)`` from rest: ``a_{k+1} = A_aa a_k + B_a du_k`` (they do not depend on the
-    physical states). Empty for the hover plant."""
-    du = np.nan_to_num(np.asarray(du, dtype=float))  # an unlogged step: no command change
-    na = A.shape[0] - NX
-    out = np.zeros((len(du), na))
-    if na == 0:
-        return out
-    a_aa, b_a = A[NX:, NX:], B[NX:]
-    a = np.zeros(na)
-    for k in range(len(du)):
-        out[k] = a
-        a = a_aa @ a + b_a @ du[k]
-    return out
 
 
 def feedforward_input(acc: np.ndarray, mass: float, g: float = GRAVITY) -> np.ndarray:

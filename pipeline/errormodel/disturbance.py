@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qsls.pipeline.core.plant import input_states
+from qsls.pipeline.core.plant import NX
 
 Source = str
 INPUTS = "inputs"
@@ -29,13 +29,30 @@ RESIDUAL = "input_free_residual"
 """``w`` as the smallest disturbance that explains the motion under any input (a lower bound)."""
 
 
+def input_states(A: np.ndarray, B: np.ndarray, du: np.ndarray) -> np.ndarray:
+    """The model's extra states ``a_k`` (``(n, nx - NX)``) driven by the input deviations ``du``
+    ``(n, nu)`` from rest: ``a_{k+1} = A_aa a_k + B_a du_k`` (they do not depend on the
+    physical states). Empty for the hover plant."""
+    du = np.nan_to_num(np.asarray(du, dtype=float))  # an unlogged step: no command change
+    na = A.shape[0] - NX
+    out = np.zeros((len(du), na))
+    if na == 0:
+        return out
+    a_aa, b_a = A[NX:, NX:], B[NX:]
+    a = np.zeros(na)
+    for k in range(len(du)):
+        out[k] = a
+        a = a_aa @ a + b_a @ du[k]
+    return out
+
+
 def realized_disturbance(
     x: np.ndarray, u: np.ndarray, A: np.ndarray, B: np.ndarray, u_hover: np.ndarray
 ) -> np.ndarray:
     """``w_k = x_{k+1} - A x_k - B (u_k - u_hover)``, ``(n - 1, 6)`` for ``n`` samples.
 
     For the attitude plant (``A`` larger than the states ``x``) the model's extra states come
-    from the inputs alone (:func:`qsls.pipeline.core.plant.input_states`), and ``w`` is what
+    from the inputs alone (:func:`input_states`), and ``w`` is what
     the model leaves unexplained on the physical states: ``w_k = x_{k+1} - [A z_k + B du_k]_x``
     with ``z_k = [x_k, a_k]``."""
     x = np.asarray(x, float)
