@@ -269,6 +269,18 @@ def validate(model: type[T], data: Mapping[str, Any], source: str = "options") -
         raise ConfigError(f"{source}: {describe_validation_error(model, exc)}") from None
 
 
+def layered(
+    model: type[T], base: Mapping[str, Any], *over: Mapping[str, Any], source: str = "options"
+) -> T:
+    """``model`` validated from ``base`` (as written) with each mapping of ``over`` laid over
+    it in turn (:func:`merge`: its keys win, nested mappings merge, ``None`` is 'not given');
+    errors name ``source``. A run's flight over the run's section (docs/run.md#sections)."""
+    data = dict(base)
+    for layer in over:
+        data = merge(data, layer)
+    return validate(model, data, source)
+
+
 _TYPE_TAGS = frozenset({"int", "float", "str", "bool", "list", "tuple", "dict", "none"})
 
 

@@ -10,5 +10,6 @@ __all__, __getattr__ = lazy_api(
         "run": "runner",
         "StageGraph": "graph",
         "build_graph": "stages",
+        "resolve_sections": "sections",
     },
 )

@@ -43,6 +43,7 @@ from qsls.pipeline.run.memo import fingerprint, planned_graph
 from qsls.pipeline.run.paths import resolve_path
 from qsls.pipeline.run.runconfig import MODELS, SECTIONS, RunConfig
 from qsls.pipeline.run.runconfig import FlightSpec as FlightSpec
+from qsls.pipeline.run.sections import resolve_sections
 from qsls.pipeline.run.stages import build_graph
 from qsls.pipeline.run.state import STATE_FILE
 
@@ -102,8 +103,10 @@ def _git_commit() -> str:
 def plan(
     cfg: RunConfig, config_path: Path, root: Path, progress: Progress = NULL_PROGRESS
 ) -> StageGraph:
-    """The stage graph of a run config (options validated here, before anything runs)."""
-    return build_graph(cfg, Path(config_path).resolve().parent, root, progress)
+    """The stage graph of a run config: its sections resolved into each stage's options
+    (validated here, before anything runs), then the stages built from them."""
+    sections = resolve_sections(cfg, Path(config_path).resolve().parent)
+    return build_graph(sections, cfg.stages, root, progress)
 
 
 def run(

@@ -1,4 +1,4 @@
-"""The stages of ``qsls run``: a run config turned into a :class:`StageGraph`.
+"""The stages of ``qsls run``: a run config's resolved sections turned into a :class:`StageGraph`.
 
 Folder layout under the run folder (one stage folder each, with its manifest)::
 
@@ -10,11 +10,11 @@ Folder layout under the run folder (one stage folder each, with its manifest)::
     evaluate/            bound check on the held-out flights
     fly/                 the controllers flown (qsls fly)
 
-Every stage's options are validated before anything runs, with the stage's own model, so a
-misspelled option is reported with the config's section and the nearest valid name: the typed
-sections when the config is read (:func:`qsls.pipeline.run.runner.load_run_config`), a
-flight's simulate and ingest options (the flight's own laid over the run's section as it was
-written) and the flying options (the ``fly:`` section over the run's ``simulate:``) here.
+Every stage's options are validated before anything runs, with the stage's own model: the
+typed sections when the config is read (:func:`qsls.pipeline.run.runner.load_run_config`),
+the flights' overlays, the paths and the sections laid under one another when it is
+resolved (:func:`qsls.pipeline.run.sections.resolve_sections`). :func:`build_graph` only
+builds stages from those options, and refuses what the asked-for stages cannot do.
 """
 
 from __future__ import annotations
@@ -26,85 +26,76 @@ from typing import Any
 from qsls.pipeline.calibrate.options import CalibrateOptions
 from qsls.pipeline.control.options import SweepOptions, SweepSection, SynthOptions
 from qsls.pipeline.core.artifacts import read_manifest
-from qsls.pipeline.core.config import merge, validate
 from qsls.pipeline.core.errors import ConfigError
 from qsls.pipeline.core.progress import NULL_PROGRESS, Progress
 from qsls.pipeline.errormodel.options import FitOptions
 from qsls.pipeline.evaluate.options import EvaluateOptions
-from qsls.pipeline.evaluate.section import EvaluateSection
-from qsls.pipeline.fly.options import FlyOptions, flying
+from qsls.pipeline.fly.options import FlyOptions
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
-from qsls.pipeline.run.paths import missing_hint, resolve_path
-from qsls.pipeline.run.runconfig import FlightSpec, RunConfig
+from qsls.pipeline.run.sections import Flight, Sections
 from qsls.pipeline.sim.options import PERCEPTIONS, SimOptions
 
-Src = Callable[[str], str]
 Execute = Callable[[Path, Mapping[str, Path]], Any]
 """A stage's ``execute(out, deps)`` (:class:`Stage`); it returns the stage's result."""
+ALL_STAGES = ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "fly")
+"""The stages a run config without ``stages:`` runs (and the report)."""
 
 
 def build_graph(
-    cfg: RunConfig, base: Path, root: Path, progress: Progress = NULL_PROGRESS
+    sec: Sections,
+    stages: Collection[str] | None,
+    root: Path,
+    progress: Progress = NULL_PROGRESS,
 ) -> StageGraph:
-    """Stages for ``cfg``; paths relative to ``base``."""
-    wanted = set(
-        cfg.stages
-        or ("simulate", "ingest", "fit", "sweep", "synth", "calibrate", "evaluate", "fly")
-    )
+    """The stages of ``sec`` (``stages``: those the config lists, ``None`` for all) with
+    their dependencies, run folder ``root``."""
+    wanted = set(stages or ALL_STAGES)
+    listed = set(stages or ())
     graph = StageGraph(root)
-
-    def src(section: str) -> str:
-        return f"{base}: {section}"
-
-    if not cfg.flights:
-        raise ConfigError(f"{src('flights')}: a run needs at least one flight")
     ingest_ids: dict[str, list[str]] = {"train": [], "heldout": []}
     sim_ids: dict[str, list[str | None]] = {"train": [], "heldout": []}
-    perception: dict[str, str] = {}  # a simulated flight's condition ('' for a recorded one)
-    estimator: dict[str, str] = {}  # and its estimator (camera, emulator; '' for a recorded one)
-    for i, fl in enumerate(cfg.flights):
-        ingest_id, sim_id, perception[ingest_id], estimator[ingest_id] = _flight_stages(
-            graph, cfg, fl, i, base, wanted, src, progress
-        )
+    by_id: dict[str, Flight] = {}
+    for fl in sec.flights:
+        ingest_id, sim_id = _flight_stages(graph, fl, wanted, progress)
         ingest_ids[fl.role].append(ingest_id)
         sim_ids[fl.role].append(sim_id)
+        by_id[ingest_id] = fl
     if "fit" not in wanted:
         return graph
     if not ingest_ids["train"]:
-        raise ConfigError(f"{src('flights')}: the fit needs at least one flight with role 'train'")
-    fit_opts = cfg.fit
+        raise ConfigError(
+            f"{sec.source('flights')}: the fit needs at least one flight with role 'train'"
+        )
     train = tuple(ingest_ids["train"])
     # simulated training flights logged their inputs: the disturbance is measured with them
     sims = [s for s in sim_ids["train"] if s is not None]
-    logged = sims if len(sims) == len(train) and fit_opts.inputs is None else []
-    execute = _fit_exec(fit_opts, list(train), logged, progress)
-    graph.add(Stage("fit", "fit", fit_opts, execute, (*train, *logged), notes=_warnings))
-    if cfg.sweep is not None and "sweep" in wanted:
-        _sweep_stage(graph, cfg.sweep, progress)
-    listed = set(cfg.stages or ())
-    if "fly" in listed and cfg.fly is None:
+    logged = sims if len(sims) == len(train) and sec.fit.inputs is None else []
+    execute = _fit_exec(sec.fit, list(train), logged, progress)
+    graph.add(Stage("fit", "fit", sec.fit, execute, (*train, *logged), notes=_warnings))
+    if sec.sweep is not None and "sweep" in wanted:
+        _sweep_stage(graph, sec.sweep, progress)
+    if "fly" in listed and sec.fly is None:
         raise ConfigError(
-            f"{src('stages')}: fly is listed but the config has no fly: section (the seeds, "
-            "conditions and duration to fly): add one, or leave fly out"
+            f"{sec.source('stages')}: fly is listed but the config has no fly: section (the "
+            "seeds, conditions and duration to fly): add one, or leave fly out"
         )
-    if cfg.synth is None or "synth" not in wanted:
+    if sec.synth is None or "synth" not in wanted:
         for stage, verb in (("evaluate", "evaluate"), ("fly", "fly")):
             if stage in listed:
                 raise ConfigError(
-                    f"{src('stages')}: {stage} is listed but there are no controllers to "
+                    f"{sec.source('stages')}: {stage} is listed but there are no controllers to "
                     f"{verb}: add a synth: section (and synth to the stages)"
                 )
         return graph
-    synth_opts = cfg.synth
-    graph.add(Stage("synth", "synth", synth_opts, _synth_exec(synth_opts, progress), deps=("fit",)))
+    graph.add(Stage("synth", "synth", sec.synth, _synth_exec(sec.synth, progress), deps=("fit",)))
     calibrated = None
-    if cfg.calibrate is not None and "calibrate" in wanted:
-        calibrated = _calibrate_stage(graph, cfg, base, src, progress)
+    if sec.calibrate is not None and "calibrate" in wanted:
+        calibrated = _calibrate_stage(graph, sec.calibrate, progress)
     heldout = ingest_ids["heldout"]
     if "evaluate" in wanted:
-        if not heldout and ("evaluate" in listed or cfg.evaluate is not None):
-            where = src("stages") if "evaluate" in listed else src("evaluate")
+        if not heldout and ("evaluate" in listed or sec.evaluate is not None):
+            where = sec.source("stages" if "evaluate" in listed else "evaluate")
             raise ConfigError(
                 f"{where}: evaluate is asked for but there is nothing to evaluate: no flight "
                 "has role 'heldout'; add a held-out flight, or leave evaluate out (the "
@@ -113,67 +104,38 @@ def build_graph(
         # a held-out flight is checked with the default options when the section is left out
         if heldout:
             _evaluate_stages(
-                graph, cfg.evaluate or EvaluateSection(), heldout, progress, calibrated,
-                [perception[h] for h in heldout], [estimator[h] for h in heldout],
+                graph, sec.evaluate or EvaluateOptions(), heldout, progress, calibrated,
+                [by_id[h].perception for h in heldout], [by_id[h].estimator for h in heldout],
             )  # fmt: skip
-    if cfg.fly is not None and "fly" in wanted:
-        _fly_stage(graph, cfg, src, progress, calibrated)
+    if sec.fly is not None and "fly" in wanted:
+        _fly_stage(graph, sec.fly, progress, calibrated)
     return graph
 
 
 def _flight_stages(
-    graph: StageGraph,
-    cfg: RunConfig,
-    fl: FlightSpec,
-    i: int,
-    base: Path,
-    wanted: Collection[str],
-    src: Src,
-    progress: Progress,
-) -> tuple[str, str | None, str, str]:
-    """The flight's simulate stage (simulated flights) and its ingest stage: their ids, and
-    the flight's perception condition and estimator (``''`` for a recorded flight)."""
-    sources: list[Path] = []
+    graph: StageGraph, fl: Flight, wanted: Collection[str], progress: Progress
+) -> tuple[str, str | None]:
+    """The flight's simulate stage (simulated flights) and its ingest stage: their ids."""
     deps: tuple[str, ...] = ()
-    perception = estimator = ""
-    ingest_opts: dict[str, Any] = merge(cfg.written("ingest"), fl.ingest)
-    if fl.simulate is not None:
+    if fl.sim is not None:
         if "simulate" not in wanted and not (graph.root / "simulate" / fl.name).is_dir():
             raise ConfigError(
                 f"flight '{fl.name}' is simulated but the run's stages leave out simulate"
             )
-        sim_id, sim = _simulate_stage(graph, cfg, fl, i, src, progress)
-        deps, perception, estimator = (sim_id,), sim.vio.perception, sim.vio.kind
-    else:
-        sources = [resolve_path(base, s) for s in fl.sources]
-        for key in ("vio", "truth"):
-            value = getattr(fl, key)
-            if value is not None:
-                ingest_opts[key] = str(resolve_path(base, value))
-        if not sources and fl.vio is None:
-            raise ConfigError(
-                f"flight '{fl.name}': give 'simulate', 'sources' or 'vio' and 'truth'"
-            )
-        given = [*sources, *(Path(ingest_opts[k]) for k in ("vio", "truth") if k in ingest_opts)]
-        missing = [p for p in given if not p.exists()]
-        if missing:
-            raw = [*fl.sources, *(v for v in (fl.vio, fl.truth) if v is not None)]
-            raise ConfigError(f"flight '{fl.name}': {missing[0]} does not exist{missing_hint(raw)}")
-    opts = validate(IngestOptions, ingest_opts, src(f"ingest (flight '{fl.name}')"))
-    external = tuple(sources) + tuple(Path(p) for p in (opts.vio, opts.truth) if p is not None)
+        deps = (_simulate_stage(graph, fl.name, fl.sim, progress),)
     stage_id = f"ingest/{fl.name}"
     graph.add(
         Stage(
             stage_id,
             "ingest",
-            {"options": opts, "sources": [s.name for s in sources]},
-            _ingest_exec(opts, sources, deps, progress),
+            {"options": fl.ingest, "sources": [s.name for s in fl.sources]},
+            _ingest_exec(fl.ingest, list(fl.sources), deps, progress),
             deps=deps,
-            external=external,
+            external=fl.external,
             notes=_warnings,
         )
     )
-    return stage_id, deps[0] if deps else None, perception, estimator
+    return stage_id, deps[0] if deps else None
 
 
 def _sweep_stage(graph: StageGraph, sec: SweepSection, progress: Progress) -> None:
@@ -184,7 +146,7 @@ def _sweep_stage(graph: StageGraph, sec: SweepSection, progress: Progress) -> No
 
 def _evaluate_stages(
     graph: StageGraph,
-    sec: EvaluateSection,
+    eval_opts: EvaluateOptions,
     heldout: list[str],
     progress: Progress,
     calibrated: str | None = None,
@@ -196,7 +158,6 @@ def _evaluate_stages(
     (``calibrated``: its first condition), each calibrated controller is checked against its
     certificate for the flight's condition."""
     cal = ("calibrate",) if calibrated is not None else ()
-    eval_opts = sec.bound()
     conds = conditions if conditions is not None else [""] * len(heldout)
     ests = estimators if estimators is not None else [""] * len(heldout)
     execute = _evaluate_exec(eval_opts, heldout, progress, calibrated, conds, ests)
@@ -205,14 +166,11 @@ def _evaluate_stages(
 
 
 def _fly_stage(
-    graph: StageGraph, cfg: RunConfig, src: Src, progress: Progress, calibrated: str | None
+    graph: StageGraph, opts: FlyOptions, progress: Progress, calibrated: str | None
 ) -> None:
     """The controllers flown (``fly:``, docs/evaluation.md), each checked against its own
     certificate (its condition's, with a calibration)."""
     cal = ("calibrate",) if calibrated is not None else ()
-    # the flights fly the run's simulate: conditions, as the calibration's do (a flight of
-    # other conditions is outside the certificate: docs/calibration.md)
-    opts = flying(cfg.written("fly"), source=src("fly"), base_sim=cfg.written("simulate") or {})
     execute = _fly_exec(opts, progress, calibrated)
     graph.add(Stage("fly", "fly", opts, execute, deps=("fit", "synth", *cal), notes=_verdicts))
 
@@ -245,35 +203,9 @@ def condition_folders(deps: Mapping[str, Path]) -> dict[str, list[Path]]:
     }
 
 
-def design_seeds(cfg: RunConfig) -> list[int]:
-    """The seeds of the run's simulated flights (every role: the design saw them all)."""
-    seeds = []
-    for i, fl in enumerate(cfg.flights):
-        if fl.simulate is not None:
-            data = merge(cfg.written("simulate"), fl.simulate)
-            seeds.append(int(data.get("seed", cfg.seed + i)))
-    return seeds
-
-
-def _calibrate_stage(
-    graph: StageGraph, cfg: RunConfig, base: Path, src: Src, progress: Progress
-) -> str:
-    """The candidates' calibration and validation flights (docs/calibration.md), under the
-    run's ``simulate:`` conditions, on seeds no design flight used."""
-    given = cfg.written("calibrate") or {}
-    data = merge(given, {"sim": merge(cfg.written("simulate"), given.get("sim") or {})})
-    data["design_seeds"] = sorted(set(design_seeds(cfg)) | set(given.get("design_seeds") or []))
-    opts = validate(CalibrateOptions, data, src("calibrate"))
-    rec = opts.recorded  # the user's flights, where the config says, relative to it
-    opts = opts.model_copy(update={"recorded": rec.model_copy(update={
-        role: [resolve_path(base, p) for p in getattr(rec, role)]
-        for role in ("calibration", "range", "validation")})})  # fmt: skip
-    try:
-        opts.seed_lists()
-    except ConfigError as exc:
-        raise ConfigError(f"{src('calibrate')}: {exc}") from None
-    # checked here, against every simulated flight; the stage's outputs do not depend on them
-    opts = opts.model_copy(update={"design_seeds": list(given.get("design_seeds") or [])})
+def _calibrate_stage(graph: StageGraph, opts: CalibrateOptions, progress: Progress) -> str:
+    """The candidates' calibration and validation flights (docs/calibration.md); its first
+    condition (the one the evaluation checks a calibrated controller against)."""
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
@@ -315,14 +247,9 @@ def _verdicts(out: Path) -> dict[str, Any]:
     return {"verdicts": [line for v in read_verdicts(out) for line in v.lines()]}
 
 
-def _simulate_stage(
-    graph: StageGraph, cfg: RunConfig, fl: FlightSpec, i: int, src: Src, progress: Progress
-) -> tuple[str, SimOptions]:
-    """The flight's simulate stage: its id and its options."""
-    data = merge(cfg.written("simulate"), fl.simulate or {})
-    data.setdefault("seed", cfg.seed + i)
-    opts = validate(SimOptions, data, src(f"simulate (flight '{fl.name}')"))
-    stage_id = f"simulate/{fl.name}"
+def _simulate_stage(graph: StageGraph, name: str, opts: SimOptions, progress: Progress) -> str:
+    """The flight's simulate stage: its id."""
+    stage_id = f"simulate/{name}"
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
@@ -331,7 +258,7 @@ def _simulate_stage(
         return simulate(opts, out, force=True, progress=progress)
 
     graph.add(Stage(stage_id, "simulate", opts, execute))
-    return stage_id, opts
+    return stage_id
 
 
 def _ingest_exec(

@@ -1,0 +1,173 @@
+"""A run config resolved into each stage's typed options, in one pass (docs/run.md#sections).
+
+:func:`resolve_sections` does everything a config needs before a stage graph can be built
+from it: each flight's ``simulate:`` and ``ingest:`` laid over the run's sections as they
+were written and validated (errors naming the flight), the paths taken relative to the
+config's folder (:func:`qsls.pipeline.run.paths.resolve_path`) and checked to exist, the
+run's ``simulate:`` laid under ``calibrate.sim`` and ``fly.sim``, the calibration's seeds
+checked against every design flight's. What it returns, :class:`Sections`, is frozen and
+typed; :func:`qsls.pipeline.run.stages.build_graph` only turns it into stages. Checks that
+depend on which stages a run asks for (``stages:``) are the graph's, not made here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from qsls.pipeline.calibrate.options import CalibrateOptions
+from qsls.pipeline.control.options import SweepSection, SynthOptions
+from qsls.pipeline.core.config import layered
+from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.errormodel.options import FitOptions
+from qsls.pipeline.evaluate.options import EvaluateOptions
+from qsls.pipeline.fly.options import FlyOptions, flying
+from qsls.pipeline.ingest.options import IngestOptions
+from qsls.pipeline.run.paths import missing_hint, resolve_path
+from qsls.pipeline.run.runconfig import FlightSpec, RunConfig
+from qsls.pipeline.sim.options import SimOptions
+
+
+@dataclass(frozen=True)
+class Flight:
+    """One flight of the run, resolved: its simulation's options (``None`` for a recorded
+    flight), its ingest's (``vio``/``truth`` absolute) and a recorded flight's source files."""
+
+    name: str
+    role: str
+    """``train`` (the fit's) or ``heldout`` (the bound check's)."""
+    sim: SimOptions | None
+    ingest: IngestOptions
+    sources: tuple[Path, ...] = ()
+
+    @property
+    def perception(self) -> str:
+        """A simulated flight's perception condition; ``''`` for a recorded one."""
+        return self.sim.vio.perception if self.sim is not None else ""
+
+    @property
+    def estimator(self) -> str:
+        """A simulated flight's estimator (camera, emulator); ``''`` for a recorded one."""
+        return self.sim.vio.kind if self.sim is not None else ""
+
+    @property
+    def external(self) -> tuple[Path, ...]:
+        """The files its ingest reads from outside the run folder."""
+        logs = (self.ingest.vio, self.ingest.truth)
+        return self.sources + tuple(Path(p) for p in logs if p is not None)
+
+
+@dataclass(frozen=True)
+class Sections:
+    """Every stage's options of one run config, typed and resolved (:func:`resolve_sections`);
+    ``None`` where the config leaves a section out."""
+
+    base: Path
+    """The config's folder: its paths were taken relative to it, and errors name it."""
+    flights: tuple[Flight, ...]
+    fit: FitOptions
+    sweep: SweepSection | None
+    synth: SynthOptions | None
+    calibrate: CalibrateOptions | None
+    evaluate: EvaluateOptions | None
+    fly: FlyOptions | None
+
+    def source(self, section: str) -> str:
+        """How an error names ``section`` of the config."""
+        return f"{self.base}: {section}"
+
+
+def resolve_sections(cfg: RunConfig, base: Path) -> Sections:
+    """``cfg``'s sections as each stage's options, paths relative to ``base``; a
+    :class:`ConfigError` naming the section (and the flight) for the first one that is wrong."""
+    base = Path(base)
+    if not cfg.flights:
+        raise ConfigError(f"{base}: flights: a run needs at least one flight")
+    flights = tuple(_flight(cfg, fl, i, base) for i, fl in enumerate(cfg.flights))
+    return Sections(
+        base=base,
+        flights=flights,
+        fit=cfg.fit,
+        sweep=cfg.sweep,
+        synth=cfg.synth,
+        calibrate=_calibrate(cfg, base, design_seeds(flights)),
+        evaluate=cfg.evaluate.bound() if cfg.evaluate is not None else None,
+        # the flights fly the run's simulate: conditions, as the calibration's do (a flight of
+        # other conditions is outside the certificate: docs/calibration.md)
+        fly=None
+        if cfg.fly is None
+        else flying(cfg.written("fly"), source=f"{base}: fly", base_sim=cfg.written("simulate")),
+    )
+
+
+def design_seeds(flights: tuple[Flight, ...]) -> list[int]:
+    """The seeds of the run's simulated flights (every role: the design saw them all)."""
+    return [f.sim.seed for f in flights if f.sim is not None]
+
+
+def _flight(cfg: RunConfig, fl: FlightSpec, i: int, base: Path) -> Flight:
+    """Flight ``i``: its own ``simulate:`` / ``ingest:`` over the run's (the flight's seed,
+    unless given, the run's ``seed + i``); a recorded flight's paths relative to ``base``."""
+    sim = None
+    sources: tuple[Path, ...] = ()
+    logs: dict[str, Any] = {}
+    if fl.simulate is not None:
+        sim = layered(
+            SimOptions,
+            {"seed": cfg.seed + i, **cfg.written("simulate")},
+            fl.simulate,
+            source=f"{base}: simulate (flight '{fl.name}')",
+        )
+    else:
+        sources = tuple(resolve_path(base, s) for s in fl.sources)
+        logs = {
+            k: str(resolve_path(base, v))
+            for k, v in (("vio", fl.vio), ("truth", fl.truth))
+            if v is not None
+        }
+        if not sources and fl.vio is None:
+            raise ConfigError(
+                f"flight '{fl.name}': give 'simulate', 'sources' or 'vio' and 'truth'"
+            )
+    opts = layered(
+        IngestOptions,
+        cfg.written("ingest"),
+        fl.ingest,
+        logs,
+        source=f"{base}: ingest (flight '{fl.name}')",
+    )
+    flight = Flight(name=fl.name, role=fl.role, sim=sim, ingest=opts, sources=sources)
+    missing = [p for p in flight.external if not p.exists()] if sim is None else []
+    if missing:
+        raw = [*fl.sources, *(v for v in (fl.vio, fl.truth) if v is not None)]
+        raise ConfigError(f"flight '{fl.name}': {missing[0]} does not exist{missing_hint(raw)}")
+    return flight
+
+
+def _calibrate(cfg: RunConfig, base: Path, designed: list[int]) -> CalibrateOptions | None:
+    """The candidates' calibration and validation flights (docs/calibration.md), under the
+    run's ``simulate:`` conditions, on seeds no design flight (``designed``) used; the
+    recorded flights' folders relative to ``base``."""
+    if cfg.calibrate is None:
+        return None
+    source = f"{base}: calibrate"
+    given = cfg.written("calibrate") or {}
+    own = list(given.get("design_seeds") or [])
+    opts = layered(
+        CalibrateOptions,
+        {**given, "sim": cfg.written("simulate")},
+        {"sim": given.get("sim") or {}},
+        {"design_seeds": sorted(set(designed) | set(own))},
+        source=source,
+    )
+    rec = opts.recorded  # the user's flights, where the config says, relative to it
+    opts = opts.model_copy(update={"recorded": rec.model_copy(update={
+        role: [resolve_path(base, p) for p in getattr(rec, role)]
+        for role in ("calibration", "range", "validation")})})  # fmt: skip
+    try:
+        opts.seed_lists()
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    # checked here, against every simulated flight; the stage's outputs do not depend on them
+    return opts.model_copy(update={"design_seeds": own})
