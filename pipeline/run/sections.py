@@ -12,6 +12,7 @@ depend on which stages a run asks for (``stages:``) are the graph's, not made he
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -84,20 +85,29 @@ def resolve_sections(cfg: RunConfig, base: Path) -> Sections:
     base = Path(base)
     if not cfg.flights:
         raise ConfigError(f"{base}: flights: a run needs at least one flight")
-    flights = tuple(_flight(cfg, fl, i, base) for i, fl in enumerate(cfg.flights))
+    # the sections as the file wrote them: what the flights, calibrate.sim and fly.sim lay
+    # their own keys over (a default of the model is not a key the user gave)
+    sim, ingest = cfg.written("simulate"), cfg.written("ingest")
+    flights = tuple(
+        _flight(fl, cfg.seed + i, sim, ingest, base) for i, fl in enumerate(cfg.flights)
+    )
+    calibrate = None
+    if cfg.calibrate is not None:
+        calibrate = _calibrate(cfg.written("calibrate") or {}, sim, design_seeds(flights), base)
+    # the flights fly the run's simulate: conditions, as the calibration's do (a flight of
+    # other conditions is outside the certificate: docs/calibration.md)
+    fly = (
+        None if cfg.fly is None else flying(cfg.written("fly"), source=f"{base}: fly", base_sim=sim)
+    )
     return Sections(
         base=base,
         flights=flights,
         fit=cfg.fit,
         sweep=cfg.sweep,
         synth=cfg.synth,
-        calibrate=_calibrate(cfg, base, design_seeds(flights)),
+        calibrate=calibrate,
         evaluate=cfg.evaluate.bound() if cfg.evaluate is not None else None,
-        # the flights fly the run's simulate: conditions, as the calibration's do (a flight of
-        # other conditions is outside the certificate: docs/calibration.md)
-        fly=None
-        if cfg.fly is None
-        else flying(cfg.written("fly"), source=f"{base}: fly", base_sim=cfg.written("simulate")),
+        fly=fly,
     )
 
 
@@ -106,16 +116,23 @@ def design_seeds(flights: tuple[Flight, ...]) -> list[int]:
     return [f.sim.seed for f in flights if f.sim is not None]
 
 
-def _flight(cfg: RunConfig, fl: FlightSpec, i: int, base: Path) -> Flight:
-    """Flight ``i``: its own ``simulate:`` / ``ingest:`` over the run's (the flight's seed,
-    unless given, the run's ``seed + i``); a recorded flight's paths relative to ``base``."""
-    sim = None
+def _flight(
+    fl: FlightSpec,
+    seed: int,
+    sim: Mapping[str, Any],
+    ingest: Mapping[str, Any],
+    base: Path,
+) -> Flight:
+    """Flight ``fl``: its own ``simulate:`` / ``ingest:`` over the run's ``sim`` / ``ingest``
+    (its seed, unless one of them gives it, ``seed``: the run's plus the flight's index); a
+    recorded flight's paths relative to ``base``."""
+    sim_opts = None
     sources: tuple[Path, ...] = ()
     logs: dict[str, Any] = {}
     if fl.simulate is not None:
-        sim = layered(
+        sim_opts = layered(
             SimOptions,
-            {"seed": cfg.seed + i, **cfg.written("simulate")},
+            {"seed": seed, **sim},
             fl.simulate,
             source=f"{base}: simulate (flight '{fl.name}')",
         )
@@ -131,32 +148,27 @@ def _flight(cfg: RunConfig, fl: FlightSpec, i: int, base: Path) -> Flight:
                 f"flight '{fl.name}': give 'simulate', 'sources' or 'vio' and 'truth'"
             )
     opts = layered(
-        IngestOptions,
-        cfg.written("ingest"),
-        fl.ingest,
-        logs,
-        source=f"{base}: ingest (flight '{fl.name}')",
+        IngestOptions, ingest, fl.ingest, logs, source=f"{base}: ingest (flight '{fl.name}')"
     )
-    flight = Flight(name=fl.name, role=fl.role, sim=sim, ingest=opts, sources=sources)
-    missing = [p for p in flight.external if not p.exists()] if sim is None else []
+    flight = Flight(name=fl.name, role=fl.role, sim=sim_opts, ingest=opts, sources=sources)
+    missing = [p for p in flight.external if not p.exists()] if sim_opts is None else []
     if missing:
         raw = [*fl.sources, *(v for v in (fl.vio, fl.truth) if v is not None)]
         raise ConfigError(f"flight '{fl.name}': {missing[0]} does not exist{missing_hint(raw)}")
     return flight
 
 
-def _calibrate(cfg: RunConfig, base: Path, designed: list[int]) -> CalibrateOptions | None:
-    """The candidates' calibration and validation flights (docs/calibration.md), under the
-    run's ``simulate:`` conditions, on seeds no design flight (``designed``) used; the
-    recorded flights' folders relative to ``base``."""
-    if cfg.calibrate is None:
-        return None
+def _calibrate(
+    given: Mapping[str, Any], sim: Mapping[str, Any], designed: list[int], base: Path
+) -> CalibrateOptions:
+    """The candidates' calibration and validation flights (docs/calibration.md): the
+    ``calibrate:`` section ``given`` under the run's ``simulate:`` conditions ``sim``, on seeds
+    no design flight (``designed``) used; the recorded flights' folders relative to ``base``."""
     source = f"{base}: calibrate"
-    given = cfg.written("calibrate") or {}
     own = list(given.get("design_seeds") or [])
     opts = layered(
         CalibrateOptions,
-        {**given, "sim": cfg.written("simulate")},
+        {**given, "sim": sim},
         {"sim": given.get("sim") or {}},
         {"design_seeds": sorted(set(designed) | set(own))},
         source=source,
