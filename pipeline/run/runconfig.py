@@ -1,7 +1,7 @@
 """The run config of ``qsls run``: flights plus each stage's options (:class:`RunConfig`),
-its models only, so that the stage graph (:mod:`qsls.pipeline.run.stages`) and the runner
-(:mod:`qsls.pipeline.run.runner`, which reads the file and re-exports these) both import it
-without importing each other."""
+its models only, so that its resolution into each stage's options
+(:mod:`qsls.pipeline.run.sections`) and the runner (:mod:`qsls.pipeline.run.runner`, which
+reads the file and re-exports these) both import it without importing each other."""
 
 from __future__ import annotations
 
@@ -85,7 +85,7 @@ class RunConfig(Options):
     ``simulate`` and ``ingest`` are also the bases of the flights: a flight's own
     ``simulate:`` / ``ingest:`` is laid over the section as written (:meth:`written`; the
     flight's keys win, nested mappings merge) and the result is validated per flight when
-    planned, its errors naming the flight. The base must be valid on its own, as it is for
+    planned (:func:`qsls.pipeline.run.sections.resolve_sections`), its errors naming the flight. The base must be valid on its own, as it is for
     ``qsls simulate --config`` / ``qsls ingest --config`` reading the same file: a base
     ``vio: {outlier_min: 2}`` is refused (above the default ``outlier_max``, 1) even when
     every flight raises ``outlier_max``; such a pair belongs in the flights."""

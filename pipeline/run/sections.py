@@ -96,9 +96,9 @@ def resolve_sections(cfg: RunConfig, base: Path) -> Sections:
         calibrate = _calibrate(cfg.written("calibrate") or {}, sim, design_seeds(flights), base)
     # the flights fly the run's simulate: conditions, as the calibration's do (a flight of
     # other conditions is outside the certificate: docs/calibration.md)
-    fly = (
-        None if cfg.fly is None else flying(cfg.written("fly"), source=f"{base}: fly", base_sim=sim)
-    )
+    fly = None
+    if cfg.fly is not None:
+        fly = flying(cfg.written("fly"), source=f"{base}: fly", base_sim=sim)
     return Sections(
         base=base,
         flights=flights,
