@@ -31,7 +31,7 @@ from qsls.pipeline.sim.options import SimOptions
 
 
 @dataclass(frozen=True)
-class Flight:
+class ResolvedFlight:
     """One flight of the run, resolved: its simulation's options (``None`` for a recorded
     flight), its ingest's (``vio``/``truth`` absolute) and a recorded flight's source files."""
 
@@ -66,7 +66,7 @@ class Sections:
 
     base: Path
     """The config's folder: its paths were taken relative to it, and errors name it."""
-    flights: tuple[Flight, ...]
+    flights: tuple[ResolvedFlight, ...]
     fit: FitOptions
     sweep: SweepSection | None
     synth: SynthOptions | None
@@ -111,7 +111,7 @@ def resolve_sections(cfg: RunConfig, base: Path) -> Sections:
     )
 
 
-def design_seeds(flights: tuple[Flight, ...]) -> list[int]:
+def design_seeds(flights: tuple[ResolvedFlight, ...]) -> list[int]:
     """The seeds of the run's simulated flights (every role: the design saw them all)."""
     return [f.sim.seed for f in flights if f.sim is not None]
 
@@ -122,7 +122,7 @@ def _flight(
     sim: Mapping[str, Any],
     ingest: Mapping[str, Any],
     base: Path,
-) -> Flight:
+) -> ResolvedFlight:
     """Flight ``fl``: its own ``simulate:`` / ``ingest:`` over the run's ``sim`` / ``ingest``
     (its seed, unless one of them gives it, ``seed``: the run's plus the flight's index); a
     recorded flight's paths relative to ``base``."""
@@ -150,7 +150,7 @@ def _flight(
     opts = layered(
         IngestOptions, ingest, fl.ingest, logs, source=f"{base}: ingest (flight '{fl.name}')"
     )
-    flight = Flight(name=fl.name, role=fl.role, sim=sim_opts, ingest=opts, sources=sources)
+    flight = ResolvedFlight(name=fl.name, role=fl.role, sim=sim_opts, ingest=opts, sources=sources)
     missing = [p for p in flight.external if not p.exists()] if sim_opts is None else []
     if missing:
         raw = [*fl.sources, *(v for v in (fl.vio, fl.truth) if v is not None)]

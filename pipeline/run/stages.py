@@ -33,7 +33,7 @@ from qsls.pipeline.evaluate.options import EvaluateOptions
 from qsls.pipeline.fly.options import FlyOptions
 from qsls.pipeline.ingest.options import IngestOptions
 from qsls.pipeline.run.graph import Stage, StageGraph
-from qsls.pipeline.run.sections import Flight, Sections
+from qsls.pipeline.run.sections import ResolvedFlight, Sections
 from qsls.pipeline.sim.options import PERCEPTIONS, SimOptions
 
 Execute = Callable[[Path, Mapping[str, Path]], Any]
@@ -55,7 +55,7 @@ def build_graph(
     graph = StageGraph(root)
     ingest_ids: dict[str, list[str]] = {"train": [], "heldout": []}
     sim_ids: dict[str, list[str | None]] = {"train": [], "heldout": []}
-    by_id: dict[str, Flight] = {}
+    by_id: dict[str, ResolvedFlight] = {}
     for fl in sec.flights:
         ingest_id, sim_id = _flight_stages(graph, fl, wanted, progress)
         ingest_ids[fl.role].append(ingest_id)
@@ -113,7 +113,7 @@ def build_graph(
 
 
 def _flight_stages(
-    graph: StageGraph, fl: Flight, wanted: Collection[str], progress: Progress
+    graph: StageGraph, fl: ResolvedFlight, wanted: Collection[str], progress: Progress
 ) -> tuple[str, str | None]:
     """The flight's simulate stage (simulated flights) and its ingest stage: their ids."""
     deps: tuple[str, ...] = ()
