@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from qsls.pipeline.core.errors import ConfigError
+from qsls.pipeline.evaluate.options import EvaluateOptions
 from qsls.pipeline.run.runner import load_run_config
 from qsls.pipeline.run.sections import resolve_sections
 from qsls.pipeline.run.stages import build_graph
@@ -92,3 +93,27 @@ def test_the_graph_is_built_from_the_sections_and_the_asked_for_stages(tmp_path)
     assert deps["evaluate"] == ("fit", "synth", "ingest/c")
     with pytest.raises(ConfigError, match=r": stages: fly is listed but the config has no fly"):
         build_graph(sec, ["simulate", "ingest", "fit", "synth", "fly"], tmp_path / "out")
+
+
+def test_every_section_is_checked_whichever_stages_the_config_lists(tmp_path):
+    # flight c's seed 9 lies in the calibration's seeds even when only simulate and ingest run
+    with pytest.raises(ConfigError, match=r": calibrate: calibration seeds \[9\] are design"):
+        _sections(tmp_path, stages=["simulate", "ingest"],
+                  calibrate={"seed": 9, "flights": 1, "validation_seed": 600})  # fmt: skip
+
+
+def test_a_heldout_flight_without_an_evaluate_section_is_checked_with_the_default_options(
+    tmp_path,
+):
+    _, sec = _sections(tmp_path, synth={"T": 6})
+    assert sec.evaluate is None
+    stage = next(s for s in build_graph(sec, None, tmp_path / "out").stages if s.id == "evaluate")
+    assert stage.deps == ("fit", "synth", "ingest/c")
+    assert stage.options == EvaluateOptions()
+
+
+def test_a_missing_recorded_file_is_said_before_a_bad_ingest_option(tmp_path):
+    rec = {"name": "rec", "role": "train", "vio": "nowhere/vio.csv", "truth": "nowhere/t.csv",
+           "ingest": {"dtt": 0.1}}  # fmt: skip
+    with pytest.raises(ConfigError, match=r"flight 'rec': .*nowhere/vio.csv does not exist"):
+        _sections(tmp_path, flights=[rec])

@@ -48,7 +48,8 @@ class Responses:
     norms: Norms
     """``N``, ``N_w``, ``G_b`` (``G_m`` is recomputed per ``m``)."""
     bias_dirs: np.ndarray | None = None
-    """``D_w`` (:attr:`qsls.pipeline.core.plant.LinearModel.bias_dirs`), for the gate's ``g_b,i``."""
+    """``D_w`` (:attr:`qsls.pipeline.core.plant.LinearModel.bias_dirs`), for the gate's
+    ``g_b,i``."""
 
 
 @dataclass(frozen=True)

@@ -115,7 +115,8 @@ def system_norms(
     bias_dirs: np.ndarray | None = None,
 ) -> Norms:
     """``N``, ``N_w``, ``G_m`` and ``G_b`` (module docstring) from the taps ``Phi_xy`` and
-    ``Phi_xx H`` (``G_b`` 0 without ``bias_dirs``, :attr:`qsls.pipeline.core.plant.LinearModel.bias_dirs`)."""
+    ``Phi_xx H`` (``G_b`` 0 without ``bias_dirs``,
+    :attr:`qsls.pipeline.core.plant.LinearModel.bias_dirs`)."""
     wx = np.asarray(state_scale, float)[None, :, None]
     inv_e = error_weights(error_scale, measured)[None, None, :]
     return Norms(

@@ -274,7 +274,8 @@ def layered(
 ) -> T:
     """``model`` validated from ``base`` (as written) with each mapping of ``over`` laid over
     it in turn (:func:`merge`: its keys win, nested mappings merge, ``None`` is 'not given');
-    errors name ``source``. A run's flight over the run's section (docs/run.md#sections)."""
+    errors name ``source``. A run's flight over the run's section, its ``calibrate:`` over
+    the run's ``simulate:`` (docs/run.md#sections)."""
     data = dict(base)
     for layer in over:
         data = merge(data, layer)

@@ -174,9 +174,9 @@ def plant_model(
     g: float = GRAVITY,
 ) -> LinearModel:
     """The discrete model of ``plant``. The attitude plant's extra states are the model's own
-    response to the inputs (:func:`qsls.pipeline.errormodel.disturbance.input_states`), which the controller computes from its
-    commands: ``C = I``, and the premise puts no error on them (only the first ``NY``
-    channels are measured). ``H`` (6 x 6) acts on the physical states."""
+    response to the inputs (:func:`qsls.pipeline.errormodel.disturbance.input_states`), which
+    the controller computes from its commands: ``C = I``, and the premise puts no error on
+    them (only the first ``NY`` channels are measured). ``H`` (6 x 6) acts on the physical states."""
     if plant == "hover":
         return quadrotor_model(dt, mass, H, g)
     if dt <= 0:

@@ -64,8 +64,8 @@ class CertifiedPremise:
     H: np.ndarray
     u_hover: np.ndarray
     bias_dirs: np.ndarray | None = None
-    """``D_w`` on the physical states ((6, 3), :attr:`qsls.pipeline.core.plant.LinearModel.bias_dirs`);
-    read only when the premise has a bias term (``numbers.eps_b > 0``)."""
+    """``D_w`` on the physical states ((6, 3),
+    :attr:`qsls.pipeline.core.plant.LinearModel.bias_dirs`); read only when the premise has a bias term (``numbers.eps_b > 0``)."""
 
     @property
     def window(self) -> int:

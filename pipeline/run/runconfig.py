@@ -85,7 +85,8 @@ class RunConfig(Options):
     ``simulate`` and ``ingest`` are also the bases of the flights: a flight's own
     ``simulate:`` / ``ingest:`` is laid over the section as written (:meth:`written`; the
     flight's keys win, nested mappings merge) and the result is validated per flight when
-    planned (:func:`qsls.pipeline.run.sections.resolve_sections`), its errors naming the flight. The base must be valid on its own, as it is for
+    planned (:func:`qsls.pipeline.run.sections.resolve_sections`), its errors naming the
+    flight. The base must be valid on its own, as it is for
     ``qsls simulate --config`` / ``qsls ingest --config`` reading the same file: a base
     ``vio: {outlier_min: 2}`` is refused (above the default ``outlier_max``, 1) even when
     every flight raises ``outlier_max``; such a pair belongs in the flights."""

@@ -12,10 +12,10 @@ depend on which stages a run asks for (``stages:``) are the graph's, not made he
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from qsls.pipeline.calibrate.options import CalibrateOptions
 from qsls.pipeline.control.options import SweepSection, SynthOptions
@@ -36,7 +36,7 @@ class ResolvedFlight:
     flight), its ingest's (``vio``/``truth`` absolute) and a recorded flight's source files."""
 
     name: str
-    role: str
+    role: Literal["train", "heldout"]
     """``train`` (the fit's) or ``heldout`` (the bound check's)."""
     sim: SimOptions | None
     ingest: IngestOptions
@@ -93,7 +93,7 @@ def resolve_sections(cfg: RunConfig, base: Path) -> Sections:
     )
     calibrate = None
     if cfg.calibrate is not None:
-        calibrate = _calibrate(cfg.written("calibrate") or {}, sim, design_seeds(flights), base)
+        calibrate = _calibrate(cfg.written("calibrate") or {}, sim, _design_seeds(flights), base)
     # the flights fly the run's simulate: conditions, as the calibration's do (a flight of
     # other conditions is outside the certificate: docs/calibration.md)
     fly = None
@@ -111,7 +111,7 @@ def resolve_sections(cfg: RunConfig, base: Path) -> Sections:
     )
 
 
-def design_seeds(flights: tuple[ResolvedFlight, ...]) -> list[int]:
+def _design_seeds(flights: tuple[ResolvedFlight, ...]) -> list[int]:
     """The seeds of the run's simulated flights (every role: the design saw them all)."""
     return [f.sim.seed for f in flights if f.sim is not None]
 
@@ -147,15 +147,22 @@ def _flight(
             raise ConfigError(
                 f"flight '{fl.name}': give 'simulate', 'sources' or 'vio' and 'truth'"
             )
+        _refuse_missing(fl, [*sources, *(Path(v) for v in logs.values())])
     opts = layered(
         IngestOptions, ingest, fl.ingest, logs, source=f"{base}: ingest (flight '{fl.name}')"
     )
     flight = ResolvedFlight(name=fl.name, role=fl.role, sim=sim_opts, ingest=opts, sources=sources)
-    missing = [p for p in flight.external if not p.exists()] if sim_opts is None else []
+    if sim_opts is None:  # the run's ingest: may name the logs too
+        _refuse_missing(fl, flight.external)
+    return flight
+
+
+def _refuse_missing(fl: FlightSpec, paths: Sequence[Path]) -> None:
+    """A recorded flight's first file that does not exist, refused with a hint."""
+    missing = [p for p in paths if not p.exists()]
     if missing:
         raw = [*fl.sources, *(v for v in (fl.vio, fl.truth) if v is not None)]
         raise ConfigError(f"flight '{fl.name}': {missing[0]} does not exist{missing_hint(raw)}")
-    return flight
 
 
 def _calibrate(

@@ -149,18 +149,16 @@ def _evaluate_stages(
     eval_opts: EvaluateOptions,
     heldout: list[str],
     progress: Progress,
-    calibrated: str | None = None,
-    conditions: list[str] | None = None,
-    estimators: list[str] | None = None,
+    calibrated: str | None,
+    conditions: list[str],
+    estimators: list[str],
 ) -> None:
     """The bound check on the held-out flights (``conditions``: their perception,
     ``estimators`` their estimator, ``''`` for a recorded flight); with a calibration
     (``calibrated``: its first condition), each calibrated controller is checked against its
     certificate for the flight's condition."""
     cal = ("calibrate",) if calibrated is not None else ()
-    conds = conditions if conditions is not None else [""] * len(heldout)
-    ests = estimators if estimators is not None else [""] * len(heldout)
-    execute = _evaluate_exec(eval_opts, heldout, progress, calibrated, conds, ests)
+    execute = _evaluate_exec(eval_opts, heldout, progress, calibrated, conditions, estimators)
     deps = ("fit", "synth", *cal, *heldout)
     graph.add(Stage("evaluate", "evaluate", eval_opts, execute, deps=deps, notes=_verdicts))
 
@@ -350,7 +348,7 @@ def _evaluate_exec(
     return execute
 
 
-def _fly_exec(opts: FlyOptions, progress: Progress, calibrated: str | None = None) -> Execute:
+def _fly_exec(opts: FlyOptions, progress: Progress, calibrated: str | None) -> Execute:
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
         from qsls.pipeline.fly.stage import fly_evaluate
