@@ -255,3 +255,20 @@ def written_pd(
     ctrl.save(folder)
     cert.save(folder)
     return folder
+
+
+def constant_break(
+    n: int, f: float, k0: int, eps_w: float, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(w, e)`` for :func:`gated`'s shape: disturbances uniform within ``eps_w``, on vz
+    ``(1 + f) eps_w`` from tick ``k0``; errors at their bound (0.1 on positions, ``beta`` 0.2
+    on velocities) with random signs, vz's jumping from ``+beta`` to ``-beta`` at the break
+    (the errors take ``2 beta`` off every window across it: the worst for a window test)."""
+    rng = np.random.default_rng(seed)
+    w = rng.uniform(-eps_w, eps_w, (n, 6))
+    w[k0:, 5] = (1 + f) * eps_w
+    e = np.zeros((n, 6))
+    e[:, :3] = rng.choice([-1.0, 1.0], (n, 3)) * 0.1
+    e[:, 3:] = rng.choice([-1.0, 1.0], (n, 3)) * 0.2
+    e[k0:, 5], e[:k0, 5] = -0.2, 0.2
+    return w, e

@@ -26,7 +26,7 @@ from qsls.pipeline.export.c import c_files
 from qsls.pipeline.export.cbuild import STRICT, CController
 from qsls.pipeline.export.python import load_module, module
 from qsls.pipeline.premise.numbers import PremiseNumbers
-from tests.controllerfixtures import gated
+from tests.controllerfixtures import constant_break, gated
 
 V = 1.5
 EPS_W = 0.02
@@ -190,14 +190,7 @@ def test_constant_break_trips_within_the_predicted_ticks(loop, f, k0):
     From take-off (``k0`` 0) that holds too: the monitor decides on the majority of the
     shifted sums held so far, not after all ``ns`` of them (``ns - 1`` ticks later)."""
     ctrl, s, c, py = loop
-    n = 480
-    rng = np.random.default_rng(int(f * 100))
-    w = rng.uniform(-EPS_W, EPS_W, (n, 6))
-    w[k0:, 5] = (1 + f) * EPS_W
-    e = np.zeros((n, 6))
-    e[:, :3] = rng.choice([-1.0, 1.0], (n, 3)) * 0.1
-    e[:, 3:] = rng.choice([-1.0, 1.0], (n, 3)) * 0.2
-    e[k0:, 5], e[:k0, 5] = -0.2, 0.2  # the errors take 2 beta off every window across the break
+    w, e = constant_break(480, f, k0, EPS_W, seed=int(f * 100))
     ns = s.shifts[5]
     predicted = min(
         k0 + K + (ns - 1) // 2

@@ -159,31 +159,73 @@ def per_tick_bound(
     return np.asarray(out, dtype=float)
 
 
-def innovation_spec(
-    A: np.ndarray, B: np.ndarray, H: np.ndarray, numbers: PremiseNumbers, *, dense: float,
+@dataclass(frozen=True)
+class PremiseBox:
+    """The premise per tick and physical channel, as a monitor of what the controller reads
+    and commands sees it (docs/monitor.md, The window bound): ``nu_k = delta_k + e_{k+1} -
+    A_xx e_k`` with ``|delta_k,c| <= per_tick_c``, ``|e_k,c| <= db_c`` plus ``eps_o`` on an
+    outlier tick of an outlier channel (``outlier_c`` 1), at most ``m`` outlier ticks in any
+    ``T`` consecutive ones. Exactly the premise's sets where ``H`` is diagonal and there is no
+    bias term (its norms are ``inf`` norms); a box around them otherwise."""
+
+    a_xx: np.ndarray
+    per_tick: np.ndarray
+    db: np.ndarray
+    outlier: np.ndarray
+    eps_o: float
+    m: int
+    T: int
+    exact: bool
+    """The box is the premise's own set (diagonal ``H``, no bias term), not a box around it."""
+
+
+def premise_box(
+    A: np.ndarray, H: np.ndarray, numbers: PremiseNumbers, *, dense: float,
     error_scale: Sequence[float], measure: str, beta: float, T: int,
-    bias_dirs: np.ndarray | None = None) -> InnovationSpec:  # fmt: skip
-    """The innovation monitor of a certificate's premise ``numbers`` (``eps_w``, ``m``,
-    ``eps_o``, ``eps_b``) with the dense bound ``dense`` (docs/monitor.md): per-tick
-    disturbance bound (:func:`per_tick_bound`), dense bounds ``db`` (:func:`error_bounds`),
-    outlier channels (velocities that can hold an outlier: ``m > 0`` and ``db = beta``), the
-    windows of :data:`WINDOW_BREAKS` and their thresholds (:func:`window_bound`). Off without
-    a measured velocity or where the loop states depend on the physical ones."""
-    A, B, H = (np.asarray(v, dtype=float) for v in (A, B, H))
-    eps_w, eps_o, m = numbers.eps_w, numbers.eps_o, numbers.m
+    bias_dirs: np.ndarray | None = None) -> PremiseBox | None:  # fmt: skip
+    """:class:`PremiseBox` of a certificate's premise ``numbers`` (``eps_w``, ``m``, ``eps_o``,
+    ``eps_b``) with the dense bound ``dense``: per-tick disturbance bound
+    (:func:`per_tick_bound`), dense bounds ``db`` (:func:`error_bounds`), outlier channels
+    (velocities that can hold an outlier: ``m > 0`` and ``db = beta``). None without a
+    measured velocity or where the loop states depend on the physical ones."""
+    A, H = np.asarray(A, dtype=float), np.asarray(H, dtype=float)
     na = A.shape[0] - NX
     if measure != "full" or (na and np.any(A[NX:, :NX] != 0)) or not math.isfinite(dense):
-        return NO_INNOVATION
-    measured = measured_channels(measure)
-    db = error_bounds(dense, error_scale, measured, beta)
-    per_tick = per_tick_bound(H, eps_w, numbers.eps_b, bias_dirs)
-    sparse = outlier_channels(measure, m) if math.isfinite(beta) else ()
+        return None
+    db = error_bounds(dense, error_scale, measured_channels(measure), beta)
+    per_tick = per_tick_bound(H, numbers.eps_w, numbers.eps_b, bias_dirs)
+    sparse = outlier_channels(measure, numbers.m) if math.isfinite(beta) else ()
     outlier = np.zeros(NX)
     for j in sparse:
         if db[j] >= beta:  # else an outlier there breaks the dense bound: none can occur
             outlier[j] = 1.0
-    m_eff = int(m) if outlier.any() else 0
-    amI = A[:NX, :NX] - np.eye(NX)
+    h = H[:NX, :NX]
+    diagonal = bool(np.all(h == np.diag(np.diag(h))))
+    return PremiseBox(
+        a_xx=A[:NX, :NX].copy(), per_tick=per_tick, db=db, outlier=outlier,
+        eps_o=float(numbers.eps_o), m=int(numbers.m) if outlier.any() else 0, T=int(T),
+        exact=diagonal and not numbers.eps_b > 0,
+    )  # fmt: skip
+
+
+def innovation_spec(
+    A: np.ndarray, B: np.ndarray, H: np.ndarray, numbers: PremiseNumbers, *, dense: float,
+    error_scale: Sequence[float], measure: str, beta: float, T: int,
+    bias_dirs: np.ndarray | None = None) -> InnovationSpec:  # fmt: skip
+    """The innovation monitor of a certificate's premise ``numbers`` with the dense bound
+    ``dense`` (docs/monitor.md): the premise per tick (:func:`premise_box`), the windows of
+    :data:`WINDOW_BREAKS` and their thresholds (:func:`window_bound`). Off without a measured
+    velocity or where the loop states depend on the physical ones."""
+    box = premise_box(
+        A, H, numbers, dense=dense, error_scale=error_scale, measure=measure, beta=beta, T=T,
+        bias_dirs=bias_dirs,
+    )  # fmt: skip
+    if box is None:
+        return NO_INNOVATION
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    eps_o, measured = box.eps_o, measured_channels(measure)
+    db, per_tick, outlier, m_eff = box.db, box.per_tick, box.outlier, box.m
+    amI = box.a_xx - np.eye(NX)
     ns = 4 * m_eff + 1
     shifts, robust = [], []
     for c in range(NX):
@@ -320,6 +362,18 @@ def calibrated_innovation(spec: InnovationSpec, record: MonitorCalibration) -> I
     )
 
 
+def gated_deviation(
+    log: FlownLog, u_hover: np.ndarray | Sequence[float], gate: float | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """What the monitor reads of a flight: the gated deviation ``y' - r`` (velocity clipped to
+    the gate) and the deviation command ``du = u - u_hover - uff`` (0 where not logged)."""
+    d = np.asarray(log.y, float) - np.asarray(log.ref, float)
+    if gate is not None:
+        d[:, 3:] = np.clip(d[:, 3:], -gate, gate)
+    du = np.asarray(log.u, float) - np.asarray(log.uff, float) - np.asarray(u_hover, float)
+    return d, np.nan_to_num(du)
+
+
 def flight_statistic(
     spec: InnovationSpec, log: FlownLog, u_hover: np.ndarray | Sequence[float], gate: float | None
 ) -> float:
@@ -330,11 +384,7 @@ def flight_statistic(
     (the premise is broken); 0 where no window filled. From the flight's ``y - r`` (velocity
     through the gate) and the deviation command ``u - u_hover - uff`` flown, from the reset at
     take-off; a row that is not finite is refused (it restarts the windows), as onboard."""
-    d = np.asarray(log.y, float) - np.asarray(log.ref, float)
-    if gate is not None:
-        d[:, 3:] = np.clip(d[:, 3:], -gate, gate)
-    du = np.asarray(log.u, float) - np.asarray(log.uff, float) - np.asarray(u_hover, float)
-    du = np.nan_to_num(du)
+    d, du = gated_deviation(log, u_hover, gate)
     mon = InnovationMonitor(spec)
     live = [
         (w, c, thr) for w, row in enumerate(spec.threshold) for c, thr in enumerate(row) if thr > 0

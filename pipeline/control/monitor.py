@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -37,9 +38,11 @@ from qsls.pipeline.control.innovation import (
     TRIP_SUM_WINDOW,
     InnovationMonitor,
     InnovationSpec,
+    PremiseBox,
     calibrated_innovation,
     innovation_flags,
     innovation_spec,
+    premise_box,
 )
 from qsls.pipeline.control.status import CERTIFIED, RELAXED
 from qsls.pipeline.core.plant import GRAVITY, NX
@@ -291,16 +294,30 @@ def innovation_of(cdir: ControllerDir) -> InnovationSpec:
 def sound_innovation_of(cdir: ControllerDir) -> InnovationSpec:
     """:func:`innovation_of` in sound mode, whatever the record says: the premise's bounds
     (the scale of a calibration's statistics)."""
-    cert, c = cdir.certificate, cdir.controller
     if monitor_of(cdir) is NO_MONITOR:
         return NO_INNOVATION
-    p = cert.premise
-    model = c.model
-    return innovation_spec(
-        model.A, model.B, model.H, cert.numbers(), dense=cert.gamma,
+    model = cdir.controller.model
+    return innovation_spec(model.A, model.B, model.H, **_premise_of(cdir))
+
+
+def premise_box_of(cdir: ControllerDir) -> PremiseBox | None:
+    """The premise per tick of a controller folder's certificate, as its innovation monitor
+    reads it (:func:`qsls.pipeline.control.innovation.premise_box`); None where the monitor is
+    off."""
+    if monitor_of(cdir) is NO_MONITOR:
+        return None
+    model = cdir.controller.model
+    return premise_box(model.A, model.H, **_premise_of(cdir))
+
+
+def _premise_of(cdir: ControllerDir) -> dict[str, Any]:
+    """The certificate's premise as :func:`premise_box` and :func:`innovation_spec` take it."""
+    cert, p = cdir.certificate, cdir.certificate.premise
+    return dict(
+        numbers=cert.numbers(), dense=cert.gamma,
         error_scale=p.error_scale if p is not None else (1.0,) * 6, measure=cert.measure,
-        beta=p.beta if p is not None and p.beta is not None else np.inf, T=c.T,
-        bias_dirs=model.bias_dirs,
+        beta=p.beta if p is not None and p.beta is not None else np.inf, T=cdir.controller.T,
+        bias_dirs=cdir.controller.model.bias_dirs,
     )  # fmt: skip
 
 

@@ -1,0 +1,89 @@
+"""How close the onboard innovation monitor comes to the tightest sound test (issue 48,
+docs/monitor.md#the-reach-of-a-sound-monitor)::
+
+    python benchmarks/monitor_reach.py --controller CERT_FOLDER FLY_OUT [FLY_OUT ...]
+
+For each ``qsls fly`` output folder (its flights of the certified controller in
+``CERT_FOLDER``), from each flight's own tick log: whether its premise broke (the flight
+checks' first failing assumption), whether a flight keeping the premise reads the same (a
+witness, checked with numpy alone: then no sound monitor of ``y`` and ``u`` can trip on it),
+else the earliest tick any sound monitor can trip at, and when the window monitor tripped.
+Prints one markdown row per folder; a window trip before the earliest possible one (which the
+monitor's soundness forbids) is counted in the last column.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from qsls.pipeline.control.artifacts import load_controller_dir
+from qsls.pipeline.control.monitor import hover_input, premise_box_of, sound_innovation_of
+from qsls.pipeline.core.ticks import TickLog
+from qsls.pipeline.evaluate.witness import (
+    earliest_break,
+    innovations,
+    premise_witness,
+    witness_problems,
+)
+from qsls.pipeline.sim.ticks import TICKS_FILE
+
+
+def reach(controller: Path, out: Path) -> dict[str, object]:
+    """One folder's row (module docstring)."""
+    cdir = load_controller_dir(controller)
+    box, spec = premise_box_of(cdir), sound_innovation_of(cdir)
+    if box is None:
+        raise SystemExit(f"{controller}: its certificate has no innovation monitor")
+    gate, u_hover = cdir.certificate.numbers().gate, hover_input(cdir)
+    checks = pd.read_parquet(out / "assumptions.parquet").set_index("flight")
+    rows = []
+    for name in checks.index[checks["controller"] == controller.name]:
+        log = TickLog.read(out / "flights" / name / TICKS_FILE)
+        nu = innovations(spec, log, u_hover, gate)
+        wit = premise_witness(nu, box)
+        explained = wit is not None and witness_problems(wit, nu, box) == []
+        L = None if explained else earliest_break(nu, box)
+        first = checks.at[name, "first_failed"]
+        rows.append({
+            "broken": isinstance(first, str) and bool(first),
+            "explained": explained,
+            "exact_t": float(log.t[L] - log.t[0]) if L is not None else math.nan,
+            "monitor_t": float(checks.at[name, "monitor_t"]),
+        })  # fmt: skip
+    df = pd.DataFrame(rows)
+    early = int((df["monitor_t"] < df["exact_t"] - 1e-9).sum())
+    return {
+        "flights": out.name,
+        "n": len(df),
+        "premise broken": int(df["broken"].sum()),
+        "explained by a witness": int(df["explained"].sum()),
+        "earliest sound trip (mean s)": round(float(np.nanmean(df["exact_t"])), 2)
+        if df["exact_t"].notna().any()
+        else "-",
+        "window monitor tripped": int(df["monitor_t"].notna().sum()),
+        "its trip (mean s)": round(float(np.nanmean(df["monitor_t"])), 2)
+        if df["monitor_t"].notna().any()
+        else "-",
+        "tripped before the earliest": early,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--controller", type=Path, required=True)
+    ap.add_argument("outs", type=Path, nargs="+")
+    args = ap.parse_args()
+    rows = [reach(args.controller, out) for out in args.outs]
+    print("| " + " | ".join(rows[0]) + " |")
+    print("|" + "---|" * len(rows[0]))
+    for r in rows:
+        print("| " + " | ".join(str(v) for v in r.values()) + " |")
+
+
+if __name__ == "__main__":
+    main()

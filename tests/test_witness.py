@@ -1,0 +1,152 @@
+"""The tightest sound test, offline (pipeline/evaluate/witness.py, docs/monitor.md#the-reach-of-
+a-sound-monitor): flights that keep the premise at its limits are explained by a witness that
+numpy alone checks; a constant break is found, never before it starts and never after the
+window monitor (which is sound, so it cannot trip before the exact test); the innovations are
+the onboard monitor's."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from qsls.pipeline.control.innovation import InnovationMonitor
+from qsls.pipeline.control.monitor import innovation_of, premise_box_of
+from qsls.pipeline.core.ticks import FlownLog
+from qsls.pipeline.evaluate.witness import (
+    earliest_break,
+    innovations,
+    premise_witness,
+    witness_problems,
+)
+from qsls.pipeline.export import bank as B
+from qsls.pipeline.export.python import load_module, module
+from tests.controllerfixtures import constant_break, gated
+
+V = 1.5
+EPS_W = 0.02
+
+
+@pytest.fixture(scope="module")
+def loop(tmp_path_factory):
+    """The quickstart's shape (H, W_e, beta 0.2, gate 1.5, m 3, T 20) at eps_w 0.02, its
+    exported Python step, its innovation monitor and its premise per tick."""
+    ctrl = gated(tmp_path_factory.mktemp("witness") / "l1_gated", eps_w=EPS_W)
+    step = load_module(module(B.export_bank(ctrl), B.facts(ctrl))).Controller()
+    return ctrl, step, innovation_of(ctrl), premise_box_of(ctrl)
+
+
+def _fly(ctrl, step, w, e):
+    """The linear closed loop (deviation coordinates, ``u_hover`` 0) flown by the exported step,
+    as a tick log, and the bits of the library's innovation monitor at each tick."""
+    model = ctrl.controller.model
+    spec = innovation_of(ctrl)
+    mon, x = InnovationMonitor(spec), np.zeros(6)
+    step.reset()
+    xs, ys, us, bits = [], [], [], []
+    for k in range(len(w)):
+        y = x + e[k]
+        u = np.asarray(step.step(y), dtype=float)
+        dev = y.copy()
+        dev[3:] = np.clip(dev[3:], -V, V)
+        bits.append(mon.step(dev.tolist()))
+        mon.command(u.tolist())
+        xs.append(x), ys.append(y), us.append(u)
+        x = model.A @ x + model.B @ u + model.H @ w[k]
+    n = len(w)
+    log = FlownLog(np.arange(n) * 0.1, np.array(xs), np.array(ys), np.array(us),
+                   np.zeros((n, 6)), np.zeros((n, 3)))  # fmt: skip
+    return log, np.array(bits)
+
+
+def _at_limits(n, sign, k0, rng, outliers):
+    """The premise at its limits: eps_w on every channel, velocity errors at -sign beta before
+    ``k0`` and +sign beta from it, position errors at their bound with random signs, and with
+    ``outliers`` m = 3 of size eps_o in the first T of every 2 T ticks."""
+    w = np.full((n, 6), sign * EPS_W)
+    e = np.zeros((n, 6))
+    e[:, :3] = rng.choice([-1.0, 1.0], (n, 3)) * 0.1
+    e[:, 3:] = np.where(np.arange(n)[:, None] < k0, -sign, sign) * 0.2
+    if outliers:
+        for start in range(0, n - 20, 40):
+            for k in rng.choice(np.arange(start, start + 20), 3, replace=False):
+                e[k, 3:] += sign * (2 * V - 0.2)
+    return w, e
+
+
+def test_the_innovations_are_the_onboard_monitors(loop):
+    ctrl, step, spec, box = loop
+    rng = np.random.default_rng(7)
+    w, e = _at_limits(60, 1.0, 30, rng, outliers=False)
+    log, _ = _fly(ctrl, step, w, e)
+    nu = innovations(spec, log, np.zeros(3), V)
+    mon = InnovationMonitor(spec)
+    dev = np.array(log.y, float)
+    dev[:, 3:] = np.clip(dev[:, 3:], -V, V)
+    for k in range(len(dev)):
+        if k:
+            np.testing.assert_allclose(mon._innovation(dev[k].tolist()), nu[k - 1], atol=1e-12)
+        mon.step(dev[k].tolist())
+        mon.command(log.u[k].tolist())
+    # the loop's own disturbance and errors give them too: nu = H w + e_{k+1} - A e_k
+    A, H = ctrl.controller.model.A, ctrl.controller.model.H
+    e_read = np.array(log.y, float) - log.x
+    e_read[:, 3:] = dev[:, 3:] - log.x[:, 3:]
+    np.testing.assert_allclose(nu, w[:-1] @ H.T + e_read[1:] - e_read[:-1] @ A.T, atol=1e-12)
+    assert box.exact and box.m == 3 and box.T == 20
+
+
+@pytest.mark.parametrize("outliers", [False, True])
+def test_flights_at_the_premises_limits_are_explained_by_a_checked_witness(loop, outliers):
+    """Four runs of 160 ticks at the premise's limits (the window monitor's worst cases): a
+    witness exists and numpy alone finds nothing wrong with it; with outliers it places no more
+    than m in any T ticks."""
+    ctrl, step, spec, box = loop
+    rng = np.random.default_rng(49 + outliers)
+    for _ in range(4):
+        sign = float(rng.choice([-1.0, 1.0]))
+        w, e = _at_limits(160, sign, int(rng.integers(1, 150)), rng, outliers)
+        log, bits = _fly(ctrl, step, w, e)
+        assert not bits.any()
+        nu = innovations(spec, log, np.zeros(3), V)
+        wit = premise_witness(nu, box)
+        assert wit is not None
+        assert witness_problems(wit, nu, box) == []
+        assert earliest_break(nu, box) is None
+
+
+def test_a_witness_that_breaks_a_bound_is_told_by_the_check(loop):
+    ctrl, step, spec, box = loop
+    w, e = _at_limits(80, 1.0, 40, np.random.default_rng(3), outliers=True)
+    log, _ = _fly(ctrl, step, w, e)
+    nu = innovations(spec, log, np.zeros(3), V)
+    wit = premise_witness(nu, box)
+    assert wit is not None and witness_problems(wit, nu, box) == []
+    e2 = wit.e.copy()
+    e2[10, 3] = box.db[3] + 0.01  # an error beyond the dense bound on a tick with no outlier
+    wrong = dataclasses.replace(wit, e=e2, z=np.zeros_like(wit.z))
+    assert any("beyond" in p for p in witness_problems(wrong, nu, box))
+    crowded = dataclasses.replace(wit, z=np.ones_like(wit.z))
+    assert any("outlier ticks within 20" in p for p in witness_problems(crowded, nu, box))
+
+
+@pytest.mark.parametrize(("f", "k0"), [(0.2, 40), (0.5, 40), (1.0, 0)])
+def test_a_constant_break_is_found_after_it_starts_and_no_later_than_the_window_monitor(
+    loop, f, k0
+):
+    """From tick ``k0`` the disturbance on vz is (1 + f) eps_w, the errors at their bound with
+    the jump against detection: every prefix before the break is explained, and the first tick
+    no flight keeping the premise explains lies after the break and no later than the window
+    monitor's first trip (a sound monitor cannot trip before it)."""
+    ctrl, step, spec, box = loop
+    w, e = constant_break(260, f, k0, EPS_W, seed=int(f * 100))
+    log, bits = _fly(ctrl, step, w, e)
+    nu = innovations(spec, log, np.zeros(3), V)
+    tripped = np.flatnonzero(bits)
+    assert len(tripped)
+    L = earliest_break(nu, box)
+    assert L is not None and k0 < L <= tripped[0], (L, tripped[0])
+    # the tick before, a flight keeping the premise reads the same: its witness checks out
+    wit = premise_witness(nu[: L - 1], box)
+    assert wit is not None and witness_problems(wit, nu[: L - 1], box) == []
