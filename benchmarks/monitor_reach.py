@@ -39,6 +39,8 @@ def reach(controller: Path, out: Path) -> dict[str, object]:
     box, spec = premise_box_of(cdir), sound_innovation_of(cdir)
     if box is None:
         raise SystemExit(f"{controller}: its certificate has no innovation monitor")
+    if not box.exact:  # a witness would keep a box around the premise, not the premise
+        raise SystemExit(f"{controller}: its premise is not a box per tick (H, bias or S)")
     gate, u_hover = cdir.certificate.numbers().gate, hover_input(cdir)
     checks = pd.read_parquet(out / "assumptions.parquet").set_index("flight")
     rows = []

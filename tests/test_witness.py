@@ -150,3 +150,27 @@ def test_a_constant_break_is_found_after_it_starts_and_no_later_than_the_window_
     # the tick before, a flight keeping the premise reads the same: its witness checks out
     wit = premise_witness(nu[: L - 1], box)
     assert wit is not None and witness_problems(wit, nu[: L - 1], box) == []
+
+
+def test_the_box_is_the_premises_own_set_only_with_diagonal_h_no_bias_and_s_0():
+    """A witness speaks for the premise only where the box is exact; a break holds for any
+    premise the box contains."""
+    from qsls.pipeline.control.innovation import premise_box
+    from qsls.pipeline.core.plant import quadrotor_model
+    from qsls.pipeline.premise.numbers import PremiseNumbers
+
+    model = quadrotor_model(H=np.diag([0.1, 0.1, 0.1, 1, 1, 1]))
+    base = PremiseNumbers(eps=0.1, S=0.0, radius=2.0, eps_w=EPS_W, delta=0.0, eps_o=2.8, m=3)
+    kw = dict(dense=0.1, error_scale=(1, 1, 1, 0.5, 0.5, 0.5), measure="full", beta=0.2, T=20)
+
+    def box(numbers, H=model.H):
+        return premise_box(model.A, H, numbers, bias_dirs=model.bias_dirs, **kw)
+
+    assert box(base).exact
+    np.testing.assert_allclose(box(base).per_tick, [0.002] * 3 + [EPS_W] * 3)
+    np.testing.assert_allclose(box(base).db, [0.1] * 3 + [0.2] * 3)
+    assert not box(dataclasses.replace(base, S=0.05)).exact
+    assert not box(dataclasses.replace(base, eps_b=0.1)).exact
+    skew = model.H.copy()
+    skew[0, 3] = 0.05
+    assert not box(base, skew).exact

@@ -165,8 +165,9 @@ class PremiseBox:
     and commands sees it (docs/monitor.md, The window bound): ``nu_k = delta_k + e_{k+1} -
     A_xx e_k`` with ``|delta_k,c| <= per_tick_c``, ``|e_k,c| <= db_c`` plus ``eps_o`` on an
     outlier tick of an outlier channel (``outlier_c`` 1), at most ``m`` outlier ticks in any
-    ``T`` consecutive ones. Exactly the premise's sets where ``H`` is diagonal and there is no
-    bias term (its norms are ``inf`` norms); a box around them otherwise."""
+    ``T`` consecutive ones. Exactly the premise's sets where ``H`` is diagonal, there is no
+    bias term and ``S`` is 0 (its norms are ``inf`` norms, and its dense bound does not depend on
+    the state); a box around them otherwise."""
 
     a_xx: np.ndarray
     per_tick: np.ndarray
@@ -176,7 +177,8 @@ class PremiseBox:
     m: int
     T: int
     exact: bool
-    """The box is the premise's own set (diagonal ``H``, no bias term), not a box around it."""
+    """The box is the premise's own set (diagonal ``H``, no bias term, ``S`` 0), not a box
+    around it."""
 
 
 def premise_box(
@@ -204,7 +206,7 @@ def premise_box(
     return PremiseBox(
         a_xx=A[:NX, :NX].copy(), per_tick=per_tick, db=db, outlier=outlier,
         eps_o=float(numbers.eps_o), m=int(numbers.m) if outlier.any() else 0, T=int(T),
-        exact=diagonal and not numbers.eps_b > 0,
+        exact=diagonal and not numbers.eps_b > 0 and numbers.S == 0,
     )  # fmt: skip
 
 

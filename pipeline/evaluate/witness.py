@@ -14,7 +14,9 @@ a mixed-integer feasibility problem over the errors ``e_0 .. e_L`` and the outli
 disturbances of a flight that keeps the premise and reads exactly these ``nu``. Where one
 exists for the whole flight, no sound monitor of ``y`` and ``u`` can trip on it, whatever its
 windows or thresholds; where none exists from tick ``L`` on (:func:`earliest_break`), ``L``
-is the earliest any sound monitor can trip, the floor under the window test's delay.
+is the earliest any sound monitor can trip, the floor under the window test's delay. A break
+holds for any premise the box contains; a witness speaks for the premise only where the box
+is its own set (``PremiseBox.exact``), else for the box around it.
 
 The solver keeps its constraints to about 1e-7, so each answer states its tolerance: a witness
 is checked with numpy alone against the exact bounds to :data:`MARGIN`
