@@ -1,15 +1,17 @@
 """How close the onboard innovation monitor comes to the tightest sound test (issue 48,
 docs/monitor.md#the-reach-of-a-sound-monitor)::
 
-    python benchmarks/monitor_reach.py --controller CERT_FOLDER FLY_OUT [FLY_OUT ...]
+    python benchmarks/monitor_reach.py --model FIT --controller CERT_FOLDER FLY_OUT [...]
 
 For each ``qsls fly`` output folder (its flights of the certified controller in
 ``CERT_FOLDER``), from each flight's own tick log: whether its premise broke (the flight
 checks' first failing assumption), whether a flight keeping the premise reads the same (a
-witness, checked with numpy alone: then no sound monitor of ``y`` and ``u`` can trip on it),
-else the earliest tick any sound monitor can trip at, and when the window monitor tripped.
-Prints one markdown row per folder; a window trip before the earliest possible one (which the
-monitor's soundness forbids) is counted in the last column.
+witness, checked with numpy alone and, as a flight, by the flight checks themselves against
+the training states in ``FIT``: then no sound monitor of ``y`` and ``u`` can trip on it), else
+the earliest tick any sound monitor can trip at, and when the window monitor tripped. Prints
+one markdown row per folder; a flight neither explained nor broken within the solver's
+tolerance is counted as undecided, and a window trip before the earliest possible one (which
+the monitor's soundness forbids) in the last column.
 """
 
 from __future__ import annotations
@@ -24,18 +26,25 @@ import pandas as pd
 from qsls.pipeline.control.artifacts import load_controller_dir
 from qsls.pipeline.control.monitor import hover_input, premise_box_of, sound_innovation_of
 from qsls.pipeline.core.ticks import TickLog
+from qsls.pipeline.errormodel.model import load_error_model, resolve_model
+from qsls.pipeline.evaluate.assumptions import check_assumptions
+from qsls.pipeline.evaluate.certified import premise_of
+from qsls.pipeline.evaluate.training import load_training
 from qsls.pipeline.evaluate.witness import (
     earliest_break,
     innovations,
     premise_witness,
+    witness_flight,
     witness_problems,
 )
 from qsls.pipeline.sim.ticks import TICKS_FILE
 
 
-def reach(controller: Path, out: Path) -> dict[str, object]:
+def reach(fit: Path, controller: Path, out: Path) -> dict[str, object]:
     """One folder's row (module docstring)."""
     cdir = load_controller_dir(controller)
+    training = load_training(resolve_model(fit)[1], load_error_model(fit), None)
+    premise = premise_of(cdir)
     box, spec = premise_box_of(cdir), sound_innovation_of(cdir)
     if box is None:
         raise SystemExit(f"{controller}: its certificate has no innovation monitor")
@@ -48,13 +57,21 @@ def reach(controller: Path, out: Path) -> dict[str, object]:
         log = TickLog.read(out / "flights" / name / TICKS_FILE)
         nu = innovations(spec, log, u_hover, gate)
         wit = premise_witness(nu, box)
-        explained = wit is not None and witness_problems(wit, nu, box) == []
+        explained = (
+            wit is not None
+            and premise is not None
+            and witness_problems(wit, nu, box) == []
+            and check_assumptions(witness_flight(wit, log, gate), premise, training.distance)[
+                "assumptions_hold"
+            ]
+        )
         L = None if explained else earliest_break(nu, box)
         first = checks.at[name, "first_failed"]
         rows.append({
             "broken": isinstance(first, str) and bool(first),
             "explained": explained,
             "exact_t": float(log.t[L] - log.t[0]) if L is not None else math.nan,
+            "undecided": not explained and L is None,
             "monitor_t": float(checks.at[name, "monitor_t"]),
         })  # fmt: skip
     df = pd.DataFrame(rows)
@@ -64,6 +81,7 @@ def reach(controller: Path, out: Path) -> dict[str, object]:
         "n": len(df),
         "premise broken": int(df["broken"].sum()),
         "explained by a witness": int(df["explained"].sum()),
+        "undecided": int(df["undecided"].sum()),
         "earliest sound trip (mean s)": round(float(np.nanmean(df["exact_t"])), 2)
         if df["exact_t"].notna().any()
         else "-",
@@ -77,10 +95,11 @@ def reach(controller: Path, out: Path) -> dict[str, object]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--model", type=Path, required=True, help="the fit folder")
     ap.add_argument("--controller", type=Path, required=True)
     ap.add_argument("outs", type=Path, nargs="+")
     args = ap.parse_args()
-    rows = [reach(args.controller, out) for out in args.outs]
+    rows = [reach(args.model, args.controller, out) for out in args.outs]
     print("| " + " | ".join(rows[0]) + " |")
     print("|" + "---|" * len(rows[0]))
     for r in rows:

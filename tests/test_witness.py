@@ -14,10 +14,13 @@ import pytest
 from qsls.pipeline.control.innovation import InnovationMonitor
 from qsls.pipeline.control.monitor import innovation_of, premise_box_of
 from qsls.pipeline.core.ticks import FlownLog
+from qsls.pipeline.evaluate.assumptions import check_assumptions
+from qsls.pipeline.evaluate.certified import premise_of
 from qsls.pipeline.evaluate.witness import (
     earliest_break,
     innovations,
     premise_witness,
+    witness_flight,
     witness_problems,
 )
 from qsls.pipeline.export import bank as B
@@ -60,10 +63,15 @@ def _fly(ctrl, step, w, e):
     return log, np.array(bits)
 
 
+INSIDE = 1 - 1e-4
+"""A witness is sought within bounds tightened by 1e-6: the flights keep theirs by 1e-4."""
+
+
 def _at_limits(n, sign, k0, rng, outliers):
-    """The premise at its limits: eps_w on every channel, velocity errors at -sign beta before
-    ``k0`` and +sign beta from it, position errors at their bound with random signs, and with
-    ``outliers`` m = 3 of size eps_o in the first T of every 2 T ticks."""
+    """The premise at its limits (just inside, :data:`INSIDE`): eps_w on every channel,
+    velocity errors at -sign beta before ``k0`` and +sign beta from it, position errors at their
+    bound with random signs, and with ``outliers`` m = 3 of size eps_o in the first T of every
+    2 T ticks."""
     w = np.full((n, 6), sign * EPS_W)
     e = np.zeros((n, 6))
     e[:, :3] = rng.choice([-1.0, 1.0], (n, 3)) * 0.1
@@ -72,7 +80,7 @@ def _at_limits(n, sign, k0, rng, outliers):
         for start in range(0, n - 20, 40):
             for k in rng.choice(np.arange(start, start + 20), 3, replace=False):
                 e[k, 3:] += sign * (2 * V - 0.2)
-    return w, e
+    return INSIDE * w, INSIDE * e
 
 
 def test_the_innovations_are_the_onboard_monitors(loop):
@@ -124,11 +132,19 @@ def test_a_witness_that_breaks_a_bound_is_told_by_the_check(loop):
     wit = premise_witness(nu, box)
     assert wit is not None and witness_problems(wit, nu, box) == []
     e2 = wit.e.copy()
-    e2[10, 3] = box.db[3] + 0.01  # an error beyond the dense bound on a tick with no outlier
-    wrong = dataclasses.replace(wit, e=e2, z=np.zeros_like(wit.z))
-    assert any("beyond" in p for p in witness_problems(wrong, nu, box))
-    crowded = dataclasses.replace(wit, z=np.ones_like(wit.z))
-    assert any("outlier ticks within 20" in p for p in witness_problems(crowded, nu, box))
+    e2[10, 0] = box.db[0] + 0.01  # a position error beyond its dense bound
+    assert any(
+        "dense bound" in p for p in witness_problems(dataclasses.replace(wit, e=e2), nu, box)
+    )
+    e3 = wit.e.copy()
+    e3[10, 3] = box.db[3] + box.eps_o + 0.01  # an outlier beyond eps_o
+    assert any(
+        "beyond eps_o" in p for p in witness_problems(dataclasses.replace(wit, e=e3), nu, box)
+    )
+    e4 = wit.e.copy()
+    e4[20:24, 4] = box.db[4] + 1e-3  # m + 1 outliers within T, counted from the errors
+    assert any("outlier ticks within 20 (m 3)" in p
+               for p in witness_problems(dataclasses.replace(wit, e=e4), nu, box))  # fmt: skip
 
 
 @pytest.mark.parametrize(("f", "k0"), [(0.2, 40), (0.5, 40), (1.0, 0)])
@@ -141,6 +157,9 @@ def test_a_constant_break_is_found_after_it_starts_and_no_later_than_the_window_
     monitor's first trip (a sound monitor cannot trip before it)."""
     ctrl, step, spec, box = loop
     w, e = constant_break(260, f, k0, EPS_W, seed=int(f * 100))
+    e *= INSIDE  # the premise keeps its bounds by 1e-4 before the break
+    w[:k0] *= INSIDE
+    w[k0:, :5] *= INSIDE
     log, bits = _fly(ctrl, step, w, e)
     nu = innovations(spec, log, np.zeros(3), V)
     tripped = np.flatnonzero(bits)
@@ -174,3 +193,24 @@ def test_the_box_is_the_premises_own_set_only_with_diagonal_h_no_bias_and_s_0():
     skew = model.H.copy()
     skew[0, 3] = 0.05
     assert not box(base, skew).exact
+
+
+def test_a_witness_is_a_flight_the_flight_checks_pass(loop):
+    """The witness as a flight (the same readings and commands, its true state the gated reading
+    less its errors) keeps the disturbance, dense and outlier assumptions as
+    :func:`check_assumptions` reads them; the flight it explains broke none either."""
+    ctrl, step, spec, box = loop
+    w, e = _at_limits(160, -1.0, 70, np.random.default_rng(11), outliers=True)
+    log, _ = _fly(ctrl, step, w, e)
+    nu = innovations(spec, log, np.zeros(3), V)
+    wit = premise_witness(nu, box)
+    assert wit is not None and witness_problems(wit, nu, box) == []
+    c = dataclasses.replace(premise_of(ctrl), u_hover=np.zeros(3))
+
+    def no_distance(x):
+        return np.zeros(len(x))
+
+    for flight in (log, witness_flight(wit, log, V)):
+        row = check_assumptions(flight, c, no_distance)
+        assert row["disturbance_holds"] and row["dense_holds"] and row["outliers_holds"], row
+    np.testing.assert_allclose(witness_flight(wit, log, V).y, log.y)

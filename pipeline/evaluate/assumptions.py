@@ -72,12 +72,18 @@ class CertifiedPremise:
         return self.phi_xy.shape[0] - 1
 
 
-def gated_errors(log: FlownLog, gate: float | None) -> np.ndarray:
-    """``e' = y' - x``: the error the controller acted on (through the gate, if any)."""
+def gated_reading(log: FlownLog, gate: float | None) -> np.ndarray:
+    """``y'``: what the controller acted on, ``y`` with its velocity through the gate
+    (``clip(y_v - v_ref, -V, V) + v_ref``), if any."""
     y = np.array(log.y, dtype=float)
     if gate is not None:
         y[:, 3:] = np.clip(y[:, 3:] - log.ref[:, 3:], -gate, gate) + log.ref[:, 3:]
-    return y - log.x
+    return y
+
+
+def gated_errors(log: FlownLog, gate: float | None) -> np.ndarray:
+    """``e' = y' - x``: the error the controller acted on (:func:`gated_reading`)."""
+    return gated_reading(log, gate) - log.x
 
 
 @dataclass(frozen=True)
