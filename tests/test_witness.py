@@ -13,6 +13,7 @@ import pytest
 
 from qsls.pipeline.control.innovation import InnovationMonitor
 from qsls.pipeline.control.monitor import innovation_of, premise_box_of
+from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.ticks import FlownLog
 from qsls.pipeline.evaluate.assumptions import check_assumptions
 from qsls.pipeline.evaluate.certified import premise_of
@@ -214,3 +215,14 @@ def test_a_witness_is_a_flight_the_flight_checks_pass(loop):
         row = check_assumptions(flight, c, no_distance)
         assert row["disturbance_holds"] and row["dense_holds"] and row["outliers_holds"], row
     np.testing.assert_allclose(witness_flight(wit, log, V).y, log.y)
+
+
+def test_a_reading_that_is_not_finite_is_refused_in_one_line(loop):
+    ctrl, step, spec, _ = loop
+    w, e = _at_limits(30, 1.0, 10, np.random.default_rng(5), outliers=False)
+    log, _ = _fly(ctrl, step, w, e)
+    y = np.array(log.y)
+    y[12, 4] = np.nan
+    bad = dataclasses.replace(log, y=y)
+    with pytest.raises(InputError, match=r"^the reading at tick 12 \(t = 1.20 s\) is not finite"):
+        innovations(spec, bad, np.zeros(3), V)
