@@ -219,6 +219,22 @@ def ulog(out: str) -> None:
     assert positive(speed, size)
 
 
+def monitor_reach(out: str) -> None:
+    """Each family's flight is explained, explained apart, undecided or broken at a time, once;
+    no window trip precedes the earliest possible sound trip."""
+    rows = [
+        [c.strip() for c in line.strip("|").split("|")]
+        for line in out.splitlines()
+        if line.startswith(("| nominal |", "| wind 3.0 m/s |"))
+    ]
+    assert len(rows) == 2, out
+    for _, n, broken, explained, apart, undecided, exact, tripped, at, before in rows:
+        n, broken, explained, apart, undecided = map(int, (n, broken, explained, apart, undecided))
+        assert n == 1 and 0 <= broken <= n and explained + apart + undecided <= n
+        assert exact == "-" or positive(float(exact))
+        assert (at == "-") == (tripped == "0") and before == "0"
+
+
 FIGURES: dict[str, Callable[[str], None]] = {
     "bench_camera.py": camera,
     "bench_camera_consistency.py": camera_consistency,
@@ -236,6 +252,7 @@ FIGURES: dict[str, Callable[[str], None]] = {
     "bench_sweep.py": sweep,
     "bench_synth.py": synth,
     "fresh.py": fresh,
+    "monitor_reach.py": monitor_reach,
     "tune_pd.py": tune_pd,
 }
 """What each script's smoke run must print."""
