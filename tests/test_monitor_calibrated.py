@@ -16,7 +16,6 @@ import pandas as pd
 import pytest
 import yaml
 
-from qsls.pipeline.control import conformal
 from qsls.pipeline.control.artifacts import CERTIFICATE_FILE, load_controller_dir
 from qsls.pipeline.control.innovation import (
     QUANTUM_MAX,
@@ -34,6 +33,7 @@ from qsls.pipeline.control.monitor import (
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import GRAVITY, NX
 from qsls.pipeline.core.ticks import TickLog
+from qsls.pipeline.premise.honest import clopper_pearson
 
 RATE = 0.1
 
@@ -146,7 +146,7 @@ def test_calibrated_thresholds_are_below_the_sound_ones_and_trip_only_beyond_the
         assert bool(bits.any()) == (s > rec.quantile), (name, s, rec.quantile)
         if bits.any() and valid.loc[name, "assumptions_hold"]:
             false.append(name)  # a trip on a flight whose premise held
-    lo, _ = conformal.clopper_pearson(len(false), 20)
+    lo, _ = clopper_pearson(len(false), 20)
     assert lo <= RATE and len(false) <= 4, false
 
 

@@ -15,7 +15,7 @@ import pandas as pd
 from qsls.pipeline.calibrate import core
 from qsls.pipeline.calibrate.core import Outcome, Rule
 from qsls.pipeline.calibrate.options import CalibrateOptions
-from qsls.pipeline.control.conformal import clopper_pearson
+from qsls.pipeline.premise.honest import clopper_pearson
 
 SUMMARY_FILE = "calibration.json"
 

@@ -21,8 +21,6 @@ from typing import Literal
 
 import numpy as np
 
-from qsls.pipeline.premise.honest import clopper_pearson as cp
-
 Method = Literal["conformal", "pac"]
 MIN_FLIGHTS = 19
 """The fewest calibration flights behind a ``certified`` status (a 95 % marginal statement)."""
@@ -73,8 +71,3 @@ def smallest_flights(alpha: float, method: Method, delta: float = 0.05) -> int:
     while calibration_rank(n, alpha, method, delta) > n:
         n += 1
     return n
-
-
-def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    """Two-sided Clopper-Pearson interval of ``k`` breaking flights out of ``n``."""
-    return cp(k, n, level)

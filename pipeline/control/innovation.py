@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.control.guarantee import (
     MONITOR_RTOL,
     error_bounds,
@@ -364,14 +365,13 @@ def calibrated_innovation(spec: InnovationSpec, record: MonitorCalibration) -> I
     )
 
 
-def gated_deviation(
+def monitor_reading(
     log: FlownLog, u_hover: np.ndarray | Sequence[float], gate: float | None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """What the monitor reads of a flight: the gated deviation ``y' - r`` (velocity clipped to
-    the gate) and the deviation command ``du = u - u_hover - uff`` (0 where not logged)."""
-    d = np.asarray(log.y, float) - np.asarray(log.ref, float)
-    if gate is not None:
-        d[:, 3:] = np.clip(d[:, 3:], -gate, gate)
+    """What the monitor reads of a flight: the gated deviation ``y' - r``
+    (:func:`qsls.pipeline.control.gate.gated_deviation`) and the deviation command
+    ``du = u - u_hover - uff`` (0 where not logged)."""
+    d = gated_deviation(np.asarray(log.y, float) - np.asarray(log.ref, float), gate)
     du = np.asarray(log.u, float) - np.asarray(log.uff, float) - np.asarray(u_hover, float)
     return d, np.nan_to_num(du)
 
@@ -386,7 +386,7 @@ def flight_statistic(
     (the premise is broken); 0 where no window filled. From the flight's ``y - r`` (velocity
     through the gate) and the deviation command ``u - u_hover - uff`` flown, from the reset at
     take-off; a row that is not finite is refused (it restarts the windows), as onboard."""
-    d, du = gated_deviation(log, u_hover, gate)
+    d, du = monitor_reading(log, u_hover, gate)
     mon = InnovationMonitor(spec)
     live = [
         (w, c, thr) for w, row in enumerate(spec.threshold) for c, thr in enumerate(row) if thr > 0

@@ -94,6 +94,7 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
     axes = list(options.grid)
     base = options.model_dump(exclude={"grid", "certify", "s_max_curve", "chunks_per_job"})
     points: list[dict[str, Any]] = []
+    mi = ModelInput(em, training=training)
     for i, combo in enumerate(itertools.product(*(options.grid[a] for a in axes))):
         gv = dict(zip(axes, combo, strict=True))
         upd = {k: v for k, v in gv.items() if k not in ("q_scale", "r_scale")}
@@ -101,7 +102,7 @@ def grid_points(options: SweepOptions, em: Any, training: Any = None) -> list[di
             opts = validate(ProblemOptions, {**base, **upd}, "grid point")
         except ConfigError as exc:
             raise ConfigError(f"grid point {gv}: {exc}") from None
-        r = resolve(opts, ModelInput(em, training=training))
+        r = resolve(opts, mi)
         qs, rs = float(gv.get("q_scale", 1.0)), float(gv.get("r_scale", 1.0))
         if qs <= 0 or rs <= 0:
             raise ConfigError(f"grid point {gv}: q_scale and r_scale must be > 0")

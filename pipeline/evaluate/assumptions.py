@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from qsls.pipeline.control import guarantee
+from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.control.guarantee import measured_channels
 from qsls.pipeline.errormodel.disturbance import BiasSplit, deviation_disturbance, split_bias
 from qsls.pipeline.evaluate.theorem import nominal_states
@@ -76,8 +77,7 @@ def gated_reading(log: FlownLog, gate: float | None) -> np.ndarray:
     """``y'``: what the controller acted on, ``y`` with its velocity through the gate
     (``clip(y_v - v_ref, -V, V) + v_ref``), if any."""
     y = np.array(log.y, dtype=float)
-    if gate is not None:
-        y[:, 3:] = np.clip(y[:, 3:] - log.ref[:, 3:], -gate, gate) + log.ref[:, 3:]
+    y[:, 3:] = gated_deviation(y - log.ref, gate)[:, 3:] + log.ref[:, 3:]
     return y
 
 

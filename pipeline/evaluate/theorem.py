@@ -95,7 +95,7 @@ def uniform_grid(t: np.ndarray, dt: float, rel: float = 1e-3) -> bool:
 @dataclass(frozen=True)
 class TheoremNumbers:
     """The certificate's numbers the theorem uses: its premise's (``eps`` is ``eps_e``; the
-    premise as the certificate states it is :class:`qsls.pipeline.control.premise.Premise`)
+    premise as the certificate states it is :class:`qsls.pipeline.premise.record.Premise`)
     and its a-priori ``a``."""
 
     numbers: PremiseNumbers

@@ -35,7 +35,7 @@ import numpy as np
 from scipy import sparse
 from scipy.optimize import Bounds, LinearConstraint, milp
 
-from qsls.pipeline.control.innovation import InnovationSpec, PremiseBox, gated_deviation
+from qsls.pipeline.control.innovation import InnovationSpec, PremiseBox, monitor_reading
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import NX
 from qsls.pipeline.core.ticks import FlownLog
@@ -64,7 +64,7 @@ def innovations(
     before its quantization): ``y'`` the gated deviation, ``a_k`` the loop states from the
     controller's own commands (``a_0 = 0``, ``a_{k+1} = A_aa a_k + B_a du_k``). A reading that
     is not finite is refused: the onboard monitor restarts there, so split the flight."""
-    d, du = gated_deviation(log, u_hover, gate)
+    d, du = monitor_reading(log, u_hover, gate)
     bad = np.flatnonzero(~np.isfinite(d).all(axis=1))
     if len(bad):
         raise InputError(

@@ -81,11 +81,11 @@ def build_graph(
             "seeds, conditions and duration to fly): add one, or leave fly out"
         )
     if sec.synth is None or "synth" not in wanted:
-        for stage, verb in (("evaluate", "evaluate"), ("fly", "fly")):
+        for stage in ("evaluate", "fly"):
             if stage in listed:
                 raise ConfigError(
                     f"{sec.source('stages')}: {stage} is listed but there are no controllers to "
-                    f"{verb}: add a synth: section (and synth to the stages)"
+                    f"{stage}: add a synth: section (and synth to the stages)"
                 )
         return graph
     graph.add(Stage("synth", "synth", sec.synth, _synth_exec(sec.synth, progress), deps=("fit",)))
