@@ -93,7 +93,7 @@ def reach(fit: Path, controller: Path, out: Path) -> dict[str, Any]:
             "explained": held,
             "elsewhere": boxed and not held,
             "undecided": not boxed and L is None,
-            "exact_t": float(log.t[L] - log.t[0]) if L is not None else math.nan,
+            "exact_t": float(log.t[L]) if L is not None else math.nan,
             "monitor_t": float(checks.at[name, "monitor_t"]),
         })  # fmt: skip
     df = pd.DataFrame(rows)
@@ -106,7 +106,13 @@ def reach(fit: Path, controller: Path, out: Path) -> dict[str, Any]:
         "earliest sound trip (mean s)": _mean(df["exact_t"]),
         "window monitor tripped": int(df["monitor_t"].notna().sum()),
         "its trip (mean s)": _mean(df["monitor_t"]),
-        "tripped before the earliest": int((df["monitor_t"] < df["exact_t"] - 1e-9).sum()),
+        # a trip on a flight a witness explains (no break at all) is one before the earliest
+        "tripped before the earliest": int(
+            (
+                (df["monitor_t"] < df["exact_t"] - 1e-9)
+                | (df["explained"] & df["monitor_t"].notna())
+            ).sum()
+        ),
     }
 
 

@@ -272,3 +272,23 @@ def constant_break(
     e[:, 3:] = rng.choice([-1.0, 1.0], (n, 3)) * 0.2
     e[k0:, 5], e[:k0, 5] = -0.2, 0.2
     return w, e
+
+
+def at_limits(
+    n: int, k0: int, sign: float, outliers: bool, rng: np.random.Generator, eps_w: float,
+    gate: float = 1.5,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """``(w, e)`` for :func:`gated`'s shape at the premise's limits: ``w = sign eps_w`` on every
+    channel (each ``|H|`` row sums to its diagonal), velocity errors at ``-sign beta`` before
+    ``k0`` and ``+sign beta`` from it (the jump every window across ``k0`` sees as
+    ``+2 beta``), and with ``outliers`` up to ``m`` = 3 per ``T`` = 20 ticks of size ``eps_o``
+    on the same side at random ticks; position errors random at their bound."""
+    w = np.full((n, 6), sign * eps_w)
+    e = np.zeros((n, 6))
+    e[:, :3] = rng.choice([-1.0, 1.0], (n, 3)) * 0.1
+    e[:, 3:] = np.where(np.arange(n)[:, None] < k0, -sign, sign) * 0.2
+    if outliers:  # m = 3 in the first T of every 2 T ticks: at most m in any T consecutive
+        for start in range(0, n - 20, 40):
+            for k in rng.choice(np.arange(start, start + 20), 3, replace=False):
+                e[k, 3:] += sign * (2 * gate - 0.2)
+    return w, e

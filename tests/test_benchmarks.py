@@ -230,7 +230,8 @@ def monitor_reach(out: str) -> None:
     assert len(rows) == 2, out
     for _, n, broken, explained, apart, undecided, exact, tripped, at, before in rows:
         n, broken, explained, apart, undecided = map(int, (n, broken, explained, apart, undecided))
-        assert n == 1 and 0 <= broken <= n and explained + apart + undecided <= n
+        assert n == 1 and 0 <= broken <= n
+        assert explained + apart + undecided + (exact != "-") == n  # each flight in one column
         assert exact == "-" or positive(float(exact))
         assert (at == "-") == (tripped == "0") and before == "0"
 

@@ -26,7 +26,7 @@ from qsls.pipeline.export.c import c_files
 from qsls.pipeline.export.cbuild import STRICT, CController
 from qsls.pipeline.export.python import load_module, module
 from qsls.pipeline.premise.numbers import PremiseNumbers
-from tests.controllerfixtures import constant_break, gated
+from tests.controllerfixtures import at_limits, constant_break, gated
 
 V = 1.5
 EPS_W = 0.02
@@ -91,23 +91,6 @@ def test_windows_and_thresholds_follow_the_certificates_numbers(loop):
     np.testing.assert_allclose(s.outlier_threshold[3:], EPS_W + 2 * db, rtol=3e-9)
 
 
-def _aligned(s, n, k0, sign, outliers, rng):
-    """Premise-satisfying sequences at the limits: w = sign eps_w on every channel (each |H| row
-    sums to its diagonal), velocity errors at -sign beta before ``k0`` and +sign beta from it
-    (the jump every window across k0 sees as +2 beta), and with ``outliers`` up to m per T
-    ticks of size eps_o on the same side at random ticks; position errors random at their
-    bound."""
-    w = np.full((n, 6), sign * EPS_W)
-    e = np.zeros((n, 6))
-    e[:, :3] = rng.choice([-1.0, 1.0], (n, 3)) * 0.1
-    e[:, 3:] = np.where(np.arange(n)[:, None] < k0, -sign, sign) * 0.2
-    if outliers:  # m = 3 in the first T of every 2 T ticks: at most m in any T consecutive
-        for start in range(0, n - 20, 40):
-            for k in rng.choice(np.arange(start, start + 20), 3, replace=False):
-                e[k, 3:] += sign * (2 * V - 0.2)
-    return w, e
-
-
 def _library(ctrl, s, c, w, e):
     """The library's monitor on the linear closed loop flown by the C controller (from the
     same measurements and commands as :func:`_fly`), asserting no bit; yields it after each
@@ -139,7 +122,7 @@ def test_never_trips_at_the_premises_limits_and_attains_its_bound(loop):
         # every third run jumps while the first windows fill: the majority over the shifted
         # sums held so far must stay sound there too
         k0 = int(rng.integers(1, 60) if n % 3 == 0 else rng.integers(60, 430))
-        w, e = _aligned(s, 440, k0, rng.choice([-1.0, 1.0]), outliers, rng)
+        w, e = at_limits(440, k0, rng.choice([-1.0, 1.0]), outliers, rng, EPS_W)
         bits = _fly(ctrl, [c, py], w, e)
         assert not bits.any(), (n, np.flatnonzero(bits.any(axis=0))[:5])
         if n % 5 > 1:

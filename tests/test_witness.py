@@ -26,7 +26,7 @@ from qsls.pipeline.evaluate.witness import (
 )
 from qsls.pipeline.export import bank as B
 from qsls.pipeline.export.python import load_module, module
-from tests.controllerfixtures import constant_break, gated
+from tests.controllerfixtures import at_limits, constant_break, gated
 
 V = 1.5
 EPS_W = 0.02
@@ -69,18 +69,8 @@ INSIDE = 1 - 1e-4
 
 
 def _at_limits(n, sign, k0, rng, outliers):
-    """The premise at its limits (just inside, :data:`INSIDE`): eps_w on every channel,
-    velocity errors at -sign beta before ``k0`` and +sign beta from it, position errors at their
-    bound with random signs, and with ``outliers`` m = 3 of size eps_o in the first T of every
-    2 T ticks."""
-    w = np.full((n, 6), sign * EPS_W)
-    e = np.zeros((n, 6))
-    e[:, :3] = rng.choice([-1.0, 1.0], (n, 3)) * 0.1
-    e[:, 3:] = np.where(np.arange(n)[:, None] < k0, -sign, sign) * 0.2
-    if outliers:
-        for start in range(0, n - 20, 40):
-            for k in rng.choice(np.arange(start, start + 20), 3, replace=False):
-                e[k, 3:] += sign * (2 * V - 0.2)
+    """:func:`tests.controllerfixtures.at_limits`, just inside (:data:`INSIDE`)."""
+    w, e = at_limits(n, k0, sign, outliers, rng, EPS_W)
     return INSIDE * w, INSIDE * e
 
 

@@ -156,6 +156,11 @@ class Rule:
     delta: float = 0.05
 
     @classmethod
+    def of_options(cls, options: Any) -> Rule:
+        """The rule a calibration's options ask for (``alpha``, ``method``, ``delta``)."""
+        return cls(options.alpha, options.method, options.delta)
+
+    @classmethod
     def of_record(cls, c: Calibration) -> Rule:
         """The rule a calibration record states (``confidence`` is ``1 - delta``)."""
         method: conformal.Method = "pac" if c.method == "pac" else "conformal"

@@ -276,7 +276,7 @@ def calibrate(
     ) as w:
         t = _calibration_phase(w, inp, options, sim, progress)
         _validation_phase(w, t, inp, options, sim, progress)
-        return _finish(w, t, Rule(options.alpha, options.method, options.delta), None)
+        return _finish(w, t, Rule.of_options(options), None)
 
 
 def _conditions(options: CalibrateOptions, sim: dict[str, Any]) -> dict[str, Any]:
@@ -338,7 +338,7 @@ def _calibration_phase(
             cal = [r["flight"] for r in mine if r["role"] == "calibration"]
             ranged = [r["flight"] for r in mine if r["role"] == "range"]
             record = Record(
-                Rule(options.alpha, options.method, options.delta),
+                Rule.of_options(options),
                 {**conditions, "perception": cond},
                 options.duration,
                 tuple(calib_seeds),
@@ -465,7 +465,7 @@ def calibrate_recorded(
             raise InputError(
                 "calibrate: none of the candidates flew a calibration flight among those given"
             )
-        return _finish(w, t, Rule(options.alpha, options.method, options.delta), owners)
+        return _finish(w, t, Rule.of_options(options), owners)
 
 
 def _recorded_one(
@@ -503,7 +503,7 @@ def _recorded_one(
     root = w.path(condition).parent  # the output: a stand-in's tick logs are named inside it
     order = {"calibration": 0, "range": 1, "validation": 2}
     record = Record(
-        Rule(options.alpha, options.method, options.delta),
+        Rule.of_options(options),
         conditions,
         float(conditions["duration_s"]),
         design_seeds=tuple(options.design_seeds),

@@ -15,14 +15,14 @@ from typing import Any
 
 import pandas as pd
 
+from qsls.pipeline.control.artifacts import load_controller_dir
 from qsls.pipeline.core.artifacts import read_manifest
 from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.evaluate.assumptions import check_assumptions
 from qsls.pipeline.evaluate.certified import (
     ControllerBound,
-    calibration_of,
-    certified_premise,
     outside_calibration,
+    premise_of,
 )
 from qsls.pipeline.evaluate.conditions import flight_conditions
 from qsls.pipeline.evaluate.flownby import flown_by
@@ -123,11 +123,9 @@ def own_log_assumptions(
     rows, missing = [], []
     conds = list(conditions) if conditions is not None else [""] * len(flights)
     ests = list(estimators) if estimators is not None else [""] * len(flights)
-    read = {  # each certificate once: its premise and its calibration record
-        b.folder: (certified_premise(b.folder), calibration_of(b.folder))
-        for b in bounds
-        if b is not None
-    }
+    dirs = {b.folder: load_controller_dir(b.folder) for b in bounds if b is not None}
+    # each certificate read once: its premise and its calibration record
+    read = {f: (premise_of(d), d.certificate.calibration) for f, d in dirs.items()}
     for f, bound, condition, estimator in zip(flights, bounds, conds, ests, strict=True):
         if bound is None:
             continue

@@ -40,6 +40,7 @@ from qsls.pipeline.core.errors import InputError
 from qsls.pipeline.core.plant import NX
 from qsls.pipeline.core.ticks import FlownLog
 from qsls.pipeline.evaluate.assumptions import gated_reading
+from qsls.pipeline.premise.honest import window_counts
 
 MARGIN = 1e-6
 """A witness is sought within bounds tightened by this much, a break claimed beyond bounds
@@ -137,8 +138,8 @@ def witness_problems(w: Witness, nu: np.ndarray, box: PremiseBox) -> list[str]:
         out.append(f"an error beyond its dense bound by {(mag - box.db).max():.3g}")
     if np.any(mag > box.db + box.eps_o * box.outlier):
         out.append(f"an outlier beyond eps_o by {(mag - box.db - box.eps_o).max():.3g}")
-    placed = beyond[:, box.outlier == 1].any(axis=1).astype(int)
-    counts = np.convolve(placed, np.ones(box.T, int))[: len(placed)]
+    placed = beyond[:, box.outlier == 1].any(axis=1)
+    counts = window_counts(placed, np.zeros(len(placed), int), box.T)
     if len(placed) and counts.max() > box.m:
         out.append(f"{counts.max()} outlier ticks within {box.T} (m {box.m})")
     return out
