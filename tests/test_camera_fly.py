@@ -19,7 +19,7 @@ def _outcome(condition: str, lipschitz: float | None) -> FlyOutcome:
     )  # fmt: skip
 
 
-def test_camera_flights_claim_notrue_lipschitz():
+def test_camera_flights_claim_no_true_lipschitz():
     """Emulator flights give the largest L per condition; camera flights (L None) give none,
     so the findings skip the 'bound with the true L' comparison instead of reading L = 0."""
     emu = [_outcome("regular", 0.2), _outcome("regular", 0.3), _outcome("degraded", 0.5)]
