@@ -107,20 +107,15 @@ def command(
             raise typer.BadParameter(f"unexpected argument {more[0]!r}", param_hint="FLIGHTS")
         given = {**given, "flights": [*given["flights"], *more]}
     from qsls.cli.common import RichProgress, print_summary, print_verdicts
-    from qsls.pipeline.calibrate.stage import calibrate, calibrate_recorded
+    from qsls.pipeline.calibrate.stage import calibrate
     from qsls.pipeline.calibrate.summary import simulated_notice, summary_lines
     from qsls.pipeline.core.config import load_options
 
     options = load_options(CalibrateOptions, config, given, section="calibrate")
-    if options.recorded.given or options.source == "standin":
-        with RichProgress() as progress:
-            result = calibrate_recorded(
-                model, controllers, options, out, force=force, progress=progress
-            )
-    else:
+    if not options.flies_recorded:
         options.seed_lists()
         typer.echo(simulated_notice(options))
-        with RichProgress() as progress:
-            result = calibrate(model, controllers, options, out, force=force, progress=progress)
+    with RichProgress() as progress:
+        result = calibrate(model, controllers, options, out, force=force, progress=progress)
     print_summary("qsls calibrate", result.summary())
     print_verdicts("Calibrated certificates", summary_lines(out))

@@ -170,5 +170,12 @@ class CalibrateOptions(PoolOptions):
         return calib, valid
 
     @property
+    def flies_recorded(self) -> bool:
+        """Whether the candidates are calibrated on recorded flights (the user's, or the
+        stand-in vehicle's ULogs) rather than on flights the simulator keeps the tick logs of:
+        the one rule of which path :func:`qsls.pipeline.calibrate.stage.calibrate` takes."""
+        return self.recorded.given or self.source == "standin"
+
+    @property
     def range_seeds(self) -> list[int]:
         return list(range(self.range_seed, self.range_seed + self.range_flights))

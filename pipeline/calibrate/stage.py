@@ -261,7 +261,28 @@ def calibrate(
     force: bool = False,
     progress: Progress = NULL_PROGRESS,
 ) -> CalibrateResult:
-    """Fly, score, calibrate and validate every candidate (module docstring)."""
+    """The stage: calibrate and validate every candidate's premise on flights it flew itself,
+    recorded ones where ``options`` gives them or the stand-in flies them
+    (:attr:`CalibrateOptions.flies_recorded`, :func:`calibrate_recorded`), else simulated
+    ones (:func:`calibrate_simulated`)."""
+    if options.flies_recorded:
+        return calibrate_recorded(
+            error_model, synth_dir, options, out, force=force, progress=progress
+        )
+    return calibrate_simulated(error_model, synth_dir, options, out, force=force, progress=progress)
+
+
+def calibrate_simulated(
+    error_model: Path,
+    synth_dir: Path,
+    options: CalibrateOptions,
+    out: Path,
+    *,
+    force: bool = False,
+    progress: Progress = NULL_PROGRESS,
+) -> CalibrateResult:
+    """Fly, score, calibrate and validate every candidate in the simulator (module
+    docstring)."""
     check_output(Path(out), force)
     inp = _inputs(error_model, synth_dir, options)
     options = _with_design_seeds(options, inp.fit_dir)

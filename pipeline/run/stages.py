@@ -207,10 +207,9 @@ def _calibrate_stage(graph: StageGraph, opts: CalibrateOptions, progress: Progre
 
     def execute(out: Path, deps: Mapping[str, Path]) -> Any:
         # deferred: a stage's code loads when it runs (a cached run loads none of it)
-        from qsls.pipeline.calibrate.stage import calibrate, calibrate_recorded
+        from qsls.pipeline.calibrate.stage import calibrate
 
-        run = calibrate_recorded if opts.recorded.given or opts.source == "standin" else calibrate
-        return run(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
+        return calibrate(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
 
     external = tuple(Path(p) for r in ("calibration", "range", "validation")
                      for p in getattr(opts.recorded, r))  # fmt: skip
