@@ -173,7 +173,7 @@ class CalibrateOptions(PoolOptions):
     def flies_recorded(self) -> bool:
         """Whether the candidates are calibrated on recorded flights (the user's, or the
         stand-in vehicle's ULogs) rather than on flights the simulator keeps the tick logs of:
-        the one rule of which path :func:`qsls.pipeline.calibrate.stage.calibrate` takes."""
+        the one rule of which path the stage (:func:`qsls.pipeline.calibrate.stage.calibrate`) takes."""
         return self.recorded.given or self.source == "standin"
 
     @property

@@ -251,7 +251,7 @@ def _finish(
     return CalibrateResult(w.out, tuple(t.done), validation, tuple(summary))
 
 
-# --------------------------------------------------------------------------- simulated flights
+# --------------------------------------------------------------------------- the stage
 def calibrate(
     error_model: Path,
     synth_dir: Path,
@@ -261,45 +261,36 @@ def calibrate(
     force: bool = False,
     progress: Progress = NULL_PROGRESS,
 ) -> CalibrateResult:
-    """The stage: calibrate and validate every candidate's premise on flights it flew itself,
-    recorded ones where ``options`` gives them or the stand-in flies them
-    (:attr:`CalibrateOptions.flies_recorded`, :func:`calibrate_recorded`), else simulated
-    ones (:func:`calibrate_simulated`)."""
+    """The stage: calibrate and validate every candidate's premise on flights it flew itself
+    (module docstring). Recorded ones where ``options`` gives them or the stand-in flies them
+    (:attr:`CalibrateOptions.flies_recorded`, :func:`_recorded_phases`, docs/vehicle.md), else
+    simulated ones (:func:`_calibration_phase`, :func:`_validation_phase`). Flights that are
+    not the user's are flown on seeds no design flight used."""
     if options.flies_recorded:
-        return calibrate_recorded(
-            error_model, synth_dir, options, out, force=force, progress=progress
-        )
-    return calibrate_simulated(error_model, synth_dir, options, out, force=force, progress=progress)
-
-
-def calibrate_simulated(
-    error_model: Path,
-    synth_dir: Path,
-    options: CalibrateOptions,
-    out: Path,
-    *,
-    force: bool = False,
-    progress: Progress = NULL_PROGRESS,
-) -> CalibrateResult:
-    """Fly, score, calibrate and validate every candidate in the simulator (module
-    docstring)."""
+        _refuse_recorded(options)
     check_output(Path(out), force)
     inp = _inputs(error_model, synth_dir, options)
-    options = _with_design_seeds(options, inp.fit_dir)
-    options.seed_lists()
-    for c in inp.candidates:
-        _premise(c, " (a nominal or failed controller)")
-    sim = options.sim.model_dump(mode="json")
-    sim["duration"] = options.duration
+    if not options.recorded.given:
+        options = _with_design_seeds(options, inp.fit_dir)
+        options.seed_lists()
+    if not options.flies_recorded:
+        for c in inp.candidates:
+            _premise(c, " (a nominal or failed controller)")
+    rec = options.recorded
     folders = [c.dir.folder for c in inp.candidates]
-    with StageWriter(
-        out, STAGE, options=options, inputs=[inp.model_file, *folders], force=force
-    ) as w:
+    inputs = [inp.model_file, *folders, *rec.calibration, *rec.range, *rec.validation]
+    with StageWriter(out, STAGE, options=options, inputs=inputs, force=force) as w:
+        if options.flies_recorded:
+            t, owners = _recorded_phases(w, inp, options, progress)
+            return _finish(w, t, Rule.of_options(options), owners)
+        sim = options.sim.model_dump(mode="json")
+        sim["duration"] = options.duration
         t = _calibration_phase(w, inp, options, sim, progress)
         _validation_phase(w, t, inp, options, sim, progress)
         return _finish(w, t, Rule.of_options(options), None)
 
 
+# --------------------------------------------------------------------------- simulated flights
 def _conditions(options: CalibrateOptions, sim: dict[str, Any]) -> dict[str, Any]:
     """What the record states of the simulated flights' conditions (the perception added per
     condition)."""
@@ -423,23 +414,9 @@ def _validation_phase(
 
 
 # --------------------------------------------------------------------------- recorded flights
-def calibrate_recorded(
-    error_model: Path,
-    synth_dir: Path,
-    options: CalibrateOptions,
-    out: Path,
-    *,
-    force: bool = False,
-    progress: Progress = NULL_PROGRESS,
-) -> CalibrateResult:
-    """Prove, score, calibrate and validate every candidate on the recorded flights
-    (docs/vehicle.md); with ``options.source == "standin"`` the stand-in vehicle flies them
-    first (:mod:`qsls.pipeline.calibrate.standin`). Each flight must be the candidate's own:
-    replayed through its taps and gate it gives the logged commands. The record lists each
-    calibration flight's log sha256 (``calibration.logs``) in place of seeds; the tick logs
-    stay in their ingest folders."""
-    standin = options.source == "standin" and not options.recorded.given
-    if not standin and not options.recorded.calibration:
+def _refuse_recorded(options: CalibrateOptions) -> None:
+    """Recorded options the stage cannot calibrate on, refused before anything is read."""
+    if options.recorded.given and not options.recorded.calibration:
         raise InputError(
             "calibrate: recorded range or validation flights need recorded calibration "
             "flights (--recorded FOLDER, repeated or comma-separated)"
@@ -449,44 +426,50 @@ def calibrate_recorded(
             "calibrate: recorded flights are flown under the conditions they met: give one "
             "condition (--conditions NAME) to name them"
         )
-    check_output(Path(out), force)
-    inp = _inputs(error_model, synth_dir, options)
-    if standin:
-        options = _with_design_seeds(options, inp.fit_dir)
-        options.seed_lists()
+
+
+def _recorded_phases(
+    w: StageWriter, inp: _Inputs, options: CalibrateOptions, progress: Progress
+) -> tuple[_Tables, dict[str, str]]:
+    """Prove, score, calibrate and validate every candidate on the recorded flights
+    (docs/vehicle.md); with ``options.source == "standin"`` and none given, the stand-in
+    vehicle flies them first (:mod:`qsls.pipeline.calibrate.standin`). Each flight must be the
+    candidate's own: replayed through its taps and gate it gives the logged commands. The
+    record lists each calibration flight's log sha256 (``calibration.logs``) in place of
+    seeds; the tick logs stay in their ingest folders. Returns the tables and each flight's
+    owner."""
+    standin = not options.recorded.given
     rec = options.recorded
     folders = [c.dir.folder for c in inp.candidates]
-    inputs = [inp.model_file, *folders, *rec.calibration, *rec.range, *rec.validation]
-    with StageWriter(out, STAGE, options=options, inputs=inputs, force=force) as w:
-        if standin:
-            dt = min(c.dir.controller.dt for c in inp.candidates)
-            height = float(options.sim.reference.height)
-            rec = standin_flights(
-                folders,
-                options,
-                w.path("standin"),
-                dt,
-                lambda s: flights.offsets(s, options.tube, height),
-                progress,
-            )
-        given = load_all(
-            {"calibration": rec.calibration, "range": rec.range, "validation": rec.validation}
+    if standin:
+        dt = min(c.dir.controller.dt for c in inp.candidates)
+        height = float(options.sim.reference.height)
+        rec = standin_flights(
+            folders,
+            options,
+            w.path("standin"),
+            dt,
+            lambda s: flights.offsets(s, options.tube, height),
+            progress,
         )
-        refuse_design(given, inp.fit_dir)
-        owners = flights.assign(given, folders)
-        t = _Tables([], [], [])
-        progress.start("recorded flights", total=len(given))
-        for c in inp.candidates:
-            mine = [f for f in given if owners[f.name] == c.name]
-            if any(f.role == "calibration" for f in mine):
-                _recorded_one(w, t, c, mine, options, inp.training, standin)
-                progress.advance(len(mine))
-        progress.finish()
-        if not t.done:
-            raise InputError(
-                "calibrate: none of the candidates flew a calibration flight among those given"
-            )
-        return _finish(w, t, Rule.of_options(options), owners)
+    given = load_all(
+        {"calibration": rec.calibration, "range": rec.range, "validation": rec.validation}
+    )
+    refuse_design(given, inp.fit_dir)
+    owners = flights.assign(given, folders)
+    t = _Tables([], [], [])
+    progress.start("recorded flights", total=len(given))
+    for c in inp.candidates:
+        mine = [f for f in given if owners[f.name] == c.name]
+        if any(f.role == "calibration" for f in mine):
+            _recorded_one(w, t, c, mine, options, inp.training, standin)
+            progress.advance(len(mine))
+    progress.finish()
+    if not t.done:
+        raise InputError(
+            "calibrate: none of the candidates flew a calibration flight among those given"
+        )
+    return t, owners
 
 
 def _recorded_one(
