@@ -204,22 +204,26 @@ def test_recorded_calibration_refusals(px4_run: Path, tmp_path: Path) -> None:
     assert proc.returncode != 0 and "PX4 ULog" in proc.stderr
 
 
-def test_recorded_options_the_stage_cannot_calibrate_on(px4_run: Path, tmp_path: Path) -> None:
-    """Refused in one line before anything is read or written, whoever flies them: validation
-    flights without calibration ones (given, or beside ``--source standin``), recorded flights
-    under two conditions."""
-    a = str(next(iter((px4_run / "calibrate" / "standin" / "flights").glob("calibration_*"))))
-    cases = {
-        "need recorded calibration flights": ["--recorded-validation", a],
-        "need recorded calibration flights ": ["--recorded-validation", a, "--source", "standin"],
-        "give one condition": ["--recorded", a, "--conditions", "regular,degraded"],
-    }
-    for i, (want, args) in enumerate(cases.items()):
+def test_recorded_options_the_stage_cannot_calibrate_on(tmp_path: Path) -> None:
+    """Refused in one line before anything is read (the error model, the controllers and the
+    flights named here do not exist) or written, whoever flies them: validation flights without
+    calibration ones (given, or beside ``--source standin``), recorded or stand-in flights under
+    two conditions; with both wrong, the missing calibration flights are said."""
+    a = str(tmp_path / "flight")
+    two = ["--conditions", "regular,degraded"]
+    cases = [
+        ("need recorded calibration flights", ["--recorded-validation", a]),
+        ("need recorded calibration flights", ["--recorded-validation", a, "--source", "standin"]),
+        ("need recorded calibration flights", ["--recorded-validation", a, *two]),
+        ("give one condition", ["--recorded", a, *two]),
+        ("give one condition", ["--source", "standin", *two]),
+    ]
+    for i, (want, args) in enumerate(cases):
         out = tmp_path / f"cal_{i}"
-        proc = qsls("calibrate", "-m", str(px4_run / "fit"), "--controllers",
-                    str(px4_run / "synth"), "-o", str(out), *args, cwd=tmp_path)  # fmt: skip
+        proc = qsls("calibrate", "-m", str(tmp_path / "fit"), "--controllers",
+                    str(tmp_path / "synth"), "-o", str(out), *args, cwd=tmp_path)  # fmt: skip
         err = proc.stderr.strip()
-        assert proc.returncode == 2 and want.strip() in err and len(err.splitlines()) == 1, err
+        assert proc.returncode == 2 and want in err and len(err.splitlines()) == 1, (args, err)
         assert not out.exists()
 
 

@@ -172,9 +172,16 @@ class CalibrateOptions(PoolOptions):
     @property
     def flies_recorded(self) -> bool:
         """Whether the candidates are calibrated on recorded flights (the user's, or the
-        stand-in vehicle's ULogs) rather than on flights the simulator keeps the tick logs of:
-        the one rule of which path the stage (:func:`qsls.pipeline.calibrate.stage.calibrate`) takes."""
+        stand-in vehicle's logs) rather than on flights the simulator keeps the tick logs of:
+        the one rule of which path the stage (:func:`qsls.pipeline.calibrate.stage.calibrate`)
+        takes."""
         return self.recorded.given or self.source == "standin"
+
+    @property
+    def flown_here(self) -> bool:
+        """Whether qsls flies the flights itself (the simulator, or the stand-in vehicle), on
+        seeds no design flight used, rather than reading the user's recorded ones."""
+        return not self.recorded.given
 
     @property
     def range_seeds(self) -> list[int]:

@@ -8,7 +8,8 @@ Each candidate (a robust controller whose design check passed in ``qsls synth``)
    (never a design flight's seed), each drawing its conditions from the stated family, and
    with ``range_flights`` the reference moved by random offsets within ``tube``
    (:mod:`qsls.pipeline.calibrate.flights`); or the user's recorded flights are read and
-   proved its own. Each flight's score and the decision are
+   proved its own; or, with ``source: standin``, the stand-in vehicle flies them and logs
+   them as a PX4 vehicle would (output ``standin/``), and they are read as recorded ones. Each flight's score and the decision are
    :mod:`qsls.pipeline.calibrate.core`'s; the calibrated certificate is written with its
    ``calibration`` record and the innovation monitor's calibration.
 2. **Validation**: fresh seeds (or recorded validation flights), flown by the calibrated
@@ -161,7 +162,7 @@ def fitted_seeds(fit_dir: Path) -> list[int]:
 
 @dataclass(frozen=True)
 class _Inputs:
-    """What both kinds of calibration read before flying."""
+    """What the stage reads once, before anything flies."""
 
     model_file: Path
     fit_dir: Path
@@ -270,7 +271,7 @@ def calibrate(
         _refuse_recorded(options)
     check_output(Path(out), force)
     inp = _inputs(error_model, synth_dir, options)
-    if not options.recorded.given:
+    if options.flown_here:
         options = _with_design_seeds(options, inp.fit_dir)
         options.seed_lists()
     if not options.flies_recorded:
@@ -438,7 +439,7 @@ def _recorded_phases(
     record lists each calibration flight's log sha256 (``calibration.logs``) in place of
     seeds; the tick logs stay in their ingest folders. Returns the tables and each flight's
     owner."""
-    standin = not options.recorded.given
+    standin = options.flown_here
     rec = options.recorded
     folders = [c.dir.folder for c in inp.candidates]
     if standin:

@@ -379,7 +379,8 @@ def outside_family(statement: Mapping[str, Any], flight: Mapping[str, Any]) -> l
     recorded flights' certificate states its logs' conditions, compared where they are read
     (:mod:`qsls.pipeline.calibrate.flights`)."""
     if statement.get("source") in ("recorded", "standin"):
-        return []  # a log's conditions are stated as its log says them (calibrate/stage._recorded_phases)
+        # a log's conditions are stated as its log says them (calibrate/stage._recorded_phases)
+        return []
     fam = statement.get("family")
     why: list[str] = []
     ranged: dict[str, set[str]] = {"vehicle": set(), "reference": set()}
