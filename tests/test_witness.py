@@ -11,6 +11,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from qsls.pipeline.control.gate import gated_deviation
 from qsls.pipeline.control.innovation import InnovationMonitor
 from qsls.pipeline.control.monitor import innovation_of, premise_box_of
 from qsls.pipeline.core.errors import InputError
@@ -52,8 +53,7 @@ def _fly(ctrl, step, w, e):
     for k in range(len(w)):
         y = x + e[k]
         u = np.asarray(step.step(y), dtype=float)
-        dev = y.copy()
-        dev[3:] = np.clip(dev[3:], -V, V)
+        dev = gated_deviation(y, V)
         bits.append(mon.step(dev.tolist()))
         mon.command(u.tolist())
         xs.append(x), ys.append(y), us.append(u)
@@ -81,8 +81,7 @@ def test_the_innovations_are_the_onboard_monitors(loop):
     log, _ = _fly(ctrl, step, w, e)
     nu = innovations(spec, log, np.zeros(3), V)
     mon = InnovationMonitor(spec)
-    dev = np.array(log.y, float)
-    dev[:, 3:] = np.clip(dev[:, 3:], -V, V)
+    dev = gated_deviation(log.y, V)
     for k in range(len(dev)):
         if k:
             np.testing.assert_allclose(mon._innovation(dev[k].tolist()), nu[k - 1], atol=1e-12)

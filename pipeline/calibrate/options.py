@@ -33,8 +33,18 @@ class RecordedFlights(Options):
     """Fresh flights (as ``calibration``) checked against the calibrated premise."""
 
     @property
+    def by_role(self) -> dict[str, list[Path]]:
+        """The folders by role, in the order calibration, range, validation."""
+        return {"calibration": self.calibration, "range": self.range, "validation": self.validation}
+
+    @property
+    def paths(self) -> list[Path]:
+        """Every folder given, role by role (:attr:`by_role`)."""
+        return [p for ps in self.by_role.values() for p in ps]
+
+    @property
     def given(self) -> bool:
-        return bool(self.calibration or self.range or self.validation)
+        return bool(self.paths)
 
 
 class MonitorOptions(Options):

@@ -13,7 +13,7 @@ each flight's log hash in place of a seed.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -113,7 +113,7 @@ def expand(given: Sequence[Path]) -> list[Path]:
     return out
 
 
-def load_all(by_role: dict[str, Sequence[Path]]) -> list[RecordedFlight]:
+def load_all(by_role: Mapping[str, Sequence[Path]]) -> list[RecordedFlight]:
     """Every recorded flight, refused in one line where two are one flight, or where they are
     not of one vehicle and one estimator (docs/vehicle.md#what-voids-it)."""
     flights = [load_recorded(f, role) for role in ROLES for f in expand(by_role.get(role, ()))]

@@ -9,9 +9,10 @@ Each candidate (a robust controller whose design check passed in ``qsls synth``)
    with ``range_flights`` the reference moved by random offsets within ``tube``
    (:mod:`qsls.pipeline.calibrate.flights`); or the user's recorded flights are read and
    proved its own; or, with ``source: standin``, the stand-in vehicle flies them and logs
-   them as a PX4 vehicle would (output ``standin/``), and they are read as recorded ones. Each flight's score and the decision are
-   :mod:`qsls.pipeline.calibrate.core`'s; the calibrated certificate is written with its
-   ``calibration`` record and the innovation monitor's calibration.
+   them as a PX4 vehicle would (output ``standin/``), and they are read as recorded ones.
+   Each flight's score and the decision are :mod:`qsls.pipeline.calibrate.core`'s; the
+   calibrated certificate is written with its ``calibration`` record and the innovation
+   monitor's calibration.
 2. **Validation**: fresh seeds (or recorded validation flights), flown by the calibrated
    controller and checked against every assumption of the calibrated premise; the share that
    breaks one, with its Clopper-Pearson interval, beside ``alpha``.
@@ -279,7 +280,7 @@ def calibrate(
             _premise(c, " (a nominal or failed controller)")
     rec = options.recorded
     folders = [c.dir.folder for c in inp.candidates]
-    inputs = [inp.model_file, *folders, *rec.calibration, *rec.range, *rec.validation]
+    inputs = [inp.model_file, *folders, *rec.paths]
     with StageWriter(out, STAGE, options=options, inputs=inputs, force=force) as w:
         if options.flies_recorded:
             t, owners = _recorded_phases(w, inp, options, progress)
@@ -453,9 +454,7 @@ def _recorded_phases(
             lambda s: flights.offsets(s, options.tube, height),
             progress,
         )
-    given = load_all(
-        {"calibration": rec.calibration, "range": rec.range, "validation": rec.validation}
-    )
+    given = load_all(rec.by_role)
     refuse_design(given, inp.fit_dir)
     owners = flights.assign(given, folders)
     t = _Tables([], [], [])

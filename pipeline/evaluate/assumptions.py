@@ -66,7 +66,8 @@ class CertifiedPremise:
     u_hover: np.ndarray
     bias_dirs: np.ndarray | None = None
     """``D_w`` on the physical states ((6, 3),
-    :attr:`qsls.pipeline.core.plant.LinearModel.bias_dirs`); read only when the premise has a bias term (``numbers.eps_b > 0``)."""
+    :attr:`qsls.pipeline.core.plant.LinearModel.bias_dirs`); read only when the premise has a
+    bias term (``numbers.eps_b > 0``)."""
 
     @property
     def window(self) -> int:
@@ -77,7 +78,8 @@ def gated_reading(log: FlownLog, gate: float | None) -> np.ndarray:
     """``y'``: what the controller acted on, ``y`` with its velocity through the gate
     (``clip(y_v - v_ref, -V, V) + v_ref``), if any."""
     y = np.array(log.y, dtype=float)
-    y[:, 3:] = gated_deviation(y - log.ref, gate)[:, 3:] + log.ref[:, 3:]
+    if gate is not None:  # without one, y itself (not y - r + r, which rounds)
+        y[:, 3:] = gated_deviation(y - log.ref, gate)[:, 3:] + log.ref[:, 3:]
     return y
 
 

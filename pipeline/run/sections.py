@@ -182,8 +182,8 @@ def _calibrate(
     )
     rec = opts.recorded  # the user's flights, where the config says, relative to it
     opts = opts.model_copy(update={"recorded": rec.model_copy(update={
-        role: [resolve_path(base, p) for p in getattr(rec, role)]
-        for role in ("calibration", "range", "validation")})})  # fmt: skip
+        role: [resolve_path(base, p) for p in paths] for role, paths in rec.by_role.items()
+    })})  # fmt: skip
     try:
         opts.seed_lists()
     except ConfigError as exc:

@@ -211,8 +211,7 @@ def _calibrate_stage(graph: StageGraph, opts: CalibrateOptions, progress: Progre
 
         return calibrate(deps["fit"], deps["synth"], opts, out, force=True, progress=progress)
 
-    external = tuple(Path(p) for r in ("calibration", "range", "validation")
-                     for p in getattr(opts.recorded, r))  # fmt: skip
+    external = tuple(Path(p) for p in opts.recorded.paths)
     graph.add(
         Stage("calibrate", "calibrate", opts, execute, deps=("fit", "synth"), notes=_calibrated,
               external=external)
